@@ -1,0 +1,132 @@
+// Shared structs and maths, prepended to every stage by build.rs.
+// Keep in sync with src/sweep/gpu_types.rs (GpuCamera, GpuParams, GpuBatch); a size test guards the layout.
+
+const INVALID: f32 = -1.0;         // a cost slot with no visible pair
+const BIG: f32 = 1.0e30;           // "infinite" cost in the selection state
+const NO_CAMERA: u32 = 0xffffffffu;
+
+const SCORING_SSSD: u32 = 0u;      // mean of pair TSSDs (pairs per pair_mode)
+const SCORING_BEST_N: u32 = 1u;    // mean of the n smallest pair TSSDs
+const SCORING_HALF: u32 = 2u;      // best half-sequence
+
+const PAIRS_REFERENCE: u32 = 0u;   // reference-vs-other pairs
+const PAIRS_ALL: u32 = 1u;         // all pairs among visible cameras
+
+const AGG_SCORED: u32 = 0u;        // windows average the scored cost
+const AGG_PER_HALF: u32 = 1u;      // windows average each half, then the min is taken
+
+const SEL_NONE: u32 = 0u;          // no clear half (white)
+const SEL_LEFT: u32 = 1u;          // left half >= 10 % better (red)
+const SEL_RIGHT: u32 = 2u;         // right half >= 10 % better (green)
+const SEL_INVALID: u32 = 3u;       // invalid pixel (black)
+
+const DIST_NONE: u32 = 0u;
+const DIST_PLUMB_BOB: u32 = 1u;
+const DIST_EQUIDISTANT: u32 = 2u;
+
+const HALF_LEFT: u32 = 0u;
+const HALF_RIGHT: u32 = 1u;
+const HALF_REFERENCE: u32 = 2u;
+
+const MAX_CAMERAS: u32 = 32u;      // all-pairs modes cache one colour per camera
+const MAX_BEST_N: u32 = 8u;
+
+struct Camera {
+    // cam_from_ref: rows of the rotation in xyz, translation (metres) in w.
+    row0: vec4<f32>,
+    row1: vec4<f32>,
+    row2: vec4<f32>,
+    intrinsics: vec4<f32>,   // fx, fy, cx, cy (pixels)
+    dist_a: vec4<f32>,       // plumb_bob: k1 k2 p1 p2; equidistant: k1 k2 k3 k4
+    dist_b: vec4<f32>,       // plumb_bob: k3 in x
+    size: vec4<u32>,         // width, height, offset of pixel (0,0) in the image buffer, distortion model
+    info: vec4<u32>,         // half (HALF_*), is_reference, 0, 0
+}
+
+struct Params {
+    ref_size: vec4<u32>,      // width, height, pixel count, reference camera index or NO_CAMERA
+    counts: vec4<u32>,        // cameras, planes, channels (1 or 2), batch capacity
+    modes: vec4<u32>,         // scoring, pair mode, best n, aggregation
+    window: vec4<u32>,        // window width, height (1 = no aggregation), subpixel, median
+    thresholds: vec4<f32>,    // tau, max_cost, occlusion tolerance (relative), half margin
+    extra: vec4<u32>,         // min visible cameras, 0, 0, 0
+}
+
+struct Batch {
+    first_plane: u32,
+    plane_count: u32,
+    is_first: u32,
+    _pad: u32,
+}
+
+// Projects a point in the reference frame into camera `cam`; returns pixel (xy) and depth in
+// that camera (z), or z <= 0 when the point is behind it.
+fn project(cam: Camera, point_in_ref: vec3<f32>) -> vec3<f32> {
+    let p = vec3<f32>(
+        dot(cam.row0.xyz, point_in_ref) + cam.row0.w,
+        dot(cam.row1.xyz, point_in_ref) + cam.row1.w,
+        dot(cam.row2.xyz, point_in_ref) + cam.row2.w,
+    );
+    if (p.z <= 1e-6) {
+        return vec3<f32>(0.0, 0.0, -1.0);
+    }
+    var n = p.xy / p.z;
+    let model = cam.size.w;
+    if (model == DIST_PLUMB_BOB) {
+        let r2 = dot(n, n);
+        let radial = 1.0 + r2 * (cam.dist_a.x + r2 * (cam.dist_a.y + r2 * cam.dist_b.x));
+        let xy = n.x * n.y;
+        n = vec2<f32>(
+            n.x * radial + 2.0 * cam.dist_a.z * xy + cam.dist_a.w * (r2 + 2.0 * n.x * n.x),
+            n.y * radial + cam.dist_a.z * (r2 + 2.0 * n.y * n.y) + 2.0 * cam.dist_a.w * xy,
+        );
+    } else if (model == DIST_EQUIDISTANT) {
+        let r = length(n);
+        if (r > 1e-12) {
+            let theta = atan(r);
+            let t2 = theta * theta;
+            let theta_d = theta * (1.0 + t2 * (cam.dist_a.x + t2 * (cam.dist_a.y + t2 * (cam.dist_a.z + t2 * cam.dist_a.w))));
+            n = n * (theta_d / r);
+        }
+    }
+    return vec3<f32>(
+        cam.intrinsics.x * n.x + cam.intrinsics.z,
+        cam.intrinsics.y * n.y + cam.intrinsics.w,
+        p.z,
+    );
+}
+
+// A pixel position is sampleable when bilinear interpolation needs no texel outside the image.
+fn inside(cam: Camera, pixel: vec2<f32>) -> bool {
+    let w = f32(cam.size.x) - 1.0;
+    let h = f32(cam.size.y) - 1.0;
+    return pixel.x >= 0.0 && pixel.y >= 0.0 && pixel.x <= w && pixel.y <= h;
+}
+
+// Depth (z, metres) of the plane n.X = e along the z = 1 ray `ray`; <= 0 when not in front.
+fn plane_depth(plane: vec4<f32>, ray: vec3<f32>) -> f32 {
+    let denom = dot(plane.xyz, ray);
+    if (abs(denom) < 1e-12) {
+        return -1.0;
+    }
+    return plane.w / denom;
+}
+
+// Sections of the `maps` buffer, each one reference image of f32 (counts and codes stored as f32).
+const MAP_DEPTH_RAW: u32 = 0u;     // after selection (+ sub-pixel)
+const MAP_DEPTH_MEDIAN: u32 = 1u;  // after the 3x3 median
+const MAP_DEPTH: u32 = 2u;         // after the occlusion check: the output
+const MAP_CONFIDENCE: u32 = 3u;
+const MAP_COST: u32 = 4u;
+const MAP_SELECTION: u32 = 5u;
+const MAP_VISIBLE: u32 = 6u;
+const MAP_COUNT: u32 = 7u;
+
+fn nan() -> f32 {
+    return bitcast<f32>(0x7fc00000u);
+}
+
+// NaN test on the bits, immune to fast-math assumptions.
+fn is_invalid(v: f32) -> bool {
+    return (bitcast<u32>(v) & 0x7f800000u) == 0x7f800000u;
+}

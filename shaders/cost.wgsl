@@ -1,0 +1,175 @@
+// Stage 1+2+3: hypotheses -> per-camera bilinear colour -> pair TSSD -> multi-camera score.
+// One invocation per (reference pixel, plane of the batch). CPU twin: src/sweep/cpu/cost.rs.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> batch: Batch;
+@group(0) @binding(2) var<storage, read> cameras: array<Camera>;
+@group(0) @binding(3) var<storage, read> images: array<u32>;
+@group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read> planes: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read_write> cost_slab: array<f32>;
+
+struct Acc {
+    sum: f32,
+    count: u32,
+    left_sum: f32,
+    left_count: u32,
+    right_sum: f32,
+    right_count: u32,
+    n_best: u32,
+    best: array<f32, 8>,
+}
+
+fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
+    return unpack4x8unorm(images[cam.size.z + y * cam.size.x + x]).rgb * 255.0;
+}
+
+fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
+    let base = floor(pixel);
+    let f = pixel - base;
+    let x0 = u32(base.x);
+    let y0 = u32(base.y);
+    let x1 = min(x0 + 1u, cam.size.x - 1u);
+    let y1 = min(y0 + 1u, cam.size.y - 1u);
+    let top = mix(texel(cam, x0, y0), texel(cam, x1, y0), f.x);
+    let bottom = mix(texel(cam, x0, y1), texel(cam, x1, y1), f.x);
+    return mix(top, bottom, f.y);
+}
+
+fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
+    let d = a - b;
+    return min(params.thresholds.x, dot(d, d));
+}
+
+// Adds one pair cost; `half` is HALF_LEFT, HALF_RIGHT or HALF_REFERENCE (= in no half).
+fn add_pair(acc: ptr<function, Acc>, cost: f32, half: u32) {
+    (*acc).sum += cost;
+    (*acc).count += 1u;
+    if (half == HALF_LEFT) {
+        (*acc).left_sum += cost;
+        (*acc).left_count += 1u;
+    } else if (half == HALF_RIGHT) {
+        (*acc).right_sum += cost;
+        (*acc).right_count += 1u;
+    }
+    let n = params.modes.z;
+    if (params.modes.x == SCORING_BEST_N) {
+        // Insertion into the sorted list of the n smallest costs.
+        var value = cost;
+        let kept = (*acc).n_best;
+        if (kept == n && value >= (*acc).best[n - 1u]) {
+            return;
+        }
+        var i = min(kept, n - 1u);
+        loop {
+            if (i == 0u || (*acc).best[i - 1u] <= value) {
+                break;
+            }
+            (*acc).best[i] = (*acc).best[i - 1u];
+            i -= 1u;
+        }
+        (*acc).best[i] = value;
+        (*acc).n_best = min(kept + 1u, n);
+    }
+}
+
+fn mean_or_invalid(sum: f32, count: u32) -> f32 {
+    if (count == 0u) {
+        return INVALID;
+    }
+    return sum / f32(count);
+}
+
+// The half a pair belongs to: both cameras in one half (the reference belongs to both).
+fn pair_half(a: u32, b: u32) -> u32 {
+    if (a == HALF_REFERENCE) {
+        return b;
+    }
+    if (b == HALF_REFERENCE || a == b) {
+        return a;
+    }
+    return HALF_REFERENCE;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = params.ref_size.x;
+    let height = params.ref_size.y;
+    if (gid.x >= width || gid.y >= height || gid.z >= batch.plane_count) {
+        return;
+    }
+    let npix = params.ref_size.z;
+    let pix = gid.y * width + gid.x;
+    let channels = params.counts.z;
+    let slot = (gid.z * channels) * npix + pix;
+
+    let ray = rays[pix].xyz;
+    let depth = plane_depth(planes[batch.first_plane + gid.z], ray);
+    if (!(depth > 0.0)) {
+        for (var ch = 0u; ch < channels; ch++) {
+            cost_slab[slot + ch * npix] = INVALID;
+        }
+        return;
+    }
+    let point_in_ref = ray * depth;
+    let ref_index = params.ref_size.w;
+    let n_cameras = params.counts.x;
+
+    var acc: Acc;
+    if (params.modes.y == PAIRS_REFERENCE) {
+        let ref_cam = cameras[ref_index];
+        let ref_colour = texel(ref_cam, gid.x, gid.y);
+        for (var i = 0u; i < n_cameras; i++) {
+            if (i == ref_index) {
+                continue;
+            }
+            let cam = cameras[i];
+            let projected = project(cam, point_in_ref);
+            if (projected.z <= 0.0 || !inside(cam, projected.xy)) {
+                continue;
+            }
+            add_pair(&acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
+        }
+    } else {
+        var colours: array<vec3<f32>, 32>;
+        var visible: array<bool, 32>;
+        for (var i = 0u; i < n_cameras; i++) {
+            let cam = cameras[i];
+            if (i == ref_index) {
+                colours[i] = texel(cam, gid.x, gid.y);
+                visible[i] = true;
+                continue;
+            }
+            let projected = project(cam, point_in_ref);
+            visible[i] = projected.z > 0.0 && inside(cam, projected.xy);
+            if (visible[i]) {
+                colours[i] = sample_bilinear(cam, projected.xy);
+            }
+        }
+        for (var i = 0u; i < n_cameras; i++) {
+            if (!visible[i]) {
+                continue;
+            }
+            for (var j = i + 1u; j < n_cameras; j++) {
+                if (!visible[j]) {
+                    continue;
+                }
+                add_pair(&acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
+            }
+        }
+    }
+
+    let scoring = params.modes.x;
+    if (scoring == SCORING_HALF) {
+        cost_slab[slot] = mean_or_invalid(acc.left_sum, acc.left_count);
+        cost_slab[slot + npix] = mean_or_invalid(acc.right_sum, acc.right_count);
+    } else if (scoring == SCORING_BEST_N) {
+        var s = 0.0;
+        for (var k = 0u; k < acc.n_best; k++) {
+            s += acc.best[k];
+        }
+        cost_slab[slot] = mean_or_invalid(s, acc.n_best);
+    } else {
+        cost_slab[slot] = mean_or_invalid(acc.sum, acc.count);
+    }
+}

@@ -1,0 +1,61 @@
+// Stage 5b: winner -> depth (sub-pixel parabola in inverse depth), max_cost invalidation, confidence.
+// One invocation per reference pixel. CPU twin: src/sweep/cpu/finalize.rs.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> rays: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> planes: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> state: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read_write> maps: array<f32>;
+
+fn inverse_depth(k: u32, ray: vec3<f32>) -> f32 {
+    let plane = planes[k];
+    return dot(plane.xyz, ray) / plane.w;
+}
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = params.ref_size.x;
+    if (gid.x >= width || gid.y >= params.ref_size.y) {
+        return;
+    }
+    let npix = params.ref_size.z;
+    let pix = gid.y * width + gid.x;
+    let s0 = state[3u * pix];
+    let s1 = state[3u * pix + 1u];
+    let s2 = state[3u * pix + 2u];
+    let best = s0.x;
+    let n_planes = params.counts.y;
+    let max_cost = params.thresholds.y;
+
+    if (!(best < 0.5 * BIG) || best > max_cost || s0.y < 0.0) {
+        maps[MAP_DEPTH_RAW * npix + pix] = nan();
+        maps[MAP_CONFIDENCE * npix + pix] = 0.0;
+        maps[MAP_COST * npix + pix] = nan();
+        maps[MAP_SELECTION * npix + pix] = f32(SEL_INVALID);
+        return;
+    }
+    let k = u32(s0.y);
+    let ray = rays[pix].xyz;
+    var q = inverse_depth(k, ray);
+    if (params.window.z != 0u && k > 0u && k + 1u < n_planes && s0.z < 0.5 * BIG && s0.w < 0.5 * BIG) {
+        let curvature = s0.z - 2.0 * best + s0.w;
+        if (curvature > 0.0) {
+            let offset = clamp(0.5 * (s0.z - s0.w) / curvature, -0.5, 0.5);
+            if (offset > 0.0) {
+                q += offset * (inverse_depth(k + 1u, ray) - q);
+            } else {
+                q += -offset * (inverse_depth(k - 1u, ray) - q);
+            }
+        }
+    }
+    // Confidence: how clearly the winner beats the best rival away from its neighbours.
+    let second = s1.x;
+    var confidence = 1.0;
+    if (second < 0.5 * BIG) {
+        confidence = clamp((second - best) / (second + 1.0), 0.0, 1.0);
+    }
+    maps[MAP_DEPTH_RAW * npix + pix] = 1.0 / q;
+    maps[MAP_CONFIDENCE * npix + pix] = confidence;
+    maps[MAP_COST * npix + pix] = best;
+    maps[MAP_SELECTION * npix + pix] = s2.x;
+}

@@ -1,0 +1,55 @@
+// Stage 6c: occlusion consistency. A reference pixel is seen by camera i when its depth there is
+// not behind that camera's z-buffer by more than the relative tolerance. Pixels seen by fewer than
+// min_visible_cameras (the reference counted) become invalid.
+// One invocation per reference pixel. CPU twin: src/sweep/cpu/occlusion.rs.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> cameras: array<Camera>;
+@group(0) @binding(2) var<storage, read> rays: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> zbuffer: array<u32>;
+@group(0) @binding(4) var<storage, read_write> maps: array<f32>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = params.ref_size.x;
+    if (gid.x >= width || gid.y >= params.ref_size.y) {
+        return;
+    }
+    let npix = params.ref_size.z;
+    let pix = gid.y * width + gid.x;
+    let depth = maps[MAP_DEPTH_MEDIAN * npix + pix];
+    if (is_invalid(depth)) {
+        maps[MAP_DEPTH * npix + pix] = depth;
+        maps[MAP_VISIBLE * npix + pix] = 0.0;
+        return;
+    }
+    let point_in_ref = rays[pix].xyz * depth;
+    let tolerance = params.thresholds.z;
+    var seen = 0u;
+    if (params.ref_size.w != NO_CAMERA) {
+        seen = 1u;
+    }
+    for (var i = 0u; i < params.counts.x; i++) {
+        if (i == params.ref_size.w) {
+            continue;
+        }
+        let cam = cameras[i];
+        let projected = project(cam, point_in_ref);
+        let texel = floor(projected.xy + 0.5);
+        if (projected.z <= 0.0 || !inside(cam, texel)) {
+            continue;
+        }
+        let stored = zbuffer[cam.size.z + u32(texel.y) * cam.size.x + u32(texel.x)];
+        if (stored == 0u || projected.z <= bitcast<f32>(~stored) * (1.0 + tolerance)) {
+            seen += 1u;
+        }
+    }
+    maps[MAP_VISIBLE * npix + pix] = f32(seen);
+    if (seen < params.extra.x) {
+        maps[MAP_DEPTH * npix + pix] = nan();
+        maps[MAP_CONFIDENCE * npix + pix] = 0.0;
+        maps[MAP_SELECTION * npix + pix] = f32(SEL_INVALID);
+    } else {
+        maps[MAP_DEPTH * npix + pix] = depth;
+    }
+}

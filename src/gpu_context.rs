@@ -1,0 +1,80 @@
+//! Making a wgpu device for the binaries and tests. The engine itself never makes one: it takes
+//! the device and queue it is given.
+
+/// An adapter, device and queue.
+pub struct GpuContext {
+    pub adapter: wgpu::Adapter,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GpuContextError {
+    #[error("no GPU adapter found ({0}). On a machine without a GPU install Mesa's software Vulkan driver: `apt-get install -y mesa-vulkan-drivers libvulkan1`")]
+    NoAdapter(String),
+    #[error("the adapter '{adapter}' refused a device: {reason}")]
+    NoDevice { adapter: String, reason: String },
+}
+
+impl GpuContext {
+    /// Picks the adapter named by `WGPU_ADAPTER_NAME` / `WGPU_BACKEND` if set, else the default
+    /// high-performance one; asks for timestamp queries when the adapter has them and for the
+    /// adapter's own storage-buffer limits (large cost slabs), nothing else.
+    pub fn new() -> Result<Self, GpuContextError> {
+        futures::executor::block_on(Self::new_async())
+    }
+
+    pub async fn new_async() -> Result<Self, GpuContextError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+            .await
+            .map_err(|e| GpuContextError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let supported = adapter.features();
+        let mut features = wgpu::Features::empty();
+        if supported.contains(wgpu::Features::TIMESTAMP_QUERY) {
+            features |= wgpu::Features::TIMESTAMP_QUERY;
+        }
+        let adapter_limits = adapter.limits();
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
+            max_buffer_size: adapter_limits.max_buffer_size,
+            max_storage_buffers_per_shader_stage: adapter_limits
+                .max_storage_buffers_per_shader_stage
+                .min(8),
+            ..wgpu::Limits::downlevel_defaults()
+        };
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("sweepdepth"),
+                required_features: features,
+                required_limits: limits,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| GpuContextError::NoDevice {
+                adapter: info.name.clone(),
+                reason: e.to_string(),
+            })?;
+        tracing::info!(
+            "GPU adapter: {} ({:?}, {:?}), timestamps: {}",
+            info.name,
+            info.backend,
+            info.device_type,
+            features.contains(wgpu::Features::TIMESTAMP_QUERY)
+        );
+        Ok(Self {
+            adapter,
+            device,
+            queue,
+        })
+    }
+
+    /// "name (backend, driver)" for reports.
+    pub fn adapter_label(&self) -> String {
+        let info = self.adapter.get_info();
+        format!("{} ({:?}, {} {})", info.name, info.backend, info.driver, info.driver_info)
+            .trim()
+            .to_string()
+    }
+}

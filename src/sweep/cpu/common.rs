@@ -1,0 +1,65 @@
+//! Twin of `shaders/common.wgsl`: projection and plane maths in f32, as the shaders do them.
+
+use crate::sweep::gpu_types::*;
+
+pub type Vec2 = [f32; 2];
+pub type Vec3 = [f32; 3];
+
+pub fn dot3(a: Vec3, b: Vec3) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+pub fn xyz(v: [f32; 4]) -> Vec3 {
+    [v[0], v[1], v[2]]
+}
+
+/// Returns (pixel x, pixel y, depth in camera); depth <= 0 when behind.
+pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
+    let p = [
+        dot3(xyz(cam.row0), point_in_ref) + cam.row0[3],
+        dot3(xyz(cam.row1), point_in_ref) + cam.row1[3],
+        dot3(xyz(cam.row2), point_in_ref) + cam.row2[3],
+    ];
+    if p[2] <= 1e-6 {
+        return [0.0, 0.0, -1.0];
+    }
+    let mut n = [p[0] / p[2], p[1] / p[2]];
+    let [k1, k2, p1, p2] = cam.dist_a;
+    if cam.size[3] == DIST_PLUMB_BOB {
+        let r2 = n[0] * n[0] + n[1] * n[1];
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * cam.dist_b[0]));
+        let xy = n[0] * n[1];
+        n = [
+            n[0] * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * n[0] * n[0]),
+            n[1] * radial + p1 * (r2 + 2.0 * n[1] * n[1]) + 2.0 * p2 * xy,
+        ];
+    } else if cam.size[3] == DIST_EQUIDISTANT {
+        let r = (n[0] * n[0] + n[1] * n[1]).sqrt();
+        if r > 1e-12 {
+            let theta = r.atan();
+            let t2 = theta * theta;
+            let [k1, k2, k3, k4] = cam.dist_a;
+            let theta_d = theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))));
+            n = [n[0] * theta_d / r, n[1] * theta_d / r];
+        }
+    }
+    [
+        cam.intrinsics[0] * n[0] + cam.intrinsics[2],
+        cam.intrinsics[1] * n[1] + cam.intrinsics[3],
+        p[2],
+    ]
+}
+
+pub fn inside(cam: &GpuCamera, pixel: Vec2) -> bool {
+    let w = cam.size[0] as f32 - 1.0;
+    let h = cam.size[1] as f32 - 1.0;
+    pixel[0] >= 0.0 && pixel[1] >= 0.0 && pixel[0] <= w && pixel[1] <= h
+}
+
+pub fn plane_depth(plane: [f32; 4], ray: Vec3) -> f32 {
+    let denom = dot3(xyz(plane), ray);
+    if denom.abs() < 1e-12 {
+        return -1.0;
+    }
+    plane[3] / denom
+}

@@ -1,0 +1,62 @@
+//! The CPU twin of the GPU pipeline: one module per shader, written to read like it, on the same
+//! packed [`SweepPlan`]. Slow (single-threaded) and meant for tests and for tracing a wrong result
+//! to one stage, not for production.
+
+pub mod aggregate;
+pub mod common;
+pub mod cost;
+pub mod finalize;
+pub mod median;
+pub mod occlusion;
+pub mod select;
+
+use super::gpu_types::MAP_COUNT;
+use super::plan::SweepPlan;
+use super::{DepthMaps, SweepError, SweepParams};
+use crate::geometry::Rig;
+use crate::image::Rgba8Image;
+
+/// Intermediate results of a CPU run, for stage-by-stage comparison with the GPU.
+pub struct CpuTrace {
+    /// The `maps` buffer: MAP_COUNT sections of one reference image each.
+    pub maps: Vec<f32>,
+    pub zbuffer: Vec<u32>,
+}
+
+#[derive(Debug, Default)]
+pub struct CpuEngine;
+
+impl CpuEngine {
+    pub fn run(&self, rig: &Rig, images: &[Rgba8Image], params: &SweepParams) -> Result<DepthMaps, SweepError> {
+        let plan = SweepPlan::new(rig, params)?;
+        let trace = self.run_plan(&plan, rig, images)?;
+        Ok(plan.depth_maps(&trace.maps))
+    }
+
+    pub fn run_plan(&self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<CpuTrace, SweepError> {
+        let mut packed = Vec::new();
+        plan.pack_images(rig, images, &mut packed)?;
+        let npix = plan.pixel_count();
+        let channels = plan.channels();
+        let n_planes = plan.num_planes();
+        let batch = 8u32.min(n_planes);
+        let mut cost_slab = vec![0.0f32; batch as usize * channels * npix];
+        let mut agg_slab = vec![[0.0f32; 2]; batch as usize * npix];
+        let mut state = vec![select::initial(); npix];
+        let mut first = 0;
+        while first < n_planes {
+            let count = batch.min(n_planes - first);
+            cost::run(plan, &packed, first, count, &mut cost_slab);
+            aggregate::run(plan, count, &cost_slab, &mut agg_slab);
+            select::run(plan, first, count, first == 0, &agg_slab, &mut state);
+            first += count;
+        }
+        let mut maps = vec![0.0f32; MAP_COUNT * npix];
+        finalize::run(plan, &state, &mut maps);
+        median::run(plan, &mut maps);
+        let mut zbuffer = vec![0u32; plan.total_camera_pixels];
+        occlusion::splat(plan, &maps, &mut zbuffer);
+        occlusion::visibility(plan, &zbuffer, &mut maps);
+        Ok(CpuTrace { maps, zbuffer })
+    }
+}

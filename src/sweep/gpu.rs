@@ -1,0 +1,547 @@
+//! "How to run it": the wgpu engine. It takes a device and queue from its caller, builds its
+//! pipelines once, and keeps its buffers across frame sets of the same shape; a new rig or new
+//! parameters re-plan, a new shape re-allocates.
+
+use std::borrow::Cow;
+use std::sync::mpsc;
+use std::time::Instant;
+
+use super::gpu_types::*;
+use super::plan::SweepPlan;
+use super::{DepthMaps, StageTimings, SweepError, SweepParams};
+use crate::geometry::Rig;
+use crate::image::Rgba8Image;
+
+/// Stage names in pipeline order (also the shader file names).
+pub const STAGES: [&str; 7] = [
+    "cost",
+    "aggregate",
+    "select",
+    "finalize",
+    "median",
+    "splat",
+    "visibility",
+];
+
+const SHADERS: [&str; 7] = [
+    include_str!(concat!(env!("OUT_DIR"), "/cost.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/aggregate.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/select.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/finalize.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/median.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/splat.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/visibility.wgsl")),
+];
+
+/// Binding kinds of each stage, in binding order (must match the shaders' declarations).
+#[derive(Clone, Copy)]
+enum Slot {
+    Uniform,
+    BatchUniform,
+    Read,
+    ReadWrite,
+}
+
+const LAYOUTS: [&[Slot]; 7] = {
+    use Slot::*;
+    [
+        &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
+        &[Uniform, BatchUniform, Read, ReadWrite],                   // aggregate
+        &[Uniform, BatchUniform, Read, ReadWrite],                   // select
+        &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
+        &[Uniform, ReadWrite],                                       // median
+        &[Uniform, Read, Read, Read, ReadWrite],                     // splat
+        &[Uniform, Read, Read, Read, ReadWrite],                     // visibility
+    ]
+};
+
+/// Largest cost + aggregate slab we allocate for one batch of planes.
+const SLAB_BUDGET_BYTES: u64 = 192 << 20;
+
+/// Buffers for one shape of work.
+struct Buffers {
+    key: ShapeKey,
+    params: wgpu::Buffer,
+    batches: wgpu::Buffer,
+    cameras: wgpu::Buffer,
+    images: wgpu::Buffer,
+    rays: wgpu::Buffer,
+    planes: wgpu::Buffer,
+    cost_slab: wgpu::Buffer,
+    agg_slab: wgpu::Buffer,
+    state: wgpu::Buffer,
+    maps: wgpu::Buffer,
+    zbuffer: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    bind_groups: Vec<wgpu::BindGroup>,
+    timestamps: Option<Timestamps>,
+}
+
+struct Timestamps {
+    query_set: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    count: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct ShapeKey {
+    width: u32,
+    height: u32,
+    cameras: u32,
+    camera_pixels: usize,
+    planes: u32,
+    channels: u32,
+    batch: u32,
+}
+
+impl ShapeKey {
+    fn batches(&self) -> u32 {
+        self.planes.div_ceil(self.batch)
+    }
+    fn passes(&self) -> u32 {
+        3 * self.batches() + 4
+    }
+}
+
+/// The GPU plane-sweep engine.
+pub struct GpuEngine {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    layouts: Vec<wgpu::BindGroupLayout>,
+    pipelines: Vec<wgpu::ComputePipeline>,
+    uniform_align: u64,
+    buffers: Option<Buffers>,
+    plan: Option<(Rig, SweepParams, SweepPlan)>,
+    /// Id of the plan whose arrays are in the buffers.
+    uploaded_plan: Option<u64>,
+    packed: Vec<u32>,
+    timings: StageTimings,
+}
+
+fn gpu_err(e: impl std::fmt::Display) -> SweepError {
+    SweepError::Gpu(e.to_string())
+}
+
+impl GpuEngine {
+    /// Builds the pipelines on the caller's device. Shader compilation errors are caught with an
+    /// error scope and returned.
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, SweepError> {
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut layouts = Vec::new();
+        let mut pipelines = Vec::new();
+        for (i, stage) in STAGES.iter().enumerate() {
+            let entries: Vec<wgpu::BindGroupLayoutEntry> = LAYOUTS[i]
+                .iter()
+                .enumerate()
+                .map(|(binding, slot)| wgpu::BindGroupLayoutEntry {
+                    binding: binding as u32,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: match slot {
+                            Slot::Uniform | Slot::BatchUniform => wgpu::BufferBindingType::Uniform,
+                            Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                            Slot::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                        },
+                        has_dynamic_offset: matches!(slot, Slot::BatchUniform),
+                        min_binding_size: None,
+                    },
+                    count: None,
+                })
+                .collect();
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(stage),
+                entries: &entries,
+            });
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(stage),
+                source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADERS[i])),
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(stage),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(stage),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            layouts.push(layout);
+            pipelines.push(pipeline);
+        }
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(SweepError::Gpu(format!("building pipelines: {error}")));
+        }
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            layouts,
+            pipelines,
+            uniform_align: u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
+            buffers: None,
+            plan: None,
+            uploaded_plan: None,
+            packed: Vec::new(),
+            timings: StageTimings::default(),
+        })
+    }
+
+    /// Per-stage times of the last frame set.
+    pub fn last_timings(&self) -> &StageTimings {
+        &self.timings
+    }
+
+    pub fn adapter_info(&self) -> wgpu::AdapterInfo {
+        self.device.adapter_info()
+    }
+
+    /// Runs the sweep on one frame set (one image per rig camera, in rig order).
+    pub fn run(&mut self, rig: &Rig, images: &[Rgba8Image], params: &SweepParams) -> Result<DepthMaps, SweepError> {
+        let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
+        if !reuse {
+            let plan = SweepPlan::new(rig, params)?;
+            self.plan = Some((rig.clone(), params.clone(), plan));
+        }
+        let Some((_, _, plan)) = self.plan.take() else {
+            return Err(SweepError::Gpu("internal: no plan".into()));
+        };
+        let result = self.run_plan(&plan, rig, images);
+        self.plan = Some((rig.clone(), params.clone(), plan));
+        result
+    }
+
+    /// Runs a prepared plan (e.g. with a custom hypothesis family).
+    pub fn run_plan(&mut self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<DepthMaps, SweepError> {
+        let maps = self.run_plan_raw(plan, rig, images)?;
+        Ok(plan.depth_maps(&maps))
+    }
+
+    /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
+    pub fn run_plan_raw(&mut self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<Vec<f32>, SweepError> {
+        let started = Instant::now();
+        let mut packed = std::mem::take(&mut self.packed);
+        plan.pack_images(rig, images, &mut packed)?;
+        let key = self.shape_key(plan)?;
+        if self.buffers.as_ref().map(|b| b.key) != Some(key) {
+            self.buffers = Some(self.allocate(key)?);
+            self.uploaded_plan = None;
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let Some(buffers) = self.buffers.as_ref() else {
+            return Err(SweepError::Gpu("internal: no buffers".into()));
+        };
+        if self.uploaded_plan != Some(plan.id) {
+            self.upload_plan(buffers, plan, key);
+            self.uploaded_plan = Some(plan.id);
+        }
+        self.queue
+            .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
+        self.packed = packed;
+
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sweep") });
+        encoder.clear_buffer(&buffers.zbuffer, 0, None);
+        let groups_x = plan.width.div_ceil(8);
+        let groups_y = plan.height.div_ceil(8);
+        let mut pass_index = 0u32;
+        let mut pass_stages: Vec<usize> = Vec::with_capacity(key.passes() as usize);
+        let mut run_pass = |encoder: &mut wgpu::CommandEncoder, stage: usize, offset: Option<u32>, groups_z: u32| {
+            let timestamp_writes = buffers.timestamps.as_ref().map(|t| wgpu::ComputePassTimestampWrites {
+                query_set: &t.query_set,
+                beginning_of_pass_write_index: Some(2 * pass_index),
+                end_of_pass_write_index: Some(2 * pass_index + 1),
+            });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(STAGES[stage]),
+                timestamp_writes,
+            });
+            pass.set_pipeline(&self.pipelines[stage]);
+            match offset {
+                Some(o) => pass.set_bind_group(0, &buffers.bind_groups[stage], &[o]),
+                None => pass.set_bind_group(0, &buffers.bind_groups[stage], &[]),
+            }
+            pass.dispatch_workgroups(groups_x, groups_y, groups_z);
+            pass_stages.push(stage);
+            pass_index += 1;
+        };
+        for b in 0..key.batches() {
+            let first = b * key.batch;
+            let count = key.batch.min(key.planes - first);
+            let offset = (u64::from(b) * self.uniform_align) as u32;
+            run_pass(&mut encoder, 0, Some(offset), count);
+            run_pass(&mut encoder, 1, Some(offset), count);
+            run_pass(&mut encoder, 2, Some(offset), 1);
+        }
+        for stage in 3..7 {
+            run_pass(&mut encoder, stage, None, 1);
+        }
+        let maps_bytes = buffers.maps.size();
+        encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_bytes);
+        if let Some(t) = &buffers.timestamps {
+            encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
+            encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, t.resolve.size());
+        }
+        self.queue.submit([encoder.finish()]);
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
+        }
+
+        let maps: Vec<f32> = bytemuck::cast_slice(&self.read_buffer(&buffers.readback)?).to_vec();
+        let mut timings = StageTimings::default();
+        if let Some(t) = &buffers.timestamps {
+            let raw = self.read_buffer(&t.readback)?;
+            let ticks: &[u64] = bytemuck::cast_slice(&raw);
+            let period_ns = f64::from(self.queue.get_timestamp_period());
+            let mut per_stage = [0.0f64; 7];
+            for (p, &stage) in pass_stages.iter().enumerate() {
+                let (begin, end) = (ticks[2 * p], ticks[2 * p + 1]);
+                per_stage[stage] += end.saturating_sub(begin) as f64 * period_ns * 1e-6;
+            }
+            timings.gpu_timestamps = true;
+            timings.stages = STAGES
+                .iter()
+                .zip(per_stage)
+                .map(|(s, ms)| (s.to_string(), ms))
+                .collect();
+        } else {
+            timings.stages = vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)];
+        }
+        self.timings = timings;
+        Ok(maps)
+    }
+
+    fn read_buffer(&self, buffer: &wgpu::Buffer) -> Result<Vec<u8>, SweepError> {
+        let (sender, receiver) = mpsc::channel();
+        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = sender.send(r);
+        });
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(gpu_err)?;
+        receiver
+            .recv()
+            .map_err(gpu_err)?
+            .map_err(gpu_err)?;
+        let data = buffer.get_mapped_range(..).map_err(gpu_err)?.to_vec();
+        buffer.unmap();
+        Ok(data)
+    }
+
+    fn shape_key(&self, plan: &SweepPlan) -> Result<ShapeKey, SweepError> {
+        let limits = self.device.limits();
+        let npix = plan.pixel_count() as u64;
+        let channels = plan.channels() as u64;
+        let per_plane = npix * 4 * channels.max(2);
+        let max_binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        let budget = SLAB_BUDGET_BYTES.min(max_binding);
+        if per_plane > budget {
+            return Err(SweepError::InvalidParams(format!(
+                "reference image of {npix} pixels needs {per_plane} bytes per plane, more than this adapter's storage binding limit ({budget})"
+            )));
+        }
+        let maps_bytes = npix * 4 * MAP_COUNT as u64;
+        let image_bytes = plan.total_camera_pixels as u64 * 4;
+        for (what, bytes) in [("output maps", maps_bytes), ("camera images", image_bytes)] {
+            if bytes > max_binding {
+                return Err(SweepError::InvalidParams(format!(
+                    "{what} need {bytes} bytes, more than this adapter's storage binding limit ({max_binding})"
+                )));
+            }
+        }
+        let planes = plan.num_planes();
+        let max_z = limits.max_compute_workgroups_per_dimension;
+        let batch = ((budget / per_plane) as u32).clamp(1, planes).min(max_z);
+        Ok(ShapeKey {
+            width: plan.width,
+            height: plan.height,
+            cameras: plan.cameras.len() as u32,
+            camera_pixels: plan.total_camera_pixels,
+            planes,
+            channels: plan.channels() as u32,
+            batch,
+        })
+    }
+
+    fn upload_plan(&self, buffers: &Buffers, plan: &SweepPlan, key: ShapeKey) {
+        let mut params = plan.params;
+        params.counts[3] = key.batch;
+        self.queue
+            .write_buffer(&buffers.params, 0, bytemuck::bytes_of(&params));
+        self.queue
+            .write_buffer(&buffers.cameras, 0, bytemuck::cast_slice(&plan.cameras));
+        self.queue
+            .write_buffer(&buffers.planes, 0, bytemuck::cast_slice(&plan.planes));
+        self.queue
+            .write_buffer(&buffers.rays, 0, bytemuck::cast_slice(&plan.rays));
+        let mut batches = vec![0u8; buffers.batches.size() as usize];
+        for b in 0..key.batches() {
+            let first = b * key.batch;
+            let batch = GpuBatch {
+                first_plane: first,
+                plane_count: key.batch.min(key.planes - first),
+                is_first: u32::from(b == 0),
+                _pad: 0,
+            };
+            let at = (u64::from(b) * self.uniform_align) as usize;
+            batches[at..at + 16].copy_from_slice(bytemuck::bytes_of(&batch));
+        }
+        self.queue.write_buffer(&buffers.batches, 0, &batches);
+    }
+
+    fn allocate(&self, key: ShapeKey) -> Result<Buffers, SweepError> {
+        let device = &self.device;
+        let npix = u64::from(key.width) * u64::from(key.height);
+        let storage = |label: &str, size: u64, extra: wgpu::BufferUsages| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(16).next_multiple_of(4),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+                mapped_at_creation: false,
+            })
+        };
+        let none = wgpu::BufferUsages::empty();
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: std::mem::size_of::<GpuParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let batches = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("batches"),
+            size: u64::from(key.batches()) * self.uniform_align,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let cameras = storage("cameras", u64::from(key.cameras) * 128, none);
+        let images = storage("images", key.camera_pixels as u64 * 4, none);
+        let rays = storage("rays", npix * 16, none);
+        let planes = storage("planes", u64::from(key.planes) * 16, none);
+        let cost_slab = storage("cost_slab", npix * 4 * u64::from(key.channels) * u64::from(key.batch), none);
+        let agg_slab = storage("agg_slab", npix * 8 * u64::from(key.batch), none);
+        let state = storage("state", npix * 48, none);
+        let maps = storage("maps", npix * 4 * MAP_COUNT as u64, wgpu::BufferUsages::COPY_SRC);
+        let zbuffer = storage("zbuffer", key.camera_pixels as u64 * 4, none);
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: maps.size(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let batch_binding = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &batches,
+            offset: 0,
+            size: wgpu::BufferSize::new(16),
+        });
+        let bind = |stage: usize, resources: Vec<wgpu::BindingResource>| {
+            let entries: Vec<wgpu::BindGroupEntry> = resources
+                .into_iter()
+                .enumerate()
+                .map(|(i, resource)| wgpu::BindGroupEntry {
+                    binding: i as u32,
+                    resource,
+                })
+                .collect();
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(STAGES[stage]),
+                layout: &self.layouts[stage],
+                entries: &entries,
+            })
+        };
+        let bind_groups = vec![
+            bind(0, vec![
+                params.as_entire_binding(),
+                batch_binding.clone(),
+                cameras.as_entire_binding(),
+                images.as_entire_binding(),
+                rays.as_entire_binding(),
+                planes.as_entire_binding(),
+                cost_slab.as_entire_binding(),
+            ]),
+            bind(1, vec![
+                params.as_entire_binding(),
+                batch_binding.clone(),
+                cost_slab.as_entire_binding(),
+                agg_slab.as_entire_binding(),
+            ]),
+            bind(2, vec![
+                params.as_entire_binding(),
+                batch_binding,
+                agg_slab.as_entire_binding(),
+                state.as_entire_binding(),
+            ]),
+            bind(3, vec![
+                params.as_entire_binding(),
+                rays.as_entire_binding(),
+                planes.as_entire_binding(),
+                state.as_entire_binding(),
+                maps.as_entire_binding(),
+            ]),
+            bind(4, vec![params.as_entire_binding(), maps.as_entire_binding()]),
+            bind(5, vec![
+                params.as_entire_binding(),
+                cameras.as_entire_binding(),
+                rays.as_entire_binding(),
+                maps.as_entire_binding(),
+                zbuffer.as_entire_binding(),
+            ]),
+            bind(6, vec![
+                params.as_entire_binding(),
+                cameras.as_entire_binding(),
+                rays.as_entire_binding(),
+                zbuffer.as_entire_binding(),
+                maps.as_entire_binding(),
+            ]),
+        ];
+        let timestamps = if self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            let count = 2 * key.passes();
+            let query_set = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("stage timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count,
+            });
+            let bytes = u64::from(count) * 8;
+            let resolve = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp resolve"),
+                size: bytes,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            let readback = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("timestamp readback"),
+                size: bytes,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            Some(Timestamps {
+                query_set,
+                resolve,
+                readback,
+                count,
+            })
+        } else {
+            None
+        };
+        Ok(Buffers {
+            key,
+            params,
+            batches,
+            cameras,
+            images,
+            rays,
+            planes,
+            cost_slab,
+            agg_slab,
+            state,
+            maps,
+            zbuffer,
+            readback,
+            bind_groups,
+            timestamps,
+        })
+    }
+}

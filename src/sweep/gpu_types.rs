@@ -1,0 +1,105 @@
+//! Structs shared by Rust and WGSL. Keep in sync with `shaders/common.wgsl` (`Camera`, `Params`,
+//! `Batch`); the size test below guards the layout.
+
+use bytemuck::{Pod, Zeroable};
+
+pub const NO_CAMERA: u32 = u32::MAX;
+pub const MAX_CAMERAS: u32 = 32;
+pub const MAX_BEST_N: u32 = 8;
+
+pub const SCORING_SSSD: u32 = 0;
+pub const SCORING_BEST_N: u32 = 1;
+pub const SCORING_HALF: u32 = 2;
+pub const PAIRS_REFERENCE: u32 = 0;
+pub const PAIRS_ALL: u32 = 1;
+pub const AGG_SCORED: u32 = 0;
+pub const AGG_PER_HALF: u32 = 1;
+pub const DIST_NONE: u32 = 0;
+pub const DIST_PLUMB_BOB: u32 = 1;
+pub const DIST_EQUIDISTANT: u32 = 2;
+pub const HALF_LEFT: u32 = 0;
+pub const HALF_RIGHT: u32 = 1;
+pub const HALF_REFERENCE: u32 = 2;
+
+pub const INVALID: f32 = -1.0;
+pub const BIG: f32 = 1.0e30;
+
+/// Sections of the `maps` buffer (`MAP_*` in common.wgsl).
+pub const MAP_DEPTH_RAW: usize = 0;
+pub const MAP_DEPTH_MEDIAN: usize = 1;
+pub const MAP_DEPTH: usize = 2;
+pub const MAP_CONFIDENCE: usize = 3;
+pub const MAP_COST: usize = 4;
+pub const MAP_SELECTION: usize = 5;
+pub const MAP_VISIBLE: usize = 6;
+pub const MAP_COUNT: usize = 7;
+
+/// WGSL `Camera`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+pub struct GpuCamera {
+    pub row0: [f32; 4],
+    pub row1: [f32; 4],
+    pub row2: [f32; 4],
+    pub intrinsics: [f32; 4],
+    pub dist_a: [f32; 4],
+    pub dist_b: [f32; 4],
+    /// width, height, offset of pixel (0, 0) in the image buffer, distortion model.
+    pub size: [u32; 4],
+    /// half, is_reference, 0, 0.
+    pub info: [u32; 4],
+}
+
+/// WGSL `Params`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+pub struct GpuParams {
+    /// width, height, pixel count, reference camera index or NO_CAMERA.
+    pub ref_size: [u32; 4],
+    /// cameras, planes, channels, batch capacity.
+    pub counts: [u32; 4],
+    /// scoring, pair mode, best n, aggregation.
+    pub modes: [u32; 4],
+    /// window width, window height, subpixel, median.
+    pub window: [u32; 4],
+    /// tau, max_cost, occlusion tolerance, half margin.
+    pub thresholds: [f32; 4],
+    /// min visible cameras, 0, 0, 0.
+    pub extra: [u32; 4],
+}
+
+/// WGSL `Batch`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq, Eq)]
+pub struct GpuBatch {
+    pub first_plane: u32,
+    pub plane_count: u32,
+    pub is_first: u32,
+    pub _pad: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layouts_match_wgsl() {
+        assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
+        assert_eq!(std::mem::size_of::<GpuParams>(), 96);
+        assert_eq!(std::mem::size_of::<GpuBatch>(), 16);
+        let common = include_str!("../../shaders/common.wgsl");
+        for (name, value) in [
+            ("MAX_CAMERAS", MAX_CAMERAS),
+            ("MAX_BEST_N", MAX_BEST_N),
+            ("SCORING_HALF", SCORING_HALF),
+            ("AGG_PER_HALF", AGG_PER_HALF),
+            ("DIST_EQUIDISTANT", DIST_EQUIDISTANT),
+            ("HALF_REFERENCE", HALF_REFERENCE),
+            ("MAP_COUNT", MAP_COUNT as u32),
+            ("MAP_VISIBLE", MAP_VISIBLE as u32),
+        ] {
+            let needle = format!("const {name}: u32 = {value}u;");
+            assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");
+        }
+    }
+}

@@ -1,0 +1,286 @@
+//! The multi-view plane sweep (Woetzel & Koch 2004): parameters, inputs, outputs, and the two
+//! engines that run it, [`gpu::GpuEngine`] (wgpu compute shaders in `shaders/`) and its stage-by-stage
+//! CPU twin [`cpu::CpuEngine`].
+
+pub mod cpu;
+pub mod gpu;
+pub mod gpu_types;
+pub mod hypotheses;
+pub mod plan;
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{GeometryError, Rig};
+use crate::image::{ImageF32, Rgba8Image};
+
+pub use hypotheses::{HypothesisGenerator, InverseDepthSweep, Plane, PlaneFamily};
+
+/// How the camera pairs of one hypothesis are combined into one score.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Scoring {
+    /// Mean TSSD over the pairs (reference pairs: Yang's SSSD).
+    Sssd,
+    /// Mean TSSD over all pairs among the visible cameras.
+    AllPairs,
+    /// Mean of the `best_n` smallest pair TSSDs.
+    BestNOfM,
+    /// min(mean of the left half's pairs, mean of the right half's pairs).
+    BestHalfSequence,
+}
+
+/// Which camera pairs are scored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum PairSet {
+    /// Reference vs every other camera (m = N - 1).
+    Reference,
+    /// All pairs among the visible cameras (m = N (N - 1) / 2).
+    All,
+}
+
+/// Where the shiftable windows aggregate (ALGORITHM.md stage 4, "ours").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Aggregation {
+    /// Windows average the scored cost (the paper's pipeline).
+    Scored,
+    /// Best half-sequence only: windows average each half's cost, then the min is taken.
+    PerHalf,
+}
+
+/// Engine parameters. Defaults are the ones measured best on the shared data (see README).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SweepParams {
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    pub num_planes: u32,
+    pub scoring: Scoring,
+    pub pairs: PairSet,
+    /// n of best n of m.
+    pub best_n: u32,
+    pub aggregation: Aggregation,
+    /// Window width and height in pixels: 1x1 = no aggregation, 2x2 = the paper's shiftable
+    /// window, 2n x 2m = larger shiftable windows.
+    pub window_width: u32,
+    pub window_height: u32,
+    /// Truncation of the colour SSD (sum over RGB of squared 0..255 differences).
+    pub tau: f32,
+    /// A best score above this is invalid.
+    pub max_cost: f32,
+    pub subpixel: bool,
+    pub median: bool,
+    /// Pixels seen by fewer cameras (the reference counted) are invalid; 0 or 1 disables.
+    pub min_visible_cameras: u32,
+    /// Relative depth tolerance of the occlusion z-test.
+    pub occlusion_tolerance: f32,
+    /// A half is "clearly better" when its score is below (1 - margin) times the other's.
+    pub half_margin: f32,
+}
+
+impl Default for SweepParams {
+    fn default() -> Self {
+        Self {
+            min_depth_m: 0.5,
+            max_depth_m: 10.0,
+            num_planes: 64,
+            scoring: Scoring::BestNOfM,
+            pairs: PairSet::Reference,
+            best_n: 2,
+            aggregation: Aggregation::Scored,
+            window_width: 4,
+            window_height: 4,
+            tau: 3.0 * 40.0 * 40.0,
+            max_cost: 3.0 * 40.0 * 40.0,
+            subpixel: true,
+            median: true,
+            min_visible_cameras: 2,
+            occlusion_tolerance: 0.01,
+            half_margin: 0.1,
+        }
+    }
+}
+
+/// Errors from the engines.
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    #[error("invalid parameter: {0}")]
+    InvalidParams(String),
+    #[error("camera '{camera}': image is {got_w}x{got_h} but its camera model says {want_w}x{want_h}")]
+    ImageSize {
+        camera: String,
+        got_w: u32,
+        got_h: u32,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("got {images} images for a rig of {cameras} cameras")]
+    ImageCount { images: usize, cameras: usize },
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error("GPU: {0}")]
+    Gpu(String),
+}
+
+impl SweepParams {
+    /// Checks ranges and the combination with the rig; every engine calls this first.
+    pub fn validate(&self, rig: &Rig) -> Result<(), SweepError> {
+        let bad = |m: String| Err(SweepError::InvalidParams(m));
+        if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
+            return bad(format!("min_depth_m must be > 0, got {}", self.min_depth_m));
+        }
+        if !(self.max_depth_m > self.min_depth_m && self.max_depth_m.is_finite()) {
+            return bad(format!(
+                "max_depth_m ({}) must be finite and > min_depth_m ({})",
+                self.max_depth_m, self.min_depth_m
+            ));
+        }
+        if self.num_planes < 2 || self.num_planes > 4096 {
+            return bad(format!("num_planes must be in 2..=4096, got {}", self.num_planes));
+        }
+        for (name, v) in [("window_width", self.window_width), ("window_height", self.window_height)] {
+            if v == 0 || v > 32 || (v != 1 && v % 2 != 0) {
+                return bad(format!("{name} must be 1 or an even number up to 32, got {v}"));
+            }
+        }
+        if !(self.tau > 0.0) {
+            return bad(format!("tau must be > 0, got {}", self.tau));
+        }
+        if !(self.max_cost > 0.0) {
+            return bad(format!("max_cost must be > 0, got {}", self.max_cost));
+        }
+        if !(self.occlusion_tolerance >= 0.0) {
+            return bad("occlusion_tolerance must be >= 0".into());
+        }
+        if !(0.0..1.0).contains(&self.half_margin) {
+            return bad("half_margin must be in [0, 1)".into());
+        }
+        if self.scoring == Scoring::BestNOfM
+            && (self.best_n == 0 || self.best_n > gpu_types::MAX_BEST_N)
+        {
+            return bad(format!(
+                "best_n must be in 1..={}, got {}",
+                gpu_types::MAX_BEST_N,
+                self.best_n
+            ));
+        }
+        let pairs = self.effective_pairs();
+        if pairs == PairSet::Reference && rig.reference_index().is_none() {
+            return bad(format!(
+                "scoring '{:?}' with reference pairs needs a real reference camera; a virtual reference has no image (use pairs = all)",
+                self.scoring
+            ));
+        }
+        if pairs == PairSet::All && rig.cameras.len() > gpu_types::MAX_CAMERAS as usize {
+            return bad(format!(
+                "all-pairs scoring supports at most {} cameras, the rig has {}",
+                gpu_types::MAX_CAMERAS,
+                rig.cameras.len()
+            ));
+        }
+        Ok(())
+    }
+
+    /// `AllPairs` always scores all pairs; the others follow `pairs`.
+    pub fn effective_pairs(&self) -> PairSet {
+        if self.scoring == Scoring::AllPairs {
+            PairSet::All
+        } else {
+            self.pairs
+        }
+    }
+
+    pub fn hypotheses(&self) -> InverseDepthSweep {
+        InverseDepthSweep {
+            min_depth_m: self.min_depth_m,
+            max_depth_m: self.max_depth_m,
+            num_planes: self.num_planes,
+        }
+    }
+}
+
+/// Half-sequence selection codes (the paper's Fig. 7).
+pub mod selection {
+    /// No clear half: white.
+    pub const NONE: u8 = 0;
+    /// Left half at least `half_margin` better: red.
+    pub const LEFT: u8 = 1;
+    /// Right half at least `half_margin` better: green.
+    pub const RIGHT: u8 = 2;
+    /// Invalid pixel: black.
+    pub const INVALID: u8 = 3;
+
+    pub fn colour(code: u8) -> [u8; 3] {
+        match code {
+            NONE => [255, 255, 255],
+            LEFT => [255, 0, 0],
+            RIGHT => [0, 255, 0],
+            _ => [0, 0, 0],
+        }
+    }
+}
+
+/// Everything one sweep produces, all in the reference camera's pixel grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthMaps {
+    /// z along the reference optical axis, metres, NaN where invalid (REP 118).
+    pub depth_m: ImageF32,
+    /// Depth before the median and the occlusion check (diagnostics).
+    pub depth_raw_m: ImageF32,
+    /// In [0, 1]; 0 where invalid.
+    pub confidence: ImageF32,
+    /// The winning (aggregated) score; NaN where no hypothesis was valid.
+    pub cost: ImageF32,
+    /// [`selection`] codes.
+    pub selection: Vec<u8>,
+    /// Cameras that see each pixel after the occlusion check, the reference counted.
+    pub visible_cameras: Vec<u8>,
+}
+
+impl DepthMaps {
+    pub fn width(&self) -> u32 {
+        self.depth_m.width
+    }
+    pub fn height(&self) -> u32 {
+        self.depth_m.height
+    }
+    pub fn invalid_fraction(&self) -> f64 {
+        let n = self.depth_m.data.len().max(1);
+        self.depth_m.data.iter().filter(|d| d.is_nan()).count() as f64 / n as f64
+    }
+}
+
+/// Per-stage timings of one frame set, milliseconds (GPU timestamps where available).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct StageTimings {
+    pub stages: Vec<(String, f64)>,
+    /// True when the numbers come from GPU timestamp queries, false when from the CPU clock.
+    pub gpu_timestamps: bool,
+}
+
+/// Checks that the images match the rig.
+pub fn check_images(rig: &Rig, images: &[Rgba8Image]) -> Result<(), SweepError> {
+    if images.len() != rig.cameras.len() {
+        return Err(SweepError::ImageCount {
+            images: images.len(),
+            cameras: rig.cameras.len(),
+        });
+    }
+    for (camera, image) in rig.cameras.iter().zip(images) {
+        let k = &camera.model.intrinsics;
+        if image.width != k.width_px
+            || image.height != k.height_px
+            || image.pixels.len() != image.pixel_count()
+        {
+            return Err(SweepError::ImageSize {
+                camera: camera.name.clone(),
+                got_w: image.width,
+                got_h: image.height,
+                want_w: k.width_px,
+                want_h: k.height_px,
+            });
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,207 @@
+//! "What to run": everything a sweep needs, packed once per rig + parameters into the exact
+//! arrays the shaders read. Both engines consume a [`SweepPlan`], so the CPU twin reads the same
+//! numbers the GPU does.
+
+use glam::DVec2;
+
+use super::gpu_types::*;
+use super::{check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams};
+use crate::geometry::{Distortion, Rig};
+use crate::image::Rgba8Image;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepPlan {
+    /// Unique per constructed plan; engines re-upload the arrays when it changes. Build a new
+    /// plan rather than editing one in place.
+    pub id: u64,
+    pub params: GpuParams,
+    pub cameras: Vec<GpuCamera>,
+    /// Plane k as (normal_in_ref, offset_m).
+    pub planes: Vec<[f32; 4]>,
+    /// The z = 1 ray of every reference pixel, in the reference frame (undistorted).
+    pub rays: Vec<[f32; 4]>,
+    /// Total pixels of all camera images (image buffer and z-buffer length).
+    pub total_camera_pixels: usize,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl SweepPlan {
+    /// Plans a sweep with the default hypotheses of `params` (uniform inverse depth).
+    pub fn new(rig: &Rig, params: &SweepParams) -> Result<Self, SweepError> {
+        Self::with_hypotheses(rig, params, &params.hypotheses())
+    }
+
+    pub fn with_hypotheses(
+        rig: &Rig,
+        params: &SweepParams,
+        hypotheses: &dyn HypothesisGenerator,
+    ) -> Result<Self, SweepError> {
+        params.validate(rig)?;
+        let planes: Vec<[f32; 4]> = hypotheses.planes().iter().map(|p| p.to_gpu()).collect();
+        if planes.len() < 2 {
+            return Err(SweepError::InvalidParams(format!(
+                "the hypothesis generator gave {} planes; at least 2 are needed",
+                planes.len()
+            )));
+        }
+        let split = rig.half_sequence_split();
+        let reference = rig.reference_index();
+        let mut offset = 0u32;
+        let mut cameras = Vec::with_capacity(rig.cameras.len());
+        for (i, camera) in rig.cameras.iter().enumerate() {
+            let cam_from_ref = rig.cam_from_ref(i);
+            let r = cam_from_ref.rotation_matrix();
+            let t = cam_from_ref.translation;
+            let k = &camera.model.intrinsics;
+            let (model, dist_a, dist_b) = match camera.model.distortion {
+                Distortion::None => (DIST_NONE, [0.0; 4], [0.0; 4]),
+                Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
+                    DIST_PLUMB_BOB,
+                    [k1 as f32, k2 as f32, p1 as f32, p2 as f32],
+                    [k3 as f32, 0.0, 0.0, 0.0],
+                ),
+                Distortion::Equidistant { k1, k2, k3, k4 } => (
+                    DIST_EQUIDISTANT,
+                    [k1 as f32, k2 as f32, k3 as f32, k4 as f32],
+                    [0.0; 4],
+                ),
+            };
+            let half = match split[i] {
+                None => HALF_REFERENCE,
+                Some(false) => HALF_LEFT,
+                Some(true) => HALF_RIGHT,
+            };
+            let row = |j: usize, tj: f64| {
+                [
+                    r.row(j).x as f32,
+                    r.row(j).y as f32,
+                    r.row(j).z as f32,
+                    tj as f32,
+                ]
+            };
+            cameras.push(GpuCamera {
+                row0: row(0, t.x),
+                row1: row(1, t.y),
+                row2: row(2, t.z),
+                intrinsics: [k.fx_px as f32, k.fy_px as f32, k.cx_px as f32, k.cy_px as f32],
+                dist_a,
+                dist_b,
+                size: [k.width_px, k.height_px, offset, model],
+                info: [half, u32::from(Some(i) == reference), 0, 0],
+            });
+            offset = offset
+                .checked_add(k.width_px * k.height_px)
+                .ok_or_else(|| SweepError::InvalidParams("camera images too large".into()))?;
+        }
+
+        let ref_model = rig.reference_model();
+        let width = ref_model.intrinsics.width_px;
+        let height = ref_model.intrinsics.height_px;
+        let mut rays = Vec::with_capacity(width as usize * height as usize);
+        for y in 0..height {
+            for x in 0..width {
+                let ray = ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y)));
+                rays.push([ray.x as f32, ray.y as f32, 1.0, 0.0]);
+            }
+        }
+
+        let scoring = match params.scoring {
+            Scoring::Sssd | Scoring::AllPairs => SCORING_SSSD,
+            Scoring::BestNOfM => SCORING_BEST_N,
+            Scoring::BestHalfSequence => SCORING_HALF,
+        };
+        let pairs = match params.effective_pairs() {
+            PairSet::Reference => PAIRS_REFERENCE,
+            PairSet::All => PAIRS_ALL,
+        };
+        let channels = if scoring == SCORING_HALF { 2 } else { 1 };
+        let gpu_params = GpuParams {
+            ref_size: [width, height, width * height, reference.map_or(NO_CAMERA, |i| i as u32)],
+            counts: [rig.cameras.len() as u32, planes.len() as u32, channels, 0],
+            modes: [
+                scoring,
+                pairs,
+                params.best_n.clamp(1, MAX_BEST_N),
+                match params.aggregation {
+                    Aggregation::Scored => AGG_SCORED,
+                    Aggregation::PerHalf => AGG_PER_HALF,
+                },
+            ],
+            window: [
+                params.window_width,
+                params.window_height,
+                u32::from(params.subpixel),
+                u32::from(params.median),
+            ],
+            thresholds: [
+                params.tau,
+                params.max_cost,
+                params.occlusion_tolerance,
+                params.half_margin,
+            ],
+            extra: [params.min_visible_cameras, 0, 0, 0],
+        };
+        static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+        Ok(Self {
+            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            params: gpu_params,
+            cameras,
+            planes,
+            rays,
+            total_camera_pixels: offset as usize,
+            width,
+            height,
+        })
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    pub fn channels(&self) -> usize {
+        self.params.counts[2] as usize
+    }
+
+    pub fn num_planes(&self) -> u32 {
+        self.params.counts[1]
+    }
+
+    /// Concatenates the camera images in rig order (the layout of the image buffer).
+    pub fn pack_images(&self, rig: &Rig, images: &[Rgba8Image], out: &mut Vec<u32>) -> Result<(), SweepError> {
+        check_images(rig, images)?;
+        out.clear();
+        out.reserve(self.total_camera_pixels);
+        for image in images {
+            out.extend_from_slice(&image.pixels);
+        }
+        Ok(())
+    }
+}
+
+impl SweepPlan {
+    /// Unpacks the `maps` buffer into the public outputs.
+    pub fn depth_maps(&self, maps: &[f32]) -> crate::sweep::DepthMaps {
+        use crate::image::ImageF32;
+        let npix = self.pixel_count();
+        let section = |s: usize| ImageF32 {
+            width: self.width,
+            height: self.height,
+            data: maps[s * npix..(s + 1) * npix].to_vec(),
+        };
+        crate::sweep::DepthMaps {
+            depth_m: section(MAP_DEPTH),
+            depth_raw_m: section(MAP_DEPTH_RAW),
+            confidence: section(MAP_CONFIDENCE),
+            cost: section(MAP_COST),
+            selection: maps[MAP_SELECTION * npix..(MAP_SELECTION + 1) * npix]
+                .iter()
+                .map(|&v| v as u8)
+                .collect(),
+            visible_cameras: maps[MAP_VISIBLE * npix..(MAP_VISIBLE + 1) * npix]
+                .iter()
+                .map(|&v| v.min(255.0) as u8)
+                .collect(),
+        }
+    }
+}
