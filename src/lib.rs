@@ -2,8 +2,14 @@
 //!
 //! See `ARCHITECTURE.md` for the map of modules and the path a frame takes.
 
+pub mod bench;
+pub mod datasets;
+pub mod demo;
+pub mod eval;
 pub mod geometry;
 pub mod gpu_context;
 pub mod image;
+pub mod io;
 pub mod msgs;
 pub mod sweep;
+pub mod synthetic;

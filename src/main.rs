@@ -1,1 +1,54 @@
-fn main(){}
+//! The `sweepdepth` command line.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "sweepdepth", version, about = "Multi-camera plane-sweep depth on the GPU (Woetzel & Koch 2004)")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the engine on datasets with ground truth and print bad-pixel rates.
+    Eval(sweepdepth::eval::EvalArgs),
+    /// Measure hypotheses per second and per-stage GPU times.
+    Bench(sweepdepth::bench::BenchArgs),
+    /// Run the engine on the built-in sample data and write depth images.
+    Demo(sweepdepth::demo::DemoArgs),
+    /// The ROS 2 node (issue 3: not in this build yet).
+    Node,
+    /// Record or replay camera bags (not in this build yet).
+    Bag,
+    /// Pack a dataset into a bag (not in this build yet).
+    Pack,
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,sweepdepth=info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Eval(args) => sweepdepth::eval::run(&args),
+        Command::Bench(args) => sweepdepth::bench::run(&args),
+        Command::Demo(args) => sweepdepth::demo::run(&args),
+        Command::Node | Command::Bag | Command::Pack => Err(anyhow::anyhow!(
+            "this subcommand is not implemented in this build yet (it arrives with the ROS 2 node)"
+        )),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -284,3 +284,108 @@ pub fn check_images(rig: &Rig, images: &[Rgba8Image]) -> Result<(), SweepError> 
     }
     Ok(())
 }
+
+/// Engine options on the command line (`eval`, `demo`, `bench`); each overrides the defaults a
+/// command starts from.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ParamOverrides {
+    /// Nearest depth swept, metres.
+    #[arg(long)]
+    pub min_depth: Option<f64>,
+    /// Farthest depth swept, metres.
+    #[arg(long)]
+    pub max_depth: Option<f64>,
+    /// Number of depth planes (uniform in inverse depth).
+    #[arg(long)]
+    pub planes: Option<u32>,
+    /// Multi-camera score.
+    #[arg(long, value_enum)]
+    pub scoring: Option<Scoring>,
+    /// Camera pairs that are scored.
+    #[arg(long, value_enum)]
+    pub pairs: Option<PairSet>,
+    /// n of best n of m.
+    #[arg(long)]
+    pub best_n: Option<u32>,
+    /// Where windows aggregate (best half-sequence).
+    #[arg(long, value_enum)]
+    pub aggregation: Option<Aggregation>,
+    /// Shiftable window as WxH (1x1 = none, 2x2 = the paper's).
+    #[arg(long, value_parser = parse_window)]
+    pub window: Option<(u32, u32)>,
+    /// TSSD truncation (sum of squared 0..255 RGB differences).
+    #[arg(long)]
+    pub tau: Option<f32>,
+    /// Best score above which a pixel is invalid.
+    #[arg(long)]
+    pub max_cost: Option<f32>,
+    /// Sub-pixel refinement on/off.
+    #[arg(long)]
+    pub subpixel: Option<bool>,
+    /// 3x3 median on/off.
+    #[arg(long)]
+    pub median: Option<bool>,
+    /// Minimum cameras that must see a pixel (reference counted); 0 disables the check.
+    #[arg(long)]
+    pub min_visible: Option<u32>,
+    /// Relative depth tolerance of the occlusion test.
+    #[arg(long)]
+    pub occlusion_tolerance: Option<f32>,
+}
+
+fn parse_window(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("window '{s}' is not WxH, e.g. 2x2"))?;
+    let w = w.trim().parse().map_err(|e| format!("window width '{w}': {e}"))?;
+    let h = h.trim().parse().map_err(|e| format!("window height '{h}': {e}"))?;
+    Ok((w, h))
+}
+
+impl ParamOverrides {
+    pub fn apply(&self, p: &mut SweepParams) {
+        if let Some(v) = self.min_depth {
+            p.min_depth_m = v;
+        }
+        if let Some(v) = self.max_depth {
+            p.max_depth_m = v;
+        }
+        if let Some(v) = self.planes {
+            p.num_planes = v;
+        }
+        if let Some(v) = self.scoring {
+            p.scoring = v;
+        }
+        if let Some(v) = self.pairs {
+            p.pairs = v;
+        }
+        if let Some(v) = self.best_n {
+            p.best_n = v;
+        }
+        if let Some(v) = self.aggregation {
+            p.aggregation = v;
+        }
+        if let Some((w, h)) = self.window {
+            p.window_width = w;
+            p.window_height = h;
+        }
+        if let Some(v) = self.tau {
+            p.tau = v;
+        }
+        if let Some(v) = self.max_cost {
+            p.max_cost = v;
+        }
+        if let Some(v) = self.subpixel {
+            p.subpixel = v;
+        }
+        if let Some(v) = self.median {
+            p.median = v;
+        }
+        if let Some(v) = self.min_visible {
+            p.min_visible_cameras = v;
+        }
+        if let Some(v) = self.occlusion_tolerance {
+            p.occlusion_tolerance = v;
+        }
+    }
+}
