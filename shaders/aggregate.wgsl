@@ -4,6 +4,11 @@
 // w = h = 2 is the paper's shiftable 2x2; w = h = 1 is no aggregation.
 // One invocation per (reference pixel, plane of the batch). CPU twin: src/sweep/cpu/aggregate.rs.
 
+override WINDOW_W: u32 = 2u;      // = params.window.x
+override WINDOW_H: u32 = 2u;      // = params.window.y
+override CHANNELS: u32 = 1u;      // = params.counts.z
+override AGGREGATION: u32 = 0u;   // = params.modes.w
+
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> cost_slab: array<f32>;
@@ -27,10 +32,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let npix = params.ref_size.z;
-    let channels = params.counts.z;
+    let channels = CHANNELS;
     let base = gid.z * channels * npix;
-    let reach_x = i32(params.window.x) - 1;
-    let reach_y = i32(params.window.y) - 1;
+    let reach_x = i32(WINDOW_W) - 1;
+    let reach_y = i32(WINDOW_H) - 1;
 
     // Stream 0: channel 0; stream 1: channel 1; stream 2: per-texel min of both channels.
     var sums: array<vec4<f32>, 3>;
@@ -83,7 +88,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let left = window_min(sums[0], counts[0]);
     let right = window_min(sums[1], counts[1]);
     var score = min(left, right);
-    if (params.modes.w == AGG_SCORED) {
+    if (AGGREGATION == AGG_SCORED) {
         score = window_min(sums[2], counts[2]);
     }
     let keep = 1.0 - params.thresholds.w;

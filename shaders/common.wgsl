@@ -31,6 +31,11 @@ const HALF_REFERENCE: u32 = 2u;
 const MAX_CAMERAS: u32 = 32u;      // all-pairs modes cache one colour per camera
 const MAX_BEST_N: u32 = 8u;
 
+// Pipeline-overridable constants: the engine specialises each pipeline to the mode at hand so
+// the compiler drops the code of the other modes (set from src/sweep/gpu.rs; the values repeat
+// fields of Params, which the CPU twin reads).
+override DISTORTED: bool = true;      // some camera has lens distortion
+
 struct Camera {
     // cam_from_ref: rows of the rotation in xyz, translation (metres) in w.
     row0: vec4<f32>,
@@ -71,7 +76,7 @@ fn project(cam: Camera, point_in_ref: vec3<f32>) -> vec3<f32> {
         return vec3<f32>(0.0, 0.0, -1.0);
     }
     var n = p.xy / p.z;
-    let model = cam.size.w;
+    let model = select(DIST_NONE, cam.size.w, DISTORTED);
     if (model == DIST_PLUMB_BOB) {
         let r2 = dot(n, n);
         let radial = 1.0 + r2 * (cam.dist_a.x + r2 * (cam.dist_a.y + r2 * cam.dist_b.x));

@@ -1,6 +1,10 @@
 // Stage 1+2+3: hypotheses -> per-camera bilinear colour -> pair TSSD -> multi-camera score.
 // One invocation per (reference pixel, plane of the batch). CPU twin: src/sweep/cpu/cost.rs.
 
+override SCORING: u32 = 0u;       // = params.modes.x
+override PAIRS: u32 = 0u;         // = params.modes.y
+override BEST_N: u32 = 2u;        // = params.modes.z
+
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> cameras: array<Camera>;
@@ -52,8 +56,8 @@ fn add_pair(acc: ptr<function, Acc>, cost: f32, half: u32) {
         (*acc).right_sum += cost;
         (*acc).right_count += 1u;
     }
-    let n = params.modes.z;
-    if (params.modes.x == SCORING_BEST_N) {
+    let n = BEST_N;
+    if (SCORING == SCORING_BEST_N) {
         // Insertion into the sorted list of the n smallest costs.
         var value = cost;
         let kept = (*acc).n_best;
@@ -100,7 +104,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let npix = params.ref_size.z;
     let pix = gid.y * width + gid.x;
-    let channels = params.counts.z;
+    let channels = select(1u, 2u, SCORING == SCORING_HALF);
     let slot = (gid.z * channels) * npix + pix;
 
     let ray = rays[pix].xyz;
@@ -116,7 +120,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n_cameras = params.counts.x;
 
     var acc: Acc;
-    if (params.modes.y == PAIRS_REFERENCE) {
+    if (PAIRS == PAIRS_REFERENCE) {
         let ref_cam = cameras[ref_index];
         let ref_colour = texel(ref_cam, gid.x, gid.y);
         for (var i = 0u; i < n_cameras; i++) {
@@ -159,11 +163,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
 
-    let scoring = params.modes.x;
-    if (scoring == SCORING_HALF) {
+    if (SCORING == SCORING_HALF) {
         cost_slab[slot] = mean_or_invalid(acc.left_sum, acc.left_count);
         cost_slab[slot + npix] = mean_or_invalid(acc.right_sum, acc.right_count);
-    } else if (scoring == SCORING_BEST_N) {
+    } else if (SCORING == SCORING_BEST_N) {
         var s = 0.0;
         for (var k = 0u; k < acc.n_best; k++) {
             s += acc.best[k];

@@ -3,6 +3,7 @@
 //! parameters re-plan, a new shape re-allocates.
 
 use std::borrow::Cow;
+use std::collections::HashMap;
 use std::sync::mpsc;
 use std::time::Instant;
 
@@ -104,12 +105,44 @@ impl ShapeKey {
     }
 }
 
+/// The values of the shaders' override constants for one plan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct Specialisation {
+    distorted: bool,
+    scoring: u32,
+    pairs: u32,
+    best_n: u32,
+    window_w: u32,
+    window_h: u32,
+    channels: u32,
+    aggregation: u32,
+}
+
+impl Specialisation {
+    fn of(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        Self {
+            distorted: plan.cameras.iter().any(|c| c.size[3] != DIST_NONE),
+            scoring: p.modes[0],
+            pairs: p.modes[1],
+            best_n: p.modes[2],
+            window_w: p.window[0],
+            window_h: p.window[1],
+            channels: p.counts[2],
+            aggregation: p.modes[3],
+        }
+    }
+}
+
 /// The GPU plane-sweep engine.
 pub struct GpuEngine {
     device: wgpu::Device,
     queue: wgpu::Queue,
     layouts: Vec<wgpu::BindGroupLayout>,
-    pipelines: Vec<wgpu::ComputePipeline>,
+    pipeline_layouts: Vec<wgpu::PipelineLayout>,
+    modules: Vec<wgpu::ShaderModule>,
+    /// Pipelines specialised (override constants) per mode; built on first use.
+    pipelines: HashMap<Specialisation, Vec<wgpu::ComputePipeline>>,
     uniform_align: u64,
     buffers: Option<Buffers>,
     plan: Option<(Rig, SweepParams, SweepPlan)>,
@@ -129,7 +162,8 @@ impl GpuEngine {
     pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, SweepError> {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut layouts = Vec::new();
-        let mut pipelines = Vec::new();
+        let mut pipeline_layouts = Vec::new();
+        let mut modules = Vec::new();
         for (i, stage) in STAGES.iter().enumerate() {
             let entries: Vec<wgpu::BindGroupLayoutEntry> = LAYOUTS[i]
                 .iter()
@@ -153,25 +187,16 @@ impl GpuEngine {
                 label: Some(stage),
                 entries: &entries,
             });
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            modules.push(device.create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some(stage),
                 source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADERS[i])),
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            }));
+            pipeline_layouts.push(device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
                 label: Some(stage),
                 bind_group_layouts: &[Some(&layout)],
                 immediate_size: 0,
-            });
-            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(stage),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some("main"),
-                compilation_options: Default::default(),
-                cache: None,
-            });
+            }));
             layouts.push(layout);
-            pipelines.push(pipeline);
         }
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("building pipelines: {error}")));
@@ -180,7 +205,9 @@ impl GpuEngine {
             device: device.clone(),
             queue: queue.clone(),
             layouts,
-            pipelines,
+            pipeline_layouts,
+            modules,
+            pipelines: HashMap::new(),
             uniform_align: u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
             buffers: None,
             plan: None,
@@ -230,6 +257,14 @@ impl GpuEngine {
             self.buffers = Some(self.allocate(key)?);
             self.uploaded_plan = None;
         }
+        let specialisation = Specialisation::of(plan);
+        if !self.pipelines.contains_key(&specialisation) {
+            let built = self.build_pipelines(&specialisation)?;
+            self.pipelines.insert(specialisation, built);
+        }
+        let Some(pipelines) = self.pipelines.get(&specialisation) else {
+            return Err(SweepError::Gpu("internal: no pipelines".into()));
+        };
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let Some(buffers) = self.buffers.as_ref() else {
             return Err(SweepError::Gpu("internal: no buffers".into()));
@@ -260,7 +295,7 @@ impl GpuEngine {
                 label: Some(STAGES[stage]),
                 timestamp_writes,
             });
-            pass.set_pipeline(&self.pipelines[stage]);
+            pass.set_pipeline(&pipelines[stage]);
             match offset {
                 Some(o) => pass.set_bind_group(0, &buffers.bind_groups[stage], &[o]),
                 None => pass.set_bind_group(0, &buffers.bind_groups[stage], &[]),
@@ -313,6 +348,50 @@ impl GpuEngine {
         }
         self.timings = timings;
         Ok(maps)
+    }
+
+    fn build_pipelines(&self, spec: &Specialisation) -> Result<Vec<wgpu::ComputePipeline>, SweepError> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let distorted = [("DISTORTED", f64::from(u8::from(spec.distorted)))];
+        let cost = [
+            distorted[0],
+            ("SCORING", f64::from(spec.scoring)),
+            ("PAIRS", f64::from(spec.pairs)),
+            ("BEST_N", f64::from(spec.best_n)),
+        ];
+        let aggregate = [
+            distorted[0],
+            ("WINDOW_W", f64::from(spec.window_w)),
+            ("WINDOW_H", f64::from(spec.window_h)),
+            ("CHANNELS", f64::from(spec.channels)),
+            ("AGGREGATION", f64::from(spec.aggregation)),
+        ];
+        let pipelines = STAGES
+            .iter()
+            .enumerate()
+            .map(|(i, stage)| {
+                let constants: &[(&str, f64)] = match i {
+                    0 => &cost,
+                    1 => &aggregate,
+                    _ => &distorted,
+                };
+                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(stage),
+                    layout: Some(&self.pipeline_layouts[i]),
+                    module: &self.modules[i],
+                    entry_point: Some("main"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants,
+                        zero_initialize_workgroup_memory: false,
+                    },
+                    cache: None,
+                })
+            })
+            .collect();
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(SweepError::Gpu(format!("building pipelines for {spec:?}: {error}")));
+        }
+        Ok(pipelines)
     }
 
     fn read_buffer(&self, buffer: &wgpu::Buffer) -> Result<Vec<u8>, SweepError> {

@@ -1,0 +1,282 @@
+//! Analytic tests of the GPU engine on synthetic scenes with exact ground truth.
+
+mod common;
+
+use glam::{DQuat, DVec2, DVec3};
+use sweepdepth::geometry::{CameraModel, Reference, Rig, RigCamera, RigidTransform};
+use sweepdepth::image::ImageF32;
+use sweepdepth::sweep::gpu::GpuEngine;
+use sweepdepth::sweep::plan::SweepPlan;
+use sweepdepth::sweep::{selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams};
+use sweepdepth::synthetic::{self, Scene, TexturedQuad};
+
+fn engine() -> GpuEngine {
+    let gpu = common::gpu();
+    GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines build")
+}
+
+fn params(min_depth_m: f64, max_depth_m: f64, num_planes: u32) -> SweepParams {
+    SweepParams {
+        min_depth_m,
+        max_depth_m,
+        num_planes,
+        ..SweepParams::default()
+    }
+}
+
+fn check_within(test: &str, depth: &ImageF32, truth: &ImageF32, rel: f32, min_fraction: f64) {
+    let (within, valid) = common::fraction_within(depth, truth, rel);
+    if within < min_fraction {
+        let dir = common::failure_dir(test);
+        common::save_depth_png(depth, &dir.join("gpu_depth.png"));
+        common::save_depth_png(truth, &dir.join("truth.png"));
+        eprintln!("{test}: images in {}", dir.display());
+    }
+    assert!(
+        within >= min_fraction,
+        "{test}: {:.1} % of pixels within {:.0} % of the truth ({:.1} % valid), want >= {:.0} %",
+        within * 100.0,
+        rel * 100.0,
+        valid * 100.0,
+        min_fraction * 100.0
+    );
+}
+
+#[test]
+fn fronto_parallel_plane_comes_back_at_its_depth() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let maps = engine().run(&rig, &images, &params(1.0, 4.0, 48)).expect("sweep runs");
+    let truth = synthetic::reference_depth(&scene, &rig);
+    check_within("fronto_parallel", &maps.depth_m, &truth, 0.01, 0.9);
+    // Every finite depth is near 2 m: nothing wildly wrong hides among the valid pixels.
+    let wrong = maps.depth_m.data.iter().filter(|d| d.is_finite() && (**d - 2.0).abs() > 0.1).count();
+    assert!(wrong * 100 < maps.depth_m.data.len(), "{wrong} pixels off by more than 10 cm");
+}
+
+#[test]
+fn sub_pixel_refinement_lowers_the_error_between_planes() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    // 12 coarse planes; put the wall halfway between two of them in inverse depth.
+    let mut p = params(1.0, 4.0, 12);
+    let sweep = p.hypotheses();
+    let z = 2.0 / (1.0 / sweep.depth_of(5) + 1.0 / sweep.depth_of(6));
+    let scene = Scene::wall_and_box(z, None, 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut engine = engine();
+    let mean_abs_error = |maps: &sweepdepth::sweep::DepthMaps| {
+        let v: Vec<f64> = maps.depth_m.data.iter().filter(|d| d.is_finite()).map(|d| (f64::from(*d) - z).abs()).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    p.subpixel = false;
+    let coarse = mean_abs_error(&engine.run(&rig, &images, &p).expect("sweep"));
+    p.subpixel = true;
+    let fine = mean_abs_error(&engine.run(&rig, &images, &p).expect("sweep"));
+    assert!(fine < 0.5 * coarse, "sub-pixel error {fine:.4} m vs {coarse:.4} m without");
+}
+
+/// Wall pixels beside a near box are hidden from the cameras on one side. Best half-sequence must
+/// pick the other side (the paper's Fig. 7) and get their depth right where SSSD fails.
+#[test]
+fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(96, 64));
+    let rig = synthetic::row_rig(5, 0.12, model, 2).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.5, 0.35)), 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    let mut p = params(1.0, 5.0, 64);
+    p.scoring = Scoring::BestHalfSequence;
+    p.window_width = 2;
+    p.window_height = 2;
+    p.min_visible_cameras = 0;
+    let mut engine = engine();
+    let half = engine.run(&rig, &images, &p).expect("sweep");
+    p.scoring = Scoring::Sssd;
+    let sssd = engine.run(&rig, &images, &p).expect("sweep");
+
+    // Occlusion bands on the wall: left of the box the right-hand cameras are blocked.
+    let f = model.intrinsics.fx_px;
+    let band_px = (f * 2.0 * 0.12 * (1.0 / 1.5 - 1.0 / 3.0)).floor() as u32; // widest occlusion
+    let (w, h) = (truth.width, truth.height);
+    let mut left_band = Vec::new();
+    let mut right_band = Vec::new();
+    for y in 0..h {
+        let row: Vec<f32> = (0..w).map(|x| truth.get(x, y)).collect();
+        let Some(first) = row.iter().position(|&d| d < 2.0) else { continue };
+        let Some(last) = row.iter().rposition(|&d| d < 2.0) else { continue };
+        for x in first.saturating_sub(band_px as usize / 2)..first.saturating_sub(1) {
+            left_band.push((x as u32, y));
+        }
+        for x in last + 2..(last + band_px as usize / 2).min(w as usize) {
+            right_band.push((x as u32, y));
+        }
+    }
+    assert!(left_band.len() > 20 && right_band.len() > 20, "bands too small: {} {}", left_band.len(), right_band.len());
+    let share = |band: &[(u32, u32)], code: u8| {
+        band.iter().filter(|&&(x, y)| half.selection[(y * w + x) as usize] == code).count() as f64 / band.len() as f64
+    };
+    let correct = |maps: &sweepdepth::sweep::DepthMaps, band: &[(u32, u32)]| {
+        band.iter()
+            .filter(|&&(x, y)| {
+                let d = maps.depth_raw_m.get(x, y);
+                d.is_finite() && (d - truth.get(x, y)).abs() / truth.get(x, y) < 0.03
+            })
+            .count() as f64
+            / band.len() as f64
+    };
+    let left_red = share(&left_band, selection::LEFT);
+    let right_green = share(&right_band, selection::RIGHT);
+    assert!(left_red > 0.6, "left of the box only {:.0} % picked the left half", left_red * 100.0);
+    assert!(right_green > 0.6, "right of the box only {:.0} % picked the right half", right_green * 100.0);
+    let band: Vec<(u32, u32)> = left_band.iter().chain(&right_band).copied().collect();
+    let (half_ok, sssd_ok) = (correct(&half, &band), correct(&sssd, &band));
+    assert!(half_ok > 0.8, "half-sequence correct on only {:.0} % of the occlusion bands", half_ok * 100.0);
+    assert!(half_ok > sssd_ok + 0.1, "half-sequence {:.0} % vs SSSD {:.0} %", half_ok * 100.0, sssd_ok * 100.0);
+}
+
+/// Near the image border some cameras cannot see the hypothesis; their pairs are dropped and
+/// the score renormalised, so border pixels are as good as the rest.
+#[test]
+fn rays_leaving_a_camera_are_normalised_not_penalised() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let rig = synthetic::row_rig(3, 0.15, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut p = params(1.0, 4.0, 48);
+    p.scoring = Scoring::Sssd;
+    p.min_visible_cameras = 0;
+    let maps = engine().run(&rig, &images, &p).expect("sweep");
+    // Disparity of the wall to each neighbour: f b / z = 69.6 * 0.15 / 2 = 5.2 px, so the first
+    // and last 5 columns are seen by only one of the two other cameras.
+    let disparity = (model.intrinsics.fx_px * 0.15 / 2.0).ceil() as u32;
+    // One plane step at 2 m is about 6 cm; count pixels within one step.
+    let correct = |columns: &mut dyn Iterator<Item = u32>| {
+        let columns: Vec<u32> = columns.collect();
+        let mut good = 0;
+        for y in 2..58 {
+            for &x in &columns {
+                let d = maps.depth_raw_m.get(x, y);
+                if d.is_finite() && (d - 2.0).abs() < 0.065 {
+                    good += 1;
+                }
+            }
+        }
+        (good, columns.len() * 56)
+    };
+    let (good, total) = correct(&mut (1..disparity).chain(80 - disparity..79));
+    let (inner_good, inner_total) = correct(&mut (disparity + 4..80 - disparity - 4));
+    let inner = inner_good as f64 / inner_total as f64;
+    assert!(
+        good as f64 / total as f64 > inner - 0.05,
+        "border columns {good} of {total} correct vs interior {:.1} %",
+        inner * 100.0
+    );
+    assert!(good * 100 >= total * 85, "border columns: {good} of {total} correct");
+}
+
+#[test]
+fn different_sizes_and_intrinsics_in_one_rig() {
+    let reference = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let big = CameraModel::pinhole(sweepdepth::geometry::PinholeIntrinsics {
+        width_px: 120,
+        height_px: 96,
+        fx_px: 100.0,
+        fy_px: 102.0,
+        cx_px: 61.0,
+        cy_px: 46.5,
+    });
+    let mut cameras = Vec::new();
+    for (i, (x, model)) in [(-0.1, big), (0.0, reference), (0.1, big)].into_iter().enumerate() {
+        cameras.push(RigCamera {
+            name: format!("cam{i}"),
+            model,
+            cam_from_rig: RigidTransform { rotation: DQuat::IDENTITY, translation: DVec3::new(-x, 0.0, 0.0) },
+        });
+    }
+    let rig = Rig::new(cameras, Reference::Camera(1)).expect("rig");
+    let scene = Scene::wall_and_box(2.5, Some((1.6, 0.3)), 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut p = params(1.0, 4.0, 64);
+    p.min_visible_cameras = 0;
+    let maps = engine().run(&rig, &images, &p).expect("sweep");
+    check_within("mixed_sizes", &maps.depth_m, &synthetic::reference_depth(&scene, &rig), 0.02, 0.85);
+}
+
+#[test]
+fn distorted_converging_cameras() {
+    let model = CameraModel { intrinsics: synthetic::intrinsics(80, 60), distortion: synthetic::plumb_bob_barrel() };
+    let rig = synthetic::arc_rig(4, 0.06, 2.0, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, Some((1.4, 0.25)), 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut p = params(1.0, 4.0, 64);
+    p.min_visible_cameras = 0;
+    let maps = engine().run(&rig, &images, &p).expect("sweep");
+    check_within("distorted_arc", &maps.depth_m, &synthetic::reference_depth(&scene, &rig), 0.02, 0.85);
+}
+
+#[test]
+fn virtual_reference_between_cameras() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let row = synthetic::row_rig(4, 0.1, model, 0).expect("rig");
+    // A virtual camera at x = 0.15 m (between cameras 1 and 2), smaller, with no image.
+    let virtual_model = CameraModel::pinhole(synthetic::intrinsics(64, 48));
+    let cam_from_rig = RigidTransform { rotation: DQuat::IDENTITY, translation: DVec3::new(-0.15, 0.0, 0.0) };
+    let rig = Rig::new(row.cameras.clone(), Reference::Virtual { model: virtual_model, cam_from_rig }).expect("rig");
+    let scene = Scene::wall_and_box(2.2, Some((1.5, 0.3)), 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut p = params(1.0, 4.0, 64);
+    assert!(engine().run(&rig, &images, &p).is_err(), "reference pairs need a real reference");
+    p.pairs = PairSet::All;
+    p.min_visible_cameras = 2;
+    let maps = engine().run(&rig, &images, &p).expect("sweep");
+    assert_eq!((maps.width(), maps.height()), (64, 48));
+    let truth = sweepdepth::synthetic::Scene::depth(&scene, &virtual_model, &cam_from_rig);
+    check_within("virtual_reference", &maps.depth_m, &truth, 0.02, 0.85);
+}
+
+/// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
+#[test]
+fn tilted_plane_family_recovers_a_floor() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    // A floor 0.5 m below the cameras (optical y points down), tilted 60 degrees from the view.
+    let normal = DVec3::new(0.0, 1.0, 0.35).normalize();
+    let u = DVec3::X;
+    let v = normal.cross(u).normalize();
+    let floor = TexturedQuad { origin_in_world: normal * 0.5, u_axis: u, v_axis: v, half_extent_m: None, feature_m: 0.02, seed: 3 };
+    let scene = Scene { quads: vec![floor] };
+    let images = synthetic::render_rig(&scene, &rig);
+    let family = PlaneFamily { normal_in_ref: normal, offsets_m: (0..40).map(|i| 0.3 + 0.01 * f64::from(i)).collect() };
+    let mut p = params(1.0, 4.0, 40);
+    p.min_visible_cameras = 0;
+    let plan = SweepPlan::with_hypotheses(&rig, &p, &family).expect("plan");
+    let maps = engine().run_plan(&plan, &rig, &images).expect("sweep");
+    let truth = synthetic::reference_depth(&scene, &rig);
+    // Only the lower half of the image sees the floor.
+    let lower = |img: &ImageF32| ImageF32 { width: img.width, height: 25, data: img.data[35 * 80..].to_vec() };
+    check_within("tilted_family", &lower(&maps.depth_m), &lower(&truth), 0.02, 0.85);
+    let _ = DVec2::ZERO;
+}
+
+#[test]
+fn bad_input_is_an_error_not_a_panic() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(32, 24));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, 70.0);
+    let mut images = synthetic::render_rig(&scene, &rig);
+    let mut engine = engine();
+    let mut p = params(1.0, 4.0, 8);
+    p.window_width = 3;
+    assert!(engine.run(&rig, &images, &p).is_err(), "odd window");
+    let p = params(4.0, 1.0, 8);
+    assert!(engine.run(&rig, &images, &p).is_err(), "inverted depth range");
+    let p = params(1.0, 4.0, 8);
+    images[0].width = 31;
+    assert!(engine.run(&rig, &images, &p).is_err(), "wrong image size");
+    images.pop();
+    assert!(engine.run(&rig, &images, &p).is_err(), "missing image");
+    let _ = Aggregation::PerHalf;
+}

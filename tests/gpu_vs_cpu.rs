@@ -1,0 +1,139 @@
+//! The GPU pipeline and its CPU twin agree, mode by mode, on synthetic and real inputs. On a
+//! failure both depth images are written (path in the message).
+
+mod common;
+
+use sweepdepth::geometry::{CameraModel, Rig};
+use sweepdepth::image::{ImageF32, Rgba8Image};
+use sweepdepth::sweep::cpu::CpuEngine;
+use sweepdepth::sweep::gpu::GpuEngine;
+use sweepdepth::sweep::gpu_types::*;
+use sweepdepth::sweep::plan::SweepPlan;
+use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams};
+use sweepdepth::synthetic::{self, Scene};
+
+/// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
+/// few pixels, so at most 1 % of pixels may disagree in validity or by more than 1e-3.
+const REL_TOL: f32 = 1e-3;
+const MAX_DISAGREE: f64 = 0.01;
+
+fn section(maps: &[f32], npix: usize, s: usize) -> &[f32] {
+    &maps[s * npix..(s + 1) * npix]
+}
+
+fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
+    let cpu = CpuEngine.run_plan(plan, rig, images).expect("cpu run");
+    let npix = plan.pixel_count();
+    for (s, label) in [
+        (MAP_DEPTH_RAW, "depth_raw"),
+        (MAP_DEPTH_MEDIAN, "depth_median"),
+        (MAP_DEPTH, "depth"),
+        (MAP_CONFIDENCE, "confidence"),
+        (MAP_COST, "cost"),
+        (MAP_SELECTION, "selection"),
+        (MAP_VISIBLE, "visible"),
+    ] {
+        let (g, c) = (section(&gpu_maps, npix, s), section(&cpu.maps, npix, s));
+        let disagree = g
+            .iter()
+            .zip(c)
+            .filter(|(a, b)| {
+                if a.is_nan() || b.is_nan() {
+                    a.is_nan() != b.is_nan()
+                } else {
+                    (*a - *b).abs() > REL_TOL * a.abs().max(b.abs()).max(1.0)
+                }
+            })
+            .count();
+        let fraction = disagree as f64 / npix as f64;
+        if fraction > MAX_DISAGREE {
+            let dir = common::failure_dir(&format!("gpu_vs_cpu_{name}"));
+            let image = |d: &[f32]| ImageF32 { width: plan.width, height: plan.height, data: d.to_vec() };
+            common::save_depth_png(&image(g), &dir.join(format!("{label}_gpu.png")));
+            common::save_depth_png(&image(c), &dir.join(format!("{label}_cpu.png")));
+            panic!(
+                "{name}: {label} differs on {:.2} % of pixels (> {:.0} %); images in {}",
+                fraction * 100.0,
+                MAX_DISAGREE * 100.0,
+                dir.display()
+            );
+        }
+    }
+    // A real comparison: the maps are not empty.
+    let valid = section(&cpu.maps, npix, MAP_DEPTH).iter().filter(|d| d.is_finite()).count();
+    assert!(valid * 2 > npix, "{name}: CPU twin found only {valid} of {npix} valid pixels");
+}
+
+fn synthetic_case() -> (Rig, Vec<Rgba8Image>) {
+    let model = CameraModel::pinhole(synthetic::intrinsics(48, 36));
+    let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), 42.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    (rig, images)
+}
+
+fn base() -> SweepParams {
+    SweepParams { min_depth_m: 1.0, max_depth_m: 5.0, num_planes: 24, ..SweepParams::default() }
+}
+
+#[test]
+fn every_scoring_and_window_agrees_on_synthetic() {
+    let (rig, images) = synthetic_case();
+    let cases: Vec<(&str, SweepParams)> = vec![
+        ("sssd_1x1", SweepParams { scoring: Scoring::Sssd, window_width: 1, window_height: 1, ..base() }),
+        ("all_pairs_2x2", SweepParams { scoring: Scoring::AllPairs, window_width: 2, window_height: 2, ..base() }),
+        ("best2_ref_4x4", SweepParams { scoring: Scoring::BestNOfM, best_n: 2, ..base() }),
+        ("best3_all_4x2", SweepParams { scoring: Scoring::BestNOfM, best_n: 3, pairs: PairSet::All, window_width: 4, window_height: 2, ..base() }),
+        ("half_scored_2x2", SweepParams { scoring: Scoring::BestHalfSequence, window_width: 2, window_height: 2, ..base() }),
+        ("half_per_half_6x6", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerHalf, window_width: 6, window_height: 6, ..base() }),
+        ("half_all_pairs", SweepParams { scoring: Scoring::BestHalfSequence, pairs: PairSet::All, ..base() }),
+        ("no_post", SweepParams { subpixel: false, median: false, min_visible_cameras: 0, ..base() }),
+    ];
+    for (name, params) in cases {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        compare(name, &plan, &rig, &images);
+    }
+}
+
+#[test]
+fn distorted_arc_agrees() {
+    let model = CameraModel { intrinsics: synthetic::intrinsics(48, 36), distortion: synthetic::plumb_bob_barrel() };
+    let rig = synthetic::arc_rig(4, 0.05, 2.0, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let plan = SweepPlan::new(&rig, &base()).expect("plan");
+    compare("distorted_arc", &plan, &rig, &images);
+}
+
+/// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba).
+#[test]
+fn real_tsukuba_crop_agrees() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba");
+    let dataset = sweepdepth::datasets::load_dataset(&dir).expect("shipped Tsukuba loads");
+    // Crop to the centre 96x72 of every view (same crop: the rig stays rectified).
+    let (cw, ch, x0, y0) = (96u32, 72u32, 150u32, 110u32);
+    let images: Vec<Rgba8Image> = dataset
+        .images
+        .iter()
+        .map(|img| Rgba8Image {
+            width: cw,
+            height: ch,
+            pixels: (0..ch).flat_map(|y| (0..cw).map(move |x| (x, y))).map(|(x, y)| img.pixels[((y + y0) * img.width + x + x0) as usize]).collect(),
+        })
+        .collect();
+    let mut rig = dataset.rig.clone();
+    for camera in &mut rig.cameras {
+        let k = &mut camera.model.intrinsics;
+        k.width_px = cw;
+        k.height_px = ch;
+        k.cx_px -= f64::from(x0);
+        k.cy_px -= f64::from(y0);
+    }
+    let mut params = dataset.params.clone();
+    params.num_planes = 32;
+    let plan = SweepPlan::new(&rig, &params).expect("plan");
+    compare("tsukuba_crop", &plan, &rig, &images);
+}
