@@ -1,8 +1,528 @@
-//! `sweepdepth eval` (placeholder).
+//! `sweepdepth eval`: run the engine on datasets with ground truth and print error rates.
+//!
+//! Disparity ground truth (Middlebury): the estimated depth z becomes a disparity in the
+//! dataset's evaluation units, `d = focal_baseline_eval / z`, and is compared with the ground
+//! truth on every pixel that has ground truth and lies outside the border. Depth ground truth
+//! (ICL-NUIM): relative depth errors. Datasets without ground truth (multi-view rings) only run.
 
-#[derive(Debug, clap::Args)]
-pub struct EvalArgs {}
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
-pub fn run(_args: &EvalArgs) -> anyhow::Result<()> {
-    anyhow::bail!("eval is not implemented yet")
+use crate::datasets::{self, Dataset, DatasetError, GroundTruth};
+use crate::gpu_context::GpuContext;
+use crate::image::ImageF32;
+use crate::io::{self, IoError};
+use crate::sweep::gpu::GpuEngine;
+use crate::sweep::{DepthMaps, SweepError};
+
+/// Command-line arguments of `sweepdepth eval`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EvalArgs {
+    /// Dataset folders (Middlebury 2001/2003/2005/2006, ICL-NUIM frames, Middlebury multi-view).
+    #[arg(required = true, num_args = 1..)]
+    pub dirs: Vec<PathBuf>,
+    /// Write disparity/depth/confidence PFMs and PNGs to OUT/<dataset folder name>/.
+    #[arg(long, value_name = "OUT")]
+    pub save: Option<PathBuf>,
+    #[command(flatten)]
+    pub params: crate::sweep::ParamOverrides,
+}
+
+/// Errors of one evaluation.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error(transparent)]
+    Sweep(#[from] SweepError),
+    #[error(transparent)]
+    Io(#[from] IoError),
+    #[error(
+        "{what} is {got_w}x{got_h} ({got_len} values) but the ground truth is {want_w}x{want_h}"
+    )]
+    Size {
+        what: &'static str,
+        got_w: u32,
+        got_h: u32,
+        got_len: usize,
+        want_w: u32,
+        want_h: u32,
+    },
+    #[error("no pixel has ground truth{0}")]
+    NoGroundTruthPixels(String),
+    #[error("{path}: cannot create folder: {source}")]
+    CreateDir {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// Error rates against disparity ground truth. Rates are percentages of the evaluated pixels
+/// (known ground truth, outside the border) unless said otherwise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DisparityMetrics {
+    /// Pixels with known ground truth outside the border.
+    pub evaluated_px: usize,
+    /// |d − gt| > 1, invalid estimates counted as bad.
+    pub bad1: f64,
+    /// |d − gt| > 2, invalid estimates counted as bad.
+    pub bad2: f64,
+    /// |d − gt| > 1 among the valid estimates only (NaN when none is valid).
+    pub bad1_valid: f64,
+    /// Pixels with no estimate.
+    pub invalid: f64,
+    /// Whether confidence ranks errors; `None` with fewer than 2 valid estimates.
+    pub confidence_ranking: Option<ConfidenceRanking>,
+}
+
+/// The evaluated pixels with a valid estimate, sorted by confidence and split in two halves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConfidenceRanking {
+    /// bad>1 rate (%) of the more confident half.
+    pub bad1_confident_half: f64,
+    /// bad>1 rate (%) of the less confident half.
+    pub bad1_rest: f64,
+}
+
+/// Errors against depth ground truth, over pixels with known ground truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthMetrics {
+    pub evaluated_px: usize,
+    /// Mean |z − gt| / gt over the valid estimates (NaN when none is valid).
+    pub mean_abs_rel: f64,
+    /// % of ground-truth pixels within 1 % of the ground truth (invalid = not within).
+    pub within_1pct: f64,
+    /// % within 5 %.
+    pub within_5pct: f64,
+    /// % with no estimate.
+    pub invalid: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Metrics {
+    Disparity(DisparityMetrics),
+    Depth(DepthMetrics),
+}
+
+fn percent(count: usize, total: usize) -> f64 {
+    if total == 0 {
+        f64::NAN
+    } else {
+        100.0 * count as f64 / total as f64
+    }
+}
+
+fn check_size(what: &'static str, image: &ImageF32, gt: &ImageF32) -> Result<(), EvalError> {
+    let n = gt.width as usize * gt.height as usize;
+    if image.width != gt.width
+        || image.height != gt.height
+        || image.data.len() != n
+        || gt.data.len() != n
+    {
+        return Err(EvalError::Size {
+            what,
+            got_w: image.width,
+            got_h: image.height,
+            got_len: image.data.len(),
+            want_w: gt.width,
+            want_h: gt.height,
+        });
+    }
+    Ok(())
+}
+
+fn valid_depth(z: f32) -> bool {
+    z.is_finite() && z > 0.0
+}
+
+/// Disparity in evaluation units from depth: `focal_baseline_eval / z`, NaN where invalid.
+pub fn depth_to_disparity(depth_m: &ImageF32, focal_baseline_eval: f64) -> ImageF32 {
+    ImageF32 {
+        width: depth_m.width,
+        height: depth_m.height,
+        data: depth_m
+            .data
+            .iter()
+            .map(|&z| {
+                if valid_depth(z) {
+                    (focal_baseline_eval / f64::from(z)) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Bad-pixel rates of an estimated depth map against disparity ground truth (NaN = unknown),
+/// over pixels at least `border_px` from every image edge. An estimate is valid when its depth
+/// is finite and positive.
+pub fn disparity_metrics(
+    depth_m: &ImageF32,
+    confidence: &ImageF32,
+    gt_disparity_eval_px: &ImageF32,
+    focal_baseline_eval: f64,
+    border_px: u32,
+) -> Result<DisparityMetrics, EvalError> {
+    let gt = gt_disparity_eval_px;
+    check_size("the depth map", depth_m, gt)?;
+    check_size("the confidence map", confidence, gt)?;
+    let (w, h) = (gt.width, gt.height);
+    let mut evaluated = 0usize;
+    let mut bad1 = 0usize;
+    let mut bad2 = 0usize;
+    let mut valid = 0usize;
+    let mut bad1_among_valid = 0usize;
+    // (confidence, bad1) of the evaluated pixels with a valid estimate.
+    let mut ranked: Vec<(f32, bool)> = Vec::new();
+    for y in border_px..h.saturating_sub(border_px) {
+        for x in border_px..w.saturating_sub(border_px) {
+            let i = y as usize * w as usize + x as usize;
+            let g = gt.data[i];
+            if !g.is_finite() {
+                continue;
+            }
+            evaluated += 1;
+            let z = depth_m.data[i];
+            if !valid_depth(z) {
+                bad1 += 1;
+                bad2 += 1;
+                continue;
+            }
+            let d = focal_baseline_eval / f64::from(z);
+            let err = (d - f64::from(g)).abs();
+            valid += 1;
+            let is_bad1 = err > 1.0;
+            if is_bad1 {
+                bad1 += 1;
+                bad1_among_valid += 1;
+            }
+            if err > 2.0 {
+                bad2 += 1;
+            }
+            let c = confidence.data[i];
+            ranked.push((if c.is_finite() { c } else { 0.0 }, is_bad1));
+        }
+    }
+    if evaluated == 0 {
+        return Err(EvalError::NoGroundTruthPixels(format!(
+            " outside the {border_px}-pixel border of the {w}x{h} image"
+        )));
+    }
+    let confidence_ranking = (ranked.len() >= 2).then(|| {
+        // Most confident first; ties keep pixel order (stable sort).
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let half = ranked.len() / 2;
+        let (top, rest) = ranked.split_at(half);
+        let rate = |s: &[(f32, bool)]| percent(s.iter().filter(|p| p.1).count(), s.len());
+        ConfidenceRanking {
+            bad1_confident_half: rate(top),
+            bad1_rest: rate(rest),
+        }
+    });
+    Ok(DisparityMetrics {
+        evaluated_px: evaluated,
+        bad1: percent(bad1, evaluated),
+        bad2: percent(bad2, evaluated),
+        bad1_valid: percent(bad1_among_valid, valid),
+        invalid: percent(evaluated - valid, evaluated),
+        confidence_ranking,
+    })
+}
+
+/// Relative errors of an estimated depth map against depth ground truth (NaN or <= 0 =
+/// unknown).
+pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthMetrics, EvalError> {
+    check_size("the depth map", depth_m, gt_depth_m)?;
+    let mut evaluated = 0usize;
+    let mut valid = 0usize;
+    let mut sum_rel = 0.0f64;
+    let mut within1 = 0usize;
+    let mut within5 = 0usize;
+    for (&z, &g) in depth_m.data.iter().zip(&gt_depth_m.data) {
+        if !valid_depth(g) {
+            continue;
+        }
+        evaluated += 1;
+        if !valid_depth(z) {
+            continue;
+        }
+        valid += 1;
+        let rel = (f64::from(z) - f64::from(g)).abs() / f64::from(g);
+        sum_rel += rel;
+        if rel <= 0.01 {
+            within1 += 1;
+        }
+        if rel <= 0.05 {
+            within5 += 1;
+        }
+    }
+    if evaluated == 0 {
+        return Err(EvalError::NoGroundTruthPixels(String::new()));
+    }
+    Ok(DepthMetrics {
+        evaluated_px: evaluated,
+        mean_abs_rel: if valid == 0 {
+            f64::NAN
+        } else {
+            sum_rel / valid as f64
+        },
+        within_1pct: percent(within1, evaluated),
+        within_5pct: percent(within5, evaluated),
+        invalid: percent(evaluated - valid, evaluated),
+    })
+}
+
+/// Metrics of `maps` against the dataset's ground truth, `None` when it has none.
+pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics>, EvalError> {
+    match &dataset.ground_truth {
+        GroundTruth::Disparity {
+            disparity_eval_px,
+            focal_baseline_eval,
+            border_px,
+        } => Ok(Some(Metrics::Disparity(disparity_metrics(
+            &maps.depth_m,
+            &maps.confidence,
+            disparity_eval_px,
+            *focal_baseline_eval,
+            *border_px,
+        )?))),
+        GroundTruth::Depth { depth_m } => {
+            Ok(Some(Metrics::Depth(depth_metrics(&maps.depth_m, depth_m)?)))
+        }
+        GroundTruth::None => Ok(None),
+    }
+}
+
+/// Runs the engine on a dataset with its `params` and scores the result.
+pub fn evaluate(
+    engine: &mut GpuEngine,
+    dataset: &Dataset,
+) -> Result<(DepthMaps, Option<Metrics>), EvalError> {
+    let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    let metrics = metrics_for(dataset, &maps)?;
+    Ok((maps, metrics))
+}
+
+/// Writes the outputs of one dataset into `dir` (created if needed): `disparity.pfm`
+/// (evaluation units, NaN invalid) and `confidence.pfm` for disparity ground truth, `depth.pfm`
+/// (metres) for the others, `confidence.pfm` for depth ground truth, and always `depth.png`,
+/// `confidence.png`, `selection.png`.
+pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(), EvalError> {
+    std::fs::create_dir_all(dir).map_err(|source| EvalError::CreateDir {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    match &dataset.ground_truth {
+        GroundTruth::Disparity {
+            focal_baseline_eval,
+            ..
+        } => {
+            let disparity = depth_to_disparity(&maps.depth_m, *focal_baseline_eval);
+            io::write_pfm(&dir.join("disparity.pfm"), &disparity)?;
+            io::write_pfm(&dir.join("confidence.pfm"), &maps.confidence)?;
+        }
+        GroundTruth::Depth { .. } => {
+            io::write_pfm(&dir.join("depth.pfm"), &maps.depth_m)?;
+            io::write_pfm(&dir.join("confidence.pfm"), &maps.confidence)?;
+        }
+        GroundTruth::None => {
+            io::write_pfm(&dir.join("depth.pfm"), &maps.depth_m)?;
+        }
+    }
+    io::save_image(&dir.join("depth.png"), &io::depth_png(&maps.depth_m))?;
+    io::save_image(
+        &dir.join("confidence.png"),
+        &io::confidence_png(&maps.confidence),
+    )?;
+    io::save_image(
+        &dir.join("selection.png"),
+        &io::selection_png(maps.width(), maps.height(), &maps.selection),
+    )?;
+    Ok(())
+}
+
+/// The table header printed by [`run`].
+pub fn table_header() -> String {
+    format!(
+        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>12} {:>8} {:>9}  {}",
+        "dataset",
+        "layout",
+        "views",
+        "size",
+        "planes",
+        "bad>1",
+        "bad>2",
+        "bad>1(valid)",
+        "invalid",
+        "ms",
+        "notes"
+    )
+}
+
+/// One table row.
+pub fn table_row(
+    dataset: &Dataset,
+    metrics: Option<&Metrics>,
+    invalid_all: f64,
+    ms: f64,
+) -> String {
+    let (w, h) = dataset.reference_size();
+    let pct = |v: f64| format!("{v:.2}%");
+    let (bad1, bad2, bad1_valid, invalid, notes) = match metrics {
+        Some(Metrics::Disparity(m)) => (
+            pct(m.bad1),
+            pct(m.bad2),
+            pct(m.bad1_valid),
+            pct(m.invalid),
+            match m.confidence_ranking {
+                Some(r) => format!(
+                    "bad>1(valid) confident half {:.2}% vs rest {:.2}%",
+                    r.bad1_confident_half, r.bad1_rest
+                ),
+                None => String::new(),
+            },
+        ),
+        Some(Metrics::Depth(m)) => (
+            "-".into(),
+            "-".into(),
+            "-".into(),
+            pct(m.invalid),
+            format!(
+                "absrel {:.4}, within 1% {:.2}%, within 5% {:.2}%",
+                m.mean_abs_rel, m.within_1pct, m.within_5pct
+            ),
+        ),
+        None => (
+            "-".into(),
+            "-".into(),
+            "-".into(),
+            pct(100.0 * invalid_all),
+            "no ground truth (invalid = whole image)".into(),
+        ),
+    };
+    format!(
+        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>12} {:>8} {:>9.1}  {}",
+        dataset.name,
+        dataset.layout.name(),
+        dataset.rig.cameras.len(),
+        format!("{w}x{h}"),
+        dataset.params.num_planes,
+        bad1,
+        bad2,
+        bad1_valid,
+        invalid,
+        ms,
+        notes
+    )
+}
+
+fn eval_one(
+    engine: &mut GpuEngine,
+    dir: &Path,
+    args: &EvalArgs,
+    progress: &str,
+) -> Result<String, EvalError> {
+    let started = Instant::now();
+    eprintln!("{progress} loading {}", dir.display());
+    let mut dataset = datasets::load_dataset(dir)?;
+    args.params.apply(&mut dataset.params);
+    let (w, h) = dataset.reference_size();
+    eprintln!(
+        "{progress} {} ({}, {} views, {w}x{h}, reference {}, depth {:.3}..{:.3} m, {} planes) loaded in {:.0} ms; running",
+        dataset.name,
+        dataset.layout,
+        dataset.rig.cameras.len(),
+        dataset.rig.cameras[dataset.reference_index()].name,
+        dataset.params.min_depth_m,
+        dataset.params.max_depth_m,
+        dataset.params.num_planes,
+        started.elapsed().as_secs_f64() * 1e3
+    );
+    let run_started = Instant::now();
+    let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    let ms = run_started.elapsed().as_secs_f64() * 1e3;
+    eprintln!("{progress} engine ran in {ms:.0} ms");
+    let metrics = metrics_for(&dataset, &maps)?;
+    if let Some(out) = &args.save {
+        let dir = out.join(&dataset.name);
+        save_outputs(&dir, &dataset, &maps)?;
+        eprintln!("{progress} wrote {}", dir.display());
+    }
+    Ok(table_row(
+        &dataset,
+        metrics.as_ref(),
+        maps.invalid_fraction(),
+        ms,
+    ))
+}
+
+/// `sweepdepth eval`: one GPU engine for all folders; a folder that fails is reported and the
+/// others still run; the command fails at the end if any did.
+pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+    let ctx = GpuContext::new()?;
+    let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
+    let mut stdout = std::io::stdout();
+    writeln!(stdout, "# adapter: {}", ctx.adapter_label())?;
+    writeln!(stdout, "{}", table_header())?;
+    stdout.flush()?;
+    let mut failed = Vec::new();
+    let total = args.dirs.len();
+    for (i, dir) in args.dirs.iter().enumerate() {
+        let progress = format!("[{}/{total}]", i + 1);
+        match eval_one(&mut engine, dir, args, &progress) {
+            Ok(row) => {
+                writeln!(stdout, "{row}")?;
+                stdout.flush()?;
+            }
+            Err(error) => {
+                eprintln!("{progress} error: {}: {error}", dir.display());
+                failed.push(dir.display().to_string());
+            }
+        }
+    }
+    if !failed.is_empty() {
+        anyhow::bail!(
+            "{} of {total} dataset(s) failed: {}",
+            failed.len(),
+            failed.join(", ")
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn img(w: u32, h: u32, data: Vec<f32>) -> ImageF32 {
+        ImageF32 {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn disparity_metrics_by_hand() {
+        // f B = 10: z = 10 / d. GT row: 2, 2, NaN, 4, 5, 8.
+        let gt = img(6, 1, vec![2.0, 2.0, f32::NAN, 4.0, 5.0, 8.0]);
+        // Estimates: d = 2 (ok), 4.5 (bad1+bad2), any (no GT), invalid, 6.5 (bad1 only), 8.
+        let depth = img(
+            6,
+            1,
+            vec![5.0, 10.0 / 4.5, 1.0, f32::NAN, 10.0 / 6.5, 10.0 / 8.0],
+        );
+        let conf = img(6, 1, vec![0.9, 0.1, 0.5, 0.0, 0.2, 0.8]);
+        let m = disparity_metrics(&depth, &conf, &gt, 10.0, 0).unwrap();
+        assert_eq!(m.evaluated_px, 5);
+        assert!((m.bad1 - 60.0).abs() < 1e-9, "{m:?}");
+        assert!((m.bad2 - 40.0).abs() < 1e-9);
+        assert!((m.bad1_valid - 50.0).abs() < 1e-9);
+        assert!((m.invalid - 20.0).abs() < 1e-9);
+        let r = m.confidence_ranking.unwrap();
+        // Valid: conf .9 ok, .1 bad, .2 bad, .8 ok -> top half (.9, .8) 0 %, rest 100 %.
+        assert_eq!((r.bad1_confident_half, r.bad1_rest), (0.0, 100.0));
+    }
 }

@@ -47,7 +47,7 @@ const LAYOUTS: [&[Slot]; 7] = {
     use Slot::*;
     [
         &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
-        &[Uniform, BatchUniform, Read, ReadWrite],                   // aggregate
+        &[Uniform, BatchUniform, Read, ReadWrite, Read],             // aggregate
         &[Uniform, BatchUniform, Read, ReadWrite],                   // select
         &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
         &[Uniform, ReadWrite],                                       // median
@@ -68,6 +68,7 @@ struct Buffers {
     images: wgpu::Buffer,
     rays: wgpu::Buffer,
     planes: wgpu::Buffer,
+    pairs: wgpu::Buffer,
     cost_slab: wgpu::Buffer,
     agg_slab: wgpu::Buffer,
     state: wgpu::Buffer,
@@ -308,7 +309,7 @@ impl GpuEngine {
             let first = b * key.batch;
             let count = key.batch.min(key.planes - first);
             let offset = (u64::from(b) * self.uniform_align) as u32;
-            run_pass(&mut encoder, 0, Some(offset), count);
+            run_pass(&mut encoder, 0, Some(offset), 1);
             run_pass(&mut encoder, 1, Some(offset), count);
             run_pass(&mut encoder, 2, Some(offset), 1);
         }
@@ -358,6 +359,8 @@ impl GpuEngine {
             ("SCORING", f64::from(spec.scoring)),
             ("PAIRS", f64::from(spec.pairs)),
             ("BEST_N", f64::from(spec.best_n)),
+            ("AGGREGATION", f64::from(spec.aggregation)),
+            ("CHANNELS", f64::from(spec.channels)),
         ];
         let aggregate = [
             distorted[0],
@@ -365,6 +368,8 @@ impl GpuEngine {
             ("WINDOW_H", f64::from(spec.window_h)),
             ("CHANNELS", f64::from(spec.channels)),
             ("AGGREGATION", f64::from(spec.aggregation)),
+            ("SCORING", f64::from(spec.scoring)),
+            ("BEST_N", f64::from(spec.best_n)),
         ];
         let pipelines = STAGES
             .iter()
@@ -415,7 +420,7 @@ impl GpuEngine {
         let limits = self.device.limits();
         let npix = plan.pixel_count() as u64;
         let channels = plan.channels() as u64;
-        let per_plane = npix * 4 * channels.max(2);
+        let per_plane = npix * (4 * channels + 8); // cost slab + aggregated slab
         let max_binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
         let budget = SLAB_BUDGET_BYTES.min(max_binding);
         if per_plane > budget {
@@ -457,6 +462,8 @@ impl GpuEngine {
             .write_buffer(&buffers.planes, 0, bytemuck::cast_slice(&plan.planes));
         self.queue
             .write_buffer(&buffers.rays, 0, bytemuck::cast_slice(&plan.rays));
+        self.queue
+            .write_buffer(&buffers.pairs, 0, bytemuck::cast_slice(&plan.pairs));
         let mut batches = vec![0u8; buffers.batches.size() as usize];
         for b in 0..key.batches() {
             let first = b * key.batch;
@@ -500,6 +507,8 @@ impl GpuEngine {
         let images = storage("images", key.camera_pixels as u64 * 4, none);
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
+        let pair_count = u64::from(key.cameras) * u64::from(key.cameras.saturating_sub(1)) / 2;
+        let pairs = storage("pairs", pair_count.max(1) * 16, none);
         let cost_slab = storage("cost_slab", npix * 4 * u64::from(key.channels) * u64::from(key.batch), none);
         let agg_slab = storage("agg_slab", npix * 8 * u64::from(key.batch), none);
         let state = storage("state", npix * 48, none);
@@ -546,6 +555,7 @@ impl GpuEngine {
                 batch_binding.clone(),
                 cost_slab.as_entire_binding(),
                 agg_slab.as_entire_binding(),
+                pairs.as_entire_binding(),
             ]),
             bind(2, vec![
                 params.as_entire_binding(),
@@ -613,6 +623,7 @@ impl GpuEngine {
             images,
             rays,
             planes,
+            pairs,
             cost_slab,
             agg_slab,
             state,

@@ -14,6 +14,8 @@ pub const PAIRS_REFERENCE: u32 = 0;
 pub const PAIRS_ALL: u32 = 1;
 pub const AGG_SCORED: u32 = 0;
 pub const AGG_PER_HALF: u32 = 1;
+pub const AGG_PER_PAIR: u32 = 2;
+pub const MAX_PAIRS: u32 = 16;
 pub const DIST_NONE: u32 = 0;
 pub const DIST_PLUMB_BOB: u32 = 1;
 pub const DIST_EQUIDISTANT: u32 = 2;
@@ -93,6 +95,8 @@ mod tests {
             ("MAX_BEST_N", MAX_BEST_N),
             ("SCORING_HALF", SCORING_HALF),
             ("AGG_PER_HALF", AGG_PER_HALF),
+            ("AGG_PER_PAIR", AGG_PER_PAIR),
+            ("MAX_PAIRS", MAX_PAIRS),
             ("DIST_EQUIDISTANT", DIST_EQUIDISTANT),
             ("HALF_REFERENCE", HALF_REFERENCE),
             ("MAP_COUNT", MAP_COUNT as u32),

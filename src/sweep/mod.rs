@@ -47,6 +47,9 @@ pub enum Aggregation {
     Scored,
     /// Best half-sequence only: windows average each half's cost, then the min is taken.
     PerHalf,
+    /// Windows average each camera pair's TSSD; the score (best n, half-sequence, ...) is taken
+    /// over the window means, so one window picks one consistent set of pairs.
+    PerPair,
 }
 
 /// Engine parameters. Defaults are the ones measured best on the shared data (see README).
@@ -171,6 +174,19 @@ impl SweepParams {
                 "scoring '{:?}' with reference pairs needs a real reference camera; a virtual reference has no image (use pairs = all)",
                 self.scoring
             ));
+        }
+        if self.aggregation == Aggregation::PerPair {
+            let n = rig.cameras.len();
+            let m = match pairs {
+                PairSet::Reference => n - 1,
+                PairSet::All => n * (n - 1) / 2,
+            };
+            if m > gpu_types::MAX_PAIRS as usize {
+                return bad(format!(
+                    "per-pair aggregation supports at most {} pairs; {n} cameras with {pairs:?} pairs make {m} (use aggregation = scored)",
+                    gpu_types::MAX_PAIRS
+                ));
+            }
         }
         if pairs == PairSet::All && rig.cameras.len() > gpu_types::MAX_CAMERAS as usize {
             return bad(format!(

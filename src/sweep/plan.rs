@@ -18,6 +18,8 @@ pub struct SweepPlan {
     pub cameras: Vec<GpuCamera>,
     /// Plane k as (normal_in_ref, offset_m).
     pub planes: Vec<[f32; 4]>,
+    /// The camera pairs in the order the cost stage enumerates them: (camera a, camera b, half, 0).
+    pub pairs: Vec<[u32; 4]>,
     /// The z = 1 ray of every reference pixel, in the reference frame (undistorted).
     pub rays: Vec<[f32; 4]>,
     /// Total pixels of all camera images (image buffer and z-buffer length).
@@ -115,7 +117,42 @@ impl SweepPlan {
             PairSet::Reference => PAIRS_REFERENCE,
             PairSet::All => PAIRS_ALL,
         };
-        let channels = if scoring == SCORING_HALF { 2 } else { 1 };
+        let halves: Vec<u32> = cameras.iter().map(|c| c.info[0]).collect();
+        let pair_half = |a: u32, b: u32| {
+            if a == HALF_REFERENCE {
+                b
+            } else if b == HALF_REFERENCE || a == b {
+                a
+            } else {
+                HALF_REFERENCE
+            }
+        };
+        let mut pair_table = Vec::new();
+        let n = cameras.len() as u32;
+        if pairs == PAIRS_REFERENCE {
+            let r = reference.map_or(NO_CAMERA, |i| i as u32);
+            for i in (0..n).filter(|&i| i != r) {
+                pair_table.push([r, i, halves[i as usize], 0]);
+            }
+        } else {
+            for i in 0..n {
+                for j in i + 1..n {
+                    pair_table.push([i, j, pair_half(halves[i as usize], halves[j as usize]), 0]);
+                }
+            }
+        }
+        let aggregation = match params.aggregation {
+            Aggregation::Scored => AGG_SCORED,
+            Aggregation::PerHalf => AGG_PER_HALF,
+            Aggregation::PerPair => AGG_PER_PAIR,
+        };
+        let channels = if aggregation == AGG_PER_PAIR {
+            pair_table.len() as u32
+        } else if scoring == SCORING_HALF {
+            2
+        } else {
+            1
+        };
         let gpu_params = GpuParams {
             ref_size: [width, height, width * height, reference.map_or(NO_CAMERA, |i| i as u32)],
             counts: [rig.cameras.len() as u32, planes.len() as u32, channels, 0],
@@ -123,10 +160,7 @@ impl SweepPlan {
                 scoring,
                 pairs,
                 params.best_n.clamp(1, MAX_BEST_N),
-                match params.aggregation {
-                    Aggregation::Scored => AGG_SCORED,
-                    Aggregation::PerHalf => AGG_PER_HALF,
-                },
+                aggregation,
             ],
             window: [
                 params.window_width,
@@ -148,6 +182,7 @@ impl SweepPlan {
             params: gpu_params,
             cameras,
             planes,
+            pairs: pair_table,
             rays,
             total_camera_pixels: offset as usize,
             width,

@@ -117,21 +117,29 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                     continue;
                 }
                 let point_in_ref = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
+                let per_pair = params.modes[3] == AGG_PER_PAIR;
                 let mut acc = Acc::default();
                 if params.modes[1] == PAIRS_REFERENCE {
                     let ref_cam = &plan.cameras[ref_index as usize];
                     let ref_colour = texel(images, ref_cam, x, y);
+                    let mut p = 0;
                     for i in 0..n_cameras {
                         if i == ref_index {
                             continue;
                         }
                         let cam = &plan.cameras[i as usize];
                         let projected = project(cam, point_in_ref);
-                        if projected[2] <= 0.0 || !inside(cam, [projected[0], projected[1]]) {
-                            continue;
+                        let visible = projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
+                        let cost = || tssd(tau, ref_colour, sample_bilinear(images, cam, [projected[0], projected[1]]));
+                        if per_pair {
+                            cost_slab[slot + p * npix] = if visible { cost() } else { INVALID };
+                            p += 1;
+                        } else if visible {
+                            add_pair(&mut acc, params, cost(), cam.info[0]);
                         }
-                        let colour = sample_bilinear(images, cam, [projected[0], projected[1]]);
-                        add_pair(&mut acc, params, tssd(tau, ref_colour, colour), cam.info[0]);
+                    }
+                    if per_pair {
+                        continue;
                     }
                 } else {
                     let mut colours = [[0.0f32; 3]; MAX_CAMERAS as usize];
@@ -149,17 +157,21 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                             colours[i] = sample_bilinear(images, cam, [projected[0], projected[1]]);
                         }
                     }
+                    let mut p = 0;
                     for i in 0..n_cameras as usize {
-                        if !visible[i] {
-                            continue;
-                        }
                         for j in i + 1..n_cameras as usize {
-                            if !visible[j] {
-                                continue;
+                            let both = visible[i] && visible[j];
+                            if per_pair {
+                                cost_slab[slot + p * npix] = if both { tssd(tau, colours[i], colours[j]) } else { INVALID };
+                                p += 1;
+                            } else if both {
+                                let half = pair_half(plan.cameras[i].info[0], plan.cameras[j].info[0]);
+                                add_pair(&mut acc, params, tssd(tau, colours[i], colours[j]), half);
                             }
-                            let half = pair_half(plan.cameras[i].info[0], plan.cameras[j].info[0]);
-                            add_pair(&mut acc, params, tssd(tau, colours[i], colours[j]), half);
                         }
+                    }
+                    if per_pair {
+                        continue;
                     }
                 }
                 let scoring = params.modes[0];
