@@ -6,6 +6,8 @@ use std::{env, fs, path::PathBuf};
 
 const STAGES: &[&str] = &[
     "cost",
+    "box_h",
+    "box_v",
     "aggregate",
     "select",
     "finalize",

@@ -14,6 +14,11 @@ const PAIRS_ALL: u32 = 1u;         // all pairs among visible cameras
 
 const AGG_SCORED: u32 = 0u;        // windows average the scored cost
 const AGG_PER_HALF: u32 = 1u;      // windows average each half, then the min is taken
+const AGG_PER_PAIR: u32 = 2u;      // windows average each pair's TSSD, then the score is taken
+const MAX_PAIRS: u32 = 16u;        // pairs per hypothesis in per-pair aggregation
+
+const WINDOW_SHIFTABLE: u32 = 0u;  // the four w x h windows with the pixel at a corner (the paper)
+const WINDOW_CENTRED: u32 = 1u;    // one w x h window around the pixel
 
 const SEL_NONE: u32 = 0u;          // no clear half (white)
 const SEL_LEFT: u32 = 1u;          // left half >= 10 % better (red)
@@ -54,8 +59,12 @@ struct Params {
     modes: vec4<u32>,         // scoring, pair mode, best n, aggregation
     window: vec4<u32>,        // window width, height (1 = no aggregation), subpixel, median
     thresholds: vec4<f32>,    // tau, max_cost, occlusion tolerance (relative), half margin
-    extra: vec4<u32>,         // min visible cameras, 0, 0, 0
+    extra: vec4<u32>,         // min visible cameras, window mode, padded width, padded height
 }
+
+// Window anchors (top-left texel of a window) run from -(w-1) to W-1 (and likewise in y), so the
+// box-sum images are padded by w-1 columns and h-1 rows; anchor (ax, ay) is stored at
+// (ax + w - 1, ay + h - 1).
 
 struct Batch {
     first_plane: u32,

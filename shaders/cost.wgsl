@@ -1,9 +1,11 @@
 // Stage 1+2+3: hypotheses -> per-camera bilinear colour -> pair TSSD -> multi-camera score.
-// One invocation per (reference pixel, plane of the batch). CPU twin: src/sweep/cpu/cost.rs.
+// CPU twin: src/sweep/cpu/cost.rs.
 
 override SCORING: u32 = 0u;       // = params.modes.x
 override PAIRS: u32 = 0u;         // = params.modes.y
 override BEST_N: u32 = 2u;        // = params.modes.z
+override AGGREGATION: u32 = 0u;   // = params.modes.w
+override CHANNELS: u32 = 1u;      // = params.counts.z (pairs m in per-pair aggregation)
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -95,20 +97,12 @@ fn pair_half(a: u32, b: u32) -> u32 {
     return HALF_REFERENCE;
 }
 
-@compute @workgroup_size(8, 8, 1)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    let height = params.ref_size.y;
-    if (gid.x >= width || gid.y >= height || gid.z >= batch.plane_count) {
-        return;
-    }
+// Scores plane `z` of the batch for pixel `pixel`; `ref_colour` is the reference texel.
+fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>) {
     let npix = params.ref_size.z;
-    let pix = gid.y * width + gid.x;
-    let channels = select(1u, 2u, SCORING == SCORING_HALF);
-    let slot = (gid.z * channels) * npix + pix;
-
-    let ray = rays[pix].xyz;
-    let depth = plane_depth(planes[batch.first_plane + gid.z], ray);
+    let channels = CHANNELS;
+    let slot = (z * channels) * npix + pix;
+    let depth = plane_depth(planes[batch.first_plane + z], ray);
     if (!(depth > 0.0)) {
         for (var ch = 0u; ch < channels; ch++) {
             cost_slab[slot + ch * npix] = INVALID;
@@ -119,20 +113,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ref_index = params.ref_size.w;
     let n_cameras = params.counts.x;
 
+    let per_pair = AGGREGATION == AGG_PER_PAIR;
     var acc: Acc;
     if (PAIRS == PAIRS_REFERENCE) {
-        let ref_cam = cameras[ref_index];
-        let ref_colour = texel(ref_cam, gid.x, gid.y);
+        var p = 0u;
         for (var i = 0u; i < n_cameras; i++) {
             if (i == ref_index) {
                 continue;
             }
             let cam = cameras[i];
             let projected = project(cam, point_in_ref);
-            if (projected.z <= 0.0 || !inside(cam, projected.xy)) {
-                continue;
+            let visible = projected.z > 0.0 && inside(cam, projected.xy);
+            if (per_pair) {
+                var cost = INVALID;
+                if (visible) {
+                    cost = tssd(ref_colour, sample_bilinear(cam, projected.xy));
+                }
+                cost_slab[slot + p * npix] = cost;
+                p += 1u;
+            } else if (visible) {
+                add_pair(&acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
             }
-            add_pair(&acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
+        }
+        if (per_pair) {
+            return;
         }
     } else {
         var colours: array<vec3<f32>, 32>;
@@ -140,7 +144,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         for (var i = 0u; i < n_cameras; i++) {
             let cam = cameras[i];
             if (i == ref_index) {
-                colours[i] = texel(cam, gid.x, gid.y);
+                colours[i] = ref_colour;
                 visible[i] = true;
                 continue;
             }
@@ -150,22 +154,40 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 colours[i] = sample_bilinear(cam, projected.xy);
             }
         }
+        var p = 0u;
         for (var i = 0u; i < n_cameras; i++) {
-            if (!visible[i]) {
-                continue;
-            }
             for (var j = i + 1u; j < n_cameras; j++) {
-                if (!visible[j]) {
-                    continue;
+                let both = visible[i] && visible[j];
+                if (per_pair) {
+                    var cost = INVALID;
+                    if (both) {
+                        cost = tssd(colours[i], colours[j]);
+                    }
+                    cost_slab[slot + p * npix] = cost;
+                    p += 1u;
+                } else if (both) {
+                    add_pair(&acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
                 }
-                add_pair(&acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
             }
+        }
+        if (per_pair) {
+            return;
         }
     }
 
     if (SCORING == SCORING_HALF) {
-        cost_slab[slot] = mean_or_invalid(acc.left_sum, acc.left_count);
-        cost_slab[slot + npix] = mean_or_invalid(acc.right_sum, acc.right_count);
+        let left = mean_or_invalid(acc.left_sum, acc.left_count);
+        let right = mean_or_invalid(acc.right_sum, acc.right_count);
+        cost_slab[slot] = left;
+        cost_slab[slot + npix] = right;
+        if (CHANNELS == 3u) {
+            // Scored aggregation: the per-texel score min(left, right) over the visible halves.
+            var m = left;
+            if (left < 0.0 || (right >= 0.0 && right < left)) {
+                m = right;
+            }
+            cost_slab[slot + 2u * npix] = m;
+        }
     } else if (SCORING == SCORING_BEST_N) {
         var s = 0.0;
         for (var k = 0u; k < acc.n_best; k++) {
@@ -174,5 +196,25 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         cost_slab[slot] = mean_or_invalid(s, acc.n_best);
     } else {
         cost_slab[slot] = mean_or_invalid(acc.sum, acc.count);
+    }
+}
+
+// One invocation per reference pixel; it walks the planes of the batch (the ray and the
+// reference colour are loaded once).
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = params.ref_size.x;
+    if (gid.x >= width || gid.y >= params.ref_size.y) {
+        return;
+    }
+    let pix = gid.y * width + gid.x;
+    let ray = rays[pix].xyz;
+    let ref_index = params.ref_size.w;
+    var ref_colour = vec3<f32>(0.0);
+    if (ref_index != NO_CAMERA) {
+        ref_colour = texel(cameras[ref_index], gid.x, gid.y);
+    }
+    for (var z = 0u; z < batch.plane_count; z++) {
+        score_plane(gid.xy, pix, z, ray, ref_colour);
     }
 }

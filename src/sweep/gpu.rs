@@ -14,8 +14,10 @@ use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 
 /// Stage names in pipeline order (also the shader file names).
-pub const STAGES: [&str; 7] = [
+pub const STAGES: [&str; 9] = [
     "cost",
+    "box_h",
+    "box_v",
     "aggregate",
     "select",
     "finalize",
@@ -24,8 +26,10 @@ pub const STAGES: [&str; 7] = [
     "visibility",
 ];
 
-const SHADERS: [&str; 7] = [
+const SHADERS: [&str; 9] = [
     include_str!(concat!(env!("OUT_DIR"), "/cost.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/box_h.wgsl")),
+    include_str!(concat!(env!("OUT_DIR"), "/box_v.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/aggregate.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/select.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/finalize.wgsl")),
@@ -43,10 +47,12 @@ enum Slot {
     ReadWrite,
 }
 
-const LAYOUTS: [&[Slot]; 7] = {
+const LAYOUTS: [&[Slot]; 9] = {
     use Slot::*;
     [
         &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
+        &[Uniform, BatchUniform, Read, ReadWrite],                   // box_h
+        &[Uniform, BatchUniform, Read, ReadWrite],                   // box_v
         &[Uniform, BatchUniform, Read, ReadWrite, Read],             // aggregate
         &[Uniform, BatchUniform, Read, ReadWrite],                   // select
         &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
@@ -69,9 +75,6 @@ struct Buffers {
     rays: wgpu::Buffer,
     planes: wgpu::Buffer,
     pairs: wgpu::Buffer,
-    cost_slab: wgpu::Buffer,
-    agg_slab: wgpu::Buffer,
-    state: wgpu::Buffer,
     maps: wgpu::Buffer,
     zbuffer: wgpu::Buffer,
     readback: wgpu::Buffer,
@@ -90,6 +93,8 @@ struct Timestamps {
 struct ShapeKey {
     width: u32,
     height: u32,
+    padded_width: u32,
+    padded_height: u32,
     cameras: u32,
     camera_pixels: usize,
     planes: u32,
@@ -102,7 +107,7 @@ impl ShapeKey {
         self.planes.div_ceil(self.batch)
     }
     fn passes(&self) -> u32 {
-        3 * self.batches() + 4
+        5 * self.batches() + 4
     }
 }
 
@@ -117,6 +122,7 @@ struct Specialisation {
     window_h: u32,
     channels: u32,
     aggregation: u32,
+    window_mode: u32,
 }
 
 impl Specialisation {
@@ -131,6 +137,7 @@ impl Specialisation {
             window_h: p.window[1],
             channels: p.counts[2],
             aggregation: p.modes[3],
+            window_mode: p.extra[1],
         }
     }
 }
@@ -282,11 +289,11 @@ impl GpuEngine {
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sweep") });
         encoder.clear_buffer(&buffers.zbuffer, 0, None);
-        let groups_x = plan.width.div_ceil(8);
-        let groups_y = plan.height.div_ceil(8);
+        let groups = |w: u32, h: u32, z: u32| (w.div_ceil(8), h.div_ceil(8), z);
+        let image_groups = groups(plan.width, plan.height, 1);
         let mut pass_index = 0u32;
         let mut pass_stages: Vec<usize> = Vec::with_capacity(key.passes() as usize);
-        let mut run_pass = |encoder: &mut wgpu::CommandEncoder, stage: usize, offset: Option<u32>, groups_z: u32| {
+        let mut run_pass = |encoder: &mut wgpu::CommandEncoder, stage: usize, offset: Option<u32>, (gx, gy, gz): (u32, u32, u32)| {
             let timestamp_writes = buffers.timestamps.as_ref().map(|t| wgpu::ComputePassTimestampWrites {
                 query_set: &t.query_set,
                 beginning_of_pass_write_index: Some(2 * pass_index),
@@ -301,20 +308,22 @@ impl GpuEngine {
                 Some(o) => pass.set_bind_group(0, &buffers.bind_groups[stage], &[o]),
                 None => pass.set_bind_group(0, &buffers.bind_groups[stage], &[]),
             }
-            pass.dispatch_workgroups(groups_x, groups_y, groups_z);
+            pass.dispatch_workgroups(gx, gy, gz);
             pass_stages.push(stage);
             pass_index += 1;
         };
         for b in 0..key.batches() {
             let first = b * key.batch;
             let count = key.batch.min(key.planes - first);
-            let offset = (u64::from(b) * self.uniform_align) as u32;
-            run_pass(&mut encoder, 0, Some(offset), 1);
-            run_pass(&mut encoder, 1, Some(offset), count);
-            run_pass(&mut encoder, 2, Some(offset), 1);
+            let offset = Some((u64::from(b) * self.uniform_align) as u32);
+            run_pass(&mut encoder, 0, offset, image_groups);
+            run_pass(&mut encoder, 1, offset, groups(key.padded_width, key.height, count * key.channels));
+            run_pass(&mut encoder, 2, offset, groups(key.padded_width, key.padded_height, count * key.channels));
+            run_pass(&mut encoder, 3, offset, groups(key.width, key.height, count));
+            run_pass(&mut encoder, 4, offset, image_groups);
         }
-        for stage in 3..7 {
-            run_pass(&mut encoder, stage, None, 1);
+        for stage in 5..STAGES.len() {
+            run_pass(&mut encoder, stage, None, image_groups);
         }
         let maps_bytes = buffers.maps.size();
         encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_bytes);
@@ -333,7 +342,7 @@ impl GpuEngine {
             let raw = self.read_buffer(&t.readback)?;
             let ticks: &[u64] = bytemuck::cast_slice(&raw);
             let period_ns = f64::from(self.queue.get_timestamp_period());
-            let mut per_stage = [0.0f64; 7];
+            let mut per_stage = [0.0f64; STAGES.len()];
             for (p, &stage) in pass_stages.iter().enumerate() {
                 let (begin, end) = (ticks[2 * p], ticks[2 * p + 1]);
                 per_stage[stage] += end.saturating_sub(begin) as f64 * period_ns * 1e-6;
@@ -370,14 +379,19 @@ impl GpuEngine {
             ("AGGREGATION", f64::from(spec.aggregation)),
             ("SCORING", f64::from(spec.scoring)),
             ("BEST_N", f64::from(spec.best_n)),
+            ("WINDOW_MODE", f64::from(spec.window_mode)),
         ];
+        let box_h = [distorted[0], ("WINDOW_W", f64::from(spec.window_w)), ("CHANNELS", f64::from(spec.channels))];
+        let box_v = [distorted[0], ("WINDOW_H", f64::from(spec.window_h)), ("CHANNELS", f64::from(spec.channels))];
         let pipelines = STAGES
             .iter()
             .enumerate()
             .map(|(i, stage)| {
-                let constants: &[(&str, f64)] = match i {
-                    0 => &cost,
-                    1 => &aggregate,
+                let constants: &[(&str, f64)] = match STAGES[i] {
+                    "cost" => &cost,
+                    "box_h" => &box_h,
+                    "box_v" => &box_v,
+                    "aggregate" => &aggregate,
                     _ => &distorted,
                 };
                 self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -420,12 +434,16 @@ impl GpuEngine {
         let limits = self.device.limits();
         let npix = plan.pixel_count() as u64;
         let channels = plan.channels() as u64;
-        let per_plane = npix * (4 * channels + 8); // cost slab + aggregated slab
+        let (padded_w, padded_h) = plan.padded_size();
+        let row_bytes = u64::from(padded_w) * u64::from(plan.height) * 8 * channels;
+        let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
+        // Cost slab + row sums + box sums + aggregated slab, per plane.
+        let per_plane = npix * 4 * channels + row_bytes + box_bytes + npix * 8;
         let max_binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
         let budget = SLAB_BUDGET_BYTES.min(max_binding);
-        if per_plane > budget {
+        if box_bytes > budget {
             return Err(SweepError::InvalidParams(format!(
-                "reference image of {npix} pixels needs {per_plane} bytes per plane, more than this adapter's storage binding limit ({budget})"
+                "reference image of {npix} pixels needs {box_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({budget})"
             )));
         }
         let maps_bytes = npix * 4 * MAP_COUNT as u64;
@@ -439,10 +457,16 @@ impl GpuEngine {
         }
         let planes = plan.num_planes();
         let max_z = limits.max_compute_workgroups_per_dimension;
-        let batch = ((budget / per_plane) as u32).clamp(1, planes).min(max_z);
+        let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
+        let batch = max_slices
+            .clamp(1, planes)
+            .min(max_z / (channels as u32).max(1))
+            .max(1);
         Ok(ShapeKey {
             width: plan.width,
             height: plan.height,
+            padded_width: padded_w,
+            padded_height: padded_h,
             cameras: plan.cameras.len() as u32,
             camera_pixels: plan.total_camera_pixels,
             planes,
@@ -509,7 +533,10 @@ impl GpuEngine {
         let planes = storage("planes", u64::from(key.planes) * 16, none);
         let pair_count = u64::from(key.cameras) * u64::from(key.cameras.saturating_sub(1)) / 2;
         let pairs = storage("pairs", pair_count.max(1) * 16, none);
-        let cost_slab = storage("cost_slab", npix * 4 * u64::from(key.channels) * u64::from(key.batch), none);
+        let slices = u64::from(key.channels) * u64::from(key.batch);
+        let cost_slab = storage("cost_slab", npix * 4 * slices, none);
+        let row_sums = storage("row_sums", u64::from(key.padded_width) * u64::from(key.height) * 8 * slices, none);
+        let box_sums = storage("box_sums", u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices, none);
         let agg_slab = storage("agg_slab", npix * 8 * u64::from(key.batch), none);
         let state = storage("state", npix * 48, none);
         let maps = storage("maps", npix * 4 * MAP_COUNT as u64, wgpu::BufferUsages::COPY_SRC);
@@ -554,31 +581,43 @@ impl GpuEngine {
                 params.as_entire_binding(),
                 batch_binding.clone(),
                 cost_slab.as_entire_binding(),
+                row_sums.as_entire_binding(),
+            ]),
+            bind(2, vec![
+                params.as_entire_binding(),
+                batch_binding.clone(),
+                row_sums.as_entire_binding(),
+                box_sums.as_entire_binding(),
+            ]),
+            bind(3, vec![
+                params.as_entire_binding(),
+                batch_binding.clone(),
+                box_sums.as_entire_binding(),
                 agg_slab.as_entire_binding(),
                 pairs.as_entire_binding(),
             ]),
-            bind(2, vec![
+            bind(4, vec![
                 params.as_entire_binding(),
                 batch_binding,
                 agg_slab.as_entire_binding(),
                 state.as_entire_binding(),
             ]),
-            bind(3, vec![
+            bind(5, vec![
                 params.as_entire_binding(),
                 rays.as_entire_binding(),
                 planes.as_entire_binding(),
                 state.as_entire_binding(),
                 maps.as_entire_binding(),
             ]),
-            bind(4, vec![params.as_entire_binding(), maps.as_entire_binding()]),
-            bind(5, vec![
+            bind(6, vec![params.as_entire_binding(), maps.as_entire_binding()]),
+            bind(7, vec![
                 params.as_entire_binding(),
                 cameras.as_entire_binding(),
                 rays.as_entire_binding(),
                 maps.as_entire_binding(),
                 zbuffer.as_entire_binding(),
             ]),
-            bind(6, vec![
+            bind(8, vec![
                 params.as_entire_binding(),
                 cameras.as_entire_binding(),
                 rays.as_entire_binding(),
@@ -624,9 +663,6 @@ impl GpuEngine {
             rays,
             planes,
             pairs,
-            cost_slab,
-            agg_slab,
-            state,
             maps,
             zbuffer,
             readback,

@@ -16,6 +16,8 @@ pub const AGG_SCORED: u32 = 0;
 pub const AGG_PER_HALF: u32 = 1;
 pub const AGG_PER_PAIR: u32 = 2;
 pub const MAX_PAIRS: u32 = 16;
+pub const WINDOW_SHIFTABLE: u32 = 0;
+pub const WINDOW_CENTRED: u32 = 1;
 pub const DIST_NONE: u32 = 0;
 pub const DIST_PLUMB_BOB: u32 = 1;
 pub const DIST_EQUIDISTANT: u32 = 2;
@@ -66,7 +68,7 @@ pub struct GpuParams {
     pub window: [u32; 4],
     /// tau, max_cost, occlusion tolerance, half margin.
     pub thresholds: [f32; 4],
-    /// min visible cameras, 0, 0, 0.
+    /// min visible cameras, window mode, padded width (W + w - 1), padded height (H + h - 1).
     pub extra: [u32; 4],
 }
 
@@ -97,6 +99,7 @@ mod tests {
             ("AGG_PER_HALF", AGG_PER_HALF),
             ("AGG_PER_PAIR", AGG_PER_PAIR),
             ("MAX_PAIRS", MAX_PAIRS),
+            ("WINDOW_CENTRED", WINDOW_CENTRED),
             ("DIST_EQUIDISTANT", DIST_EQUIDISTANT),
             ("HALF_REFERENCE", HALF_REFERENCE),
             ("MAP_COUNT", MAP_COUNT as u32),

@@ -52,6 +52,17 @@ pub enum Aggregation {
     PerPair,
 }
 
+/// Where the aggregation windows sit relative to the pixel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum WindowMode {
+    /// The four w x h windows with the pixel at a corner; the best one wins (the paper's
+    /// shiftable windows; w and h must be 1 or even).
+    Shiftable,
+    /// One w x h window around the pixel (odd sizes are symmetric).
+    Centred,
+}
+
 /// Engine parameters. Defaults are the ones measured best on the shared data (see README).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -68,6 +79,7 @@ pub struct SweepParams {
     /// window, 2n x 2m = larger shiftable windows.
     pub window_width: u32,
     pub window_height: u32,
+    pub window_mode: WindowMode,
     /// Truncation of the colour SSD (sum over RGB of squared 0..255 differences).
     pub tau: f32,
     /// A best score above this is invalid.
@@ -94,6 +106,7 @@ impl Default for SweepParams {
             aggregation: Aggregation::Scored,
             window_width: 4,
             window_height: 4,
+            window_mode: WindowMode::Shiftable,
             tau: 3.0 * 40.0 * 40.0,
             max_cost: 3.0 * 40.0 * 40.0,
             subpixel: true,
@@ -143,8 +156,11 @@ impl SweepParams {
             return bad(format!("num_planes must be in 2..=4096, got {}", self.num_planes));
         }
         for (name, v) in [("window_width", self.window_width), ("window_height", self.window_height)] {
-            if v == 0 || v > 32 || (v != 1 && v % 2 != 0) {
-                return bad(format!("{name} must be 1 or an even number up to 32, got {v}"));
+            if v == 0 || v > 33 {
+                return bad(format!("{name} must be in 1..=33, got {v}"));
+            }
+            if self.window_mode == WindowMode::Shiftable && v != 1 && v % 2 != 0 {
+                return bad(format!("{name} of a shiftable window must be 1 or even (2n), got {v}"));
             }
         }
         if !(self.tau > 0.0) {
@@ -326,9 +342,12 @@ pub struct ParamOverrides {
     /// Where windows aggregate (best half-sequence).
     #[arg(long, value_enum)]
     pub aggregation: Option<Aggregation>,
-    /// Shiftable window as WxH (1x1 = none, 2x2 = the paper's).
+    /// Window as WxH (1x1 = none, 2x2 = the paper's shiftable window).
     #[arg(long, value_parser = parse_window)]
     pub window: Option<(u32, u32)>,
+    /// Window placement.
+    #[arg(long, value_enum)]
+    pub window_mode: Option<WindowMode>,
     /// TSSD truncation (sum of squared 0..255 RGB differences).
     #[arg(long)]
     pub tau: Option<f32>,
@@ -384,6 +403,9 @@ impl ParamOverrides {
         if let Some((w, h)) = self.window {
             p.window_width = w;
             p.window_height = h;
+        }
+        if let Some(v) = self.window_mode {
+            p.window_mode = v;
         }
         if let Some(v) = self.tau {
             p.tau = v;

@@ -5,7 +5,7 @@
 use glam::DVec2;
 
 use super::gpu_types::*;
-use super::{check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams};
+use super::{check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams, WindowMode};
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;
 
@@ -148,6 +148,8 @@ impl SweepPlan {
         };
         let channels = if aggregation == AGG_PER_PAIR {
             pair_table.len() as u32
+        } else if scoring == SCORING_HALF && aggregation == AGG_SCORED {
+            3
         } else if scoring == SCORING_HALF {
             2
         } else {
@@ -174,7 +176,15 @@ impl SweepPlan {
                 params.occlusion_tolerance,
                 params.half_margin,
             ],
-            extra: [params.min_visible_cameras, 0, 0, 0],
+            extra: [
+                params.min_visible_cameras,
+                match params.window_mode {
+                    WindowMode::Shiftable => WINDOW_SHIFTABLE,
+                    WindowMode::Centred => WINDOW_CENTRED,
+                },
+                width + params.window_width - 1,
+                height + params.window_height - 1,
+            ],
         };
         static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         Ok(Self {
@@ -196,6 +206,11 @@ impl SweepPlan {
 
     pub fn channels(&self) -> usize {
         self.params.counts[2] as usize
+    }
+
+    /// Width and height of the box-sum images (window anchors from -(w-1)).
+    pub fn padded_size(&self) -> (u32, u32) {
+        (self.params.extra[2], self.params.extra[3])
     }
 
     pub fn num_planes(&self) -> u32 {

@@ -176,8 +176,17 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                 }
                 let scoring = params.modes[0];
                 if scoring == SCORING_HALF {
-                    cost_slab[slot] = mean_or_invalid(acc.left_sum, acc.left_count);
-                    cost_slab[slot + npix] = mean_or_invalid(acc.right_sum, acc.right_count);
+                    let left = mean_or_invalid(acc.left_sum, acc.left_count);
+                    let right = mean_or_invalid(acc.right_sum, acc.right_count);
+                    cost_slab[slot] = left;
+                    cost_slab[slot + npix] = right;
+                    if channels == 3 {
+                        let mut m = left;
+                        if left < 0.0 || (right >= 0.0 && right < left) {
+                            m = right;
+                        }
+                        cost_slab[slot + 2 * npix] = m;
+                    }
                 } else if scoring == SCORING_BEST_N {
                     let s: f32 = acc.best[..acc.n_best as usize].iter().sum();
                     cost_slab[slot] = mean_or_invalid(s, acc.n_best);

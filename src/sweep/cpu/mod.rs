@@ -3,6 +3,7 @@
 //! to one stage, not for production.
 
 pub mod aggregate;
+pub mod boxes;
 pub mod common;
 pub mod cost;
 pub mod finalize;
@@ -42,12 +43,18 @@ impl CpuEngine {
         let batch = 8u32.min(n_planes);
         let mut cost_slab = vec![0.0f32; batch as usize * channels * npix];
         let mut agg_slab = vec![[0.0f32; 2]; batch as usize * npix];
+        let (padded_w, padded_h) = plan.padded_size();
+        let slices = batch as usize * channels;
+        let mut row_sums = vec![[0.0f32; 2]; slices * padded_w as usize * plan.height as usize];
+        let mut box_sums = vec![[0.0f32; 2]; slices * padded_w as usize * padded_h as usize];
         let mut state = vec![select::initial(); npix];
         let mut first = 0;
         while first < n_planes {
             let count = batch.min(n_planes - first);
             cost::run(plan, &packed, first, count, &mut cost_slab);
-            aggregate::run(plan, count, &cost_slab, &mut agg_slab);
+            boxes::box_h(plan, count, &cost_slab, &mut row_sums);
+            boxes::box_v(plan, count, &row_sums, &mut box_sums);
+            aggregate::run(plan, count, &box_sums, &mut agg_slab);
             select::run(plan, first, count, first == 0, &agg_slab, &mut state);
             first += count;
         }

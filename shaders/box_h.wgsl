@@ -1,0 +1,36 @@
+// Stage 4a: horizontal window sums. For every channel of the cost slab and every window anchor
+// ax in [-(w-1), W-1], the sum and count of the valid (>= 0) costs in columns ax .. ax+w-1.
+// One invocation per (padded column, row, plane x channel). CPU twin: src/sweep/cpu/boxes.rs.
+
+override WINDOW_W: u32 = 2u;      // = params.window.x
+override CHANNELS: u32 = 1u;      // = params.counts.z
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> batch: Batch;
+@group(0) @binding(2) var<storage, read> cost_slab: array<f32>;
+@group(0) @binding(3) var<storage, read_write> row_sums: array<vec2<f32>>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let width = params.ref_size.x;
+    let height = params.ref_size.y;
+    let padded_w = params.extra.z;
+    if (gid.x >= padded_w || gid.y >= height || gid.z >= batch.plane_count * CHANNELS) {
+        return;
+    }
+    let npix = params.ref_size.z;
+    let ax = i32(gid.x) - i32(WINDOW_W) + 1;
+    let row = gid.z * npix + gid.y * width;
+    var acc = vec2<f32>(0.0);
+    for (var dx = 0; dx < i32(WINDOW_W); dx++) {
+        let x = ax + dx;
+        if (x < 0 || x >= i32(width)) {
+            continue;
+        }
+        let c = cost_slab[row + u32(x)];
+        if (c >= 0.0) {
+            acc += vec2<f32>(c, 1.0);
+        }
+    }
+    row_sums[(gid.z * height + gid.y) * padded_w + gid.x] = acc;
+}

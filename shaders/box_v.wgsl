@@ -1,0 +1,31 @@
+// Stage 4b: vertical window sums of the row sums: for every anchor (ax, ay) the sum and count of
+// the valid costs in the w x h window whose top-left texel is (ax, ay).
+// One invocation per (padded column, padded row, plane x channel). CPU twin: src/sweep/cpu/boxes.rs.
+
+override WINDOW_H: u32 = 2u;      // = params.window.y
+override CHANNELS: u32 = 1u;      // = params.counts.z
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> batch: Batch;
+@group(0) @binding(2) var<storage, read> row_sums: array<vec2<f32>>;
+@group(0) @binding(3) var<storage, read_write> box_sums: array<vec2<f32>>;
+
+@compute @workgroup_size(8, 8, 1)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let height = params.ref_size.y;
+    let padded_w = params.extra.z;
+    let padded_h = params.extra.w;
+    if (gid.x >= padded_w || gid.y >= padded_h || gid.z >= batch.plane_count * CHANNELS) {
+        return;
+    }
+    let ay = i32(gid.y) - i32(WINDOW_H) + 1;
+    var acc = vec2<f32>(0.0);
+    for (var dy = 0; dy < i32(WINDOW_H); dy++) {
+        let y = ay + dy;
+        if (y < 0 || y >= i32(height)) {
+            continue;
+        }
+        acc += row_sums[(gid.z * height + u32(y)) * padded_w + gid.x];
+    }
+    box_sums[(gid.z * padded_h + gid.y) * padded_w + gid.x] = acc;
+}
