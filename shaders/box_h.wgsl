@@ -1,6 +1,6 @@
 // Stage 4a: horizontal window sums. For every channel of the cost slab and every window anchor
 // ax in [-(w-1), W-1], the sum and count of the valid (>= 0) costs in columns ax .. ax+w-1.
-// One invocation per (padded column, row, plane x channel). CPU twin: src/sweep/cpu/boxes.rs.
+// One invocation per (padded column, row); it walks the planes x channels of the batch. CPU twin: src/sweep/cpu/boxes.rs.
 
 override WINDOW_W: u32 = 2u;      // = params.window.x
 override CHANNELS: u32 = 1u;      // = params.counts.z
@@ -15,22 +15,23 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.ref_size.x;
     let height = params.ref_size.y;
     let padded_w = params.extra.z;
-    if (gid.x >= padded_w || gid.y >= height || gid.z >= batch.plane_count * CHANNELS) {
+    if (gid.x >= padded_w || gid.y >= height) {
         return;
     }
     let npix = params.ref_size.z;
     let ax = i32(gid.x) - i32(WINDOW_W) + 1;
-    let row = gid.z * npix + gid.y * width;
-    var acc = vec2<f32>(0.0);
-    for (var dx = 0; dx < i32(WINDOW_W); dx++) {
-        let x = ax + dx;
-        if (x < 0 || x >= i32(width)) {
-            continue;
+    // The columns of the window that lie inside the image.
+    let x_first = max(ax, 0);
+    let x_end = min(ax + i32(WINDOW_W), i32(width));
+    for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
+        let row = zc * npix + gid.y * width;
+        var acc = vec2<f32>(0.0);
+        for (var x = x_first; x < x_end; x++) {
+            let c = cost_slab[row + u32(x)];
+            if (c >= 0.0) {
+                acc += vec2<f32>(c, 1.0);
+            }
         }
-        let c = cost_slab[row + u32(x)];
-        if (c >= 0.0) {
-            acc += vec2<f32>(c, 1.0);
-        }
+        row_sums[(zc * height + gid.y) * padded_w + gid.x] = acc;
     }
-    row_sums[(gid.z * height + gid.y) * padded_w + gid.x] = acc;
 }

@@ -1,6 +1,6 @@
 // Stage 4b: vertical window sums of the row sums: for every anchor (ax, ay) the sum and count of
 // the valid costs in the w x h window whose top-left texel is (ax, ay).
-// One invocation per (padded column, padded row, plane x channel). CPU twin: src/sweep/cpu/boxes.rs.
+// One invocation per (padded column, padded row); it walks the planes x channels of the batch. CPU twin: src/sweep/cpu/boxes.rs.
 
 override WINDOW_H: u32 = 2u;      // = params.window.y
 override CHANNELS: u32 = 1u;      // = params.counts.z
@@ -15,17 +15,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let height = params.ref_size.y;
     let padded_w = params.extra.z;
     let padded_h = params.extra.w;
-    if (gid.x >= padded_w || gid.y >= padded_h || gid.z >= batch.plane_count * CHANNELS) {
+    if (gid.x >= padded_w || gid.y >= padded_h) {
         return;
     }
     let ay = i32(gid.y) - i32(WINDOW_H) + 1;
-    var acc = vec2<f32>(0.0);
-    for (var dy = 0; dy < i32(WINDOW_H); dy++) {
-        let y = ay + dy;
-        if (y < 0 || y >= i32(height)) {
-            continue;
+    let y_first = max(ay, 0);
+    let y_end = min(ay + i32(WINDOW_H), i32(height));
+    for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
+        var acc = vec2<f32>(0.0);
+        for (var y = y_first; y < y_end; y++) {
+            acc += row_sums[(zc * height + u32(y)) * padded_w + gid.x];
         }
-        acc += row_sums[(gid.z * height + u32(y)) * padded_w + gid.x];
+        box_sums[(zc * padded_h + gid.y) * padded_w + gid.x] = acc;
     }
-    box_sums[(gid.z * padded_h + gid.y) * padded_w + gid.x] = acc;
 }

@@ -214,6 +214,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (ref_index != NO_CAMERA) {
         ref_colour = texel(cameras[ref_index], gid.x, gid.y);
     }
+    if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
+        // Camera-outer order: each camera's parameters are loaded once for all planes.
+        let npix = params.ref_size.z;
+        var p = 0u;
+        for (var i = 0u; i < params.counts.x; i++) {
+            if (i == ref_index) {
+                continue;
+            }
+            let cam = cameras[i];
+            for (var z = 0u; z < batch.plane_count; z++) {
+                let depth = plane_depth(planes[batch.first_plane + z], ray);
+                var cost = INVALID;
+                if (depth > 0.0) {
+                    let projected = project(cam, ray * depth);
+                    if (projected.z > 0.0 && inside(cam, projected.xy)) {
+                        cost = tssd(ref_colour, sample_bilinear(cam, projected.xy));
+                    }
+                }
+                cost_slab[(z * CHANNELS + p) * npix + pix] = cost;
+            }
+            p += 1u;
+        }
+        return;
+    }
     for (var z = 0u; z < batch.plane_count; z++) {
         score_plane(gid.xy, pix, z, ray, ref_colour);
     }

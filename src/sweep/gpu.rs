@@ -53,7 +53,7 @@ const LAYOUTS: [&[Slot]; 9] = {
         &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
         &[Uniform, BatchUniform, Read, ReadWrite],                   // box_h
         &[Uniform, BatchUniform, Read, ReadWrite],                   // box_v
-        &[Uniform, BatchUniform, Read, ReadWrite, Read],             // aggregate
+        &[Uniform, BatchUniform, Read, ReadWrite, Read, Read],       // aggregate
         &[Uniform, BatchUniform, Read, ReadWrite],                   // select
         &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
         &[Uniform, ReadWrite],                                       // median
@@ -100,6 +100,8 @@ struct ShapeKey {
     planes: u32,
     channels: u32,
     batch: u32,
+    /// Windows of at most 2x2 are summed straight from the cost slab (no box passes).
+    direct_windows: bool,
 }
 
 impl ShapeKey {
@@ -107,7 +109,8 @@ impl ShapeKey {
         self.planes.div_ceil(self.batch)
     }
     fn passes(&self) -> u32 {
-        5 * self.batches() + 4
+        let per_batch = if self.direct_windows { 3 } else { 5 };
+        per_batch * self.batches() + 4
     }
 }
 
@@ -313,13 +316,13 @@ impl GpuEngine {
             pass_index += 1;
         };
         for b in 0..key.batches() {
-            let first = b * key.batch;
-            let count = key.batch.min(key.planes - first);
             let offset = Some((u64::from(b) * self.uniform_align) as u32);
             run_pass(&mut encoder, 0, offset, image_groups);
-            run_pass(&mut encoder, 1, offset, groups(key.padded_width, key.height, count * key.channels));
-            run_pass(&mut encoder, 2, offset, groups(key.padded_width, key.padded_height, count * key.channels));
-            run_pass(&mut encoder, 3, offset, groups(key.width, key.height, count));
+            if !key.direct_windows {
+                run_pass(&mut encoder, 1, offset, groups(key.padded_width, key.height, 1));
+                run_pass(&mut encoder, 2, offset, groups(key.padded_width, key.padded_height, 1));
+            }
+            run_pass(&mut encoder, 3, offset, image_groups);
             run_pass(&mut encoder, 4, offset, image_groups);
         }
         for stage in 5..STAGES.len() {
@@ -472,6 +475,7 @@ impl GpuEngine {
             planes,
             channels: plan.channels() as u32,
             batch,
+            direct_windows: plan.params.extra[1] == WINDOW_SHIFTABLE && plan.params.window[0] <= 2 && plan.params.window[1] <= 2,
         })
     }
 
@@ -595,6 +599,7 @@ impl GpuEngine {
                 box_sums.as_entire_binding(),
                 agg_slab.as_entire_binding(),
                 pairs.as_entire_binding(),
+                cost_slab.as_entire_binding(),
             ]),
             bind(4, vec![
                 params.as_entire_binding(),

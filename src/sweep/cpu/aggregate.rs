@@ -20,11 +20,28 @@ const SEL_RIGHT: u32 = 2;
 struct Window<'a> {
     plan: &'a SweepPlan,
     box_sums: &'a [[f32; 2]],
+    cost_slab: &'a [f32],
 }
 
 impl Window<'_> {
     fn mean(&self, z: usize, ch: usize, ax: i32, ay: i32) -> f32 {
         let p = &self.plan.params;
+        if p.window[0] <= 2 && p.window[1] <= 2 {
+            // Direct path, as the shader: sum the slab texels of the window.
+            let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
+            let base = (z * self.plan.channels() + ch) * self.plan.pixel_count();
+            let mut acc = [0.0f32; 2];
+            for y in ay.max(0)..(ay + p.window[1] as i32).min(height) {
+                for x in ax.max(0)..(ax + p.window[0] as i32).min(width) {
+                    let c = self.cost_slab[base + (y * width + x) as usize];
+                    if c >= 0.0 {
+                        acc[0] += c;
+                        acc[1] += 1.0;
+                    }
+                }
+            }
+            return if acc[1] <= 0.0 { BIG } else { acc[0] / acc[1] };
+        }
         let (padded_w, padded_h) = (p.extra[2] as usize, p.extra[3] as usize);
         let px = (ax + p.window[0] as i32 - 1) as usize;
         let py = (ay + p.window[1] as i32 - 1) as usize;
@@ -100,11 +117,11 @@ impl Window<'_> {
 }
 
 /// Fills `agg_slab` ((score, selection) per pixel per plane of the batch) from the box sums.
-pub fn run(plan: &SweepPlan, plane_count: u32, box_sums: &[[f32; 2]], agg_slab: &mut [[f32; 2]]) {
+pub fn run(plan: &SweepPlan, plane_count: u32, box_sums: &[[f32; 2]], cost_slab: &[f32], agg_slab: &mut [[f32; 2]]) {
     let p = &plan.params;
     let (width, height, npix) = (p.ref_size[0] as i32, p.ref_size[1] as i32, plan.pixel_count());
     let (w, h) = (p.window[0] as i32, p.window[1] as i32);
-    let window = Window { plan, box_sums };
+    let window = Window { plan, box_sums, cost_slab };
     for z in 0..plane_count as usize {
         for y in 0..height {
             for x in 0..width {

@@ -54,7 +54,7 @@ impl CpuEngine {
             cost::run(plan, &packed, first, count, &mut cost_slab);
             boxes::box_h(plan, count, &cost_slab, &mut row_sums);
             boxes::box_v(plan, count, &row_sums, &mut box_sums);
-            aggregate::run(plan, count, &box_sums, &mut agg_slab);
+            aggregate::run(plan, count, &box_sums, &cost_slab, &mut agg_slab);
             select::run(plan, first, count, first == 0, &agg_slab, &mut state);
             first += count;
         }
