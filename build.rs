@@ -9,7 +9,6 @@ const STAGES: &[&str] = &[
     "box_h",
     "box_v",
     "aggregate",
-    "select",
     "finalize",
     "median",
     "splat",

@@ -1,4 +1,4 @@
-// Stage 4c: window placement and scoring. For each window placement (shiftable: the four w x h
+// Stages 4c + 5a: window placement and scoring, then winner-take-all. For each window placement (shiftable: the four w x h
 // windows with the pixel at a corner; centred: one window around it) the channel means are read
 // from the box sums and combined into one score; the best (smallest) placement wins.
 // Channels by mode:
@@ -8,7 +8,8 @@
 //   best half-sequence, scored: left mean, right mean, min(left, right) per texel -> window mean
 //     of the per-texel min; the halves decide the selection;
 //   otherwise: the score.
-// One invocation per reference pixel; it walks the planes of the batch. CPU twin: src/sweep/cpu/aggregate.rs.
+// One invocation per reference pixel; it walks the planes of the batch. CPU twins:
+// src/sweep/cpu/aggregate.rs and src/sweep/cpu/select.rs.
 
 override WINDOW_W: u32 = 2u;      // = params.window.x
 override WINDOW_H: u32 = 2u;      // = params.window.y
@@ -22,20 +23,13 @@ override BEST_N: u32 = 2u;        // = params.modes.z
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> box_sums: array<vec2<f32>>;
 @group(0) @binding(5) var<storage, read> cost_slab: array<f32>;
-@group(0) @binding(3) var<storage, read_write> agg_slab: array<vec2<f32>>;
+// Streaming winner-take-all state, per pixel 3 x vec4 (see the selection step in main):
+//   [0] best cost, best plane, cost of plane best-1, cost of plane best+1
+//   [1] best cost away from best +- 1, min over planes 0..k-1, min over planes 0..k-2, cost of plane k-1
+//   [2] half-sequence selection at the best plane, 0, 0, 0
+@group(0) @binding(3) var<storage, read_write> state: array<vec4<f32>>;
 // Per pair: camera a, camera b, half (HALF_*), 0.
 @group(0) @binding(4) var<storage, read> pairs: array<vec4<u32>>;
-
-fn half_decision(left: f32, right: f32) -> u32 {
-    let keep = 1.0 - params.thresholds.w;
-    if (left < BIG && (right >= BIG || left < keep * right)) {
-        return SEL_LEFT;
-    }
-    if (right < BIG && (left >= BIG || right < keep * left)) {
-        return SEL_RIGHT;
-    }
-    return SEL_NONE;
-}
 
 // Shiftable windows of at most 2x2 skip the box passes: the sums of the four placements come
 // from the 3x3 texels around the pixel, each texel counted in the placements that contain it
@@ -58,82 +52,65 @@ fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
     return s.x / s.y;
 }
 
-// (score, selection) of one window placement from the window means of its channels (BIG =
-// nothing valid in the window).
-fn score_means(means: ptr<function, array<f32, 16>>) -> vec2<f32> {
-    if (AGGREGATION == AGG_PER_PAIR) {
-        var sum = 0.0;
-        var count = 0u;
-        var left_sum = 0.0;
-        var left_count = 0u;
-        var right_sum = 0.0;
-        var right_count = 0u;
-        var smallest: array<f32, 8>;
-        var kept = 0u;
-        for (var p = 0u; p < CHANNELS; p++) {
-            let a = (*means)[p];
-            if (a >= BIG) {
+// The window means of channel `ch` of plane `z` for the four placements, one per lane:
+// 0 up-left, 1 up-right, 2 down-left, 3 down-right of the pixel (centred: the same in all lanes).
+// BIG where a window holds no valid texel. Everything below works on these lanes, without
+// arrays indexed at run time (which software rasterisers execute slowly).
+fn channel_means(z: u32, ch: u32, x: i32, y: i32) -> vec4<f32> {
+    let w = i32(WINDOW_W);
+    let h = i32(WINDOW_H);
+    if (direct_windows()) {
+        let width = i32(params.ref_size.x);
+        let height = i32(params.ref_size.y);
+        let base = (z * CHANNELS + ch) * params.ref_size.z;
+        var sum = vec4<f32>(0.0);
+        var count = vec4<f32>(0.0);
+        for (var dy = 1 - h; dy <= h - 1; dy++) {
+            let ty = y + dy;
+            if (ty < 0 || ty >= height) {
                 continue;
             }
-            sum += a;
-            count += 1u;
-            let half = pairs[p].z;
-            if (half == HALF_LEFT) {
-                left_sum += a;
-                left_count += 1u;
-            } else if (half == HALF_RIGHT) {
-                right_sum += a;
-                right_count += 1u;
-            }
-            if (SCORING == SCORING_BEST_N && (kept < BEST_N || a < smallest[BEST_N - 1u])) {
-                var i = min(kept, BEST_N - 1u);
-                loop {
-                    if (i == 0u || smallest[i - 1u] <= a) {
-                        break;
-                    }
-                    smallest[i] = smallest[i - 1u];
-                    i -= 1u;
+            for (var dx = 1 - w; dx <= w - 1; dx++) {
+                let tx = x + dx;
+                if (tx < 0 || tx >= width) {
+                    continue;
                 }
-                smallest[i] = a;
-                kept = min(kept + 1u, BEST_N);
+                let c = cost_slab[base + u32(ty * width + tx)];
+                if (c >= 0.0) {
+                    let mask = vec4<f32>(
+                        select(0.0, 1.0, dx <= 0 && dy <= 0),
+                        select(0.0, 1.0, dx >= 0 && dy <= 0),
+                        select(0.0, 1.0, dx <= 0 && dy >= 0),
+                        select(0.0, 1.0, dx >= 0 && dy >= 0),
+                    );
+                    sum += c * mask;
+                    count += mask;
+                }
             }
         }
-        if (SCORING == SCORING_HALF) {
-            var left = BIG;
-            var right = BIG;
-            if (left_count > 0u) {
-                left = left_sum / f32(left_count);
-            }
-            if (right_count > 0u) {
-                right = right_sum / f32(right_count);
-            }
-            return vec2<f32>(min(left, right), f32(half_decision(left, right)));
-        }
-        if (SCORING == SCORING_BEST_N) {
-            if (kept == 0u) {
-                return vec2<f32>(BIG, f32(SEL_NONE));
-            }
-            var s = 0.0;
-            for (var k = 0u; k < kept; k++) {
-                s += smallest[k];
-            }
-            return vec2<f32>(s / f32(kept), f32(SEL_NONE));
-        }
-        if (count == 0u) {
-            return vec2<f32>(BIG, f32(SEL_NONE));
-        }
-        return vec2<f32>(sum / f32(count), f32(SEL_NONE));
+        return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
     }
-    if (SCORING == SCORING_HALF) {
-        let left = (*means)[0];
-        let right = (*means)[1];
-        var score = min(left, right);
-        if (AGGREGATION == AGG_SCORED) {
-            score = (*means)[2];
-        }
-        return vec2<f32>(score, f32(half_decision(left, right)));
+    if (WINDOW_MODE == WINDOW_CENTRED) {
+        return vec4<f32>(box_mean(z, ch, x - (w - 1) / 2, y - (h - 1) / 2));
     }
-    return vec2<f32>((*means)[0], f32(SEL_NONE));
+    return vec4<f32>(
+        box_mean(z, ch, x - w + 1, y - h + 1),
+        box_mean(z, ch, x, y - h + 1),
+        box_mean(z, ch, x - w + 1, y),
+        box_mean(z, ch, x, y),
+    );
+}
+
+fn mean_or_big(sum: vec4<f32>, count: vec4<f32>) -> vec4<f32> {
+    return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
+}
+
+fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
+    let keep = 1.0 - params.thresholds.w;
+    let big = vec4<f32>(BIG);
+    let is_left = left < big & (right >= big | left < keep * right);
+    let is_right = right < big & (left >= big | right < keep * left);
+    return select(select(vec4<f32>(f32(SEL_NONE)), vec4<f32>(f32(SEL_RIGHT)), is_right), vec4<f32>(f32(SEL_LEFT)), is_left);
 }
 
 @compute @workgroup_size(8, 8, 1)
@@ -143,74 +120,139 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.x >= width || gid.y >= height) {
         return;
     }
-    let npix = params.ref_size.z;
     let x = i32(gid.x);
     let y = i32(gid.y);
-    let w = i32(WINDOW_W);
-    let h = i32(WINDOW_H);
-    var means: array<f32, 16>;
-    for (var z = 0u; z < batch.plane_count; z++) {
-        var best = vec2<f32>(BIG, f32(SEL_NONE));
-        if (direct_windows()) {
-            var sums: array<vec4<f32>, 16>;
-            var counts: array<vec4<f32>, 16>;
-            let reach_x = w - 1;
-            let reach_y = h - 1;
-            for (var dy = -reach_y; dy <= reach_y; dy++) {
-                let ty = y + dy;
-                if (ty < 0 || ty >= i32(height)) {
-                    continue;
-                }
-                for (var dx = -reach_x; dx <= reach_x; dx++) {
-                    let tx = x + dx;
-                    if (tx < 0 || tx >= i32(width)) {
-                        continue;
-                    }
-                    // Placements: 0 up-left, 1 up-right, 2 down-left, 3 down-right of the pixel.
-                    let mask = vec4<f32>(
-                        select(0.0, 1.0, dx <= 0 && dy <= 0),
-                        select(0.0, 1.0, dx >= 0 && dy <= 0),
-                        select(0.0, 1.0, dx <= 0 && dy >= 0),
-                        select(0.0, 1.0, dx >= 0 && dy >= 0),
-                    );
-                    let t = u32(ty * i32(width) + tx);
-                    for (var ch = 0u; ch < CHANNELS; ch++) {
-                        let c = cost_slab[(z * CHANNELS + ch) * npix + t];
-                        if (c >= 0.0) {
-                            sums[ch] += c * mask;
-                            counts[ch] += mask;
-                        }
-                    }
-                }
-            }
-            let placements = select(4, 1, w == 1 && h == 1);
-            for (var corner = 0; corner < placements; corner++) {
-                for (var ch = 0u; ch < CHANNELS; ch++) {
-                    means[ch] = select(BIG, sums[ch][corner] / counts[ch][corner], counts[ch][corner] > 0.0);
-                }
-                let s = score_means(&means);
-                if (s.x < best.x) {
-                    best = s;
-                }
-            }
-        } else if (WINDOW_MODE == WINDOW_CENTRED) {
-            for (var ch = 0u; ch < CHANNELS; ch++) {
-                means[ch] = box_mean(z, ch, x - (w - 1) / 2, y - (h - 1) / 2);
-            }
-            best = score_means(&means);
-        } else {
-            for (var corner = 0; corner < 4; corner++) {
-                let ax = select(x, x - w + 1, (corner & 1) == 0);
-                let ay = select(y, y - h + 1, (corner & 2) == 0);
-                for (var ch = 0u; ch < CHANNELS; ch++) {
-                    means[ch] = box_mean(z, ch, ax, ay);
-                }
-                let s = score_means(&means);
-                if (s.x < best.x) {
-                    best = s;
-                }
-            }
-        }
-        agg_slab[z * npix + gid.y * width + gid.x] = best;
+    let pix = gid.y * width + gid.x;
+    var s0 = vec4<f32>(BIG, -1.0, BIG, BIG);
+    var s1 = vec4<f32>(BIG, BIG, BIG, BIG);
+    var s2 = vec4<f32>(f32(SEL_INVALID), 0.0, 0.0, 0.0);
+    if (batch.is_first == 0u) {
+        s0 = state[3u * pix];
+        s1 = state[3u * pix + 1u];
+        s2 = state[3u * pix + 2u];
     }
+    let big = vec4<f32>(BIG);
+    let zero = vec4<f32>(0.0);
+    let one = vec4<f32>(1.0);
+    for (var z = 0u; z < batch.plane_count; z++) {
+        // Per placement (lane): score and half-sequence selection.
+        var score = big;
+        var sel = vec4<f32>(f32(SEL_NONE));
+        if (AGGREGATION == AGG_PER_PAIR) {
+            var sum = zero;
+            var count = zero;
+            var left_sum = zero;
+            var left_count = zero;
+            var right_sum = zero;
+            var right_count = zero;
+            // The n smallest pair means per lane, kept sorted by bubbling each new value through.
+            var b0 = big;
+            var b1 = big;
+            var b2 = big;
+            var b3 = big;
+            var b4 = big;
+            var b5 = big;
+            var b6 = big;
+            var b7 = big;
+            for (var p = 0u; p < CHANNELS; p++) {
+                let a = channel_means(z, p, x, y);
+                let seen = a < big;
+                let a0 = select(zero, a, seen);
+                let n0 = select(zero, one, seen);
+                sum += a0;
+                count += n0;
+                let half = pairs[p].z;
+                if (half == HALF_LEFT) {
+                    left_sum += a0;
+                    left_count += n0;
+                } else if (half == HALF_RIGHT) {
+                    right_sum += a0;
+                    right_count += n0;
+                }
+                if (SCORING == SCORING_BEST_N) {
+                    var v = a;
+                    var t = min(b0, v); v = max(b0, v); b0 = t;
+                    t = min(b1, v); v = max(b1, v); b1 = t;
+                    t = min(b2, v); v = max(b2, v); b2 = t;
+                    t = min(b3, v); v = max(b3, v); b3 = t;
+                    t = min(b4, v); v = max(b4, v); b4 = t;
+                    t = min(b5, v); v = max(b5, v); b5 = t;
+                    t = min(b6, v); v = max(b6, v); b6 = t;
+                    b7 = min(b7, v);
+                }
+            }
+            if (SCORING == SCORING_HALF) {
+                let left = mean_or_big(left_sum, left_count);
+                let right = mean_or_big(right_sum, right_count);
+                score = min(left, right);
+                sel = half_decisions(left, right);
+            } else if (SCORING == SCORING_BEST_N) {
+                // Mean of the min(n, seen) smallest; BIG entries are unseen pairs.
+                var best_sum = zero;
+                var best_count = zero;
+                let n = BEST_N;
+                best_sum += select(zero, b0, b0 < big & vec4<bool>(n > 0u));
+                best_count += select(zero, one, b0 < big & vec4<bool>(n > 0u));
+                best_sum += select(zero, b1, b1 < big & vec4<bool>(n > 1u));
+                best_count += select(zero, one, b1 < big & vec4<bool>(n > 1u));
+                best_sum += select(zero, b2, b2 < big & vec4<bool>(n > 2u));
+                best_count += select(zero, one, b2 < big & vec4<bool>(n > 2u));
+                best_sum += select(zero, b3, b3 < big & vec4<bool>(n > 3u));
+                best_count += select(zero, one, b3 < big & vec4<bool>(n > 3u));
+                best_sum += select(zero, b4, b4 < big & vec4<bool>(n > 4u));
+                best_count += select(zero, one, b4 < big & vec4<bool>(n > 4u));
+                best_sum += select(zero, b5, b5 < big & vec4<bool>(n > 5u));
+                best_count += select(zero, one, b5 < big & vec4<bool>(n > 5u));
+                best_sum += select(zero, b6, b6 < big & vec4<bool>(n > 6u));
+                best_count += select(zero, one, b6 < big & vec4<bool>(n > 6u));
+                best_sum += select(zero, b7, b7 < big & vec4<bool>(n > 7u));
+                best_count += select(zero, one, b7 < big & vec4<bool>(n > 7u));
+                score = mean_or_big(best_sum, best_count);
+            } else {
+                score = mean_or_big(sum, count);
+            }
+        } else if (SCORING == SCORING_HALF) {
+            let left = channel_means(z, 0u, x, y);
+            let right = channel_means(z, 1u, x, y);
+            score = min(left, right);
+            if (AGGREGATION == AGG_SCORED) {
+                score = channel_means(z, 2u, x, y);
+            }
+            sel = half_decisions(left, right);
+        } else {
+            score = channel_means(z, 0u, x, y);
+        }
+        // The best placement, the first lane on ties (centred and 1x1 windows fill all lanes alike).
+        var best = vec2<f32>(score.x, sel.x);
+        if (score.y < best.x) {
+            best = vec2<f32>(score.y, sel.y);
+        }
+        if (score.z < best.x) {
+            best = vec2<f32>(score.z, sel.z);
+        }
+        if (score.w < best.x) {
+            best = vec2<f32>(score.w, sel.w);
+        }
+
+        // Stage 5a, selection: streaming winner-take-all that keeps, exactly and without a cost
+        // volume, the winner's neighbours (for the sub-pixel parabola) and the best rival away
+        // from them (for the confidence).
+        let k = f32(batch.first_plane + z);
+        let c = best.x;
+        if (c < s0.x) {
+            s0 = vec4<f32>(c, k, s1.w, BIG);
+            s1.x = s1.z;
+            s2.x = best.y;
+        } else if (k == s0.y + 1.0) {
+            s0.w = c;
+        } else {
+            s1.x = min(s1.x, c);
+        }
+        s1.z = s1.y;
+        s1.y = min(s1.y, c);
+        s1.w = c;
+    }
+    state[3u * pix] = s0;
+    state[3u * pix + 1u] = s1;
+    state[3u * pix + 2u] = s2;
 }

@@ -9,7 +9,7 @@ use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams};
+use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
@@ -91,6 +91,11 @@ fn every_scoring_and_window_agrees_on_synthetic() {
         ("half_per_half_6x6", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerHalf, window_width: 6, window_height: 6, ..base() }),
         ("half_all_pairs", SweepParams { scoring: Scoring::BestHalfSequence, pairs: PairSet::All, ..base() }),
         ("no_post", SweepParams { subpixel: false, median: false, min_visible_cameras: 0, ..base() }),
+        ("per_pair_best2_centred_5x5", SweepParams { aggregation: Aggregation::PerPair, window_mode: WindowMode::Centred, window_width: 5, window_height: 5, ..base() }),
+        ("per_pair_half_shiftable_2x2", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerPair, window_width: 2, window_height: 2, ..base() }),
+        ("per_pair_sssd_shiftable_6x4", SweepParams { scoring: Scoring::Sssd, aggregation: Aggregation::PerPair, window_width: 6, window_height: 4, ..base() }),
+        ("per_pair_all_pairs_best3", SweepParams { scoring: Scoring::BestNOfM, best_n: 3, pairs: PairSet::All, aggregation: Aggregation::PerPair, ..base() }),
+        ("centred_1x1_scored", SweepParams { window_mode: WindowMode::Centred, window_width: 1, window_height: 1, aggregation: Aggregation::Scored, ..base() }),
     ];
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");

@@ -14,24 +14,22 @@ use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 
 /// Stage names in pipeline order (also the shader file names).
-pub const STAGES: [&str; 9] = [
+pub const STAGES: [&str; 8] = [
     "cost",
     "box_h",
     "box_v",
     "aggregate",
-    "select",
     "finalize",
     "median",
     "splat",
     "visibility",
 ];
 
-const SHADERS: [&str; 9] = [
+const SHADERS: [&str; 8] = [
     include_str!(concat!(env!("OUT_DIR"), "/cost.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/box_h.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/box_v.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/aggregate.wgsl")),
-    include_str!(concat!(env!("OUT_DIR"), "/select.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/finalize.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/median.wgsl")),
     include_str!(concat!(env!("OUT_DIR"), "/splat.wgsl")),
@@ -47,14 +45,13 @@ enum Slot {
     ReadWrite,
 }
 
-const LAYOUTS: [&[Slot]; 9] = {
+const LAYOUTS: [&[Slot]; 8] = {
     use Slot::*;
     [
         &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
         &[Uniform, BatchUniform, Read, ReadWrite],                   // box_h
         &[Uniform, BatchUniform, Read, ReadWrite],                   // box_v
         &[Uniform, BatchUniform, Read, ReadWrite, Read, Read],       // aggregate
-        &[Uniform, BatchUniform, Read, ReadWrite],                   // select
         &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
         &[Uniform, ReadWrite],                                       // median
         &[Uniform, Read, Read, Read, ReadWrite],                     // splat
@@ -109,7 +106,7 @@ impl ShapeKey {
         self.planes.div_ceil(self.batch)
     }
     fn passes(&self) -> u32 {
-        let per_batch = if self.direct_windows { 3 } else { 5 };
+        let per_batch = if self.direct_windows { 2 } else { 4 };
         per_batch * self.batches() + 4
     }
 }
@@ -323,9 +320,8 @@ impl GpuEngine {
                 run_pass(&mut encoder, 2, offset, groups(key.padded_width, key.padded_height, 1));
             }
             run_pass(&mut encoder, 3, offset, image_groups);
-            run_pass(&mut encoder, 4, offset, image_groups);
         }
-        for stage in 5..STAGES.len() {
+        for stage in 4..STAGES.len() {
             run_pass(&mut encoder, stage, None, image_groups);
         }
         let maps_bytes = buffers.maps.size();
@@ -441,7 +437,7 @@ impl GpuEngine {
         let row_bytes = u64::from(padded_w) * u64::from(plan.height) * 8 * channels;
         let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
         // Cost slab + row sums + box sums + aggregated slab, per plane.
-        let per_plane = npix * 4 * channels + row_bytes + box_bytes + npix * 8;
+        let per_plane = npix * 4 * channels + row_bytes + box_bytes;
         let max_binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
         let budget = SLAB_BUDGET_BYTES.min(max_binding);
         if box_bytes > budget {
@@ -541,7 +537,6 @@ impl GpuEngine {
         let cost_slab = storage("cost_slab", npix * 4 * slices, none);
         let row_sums = storage("row_sums", u64::from(key.padded_width) * u64::from(key.height) * 8 * slices, none);
         let box_sums = storage("box_sums", u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices, none);
-        let agg_slab = storage("agg_slab", npix * 8 * u64::from(key.batch), none);
         let state = storage("state", npix * 48, none);
         let maps = storage("maps", npix * 4 * MAP_COUNT as u64, wgpu::BufferUsages::COPY_SRC);
         let zbuffer = storage("zbuffer", key.camera_pixels as u64 * 4, none);
@@ -597,32 +592,26 @@ impl GpuEngine {
                 params.as_entire_binding(),
                 batch_binding.clone(),
                 box_sums.as_entire_binding(),
-                agg_slab.as_entire_binding(),
+                state.as_entire_binding(),
                 pairs.as_entire_binding(),
                 cost_slab.as_entire_binding(),
             ]),
             bind(4, vec![
-                params.as_entire_binding(),
-                batch_binding,
-                agg_slab.as_entire_binding(),
-                state.as_entire_binding(),
-            ]),
-            bind(5, vec![
                 params.as_entire_binding(),
                 rays.as_entire_binding(),
                 planes.as_entire_binding(),
                 state.as_entire_binding(),
                 maps.as_entire_binding(),
             ]),
-            bind(6, vec![params.as_entire_binding(), maps.as_entire_binding()]),
-            bind(7, vec![
+            bind(5, vec![params.as_entire_binding(), maps.as_entire_binding()]),
+            bind(6, vec![
                 params.as_entire_binding(),
                 cameras.as_entire_binding(),
                 rays.as_entire_binding(),
                 maps.as_entire_binding(),
                 zbuffer.as_entire_binding(),
             ]),
-            bind(8, vec![
+            bind(7, vec![
                 params.as_entire_binding(),
                 cameras.as_entire_binding(),
                 rays.as_entire_binding(),

@@ -1,6 +1,7 @@
 //! Twin of `shaders/aggregate.wgsl`: window placement and scoring.
 
 use crate::sweep::gpu_types::*;
+use super::select::{self, PixelState};
 use crate::sweep::plan::SweepPlan;
 
 fn half_decision(keep: f32, left: f32, right: f32) -> f32 {
@@ -116,10 +117,17 @@ impl Window<'_> {
     }
 }
 
-/// Fills `agg_slab` ((score, selection) per pixel per plane of the batch) from the box sums.
-pub fn run(plan: &SweepPlan, plane_count: u32, box_sums: &[[f32; 2]], cost_slab: &[f32], agg_slab: &mut [[f32; 2]]) {
+/// Scores every plane of the batch for every pixel and feeds the winner-take-all state.
+pub fn run(
+    plan: &SweepPlan,
+    first_plane: u32,
+    plane_count: u32,
+    box_sums: &[[f32; 2]],
+    cost_slab: &[f32],
+    state: &mut [PixelState],
+) {
     let p = &plan.params;
-    let (width, height, npix) = (p.ref_size[0] as i32, p.ref_size[1] as i32, plan.pixel_count());
+    let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
     let (w, h) = (p.window[0] as i32, p.window[1] as i32);
     let window = Window { plan, box_sums, cost_slab };
     for z in 0..plane_count as usize {
@@ -139,7 +147,7 @@ pub fn run(plan: &SweepPlan, plane_count: u32, box_sums: &[[f32; 2]], cost_slab:
                     }
                     best
                 };
-                agg_slab[z * npix + (y * width + x) as usize] = best;
+                select::update(&mut state[(y * width + x) as usize], (first_plane as usize + z) as f32, best);
             }
         }
     }

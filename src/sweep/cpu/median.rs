@@ -3,6 +3,41 @@
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+fn sort2(v: &mut [f32; 9], a: usize, b: usize) {
+    let (lo, hi) = (v[a].min(v[b]), v[a].max(v[b]));
+    v[a] = lo;
+    v[b] = hi;
+}
+
+/// The shader's 25-comparator sorting network.
+fn sort9(v: &mut [f32; 9]) {
+    sort2(v, 0, 1);
+    sort2(v, 3, 4);
+    sort2(v, 6, 7);
+    sort2(v, 1, 2);
+    sort2(v, 4, 5);
+    sort2(v, 7, 8);
+    sort2(v, 0, 1);
+    sort2(v, 3, 4);
+    sort2(v, 6, 7);
+    sort2(v, 0, 3);
+    sort2(v, 3, 6);
+    sort2(v, 0, 3);
+    sort2(v, 1, 4);
+    sort2(v, 4, 7);
+    sort2(v, 1, 4);
+    sort2(v, 2, 5);
+    sort2(v, 5, 8);
+    sort2(v, 2, 5);
+    sort2(v, 1, 3);
+    sort2(v, 5, 7);
+    sort2(v, 2, 6);
+    sort2(v, 4, 6);
+    sort2(v, 2, 4);
+    sort2(v, 2, 3);
+    sort2(v, 5, 6);
+}
+
 pub fn run(plan: &SweepPlan, maps: &mut [f32]) {
     let params = &plan.params;
     let (width, height) = (params.ref_size[0] as i32, params.ref_size[1] as i32);
@@ -15,32 +50,21 @@ pub fn run(plan: &SweepPlan, maps: &mut [f32]) {
                 maps[MAP_DEPTH_MEDIAN * npix + pix] = centre;
                 continue;
             }
-            let mut values = [0.0f32; 9];
+            let mut v = [BIG; 9];
             let mut count = 0usize;
-            for dy in -1..=1 {
-                let y = gy + dy;
-                if y < 0 || y >= height {
-                    continue;
-                }
-                for dx in -1..=1 {
-                    let x = gx + dx;
-                    if x < 0 || x >= width {
-                        continue;
+            for (i, value) in v.iter_mut().enumerate() {
+                let x = gx + (i % 3) as i32 - 1;
+                let y = gy + (i / 3) as i32 - 1;
+                if x >= 0 && y >= 0 && x < width && y < height {
+                    let d = maps[MAP_DEPTH_RAW * npix + (y * width + x) as usize];
+                    if !d.is_nan() {
+                        *value = d;
+                        count += 1;
                     }
-                    let v = maps[MAP_DEPTH_RAW * npix + (y * width + x) as usize];
-                    if v.is_nan() {
-                        continue;
-                    }
-                    let mut i = count;
-                    while i > 0 && values[i - 1] > v {
-                        values[i] = values[i - 1];
-                        i -= 1;
-                    }
-                    values[i] = v;
-                    count += 1;
                 }
             }
-            maps[MAP_DEPTH_MEDIAN * npix + pix] = values[(count - 1) / 2];
+            sort9(&mut v);
+            maps[MAP_DEPTH_MEDIAN * npix + pix] = v[(count - 1) / 2];
         }
     }
 }

@@ -42,7 +42,6 @@ impl CpuEngine {
         let n_planes = plan.num_planes();
         let batch = 8u32.min(n_planes);
         let mut cost_slab = vec![0.0f32; batch as usize * channels * npix];
-        let mut agg_slab = vec![[0.0f32; 2]; batch as usize * npix];
         let (padded_w, padded_h) = plan.padded_size();
         let slices = batch as usize * channels;
         let mut row_sums = vec![[0.0f32; 2]; slices * padded_w as usize * plan.height as usize];
@@ -54,8 +53,7 @@ impl CpuEngine {
             cost::run(plan, &packed, first, count, &mut cost_slab);
             boxes::box_h(plan, count, &cost_slab, &mut row_sums);
             boxes::box_v(plan, count, &row_sums, &mut box_sums);
-            aggregate::run(plan, count, &box_sums, &cost_slab, &mut agg_slab);
-            select::run(plan, first, count, first == 0, &agg_slab, &mut state);
+            aggregate::run(plan, first, count, &box_sums, &cost_slab, &mut state);
             first += count;
         }
         let mut maps = vec![0.0f32; MAP_COUNT * npix];
