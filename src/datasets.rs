@@ -30,7 +30,7 @@ pub const MIDDLEBURY_BASELINE_M: f64 = 0.1;
 /// Planes swept for ICL-NUIM and the multi-view rings.
 pub const CALIBRATED_NUM_PLANES: u32 = 96;
 /// At most this many planes for the Middlebury sets (0.25 px steps otherwise).
-pub const MAX_MIDDLEBURY_PLANES: u32 = 256;
+pub const MAX_MIDDLEBURY_PLANES: u32 = 128;
 /// Cameras used from a multi-view ring besides the reference.
 pub const RING_NEIGHBOURS: usize = 4;
 
@@ -671,11 +671,12 @@ fn load_middlebury(dir: &Path, names: &[String], layout: Layout) -> Result<Datas
         border_px: encoding.border_px,
     };
 
-    // Published search range [0.5, max] adjacent-view px, 0.25 eval-px steps.
+    // Published search range [0.5, max] adjacent-view px, 0.5 eval-px steps (sub-pixel
+    // refinement does the rest), at most MAX_MIDDLEBURY_PLANES planes.
     let min_adjacent_px = 0.5;
     let max_adjacent_px = encoding.max_adjacent_px.max(min_adjacent_px + 0.25);
     let range_eval_px = (max_adjacent_px - min_adjacent_px) * encoding.steps_eval;
-    let num_planes = ((range_eval_px * 4.0).ceil() as u32 + 1).min(MAX_MIDDLEBURY_PLANES);
+    let num_planes = ((range_eval_px * 2.0).ceil() as u32 + 1).min(MAX_MIDDLEBURY_PLANES);
     let params = SweepParams {
         min_depth_m: focal_baseline / max_adjacent_px,
         max_depth_m: focal_baseline / min_adjacent_px,
