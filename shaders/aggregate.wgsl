@@ -18,6 +18,7 @@ override CHANNELS: u32 = 1u;      // = params.counts.z
 override AGGREGATION: u32 = 0u;   // = params.modes.w
 override SCORING: u32 = 0u;       // = params.modes.x
 override BEST_N: u32 = 2u;        // = params.modes.z
+override HALF_BEST_N: u32 = 2u;   // = params.counts.w
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -105,6 +106,22 @@ fn mean_or_big(sum: vec4<f32>, count: vec4<f32>) -> vec4<f32> {
     return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
 }
 
+// Mean of the first min(n, valid) of four sorted lanes-wise values (BIG = no value).
+fn best_mean(v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, n: u32) -> vec4<f32> {
+    let big = vec4<f32>(BIG);
+    let zero = vec4<f32>(0.0);
+    let one = vec4<f32>(1.0);
+    var sum = select(zero, v0, v0 < big);
+    var count = select(zero, one, v0 < big);
+    sum += select(zero, v1, v1 < big & vec4<bool>(n > 1u));
+    count += select(zero, one, v1 < big & vec4<bool>(n > 1u));
+    sum += select(zero, v2, v2 < big & vec4<bool>(n > 2u));
+    count += select(zero, one, v2 < big & vec4<bool>(n > 2u));
+    sum += select(zero, v3, v3 < big & vec4<bool>(n > 3u));
+    count += select(zero, one, v3 < big & vec4<bool>(n > 3u));
+    return mean_or_big(sum, count);
+}
+
 fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
     let keep = 1.0 - params.thresholds.w;
     let big = vec4<f32>(BIG);
@@ -154,6 +171,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             var b5 = big;
             var b6 = big;
             var b7 = big;
+            // The HALF_BEST_N smallest pair means of each half, likewise.
+            var l0 = big;
+            var l1 = big;
+            var l2 = big;
+            var l3 = big;
+            var r0 = big;
+            var r1 = big;
+            var r2 = big;
+            var r3 = big;
             for (var p = 0u; p < CHANNELS; p++) {
                 let a = channel_means(z, p, x, y);
                 let seen = a < big;
@@ -165,9 +191,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 if (half == HALF_LEFT) {
                     left_sum += a0;
                     left_count += n0;
+                    var v = a;
+                    var t = min(l0, v); v = max(l0, v); l0 = t;
+                    t = min(l1, v); v = max(l1, v); l1 = t;
+                    t = min(l2, v); v = max(l2, v); l2 = t;
+                    l3 = min(l3, v);
                 } else if (half == HALF_RIGHT) {
                     right_sum += a0;
                     right_count += n0;
+                    var v = a;
+                    var t = min(r0, v); v = max(r0, v); r0 = t;
+                    t = min(r1, v); v = max(r1, v); r1 = t;
+                    t = min(r2, v); v = max(r2, v); r2 = t;
+                    r3 = min(r3, v);
                 }
                 if (SCORING == SCORING_BEST_N) {
                     var v = a;
@@ -182,8 +218,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 }
             }
             if (SCORING == SCORING_HALF) {
-                let left = mean_or_big(left_sum, left_count);
-                let right = mean_or_big(right_sum, right_count);
+                var left = mean_or_big(left_sum, left_count);
+                var right = mean_or_big(right_sum, right_count);
+                if (HALF_BEST_N > 0u) {
+                    left = best_mean(l0, l1, l2, l3, HALF_BEST_N);
+                    right = best_mean(r0, r1, r2, r3, HALF_BEST_N);
+                }
                 score = min(left, right);
                 sel = half_decisions(left, right);
             } else if (SCORING == SCORING_BEST_N) {

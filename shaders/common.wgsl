@@ -35,6 +35,7 @@ const HALF_REFERENCE: u32 = 2u;
 
 const MAX_CAMERAS: u32 = 32u;      // all-pairs modes cache one colour per camera
 const MAX_BEST_N: u32 = 8u;
+const MAX_HALF_BEST_N: u32 = 4u;  // best half-sequence: the n best pairs of each half
 
 // Pipeline-overridable constants: the engine specialises each pipeline to the mode at hand so
 // the compiler drops the code of the other modes (set from src/sweep/gpu.rs; the values repeat
@@ -55,7 +56,7 @@ struct Camera {
 
 struct Params {
     ref_size: vec4<u32>,      // width, height, pixel count, reference camera index or NO_CAMERA
-    counts: vec4<u32>,        // cameras, planes, channels (1 or 2), batch capacity
+    counts: vec4<u32>,        // cameras, planes, channels, half best n (0 = all pairs of a half)
     modes: vec4<u32>,         // scoring, pair mode, best n, aggregation
     window: vec4<u32>,        // window width, height (1 = no aggregation), subpixel, median
     thresholds: vec4<f32>,    // tau, max_cost, occlusion tolerance (relative), half margin

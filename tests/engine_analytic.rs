@@ -7,7 +7,7 @@ use sweepdepth::geometry::{CameraModel, Reference, Rig, RigCamera, RigidTransfor
 use sweepdepth::image::ImageF32;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams};
+use sweepdepth::sweep::{selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene, TexturedQuad};
 
 fn engine() -> GpuEngine {
@@ -91,7 +91,12 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
     p.scoring = Scoring::BestHalfSequence;
     p.window_width = 2;
     p.window_height = 2;
+    p.window_mode = WindowMode::Shiftable;
     p.min_visible_cameras = 0;
+    // No truncation, so an occluded pair is not already capped by tau: the test isolates what
+    // the half-sequence choice itself does.
+    p.tau = 1.0e6;
+    p.max_cost = 1.0e6;
     let mut engine = engine();
     let half = engine.run(&rig, &images, &p).expect("sweep");
     p.scoring = Scoring::Sssd;
@@ -270,7 +275,11 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut engine = engine();
     let mut p = params(1.0, 4.0, 8);
     p.window_width = 3;
-    assert!(engine.run(&rig, &images, &p).is_err(), "odd window");
+    p.window_mode = WindowMode::Shiftable;
+    assert!(engine.run(&rig, &images, &p).is_err(), "odd shiftable window");
+    let mut p = params(1.0, 4.0, 8);
+    p.half_best_n = 5;
+    assert!(engine.run(&rig, &images, &p).is_err(), "half_best_n too large");
     let p = params(4.0, 1.0, 8);
     assert!(engine.run(&rig, &images, &p).is_err(), "inverted depth range");
     let p = params(1.0, 4.0, 8);

@@ -93,6 +93,7 @@ fn every_scoring_and_window_agrees_on_synthetic() {
         ("no_post", SweepParams { subpixel: false, median: false, min_visible_cameras: 0, ..base() }),
         ("per_pair_best2_centred_5x5", SweepParams { aggregation: Aggregation::PerPair, window_mode: WindowMode::Centred, window_width: 5, window_height: 5, ..base() }),
         ("per_pair_half_shiftable_2x2", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerPair, window_width: 2, window_height: 2, ..base() }),
+        ("per_pair_half_all_pairs_of_half", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerPair, half_best_n: 0, ..base() }),
         ("per_pair_sssd_shiftable_6x4", SweepParams { scoring: Scoring::Sssd, aggregation: Aggregation::PerPair, window_width: 6, window_height: 4, ..base() }),
         ("per_pair_all_pairs_best3", SweepParams { scoring: Scoring::BestNOfM, best_n: 3, pairs: PairSet::All, aggregation: Aggregation::PerPair, ..base() }),
         ("centred_1x1_scored", SweepParams { window_mode: WindowMode::Centred, window_width: 1, window_height: 1, aggregation: Aggregation::Scored, ..base() }),

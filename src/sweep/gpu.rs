@@ -123,6 +123,7 @@ struct Specialisation {
     channels: u32,
     aggregation: u32,
     window_mode: u32,
+    half_best_n: u32,
 }
 
 impl Specialisation {
@@ -138,6 +139,7 @@ impl Specialisation {
             channels: p.counts[2],
             aggregation: p.modes[3],
             window_mode: p.extra[1],
+            half_best_n: p.counts[3],
         }
     }
 }
@@ -379,6 +381,7 @@ impl GpuEngine {
             ("SCORING", f64::from(spec.scoring)),
             ("BEST_N", f64::from(spec.best_n)),
             ("WINDOW_MODE", f64::from(spec.window_mode)),
+            ("HALF_BEST_N", f64::from(spec.half_best_n)),
         ];
         let box_h = [distorted[0], ("WINDOW_W", f64::from(spec.window_w)), ("CHANNELS", f64::from(spec.channels))];
         let box_v = [distorted[0], ("WINDOW_H", f64::from(spec.window_h)), ("CHANNELS", f64::from(spec.channels))];
@@ -476,10 +479,8 @@ impl GpuEngine {
     }
 
     fn upload_plan(&self, buffers: &Buffers, plan: &SweepPlan, key: ShapeKey) {
-        let mut params = plan.params;
-        params.counts[3] = key.batch;
         self.queue
-            .write_buffer(&buffers.params, 0, bytemuck::bytes_of(&params));
+            .write_buffer(&buffers.params, 0, bytemuck::bytes_of(&plan.params));
         self.queue
             .write_buffer(&buffers.cameras, 0, bytemuck::cast_slice(&plan.cameras));
         self.queue

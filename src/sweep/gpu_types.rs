@@ -6,6 +6,7 @@ use bytemuck::{Pod, Zeroable};
 pub const NO_CAMERA: u32 = u32::MAX;
 pub const MAX_CAMERAS: u32 = 32;
 pub const MAX_BEST_N: u32 = 8;
+pub const MAX_HALF_BEST_N: u32 = 4;
 
 pub const SCORING_SSSD: u32 = 0;
 pub const SCORING_BEST_N: u32 = 1;
@@ -60,7 +61,7 @@ pub struct GpuCamera {
 pub struct GpuParams {
     /// width, height, pixel count, reference camera index or NO_CAMERA.
     pub ref_size: [u32; 4],
-    /// cameras, planes, channels, batch capacity.
+    /// cameras, planes, channels, half best n (0 = all pairs of a half).
     pub counts: [u32; 4],
     /// scoring, pair mode, best n, aggregation.
     pub modes: [u32; 4],
@@ -100,6 +101,7 @@ mod tests {
             ("AGG_PER_PAIR", AGG_PER_PAIR),
             ("MAX_PAIRS", MAX_PAIRS),
             ("WINDOW_CENTRED", WINDOW_CENTRED),
+            ("MAX_HALF_BEST_N", MAX_HALF_BEST_N),
             ("DIST_EQUIDISTANT", DIST_EQUIDISTANT),
             ("HALF_REFERENCE", HALF_REFERENCE),
             ("MAP_COUNT", MAP_COUNT as u32),

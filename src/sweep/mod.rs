@@ -74,6 +74,9 @@ pub struct SweepParams {
     pub pairs: PairSet,
     /// n of best n of m.
     pub best_n: u32,
+    /// Best half-sequence with per-pair aggregation scores each half by the mean of its n best
+    /// pairs (0 = all pairs of the half, the paper's rule; at most 4).
+    pub half_best_n: u32,
     pub aggregation: Aggregation,
     /// Window width and height in pixels: 1x1 = no aggregation, 2x2 = the paper's shiftable
     /// window, 2n x 2m = larger shiftable windows.
@@ -103,6 +106,7 @@ impl Default for SweepParams {
             scoring: Scoring::BestNOfM,
             pairs: PairSet::Reference,
             best_n: 2,
+            half_best_n: 2,
             aggregation: Aggregation::PerPair,
             window_width: 9,
             window_height: 9,
@@ -182,6 +186,13 @@ impl SweepParams {
                 "best_n must be in 1..={}, got {}",
                 gpu_types::MAX_BEST_N,
                 self.best_n
+            ));
+        }
+        if self.half_best_n > gpu_types::MAX_HALF_BEST_N {
+            return bad(format!(
+                "half_best_n must be in 0..={} (0 = all pairs of a half), got {}",
+                gpu_types::MAX_HALF_BEST_N,
+                self.half_best_n
             ));
         }
         let pairs = self.effective_pairs();
@@ -339,7 +350,10 @@ pub struct ParamOverrides {
     /// n of best n of m.
     #[arg(long)]
     pub best_n: Option<u32>,
-    /// Where windows aggregate (best half-sequence).
+    /// Best half-sequence: average the n best pairs of each half (0 = all, the paper).
+    #[arg(long)]
+    pub half_best_n: Option<u32>,
+    /// Where windows aggregate: the scored cost, each half, or each pair.
     #[arg(long, value_enum)]
     pub aggregation: Option<Aggregation>,
     /// Window as WxH (1x1 = none, 2x2 = the paper's shiftable window).
@@ -396,6 +410,9 @@ impl ParamOverrides {
         }
         if let Some(v) = self.best_n {
             p.best_n = v;
+        }
+        if let Some(v) = self.half_best_n {
+            p.half_best_n = v;
         }
         if let Some(v) = self.aggregation {
             p.aggregation = v;

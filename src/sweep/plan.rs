@@ -157,7 +157,7 @@ impl SweepPlan {
         };
         let gpu_params = GpuParams {
             ref_size: [width, height, width * height, reference.map_or(NO_CAMERA, |i| i as u32)],
-            counts: [rig.cameras.len() as u32, planes.len() as u32, channels, 0],
+            counts: [rig.cameras.len() as u32, planes.len() as u32, channels, params.half_best_n],
             modes: [
                 scoring,
                 pairs,

@@ -18,6 +18,16 @@ const SEL_NONE: u32 = 0;
 const SEL_LEFT: u32 = 1;
 const SEL_RIGHT: u32 = 2;
 
+/// Mean of the `n` smallest values (all of them when fewer), BIG when there are none.
+fn best_mean(values: &mut [f32], n: usize) -> f32 {
+    if values.is_empty() {
+        return BIG;
+    }
+    values.sort_by(|a, b| a.total_cmp(b));
+    let k = n.min(values.len());
+    values[..k].iter().sum::<f32>() / k as f32
+}
+
 struct Window<'a> {
     plan: &'a SweepPlan,
     box_sums: &'a [[f32; 2]],
@@ -63,6 +73,8 @@ impl Window<'_> {
             let (mut left_sum, mut left_count, mut right_sum, mut right_count) = (0.0f32, 0u32, 0.0f32, 0u32);
             let mut smallest = [0.0f32; MAX_BEST_N as usize];
             let mut kept = 0u32;
+            let mut left_values = Vec::new();
+            let mut right_values = Vec::new();
             for pair in 0..self.plan.channels() {
                 let a = self.mean(z, pair, ax, ay);
                 if a >= BIG {
@@ -74,9 +86,11 @@ impl Window<'_> {
                 if half == HALF_LEFT {
                     left_sum += a;
                     left_count += 1;
+                    left_values.push(a);
                 } else if half == HALF_RIGHT {
                     right_sum += a;
                     right_count += 1;
+                    right_values.push(a);
                 }
                 if scoring == SCORING_BEST_N && (kept < n || a < smallest[(n - 1) as usize]) {
                     let mut i = kept.min(n - 1) as usize;
@@ -89,8 +103,13 @@ impl Window<'_> {
                 }
             }
             if scoring == SCORING_HALF {
-                let left = if left_count > 0 { left_sum / left_count as f32 } else { BIG };
-                let right = if right_count > 0 { right_sum / right_count as f32 } else { BIG };
+                let half_n = p.counts[3] as usize;
+                let mut left = if left_count > 0 { left_sum / left_count as f32 } else { BIG };
+                let mut right = if right_count > 0 { right_sum / right_count as f32 } else { BIG };
+                if half_n > 0 {
+                    left = best_mean(&mut left_values, half_n);
+                    right = best_mean(&mut right_values, half_n);
+                }
                 return [left.min(right), half_decision(keep, left, right)];
             }
             if scoring == SCORING_BEST_N {
