@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::geometry::CameraModel;
 use crate::gpu_context::GpuContext;
 use crate::sweep::gpu::{GpuEngine, STAGES};
-use crate::sweep::{ParamOverrides, Scoring, SweepParams};
+use crate::sweep::{ParamOverrides, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
 #[derive(Debug, clap::Args)]
@@ -52,6 +52,7 @@ pub struct BenchResult {
     pub scoring: String,
     pub window: String,
     pub pairs: String,
+    pub aggregation: String,
     pub ms_per_frame: f64,
     pub hypotheses_per_s: f64,
     pub stage_ms: serde_json::Map<String, serde_json::Value>,
@@ -78,6 +79,7 @@ pub fn bench_params(config: &BenchConfig, overrides: &ParamOverrides) -> SweepPa
         scoring: Scoring::BestHalfSequence,
         window_width: 2,
         window_height: 2,
+        window_mode: WindowMode::Shiftable,
         ..SweepParams::default()
     };
     overrides.apply(&mut params);
@@ -128,8 +130,14 @@ pub fn run_config(
         height: config.height,
         planes: config.planes,
         scoring: serde_json::to_value(params.scoring)?.as_str().unwrap_or("?").to_string(),
-        window: format!("shiftable {}x{}", params.window_width, params.window_height),
+        window: format!(
+            "{} {}x{}",
+            serde_json::to_value(params.window_mode)?.as_str().unwrap_or("?"),
+            params.window_width,
+            params.window_height
+        ),
         pairs: serde_json::to_value(params.effective_pairs())?.as_str().unwrap_or("?").to_string(),
+        aggregation: serde_json::to_value(params.aggregation)?.as_str().unwrap_or("?").to_string(),
         ms_per_frame: (ms * 1000.0).round() / 1000.0,
         hypotheses_per_s: (hypotheses / (ms / 1e3)).round(),
         stage_ms: stages,
@@ -146,7 +154,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     if !args.json {
         println!("adapter: {adapter}");
         println!(
-            "{:>4} {:>11} {:>6} {:>20} {:>10} {:>12}  per-stage GPU ms",
+            "{:>4} {:>11} {:>6} {:>34} {:>10} {:>12}  per-stage GPU ms",
             "cams", "size", "planes", "scoring/window", "ms/frame", "Mhyp/s"
         );
     }
@@ -164,11 +172,11 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 .map(|(k, v)| format!("{k} {:.2}", v.as_f64().unwrap_or(f64::NAN)))
                 .collect();
             println!(
-                "{:>4} {:>11} {:>6} {:>20} {:>10.2} {:>12.1}  {}",
+                "{:>4} {:>11} {:>6} {:>34} {:>10.2} {:>12.1}  {}",
                 result.cameras,
                 format!("{}x{}", result.width, result.height),
                 result.planes,
-                format!("{}/{}", result.scoring, result.window.trim_start_matches("shiftable ")),
+                format!("{}/{}", result.scoring, result.window),
                 result.ms_per_frame,
                 result.hypotheses_per_s / 1e6,
                 if stages.is_empty() { result.stage_timer.to_string() } else { stages.join(", ") }
