@@ -18,7 +18,8 @@ const STAGES: &[&str] = &[
 fn main() {
     let out_dir = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
     println!("cargo:rerun-if-changed=shaders");
-    let common = fs::read_to_string("shaders/common.wgsl").expect("shaders/common.wgsl is readable");
+    let common =
+        fs::read_to_string("shaders/common.wgsl").expect("shaders/common.wgsl is readable");
     let mut failures = Vec::new();
     for stage in STAGES {
         let path = format!("shaders/{stage}.wgsl");

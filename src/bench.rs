@@ -38,9 +38,24 @@ pub struct BenchConfig {
 
 /// The three configurations: the paper's, then 640x480x64 and 1280x960x128.
 pub const CONFIGS: [BenchConfig; 3] = [
-    BenchConfig { cameras: 4, width: 320, height: 240, planes: 20 },
-    BenchConfig { cameras: 4, width: 640, height: 480, planes: 64 },
-    BenchConfig { cameras: 4, width: 1280, height: 960, planes: 128 },
+    BenchConfig {
+        cameras: 4,
+        width: 320,
+        height: 240,
+        planes: 20,
+    },
+    BenchConfig {
+        cameras: 4,
+        width: 640,
+        height: 480,
+        planes: 64,
+    },
+    BenchConfig {
+        cameras: 4,
+        width: 1280,
+        height: 960,
+        planes: 128,
+    },
 ];
 
 #[derive(Debug, Serialize)]
@@ -121,7 +136,10 @@ pub fn run_config(
     let mut stages = serde_json::Map::new();
     if gpu_timestamps {
         for (name, values) in STAGES.iter().zip(stage_ms) {
-            stages.insert(name.to_string(), serde_json::json!((median(values) * 1000.0).round() / 1000.0));
+            stages.insert(
+                name.to_string(),
+                serde_json::json!((median(values) * 1000.0).round() / 1000.0),
+            );
         }
     }
     Ok(BenchResult {
@@ -129,19 +147,34 @@ pub fn run_config(
         width: config.width,
         height: config.height,
         planes: config.planes,
-        scoring: serde_json::to_value(params.scoring)?.as_str().unwrap_or("?").to_string(),
+        scoring: serde_json::to_value(params.scoring)?
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
         window: format!(
             "{} {}x{}",
-            serde_json::to_value(params.window_mode)?.as_str().unwrap_or("?"),
+            serde_json::to_value(params.window_mode)?
+                .as_str()
+                .unwrap_or("?"),
             params.window_width,
             params.window_height
         ),
-        pairs: serde_json::to_value(params.effective_pairs())?.as_str().unwrap_or("?").to_string(),
-        aggregation: serde_json::to_value(params.aggregation)?.as_str().unwrap_or("?").to_string(),
+        pairs: serde_json::to_value(params.effective_pairs())?
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
+        aggregation: serde_json::to_value(params.aggregation)?
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
         ms_per_frame: (ms * 1000.0).round() / 1000.0,
         hypotheses_per_s: (hypotheses / (ms / 1e3)).round(),
         stage_ms: stages,
-        stage_timer: if gpu_timestamps { "gpu timestamps" } else { "none (adapter has no timestamp queries)" },
+        stage_timer: if gpu_timestamps {
+            "gpu timestamps"
+        } else {
+            "none (adapter has no timestamp queries)"
+        },
         runs: repeats.max(1),
         adapter: adapter.to_string(),
     })
@@ -162,7 +195,12 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     for config in configs {
         // Fewer repeats for the big frame on slow adapters keeps the run bounded.
         let result = run_config(&mut engine, &adapter, config, &args.params, args.repeats)
-            .with_context(|| format!("{}x{} with {} planes", config.width, config.height, config.planes))?;
+            .with_context(|| {
+                format!(
+                    "{}x{} with {} planes",
+                    config.width, config.height, config.planes
+                )
+            })?;
         if args.json {
             println!("{}", serde_json::to_string(&result)?);
         } else {
@@ -179,7 +217,11 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 format!("{}/{}", result.scoring, result.window),
                 result.ms_per_frame,
                 result.hypotheses_per_s / 1e6,
-                if stages.is_empty() { result.stage_timer.to_string() } else { stages.join(", ") }
+                if stages.is_empty() {
+                    result.stage_timer.to_string()
+                } else {
+                    stages.join(", ")
+                }
             );
         }
     }

@@ -25,12 +25,30 @@ pub struct DemoArgs {
 
 /// The sample data, embedded so the demo runs from any directory.
 const SAMPLE: [(&str, &[u8]); 6] = [
-    ("scene1.row3.col1.png", include_bytes!("../data/tsukuba/scene1.row3.col1.png")),
-    ("scene1.row3.col2.png", include_bytes!("../data/tsukuba/scene1.row3.col2.png")),
-    ("scene1.row3.col3.png", include_bytes!("../data/tsukuba/scene1.row3.col3.png")),
-    ("scene1.row3.col4.png", include_bytes!("../data/tsukuba/scene1.row3.col4.png")),
-    ("scene1.row3.col5.png", include_bytes!("../data/tsukuba/scene1.row3.col5.png")),
-    ("truedisp.row3.col3.png", include_bytes!("../data/tsukuba/truedisp.row3.col3.png")),
+    (
+        "scene1.row3.col1.png",
+        include_bytes!("../data/tsukuba/scene1.row3.col1.png"),
+    ),
+    (
+        "scene1.row3.col2.png",
+        include_bytes!("../data/tsukuba/scene1.row3.col2.png"),
+    ),
+    (
+        "scene1.row3.col3.png",
+        include_bytes!("../data/tsukuba/scene1.row3.col3.png"),
+    ),
+    (
+        "scene1.row3.col4.png",
+        include_bytes!("../data/tsukuba/scene1.row3.col4.png"),
+    ),
+    (
+        "scene1.row3.col5.png",
+        include_bytes!("../data/tsukuba/scene1.row3.col5.png"),
+    ),
+    (
+        "truedisp.row3.col3.png",
+        include_bytes!("../data/tsukuba/truedisp.row3.col3.png"),
+    ),
 ];
 
 /// Writes the embedded sample into `dir/tsukuba` and returns that folder.
@@ -65,7 +83,12 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let metrics = eval::metrics_for(&dataset, &maps)?;
     let out = args.out.join("tsukuba");
     eval::save_outputs(&out, &dataset, &maps)?;
-    for name in ["depth.png", "confidence.png", "selection.png", "disparity.pfm"] {
+    for name in [
+        "depth.png",
+        "confidence.png",
+        "selection.png",
+        "disparity.pfm",
+    ] {
         println!("wrote {}", out.join(name).display());
     }
     match metrics {

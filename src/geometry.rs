@@ -20,7 +20,9 @@ pub enum GeometryError {
     InvalidIntrinsics { camera: String, reason: String },
     #[error("camera '{camera}': unsupported distortion model '{model}' (supported: plumb_bob, rational_polynomial with zero k4..k6, equidistant, none)")]
     UnsupportedDistortion { camera: String, model: String },
-    #[error("camera '{camera}': distortion model '{model}' needs {expected} coefficients, got {got}")]
+    #[error(
+        "camera '{camera}': distortion model '{model}' needs {expected} coefficients, got {got}"
+    )]
     DistortionCoefficients {
         camera: String,
         model: String,
@@ -306,10 +308,7 @@ impl CameraModel {
     /// The ray through a pixel, scaled to z = 1, in this camera's frame.
     pub fn unproject_z1(&self, pixel: DVec2) -> DVec3 {
         let k = &self.intrinsics;
-        let distorted = DVec2::new(
-            (pixel.x - k.cx_px) / k.fx_px,
-            (pixel.y - k.cy_px) / k.fy_px,
-        );
+        let distorted = DVec2::new((pixel.x - k.cx_px) / k.fx_px, (pixel.y - k.cy_px) / k.fy_px);
         let p = self.distortion.undistort(distorted);
         DVec3::new(p.x, p.y, 1.0)
     }
@@ -361,7 +360,9 @@ impl RigidTransform {
         }
         let norm = rotation.length();
         if (norm - 1.0).abs() > 1e-3 {
-            return Err(bad(&format!("quaternion is not unit length (|q| = {norm})")));
+            return Err(bad(&format!(
+                "quaternion is not unit length (|q| = {norm})"
+            )));
         }
         Ok(Self {
             rotation: rotation / norm,
@@ -680,7 +681,9 @@ mod tests {
         )
         .unwrap();
         let p = DVec3::new(0.5, -0.1, 2.0);
-        let back = a_from_b.inverse().transform_point(a_from_b.transform_point(p));
+        let back = a_from_b
+            .inverse()
+            .transform_point(a_from_b.transform_point(p));
         assert!((back - p).length() < 1e-12);
         let id = a_from_b.compose(&a_from_b.inverse());
         assert!(id.translation.length() < 1e-12);

@@ -25,7 +25,8 @@ impl GpuContext {
     }
 
     pub async fn new_async() -> Result<Self, GpuContextError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
             .await
             .map_err(|e| GpuContextError::NoAdapter(e.to_string()))?;
@@ -73,8 +74,11 @@ impl GpuContext {
     /// "name (backend, driver)" for reports.
     pub fn adapter_label(&self) -> String {
         let info = self.adapter.get_info();
-        format!("{} ({:?}, {} {})", info.name, info.backend, info.driver, info.driver_info)
-            .trim()
-            .to_string()
+        format!(
+            "{} ({:?}, {} {})",
+            info.name, info.backend, info.driver, info.driver_info
+        )
+        .trim()
+        .to_string()
     }
 }

@@ -5,7 +5,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "sweepdepth", version, about = "Multi-camera plane-sweep depth on the GPU (Woetzel & Koch 2004)")]
+#[command(
+    name = "sweepdepth",
+    version,
+    about = "Multi-camera plane-sweep depth on the GPU (Woetzel & Koch 2004)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -3,7 +3,10 @@
 
 use glam::{DQuat, DVec2, DVec3};
 
-use crate::geometry::{CameraModel, Distortion, GeometryError, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::geometry::{
+    CameraModel, Distortion, GeometryError, PinholeIntrinsics, Reference, Rig, RigCamera,
+    RigidTransform,
+};
 use crate::image::{ImageF32, Rgba8Image};
 
 /// A textured planar patch in the world (rig) frame: points `origin + a u_axis + b v_axis` with
@@ -21,7 +24,13 @@ pub struct TexturedQuad {
 
 impl TexturedQuad {
     /// A fronto-parallel (normal = world z) quad at depth `z_m`.
-    pub fn fronto_parallel(z_m: f64, centre_xy: DVec2, half_extent_m: Option<DVec2>, feature_m: f64, seed: u32) -> Self {
+    pub fn fronto_parallel(
+        z_m: f64,
+        centre_xy: DVec2,
+        half_extent_m: Option<DVec2>,
+        feature_m: f64,
+        seed: u32,
+    ) -> Self {
         Self {
             origin_in_world: DVec3::new(centre_xy.x, centre_xy.y, z_m),
             u_axis: DVec3::X,
@@ -58,7 +67,8 @@ impl TexturedQuad {
         let mut rgb = [0.0; 3];
         for (c, value) in rgb.iter_mut().enumerate() {
             let s = self.seed.wrapping_mul(3).wrapping_add(c as u32);
-            *value = 0.65 * value_noise(p, s) + 0.35 * value_noise(p * 2.7 + DVec2::splat(17.0), s ^ 0x5bd1);
+            *value = 0.65 * value_noise(p, s)
+                + 0.35 * value_noise(p * 2.7 + DVec2::splat(17.0), s ^ 0x5bd1);
         }
         rgb
     }
@@ -102,7 +112,13 @@ impl Scene {
     /// renders are not aliased.
     pub fn wall_and_box(wall_z_m: f64, front: Option<(f64, f64)>, focal_px: f64) -> Self {
         let feature = |z: f64| 2.5 * z / focal_px;
-        let mut quads = vec![TexturedQuad::fronto_parallel(wall_z_m, DVec2::ZERO, None, feature(wall_z_m), 1)];
+        let mut quads = vec![TexturedQuad::fronto_parallel(
+            wall_z_m,
+            DVec2::ZERO,
+            None,
+            feature(wall_z_m),
+            1,
+        )];
         if let Some((front_z_m, half_m)) = front {
             quads.push(TexturedQuad::fronto_parallel(
                 front_z_m,
@@ -166,7 +182,10 @@ impl Scene {
                 let ray = model.unproject_z1(DVec2::new(f64::from(x), f64::from(y)));
                 let dir = rig_from_cam.transform_vector(ray);
                 // dir has z = 1 in the camera frame, so t is the z-depth.
-                data.push(self.cast(rig_from_cam.translation, dir).map_or(f32::NAN, |(t, _)| t as f32));
+                data.push(
+                    self.cast(rig_from_cam.translation, dir)
+                        .map_or(f32::NAN, |(t, _)| t as f32),
+                );
             }
         }
         ImageF32 {
@@ -192,7 +211,12 @@ pub fn intrinsics(width_px: u32, height_px: u32) -> PinholeIntrinsics {
 
 /// `n` cameras in a row along world x, `baseline_m` apart, looking down world +z; the reference is
 /// camera `reference`.
-pub fn row_rig(n: usize, baseline_m: f64, model: CameraModel, reference: usize) -> Result<Rig, GeometryError> {
+pub fn row_rig(
+    n: usize,
+    baseline_m: f64,
+    model: CameraModel,
+    reference: usize,
+) -> Result<Rig, GeometryError> {
     let cameras = (0..n)
         .map(|i| {
             let x = (i as f64 - reference as f64) * baseline_m;
@@ -211,7 +235,13 @@ pub fn row_rig(n: usize, baseline_m: f64, model: CameraModel, reference: usize) 
 
 /// A rig for general-pose tests: cameras on a horizontal arc around a point `distance_m` ahead,
 /// each turned to look at it (converging views), with optional distortion.
-pub fn arc_rig(n: usize, step_rad: f64, distance_m: f64, model: CameraModel, reference: usize) -> Result<Rig, GeometryError> {
+pub fn arc_rig(
+    n: usize,
+    step_rad: f64,
+    distance_m: f64,
+    model: CameraModel,
+    reference: usize,
+) -> Result<Rig, GeometryError> {
     let target = DVec3::new(0.0, 0.0, distance_m);
     let cameras = (0..n)
         .map(|i| {

@@ -7,7 +7,9 @@ use sweepdepth::geometry::{CameraModel, Reference, Rig, RigCamera, RigidTransfor
 use sweepdepth::image::ImageF32;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode};
+use sweepdepth::sweep::{
+    selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode,
+};
 use sweepdepth::synthetic::{self, Scene, TexturedQuad};
 
 fn engine() -> GpuEngine {
@@ -48,12 +50,22 @@ fn fronto_parallel_plane_comes_back_at_its_depth() {
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let scene = Scene::wall_and_box(2.0, None, 70.0);
     let images = synthetic::render_rig(&scene, &rig);
-    let maps = engine().run(&rig, &images, &params(1.0, 4.0, 48)).expect("sweep runs");
+    let maps = engine()
+        .run(&rig, &images, &params(1.0, 4.0, 48))
+        .expect("sweep runs");
     let truth = synthetic::reference_depth(&scene, &rig);
     check_within("fronto_parallel", &maps.depth_m, &truth, 0.01, 0.9);
     // Every finite depth is near 2 m: nothing wildly wrong hides among the valid pixels.
-    let wrong = maps.depth_m.data.iter().filter(|d| d.is_finite() && (**d - 2.0).abs() > 0.1).count();
-    assert!(wrong * 100 < maps.depth_m.data.len(), "{wrong} pixels off by more than 10 cm");
+    let wrong = maps
+        .depth_m
+        .data
+        .iter()
+        .filter(|d| d.is_finite() && (**d - 2.0).abs() > 0.1)
+        .count();
+    assert!(
+        wrong * 100 < maps.depth_m.data.len(),
+        "{wrong} pixels off by more than 10 cm"
+    );
 }
 
 #[test]
@@ -68,14 +80,23 @@ fn sub_pixel_refinement_lowers_the_error_between_planes() {
     let images = synthetic::render_rig(&scene, &rig);
     let mut engine = engine();
     let mean_abs_error = |maps: &sweepdepth::sweep::DepthMaps| {
-        let v: Vec<f64> = maps.depth_m.data.iter().filter(|d| d.is_finite()).map(|d| (f64::from(*d) - z).abs()).collect();
+        let v: Vec<f64> = maps
+            .depth_m
+            .data
+            .iter()
+            .filter(|d| d.is_finite())
+            .map(|d| (f64::from(*d) - z).abs())
+            .collect();
         v.iter().sum::<f64>() / v.len().max(1) as f64
     };
     p.subpixel = false;
     let coarse = mean_abs_error(&engine.run(&rig, &images, &p).expect("sweep"));
     p.subpixel = true;
     let fine = mean_abs_error(&engine.run(&rig, &images, &p).expect("sweep"));
-    assert!(fine < 0.5 * coarse, "sub-pixel error {fine:.4} m vs {coarse:.4} m without");
+    assert!(
+        fine < 0.5 * coarse,
+        "sub-pixel error {fine:.4} m vs {coarse:.4} m without"
+    );
 }
 
 /// Wall pixels beside a near box are hidden from the cameras on one side. Best half-sequence must
@@ -110,8 +131,12 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
     let mut right_band = Vec::new();
     for y in 0..h {
         let row: Vec<f32> = (0..w).map(|x| truth.get(x, y)).collect();
-        let Some(first) = row.iter().position(|&d| d < 2.0) else { continue };
-        let Some(last) = row.iter().rposition(|&d| d < 2.0) else { continue };
+        let Some(first) = row.iter().position(|&d| d < 2.0) else {
+            continue;
+        };
+        let Some(last) = row.iter().rposition(|&d| d < 2.0) else {
+            continue;
+        };
         for x in first.saturating_sub(band_px as usize / 2)..first.saturating_sub(1) {
             left_band.push((x as u32, y));
         }
@@ -119,9 +144,17 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
             right_band.push((x as u32, y));
         }
     }
-    assert!(left_band.len() > 20 && right_band.len() > 20, "bands too small: {} {}", left_band.len(), right_band.len());
+    assert!(
+        left_band.len() > 20 && right_band.len() > 20,
+        "bands too small: {} {}",
+        left_band.len(),
+        right_band.len()
+    );
     let share = |band: &[(u32, u32)], code: u8| {
-        band.iter().filter(|&&(x, y)| half.selection[(y * w + x) as usize] == code).count() as f64 / band.len() as f64
+        band.iter()
+            .filter(|&&(x, y)| half.selection[(y * w + x) as usize] == code)
+            .count() as f64
+            / band.len() as f64
     };
     let correct = |maps: &sweepdepth::sweep::DepthMaps, band: &[(u32, u32)]| {
         band.iter()
@@ -134,12 +167,29 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
     };
     let left_red = share(&left_band, selection::LEFT);
     let right_green = share(&right_band, selection::RIGHT);
-    assert!(left_red > 0.6, "left of the box only {:.0} % picked the left half", left_red * 100.0);
-    assert!(right_green > 0.6, "right of the box only {:.0} % picked the right half", right_green * 100.0);
+    assert!(
+        left_red > 0.6,
+        "left of the box only {:.0} % picked the left half",
+        left_red * 100.0
+    );
+    assert!(
+        right_green > 0.6,
+        "right of the box only {:.0} % picked the right half",
+        right_green * 100.0
+    );
     let band: Vec<(u32, u32)> = left_band.iter().chain(&right_band).copied().collect();
     let (half_ok, sssd_ok) = (correct(&half, &band), correct(&sssd, &band));
-    assert!(half_ok > 0.8, "half-sequence correct on only {:.0} % of the occlusion bands", half_ok * 100.0);
-    assert!(half_ok > sssd_ok + 0.1, "half-sequence {:.0} % vs SSSD {:.0} %", half_ok * 100.0, sssd_ok * 100.0);
+    assert!(
+        half_ok > 0.8,
+        "half-sequence correct on only {:.0} % of the occlusion bands",
+        half_ok * 100.0
+    );
+    assert!(
+        half_ok > sssd_ok + 0.1,
+        "half-sequence {:.0} % vs SSSD {:.0} %",
+        half_ok * 100.0,
+        sssd_ok * 100.0
+    );
 }
 
 /// Near the image border some cameras cannot see the hypothesis; their pairs are dropped and
@@ -179,7 +229,10 @@ fn rays_leaving_a_camera_are_normalised_not_penalised() {
         "border columns {good} of {total} correct vs interior {:.1} %",
         inner * 100.0
     );
-    assert!(good * 100 >= total * 85, "border columns: {good} of {total} correct");
+    assert!(
+        good * 100 >= total * 85,
+        "border columns: {good} of {total} correct"
+    );
 }
 
 #[test]
@@ -194,11 +247,17 @@ fn different_sizes_and_intrinsics_in_one_rig() {
         cy_px: 46.5,
     });
     let mut cameras = Vec::new();
-    for (i, (x, model)) in [(-0.1, big), (0.0, reference), (0.1, big)].into_iter().enumerate() {
+    for (i, (x, model)) in [(-0.1, big), (0.0, reference), (0.1, big)]
+        .into_iter()
+        .enumerate()
+    {
         cameras.push(RigCamera {
             name: format!("cam{i}"),
             model,
-            cam_from_rig: RigidTransform { rotation: DQuat::IDENTITY, translation: DVec3::new(-x, 0.0, 0.0) },
+            cam_from_rig: RigidTransform {
+                rotation: DQuat::IDENTITY,
+                translation: DVec3::new(-x, 0.0, 0.0),
+            },
         });
     }
     let rig = Rig::new(cameras, Reference::Camera(1)).expect("rig");
@@ -207,19 +266,34 @@ fn different_sizes_and_intrinsics_in_one_rig() {
     let mut p = params(1.0, 4.0, 64);
     p.min_visible_cameras = 0;
     let maps = engine().run(&rig, &images, &p).expect("sweep");
-    check_within("mixed_sizes", &maps.depth_m, &synthetic::reference_depth(&scene, &rig), 0.02, 0.85);
+    check_within(
+        "mixed_sizes",
+        &maps.depth_m,
+        &synthetic::reference_depth(&scene, &rig),
+        0.02,
+        0.85,
+    );
 }
 
 #[test]
 fn distorted_converging_cameras() {
-    let model = CameraModel { intrinsics: synthetic::intrinsics(80, 60), distortion: synthetic::plumb_bob_barrel() };
+    let model = CameraModel {
+        intrinsics: synthetic::intrinsics(80, 60),
+        distortion: synthetic::plumb_bob_barrel(),
+    };
     let rig = synthetic::arc_rig(4, 0.06, 2.0, model, 1).expect("rig");
     let scene = Scene::wall_and_box(2.0, Some((1.4, 0.25)), 70.0);
     let images = synthetic::render_rig(&scene, &rig);
     let mut p = params(1.0, 4.0, 64);
     p.min_visible_cameras = 0;
     let maps = engine().run(&rig, &images, &p).expect("sweep");
-    check_within("distorted_arc", &maps.depth_m, &synthetic::reference_depth(&scene, &rig), 0.02, 0.85);
+    check_within(
+        "distorted_arc",
+        &maps.depth_m,
+        &synthetic::reference_depth(&scene, &rig),
+        0.02,
+        0.85,
+    );
 }
 
 #[test]
@@ -228,12 +302,25 @@ fn virtual_reference_between_cameras() {
     let row = synthetic::row_rig(4, 0.1, model, 0).expect("rig");
     // A virtual camera at x = 0.15 m (between cameras 1 and 2), smaller, with no image.
     let virtual_model = CameraModel::pinhole(synthetic::intrinsics(64, 48));
-    let cam_from_rig = RigidTransform { rotation: DQuat::IDENTITY, translation: DVec3::new(-0.15, 0.0, 0.0) };
-    let rig = Rig::new(row.cameras.clone(), Reference::Virtual { model: virtual_model, cam_from_rig }).expect("rig");
+    let cam_from_rig = RigidTransform {
+        rotation: DQuat::IDENTITY,
+        translation: DVec3::new(-0.15, 0.0, 0.0),
+    };
+    let rig = Rig::new(
+        row.cameras.clone(),
+        Reference::Virtual {
+            model: virtual_model,
+            cam_from_rig,
+        },
+    )
+    .expect("rig");
     let scene = Scene::wall_and_box(2.2, Some((1.5, 0.3)), 70.0);
     let images = synthetic::render_rig(&scene, &rig);
     let mut p = params(1.0, 4.0, 64);
-    assert!(engine().run(&rig, &images, &p).is_err(), "reference pairs need a real reference");
+    assert!(
+        engine().run(&rig, &images, &p).is_err(),
+        "reference pairs need a real reference"
+    );
     p.pairs = PairSet::All;
     p.min_visible_cameras = 2;
     let maps = engine().run(&rig, &images, &p).expect("sweep");
@@ -251,18 +338,38 @@ fn tilted_plane_family_recovers_a_floor() {
     let normal = DVec3::new(0.0, 1.0, 0.35).normalize();
     let u = DVec3::X;
     let v = normal.cross(u).normalize();
-    let floor = TexturedQuad { origin_in_world: normal * 0.5, u_axis: u, v_axis: v, half_extent_m: None, feature_m: 0.02, seed: 3 };
+    let floor = TexturedQuad {
+        origin_in_world: normal * 0.5,
+        u_axis: u,
+        v_axis: v,
+        half_extent_m: None,
+        feature_m: 0.02,
+        seed: 3,
+    };
     let scene = Scene { quads: vec![floor] };
     let images = synthetic::render_rig(&scene, &rig);
-    let family = PlaneFamily { normal_in_ref: normal, offsets_m: (0..40).map(|i| 0.3 + 0.01 * f64::from(i)).collect() };
+    let family = PlaneFamily {
+        normal_in_ref: normal,
+        offsets_m: (0..40).map(|i| 0.3 + 0.01 * f64::from(i)).collect(),
+    };
     let mut p = params(1.0, 4.0, 40);
     p.min_visible_cameras = 0;
     let plan = SweepPlan::with_hypotheses(&rig, &p, &family).expect("plan");
     let maps = engine().run_plan(&plan, &rig, &images).expect("sweep");
     let truth = synthetic::reference_depth(&scene, &rig);
     // Only the lower half of the image sees the floor.
-    let lower = |img: &ImageF32| ImageF32 { width: img.width, height: 25, data: img.data[35 * 80..].to_vec() };
-    check_within("tilted_family", &lower(&maps.depth_m), &lower(&truth), 0.02, 0.85);
+    let lower = |img: &ImageF32| ImageF32 {
+        width: img.width,
+        height: 25,
+        data: img.data[35 * 80..].to_vec(),
+    };
+    check_within(
+        "tilted_family",
+        &lower(&maps.depth_m),
+        &lower(&truth),
+        0.02,
+        0.85,
+    );
     let _ = DVec2::ZERO;
 }
 
@@ -276,12 +383,21 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut p = params(1.0, 4.0, 8);
     p.window_width = 3;
     p.window_mode = WindowMode::Shiftable;
-    assert!(engine.run(&rig, &images, &p).is_err(), "odd shiftable window");
+    assert!(
+        engine.run(&rig, &images, &p).is_err(),
+        "odd shiftable window"
+    );
     let mut p = params(1.0, 4.0, 8);
     p.half_best_n = 5;
-    assert!(engine.run(&rig, &images, &p).is_err(), "half_best_n too large");
+    assert!(
+        engine.run(&rig, &images, &p).is_err(),
+        "half_best_n too large"
+    );
     let p = params(4.0, 1.0, 8);
-    assert!(engine.run(&rig, &images, &p).is_err(), "inverted depth range");
+    assert!(
+        engine.run(&rig, &images, &p).is_err(),
+        "inverted depth range"
+    );
     let p = params(1.0, 4.0, 8);
     images[0].width = 31;
     assert!(engine.run(&rig, &images, &p).is_err(), "wrong image size");

@@ -51,7 +51,11 @@ fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
         let fraction = disagree as f64 / npix as f64;
         if fraction > MAX_DISAGREE {
             let dir = common::failure_dir(&format!("gpu_vs_cpu_{name}"));
-            let image = |d: &[f32]| ImageF32 { width: plan.width, height: plan.height, data: d.to_vec() };
+            let image = |d: &[f32]| ImageF32 {
+                width: plan.width,
+                height: plan.height,
+                data: d.to_vec(),
+            };
             common::save_depth_png(&image(g), &dir.join(format!("{label}_gpu.png")));
             common::save_depth_png(&image(c), &dir.join(format!("{label}_cpu.png")));
             panic!(
@@ -63,8 +67,14 @@ fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
         }
     }
     // A real comparison: the maps are not empty.
-    let valid = section(&cpu.maps, npix, MAP_DEPTH).iter().filter(|d| d.is_finite()).count();
-    assert!(valid * 2 > npix, "{name}: CPU twin found only {valid} of {npix} valid pixels");
+    let valid = section(&cpu.maps, npix, MAP_DEPTH)
+        .iter()
+        .filter(|d| d.is_finite())
+        .count();
+    assert!(
+        valid * 2 > npix,
+        "{name}: CPU twin found only {valid} of {npix} valid pixels"
+    );
 }
 
 fn synthetic_case() -> (Rig, Vec<Rgba8Image>) {
@@ -76,27 +86,150 @@ fn synthetic_case() -> (Rig, Vec<Rgba8Image>) {
 }
 
 fn base() -> SweepParams {
-    SweepParams { min_depth_m: 1.0, max_depth_m: 5.0, num_planes: 24, ..SweepParams::default() }
+    SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 24,
+        ..SweepParams::default()
+    }
 }
 
 #[test]
 fn every_scoring_and_window_agrees_on_synthetic() {
     let (rig, images) = synthetic_case();
     let cases: Vec<(&str, SweepParams)> = vec![
-        ("sssd_1x1", SweepParams { scoring: Scoring::Sssd, window_width: 1, window_height: 1, ..base() }),
-        ("all_pairs_2x2", SweepParams { scoring: Scoring::AllPairs, window_width: 2, window_height: 2, ..base() }),
-        ("best2_ref_4x4", SweepParams { scoring: Scoring::BestNOfM, best_n: 2, ..base() }),
-        ("best3_all_4x2", SweepParams { scoring: Scoring::BestNOfM, best_n: 3, pairs: PairSet::All, window_width: 4, window_height: 2, ..base() }),
-        ("half_scored_2x2", SweepParams { scoring: Scoring::BestHalfSequence, window_width: 2, window_height: 2, ..base() }),
-        ("half_per_half_6x6", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerHalf, window_width: 6, window_height: 6, ..base() }),
-        ("half_all_pairs", SweepParams { scoring: Scoring::BestHalfSequence, pairs: PairSet::All, ..base() }),
-        ("no_post", SweepParams { subpixel: false, median: false, min_visible_cameras: 0, ..base() }),
-        ("per_pair_best2_centred_5x5", SweepParams { aggregation: Aggregation::PerPair, window_mode: WindowMode::Centred, window_width: 5, window_height: 5, ..base() }),
-        ("per_pair_half_shiftable_2x2", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerPair, window_width: 2, window_height: 2, ..base() }),
-        ("per_pair_half_all_pairs_of_half", SweepParams { scoring: Scoring::BestHalfSequence, aggregation: Aggregation::PerPair, half_best_n: 0, ..base() }),
-        ("per_pair_sssd_shiftable_6x4", SweepParams { scoring: Scoring::Sssd, aggregation: Aggregation::PerPair, window_width: 6, window_height: 4, ..base() }),
-        ("per_pair_all_pairs_best3", SweepParams { scoring: Scoring::BestNOfM, best_n: 3, pairs: PairSet::All, aggregation: Aggregation::PerPair, ..base() }),
-        ("centred_1x1_scored", SweepParams { window_mode: WindowMode::Centred, window_width: 1, window_height: 1, aggregation: Aggregation::Scored, ..base() }),
+        (
+            "sssd_1x1",
+            SweepParams {
+                scoring: Scoring::Sssd,
+                window_width: 1,
+                window_height: 1,
+                ..base()
+            },
+        ),
+        (
+            "all_pairs_2x2",
+            SweepParams {
+                scoring: Scoring::AllPairs,
+                window_width: 2,
+                window_height: 2,
+                ..base()
+            },
+        ),
+        (
+            "best2_ref_4x4",
+            SweepParams {
+                scoring: Scoring::BestNOfM,
+                best_n: 2,
+                ..base()
+            },
+        ),
+        (
+            "best3_all_4x2",
+            SweepParams {
+                scoring: Scoring::BestNOfM,
+                best_n: 3,
+                pairs: PairSet::All,
+                window_width: 4,
+                window_height: 2,
+                ..base()
+            },
+        ),
+        (
+            "half_scored_2x2",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                window_width: 2,
+                window_height: 2,
+                ..base()
+            },
+        ),
+        (
+            "half_per_half_6x6",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                aggregation: Aggregation::PerHalf,
+                window_width: 6,
+                window_height: 6,
+                ..base()
+            },
+        ),
+        (
+            "half_all_pairs",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                pairs: PairSet::All,
+                ..base()
+            },
+        ),
+        (
+            "no_post",
+            SweepParams {
+                subpixel: false,
+                median: false,
+                min_visible_cameras: 0,
+                ..base()
+            },
+        ),
+        (
+            "per_pair_best2_centred_5x5",
+            SweepParams {
+                aggregation: Aggregation::PerPair,
+                window_mode: WindowMode::Centred,
+                window_width: 5,
+                window_height: 5,
+                ..base()
+            },
+        ),
+        (
+            "per_pair_half_shiftable_2x2",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                aggregation: Aggregation::PerPair,
+                window_width: 2,
+                window_height: 2,
+                ..base()
+            },
+        ),
+        (
+            "per_pair_half_all_pairs_of_half",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                aggregation: Aggregation::PerPair,
+                half_best_n: 0,
+                ..base()
+            },
+        ),
+        (
+            "per_pair_sssd_shiftable_6x4",
+            SweepParams {
+                scoring: Scoring::Sssd,
+                aggregation: Aggregation::PerPair,
+                window_width: 6,
+                window_height: 4,
+                ..base()
+            },
+        ),
+        (
+            "per_pair_all_pairs_best3",
+            SweepParams {
+                scoring: Scoring::BestNOfM,
+                best_n: 3,
+                pairs: PairSet::All,
+                aggregation: Aggregation::PerPair,
+                ..base()
+            },
+        ),
+        (
+            "centred_1x1_scored",
+            SweepParams {
+                window_mode: WindowMode::Centred,
+                window_width: 1,
+                window_height: 1,
+                aggregation: Aggregation::Scored,
+                ..base()
+            },
+        ),
     ];
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
@@ -106,7 +239,10 @@ fn every_scoring_and_window_agrees_on_synthetic() {
 
 #[test]
 fn distorted_arc_agrees() {
-    let model = CameraModel { intrinsics: synthetic::intrinsics(48, 36), distortion: synthetic::plumb_bob_barrel() };
+    let model = CameraModel {
+        intrinsics: synthetic::intrinsics(48, 36),
+        distortion: synthetic::plumb_bob_barrel(),
+    };
     let rig = synthetic::arc_rig(4, 0.05, 2.0, model, 1).expect("rig");
     let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
     let images = synthetic::render_rig(&scene, &rig);
@@ -127,7 +263,10 @@ fn real_tsukuba_crop_agrees() {
         .map(|img| Rgba8Image {
             width: cw,
             height: ch,
-            pixels: (0..ch).flat_map(|y| (0..cw).map(move |x| (x, y))).map(|(x, y)| img.pixels[((y + y0) * img.width + x + x0) as usize]).collect(),
+            pixels: (0..ch)
+                .flat_map(|y| (0..cw).map(move |x| (x, y)))
+                .map(|(x, y)| img.pixels[((y + y0) * img.width + x + x0) as usize])
+                .collect(),
         })
         .collect();
     let mut rig = dataset.rig.clone();

@@ -30,10 +30,15 @@ fn engine() -> GpuEngine {
     GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines build")
 }
 
-fn disparity_metrics(dir: &Path, tweak: impl Fn(&mut sweepdepth::sweep::SweepParams)) -> sweepdepth::eval::DisparityMetrics {
+fn disparity_metrics(
+    dir: &Path,
+    tweak: impl Fn(&mut sweepdepth::sweep::SweepParams),
+) -> sweepdepth::eval::DisparityMetrics {
     let mut dataset = load_dataset(dir).expect("dataset loads");
     tweak(&mut dataset.params);
-    let maps = engine().run(&dataset.rig, &dataset.images, &dataset.params).expect("sweep");
+    let maps = engine()
+        .run(&dataset.rig, &dataset.images, &dataset.params)
+        .expect("sweep");
     match metrics_for(&dataset, &maps).expect("metrics") {
         Some(Metrics::Disparity(m)) => m,
         other => panic!("expected disparity metrics, got {other:?}"),
@@ -94,8 +99,13 @@ fn table_value(stdout: &str, dataset: &str, column: usize) -> f64 {
         .lines()
         .find(|l| l.starts_with(dataset))
         .unwrap_or_else(|| panic!("no row for {dataset} in:\n{stdout}"));
-    let cell = line.split_whitespace().nth(column).unwrap_or_else(|| panic!("no column {column} in {line}"));
-    cell.trim_end_matches('%').parse().unwrap_or_else(|e| panic!("{cell}: {e}"))
+    let cell = line
+        .split_whitespace()
+        .nth(column)
+        .unwrap_or_else(|| panic!("no column {column} in {line}"));
+    cell.trim_end_matches('%')
+        .parse()
+        .unwrap_or_else(|e| panic!("{cell}: {e}"))
 }
 
 #[test]
@@ -103,29 +113,63 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("eval_cli");
     let _ = std::fs::remove_dir_all(&out);
     let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(["eval", tsukuba_dir().to_str().expect("utf-8 path"), "--save"])
+        .args([
+            "eval",
+            tsukuba_dir().to_str().expect("utf-8 path"),
+            "--save",
+        ])
         .arg(&out)
         .output()
         .expect("sweepdepth runs");
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success(), "eval failed: {}\n{stdout}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "eval failed: {}\n{stdout}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let printed_bad1 = table_value(&stdout, "tsukuba", 5);
     let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
-    let GroundTruth::Disparity { disparity_eval_px, border_px, .. } = &dataset.ground_truth else {
+    let GroundTruth::Disparity {
+        disparity_eval_px,
+        border_px,
+        ..
+    } = &dataset.ground_truth
+    else {
         panic!("Tsukuba has disparity ground truth");
     };
     let dir = out.join("tsukuba");
     let recomputed = bad1_from_pfm(&dir.join("disparity.pfm"), disparity_eval_px, *border_px);
-    assert!((recomputed - printed_bad1).abs() < 0.01, "table says {printed_bad1} %, PFM gives {recomputed:.3} %");
+    assert!(
+        (recomputed - printed_bad1).abs() < 0.01,
+        "table says {printed_bad1} %, PFM gives {recomputed:.3} %"
+    );
     assert!(recomputed <= 9.0);
     // Rows bottom to top, as Middlebury's own PFMs: the first row in the file is the image's last.
     let bytes = std::fs::read(dir.join("disparity.pfm")).expect("PFM bytes");
-    let header_end = bytes.iter().enumerate().filter(|(_, b)| **b == b'\n').nth(2).map(|(i, _)| i + 1).expect("header");
+    let header_end = bytes
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| **b == b'\n')
+        .nth(2)
+        .map(|(i, _)| i + 1)
+        .expect("header");
     let disparity = sweepdepth::io::read_pfm(&dir.join("disparity.pfm")).expect("PFM");
-    let first_in_file = f32::from_le_bytes(bytes[header_end..header_end + 4].try_into().expect("4 bytes"));
+    let first_in_file = f32::from_le_bytes(
+        bytes[header_end..header_end + 4]
+            .try_into()
+            .expect("4 bytes"),
+    );
     let bottom_left = disparity.get(0, disparity.height - 1);
-    assert!(first_in_file.to_bits() == bottom_left.to_bits(), "{first_in_file} vs {bottom_left}");
-    for name in ["confidence.pfm", "depth.png", "confidence.png", "selection.png"] {
+    assert!(
+        first_in_file.to_bits() == bottom_left.to_bits(),
+        "{first_in_file} vs {bottom_left}"
+    );
+    for name in [
+        "confidence.pfm",
+        "depth.png",
+        "confidence.png",
+        "selection.png",
+    ] {
         assert!(dir.join(name).is_file(), "{name} missing");
     }
 }
@@ -154,8 +198,15 @@ fn demo_writes_its_images_and_a_quality_line() {
         .output()
         .expect("sweepdepth runs");
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success(), "demo failed: {}", String::from_utf8_lossy(&output.stderr));
-    let quality = stdout.lines().find(|l| l.starts_with("quality:")).expect("quality line");
+    assert!(
+        output.status.success(),
+        "demo failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let quality = stdout
+        .lines()
+        .find(|l| l.starts_with("quality:"))
+        .expect("quality line");
     let bad1: f64 = quality
         .split("bad>1 ")
         .nth(1)
@@ -181,7 +232,11 @@ fn shared_middlebury_sets_meet_the_quality_bar() {
     ] {
         let m = disparity_metrics(&data.join(name), |_| {});
         eprintln!("{name}: bad>1 {:.2} %, invalid {:.2} %", m.bad1, m.invalid);
-        assert!(m.bad1 <= max_bad1, "{name}: bad>1 {:.2} % > {max_bad1} %", m.bad1);
+        assert!(
+            m.bad1 <= max_bad1,
+            "{name}: bad>1 {:.2} % > {max_bad1} %",
+            m.bad1
+        );
         assert!(m.invalid <= 10.0, "{name}: invalid {:.2} %", m.invalid);
     }
 }

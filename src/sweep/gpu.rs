@@ -185,7 +185,9 @@ impl GpuEngine {
                         ty: match slot {
                             Slot::Uniform | Slot::BatchUniform => wgpu::BufferBindingType::Uniform,
                             Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
-                            Slot::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                            Slot::ReadWrite => {
+                                wgpu::BufferBindingType::Storage { read_only: false }
+                            }
                         },
                         has_dynamic_offset: matches!(slot, Slot::BatchUniform),
                         min_binding_size: None,
@@ -201,11 +203,13 @@ impl GpuEngine {
                 label: Some(stage),
                 source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADERS[i])),
             }));
-            pipeline_layouts.push(device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(stage),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            }));
+            pipeline_layouts.push(
+                device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some(stage),
+                    bind_group_layouts: &[Some(&layout)],
+                    immediate_size: 0,
+                }),
+            );
             layouts.push(layout);
         }
         if let Some(error) = futures::executor::block_on(scope.pop()) {
@@ -237,7 +241,12 @@ impl GpuEngine {
     }
 
     /// Runs the sweep on one frame set (one image per rig camera, in rig order).
-    pub fn run(&mut self, rig: &Rig, images: &[Rgba8Image], params: &SweepParams) -> Result<DepthMaps, SweepError> {
+    pub fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
         let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
         if !reuse {
             let plan = SweepPlan::new(rig, params)?;
@@ -252,13 +261,23 @@ impl GpuEngine {
     }
 
     /// Runs a prepared plan (e.g. with a custom hypothesis family).
-    pub fn run_plan(&mut self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<DepthMaps, SweepError> {
+    pub fn run_plan(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
         let maps = self.run_plan_raw(plan, rig, images)?;
         Ok(plan.depth_maps(&maps))
     }
 
     /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
-    pub fn run_plan_raw(&mut self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<Vec<f32>, SweepError> {
+    pub fn run_plan_raw(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<Vec<f32>, SweepError> {
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
         plan.pack_images(rig, images, &mut packed)?;
@@ -289,18 +308,27 @@ impl GpuEngine {
 
         let mut encoder = self
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sweep") });
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("sweep"),
+            });
         encoder.clear_buffer(&buffers.zbuffer, 0, None);
         let groups = |w: u32, h: u32, z: u32| (w.div_ceil(8), h.div_ceil(8), z);
         let image_groups = groups(plan.width, plan.height, 1);
         let mut pass_index = 0u32;
         let mut pass_stages: Vec<usize> = Vec::with_capacity(key.passes() as usize);
-        let mut run_pass = |encoder: &mut wgpu::CommandEncoder, stage: usize, offset: Option<u32>, (gx, gy, gz): (u32, u32, u32)| {
-            let timestamp_writes = buffers.timestamps.as_ref().map(|t| wgpu::ComputePassTimestampWrites {
-                query_set: &t.query_set,
-                beginning_of_pass_write_index: Some(2 * pass_index),
-                end_of_pass_write_index: Some(2 * pass_index + 1),
-            });
+        let mut run_pass = |encoder: &mut wgpu::CommandEncoder,
+                            stage: usize,
+                            offset: Option<u32>,
+                            (gx, gy, gz): (u32, u32, u32)| {
+            let timestamp_writes =
+                buffers
+                    .timestamps
+                    .as_ref()
+                    .map(|t| wgpu::ComputePassTimestampWrites {
+                        query_set: &t.query_set,
+                        beginning_of_pass_write_index: Some(2 * pass_index),
+                        end_of_pass_write_index: Some(2 * pass_index + 1),
+                    });
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some(STAGES[stage]),
                 timestamp_writes,
@@ -318,8 +346,18 @@ impl GpuEngine {
             let offset = Some((u64::from(b) * self.uniform_align) as u32);
             run_pass(&mut encoder, 0, offset, image_groups);
             if !key.direct_windows {
-                run_pass(&mut encoder, 1, offset, groups(key.padded_width, key.height, 1));
-                run_pass(&mut encoder, 2, offset, groups(key.padded_width, key.padded_height, 1));
+                run_pass(
+                    &mut encoder,
+                    1,
+                    offset,
+                    groups(key.padded_width, key.height, 1),
+                );
+                run_pass(
+                    &mut encoder,
+                    2,
+                    offset,
+                    groups(key.padded_width, key.padded_height, 1),
+                );
             }
             run_pass(&mut encoder, 3, offset, image_groups);
         }
@@ -361,7 +399,10 @@ impl GpuEngine {
         Ok(maps)
     }
 
-    fn build_pipelines(&self, spec: &Specialisation) -> Result<Vec<wgpu::ComputePipeline>, SweepError> {
+    fn build_pipelines(
+        &self,
+        spec: &Specialisation,
+    ) -> Result<Vec<wgpu::ComputePipeline>, SweepError> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let distorted = [("DISTORTED", f64::from(u8::from(spec.distorted)))];
         let cost = [
@@ -383,8 +424,16 @@ impl GpuEngine {
             ("WINDOW_MODE", f64::from(spec.window_mode)),
             ("HALF_BEST_N", f64::from(spec.half_best_n)),
         ];
-        let box_h = [distorted[0], ("WINDOW_W", f64::from(spec.window_w)), ("CHANNELS", f64::from(spec.channels))];
-        let box_v = [distorted[0], ("WINDOW_H", f64::from(spec.window_h)), ("CHANNELS", f64::from(spec.channels))];
+        let box_h = [
+            distorted[0],
+            ("WINDOW_W", f64::from(spec.window_w)),
+            ("CHANNELS", f64::from(spec.channels)),
+        ];
+        let box_v = [
+            distorted[0],
+            ("WINDOW_H", f64::from(spec.window_h)),
+            ("CHANNELS", f64::from(spec.channels)),
+        ];
         let pipelines = STAGES
             .iter()
             .enumerate()
@@ -396,21 +445,24 @@ impl GpuEngine {
                     "aggregate" => &aggregate,
                     _ => &distorted,
                 };
-                self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(stage),
-                    layout: Some(&self.pipeline_layouts[i]),
-                    module: &self.modules[i],
-                    entry_point: Some("main"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants,
-                        zero_initialize_workgroup_memory: false,
-                    },
-                    cache: None,
-                })
+                self.device
+                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(stage),
+                        layout: Some(&self.pipeline_layouts[i]),
+                        module: &self.modules[i],
+                        entry_point: Some("main"),
+                        compilation_options: wgpu::PipelineCompilationOptions {
+                            constants,
+                            zero_initialize_workgroup_memory: false,
+                        },
+                        cache: None,
+                    })
             })
             .collect();
         if let Some(error) = futures::executor::block_on(scope.pop()) {
-            return Err(SweepError::Gpu(format!("building pipelines for {spec:?}: {error}")));
+            return Err(SweepError::Gpu(format!(
+                "building pipelines for {spec:?}: {error}"
+            )));
         }
         Ok(pipelines)
     }
@@ -423,10 +475,7 @@ impl GpuEngine {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(gpu_err)?;
-        receiver
-            .recv()
-            .map_err(gpu_err)?
-            .map_err(gpu_err)?;
+        receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
         let data = buffer.get_mapped_range(..).map_err(gpu_err)?.to_vec();
         buffer.unmap();
         Ok(data)
@@ -441,7 +490,8 @@ impl GpuEngine {
         let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
         // Cost slab + row sums + box sums + aggregated slab, per plane.
         let per_plane = npix * 4 * channels + row_bytes + box_bytes;
-        let max_binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        let max_binding =
+            u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
         let budget = SLAB_BUDGET_BYTES.min(max_binding);
         if box_bytes > budget {
             return Err(SweepError::InvalidParams(format!(
@@ -474,7 +524,9 @@ impl GpuEngine {
             planes,
             channels: plan.channels() as u32,
             batch,
-            direct_windows: plan.params.extra[1] == WINDOW_SHIFTABLE && plan.params.window[0] <= 2 && plan.params.window[1] <= 2,
+            direct_windows: plan.params.extra[1] == WINDOW_SHIFTABLE
+                && plan.params.window[0] <= 2
+                && plan.params.window[1] <= 2,
         })
     }
 
@@ -536,10 +588,22 @@ impl GpuEngine {
         let pairs = storage("pairs", pair_count.max(1) * 16, none);
         let slices = u64::from(key.channels) * u64::from(key.batch);
         let cost_slab = storage("cost_slab", npix * 4 * slices, none);
-        let row_sums = storage("row_sums", u64::from(key.padded_width) * u64::from(key.height) * 8 * slices, none);
-        let box_sums = storage("box_sums", u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices, none);
+        let row_sums = storage(
+            "row_sums",
+            u64::from(key.padded_width) * u64::from(key.height) * 8 * slices,
+            none,
+        );
+        let box_sums = storage(
+            "box_sums",
+            u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices,
+            none,
+        );
         let state = storage("state", npix * 48, none);
-        let maps = storage("maps", npix * 4 * MAP_COUNT as u64, wgpu::BufferUsages::COPY_SRC);
+        let maps = storage(
+            "maps",
+            npix * 4 * MAP_COUNT as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
         let zbuffer = storage("zbuffer", key.camera_pixels as u64 * 4, none);
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
@@ -568,59 +632,87 @@ impl GpuEngine {
             })
         };
         let bind_groups = vec![
-            bind(0, vec![
-                params.as_entire_binding(),
-                batch_binding.clone(),
-                cameras.as_entire_binding(),
-                images.as_entire_binding(),
-                rays.as_entire_binding(),
-                planes.as_entire_binding(),
-                cost_slab.as_entire_binding(),
-            ]),
-            bind(1, vec![
-                params.as_entire_binding(),
-                batch_binding.clone(),
-                cost_slab.as_entire_binding(),
-                row_sums.as_entire_binding(),
-            ]),
-            bind(2, vec![
-                params.as_entire_binding(),
-                batch_binding.clone(),
-                row_sums.as_entire_binding(),
-                box_sums.as_entire_binding(),
-            ]),
-            bind(3, vec![
-                params.as_entire_binding(),
-                batch_binding.clone(),
-                box_sums.as_entire_binding(),
-                state.as_entire_binding(),
-                pairs.as_entire_binding(),
-                cost_slab.as_entire_binding(),
-            ]),
-            bind(4, vec![
-                params.as_entire_binding(),
-                rays.as_entire_binding(),
-                planes.as_entire_binding(),
-                state.as_entire_binding(),
-                maps.as_entire_binding(),
-            ]),
-            bind(5, vec![params.as_entire_binding(), maps.as_entire_binding()]),
-            bind(6, vec![
-                params.as_entire_binding(),
-                cameras.as_entire_binding(),
-                rays.as_entire_binding(),
-                maps.as_entire_binding(),
-                zbuffer.as_entire_binding(),
-            ]),
-            bind(7, vec![
-                params.as_entire_binding(),
-                cameras.as_entire_binding(),
-                rays.as_entire_binding(),
-                zbuffer.as_entire_binding(),
-                maps.as_entire_binding(),
-            ]),
+            bind(
+                0,
+                vec![
+                    params.as_entire_binding(),
+                    batch_binding.clone(),
+                    cameras.as_entire_binding(),
+                    images.as_entire_binding(),
+                    rays.as_entire_binding(),
+                    planes.as_entire_binding(),
+                    cost_slab.as_entire_binding(),
+                ],
+            ),
+            bind(
+                1,
+                vec![
+                    params.as_entire_binding(),
+                    batch_binding.clone(),
+                    cost_slab.as_entire_binding(),
+                    row_sums.as_entire_binding(),
+                ],
+            ),
+            bind(
+                2,
+                vec![
+                    params.as_entire_binding(),
+                    batch_binding.clone(),
+                    row_sums.as_entire_binding(),
+                    box_sums.as_entire_binding(),
+                ],
+            ),
+            bind(
+                3,
+                vec![
+                    params.as_entire_binding(),
+                    batch_binding.clone(),
+                    box_sums.as_entire_binding(),
+                    state.as_entire_binding(),
+                    pairs.as_entire_binding(),
+                    cost_slab.as_entire_binding(),
+                ],
+            ),
+            bind(
+                4,
+                vec![
+                    params.as_entire_binding(),
+                    rays.as_entire_binding(),
+                    planes.as_entire_binding(),
+                    state.as_entire_binding(),
+                    maps.as_entire_binding(),
+                ],
+            ),
+            bind(
+                5,
+                vec![params.as_entire_binding(), maps.as_entire_binding()],
+            ),
+            bind(
+                6,
+                vec![
+                    params.as_entire_binding(),
+                    cameras.as_entire_binding(),
+                    rays.as_entire_binding(),
+                    maps.as_entire_binding(),
+                    zbuffer.as_entire_binding(),
+                ],
+            ),
+            bind(
+                7,
+                vec![
+                    params.as_entire_binding(),
+                    cameras.as_entire_binding(),
+                    rays.as_entire_binding(),
+                    zbuffer.as_entire_binding(),
+                    maps.as_entire_binding(),
+                ],
+            ),
         ];
-        let timestamps = if self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+        let timestamps = if self
+            .device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+        {
             let count = 2 * key.passes();
             let query_set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("stage timestamps"),

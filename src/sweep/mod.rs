@@ -127,7 +127,9 @@ impl Default for SweepParams {
 pub enum SweepError {
     #[error("invalid parameter: {0}")]
     InvalidParams(String),
-    #[error("camera '{camera}': image is {got_w}x{got_h} but its camera model says {want_w}x{want_h}")]
+    #[error(
+        "camera '{camera}': image is {got_w}x{got_h} but its camera model says {want_w}x{want_h}"
+    )]
     ImageSize {
         camera: String,
         got_w: u32,
@@ -157,14 +159,22 @@ impl SweepParams {
             ));
         }
         if self.num_planes < 2 || self.num_planes > 4096 {
-            return bad(format!("num_planes must be in 2..=4096, got {}", self.num_planes));
+            return bad(format!(
+                "num_planes must be in 2..=4096, got {}",
+                self.num_planes
+            ));
         }
-        for (name, v) in [("window_width", self.window_width), ("window_height", self.window_height)] {
+        for (name, v) in [
+            ("window_width", self.window_width),
+            ("window_height", self.window_height),
+        ] {
             if v == 0 || v > 33 {
                 return bad(format!("{name} must be in 1..=33, got {v}"));
             }
             if self.window_mode == WindowMode::Shiftable && v != 1 && v % 2 != 0 {
-                return bad(format!("{name} of a shiftable window must be 1 or even (2n), got {v}"));
+                return bad(format!(
+                    "{name} of a shiftable window must be 1 or even (2n), got {v}"
+                ));
             }
         }
         if !(self.tau > 0.0) {
@@ -386,8 +396,14 @@ fn parse_window(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("window '{s}' is not WxH, e.g. 2x2"))?;
-    let w = w.trim().parse().map_err(|e| format!("window width '{w}': {e}"))?;
-    let h = h.trim().parse().map_err(|e| format!("window height '{h}': {e}"))?;
+    let w = w
+        .trim()
+        .parse()
+        .map_err(|e| format!("window width '{w}': {e}"))?;
+    let h = h
+        .trim()
+        .parse()
+        .map_err(|e| format!("window height '{h}': {e}"))?;
     Ok((w, h))
 }
 

@@ -5,7 +5,10 @@
 use glam::DVec2;
 
 use super::gpu_types::*;
-use super::{check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams, WindowMode};
+use super::{
+    check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams,
+    WindowMode,
+};
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;
 
@@ -86,7 +89,12 @@ impl SweepPlan {
                 row0: row(0, t.x),
                 row1: row(1, t.y),
                 row2: row(2, t.z),
-                intrinsics: [k.fx_px as f32, k.fy_px as f32, k.cx_px as f32, k.cy_px as f32],
+                intrinsics: [
+                    k.fx_px as f32,
+                    k.fy_px as f32,
+                    k.cx_px as f32,
+                    k.cy_px as f32,
+                ],
                 dist_a,
                 dist_b,
                 size: [k.width_px, k.height_px, offset, model],
@@ -156,8 +164,18 @@ impl SweepPlan {
             1
         };
         let gpu_params = GpuParams {
-            ref_size: [width, height, width * height, reference.map_or(NO_CAMERA, |i| i as u32)],
-            counts: [rig.cameras.len() as u32, planes.len() as u32, channels, params.half_best_n],
+            ref_size: [
+                width,
+                height,
+                width * height,
+                reference.map_or(NO_CAMERA, |i| i as u32),
+            ],
+            counts: [
+                rig.cameras.len() as u32,
+                planes.len() as u32,
+                channels,
+                params.half_best_n,
+            ],
             modes: [
                 scoring,
                 pairs,
@@ -218,7 +236,12 @@ impl SweepPlan {
     }
 
     /// Concatenates the camera images in rig order (the layout of the image buffer).
-    pub fn pack_images(&self, rig: &Rig, images: &[Rgba8Image], out: &mut Vec<u32>) -> Result<(), SweepError> {
+    pub fn pack_images(
+        &self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        out: &mut Vec<u32>,
+    ) -> Result<(), SweepError> {
         check_images(rig, images)?;
         out.clear();
         out.reserve(self.total_camera_pixels);

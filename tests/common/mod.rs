@@ -21,14 +21,21 @@ pub fn gpu() -> &'static GpuContext {
 
 /// Where failing tests write their images.
 pub fn failure_dir(test: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("failures").join(test);
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("failures")
+        .join(test);
     let _ = std::fs::create_dir_all(&dir);
     dir
 }
 
 /// Writes a depth image as a grey PNG (near = bright), NaN black.
 pub fn save_depth_png(image: &ImageF32, path: &std::path::Path) {
-    let valid: Vec<f32> = image.data.iter().copied().filter(|v| v.is_finite()).collect();
+    let valid: Vec<f32> = image
+        .data
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
     let lo = valid.iter().copied().fold(f32::INFINITY, f32::min);
     let hi = valid.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let img = image::GrayImage::from_fn(image.width, image.height, |x, y| {

@@ -1,7 +1,7 @@
 //! Twin of `shaders/aggregate.wgsl`: window placement and scoring.
 
-use crate::sweep::gpu_types::*;
 use super::select::{self, PixelState};
+use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
 fn half_decision(keep: f32, left: f32, right: f32) -> f32 {
@@ -70,7 +70,8 @@ impl Window<'_> {
         let (scoring, n) = (p.modes[0], p.modes[2]);
         if p.modes[3] == AGG_PER_PAIR {
             let (mut sum, mut count) = (0.0f32, 0u32);
-            let (mut left_sum, mut left_count, mut right_sum, mut right_count) = (0.0f32, 0u32, 0.0f32, 0u32);
+            let (mut left_sum, mut left_count, mut right_sum, mut right_count) =
+                (0.0f32, 0u32, 0.0f32, 0u32);
             let mut smallest = [0.0f32; MAX_BEST_N as usize];
             let mut kept = 0u32;
             let mut left_values = Vec::new();
@@ -104,8 +105,16 @@ impl Window<'_> {
             }
             if scoring == SCORING_HALF {
                 let half_n = p.counts[3] as usize;
-                let mut left = if left_count > 0 { left_sum / left_count as f32 } else { BIG };
-                let mut right = if right_count > 0 { right_sum / right_count as f32 } else { BIG };
+                let mut left = if left_count > 0 {
+                    left_sum / left_count as f32
+                } else {
+                    BIG
+                };
+                let mut right = if right_count > 0 {
+                    right_sum / right_count as f32
+                } else {
+                    BIG
+                };
                 if half_n > 0 {
                     left = best_mean(&mut left_values, half_n);
                     right = best_mean(&mut right_values, half_n);
@@ -116,7 +125,10 @@ impl Window<'_> {
                 if kept == 0 {
                     return [BIG, 0.0];
                 }
-                return [smallest[..kept as usize].iter().sum::<f32>() / kept as f32, 0.0];
+                return [
+                    smallest[..kept as usize].iter().sum::<f32>() / kept as f32,
+                    0.0,
+                ];
             }
             if count == 0 {
                 return [BIG, 0.0];
@@ -148,7 +160,11 @@ pub fn run(
     let p = &plan.params;
     let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
     let (w, h) = (p.window[0] as i32, p.window[1] as i32);
-    let window = Window { plan, box_sums, cost_slab };
+    let window = Window {
+        plan,
+        box_sums,
+        cost_slab,
+    };
     for z in 0..plane_count as usize {
         for y in 0..height {
             for x in 0..width {
@@ -166,7 +182,11 @@ pub fn run(
                     }
                     best
                 };
-                select::update(&mut state[(y * width + x) as usize], (first_plane as usize + z) as f32, best);
+                select::update(
+                    &mut state[(y * width + x) as usize],
+                    (first_plane as usize + z) as f32,
+                    best,
+                );
             }
         }
     }

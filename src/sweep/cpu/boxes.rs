@@ -5,7 +5,11 @@ use crate::sweep::plan::SweepPlan;
 /// Horizontal window sums (sum, count) for every padded column anchor.
 pub fn box_h(plan: &SweepPlan, plane_count: u32, cost_slab: &[f32], row_sums: &mut [[f32; 2]]) {
     let params = &plan.params;
-    let (width, height, npix) = (params.ref_size[0] as i32, params.ref_size[1] as usize, plan.pixel_count());
+    let (width, height, npix) = (
+        params.ref_size[0] as i32,
+        params.ref_size[1] as usize,
+        plan.pixel_count(),
+    );
     let window_w = params.window[0] as i32;
     let (padded_w, _) = plan.padded_size();
     let slices = plane_count as usize * plan.channels();

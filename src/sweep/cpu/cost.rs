@@ -96,9 +96,19 @@ fn pair_half(a: u32, b: u32) -> u32 {
 
 /// Fills `cost_slab` (channels x pixels per plane) for planes `first_plane ..
 /// first_plane + plane_count`.
-pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32, cost_slab: &mut [f32]) {
+pub fn run(
+    plan: &SweepPlan,
+    images: &[u32],
+    first_plane: u32,
+    plane_count: u32,
+    cost_slab: &mut [f32],
+) {
     let params = &plan.params;
-    let (width, height, npix) = (params.ref_size[0], params.ref_size[1], params.ref_size[2] as usize);
+    let (width, height, npix) = (
+        params.ref_size[0],
+        params.ref_size[1],
+        params.ref_size[2] as usize,
+    );
     let channels = params.counts[2] as usize;
     let ref_index = params.ref_size[3];
     let n_cameras = params.counts[0];
@@ -129,8 +139,15 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                         }
                         let cam = &plan.cameras[i as usize];
                         let projected = project(cam, point_in_ref);
-                        let visible = projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
-                        let cost = || tssd(tau, ref_colour, sample_bilinear(images, cam, [projected[0], projected[1]]));
+                        let visible =
+                            projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
+                        let cost = || {
+                            tssd(
+                                tau,
+                                ref_colour,
+                                sample_bilinear(images, cam, [projected[0], projected[1]]),
+                            )
+                        };
                         if per_pair {
                             cost_slab[slot + p * npix] = if visible { cost() } else { INVALID };
                             p += 1;
@@ -152,7 +169,8 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                             continue;
                         }
                         let projected = project(cam, point_in_ref);
-                        visible[i] = projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
+                        visible[i] =
+                            projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
                         if visible[i] {
                             colours[i] = sample_bilinear(images, cam, [projected[0], projected[1]]);
                         }
@@ -162,10 +180,15 @@ pub fn run(plan: &SweepPlan, images: &[u32], first_plane: u32, plane_count: u32,
                         for j in i + 1..n_cameras as usize {
                             let both = visible[i] && visible[j];
                             if per_pair {
-                                cost_slab[slot + p * npix] = if both { tssd(tau, colours[i], colours[j]) } else { INVALID };
+                                cost_slab[slot + p * npix] = if both {
+                                    tssd(tau, colours[i], colours[j])
+                                } else {
+                                    INVALID
+                                };
                                 p += 1;
                             } else if both {
-                                let half = pair_half(plan.cameras[i].info[0], plan.cameras[j].info[0]);
+                                let half =
+                                    pair_half(plan.cameras[i].info[0], plan.cameras[j].info[0]);
                                 add_pair(&mut acc, params, tssd(tau, colours[i], colours[j]), half);
                             }
                         }

@@ -28,7 +28,12 @@ pub fn run(plan: &SweepPlan, state: &[PixelState], maps: &mut [f32]) {
         let k = s0[1] as u32;
         let ray = xyz(plan.rays[pix]);
         let mut q = inverse_depth(plan, k, ray);
-        if params.window[2] != 0 && k > 0 && k + 1 < n_planes && s0[2] < 0.5 * BIG && s0[3] < 0.5 * BIG {
+        if params.window[2] != 0
+            && k > 0
+            && k + 1 < n_planes
+            && s0[2] < 0.5 * BIG
+            && s0[3] < 0.5 * BIG
+        {
             let curvature = s0[2] - 2.0 * best + s0[3];
             if curvature > 0.0 {
                 let offset = (0.5 * (s0[2] - s0[3]) / curvature).clamp(-0.5, 0.5);

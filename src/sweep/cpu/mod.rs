@@ -28,13 +28,23 @@ pub struct CpuTrace {
 pub struct CpuEngine;
 
 impl CpuEngine {
-    pub fn run(&self, rig: &Rig, images: &[Rgba8Image], params: &SweepParams) -> Result<DepthMaps, SweepError> {
+    pub fn run(
+        &self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
         let plan = SweepPlan::new(rig, params)?;
         let trace = self.run_plan(&plan, rig, images)?;
         Ok(plan.depth_maps(&trace.maps))
     }
 
-    pub fn run_plan(&self, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) -> Result<CpuTrace, SweepError> {
+    pub fn run_plan(
+        &self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<CpuTrace, SweepError> {
         let mut packed = Vec::new();
         plan.pack_images(rig, images, &mut packed)?;
         let npix = plan.pixel_count();
