@@ -41,6 +41,19 @@ fn main() {
         }
         fs::write(out_dir.join(format!("{stage}.wgsl")), source).expect("OUT_DIR is writable");
     }
+    // The stage list for the engine, generated from the one list above.
+    let names: Vec<String> = STAGES.iter().map(|s| format!("{s:?}")).collect();
+    let sources: Vec<String> = STAGES
+        .iter()
+        .map(|s| format!("include_str!(concat!(env!(\"OUT_DIR\"), \"/{s}.wgsl\"))"))
+        .collect();
+    let generated = format!(
+        "/// Stage names in pipeline order (also the shader file names).\npub const STAGES: [&str; {n}] = [{}];\n/// The validated sources of the stages, `common.wgsl` prepended.\nconst SHADERS: [&str; {n}] = [{}];\n",
+        names.join(", "),
+        sources.join(", "),
+        n = STAGES.len()
+    );
+    fs::write(out_dir.join("stages.rs"), generated).expect("OUT_DIR is writable");
     if !failures.is_empty() {
         panic!("shader validation failed:\n{}", failures.join("\n"));
     }

@@ -145,3 +145,13 @@ fn nan() -> f32 {
 fn is_invalid(v: f32) -> bool {
     return (bitcast<u32>(v) & 0x7f800000u) == 0x7f800000u;
 }
+
+// Index (in the image / z-buffer layout) of the texel of `cam` nearest to a projection from
+// `project`, or NO_CAMERA when the point is behind the camera or outside its image.
+fn nearest_texel_index(cam: Camera, projected: vec3<f32>) -> u32 {
+    let texel = floor(projected.xy + 0.5);
+    if (projected.z <= 0.0 || !inside(cam, texel)) {
+        return NO_CAMERA;
+    }
+    return cam.size.z + u32(texel.y) * cam.size.x + u32(texel.x);
+}

@@ -33,13 +33,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (i == params.ref_size.w) {
             continue;
         }
-        let cam = cameras[i];
-        let projected = project(cam, point_in_ref);
-        let texel = floor(projected.xy + 0.5);
-        if (projected.z <= 0.0 || !inside(cam, texel)) {
+        let projected = project(cameras[i], point_in_ref);
+        let index = nearest_texel_index(cameras[i], projected);
+        if (index == NO_CAMERA) {
             continue;
         }
-        let stored = zbuffer[cam.size.z + u32(texel.y) * cam.size.x + u32(texel.x)];
+        let stored = zbuffer[index];
         if (stored == 0u || projected.z <= bitcast<f32>(~stored) * (1.0 + tolerance)) {
             seen += 1u;
         }
