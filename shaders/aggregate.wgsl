@@ -30,7 +30,7 @@ override HALF_BEST_N: u32 = 2u;   // = params.counts.w
 //   [2] half-sequence selection at the best plane, 0, 0, 0
 @group(0) @binding(3) var<storage, read_write> state: array<vec4<f32>>;
 // Per pair: camera a, camera b, half (HALF_*), 0.
-@group(0) @binding(4) var<storage, read> pairs: array<vec4<u32>>;
+@group(0) @binding(4) var<uniform> pairs: array<vec4<u32>, MAX_PAIRS>;
 
 // Shiftable windows of at most 2x2 skip the box passes: the sums of the four placements come
 // from the 3x3 texels around the pixel, each texel counted in the placements that contain it
@@ -53,6 +53,16 @@ fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
     return s.x / s.y;
 }
 
+// One texel of the cost slab as (cost, 1), or (0, 0) when invalid or outside the image.
+fn slab_texel(base: u32, x: i32, y: i32) -> vec2<f32> {
+    // Branch-free: the load is clamped into the image and weighs nothing outside it.
+    let w = i32(params.ref_size.x);
+    let h = i32(params.ref_size.y);
+    let inside_image = x >= 0 && y >= 0 && x < w && y < h;
+    let c = cost_slab[base + u32(clamp(y, 0, h - 1) * w + clamp(x, 0, w - 1))];
+    return select(vec2<f32>(0.0), vec2<f32>(c, 1.0), inside_image && c >= 0.0);
+}
+
 // The window means of channel `ch` of plane `z` for the four placements, one per lane:
 // 0 up-left, 1 up-right, 2 down-left, 3 down-right of the pixel (centred: the same in all lanes).
 // BIG where a window holds no valid texel. Everything below works on these lanes, without
@@ -60,6 +70,33 @@ fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
 fn channel_means(z: u32, ch: u32, x: i32, y: i32) -> vec4<f32> {
     let w = i32(WINDOW_W);
     let h = i32(WINDOW_H);
+    if (direct_windows() && WINDOW_W == 2u && WINDOW_H == 2u) {
+        // The paper's shiftable 2x2: the four windows from column sums of the 3x3 texels.
+        let base = (z * CHANNELS + ch) * params.ref_size.z;
+        let c00 = slab_texel(base, x - 1, y - 1);
+        let c01 = slab_texel(base, x, y - 1);
+        let c02 = slab_texel(base, x + 1, y - 1);
+        let c10 = slab_texel(base, x - 1, y);
+        let c11 = slab_texel(base, x, y);
+        let c12 = slab_texel(base, x + 1, y);
+        let c20 = slab_texel(base, x - 1, y + 1);
+        let c21 = slab_texel(base, x, y + 1);
+        let c22 = slab_texel(base, x + 1, y + 1);
+        // Upper (rows -1, 0) and lower (rows 0, +1) column sums; .x value, .y count.
+        let u0 = c00 + c10;
+        let u1 = c01 + c11;
+        let u2 = c02 + c12;
+        let l0 = c10 + c20;
+        let l1 = c11 + c21;
+        let l2 = c12 + c22;
+        let a = u0 + u1;
+        let b = u1 + u2;
+        let c = l0 + l1;
+        let d = l1 + l2;
+        let sum = vec4<f32>(a.x, b.x, c.x, d.x);
+        let count = vec4<f32>(a.y, b.y, c.y, d.y);
+        return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
+    }
     if (direct_windows()) {
         let width = i32(params.ref_size.x);
         let height = i32(params.ref_size.y);

@@ -34,6 +34,7 @@ const HALF_RIGHT: u32 = 1u;
 const HALF_REFERENCE: u32 = 2u;
 
 const MAX_CAMERAS: u32 = 32u;      // all-pairs modes cache one colour per camera
+const MAX_RIG_CAMERAS: u32 = 128u; // cameras travel in a uniform block (16 KiB)
 const MAX_BEST_N: u32 = 8u;
 const MAX_HALF_BEST_N: u32 = 4u;  // best half-sequence: the n best pairs of each half
 
@@ -67,11 +68,17 @@ struct Params {
 // box-sum images are padded by w-1 columns and h-1 rows; anchor (ax, ay) is stored at
 // (ax + w - 1, ay + h - 1).
 
+const MAX_BATCH_PLANES: u32 = 256u;
+
+// One batch of planes. The batch's planes travel in this uniform block: every invocation reads
+// the same plane at the same time, which a uniform load serves far better than a storage load
+// on a software rasteriser.
 struct Batch {
     first_plane: u32,
     plane_count: u32,
     is_first: u32,
     _pad: u32,
+    planes: array<vec4<f32>, MAX_BATCH_PLANES>,
 }
 
 // Projects a point in the reference frame into camera `cam`; returns pixel (xy) and depth in
@@ -82,6 +89,11 @@ fn project(cam: Camera, point_in_ref: vec3<f32>) -> vec3<f32> {
         dot(cam.row1.xyz, point_in_ref) + cam.row1.w,
         dot(cam.row2.xyz, point_in_ref) + cam.row2.w,
     );
+    return project_in_cam(cam, p);
+}
+
+// `project` for a point already in the camera's frame.
+fn project_in_cam(cam: Camera, p: vec3<f32>) -> vec3<f32> {
     if (p.z <= 1e-6) {
         return vec3<f32>(0.0, 0.0, -1.0);
     }

@@ -9,27 +9,14 @@ override CHANNELS: u32 = 1u;      // = params.counts.z (pairs m in per-pair aggr
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
-@group(0) @binding(2) var<storage, read> cameras: array<Camera>;
+@group(0) @binding(2) var<uniform> cameras: array<Camera, MAX_RIG_CAMERAS>;
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> planes: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> cost_slab: array<f32>;
-
-struct Acc {
-    sum: f32,
-    count: u32,
-    left_sum: f32,
-    left_count: u32,
-    right_sum: f32,
-    right_count: u32,
-    n_best: u32,
-    best: array<f32, 8>,
-}
 
 fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
     return unpack4x8unorm(images[cam.size.z + y * cam.size.x + x]).rgb * 255.0;
 }
-
 fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
     let base = floor(pixel);
     let f = pixel - base;
@@ -47,36 +34,76 @@ fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
     return min(params.thresholds.x, dot(d, d));
 }
 
+// Running sums of one hypothesis's pair costs. Passed by value, with the n smallest costs in
+// plain fields (no run-time-indexed arrays, which software rasterisers execute slowly).
+struct Acc {
+    sum: f32,
+    count: u32,
+    left_sum: f32,
+    left_count: u32,
+    right_sum: f32,
+    right_count: u32,
+    // The smallest pair costs in ascending order (BIG = empty), for best n of m.
+    b0: f32,
+    b1: f32,
+    b2: f32,
+    b3: f32,
+    b4: f32,
+    b5: f32,
+    b6: f32,
+    b7: f32,
+}
+
+fn empty_acc() -> Acc {
+    return Acc(0.0, 0u, 0.0, 0u, 0.0, 0u, BIG, BIG, BIG, BIG, BIG, BIG, BIG, BIG);
+}
+
 // Adds one pair cost; `half` is HALF_LEFT, HALF_RIGHT or HALF_REFERENCE (= in no half).
-fn add_pair(acc: ptr<function, Acc>, cost: f32, half: u32) {
-    (*acc).sum += cost;
-    (*acc).count += 1u;
+fn add_pair(acc_in: Acc, cost: f32, half: u32) -> Acc {
+    var acc = acc_in;
+    acc.sum += cost;
+    acc.count += 1u;
     if (half == HALF_LEFT) {
-        (*acc).left_sum += cost;
-        (*acc).left_count += 1u;
+        acc.left_sum += cost;
+        acc.left_count += 1u;
     } else if (half == HALF_RIGHT) {
-        (*acc).right_sum += cost;
-        (*acc).right_count += 1u;
+        acc.right_sum += cost;
+        acc.right_count += 1u;
     }
-    let n = BEST_N;
     if (SCORING == SCORING_BEST_N) {
-        // Insertion into the sorted list of the n smallest costs.
-        var value = cost;
-        let kept = (*acc).n_best;
-        if (kept == n && value >= (*acc).best[n - 1u]) {
-            return;
-        }
-        var i = min(kept, n - 1u);
-        loop {
-            if (i == 0u || (*acc).best[i - 1u] <= value) {
-                break;
-            }
-            (*acc).best[i] = (*acc).best[i - 1u];
-            i -= 1u;
-        }
-        (*acc).best[i] = value;
-        (*acc).n_best = min(kept + 1u, n);
+        // Bubble the new cost through the sorted list.
+        var v = cost;
+        var t = min(acc.b0, v); v = max(acc.b0, v); acc.b0 = t;
+        t = min(acc.b1, v); v = max(acc.b1, v); acc.b1 = t;
+        t = min(acc.b2, v); v = max(acc.b2, v); acc.b2 = t;
+        t = min(acc.b3, v); v = max(acc.b3, v); acc.b3 = t;
+        t = min(acc.b4, v); v = max(acc.b4, v); acc.b4 = t;
+        t = min(acc.b5, v); v = max(acc.b5, v); acc.b5 = t;
+        t = min(acc.b6, v); v = max(acc.b6, v); acc.b6 = t;
+        acc.b7 = min(acc.b7, v);
     }
+    return acc;
+}
+
+// Mean of the min(BEST_N, pairs seen) smallest costs; INVALID when no pair was seen.
+fn best_n_mean(acc: Acc) -> f32 {
+    var s = 0.0;
+    var k = 0u;
+    let values = vec4<f32>(acc.b0, acc.b1, acc.b2, acc.b3);
+    let more = vec4<f32>(acc.b4, acc.b5, acc.b6, acc.b7);
+    for (var i = 0u; i < 4u; i++) {
+        if (i < BEST_N && values[i] < BIG) {
+            s += values[i];
+            k += 1u;
+        }
+    }
+    for (var i = 0u; i < 4u; i++) {
+        if (i + 4u < BEST_N && more[i] < BIG) {
+            s += more[i];
+            k += 1u;
+        }
+    }
+    return mean_or_invalid(s, k);
 }
 
 fn mean_or_invalid(sum: f32, count: u32) -> f32 {
@@ -102,7 +129,7 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
     let npix = params.ref_size.z;
     let channels = CHANNELS;
     let slot = (z * channels) * npix + pix;
-    let depth = plane_depth(planes[batch.first_plane + z], ray);
+    let depth = plane_depth(batch.planes[z], ray);
     if (!(depth > 0.0)) {
         for (var ch = 0u; ch < channels; ch++) {
             cost_slab[slot + ch * npix] = INVALID;
@@ -114,7 +141,7 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
     let n_cameras = params.counts.x;
 
     let per_pair = AGGREGATION == AGG_PER_PAIR;
-    var acc: Acc;
+    var acc = empty_acc();
     if (PAIRS == PAIRS_REFERENCE) {
         var p = 0u;
         for (var i = 0u; i < n_cameras; i++) {
@@ -132,7 +159,7 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
                 cost_slab[slot + p * npix] = cost;
                 p += 1u;
             } else if (visible) {
-                add_pair(&acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
+                acc = add_pair(acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
             }
         }
         if (per_pair) {
@@ -166,7 +193,7 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
                     cost_slab[slot + p * npix] = cost;
                     p += 1u;
                 } else if (both) {
-                    add_pair(&acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
+                    acc = add_pair(acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
                 }
             }
         }
@@ -189,11 +216,7 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
             cost_slab[slot + 2u * npix] = m;
         }
     } else if (SCORING == SCORING_BEST_N) {
-        var s = 0.0;
-        for (var k = 0u; k < acc.n_best; k++) {
-            s += acc.best[k];
-        }
-        cost_slab[slot] = mean_or_invalid(s, acc.n_best);
+        cost_slab[slot] = best_n_mean(acc);
     } else {
         cost_slab[slot] = mean_or_invalid(acc.sum, acc.count);
     }
@@ -223,11 +246,15 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             let cam = cameras[i];
+            // The ray and the camera's centre in its own frame: a point at depth d on the ray
+            // is ray_in_cam * d + centre_offset, three multiply-adds per plane.
+            let ray_in_cam = vec3<f32>(dot(cam.row0.xyz, ray), dot(cam.row1.xyz, ray), dot(cam.row2.xyz, ray));
+            let offset = vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w);
             for (var z = 0u; z < batch.plane_count; z++) {
-                let depth = plane_depth(planes[batch.first_plane + z], ray);
+                let depth = plane_depth(batch.planes[z], ray);
                 var cost = INVALID;
                 if (depth > 0.0) {
-                    let projected = project(cam, ray * depth);
+                    let projected = project_in_cam(cam, ray_in_cam * depth + offset);
                     if (projected.z > 0.0 && inside(cam, projected.xy)) {
                         cost = tssd(ref_colour, sample_bilinear(cam, projected.xy));
                     }

@@ -5,7 +5,7 @@
 // One invocation per reference pixel. CPU twin: src/sweep/cpu/occlusion.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> cameras: array<Camera>;
+@group(0) @binding(1) var<uniform> cameras: array<Camera, MAX_RIG_CAMERAS>;
 @group(0) @binding(2) var<storage, read> rays: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read> maps: array<f32>;
 @group(0) @binding(4) var<storage, read_write> zbuffer: array<atomic<u32>>;

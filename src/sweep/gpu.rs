@@ -28,14 +28,14 @@ enum Slot {
 const LAYOUTS: [&[Slot]; 8] = {
     use Slot::*;
     [
-        &[Uniform, BatchUniform, Read, Read, Read, Read, ReadWrite], // cost
-        &[Uniform, BatchUniform, Read, ReadWrite],                   // box_h
-        &[Uniform, BatchUniform, Read, ReadWrite],                   // box_v
-        &[Uniform, BatchUniform, Read, ReadWrite, Read, Read],       // aggregate
-        &[Uniform, Read, Read, Read, ReadWrite],                     // finalize
-        &[Uniform, ReadWrite],                                       // median
-        &[Uniform, Read, Read, Read, ReadWrite],                     // splat
-        &[Uniform, Read, Read, Read, ReadWrite],                     // visibility
+        &[Uniform, BatchUniform, Uniform, Read, Read, Read, ReadWrite], // cost
+        &[Uniform, BatchUniform, Read, ReadWrite],                      // box_h
+        &[Uniform, BatchUniform, Read, ReadWrite],                      // box_v
+        &[Uniform, BatchUniform, Read, ReadWrite, Uniform, Read],       // aggregate
+        &[Uniform, Read, Read, Read, ReadWrite],                        // finalize
+        &[Uniform, ReadWrite],                                          // median
+        &[Uniform, Uniform, Read, Read, ReadWrite],                     // splat
+        &[Uniform, Uniform, Read, Read, ReadWrite],                     // visibility
     ]
 };
 
@@ -202,7 +202,9 @@ impl GpuEngine {
             pipeline_layouts,
             modules,
             pipelines: HashMap::new(),
-            uniform_align: u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
+            uniform_align: (std::mem::size_of::<GpuBatch>() as u64).next_multiple_of(
+                u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
+            ),
             buffers: None,
             plan: None,
             uploaded_plan: None,
@@ -492,6 +494,7 @@ impl GpuEngine {
         let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
         let batch = max_slices
             .clamp(1, planes)
+            .min(MAX_BATCH_PLANES)
             .min(max_z / (channels as u32).max(1))
             .max(1);
         Ok(ShapeKey {
@@ -519,19 +522,26 @@ impl GpuEngine {
             .write_buffer(&buffers.planes, 0, bytemuck::cast_slice(&plan.planes));
         self.queue
             .write_buffer(&buffers.rays, 0, bytemuck::cast_slice(&plan.rays));
+        // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
+        let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];
         self.queue
-            .write_buffer(&buffers.pairs, 0, bytemuck::cast_slice(&plan.pairs));
+            .write_buffer(&buffers.pairs, 0, bytemuck::cast_slice(pairs));
         let mut batches = vec![0u8; buffers.batches.size() as usize];
         for b in 0..key.batches() {
             let first = b * key.batch;
-            let batch = GpuBatch {
+            let count = key.batch.min(key.planes - first);
+            let mut batch = GpuBatch {
                 first_plane: first,
-                plane_count: key.batch.min(key.planes - first),
+                plane_count: count,
                 is_first: u32::from(b == 0),
                 _pad: 0,
+                planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
             };
+            batch.planes[..count as usize]
+                .copy_from_slice(&plan.planes[first as usize..(first + count) as usize]);
             let at = (u64::from(b) * self.uniform_align) as usize;
-            batches[at..at + 16].copy_from_slice(bytemuck::bytes_of(&batch));
+            batches[at..at + std::mem::size_of::<GpuBatch>()]
+                .copy_from_slice(bytemuck::bytes_of(&batch));
         }
         self.queue.write_buffer(&buffers.batches, 0, &batches);
     }
@@ -560,12 +570,21 @@ impl GpuEngine {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let cameras = storage("cameras", u64::from(key.cameras) * 128, none);
+        let cameras = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("cameras"),
+            size: u64::from(MAX_RIG_CAMERAS) * std::mem::size_of::<GpuCamera>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let images = storage("images", key.camera_pixels as u64 * 4, none);
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
-        let pair_count = u64::from(key.cameras) * u64::from(key.cameras.saturating_sub(1)) / 2;
-        let pairs = storage("pairs", pair_count.max(1) * 16, none);
+        let pairs = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pairs"),
+            size: u64::from(MAX_PAIRS) * 16,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let slices = u64::from(key.channels) * u64::from(key.batch);
         let cost_slab = storage("cost_slab", npix * 4 * slices, none);
         let row_sums = storage(
@@ -594,7 +613,7 @@ impl GpuEngine {
         let batch_binding = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
             buffer: &batches,
             offset: 0,
-            size: wgpu::BufferSize::new(16),
+            size: wgpu::BufferSize::new(std::mem::size_of::<GpuBatch>() as u64),
         });
         let bind = |stage: usize, resources: Vec<wgpu::BindingResource>| {
             let entries: Vec<wgpu::BindGroupEntry> = resources

@@ -5,6 +5,8 @@ use bytemuck::{Pod, Zeroable};
 
 pub const NO_CAMERA: u32 = u32::MAX;
 pub const MAX_CAMERAS: u32 = 32;
+/// Cameras per rig: they travel in a uniform block of 16 KiB (the downlevel limit).
+pub const MAX_RIG_CAMERAS: u32 = 128;
 pub const MAX_BEST_N: u32 = 8;
 pub const MAX_HALF_BEST_N: u32 = 4;
 
@@ -73,14 +75,18 @@ pub struct GpuParams {
     pub extra: [u32; 4],
 }
 
+/// Planes per batch (they travel in the batch's uniform block).
+pub const MAX_BATCH_PLANES: u32 = 256;
+
 /// WGSL `Batch`.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
 pub struct GpuBatch {
     pub first_plane: u32,
     pub plane_count: u32,
     pub is_first: u32,
     pub _pad: u32,
+    pub planes: [[f32; 4]; MAX_BATCH_PLANES as usize],
 }
 
 #[cfg(test)]
@@ -91,10 +97,14 @@ mod tests {
     fn layouts_match_wgsl() {
         assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
         assert_eq!(std::mem::size_of::<GpuParams>(), 96);
-        assert_eq!(std::mem::size_of::<GpuBatch>(), 16);
+        assert_eq!(
+            std::mem::size_of::<GpuBatch>(),
+            16 + 16 * MAX_BATCH_PLANES as usize
+        );
         let common = include_str!("../../shaders/common.wgsl");
         for (name, value) in [
             ("MAX_CAMERAS", MAX_CAMERAS),
+            ("MAX_RIG_CAMERAS", MAX_RIG_CAMERAS),
             ("MAX_BEST_N", MAX_BEST_N),
             ("SCORING_HALF", SCORING_HALF),
             ("AGG_PER_HALF", AGG_PER_HALF),
@@ -105,6 +115,7 @@ mod tests {
             ("DIST_EQUIDISTANT", DIST_EQUIDISTANT),
             ("HALF_REFERENCE", HALF_REFERENCE),
             ("MAP_COUNT", MAP_COUNT as u32),
+            ("MAX_BATCH_PLANES", MAX_BATCH_PLANES),
             ("MAP_VISIBLE", MAP_VISIBLE as u32),
         ] {
             let needle = format!("const {name}: u32 = {value}u;");

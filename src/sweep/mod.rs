@@ -212,6 +212,13 @@ impl SweepParams {
                 self.scoring
             ));
         }
+        if rig.cameras.len() > gpu_types::MAX_RIG_CAMERAS as usize {
+            return bad(format!(
+                "the engine supports at most {} cameras per rig, got {}",
+                gpu_types::MAX_RIG_CAMERAS,
+                rig.cameras.len()
+            ));
+        }
         if self.aggregation == Aggregation::PerPair {
             let n = rig.cameras.len();
             let m = match pairs {
