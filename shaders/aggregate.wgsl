@@ -19,6 +19,8 @@ override AGGREGATION: u32 = 0u;   // = params.modes.w
 override SCORING: u32 = 0u;       // = params.modes.x
 override BEST_N: u32 = 2u;        // = params.modes.z
 override HALF_BEST_N: u32 = 2u;   // = params.counts.w
+// Two horizontally adjacent pixels per invocation, sharing the loads of their 2x2 windows.
+override PAIRED: bool = false;
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -63,6 +65,44 @@ fn slab_texel(base: u32, x: i32, y: i32) -> vec2<f32> {
     return select(vec2<f32>(0.0), vec2<f32>(c, 1.0), inside_image && c >= 0.0);
 }
 
+// Means of the four 2x2 windows around the centre of 3 columns of (upper, lower) column sums.
+fn means_2x2(u0: vec2<f32>, u1: vec2<f32>, u2: vec2<f32>, l0: vec2<f32>, l1: vec2<f32>, l2: vec2<f32>) -> vec4<f32> {
+    let a = u0 + u1;
+    let b = u1 + u2;
+    let c = l0 + l1;
+    let d = l1 + l2;
+    let sum = vec4<f32>(a.x, b.x, c.x, d.x);
+    let count = vec4<f32>(a.y, b.y, c.y, d.y);
+    return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
+}
+
+// The 2x2 window means of channel `ch` for pixels (x, y) and (x + 1, y) from one 4x3 block of
+// texels (12 loads for two pixels instead of 18).
+fn pair_means_2x2(z: u32, ch: u32, x: i32, y: i32) -> array<vec4<f32>, 2> {
+    let base = (z * CHANNELS + ch) * params.ref_size.z;
+    let c0 = slab_texel(base, x - 1, y - 1);
+    let c1 = slab_texel(base, x, y - 1);
+    let c2 = slab_texel(base, x + 1, y - 1);
+    let c3 = slab_texel(base, x + 2, y - 1);
+    let d0 = slab_texel(base, x - 1, y);
+    let d1 = slab_texel(base, x, y);
+    let d2 = slab_texel(base, x + 1, y);
+    let d3 = slab_texel(base, x + 2, y);
+    let e0 = slab_texel(base, x - 1, y + 1);
+    let e1 = slab_texel(base, x, y + 1);
+    let e2 = slab_texel(base, x + 1, y + 1);
+    let e3 = slab_texel(base, x + 2, y + 1);
+    let u0 = c0 + d0;
+    let u1 = c1 + d1;
+    let u2 = c2 + d2;
+    let u3 = c3 + d3;
+    let l0 = d0 + e0;
+    let l1 = d1 + e1;
+    let l2 = d2 + e2;
+    let l3 = d3 + e3;
+    return array<vec4<f32>, 2>(means_2x2(u0, u1, u2, l0, l1, l2), means_2x2(u1, u2, u3, l1, l2, l3));
+}
+
 // The window means of channel `ch` of plane `z` for the four placements, one per lane:
 // 0 up-left, 1 up-right, 2 down-left, 3 down-right of the pixel (centred: the same in all lanes).
 // BIG where a window holds no valid texel. Everything below works on these lanes, without
@@ -83,19 +123,7 @@ fn channel_means(z: u32, ch: u32, x: i32, y: i32) -> vec4<f32> {
         let c21 = slab_texel(base, x, y + 1);
         let c22 = slab_texel(base, x + 1, y + 1);
         // Upper (rows -1, 0) and lower (rows 0, +1) column sums; .x value, .y count.
-        let u0 = c00 + c10;
-        let u1 = c01 + c11;
-        let u2 = c02 + c12;
-        let l0 = c10 + c20;
-        let l1 = c11 + c21;
-        let l2 = c12 + c22;
-        let a = u0 + u1;
-        let b = u1 + u2;
-        let c = l0 + l1;
-        let d = l1 + l2;
-        let sum = vec4<f32>(a.x, b.x, c.x, d.x);
-        let count = vec4<f32>(a.y, b.y, c.y, d.y);
-        return select(vec4<f32>(BIG), sum / max(count, vec4<f32>(1.0)), count > vec4<f32>(0.0));
+        return means_2x2(c00 + c10, c01 + c11, c02 + c12, c10 + c20, c11 + c21, c12 + c22);
     }
     if (direct_windows()) {
         let width = i32(params.ref_size.x);
@@ -167,169 +195,275 @@ fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
     return select(select(vec4<f32>(f32(SEL_NONE)), vec4<f32>(f32(SEL_RIGHT)), is_right), vec4<f32>(f32(SEL_LEFT)), is_left);
 }
 
+// Running sums over the pairs of one pixel and plane, per window placement (lanes). By value,
+// no arrays (software rasterisers run run-time-indexed arrays slowly).
+struct Acc {
+    sum: vec4<f32>,
+    count: vec4<f32>,
+    left_sum: vec4<f32>,
+    left_count: vec4<f32>,
+    right_sum: vec4<f32>,
+    right_count: vec4<f32>,
+    // The n smallest pair means, ascending (BIG = none), for best n of m.
+    b0: vec4<f32>,
+    b1: vec4<f32>,
+    b2: vec4<f32>,
+    b3: vec4<f32>,
+    b4: vec4<f32>,
+    b5: vec4<f32>,
+    b6: vec4<f32>,
+    b7: vec4<f32>,
+    // The HALF_BEST_N smallest pair means of each half, likewise.
+    l0: vec4<f32>,
+    l1: vec4<f32>,
+    l2: vec4<f32>,
+    l3: vec4<f32>,
+    r0: vec4<f32>,
+    r1: vec4<f32>,
+    r2: vec4<f32>,
+    r3: vec4<f32>,
+}
+
+fn empty_acc() -> Acc {
+    let z = vec4<f32>(0.0);
+    let b = vec4<f32>(BIG);
+    return Acc(z, z, z, z, z, z, b, b, b, b, b, b, b, b, b, b, b, b, b, b, b, b);
+}
+
+// Adds the window means `a` (BIG = no valid texel) of one pair in half `half`.
+fn accumulate(acc_in: Acc, a: vec4<f32>, half: u32) -> Acc {
+    var acc = acc_in;
+    let big = vec4<f32>(BIG);
+    let seen = a < big;
+    let a0 = select(vec4<f32>(0.0), a, seen);
+    let n0 = select(vec4<f32>(0.0), vec4<f32>(1.0), seen);
+    acc.sum += a0;
+    acc.count += n0;
+    if (SCORING == SCORING_HALF) {
+        if (half == HALF_LEFT) {
+            acc.left_sum += a0;
+            acc.left_count += n0;
+            var v = a;
+            var t = min(acc.l0, v); v = max(acc.l0, v); acc.l0 = t;
+            t = min(acc.l1, v); v = max(acc.l1, v); acc.l1 = t;
+            t = min(acc.l2, v); v = max(acc.l2, v); acc.l2 = t;
+            acc.l3 = min(acc.l3, v);
+        } else if (half == HALF_RIGHT) {
+            acc.right_sum += a0;
+            acc.right_count += n0;
+            var v = a;
+            var t = min(acc.r0, v); v = max(acc.r0, v); acc.r0 = t;
+            t = min(acc.r1, v); v = max(acc.r1, v); acc.r1 = t;
+            t = min(acc.r2, v); v = max(acc.r2, v); acc.r2 = t;
+            acc.r3 = min(acc.r3, v);
+        }
+    }
+    if (SCORING == SCORING_BEST_N) {
+        var v = a;
+        var t = min(acc.b0, v); v = max(acc.b0, v); acc.b0 = t;
+        t = min(acc.b1, v); v = max(acc.b1, v); acc.b1 = t;
+        t = min(acc.b2, v); v = max(acc.b2, v); acc.b2 = t;
+        t = min(acc.b3, v); v = max(acc.b3, v); acc.b3 = t;
+        t = min(acc.b4, v); v = max(acc.b4, v); acc.b4 = t;
+        t = min(acc.b5, v); v = max(acc.b5, v); acc.b5 = t;
+        t = min(acc.b6, v); v = max(acc.b6, v); acc.b6 = t;
+        acc.b7 = min(acc.b7, v);
+    }
+    return acc;
+}
+
+// The best placement (first lane on ties; centred and 1x1 windows fill all lanes alike) as
+// (score, selection).
+fn best_placement(score: vec4<f32>, sel: vec4<f32>) -> vec2<f32> {
+    var best = vec2<f32>(score.x, sel.x);
+    if (score.y < best.x) {
+        best = vec2<f32>(score.y, sel.y);
+    }
+    if (score.z < best.x) {
+        best = vec2<f32>(score.z, sel.z);
+    }
+    if (score.w < best.x) {
+        best = vec2<f32>(score.w, sel.w);
+    }
+    return best;
+}
+
+// Per-pair aggregation: the score of each placement from the accumulated pair means.
+fn finish_pairs(acc: Acc) -> vec2<f32> {
+    let big = vec4<f32>(BIG);
+    let zero = vec4<f32>(0.0);
+    let one = vec4<f32>(1.0);
+    if (SCORING == SCORING_HALF) {
+        var left = mean_or_big(acc.left_sum, acc.left_count);
+        var right = mean_or_big(acc.right_sum, acc.right_count);
+        if (HALF_BEST_N > 0u) {
+            left = best_mean(acc.l0, acc.l1, acc.l2, acc.l3, HALF_BEST_N);
+            right = best_mean(acc.r0, acc.r1, acc.r2, acc.r3, HALF_BEST_N);
+        }
+        return best_placement(min(left, right), half_decisions(left, right));
+    }
+    let none = vec4<f32>(f32(SEL_NONE));
+    if (SCORING == SCORING_BEST_N) {
+        // Mean of the min(n, seen) smallest; BIG entries are unseen pairs.
+        let n = BEST_N;
+        var s = zero;
+        var c = zero;
+        s += select(zero, acc.b0, acc.b0 < big & vec4<bool>(n > 0u));
+        c += select(zero, one, acc.b0 < big & vec4<bool>(n > 0u));
+        s += select(zero, acc.b1, acc.b1 < big & vec4<bool>(n > 1u));
+        c += select(zero, one, acc.b1 < big & vec4<bool>(n > 1u));
+        s += select(zero, acc.b2, acc.b2 < big & vec4<bool>(n > 2u));
+        c += select(zero, one, acc.b2 < big & vec4<bool>(n > 2u));
+        s += select(zero, acc.b3, acc.b3 < big & vec4<bool>(n > 3u));
+        c += select(zero, one, acc.b3 < big & vec4<bool>(n > 3u));
+        s += select(zero, acc.b4, acc.b4 < big & vec4<bool>(n > 4u));
+        c += select(zero, one, acc.b4 < big & vec4<bool>(n > 4u));
+        s += select(zero, acc.b5, acc.b5 < big & vec4<bool>(n > 5u));
+        c += select(zero, one, acc.b5 < big & vec4<bool>(n > 5u));
+        s += select(zero, acc.b6, acc.b6 < big & vec4<bool>(n > 6u));
+        c += select(zero, one, acc.b6 < big & vec4<bool>(n > 6u));
+        s += select(zero, acc.b7, acc.b7 < big & vec4<bool>(n > 7u));
+        c += select(zero, one, acc.b7 < big & vec4<bool>(n > 7u));
+        return best_placement(mean_or_big(s, c), none);
+    }
+    return best_placement(mean_or_big(acc.sum, acc.count), none);
+}
+
+// Scored or per-half aggregation: the score from the channel means (m2 only when scored).
+fn finish_channels(m0: vec4<f32>, m1: vec4<f32>, m2: vec4<f32>) -> vec2<f32> {
+    if (SCORING == SCORING_HALF) {
+        var score = min(m0, m1);
+        if (AGGREGATION == AGG_SCORED) {
+            score = m2;
+        }
+        return best_placement(score, half_decisions(m0, m1));
+    }
+    return best_placement(m0, vec4<f32>(f32(SEL_NONE)));
+}
+
+// (best score over the window placements, its selection) of plane `z` at pixel (x, y).
+fn score_plane(z: u32, x: i32, y: i32) -> vec2<f32> {
+    if (AGGREGATION == AGG_PER_PAIR) {
+        var acc = empty_acc();
+        for (var p = 0u; p < CHANNELS; p++) {
+            acc = accumulate(acc, channel_means(z, p, x, y), pairs[p].z);
+        }
+        return finish_pairs(acc);
+    }
+    let m0 = channel_means(z, 0u, x, y);
+    var m1 = m0;
+    var m2 = m0;
+    if (CHANNELS > 1u) {
+        m1 = channel_means(z, 1u, x, y);
+    }
+    if (CHANNELS > 2u) {
+        m2 = channel_means(z, 2u, x, y);
+    }
+    return finish_channels(m0, m1, m2);
+}
+
+// The same for pixels (x, y) and (x + 1, y) with shiftable 2x2 windows (PAIRED).
+fn score_plane_paired(z: u32, x: i32, y: i32) -> array<vec2<f32>, 2> {
+    if (AGGREGATION == AGG_PER_PAIR) {
+        var acc_a = empty_acc();
+        var acc_b = empty_acc();
+        for (var p = 0u; p < CHANNELS; p++) {
+            let m = pair_means_2x2(z, p, x, y);
+            let half = pairs[p].z;
+            acc_a = accumulate(acc_a, m[0], half);
+            acc_b = accumulate(acc_b, m[1], half);
+        }
+        return array<vec2<f32>, 2>(finish_pairs(acc_a), finish_pairs(acc_b));
+    }
+    let m0 = pair_means_2x2(z, 0u, x, y);
+    var m1 = m0;
+    var m2 = m0;
+    if (CHANNELS > 1u) {
+        m1 = pair_means_2x2(z, 1u, x, y);
+    }
+    if (CHANNELS > 2u) {
+        m2 = pair_means_2x2(z, 2u, x, y);
+    }
+    return array<vec2<f32>, 2>(finish_channels(m0[0], m1[0], m2[0]), finish_channels(m0[1], m1[1], m2[1]));
+}
+
+// Stage 5a, selection: streaming winner-take-all that keeps, exactly and without a cost volume,
+// the winner's neighbours (for the sub-pixel parabola) and the best rival away from them (for
+// the confidence). See `state` for the layout.
+struct Wta {
+    s0: vec4<f32>,
+    s1: vec4<f32>,
+    s2: vec4<f32>,
+}
+
+fn select_plane(st: Wta, k: f32, best: vec2<f32>) -> Wta {
+    var s0 = st.s0;
+    var s1 = st.s1;
+    var s2 = st.s2;
+    let c = best.x;
+    if (c < s0.x) {
+        s0 = vec4<f32>(c, k, s1.w, BIG);
+        s1.x = s1.z;
+        s2.x = best.y;
+    } else if (k == s0.y + 1.0) {
+        s0.w = c;
+    } else {
+        s1.x = min(s1.x, c);
+    }
+    s1.z = s1.y;
+    s1.y = min(s1.y, c);
+    s1.w = c;
+    return Wta(s0, s1, s2);
+}
+
+fn load_state(pix: u32) -> Wta {
+    if (batch.is_first != 0u) {
+        return Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(f32(SEL_INVALID), 0.0, 0.0, 0.0));
+    }
+    return Wta(state[3u * pix], state[3u * pix + 1u], state[3u * pix + 2u]);
+}
+
+fn store_state(pix: u32, st: Wta) {
+    state[3u * pix] = st.s0;
+    state[3u * pix + 1u] = st.s1;
+    state[3u * pix + 2u] = st.s2;
+}
+
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.ref_size.x;
     let height = params.ref_size.y;
+    if (PAIRED) {
+        let x = 2u * gid.x;
+        if (x >= width || gid.y >= height) {
+            return;
+        }
+        let has_b = x + 1u < width;
+        let pix = gid.y * width + x;
+        var a = load_state(pix);
+        var b = a;
+        if (has_b) {
+            b = load_state(pix + 1u);
+        }
+        for (var z = 0u; z < batch.plane_count; z++) {
+            let k = f32(batch.first_plane + z);
+            let best = score_plane_paired(z, i32(x), i32(gid.y));
+            a = select_plane(a, k, best[0]);
+            b = select_plane(b, k, best[1]);
+        }
+        store_state(pix, a);
+        if (has_b) {
+            store_state(pix + 1u, b);
+        }
+        return;
+    }
     if (gid.x >= width || gid.y >= height) {
         return;
     }
-    let x = i32(gid.x);
-    let y = i32(gid.y);
     let pix = gid.y * width + gid.x;
-    var s0 = vec4<f32>(BIG, -1.0, BIG, BIG);
-    var s1 = vec4<f32>(BIG, BIG, BIG, BIG);
-    var s2 = vec4<f32>(f32(SEL_INVALID), 0.0, 0.0, 0.0);
-    if (batch.is_first == 0u) {
-        s0 = state[3u * pix];
-        s1 = state[3u * pix + 1u];
-        s2 = state[3u * pix + 2u];
-    }
-    let big = vec4<f32>(BIG);
-    let zero = vec4<f32>(0.0);
-    let one = vec4<f32>(1.0);
+    var st = load_state(pix);
     for (var z = 0u; z < batch.plane_count; z++) {
-        // Per placement (lane): score and half-sequence selection.
-        var score = big;
-        var sel = vec4<f32>(f32(SEL_NONE));
-        if (AGGREGATION == AGG_PER_PAIR) {
-            var sum = zero;
-            var count = zero;
-            var left_sum = zero;
-            var left_count = zero;
-            var right_sum = zero;
-            var right_count = zero;
-            // The n smallest pair means per lane, kept sorted by bubbling each new value through.
-            var b0 = big;
-            var b1 = big;
-            var b2 = big;
-            var b3 = big;
-            var b4 = big;
-            var b5 = big;
-            var b6 = big;
-            var b7 = big;
-            // The HALF_BEST_N smallest pair means of each half, likewise.
-            var l0 = big;
-            var l1 = big;
-            var l2 = big;
-            var l3 = big;
-            var r0 = big;
-            var r1 = big;
-            var r2 = big;
-            var r3 = big;
-            for (var p = 0u; p < CHANNELS; p++) {
-                let a = channel_means(z, p, x, y);
-                let seen = a < big;
-                let a0 = select(zero, a, seen);
-                let n0 = select(zero, one, seen);
-                sum += a0;
-                count += n0;
-                let half = pairs[p].z;
-                if (half == HALF_LEFT) {
-                    left_sum += a0;
-                    left_count += n0;
-                    var v = a;
-                    var t = min(l0, v); v = max(l0, v); l0 = t;
-                    t = min(l1, v); v = max(l1, v); l1 = t;
-                    t = min(l2, v); v = max(l2, v); l2 = t;
-                    l3 = min(l3, v);
-                } else if (half == HALF_RIGHT) {
-                    right_sum += a0;
-                    right_count += n0;
-                    var v = a;
-                    var t = min(r0, v); v = max(r0, v); r0 = t;
-                    t = min(r1, v); v = max(r1, v); r1 = t;
-                    t = min(r2, v); v = max(r2, v); r2 = t;
-                    r3 = min(r3, v);
-                }
-                if (SCORING == SCORING_BEST_N) {
-                    var v = a;
-                    var t = min(b0, v); v = max(b0, v); b0 = t;
-                    t = min(b1, v); v = max(b1, v); b1 = t;
-                    t = min(b2, v); v = max(b2, v); b2 = t;
-                    t = min(b3, v); v = max(b3, v); b3 = t;
-                    t = min(b4, v); v = max(b4, v); b4 = t;
-                    t = min(b5, v); v = max(b5, v); b5 = t;
-                    t = min(b6, v); v = max(b6, v); b6 = t;
-                    b7 = min(b7, v);
-                }
-            }
-            if (SCORING == SCORING_HALF) {
-                var left = mean_or_big(left_sum, left_count);
-                var right = mean_or_big(right_sum, right_count);
-                if (HALF_BEST_N > 0u) {
-                    left = best_mean(l0, l1, l2, l3, HALF_BEST_N);
-                    right = best_mean(r0, r1, r2, r3, HALF_BEST_N);
-                }
-                score = min(left, right);
-                sel = half_decisions(left, right);
-            } else if (SCORING == SCORING_BEST_N) {
-                // Mean of the min(n, seen) smallest; BIG entries are unseen pairs.
-                var best_sum = zero;
-                var best_count = zero;
-                let n = BEST_N;
-                best_sum += select(zero, b0, b0 < big & vec4<bool>(n > 0u));
-                best_count += select(zero, one, b0 < big & vec4<bool>(n > 0u));
-                best_sum += select(zero, b1, b1 < big & vec4<bool>(n > 1u));
-                best_count += select(zero, one, b1 < big & vec4<bool>(n > 1u));
-                best_sum += select(zero, b2, b2 < big & vec4<bool>(n > 2u));
-                best_count += select(zero, one, b2 < big & vec4<bool>(n > 2u));
-                best_sum += select(zero, b3, b3 < big & vec4<bool>(n > 3u));
-                best_count += select(zero, one, b3 < big & vec4<bool>(n > 3u));
-                best_sum += select(zero, b4, b4 < big & vec4<bool>(n > 4u));
-                best_count += select(zero, one, b4 < big & vec4<bool>(n > 4u));
-                best_sum += select(zero, b5, b5 < big & vec4<bool>(n > 5u));
-                best_count += select(zero, one, b5 < big & vec4<bool>(n > 5u));
-                best_sum += select(zero, b6, b6 < big & vec4<bool>(n > 6u));
-                best_count += select(zero, one, b6 < big & vec4<bool>(n > 6u));
-                best_sum += select(zero, b7, b7 < big & vec4<bool>(n > 7u));
-                best_count += select(zero, one, b7 < big & vec4<bool>(n > 7u));
-                score = mean_or_big(best_sum, best_count);
-            } else {
-                score = mean_or_big(sum, count);
-            }
-        } else if (SCORING == SCORING_HALF) {
-            let left = channel_means(z, 0u, x, y);
-            let right = channel_means(z, 1u, x, y);
-            score = min(left, right);
-            if (AGGREGATION == AGG_SCORED) {
-                score = channel_means(z, 2u, x, y);
-            }
-            sel = half_decisions(left, right);
-        } else {
-            score = channel_means(z, 0u, x, y);
-        }
-        // The best placement, the first lane on ties (centred and 1x1 windows fill all lanes alike).
-        var best = vec2<f32>(score.x, sel.x);
-        if (score.y < best.x) {
-            best = vec2<f32>(score.y, sel.y);
-        }
-        if (score.z < best.x) {
-            best = vec2<f32>(score.z, sel.z);
-        }
-        if (score.w < best.x) {
-            best = vec2<f32>(score.w, sel.w);
-        }
-
-        // Stage 5a, selection: streaming winner-take-all that keeps, exactly and without a cost
-        // volume, the winner's neighbours (for the sub-pixel parabola) and the best rival away
-        // from them (for the confidence).
-        let k = f32(batch.first_plane + z);
-        let c = best.x;
-        if (c < s0.x) {
-            s0 = vec4<f32>(c, k, s1.w, BIG);
-            s1.x = s1.z;
-            s2.x = best.y;
-        } else if (k == s0.y + 1.0) {
-            s0.w = c;
-        } else {
-            s1.x = min(s1.x, c);
-        }
-        s1.z = s1.y;
-        s1.y = min(s1.y, c);
-        s1.w = c;
+        st = select_plane(st, f32(batch.first_plane + z), score_plane(z, i32(gid.x), i32(gid.y)));
     }
-    state[3u * pix] = s0;
-    state[3u * pix + 1u] = s1;
-    state[3u * pix + 2u] = s2;
+    store_state(pix, st);
 }

@@ -237,6 +237,40 @@ fn every_scoring_and_window_agrees_on_synthetic() {
     }
 }
 
+/// An odd width: the last column of the two-pixels-per-invocation path has no partner.
+#[test]
+fn odd_width_shiftable_2x2_agrees() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(47, 35));
+    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), 41.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    for (name, params) in [
+        (
+            "odd_half_per_pair_2x2",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                window_width: 2,
+                window_height: 2,
+                window_mode: WindowMode::Shiftable,
+                ..base()
+            },
+        ),
+        (
+            "odd_best2_scored_2x2",
+            SweepParams {
+                window_width: 2,
+                window_height: 2,
+                window_mode: WindowMode::Shiftable,
+                aggregation: Aggregation::Scored,
+                ..base()
+            },
+        ),
+    ] {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        compare(name, &plan, &rig, &images);
+    }
+}
+
 #[test]
 fn distorted_arc_agrees() {
     let model = CameraModel {

@@ -107,6 +107,12 @@ struct Specialisation {
 }
 
 impl Specialisation {
+    /// The paper's shiftable 2x2 windows: the aggregate stage takes two horizontally adjacent
+    /// pixels per invocation and shares their window loads.
+    fn paired(&self) -> bool {
+        self.window_mode == WINDOW_SHIFTABLE && self.window_w == 2 && self.window_h == 2
+    }
+
     fn of(plan: &SweepPlan) -> Self {
         let p = &plan.params;
         Self {
@@ -341,7 +347,12 @@ impl GpuEngine {
                     groups(key.padded_width, key.padded_height, 1),
                 );
             }
-            run_pass(&mut encoder, 3, offset, image_groups);
+            let aggregate_groups = if specialisation.paired() {
+                groups(plan.width.div_ceil(2), plan.height, 1)
+            } else {
+                image_groups
+            };
+            run_pass(&mut encoder, 3, offset, aggregate_groups);
         }
         for stage in 4..STAGES.len() {
             run_pass(&mut encoder, stage, None, image_groups);
@@ -405,6 +416,7 @@ impl GpuEngine {
             ("BEST_N", f64::from(spec.best_n)),
             ("WINDOW_MODE", f64::from(spec.window_mode)),
             ("HALF_BEST_N", f64::from(spec.half_best_n)),
+            ("PAIRED", f64::from(u8::from(spec.paired()))),
         ];
         let box_h = [
             distorted[0],
