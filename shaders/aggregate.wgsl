@@ -187,11 +187,14 @@ fn best_mean(v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, n: u32)
     return mean_or_big(sum, count);
 }
 
+// Which half is clearly better: by at least `half_margin` of the worse score, and never by less
+// than `half_margin` of tau / 4 (near-zero costs differ by noise alone).
 fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
-    let keep = 1.0 - params.thresholds.w;
+    let margin = params.thresholds.w;
+    let floor_cost = vec4<f32>(0.25 * params.thresholds.x);
     let big = vec4<f32>(BIG);
-    let is_left = left < big & (right >= big | left < keep * right);
-    let is_right = right < big & (left >= big | right < keep * left);
+    let is_left = left < big & (right >= big | (right - left) > margin * max(right, floor_cost));
+    let is_right = right < big & (left >= big | (left - right) > margin * max(left, floor_cost));
     return select(select(vec4<f32>(f32(SEL_NONE)), vec4<f32>(f32(SEL_RIGHT)), is_right), vec4<f32>(f32(SEL_LEFT)), is_left);
 }
 
@@ -239,7 +242,8 @@ fn accumulate(acc_in: Acc, a: vec4<f32>, half: u32) -> Acc {
     let n0 = select(vec4<f32>(0.0), vec4<f32>(1.0), seen);
     acc.sum += a0;
     acc.count += n0;
-    if (SCORING == SCORING_HALF) {
+    // The halves also tell best n of m which side matched better (the selection image).
+    if (SCORING == SCORING_HALF || SCORING == SCORING_BEST_N) {
         if (half == HALF_LEFT) {
             acc.left_sum += a0;
             acc.left_count += n0;
@@ -293,13 +297,13 @@ fn finish_pairs(acc: Acc) -> vec2<f32> {
     let big = vec4<f32>(BIG);
     let zero = vec4<f32>(0.0);
     let one = vec4<f32>(1.0);
+    var left = mean_or_big(acc.left_sum, acc.left_count);
+    var right = mean_or_big(acc.right_sum, acc.right_count);
+    if (HALF_BEST_N > 0u) {
+        left = best_mean(acc.l0, acc.l1, acc.l2, acc.l3, HALF_BEST_N);
+        right = best_mean(acc.r0, acc.r1, acc.r2, acc.r3, HALF_BEST_N);
+    }
     if (SCORING == SCORING_HALF) {
-        var left = mean_or_big(acc.left_sum, acc.left_count);
-        var right = mean_or_big(acc.right_sum, acc.right_count);
-        if (HALF_BEST_N > 0u) {
-            left = best_mean(acc.l0, acc.l1, acc.l2, acc.l3, HALF_BEST_N);
-            right = best_mean(acc.r0, acc.r1, acc.r2, acc.r3, HALF_BEST_N);
-        }
         return best_placement(min(left, right), half_decisions(left, right));
     }
     let none = vec4<f32>(f32(SEL_NONE));
@@ -324,7 +328,7 @@ fn finish_pairs(acc: Acc) -> vec2<f32> {
         c += select(zero, one, acc.b6 < big & vec4<bool>(n > 6u));
         s += select(zero, acc.b7, acc.b7 < big & vec4<bool>(n > 7u));
         c += select(zero, one, acc.b7 < big & vec4<bool>(n > 7u));
-        return best_placement(mean_or_big(s, c), none);
+        return best_placement(mean_or_big(s, c), half_decisions(left, right));
     }
     return best_placement(mean_or_big(acc.sum, acc.count), none);
 }

@@ -4,10 +4,13 @@ use super::select::{self, PixelState};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
-fn half_decision(keep: f32, left: f32, right: f32) -> f32 {
-    if left < BIG && (right >= BIG || left < keep * right) {
+/// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
+/// by less than `margin` of tau / 4.
+fn half_decision(margin: f32, tau: f32, left: f32, right: f32) -> f32 {
+    let floor_cost = 0.25 * tau;
+    if left < BIG && (right >= BIG || (right - left) > margin * right.max(floor_cost)) {
         SEL_LEFT as f32
-    } else if right < BIG && (left >= BIG || right < keep * left) {
+    } else if right < BIG && (left >= BIG || (left - right) > margin * left.max(floor_cost)) {
         SEL_RIGHT as f32
     } else {
         SEL_NONE as f32
@@ -66,7 +69,7 @@ impl Window<'_> {
 
     fn score(&self, z: usize, ax: i32, ay: i32) -> [f32; 2] {
         let p = &self.plan.params;
-        let keep = 1.0 - p.thresholds[3];
+        let (margin, tau) = (p.thresholds[3], p.thresholds[0]);
         let (scoring, n) = (p.modes[0], p.modes[2]);
         if p.modes[3] == AGG_PER_PAIR {
             let (mut sum, mut count) = (0.0f32, 0u32);
@@ -103,31 +106,33 @@ impl Window<'_> {
                     kept = (kept + 1).min(n);
                 }
             }
+            let half_n = p.counts[3] as usize;
+            let mut left = if left_count > 0 {
+                left_sum / left_count as f32
+            } else {
+                BIG
+            };
+            let mut right = if right_count > 0 {
+                right_sum / right_count as f32
+            } else {
+                BIG
+            };
+            if half_n > 0 {
+                left = best_mean(&mut left_values, half_n);
+                right = best_mean(&mut right_values, half_n);
+            }
             if scoring == SCORING_HALF {
-                let half_n = p.counts[3] as usize;
-                let mut left = if left_count > 0 {
-                    left_sum / left_count as f32
-                } else {
-                    BIG
-                };
-                let mut right = if right_count > 0 {
-                    right_sum / right_count as f32
-                } else {
-                    BIG
-                };
-                if half_n > 0 {
-                    left = best_mean(&mut left_values, half_n);
-                    right = best_mean(&mut right_values, half_n);
-                }
-                return [left.min(right), half_decision(keep, left, right)];
+                return [left.min(right), half_decision(margin, tau, left, right)];
             }
             if scoring == SCORING_BEST_N {
+                // The halves also tell which side matched better (the selection image).
+                let sel = half_decision(margin, tau, left, right);
                 if kept == 0 {
-                    return [BIG, 0.0];
+                    return [BIG, sel];
                 }
                 return [
                     smallest[..kept as usize].iter().sum::<f32>() / kept as f32,
-                    0.0,
+                    sel,
                 ];
             }
             if count == 0 {
@@ -142,7 +147,7 @@ impl Window<'_> {
             if p.modes[3] == AGG_SCORED {
                 score = self.mean(z, 2, ax, ay);
             }
-            return [score, half_decision(keep, left, right)];
+            return [score, half_decision(margin, tau, left, right)];
         }
         [self.mean(z, 0, ax, ay), 0.0]
     }
