@@ -188,10 +188,10 @@ fn best_mean(v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, n: u32)
 }
 
 // Which half is clearly better: by at least `half_margin` of the worse score, and never by less
-// than `half_margin` of tau / 4 (near-zero costs differ by noise alone).
+// than `half_margin` of HALF_NOISE_FLOOR (near-zero costs differ by sensor noise alone).
 fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
     let margin = params.thresholds.w;
-    let floor_cost = vec4<f32>(0.25 * params.thresholds.x);
+    let floor_cost = vec4<f32>(HALF_NOISE_FLOOR);
     let big = vec4<f32>(BIG);
     let is_left = left < big & (right >= big | (right - left) > margin * max(right, floor_cost));
     let is_right = right < big & (left >= big | (left - right) > margin * max(left, floor_cost));

@@ -24,6 +24,8 @@ const SEL_NONE: u32 = 0u;          // no clear half (white)
 const SEL_LEFT: u32 = 1u;          // left half >= 10 % better (red)
 const SEL_RIGHT: u32 = 2u;         // right half >= 10 % better (green)
 const SEL_INVALID: u32 = 3u;       // invalid pixel (black)
+// A colour SSD of 25 (about 3 grey levels per channel): below it, half scores differ by noise.
+const HALF_NOISE_FLOOR: f32 = 25.0;
 
 const DIST_NONE: u32 = 0u;
 const DIST_PLUMB_BOB: u32 = 1u;

@@ -29,6 +29,8 @@ pub const HALF_RIGHT: u32 = 1;
 pub const HALF_REFERENCE: u32 = 2;
 
 pub const INVALID: f32 = -1.0;
+/// `HALF_NOISE_FLOOR` in common.wgsl.
+pub const HALF_NOISE_FLOOR: f32 = 25.0;
 pub const BIG: f32 = 1.0e30;
 
 /// Sections of the `maps` buffer (`MAP_*` in common.wgsl).

@@ -5,9 +5,9 @@ use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
 /// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
-/// by less than `margin` of tau / 4.
-fn half_decision(margin: f32, tau: f32, left: f32, right: f32) -> f32 {
-    let floor_cost = 0.25 * tau;
+/// by less than `margin` of HALF_NOISE_FLOOR.
+fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
+    let floor_cost = HALF_NOISE_FLOOR;
     if left < BIG && (right >= BIG || (right - left) > margin * right.max(floor_cost)) {
         SEL_LEFT as f32
     } else if right < BIG && (left >= BIG || (left - right) > margin * left.max(floor_cost)) {
@@ -69,7 +69,7 @@ impl Window<'_> {
 
     fn score(&self, z: usize, ax: i32, ay: i32) -> [f32; 2] {
         let p = &self.plan.params;
-        let (margin, tau) = (p.thresholds[3], p.thresholds[0]);
+        let margin = p.thresholds[3];
         let (scoring, n) = (p.modes[0], p.modes[2]);
         if p.modes[3] == AGG_PER_PAIR {
             let (mut sum, mut count) = (0.0f32, 0u32);
@@ -122,11 +122,11 @@ impl Window<'_> {
                 right = best_mean(&mut right_values, half_n);
             }
             if scoring == SCORING_HALF {
-                return [left.min(right), half_decision(margin, tau, left, right)];
+                return [left.min(right), half_decision(margin, left, right)];
             }
             if scoring == SCORING_BEST_N {
                 // The halves also tell which side matched better (the selection image).
-                let sel = half_decision(margin, tau, left, right);
+                let sel = half_decision(margin, left, right);
                 if kept == 0 {
                     return [BIG, sel];
                 }
@@ -147,7 +147,7 @@ impl Window<'_> {
             if p.modes[3] == AGG_SCORED {
                 score = self.mean(z, 2, ax, ay);
             }
-            return [score, half_decision(margin, tau, left, right)];
+            return [score, half_decision(margin, left, right)];
         }
         [self.mean(z, 0, ax, ay), 0.0]
     }
