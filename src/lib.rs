@@ -11,5 +11,6 @@ pub mod gpu_context;
 pub mod image;
 pub mod io;
 pub mod msgs;
+pub mod ros;
 pub mod sweep;
 pub mod synthetic;

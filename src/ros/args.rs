@@ -1,0 +1,1 @@
+//! `--ros-args` parsing and the parameter table (in progress).

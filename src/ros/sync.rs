@@ -1,0 +1,1 @@
+//! N-ary exact and approximate time synchronisation (in progress).
