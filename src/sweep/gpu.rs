@@ -482,10 +482,11 @@ impl GpuEngine {
         let (padded_w, padded_h) = plan.padded_size();
         let row_bytes = u64::from(padded_w) * u64::from(plan.height) * 8 * channels;
         let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
-        // Cost slab + row sums + box sums + aggregated slab, per plane.
+        // Cost slab + row sums + box sums, per plane.
         let per_plane = npix * 4 * channels + row_bytes + box_bytes;
-        let max_binding =
-            u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+        let max_binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         let budget = SLAB_BUDGET_BYTES.min(max_binding);
         if box_bytes > budget {
             return Err(SweepError::InvalidParams(format!(

@@ -147,6 +147,8 @@ pub enum SweepError {
 
 impl SweepParams {
     /// Checks ranges and the combination with the rig; every engine calls this first.
+    // `!(x > 0.0)` on purpose: it also rejects NaN.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     pub fn validate(&self, rig: &Rig) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {

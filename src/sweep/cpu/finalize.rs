@@ -1,4 +1,6 @@
 //! Twin of `shaders/finalize.wgsl`.
+// The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::common::*;
 use super::select::PixelState;
