@@ -12,7 +12,7 @@ override CHANNELS: u32 = 1u;      // = params.counts.z (pairs m in per-pair aggr
 @group(0) @binding(2) var<uniform> cameras: array<Camera, MAX_RIG_CAMERAS>;
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> cost_slab: array<f32>;
+@group(0) @binding(5) var<storage, read_write> cost_slab: array<f32>;
 
 fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
     return unpack4x8unorm(images[cam.size.z + y * cam.size.x + x]).rgb * 255.0;

@@ -28,18 +28,18 @@ enum Slot {
 const LAYOUTS: [&[Slot]; 8] = {
     use Slot::*;
     [
-        &[Uniform, BatchUniform, Uniform, Read, Read, Read, ReadWrite], // cost
-        &[Uniform, BatchUniform, Read, ReadWrite],                      // box_h
-        &[Uniform, BatchUniform, Read, ReadWrite],                      // box_v
-        &[Uniform, BatchUniform, Read, ReadWrite, Uniform, Read],       // aggregate
-        &[Uniform, Read, Read, Read, ReadWrite],                        // finalize
-        &[Uniform, ReadWrite],                                          // median
-        &[Uniform, Uniform, Read, Read, ReadWrite],                     // splat
-        &[Uniform, Uniform, Read, Read, ReadWrite],                     // visibility
+        &[Uniform, BatchUniform, Uniform, Read, Read, ReadWrite], // cost
+        &[Uniform, BatchUniform, Read, ReadWrite],                // box_h
+        &[Uniform, BatchUniform, Read, ReadWrite],                // box_v
+        &[Uniform, BatchUniform, Read, ReadWrite, Uniform, Read], // aggregate
+        &[Uniform, Read, Read, Read, ReadWrite],                  // finalize
+        &[Uniform, ReadWrite],                                    // median
+        &[Uniform, Uniform, Read, Read, ReadWrite],               // splat
+        &[Uniform, Uniform, Read, Read, ReadWrite],               // visibility
     ]
 };
 
-/// Largest cost + aggregate slab we allocate for one batch of planes.
+/// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 
 /// Buffers for one shape of work.
@@ -652,7 +652,6 @@ impl GpuEngine {
                     cameras.as_entire_binding(),
                     images.as_entire_binding(),
                     rays.as_entire_binding(),
-                    planes.as_entire_binding(),
                     cost_slab.as_entire_binding(),
                 ],
             ),
