@@ -240,11 +240,12 @@ impl GpuEngine {
             let plan = SweepPlan::new(rig, params)?;
             self.plan = Some((rig.clone(), params.clone(), plan));
         }
-        let Some((_, _, plan)) = self.plan.take() else {
+        // Taken out and put back (no per-frame clone) so run_plan can borrow self mutably.
+        let Some(cached) = self.plan.take() else {
             return Err(SweepError::Gpu("internal: no plan".into()));
         };
-        let result = self.run_plan(&plan, rig, images);
-        self.plan = Some((rig.clone(), params.clone(), plan));
+        let result = self.run_plan(&cached.2, rig, images);
+        self.plan = Some(cached);
         result
     }
 
