@@ -3,3 +3,5 @@
 
 pub mod args;
 pub mod sync;
+pub mod rig_file;
+pub mod tf;

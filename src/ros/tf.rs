@@ -1,0 +1,1 @@
+//! A tf2-style buffer of static transforms (in progress).
