@@ -11,6 +11,7 @@ pub mod gpu_context;
 pub mod image;
 pub mod io;
 pub mod msgs;
+pub mod node;
 pub mod ros;
 pub mod sweep;
 pub mod synthetic;

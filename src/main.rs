@@ -23,8 +23,12 @@ enum Command {
     Bench(sweepdepth::bench::BenchArgs),
     /// Run the engine on the built-in sample data and write depth images.
     Demo(sweepdepth::demo::DemoArgs),
-    /// The ROS 2 node (issue 3: not in this build yet).
-    Node,
+    /// The ROS 2 node: `sweepdepth node --ros-args -p cameras:=[left, centre, right] ...`.
+    Node {
+        /// Everything after `node` (the `--ros-args ...` block), parsed as rcl does.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<String>,
+    },
     /// Record or replay camera bags (not in this build yet).
     Bag,
     /// Pack a dataset into a bag (not in this build yet).
@@ -35,7 +39,7 @@ fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,sweepdepth=info")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,sweepdepth=info,rustdds=error")),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -44,7 +48,8 @@ fn main() -> ExitCode {
         Command::Eval(args) => sweepdepth::eval::run(&args),
         Command::Bench(args) => sweepdepth::bench::run(&args),
         Command::Demo(args) => sweepdepth::demo::run(&args),
-        Command::Node | Command::Bag | Command::Pack => Err(anyhow::anyhow!(
+        Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
+        Command::Bag | Command::Pack => Err(anyhow::anyhow!(
             "this subcommand is not implemented in this build yet (it arrives with the ROS 2 node)"
         )),
     };

@@ -1,0 +1,786 @@
+//! The ROS 2 node (`sweepdepth node --ros-args ...`) over `ros2-client` (DDS).
+//!
+//! Data flow: per camera an image and a camera_info subscription (and `/tf_static` unless
+//! `rig_file` is set) feed one async loop on a `futures` executor that also drives the
+//! ros2-client spinner. The loop keeps the latest CameraInfo per camera and the TF tree,
+//! synchronises the images ([`ExactSync`] / [`ApproximateSync`]) and hands each complete set,
+//! with its calibration, to the GPU worker thread through a one-slot channel ([`LatestSlot`]:
+//! the newest set replaces a pending one). The worker owns the [`GpuContext`] and the
+//! [`GpuEngine`], converts the images, runs the sweep and publishes `depth/image`,
+//! `depth/camera_info`, `confidence/image`, `cost/image` and `selection/image`.
+//!
+//! Not done yet: rosout and `/diagnostics`, parameter services, PointCloud2
+//! (`publish_points`), clean shutdown on SIGINT/SIGTERM (the default signal action ends the
+//! process).
+
+pub mod convert;
+pub mod worker;
+
+use std::collections::HashMap;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use futures::{Stream, StreamExt};
+use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile,
+};
+
+use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
+use crate::gpu_context::GpuContext;
+use crate::msgs::{CameraInfo, Header, Image, TFMessage};
+use crate::ros::args::{
+    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, RosArgs, RosArgsError,
+    DEFAULT_NODE_NAME,
+};
+use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
+use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, SyncedSet, Synchronizer};
+use crate::ros::tf::TfBuffer;
+use crate::sweep::gpu::GpuEngine;
+use crate::sweep::SweepParams;
+
+use self::convert::{f32_image_msg, image_to_rgba8, selection_msg};
+use self::worker::LatestSlot;
+
+/// Minimum time between two repetitions of the same warning.
+const LOG_INTERVAL: Duration = Duration::from_secs(2);
+
+/// Errors that stop the node (at start-up).
+#[derive(Debug, thiserror::Error)]
+pub enum NodeError {
+    #[error(transparent)]
+    Args(#[from] RosArgsError),
+    #[error("{0}")]
+    Param(String),
+    #[error("unexpected arguments {0:?}: `sweepdepth node` takes only `--ros-args ...`")]
+    ExtraArgs(Vec<String>),
+    #[error(transparent)]
+    RigFile(#[from] RigFileError),
+    #[error("rig file '{path}' has no camera for '{camera}'")]
+    RigFileCamera { path: String, camera: String },
+    #[error("invalid ROS name '{name}': {reason}")]
+    Name { name: String, reason: String },
+    #[error("ROS 2 (ros2-client): {0}")]
+    Ros(String),
+    #[error("GPU: {0}")]
+    Gpu(String),
+    #[error(transparent)]
+    Sync(#[from] SyncError),
+}
+
+fn ros_err(e: impl std::fmt::Debug) -> NodeError {
+    NodeError::Ros(format!("{e:?}"))
+}
+
+/// Time synchronisation settings.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SyncPolicy {
+    Exact,
+    Approximate {
+        max_interval_ns: i64,
+        age_penalty: f64,
+    },
+}
+
+/// Everything the node needs from its command line and environment.
+#[derive(Debug, Clone)]
+pub struct NodeConfig {
+    pub identity: NodeIdentity,
+    pub params: ParamSet,
+    pub sweep: SweepParams,
+    pub domain_id: u16,
+    pub cameras: Vec<String>,
+    pub reference: usize,
+    /// Fully qualified (remapped) topic names, per camera.
+    pub image_topics: Vec<String>,
+    pub info_topics: Vec<String>,
+    /// Fully qualified output topic names: depth, depth info, confidence, cost, selection.
+    pub output_topics: [String; 5],
+    pub tf_static_topic: String,
+    pub rig_file: Option<RigFile>,
+    pub sync: SyncPolicy,
+    pub queue_size: usize,
+    pub input_reliable: bool,
+    pub input_depth: usize,
+    pub output_depth: usize,
+    pub notes: Vec<String>,
+}
+
+impl NodeConfig {
+    /// From the arguments after `node` and the value of `ROS_DOMAIN_ID`.
+    pub fn from_args(args: &[String], domain_env: Option<&str>) -> Result<Self, NodeError> {
+        let ros: RosArgs = parse_ros_args(args)?;
+        if !ros.other.is_empty() {
+            return Err(NodeError::ExtraArgs(ros.other.clone()));
+        }
+        let identity = ros.node_identity(DEFAULT_NODE_NAME, "/")?;
+        let (params, mut notes) = ParamSet::from_ros_args(&ros, &identity)?;
+        notes.extend(ros.notes.iter().cloned());
+        params.check_node().map_err(NodeError::Param)?;
+        let mut sweep = SweepParams::default();
+        apply_to_sweep(&params, &mut sweep).map_err(NodeError::Param)?;
+        let cameras = params
+            .get_string_array("cameras")
+            .map_err(NodeError::Param)?
+            .to_vec();
+        let reference_name = params
+            .reference_camera()
+            .ok_or_else(|| NodeError::Param("no reference camera".into()))?;
+        let reference = cameras
+            .iter()
+            .position(|c| *c == reference_name)
+            .ok_or_else(|| NodeError::Param(format!("unknown reference '{reference_name}'")))?;
+        let image_topic = params.get_str("image_topic").map_err(NodeError::Param)?;
+        let resolve = |name: &str| ros.resolve_topic(name, &identity);
+        let mut image_topics = Vec::new();
+        let mut info_topics = Vec::new();
+        for camera in &cameras {
+            let camera = camera.trim_end_matches('/');
+            image_topics.push(resolve(&format!("{camera}/{image_topic}"))?);
+            info_topics.push(resolve(&format!("{camera}/camera_info"))?);
+        }
+        let output_topics = [
+            resolve("depth/image")?,
+            resolve("depth/camera_info")?,
+            resolve("confidence/image")?,
+            resolve("cost/image")?,
+            resolve("selection/image")?,
+        ];
+        let tf_static_topic = resolve("/tf_static")?;
+        let rig_path = params.get_str("rig_file").map_err(NodeError::Param)?;
+        let rig_file = if rig_path.is_empty() {
+            None
+        } else {
+            let file = load_rig_file(rig_path)?;
+            for camera in &cameras {
+                if file.camera_for(camera).is_none() {
+                    return Err(NodeError::RigFileCamera {
+                        path: rig_path.to_string(),
+                        camera: camera.clone(),
+                    });
+                }
+            }
+            notes.extend(file.notes.iter().cloned());
+            Some(file)
+        };
+        let sync = match params.get_str("sync").map_err(NodeError::Param)? {
+            "exact" => SyncPolicy::Exact,
+            _ => SyncPolicy::Approximate {
+                max_interval_ns: (params
+                    .get_f64("sync_max_interval")
+                    .map_err(NodeError::Param)?
+                    * 1e9)
+                    .round() as i64,
+                age_penalty: params.get_f64("age_penalty").map_err(NodeError::Param)?,
+            },
+        };
+        let usize_param = |name: &str| -> Result<usize, NodeError> {
+            let v = params.get_i64(name).map_err(NodeError::Param)?;
+            usize::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
+        };
+        Ok(Self {
+            domain_id: crate::ros::args::domain_id(domain_env)?,
+            queue_size: usize_param("queue_size")?,
+            input_reliable: params
+                .get_bool("input_qos_reliable")
+                .map_err(NodeError::Param)?,
+            input_depth: usize_param("input_qos_depth")?,
+            output_depth: usize_param("output_qos_depth")?,
+            identity,
+            sweep,
+            cameras,
+            reference,
+            image_topics,
+            info_topics,
+            output_topics,
+            tf_static_topic,
+            rig_file,
+            sync,
+            params,
+            notes,
+        })
+    }
+
+    fn synchronizer(&self) -> Result<Box<dyn Synchronizer<Image> + Send>, NodeError> {
+        let n = self.cameras.len();
+        Ok(match &self.sync {
+            SyncPolicy::Exact => Box::new(ExactSync::new(n, self.queue_size)?),
+            SyncPolicy::Approximate {
+                max_interval_ns,
+                age_penalty,
+            } => Box::new(
+                ApproximateSync::new(n, self.queue_size)?
+                    .with_age_penalty(*age_penalty)?
+                    .with_max_interval_ns(*max_interval_ns)?,
+            ),
+        })
+    }
+}
+
+/// Emits a warning per key at most once per [`LOG_INTERVAL`].
+#[derive(Default)]
+struct RateLimited {
+    last: HashMap<String, Instant>,
+}
+
+impl RateLimited {
+    fn warn(&mut self, key: &str, message: impl FnOnce() -> String) {
+        let now = Instant::now();
+        if self
+            .last
+            .get(key)
+            .is_some_and(|t| now.duration_since(*t) < LOG_INTERVAL)
+        {
+            return;
+        }
+        self.last.insert(key.to_string(), now);
+        tracing::warn!("{}", message());
+    }
+}
+
+/// One synchronised set with its calibration, for the worker.
+struct Job {
+    images: Vec<Image>,
+    cameras: Vec<RigCamera>,
+    reference: usize,
+    ref_info: CameraInfo,
+}
+
+struct Outputs {
+    depth: Publisher<Image>,
+    depth_info: Publisher<CameraInfo>,
+    confidence: Publisher<Image>,
+    cost: Publisher<Image>,
+    selection: Publisher<Image>,
+}
+
+fn topic_name(name: &str) -> Result<Name, NodeError> {
+    Name::parse(name).map_err(|e| NodeError::Name {
+        name: name.to_string(),
+        reason: format!("{e:?}"),
+    })
+}
+
+/// Runs the node with the arguments after `node` until the process is killed.
+pub fn run(args: &[String]) -> Result<(), NodeError> {
+    let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
+    let config = NodeConfig::from_args(args, domain_env.as_deref())?;
+    for note in &config.notes {
+        tracing::info!("{note}");
+    }
+    tracing::info!(
+        "node {} on domain {}: cameras [{}], reference '{}', images {:?}",
+        config.identity.fqn(),
+        config.domain_id,
+        config.cameras.join(", "),
+        config.cameras[config.reference],
+        config.image_topics
+    );
+
+    // The GPU worker starts first so that a missing adapter fails before DDS comes up.
+    let slot: Arc<LatestSlot<Job>> = Arc::new(LatestSlot::new());
+    let (init_tx, init_rx) = std::sync::mpsc::channel::<Result<(), String>>();
+    let (outputs_tx, outputs_rx) = std::sync::mpsc::channel::<Outputs>();
+    let worker_slot = Arc::clone(&slot);
+    let sweep = config.sweep.clone();
+    let camera_names = config.cameras.clone();
+    let worker = std::thread::Builder::new()
+        .name("sweepdepth-gpu".into())
+        .spawn(move || {
+            let gpu = match GpuContext::new() {
+                Ok(gpu) => gpu,
+                Err(e) => {
+                    let _ = init_tx.send(Err(e.to_string()));
+                    return;
+                }
+            };
+            let engine = match GpuEngine::new(&gpu.device, &gpu.queue) {
+                Ok(engine) => engine,
+                Err(e) => {
+                    let _ = init_tx.send(Err(e.to_string()));
+                    return;
+                }
+            };
+            tracing::info!("GPU adapter: {}", gpu.adapter_label());
+            let _ = init_tx.send(Ok(()));
+            let Ok(outputs) = outputs_rx.recv() else {
+                return;
+            };
+            worker_loop(&worker_slot, engine, &sweep, &camera_names, &outputs);
+        })
+        .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
+    match init_rx.recv() {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => return Err(NodeError::Gpu(e)),
+        Err(_) => {
+            return Err(NodeError::Gpu(
+                "the GPU thread ended during start-up".into(),
+            ))
+        }
+    }
+
+    let result = run_dds(&config, &slot, outputs_tx);
+    slot.close();
+    let _ = worker.join();
+    result
+}
+
+type EventStream<'a> = Pin<Box<dyn Stream<Item = Event> + 'a>>;
+
+enum Event {
+    Image(usize, Result<Image, String>),
+    Info(usize, Result<Box<CameraInfo>, String>),
+    Tf(Result<TFMessage, String>),
+}
+
+fn run_dds(
+    config: &NodeConfig,
+    slot: &LatestSlot<Job>,
+    outputs_tx: std::sync::mpsc::Sender<Outputs>,
+) -> Result<(), NodeError> {
+    let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
+        .map_err(ros_err)?;
+    let node_name =
+        NodeName::new(&config.identity.namespace, &config.identity.name).map_err(|e| {
+            NodeError::Name {
+                name: config.identity.fqn(),
+                reason: format!("{e:?}"),
+            }
+        })?;
+    let mut node = context
+        .new_node(
+            node_name,
+            NodeOptions::new()
+                .enable_rosout(false)
+                .start_parameter_services(false),
+        )
+        .map_err(ros_err)?;
+
+    let image_type = || MessageTypeName::new("sensor_msgs", "Image");
+    let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
+    let input_qos = {
+        let q = QosProfile::subscription_default().history(History::KeepLast {
+            depth: config.input_depth,
+        });
+        if config.input_reliable {
+            q.reliability_reliable(WhenFull::DEFAULT)
+        } else {
+            q.reliability_best_effort()
+        }
+    };
+    let info_qos = QosProfile::subscription_default().history(History::KeepLast { depth: 1 });
+    let output_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast {
+            depth: config.output_depth,
+        });
+    let tf_qos = QosProfile::subscription_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1000 });
+
+    let mut image_subs = Vec::new();
+    let mut info_subs = Vec::new();
+    for i in 0..config.cameras.len() {
+        let topic = node
+            .create_topic(
+                &topic_name(&config.image_topics[i])?,
+                image_type(),
+                &input_qos,
+            )
+            .map_err(ros_err)?;
+        image_subs.push(
+            node.create_subscription::<Image>(&topic, Some(input_qos.clone()))
+                .map_err(ros_err)?,
+        );
+        let topic = node
+            .create_topic(&topic_name(&config.info_topics[i])?, info_type(), &info_qos)
+            .map_err(ros_err)?;
+        info_subs.push(
+            node.create_subscription::<CameraInfo>(&topic, Some(info_qos.clone()))
+                .map_err(ros_err)?,
+        );
+    }
+    let tf_sub = if config.rig_file.is_none() {
+        let topic = node
+            .create_topic(
+                &topic_name(&config.tf_static_topic)?,
+                MessageTypeName::new("tf2_msgs", "TFMessage"),
+                &tf_qos,
+            )
+            .map_err(ros_err)?;
+        Some(
+            node.create_subscription::<TFMessage>(&topic, Some(tf_qos.clone()))
+                .map_err(ros_err)?,
+        )
+    } else {
+        None
+    };
+
+    let mut publisher = |name: &str| -> Result<Publisher<Image>, NodeError> {
+        let topic = node
+            .create_topic(&topic_name(name)?, image_type(), &output_qos)
+            .map_err(ros_err)?;
+        node.create_publisher::<Image>(&topic, Some(output_qos.clone()))
+            .map_err(ros_err)
+    };
+    let depth = publisher(&config.output_topics[0])?;
+    let confidence = publisher(&config.output_topics[2])?;
+    let cost = publisher(&config.output_topics[3])?;
+    let selection = publisher(&config.output_topics[4])?;
+    let depth_info_topic = node
+        .create_topic(
+            &topic_name(&config.output_topics[1])?,
+            info_type(),
+            &output_qos,
+        )
+        .map_err(ros_err)?;
+    let depth_info = node
+        .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
+        .map_err(ros_err)?;
+    outputs_tx
+        .send(Outputs {
+            depth,
+            depth_info,
+            confidence,
+            cost,
+            selection,
+        })
+        .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
+
+    let mut streams: Vec<EventStream<'_>> = Vec::new();
+    for (i, sub) in image_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            Event::Image(i, r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    for (i, sub) in info_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            Event::Info(i, r.map(|(m, _)| Box::new(m)).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    if let Some(sub) = &tf_sub {
+        streams
+            .push(Box::pin(sub.async_stream().map(|r| {
+                Event::Tf(r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+            })));
+    }
+    let mut events = futures::stream::select_all(streams);
+    let spinner = node.spinner().map_err(ros_err)?;
+    tracing::info!("node {} is up", config.identity.fqn());
+
+    let mut state = LoopState {
+        config,
+        infos: vec![None; config.cameras.len()],
+        tf: TfBuffer::new(),
+        sync: config.synchronizer()?,
+        log: RateLimited::default(),
+        slot,
+    };
+    let event_loop = async {
+        while let Some(event) = events.next().await {
+            state.handle(event);
+        }
+    };
+    let outcome = futures::executor::block_on(async {
+        futures::pin_mut!(event_loop);
+        let spin = spinner.spin();
+        futures::pin_mut!(spin);
+        match futures::future::select(spin, event_loop).await {
+            futures::future::Either::Left((r, _)) => r.map_err(ros_err),
+            futures::future::Either::Right(((), _)) => {
+                Err(NodeError::Ros("the subscription streams ended".into()))
+            }
+        }
+    });
+    outcome
+}
+
+struct LoopState<'a> {
+    config: &'a NodeConfig,
+    infos: Vec<Option<CameraInfo>>,
+    tf: TfBuffer,
+    sync: Box<dyn Synchronizer<Image> + Send>,
+    log: RateLimited,
+    slot: &'a LatestSlot<Job>,
+}
+
+impl LoopState<'_> {
+    fn handle(&mut self, event: Event) {
+        match event {
+            Event::Info(i, Ok(info)) => self.infos[i] = Some(*info),
+            Event::Tf(Ok(msg)) => {
+                for e in self.tf.insert_message(&msg) {
+                    self.log.warn("tf_insert", || format!("/tf_static: {e}"));
+                }
+            }
+            Event::Image(i, Ok(image)) => {
+                let stamp = image.header.stamp;
+                match self.sync.push_stamped(i, &stamp, image) {
+                    Ok(sets) => {
+                        for set in sets {
+                            self.on_set(set);
+                        }
+                    }
+                    Err(e) => self.log.warn("sync", || format!("synchroniser: {e}")),
+                }
+            }
+            Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
+                let camera = &self.config.cameras[i];
+                self.log.warn(&format!("read{i}"), || {
+                    format!("camera '{camera}': read error: {e}")
+                });
+            }
+            Event::Tf(Err(e)) => self
+                .log
+                .warn("tf_read", || format!("/tf_static: read error: {e}")),
+        }
+    }
+
+    fn on_set(&mut self, set: SyncedSet<Image>) {
+        let config = self.config;
+        let reference = config.reference;
+        let ref_frame = set.messages[reference].header.frame_id.clone();
+        let mut cameras = Vec::with_capacity(set.messages.len());
+        for (i, image) in set.messages.iter().enumerate() {
+            let name = &config.cameras[i];
+            let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
+            let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
+                (Some(info), _) => match CameraModel::from_camera_info(name, info) {
+                    Ok(model) => model,
+                    Err(e) => {
+                        self.log.warn(&format!("model{i}"), || e.to_string());
+                        return;
+                    }
+                },
+                (None, Some(model)) => model,
+                (None, None) => {
+                    let topic = &config.info_topics[i];
+                    self.log.warn(&format!("info{i}"), || {
+                        format!("waiting for camera_info of camera '{name}' on {topic}")
+                    });
+                    return;
+                }
+            };
+            let cam_from_rig = match (&config.rig_file, file_camera) {
+                (Some(_), Some(c)) => c.cam_from_rig,
+                (Some(_), None) => return, // checked at start-up
+                (None, _) => match self.tf.lookup(&image.header.frame_id, &ref_frame) {
+                    Ok(t) => t,
+                    Err(e) => {
+                        let frame = &image.header.frame_id;
+                        self.log.warn(&format!("tf{i}"), || {
+                            format!(
+                                "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}'): {e}"
+                            )
+                        });
+                        return;
+                    }
+                },
+            };
+            cameras.push(RigCamera {
+                name: name.clone(),
+                model,
+                cam_from_rig,
+            });
+        }
+        let ref_info = match &self.infos[reference] {
+            Some(info) => info.clone(),
+            None => rig_file_info(&cameras[reference]),
+        };
+        if self.slot.offer(Job {
+            images: set.messages,
+            cameras,
+            reference,
+            ref_info,
+        }) {
+            tracing::debug!(
+                "a pending set was replaced (dropped: {})",
+                self.slot.dropped()
+            );
+        }
+    }
+}
+
+/// A CameraInfo for the reference camera when only the rig file calibrates it.
+fn rig_file_info(camera: &RigCamera) -> CameraInfo {
+    let k = camera.model.intrinsics;
+    CameraInfo {
+        width: k.width_px,
+        height: k.height_px,
+        distortion_model: "plumb_bob".into(),
+        d: Vec::new(),
+        k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
+        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: [
+            k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ],
+        ..CameraInfo::default()
+    }
+}
+
+fn worker_loop(
+    slot: &LatestSlot<Job>,
+    mut engine: GpuEngine,
+    sweep: &SweepParams,
+    camera_names: &[String],
+    outputs: &Outputs,
+) {
+    let mut log = RateLimited::default();
+    let mut published: u64 = 0;
+    while let Some(job) = slot.take() {
+        let mut images = Vec::with_capacity(job.images.len());
+        let mut failed = false;
+        for (i, msg) in job.images.iter().enumerate() {
+            let name = camera_names.get(i).map_or("?", String::as_str);
+            match image_to_rgba8(name, msg) {
+                Ok(img) => images.push(img),
+                Err(e) => {
+                    log.warn(&format!("convert{i}"), || format!("{e}; skipping this set"));
+                    failed = true;
+                    break;
+                }
+            }
+        }
+        if failed {
+            continue;
+        }
+        let header: Header = job.images[job.reference].header.clone();
+        let rig = match Rig::new(job.cameras, Reference::Camera(job.reference)) {
+            Ok(rig) => rig,
+            Err(e) => {
+                log.warn("rig", || format!("cannot build the rig: {e}"));
+                continue;
+            }
+        };
+        let maps = match engine.run(&rig, &images, sweep) {
+            Ok(maps) => maps,
+            Err(e) => {
+                log.warn("engine", || format!("sweep failed: {e}"));
+                continue;
+            }
+        };
+        let mut info = job.ref_info;
+        info.header = header.clone();
+        let results = [
+            outputs
+                .depth
+                .publish(f32_image_msg(&header, &maps.depth_m))
+                .map_err(|e| format!("depth/image: {e:?}")),
+            outputs
+                .depth_info
+                .publish(info)
+                .map_err(|e| format!("depth/camera_info: {e:?}")),
+            outputs
+                .confidence
+                .publish(f32_image_msg(&header, &maps.confidence))
+                .map_err(|e| format!("confidence/image: {e:?}")),
+            outputs
+                .cost
+                .publish(f32_image_msg(&header, &maps.cost))
+                .map_err(|e| format!("cost/image: {e:?}")),
+            outputs
+                .selection
+                .publish(selection_msg(
+                    &header,
+                    maps.width(),
+                    maps.height(),
+                    &maps.selection,
+                ))
+                .map_err(|e| format!("selection/image: {e:?}")),
+        ];
+        for r in results {
+            if let Err(e) = r {
+                log.warn("publish", || format!("publish failed: {e}"));
+            }
+        }
+        published += 1;
+        if published == 1 || published % 100 == 0 {
+            tracing::info!(
+                "published {published} depth images ({} sets dropped waiting for the GPU)",
+                slot.dropped()
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn config_resolves_topics_in_namespace_with_remaps() {
+        let cfg = NodeConfig::from_args(
+            &args(&[
+                "--ros-args",
+                "-r",
+                "__ns:=/rig",
+                "-r",
+                "/rig/b/image_raw:=/other/image",
+                "-p",
+                "cameras:=[a, b, c]",
+                "-p",
+                "sync:=exact",
+            ]),
+            Some("7"),
+        )
+        .unwrap();
+        assert_eq!(cfg.identity.name, "sweepdepth");
+        assert_eq!(cfg.domain_id, 7);
+        assert_eq!(cfg.reference, 1);
+        assert_eq!(
+            cfg.image_topics,
+            vec!["/rig/a/image_raw", "/other/image", "/rig/c/image_raw"]
+        );
+        assert_eq!(cfg.info_topics[0], "/rig/a/camera_info");
+        assert_eq!(cfg.output_topics[0], "/rig/depth/image");
+        assert_eq!(cfg.tf_static_topic, "/tf_static");
+        assert_eq!(cfg.sync, SyncPolicy::Exact);
+        assert!(cfg.synchronizer().is_ok());
+    }
+
+    #[test]
+    fn config_errors() {
+        assert!(NodeConfig::from_args(&args(&["--ros-args"]), None).is_err());
+        assert!(matches!(
+            NodeConfig::from_args(
+                &args(&["extra", "--ros-args", "-p", "cameras:=[a, b]"]),
+                None
+            ),
+            Err(NodeError::ExtraArgs(_))
+        ));
+        assert!(NodeConfig::from_args(
+            &args(&["--ros-args", "-p", "cameras:=[a, b]"]),
+            Some("999")
+        )
+        .is_err());
+        assert!(NodeConfig::from_args(
+            &args(&[
+                "--ros-args",
+                "-p",
+                "cameras:=[a, b]",
+                "-p",
+                "rig_file:=/nonexistent.yaml"
+            ]),
+            None
+        )
+        .is_err());
+    }
+
+    #[test]
+    fn rate_limited_suppresses_repeats() {
+        let mut log = RateLimited::default();
+        log.warn("k", || "first".into());
+        let mut called = false;
+        log.warn("k", || {
+            called = true;
+            String::new()
+        });
+        assert!(!called);
+    }
+}
