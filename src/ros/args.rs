@@ -577,7 +577,7 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
                 min_exclusive: false,
                 max_exclusive: true,
             },
-            "A half is clearly better when its score is below (1 - margin) times the other's.",
+            "A half is clearly better when its score is below (1 - margin) times the other's, and lower by at least margin x 25 (the noise floor of an RGB SSD).",
         ),
         // Node parameters; fixed once the node runs.
         ParamSpec {
@@ -634,7 +634,7 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             "rig_file",
             s(""),
             ParamRange::Any,
-            "Rig calibration file; empty = build the rig from the cameras' camera_info.",
+            "Rig calibration file (our YAML or Kalibr's camchain.yaml); empty = extrinsics from /tf_static and intrinsics from each camera_info.",
         ),
         node_spec(
             "publish_points",
