@@ -2,8 +2,12 @@
 # Installs what sweepdepth's commands and tests need, only where it is missing (Debian/Ubuntu):
 # - a Vulkan driver for wgpu: on a machine with a GPU driver nothing; otherwise the Vulkan loader
 #   and Mesa's lavapipe (a software Vulkan driver that runs the compute shaders on the CPU);
-# - `ip` (iproute2) and `unshare` (util-linux), with which the DDS test moves itself into a
-#   private network namespace so that no DDS traffic leaves the machine.
+# - `ip` (iproute2) and `unshare` (util-linux), with which the DDS tests move themselves into a
+#   private network namespace so that no DDS traffic leaves the machine;
+# - Python 3 with the `cyclonedds` binding (tools/requirements-cyclone.txt), the independent DDS
+#   peer of tests/node_cyclone.rs: into the system Python when it already has it, else into a
+#   virtual environment at target/cyclone-venv (Debian's Python refuses global pip installs).
+# Run it from the repository root.
 set -eu
 
 have_icd() {
@@ -22,8 +26,20 @@ if ! (have_loader && have_icd); then
 fi
 command -v ip >/dev/null 2>&1 || packages="$packages iproute2"
 command -v unshare >/dev/null 2>&1 || packages="$packages util-linux"
+python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
+
+install_cyclonedds() {
+    python3 -c 'import cyclonedds' >/dev/null 2>&1 && return 0
+    [ -x target/cyclone-venv/bin/python3 ] &&
+        target/cyclone-venv/bin/python3 -c 'import cyclonedds' >/dev/null 2>&1 && return 0
+    echo "setup: installing the cyclonedds Python binding into target/cyclone-venv ..." >&2
+    python3 -m venv target/cyclone-venv &&
+        target/cyclone-venv/bin/python3 -m pip install -q -r tools/requirements-cyclone.txt
+}
+
 if [ -z "$packages" ]; then
-    exit 0
+    install_cyclonedds
+    exit $?
 fi
 
 if ! command -v apt-get >/dev/null 2>&1; then
@@ -46,3 +62,4 @@ if ! have_icd; then
     echo "setup: installed, but still no Vulkan ICD found" >&2
     exit 1
 fi
+install_cyclonedds

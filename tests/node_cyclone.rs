@@ -1,0 +1,379 @@
+//! Interoperability test of `sweepdepth node` against an independent DDS implementation:
+//! `tools/cyclone_peer.py`, a fake ROS 2 camera driver on Eclipse Cyclone DDS (the `cyclonedds`
+//! Python package), publishes the images, camera_info and /tf_static of a synthetic 3-camera
+//! row rig exactly as rclcpp + rmw_cyclonedds would, and reports the depth image it receives.
+//! Nothing in the node knows about Cyclone; this only checks the wire.
+//!
+//! Requires `python3` with `cyclonedds` (`python3 -m pip install cyclonedds`; the wheel bundles
+//! libddsc). Missing is a FAILURE, not a skip.
+//!
+//! SAFETY: no DDS packet may leave the machine. The test never opens DDS (neither the node nor
+//! the peer) in the host network namespace: unless it already runs inside the private namespace
+//! it creates itself (marker variable [`INNER`] AND a check that only `lo` exists), it
+//! re-executes its own binary inside `unshare -n` (`unshare -rn` when not root) with loopback up
+//! and a multicast route on `lo`, and fails with a clear message if that is impossible. The peer
+//! checks the interfaces again and Cyclone is pinned to `lo` through `CYCLONEDDS_URI`.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+use sweepdepth::image::Rgba8Image;
+use sweepdepth::synthetic::{self, Scene};
+
+const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS_CYCLONE";
+const DOMAIN: &str = "43";
+const NAMESPACE: &str = "/rig";
+const WIDTH: u32 = 80;
+const HEIGHT: u32 = 60;
+const EXPECTED_DEPTH_M: f64 = 2.0;
+const TOLERANCE: f64 = 0.02;
+/// The peer gives up after this long without a depth image (exit 2).
+const PEER_TIMEOUT_S: u64 = 60;
+const RESULT_PREFIX: &str = "CYCLONE_PEER_RESULT ";
+const INSTALL_HINT: &str = "python3 -m pip install cyclonedds";
+/// Cyclone restricted to loopback, multicast forced on (SPDP with RustDDS uses 239.255.0.1).
+const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
+    <Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/></Interfaces>\
+    <AllowMulticast>true</AllowMulticast>\
+    </General></Domain></CycloneDDS>";
+
+/// Network interfaces of this process's network namespace (from /proc/self/net/dev).
+fn interfaces() -> Vec<String> {
+    std::fs::read_to_string("/proc/self/net/dev")
+        .unwrap_or_default()
+        .lines()
+        .skip(2)
+        .filter_map(|l| l.split(':').next().map(|s| s.trim().to_string()))
+        .filter(|s| !s.is_empty())
+        .collect()
+}
+
+fn is_root() -> bool {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .find(|l| l.starts_with("Uid:"))
+        .and_then(|l| l.split_whitespace().nth(2))
+        == Some("0")
+}
+
+/// The Python that has `cyclonedds`: `SWEEPDEPTH_PYTHON`, else the virtual environment that
+/// `scripts/setup.sh` makes when the system Python lacks it, else `python3`.
+fn python() -> String {
+    if let Ok(python) = std::env::var("SWEEPDEPTH_PYTHON") {
+        return python;
+    }
+    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/cyclone-venv/bin/python3");
+    if venv.is_file() {
+        return venv.to_string_lossy().into_owned();
+    }
+    "python3".into()
+}
+
+fn peer_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/cyclone_peer.py")
+}
+
+/// Fails (never skips) when the Cyclone DDS Python binding is not importable.
+fn require_cyclonedds() {
+    let py = python();
+    let out = Command::new(&py)
+        .args([
+            "-c",
+            "import cyclonedds.domain, cyclonedds.idl; print(cyclonedds.__file__)",
+        ])
+        .stdin(Stdio::null())
+        .output();
+    match out {
+        Err(e) => panic!(
+            "this test needs `{py}` with the `cyclonedds` package, but `{py}` cannot be started ({e}); install Python 3 and run `{INSTALL_HINT}`"
+        ),
+        Ok(o) if !o.status.success() => panic!(
+            "this test needs the Eclipse Cyclone DDS Python binding, which `{py}` cannot import; run `{INSTALL_HINT}` (the wheel bundles libddsc). Python said:\n{}",
+            String::from_utf8_lossy(&o.stderr)
+        ),
+        Ok(_) => {}
+    }
+}
+
+/// Image and camera_info QoS of the peer's writers, as camera drivers use them.
+#[derive(Clone, Copy, Debug)]
+enum ImageQos {
+    /// `rclcpp::SystemDefaultsQoS` / image_transport's default: reliable, keep last 10.
+    Reliable,
+    /// `rclcpp::SensorDataQoS`: best effort, keep last 5.
+    BestEffort,
+}
+
+#[test]
+fn node_interoperates_with_cyclone_dds_reliable_images() {
+    in_private_netns(
+        "node_interoperates_with_cyclone_dds_reliable_images",
+        ImageQos::Reliable,
+    );
+}
+
+#[test]
+fn node_interoperates_with_cyclone_dds_best_effort_images() {
+    in_private_netns(
+        "node_interoperates_with_cyclone_dds_best_effort_images",
+        ImageQos::BestEffort,
+    );
+}
+
+fn in_private_netns(test_name: &str, qos: ImageQos) {
+    require_cyclonedds();
+    if std::env::var_os(INNER).is_none() {
+        reexec_in_private_netns(test_name);
+        return;
+    }
+    let ifaces = interfaces();
+    assert!(
+        ifaces == ["lo"],
+        "refusing to open DDS: {INNER} is set but this network namespace has interfaces {ifaces:?} (only lo allowed)"
+    );
+    end_to_end(qos);
+}
+
+fn reexec_in_private_netns(test_name: &str) {
+    let exe = std::env::current_exe().expect("test binary path");
+    let flags = if is_root() { "-n" } else { "-rn" };
+    let script = "ip link set lo up && ip link set lo multicast on && \
+                  ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
+    let status = Command::new("unshare")
+        .arg(flags)
+        .args(["sh", "-c", script])
+        .arg(&exe)
+        .args([test_name, "--exact", "--nocapture", "--test-threads=1"])
+        .env(INNER, "1")
+        .status();
+    match status {
+        Err(e) => panic!(
+            "this test must run DDS in a private network namespace and cannot start `unshare {flags}` ({e}); install util-linux and iproute2 (and allow namespaces), it never runs DDS on the host network"
+        ),
+        Ok(s) => assert!(
+            s.success(),
+            "the Cyclone DDS interop test inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
+        ),
+    }
+}
+
+/// Kills a child process on every exit path.
+struct KillOnDrop(Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+        }
+        let _ = self.0.wait();
+    }
+}
+
+/// A scratch directory removed on every exit path.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new() -> Self {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.subsec_nanos())
+            .unwrap_or(0);
+        let dir =
+            std::env::temp_dir().join(format!("sweepdepth-cyclone-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("create the temp dir");
+        TempDir(dir)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Packed 3-byte pixels, as in a `rgb8` / `bgr8` `sensor_msgs/Image`.
+fn packed(image: &Rgba8Image, bgr: bool) -> Vec<u8> {
+    let mut data = Vec::with_capacity(image.pixels.len() * 3);
+    for &p in &image.pixels {
+        let [r, g, b, _] = Rgba8Image::unpack(p);
+        data.extend_from_slice(&if bgr { [b, g, r] } else { [r, g, b] });
+    }
+    data
+}
+
+/// Renders the rig and writes `rig.json` + raw pixel files for the peer.
+fn write_rig(dir: &Path, qos: ImageQos) {
+    let model = sweepdepth::geometry::CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(EXPECTED_DEPTH_M, None, model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut cameras = Vec::new();
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        // The last camera sends bgr8 to exercise the conversion, as in node_dds.rs.
+        let bgr = i == 2;
+        let file = format!("cam{i}.raw");
+        std::fs::write(dir.join(&file), packed(&images[i], bgr)).expect("write image");
+        let k = cam.model.intrinsics;
+        let c = cam.centre_in_rig();
+        cameras.push(json!({
+            "name": format!("cam{i}"),
+            "frame_id": format!("cam{i}_optical"),
+            "encoding": if bgr { "bgr8" } else { "rgb8" },
+            "image_file": file,
+            "k": [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
+            "p": [k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
+            "translation": [c.x, c.y, c.z],
+            "rotation_xyzw": [0.0, 0.0, 0.0, 1.0],
+        }));
+    }
+    let spec = json!({
+        "domain_id": DOMAIN.parse::<u32>().unwrap(),
+        "namespace": NAMESPACE,
+        "rig_frame": "rig",
+        "width": WIDTH,
+        "height": HEIGHT,
+        "expected_depth_m": EXPECTED_DEPTH_M,
+        "tolerance": TOLERANCE,
+        "timeout_s": PEER_TIMEOUT_S,
+        "period_s": 0.1,
+        "image_reliable": matches!(qos, ImageQos::Reliable),
+        "image_qos_depth": match qos {
+            ImageQos::Reliable => 10,
+            ImageQos::BestEffort => 5,
+        },
+        "cameras": cameras,
+    });
+    std::fs::write(
+        dir.join("rig.json"),
+        serde_json::to_vec_pretty(&spec).unwrap(),
+    )
+    .expect("write rig.json");
+}
+
+fn end_to_end(qos: ImageQos) {
+    let dir = TempDir::new();
+    write_rig(&dir.0, qos);
+    let started = Instant::now();
+
+    let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args([
+            "node",
+            "--ros-args",
+            "-r",
+            &format!("__ns:={NAMESPACE}"),
+            "-p",
+            "cameras:=[cam0, cam1, cam2]",
+            "-p",
+            "min_depth:=1.0",
+            "-p",
+            "max_depth:=4.0",
+            "-p",
+            "num_planes:=48",
+            "-p",
+            "sync:=exact",
+        ])
+        .env("ROS_DOMAIN_ID", DOMAIN)
+        .env(
+            "RUST_LOG",
+            std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
+        )
+        .stdin(Stdio::null())
+        .spawn()
+        .expect("start the node");
+    let mut node = KillOnDrop(node);
+
+    let peer = Command::new(python())
+        .arg("-u")
+        .arg(peer_script())
+        .arg(&dir.0)
+        .env("CYCLONEDDS_URI", CYCLONEDDS_URI)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start the Cyclone DDS peer (python3 tools/cyclone_peer.py)");
+    let mut peer = KillOnDrop(peer);
+
+    // Forward the peer's stdout and pick out the result line.
+    let stdout = peer.0.stdout.take().expect("peer stdout");
+    let (tx, rx) = mpsc::channel::<String>();
+    let reader = std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            eprintln!("[cyclone_peer] {line}");
+            if let Some(rest) = line.strip_prefix(RESULT_PREFIX) {
+                let _ = tx.send(rest.to_string());
+            }
+        }
+    });
+
+    let deadline = Duration::from_secs(PEER_TIMEOUT_S + 30);
+    let mut result = None;
+    while result.is_none() {
+        if let Ok(line) = rx.recv_timeout(Duration::from_millis(50)) {
+            result = Some(line);
+            break;
+        }
+        if let Some(status) = node.0.try_wait().expect("poll node") {
+            panic!("the node exited early: {status}");
+        }
+        if let Some(status) = peer.0.try_wait().expect("poll peer") {
+            // Drain a result printed just before exiting.
+            if let Ok(line) = rx.recv_timeout(Duration::from_millis(500)) {
+                result = Some(line);
+                break;
+            }
+            match status.code() {
+                Some(4) => panic!(
+                    "the peer cannot import cyclonedds; run `{INSTALL_HINT}`"
+                ),
+                Some(2) => panic!(
+                    "the Cyclone DDS peer got no depth image from the node within {PEER_TIMEOUT_S} s ({status}); see its output above"
+                ),
+                _ => panic!("the Cyclone DDS peer exited without a result: {status}"),
+            }
+        }
+        assert!(
+            started.elapsed() < deadline,
+            "no result from the Cyclone DDS peer within {deadline:?}"
+        );
+    }
+    let status = peer.0.wait().expect("wait for the peer");
+    let _ = reader.join();
+    drop(node);
+    let result: Value = serde_json::from_str(&result.unwrap()).expect("peer result JSON");
+    eprintln!(
+        "depth image via Cyclone DDS ({qos:?} images) after {:?} (peer: {} s, {} sets)",
+        started.elapsed(),
+        result["elapsed_s"],
+        result["sets_sent"]
+    );
+    assert!(status.success(), "the peer exited with {status}");
+
+    assert_eq!(result["encoding"], "32FC1");
+    assert_eq!(result["width"], WIDTH);
+    assert_eq!(result["height"], HEIGHT);
+    assert_eq!(result["step"], 4 * WIDTH);
+    assert_eq!(result["is_bigendian"], 0);
+    assert_eq!(result["frame_id"], "cam1_optical");
+    assert_eq!(
+        result["stamp_was_sent"], true,
+        "stamp {} was never sent",
+        result["stamp"]
+    );
+    assert_eq!(result["data_len"], 4 * WIDTH * HEIGHT);
+    let total = result["total"].as_u64().unwrap();
+    let valid = result["valid"].as_u64().unwrap();
+    let within = result["within"].as_u64().unwrap();
+    assert!(
+        valid * 2 >= total,
+        "only {valid} of {total} depths are valid"
+    );
+    assert!(
+        within * 10 >= valid * 9,
+        "only {within} of {valid} valid depths are within 2 % of 2.0 m"
+    );
+}
