@@ -6,23 +6,26 @@
 //! `unshare -n` (`unshare -rn` when not root) with loopback up and a multicast route on `lo`,
 //! and fails with a clear message if that is impossible.
 
-use std::collections::HashSet;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use ros2_client::log::Log;
+use ros2_client::parameters::{Parameter, ParameterValue};
 use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::rcl_interfaces::{SetParametersRequest, SetParametersResponse};
 use ros2_client::{
     Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+    ServiceMapping, ServiceTypeName,
 };
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::image::Rgba8Image;
 use sweepdepth::msgs::{
-    CameraInfo, Header, Image, Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
+    CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, PointCloud2, PointField,
+    Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
 };
 use sweepdepth::synthetic::{self, Scene};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
-const TEST_NAME: &str = "node_publishes_depth_over_dds";
 const DOMAIN: &str = "42";
 const WIDTH: u32 = 80;
 const HEIGHT: u32 = 60;
@@ -47,10 +50,11 @@ fn is_root() -> bool {
         == Some("0")
 }
 
-#[test]
-fn node_publishes_depth_over_dds() {
+/// Runs `body` inside a private network namespace: re-executes this test binary (only the
+/// test `test_name`) there unless already inside, and refuses DDS unless only `lo` exists.
+fn in_private_netns(test_name: &str, body: fn()) {
     if std::env::var_os(INNER).is_none() {
-        reexec_in_private_netns();
+        reexec_in_private_netns(test_name);
         return;
     }
     let ifaces = interfaces();
@@ -58,10 +62,38 @@ fn node_publishes_depth_over_dds() {
         ifaces == ["lo"],
         "refusing to open DDS: {INNER} is set but this network namespace has interfaces {ifaces:?} (only lo allowed)"
     );
-    end_to_end();
+    body();
 }
 
-fn reexec_in_private_netns() {
+#[test]
+fn node_publishes_depth_over_dds() {
+    in_private_netns("node_publishes_depth_over_dds", end_to_end);
+}
+
+#[test]
+fn node_approximate_sync_with_jittered_stamps() {
+    in_private_netns(
+        "node_approximate_sync_with_jittered_stamps",
+        approximate_sync_jitter,
+    );
+}
+
+#[test]
+fn node_publishes_points() {
+    in_private_netns("node_publishes_points", points_cloud);
+}
+
+#[test]
+fn node_publishes_diagnostics() {
+    in_private_netns("node_publishes_diagnostics", diagnostics);
+}
+
+#[test]
+fn node_parameter_services() {
+    in_private_netns("node_parameter_services", parameter_services);
+}
+
+fn reexec_in_private_netns(test_name: &str) {
     let exe = std::env::current_exe().expect("test binary path");
     let flags = if is_root() { "-n" } else { "-rn" };
     let script = "ip link set lo up && ip link set lo multicast on && \
@@ -70,7 +102,7 @@ fn reexec_in_private_netns() {
         .arg(flags)
         .args(["sh", "-c", script])
         .arg(&exe)
-        .args([TEST_NAME, "--exact", "--nocapture", "--test-threads=1"])
+        .args([test_name, "--exact", "--nocapture", "--test-threads=1"])
         .env(INNER, "1")
         .status();
     match status {
@@ -79,7 +111,7 @@ fn reexec_in_private_netns() {
         ),
         Ok(s) => assert!(
             s.success(),
-            "the DDS test inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
+            "the DDS test {test_name} inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
         ),
     }
 }
@@ -135,15 +167,46 @@ fn image_msg(header: &Header, image: &Rgba8Image, bgr: bool) -> Image {
     }
 }
 
-fn end_to_end() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let frame = |i: usize| format!("cam{i}_optical");
+/// Nanoseconds of a stamp.
+fn nanos(t: Time) -> i64 {
+    i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec)
+}
 
-    let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args([
+fn time_of(ns: i64) -> Time {
+    Time {
+        sec: ns.div_euclid(1_000_000_000) as i32,
+        nanosec: ns.rem_euclid(1_000_000_000) as u32,
+    }
+}
+
+/// The node under test and a peer node that feeds it the synthetic 3-camera rig (wall at
+/// 2 m, cam1 the reference).
+struct Harness {
+    rig: sweepdepth::geometry::Rig,
+    images: Vec<Rgba8Image>,
+    image_pubs: Vec<ros2_client::Publisher<Image>>,
+    info_pubs: Vec<ros2_client::Publisher<CameraInfo>>,
+    _tf_pub: ros2_client::Publisher<TFMessage>,
+    reliable: QosProfile,
+    peer: ros2_client::Node,
+    node: NodeProcess,
+    _context: Context,
+}
+
+fn frame(i: usize) -> String {
+    format!("cam{i}_optical")
+}
+
+impl Harness {
+    /// Starts the node with `cameras:=[cam0, cam1, cam2]`, depths 1..4 m, 48 planes and
+    /// `extra` parameters (`name:=value`, later ones win), and publishes /tf_static.
+    fn start(extra: &[&str]) -> Harness {
+        let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
+        let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
+        let images = synthetic::render_rig(&scene, &rig);
+
+        let mut args: Vec<String> = [
             "node",
             "--ros-args",
             "-p",
@@ -154,168 +217,231 @@ fn end_to_end() {
             "max_depth:=4.0",
             "-p",
             "num_planes:=48",
-            "-p",
-            "sync:=exact",
-        ])
-        .env("ROS_DOMAIN_ID", DOMAIN)
-        .env(
-            "RUST_LOG",
-            std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
-        )
-        .stdin(Stdio::null())
-        .spawn()
-        .expect("start the node");
-    let mut node = NodeProcess(node);
-
-    let context = Context::with_options(ContextOptions::new().domain_id(DOMAIN.parse().unwrap()))
-        .expect("DDS context");
-    let mut peer = context
-        .new_node(
-            NodeName::new("/", "sweepdepth_test_peer").unwrap(),
-            NodeOptions::new()
-                .enable_rosout(false)
-                .start_parameter_services(false),
-        )
-        .expect("test node");
-    let reliable = QosProfile::publisher_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .history(History::KeepLast { depth: 10 });
-    let tf_qos = reliable.clone().durability(Durability::TransientLocal);
-    let image_type = || MessageTypeName::new("sensor_msgs", "Image");
-    let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
-
-    let tf_topic = peer
-        .create_topic(
-            &Name::parse("/tf_static").unwrap(),
-            MessageTypeName::new("tf2_msgs", "TFMessage"),
-            &tf_qos,
-        )
-        .unwrap();
-    let tf_pub = peer
-        .create_publisher::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
-        .unwrap();
-    let mut image_pubs = Vec::new();
-    let mut info_pubs = Vec::new();
-    for i in 0..3 {
-        let t = peer
-            .create_topic(
-                &Name::parse(&format!("/cam{i}/image_raw")).unwrap(),
-                image_type(),
-                &reliable,
-            )
-            .unwrap();
-        image_pubs.push(
-            peer.create_publisher::<Image>(&t, Some(reliable.clone()))
-                .unwrap(),
-        );
-        let t = peer
-            .create_topic(
-                &Name::parse(&format!("/cam{i}/camera_info")).unwrap(),
-                info_type(),
-                &reliable,
-            )
-            .unwrap();
-        info_pubs.push(
-            peer.create_publisher::<CameraInfo>(&t, Some(reliable.clone()))
-                .unwrap(),
-        );
-    }
-    let depth_topic = peer
-        .create_topic(
-            &Name::parse("/depth/image").unwrap(),
-            image_type(),
-            &reliable,
-        )
-        .unwrap();
-    let depth_sub = peer
-        .create_subscription::<Image>(&depth_topic, Some(reliable.clone()))
-        .unwrap();
-
-    // The static transforms, published once (transient local: the node gets them late).
-    let transforms = rig
-        .cameras
+        ]
         .iter()
-        .enumerate()
-        .map(|(i, cam)| {
-            let c = cam.centre_in_rig();
-            TransformStamped {
-                header: Header {
-                    stamp: stamp_of(0),
-                    frame_id: "rig".into(),
-                },
-                child_frame_id: frame(i),
-                transform: Transform {
-                    translation: Vector3 {
-                        x: c.x,
-                        y: c.y,
-                        z: c.z,
-                    },
-                    rotation: Quaternion::default(),
-                },
-            }
-        })
+        .map(|s| s.to_string())
         .collect();
-    tf_pub
-        .publish(TFMessage { transforms })
-        .expect("publish /tf_static");
-
-    let mut sent = HashSet::new();
-    let started = Instant::now();
-    let mut k = 0u32;
-    let received = loop {
-        assert!(
-            started.elapsed() < Duration::from_secs(60),
-            "no depth image within 60 s ({k} sets sent)"
-        );
-        if let Some(status) = node.0.try_wait().expect("poll node") {
-            panic!("the node exited early: {status}");
+        for p in extra {
+            args.push("-p".into());
+            args.push(p.to_string());
         }
-        k += 1;
-        let stamp = stamp_of(k);
-        sent.insert((stamp.sec, stamp.nanosec));
+        let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .args(&args)
+            .env("ROS_DOMAIN_ID", DOMAIN)
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
+            )
+            .stdin(Stdio::null())
+            .spawn()
+            .expect("start the node");
+        let node = NodeProcess(node);
+
+        let context =
+            Context::with_options(ContextOptions::new().domain_id(DOMAIN.parse().unwrap()))
+                .expect("DDS context");
+        let mut peer = context
+            .new_node(
+                NodeName::new("/", "sweepdepth_test_peer").unwrap(),
+                NodeOptions::new()
+                    .enable_rosout(false)
+                    .start_parameter_services(false),
+            )
+            .expect("test node");
+        let reliable = QosProfile::publisher_default()
+            .reliability_reliable(WhenFull::DEFAULT)
+            .history(History::KeepLast { depth: 10 });
+        let tf_qos = reliable.clone().durability(Durability::TransientLocal);
+        let image_type = || MessageTypeName::new("sensor_msgs", "Image");
+        let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
+
+        let tf_topic = peer
+            .create_topic(
+                &Name::parse("/tf_static").unwrap(),
+                MessageTypeName::new("tf2_msgs", "TFMessage"),
+                &tf_qos,
+            )
+            .unwrap();
+        let tf_pub = peer
+            .create_publisher::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
+            .unwrap();
+        let mut image_pubs = Vec::new();
+        let mut info_pubs = Vec::new();
         for i in 0..3 {
+            let t = peer
+                .create_topic(
+                    &Name::parse(&format!("/cam{i}/image_raw")).unwrap(),
+                    image_type(),
+                    &reliable,
+                )
+                .unwrap();
+            image_pubs.push(
+                peer.create_publisher::<Image>(&t, Some(reliable.clone()))
+                    .unwrap(),
+            );
+            let t = peer
+                .create_topic(
+                    &Name::parse(&format!("/cam{i}/camera_info")).unwrap(),
+                    info_type(),
+                    &reliable,
+                )
+                .unwrap();
+            info_pubs.push(
+                peer.create_publisher::<CameraInfo>(&t, Some(reliable.clone()))
+                    .unwrap(),
+            );
+        }
+
+        // The static transforms, published once (transient local: the node gets them late).
+        let transforms = rig
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(i, cam)| {
+                let c = cam.centre_in_rig();
+                TransformStamped {
+                    header: Header {
+                        stamp: stamp_of(0),
+                        frame_id: "rig".into(),
+                    },
+                    child_frame_id: frame(i),
+                    transform: Transform {
+                        translation: Vector3 {
+                            x: c.x,
+                            y: c.y,
+                            z: c.z,
+                        },
+                        rotation: Quaternion::default(),
+                    },
+                }
+            })
+            .collect();
+        tf_pub
+            .publish(TFMessage { transforms })
+            .expect("publish /tf_static");
+        Harness {
+            rig,
+            images,
+            image_pubs,
+            info_pubs,
+            _tf_pub: tf_pub,
+            reliable,
+            peer,
+            node,
+            _context: context,
+        }
+    }
+
+    fn subscribe<T: 'static + serde::de::DeserializeOwned>(
+        &mut self,
+        topic: &str,
+        package: &str,
+        type_name: &str,
+    ) -> ros2_client::Subscription<T> {
+        let t = self
+            .peer
+            .create_topic(
+                &Name::parse(topic).unwrap(),
+                MessageTypeName::new(package, type_name),
+                &self.reliable,
+            )
+            .unwrap();
+        self.peer
+            .create_subscription::<T>(&t, Some(self.reliable.clone()))
+            .unwrap()
+    }
+
+    /// Publishes one set, camera `i` stamped `stamps[i]`.
+    fn publish_set(&self, stamps: [Time; 3]) {
+        for (i, stamp) in stamps.into_iter().enumerate() {
             let header = Header {
                 stamp,
                 frame_id: frame(i),
             };
-            info_pubs[i]
-                .publish(camera_info(&header, &rig.cameras[i].model))
+            self.info_pubs[i]
+                .publish(camera_info(&header, &self.rig.cameras[i].model))
                 .expect("info");
-            image_pubs[i]
-                .publish(image_msg(&header, &images[i], i == 2))
+            self.image_pubs[i]
+                .publish(image_msg(&header, &self.images[i], i == 2))
                 .expect("image");
         }
-        let mut got = None;
-        let tick = Instant::now();
-        while tick.elapsed() < Duration::from_millis(100) {
-            if let Ok(Some((msg, _))) = depth_sub.take() {
-                got = Some(msg);
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        if let Some(msg) = got {
-            break msg;
-        }
-    };
-    eprintln!("depth image after {:?} and {k} sets", started.elapsed());
+    }
 
+    fn check_alive(&mut self) {
+        if let Some(status) = self.node.0.try_wait().expect("poll node") {
+            panic!("the node exited early: {status}");
+        }
+    }
+
+    /// Publishes sets `k = first, first + 1, ...` (stamps from `stamps(k)`) every 100 ms
+    /// until `poll` returns Some (checked every 5 ms), for at most `limit`.
+    fn feed_until<R>(
+        &mut self,
+        first: u32,
+        limit: Duration,
+        stamps: impl Fn(u32) -> [Time; 3],
+        mut poll: impl FnMut() -> Option<R>,
+    ) -> (R, u32) {
+        let started = Instant::now();
+        let mut k = first;
+        loop {
+            assert!(
+                started.elapsed() < limit,
+                "nothing within {limit:?} ({} sets sent)",
+                k - first
+            );
+            self.check_alive();
+            self.publish_set(stamps(k));
+            let tick = Instant::now();
+            while tick.elapsed() < Duration::from_millis(100) {
+                if let Some(r) = poll() {
+                    eprintln!(
+                        "got it after {:?} and {} sets",
+                        started.elapsed(),
+                        k - first + 1
+                    );
+                    return (r, k);
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            k += 1;
+        }
+    }
+}
+
+fn same_stamps(k: u32) -> [Time; 3] {
+    [stamp_of(k); 3]
+}
+
+/// Camera `i`'s stamp of set `k`: k * 100 ms plus a deterministic jitter in -5..=5 ms,
+/// different for the three cameras of a set.
+fn jittered_stamps(k: u32) -> [Time; 3] {
+    std::array::from_fn(|i| {
+        let jitter_ms = ((k as i64 * 3 + i as i64 * 4) % 11) - 5;
+        time_of(nanos(stamp_of(k)) + jitter_ms * 1_000_000)
+    })
+}
+
+fn depths_of(msg: &Image) -> Vec<f32> {
+    msg.data
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect()
+}
+
+/// Checks a depth image of the 2 m wall from the reference camera.
+fn check_depth_image(received: &Image) {
     assert_eq!(received.encoding, "32FC1");
     assert_eq!((received.width, received.height), (WIDTH, HEIGHT));
     assert_eq!(received.step, 4 * WIDTH);
     assert_eq!(received.is_bigendian, 0);
     assert_eq!(received.header.frame_id, frame(1));
-    assert!(
-        sent.contains(&(received.header.stamp.sec, received.header.stamp.nanosec)),
-        "stamp {:?} was never sent",
-        received.header.stamp
-    );
     assert_eq!(received.data.len(), (4 * WIDTH * HEIGHT) as usize);
-    let depths: Vec<f32> = received
-        .data
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
+    check_wall_depths(&depths_of(received));
+}
+
+/// At least half the depths valid, 90 % of those within 2 % of 2.0 m.
+fn check_wall_depths(depths: &[f32]) {
     let valid: Vec<f32> = depths.iter().copied().filter(|d| d.is_finite()).collect();
     let within = valid
         .iter()
@@ -332,5 +458,310 @@ fn end_to_end() {
         "only {within} of {} valid depths are within 2 % of 2.0 m",
         valid.len()
     );
-    drop(node);
+}
+
+fn end_to_end() {
+    let mut h = Harness::start(&["sync:=exact"]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    let (received, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+        depth_sub.take().ok().flatten().map(|(m, _)| m)
+    });
+    let stamp = received.header.stamp;
+    assert!(
+        (1..=k).any(|j| stamp_of(j) == stamp),
+        "stamp {stamp:?} was never sent"
+    );
+    check_depth_image(&received);
+}
+
+fn approximate_sync_jitter() {
+    let mut h = Harness::start(&["sync:=approximate"]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    // Two depth images, so that at least one set was matched across jittered stamps after
+    // the first.
+    let mut got = Vec::new();
+    let (_, k) = h.feed_until(1, Duration::from_secs(60), jittered_stamps, || {
+        while let Ok(Some((m, _))) = depth_sub.take() {
+            got.push(m);
+        }
+        (got.len() >= 2).then_some(())
+    });
+    for received in &got {
+        let stamp = received.header.stamp;
+        let set = (1..=k)
+            .find(|j| jittered_stamps(*j).contains(&stamp))
+            .unwrap_or_else(|| panic!("stamp {stamp:?} was never sent"));
+        assert_eq!(
+            stamp,
+            jittered_stamps(set)[1],
+            "the depth image of set {set} is not stamped like the reference camera ({:?})",
+            jittered_stamps(set)
+        );
+        check_depth_image(received);
+    }
+}
+
+fn points_cloud() {
+    let mut h = Harness::start(&["sync:=exact", "publish_points:=true"]);
+    let points_sub = h.subscribe::<PointCloud2>("/points", "sensor_msgs", "PointCloud2");
+    let (cloud, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+        points_sub.take().ok().flatten().map(|(m, _)| m)
+    });
+    assert!(
+        (1..=k).any(|j| stamp_of(j) == cloud.header.stamp),
+        "stamp {:?} was never sent",
+        cloud.header.stamp
+    );
+    assert_eq!(cloud.header.frame_id, frame(1));
+    assert_eq!((cloud.width, cloud.height), (WIDTH, HEIGHT));
+    let fields: Vec<(&str, u32, u8, u32)> = cloud
+        .fields
+        .iter()
+        .map(|f| (f.name.as_str(), f.offset, f.datatype, f.count))
+        .collect();
+    let f32t = PointField::FLOAT32;
+    assert_eq!(
+        fields,
+        [
+            ("x", 0, f32t, 1),
+            ("y", 4, f32t, 1),
+            ("z", 8, f32t, 1),
+            ("rgb", 12, f32t, 1)
+        ]
+    );
+    assert_eq!(cloud.point_step, 16);
+    assert_eq!(cloud.row_step, 16 * WIDTH);
+    assert!(!cloud.is_bigendian);
+    assert!(!cloud.is_dense);
+    assert_eq!(cloud.data.len(), (16 * WIDTH * HEIGHT) as usize);
+    let k = h.rig.cameras[1].model.intrinsics;
+    let reference = &h.images[1];
+    let mut zs = Vec::new();
+    for (i, p) in cloud.data.chunks_exact(16).enumerate() {
+        let f = |o: usize| f32::from_le_bytes([p[o], p[o + 1], p[o + 2], p[o + 3]]);
+        let (x, y, z) = (f(0), f(4), f(8));
+        let [r, g, b, _] = Rgba8Image::unpack(reference.pixels[i]);
+        assert_eq!(&p[12..16], &[b, g, r, 0], "colour of point {i}");
+        zs.push(z);
+        if z.is_finite() {
+            let u = (i % WIDTH as usize) as f64;
+            let v = (i / WIDTH as usize) as f64;
+            let ex = (u - k.cx_px) / k.fx_px * f64::from(z);
+            let ey = (v - k.cy_px) / k.fy_px * f64::from(z);
+            assert!(
+                (f64::from(x) - ex).abs() < 1e-4 && (f64::from(y) - ey).abs() < 1e-4,
+                "point {i}: ({x}, {y}, {z}), expected x {ex}, y {ey}"
+            );
+        } else {
+            assert!(x.is_nan() && y.is_nan() && z.is_nan(), "point {i}");
+        }
+    }
+    check_wall_depths(&zs);
+}
+
+fn diagnostics() {
+    let mut h = Harness::start(&["sync:=exact"]);
+    let diag_sub =
+        h.subscribe::<DiagnosticArray>("/diagnostics", "diagnostic_msgs", "DiagnosticArray");
+    // /rosout is transient local (depth 1): the latest log line arrives even if it predates
+    // the subscription.
+    let rosout_qos = h.reliable.clone().durability(Durability::TransientLocal);
+    let rosout_topic = h
+        .peer
+        .create_topic(
+            &Name::parse("/rosout").unwrap(),
+            MessageTypeName::new("rcl_interfaces", "Log"),
+            &rosout_qos,
+        )
+        .unwrap();
+    let rosout_sub = h
+        .peer
+        .create_subscription::<Log>(&rosout_topic, Some(rosout_qos))
+        .unwrap();
+    let mut first_warn = None;
+    // Until a diagnostics message reports published sets (at most 1 s after the first).
+    let (status, _) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+        while let Ok(Some((m, _))) = diag_sub.take() {
+            assert_eq!(m.status.len(), 1, "{m:?}");
+            let status = m.status.into_iter().next()?;
+            let published = value_of(&status, "sets published")
+                .and_then(|v| v.parse::<u64>().ok())
+                .unwrap_or(0);
+            if published == 0 {
+                first_warn.get_or_insert(status);
+            } else {
+                return Some(status);
+            }
+        }
+        None
+    });
+    assert_eq!(status.name, "sweepdepth: /sweepdepth");
+    assert_eq!(status.level, DiagnosticStatus::OK, "{status:?}");
+    for key in [
+        "input rate cam0 (Hz)",
+        "input rate cam1 (Hz)",
+        "input rate cam2 (Hz)",
+        "sync matched",
+        "sync dropped",
+        "sync incomplete",
+        "gpu sets dropped",
+        "processing time last (ms)",
+        "processing time mean (ms)",
+        "latency (ms)",
+        "gpu adapter",
+    ] {
+        assert!(
+            value_of(&status, key).is_some(),
+            "no key '{key}' in {status:?}"
+        );
+    }
+    let number = |key: &str| -> f64 {
+        value_of(&status, key)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("'{key}' is not a number in {status:?}"))
+    };
+    for i in 0..3 {
+        let rate = number(&format!("input rate cam{i} (Hz)"));
+        assert!(rate > 0.0 && rate <= 40.0, "cam{i} rate {rate}");
+    }
+    assert!(number("sync matched") >= 1.0);
+    assert!(number("processing time last (ms)") > 0.0);
+    assert!(number("processing time mean (ms)") > 0.0);
+    assert!(number("latency (ms)").is_finite());
+    assert!(!value_of(&status, "gpu adapter").unwrap_or("").is_empty());
+    if let Some(warn) = first_warn {
+        assert_eq!(warn.level, DiagnosticStatus::WARN, "{warn:?}");
+    }
+    // The node's log lines also go to /rosout.
+    let started = Instant::now();
+    let log = loop {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "no /rosout line from the node within 20 s"
+        );
+        if let Ok(Some((log, _))) = rosout_sub.take() {
+            if log.name == "sweepdepth" {
+                break log;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert!(log.level == Log::INFO || log.level == Log::WARN, "{log:?}");
+    assert!(!log.msg.is_empty());
+}
+
+fn value_of<'a>(status: &'a DiagnosticStatus, key: &str) -> Option<&'a str> {
+    status
+        .values
+        .iter()
+        .find(|kv| kv.key == key)
+        .map(|kv| kv.value.as_str())
+}
+
+type SetClient = ros2_client::Client<SetParametersRequest, SetParametersResponse>;
+
+/// Calls `~/set_parameters` with one parameter (retrying until the service answers) and
+/// returns (successful, reason).
+fn set_parameter(client: &SetClient, name: &str, value: ParameterValue) -> (bool, String) {
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(30) {
+        let request = SetParametersRequest {
+            parameter: vec![Parameter {
+                name: name.to_string(),
+                value: value.clone(),
+            }
+            .into()],
+        };
+        let id = client.send_request(request).expect("send the request");
+        let tick = Instant::now();
+        while tick.elapsed() < Duration::from_secs(1) {
+            if let Ok(Some((rid, response))) = client.receive_response() {
+                if rid == id {
+                    assert_eq!(response.results.len(), 1, "{response:?}");
+                    let r = &response.results[0];
+                    return (r.successful, r.reason.clone());
+                }
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    panic!("no answer from /sweepdepth/set_parameters within 30 s");
+}
+
+fn parameter_services() {
+    let mut h = Harness::start(&["sync:=exact"]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    let service_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast { depth: 1 });
+    let client: SetClient = h
+        .peer
+        .create_client(
+            ServiceMapping::Enhanced,
+            &Name::parse("/sweepdepth/set_parameters").unwrap(),
+            &ServiceTypeName::new("rcl_interfaces", "SetParameters"),
+            service_qos.clone(),
+            service_qos,
+        )
+        .expect("set_parameters client");
+
+    // The wall at 2 m, swept over 1..4 m.
+    let (before, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+        depth_sub.take().ok().flatten().map(|(m, _)| m)
+    });
+    check_depth_image(&before);
+
+    // Rejected, with reasons.
+    let (ok, reason) = set_parameter(&client, "min_depth", ParameterValue::Double(5.0));
+    assert!(!ok && reason.contains("max_depth"), "{reason}");
+    let (ok, reason) = set_parameter(&client, "num_planes", ParameterValue::Integer(1));
+    assert!(!ok && reason.contains("num_planes"), "{reason}");
+    let (ok, reason) = set_parameter(
+        &client,
+        "sync",
+        ParameterValue::String("approximate".into()),
+    );
+    assert!(!ok && reason.contains("read-only"), "{reason}");
+    let (ok, reason) = set_parameter(
+        &client,
+        "window_mode",
+        ParameterValue::String("shiftable".into()),
+    );
+    assert!(!ok && reason.contains("even"), "{reason}");
+    let (ok, reason) = set_parameter(&client, "no_such_parameter", ParameterValue::Integer(1));
+    assert!(!ok && !reason.is_empty());
+
+    // Sweep 2.5..4 m: the wall at 2 m is out of range, no depth may be near it.
+    let (ok, reason) = set_parameter(&client, "min_depth", ParameterValue::Double(2.5));
+    assert!(ok, "min_depth:=2.5 rejected: {reason}");
+    let first_after = k + 1_000;
+    let (after, _) = h.feed_until(first_after, Duration::from_secs(60), same_stamps, || {
+        while let Ok(Some((m, _))) = depth_sub.take() {
+            if nanos(m.header.stamp) >= nanos(stamp_of(first_after)) {
+                return Some(m);
+            }
+        }
+        None
+    });
+    let depths = depths_of(&after);
+    let valid: Vec<f32> = depths.iter().copied().filter(|d| d.is_finite()).collect();
+    assert!(
+        valid.iter().all(|d| *d >= 2.5 * 0.999 && *d <= 4.0 * 1.001),
+        "depths outside 2.5..4 m after min_depth:=2.5: {:?}",
+        valid
+            .iter()
+            .filter(|d| **d < 2.5 * 0.999)
+            .take(5)
+            .collect::<Vec<_>>()
+    );
+    let near_wall = valid
+        .iter()
+        .filter(|d| ((**d - 2.0) / 2.0).abs() <= 0.02)
+        .count();
+    assert_eq!(near_wall, 0);
+    eprintln!(
+        "after min_depth:=2.5: {} of {} depths valid, none near the wall",
+        valid.len(),
+        depths.len()
+    );
 }

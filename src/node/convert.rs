@@ -1,7 +1,10 @@
 //! Conversions between ROS image messages and the engine's images (no DDS, unit-tested).
 
+use glam::DVec2;
+
+use crate::geometry::CameraModel;
 use crate::image::{ImageF32, Rgba8Image};
-use crate::msgs::{Header, Image};
+use crate::msgs::{Header, Image, PointCloud2, PointField};
 
 /// Why an input image cannot be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -141,6 +144,68 @@ pub fn selection_msg(header: &Header, width: u32, height: u32, codes: &[u8]) -> 
     }
 }
 
+/// Bytes per point of [`point_cloud_msg`]: x, y, z, rgb (4 x FLOAT32).
+pub const POINT_STEP: u32 = 16;
+
+/// The PCL packing of a colour into a FLOAT32 field: the little-endian bytes b, g, r, 0 of a
+/// `u32`, reinterpreted.
+pub fn pack_rgb_f32(r: u8, g: u8, b: u8) -> f32 {
+    f32::from_bits(u32::from_le_bytes([b, g, r, 0]))
+}
+
+/// An organised `sensor_msgs/PointCloud2` (height x width of `depth`) in the reference optical
+/// frame: fields x, y, z (FLOAT32, metres) and rgb (FLOAT32, [`pack_rgb_f32`]) from `colour`
+/// (same size as `depth`, else black). Invalid depths (NaN, non-positive) give NaN x, y, z.
+/// `model` back-projects the pixel centres (integer coordinates, as in ROS).
+pub fn point_cloud_msg(
+    header: &Header,
+    depth: &ImageF32,
+    colour: Option<&Rgba8Image>,
+    model: &CameraModel,
+) -> PointCloud2 {
+    let (width, height) = (depth.width, depth.height);
+    let colour = colour
+        .filter(|c| c.width == width && c.height == height && c.pixels.len() == depth.data.len());
+    let field = |name: &str, offset: u32| PointField {
+        name: name.to_string(),
+        offset,
+        datatype: PointField::FLOAT32,
+        count: 1,
+    };
+    let mut data = Vec::with_capacity(depth.data.len() * POINT_STEP as usize);
+    for (i, &z) in depth.data.iter().enumerate() {
+        let u = (i % width.max(1) as usize) as f64;
+        let v = (i / width.max(1) as usize) as f64;
+        let [x, y, z] = if z.is_finite() && z > 0.0 {
+            let ray = model.unproject_z1(DVec2::new(u, v));
+            let z64 = f64::from(z);
+            [(ray.x * z64) as f32, (ray.y * z64) as f32, z]
+        } else {
+            [f32::NAN; 3]
+        };
+        let [r, g, b, _] = colour.map_or([0; 4], |c| Rgba8Image::unpack(c.pixels[i]));
+        for value in [x, y, z, pack_rgb_f32(r, g, b)] {
+            data.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    PointCloud2 {
+        header: header.clone(),
+        height,
+        width,
+        fields: vec![
+            field("x", 0),
+            field("y", 4),
+            field("z", 8),
+            field("rgb", 12),
+        ],
+        is_bigendian: false,
+        point_step: POINT_STEP,
+        row_step: width.saturating_mul(POINT_STEP),
+        data,
+        is_dense: false,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -228,5 +293,54 @@ mod tests {
         assert_eq!(m.step, 8);
         assert_eq!(m.encoding, "32FC1");
         assert_eq!(&m.data[0..4], &1.5f32.to_le_bytes());
+    }
+
+    #[test]
+    fn point_cloud_layout_and_values() {
+        use crate::geometry::PinholeIntrinsics;
+        let model = CameraModel::pinhole(PinholeIntrinsics {
+            width_px: 2,
+            height_px: 1,
+            fx_px: 2.0,
+            fy_px: 2.0,
+            cx_px: 0.0,
+            cy_px: 0.0,
+        });
+        let depth = ImageF32 {
+            width: 2,
+            height: 1,
+            data: vec![f32::NAN, 4.0],
+        };
+        let colour = Rgba8Image {
+            width: 2,
+            height: 1,
+            pixels: vec![Rgba8Image::pack(1, 2, 3), Rgba8Image::pack(10, 20, 30)],
+        };
+        let header = Header {
+            frame_id: "cam".into(),
+            ..Header::default()
+        };
+        let m = point_cloud_msg(&header, &depth, Some(&colour), &model);
+        assert_eq!(
+            (m.width, m.height, m.point_step, m.row_step),
+            (2, 1, 16, 32)
+        );
+        assert_eq!(m.header, header);
+        assert!(!m.is_dense && !m.is_bigendian);
+        let names: Vec<_> = m
+            .fields
+            .iter()
+            .map(|f| (f.name.as_str(), f.offset))
+            .collect();
+        assert_eq!(names, [("x", 0), ("y", 4), ("z", 8), ("rgb", 12)]);
+        assert_eq!(m.data.len(), 32);
+        let f =
+            |o: usize| f32::from_le_bytes([m.data[o], m.data[o + 1], m.data[o + 2], m.data[o + 3]]);
+        assert!(f(0).is_nan() && f(4).is_nan() && f(8).is_nan());
+        assert_eq!(&m.data[12..16], &[3, 2, 1, 0]);
+        // Pixel (1, 0) at z = 4: x = (1 - 0) / 2 * 4 = 2.
+        assert_eq!((f(16), f(20), f(24)), (2.0, 0.0, 4.0));
+        assert_eq!(&m.data[28..32], &[30, 20, 10, 0]);
+        assert_eq!(pack_rgb_f32(10, 20, 30).to_bits(), 0x000a141e);
     }
 }

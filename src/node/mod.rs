@@ -7,29 +7,40 @@
 //! with its calibration, to the GPU worker thread through a one-slot channel ([`LatestSlot`]:
 //! the newest set replaces a pending one). The worker owns the [`GpuContext`] and the
 //! [`GpuEngine`], converts the images, runs the sweep and publishes `depth/image`,
-//! `depth/camera_info`, `confidence/image`, `cost/image` and `selection/image`.
+//! `depth/camera_info`, `confidence/image`, `cost/image`, `selection/image` and, with
+//! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
 //!
-//! Not done yet: rosout and `/diagnostics`, parameter services, PointCloud2
-//! (`publish_points`), clean shutdown on SIGINT/SIGTERM (the default signal action ends the
+//! A diagnostics thread publishes `/diagnostics` once a second ([`diag::Stats`]). Log messages
+//! go to stderr (tracing) and, once DDS is up, to `/rosout`. The parameter services of
+//! ros2-client serve every parameter of the table; engine parameters can be set at run time
+//! (validated, then used from the next frame set on, see [`params::LiveParams`]), node
+//! parameters are read-only.
+//!
+//! Not done yet: clean shutdown on SIGINT/SIGTERM (the default signal action ends the
 //! process).
 
 pub mod convert;
+pub mod diag;
+pub mod params;
 pub mod worker;
 
 use std::collections::HashMap;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use futures::{Stream, StreamExt};
+use ros2_client::log::Log;
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, Publisher, QosProfile,
+    Context, ContextOptions, MessageTypeName, Name, NodeLoggingHandle, NodeName, NodeOptions,
+    Publisher, QosProfile, RosoutRaw,
 };
 
 use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
 use crate::gpu_context::GpuContext;
-use crate::msgs::{CameraInfo, Header, Image, TFMessage};
+use crate::msgs::{CameraInfo, DiagnosticArray, Header, Image, PointCloud2, TFMessage};
 use crate::ros::args::{
     apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, RosArgs, RosArgsError,
     DEFAULT_NODE_NAME,
@@ -40,7 +51,9 @@ use crate::ros::tf::TfBuffer;
 use crate::sweep::gpu::GpuEngine;
 use crate::sweep::SweepParams;
 
-use self::convert::{f32_image_msg, image_to_rgba8, selection_msg};
+use self::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
+use self::diag::{wall_time_now, Stats};
+use self::params::LiveParams;
 use self::worker::LatestSlot;
 
 /// Minimum time between two repetitions of the same warning.
@@ -97,6 +110,10 @@ pub struct NodeConfig {
     pub info_topics: Vec<String>,
     /// Fully qualified output topic names: depth, depth info, confidence, cost, selection.
     pub output_topics: [String; 5],
+    /// `points` (PointCloud2), published when `publish_points` is true.
+    pub points_topic: String,
+    pub publish_points: bool,
+    pub diagnostics_topic: String,
     pub tf_static_topic: String,
     pub rig_file: Option<RigFile>,
     pub sync: SyncPolicy,
@@ -148,6 +165,8 @@ impl NodeConfig {
             resolve("selection/image")?,
         ];
         let tf_static_topic = resolve("/tf_static")?;
+        let points_topic = resolve("points")?;
+        let diagnostics_topic = resolve("/diagnostics")?;
         let rig_path = params.get_str("rig_file").map_err(NodeError::Param)?;
         let rig_file = if rig_path.is_empty() {
             None
@@ -194,6 +213,11 @@ impl NodeConfig {
             image_topics,
             info_topics,
             output_topics,
+            points_topic,
+            publish_points: params
+                .get_bool("publish_points")
+                .map_err(NodeError::Param)?,
+            diagnostics_topic,
             tf_static_topic,
             rig_file,
             sync,
@@ -218,6 +242,58 @@ impl NodeConfig {
     }
 }
 
+/// The node's `/rosout` writer and logger name (`ns.name`) once DDS is up.
+static ROSOUT: Mutex<Option<(NodeLoggingHandle, String)>> = Mutex::new(None);
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Logs `msg` to stderr (tracing) and, when enabled at that level and DDS is up, to `/rosout`
+/// (as the node `logger_name`).
+fn node_log(level: tracing::Level, msg: &str) {
+    match level {
+        tracing::Level::ERROR => tracing::error!("{msg}"),
+        tracing::Level::WARN => tracing::warn!("{msg}"),
+        tracing::Level::INFO => tracing::info!("{msg}"),
+        _ => tracing::debug!("{msg}"),
+    }
+    let enabled = match level {
+        tracing::Level::ERROR => tracing::enabled!(tracing::Level::ERROR),
+        tracing::Level::WARN => tracing::enabled!(tracing::Level::WARN),
+        tracing::Level::INFO => tracing::enabled!(tracing::Level::INFO),
+        _ => false,
+    };
+    if !enabled {
+        return;
+    }
+    let guard = lock(&ROSOUT);
+    let Some((handle, name)) = guard.as_ref() else {
+        return;
+    };
+    if let Some(writer) = handle.rosout_writer().as_ref() {
+        let ros_level = match level {
+            tracing::Level::ERROR => Log::ERROR,
+            tracing::Level::WARN => Log::WARN,
+            _ => Log::INFO,
+        };
+        // A failed rosout write is not worth a log line of its own (it would recurse).
+        let _ = writer.publish(Log {
+            stamp: ros2_client::builtin_interfaces::Time::now(),
+            level: ros_level,
+            name: name.clone(),
+            msg: msg.to_string(),
+            file: file!().to_string(),
+            function: String::new(),
+            line: 0,
+        });
+    }
+}
+
+fn log_info(msg: &str) {
+    node_log(tracing::Level::INFO, msg);
+}
+
 /// Emits a warning per key at most once per [`LOG_INTERVAL`].
 #[derive(Default)]
 struct RateLimited {
@@ -235,7 +311,7 @@ impl RateLimited {
             return;
         }
         self.last.insert(key.to_string(), now);
-        tracing::warn!("{}", message());
+        node_log(tracing::Level::WARN, &message());
     }
 }
 
@@ -248,6 +324,7 @@ struct Job {
 }
 
 struct Outputs {
+    points: Option<Publisher<PointCloud2>>,
     depth: Publisher<Image>,
     depth_info: Publisher<CameraInfo>,
     confidence: Publisher<Image>,
@@ -280,10 +357,18 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
 
     // The GPU worker starts first so that a missing adapter fails before DDS comes up.
     let slot: Arc<LatestSlot<Job>> = Arc::new(LatestSlot::new());
-    let (init_tx, init_rx) = std::sync::mpsc::channel::<Result<(), String>>();
+    let live = LiveParams::new(
+        config.params.clone(),
+        config.sweep.clone(),
+        config.cameras.len(),
+        config.reference,
+    );
+    let stats = Arc::new(Mutex::new(Stats::new(config.cameras.len())));
+    let (init_tx, init_rx) = std::sync::mpsc::channel::<Result<String, String>>();
     let (outputs_tx, outputs_rx) = std::sync::mpsc::channel::<Outputs>();
     let worker_slot = Arc::clone(&slot);
-    let sweep = config.sweep.clone();
+    let worker_live = Arc::clone(&live);
+    let worker_stats = Arc::clone(&stats);
     let camera_names = config.cameras.clone();
     let worker = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
@@ -302,25 +387,37 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                     return;
                 }
             };
-            tracing::info!("GPU adapter: {}", gpu.adapter_label());
-            let _ = init_tx.send(Ok(()));
+            let _ = init_tx.send(Ok(gpu.adapter_label()));
             let Ok(outputs) = outputs_rx.recv() else {
                 return;
             };
-            worker_loop(&worker_slot, engine, &sweep, &camera_names, &outputs);
+            let shared = WorkerShared {
+                slot: &worker_slot,
+                live: &worker_live,
+                stats: &worker_stats,
+            };
+            worker_loop(&shared, engine, &camera_names, &outputs);
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
-    match init_rx.recv() {
-        Ok(Ok(())) => {}
+    let adapter = match init_rx.recv() {
+        Ok(Ok(adapter)) => adapter,
         Ok(Err(e)) => return Err(NodeError::Gpu(e)),
         Err(_) => {
             return Err(NodeError::Gpu(
                 "the GPU thread ended during start-up".into(),
             ))
         }
-    }
+    };
+    tracing::info!("GPU adapter: {adapter}");
 
-    let result = run_dds(&config, &slot, outputs_tx);
+    let shared = DdsShared {
+        slot: &slot,
+        live: &live,
+        stats: &stats,
+        adapter: &adapter,
+    };
+    let result = run_dds(&config, &shared, outputs_tx);
+    *lock(&ROSOUT) = None;
     slot.close();
     let _ = worker.join();
     result
@@ -334,11 +431,92 @@ enum Event {
     Tf(Result<TFMessage, String>),
 }
 
+/// What the executor side shares with the worker and the parameter callbacks.
+struct DdsShared<'a> {
+    slot: &'a LatestSlot<Job>,
+    live: &'a Arc<LiveParams>,
+    stats: &'a Arc<Mutex<Stats>>,
+    adapter: &'a str,
+}
+
+struct WorkerShared<'a> {
+    slot: &'a LatestSlot<Job>,
+    live: &'a LiveParams,
+    stats: &'a Mutex<Stats>,
+}
+
+/// The node's options: rosout on, parameter services with every parameter of the table
+/// declared, sets validated and applied by [`LiveParams`].
+fn node_options(live: &Arc<LiveParams>) -> NodeOptions {
+    let mut options = NodeOptions::new()
+        .enable_rosout(true)
+        .start_parameter_services(true)
+        .allow_undeclared_parameters(false);
+    for (name, value) in live.declarations() {
+        options = options.declare_parameter(&name, value);
+    }
+    let validator = Arc::clone(live);
+    let action = Arc::clone(live);
+    options
+        .parameter_validator(Box::new(move |name, value| {
+            let r = validator.check(name, value);
+            if let Err(e) = &r {
+                node_log(
+                    tracing::Level::WARN,
+                    &format!("rejected setting parameter '{name}' to {value:?}: {e}"),
+                );
+            }
+            r
+        }))
+        .parameter_set_action(Box::new(move |name, value| {
+            if action.apply(name, value)? {
+                log_info(&format!(
+                    "parameter '{name}' set to {value:?} (used from the next frame set on)"
+                ));
+            }
+            Ok(())
+        }))
+}
+
+/// Publishes `/diagnostics` once a second until `stop` is set.
+fn diagnostics_loop(
+    config: &NodeConfig,
+    shared: &DdsShared<'_>,
+    publisher: Publisher<DiagnosticArray>,
+    stop: &AtomicBool,
+) {
+    let fqn = config.identity.fqn();
+    let mut next = Instant::now() + Duration::from_secs(1);
+    let mut log = RateLimited::default();
+    while !stop.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep((next - now).min(Duration::from_millis(100)));
+            continue;
+        }
+        next += Duration::from_secs(1);
+        if next < now {
+            next = now + Duration::from_secs(1);
+        }
+        let msg = {
+            let mut stats = lock(shared.stats);
+            stats.gpu_dropped = shared.slot.dropped();
+            stats.diagnostics(&fqn, &config.cameras, shared.adapter, now, wall_time_now())
+        };
+        if let Err(e) = publisher.publish(msg) {
+            log.warn("diagnostics", || {
+                format!("publishing /diagnostics failed: {e:?}")
+            });
+        }
+    }
+}
+
 fn run_dds(
     config: &NodeConfig,
-    slot: &LatestSlot<Job>,
+    shared: &DdsShared<'_>,
     outputs_tx: std::sync::mpsc::Sender<Outputs>,
 ) -> Result<(), NodeError> {
+    let slot = shared.slot;
     let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
         .map_err(ros_err)?;
     let node_name =
@@ -349,13 +527,14 @@ fn run_dds(
             }
         })?;
     let mut node = context
-        .new_node(
-            node_name,
-            NodeOptions::new()
-                .enable_rosout(false)
-                .start_parameter_services(false),
-        )
+        .new_node(node_name, node_options(shared.live))
         .map_err(ros_err)?;
+    let logger_name = config
+        .identity
+        .fqn()
+        .trim_start_matches('/')
+        .replace('/', ".");
+    *lock(&ROSOUT) = Some((node.logging_handle(), logger_name));
 
     let image_type = || MessageTypeName::new("sensor_msgs", "Image");
     let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
@@ -439,8 +618,37 @@ fn run_dds(
     let depth_info = node
         .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
         .map_err(ros_err)?;
+    let points = if config.publish_points {
+        let topic = node
+            .create_topic(
+                &topic_name(&config.points_topic)?,
+                MessageTypeName::new("sensor_msgs", "PointCloud2"),
+                &output_qos,
+            )
+            .map_err(ros_err)?;
+        Some(
+            node.create_publisher::<PointCloud2>(&topic, Some(output_qos.clone()))
+                .map_err(ros_err)?,
+        )
+    } else {
+        None
+    };
+    let diag_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast { depth: 10 });
+    let diag_topic = node
+        .create_topic(
+            &topic_name(&config.diagnostics_topic)?,
+            MessageTypeName::new("diagnostic_msgs", "DiagnosticArray"),
+            &diag_qos,
+        )
+        .map_err(ros_err)?;
+    let diag_pub = node
+        .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos.clone()))
+        .map_err(ros_err)?;
     outputs_tx
         .send(Outputs {
+            points,
             depth,
             depth_info,
             confidence,
@@ -468,7 +676,7 @@ fn run_dds(
     }
     let mut events = futures::stream::select_all(streams);
     let spinner = node.spinner().map_err(ros_err)?;
-    tracing::info!("node {} is up", config.identity.fqn());
+    log_info(&format!("node {} is up", config.identity.fqn()));
 
     let mut state = LoopState {
         config,
@@ -477,24 +685,34 @@ fn run_dds(
         sync: config.synchronizer()?,
         log: RateLimited::default(),
         slot,
+        stats: shared.stats,
     };
     let event_loop = async {
         while let Some(event) = events.next().await {
             state.handle(event);
         }
     };
-    let outcome = futures::executor::block_on(async {
-        futures::pin_mut!(event_loop);
-        let spin = spinner.spin();
-        futures::pin_mut!(spin);
-        match futures::future::select(spin, event_loop).await {
-            futures::future::Either::Left((r, _)) => r.map_err(ros_err),
-            futures::future::Either::Right(((), _)) => {
-                Err(NodeError::Ros("the subscription streams ended".into()))
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let diag = std::thread::Builder::new()
+            .name("sweepdepth-diagnostics".into())
+            .spawn_scoped(scope, || diagnostics_loop(config, shared, diag_pub, &stop))
+            .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
+        let outcome = futures::executor::block_on(async {
+            futures::pin_mut!(event_loop);
+            let spin = spinner.spin();
+            futures::pin_mut!(spin);
+            match futures::future::select(spin, event_loop).await {
+                futures::future::Either::Left((r, _)) => r.map_err(ros_err),
+                futures::future::Either::Right(((), _)) => {
+                    Err(NodeError::Ros("the subscription streams ended".into()))
+                }
             }
-        }
-    });
-    outcome
+        });
+        stop.store(true, Ordering::Relaxed);
+        let _ = diag.join();
+        outcome
+    })
 }
 
 struct LoopState<'a> {
@@ -504,6 +722,7 @@ struct LoopState<'a> {
     sync: Box<dyn Synchronizer<Image> + Send>,
     log: RateLimited,
     slot: &'a LatestSlot<Job>,
+    stats: &'a Mutex<Stats>,
 }
 
 impl LoopState<'_> {
@@ -517,7 +736,13 @@ impl LoopState<'_> {
             }
             Event::Image(i, Ok(image)) => {
                 let stamp = image.header.stamp;
-                match self.sync.push_stamped(i, &stamp, image) {
+                let result = self.sync.push_stamped(i, &stamp, image);
+                {
+                    let mut stats = lock(self.stats);
+                    stats.on_image(i, Instant::now());
+                    stats.sync = self.sync.stats();
+                }
+                match result {
                     Ok(sets) => {
                         for set in sets {
                             self.on_set(set);
@@ -595,10 +820,9 @@ impl LoopState<'_> {
             reference,
             ref_info,
         }) {
-            tracing::debug!(
-                "a pending set was replaced (dropped: {})",
-                self.slot.dropped()
-            );
+            let dropped = self.slot.dropped();
+            lock(self.stats).gpu_dropped = dropped;
+            tracing::debug!("a pending set was replaced (dropped: {dropped})");
         }
     }
 }
@@ -621,15 +845,18 @@ fn rig_file_info(camera: &RigCamera) -> CameraInfo {
 }
 
 fn worker_loop(
-    slot: &LatestSlot<Job>,
+    shared: &WorkerShared<'_>,
     mut engine: GpuEngine,
-    sweep: &SweepParams,
     camera_names: &[String],
     outputs: &Outputs,
 ) {
+    let slot = shared.slot;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
     while let Some(job) = slot.take() {
+        let started = Instant::now();
+        // Parameter changes apply from the next set on.
+        let sweep: SweepParams = shared.live.sweep();
         let mut images = Vec::with_capacity(job.images.len());
         let mut failed = false;
         for (i, msg) in job.images.iter().enumerate() {
@@ -654,7 +881,7 @@ fn worker_loop(
                 continue;
             }
         };
-        let maps = match engine.run(&rig, &images, sweep) {
+        let maps = match engine.run(&rig, &images, &sweep) {
             Ok(maps) => maps,
             Err(e) => {
                 log.warn("engine", || format!("sweep failed: {e}"));
@@ -663,6 +890,17 @@ fn worker_loop(
         };
         let mut info = job.ref_info;
         info.header = header.clone();
+        let points = outputs.points.as_ref().map(|publisher| {
+            let cloud = point_cloud_msg(
+                &header,
+                &maps.depth_m,
+                images.get(job.reference),
+                &rig.reference_model(),
+            );
+            publisher
+                .publish(cloud)
+                .map_err(|e| format!("points: {e:?}"))
+        });
         let results = [
             outputs
                 .depth
@@ -690,17 +928,23 @@ fn worker_loop(
                 ))
                 .map_err(|e| format!("selection/image: {e:?}")),
         ];
-        for r in results {
+        for r in results.into_iter().chain(points) {
             if let Err(e) = r {
                 log.warn("publish", || format!("publish failed: {e}"));
             }
         }
+        lock(shared.stats).on_published(
+            started.elapsed(),
+            Instant::now(),
+            wall_time_now(),
+            header.stamp,
+        );
         published += 1;
         if published == 1 || published % 100 == 0 {
-            tracing::info!(
+            log_info(&format!(
                 "published {published} depth images ({} sets dropped waiting for the GPU)",
                 slot.dropped()
-            );
+            ));
         }
     }
 }
@@ -740,6 +984,9 @@ mod tests {
         assert_eq!(cfg.info_topics[0], "/rig/a/camera_info");
         assert_eq!(cfg.output_topics[0], "/rig/depth/image");
         assert_eq!(cfg.tf_static_topic, "/tf_static");
+        assert_eq!(cfg.points_topic, "/rig/points");
+        assert_eq!(cfg.diagnostics_topic, "/diagnostics");
+        assert!(!cfg.publish_points);
         assert_eq!(cfg.sync, SyncPolicy::Exact);
         assert!(cfg.synchronizer().is_ok());
     }

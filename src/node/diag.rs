@@ -1,0 +1,247 @@
+//! Run-time statistics of the node and the `/diagnostics` message built from them (no DDS,
+//! unit-tested).
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
+use crate::ros::sync::SyncStats;
+
+/// Window of the input rates.
+pub const RATE_WINDOW: Duration = Duration::from_secs(1);
+/// No set published for this long makes the status WARN.
+pub const STALE_AFTER: Duration = Duration::from_secs(5);
+
+/// Counters shared by the executor (inputs, sync), the GPU worker (processing, publishing)
+/// and the diagnostics publisher.
+#[derive(Debug)]
+pub struct Stats {
+    /// Arrival times of the images of each camera within the last [`RATE_WINDOW`].
+    arrivals: Vec<VecDeque<Instant>>,
+    pub sync: SyncStats,
+    pub gpu_dropped: u64,
+    pub published: u64,
+    last_published: Option<Instant>,
+    last_processing: Option<Duration>,
+    total_processing: Duration,
+    /// Wall-clock time at publication minus the stamp of the set, milliseconds.
+    last_latency_ms: Option<f64>,
+}
+
+impl Stats {
+    pub fn new(cameras: usize) -> Self {
+        Self {
+            arrivals: vec![VecDeque::new(); cameras],
+            sync: SyncStats::default(),
+            gpu_dropped: 0,
+            published: 0,
+            last_published: None,
+            last_processing: None,
+            total_processing: Duration::ZERO,
+            last_latency_ms: None,
+        }
+    }
+
+    fn prune(&mut self, now: Instant) {
+        for q in &mut self.arrivals {
+            while q
+                .front()
+                .is_some_and(|t| now.saturating_duration_since(*t) > RATE_WINDOW)
+            {
+                q.pop_front();
+            }
+        }
+    }
+
+    /// An image of camera `i` arrived at `now`.
+    pub fn on_image(&mut self, i: usize, now: Instant) {
+        if let Some(q) = self.arrivals.get_mut(i) {
+            q.push_back(now);
+        }
+        self.prune(now);
+    }
+
+    /// A set was processed in `processing` and published at `now` (`now_wall` minus `stamp`
+    /// is its latency).
+    pub fn on_published(
+        &mut self,
+        processing: Duration,
+        now: Instant,
+        now_wall: Time,
+        stamp: Time,
+    ) {
+        self.published += 1;
+        self.last_published = Some(now);
+        self.last_processing = Some(processing);
+        self.total_processing += processing;
+        self.last_latency_ms =
+            Some(now_wall.to_nanos().saturating_sub(stamp.to_nanos()) as f64 / 1e6);
+    }
+
+    /// Images per second of each camera over the last [`RATE_WINDOW`].
+    pub fn input_rates(&mut self, now: Instant) -> Vec<f64> {
+        self.prune(now);
+        let window = RATE_WINDOW.as_secs_f64();
+        self.arrivals
+            .iter()
+            .map(|q| q.len() as f64 / window)
+            .collect()
+    }
+
+    /// Mean processing time, or None before the first set.
+    pub fn mean_processing(&self) -> Option<Duration> {
+        u32::try_from(self.published)
+            .ok()
+            .filter(|n| *n > 0)
+            .map(|n| self.total_processing / n)
+    }
+
+    /// The diagnostics of the node `fqn` at `now` (`stamp` is the header stamp).
+    pub fn diagnostics(
+        &mut self,
+        fqn: &str,
+        cameras: &[String],
+        adapter: &str,
+        now: Instant,
+        stamp: Time,
+    ) -> DiagnosticArray {
+        let rates = self.input_rates(now);
+        let ms = |d: Option<Duration>| {
+            d.map_or("n/a".to_string(), |d| {
+                format!("{:.3}", d.as_secs_f64() * 1e3)
+            })
+        };
+        let mut values = Vec::new();
+        let mut kv = |key: String, value: String| values.push(KeyValue { key, value });
+        for (camera, rate) in cameras.iter().zip(&rates) {
+            kv(format!("input rate {camera} (Hz)"), format!("{rate:.2}"));
+        }
+        kv("sync matched".into(), self.sync.matched.to_string());
+        kv("sync dropped".into(), self.sync.dropped.to_string());
+        kv("sync incomplete".into(), self.sync.incomplete.to_string());
+        kv("gpu sets dropped".into(), self.gpu_dropped.to_string());
+        kv("sets published".into(), self.published.to_string());
+        kv("processing time last (ms)".into(), ms(self.last_processing));
+        kv(
+            "processing time mean (ms)".into(),
+            ms(self.mean_processing()),
+        );
+        kv(
+            "latency (ms)".into(),
+            self.last_latency_ms
+                .map_or("n/a".to_string(), |l| format!("{l:.3}")),
+        );
+        kv("gpu adapter".into(), adapter.to_string());
+        let stale = self
+            .last_published
+            .is_none_or(|t| now.saturating_duration_since(t) > STALE_AFTER);
+        let (level, message) = if stale {
+            (
+                DiagnosticStatus::WARN,
+                format!("no depth published in the last {} s", STALE_AFTER.as_secs()),
+            )
+        } else {
+            (DiagnosticStatus::OK, "publishing depth".to_string())
+        };
+        DiagnosticArray {
+            header: Header {
+                stamp,
+                frame_id: String::new(),
+            },
+            status: vec![DiagnosticStatus {
+                level,
+                name: format!("sweepdepth: {fqn}"),
+                message,
+                hardware_id: adapter.to_string(),
+                values,
+            }],
+        }
+    }
+}
+
+/// The wall-clock time now, as a ROS stamp.
+pub fn wall_time_now() -> Time {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    Time {
+        sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
+        nanosec: d.subsec_nanos(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn value<'a>(a: &'a DiagnosticArray, key: &str) -> &'a str {
+        a.status[0]
+            .values
+            .iter()
+            .find(|kv| kv.key == key)
+            .map(|kv| kv.value.as_str())
+            .unwrap_or_else(|| panic!("no key {key}"))
+    }
+
+    #[test]
+    fn rates_counts_and_level() {
+        let t0 = Instant::now();
+        let mut s = Stats::new(2);
+        let cams = ["a".to_string(), "b".to_string()];
+        let a = s.diagnostics(
+            "/n",
+            &cams,
+            "gpu",
+            t0 + Duration::from_secs(2),
+            Time::default(),
+        );
+        assert_eq!(a.status[0].level, DiagnosticStatus::WARN);
+        assert_eq!(a.status[0].name, "sweepdepth: /n");
+        assert_eq!(value(&a, "processing time mean (ms)"), "n/a");
+        for k in 0..10 {
+            s.on_image(0, t0 + Duration::from_millis(1000 + 100 * k));
+        }
+        s.on_image(1, t0 + Duration::from_millis(1950));
+        s.sync.matched = 3;
+        s.gpu_dropped = 2;
+        let now = t0 + Duration::from_millis(1990);
+        s.on_published(
+            Duration::from_millis(10),
+            now,
+            Time {
+                sec: 10,
+                nanosec: 0,
+            },
+            Time {
+                sec: 9,
+                nanosec: 500_000_000,
+            },
+        );
+        s.on_published(
+            Duration::from_millis(20),
+            now,
+            Time {
+                sec: 10,
+                nanosec: 0,
+            },
+            Time {
+                sec: 10,
+                nanosec: 0,
+            },
+        );
+        let a = s.diagnostics("/n", &cams, "gpu", now, Time::default());
+        assert_eq!(a.status[0].level, DiagnosticStatus::OK);
+        assert_eq!(value(&a, "input rate a (Hz)"), "10.00");
+        assert_eq!(value(&a, "input rate b (Hz)"), "1.00");
+        assert_eq!(value(&a, "sync matched"), "3");
+        assert_eq!(value(&a, "gpu sets dropped"), "2");
+        assert_eq!(value(&a, "processing time last (ms)"), "20.000");
+        assert_eq!(value(&a, "processing time mean (ms)"), "15.000");
+        assert_eq!(value(&a, "latency (ms)"), "0.000");
+        assert_eq!(value(&a, "gpu adapter"), "gpu");
+        let later = now + Duration::from_secs(6);
+        let a = s.diagnostics("/n", &cams, "gpu", later, Time::default());
+        assert_eq!(a.status[0].level, DiagnosticStatus::WARN);
+        assert_eq!(value(&a, "input rate a (Hz)"), "0.00");
+    }
+}
