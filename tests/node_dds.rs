@@ -29,6 +29,8 @@ const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
 const DOMAIN: &str = "42";
 const WIDTH: u32 = 80;
 const HEIGHT: u32 = 60;
+/// Cameras of the synthetic rig (a row, 10 cm apart; the reference is cam1).
+const CAMERAS: usize = 4;
 
 /// Network interfaces of this process's network namespace (from /proc/self/net/dev).
 fn interfaces() -> Vec<String> {
@@ -179,7 +181,7 @@ fn time_of(ns: i64) -> Time {
     }
 }
 
-/// The node under test and a peer node that feeds it the synthetic 3-camera rig (wall at
+/// The node under test and a peer node that feeds it the synthetic 4-camera rig (wall at
 /// 2 m, cam1 the reference).
 struct Harness {
     rig: sweepdepth::geometry::Rig,
@@ -198,11 +200,11 @@ fn frame(i: usize) -> String {
 }
 
 impl Harness {
-    /// Starts the node with `cameras:=[cam0, cam1, cam2]`, depths 1..4 m, 48 planes and
+    /// Starts the node with `cameras:=[cam0, cam1, cam2, cam3]` (reference cam1), depths 1..4 m, 48 planes and
     /// `extra` parameters (`name:=value`, later ones win), and publishes /tf_static.
     fn start(extra: &[&str]) -> Harness {
         let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
-        let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let rig = synthetic::row_rig(CAMERAS, 0.1, model, 1).expect("rig");
         let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
         let images = synthetic::render_rig(&scene, &rig);
 
@@ -210,7 +212,9 @@ impl Harness {
             "node",
             "--ros-args",
             "-p",
-            "cameras:=[cam0, cam1, cam2]",
+            "cameras:=[cam0, cam1, cam2, cam3]",
+            "-p",
+            "reference_camera:=cam1",
             "-p",
             "min_depth:=1.0",
             "-p",
@@ -267,7 +271,7 @@ impl Harness {
             .unwrap();
         let mut image_pubs = Vec::new();
         let mut info_pubs = Vec::new();
-        for i in 0..3 {
+        for i in 0..rig.cameras.len() {
             let t = peer
                 .create_topic(
                     &Name::parse(&format!("/cam{i}/image_raw")).unwrap(),
@@ -352,7 +356,7 @@ impl Harness {
     }
 
     /// Publishes one set, camera `i` stamped `stamps[i]`.
-    fn publish_set(&self, stamps: [Time; 3]) {
+    fn publish_set(&self, stamps: [Time; CAMERAS]) {
         for (i, stamp) in stamps.into_iter().enumerate() {
             let header = Header {
                 stamp,
@@ -379,7 +383,7 @@ impl Harness {
         &mut self,
         first: u32,
         limit: Duration,
-        stamps: impl Fn(u32) -> [Time; 3],
+        stamps: impl Fn(u32) -> [Time; CAMERAS],
         mut poll: impl FnMut() -> Option<R>,
     ) -> (R, u32) {
         let started = Instant::now();
@@ -409,13 +413,13 @@ impl Harness {
     }
 }
 
-fn same_stamps(k: u32) -> [Time; 3] {
-    [stamp_of(k); 3]
+fn same_stamps(k: u32) -> [Time; CAMERAS] {
+    [stamp_of(k); CAMERAS]
 }
 
 /// Camera `i`'s stamp of set `k`: k * 100 ms plus a deterministic jitter in -5..=5 ms,
-/// different for the three cameras of a set.
-fn jittered_stamps(k: u32) -> [Time; 3] {
+/// different for the four cameras of a set.
+fn jittered_stamps(k: u32) -> [Time; CAMERAS] {
     std::array::from_fn(|i| {
         let jitter_ms = ((k as i64 * 3 + i as i64 * 4) % 11) - 5;
         time_of(nanos(stamp_of(k)) + jitter_ms * 1_000_000)
@@ -620,7 +624,7 @@ fn diagnostics() {
             .and_then(|v| v.parse().ok())
             .unwrap_or_else(|| panic!("'{key}' is not a number in {status:?}"))
     };
-    for i in 0..3 {
+    for i in 0..CAMERAS {
         let rate = number(&format!("input rate cam{i} (Hz)"));
         assert!(rate > 0.0 && rate <= 40.0, "cam{i} rate {rate}");
     }
