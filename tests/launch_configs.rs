@@ -11,8 +11,7 @@ use std::process::Command;
 use sweepdepth::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera};
 use sweepdepth::node::NodeConfig;
 use sweepdepth::ros::args::{
-    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamSource,
-    DEFAULT_NODE_NAME,
+    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamSource, DEFAULT_NODE_NAME,
 };
 use sweepdepth::ros::rig_file::{load_rig_file, RigFile};
 use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
@@ -200,7 +199,11 @@ fn camera_row_rig_file() {
         let p = glam::DVec3::new(1.0, 2.0, 3.0);
         let in_cam = camera.cam_from_rig.transform_point(p);
         assert!((in_cam - (p - want)).length() < 1e-12, "{}", camera.name);
-        assert!(camera.model.is_none(), "{}: intrinsics come from CameraInfo", camera.name);
+        assert!(
+            camera.model.is_none(),
+            "{}: intrinsics come from CameraInfo",
+            camera.name
+        );
     }
     // Every entry of `cameras` is in the file, as the node requires.
     let cameras = set.get_string_array("cameras").unwrap();
@@ -280,10 +283,7 @@ fn python3() -> Command {
 fn launch_file_compiles() {
     // `python3 -m py_compile`, writing the bytecode to a temporary file instead of a
     // __pycache__ next to the launch file.
-    let cfile = std::env::temp_dir().join(format!(
-        "sweepdepth_launch_{}.pyc",
-        std::process::id()
-    ));
+    let cfile = std::env::temp_dir().join(format!("sweepdepth_launch_{}.pyc", std::process::id()));
     let out = python3()
         .arg("-c")
         .arg("import py_compile, sys; py_compile.compile(sys.argv[1], cfile=sys.argv[2], doraise=True)")
