@@ -95,6 +95,11 @@ fn node_parameter_services() {
     in_private_netns("node_parameter_services", parameter_services);
 }
 
+#[test]
+fn node_virtual_reference() {
+    in_private_netns("node_virtual_reference", virtual_reference);
+}
+
 fn reexec_in_private_netns(test_name: &str) {
     let exe = std::env::current_exe().expect("test binary path");
     let flags = if is_root() { "-n" } else { "-rn" };
@@ -768,4 +773,55 @@ fn parameter_services() {
         valid.len(),
         depths.len()
     );
+}
+
+/// A virtual reference camera 15 cm right of cam1 (between cam2 and cam3 of the row, which
+/// sit at 0.1 and 0.2 m), 64x48 with its own intrinsics: the depth image is the virtual
+/// camera's, stamped like cam1's image and in cam1's frame (virtual_frame_id empty).
+fn virtual_reference() {
+    let mut h = Harness::start(&[
+        "sync:=exact",
+        "virtual_reference:=true",
+        "virtual_pose:=[0.15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+        "virtual_width:=64",
+        "virtual_height:=48",
+        "virtual_fx:=60.0",
+        "virtual_fy:=60.0",
+        "virtual_cx:=31.5",
+        "virtual_cy:=23.5",
+    ]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", "sensor_msgs", "CameraInfo");
+    let mut info: Option<CameraInfo> = None;
+    let ((depth, info), k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+        if info.is_none() {
+            info = info_sub.take().ok().flatten().map(|(m, _)| m);
+        }
+        if info.is_none() {
+            return None;
+        }
+        depth_sub
+            .take()
+            .ok()
+            .flatten()
+            .map(|(m, _)| (m, info.clone().unwrap()))
+    });
+    assert!(
+        (1..=k).any(|j| stamp_of(j) == depth.header.stamp),
+        "stamp {:?} was never sent",
+        depth.header.stamp
+    );
+    assert_eq!(depth.header.frame_id, frame(1));
+    assert_eq!(depth.encoding, "32FC1");
+    assert_eq!((depth.width, depth.height), (64, 48));
+    assert_eq!(depth.data.len(), 4 * 64 * 48);
+    assert_eq!((info.width, info.height), (64, 48));
+    assert_eq!(info.header.frame_id, frame(1));
+    assert_eq!(info.k, [60.0, 0.0, 31.5, 0.0, 60.0, 23.5, 0.0, 0.0, 1.0]);
+    assert_eq!(
+        info.p,
+        [60.0, 0.0, 31.5, 0.0, 0.0, 60.0, 23.5, 0.0, 0.0, 0.0, 1.0, 0.0]
+    );
+    assert!(info.d.is_empty(), "{:?}", info.d);
+    check_wall_depths(&depths_of(&depth));
 }

@@ -783,7 +783,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    assert_eq!(param_table().len(), 18 + expect.len());
+    // 18 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 18 + expect.len() + 9);
 }
 
 #[test]

@@ -38,11 +38,13 @@ use ros2_client::{
     Publisher, QosProfile, RosoutRaw,
 };
 
-use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
+use glam::{DQuat, DVec3};
+
+use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
 use crate::gpu_context::GpuContext;
 use crate::msgs::{CameraInfo, DiagnosticArray, Header, Image, PointCloud2, TFMessage};
 use crate::ros::args::{
-    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, RosArgs, RosArgsError,
+    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamValue, RosArgs, RosArgsError,
     DEFAULT_NODE_NAME,
 };
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
@@ -96,6 +98,78 @@ pub enum SyncPolicy {
     },
 }
 
+/// The virtual reference camera (`virtual_reference:=true`).
+///
+/// Placement: with `frame_id` set and no rig file, from /tf_static (the transform from the
+/// reference camera's frame to `frame_id`); otherwise `ref_from_virtual` (`virtual_pose`)
+/// composed with the reference camera's pose. Outputs carry `frame_id`, or the reference
+/// camera's frame when it is empty (then `virtual_pose` must be applied by the consumer), and
+/// the stamp of the reference camera's image. Intrinsics of 0 copy the reference camera's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VirtualConfig {
+    pub frame_id: String,
+    /// Pose of the virtual optical frame in the reference camera's optical frame.
+    pub ref_from_virtual: RigidTransform,
+    pub width: u32,
+    pub height: u32,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl VirtualConfig {
+    fn from_params(params: &ParamSet) -> Result<Self, NodeError> {
+        let p = NodeError::Param;
+        let pose = params.virtual_pose().map_err(p)?;
+        let ref_from_virtual = RigidTransform::from_quat_translation(
+            "virtual_pose",
+            DQuat::from_xyzw(pose[3], pose[4], pose[5], pose[6]),
+            DVec3::new(pose[0], pose[1], pose[2]),
+        )
+        .map_err(|e| NodeError::Param(e.to_string()))?;
+        let size = |name: &str| -> Result<u32, NodeError> {
+            let v = params.get_i64(name).map_err(NodeError::Param)?;
+            u32::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
+        };
+        let f = |name: &str| params.get_f64(name).map_err(NodeError::Param);
+        Ok(Self {
+            frame_id: params
+                .get_str("virtual_frame_id")
+                .map_err(NodeError::Param)?
+                .to_string(),
+            ref_from_virtual,
+            width: size("virtual_width")?,
+            height: size("virtual_height")?,
+            fx: f("virtual_fx")?,
+            fy: f("virtual_fy")?,
+            cx: f("virtual_cx")?,
+            cy: f("virtual_cy")?,
+        })
+    }
+
+    /// The virtual intrinsics, 0 values taken from the reference camera's `base`.
+    pub fn intrinsics(&self, base: &PinholeIntrinsics) -> PinholeIntrinsics {
+        let or = |v: f64, b: f64| if v == 0.0 { b } else { v };
+        PinholeIntrinsics {
+            width_px: if self.width == 0 {
+                base.width_px
+            } else {
+                self.width
+            },
+            height_px: if self.height == 0 {
+                base.height_px
+            } else {
+                self.height
+            },
+            fx_px: or(self.fx, base.fx_px),
+            fy_px: or(self.fy, base.fy_px),
+            cx_px: or(self.cx, base.cx_px),
+            cy_px: or(self.cy, base.cy_px),
+        }
+    }
+}
+
 /// Everything the node needs from its command line and environment.
 #[derive(Debug, Clone)]
 pub struct NodeConfig {
@@ -121,6 +195,8 @@ pub struct NodeConfig {
     pub input_reliable: bool,
     pub input_depth: usize,
     pub output_depth: usize,
+    /// The virtual reference camera, when `virtual_reference` is true.
+    pub virtual_ref: Option<VirtualConfig>,
     pub notes: Vec<String>,
 }
 
@@ -134,7 +210,27 @@ impl NodeConfig {
         let identity = ros.node_identity(DEFAULT_NODE_NAME, "/")?;
         let (params, mut notes) = ParamSet::from_ros_args(&ros, &identity)?;
         notes.extend(ros.notes.iter().cloned());
+        let mut params = params;
         params.check_node().map_err(NodeError::Param)?;
+        let virtual_ref = if params
+            .get_bool("virtual_reference")
+            .map_err(NodeError::Param)?
+        {
+            // check_node rejected an explicit pairs:=reference; the default becomes all.
+            if params.get_str("pairs").map_err(NodeError::Param)? != "all" {
+                params
+                    .set("pairs", &ParamValue::String("all".into()))
+                    .map_err(NodeError::Param)?;
+                notes.push("virtual_reference: pairs set to 'all' (a virtual camera has no image of its own)".into());
+            }
+            let v = VirtualConfig::from_params(&params)?;
+            if v.frame_id.is_empty() && v.ref_from_virtual != RigidTransform::IDENTITY {
+                notes.push("virtual_reference: virtual_frame_id is empty, so the outputs carry the reference camera's frame_id although the virtual camera is at virtual_pose in it".into());
+            }
+            Some(v)
+        } else {
+            None
+        };
         let mut sweep = SweepParams::default();
         apply_to_sweep(&params, &mut sweep).map_err(NodeError::Param)?;
         let cameras = params
@@ -198,7 +294,15 @@ impl NodeConfig {
             let v = params.get_i64(name).map_err(NodeError::Param)?;
             usize::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
         };
+        if virtual_ref.is_some() {
+            if let Some(shape) = params::shape_rig(cameras.len(), reference, true) {
+                sweep
+                    .validate(&shape)
+                    .map_err(|e| NodeError::Param(format!("virtual_reference: {e}")))?;
+            }
+        }
         Ok(Self {
+            virtual_ref,
             domain_id: crate::ros::args::domain_id(domain_env)?,
             queue_size: usize_param("queue_size")?,
             input_reliable: params
@@ -320,6 +424,9 @@ struct Job {
     images: Vec<Image>,
     cameras: Vec<RigCamera>,
     reference: usize,
+    /// The virtual reference camera and the outputs' frame_id, when configured.
+    virtual_ref: Option<(CameraModel, RigidTransform, String)>,
+    /// The CameraInfo of the outputs (the reference camera's, or the virtual one's).
     ref_info: CameraInfo,
 }
 
@@ -362,6 +469,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         config.sweep.clone(),
         config.cameras.len(),
         config.reference,
+        config.virtual_ref.is_some(),
     );
     let stats = Arc::new(Mutex::new(Stats::new(config.cameras.len())));
     let (init_tx, init_rx) = std::sync::mpsc::channel::<Result<String, String>>();
@@ -810,14 +918,48 @@ impl LoopState<'_> {
                 cam_from_rig,
             });
         }
-        let ref_info = match &self.infos[reference] {
-            Some(info) => info.clone(),
-            None => rig_file_info(&cameras[reference]),
+        let mut virtual_ref = None;
+        let ref_info = if let Some(v) = &config.virtual_ref {
+            let intrinsics = v.intrinsics(&cameras[reference].model.intrinsics);
+            let ref_from_rig = cameras[reference].cam_from_rig;
+            let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
+                match self.tf.lookup(&v.frame_id, &ref_frame) {
+                    Ok(t) => t,
+                    Err(e) => {
+                        let frame = &v.frame_id;
+                        self.log.warn("tf_virtual", || {
+                            format!(
+                                "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id): {e}"
+                            )
+                        });
+                        return;
+                    }
+                }
+            } else {
+                v.ref_from_virtual.inverse()
+            };
+            let frame_id = if v.frame_id.is_empty() {
+                ref_frame.clone()
+            } else {
+                v.frame_id.clone()
+            };
+            virtual_ref = Some((
+                CameraModel::pinhole(intrinsics),
+                virtual_from_ref.compose(&ref_from_rig),
+                frame_id,
+            ));
+            intrinsics_info(&intrinsics)
+        } else {
+            match &self.infos[reference] {
+                Some(info) => info.clone(),
+                None => rig_file_info(&cameras[reference]),
+            }
         };
         if self.slot.offer(Job {
             images: set.messages,
             cameras,
             reference,
+            virtual_ref,
             ref_info,
         }) {
             let dropped = self.slot.dropped();
@@ -829,7 +971,11 @@ impl LoopState<'_> {
 
 /// A CameraInfo for the reference camera when only the rig file calibrates it.
 fn rig_file_info(camera: &RigCamera) -> CameraInfo {
-    let k = camera.model.intrinsics;
+    intrinsics_info(&camera.model.intrinsics)
+}
+
+/// A CameraInfo of pinhole intrinsics (K and P consistent, no distortion).
+fn intrinsics_info(k: &PinholeIntrinsics) -> CameraInfo {
     CameraInfo {
         width: k.width_px,
         height: k.height_px,
@@ -873,8 +1019,23 @@ fn worker_loop(
         if failed {
             continue;
         }
-        let header: Header = job.images[job.reference].header.clone();
-        let rig = match Rig::new(job.cameras, Reference::Camera(job.reference)) {
+        let mut header: Header = job.images[job.reference].header.clone();
+        let reference = match &job.virtual_ref {
+            Some((model, cam_from_rig, frame_id)) => {
+                header.frame_id = frame_id.clone();
+                Reference::Virtual {
+                    model: *model,
+                    cam_from_rig: *cam_from_rig,
+                }
+            }
+            None => Reference::Camera(job.reference),
+        };
+        let colour = if job.virtual_ref.is_some() {
+            None
+        } else {
+            images.get(job.reference)
+        };
+        let rig = match Rig::new(job.cameras, reference) {
             Ok(rig) => rig,
             Err(e) => {
                 log.warn("rig", || format!("cannot build the rig: {e}"));
@@ -891,12 +1052,7 @@ fn worker_loop(
         let mut info = job.ref_info;
         info.header = header.clone();
         let points = outputs.points.as_ref().map(|publisher| {
-            let cloud = point_cloud_msg(
-                &header,
-                &maps.depth_m,
-                images.get(job.reference),
-                &rig.reference_model(),
-            );
+            let cloud = point_cloud_msg(&header, &maps.depth_m, colour, &rig.reference_model());
             publisher
                 .publish(cloud)
                 .map_err(|e| format!("points: {e:?}"))
@@ -1017,6 +1173,36 @@ mod tests {
             None
         )
         .is_err());
+    }
+
+    #[test]
+    fn config_virtual_reference() {
+        let base = [
+            "--ros-args",
+            "-p",
+            "cameras:=[a, b, c]",
+            "-p",
+            "virtual_reference:=true",
+            "-p",
+            "virtual_width:=64",
+            "-p",
+            "virtual_pose:=[0.15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+        ];
+        let cfg = NodeConfig::from_args(&args(&base), None).unwrap();
+        assert_eq!(cfg.sweep.pairs, crate::sweep::PairSet::All);
+        let v = cfg.virtual_ref.unwrap();
+        assert_eq!(v.width, 64);
+        assert_eq!(v.ref_from_virtual.translation.x, 0.15);
+        let mut explicit = args(&base);
+        explicit.extend(args(&["-p", "pairs:=reference"]));
+        let e = NodeConfig::from_args(&explicit, None).unwrap_err();
+        assert!(e.to_string().contains("pairs = all"), "{e}");
+        let mut bad_pose = args(&base);
+        bad_pose.extend(args(&["-p", "virtual_pose:=[1.0, 2.0]"]));
+        let e = NodeConfig::from_args(&bad_pose, None).unwrap_err();
+        assert!(e.to_string().contains("7 values"), "{e}");
+        let plain = NodeConfig::from_args(&args(&base[..3]), None).unwrap();
+        assert!(plain.virtual_ref.is_none());
     }
 
     #[test]

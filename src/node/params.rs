@@ -7,9 +7,28 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use ros2_client::parameters::ParameterValue as RosValue;
 
-use crate::geometry::{CameraModel, Rig};
+use crate::geometry::{CameraModel, Reference, Rig};
 use crate::ros::args::{apply_to_sweep, param_spec, validate, ParamSet, ParamValue};
 use crate::sweep::SweepParams;
+
+/// A stand-in rig with `cameras` cameras and the node's kind of reference (camera `reference`,
+/// or a virtual camera there), for the structural checks of [`SweepParams::validate`].
+pub fn shape_rig(cameras: usize, reference: usize, virtual_reference: bool) -> Option<Rig> {
+    let model = CameraModel::pinhole(crate::synthetic::intrinsics(8, 8));
+    let rig = crate::synthetic::row_rig(cameras, 0.1, model, reference).ok()?;
+    if !virtual_reference {
+        return Some(rig);
+    }
+    let cam_from_rig = rig.ref_from_rig();
+    Rig::new(
+        rig.cameras,
+        Reference::Virtual {
+            model,
+            cam_from_rig,
+        },
+    )
+    .ok()
+}
 
 /// `ParamValue` as a ros2-client value.
 pub fn to_ros(value: &ParamValue) -> RosValue {
@@ -57,15 +76,16 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl LiveParams {
-    /// `cameras` cameras, the reference at index `reference`.
+    /// `cameras` cameras, the reference at index `reference` (or a virtual reference when
+    /// `virtual_reference`).
     pub fn new(
         params: ParamSet,
         sweep: SweepParams,
         cameras: usize,
         reference: usize,
+        virtual_reference: bool,
     ) -> Arc<Self> {
-        let model = CameraModel::pinhole(crate::synthetic::intrinsics(8, 8));
-        let shape = crate::synthetic::row_rig(cameras, 0.1, model, reference).ok();
+        let shape = shape_rig(cameras, reference, virtual_reference);
         Arc::new(Self {
             params: Mutex::new(params),
             sweep: Mutex::new(sweep),
@@ -158,7 +178,7 @@ mod tests {
         .unwrap();
         let mut sweep = SweepParams::default();
         apply_to_sweep(&set, &mut sweep).unwrap();
-        LiveParams::new(set, sweep, 2, 1)
+        LiveParams::new(set, sweep, 2, 1, false)
     }
 
     #[test]
@@ -205,6 +225,20 @@ mod tests {
         assert_eq!(l.params().get_i64("num_planes").unwrap(), 32);
         l.apply("max_depth", &RosValue::Double(3.0)).unwrap();
         assert_eq!(l.sweep().max_depth_m, 3.0);
+    }
+
+    #[test]
+    fn virtual_reference_rejects_reference_pairs() {
+        let mut set = ParamSet::defaults();
+        set.set("pairs", &ParamValue::String("all".into())).unwrap();
+        let mut sweep = SweepParams::default();
+        apply_to_sweep(&set, &mut sweep).unwrap();
+        let l = LiveParams::new(set, sweep, 3, 1, true);
+        let e = l
+            .check("pairs", &RosValue::String("reference".into()))
+            .unwrap_err();
+        assert!(e.contains("virtual"), "{e}");
+        assert!(l.check("num_planes", &RosValue::Integer(32)).is_ok());
     }
 
     #[test]

@@ -660,6 +660,60 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             ParamRange::Int { min: 1, max: 1000 },
             "History depth of the publishers.",
         ),
+        node_spec(
+            "virtual_reference",
+            Bool(false),
+            ParamRange::Any,
+            "Estimate depth for a virtual camera (virtual_* parameters) instead of reference_camera; needs pairs = all (the default reference becomes all).",
+        ),
+        node_spec(
+            "virtual_frame_id",
+            s(""),
+            ParamRange::Any,
+            "Virtual reference: tf frame of its optical frame, the outputs' frame_id; placed from /tf_static (with rig_file: by virtual_pose). Empty = virtual_pose, outputs in the reference camera's frame.",
+        ),
+        node_spec(
+            "virtual_pose",
+            ParamValue::DoubleArray(vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+            ParamRange::Any,
+            "Virtual reference: [x, y, z, qx, qy, qz, qw] pose of its optical frame in the reference camera's optical frame (metres; unit quaternion); unused when virtual_frame_id is placed by /tf_static.",
+        ),
+        node_spec(
+            "virtual_width",
+            Int(0),
+            ParamRange::Int { min: 0, max: 16384 },
+            "Virtual reference: image width, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_height",
+            Int(0),
+            ParamRange::Int { min: 0, max: 16384 },
+            "Virtual reference: image height, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_fx",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: focal length fx, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_fy",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: focal length fy, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_cx",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: principal point cx, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_cy",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: principal point cy, pixels (0 = the reference camera's).",
+        ),
     ]
 });
 
@@ -923,7 +977,40 @@ impl ParamSet {
                 cameras.join(", ")
             ));
         }
+        if self.get_bool("virtual_reference")? {
+            if self.get_str("pairs")? == "reference"
+                && self.source("pairs") != Some(&ParamSource::Default)
+            {
+                return Err("virtual_reference needs pairs = all (a virtual camera has no image to pair with), but pairs was set to 'reference'".into());
+            }
+            self.virtual_pose()?;
+        }
         Ok(())
+    }
+
+    /// `virtual_pose` checked: 7 finite numbers `[x, y, z, qx, qy, qz, qw]` with a unit
+    /// quaternion (within 1e-3, as tf2 checks).
+    pub fn virtual_pose(&self) -> Result<[f64; 7], String> {
+        let v = self
+            .get("virtual_pose")
+            .and_then(ParamValue::as_f64_array)
+            .ok_or_else(|| "parameter 'virtual_pose' is not a double[]".to_string())?;
+        let pose: [f64; 7] = v.try_into().map_err(|_| {
+            format!(
+                "parameter 'virtual_pose' needs 7 values [x, y, z, qx, qy, qz, qw], got {}",
+                v.len()
+            )
+        })?;
+        if pose.iter().any(|x| !x.is_finite()) {
+            return Err("parameter 'virtual_pose' has a NaN or infinite value".into());
+        }
+        let norm = pose[3..].iter().map(|q| q * q).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > 1e-3 {
+            return Err(format!(
+                "parameter 'virtual_pose': the quaternion [qx, qy, qz, qw] is not unit length (|q| = {norm})"
+            ));
+        }
+        Ok(pose)
     }
 
     /// `reference_camera`, or the middle entry of `cameras` when it is empty (None without
