@@ -14,9 +14,13 @@
 //! and a multicast route on `lo`, and fails with a clear message if that is impossible. The peer
 //! checks the interfaces again and Cyclone is pinned to `lo` through `CYCLONEDDS_URI`.
 
+#[path = "common/netns.rs"]
+mod netns;
+use netns::{in_private_netns, KillOnDrop};
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -42,24 +46,6 @@ const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
     </General></Domain></CycloneDDS>";
 
 /// Network interfaces of this process's network namespace (from /proc/self/net/dev).
-fn interfaces() -> Vec<String> {
-    std::fs::read_to_string("/proc/self/net/dev")
-        .unwrap_or_default()
-        .lines()
-        .skip(2)
-        .filter_map(|l| l.split(':').next().map(|s| s.trim().to_string()))
-        .filter(|s| !s.is_empty())
-        .collect()
-}
-
-fn is_root() -> bool {
-    std::fs::read_to_string("/proc/self/status")
-        .unwrap_or_default()
-        .lines()
-        .find(|l| l.starts_with("Uid:"))
-        .and_then(|l| l.split_whitespace().nth(2))
-        == Some("0")
-}
 
 /// The Python that has `cyclonedds`: `SWEEPDEPTH_PYTHON`, else the virtual environment that
 /// `scripts/setup.sh` makes when the system Python lacks it, else `python3`.
@@ -111,7 +97,7 @@ enum ImageQos {
 
 #[test]
 fn node_interoperates_with_cyclone_dds_reliable_images() {
-    in_private_netns(
+    run_in_private_netns(
         "node_interoperates_with_cyclone_dds_reliable_images",
         ImageQos::Reliable,
     );
@@ -119,59 +105,15 @@ fn node_interoperates_with_cyclone_dds_reliable_images() {
 
 #[test]
 fn node_interoperates_with_cyclone_dds_best_effort_images() {
-    in_private_netns(
+    run_in_private_netns(
         "node_interoperates_with_cyclone_dds_best_effort_images",
         ImageQos::BestEffort,
     );
 }
 
-fn in_private_netns(test_name: &str, qos: ImageQos) {
+fn run_in_private_netns(test_name: &str, qos: ImageQos) {
     require_cyclonedds();
-    if std::env::var_os(INNER).is_none() {
-        reexec_in_private_netns(test_name);
-        return;
-    }
-    let ifaces = interfaces();
-    assert!(
-        ifaces == ["lo"],
-        "refusing to open DDS: {INNER} is set but this network namespace has interfaces {ifaces:?} (only lo allowed)"
-    );
-    end_to_end(qos);
-}
-
-fn reexec_in_private_netns(test_name: &str) {
-    let exe = std::env::current_exe().expect("test binary path");
-    let flags = if is_root() { "-n" } else { "-rn" };
-    let script = "ip link set lo up && ip link set lo multicast on && \
-                  ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
-    let status = Command::new("unshare")
-        .arg(flags)
-        .args(["sh", "-c", script])
-        .arg(&exe)
-        .args([test_name, "--exact", "--nocapture", "--test-threads=1"])
-        .env(INNER, "1")
-        .status();
-    match status {
-        Err(e) => panic!(
-            "this test must run DDS in a private network namespace and cannot start `unshare {flags}` ({e}); install util-linux and iproute2 (and allow namespaces), it never runs DDS on the host network"
-        ),
-        Ok(s) => assert!(
-            s.success(),
-            "the Cyclone DDS interop test inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
-        ),
-    }
-}
-
-/// Kills a child process on every exit path.
-struct KillOnDrop(Child);
-
-impl Drop for KillOnDrop {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-        }
-        let _ = self.0.wait();
-    }
+    in_private_netns(INNER, test_name, || end_to_end(qos));
 }
 
 /// A scratch directory removed on every exit path.

@@ -6,7 +6,11 @@
 //! `unshare -n` (`unshare -rn` when not root) with loopback up and a multicast route on `lo`,
 //! and fails with a clear message if that is impossible.
 
-use std::process::{Child, Command, Stdio};
+#[path = "common/netns.rs"]
+mod netns;
+use netns::{in_private_netns, KillOnDrop};
+
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use ros2_client::log::Log;
@@ -32,49 +36,15 @@ const HEIGHT: u32 = 60;
 /// Cameras of the synthetic rig (a row, 10 cm apart; the reference is cam1).
 const CAMERAS: usize = 4;
 
-/// Network interfaces of this process's network namespace (from /proc/self/net/dev).
-fn interfaces() -> Vec<String> {
-    std::fs::read_to_string("/proc/self/net/dev")
-        .unwrap_or_default()
-        .lines()
-        .skip(2)
-        .filter_map(|l| l.split(':').next().map(|s| s.trim().to_string()))
-        .filter(|s| !s.is_empty())
-        .collect()
-}
-
-fn is_root() -> bool {
-    std::fs::read_to_string("/proc/self/status")
-        .unwrap_or_default()
-        .lines()
-        .find(|l| l.starts_with("Uid:"))
-        .and_then(|l| l.split_whitespace().nth(2))
-        == Some("0")
-}
-
-/// Runs `body` inside a private network namespace: re-executes this test binary (only the
-/// test `test_name`) there unless already inside, and refuses DDS unless only `lo` exists.
-fn in_private_netns(test_name: &str, body: fn()) {
-    if std::env::var_os(INNER).is_none() {
-        reexec_in_private_netns(test_name);
-        return;
-    }
-    let ifaces = interfaces();
-    assert!(
-        ifaces == ["lo"],
-        "refusing to open DDS: {INNER} is set but this network namespace has interfaces {ifaces:?} (only lo allowed)"
-    );
-    body();
-}
-
 #[test]
 fn node_publishes_depth_over_dds() {
-    in_private_netns("node_publishes_depth_over_dds", end_to_end);
+    in_private_netns(INNER, "node_publishes_depth_over_dds", end_to_end);
 }
 
 #[test]
 fn node_approximate_sync_with_jittered_stamps() {
     in_private_netns(
+        INNER,
         "node_approximate_sync_with_jittered_stamps",
         approximate_sync_jitter,
     );
@@ -82,55 +52,22 @@ fn node_approximate_sync_with_jittered_stamps() {
 
 #[test]
 fn node_publishes_points() {
-    in_private_netns("node_publishes_points", points_cloud);
+    in_private_netns(INNER, "node_publishes_points", points_cloud);
 }
 
 #[test]
 fn node_publishes_diagnostics() {
-    in_private_netns("node_publishes_diagnostics", diagnostics);
+    in_private_netns(INNER, "node_publishes_diagnostics", diagnostics);
 }
 
 #[test]
 fn node_parameter_services() {
-    in_private_netns("node_parameter_services", parameter_services);
+    in_private_netns(INNER, "node_parameter_services", parameter_services);
 }
 
 #[test]
 fn node_virtual_reference() {
-    in_private_netns("node_virtual_reference", virtual_reference);
-}
-
-fn reexec_in_private_netns(test_name: &str) {
-    let exe = std::env::current_exe().expect("test binary path");
-    let flags = if is_root() { "-n" } else { "-rn" };
-    let script = "ip link set lo up && ip link set lo multicast on && \
-                  ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
-    let status = Command::new("unshare")
-        .arg(flags)
-        .args(["sh", "-c", script])
-        .arg(&exe)
-        .args([test_name, "--exact", "--nocapture", "--test-threads=1"])
-        .env(INNER, "1")
-        .status();
-    match status {
-        Err(e) => panic!(
-            "this test must run DDS in a private network namespace and cannot start `unshare {flags}` ({e}); install util-linux and iproute2 (and allow namespaces), it never runs DDS on the host network"
-        ),
-        Ok(s) => assert!(
-            s.success(),
-            "the DDS test {test_name} inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
-        ),
-    }
-}
-
-/// Kills the node on every exit path.
-struct NodeProcess(Child);
-
-impl Drop for NodeProcess {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
+    in_private_netns(INNER, "node_virtual_reference", virtual_reference);
 }
 
 fn stamp_of(k: u32) -> Time {
@@ -196,7 +133,7 @@ struct Harness {
     _tf_pub: ros2_client::Publisher<TFMessage>,
     reliable: QosProfile,
     peer: ros2_client::Node,
-    node: NodeProcess,
+    node: KillOnDrop,
     _context: Context,
 }
 
@@ -244,7 +181,7 @@ impl Harness {
             .stdin(Stdio::null())
             .spawn()
             .expect("start the node");
-        let node = NodeProcess(node);
+        let node = KillOnDrop(node);
 
         let context =
             Context::with_options(ContextOptions::new().domain_id(DOMAIN.parse().unwrap()))
