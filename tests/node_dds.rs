@@ -409,6 +409,7 @@ fn check_wall_depths(depths: &[f32]) {
 fn end_to_end() {
     let mut h = Harness::start(&["sync:=exact"]);
     let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", "sensor_msgs", "CameraInfo");
     let (received, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
         depth_sub.take().ok().flatten().map(|(m, _)| m)
     });
@@ -418,6 +419,45 @@ fn end_to_end() {
         "stamp {stamp:?} was never sent"
     );
     check_depth_image(&received);
+
+    // depth/camera_info: the reference camera's model with the depth image's header.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let info = loop {
+        if let Ok(Some((info, _))) = info_sub.take() {
+            if info.header.stamp == stamp {
+                break info;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no depth/camera_info stamped {stamp:?}"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert_eq!(info.header.frame_id, received.header.frame_id);
+    assert_eq!((info.width, info.height), (WIDTH, HEIGHT));
+    let k_ref = h.rig.reference_model().intrinsics;
+    assert!((info.k[0] - k_ref.fx_px).abs() < 1e-9 && (info.k[2] - k_ref.cx_px).abs() < 1e-9);
+    assert!((info.p[0] - k_ref.fx_px).abs() < 1e-9 && (info.p[6] - k_ref.cy_px).abs() < 1e-9);
+
+    // Exact sync must not pair jittered stamps: after the node has shown it works, sets whose
+    // cameras' stamps differ by a few ms produce no depth image.
+    std::thread::sleep(Duration::from_millis(500));
+    while let Ok(Some(_)) = depth_sub.take() {}
+    let first_jittered = k + 1;
+    for j in first_jittered..first_jittered + 15 {
+        h.publish_set(jittered_stamps(j));
+        std::thread::sleep(Duration::from_millis(100));
+        h.check_alive();
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    while let Ok(Some((m, _))) = depth_sub.take() {
+        let s = m.header.stamp;
+        assert!(
+            !(first_jittered..first_jittered + 15).any(|j| jittered_stamps(j).contains(&s)),
+            "exact sync published a depth image for jittered stamps ({s:?})"
+        );
+    }
 }
 
 fn approximate_sync_jitter() {
