@@ -369,11 +369,12 @@ impl GpuEngine {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
 
-        let maps: Vec<f32> = bytemuck::cast_slice(&self.read_buffer(&buffers.readback)?).to_vec();
+        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&self.read_buffer(&buffers.readback)?);
         let mut timings = StageTimings::default();
         if let Some(t) = &buffers.timestamps {
             let raw = self.read_buffer(&t.readback)?;
-            let ticks: &[u64] = bytemuck::cast_slice(&raw);
+            // Copied, not cast: a Vec<u8> need not be 8-byte aligned.
+            let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&raw);
             let period_ns = f64::from(self.queue.get_timestamp_period());
             let mut per_stage = [0.0f64; STAGES.len()];
             for (p, &stage) in pass_stages.iter().enumerate() {
