@@ -2,6 +2,7 @@
 //!
 //! See `ARCHITECTURE.md` for the map of modules and the path a frame takes.
 
+pub mod bag;
 pub mod bench;
 pub mod datasets;
 pub mod demo;

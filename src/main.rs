@@ -29,10 +29,10 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
         args: Vec<String>,
     },
-    /// Record or replay camera bags (not in this build yet).
-    Bag,
-    /// Pack a dataset into a bag (not in this build yet).
-    Pack,
+    /// Process a rosbag2 bag (MCAP or sqlite3) offline through the node's pipeline.
+    Bag(sweepdepth::bag::process::BagArgs),
+    /// Pack a dataset folder (or images + a rig file) into a bag with a parameter file.
+    Pack(sweepdepth::bag::pack::PackArgs),
 }
 
 fn main() -> ExitCode {
@@ -50,9 +50,8 @@ fn main() -> ExitCode {
         Command::Bench(args) => sweepdepth::bench::run(&args),
         Command::Demo(args) => sweepdepth::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
-        Command::Bag | Command::Pack => Err(anyhow::anyhow!(
-            "this subcommand is not implemented in this build yet (it arrives with the ROS 2 node)"
-        )),
+        Command::Bag(args) => sweepdepth::bag::process::run(&args),
+        Command::Pack(args) => sweepdepth::bag::pack::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -22,6 +22,7 @@
 pub mod convert;
 pub mod diag;
 pub mod params;
+pub mod pipeline;
 pub mod worker;
 
 use std::collections::HashMap;
@@ -40,22 +41,21 @@ use ros2_client::{
 
 use glam::{DQuat, DVec3};
 
-use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::geometry::{PinholeIntrinsics, RigidTransform};
 use crate::gpu_context::GpuContext;
-use crate::msgs::{CameraInfo, DiagnosticArray, Header, Image, PointCloud2, TFMessage};
+use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
 use crate::ros::args::{
     apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamValue, RosArgs, RosArgsError,
     DEFAULT_NODE_NAME,
 };
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
-use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, SyncedSet, Synchronizer};
-use crate::ros::tf::TfBuffer;
+use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer};
 use crate::sweep::gpu::GpuEngine;
 use crate::sweep::SweepParams;
 
-use self::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
 use self::diag::{wall_time_now, Stats};
 use self::params::LiveParams;
+use self::pipeline::{process_job, Job, Pipeline};
 use self::worker::LatestSlot;
 
 /// Minimum time between two repetitions of the same warning.
@@ -419,17 +419,6 @@ impl RateLimited {
     }
 }
 
-/// One synchronised set with its calibration, for the worker.
-struct Job {
-    images: Vec<Image>,
-    cameras: Vec<RigCamera>,
-    reference: usize,
-    /// The virtual reference camera and the outputs' frame_id, when configured.
-    virtual_ref: Option<(CameraModel, RigidTransform, String)>,
-    /// The CameraInfo of the outputs (the reference camera's, or the virtual one's).
-    ref_info: CameraInfo,
-}
-
 struct Outputs {
     points: Option<Publisher<PointCloud2>>,
     depth: Publisher<Image>,
@@ -787,10 +776,7 @@ fn run_dds(
     log_info(&format!("node {} is up", config.identity.fqn()));
 
     let mut state = LoopState {
-        config,
-        infos: vec![None; config.cameras.len()],
-        tf: TfBuffer::new(),
-        sync: config.synchronizer()?,
+        pipeline: Pipeline::new(config)?,
         log: RateLimited::default(),
         slot,
         stats: shared.stats,
@@ -824,10 +810,7 @@ fn run_dds(
 }
 
 struct LoopState<'a> {
-    config: &'a NodeConfig,
-    infos: Vec<Option<CameraInfo>>,
-    tf: TfBuffer,
-    sync: Box<dyn Synchronizer<Image> + Send>,
+    pipeline: Pipeline<'a>,
     log: RateLimited,
     slot: &'a LatestSlot<Job>,
     stats: &'a Mutex<Stats>,
@@ -836,31 +819,33 @@ struct LoopState<'a> {
 impl LoopState<'_> {
     fn handle(&mut self, event: Event) {
         match event {
-            Event::Info(i, Ok(info)) => self.infos[i] = Some(*info),
+            Event::Info(i, Ok(info)) => self.pipeline.on_info(i, *info),
             Event::Tf(Ok(msg)) => {
-                for e in self.tf.insert_message(&msg) {
+                for e in self.pipeline.on_tf(&msg) {
                     self.log.warn("tf_insert", || format!("/tf_static: {e}"));
                 }
             }
             Event::Image(i, Ok(image)) => {
-                let stamp = image.header.stamp;
-                let result = self.sync.push_stamped(i, &stamp, image);
+                let result = self.pipeline.on_image(i, image);
                 {
                     let mut stats = lock(self.stats);
                     stats.on_image(i, Instant::now());
-                    stats.sync = self.sync.stats();
+                    stats.sync = self.pipeline.sync_stats();
                 }
                 match result {
                     Ok(sets) => {
                         for set in sets {
-                            self.on_set(set);
+                            match set {
+                                Ok(job) => self.offer(job),
+                                Err(skip) => self.log.warn(&skip.key, || skip.message.clone()),
+                            }
                         }
                     }
                     Err(e) => self.log.warn("sync", || format!("synchroniser: {e}")),
                 }
             }
             Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
-                let camera = &self.config.cameras[i];
+                let camera = &self.pipeline.config().cameras[i];
                 self.log.warn(&format!("read{i}"), || {
                     format!("camera '{camera}': read error: {e}")
                 });
@@ -871,122 +856,12 @@ impl LoopState<'_> {
         }
     }
 
-    fn on_set(&mut self, set: SyncedSet<Image>) {
-        let config = self.config;
-        let reference = config.reference;
-        let ref_frame = set.messages[reference].header.frame_id.clone();
-        let mut cameras = Vec::with_capacity(set.messages.len());
-        for (i, image) in set.messages.iter().enumerate() {
-            let name = &config.cameras[i];
-            let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
-            let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
-                (Some(info), _) => match CameraModel::from_camera_info(name, info) {
-                    Ok(model) => model,
-                    Err(e) => {
-                        self.log.warn(&format!("model{i}"), || e.to_string());
-                        return;
-                    }
-                },
-                (None, Some(model)) => model,
-                (None, None) => {
-                    let topic = &config.info_topics[i];
-                    self.log.warn(&format!("info{i}"), || {
-                        format!("waiting for camera_info of camera '{name}' on {topic}")
-                    });
-                    return;
-                }
-            };
-            let cam_from_rig = match (&config.rig_file, file_camera) {
-                (Some(_), Some(c)) => c.cam_from_rig,
-                (Some(_), None) => return, // checked at start-up
-                (None, _) => match self.tf.lookup(&image.header.frame_id, &ref_frame) {
-                    Ok(t) => t,
-                    Err(e) => {
-                        let frame = &image.header.frame_id;
-                        self.log.warn(&format!("tf{i}"), || {
-                            format!(
-                                "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}'): {e}"
-                            )
-                        });
-                        return;
-                    }
-                },
-            };
-            cameras.push(RigCamera {
-                name: name.clone(),
-                model,
-                cam_from_rig,
-            });
-        }
-        let mut virtual_ref = None;
-        let ref_info = if let Some(v) = &config.virtual_ref {
-            let intrinsics = v.intrinsics(&cameras[reference].model.intrinsics);
-            let ref_from_rig = cameras[reference].cam_from_rig;
-            let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
-                match self.tf.lookup(&v.frame_id, &ref_frame) {
-                    Ok(t) => t,
-                    Err(e) => {
-                        let frame = &v.frame_id;
-                        self.log.warn("tf_virtual", || {
-                            format!(
-                                "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id): {e}"
-                            )
-                        });
-                        return;
-                    }
-                }
-            } else {
-                v.ref_from_virtual.inverse()
-            };
-            let frame_id = if v.frame_id.is_empty() {
-                ref_frame.clone()
-            } else {
-                v.frame_id.clone()
-            };
-            virtual_ref = Some((
-                CameraModel::pinhole(intrinsics),
-                virtual_from_ref.compose(&ref_from_rig),
-                frame_id,
-            ));
-            intrinsics_info(&intrinsics)
-        } else {
-            match &self.infos[reference] {
-                Some(info) => info.clone(),
-                None => rig_file_info(&cameras[reference]),
-            }
-        };
-        if self.slot.offer(Job {
-            images: set.messages,
-            cameras,
-            reference,
-            virtual_ref,
-            ref_info,
-        }) {
+    fn offer(&mut self, job: Job) {
+        if self.slot.offer(job) {
             let dropped = self.slot.dropped();
             lock(self.stats).gpu_dropped = dropped;
             tracing::debug!("a pending set was replaced (dropped: {dropped})");
         }
-    }
-}
-
-/// A CameraInfo for the reference camera when only the rig file calibrates it.
-fn rig_file_info(camera: &RigCamera) -> CameraInfo {
-    intrinsics_info(&camera.model.intrinsics)
-}
-
-/// A CameraInfo of pinhole intrinsics (K and P consistent, no distortion).
-fn intrinsics_info(k: &PinholeIntrinsics) -> CameraInfo {
-    CameraInfo {
-        width: k.width_px,
-        height: k.height_px,
-        distortion_model: "plumb_bob".into(),
-        d: Vec::new(),
-        k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
-        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-        p: [
-            k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0,
-        ],
-        ..CameraInfo::default()
     }
 }
 
@@ -1003,85 +878,46 @@ fn worker_loop(
         let started = Instant::now();
         // Parameter changes apply from the next set on.
         let sweep: SweepParams = shared.live.sweep();
-        let mut images = Vec::with_capacity(job.images.len());
-        let mut failed = false;
-        for (i, msg) in job.images.iter().enumerate() {
-            let name = camera_names.get(i).map_or("?", String::as_str);
-            match image_to_rgba8(name, msg) {
-                Ok(img) => images.push(img),
-                Err(e) => {
-                    log.warn(&format!("convert{i}"), || format!("{e}; skipping this set"));
-                    failed = true;
-                    break;
-                }
-            }
-        }
-        if failed {
-            continue;
-        }
-        let mut header: Header = job.images[job.reference].header.clone();
-        let reference = match &job.virtual_ref {
-            Some((model, cam_from_rig, frame_id)) => {
-                header.frame_id = frame_id.clone();
-                Reference::Virtual {
-                    model: *model,
-                    cam_from_rig: *cam_from_rig,
-                }
-            }
-            None => Reference::Camera(job.reference),
-        };
-        let colour = if job.virtual_ref.is_some() {
-            None
-        } else {
-            images.get(job.reference)
-        };
-        let rig = match Rig::new(job.cameras, reference) {
-            Ok(rig) => rig,
-            Err(e) => {
-                log.warn("rig", || format!("cannot build the rig: {e}"));
+        let out = match process_job(
+            &mut engine,
+            job,
+            &sweep,
+            camera_names,
+            outputs.points.is_some(),
+        ) {
+            Ok(out) => out,
+            Err(skip) => {
+                log.warn(&skip.key, || format!("{skip}; skipping this set"));
                 continue;
             }
         };
-        let maps = match engine.run(&rig, &images, &sweep) {
-            Ok(maps) => maps,
-            Err(e) => {
-                log.warn("engine", || format!("sweep failed: {e}"));
-                continue;
+        let stamp = out.header.stamp;
+        let points = match (&outputs.points, out.points) {
+            (Some(publisher), Some(cloud)) => {
+                Some(publisher.publish(cloud).map_err(|e| format!("points: {e:?}")))
             }
+            _ => None,
         };
-        let mut info = job.ref_info;
-        info.header = header.clone();
-        let points = outputs.points.as_ref().map(|publisher| {
-            let cloud = point_cloud_msg(&header, &maps.depth_m, colour, &rig.reference_model());
-            publisher
-                .publish(cloud)
-                .map_err(|e| format!("points: {e:?}"))
-        });
         let results = [
             outputs
                 .depth
-                .publish(f32_image_msg(&header, &maps.depth_m))
+                .publish(out.depth)
                 .map_err(|e| format!("depth/image: {e:?}")),
             outputs
                 .depth_info
-                .publish(info)
+                .publish(out.depth_info)
                 .map_err(|e| format!("depth/camera_info: {e:?}")),
             outputs
                 .confidence
-                .publish(f32_image_msg(&header, &maps.confidence))
+                .publish(out.confidence)
                 .map_err(|e| format!("confidence/image: {e:?}")),
             outputs
                 .cost
-                .publish(f32_image_msg(&header, &maps.cost))
+                .publish(out.cost)
                 .map_err(|e| format!("cost/image: {e:?}")),
             outputs
                 .selection
-                .publish(selection_msg(
-                    &header,
-                    maps.width(),
-                    maps.height(),
-                    &maps.selection,
-                ))
+                .publish(out.selection)
                 .map_err(|e| format!("selection/image: {e:?}")),
         ];
         for r in results.into_iter().chain(points) {
@@ -1093,7 +929,7 @@ fn worker_loop(
             started.elapsed(),
             Instant::now(),
             wall_time_now(),
-            header.stamp,
+            stamp,
         );
         published += 1;
         if published == 1 || published % 100 == 0 {

@@ -1,0 +1,401 @@
+//! `sweepdepth pack DIR OUT`: a dataset folder (any layout `eval` reads, see
+//! [`crate::datasets`]), or a folder of images plus a rig file, into a bag with
+//! `/camN/image_raw` (rgb8), `/camN/camera_info` and `/tf_static`, and a parameter file for the
+//! node next to it (`<OUT without .mcap>.params.yaml`).
+
+use std::path::{Path, PathBuf};
+
+use crate::datasets::{load_dataset, Layout};
+use crate::geometry::{CameraModel, Distortion, RigCamera, RigidTransform};
+use crate::image::Rgba8Image;
+use crate::msgs::{
+    CameraInfo, Header, Image, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
+};
+use crate::ros::rig_file::load_rig_file;
+
+use super::schemas::{CAMERA_INFO, IMAGE, TF_MESSAGE};
+use super::{ns_time, writer, BagError, BagWriter};
+
+/// `sweepdepth pack` arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PackArgs {
+    /// A dataset folder (Middlebury 2001/2003/2005-6, Middlebury multi-view ring, ICL-NUIM), or a
+    /// folder of images plus a rig file (`rig.yaml`, or --rig).
+    pub dir: PathBuf,
+    /// Output: a `.mcap` file when the name ends in .mcap, else a rosbag2 directory.
+    pub output: PathBuf,
+    /// Rig file (our YAML or a Kalibr camchain) for a folder of images: images are
+    /// `<camera>.<png|jpg|ppm>`, or a folder `<camera>/` of frames in name order.
+    #[arg(long, value_name = "FILE")]
+    pub rig: Option<PathBuf>,
+    /// Frame sets to write; a dataset of still images repeats its one set.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u32,
+    /// Frame rate of the stamps, Hz.
+    #[arg(long, default_value_t = 10.0)]
+    pub rate_hz: f64,
+    /// Scale the images (and the intrinsics) by this factor, e.g. 0.5 for small fixtures.
+    #[arg(long, default_value_t = 1.0)]
+    pub scale: f64,
+    /// Stamp of the first set, seconds since the epoch.
+    #[arg(long, default_value_t = 1_700_000_000.0)]
+    pub start: f64,
+    /// Replace OUT (and the parameter file) if they exist.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Errors of `pack`.
+#[derive(Debug, thiserror::Error)]
+pub enum PackError {
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    #[error(transparent)]
+    Dataset(#[from] crate::datasets::DatasetError),
+    #[error(transparent)]
+    RigFile(#[from] crate::ros::rig_file::RigFileError),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// One camera of the bag: its name, model, pose and the frames (images) it contributes.
+struct PackCamera {
+    name: String,
+    model: CameraModel,
+    cam_from_rig: RigidTransform,
+    frames: Vec<Rgba8Image>,
+}
+
+/// What was packed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PackReport {
+    pub cameras: Vec<String>,
+    pub reference: String,
+    pub frames: u32,
+    pub width: u32,
+    pub height: u32,
+    pub params_file: PathBuf,
+    pub messages: u64,
+}
+
+/// The parameter file written beside `out`.
+pub fn params_path(out: &Path) -> PathBuf {
+    let name = out
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("bag")
+        .trim_end_matches(".mcap")
+        .to_string();
+    out.with_file_name(format!("{name}.params.yaml"))
+}
+
+fn camera_info(model: &CameraModel, header: &Header) -> CameraInfo {
+    let k = &model.intrinsics;
+    let (distortion_model, d) = match model.distortion {
+        Distortion::None => ("plumb_bob", vec![0.0; 5]),
+        Distortion::PlumbBob { k1, k2, p1, p2, k3 } => ("plumb_bob", vec![k1, k2, p1, p2, k3]),
+        Distortion::Equidistant { k1, k2, k3, k4 } => ("equidistant", vec![k1, k2, k3, k4]),
+    };
+    CameraInfo {
+        header: header.clone(),
+        width: k.width_px,
+        height: k.height_px,
+        distortion_model: distortion_model.into(),
+        d,
+        k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
+        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: [
+            k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0,
+        ],
+        ..CameraInfo::default()
+    }
+}
+
+fn rgb8_image(image: &Rgba8Image, header: &Header) -> Image {
+    let mut data = Vec::with_capacity(image.pixels.len() * 3);
+    for &p in &image.pixels {
+        let [r, g, b, _] = Rgba8Image::unpack(p);
+        data.extend_from_slice(&[r, g, b]);
+    }
+    Image {
+        header: header.clone(),
+        height: image.height,
+        width: image.width,
+        encoding: "rgb8".into(),
+        is_bigendian: 0,
+        step: image.width * 3,
+        data,
+    }
+}
+
+fn scale_image(image: &Rgba8Image, width: u32, height: u32) -> Rgba8Image {
+    if image.width == width && image.height == height {
+        return image.clone();
+    }
+    let rgb = image.to_rgb_image();
+    let resized =
+        image::imageops::resize(&rgb, width, height, image::imageops::FilterType::Triangle);
+    Rgba8Image::from_image(&image::DynamicImage::ImageRgb8(resized))
+}
+
+fn frame_id(camera: &str) -> String {
+    format!("{camera}_optical_frame")
+}
+
+/// Cameras from a dataset folder (one frame each).
+fn dataset_cameras(dir: &Path) -> Result<(Vec<PackCamera>, usize, String, Option<(f64, f64, u32)>), PackError> {
+    let dataset = load_dataset(dir)?;
+    let reference = dataset.reference_index();
+    let cameras = dataset
+        .rig
+        .cameras
+        .iter()
+        .zip(&dataset.images)
+        .enumerate()
+        .map(|(i, (c, img)): (usize, (&RigCamera, &Rgba8Image))| PackCamera {
+            name: format!("cam{i}"),
+            model: c.model,
+            cam_from_rig: c.cam_from_rig,
+            frames: vec![img.clone()],
+        })
+        .collect();
+    let p = &dataset.params;
+    let note = format!("{} ({})", dataset.name, layout_name(dataset.layout));
+    Ok((
+        cameras,
+        reference,
+        note,
+        Some((p.min_depth_m, p.max_depth_m, p.num_planes)),
+    ))
+}
+
+fn layout_name(layout: Layout) -> &'static str {
+    layout.name()
+}
+
+const IMAGE_EXTS: [&str; 5] = ["png", "jpg", "jpeg", "ppm", "pgm"];
+
+fn is_image(p: &Path) -> bool {
+    p.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
+/// Cameras from a folder of images and a rig file.
+fn rig_folder_cameras(dir: &Path, rig: &Path) -> Result<(Vec<PackCamera>, usize, String), PackError> {
+    let file = load_rig_file(rig)?;
+    let mut cameras = Vec::new();
+    for c in &file.cameras {
+        let model = c.model.ok_or_else(|| {
+            PackError::Invalid(format!(
+                "{}: camera '{}' has no intrinsics; pack needs them in the rig file",
+                rig.display(),
+                c.name
+            ))
+        })?;
+        let mut paths: Vec<PathBuf> = Vec::new();
+        let sub = dir.join(&c.name);
+        if sub.is_dir() {
+            let entries = std::fs::read_dir(&sub).map_err(|e| BagError::io(&sub, e))?;
+            for entry in entries {
+                let p = entry.map_err(|e| BagError::io(&sub, e))?.path();
+                if is_image(&p) {
+                    paths.push(p);
+                }
+            }
+            paths.sort();
+        } else if let Some(p) = IMAGE_EXTS
+            .iter()
+            .map(|e| dir.join(format!("{}.{e}", c.name)))
+            .find(|p| p.is_file())
+        {
+            paths.push(p);
+        }
+        if paths.is_empty() {
+            return Err(PackError::Invalid(format!(
+                "{}: no image for camera '{}' (expected {}.png or a folder {}/ of frames)",
+                dir.display(),
+                c.name,
+                c.name,
+                c.name
+            )));
+        }
+        let mut frames = Vec::new();
+        for p in paths {
+            let img = crate::io::load_rgba8(&p).map_err(|e| PackError::Invalid(e.to_string()))?;
+            let k = &model.intrinsics;
+            if img.width != k.width_px || img.height != k.height_px {
+                return Err(PackError::Invalid(format!(
+                    "{}: {}x{} but the rig file says camera '{}' is {}x{}",
+                    p.display(),
+                    img.width,
+                    img.height,
+                    c.name,
+                    k.width_px,
+                    k.height_px
+                )));
+            }
+            frames.push(img);
+        }
+        cameras.push(PackCamera {
+            name: c.name.clone(),
+            model,
+            cam_from_rig: c.cam_from_rig,
+            frames,
+        });
+    }
+    if cameras.len() < 2 {
+        return Err(PackError::Invalid(format!(
+            "{}: a rig needs at least 2 cameras",
+            rig.display()
+        )));
+    }
+    let reference = cameras.len() / 2;
+    Ok((cameras, reference, format!("images of {}", rig.display())))
+}
+
+/// Packs `args.dir` into `args.output`.
+pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
+    if !(args.scale > 0.0 && args.scale <= 4.0) {
+        return Err(PackError::Invalid(format!(
+            "--scale must be in (0, 4], got {}",
+            args.scale
+        )));
+    }
+    if !(args.rate_hz > 0.0 && args.rate_hz.is_finite()) {
+        return Err(PackError::Invalid(format!("--rate-hz must be > 0, got {}", args.rate_hz)));
+    }
+    if args.frames == 0 {
+        return Err(PackError::Invalid("--frames must be at least 1".into()));
+    }
+    if !(args.start >= 0.0 && args.start < 2.0e9) {
+        return Err(PackError::Invalid(format!("--start must be in [0, 2e9) s, got {}", args.start)));
+    }
+    let params_file = params_path(&args.output);
+    writer::check_output(&args.output, args.force)?;
+    writer::check_output(&params_file, args.force)?;
+    let rig = args
+        .rig
+        .clone()
+        .or_else(|| Some(args.dir.join("rig.yaml")).filter(|p| p.is_file()));
+    let (mut cameras, reference, source, depth) = match &rig {
+        Some(rig) => {
+            let (c, r, s) = rig_folder_cameras(&args.dir, rig)?;
+            (c, r, s, None)
+        }
+        None => dataset_cameras(&args.dir)?,
+    };
+    for c in &mut cameras {
+        let k = c.model.intrinsics;
+        let w = ((f64::from(k.width_px) * args.scale).round() as u32).max(1);
+        let h = ((f64::from(k.height_px) * args.scale).round() as u32).max(1);
+        c.model.intrinsics = k.scaled(f64::from(w) / f64::from(k.width_px), w, h);
+        for f in &mut c.frames {
+            *f = scale_image(f, w, h);
+        }
+    }
+
+    let mut writer = BagWriter::create(&args.output, args.force)?;
+    for c in &cameras {
+        writer.add_topic(&format!("/{}/image_raw", c.name), IMAGE, None)?;
+        writer.add_topic(&format!("/{}/camera_info", c.name), CAMERA_INFO, None)?;
+    }
+    writer.add_topic("/tf_static", TF_MESSAGE, None)?;
+    let start_ns = (args.start * 1e9).round() as u64;
+    let period_ns = (1e9 / args.rate_hz).round() as u64;
+    let tf = TFMessage {
+        transforms: cameras
+            .iter()
+            .map(|c| {
+                let rig_from_cam = c.cam_from_rig.inverse();
+                let (t, q) = (rig_from_cam.translation, rig_from_cam.rotation);
+                TransformStamped {
+                    header: Header {
+                        stamp: ns_time(start_ns),
+                        frame_id: "rig".into(),
+                    },
+                    child_frame_id: frame_id(&c.name),
+                    transform: Transform {
+                        translation: Vector3 {
+                            x: t.x,
+                            y: t.y,
+                            z: t.z,
+                        },
+                        rotation: Quaternion {
+                            x: q.x,
+                            y: q.y,
+                            z: q.z,
+                            w: q.w,
+                        },
+                    },
+                }
+            })
+            .collect(),
+    };
+    writer.write_msg("/tf_static", start_ns.saturating_sub(1_000_000), &tf)?;
+    for k in 0..u64::from(args.frames) {
+        let stamp_ns = start_ns + k * period_ns;
+        for (i, c) in cameras.iter().enumerate() {
+            let header = Header {
+                stamp: ns_time(stamp_ns),
+                frame_id: frame_id(&c.name),
+            };
+            // Receive times a few microseconds apart, camera_info before its image.
+            let log = stamp_ns + 1_000 * i as u64;
+            writer.write_msg(
+                &format!("/{}/camera_info", c.name),
+                log,
+                &camera_info(&c.model, &header),
+            )?;
+            let frame = &c.frames[(k as usize) % c.frames.len()];
+            writer.write_msg(
+                &format!("/{}/image_raw", c.name),
+                log + 500,
+                &rgb8_image(frame, &header),
+            )?;
+        }
+    }
+    let summary = writer.finish()?;
+
+    let names: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
+    let mut yaml = format!(
+        "# Written by `sweepdepth pack` for {} from {source}.\n# Use: sweepdepth bag {} OUT --params-file {}\n/**:\n  ros__parameters:\n    cameras: [{}]\n    reference_camera: {}\n",
+        args.output.display(),
+        args.output.display(),
+        params_file.display(),
+        names.join(", "),
+        names[reference],
+    );
+    if let Some((min, max, planes)) = depth {
+        yaml += &format!("    min_depth: {min:?}\n    max_depth: {max:?}\n    num_planes: {planes}\n");
+    }
+    std::fs::write(&params_file, yaml).map_err(|e| BagError::io(&params_file, e))?;
+    let k = cameras[reference].model.intrinsics;
+    Ok(PackReport {
+        reference: names[reference].clone(),
+        cameras: names,
+        frames: args.frames,
+        width: k.width_px,
+        height: k.height_px,
+        params_file,
+        messages: summary.messages,
+    })
+}
+
+/// The `pack` subcommand.
+pub fn run(args: &PackArgs) -> anyhow::Result<()> {
+    let report = pack(args)?;
+    eprintln!(
+        "pack: {} cameras [{}] ({}x{} reference {}), {} frame sets, {} messages to {}; parameters in {}",
+        report.cameras.len(),
+        report.cameras.join(", "),
+        report.width,
+        report.height,
+        report.reference,
+        report.frames,
+        report.messages,
+        args.output.display(),
+        report.params_file.display()
+    );
+    Ok(())
+}

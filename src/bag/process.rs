@@ -1,0 +1,396 @@
+//! `sweepdepth bag IN OUT`: a recorded bag through the node's own pipeline
+//! ([`crate::node::pipeline`]: the same synchronisation, extrinsics, engine and output messages
+//! as the live node), every frame set processed (nothing dropped for speed), the outputs written
+//! to OUT under the node's topic names.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::gpu_context::GpuContext;
+use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
+use crate::node::pipeline::{process_job, FrameOutputs, Pipeline};
+use crate::node::NodeConfig;
+use crate::sweep::gpu::GpuEngine;
+
+use super::schemas::{CAMERA_INFO, IMAGE, POINT_CLOUD2, TF_MESSAGE};
+use super::{writer, BagError, BagReader, BagWriter};
+
+/// `sweepdepth bag` arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BagArgs {
+    /// Input bag: a `.mcap` file, a `.db3` file, or a rosbag2 directory (metadata.yaml + files).
+    pub input: PathBuf,
+    /// Output: a `.mcap` file when the name ends in .mcap, else a rosbag2 directory.
+    pub output: PathBuf,
+    /// Node parameter file(s) (as `--ros-args --params-file`), applied in order.
+    #[arg(long = "params-file", value_name = "FILE")]
+    pub params_files: Vec<PathBuf>,
+    /// One parameter, `name:=value` (as `--ros-args -p`), after the files.
+    #[arg(short = 'p', long = "param", value_name = "NAME:=VALUE")]
+    pub params: Vec<String>,
+    /// A topic remapping, `from:=to` (as `--ros-args -r`).
+    #[arg(short = 'r', long = "remap", value_name = "FROM:=TO")]
+    pub remaps: Vec<String>,
+    /// Also copy the input messages into OUT.
+    #[arg(long)]
+    pub copy_inputs: bool,
+    /// Replace OUT if it exists.
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl BagArgs {
+    /// The equivalent `--ros-args` block of the live node.
+    pub fn ros_args(&self) -> Vec<String> {
+        let mut v = vec!["--ros-args".to_string()];
+        for f in &self.params_files {
+            v.push("--params-file".into());
+            v.push(f.display().to_string());
+        }
+        for p in &self.params {
+            v.push("-p".into());
+            v.push(p.clone());
+        }
+        for r in &self.remaps {
+            v.push("-r".into());
+            v.push(r.clone());
+        }
+        v
+    }
+}
+
+/// What a bag run did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BagReport {
+    /// Messages read from the bag.
+    pub messages: u64,
+    /// Synchronised frame sets found.
+    pub sets_found: u64,
+    pub sets_processed: u64,
+    /// Partial sets the synchroniser abandoned (a camera's image missing).
+    pub sets_incomplete: u64,
+    /// Sets not processed, by reason.
+    pub skipped: BTreeMap<String, u64>,
+    /// Messages that could not be decoded or had the wrong type, by topic.
+    pub bad_messages: BTreeMap<String, u64>,
+    /// Topics of the bag the pipeline does not read.
+    pub ignored_topics: Vec<String>,
+    pub mean_time_per_set: Option<Duration>,
+    /// The first read error (truncated or corrupt file), after which reading stopped.
+    pub read_error: Option<String>,
+    pub output: Option<super::WriteSummary>,
+}
+
+impl BagReport {
+    /// The one-line summary printed at the end.
+    pub fn summary_line(&self) -> String {
+        let skipped: u64 = self.skipped.values().sum();
+        let mut s = format!(
+            "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
+            self.sets_found, self.sets_processed, self.sets_incomplete, skipped
+        );
+        if skipped > 0 {
+            let reasons: Vec<String> = self
+                .skipped
+                .iter()
+                .map(|(k, n)| format!("{n} {k}"))
+                .collect();
+            s += &format!(" ({})", reasons.join(", "));
+        }
+        if !self.bad_messages.is_empty() {
+            let bad: u64 = self.bad_messages.values().sum();
+            s += &format!(", {bad} unreadable messages");
+        }
+        match self.mean_time_per_set {
+            Some(t) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
+            None => s += "; no set processed",
+        }
+        if let Some(out) = &self.output {
+            s += &format!("; wrote {} messages to {}", out.messages, out.path.display());
+        }
+        s
+    }
+}
+
+/// Errors that end a bag run.
+#[derive(Debug, thiserror::Error)]
+pub enum BagRunError {
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    #[error(transparent)]
+    Node(#[from] crate::node::NodeError),
+    #[error("GPU: {0}")]
+    Gpu(String),
+    #[error("{0}")]
+    NoInput(String),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Route {
+    Image(usize),
+    Info(usize),
+    Tf,
+}
+
+/// Writes the outputs of one set.
+fn write_outputs(
+    writer: &mut BagWriter,
+    topics: &[String; 5],
+    points_topic: &str,
+    log_time_ns: u64,
+    out: &FrameOutputs,
+) -> Result<(), BagError> {
+    writer.write_msg(&topics[0], log_time_ns, &out.depth)?;
+    writer.write_msg(&topics[1], log_time_ns, &out.depth_info)?;
+    writer.write_msg(&topics[2], log_time_ns, &out.confidence)?;
+    writer.write_msg(&topics[3], log_time_ns, &out.cost)?;
+    writer.write_msg(&topics[4], log_time_ns, &out.selection)?;
+    if let Some(points) = &out.points {
+        writer.write_msg(points_topic, log_time_ns, points)?;
+    }
+    Ok(())
+}
+
+fn progress_bar(total: Option<u64>) -> ProgressBar {
+    let bar = match total {
+        Some(n) => ProgressBar::with_draw_target(Some(n), ProgressDrawTarget::stderr()),
+        None => ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr()),
+    };
+    let style = if total.is_some() {
+        ProgressStyle::with_template(
+            "{bar:30} {pos}/{len} reference images, {msg} [{elapsed_precise}, ETA {eta}]",
+        )
+    } else {
+        ProgressStyle::with_template("{spinner} {pos} reference images, {msg} [{elapsed_precise}]")
+    };
+    if let Ok(style) = style {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// Runs `args` through the pipeline. Progress goes to stderr when it is a terminal; warnings
+/// through `tracing`. Returns the report also when reading stopped at a damaged part of the
+/// bag (then `read_error` is set and everything before it is in OUT).
+pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
+    let config = NodeConfig::from_args(&args.ros_args(), None)?;
+    for note in &config.notes {
+        tracing::info!("{note}");
+    }
+    writer::check_output(&args.output, args.force)?;
+    let mut reader = BagReader::open(&args.input)?;
+
+    let mut routes: HashMap<String, Route> = HashMap::new();
+    for i in 0..config.cameras.len() {
+        routes.insert(config.image_topics[i].clone(), Route::Image(i));
+        routes.insert(config.info_topics[i].clone(), Route::Info(i));
+    }
+    if config.rig_file.is_none() {
+        routes.insert(config.tf_static_topic.clone(), Route::Tf);
+    }
+    let expected_type = |r: Route| match r {
+        Route::Image(_) => IMAGE,
+        Route::Info(_) => CAMERA_INFO,
+        Route::Tf => TF_MESSAGE,
+    };
+    let mut report = BagReport::default();
+    // Topics with a type other than the one the pipeline reads are left out, loudly.
+    let mut wrong_type: HashSet<String> = HashSet::new();
+    let known = reader.topics().to_vec();
+    for t in &known {
+        match routes.get(&t.name) {
+            Some(&r) if !t.msg_type.is_empty() && t.msg_type != expected_type(r) => {
+                tracing::error!(
+                    "topic {} has type {} in the bag, but the node reads {} there; its messages are ignored",
+                    t.name,
+                    t.msg_type,
+                    expected_type(r)
+                );
+                wrong_type.insert(t.name.clone());
+            }
+            Some(_) => {}
+            None => report.ignored_topics.push(t.name.clone()),
+        }
+    }
+    if !known.is_empty() {
+        let missing: Vec<&String> = config
+            .image_topics
+            .iter()
+            .filter(|t| !known.iter().any(|k| &k.name == *t) || wrong_type.contains(*t))
+            .collect();
+        if missing.len() == config.image_topics.len() {
+            let have: Vec<String> = known
+                .iter()
+                .map(|t| format!("{} ({})", t.name, t.msg_type))
+                .collect();
+            return Err(BagRunError::NoInput(format!(
+                "{}: none of the image topics [{}] is in the bag (set `cameras`/`image_topic` or remap); the bag has: {}",
+                args.input.display(),
+                config.image_topics.join(", "),
+                have.join(", ")
+            )));
+        }
+        for m in missing {
+            tracing::warn!("image topic {m} is not in the bag; sets need every camera");
+        }
+    }
+    let ref_topic = &config.image_topics[config.reference];
+    let total = known.iter().find(|t| &t.name == ref_topic).and_then(|t| t.count);
+
+    let gpu = GpuContext::new().map_err(|e| BagRunError::Gpu(e.to_string()))?;
+    let mut engine =
+        GpuEngine::new(&gpu.device, &gpu.queue).map_err(|e| BagRunError::Gpu(e.to_string()))?;
+    tracing::info!("GPU adapter: {}", gpu.adapter_label());
+
+    let mut writer = BagWriter::create(&args.output, args.force)?;
+    for (k, topic) in config.output_topics.iter().enumerate() {
+        writer.add_topic(topic, if k == 1 { CAMERA_INFO } else { IMAGE }, None)?;
+    }
+    if config.publish_points {
+        writer.add_topic(&config.points_topic, POINT_CLOUD2, None)?;
+    }
+
+    let bar = progress_bar(total);
+    let warn = |bar: &ProgressBar, seen: &mut HashSet<String>, key: &str, msg: &str| {
+        // Offline every distinct problem is reported once; the summary counts repeats.
+        if seen.insert(key.to_string()) {
+            bar.suspend(|| tracing::warn!("{msg}"));
+        }
+    };
+    let mut seen: HashSet<String> = HashSet::new();
+    let mut pipeline = Pipeline::new(&config)?;
+    let mut busy = Duration::ZERO;
+    let started = Instant::now();
+    for item in reader.by_ref() {
+        let msg = match item {
+            Ok(m) => m,
+            Err(e) => {
+                report.read_error = Some(e.to_string());
+                break;
+            }
+        };
+        report.messages += 1;
+        if args.copy_inputs {
+            let schema = None;
+            writer.add_topic(&msg.topic, &msg.msg_type, schema)?;
+            writer.write(&msg.topic, msg.log_time_ns, msg.publish_time_ns, &msg.data)?;
+        }
+        let Some(&route) = routes.get(&msg.topic) else {
+            continue;
+        };
+        if wrong_type.contains(&msg.topic) {
+            *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
+            continue;
+        }
+        let position = format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
+        match route {
+            Route::Info(i) => match from_cdr::<CameraInfo>(&msg.data) {
+                Ok(info) => pipeline.on_info(i, info),
+                Err(e) => {
+                    *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
+                    warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode CameraInfo on {position}: {e}"));
+                }
+            },
+            Route::Tf => match from_cdr::<TFMessage>(&msg.data) {
+                Ok(tf) => {
+                    for e in pipeline.on_tf(&tf) {
+                        warn(&bar, &mut seen, &e, &format!("{}: {e}", msg.topic));
+                    }
+                }
+                Err(e) => {
+                    *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
+                    warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode TFMessage on {position}: {e}"));
+                }
+            },
+            Route::Image(i) => {
+                if i == config.reference {
+                    bar.inc(1);
+                }
+                let image = match from_cdr::<Image>(&msg.data) {
+                    Ok(image) => image,
+                    Err(e) => {
+                        *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
+                        warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode Image on {position}: {e}"));
+                        continue;
+                    }
+                };
+                let sets = match pipeline.on_image(i, image) {
+                    Ok(sets) => sets,
+                    Err(e) => {
+                        warn(&bar, &mut seen, "sync", &format!("synchroniser: {e}"));
+                        continue;
+                    }
+                };
+                for set in sets {
+                    report.sets_found += 1;
+                    let t0 = Instant::now();
+                    let result = set.and_then(|job| {
+                        process_job(
+                            &mut engine,
+                            job,
+                            &config.sweep,
+                            &config.cameras,
+                            config.publish_points,
+                        )
+                    });
+                    match result {
+                        Ok(out) => {
+                            write_outputs(
+                                &mut writer,
+                                &config.output_topics,
+                                &config.points_topic,
+                                msg.log_time_ns,
+                                &out,
+                            )?;
+                            busy += t0.elapsed();
+                            report.sets_processed += 1;
+                        }
+                        Err(skip) => {
+                            *report.skipped.entry(skip.kind.to_string()).or_default() += 1;
+                            warn(&bar, &mut seen, &skip.key, &format!("set skipped: {skip}"));
+                        }
+                    }
+                }
+                let rate = report.sets_processed as f64 / started.elapsed().as_secs_f64().max(1e-9);
+                bar.set_message(format!("{} sets, {rate:.2} sets/s", report.sets_processed));
+            }
+        }
+    }
+    bar.finish_and_clear();
+    report.sets_incomplete = pipeline.sync_stats().incomplete;
+    if report.sets_processed > 0 {
+        report.mean_time_per_set = Some(busy / report.sets_processed as u32);
+    }
+    report.output = Some(writer.finish()?);
+    Ok(report)
+}
+
+/// The `bag` subcommand: prints the summary; fails when the bag is damaged or nothing usable
+/// was in it.
+pub fn run(args: &BagArgs) -> anyhow::Result<()> {
+    let report = process_bag(args)?;
+    eprintln!("{}", report.summary_line());
+    if !report.ignored_topics.is_empty() {
+        tracing::info!("topics not read: {}", report.ignored_topics.join(", "));
+    }
+    if let Some(e) = &report.read_error {
+        anyhow::bail!(
+            "the bag is damaged: {e}; the {} sets before the damage are in {}",
+            report.sets_processed,
+            args.output.display()
+        );
+    }
+    if report.sets_processed == 0 {
+        let reasons: Vec<String> = report.skipped.keys().cloned().collect();
+        anyhow::bail!(
+            "no frame set could be processed ({} found{}{})",
+            report.sets_found,
+            if reasons.is_empty() { "" } else { "; skipped for: " },
+            reasons.join(", ")
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,315 @@
+//! Writing bags: a lone `.mcap` file, or a rosbag2 directory (`metadata.yaml` + one MCAP
+//! file) that `ros2 bag info` / `ros2 bag play` accept. MCAP with zstd chunks, profile `ros2`,
+//! schemas in `ros2msg` encoding (the full definitions of `msg/schemas/`), messages in `cdr`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use super::schemas;
+use super::BagError;
+
+/// Where a bag goes and whether it may replace what is there.
+pub fn check_output(out: &Path, force: bool) -> Result<(), BagError> {
+    if out.exists() && !force {
+        return Err(BagError::OutputExists(out.to_path_buf()));
+    }
+    Ok(())
+}
+
+struct Topic {
+    channel_id: u16,
+    msg_type: String,
+    count: u64,
+}
+
+/// What [`BagWriter::finish`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriteSummary {
+    pub path: PathBuf,
+    pub messages: u64,
+    /// (topic, type, count), by topic name.
+    pub topics: Vec<(String, String, u64)>,
+}
+
+/// Writes one bag.
+pub struct BagWriter {
+    /// The path the user gave (a `.mcap` file or a directory).
+    out: PathBuf,
+    /// The MCAP file inside.
+    mcap_path: PathBuf,
+    directory: bool,
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    topics: HashMap<String, Topic>,
+    sequence: u32,
+    first_ns: Option<u64>,
+    last_ns: u64,
+    messages: u64,
+}
+
+impl BagWriter {
+    /// Creates `out`: a lone MCAP file when it ends in `.mcap`, else a rosbag2 directory. An
+    /// existing `out` is an error unless `force` (then it is replaced).
+    pub fn create(out: &Path, force: bool) -> Result<Self, BagError> {
+        check_output(out, force)?;
+        let directory = out.extension().and_then(|e| e.to_str()) != Some("mcap");
+        if out.exists() {
+            let r = if out.is_dir() {
+                std::fs::remove_dir_all(out)
+            } else {
+                std::fs::remove_file(out)
+            };
+            r.map_err(|e| BagError::io(out, e))?;
+        }
+        let mcap_path = if directory {
+            std::fs::create_dir_all(out).map_err(|e| BagError::io(out, e))?;
+            let stem = out
+                .file_name()
+                .and_then(|n| n.to_str())
+                .filter(|n| !n.is_empty())
+                .unwrap_or("bag");
+            out.join(format!("{stem}_0.mcap"))
+        } else {
+            if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent).map_err(|e| BagError::io(parent, e))?;
+            }
+            out.to_path_buf()
+        };
+        let file = File::create(&mcap_path).map_err(|e| BagError::io(&mcap_path, e))?;
+        let writer = mcap::WriteOptions::new()
+            .profile("ros2")
+            .library(concat!("sweepdepth ", env!("CARGO_PKG_VERSION")))
+            .compression(Some(mcap::Compression::Zstd))
+            .chunk_size(Some(4 << 20))
+            .create(BufWriter::with_capacity(1 << 20, file))
+            .map_err(|e| BagError::write(&mcap_path, e))?;
+        Ok(Self {
+            out: out.to_path_buf(),
+            mcap_path,
+            directory,
+            writer: Some(writer),
+            topics: HashMap::new(),
+            sequence: 0,
+            first_ns: None,
+            last_ns: 0,
+            messages: 0,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.out
+    }
+
+    /// Declares a topic; `schema` is the definition text, our own for known types when `None`.
+    pub fn add_topic(
+        &mut self,
+        topic: &str,
+        msg_type: &str,
+        schema: Option<&[u8]>,
+    ) -> Result<(), BagError> {
+        if self.topics.contains_key(topic) {
+            return Ok(());
+        }
+        let writer = self.writer.as_mut().ok_or(BagError::Finished)?;
+        let schema_data = schema
+            .map(<[u8]>::to_vec)
+            .or_else(|| schemas::definition(msg_type).map(|s| s.as_bytes().to_vec()))
+            .unwrap_or_default();
+        let schema_id = writer
+            .add_schema(msg_type, "ros2msg", &schema_data)
+            .map_err(|e| BagError::write(&self.mcap_path, e))?;
+        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
+        let channel_id = writer
+            .add_channel(schema_id, topic, "cdr", &metadata)
+            .map_err(|e| BagError::write(&self.mcap_path, e))?;
+        self.topics.insert(
+            topic.to_string(),
+            Topic {
+                channel_id,
+                msg_type: msg_type.to_string(),
+                count: 0,
+            },
+        );
+        Ok(())
+    }
+
+    /// Writes one CDR message on a declared topic.
+    pub fn write(
+        &mut self,
+        topic: &str,
+        log_time_ns: u64,
+        publish_time_ns: u64,
+        data: &[u8],
+    ) -> Result<(), BagError> {
+        let writer = self.writer.as_mut().ok_or(BagError::Finished)?;
+        let entry = self
+            .topics
+            .get_mut(topic)
+            .ok_or_else(|| BagError::UnknownTopic(topic.to_string()))?;
+        writer
+            .write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: entry.channel_id,
+                    sequence: self.sequence,
+                    log_time: log_time_ns,
+                    publish_time: publish_time_ns,
+                },
+                data,
+            )
+            .map_err(|e| BagError::write(&self.mcap_path, e))?;
+        entry.count += 1;
+        self.sequence = self.sequence.wrapping_add(1);
+        self.messages += 1;
+        self.first_ns = Some(self.first_ns.map_or(log_time_ns, |f| f.min(log_time_ns)));
+        self.last_ns = self.last_ns.max(log_time_ns);
+        Ok(())
+    }
+
+    /// Serialises `msg` to CDR and writes it.
+    pub fn write_msg<T: serde::Serialize>(
+        &mut self,
+        topic: &str,
+        log_time_ns: u64,
+        msg: &T,
+    ) -> Result<(), BagError> {
+        let data = crate::msgs::to_cdr(msg).map_err(|e| BagError::Format {
+            path: self.out.clone(),
+            reason: format!("cannot serialise a message for {topic}: {e}"),
+        })?;
+        self.write(topic, log_time_ns, log_time_ns, &data)
+    }
+
+    /// Writes the MCAP summary and, for a directory, `metadata.yaml`.
+    pub fn finish(mut self) -> Result<WriteSummary, BagError> {
+        let mut writer = self.writer.take().ok_or(BagError::Finished)?;
+        writer
+            .finish()
+            .map_err(|e| BagError::write(&self.mcap_path, e))?;
+        drop(writer);
+        let mut topics: Vec<(String, String, u64)> = self
+            .topics
+            .iter()
+            .map(|(name, t)| (name.clone(), t.msg_type.clone(), t.count))
+            .collect();
+        topics.sort();
+        if self.directory {
+            let path = self.out.join("metadata.yaml");
+            std::fs::write(&path, self.metadata_yaml(&topics))
+                .map_err(|e| BagError::io(&path, e))?;
+        }
+        Ok(WriteSummary {
+            path: self.out.clone(),
+            messages: self.messages,
+            topics,
+        })
+    }
+
+    /// rosbag2 metadata, version 5 (read by Humble and every later distribution).
+    fn metadata_yaml(&self, topics: &[(String, String, u64)]) -> String {
+        let start = self.first_ns.unwrap_or(0);
+        let duration = self.last_ns.saturating_sub(start);
+        let file = self
+            .mcap_path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("bag_0.mcap");
+        let mut y = String::from("rosbag2_bagfile_information:\n  version: 5\n");
+        y += "  storage_identifier: mcap\n";
+        y += &format!("  duration:\n    nanoseconds: {duration}\n");
+        y += &format!("  starting_time:\n    nanoseconds_since_epoch: {start}\n");
+        y += &format!("  message_count: {}\n", self.messages);
+        y += "  topics_with_message_count:\n";
+        for (name, ty, count) in topics {
+            y += &format!(
+                "    - topic_metadata:\n        name: {}\n        type: {ty}\n        serialization_format: cdr\n        offered_qos_profiles: \"\"\n      message_count: {count}\n",
+                yaml_str(name)
+            );
+        }
+        y += "  compression_format: \"\"\n  compression_mode: \"\"\n";
+        y += &format!("  relative_file_paths:\n    - {}\n", yaml_str(file));
+        y += &format!(
+            "  files:\n    - path: {}\n      starting_time:\n        nanoseconds_since_epoch: {start}\n      duration:\n        nanoseconds: {duration}\n      message_count: {}\n",
+            yaml_str(file),
+            self.messages
+        );
+        y
+    }
+}
+
+/// A YAML scalar, quoted when it needs to be.
+fn yaml_str(s: &str) -> String {
+    if s.chars()
+        .all(|c| c.is_ascii_alphanumeric() || "/_.-".contains(c))
+        && !s.is_empty()
+    {
+        s.to_string()
+    } else {
+        format!("{s:?}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bag::reader::BagReader;
+
+    fn tmp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("sweepdepth-writer-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir.join(name)
+    }
+
+    fn round_trip(out: &Path) {
+        let mut w = BagWriter::create(out, true).unwrap();
+        w.add_topic("/a", schemas::IMAGE, None).unwrap();
+        w.add_topic("/b", "foo_msgs/msg/Bar", Some(b"int32 x")).unwrap();
+        w.write("/a", 10, 10, &[0, 1, 0, 0, 7]).unwrap();
+        w.write("/b", 20, 20, &[0, 1, 0, 0, 8]).unwrap();
+        w.write("/a", 30, 30, &[0, 1, 0, 0, 9]).unwrap();
+        assert!(matches!(
+            w.write("/c", 40, 40, &[]),
+            Err(BagError::UnknownTopic(_))
+        ));
+        let summary = w.finish().unwrap();
+        assert_eq!(summary.messages, 3);
+        let reader = BagReader::open(out).unwrap();
+        let topics = reader.topics().to_vec();
+        assert_eq!(topics.len(), 2);
+        assert_eq!(topics[0].name, "/a");
+        assert_eq!(topics[0].msg_type, schemas::IMAGE);
+        assert_eq!(topics[0].count, Some(2));
+        let msgs: Vec<_> = reader.map(|m| m.unwrap()).collect();
+        assert_eq!(msgs.len(), 3);
+        assert_eq!(msgs[1].topic, "/b");
+        assert_eq!(msgs[1].msg_type, "foo_msgs/msg/Bar");
+        assert_eq!(msgs[2].data, vec![0, 1, 0, 0, 9]);
+        assert_eq!(msgs[2].log_time_ns, 30);
+    }
+
+    #[test]
+    fn lone_mcap_round_trip() {
+        round_trip(&tmp("lone.mcap"));
+    }
+
+    #[test]
+    fn directory_round_trip_and_metadata() {
+        let out = tmp("dirbag");
+        round_trip(&out);
+        let meta = std::fs::read_to_string(out.join("metadata.yaml")).unwrap();
+        assert!(meta.contains("storage_identifier: mcap"));
+        assert!(meta.contains("- dirbag_0.mcap"));
+        assert!(meta.contains("message_count: 3"));
+    }
+
+    #[test]
+    fn existing_output_is_refused_without_force() {
+        let out = tmp("exists.mcap");
+        std::fs::write(&out, b"x").unwrap();
+        assert!(matches!(
+            BagWriter::create(&out, false),
+            Err(BagError::OutputExists(_))
+        ));
+        assert!(BagWriter::create(&out, true).is_ok());
+    }
+}
