@@ -4,9 +4,10 @@
 #   and Mesa's lavapipe (a software Vulkan driver that runs the compute shaders on the CPU);
 # - `ip` (iproute2) and `unshare` (util-linux), with which the DDS tests move themselves into a
 #   private network namespace so that no DDS traffic leaves the machine;
-# - Python 3 with the `cyclonedds` binding (tools/requirements-cyclone.txt), the independent DDS
-#   peer of tests/node_cyclone.rs: into the system Python when it already has it, else into a
-#   virtual environment at target/cyclone-venv (Debian's Python refuses global pip installs).
+# - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
+#   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
+#   tests/bag.rs): the system Python when it already has them, else a virtual environment at
+#   target/test-venv (Debian's Python refuses global pip installs).
 # Run it from the repository root.
 set -eu
 
@@ -28,17 +29,18 @@ command -v ip >/dev/null 2>&1 || packages="$packages iproute2"
 command -v unshare >/dev/null 2>&1 || packages="$packages util-linux"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
-install_cyclonedds() {
-    python3 -c 'import cyclonedds' >/dev/null 2>&1 && return 0
-    [ -x target/cyclone-venv/bin/python3 ] &&
-        target/cyclone-venv/bin/python3 -c 'import cyclonedds' >/dev/null 2>&1 && return 0
-    echo "setup: installing the cyclonedds Python binding into target/cyclone-venv ..." >&2
-    python3 -m venv target/cyclone-venv &&
-        target/cyclone-venv/bin/python3 -m pip install -q -r tools/requirements-cyclone.txt
+PY_CHECK='import cyclonedds, rosbags, mcap'
+install_python_tools() {
+    python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
+    [ -x target/test-venv/bin/python3 ] &&
+        target/test-venv/bin/python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
+    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap) into target/test-venv ..." >&2
+    python3 -m venv target/test-venv &&
+        target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt
 }
 
 if [ -z "$packages" ]; then
-    install_cyclonedds
+    install_python_tools
     exit $?
 fi
 
@@ -62,4 +64,4 @@ if ! have_icd; then
     echo "setup: installed, but still no Vulkan ICD found" >&2
     exit 1
 fi
-install_cyclonedds
+install_python_tools

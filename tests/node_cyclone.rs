@@ -16,6 +16,9 @@
 
 #[path = "common/netns.rs"]
 mod netns;
+#[path = "common/python.rs"]
+mod python;
+use python::{python, INSTALL_HINT};
 use netns::{in_private_netns, KillOnDrop};
 
 use std::io::{BufRead, BufReader};
@@ -38,7 +41,6 @@ const TOLERANCE: f64 = 0.02;
 /// The peer gives up after this long without a depth image (exit 2).
 const PEER_TIMEOUT_S: u64 = 60;
 const RESULT_PREFIX: &str = "CYCLONE_PEER_RESULT ";
-const INSTALL_HINT: &str = "python3 -m pip install cyclonedds";
 /// Cyclone restricted to loopback, multicast forced on (SPDP with RustDDS uses 239.255.0.1).
 const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
     <Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/></Interfaces>\
@@ -46,19 +48,6 @@ const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
     </General></Domain></CycloneDDS>";
 
 /// Network interfaces of this process's network namespace (from /proc/self/net/dev).
-
-/// The Python that has `cyclonedds`: `SWEEPDEPTH_PYTHON`, else the virtual environment that
-/// `scripts/setup.sh` makes when the system Python lacks it, else `python3`.
-fn python() -> String {
-    if let Ok(python) = std::env::var("SWEEPDEPTH_PYTHON") {
-        return python;
-    }
-    let venv = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/cyclone-venv/bin/python3");
-    if venv.is_file() {
-        return venv.to_string_lossy().into_owned();
-    }
-    "python3".into()
-}
 
 fn peer_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/cyclone_peer.py")
