@@ -40,6 +40,10 @@ pub struct PackArgs {
     /// Stamp of the first set, seconds since the epoch.
     #[arg(long, default_value_t = 1_700_000_000.0)]
     pub start: f64,
+    /// Keep only this many cameras: the reference and the ones nearest to it in the dataset's
+    /// order (0 = all).
+    #[arg(long, default_value_t = 0)]
+    pub cameras: usize,
     /// Replace OUT (and the parameter file) if they exist.
     #[arg(long)]
     pub force: bool,
@@ -254,6 +258,32 @@ fn rig_folder_cameras(dir: &Path, rig: &Path) -> Result<(Vec<PackCamera>, usize,
     Ok((cameras, reference, format!("images of {}", rig.display())))
 }
 
+/// The reference and the `keep - 1` cameras nearest to it in order (ties: the earlier one).
+fn keep_nearest(
+    cameras: Vec<PackCamera>,
+    reference: usize,
+    keep: usize,
+) -> Result<(Vec<PackCamera>, usize), PackError> {
+    if keep == 0 || keep >= cameras.len() {
+        return Ok((cameras, reference));
+    }
+    if keep < 2 {
+        return Err(PackError::Invalid("--cameras must be 0 (all) or at least 2".into()));
+    }
+    let mut order: Vec<usize> = (0..cameras.len()).collect();
+    order.sort_by_key(|&i| (i.abs_diff(reference), i));
+    let mut chosen: Vec<usize> = order.into_iter().take(keep).collect();
+    chosen.sort_unstable();
+    let new_reference = chosen.iter().position(|&i| i == reference).unwrap_or(0);
+    let kept = cameras
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| chosen.contains(i))
+        .map(|(_, c)| c)
+        .collect();
+    Ok((kept, new_reference))
+}
+
 /// Packs `args.dir` into `args.output`.
 pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
     if !(args.scale > 0.0 && args.scale <= 4.0) {
@@ -278,14 +308,18 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         .rig
         .clone()
         .or_else(|| Some(args.dir.join("rig.yaml")).filter(|p| p.is_file()));
-    let (mut cameras, reference, source, depth) = match &rig {
+    let (cameras, reference, source, depth) = match &rig {
         Some(rig) => {
             let (c, r, s) = rig_folder_cameras(&args.dir, rig)?;
             (c, r, s, None)
         }
         None => dataset_cameras(&args.dir)?,
     };
-    for c in &mut cameras {
+    let (mut cameras, reference) = keep_nearest(cameras, reference, args.cameras)?;
+    for (i, c) in cameras.iter_mut().enumerate() {
+        if rig.is_none() {
+            c.name = format!("cam{i}");
+        }
         let k = c.model.intrinsics;
         let w = ((f64::from(k.width_px) * args.scale).round() as u32).max(1);
         let h = ((f64::from(k.height_px) * args.scale).round() as u32).max(1);
