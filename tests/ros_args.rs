@@ -777,6 +777,7 @@ fn table_has_node_parameters() {
         ("input_qos_reliable", ParamValue::Bool(false)),
         ("input_qos_depth", ParamValue::Int(5)),
         ("output_qos_depth", ParamValue::Int(1)),
+        ("camera_timeout", ParamValue::Double(1.0)),
     ];
     for (name, default) in &expect {
         let spec = param_spec(name).unwrap_or_else(|| panic!("{name} missing"));
@@ -822,9 +823,16 @@ fn readme_parameter_section_is_the_generated_table() {
         .find("<!-- end of parameter table -->")
         .expect("README has the table's end marker")
         + start;
+    let table = sweepdepth::ros::args::markdown_table();
+    if std::env::var_os("SWEEPDEPTH_WRITE_README").is_some() && readme[start..end] != table {
+        let updated = format!("{}{}{}", &readme[..start], table, &readme[end..]);
+        std::fs::write(concat!(env!("CARGO_MANIFEST_DIR"), "/README.md"), updated)
+            .expect("README.md is writable");
+        return;
+    }
     assert_eq!(
         &readme[start..end],
-        sweepdepth::ros::args::markdown_table(),
-        "README's parameter table is stale: paste the output of markdown_table() between the markers"
+        table,
+        "README's parameter table is stale: run `SWEEPDEPTH_WRITE_README=1 cargo test --test ros_args readme` to regenerate it"
     );
 }

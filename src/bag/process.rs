@@ -317,7 +317,11 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                         continue;
                     }
                 };
-                let sets = match pipeline.on_image(i, image) {
+                let result = pipeline.on_image(i, image, msg.log_time_ns);
+                for event in pipeline.take_events() {
+                    bar.suspend(|| tracing::warn!("{event}"));
+                }
+                let sets = match result {
                     Ok(sets) => sets,
                     Err(e) => {
                         warn(&bar, &mut seen, "sync", &format!("synchroniser: {e}"));
@@ -328,13 +332,7 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                     report.sets_found += 1;
                     let t0 = Instant::now();
                     let result = set.and_then(|job| {
-                        process_job(
-                            &mut engine,
-                            job,
-                            &config.sweep,
-                            &config.cameras,
-                            config.publish_points,
-                        )
+                        process_job(&mut engine, job, &config.sweep, config.publish_points)
                     });
                     match result {
                         Ok(out) => {

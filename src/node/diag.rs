@@ -26,6 +26,8 @@ pub struct Stats {
     total_processing: Duration,
     /// Wall-clock time at publication minus the stamp of the set, milliseconds.
     last_latency_ms: Option<f64>,
+    /// Cameras out of the rig (silent longer than `camera_timeout`).
+    pub inactive_cameras: Vec<String>,
 }
 
 impl Stats {
@@ -39,6 +41,7 @@ impl Stats {
             last_processing: None,
             total_processing: Duration::ZERO,
             last_latency_ms: None,
+            inactive_cameras: Vec::new(),
         }
     }
 
@@ -132,13 +135,37 @@ impl Stats {
                 .map_or("n/a".to_string(), |l| format!("{l:.3}")),
         );
         kv("gpu adapter".into(), adapter.to_string());
+        kv(
+            "cameras out of the rig".into(),
+            if self.inactive_cameras.is_empty() {
+                "none".into()
+            } else {
+                self.inactive_cameras.join(", ")
+            },
+        );
         let stale = self
             .last_published
             .is_none_or(|t| now.saturating_duration_since(t) > STALE_AFTER);
         let (level, message) = if stale {
             (
                 DiagnosticStatus::WARN,
-                format!("no depth published in the last {} s", STALE_AFTER.as_secs()),
+                if self.inactive_cameras.is_empty() {
+                    format!("no depth published in the last {} s", STALE_AFTER.as_secs())
+                } else {
+                    format!(
+                        "no depth published in the last {} s; out of the rig (silent): {}",
+                        STALE_AFTER.as_secs(),
+                        self.inactive_cameras.join(", ")
+                    )
+                },
+            )
+        } else if !self.inactive_cameras.is_empty() {
+            (
+                DiagnosticStatus::WARN,
+                format!(
+                    "degraded rig: publishing depth without {} (silent longer than camera_timeout)",
+                    self.inactive_cameras.join(", ")
+                ),
             )
         } else {
             (DiagnosticStatus::OK, "publishing depth".to_string())

@@ -192,6 +192,8 @@ pub struct NodeConfig {
     pub rig_file: Option<RigFile>,
     pub sync: SyncPolicy,
     pub queue_size: usize,
+    /// A camera silent this long leaves the rig until it sends again (`None`: never).
+    pub camera_timeout: Option<Duration>,
     pub input_reliable: bool,
     pub input_depth: usize,
     pub output_depth: usize,
@@ -305,6 +307,12 @@ impl NodeConfig {
             virtual_ref,
             domain_id: crate::ros::args::domain_id(domain_env)?,
             queue_size: usize_param("queue_size")?,
+            camera_timeout: {
+                let t = params
+                    .get_f64("camera_timeout")
+                    .map_err(NodeError::Param)?;
+                (t > 0.0).then(|| Duration::from_secs_f64(t))
+            },
             input_reliable: params
                 .get_bool("input_qos_reliable")
                 .map_err(NodeError::Param)?,
@@ -330,8 +338,8 @@ impl NodeConfig {
         })
     }
 
-    fn synchronizer(&self) -> Result<Box<dyn Synchronizer<Image> + Send>, NodeError> {
-        let n = self.cameras.len();
+    /// A synchroniser over `n` of the cameras.
+    fn synchronizer(&self, n: usize) -> Result<Box<dyn Synchronizer<Image> + Send>, NodeError> {
         Ok(match &self.sync {
             SyncPolicy::Exact => Box::new(ExactSync::new(n, self.queue_size)?),
             SyncPolicy::Approximate {
@@ -466,7 +474,6 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let worker_slot = Arc::clone(&slot);
     let worker_live = Arc::clone(&live);
     let worker_stats = Arc::clone(&stats);
-    let camera_names = config.cameras.clone();
     let worker = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
@@ -493,7 +500,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                 live: &worker_live,
                 stats: &worker_stats,
             };
-            worker_loop(&shared, engine, &camera_names, &outputs);
+            worker_loop(&shared, engine, &outputs);
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
     let adapter = match init_rx.recv() {
@@ -777,6 +784,7 @@ fn run_dds(
 
     let mut state = LoopState {
         pipeline: Pipeline::new(config)?,
+        started: Instant::now(),
         log: RateLimited::default(),
         slot,
         stats: shared.stats,
@@ -811,6 +819,8 @@ fn run_dds(
 
 struct LoopState<'a> {
     pipeline: Pipeline<'a>,
+    /// The clock of camera dropout (receive time).
+    started: Instant,
     log: RateLimited,
     slot: &'a LatestSlot<Job>,
     stats: &'a Mutex<Stats>,
@@ -826,11 +836,16 @@ impl LoopState<'_> {
                 }
             }
             Event::Image(i, Ok(image)) => {
-                let result = self.pipeline.on_image(i, image);
+                let now_ns = u64::try_from(self.started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+                let result = self.pipeline.on_image(i, image, now_ns);
+                for event in self.pipeline.take_events() {
+                    node_log(tracing::Level::WARN, &event);
+                }
                 {
                     let mut stats = lock(self.stats);
                     stats.on_image(i, Instant::now());
                     stats.sync = self.pipeline.sync_stats();
+                    stats.inactive_cameras = self.pipeline.inactive_cameras();
                 }
                 match result {
                     Ok(sets) => {
@@ -868,7 +883,6 @@ impl LoopState<'_> {
 fn worker_loop(
     shared: &WorkerShared<'_>,
     mut engine: GpuEngine,
-    camera_names: &[String],
     outputs: &Outputs,
 ) {
     let slot = shared.slot;
@@ -878,13 +892,7 @@ fn worker_loop(
         let started = Instant::now();
         // Parameter changes apply from the next set on.
         let sweep: SweepParams = shared.live.sweep();
-        let out = match process_job(
-            &mut engine,
-            job,
-            &sweep,
-            camera_names,
-            outputs.points.is_some(),
-        ) {
+        let out = match process_job(&mut engine, job, &sweep, outputs.points.is_some()) {
             Ok(out) => out,
             Err(skip) => {
                 log.warn(&skip.key, || format!("{skip}; skipping this set"));
@@ -980,7 +988,7 @@ mod tests {
         assert_eq!(cfg.diagnostics_topic, "/diagnostics");
         assert!(!cfg.publish_points);
         assert_eq!(cfg.sync, SyncPolicy::Exact);
-        assert!(cfg.synchronizer().is_ok());
+        assert!(cfg.synchronizer(cfg.cameras.len()).is_ok());
     }
 
     #[test]

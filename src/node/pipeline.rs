@@ -61,22 +61,117 @@ impl std::fmt::Display for Skip {
     }
 }
 
-/// The input side of the node: calibration state and the synchroniser.
+/// The input side of the node: calibration state, the synchroniser, and which cameras are in
+/// the rig.
+///
+/// Camera dropout: a camera that has sent nothing for `camera_timeout` (measured on the clock
+/// the caller passes: receive time live, log time in a bag) leaves the rig; the synchroniser is
+/// rebuilt over the remaining cameras and sets go on with them while at least 2 remain and the
+/// reference is among them. Otherwise nothing is published (never an old depth map) and every
+/// set says why. A camera that sends again rejoins at once. Changes are reported through
+/// [`Pipeline::take_events`].
 pub struct Pipeline<'a> {
     config: &'a NodeConfig,
     infos: Vec<Option<CameraInfo>>,
     tf: TfBuffer,
     sync: Box<dyn Synchronizer<Image> + Send>,
+    /// The cameras in the synchroniser, in rig order: stream `k` is camera `active[k]`.
+    active: Vec<usize>,
+    last_seen_ns: Vec<Option<u64>>,
+    first_ns: Option<u64>,
+    /// Counters of the synchronisers replaced so far (the sum stays monotonic).
+    retired: SyncStats,
+    events: Vec<String>,
 }
 
 impl<'a> Pipeline<'a> {
     pub fn new(config: &'a NodeConfig) -> Result<Self, NodeError> {
+        let n = config.cameras.len();
         Ok(Self {
             config,
-            infos: vec![None; config.cameras.len()],
+            infos: vec![None; n],
             tf: TfBuffer::new(),
-            sync: config.synchronizer()?,
+            sync: config.synchronizer(n)?,
+            active: (0..n).collect(),
+            last_seen_ns: vec![None; n],
+            first_ns: None,
+            retired: SyncStats::default(),
+            events: Vec::new(),
         })
+    }
+
+    /// Rig changes since the last call (a camera left or rejoined), for the log.
+    pub fn take_events(&mut self) -> Vec<String> {
+        std::mem::take(&mut self.events)
+    }
+
+    /// Names of the cameras currently out of the rig.
+    pub fn inactive_cameras(&self) -> Vec<String> {
+        (0..self.config.cameras.len())
+            .filter(|i| !self.active.contains(i))
+            .map(|i| self.config.cameras[i].clone())
+            .collect()
+    }
+
+    fn rebuild_sync(&mut self) -> Result<(), NodeError> {
+        let old = self.sync.stats();
+        self.retired.matched += old.matched;
+        self.retired.dropped += old.dropped;
+        self.retired.incomplete += old.incomplete;
+        // Below 2 cameras nothing is pushed (see on_image); the old one waits, emptied.
+        if self.active.len() >= 2 {
+            self.sync = self.config.synchronizer(self.active.len())?;
+        }
+        Ok(())
+    }
+
+    /// Updates the set of active cameras for a message of camera `i` at `now_ns`.
+    fn track(&mut self, i: usize, now_ns: u64) -> Result<(), NodeError> {
+        let config = self.config;
+        let n = config.cameras.len();
+        let first = *self.first_ns.get_or_insert(now_ns);
+        self.last_seen_ns[i] = Some(now_ns);
+        let mut changed = false;
+        if !self.active.contains(&i) {
+            self.active.push(i);
+            self.active.sort_unstable();
+            changed = true;
+            self.events.push(format!(
+                "camera '{}' is sending again and is back in the rig ({} of {n} cameras)",
+                config.cameras[i],
+                self.active.len()
+            ));
+        }
+        if let Some(timeout) = config.camera_timeout {
+            let timeout_ns = u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX);
+            let silent: Vec<(usize, u64)> = self
+                .active
+                .iter()
+                .map(|&j| (j, now_ns.saturating_sub(self.last_seen_ns[j].unwrap_or(first))))
+                .filter(|&(_, quiet)| quiet > timeout_ns)
+                .collect();
+            for (j, quiet) in silent {
+                self.active.retain(|&a| a != j);
+                changed = true;
+                let what = if j == config.reference {
+                    "it is the reference camera: no depth is published until it is back".to_string()
+                } else if self.active.len() < 2 {
+                    "fewer than 2 cameras remain: no depth is published".to_string()
+                } else {
+                    format!("going on with the other {}", self.active.len())
+                };
+                self.events.push(format!(
+                    "camera '{}' has sent nothing for {:.2} s (camera_timeout {} s) and leaves the rig; {what}",
+                    config.cameras[j],
+                    quiet as f64 * 1e-9,
+                    timeout.as_secs_f64()
+                ));
+            }
+        }
+        if changed {
+            self.rebuild_sync()?;
+        }
+        Ok(())
     }
 
     pub fn config(&self) -> &NodeConfig {
@@ -99,32 +194,79 @@ impl<'a> Pipeline<'a> {
             .collect()
     }
 
-    /// Pushes the image of camera `i` into the synchroniser; every set it completes becomes a
-    /// job or a skip.
+    /// Pushes the image of camera `i`, received at `now_ns` (any monotonic clock in
+    /// nanoseconds: receive time live, log time in a bag), into the synchroniser; every set it
+    /// completes becomes a job or a skip.
     pub fn on_image(
         &mut self,
         i: usize,
         image: Image,
-    ) -> Result<Vec<Result<Job, Skip>>, SyncError> {
+        now_ns: u64,
+    ) -> Result<Vec<Result<Job, Skip>>, NodeError> {
+        if i >= self.config.cameras.len() {
+            return Err(NodeError::Sync(SyncError::StreamOutOfRange {
+                stream: i,
+                num_streams: self.config.cameras.len(),
+            }));
+        }
+        self.track(i, now_ns)?;
+        let reference = self.config.reference;
+        if !self.active.contains(&reference) || self.active.len() < 2 {
+            // Once per round of images (at the first active camera), not once per image.
+            if self.active.first() != Some(&i) && self.active.len() > 1 {
+                return Ok(Vec::new());
+            }
+            let silent = self.inactive_cameras().join(", ");
+            let why = if !self.active.contains(&reference) {
+                format!(
+                    "the reference camera '{}' is silent",
+                    self.config.cameras[reference]
+                )
+            } else {
+                "fewer than 2 cameras are sending".to_string()
+            };
+            return Ok(vec![Err(Skip::new(
+                "degraded rig",
+                "degraded".into(),
+                format!("{why} (out of the rig: {silent}); not publishing"),
+            ))]);
+        }
+        let Some(stream) = self.active.iter().position(|&a| a == i) else {
+            return Ok(Vec::new());
+        };
         let stamp = image.header.stamp;
-        let sets = self.sync.push_stamped(i, &stamp, image)?;
+        let sets = self
+            .sync
+            .push_stamped(stream, &stamp, image)
+            .map_err(NodeError::Sync)?;
         Ok(sets.into_iter().map(|set| self.on_set(set)).collect())
     }
 
     pub fn sync_stats(&self) -> SyncStats {
-        self.sync.stats()
+        let now = self.sync.stats();
+        SyncStats {
+            matched: self.retired.matched + now.matched,
+            dropped: self.retired.dropped + now.dropped,
+            incomplete: self.retired.incomplete + now.incomplete,
+        }
     }
 
     fn on_set(&mut self, set: SyncedSet<Image>) -> Result<Job, Skip> {
         let config = self.config;
-        let reference = config.reference;
+        // Index of the reference within the set (the active cameras, in rig order).
+        let reference = self
+            .active
+            .iter()
+            .position(|&a| a == config.reference)
+            .unwrap_or(0);
         let ref_frame = set
             .messages
             .get(reference)
             .map(|m| m.header.frame_id.clone())
             .unwrap_or_default();
         let mut cameras = Vec::with_capacity(set.messages.len());
-        for (i, image) in set.messages.iter().enumerate() {
+        for (k, image) in set.messages.iter().enumerate() {
+            let i = self.active.get(k).copied().unwrap_or(k);
             let name = &config.cameras[i];
             let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
             let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
@@ -202,7 +344,7 @@ impl<'a> Pipeline<'a> {
             ));
             intrinsics_info(&intrinsics)
         } else {
-            match &self.infos[reference] {
+            match &self.infos[config.reference] {
                 Some(info) => info.clone(),
                 None => intrinsics_info(&cameras[reference].model.intrinsics),
             }
@@ -251,12 +393,11 @@ pub fn process_job(
     engine: &mut GpuEngine,
     job: Job,
     sweep: &SweepParams,
-    camera_names: &[String],
     with_points: bool,
 ) -> Result<FrameOutputs, Skip> {
     let mut images = Vec::with_capacity(job.images.len());
     for (i, msg) in job.images.iter().enumerate() {
-        let name = camera_names.get(i).map_or("?", String::as_str);
+        let name = job.cameras.get(i).map_or("?", |c| c.name.as_str());
         images.push(
             image_to_rgba8(name, msg)
                 .map_err(|e| Skip::new("image", format!("convert{i}"), e.to_string()))?,

@@ -608,6 +608,17 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             "Time synchronisation of the camera images: equal stamps, or approximate.",
         ),
         node_spec(
+            "camera_timeout",
+            Double(1.0),
+            ParamRange::Double {
+                min: 0.0,
+                max: 3600.0,
+                min_exclusive: false,
+                max_exclusive: false,
+            },
+            "A camera silent for this long (seconds; receive time live, log time in bags) leaves the rig until it sends again; the node goes on with the others while at least 2 remain with the reference among them. 0 = never.",
+        ),
+        node_spec(
             "sync_max_interval",
             Double(0.02),
             ParamRange::Double {
