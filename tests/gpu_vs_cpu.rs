@@ -9,7 +9,7 @@ use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
+use sweepdepth::sweep::{Aggregation, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
@@ -85,12 +85,55 @@ fn synthetic_case() -> (Rig, Vec<Rgba8Image>) {
     (rig, images)
 }
 
+/// The paper's optimizer: the mode-by-mode cases below test the cost and window stages with the
+/// streaming winner-take-all; `sgm_agrees_*` test the semi-global stages.
 fn base() -> SweepParams {
     SweepParams {
         min_depth_m: 1.0,
         max_depth_m: 5.0,
         num_planes: 24,
+        optimizer: Optimizer::Wta,
         ..SweepParams::default()
+    }
+}
+
+/// The SGM stages (volume write, path passes, selection over the sums) on a small synthetic
+/// volume: 8 and 4 paths, an odd plane count (a half-empty last word), edge-scaled P2, and
+/// the paper's paired 2x2 windows writing the volume two pixels per invocation.
+#[test]
+fn sgm_agrees_on_synthetic() {
+    let (rig, images) = synthetic_case();
+    let sgm = SweepParams {
+        optimizer: Optimizer::Sgm,
+        ..base()
+    };
+    let cases: Vec<(&str, SweepParams)> = vec![
+        ("sgm_8_paths", sgm.clone()),
+        (
+            "sgm_4_paths_odd_planes_edge",
+            SweepParams {
+                sgm_paths: 4,
+                num_planes: 23,
+                sgm_edge: 8.0,
+                ..sgm.clone()
+            },
+        ),
+        (
+            "sgm_half_shiftable_2x2",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                window_width: 2,
+                window_height: 2,
+                window_mode: WindowMode::Shiftable,
+                sgm_p2: 60.0,
+                sgm_edge: 20.0,
+                ..sgm.clone()
+            },
+        ),
+    ];
+    for (name, params) in cases {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        compare(name, &plan, &rig, &images);
     }
 }
 
