@@ -22,8 +22,22 @@ fn section(maps: &[f32], npix: usize, s: usize) -> &[f32] {
 }
 
 fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
+    compare_with(name, plan, rig, images, None);
+}
+
+/// `compare`, with the SGM layout chosen (None = the adapter's default).
+fn compare_with(
+    name: &str,
+    plan: &SweepPlan,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    sgm_line_per_invocation: Option<bool>,
+) {
     let gpu = common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    if let Some(on) = sgm_line_per_invocation {
+        engine.set_sgm_line_per_invocation(on);
+    }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine.run_plan(plan, rig, images).expect("cpu run");
     let npix = plan.pixel_count();
@@ -133,8 +147,26 @@ fn sgm_agrees_on_synthetic() {
     ];
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
-        compare(name, &plan, &rig, &images);
+        // Both layouts of sgm.wgsl: lanes across planes (GPUs), one invocation per line (CPUs).
+        compare_with(name, &plan, &rig, &images, Some(false));
+        compare_with(name, &plan, &rig, &images, Some(true));
     }
+    // SGM changes the answer: the summed path costs are not the local scores.
+    let plan = SweepPlan::new(&rig, &sgm).expect("plan");
+    let wta_plan = SweepPlan::new(&rig, &base()).expect("plan");
+    let npix = plan.pixel_count();
+    let sgm_maps = CpuEngine
+        .run_plan(&plan, &rig, &images)
+        .expect("cpu run")
+        .maps;
+    let wta_maps = CpuEngine
+        .run_plan(&wta_plan, &rig, &images)
+        .expect("cpu run")
+        .maps;
+    assert_ne!(
+        section(&sgm_maps, npix, MAP_COST),
+        section(&wta_maps, npix, MAP_COST)
+    );
 }
 
 #[test]
@@ -327,9 +359,7 @@ fn distorted_arc_agrees() {
     compare("distorted_arc", &plan, &rig, &images);
 }
 
-/// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba).
-#[test]
-fn real_tsukuba_crop_agrees() {
+fn tsukuba_crop() -> (Rig, Vec<Rgba8Image>, SweepParams) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba");
     let dataset = sweepdepth::datasets::load_dataset(&dir).expect("shipped Tsukuba loads");
     // Crop to the centre 96x72 of every view (same crop: the rig stays rectified).
@@ -354,8 +384,27 @@ fn real_tsukuba_crop_agrees() {
         k.cx_px -= f64::from(x0);
         k.cy_px -= f64::from(y0);
     }
-    let mut params = dataset.params.clone();
+    (rig, images, dataset.params.clone())
+}
+
+/// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba), with the
+/// dataset's defaults (optimizer sgm).
+#[test]
+fn real_tsukuba_crop_agrees() {
+    let (rig, images, mut params) = tsukuba_crop();
     params.num_planes = 32;
     let plan = SweepPlan::new(&rig, &params).expect("plan");
     compare("tsukuba_crop", &plan, &rig, &images);
+}
+
+/// SGM with many planes (several words per lane in the workgroup layout) on real images, both
+/// layouts.
+#[test]
+fn sgm_many_planes_real_crop_agrees() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 125;
+    params.optimizer = Optimizer::Sgm;
+    let plan = SweepPlan::new(&rig, &params).expect("plan");
+    compare_with("sgm_many_planes_lanes", &plan, &rig, &images, Some(false));
+    compare_with("sgm_many_planes_lines", &plan, &rig, &images, Some(true));
 }

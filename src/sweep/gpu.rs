@@ -46,7 +46,15 @@ const LAYOUTS: [&[Slot]; 10] = {
         &[Uniform, ReadWrite],                                    // median
         &[Uniform, Uniform, Read, Read, ReadWrite],               // splat
         &[Uniform, Uniform, Read, Read, ReadWrite],               // visibility
-        &[Uniform, PassUniform, Uniform, Read, Read, ReadWrite],  // sgm
+        &[
+            Uniform,
+            PassUniform,
+            Uniform,
+            Read,
+            Read,
+            ReadWrite,
+            ReadWrite,
+        ], // sgm
         &[Uniform, Read, ReadWrite],                              // sgm_select
     ]
 };
@@ -159,8 +167,11 @@ struct Specialisation {
     half_best_n: u32,
     /// The aggregate stage writes the cost volume (optimizer sgm).
     volume: bool,
-    /// Workgroup size of the SGM passes (lanes split the planes of one path line).
+    /// Workgroup size of the SGM passes.
     sgm_lanes: u32,
+    /// SGM: one invocation per path line (CPU adapters) instead of one workgroup per line with
+    /// the planes split over its lanes (GPUs).
+    sgm_line_per_invocation: bool,
 }
 
 impl Specialisation {
@@ -170,15 +181,9 @@ impl Specialisation {
         self.window_mode == WINDOW_SHIFTABLE && self.window_w == 2 && self.window_h == 2
     }
 
-    fn of(plan: &SweepPlan, device_type: wgpu::DeviceType) -> Self {
+    fn of(plan: &SweepPlan, sgm_line_per_invocation: bool) -> Self {
         let p = &plan.params;
-        // A CPU adapter (lavapipe) runs 8 lanes as one SIMD batch, and every extra batch of a
-        // workgroup costs a switch at each barrier; a GPU wants a full warp per line.
-        let sgm_lanes = if device_type == wgpu::DeviceType::Cpu {
-            8
-        } else {
-            32
-        };
+        let sgm_lanes = if sgm_line_per_invocation { 8 } else { 32 };
         Self {
             distorted: plan.cameras.iter().any(|c| c.size[3] != DIST_NONE),
             scoring: p.modes[0],
@@ -192,6 +197,7 @@ impl Specialisation {
             half_best_n: p.counts[3],
             volume: p.sgm[0] > 0,
             sgm_lanes,
+            sgm_line_per_invocation,
         }
     }
 }
@@ -208,6 +214,8 @@ pub struct GpuEngine {
     uniform_align: u64,
     /// Stride of the SGM pass uniforms (the adapter's uniform offset alignment).
     pass_align: u64,
+    /// The SGM layout: one invocation per path line, or one workgroup per line.
+    sgm_line_per_invocation: bool,
     buffers: Option<Buffers>,
     plan: Option<(Rig, SweepParams, SweepPlan)>,
     /// Id of the plan whose arrays are in the buffers.
@@ -284,12 +292,23 @@ impl GpuEngine {
             pass_align: (std::mem::size_of::<GpuSgmPass>() as u64).next_multiple_of(
                 u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
             ),
+            // A CPU adapter (lavapipe) pays for every barrier with a coroutine switch per SIMD
+            // batch of 8 lanes: there each invocation walks a whole path line (no barriers). A
+            // GPU wants a full warp per line, the planes across its lanes.
+            sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             buffers: None,
             plan: None,
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
         })
+    }
+
+    /// Chooses the SGM layout instead of the adapter's default (tests run both on any
+    /// adapter): `true` = one invocation per path line, `false` = one workgroup per line with
+    /// the planes across its lanes. Results are identical.
+    pub fn set_sgm_line_per_invocation(&mut self, on: bool) {
+        self.sgm_line_per_invocation = on;
     }
 
     /// Per-stage times of the last frame set.
@@ -348,7 +367,7 @@ impl GpuEngine {
             self.buffers = Some(self.allocate(key)?);
             self.uploaded_plan = None;
         }
-        let specialisation = Specialisation::of(plan, self.device.adapter_info().device_type);
+        let specialisation = Specialisation::of(plan, self.sgm_line_per_invocation);
         if !self.pipelines.contains_key(&specialisation) {
             let built = self.build_pipelines(&specialisation)?;
             self.pipelines.insert(specialisation, built);
@@ -437,7 +456,12 @@ impl GpuEngine {
         {
             let offset = Some((r as u64 * self.pass_align) as u32);
             let lines = sgm_lines(dx, dy, plan.width, plan.height);
-            run_pass(&mut encoder, STAGE_SGM, offset, (lines, 1, 1));
+            let workgroups = if specialisation.sgm_line_per_invocation {
+                lines.div_ceil(specialisation.sgm_lanes)
+            } else {
+                lines
+            };
+            run_pass(&mut encoder, STAGE_SGM, offset, (workgroups, 1, 1));
         }
         if key.sgm_paths > 0 {
             run_pass(&mut encoder, STAGE_SGM_SELECT, None, image_groups);
@@ -508,7 +532,14 @@ impl GpuEngine {
             ("PAIRED", f64::from(u8::from(spec.paired()))),
             ("VOLUME", f64::from(u8::from(spec.volume))),
         ];
-        let sgm = [distorted[0], ("SGM_LANES", f64::from(spec.sgm_lanes))];
+        let sgm = [
+            distorted[0],
+            ("SGM_LANES", f64::from(spec.sgm_lanes)),
+            (
+                "LINE_PER_INVOCATION",
+                f64::from(u8::from(spec.sgm_line_per_invocation)),
+            ),
+        ];
         let box_h = [
             distorted[0],
             ("WINDOW_W", f64::from(spec.window_w)),
@@ -745,6 +776,16 @@ impl GpuEngine {
         let volume_bytes = npix * u64::from(key.volume_words) * 4;
         let volume = storage("sgm volume", volume_bytes, none);
         let sums = storage("sgm sums", volume_bytes, none);
+        // One row of path costs per line (one invocation per line on CPU adapters).
+        let line_costs = storage(
+            "sgm line costs",
+            if key.sgm_paths > 0 {
+                u64::from(key.width + key.height) * u64::from(key.volume_words) * 16
+            } else {
+                0
+            },
+            none,
+        );
         let sgm_passes = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("sgm passes"),
             size: SGM_DIRECTIONS.len() as u64 * self.pass_align,
@@ -873,6 +914,7 @@ impl GpuEngine {
                     images.as_entire_binding(),
                     volume.as_entire_binding(),
                     sums.as_entire_binding(),
+                    line_costs.as_entire_binding(),
                 ],
             ),
             bind(
