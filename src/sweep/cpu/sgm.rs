@@ -1,6 +1,8 @@
 //! Twin of `shaders/sgm.wgsl` (one path direction of semi-global matching) and
 //! `shaders/sgm_select.wgsl` (winner-take-all over the summed path costs). Integer path costs,
 //! so both sides agree exactly up to the final f32 scaling.
+// The `!(x < BIG)` test mirrors the shader and is NaN-safe on purpose.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use super::select::{self, PixelState};
 use crate::sweep::gpu_types::*;
