@@ -13,6 +13,8 @@ const STAGES: &[&str] = &[
     "median",
     "splat",
     "visibility",
+    "sgm",
+    "sgm_select",
 ];
 
 fn main() {

@@ -21,6 +21,9 @@ override BEST_N: u32 = 2u;        // = params.modes.z
 override HALF_BEST_N: u32 = 2u;   // = params.counts.w
 // Two horizontally adjacent pixels per invocation, sharing the loads of their 2x2 windows.
 override PAIRED: bool = false;
+// Optimizer sgm: also write every plane's score into the u16 cost volume (see common.wgsl);
+// the winner-take-all state still gives validity and the selection image.
+override VOLUME: bool = false;     // = params.sgm.x != 0
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -33,6 +36,25 @@ override PAIRED: bool = false;
 @group(0) @binding(3) var<storage, read_write> state: array<vec4<f32>>;
 // Per pair: camera a, camera b, half (HALF_*), 0.
 @group(0) @binding(4) var<uniform> pairs: array<vec4<u32>, MAX_PAIRS>;
+// The u16 cost volume (optimizer sgm; a placeholder otherwise).
+@group(0) @binding(6) var<storage, read_write> volume: array<u32>;
+
+// Writes the level of plane `plane`'s score at pixel `pix`: an even plane starts its word
+// (the odd one fills the high half next), an odd plane that opens a batch keeps the low half.
+fn store_level(pix: u32, plane: u32, score: f32, low: u32, first_in_batch: bool) -> u32 {
+    let level = volume_level(score);
+    let word = pix * ((params.counts.y + 1u) / 2u) + plane / 2u;
+    if ((plane & 1u) == 0u) {
+        volume[word] = level;
+        return level;
+    }
+    if (first_in_batch) {
+        volume[word] = (volume[word] & 0xffffu) | (level << 16u);
+    } else {
+        volume[word] = low | (level << 16u);
+    }
+    return 0u;
+}
 
 // Shiftable windows of at most 2x2 skip the box passes: the sums of the four placements come
 // from the 3x3 texels around the pixel, each texel counted in the placements that contain it
@@ -391,34 +413,7 @@ fn score_plane_paired(z: u32, x: i32, y: i32) -> array<vec2<f32>, 2> {
     return array<vec2<f32>, 2>(finish_channels(m0[0], m1[0], m2[0]), finish_channels(m0[1], m1[1], m2[1]));
 }
 
-// Stage 5a, selection: streaming winner-take-all that keeps, exactly and without a cost volume,
-// the winner's neighbours (for the sub-pixel parabola) and the best rival away from them (for
-// the confidence). See `state` for the layout.
-struct Wta {
-    s0: vec4<f32>,
-    s1: vec4<f32>,
-    s2: vec4<f32>,
-}
-
-fn select_plane(st: Wta, k: f32, best: vec2<f32>) -> Wta {
-    var s0 = st.s0;
-    var s1 = st.s1;
-    var s2 = st.s2;
-    let c = best.x;
-    if (c < s0.x) {
-        s0 = vec4<f32>(c, k, s1.w, BIG);
-        s1.x = s1.z;
-        s2.x = best.y;
-    } else if (k == s0.y + 1.0) {
-        s0.w = c;
-    } else {
-        s1.x = min(s1.x, c);
-    }
-    s1.z = s1.y;
-    s1.y = min(s1.y, c);
-    s1.w = c;
-    return Wta(s0, s1, s2);
-}
+// Stage 5a, selection: `select_plane` in common.wgsl (shared with sgm_select.wgsl).
 
 fn load_state(pix: u32) -> Wta {
     if (batch.is_first != 0u) {
@@ -449,11 +444,19 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (has_b) {
             b = load_state(pix + 1u);
         }
+        var low_a = 0u;
+        var low_b = 0u;
         for (var z = 0u; z < batch.plane_count; z++) {
             let k = f32(batch.first_plane + z);
             let best = score_plane_paired(z, i32(x), i32(gid.y));
             a = select_plane(a, k, best[0]);
             b = select_plane(b, k, best[1]);
+            if (VOLUME) {
+                low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u);
+                if (has_b) {
+                    low_b = store_level(pix + 1u, batch.first_plane + z, best[1].x, low_b, z == 0u);
+                }
+            }
         }
         store_state(pix, a);
         if (has_b) {
@@ -466,8 +469,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let pix = gid.y * width + gid.x;
     var st = load_state(pix);
+    var low = 0u;
     for (var z = 0u; z < batch.plane_count; z++) {
-        st = select_plane(st, f32(batch.first_plane + z), score_plane(z, i32(gid.x), i32(gid.y)));
+        let best = score_plane(z, i32(gid.x), i32(gid.y));
+        st = select_plane(st, f32(batch.first_plane + z), best);
+        if (VOLUME) {
+            low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u);
+        }
     }
     store_state(pix, st);
 }

@@ -64,6 +64,22 @@ struct Params {
     window: vec4<u32>,        // window width, height (1 = no aggregation), subpixel, median
     thresholds: vec4<f32>,    // tau, max_cost, occlusion tolerance (relative), half margin
     extra: vec4<u32>,         // min visible cameras, window mode, padded width, padded height
+    sgm: vec4<u32>,           // SGM paths (0 = winner-take-all), P1, P2 (volume levels), edge step (1/16 grey levels)
+    sgm_scale: vec4<f32>,     // volume levels per score unit, score units per summed level, 0, 0
+}
+
+// Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as
+// u16 levels, two planes per u32 word (even plane in the low half), pixel-major.
+const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau, and of a hypothesis with no valid pair
+const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
+
+// The volume level of a scored cost (BIG = no valid pair -> SGM_COST_MAX); floor(x + 0.5) as
+// the CPU twin (WGSL's round() rounds halves to even).
+fn volume_level(score: f32) -> u32 {
+    if (score >= 0.5 * BIG) {
+        return SGM_COST_MAX;
+    }
+    return min(u32(floor(score * params.sgm_scale.x + 0.5)), SGM_COST_MAX);
 }
 
 // Window anchors (top-left texel of a window) run from -(w-1) to W-1 (and likewise in y), so the
@@ -168,4 +184,33 @@ fn nearest_texel_index(cam: Camera, projected: vec3<f32>) -> u32 {
         return NO_CAMERA;
     }
     return cam.size.z + u32(texel.y) * cam.size.x + u32(texel.x);
+}
+
+// Stage 5a, selection: streaming winner-take-all that keeps, exactly and without a cost volume,
+// the winner's neighbours (for the sub-pixel parabola) and the best rival away from them (for
+// the confidence). See `state` for the layout.
+struct Wta {
+    s0: vec4<f32>,
+    s1: vec4<f32>,
+    s2: vec4<f32>,
+}
+
+fn select_plane(st: Wta, k: f32, best: vec2<f32>) -> Wta {
+    var s0 = st.s0;
+    var s1 = st.s1;
+    var s2 = st.s2;
+    let c = best.x;
+    if (c < s0.x) {
+        s0 = vec4<f32>(c, k, s1.w, BIG);
+        s1.x = s1.z;
+        s2.x = best.y;
+    } else if (k == s0.y + 1.0) {
+        s0.w = c;
+    } else {
+        s1.x = min(s1.x, c);
+    }
+    s1.z = s1.y;
+    s1.y = min(s1.y, c);
+    s1.w = c;
+    return Wta(s0, s1, s2);
 }

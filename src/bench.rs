@@ -8,7 +8,7 @@ use serde::Serialize;
 use crate::geometry::CameraModel;
 use crate::gpu_context::GpuContext;
 use crate::sweep::gpu::{GpuEngine, STAGES};
-use crate::sweep::{ParamOverrides, Scoring, SweepParams, WindowMode};
+use crate::sweep::{Optimizer, ParamOverrides, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
 #[derive(Debug, clap::Args)]
@@ -68,9 +68,16 @@ pub struct BenchResult {
     pub window: String,
     pub pairs: String,
     pub aggregation: String,
+    /// The paper's local winner-take-all.
     pub ms_per_frame: f64,
     pub hypotheses_per_s: f64,
     pub stage_ms: serde_json::Map<String, serde_json::Value>,
+    /// The same configuration with `optimizer: sgm` (`sgm_paths` directions); `None` with
+    /// `sgm_error` when the cost volume does not fit this adapter.
+    pub sgm_ms_per_frame: Option<f64>,
+    pub sgm_paths: u32,
+    pub sgm_stage_ms: serde_json::Map<String, serde_json::Value>,
+    pub sgm_error: Option<String>,
     pub stage_timer: &'static str,
     pub runs: usize,
     pub adapter: String,
@@ -85,8 +92,13 @@ fn median(mut values: Vec<f64>) -> f64 {
     }
 }
 
-/// The benchmark's engine settings: best half-sequence with the paper's shiftable 2x2 window.
-pub fn bench_params(config: &BenchConfig, overrides: &ParamOverrides) -> SweepParams {
+/// The benchmark's engine settings: best half-sequence with the paper's shiftable 2x2 window,
+/// and the given optimizer (the options apply to both columns, all but the optimizer).
+pub fn bench_params(
+    config: &BenchConfig,
+    overrides: &ParamOverrides,
+    optimizer: Optimizer,
+) -> SweepParams {
     let mut params = SweepParams {
         min_depth_m: 1.0,
         max_depth_m: 6.0,
@@ -99,10 +111,52 @@ pub fn bench_params(config: &BenchConfig, overrides: &ParamOverrides) -> SweepPa
     };
     overrides.apply(&mut params);
     params.num_planes = config.planes;
+    params.optimizer = optimizer;
     params
 }
 
-/// Runs one configuration: a warm-up, then `repeats` timed frame sets.
+/// Median frame time and per-stage medians of `repeats` timed runs after a warm-up.
+fn time_runs(
+    engine: &mut GpuEngine,
+    rig: &crate::geometry::Rig,
+    images: &[crate::image::Rgba8Image],
+    params: &SweepParams,
+    repeats: usize,
+) -> Result<(f64, serde_json::Map<String, serde_json::Value>, bool), crate::sweep::SweepError> {
+    engine.run(rig, images, params)?;
+    let mut frame_ms = Vec::with_capacity(repeats);
+    let mut stage_ms: Vec<Vec<f64>> = vec![Vec::new(); STAGES.len()];
+    let mut gpu_timestamps = false;
+    for _ in 0..repeats.max(1) {
+        let started = Instant::now();
+        engine.run(rig, images, params)?;
+        frame_ms.push(started.elapsed().as_secs_f64() * 1e3);
+        let timings = engine.last_timings();
+        gpu_timestamps = timings.gpu_timestamps;
+        if timings.gpu_timestamps {
+            for (i, (_, ms)) in timings.stages.iter().enumerate().take(STAGES.len()) {
+                stage_ms[i].push(*ms);
+            }
+        }
+    }
+    let mut stages = serde_json::Map::new();
+    if gpu_timestamps {
+        for (name, values) in STAGES.iter().zip(stage_ms) {
+            let ms = median(values);
+            // Stages a mode does not run (box passes of small windows, SGM under WTA) are left out.
+            if ms > 0.0 {
+                stages.insert(
+                    name.to_string(),
+                    serde_json::json!((ms * 1000.0).round() / 1000.0),
+                );
+            }
+        }
+    }
+    Ok((median(frame_ms), stages, gpu_timestamps))
+}
+
+/// Runs one configuration: a warm-up, then `repeats` timed frame sets, with the paper's
+/// winner-take-all and then with SGM.
 pub fn run_config(
     engine: &mut GpuEngine,
     adapter: &str,
@@ -114,34 +168,20 @@ pub fn run_config(
     let rig = synthetic::row_rig(config.cameras, 0.1, model, 1)?;
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
-    let params = bench_params(config, overrides);
-    engine.run(&rig, &images, &params).context("warm-up run")?;
-    let mut frame_ms = Vec::with_capacity(repeats);
-    let mut stage_ms: Vec<Vec<f64>> = vec![Vec::new(); STAGES.len()];
-    let mut gpu_timestamps = false;
-    for _ in 0..repeats.max(1) {
-        let started = Instant::now();
-        engine.run(&rig, &images, &params)?;
-        frame_ms.push(started.elapsed().as_secs_f64() * 1e3);
-        let timings = engine.last_timings();
-        gpu_timestamps = timings.gpu_timestamps;
-        if timings.gpu_timestamps {
-            for (i, (_, ms)) in timings.stages.iter().enumerate().take(STAGES.len()) {
-                stage_ms[i].push(*ms);
+    let params = bench_params(config, overrides, Optimizer::Wta);
+    let (ms, stages, gpu_timestamps) =
+        time_runs(engine, &rig, &images, &params, repeats).context("winner-take-all runs")?;
+    let sgm_params = bench_params(config, overrides, Optimizer::Sgm);
+    let (sgm_ms_per_frame, sgm_stage_ms, sgm_error) =
+        match time_runs(engine, &rig, &images, &sgm_params, repeats) {
+            Ok((ms, stages, _)) => (Some((ms * 1000.0).round() / 1000.0), stages, None),
+            // A volume too large for the adapter is a result, not a failure of the bench.
+            Err(crate::sweep::SweepError::InvalidParams(reason)) => {
+                (None, serde_json::Map::new(), Some(reason))
             }
-        }
-    }
-    let ms = median(frame_ms);
+            Err(other) => return Err(other).context("SGM runs"),
+        };
     let hypotheses = f64::from(config.width) * f64::from(config.height) * f64::from(config.planes);
-    let mut stages = serde_json::Map::new();
-    if gpu_timestamps {
-        for (name, values) in STAGES.iter().zip(stage_ms) {
-            stages.insert(
-                name.to_string(),
-                serde_json::json!((median(values) * 1000.0).round() / 1000.0),
-            );
-        }
-    }
     Ok(BenchResult {
         cameras: config.cameras,
         width: config.width,
@@ -170,6 +210,10 @@ pub fn run_config(
         ms_per_frame: (ms * 1000.0).round() / 1000.0,
         hypotheses_per_s: (hypotheses / (ms / 1e3)).round(),
         stage_ms: stages,
+        sgm_ms_per_frame,
+        sgm_paths: sgm_params.sgm_paths,
+        sgm_stage_ms,
+        sgm_error,
         stage_timer: if gpu_timestamps {
             "gpu timestamps"
         } else {
@@ -187,8 +231,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     if !args.json {
         println!("adapter: {adapter}");
         println!(
-            "{:>4} {:>11} {:>6} {:>34} {:>10} {:>12}  per-stage GPU ms",
-            "cams", "size", "planes", "scoring/window", "ms/frame", "Mhyp/s"
+            "{:>4} {:>11} {:>6} {:>34} {:>10} {:>12} {:>10}  per-stage GPU ms (wta | sgm)",
+            "cams", "size", "planes", "scoring/window", "wta ms", "Mhyp/s", "sgm ms"
         );
     }
     let configs: &[BenchConfig] = if args.quick { &CONFIGS[..1] } else { &CONFIGS };
@@ -204,23 +248,35 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         if args.json {
             println!("{}", serde_json::to_string(&result)?);
         } else {
-            let stages: Vec<String> = result
-                .stage_ms
-                .iter()
-                .map(|(k, v)| format!("{k} {:.2}", v.as_f64().unwrap_or(f64::NAN)))
-                .collect();
+            let list = |stages: &serde_json::Map<String, serde_json::Value>| {
+                stages
+                    .iter()
+                    .map(|(k, v)| format!("{k} {:.2}", v.as_f64().unwrap_or(f64::NAN)))
+                    .collect::<Vec<String>>()
+                    .join(", ")
+            };
+            let stages = list(&result.stage_ms);
+            let sgm_ms = match result.sgm_ms_per_frame {
+                Some(ms) => format!("{ms:.2}"),
+                None => "n/a".to_string(),
+            };
             println!(
-                "{:>4} {:>11} {:>6} {:>34} {:>10.2} {:>12.1}  {}",
+                "{:>4} {:>11} {:>6} {:>34} {:>10.2} {:>12.1} {:>10}  {} | {}",
                 result.cameras,
                 format!("{}x{}", result.width, result.height),
                 result.planes,
                 format!("{}/{}", result.scoring, result.window),
                 result.ms_per_frame,
                 result.hypotheses_per_s / 1e6,
+                sgm_ms,
                 if stages.is_empty() {
                     result.stage_timer.to_string()
                 } else {
-                    stages.join(", ")
+                    stages
+                },
+                match &result.sgm_error {
+                    Some(reason) => reason.clone(),
+                    None => list(&result.sgm_stage_ms),
                 }
             );
         }

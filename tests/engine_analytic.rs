@@ -8,7 +8,7 @@ use sweepdepth::image::ImageF32;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::plan::SweepPlan;
 use sweepdepth::sweep::{
-    selection, Aggregation, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode,
+    selection, Aggregation, Optimizer, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode,
 };
 use sweepdepth::synthetic::{self, Scene, TexturedQuad};
 
@@ -118,6 +118,9 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
     // the half-sequence choice itself does.
     p.tau = 1.0e6;
     p.max_cost = 1.0e6;
+    // The paper's local selection: what the half-sequence score does by itself (SGM's volume
+    // quantises 0..tau, too coarsely with tau = 1e6).
+    p.optimizer = Optimizer::Wta;
     let mut engine = engine();
     let half = engine.run(&rig, &images, &p).expect("sweep");
     p.scoring = Scoring::Sssd;

@@ -9,7 +9,7 @@ use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
+use sweepdepth::sweep::{Aggregation, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
@@ -22,8 +22,22 @@ fn section(maps: &[f32], npix: usize, s: usize) -> &[f32] {
 }
 
 fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
+    compare_with(name, plan, rig, images, None);
+}
+
+/// `compare`, with the SGM layout chosen (None = the adapter's default).
+fn compare_with(
+    name: &str,
+    plan: &SweepPlan,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    sgm_line_per_invocation: Option<bool>,
+) {
     let gpu = common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    if let Some(on) = sgm_line_per_invocation {
+        engine.set_sgm_line_per_invocation(on);
+    }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine.run_plan(plan, rig, images).expect("cpu run");
     let npix = plan.pixel_count();
@@ -85,13 +99,74 @@ fn synthetic_case() -> (Rig, Vec<Rgba8Image>) {
     (rig, images)
 }
 
+/// The paper's optimizer: the mode-by-mode cases below test the cost and window stages with the
+/// streaming winner-take-all; `sgm_agrees_*` test the semi-global stages.
 fn base() -> SweepParams {
     SweepParams {
         min_depth_m: 1.0,
         max_depth_m: 5.0,
         num_planes: 24,
+        optimizer: Optimizer::Wta,
         ..SweepParams::default()
     }
+}
+
+/// The SGM stages (volume write, path passes, selection over the sums) on a small synthetic
+/// volume: 8 and 4 paths, an odd plane count (a half-empty last word), edge-scaled P2, and
+/// the paper's paired 2x2 windows writing the volume two pixels per invocation.
+#[test]
+fn sgm_agrees_on_synthetic() {
+    let (rig, images) = synthetic_case();
+    let sgm = SweepParams {
+        optimizer: Optimizer::Sgm,
+        ..base()
+    };
+    let cases: Vec<(&str, SweepParams)> = vec![
+        ("sgm_8_paths", sgm.clone()),
+        (
+            "sgm_4_paths_odd_planes_edge",
+            SweepParams {
+                sgm_paths: 4,
+                num_planes: 23,
+                sgm_edge: 8.0,
+                ..sgm.clone()
+            },
+        ),
+        (
+            "sgm_half_shiftable_2x2",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                window_width: 2,
+                window_height: 2,
+                window_mode: WindowMode::Shiftable,
+                sgm_p2: 60.0,
+                sgm_edge: 20.0,
+                ..sgm.clone()
+            },
+        ),
+    ];
+    for (name, params) in cases {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        // Both layouts of sgm.wgsl: lanes across planes (GPUs), one invocation per line (CPUs).
+        compare_with(name, &plan, &rig, &images, Some(false));
+        compare_with(name, &plan, &rig, &images, Some(true));
+    }
+    // SGM changes the answer: the summed path costs are not the local scores.
+    let plan = SweepPlan::new(&rig, &sgm).expect("plan");
+    let wta_plan = SweepPlan::new(&rig, &base()).expect("plan");
+    let npix = plan.pixel_count();
+    let sgm_maps = CpuEngine
+        .run_plan(&plan, &rig, &images)
+        .expect("cpu run")
+        .maps;
+    let wta_maps = CpuEngine
+        .run_plan(&wta_plan, &rig, &images)
+        .expect("cpu run")
+        .maps;
+    assert_ne!(
+        section(&sgm_maps, npix, MAP_COST),
+        section(&wta_maps, npix, MAP_COST)
+    );
 }
 
 #[test]
@@ -284,9 +359,7 @@ fn distorted_arc_agrees() {
     compare("distorted_arc", &plan, &rig, &images);
 }
 
-/// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba).
-#[test]
-fn real_tsukuba_crop_agrees() {
+fn tsukuba_crop() -> (Rig, Vec<Rgba8Image>, SweepParams) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba");
     let dataset = sweepdepth::datasets::load_dataset(&dir).expect("shipped Tsukuba loads");
     // Crop to the centre 96x72 of every view (same crop: the rig stays rectified).
@@ -311,8 +384,27 @@ fn real_tsukuba_crop_agrees() {
         k.cx_px -= f64::from(x0);
         k.cy_px -= f64::from(y0);
     }
-    let mut params = dataset.params.clone();
+    (rig, images, dataset.params.clone())
+}
+
+/// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba), with the
+/// dataset's defaults (optimizer sgm).
+#[test]
+fn real_tsukuba_crop_agrees() {
+    let (rig, images, mut params) = tsukuba_crop();
     params.num_planes = 32;
     let plan = SweepPlan::new(&rig, &params).expect("plan");
     compare("tsukuba_crop", &plan, &rig, &images);
+}
+
+/// SGM with many planes (several words per lane in the workgroup layout) on real images, both
+/// layouts.
+#[test]
+fn sgm_many_planes_real_crop_agrees() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 125;
+    params.optimizer = Optimizer::Sgm;
+    let plan = SweepPlan::new(&rig, &params).expect("plan");
+    compare_with("sgm_many_planes_lanes", &plan, &rig, &images, Some(false));
+    compare_with("sgm_many_planes_lines", &plan, &rig, &images, Some(true));
 }

@@ -49,7 +49,7 @@ fn disparity_metrics(
 fn tsukuba_defaults_meet_the_quality_bar() {
     let m = disparity_metrics(&tsukuba_dir(), |_| {});
     eprintln!("tsukuba: {m:?}");
-    assert!(m.bad1 <= 9.0, "bad>1 {:.2} % > 9 %", m.bad1);
+    assert!(m.bad1 <= 7.0, "bad>1 {:.2} % > 7 %", m.bad1);
     assert!(m.invalid <= 10.0, "invalid {:.2} % > 10 %", m.invalid);
     // The confidence ranks errors: the confident half is clearly more often right.
     let ranking = m.confidence_ranking.expect("ranking");
@@ -58,6 +58,39 @@ fn tsukuba_defaults_meet_the_quality_bar() {
         "confident half {:.2} % vs rest {:.2} %",
         ranking.bad1_confident_half,
         ranking.bad1_rest
+    );
+}
+
+/// OpenCV 5.0 StereoSGBM (HH, two views col3/col4, the same mask, invalid counted as bad), as
+/// measured by `tools/sgbm_baseline.py`: the figure SGM must beat.
+const SGBM_TSUKUBA_BAD1: f64 = 7.00;
+
+/// The claim at CI size: semi-global matching over the multi-view cost beats the
+/// paper's winner-take-all clearly, and two-view SGBM, on Tsukuba; and its confidence still
+/// ranks errors (the confident half has less than half the error rate of all valid pixels).
+#[test]
+fn sgm_beats_wta_and_two_view_sgbm_on_tsukuba() {
+    use sweepdepth::sweep::Optimizer;
+    let sgm = disparity_metrics(&tsukuba_dir(), |p| p.optimizer = Optimizer::Sgm);
+    let wta = disparity_metrics(&tsukuba_dir(), |p| p.optimizer = Optimizer::Wta);
+    eprintln!("tsukuba sgm {sgm:?}\nwta {wta:?}");
+    assert!(
+        sgm.bad1 + 1.0 < wta.bad1,
+        "SGM bad>1 {:.2} % vs WTA {:.2} %",
+        sgm.bad1,
+        wta.bad1
+    );
+    assert!(
+        sgm.bad1 < SGBM_TSUKUBA_BAD1,
+        "SGM bad>1 {:.2} % vs SGBM {SGBM_TSUKUBA_BAD1} %",
+        sgm.bad1
+    );
+    let ranking = sgm.confidence_ranking.expect("ranking");
+    assert!(
+        ranking.bad1_confident_half < 0.5 * sgm.bad1_valid,
+        "confident half {:.2} % vs all valid {:.2} %",
+        ranking.bad1_confident_half,
+        sgm.bad1_valid
     );
 }
 
@@ -225,10 +258,12 @@ fn demo_writes_its_images_and_a_quality_line() {
 #[test]
 fn shared_middlebury_sets_meet_the_quality_bar() {
     let Some(data) = shared_data() else { return };
+    // SGBM (two views, invalid counted as bad): 7.00 / 25.10 / 36.66 %; Teddy must beat it by a
+    // third (<= 16.7 %).
     for (name, max_bad1) in [
-        ("middlebury2001_tsukuba", 9.0),
-        ("middlebury2003_teddy_9view", 15.0),
-        ("middlebury2005_Laundry_thirdsize", 28.0),
+        ("middlebury2001_tsukuba", 7.0),
+        ("middlebury2003_teddy_9view", 12.5),
+        ("middlebury2005_Laundry_thirdsize", 24.0),
     ] {
         let m = disparity_metrics(&data.join(name), |_| {});
         eprintln!("{name}: bad>1 {:.2} %, invalid {:.2} %", m.bad1, m.invalid);
@@ -238,5 +273,12 @@ fn shared_middlebury_sets_meet_the_quality_bar() {
             m.bad1
         );
         assert!(m.invalid <= 10.0, "{name}: invalid {:.2} %", m.invalid);
+        let ranking = m.confidence_ranking.expect("ranking");
+        assert!(
+            ranking.bad1_confident_half < 0.5 * m.bad1_valid,
+            "{name}: confident half {:.2} % vs all valid {:.2} %",
+            ranking.bad1_confident_half,
+            m.bad1_valid
+        );
     }
 }

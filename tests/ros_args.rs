@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use sweepdepth::ros::args::*;
-use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
+use sweepdepth::sweep::{Aggregation, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 
 fn args(v: &[&str]) -> Vec<String> {
     v.iter().map(|s| s.to_string()).collect()
@@ -671,7 +671,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 18);
+    assert_eq!(fields.len(), 23);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -718,6 +718,11 @@ fn defaults_match_sweep_params() {
         min_visible_cameras: 7,
         occlusion_tolerance: 0.5,
         half_margin: 0.5,
+        optimizer: Optimizer::Wta,
+        sgm_p1: 3.0,
+        sgm_p2: 4.0,
+        sgm_paths: 4,
+        sgm_edge: 9.0,
     };
     apply_to_sweep(&ParamSet::defaults(), &mut p).unwrap();
     assert_eq!(p, SweepParams::default());
@@ -784,8 +789,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 18 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 18 + expect.len() + 9);
+    // 23 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 23 + expect.len() + 9);
 }
 
 #[test]

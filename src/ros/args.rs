@@ -579,6 +579,41 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             },
             "A half is clearly better when its score is below (1 - margin) times the other's, and lower by at least margin x 25 (the noise floor of an RGB SSD).",
         ),
+        spec(
+            "optimizer",
+            s("sgm"),
+            ParamRange::OneOf(&["wta", "sgm"]),
+            "Depth selection: local winner-take-all (the paper) or semi-global matching over a u16 cost volume.",
+        ),
+        spec(
+            "sgm_p1",
+            Double(1.5),
+            ParamRange::at_least(0.0),
+            "SGM penalty for a one-plane step between neighbours, score units (those of tau).",
+        ),
+        spec(
+            "sgm_p2",
+            Double(25.0),
+            ParamRange::at_least(0.0),
+            "SGM penalty for a larger step, score units (>= sgm_p1; paths x (tau + P2) must fit 16 bits: P2 <= 7 x tau with 8 paths).",
+        ),
+        spec(
+            "sgm_paths",
+            Int(8),
+            ParamRange::Int { min: 4, max: 8 },
+            "SGM path directions: 4 (rows and columns) or 8 (plus diagonals).",
+        ),
+        spec(
+            "sgm_edge",
+            Double(0.0),
+            ParamRange::Double {
+                min: 0.0,
+                max: 255.0,
+                min_exclusive: false,
+                max_exclusive: false,
+            },
+            "SGM: colour step (largest RGB difference between path neighbours, 0..255) at which P2 is halved (P2 / (1 + step / sgm_edge), at least P1); 0 = constant P2.",
+        ),
         // Node parameters; fixed once the node runs.
         ParamSpec {
             required: true,
@@ -1156,6 +1191,11 @@ pub fn apply_to_sweep(set: &ParamSet, params: &mut SweepParams) -> Result<(), St
         min_visible_cameras: u32_value(set, "min_visible_cameras")?,
         occlusion_tolerance: set.get_f64("occlusion_tolerance")? as f32,
         half_margin: set.get_f64("half_margin")? as f32,
+        optimizer: enum_value(set, "optimizer")?,
+        sgm_p1: set.get_f64("sgm_p1")? as f32,
+        sgm_p2: set.get_f64("sgm_p2")? as f32,
+        sgm_paths: u32_value(set, "sgm_paths")?,
+        sgm_edge: set.get_f64("sgm_edge")? as f32,
     };
     Ok(())
 }

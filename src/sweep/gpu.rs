@@ -21,23 +21,74 @@ include!(concat!(env!("OUT_DIR"), "/stages.rs"));
 enum Slot {
     Uniform,
     BatchUniform,
+    /// The direction of one SGM pass (dynamic offset into `sgm_passes`).
+    PassUniform,
     Read,
     ReadWrite,
 }
 
-const LAYOUTS: [&[Slot]; 8] = {
+const LAYOUTS: [&[Slot]; 10] = {
     use Slot::*;
     [
         &[Uniform, BatchUniform, Uniform, Read, Read, ReadWrite], // cost
         &[Uniform, BatchUniform, Read, ReadWrite],                // box_h
         &[Uniform, BatchUniform, Read, ReadWrite],                // box_v
-        &[Uniform, BatchUniform, Read, ReadWrite, Uniform, Read], // aggregate
+        &[
+            Uniform,
+            BatchUniform,
+            Read,
+            ReadWrite,
+            Uniform,
+            Read,
+            ReadWrite,
+        ], // aggregate
         &[Uniform, Read, Read, Read, ReadWrite],                  // finalize
         &[Uniform, ReadWrite],                                    // median
         &[Uniform, Uniform, Read, Read, ReadWrite],               // splat
         &[Uniform, Uniform, Read, Read, ReadWrite],               // visibility
+        &[
+            Uniform,
+            PassUniform,
+            Uniform,
+            Read,
+            Read,
+            ReadWrite,
+            ReadWrite,
+        ], // sgm
+        &[Uniform, Read, ReadWrite],                              // sgm_select
     ]
 };
+
+/// Stage indices in `STAGES` (build.rs's order).
+const STAGE_COST: usize = 0;
+const STAGE_BOX_H: usize = 1;
+const STAGE_BOX_V: usize = 2;
+const STAGE_AGGREGATE: usize = 3;
+const STAGE_FINALIZE: usize = 4;
+const STAGE_VISIBILITY: usize = 7;
+const STAGE_SGM: usize = 8;
+const STAGE_SGM_SELECT: usize = 9;
+
+/// SGM path directions (dx, dy): the first four for 4 paths, all eight for 8.
+pub const SGM_DIRECTIONS: [(i32, i32); 8] = [
+    (1, 0),
+    (-1, 0),
+    (0, 1),
+    (0, -1),
+    (1, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+];
+
+/// Path lines of direction (dx, dy) over a width x height image.
+pub fn sgm_lines(dx: i32, dy: i32, width: u32, height: u32) -> u32 {
+    match (dx, dy) {
+        (_, 0) => height,
+        (0, _) => width,
+        _ => width + height - 1,
+    }
+}
 
 /// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
@@ -52,6 +103,7 @@ struct Buffers {
     rays: wgpu::Buffer,
     planes: wgpu::Buffer,
     pairs: wgpu::Buffer,
+    sgm_passes: wgpu::Buffer,
     maps: wgpu::Buffer,
     zbuffer: wgpu::Buffer,
     readback: wgpu::Buffer,
@@ -79,6 +131,10 @@ struct ShapeKey {
     batch: u32,
     /// Windows of at most 2x2 are summed straight from the cost slab (no box passes).
     direct_windows: bool,
+    /// SGM path directions (0 = winner-take-all: no cost volume).
+    sgm_paths: u32,
+    /// u32 words per pixel of the cost volume (0 without SGM).
+    volume_words: u32,
 }
 
 impl ShapeKey {
@@ -87,7 +143,12 @@ impl ShapeKey {
     }
     fn passes(&self) -> u32 {
         let per_batch = if self.direct_windows { 2 } else { 4 };
-        per_batch * self.batches() + 4
+        let sgm = if self.sgm_paths > 0 {
+            self.sgm_paths + 1
+        } else {
+            0
+        };
+        per_batch * self.batches() + 4 + sgm
     }
 }
 
@@ -104,6 +165,13 @@ struct Specialisation {
     aggregation: u32,
     window_mode: u32,
     half_best_n: u32,
+    /// The aggregate stage writes the cost volume (optimizer sgm).
+    volume: bool,
+    /// Workgroup size of the SGM passes.
+    sgm_lanes: u32,
+    /// SGM: one invocation per path line (CPU adapters) instead of one workgroup per line with
+    /// the planes split over its lanes (GPUs).
+    sgm_line_per_invocation: bool,
 }
 
 impl Specialisation {
@@ -113,8 +181,9 @@ impl Specialisation {
         self.window_mode == WINDOW_SHIFTABLE && self.window_w == 2 && self.window_h == 2
     }
 
-    fn of(plan: &SweepPlan) -> Self {
+    fn of(plan: &SweepPlan, sgm_line_per_invocation: bool) -> Self {
         let p = &plan.params;
+        let sgm_lanes = if sgm_line_per_invocation { 8 } else { 32 };
         Self {
             distorted: plan.cameras.iter().any(|c| c.size[3] != DIST_NONE),
             scoring: p.modes[0],
@@ -126,6 +195,9 @@ impl Specialisation {
             aggregation: p.modes[3],
             window_mode: p.extra[1],
             half_best_n: p.counts[3],
+            volume: p.sgm[0] > 0,
+            sgm_lanes,
+            sgm_line_per_invocation,
         }
     }
 }
@@ -140,6 +212,10 @@ pub struct GpuEngine {
     /// Pipelines specialised (override constants) per mode; built on first use.
     pipelines: HashMap<Specialisation, Vec<wgpu::ComputePipeline>>,
     uniform_align: u64,
+    /// Stride of the SGM pass uniforms (the adapter's uniform offset alignment).
+    pass_align: u64,
+    /// The SGM layout: one invocation per path line, or one workgroup per line.
+    sgm_line_per_invocation: bool,
     buffers: Option<Buffers>,
     plan: Option<(Rig, SweepParams, SweepPlan)>,
     /// Id of the plan whose arrays are in the buffers.
@@ -169,13 +245,15 @@ impl GpuEngine {
                     visibility: wgpu::ShaderStages::COMPUTE,
                     ty: wgpu::BindingType::Buffer {
                         ty: match slot {
-                            Slot::Uniform | Slot::BatchUniform => wgpu::BufferBindingType::Uniform,
+                            Slot::Uniform | Slot::BatchUniform | Slot::PassUniform => {
+                                wgpu::BufferBindingType::Uniform
+                            }
                             Slot::Read => wgpu::BufferBindingType::Storage { read_only: true },
                             Slot::ReadWrite => {
                                 wgpu::BufferBindingType::Storage { read_only: false }
                             }
                         },
-                        has_dynamic_offset: matches!(slot, Slot::BatchUniform),
+                        has_dynamic_offset: matches!(slot, Slot::BatchUniform | Slot::PassUniform),
                         min_binding_size: None,
                     },
                     count: None,
@@ -211,12 +289,26 @@ impl GpuEngine {
             uniform_align: (std::mem::size_of::<GpuBatch>() as u64).next_multiple_of(
                 u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
             ),
+            pass_align: (std::mem::size_of::<GpuSgmPass>() as u64).next_multiple_of(
+                u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16),
+            ),
+            // A CPU adapter (lavapipe) pays for every barrier with a coroutine switch per SIMD
+            // batch of 8 lanes: there each invocation walks a whole path line (no barriers). A
+            // GPU wants a full warp per line, the planes across its lanes.
+            sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             buffers: None,
             plan: None,
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
         })
+    }
+
+    /// Chooses the SGM layout instead of the adapter's default (tests run both on any
+    /// adapter): `true` = one invocation per path line, `false` = one workgroup per line with
+    /// the planes across its lanes. Results are identical.
+    pub fn set_sgm_line_per_invocation(&mut self, on: bool) {
+        self.sgm_line_per_invocation = on;
     }
 
     /// Per-stage times of the last frame set.
@@ -275,7 +367,7 @@ impl GpuEngine {
             self.buffers = Some(self.allocate(key)?);
             self.uploaded_plan = None;
         }
-        let specialisation = Specialisation::of(plan);
+        let specialisation = Specialisation::of(plan, self.sgm_line_per_invocation);
         if !self.pipelines.contains_key(&specialisation) {
             let built = self.build_pipelines(&specialisation)?;
             self.pipelines.insert(specialisation, built);
@@ -333,17 +425,17 @@ impl GpuEngine {
         };
         for b in 0..key.batches() {
             let offset = Some((u64::from(b) * self.uniform_align) as u32);
-            run_pass(&mut encoder, 0, offset, image_groups);
+            run_pass(&mut encoder, STAGE_COST, offset, image_groups);
             if !key.direct_windows {
                 run_pass(
                     &mut encoder,
-                    1,
+                    STAGE_BOX_H,
                     offset,
                     groups(key.padded_width, key.height, 1),
                 );
                 run_pass(
                     &mut encoder,
-                    2,
+                    STAGE_BOX_V,
                     offset,
                     groups(key.padded_width, key.padded_height, 1),
                 );
@@ -353,9 +445,28 @@ impl GpuEngine {
             } else {
                 image_groups
             };
-            run_pass(&mut encoder, 3, offset, aggregate_groups);
+            run_pass(&mut encoder, STAGE_AGGREGATE, offset, aggregate_groups);
         }
-        for stage in 4..STAGES.len() {
+        // Optimizer sgm: one pass per path direction over the cost volume, then the
+        // winner-take-all over the summed path costs rewrites the selection state.
+        for (r, &(dx, dy)) in SGM_DIRECTIONS
+            .iter()
+            .enumerate()
+            .take(key.sgm_paths as usize)
+        {
+            let offset = Some((r as u64 * self.pass_align) as u32);
+            let lines = sgm_lines(dx, dy, plan.width, plan.height);
+            let workgroups = if specialisation.sgm_line_per_invocation {
+                lines.div_ceil(specialisation.sgm_lanes)
+            } else {
+                lines
+            };
+            run_pass(&mut encoder, STAGE_SGM, offset, (workgroups, 1, 1));
+        }
+        if key.sgm_paths > 0 {
+            run_pass(&mut encoder, STAGE_SGM_SELECT, None, image_groups);
+        }
+        for stage in STAGE_FINALIZE..=STAGE_VISIBILITY {
             run_pass(&mut encoder, stage, None, image_groups);
         }
         let maps_bytes = buffers.maps.size();
@@ -419,6 +530,15 @@ impl GpuEngine {
             ("WINDOW_MODE", f64::from(spec.window_mode)),
             ("HALF_BEST_N", f64::from(spec.half_best_n)),
             ("PAIRED", f64::from(u8::from(spec.paired()))),
+            ("VOLUME", f64::from(u8::from(spec.volume))),
+        ];
+        let sgm = [
+            distorted[0],
+            ("SGM_LANES", f64::from(spec.sgm_lanes)),
+            (
+                "LINE_PER_INVOCATION",
+                f64::from(u8::from(spec.sgm_line_per_invocation)),
+            ),
         ];
         let box_h = [
             distorted[0],
@@ -439,6 +559,7 @@ impl GpuEngine {
                     "box_h" => &box_h,
                     "box_v" => &box_v,
                     "aggregate" => &aggregate,
+                    "sgm" => &sgm,
                     _ => &distorted,
                 };
                 self.device
@@ -504,6 +625,24 @@ impl GpuEngine {
                 )));
             }
         }
+        let sgm_paths = plan.sgm_paths();
+        let volume_words = if sgm_paths > 0 {
+            plan.volume_words() as u32
+        } else {
+            0
+        };
+        if sgm_paths > 0 {
+            // The cost volume and the path sums: u16 per pixel and plane each.
+            let volume_bytes = npix * u64::from(volume_words) * 4;
+            if volume_bytes > max_binding {
+                return Err(SweepError::InvalidParams(format!(
+                    "optimizer sgm: the cost volume of {}x{} pixels x {} planes needs {volume_bytes} bytes (u16 per pixel and plane, twice: costs and path sums), more than this adapter's storage binding limit of {max_binding} bytes; use fewer planes or a smaller image, or optimizer wta (no cost volume)",
+                    plan.width,
+                    plan.height,
+                    plan.num_planes()
+                )));
+            }
+        }
         let planes = plan.num_planes();
         let max_z = limits.max_compute_workgroups_per_dimension;
         let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
@@ -525,6 +664,8 @@ impl GpuEngine {
             direct_windows: plan.params.extra[1] == WINDOW_SHIFTABLE
                 && plan.params.window[0] <= 2
                 && plan.params.window[1] <= 2,
+            sgm_paths,
+            volume_words,
         })
     }
 
@@ -559,6 +700,25 @@ impl GpuEngine {
                 .copy_from_slice(bytemuck::bytes_of(&batch));
         }
         self.queue.write_buffer(&buffers.batches, 0, &batches);
+        let mut passes = vec![0u8; buffers.sgm_passes.size() as usize];
+        for (r, &(dx, dy)) in SGM_DIRECTIONS
+            .iter()
+            .enumerate()
+            .take(key.sgm_paths as usize)
+        {
+            let pass = GpuSgmPass {
+                direction: [
+                    dx,
+                    dy,
+                    sgm_lines(dx, dy, key.width, key.height) as i32,
+                    i32::from(r == 0),
+                ],
+            };
+            let at = (r as u64 * self.pass_align) as usize;
+            passes[at..at + std::mem::size_of::<GpuSgmPass>()]
+                .copy_from_slice(bytemuck::bytes_of(&pass));
+        }
+        self.queue.write_buffer(&buffers.sgm_passes, 0, &passes);
     }
 
     fn allocate(&self, key: ShapeKey) -> Result<Buffers, SweepError> {
@@ -613,6 +773,30 @@ impl GpuEngine {
             none,
         );
         let state = storage("state", npix * 48, none);
+        let volume_bytes = npix * u64::from(key.volume_words) * 4;
+        let volume = storage("sgm volume", volume_bytes, none);
+        let sums = storage("sgm sums", volume_bytes, none);
+        // One row of path costs per line (one invocation per line on CPU adapters).
+        let line_costs = storage(
+            "sgm line costs",
+            if key.sgm_paths > 0 {
+                u64::from(key.width + key.height) * u64::from(key.volume_words) * 16
+            } else {
+                0
+            },
+            none,
+        );
+        let sgm_passes = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("sgm passes"),
+            size: SGM_DIRECTIONS.len() as u64 * self.pass_align,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let pass_binding = wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &sgm_passes,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<GpuSgmPass>() as u64),
+        });
         let maps = storage(
             "maps",
             npix * 4 * MAP_COUNT as u64,
@@ -684,6 +868,7 @@ impl GpuEngine {
                     state.as_entire_binding(),
                     pairs.as_entire_binding(),
                     cost_slab.as_entire_binding(),
+                    volume.as_entire_binding(),
                 ],
             ),
             bind(
@@ -718,6 +903,26 @@ impl GpuEngine {
                     rays.as_entire_binding(),
                     zbuffer.as_entire_binding(),
                     maps.as_entire_binding(),
+                ],
+            ),
+            bind(
+                8,
+                vec![
+                    params.as_entire_binding(),
+                    pass_binding,
+                    cameras.as_entire_binding(),
+                    images.as_entire_binding(),
+                    volume.as_entire_binding(),
+                    sums.as_entire_binding(),
+                    line_costs.as_entire_binding(),
+                ],
+            ),
+            bind(
+                9,
+                vec![
+                    params.as_entire_binding(),
+                    sums.as_entire_binding(),
+                    state.as_entire_binding(),
                 ],
             ),
         ];
@@ -763,6 +968,7 @@ impl GpuEngine {
             rays,
             planes,
             pairs,
+            sgm_passes,
             maps,
             zbuffer,
             readback,

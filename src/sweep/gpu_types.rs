@@ -28,6 +28,13 @@ pub const HALF_LEFT: u32 = 0;
 pub const HALF_RIGHT: u32 = 1;
 pub const HALF_REFERENCE: u32 = 2;
 
+/// SGM: a scored cost of `tau` (or no valid pair) is this many levels in the u16 cost volume.
+pub const SGM_COST_MAX: u32 = 1023;
+/// SGM: planes per pixel (the previous path costs live in workgroup memory).
+pub const MAX_SGM_PLANES: u32 = 1024;
+/// SGM: the colour step of `sgm_edge` in 1/16 grey levels (integer maths on both sides).
+pub const SGM_EDGE_UNITS: f32 = 16.0;
+
 pub const INVALID: f32 = -1.0;
 /// `HALF_NOISE_FLOOR` in common.wgsl.
 pub const HALF_NOISE_FLOOR: f32 = 25.0;
@@ -75,6 +82,20 @@ pub struct GpuParams {
     pub thresholds: [f32; 4],
     /// min visible cameras, window mode, padded width (W + w - 1), padded height (H + h - 1).
     pub extra: [u32; 4],
+    /// SGM: paths (0 = winner-take-all), P1 and P2 in cost-volume levels, edge step in
+    /// 1/16 grey levels (0 = constant P2).
+    pub sgm: [u32; 4],
+    /// SGM: cost-volume levels per score unit (SGM_COST_MAX / tau), score units per summed
+    /// level (1 / (paths x levels per unit)), 0, 0.
+    pub sgm_scale: [f32; 4],
+}
+
+/// WGSL `SgmPass`: one direction of the semi-global optimiser.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+pub struct GpuSgmPass {
+    /// dx, dy (each -1, 0 or 1), number of path lines, 1 for the first pass (writes the sums).
+    pub direction: [i32; 4],
 }
 
 /// Planes per batch (they travel in the batch's uniform block).
@@ -98,7 +119,8 @@ mod tests {
     #[test]
     fn layouts_match_wgsl() {
         assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
-        assert_eq!(std::mem::size_of::<GpuParams>(), 96);
+        assert_eq!(std::mem::size_of::<GpuParams>(), 128);
+        assert_eq!(std::mem::size_of::<GpuSgmPass>(), 16);
         assert_eq!(
             std::mem::size_of::<GpuBatch>(),
             16 + 16 * MAX_BATCH_PLANES as usize
@@ -119,6 +141,8 @@ mod tests {
             ("MAP_COUNT", MAP_COUNT as u32),
             ("MAX_BATCH_PLANES", MAX_BATCH_PLANES),
             ("MAP_VISIBLE", MAP_VISIBLE as u32),
+            ("SGM_COST_MAX", SGM_COST_MAX),
+            ("MAX_SGM_PLANES", MAX_SGM_PLANES),
         ] {
             let needle = format!("const {name}: u32 = {value}u;");
             assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");

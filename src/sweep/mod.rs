@@ -63,6 +63,19 @@ pub enum WindowMode {
     Centred,
 }
 
+/// How the depth is chosen from the scored costs of each pixel (ALGORITHM.md stage 5).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Optimizer {
+    /// Local winner-take-all over each pixel's hypotheses (the paper); streams over plane
+    /// batches, no cost volume.
+    Wta,
+    /// Semi-global matching: the scored costs go into a compact (u16) cost volume, path-wise
+    /// dynamic programming along `sgm_paths` directions with penalties P1 / P2 is summed, then
+    /// winner-take-all on the sum (`shaders/sgm.wgsl`, `shaders/sgm_select.wgsl`).
+    Sgm,
+}
+
 /// Engine parameters. Defaults are the ones measured best on the shared data (see README).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -95,6 +108,17 @@ pub struct SweepParams {
     pub occlusion_tolerance: f32,
     /// A half is "clearly better" when its score is below (1 - margin) times the other's.
     pub half_margin: f32,
+    pub optimizer: Optimizer,
+    /// SGM penalty for a change of one plane between neighbours, in score units (those of
+    /// `tau`).
+    pub sgm_p1: f32,
+    /// SGM penalty for a change of more than one plane, in score units.
+    pub sgm_p2: f32,
+    /// SGM path directions: 4 (horizontal and vertical) or 8 (plus diagonals).
+    pub sgm_paths: u32,
+    /// Colour step (largest RGB channel difference between path neighbours, 0..255) at which
+    /// P2 is halved: P2 / (1 + step / sgm_edge), at least P1; 0 keeps P2 constant.
+    pub sgm_edge: f32,
 }
 
 impl Default for SweepParams {
@@ -118,6 +142,11 @@ impl Default for SweepParams {
             min_visible_cameras: 2,
             occlusion_tolerance: 0.01,
             half_margin: 0.1,
+            optimizer: Optimizer::Sgm,
+            sgm_p1: 1.5,
+            sgm_p2: 25.0,
+            sgm_paths: 8,
+            sgm_edge: 0.0,
         }
     }
 }
@@ -207,6 +236,38 @@ impl SweepParams {
                 self.half_best_n
             ));
         }
+        if self.optimizer == Optimizer::Sgm {
+            if self.sgm_paths != 4 && self.sgm_paths != 8 {
+                return bad(format!("sgm_paths must be 4 or 8, got {}", self.sgm_paths));
+            }
+            if !(self.sgm_p1 >= 0.0 && self.sgm_p2 >= self.sgm_p1) {
+                return bad(format!(
+                    "SGM penalties need 0 <= sgm_p1 <= sgm_p2, got {} and {}",
+                    self.sgm_p1, self.sgm_p2
+                ));
+            }
+            // The path costs are summed in 16 bits: paths x (largest cost + P2) must fit.
+            let max_p2 = self.max_sgm_p2();
+            if self.sgm_p2 > max_p2 {
+                return bad(format!(
+                    "sgm_p2 ({}) is too large for {} paths: the summed path costs are 16-bit, which allows P2 <= {max_p2:.2} with tau = {} (P2 <= {} x tau)",
+                    self.sgm_p2,
+                    self.sgm_paths,
+                    self.tau,
+                    (self.max_sgm_p2() / self.tau)
+                ));
+            }
+            if !(self.sgm_edge >= 0.0) {
+                return bad(format!("sgm_edge must be >= 0, got {}", self.sgm_edge));
+            }
+            if self.num_planes > gpu_types::MAX_SGM_PLANES {
+                return bad(format!(
+                    "optimizer sgm supports at most {} planes, got {}",
+                    gpu_types::MAX_SGM_PLANES,
+                    self.num_planes
+                ));
+            }
+        }
         let pairs = self.effective_pairs();
         if pairs == PairSet::Reference && rig.reference_index().is_none() {
             return bad(format!(
@@ -242,6 +303,14 @@ impl SweepParams {
             ));
         }
         Ok(())
+    }
+
+    /// The largest `sgm_p2` whose path sums still fit 16 bits (score units).
+    pub fn max_sgm_p2(&self) -> f32 {
+        let paths = self.sgm_paths.max(1);
+        let per_path = u32::from(u16::MAX) / paths;
+        let p2_levels = per_path.saturating_sub(gpu_types::SGM_COST_MAX);
+        p2_levels as f32 * self.tau / gpu_types::SGM_COST_MAX as f32
     }
 
     /// `AllPairs` always scores all pairs; the others follow `pairs`.
@@ -399,6 +468,21 @@ pub struct ParamOverrides {
     /// Relative depth tolerance of the occlusion test.
     #[arg(long)]
     pub occlusion_tolerance: Option<f32>,
+    /// Depth selection: local winner-take-all (the paper) or semi-global matching.
+    #[arg(long, value_enum)]
+    pub optimizer: Option<Optimizer>,
+    /// SGM penalty P1 (a one-plane step), score units.
+    #[arg(long)]
+    pub sgm_p1: Option<f32>,
+    /// SGM penalty P2 (a larger step), score units.
+    #[arg(long)]
+    pub sgm_p2: Option<f32>,
+    /// SGM path directions (4 or 8).
+    #[arg(long)]
+    pub sgm_paths: Option<u32>,
+    /// SGM: colour step (0..255) at which P2 is halved; 0 = constant P2.
+    #[arg(long)]
+    pub sgm_edge: Option<f32>,
 }
 
 fn parse_window(s: &str) -> Result<(u32, u32), String> {
@@ -466,6 +550,21 @@ impl ParamOverrides {
         }
         if let Some(v) = self.occlusion_tolerance {
             p.occlusion_tolerance = v;
+        }
+        if let Some(v) = self.optimizer {
+            p.optimizer = v;
+        }
+        if let Some(v) = self.sgm_p1 {
+            p.sgm_p1 = v;
+        }
+        if let Some(v) = self.sgm_p2 {
+            p.sgm_p2 = v;
+        }
+        if let Some(v) = self.sgm_paths {
+            p.sgm_paths = v;
+        }
+        if let Some(v) = self.sgm_edge {
+            p.sgm_edge = v;
         }
     }
 }

@@ -6,8 +6,8 @@ use glam::DVec2;
 
 use super::gpu_types::*;
 use super::{
-    check_images, Aggregation, HypothesisGenerator, PairSet, Scoring, SweepError, SweepParams,
-    WindowMode,
+    check_images, Aggregation, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
+    SweepParams, WindowMode,
 };
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;
@@ -203,7 +203,35 @@ impl SweepPlan {
                 width + params.window_width - 1,
                 height + params.window_height - 1,
             ],
+            sgm: [0; 4],
+            sgm_scale: [0.0; 4],
         };
+        let mut gpu_params = gpu_params;
+        if params.optimizer == Optimizer::Sgm {
+            if planes.len() > MAX_SGM_PLANES as usize {
+                return Err(SweepError::InvalidParams(format!(
+                    "optimizer sgm supports at most {MAX_SGM_PLANES} planes; the hypothesis generator gave {}",
+                    planes.len()
+                )));
+            }
+            let levels_per_unit = SGM_COST_MAX as f32 / params.tau;
+            let level = |v: f32| (v * levels_per_unit + 0.5).floor() as u32;
+            let p1 = level(params.sgm_p1);
+            let p2 = level(params.sgm_p2).max(p1);
+            // Virtual references have no image: P2 stays constant.
+            let edge = if reference.is_some() {
+                (params.sgm_edge * SGM_EDGE_UNITS + 0.5).floor() as u32
+            } else {
+                0
+            };
+            gpu_params.sgm = [params.sgm_paths, p1, p2, edge];
+            gpu_params.sgm_scale = [
+                levels_per_unit,
+                1.0 / (params.sgm_paths as f32 * levels_per_unit),
+                0.0,
+                0.0,
+            ];
+        }
         static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         Ok(Self {
             id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
@@ -233,6 +261,16 @@ impl SweepPlan {
 
     pub fn num_planes(&self) -> u32 {
         self.params.counts[1]
+    }
+
+    /// SGM path directions; 0 = winner-take-all (no cost volume).
+    pub fn sgm_paths(&self) -> u32 {
+        self.params.sgm[0]
+    }
+
+    /// u32 words per pixel of the u16 cost volume (two planes per word).
+    pub fn volume_words(&self) -> usize {
+        self.num_planes().div_ceil(2) as usize
     }
 
     /// Concatenates the camera images in rig order (the layout of the image buffer).

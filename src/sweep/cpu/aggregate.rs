@@ -153,7 +153,8 @@ impl Window<'_> {
     }
 }
 
-/// Scores every plane of the batch for every pixel and feeds the winner-take-all state.
+/// Scores every plane of the batch for every pixel and feeds the winner-take-all state; with
+/// a `volume` (optimizer sgm) also writes each score's level into it.
 pub fn run(
     plan: &SweepPlan,
     first_plane: u32,
@@ -161,6 +162,7 @@ pub fn run(
     box_sums: &[[f32; 2]],
     cost_slab: &[f32],
     state: &mut [PixelState],
+    mut volume: Option<&mut [u32]>,
 ) {
     let p = &plan.params;
     let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
@@ -187,11 +189,12 @@ pub fn run(
                     }
                     best
                 };
-                select::update(
-                    &mut state[(y * width + x) as usize],
-                    (first_plane as usize + z) as f32,
-                    best,
-                );
+                let pix = (y * width + x) as usize;
+                let plane = first_plane + z as u32;
+                select::update(&mut state[pix], plane as f32, best);
+                if let Some(volume) = volume.as_deref_mut() {
+                    super::sgm::store_level(plan, volume, pix, plane, best[0]);
+                }
             }
         }
     }

@@ -10,7 +10,9 @@ pub mod finalize;
 pub mod median;
 pub mod occlusion;
 pub mod select;
+pub mod sgm;
 
+use super::gpu::{sgm_lines, SGM_DIRECTIONS};
 use super::gpu_types::MAP_COUNT;
 use super::plan::SweepPlan;
 use super::{DepthMaps, SweepError, SweepParams};
@@ -57,14 +59,32 @@ impl CpuEngine {
         let mut row_sums = vec![[0.0f32; 2]; slices * padded_w as usize * plan.height as usize];
         let mut box_sums = vec![[0.0f32; 2]; slices * padded_w as usize * padded_h as usize];
         let mut state = vec![select::initial(); npix];
+        let sgm_paths = plan.sgm_paths();
+        let volume_len = if sgm_paths > 0 {
+            npix * plan.volume_words()
+        } else {
+            0
+        };
+        let mut volume = vec![0u32; volume_len];
         let mut first = 0;
         while first < n_planes {
             let count = batch.min(n_planes - first);
             cost::run(plan, &packed, first, count, &mut cost_slab);
             boxes::box_h(plan, count, &cost_slab, &mut row_sums);
             boxes::box_v(plan, count, &row_sums, &mut box_sums);
-            aggregate::run(plan, first, count, &box_sums, &cost_slab, &mut state);
+            let volume_out = (sgm_paths > 0).then_some(volume.as_mut_slice());
+            aggregate::run(
+                plan, first, count, &box_sums, &cost_slab, &mut state, volume_out,
+            );
             first += count;
+        }
+        if sgm_paths > 0 {
+            let mut sums = vec![0u32; volume_len];
+            for (r, &(dx, dy)) in SGM_DIRECTIONS.iter().enumerate().take(sgm_paths as usize) {
+                let lines = sgm_lines(dx, dy, plan.width, plan.height);
+                sgm::pass(plan, &packed, dx, dy, lines, r == 0, &volume, &mut sums);
+            }
+            sgm::select(plan, &sums, &mut state);
         }
         let mut maps = vec![0.0f32; MAP_COUNT * npix];
         finalize::run(plan, &state, &mut maps);
