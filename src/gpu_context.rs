@@ -25,6 +25,17 @@ impl GpuContext {
     }
 
     pub async fn new_async() -> Result<Self, GpuContextError> {
+        Self::create(None).await
+    }
+
+    /// Like [`GpuContext::new`], with the storage-buffer binding and buffer size limits capped
+    /// at `max_bytes` (to keep a budget on a shared GPU, and to test the up-front refusal of
+    /// configurations larger than an adapter allows).
+    pub fn with_max_storage_binding(max_bytes: u64) -> Result<Self, GpuContextError> {
+        futures::executor::block_on(Self::create(Some(max_bytes)))
+    }
+
+    async fn create(max_storage_binding: Option<u64>) -> Result<Self, GpuContextError> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
@@ -37,9 +48,10 @@ impl GpuContext {
             features |= wgpu::Features::TIMESTAMP_QUERY;
         }
         let adapter_limits = adapter.limits();
+        let cap = max_storage_binding.unwrap_or(u64::MAX);
         let limits = wgpu::Limits {
-            max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size,
-            max_buffer_size: adapter_limits.max_buffer_size,
+            max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size.min(cap),
+            max_buffer_size: adapter_limits.max_buffer_size.min(cap),
             max_storage_buffers_per_shader_stage: adapter_limits
                 .max_storage_buffers_per_shader_stage
                 .min(8),

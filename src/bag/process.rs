@@ -9,11 +9,9 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::gpu_context::GpuContext;
 use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use crate::node::pipeline::{process_job, FrameOutputs, Pipeline};
+use crate::node::pipeline::{EngineHost, FrameOutputs, Pipeline};
 use crate::node::NodeConfig;
-use crate::sweep::gpu::GpuEngine;
 
 use super::schemas::{CAMERA_INFO, IMAGE, POINT_CLOUD2, TF_MESSAGE};
 use super::{writer, BagError, BagReader, BagWriter};
@@ -240,10 +238,8 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
     let ref_topic = &config.image_topics[config.reference];
     let total = known.iter().find(|t| &t.name == ref_topic).and_then(|t| t.count);
 
-    let gpu = GpuContext::new().map_err(|e| BagRunError::Gpu(e.to_string()))?;
-    let mut engine =
-        GpuEngine::new(&gpu.device, &gpu.queue).map_err(|e| BagRunError::Gpu(e.to_string()))?;
-    tracing::info!("GPU adapter: {}", gpu.adapter_label());
+    let mut host = EngineHost::new().map_err(BagRunError::Gpu)?;
+    tracing::info!("GPU adapter: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
     for (k, topic) in config.output_topics.iter().enumerate() {
@@ -332,7 +328,7 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                     report.sets_found += 1;
                     let t0 = Instant::now();
                     let result = set.and_then(|job| {
-                        process_job(&mut engine, job, &config.sweep, config.publish_points)
+                        host.process(&job, &config.sweep, config.publish_points)
                     });
                     match result {
                         Ok(out) => {

@@ -42,7 +42,6 @@ use ros2_client::{
 use glam::{DQuat, DVec3};
 
 use crate::geometry::{PinholeIntrinsics, RigidTransform};
-use crate::gpu_context::GpuContext;
 use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
 use crate::ros::args::{
     apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamValue, RosArgs, RosArgsError,
@@ -50,12 +49,11 @@ use crate::ros::args::{
 };
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer};
-use crate::sweep::gpu::GpuEngine;
 use crate::sweep::SweepParams;
 
 use self::diag::{wall_time_now, Stats};
 use self::params::LiveParams;
-use self::pipeline::{process_job, Job, Pipeline};
+use self::pipeline::{EngineHost, Job, Pipeline};
 use self::worker::LatestSlot;
 
 /// Minimum time between two repetitions of the same warning.
@@ -477,21 +475,14 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let worker = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
-            let gpu = match GpuContext::new() {
-                Ok(gpu) => gpu,
+            let host = match EngineHost::new() {
+                Ok(host) => host,
                 Err(e) => {
-                    let _ = init_tx.send(Err(e.to_string()));
+                    let _ = init_tx.send(Err(e));
                     return;
                 }
             };
-            let engine = match GpuEngine::new(&gpu.device, &gpu.queue) {
-                Ok(engine) => engine,
-                Err(e) => {
-                    let _ = init_tx.send(Err(e.to_string()));
-                    return;
-                }
-            };
-            let _ = init_tx.send(Ok(gpu.adapter_label()));
+            let _ = init_tx.send(Ok(host.adapter_label()));
             let Ok(outputs) = outputs_rx.recv() else {
                 return;
             };
@@ -500,7 +491,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                 live: &worker_live,
                 stats: &worker_stats,
             };
-            worker_loop(&shared, engine, &outputs);
+            worker_loop(&shared, host, &outputs);
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
     let adapter = match init_rx.recv() {
@@ -880,11 +871,7 @@ impl LoopState<'_> {
     }
 }
 
-fn worker_loop(
-    shared: &WorkerShared<'_>,
-    mut engine: GpuEngine,
-    outputs: &Outputs,
-) {
+fn worker_loop(shared: &WorkerShared<'_>, mut host: EngineHost, outputs: &Outputs) {
     let slot = shared.slot;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
@@ -892,7 +879,7 @@ fn worker_loop(
         let started = Instant::now();
         // Parameter changes apply from the next set on.
         let sweep: SweepParams = shared.live.sweep();
-        let out = match process_job(&mut engine, job, &sweep, outputs.points.is_some()) {
+        let out = match host.process(&job, &sweep, outputs.points.is_some()) {
             Ok(out) => out,
             Err(skip) => {
                 log.warn(&skip.key, || format!("{skip}; skipping this set"));

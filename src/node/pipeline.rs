@@ -388,10 +388,97 @@ pub struct FrameOutputs {
     pub points: Option<PointCloud2>,
 }
 
+/// The GPU side of the node: the device and the engine, recreated when the device is lost
+/// (a driver reset, a GPU that fell off the bus, `Device::destroy`).
+pub struct EngineHost {
+    gpu: crate::gpu_context::GpuContext,
+    engine: GpuEngine,
+    lost: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// How many times the device was lost and the engine recreated.
+    pub recreated: u64,
+}
+
+impl EngineHost {
+    pub fn new() -> Result<Self, String> {
+        let (gpu, engine, lost) = Self::create()?;
+        Ok(Self {
+            gpu,
+            engine,
+            lost,
+            recreated: 0,
+        })
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn create() -> Result<
+        (
+            crate::gpu_context::GpuContext,
+            GpuEngine,
+            std::sync::Arc<std::sync::atomic::AtomicBool>,
+        ),
+        String,
+    > {
+        let gpu = crate::gpu_context::GpuContext::new().map_err(|e| e.to_string())?;
+        let lost = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = std::sync::Arc::clone(&lost);
+        gpu.device.set_device_lost_callback(move |reason, message| {
+            flag.store(true, std::sync::atomic::Ordering::SeqCst);
+            tracing::error!("GPU device lost ({reason:?}): {message}");
+        });
+        let engine = GpuEngine::new(&gpu.device, &gpu.queue).map_err(|e| e.to_string())?;
+        Ok((gpu, engine, lost))
+    }
+
+    pub fn adapter_label(&self) -> String {
+        self.gpu.adapter_label()
+    }
+
+    /// The device, e.g. to simulate a loss in tests (`device().destroy()`).
+    pub fn device(&self) -> &wgpu::Device {
+        &self.gpu.device
+    }
+
+    pub fn is_lost(&self) -> bool {
+        self.lost.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Runs `job`; when the device is lost (before or during the run) the device and engine are
+    /// made anew and the job runs once more.
+    pub fn process(
+        &mut self,
+        job: &Job,
+        sweep: &SweepParams,
+        with_points: bool,
+    ) -> Result<FrameOutputs, Skip> {
+        if !self.is_lost() {
+            match process_job(&mut self.engine, job, sweep, with_points) {
+                Err(skip) if skip.kind == "engine" && self.is_lost() => {
+                    tracing::warn!("{skip}");
+                }
+                other => return other,
+            }
+        }
+        tracing::warn!("the GPU device was lost: recreating the device and the engine");
+        let (gpu, engine, lost) = Self::create().map_err(|e| {
+            Skip::new(
+                "gpu lost",
+                "gpu_lost".into(),
+                format!("the GPU device was lost and cannot be recreated: {e}"),
+            )
+        })?;
+        self.gpu = gpu;
+        self.engine = engine;
+        self.lost = lost;
+        self.recreated += 1;
+        tracing::info!("GPU engine recreated on {}", self.gpu.adapter_label());
+        process_job(&mut self.engine, job, sweep, with_points)
+    }
+}
+
 /// Runs one job through the engine with the given parameters and builds its output messages.
 pub fn process_job(
     engine: &mut GpuEngine,
-    job: Job,
+    job: &Job,
     sweep: &SweepParams,
     with_points: bool,
 ) -> Result<FrameOutputs, Skip> {
@@ -423,13 +510,13 @@ pub fn process_job(
     } else {
         images.get(job.reference)
     };
-    let rig = Rig::new(job.cameras, reference).map_err(|e| {
+    let rig = Rig::new(job.cameras.clone(), reference).map_err(|e| {
         Skip::new("rig", "rig".into(), format!("cannot build the rig: {e}"))
     })?;
     let maps = engine
         .run(&rig, &images, sweep)
         .map_err(|e| Skip::new("engine", "engine".into(), format!("sweep failed: {e}")))?;
-    let mut depth_info = job.ref_info;
+    let mut depth_info = job.ref_info.clone();
     depth_info.header = header.clone();
     let points = with_points
         .then(|| point_cloud_msg(&header, &maps.depth_m, colour, &rig.reference_model()));

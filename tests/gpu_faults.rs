@@ -1,0 +1,101 @@
+//! GPU faults: a lost device (simulated with `Device::destroy`) is recreated and the set still
+//! processed; a configuration larger than the adapter's limits is refused up front, naming the
+//! limit.
+
+use std::path::PathBuf;
+
+use sweepdepth::bag::BagReader;
+use sweepdepth::geometry::CameraModel;
+use sweepdepth::gpu_context::GpuContext;
+use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
+use sweepdepth::node::pipeline::{EngineHost, Job, Pipeline};
+use sweepdepth::node::NodeConfig;
+use sweepdepth::sweep::gpu::GpuEngine;
+use sweepdepth::sweep::{SweepError, SweepParams};
+use sweepdepth::synthetic::{self, Scene};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The first job of the Tsukuba bag fixture, through the node's pipeline.
+fn fixture_job(config: &NodeConfig) -> Job {
+    let mut pipeline = Pipeline::new(config).expect("pipeline");
+    let bag = BagReader::open(&root().join("tests/fixtures/bags/tsukuba_half.mcap")).unwrap();
+    for m in bag {
+        let m = m.unwrap();
+        if m.topic == "/tf_static" {
+            assert!(pipeline.on_tf(&from_cdr::<TFMessage>(&m.data).unwrap()).is_empty());
+        } else if let Some(i) = config.info_topics.iter().position(|t| *t == m.topic) {
+            pipeline.on_info(i, from_cdr::<CameraInfo>(&m.data).unwrap());
+        } else if let Some(i) = config.image_topics.iter().position(|t| *t == m.topic) {
+            let image: Image = from_cdr(&m.data).unwrap();
+            for set in pipeline.on_image(i, image, m.log_time_ns).unwrap() {
+                return set.expect("a job");
+            }
+        }
+    }
+    panic!("no complete set in the fixture");
+}
+
+#[test]
+fn lost_device_is_recreated_and_the_set_processed() {
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let config = NodeConfig::from_args(&args, None).expect("config");
+    let job = fixture_job(&config);
+    let mut host = EngineHost::new().expect("GPU");
+    let before = host.process(&job, &config.sweep, false).expect("first run");
+    host.device().destroy();
+    let after = host
+        .process(&job, &config.sweep, false)
+        .expect("the run after the loss succeeds on a new device");
+    assert_eq!(host.recreated, 1);
+    assert!(!host.is_lost());
+    assert_eq!(before.depth.data, after.depth.data, "same depth on the new device");
+    // And it keeps working.
+    host.process(&job, &config.sweep, false).expect("third run");
+    assert_eq!(host.recreated, 1);
+}
+
+#[test]
+fn configuration_beyond_the_adapter_limits_is_refused_up_front() {
+    // An adapter that allows only 8 MiB per storage binding.
+    let gpu = GpuContext::with_max_storage_binding(8 << 20).expect("GPU");
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
+    let model = CameraModel::pinhole(synthetic::intrinsics(640, 480));
+    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 4.0,
+        num_planes: 64,
+        ..SweepParams::default()
+    };
+    let err = engine
+        .run(&rig, &images, &params)
+        .expect_err("640x480x64 with SGM cannot fit 8 MiB bindings");
+    let text = err.to_string();
+    assert!(matches!(err, SweepError::InvalidParams(_)), "{text}");
+    assert!(text.contains("storage binding limit"), "{text}");
+    assert!(text.contains("8388608"), "the limit is named: {text}");
+    // The engine is still usable for a configuration that fits.
+    let small = SweepParams {
+        num_planes: 8,
+        ..params
+    };
+    let rig_small = synthetic::row_rig(
+        3,
+        0.1,
+        CameraModel::pinhole(synthetic::intrinsics(64, 48)),
+        1,
+    )
+    .unwrap();
+    let scene = Scene::wall_and_box(2.0, None, synthetic::intrinsics(64, 48).fx_px);
+    let images = synthetic::render_rig(&scene, &rig_small);
+    engine.run(&rig_small, &images, &small).expect("a small set still runs");
+}
