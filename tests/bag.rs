@@ -342,17 +342,11 @@ fn damaged_or_wrong_inputs_fail_clearly() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("exists (pass --force"));
 }
 
-/// LZ4-compressed and uncompressed chunks (our writer makes zstd ones).
-#[test]
-fn mcap_with_lz4_and_plain_chunks_is_read() {
-    let dir = scratch("lz4");
-    let expected = messages(&fixture());
-    for (name, compression) in [
-        ("lz4.mcap", Some(mcap::Compression::Lz4)),
-        ("plain.mcap", None),
-    ] {
-        let path = dir.join(name);
-        let file = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+/// Writes `messages` as an MCAP with the given chunk compression and ~200 kB chunks.
+fn write_mcap(path: &Path, messages: &[BagMessage], compression: Option<mcap::Compression>) {
+    {
+        let expected = messages;
+        let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
         let mut w = mcap::WriteOptions::new()
             .profile("ros2")
             .compression(compression)
@@ -360,7 +354,7 @@ fn mcap_with_lz4_and_plain_chunks_is_read() {
             .create(file)
             .unwrap();
         let mut channels = std::collections::HashMap::new();
-        for m in &expected {
+        for m in expected {
             let id = *channels.entry(m.topic.clone()).or_insert_with(|| {
                 let schema = w.add_schema(&m.msg_type, "ros2msg", b"").unwrap();
                 w.add_channel(schema, &m.topic, "cdr", &Default::default()).unwrap()
@@ -377,7 +371,70 @@ fn mcap_with_lz4_and_plain_chunks_is_read() {
             .unwrap();
         }
         w.finish().unwrap();
-        drop(w);
+    }
+}
+
+/// LZ4-compressed and uncompressed chunks (our writer makes zstd ones).
+#[test]
+fn mcap_with_lz4_and_plain_chunks_is_read() {
+    let dir = scratch("lz4");
+    let expected = messages(&fixture());
+    for (name, compression) in [
+        ("lz4.mcap", Some(mcap::Compression::Lz4)),
+        ("plain.mcap", None),
+    ] {
+        let path = dir.join(name);
+        write_mcap(&path, &expected, compression);
         assert_eq!(messages(&path), expected, "{name}");
     }
+}
+
+/// A damaged chunk in the middle: reported with its position, the rest of the bag processed;
+/// `--strict` makes it fatal.
+#[test]
+fn damaged_chunk_is_skipped_and_the_rest_processed() {
+    let dir = scratch("chunk");
+    let path = dir.join("damaged.mcap");
+    write_mcap(&path, &messages(&fixture()), None);
+    let mut bytes = std::fs::read(&path).unwrap();
+    // Flip bytes inside the reference image of the second set (uncompressed chunks hold the
+    // CDR as is: find its header, stamp 1700000000.1 s, frame cam2_optical_frame).
+    let mut pattern = Vec::new();
+    pattern.extend_from_slice(&1_700_000_000i32.to_le_bytes());
+    pattern.extend_from_slice(&100_000_000u32.to_le_bytes());
+    pattern.extend_from_slice(&19u32.to_le_bytes());
+    pattern.extend_from_slice(b"cam2_optical_frame\0");
+    let hits: Vec<usize> = bytes
+        .windows(pattern.len())
+        .enumerate()
+        .filter(|(_, w)| *w == pattern.as_slice())
+        .map(|(i, _)| i)
+        .collect();
+    // The camera_info and the image of cam2 in set 2; the image is the larger, later one.
+    let at = *hits.last().expect("the set-2 reference image in the file") + 200;
+    for b in &mut bytes[at..at + 64] {
+        *b ^= 0xA5;
+    }
+    std::fs::write(&path, &bytes).unwrap();
+    let stderr = run_bag(&path, &dir.join("out.mcap"), &[]);
+    assert!(
+        stderr.contains("damaged.mcap: corrupt or truncated at byte")
+            && stderr.contains("skipping to the next chunk"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("read errors (damaged bag)"), "{stderr}");
+    let got: Vec<Time> = depths(&dir.join("out.mcap")).iter().map(|d| d.0).collect();
+    let stamps = reference_stamps(&fixture());
+    assert!(got.contains(&stamps[0]) && got.contains(&stamps[2]), "sets around the damage: {got:?}");
+    assert!(got.len() < 3, "the damaged set cannot be complete: {got:?}");
+    let strict = sweepdepth(&[
+        "bag",
+        path.to_str().unwrap(),
+        dir.join("strict.mcap").to_str().unwrap(),
+        "--params-file",
+        fixture_params().to_str().unwrap(),
+        "--strict",
+    ]);
+    assert!(!strict.status.success());
+    assert!(String::from_utf8_lossy(&strict.stderr).contains("the bag is damaged"));
 }

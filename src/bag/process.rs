@@ -38,6 +38,10 @@ pub struct BagArgs {
     /// Replace OUT if it exists.
     #[arg(long)]
     pub force: bool,
+    /// Exit non-zero when the bag is damaged even if usable sets were processed (by default a
+    /// damaged bag is reported, the rest processed, and only a bag with nothing usable fails).
+    #[arg(long)]
+    pub strict: bool,
 }
 
 impl BagArgs {
@@ -77,8 +81,9 @@ pub struct BagReport {
     /// Topics of the bag the pipeline does not read.
     pub ignored_topics: Vec<String>,
     pub mean_time_per_set: Option<Duration>,
-    /// The first read error (truncated or corrupt file), after which reading stopped.
-    pub read_error: Option<String>,
+    /// Read errors (a truncated or corrupt file: each names the file and byte offset); reading
+    /// goes on at the next intact chunk where the file allows.
+    pub read_errors: Vec<String>,
     pub output: Option<super::WriteSummary>,
 }
 
@@ -97,6 +102,9 @@ impl BagReport {
                 .map(|(k, n)| format!("{n} {k}"))
                 .collect();
             s += &format!(" ({})", reasons.join(", "));
+        }
+        if !self.read_errors.is_empty() {
+            s += &format!(", {} read errors (damaged bag)", self.read_errors.len());
         }
         if !self.bad_messages.is_empty() {
             let bad: u64 = self.bad_messages.values().sum();
@@ -172,7 +180,7 @@ fn progress_bar(total: Option<u64>) -> ProgressBar {
 
 /// Runs `args` through the pipeline. Progress goes to stderr when it is a terminal; warnings
 /// through `tracing`. Returns the report also when reading stopped at a damaged part of the
-/// bag (then `read_error` is set and everything before it is in OUT).
+/// bag (then `read_errors` says where, and everything readable is in OUT).
 pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
     let config = NodeConfig::from_args(&args.ros_args(), None)?;
     for note in &config.notes {
@@ -264,13 +272,18 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         let msg = match item {
             Ok(m) => m,
             Err(e) => {
-                report.read_error = Some(e.to_string());
-                break;
+                let e = e.to_string();
+                bar.suspend(|| tracing::error!("{e}"));
+                report.read_errors.push(e);
+                continue;
             }
         };
         report.messages += 1;
         if args.copy_inputs {
-            let schema = None;
+            let schema = known
+                .iter()
+                .find(|t| t.name == msg.topic)
+                .and_then(|t| t.schema.as_deref());
             writer.add_topic(&msg.topic, &msg.msg_type, schema)?;
             writer.write(&msg.topic, msg.log_time_ns, msg.publish_time_ns, &msg.data)?;
         }
@@ -370,12 +383,17 @@ pub fn run(args: &BagArgs) -> anyhow::Result<()> {
     if !report.ignored_topics.is_empty() {
         tracing::info!("topics not read: {}", report.ignored_topics.join(", "));
     }
-    if let Some(e) = &report.read_error {
-        anyhow::bail!(
-            "the bag is damaged: {e}; the {} sets before the damage are in {}",
+    if let Some(first) = report.read_errors.first() {
+        let what = format!(
+            "the bag is damaged ({} read errors, the first: {first}); the {} sets that could be read are in {}",
+            report.read_errors.len(),
             report.sets_processed,
             args.output.display()
         );
+        if args.strict || report.sets_processed == 0 {
+            anyhow::bail!("{what}");
+        }
+        tracing::warn!("{what}");
     }
     if report.sets_processed == 0 {
         let reasons: Vec<String> = report.skipped.keys().cloned().collect();

@@ -190,7 +190,8 @@ impl BagReader {
 impl Iterator for BagReader {
     type Item = Result<BagMessage, BagError>;
 
-    /// Messages in order; after the first error (a truncated or corrupt file) the reader ends.
+    /// Messages in order. A damaged part of an MCAP file yields one error and reading goes on
+    /// at the next intact chunk when the file's summary lists one; any other error ends it.
     fn next(&mut self) -> Option<Self::Item> {
         if self.failed {
             return None;
@@ -199,7 +200,11 @@ impl Iterator for BagReader {
             Ok(Some(m)) => Some(Ok(m)),
             Ok(None) => None,
             Err(e) => {
-                self.failed = true;
+                let resumable = matches!(&self.current, Some(Source::Mcap(m)) if !m.ended)
+                    && matches!(e, BagError::Corrupt { .. });
+                if !resumable {
+                    self.failed = true;
+                }
                 Some(Err(e))
             }
         }
@@ -352,9 +357,50 @@ impl Metadata {
     }
 }
 
-/// Topics and message counts from an MCAP file's summary section (channels, schemas and the
-/// statistics record), read from the end of the file. Empty when the file has no summary.
+/// What an MCAP file's summary section says (read from the end of the file): schemas,
+/// channels, per-channel message counts and where the chunks start. Empty when the file has no
+/// summary (truncated, or written without one).
+#[derive(Default)]
+struct McapSummary {
+    schemas: HashMap<u16, (String, Vec<u8>)>,
+    channels: BTreeMap<u16, (String, u16, String)>,
+    counts: Option<BTreeMap<u16, u64>>,
+    chunk_starts: Vec<u64>,
+}
+
 fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
+    let summary = read_mcap_summary(path)?;
+    let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
+    for (id, (topic, schema_id, encoding)) in &summary.channels {
+        let (name, schema) = summary
+            .schemas
+            .get(schema_id)
+            .map(|(n, d)| (normalise_type(n), Some(d.clone())))
+            .unwrap_or_default();
+        let count = summary
+            .counts
+            .as_ref()
+            .map(|c| c.get(id).copied().unwrap_or(0));
+        topics
+            .entry(topic.clone())
+            .and_modify(|t| {
+                t.count = match (t.count, count) {
+                    (Some(a), Some(b)) => Some(a + b),
+                    _ => None,
+                }
+            })
+            .or_insert(TopicInfo {
+                name: topic.clone(),
+                msg_type: name,
+                encoding: encoding.clone(),
+                count,
+                schema,
+            });
+    }
+    Ok(topics.into_values().collect())
+}
+
+fn read_mcap_summary(path: &Path) -> Result<McapSummary, BagError> {
     let mut file = File::open(path).map_err(|e| BagError::io(path, e))?;
     let len = file
         .seek(SeekFrom::End(0))
@@ -362,7 +408,7 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
     // Footer record (opcode, length, summary_start, summary_offset_start, crc) + magic.
     const TAIL: u64 = 1 + 8 + 8 + 8 + 4 + 8;
     if len < TAIL + 8 {
-        return Ok(Vec::new());
+        return Ok(McapSummary::default());
     }
     let mut tail = [0u8; TAIL as usize];
     file.seek(SeekFrom::Start(len - TAIL))
@@ -371,7 +417,7 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
         .map_err(|e| BagError::io(path, e))?;
     if tail[0] != mcap::records::op::FOOTER || &tail[29..] != mcap::MAGIC {
         // No footer: truncated or still being written; the stream reader says more.
-        return Ok(Vec::new());
+        return Ok(McapSummary::default());
     }
     let u64_at = |i: usize| {
         let mut b = [0u8; 8];
@@ -380,17 +426,14 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
     };
     let summary_start = u64_at(9);
     if summary_start == 0 || summary_start >= len - TAIL {
-        return Ok(Vec::new());
+        return Ok(McapSummary::default());
     }
     let mut summary = vec![0u8; (len - TAIL - summary_start) as usize];
     file.seek(SeekFrom::Start(summary_start))
         .map_err(|e| BagError::io(path, e))?;
     file.read_exact(&mut summary)
         .map_err(|e| BagError::io(path, e))?;
-    let mut schemas: HashMap<u16, (String, Vec<u8>)> = HashMap::new();
-    let mut channels: BTreeMap<u16, (String, u16, String)> = BTreeMap::new();
-    let mut counts: BTreeMap<u16, u64> = BTreeMap::new();
-    let mut have_stats = false;
+    let mut out = McapSummary::default();
     let mut at = 0usize;
     while at + 9 <= summary.len() {
         let op = summary[at];
@@ -402,43 +445,25 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
         };
         match mcap::parse_record(op, &summary[at + 9..end]) {
             Ok(mcap::records::Record::Schema { header, data }) => {
-                schemas.insert(header.id, (header.name, data.into_owned()));
+                out.schemas
+                    .insert(header.id, (header.name, data.into_owned()));
             }
             Ok(mcap::records::Record::Channel(c)) => {
-                channels.insert(c.id, (c.topic, c.schema_id, c.message_encoding));
+                out.channels
+                    .insert(c.id, (c.topic, c.schema_id, c.message_encoding));
             }
             Ok(mcap::records::Record::Statistics(s)) => {
-                have_stats = true;
-                counts = s.channel_message_counts;
+                out.counts = Some(s.channel_message_counts);
+            }
+            Ok(mcap::records::Record::ChunkIndex(c)) => {
+                out.chunk_starts.push(c.chunk_start_offset);
             }
             _ => {}
         }
         at = end;
     }
-    let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-    for (id, (topic, schema_id, encoding)) in channels {
-        let (name, schema) = schemas
-            .get(&schema_id)
-            .map(|(n, d)| (normalise_type(n), Some(d.clone())))
-            .unwrap_or_default();
-        let count = have_stats.then(|| counts.get(&id).copied().unwrap_or(0));
-        topics
-            .entry(topic.clone())
-            .and_modify(|t| {
-                t.count = match (t.count, count) {
-                    (Some(a), Some(b)) => Some(a + b),
-                    _ => None,
-                }
-            })
-            .or_insert(TopicInfo {
-                name: topic,
-                msg_type: name,
-                encoding,
-                count,
-                schema,
-            });
-    }
-    Ok(topics.into_values().collect())
+    out.chunk_starts.sort_unstable();
+    Ok(out)
 }
 
 struct McapChannel {
@@ -448,28 +473,95 @@ struct McapChannel {
     schema_id: u16,
 }
 
-/// Streams the messages of one MCAP file.
+/// Chunk CRCs are checked before any record of the chunk is used (a flipped bit in a chunk is
+/// found, and none of its messages is served).
+fn reader_options(skip_start_magic: bool) -> mcap::sans_io::linear_reader::LinearReaderOptions {
+    mcap::sans_io::linear_reader::LinearReaderOptions::default()
+        .with_skip_start_magic(skip_start_magic)
+        .with_validate_chunk_crcs(true)
+        .with_prevalidate_chunk_crcs(true)
+}
+
+/// Streams the messages of one MCAP file. After a damaged chunk (bad CRC, undecodable
+/// compression, a malformed record) reading resumes at the next chunk the summary lists, so the
+/// rest of the file is still read; without a summary (a truncated file) the first damage ends it.
 struct McapSource {
     path: PathBuf,
     file: BufReader<File>,
     reader: LinearReader,
-    /// Bytes fed to the reader so far (the position in error messages).
+    /// File offset of the next byte fed to the reader (the position in error messages).
     offset: u64,
     schemas: HashMap<u16, (String, Vec<u8>)>,
     channels: HashMap<u16, McapChannel>,
+    chunk_starts: Vec<u64>,
+    /// Set after an error: no resume point is left.
+    ended: bool,
 }
 
 impl McapSource {
     fn open(path: &Path) -> Result<Self, BagError> {
         let file = File::open(path).map_err(|e| BagError::io(path, e))?;
+        // Channels and schemas from the summary too, in case a damaged chunk held their records.
+        let summary = read_mcap_summary(path)?;
+        let mut channels = HashMap::new();
+        for (id, (topic, schema_id, encoding)) in &summary.channels {
+            channels.insert(
+                *id,
+                McapChannel {
+                    topic: topic.clone(),
+                    msg_type: summary
+                        .schemas
+                        .get(schema_id)
+                        .map(|(n, _)| normalise_type(n))
+                        .unwrap_or_default(),
+                    encoding: encoding.clone(),
+                    schema_id: *schema_id,
+                },
+            );
+        }
         Ok(Self {
             path: path.to_path_buf(),
             file: BufReader::with_capacity(1 << 20, file),
-            reader: LinearReader::new(),
+            reader: LinearReader::new_with_options(reader_options(false)),
             offset: 0,
-            schemas: HashMap::new(),
-            channels: HashMap::new(),
+            schemas: summary.schemas,
+            channels,
+            chunk_starts: summary.chunk_starts,
+            ended: false,
         })
+    }
+
+    /// After damage at `self.offset`: continue at the first chunk after the damaged one.
+    fn resume(&mut self) -> Option<u64> {
+        // The damaged chunk is the last one starting before the bytes read so far.
+        let damaged = self
+            .chunk_starts
+            .iter()
+            .rev()
+            .find(|&&s| s < self.offset)
+            .copied()?;
+        let next = self.chunk_starts.iter().find(|&&s| s > damaged).copied()?;
+        self.file.seek(SeekFrom::Start(next)).ok()?;
+        self.reader = LinearReader::new_with_options(reader_options(true));
+        self.offset = next;
+        Some(next)
+    }
+
+    /// Turns a read error into [`BagError::Corrupt`], setting up the resume point if any.
+    fn damaged(&mut self, reason: String) -> BagError {
+        let offset = self.offset;
+        let resumed = self.resume();
+        if resumed.is_none() {
+            self.ended = true;
+        }
+        BagError::Corrupt {
+            path: self.path.clone(),
+            offset,
+            reason: match resumed {
+                Some(next) => format!("{reason}; skipping to the next chunk at byte {next}"),
+                None => reason,
+            },
+        }
     }
 
     fn schema_of(&self, topic: &str) -> Option<Vec<u8>> {
@@ -486,6 +578,9 @@ impl McapSource {
     }
 
     fn next_message(&mut self) -> Result<Option<BagMessage>, BagError> {
+        if self.ended {
+            return Ok(None);
+        }
         loop {
             let event = match self.reader.next_event() {
                 None => return Ok(None),
@@ -496,7 +591,7 @@ impl McapSource {
                         }
                         other => other.to_string(),
                     };
-                    return Err(self.error(reason));
+                    return Err(self.damaged(reason));
                 }
                 Some(Ok(event)) => event,
             };
@@ -511,12 +606,8 @@ impl McapSource {
                     let record = match mcap::parse_record(opcode, data) {
                         Ok(r) => r,
                         Err(e) => {
-                            let offset = self.offset;
-                            return Err(BagError::Corrupt {
-                                path: self.path.clone(),
-                                offset,
-                                reason: format!("record with opcode {opcode:#04x}: {e}"),
-                            });
+                            let reason = format!("record with opcode {opcode:#04x}: {e}");
+                            return Err(self.damaged(reason));
                         }
                     };
                     match record {
@@ -542,16 +633,16 @@ impl McapSource {
                         }
                         mcap::records::Record::Message { header, data } => {
                             let Some(channel) = self.channels.get(&header.channel_id) else {
-                                return Err(self.error(format!(
-                                    "message on unknown channel {}",
-                                    header.channel_id
-                                )));
+                                let reason =
+                                    format!("message on unknown channel {}", header.channel_id);
+                                return Err(self.error(reason));
                             };
                             if channel.encoding != "cdr" {
-                                return Err(self.error(format!(
+                                let reason = format!(
                                     "topic {} has message encoding '{}', not ROS 2 'cdr'",
                                     channel.topic, channel.encoding
-                                )));
+                                );
+                                return Err(self.error(reason));
                             }
                             return Ok(Some(BagMessage {
                                 topic: channel.topic.clone(),

@@ -1,8 +1,9 @@
-//! Overload soak of `sweepdepth node` (a benchmark, not a test): a synthetic 4-camera rig
-//! published faster than the GPU can go, while the node's resident memory is sampled.
+//! Overload soak of `sweepdepth node` (a benchmark run by `scripts/soak.sh [MINUTES]`, ignored by
+//! `cargo test`): a synthetic 4-camera rig published faster than the GPU can go, while the
+//! node's resident memory is sampled. It fails if the node dies or its memory grows by more
+//! than 10 % after the first minute.
 //!
-//! Run through `scripts/soak.sh [MINUTES]`, which builds in release and runs this inside a
-//! private network namespace (only loopback: no DDS packet leaves the machine). Phases:
+//! DDS only inside a private network namespace (tests/common/netns.rs). Phases:
 //! 1. calibration: 20 s at 30 Hz; the node's output rate is the sustainable rate S;
 //! 2. soak: MINUTES at 2 S, the node's VmRSS sampled every 10 s.
 //!    Prints one line per sample and a summary (RSS first / last / max, inputs, outputs).
@@ -24,14 +25,16 @@ const CAMERAS: usize = 4;
 const WIDTH: u32 = 320;
 const HEIGHT: u32 = 240;
 
-fn interfaces() -> Vec<String> {
-    std::fs::read_to_string("/proc/self/net/dev")
-        .unwrap_or_default()
-        .lines()
-        .skip(2)
-        .filter_map(|l| l.split(':').next().map(|s| s.trim().to_string()))
-        .filter(|s| !s.is_empty())
-        .collect()
+#[path = "common/netns.rs"]
+mod netns;
+
+const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
+
+/// `SWEEPDEPTH_SOAK_MINUTES` (default 10).
+#[test]
+#[ignore = "a 10-minute benchmark: scripts/soak.sh"]
+fn soak() {
+    netns::in_private_netns(INNER, "soak", run);
 }
 
 fn rss_kib(pid: u32) -> Option<u64> {
@@ -47,18 +50,12 @@ fn stamp(ns: u64) -> Time {
     }
 }
 
-fn main() {
-    let ifaces = interfaces();
-    if ifaces != ["lo"] {
-        eprintln!("soak: refusing to open DDS outside a private network namespace (interfaces {ifaces:?}); run scripts/soak.sh");
-        std::process::exit(2);
-    }
-    let minutes: f64 = std::env::args()
-        .nth(1)
+fn run() {
+    let minutes: f64 = std::env::var("SWEEPDEPTH_SOAK_MINUTES")
+        .ok()
         .and_then(|a| a.parse().ok())
         .unwrap_or(10.0);
-    let exe = std::env::var("SWEEPDEPTH_BIN").unwrap_or_else(|_| "target/release/sweepdepth".into());
-    let mut node = Command::new(&exe)
+    let mut node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
         .args([
             "node",
             "--ros-args",
@@ -214,8 +211,7 @@ fn main() {
     let mut next_frame = soak_start;
     while soak_start.elapsed() < Duration::from_secs_f64(minutes * 60.0) {
         if let Ok(Some(status)) = node.try_wait() {
-            println!("soak: the node exited: {status}");
-            std::process::exit(1);
+            panic!("soak: the node exited: {status}");
         }
         let now = Instant::now();
         if now >= next_frame {
@@ -252,4 +248,11 @@ fn main() {
         "soak summary: {minutes} min at {rate:.2} sets/s (2 x sustainable {sustainable:.2}); sent {sent} sets, received {received} depth images ({:.0} % dropped); RSS first {first} KiB, last {last} KiB, max {max} KiB; after the first minute {smin}..{smax} KiB",
         100.0 * (1.0 - received as f64 / sent.max(1) as f64)
     );
+    assert!(samples.len() >= 2, "no memory samples");
+    if settled.len() >= 2 {
+        assert!(
+            (smax as f64) <= 1.10 * smin as f64,
+            "memory grew after the first minute: {smin}..{smax} KiB"
+        );
+    }
 }
