@@ -16,8 +16,8 @@
 //! (validated, then used from the next frame set on, see [`params::LiveParams`]), node
 //! parameters are read-only.
 //!
-//! Not done yet: clean shutdown on SIGINT/SIGTERM (the default signal action ends the
-//! process).
+//! SIGINT and SIGTERM end the node cleanly: the event loop stops, the GPU thread finishes its
+//! set and ends, DDS entities are dropped, and the process exits 0.
 
 pub mod convert;
 pub mod diag;
@@ -791,14 +791,30 @@ fn run_dds(
             .name("sweepdepth-diagnostics".into())
             .spawn_scoped(scope, || diagnostics_loop(config, shared, diag_pub, &stop))
             .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
+        // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
+        // publishers, subscriptions and the DDS participant are dropped cleanly.
+        let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
+        if let Err(e) = ctrlc::set_handler(move || {
+            let _ = signal_tx.unbounded_send(());
+        }) {
+            tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
+        }
         let outcome = futures::executor::block_on(async {
             futures::pin_mut!(event_loop);
             let spin = spinner.spin();
             futures::pin_mut!(spin);
-            match futures::future::select(spin, event_loop).await {
-                futures::future::Either::Left((r, _)) => r.map_err(ros_err),
-                futures::future::Either::Right(((), _)) => {
+            let stopped = signal_rx.next();
+            match futures::future::select(futures::future::select(spin, event_loop), stopped).await
+            {
+                futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
+                    r.map_err(ros_err)
+                }
+                futures::future::Either::Left((futures::future::Either::Right(((), _)), _)) => {
                     Err(NodeError::Ros("the subscription streams ended".into()))
+                }
+                futures::future::Either::Right(_) => {
+                    log_info("shutting down (signal received)");
+                    Ok(())
                 }
             }
         });
