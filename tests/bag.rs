@@ -438,3 +438,66 @@ fn damaged_chunk_is_skipped_and_the_rest_processed() {
     assert!(!strict.status.success());
     assert!(String::from_utf8_lossy(&strict.stderr).contains("the bag is damaged"));
 }
+
+/// `pack` on a folder of images plus a rig file (our YAML), then `bag`: the Tsukuba views as
+/// `camN.png` with the rig written from the dataset's calibration; depth against ground truth.
+#[test]
+fn pack_images_and_rig_file_then_bag() {
+    let dir = scratch("rigfolder");
+    let images = dir.join("images");
+    std::fs::create_dir_all(&images).unwrap();
+    let dataset = load_dataset(&root().join("data/tsukuba")).expect("tsukuba");
+    let mut yaml = String::from("rig_frame: rig\ncameras:\n");
+    for (i, cam) in dataset.rig.cameras.iter().enumerate() {
+        let name = format!("view{i}");
+        std::fs::copy(
+            root().join(format!("data/tsukuba/scene1.row3.col{}.png", i + 1)),
+            images.join(format!("{name}.png")),
+        )
+        .unwrap();
+        let rig_from_cam = cam.cam_from_rig.inverse();
+        let (t, q) = (rig_from_cam.translation, rig_from_cam.rotation);
+        let k = cam.model.intrinsics;
+        yaml += &format!(
+            "  - name: {name}\n    translation: [{}, {}, {}]\n    rotation: [{}, {}, {}, {}]\n    intrinsics: {{width: {}, height: {}, fx: {}, fy: {}, cx: {}, cy: {}}}\n",
+            t.x, t.y, t.z, q.x, q.y, q.z, q.w, k.width_px, k.height_px, k.fx_px, k.fy_px, k.cx_px, k.cy_px
+        );
+    }
+    std::fs::write(images.join("rig.yaml"), yaml).unwrap();
+    let bag = dir.join("rig.mcap");
+    let stderr = ok(
+        &sweepdepth(&["pack", images.to_str().unwrap(), bag.to_str().unwrap(), "--scale", "0.5"]),
+        "pack",
+    );
+    assert!(stderr.contains("5 cameras [view0, view1, view2, view3, view4]"), "{stderr}");
+    let params = std::fs::read_to_string(dir.join("rig.params.yaml")).unwrap();
+    assert!(params.contains("reference_camera: view2"), "{params}");
+    // The rig file gives no depth range: the dataset's, as -p.
+    let p = &dataset.params;
+    let out = dir.join("out.mcap");
+    let min = format!("min_depth:={}", p.min_depth_m);
+    let max = format!("max_depth:={}", p.max_depth_m);
+    let planes = format!("num_planes:={}", p.num_planes);
+    ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            out.to_str().unwrap(),
+            "--params-file",
+            dir.join("rig.params.yaml").to_str().unwrap(),
+            "-p",
+            &min,
+            "-p",
+            &max,
+            "-p",
+            &planes,
+        ]),
+        "bag",
+    );
+    let depths = depths(&out);
+    assert_eq!(depths.len(), 1);
+    let (_, image, values) = &depths[0];
+    assert_eq!(image.header.frame_id, "view2_optical_frame");
+    let bad = bad_fraction(values, image.width, image.height);
+    assert!(bad < 0.10, "bad pixels {:.1} %", bad * 100.0);
+}
