@@ -7,7 +7,9 @@
 //! the set cannot be processed yet. [`process_job`] runs a job through the engine and builds the
 //! output messages ([`FrameOutputs`]); the caller publishes or records them.
 
-use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::geometry::{
+    check_image_size, CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform,
+};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
 use crate::ros::tf::TfBuffer;
@@ -129,8 +131,24 @@ impl<'a> Pipeline<'a> {
             let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
             let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
                 (Some(info), _) => CameraModel::from_camera_info(name, info)
+                    .and_then(|model| {
+                        check_image_size(name, info, image.width, image.height).map(|()| model)
+                    })
                     .map_err(|e| Skip::new("camera_info", format!("model{i}"), e.to_string()))?,
-                (None, Some(model)) => model,
+                (None, Some(model)) => {
+                    let k = &model.intrinsics;
+                    if (image.width, image.height) != (k.width_px, k.height_px) {
+                        return Err(Skip::new(
+                            "rig file",
+                            format!("size{i}"),
+                            format!(
+                                "camera '{name}': the image is {}x{} but the rig file says {}x{}",
+                                image.width, image.height, k.width_px, k.height_px
+                            ),
+                        ));
+                    }
+                    model
+                }
                 (None, None) => {
                     let topic = &config.info_topics[i];
                     return Err(Skip::new(
