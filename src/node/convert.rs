@@ -345,7 +345,14 @@ mod tests {
     fn step_smaller_than_a_row_is_an_error() {
         let e = image_to_rgba8("cam1", &msg("rgb8", 2, 2, 5, vec![0; 100])).unwrap_err();
         assert!(
-            matches!(e, ConvertError::StepTooSmall { step: 5, row_bytes: 6, .. }),
+            matches!(
+                e,
+                ConvertError::StepTooSmall {
+                    step: 5,
+                    row_bytes: 6,
+                    ..
+                }
+            ),
             "{e:?}"
         );
         assert!(e.to_string().contains("'cam1'") && e.to_string().contains("step 5"));
@@ -361,7 +368,14 @@ mod tests {
         // here there is none), 11 given.
         let e = image_to_rgba8("cam2", &msg("rgb8", 2, 2, 6, vec![0; 11])).unwrap_err();
         assert!(
-            matches!(e, ConvertError::DataTooShort { len: 11, needed: 12, .. }),
+            matches!(
+                e,
+                ConvertError::DataTooShort {
+                    len: 11,
+                    needed: 12,
+                    ..
+                }
+            ),
             "{e:?}"
         );
         assert!(e.to_string().contains("'cam2'"));
@@ -374,7 +388,11 @@ mod tests {
         // No data at all.
         assert!(matches!(
             image_to_rgba8("c", &msg("mono16", 3, 3, 6, vec![])),
-            Err(ConvertError::DataTooShort { len: 0, needed: 18, .. })
+            Err(ConvertError::DataTooShort {
+                len: 0,
+                needed: 18,
+                ..
+            })
         ));
     }
 
@@ -398,7 +416,10 @@ mod tests {
         // 100000 x 100000 with 16 bytes of data: refused by the side limit.
         let e = image_to_rgba8("cam4", &msg("rgb8", 100_000, 100_000, 300_000, vec![0; 16]))
             .unwrap_err();
-        assert!(matches!(e, ConvertError::TooLarge { width: 100_000, .. }), "{e:?}");
+        assert!(
+            matches!(e, ConvertError::TooLarge { width: 100_000, .. }),
+            "{e:?}"
+        );
         assert!(e.to_string().contains("'cam4'"));
         assert!(matches!(
             image_to_rgba8("c", &msg("rgba8", u32::MAX, u32::MAX, u32::MAX, vec![])),

@@ -1706,7 +1706,10 @@ mod tests {
                 let loop1 = sets.iter().filter(|s| s.messages[0].1 < 1000).count();
                 let loop2 = sets.len() - loop1;
                 // Only frames at the wrap (in flight when the time jumped) may be lost.
-                assert!(loop1 >= 26 && loop2 >= 26, "{policy} seed {seed}: {loop1} + {loop2}");
+                assert!(
+                    loop1 >= 26 && loop2 >= 26,
+                    "{policy} seed {seed}: {loop1} + {loop2}"
+                );
                 late_stale += st.out_of_order;
                 assert_eq!((st.duplicates, st.future), (0, 0));
                 assert_conservation(sync.as_ref(), evs.len() as u64);
@@ -1731,7 +1734,11 @@ mod tests {
             assert_eq!(sets[0].messages, vec![(0, 1), (1, 1)], "{policy}");
             assert_eq!(sets[1].messages, vec![(0, 2), (1, 2)], "{policy}");
             let st = sync.stats();
-            assert_eq!((st.duplicates, st.dropped, st.resets), (2, 2, 0), "{policy}");
+            assert_eq!(
+                (st.duplicates, st.dropped, st.resets),
+                (2, 2, 0),
+                "{policy}"
+            );
             assert_conservation(sync.as_ref(), 7);
         }
     }
@@ -1782,7 +1789,10 @@ mod tests {
             assert_sets_are_frames(&sets, n);
             let frames = frames_of(&sets);
             assert!(!frames.contains(&10), "{policy}: {frames:?}");
-            assert!(frames.contains(&11) && frames.contains(&18), "{policy}: {frames:?}");
+            assert!(
+                frames.contains(&11) && frames.contains(&18),
+                "{policy}: {frames:?}"
+            );
         }
     }
 
@@ -1814,7 +1824,10 @@ mod tests {
             );
             assert_sets_are_frames(&sets, n);
             let frames = frames_of(&sets);
-            assert!(frames.contains(&7) && frames.contains(&18), "{policy}: {frames:?}");
+            assert!(
+                frames.contains(&7) && frames.contains(&18),
+                "{policy}: {frames:?}"
+            );
         }
     }
 
@@ -1831,7 +1844,11 @@ mod tests {
                 }
             }
             let st = sync.stats();
-            assert_eq!((st.resets, st.future, st.out_of_order), (0, 0, 0), "{policy}: {st:?}");
+            assert_eq!(
+                (st.resets, st.future, st.out_of_order),
+                (0, 0, 0),
+                "{policy}: {st:?}"
+            );
             assert_eq!(st.matched, 0, "{policy}");
             assert_conservation(sync.as_ref(), 120);
         }
@@ -1843,7 +1860,10 @@ mod tests {
             future_window_ns: 2000 * MS,
             reset_backwards_ns: 300 * MS,
         };
-        let mut exact = ExactSync::new(2, 5).unwrap().with_time_rules(rules).unwrap();
+        let mut exact = ExactSync::new(2, 5)
+            .unwrap()
+            .with_time_rules(rules)
+            .unwrap();
         let mut approx = ApproximateSync::new(2, 5)
             .unwrap()
             .with_time_rules(rules)
@@ -1859,7 +1879,10 @@ mod tests {
             // Until the new timeline passes the midpoint (600 + 1000) / 2 = 800 ms, a stream
             // that has not delivered since the reset is refused above it (rule 5).
             sync.push(1, 850 * MS, (1, 0)).unwrap();
-            assert_eq!((sync.stats().out_of_order, sync.queue_len(1).unwrap()), (2, 0));
+            assert_eq!(
+                (sync.stats().out_of_order, sync.queue_len(1).unwrap()),
+                (2, 0)
+            );
             sync.push(0, 900 * MS, (0, 3)).unwrap();
             sync.push(1, 2950 * MS, (1, 1)).unwrap(); // 2.05 s ahead of stream 0: future
             assert_eq!(sync.stats().future, 1);
@@ -1873,7 +1896,10 @@ mod tests {
                 future_window_ns: bad,
                 ..TimeRules::default()
             };
-            assert!(ExactSync::<u8>::new(2, 1).unwrap().with_time_rules(rules).is_err());
+            assert!(ExactSync::<u8>::new(2, 1)
+                .unwrap()
+                .with_time_rules(rules)
+                .is_err());
             let rules = TimeRules {
                 reset_backwards_ns: bad,
                 ..TimeRules::default()
