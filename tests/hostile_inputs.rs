@@ -173,7 +173,11 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
         let notices = p.take_notices();
         let kinds: Vec<&str> = notices.iter().map(|n| n.kind).collect();
         assert_eq!(kinds, ["duplicate stamp", "future stamp"], "{policy}");
-        assert!(notices[0].message.contains("camera 'mid'"), "{}", notices[0].message);
+        assert!(
+            notices[0].message.contains("camera 'mid'"),
+            "{}",
+            notices[0].message
+        );
         assert!(
             notices[1].message.contains("camera 'right'")
                 && notices[1].message.contains("sync_future_window"),
@@ -228,11 +232,16 @@ fn inconsistent_engine_parameters_are_refused_at_start_up() {
     assert!(e.contains("max_depth"), "{e}");
     // 3 cameras, reference pairs: m = 2.
     let e = config(&["best_n:=3"]).unwrap_err().to_string();
-    assert!(e.contains("best_n (3)") && e.contains("2 camera pairs"), "{e}");
+    assert!(
+        e.contains("best_n (3)") && e.contains("2 camera pairs"),
+        "{e}"
+    );
     assert!(config(&["best_n:=3", "pairs:=all"]).is_ok());
     let e = config(&["min_visible_cameras:=4"]).unwrap_err().to_string();
     assert!(e.contains("min_visible_cameras (4)"), "{e}");
-    let e = config(&["reference_camera:=centre"]).unwrap_err().to_string();
+    let e = config(&["reference_camera:=centre"])
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("centre"), "{e}");
     // The defaults on a two-camera rig (best 2 of 1 pair) still start.
     let args: Vec<String> = ["--ros-args", "-p", "cameras:=[a, b]"]
@@ -240,4 +249,48 @@ fn inconsistent_engine_parameters_are_refused_at_start_up() {
         .map(|s| s.to_string())
         .collect();
     assert!(NodeConfig::from_args(&args, None).is_ok());
+}
+
+/// The fuzz inputs that crashed `BagReader` (tests/fixtures/fuzz/README.md): each must now end
+/// in a corrupt-file error naming the file, without a panic or an abort.
+#[test]
+fn fuzz_found_bags_are_errors_not_crashes() {
+    use sweepdepth::bag::reader::BagReader;
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz/bag_reader");
+    let tmp = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"));
+    const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+    for name in [
+        "huge_record_length.bin",
+        "length_overflow.bin",
+        "record_longer_than_chunk.bin",
+    ] {
+        let input = std::fs::read(dir.join(name)).unwrap();
+        let mut bytes = Vec::new();
+        if !input.starts_with(MAGIC) {
+            bytes.extend_from_slice(MAGIC);
+        }
+        bytes.extend_from_slice(&input);
+        let path = tmp.join(format!("fuzz-{name}.mcap"));
+        std::fs::write(&path, &bytes).unwrap();
+        let error = match BagReader::open(&path) {
+            Err(e) => e.to_string(),
+            Ok(reader) => {
+                let items: Vec<_> = reader.collect();
+                let last = items.last().unwrap_or_else(|| panic!("{name}: no error"));
+                last.as_ref()
+                    .map(|m| m.topic.clone())
+                    .unwrap_err()
+                    .to_string()
+            }
+        };
+        assert!(
+            error.contains(&format!("fuzz-{name}.mcap")),
+            "{name}: {error}"
+        );
+        assert!(
+            error.contains("corrupt") || error.contains("too large") || error.contains("truncated"),
+            "{name}: {error}"
+        );
+    }
 }

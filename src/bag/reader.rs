@@ -8,7 +8,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::schemas::normalise_type;
 use super::BagError;
@@ -448,6 +448,14 @@ struct McapChannel {
     schema_id: u16,
 }
 
+/// The largest MCAP record (or decompressed chunk) accepted: 1 GiB, a 16384 x 16384 rgba8 image.
+/// A corrupt length above it is an error instead of an allocation of that size (or an
+/// arithmetic overflow inside the reader).
+const MAX_RECORD_BYTES: usize = 1 << 30;
+
+/// The most bytes read from an MCAP file per read request of the sans-io reader.
+const MAX_READ_REQUEST: usize = 1 << 20;
+
 /// Streams the messages of one MCAP file.
 struct McapSource {
     path: PathBuf,
@@ -465,7 +473,9 @@ impl McapSource {
         Ok(Self {
             path: path.to_path_buf(),
             file: BufReader::with_capacity(1 << 20, file),
-            reader: LinearReader::new(),
+            reader: LinearReader::new_with_options(
+                LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES),
+            ),
             offset: 0,
             schemas: HashMap::new(),
             channels: HashMap::new(),
@@ -487,7 +497,26 @@ impl McapSource {
 
     fn next_message(&mut self) -> Result<Option<BagMessage>, BagError> {
         loop {
-            let event = match self.reader.next_event() {
+            // The mcap crate (0.26) can still hit an arithmetic overflow on some corrupt
+            // lengths (e.g. a record longer than its uncompressed chunk): a panic in debug
+            // builds. A bag must never panic the program, so it becomes a corrupt-file error
+            // (the reader ends after it).
+            let reader = &mut self.reader;
+            let event = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+                let reader = reader; // moved in: the closure is FnOnce and may return a borrow
+                reader.next_event()
+            })) {
+                Ok(event) => event,
+                Err(_) => {
+                    let offset = self.offset;
+                    return Err(BagError::Corrupt {
+                        path: self.path.clone(),
+                        offset,
+                        reason: "the MCAP parser failed on a corrupt record".into(),
+                    });
+                }
+            };
+            let event = match event {
                 None => return Ok(None),
                 Some(Err(e)) => {
                     let reason = match e {
@@ -502,7 +531,10 @@ impl McapSource {
             };
             match event {
                 LinearReadEvent::ReadRequest(need) => {
-                    let buf = self.reader.insert(need);
+                    // `need` comes from a record length in the file: a corrupt one asks for
+                    // exabytes. Read at most 1 MiB per request (the reader asks again), so the
+                    // buffer never outgrows what the file really holds.
+                    let buf = self.reader.insert(need.min(MAX_READ_REQUEST));
                     let n = self.file.read(buf).map_err(|e| BagError::io(&self.path, e))?;
                     self.reader.notify_read(n);
                     self.offset += n as u64;

@@ -337,7 +337,9 @@ impl NodeConfig {
         let n = self.cameras.len();
         let rules = self.time_rules()?;
         Ok(match &self.sync {
-            SyncPolicy::Exact => Box::new(ExactSync::new(n, self.queue_size)?.with_time_rules(rules)?),
+            SyncPolicy::Exact => {
+                Box::new(ExactSync::new(n, self.queue_size)?.with_time_rules(rules)?)
+            }
             SyncPolicy::Approximate {
                 max_interval_ns,
                 age_penalty,
