@@ -716,6 +716,12 @@ fn parameter_services() {
     assert!(!ok && reason.contains("even"), "{reason}");
     let (ok, reason) = set_parameter(&client, "no_such_parameter", ParameterValue::Integer(1));
     assert!(!ok && !reason.is_empty());
+    // Four cameras, reference pairs: best 4 of the 3 pairs does not fit the rig.
+    let (ok, reason) = set_parameter(&client, "best_n", ParameterValue::Integer(4));
+    assert!(
+        !ok && reason.contains("best_n (4)") && reason.contains("3 camera pairs"),
+        "{reason}"
+    );
 
     // Sweep 2.5..4 m: the wall at 2 m is out of range, no depth may be near it.
     let (ok, reason) = set_parameter(&client, "min_depth", ParameterValue::Double(2.5));

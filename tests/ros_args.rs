@@ -777,6 +777,8 @@ fn table_has_node_parameters() {
         ("sync_max_interval", ParamValue::Double(0.02)),
         ("queue_size", ParamValue::Int(5)),
         ("age_penalty", ParamValue::Double(0.1)),
+        ("sync_future_window", ParamValue::Double(10.0)),
+        ("sync_reset_backwards", ParamValue::Double(1.0)),
         ("rig_file", ParamValue::String(String::new())),
         ("publish_points", ParamValue::Bool(false)),
         ("input_qos_reliable", ParamValue::Bool(false)),

@@ -8,7 +8,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
+use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 use super::schemas::normalise_type;
 use super::BagError;
@@ -473,13 +473,22 @@ struct McapChannel {
     schema_id: u16,
 }
 
+/// The largest MCAP record (or decompressed chunk) accepted: 1 GiB, a 16384 x 16384 rgba8 image.
+/// A corrupt length above it is an error instead of an allocation of that size (or an
+/// arithmetic overflow inside the reader).
+const MAX_RECORD_BYTES: usize = 1 << 30;
+
+/// The most bytes read from an MCAP file per read request of the sans-io reader.
+const MAX_READ_REQUEST: usize = 1 << 20;
+
 /// Chunk CRCs are checked before any record of the chunk is used (a flipped bit in a chunk is
-/// found, and none of its messages is served).
-fn reader_options(skip_start_magic: bool) -> mcap::sans_io::linear_reader::LinearReaderOptions {
-    mcap::sans_io::linear_reader::LinearReaderOptions::default()
+/// found, and none of its messages is served); records above [`MAX_RECORD_BYTES`] are refused.
+fn reader_options(skip_start_magic: bool) -> LinearReaderOptions {
+    LinearReaderOptions::default()
         .with_skip_start_magic(skip_start_magic)
         .with_validate_chunk_crcs(true)
         .with_prevalidate_chunk_crcs(true)
+        .with_record_length_limit(MAX_RECORD_BYTES)
 }
 
 /// Streams the messages of one MCAP file. After a damaged chunk (bad CRC, undecodable
@@ -582,7 +591,26 @@ impl McapSource {
             return Ok(None);
         }
         loop {
-            let event = match self.reader.next_event() {
+            // The mcap crate (0.26) can still hit an arithmetic overflow on some corrupt
+            // lengths (e.g. a record longer than its uncompressed chunk): a panic in debug
+            // builds. A bag must never panic the program, so it becomes a corrupt-file error
+            // (the reader ends after it).
+            let reader = &mut self.reader;
+            let event = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+                let reader = reader; // moved in: the closure is FnOnce and may return a borrow
+                reader.next_event()
+            })) {
+                Ok(event) => event,
+                Err(_) => {
+                    let offset = self.offset;
+                    return Err(BagError::Corrupt {
+                        path: self.path.clone(),
+                        offset,
+                        reason: "the MCAP parser failed on a corrupt record".into(),
+                    });
+                }
+            };
+            let event = match event {
                 None => return Ok(None),
                 Some(Err(e)) => {
                     let reason = match e {
@@ -597,7 +625,10 @@ impl McapSource {
             };
             match event {
                 LinearReadEvent::ReadRequest(need) => {
-                    let buf = self.reader.insert(need);
+                    // `need` comes from a record length in the file: a corrupt one asks for
+                    // exabytes. Read at most 1 MiB per request (the reader asks again), so the
+                    // buffer never outgrows what the file really holds.
+                    let buf = self.reader.insert(need.min(MAX_READ_REQUEST));
                     let n = self.file.read(buf).map_err(|e| BagError::io(&self.path, e))?;
                     self.reader.notify_read(n);
                     self.offset += n as u64;

@@ -6,24 +6,50 @@ use crate::geometry::CameraModel;
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{Header, Image, PointCloud2, PointField};
 
-/// Why an input image cannot be used.
+/// The largest image side accepted from a message, pixels (as `virtual_width`'s range). A
+/// larger claim is refused before any size arithmetic or allocation.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Why an input image cannot be used. Every variant names the camera.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConvertError {
     #[error("camera '{camera}': unsupported image encoding '{encoding}' (supported: rgb8, bgr8, rgba8, bgra8, mono8, mono16)")]
     UnsupportedEncoding { camera: String, encoding: String },
-    #[error("camera '{camera}': malformed image ({width}x{height}, step {step}, {len} data bytes): {reason}")]
-    Malformed {
+    #[error("camera '{camera}': empty image ({width}x{height})")]
+    Empty {
         camera: String,
+        width: u32,
+        height: u32,
+    },
+    #[error("camera '{camera}': image of {width}x{height} is larger than the {MAX_IMAGE_SIDE} pixels per side this node accepts")]
+    TooLarge {
+        camera: String,
+        width: u32,
+        height: u32,
+    },
+    #[error("camera '{camera}': step {step} is smaller than one row ({width} pixels x {bytes_per_pixel} bytes of {encoding} = {row_bytes})")]
+    StepTooSmall {
+        camera: String,
+        encoding: String,
+        width: u32,
+        bytes_per_pixel: u32,
+        step: u32,
+        row_bytes: u64,
+    },
+    #[error("camera '{camera}': {len} data bytes, but {width}x{height} {encoding} with step {step} needs at least {needed}")]
+    DataTooShort {
+        camera: String,
+        encoding: String,
         width: u32,
         height: u32,
         step: u32,
         len: usize,
-        reason: String,
+        needed: u64,
     },
 }
 
 /// Bytes per pixel of a supported encoding.
-fn bytes_per_pixel(encoding: &str) -> Option<usize> {
+fn bytes_per_pixel(encoding: &str) -> Option<u32> {
     match encoding {
         "rgb8" | "bgr8" => Some(3),
         "rgba8" | "bgra8" => Some(4),
@@ -34,78 +60,87 @@ fn bytes_per_pixel(encoding: &str) -> Option<usize> {
 }
 
 /// Converts a `sensor_msgs/Image` (rgb8, bgr8, rgba8, bgra8, mono8, mono16) into an
-/// [`Rgba8Image`], honouring `step` and, for mono16, `is_bigendian` (scaled to 8 bits by the
-/// high byte). Never panics on malformed messages.
+/// [`Rgba8Image`], honouring `step` and, for mono16, `is_bigendian` (any non-zero value is
+/// big-endian; scaled to 8 bits by the high byte). The last row may omit its padding.
+///
+/// Never panics and never allocates more than the message's data justifies: the encoding, the
+/// size (non-zero, at most [`MAX_IMAGE_SIDE`] per side), `step` (at least one row) and the data
+/// length (at least `step * (height - 1) + row`, computed in `u64`) are checked first.
 pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertError> {
     let bpp = bytes_per_pixel(&msg.encoding).ok_or_else(|| ConvertError::UnsupportedEncoding {
         camera: camera.to_string(),
         encoding: msg.encoding.clone(),
     })?;
-    let malformed = |reason: String| ConvertError::Malformed {
-        camera: camera.to_string(),
-        width: msg.width,
-        height: msg.height,
-        step: msg.step,
-        len: msg.data.len(),
-        reason,
-    };
-    if msg.width == 0 || msg.height == 0 {
-        return Err(malformed("zero width or height".into()));
+    let (width, height, step) = (msg.width, msg.height, msg.step);
+    if width == 0 || height == 0 {
+        return Err(ConvertError::Empty {
+            camera: camera.to_string(),
+            width,
+            height,
+        });
     }
-    let width = msg.width as usize;
-    let height = msg.height as usize;
-    let step = msg.step as usize;
-    let row_bytes = width
-        .checked_mul(bpp)
-        .ok_or_else(|| malformed("width overflows".into()))?;
-    if step < row_bytes {
-        return Err(malformed(format!(
-            "step is smaller than width * {bpp} = {row_bytes}"
-        )));
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        return Err(ConvertError::TooLarge {
+            camera: camera.to_string(),
+            width,
+            height,
+        });
     }
-    let needed = step
-        .checked_mul(height - 1)
-        .and_then(|v| v.checked_add(row_bytes))
-        .ok_or_else(|| malformed("size overflows".into()))?;
-    if msg.data.len() < needed {
-        return Err(malformed(format!("needs at least {needed} data bytes")));
+    // u32 x u32 products cannot overflow u64.
+    let row_bytes = u64::from(width) * u64::from(bpp);
+    if u64::from(step) < row_bytes {
+        return Err(ConvertError::StepTooSmall {
+            camera: camera.to_string(),
+            encoding: msg.encoding.clone(),
+            width,
+            bytes_per_pixel: bpp,
+            step,
+            row_bytes,
+        });
     }
-    let mut pixels = Vec::with_capacity(width * height);
+    let needed = u64::from(step) * u64::from(height - 1) + row_bytes;
+    if (msg.data.len() as u64) < needed {
+        return Err(ConvertError::DataTooShort {
+            camera: camera.to_string(),
+            encoding: msg.encoding.clone(),
+            width,
+            height,
+            step,
+            len: msg.data.len(),
+            needed,
+        });
+    }
+    // From here every row lies inside `data` (checked above), so the sizes fit in usize.
     let big_endian = msg.is_bigendian != 0;
-    for y in 0..height {
-        let row = &msg.data[y * step..y * step + row_bytes];
-        match msg.encoding.as_str() {
-            "rgb8" => pixels.extend(
-                row.chunks_exact(3)
-                    .map(|p| Rgba8Image::pack(p[0], p[1], p[2])),
-            ),
-            "bgr8" => pixels.extend(
-                row.chunks_exact(3)
-                    .map(|p| Rgba8Image::pack(p[2], p[1], p[0])),
-            ),
-            "rgba8" => pixels.extend(
-                row.chunks_exact(4)
-                    .map(|p| Rgba8Image::pack(p[0], p[1], p[2])),
-            ),
-            "bgra8" => pixels.extend(
-                row.chunks_exact(4)
-                    .map(|p| Rgba8Image::pack(p[2], p[1], p[0])),
-            ),
-            "mono8" | "8UC1" => pixels.extend(row.iter().map(|&v| Rgba8Image::pack(v, v, v))),
-            _ => pixels.extend(row.chunks_exact(2).map(|p| {
+    let pixel = |p: &[u8]| -> u32 {
+        match (msg.encoding.as_str(), p) {
+            ("rgb8" | "rgba8", [r, g, b, ..]) => Rgba8Image::pack(*r, *g, *b),
+            ("bgr8" | "bgra8", [b, g, r, ..]) => Rgba8Image::pack(*r, *g, *b),
+            ("mono16" | "16UC1", [a, b]) => {
                 let v = if big_endian {
-                    u16::from_be_bytes([p[0], p[1]])
+                    u16::from_be_bytes([*a, *b])
                 } else {
-                    u16::from_le_bytes([p[0], p[1]])
+                    u16::from_le_bytes([*a, *b])
                 };
                 let g = (v >> 8) as u8;
                 Rgba8Image::pack(g, g, g)
-            })),
+            }
+            (_, [v, ..]) => Rgba8Image::pack(*v, *v, *v),
+            (_, []) => 0,
         }
+    };
+    let mut pixels = Vec::with_capacity(width as usize * height as usize);
+    let rows = msg
+        .data
+        .chunks(step.max(1) as usize)
+        .take(height as usize)
+        .map(|row| row.get(..row_bytes as usize).unwrap_or(&[]));
+    for row in rows {
+        pixels.extend(row.chunks_exact(bpp as usize).map(pixel));
     }
     Ok(Rgba8Image {
-        width: msg.width,
-        height: msg.height,
+        width,
+        height,
         pixels,
     })
 }
@@ -271,15 +306,145 @@ mod tests {
     }
 
     #[test]
-    fn malformed_and_unsupported_are_errors() {
+    fn mono16_big_and_little_endian_rows_with_padding() {
+        // 2x2 mono16, step 6 (2 bytes of padding per row): 0x1234, 0xABCD / 0x0000, 0xFFFF.
+        let le = [0x34, 0x12, 0xCD, 0xAB, 9, 9, 0x00, 0x00, 0xFF, 0xFF];
+        let be = [0x12, 0x34, 0xAB, 0xCD, 9, 9, 0x00, 0x00, 0xFF, 0xFF];
+        let grey = |g: u8| Rgba8Image::pack(g, g, g);
+        let expected = vec![grey(0x12), grey(0xAB), grey(0x00), grey(0xFF)];
+        let out = image_to_rgba8("c", &msg("mono16", 2, 2, 6, le.to_vec())).unwrap();
+        assert_eq!(out.pixels, expected);
+        let mut m = msg("16UC1", 2, 2, 6, be.to_vec());
+        m.is_bigendian = 1;
+        assert_eq!(image_to_rgba8("c", &m).unwrap().pixels, expected);
+        // Any non-zero is_bigendian means big-endian.
+        m.is_bigendian = 7;
+        assert_eq!(image_to_rgba8("c", &m).unwrap().pixels, expected);
+    }
+
+    #[test]
+    fn unsupported_encoding_names_camera_and_encoding() {
         let e = image_to_rgba8("left", &msg("yuv422", 1, 1, 2, vec![0, 0])).unwrap_err();
-        assert!(e.to_string().contains("left") && e.to_string().contains("yuv422"));
-        assert!(image_to_rgba8("c", &msg("rgb8", 2, 2, 5, vec![0; 100])).is_err());
-        assert!(image_to_rgba8("c", &msg("rgb8", 2, 2, 6, vec![0; 11])).is_err());
-        assert!(image_to_rgba8("c", &msg("rgb8", 0, 2, 6, vec![])).is_err());
-        assert!(image_to_rgba8("c", &msg("rgb8", u32::MAX, u32::MAX, u32::MAX, vec![])).is_err());
-        // Last row may omit its padding.
+        assert_eq!(
+            e,
+            ConvertError::UnsupportedEncoding {
+                camera: "left".into(),
+                encoding: "yuv422".into()
+            }
+        );
+        assert!(e.to_string().contains("'left'") && e.to_string().contains("yuv422"));
+        for enc in ["", "32FC1", "RGB8", "bayer_rggb8"] {
+            assert!(matches!(
+                image_to_rgba8("c", &msg(enc, 1, 1, 4, vec![0; 4])),
+                Err(ConvertError::UnsupportedEncoding { .. })
+            ));
+        }
+    }
+
+    #[test]
+    fn step_smaller_than_a_row_is_an_error() {
+        let e = image_to_rgba8("cam1", &msg("rgb8", 2, 2, 5, vec![0; 100])).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ConvertError::StepTooSmall {
+                    step: 5,
+                    row_bytes: 6,
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("'cam1'") && e.to_string().contains("step 5"));
+        assert!(matches!(
+            image_to_rgba8("c", &msg("mono8", 4, 1, 0, vec![0; 4])),
+            Err(ConvertError::StepTooSmall { .. })
+        ));
+    }
+
+    #[test]
+    fn data_shorter_than_the_rows_is_an_error() {
+        // 2 rows of step 6: 6 + 6 = 12 bytes needed (the last row's padding may be omitted,
+        // here there is none), 11 given.
+        let e = image_to_rgba8("cam2", &msg("rgb8", 2, 2, 6, vec![0; 11])).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ConvertError::DataTooShort {
+                    len: 11,
+                    needed: 12,
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("'cam2'"));
+        // Last row may omit its padding: step 4, width 2 mono8, 2 rows = 4 + 2 bytes.
         assert!(image_to_rgba8("c", &msg("mono8", 2, 2, 4, vec![0; 6])).is_ok());
+        assert!(matches!(
+            image_to_rgba8("c", &msg("mono8", 2, 2, 4, vec![0; 5])),
+            Err(ConvertError::DataTooShort { needed: 6, .. })
+        ));
+        // No data at all.
+        assert!(matches!(
+            image_to_rgba8("c", &msg("mono16", 3, 3, 6, vec![])),
+            Err(ConvertError::DataTooShort {
+                len: 0,
+                needed: 18,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn zero_width_or_height_is_an_error() {
+        for (w, h) in [(0, 2), (2, 0), (0, 0)] {
+            let e = image_to_rgba8("cam3", &msg("rgb8", w, h, 6, vec![0; 12])).unwrap_err();
+            assert_eq!(
+                e,
+                ConvertError::Empty {
+                    camera: "cam3".into(),
+                    width: w,
+                    height: h
+                }
+            );
+        }
+    }
+
+    #[test]
+    fn absurd_sizes_are_refused_without_allocating() {
+        // 100000 x 100000 with 16 bytes of data: refused by the side limit.
+        let e = image_to_rgba8("cam4", &msg("rgb8", 100_000, 100_000, 300_000, vec![0; 16]))
+            .unwrap_err();
+        assert!(
+            matches!(e, ConvertError::TooLarge { width: 100_000, .. }),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("'cam4'"));
+        assert!(matches!(
+            image_to_rgba8("c", &msg("rgba8", u32::MAX, u32::MAX, u32::MAX, vec![])),
+            Err(ConvertError::TooLarge { .. })
+        ));
+        // Within the limit but far more than the data: the u64 size check refuses it.
+        let side = MAX_IMAGE_SIDE;
+        let e = image_to_rgba8("c", &msg("rgba8", side, side, side * 4, vec![0; 64])).unwrap_err();
+        assert_eq!(
+            e,
+            ConvertError::DataTooShort {
+                camera: "c".into(),
+                encoding: "rgba8".into(),
+                width: side,
+                height: side,
+                step: side * 4,
+                len: 64,
+                needed: u64::from(side) * u64::from(side) * 4,
+            }
+        );
+        // A step near u32::MAX on many rows does not overflow.
+        assert!(matches!(
+            image_to_rgba8("c", &msg("mono8", 1, side, u32::MAX, vec![0; 8])),
+            Err(ConvertError::DataTooShort { .. })
+        ));
     }
 
     #[test]

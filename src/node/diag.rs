@@ -122,6 +122,10 @@ impl Stats {
         kv("sync matched".into(), self.sync.matched.to_string());
         kv("sync dropped".into(), self.sync.dropped.to_string());
         kv("sync incomplete".into(), self.sync.incomplete.to_string());
+        kv("sync duplicate stamps".into(), self.sync.duplicates.to_string());
+        kv("sync late stamps".into(), self.sync.out_of_order.to_string());
+        kv("sync future stamps".into(), self.sync.future.to_string());
+        kv("sync resets".into(), self.sync.resets.to_string());
         kv("gpu sets dropped".into(), self.gpu_dropped.to_string());
         kv("sets published".into(), self.published.to_string());
         kv("processing time last (ms)".into(), ms(self.last_processing));
@@ -230,6 +234,10 @@ mod tests {
         }
         s.on_image(1, t0 + Duration::from_millis(1950));
         s.sync.matched = 3;
+        s.sync.duplicates = 4;
+        s.sync.out_of_order = 5;
+        s.sync.future = 6;
+        s.sync.resets = 7;
         s.gpu_dropped = 2;
         let now = t0 + Duration::from_millis(1990);
         s.on_published(
@@ -261,6 +269,10 @@ mod tests {
         assert_eq!(value(&a, "input rate a (Hz)"), "10.00");
         assert_eq!(value(&a, "input rate b (Hz)"), "1.00");
         assert_eq!(value(&a, "sync matched"), "3");
+        assert_eq!(value(&a, "sync duplicate stamps"), "4");
+        assert_eq!(value(&a, "sync late stamps"), "5");
+        assert_eq!(value(&a, "sync future stamps"), "6");
+        assert_eq!(value(&a, "sync resets"), "7");
         assert_eq!(value(&a, "gpu sets dropped"), "2");
         assert_eq!(value(&a, "processing time last (ms)"), "20.000");
         assert_eq!(value(&a, "processing time mean (ms)"), "15.000");

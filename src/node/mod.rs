@@ -48,7 +48,7 @@ use crate::ros::args::{
     DEFAULT_NODE_NAME,
 };
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
-use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer};
+use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
 use crate::sweep::SweepParams;
 
 use self::diag::{wall_time_now, Stats};
@@ -294,12 +294,15 @@ impl NodeConfig {
             let v = params.get_i64(name).map_err(NodeError::Param)?;
             usize::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
         };
-        if virtual_ref.is_some() {
-            if let Some(shape) = params::shape_rig(cameras.len(), reference, true) {
-                sweep
-                    .validate(&shape)
-                    .map_err(|e| NodeError::Param(format!("virtual_reference: {e}")))?;
-            }
+        // The engine parameters against the rig's shape, before any frame arrives.
+        let virtual_reference = virtual_ref.is_some();
+        if let Some(shape) = params::shape_rig(cameras.len(), reference, virtual_reference) {
+            let context = if virtual_reference { "virtual_reference: " } else { "" };
+            sweep
+                .validate(&shape)
+                .map_err(|e| NodeError::Param(format!("{context}{e}")))?;
+            params::check_rig_consistency(&SweepParams::default(), &sweep, cameras.len())
+                .map_err(NodeError::Param)?;
         }
         Ok(Self {
             virtual_ref,
@@ -338,16 +341,32 @@ impl NodeConfig {
 
     /// A synchroniser over `n` of the cameras.
     fn synchronizer(&self, n: usize) -> Result<Box<dyn Synchronizer<Image> + Send>, NodeError> {
+        let rules = self.time_rules()?;
         Ok(match &self.sync {
-            SyncPolicy::Exact => Box::new(ExactSync::new(n, self.queue_size)?),
+            SyncPolicy::Exact => {
+                Box::new(ExactSync::new(n, self.queue_size)?.with_time_rules(rules)?)
+            }
             SyncPolicy::Approximate {
                 max_interval_ns,
                 age_penalty,
             } => Box::new(
                 ApproximateSync::new(n, self.queue_size)?
                     .with_age_penalty(*age_penalty)?
-                    .with_max_interval_ns(*max_interval_ns)?,
+                    .with_max_interval_ns(*max_interval_ns)?
+                    .with_time_rules(rules)?,
             ),
+        })
+    }
+
+    /// The synchroniser's time rules from `sync_future_window` and `sync_reset_backwards`.
+    pub fn time_rules(&self) -> Result<TimeRules, NodeError> {
+        let ns = |name: &str| -> Result<i64, NodeError> {
+            let seconds = self.params.get_f64(name).map_err(NodeError::Param)?;
+            Ok((seconds * 1e9).round() as i64)
+        };
+        Ok(TimeRules {
+            future_window_ns: ns("sync_future_window")?,
+            reset_backwards_ns: ns("sync_reset_backwards")?,
         })
     }
 }
@@ -847,6 +866,9 @@ impl LoopState<'_> {
                 let result = self.pipeline.on_image(i, image, now_ns);
                 for event in self.pipeline.take_events() {
                     node_log(tracing::Level::WARN, &event);
+                }
+                for notice in self.pipeline.take_notices() {
+                    self.log.warn(&notice.key, || notice.message.clone());
                 }
                 {
                     let mut stats = lock(self.stats);

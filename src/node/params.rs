@@ -9,7 +9,7 @@ use ros2_client::parameters::ParameterValue as RosValue;
 
 use crate::geometry::{CameraModel, Reference, Rig};
 use crate::ros::args::{apply_to_sweep, param_spec, validate, ParamSet, ParamValue};
-use crate::sweep::SweepParams;
+use crate::sweep::{PairSet, Scoring, SweepParams};
 
 /// A stand-in rig with `cameras` cameras and the node's kind of reference (camera `reference`,
 /// or a virtual camera there), for the structural checks of [`SweepParams::validate`].
@@ -28,6 +28,53 @@ pub fn shape_rig(cameras: usize, reference: usize, virtual_reference: bool) -> O
         },
     )
     .ok()
+}
+
+/// Camera pairs a score combines for `sweep` on a rig of `cameras` cameras (m of best n of m).
+fn pair_count(sweep: &SweepParams, cameras: usize) -> usize {
+    match sweep.effective_pairs() {
+        PairSet::Reference => cameras.saturating_sub(1),
+        PairSet::All => cameras * cameras.saturating_sub(1) / 2,
+    }
+}
+
+/// The checks of a parameter set against the rig's shape, for the values it changes (`old` ->
+/// `new`; a set to the current value always passes, so the declarations at start-up do too;
+/// at start-up `old` is the defaults):
+///
+/// - best n of m: `best_n` may not exceed the m camera pairs, when `best_n` is set or when a
+///   change of `scoring` or `pairs` brings m below a `best_n` that fitted before;
+/// - `min_visible_cameras` may not exceed the number of cameras (every pixel would be invalid).
+pub fn check_rig_consistency(
+    old: &SweepParams,
+    new: &SweepParams,
+    cameras: usize,
+) -> Result<(), String> {
+    let m = pair_count(new, cameras);
+    let fitted_before =
+        old.scoring != Scoring::BestNOfM || old.best_n as usize <= pair_count(old, cameras);
+    if new.scoring == Scoring::BestNOfM
+        && new.best_n as usize > m
+        && (new.best_n != old.best_n || fitted_before)
+    {
+        return Err(format!(
+            "best_n ({}) is larger than the {m} camera pairs of this rig ({cameras} cameras, {} pairs)",
+            new.best_n,
+            match new.effective_pairs() {
+                PairSet::Reference => "reference",
+                PairSet::All => "all",
+            }
+        ));
+    }
+    if new.min_visible_cameras != old.min_visible_cameras
+        && new.min_visible_cameras as usize > cameras
+    {
+        return Err(format!(
+            "min_visible_cameras ({}) is larger than the {cameras} cameras of this rig (every pixel would be invalid)",
+            new.min_visible_cameras
+        ));
+    }
+    Ok(())
 }
 
 /// `ParamValue` as a ros2-client value.
@@ -143,6 +190,8 @@ impl LiveParams {
             sweep
                 .validate(rig)
                 .map_err(|e| format!("parameter '{name}': {e}"))?;
+            check_rig_consistency(&self.sweep(), &sweep, rig.cameras.len())
+                .map_err(|e| format!("parameter '{name}': {e}; the current values stay"))?;
         }
         Ok((params, sweep))
     }
@@ -225,6 +274,107 @@ mod tests {
         assert_eq!(l.params().get_i64("num_planes").unwrap(), 32);
         l.apply("max_depth", &RosValue::Double(3.0)).unwrap();
         assert_eq!(l.sweep().max_depth_m, 3.0);
+    }
+
+    fn live_rig(cameras: usize, set: &[(&str, ParamValue)]) -> Arc<LiveParams> {
+        let mut params = ParamSet::defaults();
+        let names: Vec<String> = (0..cameras).map(|i| format!("cam{i}")).collect();
+        params
+            .set("cameras", &ParamValue::StringArray(names))
+            .unwrap();
+        for (name, value) in set {
+            params.set(name, value).unwrap();
+        }
+        let mut sweep = SweepParams::default();
+        apply_to_sweep(&params, &mut sweep).unwrap();
+        LiveParams::new(params, sweep, cameras, cameras / 2, false)
+    }
+
+    #[test]
+    fn best_n_larger_than_the_pairs_is_rejected_and_the_old_value_stays() {
+        // 4 cameras, reference pairs: m = 3.
+        let l = live_rig(4, &[]);
+        let e = l.apply("best_n", &RosValue::Integer(4)).unwrap_err();
+        assert!(
+            e.contains("best_n (4)") && e.contains("3 camera pairs") && e.contains("4 cameras"),
+            "{e}"
+        );
+        assert_eq!(l.sweep().best_n, 2);
+        assert_eq!(l.params().get_i64("best_n").unwrap(), 2);
+        assert_eq!(l.apply("best_n", &RosValue::Integer(3)), Ok(true));
+        // All pairs: m = 6, so best_n 5 fits; back to reference pairs (m = 3) it would not.
+        assert_eq!(l.apply("pairs", &RosValue::String("all".into())), Ok(true));
+        assert_eq!(l.apply("best_n", &RosValue::Integer(5)), Ok(true));
+        let e = l
+            .check("pairs", &RosValue::String("reference".into()))
+            .unwrap_err();
+        assert!(
+            e.contains("parameter 'pairs'") && e.contains("best_n (5)"),
+            "{e}"
+        );
+        assert_eq!(l.params().get_str("pairs").unwrap(), "all");
+        // Other scorings do not use best_n.
+        assert!(l.check("scoring", &RosValue::String("sssd".into())).is_ok());
+    }
+
+    #[test]
+    fn a_default_best_n_above_a_small_rig_does_not_block_other_sets() {
+        // 2 cameras: m = 1 < the default best_n 2 (harmless: best 1 of 1). Sets that leave
+        // best_n alone pass, the declaration of the current value passes, raising it fails.
+        let l = live_rig(2, &[]);
+        assert_eq!(l.apply("best_n", &RosValue::Integer(2)), Ok(false));
+        assert_eq!(l.apply("num_planes", &RosValue::Integer(32)), Ok(true));
+        assert_eq!(l.apply("pairs", &RosValue::String("all".into())), Ok(true));
+        assert!(l.check("best_n", &RosValue::Integer(3)).is_err());
+        assert!(l.check("best_n", &RosValue::Integer(1)).is_ok());
+    }
+
+    #[test]
+    fn min_visible_cameras_above_the_rig_is_rejected() {
+        let l = live_rig(3, &[]);
+        let e = l
+            .apply("min_visible_cameras", &RosValue::Integer(4))
+            .unwrap_err();
+        assert!(
+            e.contains("min_visible_cameras (4)") && e.contains("3 cameras"),
+            "{e}"
+        );
+        assert_eq!(l.sweep().min_visible_cameras, 2);
+        assert_eq!(
+            l.apply("min_visible_cameras", &RosValue::Integer(3)),
+            Ok(true)
+        );
+    }
+
+    #[test]
+    fn depth_range_is_checked_against_the_current_other_end() {
+        let l = live_rig(3, &[]);
+        // max_depth is 10: min_depth 10 (equal) and 20 are refused, 9 is fine.
+        for bad in [10.0, 20.0] {
+            let e = l.apply("min_depth", &RosValue::Double(bad)).unwrap_err();
+            assert!(e.contains("max_depth (10)"), "{e}");
+        }
+        assert_eq!(l.sweep().min_depth_m, 0.5);
+        l.apply("min_depth", &RosValue::Double(9.0)).unwrap();
+        // Now max_depth below the new min_depth is refused, and the old one stays.
+        let e = l.apply("max_depth", &RosValue::Double(8.0)).unwrap_err();
+        assert!(e.contains("min_depth (9)"), "{e}");
+        assert_eq!(l.sweep().max_depth_m, 10.0);
+        assert_eq!(l.params().get_f64("max_depth").unwrap(), 10.0);
+        // Non-finite and wrong types.
+        assert!(l.check("max_depth", &RosValue::Double(f64::NAN)).is_err());
+        assert!(l
+            .check("max_depth", &RosValue::Double(f64::INFINITY))
+            .is_err());
+        assert!(l
+            .check("max_depth", &RosValue::String("far".into()))
+            .is_err());
+        assert!(l.check("best_n", &RosValue::Double(2.0)).is_err());
+        // Read-only node parameters: reference_camera cannot change at run time.
+        let e = l
+            .check("reference_camera", &RosValue::String("cam0".into()))
+            .unwrap_err();
+        assert!(e.contains("read-only"), "{e}");
     }
 
     #[test]

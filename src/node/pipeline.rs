@@ -7,7 +7,9 @@
 //! the set cannot be processed yet. [`process_job`] runs a job through the engine and builds the
 //! output messages ([`FrameOutputs`]); the caller publishes or records them.
 
-use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::geometry::{
+    check_image_size, CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform,
+};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
 use crate::ros::tf::TfBuffer;
@@ -82,6 +84,9 @@ pub struct Pipeline<'a> {
     /// Counters of the synchronisers replaced so far (the sum stays monotonic).
     retired: SyncStats,
     events: Vec<String>,
+    /// Images the synchroniser's time rules dropped, and its resets, since the last
+    /// [`Pipeline::take_notices`].
+    notices: Vec<Skip>,
 }
 
 impl<'a> Pipeline<'a> {
@@ -97,6 +102,7 @@ impl<'a> Pipeline<'a> {
             first_ns: None,
             retired: SyncStats::default(),
             events: Vec::new(),
+            notices: Vec::new(),
         })
     }
 
@@ -114,10 +120,7 @@ impl<'a> Pipeline<'a> {
     }
 
     fn rebuild_sync(&mut self) -> Result<(), NodeError> {
-        let old = self.sync.stats();
-        self.retired.matched += old.matched;
-        self.retired.dropped += old.dropped;
-        self.retired.incomplete += old.incomplete;
+        self.retired = self.sync_stats();
         // Below 2 cameras nothing is pushed (see on_image); the old one waits, emptied.
         if self.active.len() >= 2 {
             self.sync = self.config.synchronizer(self.active.len())?;
@@ -235,19 +238,86 @@ impl<'a> Pipeline<'a> {
             return Ok(Vec::new());
         };
         let stamp = image.header.stamp;
+        let before = self.sync.stats();
         let sets = self
             .sync
             .push_stamped(stream, &stamp, image)
             .map_err(NodeError::Sync)?;
+        self.note_time_rules(i, stamp, before);
         Ok(sets.into_iter().map(|set| self.on_set(set)).collect())
+    }
+
+    /// What the time rules of the synchroniser did since the last call: one [`Skip`] per
+    /// dropped image (duplicate, late, far-future stamp) and per reset, each naming the camera,
+    /// for the caller to log (keys per camera and rule, for rate limiting).
+    pub fn take_notices(&mut self) -> Vec<Skip> {
+        std::mem::take(&mut self.notices)
+    }
+
+    fn note_time_rules(&mut self, i: usize, stamp: crate::msgs::Time, before: SyncStats) {
+        let after = self.sync.stats();
+        let name = self.config.cameras.get(i).map_or("?", String::as_str);
+        let secs = |ns: i64| ns as f64 / 1e9;
+        let t = secs(stamp.to_nanos());
+        if after.resets > before.resets {
+            let (from, to, camera) = match self.sync.last_reset() {
+                Some(j) => (
+                    secs(j.from_ns),
+                    secs(j.to_ns),
+                    self.active
+                        .get(j.stream)
+                        .and_then(|&c| self.config.cameras.get(c))
+                        .map_or("?", String::as_str),
+                ),
+                None => (t, t, name),
+            };
+            self.notices.push(Skip::new(
+                "time reset",
+                "time_reset".into(),
+                format!(
+                    "camera '{camera}': time went backwards from {from:.3} s to {to:.3} s (by {:.3} s, more than sync_reset_backwards; a bag played in a loop?): the synchroniser was reset and the queued images dropped",
+                    from - to
+                ),
+            ));
+        }
+        let mut note = |kind: &'static str, key: &str, what: String| {
+            self.notices.push(Skip::new(
+                kind,
+                format!("{key}{i}"),
+                format!("camera '{name}': image stamped {t:.3} s {what}; dropped"),
+            ));
+        };
+        if after.duplicates > before.duplicates {
+            note("duplicate stamp", "time_duplicate", "repeats the camera's previous stamp".into());
+        }
+        if after.out_of_order > before.out_of_order {
+            note(
+                "late stamp",
+                "time_late",
+                "is older than the camera's previous image (or from before a reset)".into(),
+            );
+        }
+        if after.future > before.future {
+            let window = self.config.params.get_f64("sync_future_window").unwrap_or(f64::NAN);
+            note(
+                "future stamp",
+                "time_future",
+                format!("is more than {window} s (sync_future_window) ahead of every other camera"),
+            );
+        }
     }
 
     pub fn sync_stats(&self) -> SyncStats {
         let now = self.sync.stats();
+        let r = &self.retired;
         SyncStats {
-            matched: self.retired.matched + now.matched,
-            dropped: self.retired.dropped + now.dropped,
-            incomplete: self.retired.incomplete + now.incomplete,
+            matched: r.matched + now.matched,
+            dropped: r.dropped + now.dropped,
+            incomplete: r.incomplete + now.incomplete,
+            duplicates: r.duplicates + now.duplicates,
+            out_of_order: r.out_of_order + now.out_of_order,
+            future: r.future + now.future,
+            resets: r.resets + now.resets,
         }
     }
 
@@ -271,8 +341,24 @@ impl<'a> Pipeline<'a> {
             let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
             let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
                 (Some(info), _) => CameraModel::from_camera_info(name, info)
+                    .and_then(|model| {
+                        check_image_size(name, info, image.width, image.height).map(|()| model)
+                    })
                     .map_err(|e| Skip::new("camera_info", format!("model{i}"), e.to_string()))?,
-                (None, Some(model)) => model,
+                (None, Some(model)) => {
+                    let k = &model.intrinsics;
+                    if (image.width, image.height) != (k.width_px, k.height_px) {
+                        return Err(Skip::new(
+                            "rig file",
+                            format!("size{i}"),
+                            format!(
+                                "camera '{name}': the image is {}x{} but the rig file says {}x{}",
+                                image.width, image.height, k.width_px, k.height_px
+                            ),
+                        ));
+                    }
+                    model
+                }
                 (None, None) => {
                     let topic = &config.info_topics[i];
                     return Err(Skip::new(

@@ -677,6 +677,28 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             "Approximate sync: penalty on waiting for newer messages (as message_filters' ApproximateTime).",
         ),
         node_spec(
+            "sync_future_window",
+            Double(10.0),
+            ParamRange::Double {
+                min: 1.0,
+                max: 86400.0,
+                min_exclusive: false,
+                max_exclusive: false,
+            },
+            "An image stamped more than this many seconds ahead of the newest stamp of every other camera is dropped (counted as future).",
+        ),
+        node_spec(
+            "sync_reset_backwards",
+            Double(1.0),
+            ParamRange::Double {
+                min: 0.0,
+                max: 86400.0,
+                min_exclusive: true,
+                max_exclusive: false,
+            },
+            "A camera whose stamps go back by more than this many seconds (a bag played in a loop) resets the synchroniser; less is a late image, dropped.",
+        ),
+        node_spec(
             "rig_file",
             s(""),
             ParamRange::Any,

@@ -21,6 +21,41 @@
 //! `accepted_pushes == N * matched + dropped + sum(queue_len)`.
 //! [`SyncStats::incomplete`] counts *abandoned partial sets*; what exactly that means depends on
 //! the policy and is documented on [`ExactSync`] and [`ApproximateSync`].
+//!
+//! # Time rules (both policies)
+//!
+//! Stamps come from other machines, from bags played in a loop, from broken drivers. Before a
+//! message reaches the policy, these rules (in this order) decide on it; `F` is
+//! [`TimeRules::future_window_ns`] (default 10 s), `B` is [`TimeRules::reset_backwards_ns`]
+//! (default 1 s), `last[i]` is the last stamp *accepted* on stream `i` since the last reset,
+//! `seen[j]` the last stamp *pushed* on stream `j` (whatever became of it):
+//!
+//! 1. **Duplicate**: `t == last[i]` (the same stamp twice on one stream). Dropped, counted in
+//!    [`SyncStats::duplicates`].
+//! 2. **Time went backwards**: `t < last[i] - B` (a bag played in a loop, a restarted
+//!    player, a clock stepped back). The synchroniser **resets**: every buffered message is
+//!    discarded (counted in `dropped`, the discard once in `incomplete`), every stream's `last`
+//!    is forgotten, [`SyncStats::resets`] counts it, [`Synchronizer::last_reset`] says which
+//!    stream jumped from which stamp to which, and the message is accepted as the first of the
+//!    new timeline.
+//! 3. **Out of order**: `t < last[i]` by at most `B` (a late message). Dropped, counted in
+//!    [`SyncStats::out_of_order`].
+//! 4. **Future**: `t > max(seen[j], j != i) + F` (a stamp far ahead of every other stream;
+//!    no rule while no other stream has pushed anything). Dropped, counted in
+//!    [`SyncStats::future`]; it never enters a queue nor moves `last[i]`, so it cannot poison
+//!    the stream. Since `seen` includes rejected stamps, a jump of the whole rig forward costs
+//!    one message (the first stream to jump), not the stream.
+//! 5. **From before a reset**: after a reset that jumped from `f` to `r`, a stream that has not
+//!    delivered since the reset and sends `t > (r + f) / 2` (closer to the old timeline: a
+//!    message of the previous loop still in flight) is dropped, counted in `out_of_order`; the
+//!    rule ends once the new timeline's newest accepted stamp passes `(r + f) / 2`.
+//! 6. Anything else is accepted and handed to the policy.
+//!
+//! A stamp `F` or less ahead is accepted; if it was bogus, the stream's next normal stamp is
+//! more than `B` behind it and rule 2 resets the synchroniser, so no bogus stamp outlives one
+//! reset. The rules keep every invariant of the policies: at most `queue_size` messages per
+//! stream, one message per stream in every set, and the conservation above (rejected messages
+//! count in `dropped`).
 
 use std::collections::{BTreeMap, VecDeque};
 
@@ -75,6 +110,187 @@ pub struct SyncStats {
     /// many messages it held (those are counted in `dropped`). See each policy for precisely
     /// what forms a group.
     pub incomplete: u64,
+    /// Messages dropped on arrival because their stream already delivered that stamp (time
+    /// rule 1; also in `dropped`).
+    pub duplicates: u64,
+    /// Messages dropped on arrival as older than their stream's last accepted stamp by at most
+    /// the reset threshold, or as a message from before a reset (time rules 3 and 5; also in
+    /// `dropped`).
+    pub out_of_order: u64,
+    /// Messages dropped on arrival because their stamp was more than the future window ahead of
+    /// every other stream (time rule 4; also in `dropped`).
+    pub future: u64,
+    /// Resets after a stream's time went backwards by more than the reset threshold (time
+    /// rule 2).
+    pub resets: u64,
+}
+
+/// The thresholds of the time rules (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimeRules {
+    /// A stamp more than this ahead of the newest stamp of every other stream is dropped (ns,
+    /// > 0).
+    pub future_window_ns: i64,
+    /// A stream whose stamp goes back by more than this resets the synchroniser; less is a late
+    /// message, dropped (ns, > 0).
+    pub reset_backwards_ns: i64,
+}
+
+/// Default of [`TimeRules::future_window_ns`]: 10 s.
+pub const DEFAULT_FUTURE_WINDOW_NS: i64 = 10_000_000_000;
+/// Default of [`TimeRules::reset_backwards_ns`]: 1 s.
+pub const DEFAULT_RESET_BACKWARDS_NS: i64 = 1_000_000_000;
+
+impl Default for TimeRules {
+    fn default() -> Self {
+        Self {
+            future_window_ns: DEFAULT_FUTURE_WINDOW_NS,
+            reset_backwards_ns: DEFAULT_RESET_BACKWARDS_NS,
+        }
+    }
+}
+
+impl TimeRules {
+    fn check(&self) -> Result<(), SyncError> {
+        for (name, v) in [
+            ("future_window", self.future_window_ns),
+            ("reset_backwards", self.reset_backwards_ns),
+        ] {
+            if v <= 0 {
+                return Err(SyncError::InvalidParameter {
+                    name,
+                    reason: format!("must be > 0, got {v} ns"),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A reset of the synchroniser (time rule 2): stream `stream` went back from `from_ns` to
+/// `to_ns`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimeJump {
+    pub stream: usize,
+    pub from_ns: i64,
+    pub to_ns: i64,
+}
+
+/// What the time rules make of a pushed stamp.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Verdict {
+    Accept,
+    /// Discard everything buffered, then accept.
+    ResetThenAccept,
+    Duplicate,
+    OutOfOrder,
+    Future,
+}
+
+/// The per-stream time state behind the time rules (shared by both policies).
+#[derive(Debug, Clone)]
+struct TimeGuard {
+    rules: TimeRules,
+    /// Last accepted stamp per stream since the last reset.
+    last: Vec<Option<i64>>,
+    /// Last pushed stamp per stream, whatever its verdict.
+    seen: Vec<Option<i64>>,
+    /// Newest accepted stamp since the last reset.
+    newest: Option<i64>,
+    /// After a reset: the midpoint between the old and the new timeline (rule 5).
+    reset_midpoint: Option<i64>,
+    last_reset: Option<TimeJump>,
+}
+
+impl TimeGuard {
+    fn new(num_streams: usize) -> Self {
+        Self {
+            rules: TimeRules::default(),
+            last: vec![None; num_streams],
+            seen: vec![None; num_streams],
+            newest: None,
+            reset_midpoint: None,
+            last_reset: None,
+        }
+    }
+
+    /// Applies the rules to stamp `t` of `stream` (a valid index), updates the state and the
+    /// counters of the rejections; the caller discards its buffers on `ResetThenAccept`.
+    fn admit(&mut self, stream: usize, t: i64, stats: &mut SyncStats) -> Verdict {
+        let verdict = self.verdict(stream, t);
+        if let Some(seen) = self.seen.get_mut(stream) {
+            *seen = Some(t);
+        }
+        match verdict {
+            Verdict::Accept => self.accept(stream, t),
+            Verdict::ResetThenAccept => {
+                let from = self.last.get(stream).copied().flatten().unwrap_or(t);
+                self.last.iter_mut().for_each(|l| *l = None);
+                self.newest = None;
+                self.reset_midpoint = Some(t.saturating_add(from.saturating_sub(t) / 2));
+                self.last_reset = Some(TimeJump {
+                    stream,
+                    from_ns: from,
+                    to_ns: t,
+                });
+                stats.resets += 1;
+                self.accept(stream, t);
+            }
+            Verdict::Duplicate => {
+                stats.duplicates += 1;
+                stats.dropped += 1;
+            }
+            Verdict::OutOfOrder => {
+                stats.out_of_order += 1;
+                stats.dropped += 1;
+            }
+            Verdict::Future => {
+                stats.future += 1;
+                stats.dropped += 1;
+            }
+        }
+        verdict
+    }
+
+    fn accept(&mut self, stream: usize, t: i64) {
+        if let Some(last) = self.last.get_mut(stream) {
+            *last = Some(t);
+        }
+        let newest = self.newest.map_or(t, |n| n.max(t));
+        self.newest = Some(newest);
+        if self.reset_midpoint.is_some_and(|mid| newest > mid) {
+            self.reset_midpoint = None;
+        }
+    }
+
+    fn verdict(&self, stream: usize, t: i64) -> Verdict {
+        let last = self.last.get(stream).copied().flatten();
+        if let Some(last) = last {
+            if t == last {
+                return Verdict::Duplicate;
+            }
+            if last.saturating_sub(t) > self.rules.reset_backwards_ns {
+                return Verdict::ResetThenAccept;
+            }
+            if t < last {
+                return Verdict::OutOfOrder;
+            }
+        }
+        let others = self
+            .seen
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != stream)
+            .filter_map(|(_, s)| *s)
+            .max();
+        if others.is_some_and(|o| t.saturating_sub(o) > self.rules.future_window_ns) {
+            return Verdict::Future;
+        }
+        if last.is_none() && self.reset_midpoint.is_some_and(|mid| t > mid) {
+            return Verdict::OutOfOrder;
+        }
+        Verdict::Accept
+    }
 }
 
 /// Common interface of the synchronisation policies.
@@ -98,6 +314,9 @@ pub trait Synchronizer<T> {
     /// Number of messages of `stream` currently buffered; never exceeds the `queue_size` the
     /// synchroniser was built with once `push` has returned.
     fn queue_len(&self, stream: usize) -> Result<usize, SyncError>;
+
+    /// The latest reset (time rule 2), if any.
+    fn last_reset(&self) -> Option<TimeJump>;
 
     /// [`Synchronizer::push`] with a ROS `builtin_interfaces/Time` stamp.
     fn push_stamped(
@@ -151,9 +370,12 @@ struct Bucket<T> {
 /// Exact-time policy: a set is emitted as soon as all `N` streams have delivered a message with
 /// the identical stamp.
 ///
-/// * **Per-stream ordering.** A message whose stamp is `<=` the last stamp accepted on its stream
-///   is rejected (`dropped += 1`): a stream cannot contribute twice to one stamp, and an older
-///   stamp could only belong to a set that is already emitted or abandoned.
+/// * **Per-stream ordering.** The time rules of the module docs: a message whose stamp is `<=`
+///   the last stamp accepted on its stream is rejected (`dropped += 1`; a stream cannot
+///   contribute twice to one stamp, and an older stamp could only belong to a set that is
+///   already emitted or abandoned), unless it is more than the reset threshold older: then
+///   every pending partial set is discarded (each counted in `incomplete`) and the message
+///   starts the new timeline.
 /// * **Queue bound.** Each stream buffers at most `queue_size` messages (unlike ROS `ExactTime`,
 ///   which bounds the number of pending stamps). When a push makes a stream exceed it, the
 ///   stream's oldest buffered message is evicted; since that stream has moved past the stamp, its
@@ -174,8 +396,7 @@ pub struct ExactSync<T> {
     pending: BTreeMap<i64, Bucket<T>>,
     /// Buffered messages per stream.
     counts: Vec<usize>,
-    /// Last accepted stamp per stream.
-    last: Vec<Option<i64>>,
+    time: TimeGuard,
     stats: SyncStats,
 }
 
@@ -188,9 +409,16 @@ impl<T> ExactSync<T> {
             queue_size,
             pending: BTreeMap::new(),
             counts: vec![0; num_streams],
-            last: vec![None; num_streams],
+            time: TimeGuard::new(num_streams),
             stats: SyncStats::default(),
         })
+    }
+
+    /// Sets the thresholds of the time rules (default [`TimeRules::default`]).
+    pub fn with_time_rules(mut self, rules: TimeRules) -> Result<Self, SyncError> {
+        rules.check()?;
+        self.time.rules = rules;
+        Ok(self)
     }
 
     /// The per-stream queue bound.
@@ -224,11 +452,15 @@ impl<T> Synchronizer<T> for ExactSync<T> {
         msg: T,
     ) -> Result<Vec<SyncedSet<T>>, SyncError> {
         check_index(stream, self.num_streams)?;
-        if self.last[stream].is_some_and(|last| stamp_ns <= last) {
-            self.stats.dropped += 1;
-            return Ok(Vec::new());
+        match self.time.admit(stream, stamp_ns, &mut self.stats) {
+            Verdict::Accept => {}
+            Verdict::ResetThenAccept => {
+                for (_, bucket) in std::mem::take(&mut self.pending) {
+                    self.discard(bucket);
+                }
+            }
+            Verdict::Duplicate | Verdict::OutOfOrder | Verdict::Future => return Ok(Vec::new()),
         }
-        self.last[stream] = Some(stamp_ns);
 
         let n = self.num_streams;
         let bucket = self.pending.entry(stamp_ns).or_insert_with(|| Bucket {
@@ -282,6 +514,10 @@ impl<T> Synchronizer<T> for ExactSync<T> {
     fn queue_len(&self, stream: usize) -> Result<usize, SyncError> {
         check_index(stream, self.num_streams)?;
         Ok(self.counts[stream])
+    }
+
+    fn last_reset(&self) -> Option<TimeJump> {
+        self.time.last_reset
     }
 }
 
@@ -342,9 +578,12 @@ struct Candidate {
 /// # Deviations from `message_filters`
 ///
 /// * N-ary, with `Vec`s instead of 9-element tuples; no upper limit on N.
-/// * **Out-of-order messages are dropped**: a message whose stamp is *strictly* older than the
-///   last stamp accepted on its stream is rejected and counted in `dropped` (message_filters
-///   enqueues it and logs a warning once). Equal stamps are accepted, as in message_filters.
+/// * **The time rules of the module docs apply**: a message whose stamp is older than the last
+///   stamp accepted on its stream is rejected and counted in `dropped` (message_filters
+///   enqueues it and logs a warning once), and so is a repeated stamp (message_filters accepts
+///   it); a stamp more than the reset threshold older resets the synchroniser (queues, `past`
+///   and the candidate are discarded, once in `incomplete`); a stamp far in the future is
+///   dropped.
 /// * Lower-bound violations are checked against the stream's previously accepted message
 ///   (message_filters checks only against the message still buffered before it, and stops
 ///   checking a stream after its first warning). Every violation is counted
@@ -374,7 +613,7 @@ pub struct ApproximateSync<T> {
     past: Vec<Vec<(i64, T)>>,
     has_dropped: Vec<bool>,
     candidate: Option<Candidate>,
-    last: Vec<Option<i64>>,
+    time: TimeGuard,
     bound_warned: Vec<bool>,
     bound_violations: u64,
     stats: SyncStats,
@@ -396,11 +635,37 @@ impl<T> ApproximateSync<T> {
             past: (0..num_streams).map(|_| Vec::new()).collect(),
             has_dropped: vec![false; num_streams],
             candidate: None,
-            last: vec![None; num_streams],
+            time: TimeGuard::new(num_streams),
             bound_warned: vec![false; num_streams],
             bound_violations: 0,
             stats: SyncStats::default(),
         })
+    }
+
+    /// Sets the thresholds of the time rules (default [`TimeRules::default`]).
+    pub fn with_time_rules(mut self, rules: TimeRules) -> Result<Self, SyncError> {
+        rules.check()?;
+        self.time.rules = rules;
+        Ok(self)
+    }
+
+    /// Discards every buffered message and the candidate search (time rule 2).
+    fn reset_buffers(&mut self) {
+        let mut discarded = 0;
+        for d in &mut self.deques {
+            discarded += d.len();
+            d.clear();
+        }
+        for p in &mut self.past {
+            discarded += p.len();
+            p.clear();
+        }
+        if discarded > 0 {
+            self.stats.dropped += discarded as u64;
+            self.stats.incomplete += 1;
+        }
+        self.candidate = None;
+        self.has_dropped.iter_mut().for_each(|d| *d = false);
     }
 
     /// Sets the age penalty (`>= 0`, finite; default 0.1).
@@ -692,11 +957,17 @@ impl<T> Synchronizer<T> for ApproximateSync<T> {
         msg: T,
     ) -> Result<Vec<SyncedSet<T>>, SyncError> {
         check_index(stream, self.num_streams)?;
-        if let Some(last) = self.last[stream] {
-            if stamp_ns < last {
-                self.stats.dropped += 1;
-                return Ok(Vec::new());
+        // The stream's previous accepted stamp, for the lower-bound check (none after a reset).
+        let mut previous = self.time.last[stream];
+        match self.time.admit(stream, stamp_ns, &mut self.stats) {
+            Verdict::Accept => {}
+            Verdict::ResetThenAccept => {
+                previous = None;
+                self.reset_buffers();
             }
+            Verdict::Duplicate | Verdict::OutOfOrder | Verdict::Future => return Ok(Vec::new()),
+        }
+        if let Some(last) = previous {
             let bound = self.lower_bounds_ns[stream];
             if stamp_ns.saturating_sub(last) < bound {
                 self.bound_violations += 1;
@@ -712,7 +983,6 @@ impl<T> Synchronizer<T> for ApproximateSync<T> {
                 }
             }
         }
-        self.last[stream] = Some(stamp_ns);
 
         let mut out = Vec::new();
         self.deques[stream].push_back((stamp_ns, msg));
@@ -743,6 +1013,10 @@ impl<T> Synchronizer<T> for ApproximateSync<T> {
     fn queue_len(&self, stream: usize) -> Result<usize, SyncError> {
         check_index(stream, self.num_streams)?;
         Ok(self.deques[stream].len() + self.past[stream].len())
+    }
+
+    fn last_reset(&self) -> Option<TimeJump> {
+        self.time.last_reset
     }
 }
 
@@ -879,7 +1153,8 @@ mod tests {
             SyncStats {
                 matched: 30,
                 dropped: 0,
-                incomplete: 0
+                incomplete: 0,
+                ..SyncStats::default()
             }
         );
         assert_conservation(&sync, evs.len() as u64);
@@ -905,7 +1180,8 @@ mod tests {
             SyncStats {
                 matched: 10,
                 dropped: 6,
-                incomplete: 2
+                incomplete: 2,
+                ..SyncStats::default()
             }
         );
         assert_conservation(&sync, evs.len() as u64);
@@ -927,7 +1203,8 @@ mod tests {
             SyncStats {
                 matched: 1,
                 dropped: 2,
-                incomplete: 2
+                incomplete: 2,
+                ..SyncStats::default()
             }
         );
     }
@@ -970,7 +1247,10 @@ mod tests {
             SyncStats {
                 matched: 1,
                 dropped: 3,
-                incomplete: 1
+                incomplete: 1,
+                duplicates: 1,
+                out_of_order: 1,
+                ..SyncStats::default()
             }
         );
         assert_conservation(&sync, 5);
@@ -1249,10 +1529,13 @@ mod tests {
         assert!(sync.push(0, 50 * MS, (0, 0)).unwrap().is_empty()); // out of order
         assert_eq!(sync.queue_len(0).unwrap(), 1);
         assert_eq!(sync.stats().dropped, 1);
+        assert_eq!(sync.stats().out_of_order, 1);
         assert_eq!(sync.stats().incomplete, 0);
-        // An equal stamp is accepted (as in message_filters).
+        // An equal stamp is a duplicate: dropped (message_filters would accept it).
         assert!(sync.push(0, 100 * MS, (0, 2)).unwrap().is_empty());
-        assert_eq!(sync.queue_len(0).unwrap(), 2);
+        assert_eq!(sync.queue_len(0).unwrap(), 1);
+        assert_eq!(sync.stats().duplicates, 1);
+        assert_eq!(sync.stats().dropped, 2);
         let mut sets = sync.push(1, 101 * MS, (1, 1)).unwrap();
         sets.extend(sync.push(1, 201 * MS, (1, 2)).unwrap());
         sets.extend(sync.push(0, 200 * MS, (0, 3)).unwrap());
@@ -1356,6 +1639,275 @@ mod tests {
             }
             assert_conservation(&exact, pushes as u64);
             assert_conservation(&approx, pushes as u64);
+        }
+    }
+
+    // --- time rules (both policies) ---------------------------------------------------------
+
+    type Make = fn(usize, usize) -> Box<dyn Synchronizer<Msg>>;
+
+    fn exact_box(n: usize, q: usize) -> Box<dyn Synchronizer<Msg>> {
+        Box::new(ExactSync::new(n, q).unwrap())
+    }
+
+    fn approx_box(n: usize, q: usize) -> Box<dyn Synchronizer<Msg>> {
+        Box::new(
+            ApproximateSync::new(n, q)
+                .unwrap()
+                .with_max_interval_ns(20 * MS)
+                .unwrap(),
+        )
+    }
+
+    const POLICIES: [(&str, Make); 2] = [("exact", exact_box), ("approximate", approx_box)];
+
+    /// Every set holds one frame (the same `k` on every stream, stream `i` at index `i`).
+    fn assert_sets_are_frames(sets: &[SyncedSet<Msg>], n: usize) {
+        for set in sets {
+            assert_eq!(set.messages.len(), n);
+            let k = set.messages[0].1;
+            for (i, m) in set.messages.iter().enumerate() {
+                assert_eq!(*m, (i, k), "{set:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn bag_played_in_a_loop_resets_once_per_wrap() {
+        // 4 streams, 30 frames at 10 Hz (3 s), played twice with the same stamps; latencies up
+        // to 250 ms make the end of the first loop and the start of the second interleave
+        // across streams. Loop 2 carries k + 1000.
+        let n = 4;
+        let mut late_stale = 0;
+        for (policy, make) in POLICIES {
+            for seed in 1..=12 {
+                let first = schedule(n, 30, 100 * MS, 0, 250 * MS, seed, |_, _| true);
+                let second = schedule(n, 30, 100 * MS, 0, 250 * MS, seed + 100, |_, _| true);
+                // Each stream stays a FIFO across the wrap (as a topic).
+                let mut last_arrival = vec![0; n];
+                for e in &first {
+                    last_arrival[e.stream] = last_arrival[e.stream].max(e.arrival);
+                }
+                let mut evs = first.clone();
+                evs.extend(second.iter().map(|e| Ev {
+                    k: e.k + 1000,
+                    arrival: (e.arrival + 3000 * MS).max(last_arrival[e.stream]),
+                    ..*e
+                }));
+                evs.sort_by_key(|e| (e.arrival, e.stream));
+                let mut sync = make(n, 10);
+                let sets = run(sync.as_mut(), &evs, 10);
+                let st = sync.stats();
+                assert_eq!(st.resets, 1, "{policy} seed {seed}: {st:?}");
+                let jump = sync.last_reset().unwrap();
+                assert_eq!(jump.to_ns, 0, "{policy}: the loop restarts at frame 0");
+                assert!(jump.from_ns >= 2500 * MS, "{policy}: {jump:?}");
+                assert_sets_are_frames(&sets, n);
+                let loop1 = sets.iter().filter(|s| s.messages[0].1 < 1000).count();
+                let loop2 = sets.len() - loop1;
+                // Only frames at the wrap (in flight when the time jumped) may be lost.
+                assert!(
+                    loop1 >= 26 && loop2 >= 26,
+                    "{policy} seed {seed}: {loop1} + {loop2}"
+                );
+                late_stale += st.out_of_order;
+                assert_eq!((st.duplicates, st.future), (0, 0));
+                assert_conservation(sync.as_ref(), evs.len() as u64);
+            }
+        }
+        // Rule 5 was exercised: messages of the first loop arrived after the reset.
+        assert!(late_stale > 0);
+    }
+
+    #[test]
+    fn duplicate_stamps_are_dropped_and_counted() {
+        for (policy, make) in POLICIES {
+            let mut sync = make(2, 5);
+            assert!(sync.push(0, 100 * MS, (0, 1)).unwrap().is_empty());
+            assert!(sync.push(0, 100 * MS, (0, 99)).unwrap().is_empty());
+            assert_eq!(sync.queue_len(0).unwrap(), 1, "{policy}");
+            let mut sets = sync.push(1, 100 * MS, (1, 1)).unwrap();
+            sets.extend(sync.push(0, 200 * MS, (0, 2)).unwrap());
+            sets.extend(sync.push(1, 200 * MS, (1, 2)).unwrap());
+            sets.extend(sync.push(1, 200 * MS, (1, 99)).unwrap());
+            sets.extend(sync.push(0, 300 * MS, (0, 3)).unwrap());
+            assert_eq!(sets[0].messages, vec![(0, 1), (1, 1)], "{policy}");
+            assert_eq!(sets[1].messages, vec![(0, 2), (1, 2)], "{policy}");
+            let st = sync.stats();
+            assert_eq!(
+                (st.duplicates, st.dropped, st.resets),
+                (2, 2, 0),
+                "{policy}"
+            );
+            assert_conservation(sync.as_ref(), 7);
+        }
+    }
+
+    #[test]
+    fn far_future_stamp_is_dropped_and_does_not_poison_the_stream() {
+        let n = 3;
+        for (policy, make) in POLICIES {
+            let mut sync = make(n, 5);
+            let mut sets = Vec::new();
+            let mut pushes = 0;
+            for k in 0..20i64 {
+                for s in 0..n {
+                    sets.extend(sync.push(s, k * 100 * MS, (s, k)).unwrap());
+                    pushes += 1;
+                }
+                if k == 5 {
+                    // One hour ahead on stream 1, then the stream carries on normally.
+                    sets.extend(sync.push(1, 3600 * 1000 * MS, (1, -1)).unwrap());
+                    pushes += 1;
+                }
+            }
+            let st = sync.stats();
+            assert_eq!((st.future, st.resets), (1, 0), "{policy}: {st:?}");
+            assert_sets_are_frames(&sets, n);
+            // Every frame but the last (approximate sync waits for a later one) matched.
+            assert!(sets.len() >= 19, "{policy}: {} sets", sets.len());
+            assert_conservation(sync.as_ref(), pushes);
+        }
+    }
+
+    #[test]
+    fn whole_rig_jumping_forward_loses_one_message_not_the_stream() {
+        let n = 3;
+        for (policy, make) in POLICIES {
+            let mut sync = make(n, 5);
+            let mut sets = Vec::new();
+            for k in 0..20i64 {
+                // At frame 10 every camera jumps 60 s ahead (a gap in a recording).
+                let t = k * 100 * MS + if k >= 10 { 60_000 * MS } else { 0 };
+                for s in 0..n {
+                    sets.extend(sync.push(s, t, (s, k)).unwrap());
+                }
+            }
+            let st = sync.stats();
+            // Stream 0 was first to jump: its frame 10 is more than 10 s ahead of the others.
+            assert_eq!((st.future, st.resets), (1, 0), "{policy}: {st:?}");
+            assert_sets_are_frames(&sets, n);
+            let frames = frames_of(&sets);
+            assert!(!frames.contains(&10), "{policy}: {frames:?}");
+            assert!(
+                frames.contains(&11) && frames.contains(&18),
+                "{policy}: {frames:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn bogus_stamp_within_the_window_costs_one_reset() {
+        let n = 2;
+        for (policy, make) in POLICIES {
+            let mut sync = make(n, 5);
+            let mut sets = Vec::new();
+            for k in 0..20i64 {
+                for s in 0..n {
+                    sets.extend(sync.push(s, k * 100 * MS, (s, k)).unwrap());
+                }
+                if k == 5 {
+                    // 5 s ahead on stream 0: within the window, accepted; its next normal
+                    // stamp is 4.4 s behind it and resets the synchroniser.
+                    sets.extend(sync.push(0, 5600 * MS, (0, -1)).unwrap());
+                }
+            }
+            let st = sync.stats();
+            assert_eq!((st.future, st.resets), (0, 1), "{policy}: {st:?}");
+            assert_eq!(
+                sync.last_reset(),
+                Some(TimeJump {
+                    stream: 0,
+                    from_ns: 5600 * MS,
+                    to_ns: 600 * MS
+                })
+            );
+            assert_sets_are_frames(&sets, n);
+            let frames = frames_of(&sets);
+            assert!(
+                frames.contains(&7) && frames.contains(&18),
+                "{policy}: {frames:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_lagging_stream_never_resets() {
+        // Stream 1 runs 1.5 s behind the others (its own time is monotonic): no reset, no
+        // future drop (the others are 1.5 s ahead, within the 10 s window).
+        for (policy, make) in POLICIES {
+            let mut sync = make(3, 5);
+            for k in 0..40i64 {
+                for s in 0..3 {
+                    let t = k * 100 * MS - if s == 1 { 1500 * MS } else { 0 };
+                    sync.push(s, t, (s, k)).unwrap();
+                }
+            }
+            let st = sync.stats();
+            assert_eq!(
+                (st.resets, st.future, st.out_of_order),
+                (0, 0, 0),
+                "{policy}: {st:?}"
+            );
+            assert_eq!(st.matched, 0, "{policy}");
+            assert_conservation(sync.as_ref(), 120);
+        }
+    }
+
+    #[test]
+    fn small_step_back_is_out_of_order_and_thresholds_are_configurable() {
+        let rules = TimeRules {
+            future_window_ns: 2000 * MS,
+            reset_backwards_ns: 300 * MS,
+        };
+        let mut exact = ExactSync::new(2, 5)
+            .unwrap()
+            .with_time_rules(rules)
+            .unwrap();
+        let mut approx = ApproximateSync::new(2, 5)
+            .unwrap()
+            .with_time_rules(rules)
+            .unwrap();
+        let syncs: [&mut dyn Synchronizer<Msg>; 2] = [&mut exact, &mut approx];
+        for sync in syncs {
+            sync.push(0, 1000 * MS, (0, 0)).unwrap();
+            sync.push(0, 800 * MS, (0, 1)).unwrap(); // 200 ms back: late, dropped
+            assert_eq!((sync.stats().out_of_order, sync.stats().resets), (1, 0));
+            sync.push(0, 600 * MS, (0, 2)).unwrap(); // 400 ms back: reset
+            assert_eq!(sync.stats().resets, 1);
+            assert_eq!(sync.queue_len(0).unwrap(), 1);
+            // Until the new timeline passes the midpoint (600 + 1000) / 2 = 800 ms, a stream
+            // that has not delivered since the reset is refused above it (rule 5).
+            sync.push(1, 850 * MS, (1, 0)).unwrap();
+            assert_eq!(
+                (sync.stats().out_of_order, sync.queue_len(1).unwrap()),
+                (2, 0)
+            );
+            sync.push(0, 900 * MS, (0, 3)).unwrap();
+            sync.push(1, 2950 * MS, (1, 1)).unwrap(); // 2.05 s ahead of stream 0: future
+            assert_eq!(sync.stats().future, 1);
+            assert_eq!(sync.queue_len(1).unwrap(), 0);
+            sync.push(1, 2850 * MS, (1, 2)).unwrap(); // 1.95 s ahead: accepted
+            assert_eq!(sync.queue_len(1).unwrap(), 1);
+            assert_eq!(sync.stats().out_of_order, 2);
+        }
+        for bad in [0, -1] {
+            let rules = TimeRules {
+                future_window_ns: bad,
+                ..TimeRules::default()
+            };
+            assert!(ExactSync::<u8>::new(2, 1)
+                .unwrap()
+                .with_time_rules(rules)
+                .is_err());
+            let rules = TimeRules {
+                reset_backwards_ns: bad,
+                ..TimeRules::default()
+            };
+            assert!(ApproximateSync::<u8>::new(2, 1)
+                .unwrap()
+                .with_time_rules(rules)
+                .is_err());
         }
     }
 }
