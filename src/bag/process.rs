@@ -78,6 +78,9 @@ pub struct BagReport {
     pub skipped: BTreeMap<String, u64>,
     /// Messages that could not be decoded or had the wrong type, by topic.
     pub bad_messages: BTreeMap<String, u64>,
+    /// Images the synchroniser's time rules dropped (duplicate, late, future stamps) and its
+    /// resets (time going backwards), by kind.
+    pub dropped_images: BTreeMap<String, u64>,
     /// Topics of the bag the pipeline does not read.
     pub ignored_topics: Vec<String>,
     pub mean_time_per_set: Option<Duration>,
@@ -102,6 +105,14 @@ impl BagReport {
                 .map(|(k, n)| format!("{n} {k}"))
                 .collect();
             s += &format!(" ({})", reasons.join(", "));
+        }
+        if !self.dropped_images.is_empty() {
+            let parts: Vec<String> = self
+                .dropped_images
+                .iter()
+                .map(|(k, n)| format!("{n} {k}"))
+                .collect();
+            s += &format!(", time rules: {}", parts.join(", "));
         }
         if !self.read_errors.is_empty() {
             s += &format!(", {} read errors (damaged bag)", self.read_errors.len());
@@ -258,10 +269,13 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
     }
 
     let bar = progress_bar(total);
-    let warn = |bar: &ProgressBar, seen: &mut HashSet<String>, key: &str, msg: &str| {
-        // Offline every distinct problem is reported once; the summary counts repeats.
-        if seen.insert(key.to_string()) {
+    let warn = |bar: &ProgressBar, seen: &mut HashSet<String>, _key: &str, msg: &str| {
+        // Offline every distinct message is printed once (the first 200); the summary counts.
+        if seen.len() < 200 && seen.insert(msg.to_string()) {
             bar.suspend(|| tracing::warn!("{msg}"));
+            if seen.len() == 200 {
+                bar.suspend(|| tracing::warn!("further distinct warnings are not printed"));
+            }
         }
     };
     let mut seen: HashSet<String> = HashSet::new();
@@ -329,6 +343,10 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                 let result = pipeline.on_image(i, image, msg.log_time_ns);
                 for event in pipeline.take_events() {
                     bar.suspend(|| tracing::warn!("{event}"));
+                }
+                for notice in pipeline.take_notices() {
+                    *report.dropped_images.entry(notice.kind.to_string()).or_default() += 1;
+                    warn(&bar, &mut seen, &notice.key, &notice.message);
                 }
                 let sets = match result {
                     Ok(sets) => sets,
