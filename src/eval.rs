@@ -25,8 +25,23 @@ pub struct EvalArgs {
     /// Write disparity/depth/confidence PFMs and PNGs to OUT/<dataset folder name>/.
     #[arg(long, value_name = "OUT")]
     pub save: Option<PathBuf>,
+    /// Pixels evaluated (disparity ground truth): all with ground truth, or only the
+    /// non-occluded ones (a left-right check of the evaluation pair's two ground-truth maps;
+    /// Middlebury 2003/2005 only, an error for the others).
+    #[arg(long, value_enum, default_value_t = EvalMask::All)]
+    pub mask: EvalMask,
     #[command(flatten)]
     pub params: crate::sweep::ParamOverrides,
+}
+
+/// Which pixels with ground truth are evaluated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EvalMask {
+    /// Every pixel with ground truth (outside the border).
+    All,
+    /// Only pixels that pass a left-right check of the two ground-truth maps
+    /// ([`datasets::nonocc_mask`]).
+    Nonocc,
 }
 
 /// Errors of one evaluation.
@@ -49,6 +64,8 @@ pub enum EvalError {
         want_w: u32,
         want_h: u32,
     },
+    #[error("{0}: no non-occluded mask (needs disparity ground truth for both views of the evaluation pair: Middlebury 2003/2005)")]
+    NoNonoccMask(String),
     #[error("no pixel has ground truth{0}")]
     NoGroundTruthPixels(String),
     #[error("{path}: cannot create folder: {source}")]
@@ -295,6 +312,23 @@ pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics
     }
 }
 
+/// Restricts the dataset's disparity ground truth to its non-occluded pixels (the others become
+/// unknown), so that every metric is over the non-occluded pixels only.
+pub fn restrict_to_nonocc(dataset: &mut Dataset) -> Result<(), EvalError> {
+    let (Some(mask), GroundTruth::Disparity {
+        disparity_eval_px, ..
+    }) = (&dataset.nonocc_mask, &mut dataset.ground_truth)
+    else {
+        return Err(EvalError::NoNonoccMask(dataset.name.clone()));
+    };
+    for (d, &keep) in disparity_eval_px.data.iter_mut().zip(mask) {
+        if !keep {
+            *d = f32::NAN;
+        }
+    }
+    Ok(())
+}
+
 /// Runs the engine on a dataset with its `params` and scores the result.
 pub fn evaluate(
     engine: &mut GpuEngine,
@@ -428,6 +462,9 @@ fn eval_one(
     eprintln!("{progress} loading {}", dir.display());
     let mut dataset = datasets::load_dataset(dir)?;
     args.params.apply(&mut dataset.params);
+    if args.mask == EvalMask::Nonocc {
+        restrict_to_nonocc(&mut dataset)?;
+    }
     let (w, h) = dataset.reference_size();
     eprintln!(
         "{progress} {} ({}, {} views, {w}x{h}, reference {}, depth {:.3}..{:.3} m, {} planes) loaded in {:.0} ms; running",
@@ -465,6 +502,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "# adapter: {}", ctx.adapter_label())?;
+    if args.mask == EvalMask::Nonocc {
+        writeln!(
+            stdout,
+            "# mask: non-occluded pixels only (left-right check of the two ground-truth maps)"
+        )?;
+    }
     writeln!(stdout, "{}", table_header())?;
     stdout.flush()?;
     let mut failed = Vec::new();
@@ -502,6 +545,24 @@ mod tests {
             height: h,
             data,
         }
+    }
+
+    #[test]
+    fn nonocc_mask_by_hand() {
+        // Left row: d = 1, 1, 3, NaN, 2. Right row (x_r = x - d): pixel 0 -> -1 (outside),
+        // 1 -> 0 (right 1.0: ok), 2 -> -1 (outside), 3 unknown, 4 -> 2 (right 4.0: occluded).
+        let left = img(5, 1, vec![1.0, 1.0, 3.0, f32::NAN, 2.0]);
+        let right = img(5, 1, vec![1.0, 1.5, 4.0, 2.0, 2.0]);
+        assert_eq!(
+            datasets::nonocc_mask(&left, &right),
+            vec![false, true, false, false, false]
+        );
+        // The tolerance is 1 px: right 2.9 at x_r = 2 passes for d = 2 at x = 4.
+        let right = img(5, 1, vec![1.0, 1.5, 2.9, 2.0, 2.0]);
+        assert_eq!(
+            datasets::nonocc_mask(&left, &right),
+            vec![false, true, false, false, true]
+        );
     }
 
     #[test]

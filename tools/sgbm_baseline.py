@@ -105,15 +105,17 @@ ICL_FOLDER = "iclnuim_livingroom_traj2_frames"
 ICL_REFERENCE = "scene_00_0020"
 ICL_NEIGHBOURS = ["scene_00_0010", "scene_00_0015", "scene_00_0025", "scene_00_0030"]
 
-# name, folder, left, right, gt file, gt divisor, border, numDisparities
+# name, folder, left, right, gt file, gt divisor, border, numDisparities, right view's gt file
 DATASETS = [
     ("Tsukuba", "middlebury2001_tsukuba", "scene1.row3.col3.ppm", "scene1.row3.col4.ppm",
-     "truedisp.row3.col3.pgm", 16.0, 18, 16),
+     "truedisp.row3.col3.pgm", 16.0, 18, 16, None),
     ("Teddy", "middlebury2003_teddy_9view", "im2.ppm", "im6.ppm",
-     "disp2.pgm", 4.0, 10, 64),
+     "disp2.pgm", 4.0, 10, 64, "disp6.pgm"),
     ("Laundry", "middlebury2005_Laundry_thirdsize", "view1.png", "view5.png",
-     "disp1.png", 3.0, 10, 80),
+     "disp1.png", 3.0, 10, 80, "disp5.png"),
 ]
+
+NONOCC_TOLERANCE_PX = 1.0  # as datasets.rs NONOCC_TOLERANCE_PX
 
 MODES = {
     "HH": cv2.STEREO_SGBM_MODE_HH,
@@ -186,6 +188,21 @@ def fill_holes(disp, valid):
         rv = np.where(ri < w, row[np.clip(ri, 0, w - 1)], np.inf)
         out[y, ~v] = np.minimum(lv, rv)[~v]
     return out, np.ones_like(valid)
+
+
+def nonocc_mask(gt_left, gt_right, known_left):
+    """datasets.rs nonocc_mask: left pixel x with disparity d is kept when the right view's
+    ground truth at round(x - d) is known (> 0) and within NONOCC_TOLERANCE_PX of d."""
+    h, w = gt_left.shape
+    xs = np.arange(w)[None, :].repeat(h, axis=0)
+    # Rust's f32::round rounds halves away from zero; x - d >= -0.5 matters only near 0.
+    xr = np.floor(xs - gt_left + 0.5)
+    xr = np.where(xs - gt_left < 0, -np.floor(-(xs - gt_left) + 0.5), xr).astype(np.int64)
+    inside = known_left & (xr >= 0) & (xr < w)
+    ys = np.arange(h)[:, None].repeat(w, axis=1)
+    dr = np.zeros_like(gt_left)
+    dr[inside] = gt_right[ys[inside], xr[inside]]
+    return inside & (dr > 0) & (np.abs(gt_left - dr) <= NONOCC_TOLERANCE_PX)
 
 
 def metrics(disp, valid, gt, mask):
@@ -384,6 +401,10 @@ def main():
                     help="NOT part of the protocol (supplementary): replicate-pad both images "
                          "on the left by numDisparities so SGBM does not blank the leftmost "
                          "numDisparities columns")
+    ap.add_argument("--mask", choices=["all", "nonocc"], default="all",
+                    help="evaluated pixels: all with ground truth (the protocol), or only the "
+                         "non-occluded ones (left-right check of the two ground-truth maps, "
+                         "as `sweepdepth eval --mask nonocc`; Teddy and Laundry only)")
     ap.add_argument("--icl", action="store_true",
                     help="ICL-NUIM mode: rectify the reference with each neighbour frame, SGBM, "
                          "depth mapped back into the reference camera, eval's depth metric")
@@ -396,7 +417,7 @@ def main():
     root = Path(args.data_root)
 
     rows = []
-    for name, folder, lf, rf, gf, div, border, ndisp in DATASETS:
+    for name, folder, lf, rf, gf, div, border, ndisp, rgf in DATASETS:
         d = root / folder
         left = imread(d / lf, cv2.IMREAD_COLOR)
         right = imread(d / rf, cv2.IMREAD_COLOR)
@@ -412,6 +433,13 @@ def main():
                   file=sys.stderr)
 
         mask = gt_raw > 0
+        if args.mask == "nonocc":
+            if rgf is None:
+                print(f"{name}: skipped, no ground truth for {rf} (no left-right check)",
+                      file=sys.stderr)
+                continue
+            mask &= nonocc_mask(gt, imread(d / rgf, cv2.IMREAD_UNCHANGED).astype(np.float64) / div,
+                                gt_raw > 0)
         mask[:border, :] = False
         mask[-border:, :] = False
         mask[:, :border] = False
@@ -426,7 +454,9 @@ def main():
     print(f"OpenCV {cv2.__version__}, numpy {np.__version__}; StereoSGBM mode={args.mode}, "
           f"blockSize={BLOCK_SIZE}, P1=8*3*bs^2, P2=32*3*bs^2, uniquenessRatio=10, "
           f"speckleWindowSize=100, speckleRange=2, disp12MaxDiff=1, preFilterCap=63"
-          + ("; SUPPLEMENTARY --pad-left (not the protocol)" if args.pad_left else ""))
+          + ("; SUPPLEMENTARY --pad-left (not the protocol)" if args.pad_left else "")
+          + ("; non-occluded pixels only (left-right check of the two GT maps, 1 px)"
+             if args.mask == "nonocc" else ""))
     print(f"data root: {root.resolve()}")
     print()
     print("| dataset | pair | numDisparities | variant | eval px | bad>1 % | bad>2 % "
