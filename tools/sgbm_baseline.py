@@ -88,7 +88,9 @@ reference:
   (ray distance, converted to z).
 * --check-pfm DEPTH_PFM scores a depth.pfm written by
   `sweepdepth eval --save OUT` with this same code, as a cross-check of the
-  metric against the numbers `eval` prints.
+  metric against the numbers `eval` prints; --oracle feeds the ground-truth
+  disparity of the rectified reference through the same path instead of
+  SGBM's, to show what the rectification and mapping back cost by themselves.
 """
 
 import argparse
@@ -305,8 +307,12 @@ def read_pfm(path):
     return img.reshape(h, w)[::-1].astype(np.float64)
 
 
-def icl_sgbm(root, neighbour, mode):
-    """SGBM on (reference, neighbour), depth in the original reference camera (NaN invalid)."""
+def icl_sgbm(root, neighbour, mode, oracle=False):
+    """SGBM on (reference, neighbour), depth in the original reference camera (NaN invalid).
+
+    oracle: instead of SGBM, the ground-truth disparity of the rectified reference (each GT
+    point moved into the rectified frame and splatted to its nearest pixel), to check that the
+    rectification and the mapping back lose nothing by themselves."""
     d = root / ICL_FOLDER
     ref_img = icl_image(d / f"{ICL_REFERENCE}.png")
     nb_img = icl_image(d / f"{neighbour}.png")
@@ -334,13 +340,25 @@ def icl_sgbm(root, neighbour, mode):
     if mirrored:
         ref_r, nb_r = ref_r[:, ::-1].copy(), nb_r[:, ::-1].copy()
     ndisp = int(np.ceil(f_r * baseline / np.nanmin(gt) / 16.0)) * 16
-    disp, valid = run_sgbm(ref_r, nb_r, ndisp, mode)
-    if mirrored:
-        disp, valid = disp[:, ::-1], valid[:, ::-1]
-    # Every original reference pixel: ray -> rectified frame -> nearest rectified pixel.
+    # Every original reference pixel's ray, in the rectified frame.
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     rays = np.linalg.inv(k1f) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
     rays_r = r1 @ rays
+    if oracle:
+        points_r = rays_r * gt.ravel()  # the flipped ray has z = 1: gt z scales it
+        q = p1[:, :3] @ points_r
+        ok = np.isfinite(points_r[2]) & (points_r[2] > 0)
+        qu = np.rint(q[0, ok] / q[2, ok]).astype(np.int64)
+        qv = np.rint(q[1, ok] / q[2, ok]).astype(np.int64)
+        inside = (qu >= 0) & (qu < w) & (qv >= 0) & (qv < h)
+        disp = np.full((h, w), np.nan)
+        disp[qv[inside], qu[inside]] = f_r * baseline / points_r[2, ok][inside]
+        valid = np.isfinite(disp)
+    else:
+        disp, valid = run_sgbm(ref_r, nb_r, ndisp, mode)
+        if mirrored:
+            disp, valid = disp[:, ::-1], valid[:, ::-1]
+    # Each original reference pixel takes the disparity at its nearest rectified pixel.
     q = p1[:, :3] @ rays_r
     qu = np.rint(q[0] / q[2]).astype(np.int64)
     qv = np.rint(q[1] / q[2]).astype(np.int64)
@@ -369,7 +387,8 @@ def main_icl(args):
           f"blockSize={BLOCK_SIZE}, P1=8*3*bs^2, P2=32*3*bs^2, uniquenessRatio=10, "
           f"speckleWindowSize=100, speckleRange=2, disp12MaxDiff=1, preFilterCap=63")
     print(f"data: {d.resolve()}; reference {ICL_REFERENCE}; metric over GT pixels, "
-          "invalid = not within")
+          "invalid = not within"
+          + ("; ORACLE: ground-truth disparity instead of SGBM" if args.oracle else ""))
     print()
     if args.check_pfm:
         k1, _, _ = icl_camera(d / f"{ICL_REFERENCE}.txt", 640, 480)
@@ -383,7 +402,7 @@ def main_icl(args):
           "| within 1 % | within 5 % | invalid % |")
     print("|---|---|---|---|---|---|---|---|---|")
     for nb in ICL_NEIGHBOURS:
-        depth, gt, info = icl_sgbm(root, nb, MODES[args.mode])
+        depth, gt, info = icl_sgbm(root, nb, MODES[args.mode], oracle=args.oracle)
         m = depth_metrics(depth, gt)
         lo, hi = info["disp_range"]
         print(f"| {ICL_REFERENCE} / {nb} | {info['baseline_cm']:.1f} cm | {lo:.1f}..{hi:.1f} "
@@ -410,6 +429,9 @@ def main():
                          "depth mapped back into the reference camera, eval's depth metric")
     ap.add_argument("--check-pfm", metavar="DEPTH_PFM",
                     help="with --icl: score a depth.pfm from `sweepdepth eval --save` instead")
+    ap.add_argument("--oracle", action="store_true",
+                    help="with --icl: the rectified ground-truth disparity instead of SGBM's "
+                         "(checks the rectification and the mapping back)")
     args = ap.parse_args()
     if args.icl:
         main_icl(args)
