@@ -315,9 +315,12 @@ pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics
 /// Restricts the dataset's disparity ground truth to its non-occluded pixels (the others become
 /// unknown), so that every metric is over the non-occluded pixels only.
 pub fn restrict_to_nonocc(dataset: &mut Dataset) -> Result<(), EvalError> {
-    let (Some(mask), GroundTruth::Disparity {
-        disparity_eval_px, ..
-    }) = (&dataset.nonocc_mask, &mut dataset.ground_truth)
+    let (
+        Some(mask),
+        GroundTruth::Disparity {
+            disparity_eval_px, ..
+        },
+    ) = (&dataset.nonocc_mask, &mut dataset.ground_truth)
     else {
         return Err(EvalError::NoNonoccMask(dataset.name.clone()));
     };
