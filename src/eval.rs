@@ -114,6 +114,19 @@ pub struct DepthMetrics {
     pub within_5pct: f64,
     /// % with no estimate.
     pub invalid: f64,
+    /// Whether confidence ranks depth errors; `None` without a confidence map or with fewer
+    /// than 2 valid estimates.
+    pub confidence_ranking: Option<DepthConfidenceRanking>,
+}
+
+/// The ground-truth pixels with a valid estimate, sorted by confidence: error rates (% off by
+/// more than 1 % / 5 % of the ground truth) of the more confident half and of all of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthConfidenceRanking {
+    pub off1_confident_half: f64,
+    pub off1_all_valid: f64,
+    pub off5_confident_half: f64,
+    pub off5_all_valid: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -251,13 +264,27 @@ pub fn disparity_metrics(
 /// Relative errors of an estimated depth map against depth ground truth (NaN or <= 0 =
 /// unknown).
 pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthMetrics, EvalError> {
+    depth_metrics_ranked(depth_m, None, gt_depth_m)
+}
+
+/// [`depth_metrics`], with the confidence ranking when `confidence` is given.
+pub fn depth_metrics_ranked(
+    depth_m: &ImageF32,
+    confidence: Option<&ImageF32>,
+    gt_depth_m: &ImageF32,
+) -> Result<DepthMetrics, EvalError> {
     check_size("the depth map", depth_m, gt_depth_m)?;
+    if let Some(c) = confidence {
+        check_size("the confidence map", c, gt_depth_m)?;
+    }
+    // (confidence, relative error) of the ground-truth pixels with a valid estimate.
+    let mut ranked: Vec<(f32, f64)> = Vec::new();
     let mut evaluated = 0usize;
     let mut valid = 0usize;
     let mut sum_rel = 0.0f64;
     let mut within1 = 0usize;
     let mut within5 = 0usize;
-    for (&z, &g) in depth_m.data.iter().zip(&gt_depth_m.data) {
+    for (i, (&z, &g)) in depth_m.data.iter().zip(&gt_depth_m.data).enumerate() {
         if !valid_depth(g) {
             continue;
         }
@@ -267,6 +294,10 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
         }
         valid += 1;
         let rel = (f64::from(z) - f64::from(g)).abs() / f64::from(g);
+        if let Some(c) = confidence {
+            let c = c.data[i];
+            ranked.push((if c.is_finite() { c } else { 0.0 }, rel));
+        }
         sum_rel += rel;
         if rel <= 0.01 {
             within1 += 1;
@@ -278,6 +309,20 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
     if evaluated == 0 {
         return Err(EvalError::NoGroundTruthPixels(String::new()));
     }
+    let confidence_ranking = (ranked.len() >= 2).then(|| {
+        // Most confident first; ties keep pixel order (stable sort).
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let (top, _) = ranked.split_at(ranked.len() / 2);
+        let off = |s: &[(f32, f64)], limit: f64| {
+            percent(s.iter().filter(|p| p.1 > limit).count(), s.len())
+        };
+        DepthConfidenceRanking {
+            off1_confident_half: off(top, 0.01),
+            off1_all_valid: off(&ranked, 0.01),
+            off5_confident_half: off(top, 0.05),
+            off5_all_valid: off(&ranked, 0.05),
+        }
+    });
     Ok(DepthMetrics {
         evaluated_px: evaluated,
         mean_abs_rel: if valid == 0 {
@@ -288,6 +333,7 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
         within_1pct: percent(within1, evaluated),
         within_5pct: percent(within5, evaluated),
         invalid: percent(evaluated - valid, evaluated),
+        confidence_ranking,
     })
 }
 
@@ -305,9 +351,11 @@ pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics
             *focal_baseline_eval,
             *border_px,
         )?))),
-        GroundTruth::Depth { depth_m } => {
-            Ok(Some(Metrics::Depth(depth_metrics(&maps.depth_m, depth_m)?)))
-        }
+        GroundTruth::Depth { depth_m } => Ok(Some(Metrics::Depth(depth_metrics_ranked(
+            &maps.depth_m,
+            Some(&maps.confidence),
+            depth_m,
+        )?))),
         GroundTruth::None => Ok(None),
     }
 }
@@ -427,8 +475,17 @@ pub fn table_row(
             "-".into(),
             pct(m.invalid),
             format!(
-                "absrel {:.4}, within 1% {:.2}%, within 5% {:.2}%",
-                m.mean_abs_rel, m.within_1pct, m.within_5pct
+                "absrel {:.4}, within 1% {:.2}%, within 5% {:.2}%{}",
+                m.mean_abs_rel,
+                m.within_1pct,
+                m.within_5pct,
+                match m.confidence_ranking {
+                    Some(r) => format!(
+                        "; valid off >1%: confident half {:.2}% vs all {:.2}%, off >5%: {:.2}% vs {:.2}%",
+                        r.off1_confident_half, r.off1_all_valid, r.off5_confident_half, r.off5_all_valid
+                    ),
+                    None => String::new(),
+                }
             ),
         ),
         None => (
@@ -566,6 +623,23 @@ mod tests {
             datasets::nonocc_mask(&left, &right),
             vec![false, true, false, false, true]
         );
+    }
+
+    #[test]
+    fn depth_confidence_ranking_by_hand() {
+        // GT 1 m everywhere; relative errors 0, 0.02, 0.10, 0.005, invalid, and confidences
+        // 0.9, 0.1, 0.2, 0.8, 1.0: the confident half (0.9, 0.8) is off by 0 and 0.005.
+        let gt = img(5, 1, vec![1.0; 5]);
+        let depth = img(5, 1, vec![1.0, 1.02, 1.10, 0.995, f32::NAN]);
+        let conf = img(5, 1, vec![0.9, 0.1, 0.2, 0.8, 1.0]);
+        let m = depth_metrics_ranked(&depth, Some(&conf), &gt).unwrap();
+        let r = m.confidence_ranking.unwrap();
+        assert_eq!((r.off1_confident_half, r.off5_confident_half), (0.0, 0.0));
+        assert_eq!((r.off1_all_valid, r.off5_all_valid), (50.0, 25.0));
+        assert!(depth_metrics(&depth, &gt)
+            .unwrap()
+            .confidence_ranking
+            .is_none());
     }
 
     #[test]
