@@ -122,6 +122,11 @@ pub struct Dataset {
     /// One per rig camera, in rig order.
     pub images: Vec<Rgba8Image>,
     pub ground_truth: GroundTruth,
+    /// Disparity ground truth only, when the evaluation pair's other view has ground truth too
+    /// (Middlebury 2003 Teddy disp2/disp6, 2005 disp1/disp5; not Tsukuba): true where the
+    /// reference pixel is not occluded, by a left-right check of the two ground-truth maps (see
+    /// [`nonocc_mask`]). `None` otherwise.
+    pub nonocc_mask: Option<Vec<bool>>,
     /// `SweepParams::default()` with the dataset's depth range and plane count.
     pub params: SweepParams,
 }
@@ -649,20 +654,27 @@ fn load_middlebury(dir: &Path, names: &[String], layout: Layout) -> Result<Datas
             what: "the size of the views".into(),
         });
     }
-    let disparity_eval_px = ImageF32 {
-        width,
-        height,
-        data: gt
-            .as_raw()
-            .iter()
-            .map(|&v| {
-                if v == 0 {
-                    f32::NAN
-                } else {
-                    (f64::from(v) / encoding.divisor) as f32
-                }
-            })
-            .collect(),
+    let disparity_eval_px = gt_disparity_image(&gt, encoding.divisor);
+    // The evaluation pair's other view (steps_eval views to the right) with ground truth of its own.
+    let partner_view = reference_view + encoding.steps_eval as u32;
+    let nonocc_mask = match truth.get(&partner_view) {
+        Some(partner_name) if views.contains_key(&partner_view) => {
+            let partner_path = dir.join(partner_name);
+            let partner = io::load_gray_u8(&partner_path)?;
+            if partner.dimensions() != (width, height) {
+                return Err(DatasetError::SizeMismatch {
+                    path: partner_path,
+                    got_w: partner.width(),
+                    got_h: partner.height(),
+                    want_w: width,
+                    want_h: height,
+                    what: "the size of the views".into(),
+                });
+            }
+            let partner_eval_px = gt_disparity_image(&partner, encoding.divisor);
+            Some(nonocc_mask(&disparity_eval_px, &partner_eval_px))
+        }
+        _ => None,
     };
     let focal_baseline = f * MIDDLEBURY_BASELINE_M;
     let ground_truth = GroundTruth::Disparity {
@@ -690,8 +702,55 @@ fn load_middlebury(dir: &Path, names: &[String], layout: Layout) -> Result<Datas
         rig,
         images,
         ground_truth,
+        nonocc_mask,
         params,
     })
+}
+
+/// A Middlebury ground-truth map in evaluation units (value / divisor; 0 = unknown = NaN).
+fn gt_disparity_image(gt: &image::GrayImage, divisor: f64) -> ImageF32 {
+    ImageF32 {
+        width: gt.width(),
+        height: gt.height(),
+        data: gt
+            .as_raw()
+            .iter()
+            .map(|&v| {
+                if v == 0 {
+                    f32::NAN
+                } else {
+                    (f64::from(v) / divisor) as f32
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Largest disagreement (evaluation px) of the left-right check in [`nonocc_mask`].
+pub const NONOCC_TOLERANCE_PX: f32 = 1.0;
+
+/// Non-occluded pixels of the left view of a rectified pair from the ground truth of both views
+/// (same units; NaN = unknown): left pixel x with disparity d is non-occluded when the right
+/// view's ground truth at round(x − d) is known and within [`NONOCC_TOLERANCE_PX`] of d. A left
+/// pixel without ground truth, or one that falls outside the right image, is not.
+pub fn nonocc_mask(left: &ImageF32, right: &ImageF32) -> Vec<bool> {
+    let (w, h) = (left.width as usize, left.height as usize);
+    let mut mask = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let d = left.data[y * w + x];
+            if !d.is_finite() {
+                continue;
+            }
+            let xr = (x as f32 - d).round();
+            if xr < 0.0 || xr >= w as f32 {
+                continue;
+            }
+            let dr = right.data[y * w + xr as usize];
+            mask[y * w + x] = dr.is_finite() && (d - dr).abs() <= NONOCC_TOLERANCE_PX;
+        }
+    }
+    mask
 }
 
 fn folder_name(dir: &Path) -> String {
@@ -964,6 +1023,7 @@ fn load_icl(dir: &Path, names: &[String], options: &LoadOptions) -> Result<Datas
         rig,
         images,
         ground_truth,
+        nonocc_mask: None,
         params,
     })
 }
@@ -1320,6 +1380,7 @@ fn load_ring(dir: &Path, names: &[String], options: &LoadOptions) -> Result<Data
         rig,
         images,
         ground_truth: GroundTruth::None,
+        nonocc_mask: None,
         params,
     })
 }

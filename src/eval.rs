@@ -25,8 +25,23 @@ pub struct EvalArgs {
     /// Write disparity/depth/confidence PFMs and PNGs to OUT/<dataset folder name>/.
     #[arg(long, value_name = "OUT")]
     pub save: Option<PathBuf>,
+    /// Pixels evaluated (disparity ground truth): all with ground truth, or only the
+    /// non-occluded ones (a left-right check of the evaluation pair's two ground-truth maps;
+    /// Middlebury 2003/2005 only, an error for the others).
+    #[arg(long, value_enum, default_value_t = EvalMask::All)]
+    pub mask: EvalMask,
     #[command(flatten)]
     pub params: crate::sweep::ParamOverrides,
+}
+
+/// Which pixels with ground truth are evaluated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EvalMask {
+    /// Every pixel with ground truth (outside the border).
+    All,
+    /// Only pixels that pass a left-right check of the two ground-truth maps
+    /// ([`datasets::nonocc_mask`]).
+    Nonocc,
 }
 
 /// Errors of one evaluation.
@@ -49,6 +64,8 @@ pub enum EvalError {
         want_w: u32,
         want_h: u32,
     },
+    #[error("{0}: no non-occluded mask (needs disparity ground truth for both views of the evaluation pair: Middlebury 2003/2005)")]
+    NoNonoccMask(String),
     #[error("no pixel has ground truth{0}")]
     NoGroundTruthPixels(String),
     #[error("{path}: cannot create folder: {source}")]
@@ -97,6 +114,19 @@ pub struct DepthMetrics {
     pub within_5pct: f64,
     /// % with no estimate.
     pub invalid: f64,
+    /// Whether confidence ranks depth errors; `None` without a confidence map or with fewer
+    /// than 2 valid estimates.
+    pub confidence_ranking: Option<DepthConfidenceRanking>,
+}
+
+/// The ground-truth pixels with a valid estimate, sorted by confidence: error rates (% off by
+/// more than 1 % / 5 % of the ground truth) of the more confident half and of all of them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthConfidenceRanking {
+    pub off1_confident_half: f64,
+    pub off1_all_valid: f64,
+    pub off5_confident_half: f64,
+    pub off5_all_valid: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -234,13 +264,27 @@ pub fn disparity_metrics(
 /// Relative errors of an estimated depth map against depth ground truth (NaN or <= 0 =
 /// unknown).
 pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthMetrics, EvalError> {
+    depth_metrics_ranked(depth_m, None, gt_depth_m)
+}
+
+/// [`depth_metrics`], with the confidence ranking when `confidence` is given.
+pub fn depth_metrics_ranked(
+    depth_m: &ImageF32,
+    confidence: Option<&ImageF32>,
+    gt_depth_m: &ImageF32,
+) -> Result<DepthMetrics, EvalError> {
     check_size("the depth map", depth_m, gt_depth_m)?;
+    if let Some(c) = confidence {
+        check_size("the confidence map", c, gt_depth_m)?;
+    }
+    // (confidence, relative error) of the ground-truth pixels with a valid estimate.
+    let mut ranked: Vec<(f32, f64)> = Vec::new();
     let mut evaluated = 0usize;
     let mut valid = 0usize;
     let mut sum_rel = 0.0f64;
     let mut within1 = 0usize;
     let mut within5 = 0usize;
-    for (&z, &g) in depth_m.data.iter().zip(&gt_depth_m.data) {
+    for (i, (&z, &g)) in depth_m.data.iter().zip(&gt_depth_m.data).enumerate() {
         if !valid_depth(g) {
             continue;
         }
@@ -250,6 +294,10 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
         }
         valid += 1;
         let rel = (f64::from(z) - f64::from(g)).abs() / f64::from(g);
+        if let Some(c) = confidence {
+            let c = c.data[i];
+            ranked.push((if c.is_finite() { c } else { 0.0 }, rel));
+        }
         sum_rel += rel;
         if rel <= 0.01 {
             within1 += 1;
@@ -261,6 +309,20 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
     if evaluated == 0 {
         return Err(EvalError::NoGroundTruthPixels(String::new()));
     }
+    let confidence_ranking = (ranked.len() >= 2).then(|| {
+        // Most confident first; ties keep pixel order (stable sort).
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let (top, _) = ranked.split_at(ranked.len() / 2);
+        let off = |s: &[(f32, f64)], limit: f64| {
+            percent(s.iter().filter(|p| p.1 > limit).count(), s.len())
+        };
+        DepthConfidenceRanking {
+            off1_confident_half: off(top, 0.01),
+            off1_all_valid: off(&ranked, 0.01),
+            off5_confident_half: off(top, 0.05),
+            off5_all_valid: off(&ranked, 0.05),
+        }
+    });
     Ok(DepthMetrics {
         evaluated_px: evaluated,
         mean_abs_rel: if valid == 0 {
@@ -271,6 +333,7 @@ pub fn depth_metrics(depth_m: &ImageF32, gt_depth_m: &ImageF32) -> Result<DepthM
         within_1pct: percent(within1, evaluated),
         within_5pct: percent(within5, evaluated),
         invalid: percent(evaluated - valid, evaluated),
+        confidence_ranking,
     })
 }
 
@@ -288,11 +351,33 @@ pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics
             *focal_baseline_eval,
             *border_px,
         )?))),
-        GroundTruth::Depth { depth_m } => {
-            Ok(Some(Metrics::Depth(depth_metrics(&maps.depth_m, depth_m)?)))
-        }
+        GroundTruth::Depth { depth_m } => Ok(Some(Metrics::Depth(depth_metrics_ranked(
+            &maps.depth_m,
+            Some(&maps.confidence),
+            depth_m,
+        )?))),
         GroundTruth::None => Ok(None),
     }
+}
+
+/// Restricts the dataset's disparity ground truth to its non-occluded pixels (the others become
+/// unknown), so that every metric is over the non-occluded pixels only.
+pub fn restrict_to_nonocc(dataset: &mut Dataset) -> Result<(), EvalError> {
+    let (
+        Some(mask),
+        GroundTruth::Disparity {
+            disparity_eval_px, ..
+        },
+    ) = (&dataset.nonocc_mask, &mut dataset.ground_truth)
+    else {
+        return Err(EvalError::NoNonoccMask(dataset.name.clone()));
+    };
+    for (d, &keep) in disparity_eval_px.data.iter_mut().zip(mask) {
+        if !keep {
+            *d = f32::NAN;
+        }
+    }
+    Ok(())
 }
 
 /// Runs the engine on a dataset with its `params` and scores the result.
@@ -390,8 +475,17 @@ pub fn table_row(
             "-".into(),
             pct(m.invalid),
             format!(
-                "absrel {:.4}, within 1% {:.2}%, within 5% {:.2}%",
-                m.mean_abs_rel, m.within_1pct, m.within_5pct
+                "absrel {:.4}, within 1% {:.2}%, within 5% {:.2}%{}",
+                m.mean_abs_rel,
+                m.within_1pct,
+                m.within_5pct,
+                match m.confidence_ranking {
+                    Some(r) => format!(
+                        "; valid off >1%: confident half {:.2}% vs all {:.2}%, off >5%: {:.2}% vs {:.2}%",
+                        r.off1_confident_half, r.off1_all_valid, r.off5_confident_half, r.off5_all_valid
+                    ),
+                    None => String::new(),
+                }
             ),
         ),
         None => (
@@ -428,6 +522,9 @@ fn eval_one(
     eprintln!("{progress} loading {}", dir.display());
     let mut dataset = datasets::load_dataset(dir)?;
     args.params.apply(&mut dataset.params);
+    if args.mask == EvalMask::Nonocc {
+        restrict_to_nonocc(&mut dataset)?;
+    }
     let (w, h) = dataset.reference_size();
     eprintln!(
         "{progress} {} ({}, {} views, {w}x{h}, reference {}, depth {:.3}..{:.3} m, {} planes) loaded in {:.0} ms; running",
@@ -465,6 +562,12 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
     let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "# adapter: {}", ctx.adapter_label())?;
+    if args.mask == EvalMask::Nonocc {
+        writeln!(
+            stdout,
+            "# mask: non-occluded pixels only (left-right check of the two ground-truth maps)"
+        )?;
+    }
     writeln!(stdout, "{}", table_header())?;
     stdout.flush()?;
     let mut failed = Vec::new();
@@ -502,6 +605,41 @@ mod tests {
             height: h,
             data,
         }
+    }
+
+    #[test]
+    fn nonocc_mask_by_hand() {
+        // Left row: d = 1, 1, 3, NaN, 2. Right row (x_r = x - d): pixel 0 -> -1 (outside),
+        // 1 -> 0 (right 1.0: ok), 2 -> -1 (outside), 3 unknown, 4 -> 2 (right 4.0: occluded).
+        let left = img(5, 1, vec![1.0, 1.0, 3.0, f32::NAN, 2.0]);
+        let right = img(5, 1, vec![1.0, 1.5, 4.0, 2.0, 2.0]);
+        assert_eq!(
+            datasets::nonocc_mask(&left, &right),
+            vec![false, true, false, false, false]
+        );
+        // The tolerance is 1 px: right 2.9 at x_r = 2 passes for d = 2 at x = 4.
+        let right = img(5, 1, vec![1.0, 1.5, 2.9, 2.0, 2.0]);
+        assert_eq!(
+            datasets::nonocc_mask(&left, &right),
+            vec![false, true, false, false, true]
+        );
+    }
+
+    #[test]
+    fn depth_confidence_ranking_by_hand() {
+        // GT 1 m everywhere; relative errors 0, 0.02, 0.10, 0.005, invalid, and confidences
+        // 0.9, 0.1, 0.2, 0.8, 1.0: the confident half (0.9, 0.8) is off by 0 and 0.005.
+        let gt = img(5, 1, vec![1.0; 5]);
+        let depth = img(5, 1, vec![1.0, 1.02, 1.10, 0.995, f32::NAN]);
+        let conf = img(5, 1, vec![0.9, 0.1, 0.2, 0.8, 1.0]);
+        let m = depth_metrics_ranked(&depth, Some(&conf), &gt).unwrap();
+        let r = m.confidence_ranking.unwrap();
+        assert_eq!((r.off1_confident_half, r.off5_confident_half), (0.0, 0.0));
+        assert_eq!((r.off1_all_valid, r.off5_all_valid), (50.0, 25.0));
+        assert!(depth_metrics(&depth, &gt)
+            .unwrap()
+            .confidence_ranking
+            .is_none());
     }
 
     #[test]

@@ -5,6 +5,7 @@ Run (from anywhere):
 
     pip install opencv-python-headless numpy
     python3 tools/sgbm_baseline.py [DATA_ROOT] [--mode HH|SGBM|3WAY|HH4] [--pad-left]
+    python3 tools/sgbm_baseline.py [DATA_ROOT] --icl [--check-pfm DEPTH_PFM]
 
 DATA_ROOT defaults to <repo root>/../shared/data, computed from this file's
 location (tools/ -> repo root -> its parent -> shared/data).  It must contain
@@ -51,6 +52,45 @@ Two rows per dataset:
   valid disparity to its left and to its right, taking the minimum of the two
   (background-favouring fill; only one side is used when the other side has no
   valid pixel; a row with no valid pixel at all is filled with 0).  0 % invalid.
+
+ICL-NUIM mode (--icl; folder iclnuim_livingroom_traj2_frames)
+-------------------------------------------------------------
+General poses, no rectified pair, depth ground truth.  `sweepdepth eval` takes
+the middle frame (scene_00_0020) as reference and matches it against all four
+other frames at once, so there is no single evaluation pair; SGBM is run once
+per neighbour (0010, 0015, 0025, 0030), each a two-view pair with the
+reference:
+
+* Cameras as in datasets.rs / SOURCE.md (POV-Ray .txt: fx = W|dir|/|right|,
+  fy = -H|dir|/|up| < 0, cx = (W-1)/2, cy = (H-1)/2, X_c = R_wc^T (X_w - C)).
+  OpenCV wants positive focal lengths, so both cameras are taken with their y
+  axis flipped (F = diag(1,-1,1): X' = F X_c, fy' = -fy); the relative pose of
+  the two flipped frames, R' = F R2 R1^T F, t' = F R2 (C1 - C2), is a proper
+  rigid motion, and z (the depth) is unchanged.
+* cv2.stereoRectify(K1', 0, K2', 0, R', t', CALIB_ZERO_DISPARITY, alpha=1:
+  every original pixel stays inside the rectified image), remap (bilinear).
+  When the neighbour lies to the left of the reference in the rectified frame
+  (P2[0,3] > 0) both rectified images are mirrored so that the reference is
+  SGBM's left image, and the disparity is mirrored back.
+* StereoSGBM with the same settings as above (mode HH, block 5, P1 600,
+  P2 2400, uniqueness 10, speckle 100/2, disp12MaxDiff 1, preFilterCap 63);
+  numDisparities = smallest multiple of 16 >= f_rect B / (smallest GT depth).
+* Back to the reference camera: for every original reference pixel, its ray
+  is rotated into the rectified frame (R1) and projected with P1; the SGBM
+  disparity at the nearest rectified pixel gives the rectified point
+  X_r = (f_rect B / d) * ray_r / ray_r.z, which is rotated back by R1^T; its z
+  is the depth.  An invalid SGBM disparity (or a ray falling outside the
+  rectified image) stays invalid.
+* Metric: the one `sweepdepth eval` prints for ICL (src/eval.rs
+  depth_metrics): over pixels with ground truth, mean |z - gt| / gt over the
+  valid estimates, % within 1 % / 5 % of gt with invalid pixels counted as
+  not within, % invalid.  The ground truth is the reference's .depth file
+  (ray distance, converted to z).
+* --check-pfm DEPTH_PFM scores a depth.pfm written by
+  `sweepdepth eval --save OUT` with this same code, as a cross-check of the
+  metric against the numbers `eval` prints; --oracle feeds the ground-truth
+  disparity of the rectified reference through the same path instead of
+  SGBM's, to show what the rectification and mapping back cost by themselves.
 """
 
 import argparse
@@ -63,15 +103,21 @@ import numpy as np
 
 DEFAULT_DATA_ROOT = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 
-# name, folder, left, right, gt file, gt divisor, border, numDisparities
+ICL_FOLDER = "iclnuim_livingroom_traj2_frames"
+ICL_REFERENCE = "scene_00_0020"
+ICL_NEIGHBOURS = ["scene_00_0010", "scene_00_0015", "scene_00_0025", "scene_00_0030"]
+
+# name, folder, left, right, gt file, gt divisor, border, numDisparities, right view's gt file
 DATASETS = [
     ("Tsukuba", "middlebury2001_tsukuba", "scene1.row3.col3.ppm", "scene1.row3.col4.ppm",
-     "truedisp.row3.col3.pgm", 16.0, 18, 16),
+     "truedisp.row3.col3.pgm", 16.0, 18, 16, None),
     ("Teddy", "middlebury2003_teddy_9view", "im2.ppm", "im6.ppm",
-     "disp2.pgm", 4.0, 10, 64),
+     "disp2.pgm", 4.0, 10, 64, "disp6.pgm"),
     ("Laundry", "middlebury2005_Laundry_thirdsize", "view1.png", "view5.png",
-     "disp1.png", 3.0, 10, 80),
+     "disp1.png", 3.0, 10, 80, "disp5.png"),
 ]
+
+NONOCC_TOLERANCE_PX = 1.0  # as datasets.rs NONOCC_TOLERANCE_PX
 
 MODES = {
     "HH": cv2.STEREO_SGBM_MODE_HH,
@@ -146,6 +192,21 @@ def fill_holes(disp, valid):
     return out, np.ones_like(valid)
 
 
+def nonocc_mask(gt_left, gt_right, known_left):
+    """datasets.rs nonocc_mask: left pixel x with disparity d is kept when the right view's
+    ground truth at round(x - d) is known (> 0) and within NONOCC_TOLERANCE_PX of d."""
+    h, w = gt_left.shape
+    xs = np.arange(w)[None, :].repeat(h, axis=0)
+    # Rust's f32::round rounds halves away from zero; x - d >= -0.5 matters only near 0.
+    xr = np.floor(xs - gt_left + 0.5)
+    xr = np.where(xs - gt_left < 0, -np.floor(-(xs - gt_left) + 0.5), xr).astype(np.int64)
+    inside = known_left & (xr >= 0) & (xr < w)
+    ys = np.arange(h)[:, None].repeat(w, axis=1)
+    dr = np.zeros_like(gt_left)
+    dr[inside] = gt_right[ys[inside], xr[inside]]
+    return inside & (dr > 0) & (np.abs(gt_left - dr) <= NONOCC_TOLERANCE_PX)
+
+
 def metrics(disp, valid, gt, mask):
     n = int(mask.sum())
     ev_valid = valid & mask
@@ -163,6 +224,192 @@ def metrics(disp, valid, gt, mask):
     }
 
 
+# ---------------------------------------------------------------------------------------------
+# ICL-NUIM
+
+
+def icl_camera(txt_path, width, height):
+    """(K, R_cw, C) of a POV-Ray .txt camera, as datasets.rs povray_camera_model (fy < 0)."""
+    fields = {}
+    for line in Path(txt_path).read_text().splitlines():
+        if "=" not in line:
+            continue
+        key, value = (part.strip() for part in line.split("=", 1))
+        value = value.rstrip(";").rstrip().rstrip("'").strip().strip("[]")
+        fields[key] = np.array([float(v) for v in value.replace(",", " ").split()])
+    pos, cdir, up, right = (fields[k] for k in ("cam_pos", "cam_dir", "cam_up", "cam_right"))
+    k = np.array([
+        [width * np.linalg.norm(cdir) / np.linalg.norm(right), 0.0, (width - 1) / 2.0],
+        [0.0, -height * np.linalg.norm(cdir) / np.linalg.norm(up), (height - 1) / 2.0],
+        [0.0, 0.0, 1.0],
+    ])
+    z = cdir / np.linalg.norm(cdir)
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r_wc = np.stack([x, y, z], axis=1)
+    return k, r_wc.T, pos
+
+
+def icl_image(path):
+    """16-bit RGB PNG -> 8-bit BGR, rounded as image-rs' to_rgba8 (v * 255 / 65535)."""
+    img = imread(path, cv2.IMREAD_UNCHANGED)
+    if img.dtype == np.uint16:
+        img = np.round(img.astype(np.float64) * 255.0 / 65535.0).astype(np.uint8)
+    return img[:, :, :3]
+
+
+def icl_gt_depth(depth_path, k, width, height):
+    """Ray distances (row-major text) -> z-depth; <= 0 or non-finite -> NaN."""
+    r = np.loadtxt(depth_path, dtype=np.float64).reshape(-1)
+    if r.size != width * height:
+        sys.exit(f"error: {depth_path}: {r.size} values, expected {width * height}")
+    r = r.reshape(height, width)
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    a = (u - k[0, 2]) / k[0, 0]
+    b = (v - k[1, 2]) / k[1, 1]
+    z = r / np.sqrt(a * a + b * b + 1.0)
+    z[~(np.isfinite(z) & (z > 0))] = np.nan
+    return z
+
+
+def depth_metrics(depth, gt):
+    """src/eval.rs depth_metrics: GT pixels only; invalid = not within."""
+    evaluated = np.isfinite(gt) & (gt > 0)
+    valid = evaluated & np.isfinite(depth) & (depth > 0)
+    n = int(evaluated.sum())
+    rel = np.abs(depth[valid] - gt[valid]) / gt[valid]
+    return {
+        "n": n,
+        "absrel": float(rel.mean()) if rel.size else float("nan"),
+        "within1": 100.0 * float((rel <= 0.01).sum()) / n,
+        "within5": 100.0 * float((rel <= 0.05).sum()) / n,
+        "invalid": 100.0 * (n - int(valid.sum())) / n,
+    }
+
+
+def read_pfm(path):
+    """Single-channel PFM (rows bottom to top) -> float64 array, top row first."""
+    data = Path(path).read_bytes()
+    tokens, pos = [], 0
+    while len(tokens) < 4:  # "Pf", width, height, scale; then one whitespace byte
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        start = pos
+        while not data[pos:pos + 1].isspace():
+            pos += 1
+        tokens.append(data[start:pos].decode())
+    pos += 1
+    if tokens[0] != "Pf":
+        sys.exit(f"error: {path}: not a single-channel PFM")
+    w, h, scale = int(tokens[1]), int(tokens[2]), float(tokens[3])
+    img = np.frombuffer(data, dtype="<f4" if scale < 0 else ">f4", count=w * h, offset=pos)
+    return img.reshape(h, w)[::-1].astype(np.float64)
+
+
+def icl_sgbm(root, neighbour, mode, oracle=False):
+    """SGBM on (reference, neighbour), depth in the original reference camera (NaN invalid).
+
+    oracle: instead of SGBM, the ground-truth disparity of the rectified reference (each GT
+    point moved into the rectified frame and splatted to its nearest pixel), to check that the
+    rectification and the mapping back lose nothing by themselves."""
+    d = root / ICL_FOLDER
+    ref_img = icl_image(d / f"{ICL_REFERENCE}.png")
+    nb_img = icl_image(d / f"{neighbour}.png")
+    h, w = ref_img.shape[:2]
+    k1, r1_cw, c1 = icl_camera(d / f"{ICL_REFERENCE}.txt", w, h)
+    k2, r2_cw, c2 = icl_camera(d / f"{neighbour}.txt", w, h)
+    gt = icl_gt_depth(d / f"{ICL_REFERENCE}.depth", k1, w, h)
+    flip = np.diag([1.0, -1.0, 1.0])
+    k1f, k2f = k1.copy(), k2.copy()
+    k1f[1, 1], k2f[1, 1] = -k1[1, 1], -k2[1, 1]
+    r_rel = flip @ r2_cw @ r1_cw.T @ flip
+    t_rel = flip @ r2_cw @ (c1 - c2)
+    assert abs(np.linalg.det(r_rel) - 1.0) < 1e-9
+    zero = np.zeros(5)
+    r1, r2, p1, p2, _q, _roi1, _roi2 = cv2.stereoRectify(
+        k1f, zero, k2f, zero, (w, h), r_rel, t_rel.reshape(3, 1),
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=1.0)
+    m1 = cv2.initUndistortRectifyMap(k1f, zero, r1, p1[:, :3], (w, h), cv2.CV_32FC1)
+    m2 = cv2.initUndistortRectifyMap(k2f, zero, r2, p2[:, :3], (w, h), cv2.CV_32FC1)
+    ref_r = cv2.remap(ref_img, m1[0], m1[1], cv2.INTER_LINEAR)
+    nb_r = cv2.remap(nb_img, m2[0], m2[1], cv2.INTER_LINEAR)
+    f_r = p1[0, 0]
+    baseline = abs(p2[0, 3] / p2[0, 0])
+    mirrored = p2[0, 3] > 0  # the neighbour is left of the reference
+    if mirrored:
+        ref_r, nb_r = ref_r[:, ::-1].copy(), nb_r[:, ::-1].copy()
+    ndisp = int(np.ceil(f_r * baseline / np.nanmin(gt) / 16.0)) * 16
+    # Every original reference pixel's ray, in the rectified frame.
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = np.linalg.inv(k1f) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    rays_r = r1 @ rays
+    if oracle:
+        points_r = rays_r * gt.ravel()  # the flipped ray has z = 1: gt z scales it
+        q = p1[:, :3] @ points_r
+        ok = np.isfinite(points_r[2]) & (points_r[2] > 0)
+        qu = np.rint(q[0, ok] / q[2, ok]).astype(np.int64)
+        qv = np.rint(q[1, ok] / q[2, ok]).astype(np.int64)
+        inside = (qu >= 0) & (qu < w) & (qv >= 0) & (qv < h)
+        disp = np.full((h, w), np.nan)
+        disp[qv[inside], qu[inside]] = f_r * baseline / points_r[2, ok][inside]
+        valid = np.isfinite(disp)
+    else:
+        disp, valid = run_sgbm(ref_r, nb_r, ndisp, mode)
+        if mirrored:
+            disp, valid = disp[:, ::-1], valid[:, ::-1]
+    # Each original reference pixel takes the disparity at its nearest rectified pixel.
+    q = p1[:, :3] @ rays_r
+    qu = np.rint(q[0] / q[2]).astype(np.int64)
+    qv = np.rint(q[1] / q[2]).astype(np.int64)
+    inside = (qu >= 0) & (qu < w) & (qv >= 0) & (qv < h) & (rays_r[2] > 0)
+    dq = np.full(u.size, np.nan)
+    dq[inside] = np.where(valid[qv[inside], qu[inside]], disp[qv[inside], qu[inside]], np.nan)
+    dq[~(dq > 0)] = np.nan  # disparity 0 = infinitely far: no depth
+    z_r = f_r * baseline / dq
+    x_r = rays_r / rays_r[2] * z_r
+    x_ref = r1.T @ x_r  # flipped-y reference frame: z is the reference camera's z
+    depth = x_ref[2].reshape(h, w)
+    info = {
+        "baseline_cm": 100.0 * np.linalg.norm(c1 - c2),
+        "ndisp": ndisp,
+        "disp_range": (f_r * baseline / np.nanmax(gt), f_r * baseline / np.nanmin(gt)),
+        "mirrored": bool(mirrored),
+        "sgbm_invalid": 100.0 * (1.0 - valid.mean()),
+    }
+    return depth, gt, info
+
+
+def main_icl(args):
+    root = Path(args.data_root)
+    d = root / ICL_FOLDER
+    print(f"OpenCV {cv2.__version__}, numpy {np.__version__}; StereoSGBM mode={args.mode}, "
+          f"blockSize={BLOCK_SIZE}, P1=8*3*bs^2, P2=32*3*bs^2, uniquenessRatio=10, "
+          f"speckleWindowSize=100, speckleRange=2, disp12MaxDiff=1, preFilterCap=63")
+    print(f"data: {d.resolve()}; reference {ICL_REFERENCE}; metric over GT pixels, "
+          "invalid = not within"
+          + ("; ORACLE: ground-truth disparity instead of SGBM" if args.oracle else ""))
+    print()
+    if args.check_pfm:
+        k1, _, _ = icl_camera(d / f"{ICL_REFERENCE}.txt", 640, 480)
+        gt = icl_gt_depth(d / f"{ICL_REFERENCE}.depth", k1, 640, 480)
+        m = depth_metrics(read_pfm(args.check_pfm), gt)
+        print(f"{args.check_pfm}: GT px {m['n']}, absrel {m['absrel']:.4f}, "
+              f"within 1% {m['within1']:.2f}%, within 5% {m['within5']:.2f}%, "
+              f"invalid {m['invalid']:.2f}%")
+        return
+    print("| pair | baseline | disparity range (px) | numDisparities | GT px | mean abs rel "
+          "| within 1 % | within 5 % | invalid % |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for nb in ICL_NEIGHBOURS:
+        depth, gt, info = icl_sgbm(root, nb, MODES[args.mode], oracle=args.oracle)
+        m = depth_metrics(depth, gt)
+        lo, hi = info["disp_range"]
+        print(f"| {ICL_REFERENCE} / {nb} | {info['baseline_cm']:.1f} cm | {lo:.1f}..{hi:.1f} "
+              f"| {info['ndisp']} | {m['n']} | {m['absrel']:.4f} | {m['within1']:.2f} "
+              f"| {m['within5']:.2f} | {m['invalid']:.2f} |")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data_root", nargs="?", default=str(DEFAULT_DATA_ROOT),
@@ -173,11 +420,26 @@ def main():
                     help="NOT part of the protocol (supplementary): replicate-pad both images "
                          "on the left by numDisparities so SGBM does not blank the leftmost "
                          "numDisparities columns")
+    ap.add_argument("--mask", choices=["all", "nonocc"], default="all",
+                    help="evaluated pixels: all with ground truth (the protocol), or only the "
+                         "non-occluded ones (left-right check of the two ground-truth maps, "
+                         "as `sweepdepth eval --mask nonocc`; Teddy and Laundry only)")
+    ap.add_argument("--icl", action="store_true",
+                    help="ICL-NUIM mode: rectify the reference with each neighbour frame, SGBM, "
+                         "depth mapped back into the reference camera, eval's depth metric")
+    ap.add_argument("--check-pfm", metavar="DEPTH_PFM",
+                    help="with --icl: score a depth.pfm from `sweepdepth eval --save` instead")
+    ap.add_argument("--oracle", action="store_true",
+                    help="with --icl: the rectified ground-truth disparity instead of SGBM's "
+                         "(checks the rectification and the mapping back)")
     args = ap.parse_args()
+    if args.icl:
+        main_icl(args)
+        return
     root = Path(args.data_root)
 
     rows = []
-    for name, folder, lf, rf, gf, div, border, ndisp in DATASETS:
+    for name, folder, lf, rf, gf, div, border, ndisp, rgf in DATASETS:
         d = root / folder
         left = imread(d / lf, cv2.IMREAD_COLOR)
         right = imread(d / rf, cv2.IMREAD_COLOR)
@@ -193,6 +455,13 @@ def main():
                   file=sys.stderr)
 
         mask = gt_raw > 0
+        if args.mask == "nonocc":
+            if rgf is None:
+                print(f"{name}: skipped, no ground truth for {rf} (no left-right check)",
+                      file=sys.stderr)
+                continue
+            mask &= nonocc_mask(gt, imread(d / rgf, cv2.IMREAD_UNCHANGED).astype(np.float64) / div,
+                                gt_raw > 0)
         mask[:border, :] = False
         mask[-border:, :] = False
         mask[:, :border] = False
@@ -207,7 +476,9 @@ def main():
     print(f"OpenCV {cv2.__version__}, numpy {np.__version__}; StereoSGBM mode={args.mode}, "
           f"blockSize={BLOCK_SIZE}, P1=8*3*bs^2, P2=32*3*bs^2, uniquenessRatio=10, "
           f"speckleWindowSize=100, speckleRange=2, disp12MaxDiff=1, preFilterCap=63"
-          + ("; SUPPLEMENTARY --pad-left (not the protocol)" if args.pad_left else ""))
+          + ("; SUPPLEMENTARY --pad-left (not the protocol)" if args.pad_left else "")
+          + ("; non-occluded pixels only (left-right check of the two GT maps, 1 px)"
+             if args.mask == "nonocc" else ""))
     print(f"data root: {root.resolve()}")
     print()
     print("| dataset | pair | numDisparities | variant | eval px | bad>1 % | bad>2 % "

@@ -587,13 +587,13 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
         ),
         spec(
             "sgm_p1",
-            Double(1.5),
+            Double(3.0),
             ParamRange::at_least(0.0),
             "SGM penalty for a one-plane step between neighbours, score units (those of tau).",
         ),
         spec(
             "sgm_p2",
-            Double(25.0),
+            Double(100.0),
             ParamRange::at_least(0.0),
             "SGM penalty for a larger step, score units (>= sgm_p1; paths x (tau + P2) must fit 16 bits: P2 <= 7 x tau with 8 paths).",
         ),
@@ -605,7 +605,7 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
         ),
         spec(
             "sgm_edge",
-            Double(0.0),
+            Double(10.0),
             ParamRange::Double {
                 min: 0.0,
                 max: 255.0,
