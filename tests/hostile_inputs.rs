@@ -56,11 +56,17 @@ fn info(width: u32, height: u32) -> CameraInfo {
 
 const CAMERAS: [&str; 3] = ["left", "mid", "right"];
 
+/// The receive clock of the pipeline (camera dropout): 1 ms per image, whatever the stamps say.
+fn received_ns() -> u64 {
+    static CLOCK: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    CLOCK.fetch_add(1_000_000, std::sync::atomic::Ordering::Relaxed)
+}
+
 /// Pushes one image per camera at `ms` and returns the results of the sets completed.
 fn push_set(p: &mut Pipeline<'_>, ms: i64, width: u32, height: u32) -> Vec<Result<Job, Skip>> {
     let mut out = Vec::new();
     for (i, camera) in CAMERAS.iter().enumerate() {
-        out.extend(p.on_image(i, image(camera, ms, width, height)).unwrap());
+        out.extend(p.on_image(i, image(camera, ms, width, height), received_ns()).unwrap());
     }
     out
 }
@@ -168,8 +174,8 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
         }
         assert!(p.take_notices().is_empty(), "{policy}");
         // A duplicate on mid, a stamp an hour ahead on right.
-        p.on_image(1, image("mid", 2900, 8, 8)).unwrap();
-        p.on_image(2, image("right", 3_600_000, 8, 8)).unwrap();
+        p.on_image(1, image("mid", 2900, 8, 8), received_ns()).unwrap();
+        p.on_image(2, image("right", 3_600_000, 8, 8), received_ns()).unwrap();
         let notices = p.take_notices();
         let kinds: Vec<&str> = notices.iter().map(|n| n.kind).collect();
         assert_eq!(kinds, ["duplicate stamp", "future stamp"], "{policy}");
