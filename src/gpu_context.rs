@@ -50,7 +50,9 @@ impl GpuContext {
         let adapter_limits = adapter.limits();
         let cap = max_storage_binding.unwrap_or(u64::MAX);
         let limits = wgpu::Limits {
-            max_storage_buffer_binding_size: adapter_limits.max_storage_buffer_binding_size.min(cap),
+            max_storage_buffer_binding_size: adapter_limits
+                .max_storage_buffer_binding_size
+                .min(cap),
             max_buffer_size: adapter_limits.max_buffer_size.min(cap),
             max_storage_buffers_per_shader_stage: adapter_limits
                 .max_storage_buffers_per_shader_stage

@@ -22,7 +22,9 @@ use serde::{Deserialize, Serialize};
 /// `nanosec` is always in `0..1_000_000_000` for well-formed values; negative times are
 /// represented with a negative `sec` and a positive `nanosec` (e.g. -0.5 s is
 /// `{ sec: -1, nanosec: 500_000_000 }`), as in `rclcpp::Time`.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize,
+)]
 pub struct Time {
     pub sec: i32,
     pub nanosec: u32,

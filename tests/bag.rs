@@ -28,7 +28,8 @@ fn fixture_params() -> PathBuf {
 
 /// A fresh scratch directory for one test.
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("sweepdepth-bagtest-{}-{name}", std::process::id()));
+    let dir =
+        std::env::temp_dir().join(format!("sweepdepth-bagtest-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("scratch dir");
     dir
@@ -114,7 +115,8 @@ fn bad_fraction(depth_m: &[f32], width: u32, height: u32) -> f64 {
             } else {
                 f32::NAN
             };
-            if !((d - gt).abs() <= 2.0) {
+            let good = (d - gt).abs() <= 2.0; // false for NaN (invalid)
+            if !good {
                 bad += 1;
             }
         }
@@ -186,12 +188,22 @@ fn pack_reproduces_the_fixture() {
     let ours = messages(&out);
     let committed = messages(&fixture());
     assert_eq!(ours.len(), 5 * 2 * 3 + 1);
-    assert_eq!(ours, committed, "pack is deterministic and made the fixture");
+    assert_eq!(
+        ours, committed,
+        "pack is deterministic and made the fixture"
+    );
     let params = std::fs::read_to_string(dir.join("tsukuba_half.params.yaml")).unwrap();
-    assert!(params.contains("cameras: [cam0, cam1, cam2, cam3, cam4]"), "{params}");
+    assert!(
+        params.contains("cameras: [cam0, cam1, cam2, cam3, cam4]"),
+        "{params}"
+    );
     assert!(params.contains("reference_camera: cam2"), "{params}");
     // The output exists now: refused without --force, replaced with it.
-    let again = sweepdepth(&["pack", root().join("data/tsukuba").to_str().unwrap(), out.to_str().unwrap()]);
+    let again = sweepdepth(&[
+        "pack",
+        root().join("data/tsukuba").to_str().unwrap(),
+        out.to_str().unwrap(),
+    ]);
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists (pass --force"));
 }
@@ -239,7 +251,11 @@ fn bags_written_by_rosbags_read_identically() {
         }
     }
     // And through the pipeline: the sqlite3 bag gives the depth the MCAP fixture gives.
-    run_bag(&dir.join("sqlite3_zstd"), &dir.join("from_sqlite.mcap"), &[]);
+    run_bag(
+        &dir.join("sqlite3_zstd"),
+        &dir.join("from_sqlite.mcap"),
+        &[],
+    );
     run_bag(&fixture(), &dir.join("from_mcap.mcap"), &[]);
     let a = depths(&dir.join("from_sqlite.mcap"));
     let b = depths(&dir.join("from_mcap.mcap"));
@@ -254,7 +270,11 @@ fn bags_written_by_rosbags_read_identically() {
 fn output_bags_open_in_rosbags_and_mcap() {
     let dir = scratch("readers");
     for out in [dir.join("lone.mcap"), dir.join("directory")] {
-        run_bag(&fixture(), &out, &["-p", "publish_points:=true", "--copy-inputs"]);
+        run_bag(
+            &fixture(),
+            &out,
+            &["-p", "publish_points:=true", "--copy-inputs"],
+        );
         let json = run_python("bag_check.py", &[&out]);
         let v: serde_json::Value = serde_json::from_str(&json).expect("bag_check JSON");
         let ros = &v["rosbags"];
@@ -270,8 +290,14 @@ fn output_bags_open_in_rosbags_and_mcap() {
             assert_eq!(t["type"], ty, "{topic}: {t}");
             assert_eq!(t["count"], 3, "{topic}");
             assert_eq!(t["encoding"], encoding, "{topic}");
-            assert_eq!((t["width"].as_u64(), t["height"].as_u64()), (Some(192), Some(144)));
-            assert_eq!(&t["stamps"], stamps, "{topic} stamped like the reference input");
+            assert_eq!(
+                (t["width"].as_u64(), t["height"].as_u64()),
+                (Some(192), Some(144))
+            );
+            assert_eq!(
+                &t["stamps"], stamps,
+                "{topic} stamped like the reference input"
+            );
             assert!(t["frames"]
                 .as_array()
                 .unwrap()
@@ -284,11 +310,19 @@ fn output_bags_open_in_rosbags_and_mcap() {
         assert!((2.4..76.8).contains(&median), "median depth {median} m");
         let info = &ros["/depth/camera_info"];
         assert_eq!(info["type"], "sensor_msgs/msg/CameraInfo");
-        assert_eq!((info["width"].as_u64(), info["height"].as_u64()), (Some(192), Some(144)));
+        assert_eq!(
+            (info["width"].as_u64(), info["height"].as_u64()),
+            (Some(192), Some(144))
+        );
         assert_eq!(ros["/points"]["type"], "sensor_msgs/msg/PointCloud2");
         assert_eq!(ros["/points"]["count"], 3);
         let mcap = &v["mcap"];
-        for topic in ["/depth/image", "/depth/camera_info", "/points", "/tf_static"] {
+        for topic in [
+            "/depth/image",
+            "/depth/camera_info",
+            "/points",
+            "/tf_static",
+        ] {
             assert_eq!(mcap[topic]["message_encoding"], "cdr", "{topic}");
             assert_eq!(mcap[topic]["schema_encoding"], "ros2msg", "{topic}");
         }
@@ -314,30 +348,61 @@ fn damaged_or_wrong_inputs_fail_clearly() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(
-        stderr.contains("truncated.mcap: corrupt or truncated at byte") && stderr.contains("damaged"),
+        stderr.contains("truncated.mcap: corrupt or truncated at byte")
+            && stderr.contains("damaged"),
         "{stderr}"
     );
     // Not a bag at all.
     let garbage = dir.join("garbage.mcap");
     std::fs::write(&garbage, b"this is not a bag, just text").unwrap();
-    let out = sweepdepth(&["bag", garbage.to_str().unwrap(), dir.join("g_out").to_str().unwrap(), "-p", "cameras:=[a, b]"]);
+    let out = sweepdepth(&[
+        "bag",
+        garbage.to_str().unwrap(),
+        dir.join("g_out").to_str().unwrap(),
+        "-p",
+        "cameras:=[a, b]",
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    assert!(stderr.contains("neither an MCAP file nor an sqlite3 database"), "{stderr}");
+    assert!(
+        stderr.contains("neither an MCAP file nor an sqlite3 database"),
+        "{stderr}"
+    );
     // Missing input.
-    let out = sweepdepth(&["bag", dir.join("nope.mcap").to_str().unwrap(), dir.join("n_out").to_str().unwrap(), "-p", "cameras:=[a, b]"]);
+    let out = sweepdepth(&[
+        "bag",
+        dir.join("nope.mcap").to_str().unwrap(),
+        dir.join("n_out").to_str().unwrap(),
+        "-p",
+        "cameras:=[a, b]",
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     assert!(stderr.contains("nope.mcap"), "{stderr}");
     // Cameras that are not in the bag.
-    let out = sweepdepth(&["bag", fixture().to_str().unwrap(), dir.join("c_out").to_str().unwrap(), "-p", "cameras:=[left, right]"]);
+    let out = sweepdepth(&[
+        "bag",
+        fixture().to_str().unwrap(),
+        dir.join("c_out").to_str().unwrap(),
+        "-p",
+        "cameras:=[left, right]",
+    ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    assert!(stderr.contains("none of the image topics [/left/image_raw, /right/image_raw]"), "{stderr}");
+    assert!(
+        stderr.contains("none of the image topics [/left/image_raw, /right/image_raw]"),
+        "{stderr}"
+    );
     assert!(!dir.join("c_out").exists(), "no output for a failed run");
     // Existing output.
     std::fs::create_dir_all(dir.join("exists")).unwrap();
-    let out = sweepdepth(&["bag", fixture().to_str().unwrap(), dir.join("exists").to_str().unwrap(), "--params-file", fixture_params().to_str().unwrap()]);
+    let out = sweepdepth(&[
+        "bag",
+        fixture().to_str().unwrap(),
+        dir.join("exists").to_str().unwrap(),
+        "--params-file",
+        fixture_params().to_str().unwrap(),
+    ]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("exists (pass --force"));
 }
@@ -357,7 +422,8 @@ fn write_mcap(path: &Path, messages: &[BagMessage], compression: Option<mcap::Co
         for m in expected {
             let id = *channels.entry(m.topic.clone()).or_insert_with(|| {
                 let schema = w.add_schema(&m.msg_type, "ros2msg", b"").unwrap();
-                w.add_channel(schema, &m.topic, "cdr", &Default::default()).unwrap()
+                w.add_channel(schema, &m.topic, "cdr", &Default::default())
+                    .unwrap()
             });
             w.write_to_known_channel(
                 &mcap::records::MessageHeader {
@@ -425,7 +491,10 @@ fn damaged_chunk_is_skipped_and_the_rest_processed() {
     assert!(stderr.contains("read errors (damaged bag)"), "{stderr}");
     let got: Vec<Time> = depths(&dir.join("out.mcap")).iter().map(|d| d.0).collect();
     let stamps = reference_stamps(&fixture());
-    assert!(got.contains(&stamps[0]) && got.contains(&stamps[2]), "sets around the damage: {got:?}");
+    assert!(
+        got.contains(&stamps[0]) && got.contains(&stamps[2]),
+        "sets around the damage: {got:?}"
+    );
     assert!(got.len() < 3, "the damaged set cannot be complete: {got:?}");
     let strict = sweepdepth(&[
         "bag",
@@ -466,10 +535,19 @@ fn pack_images_and_rig_file_then_bag() {
     std::fs::write(images.join("rig.yaml"), yaml).unwrap();
     let bag = dir.join("rig.mcap");
     let stderr = ok(
-        &sweepdepth(&["pack", images.to_str().unwrap(), bag.to_str().unwrap(), "--scale", "0.5"]),
+        &sweepdepth(&[
+            "pack",
+            images.to_str().unwrap(),
+            bag.to_str().unwrap(),
+            "--scale",
+            "0.5",
+        ]),
         "pack",
     );
-    assert!(stderr.contains("5 cameras [view0, view1, view2, view3, view4]"), "{stderr}");
+    assert!(
+        stderr.contains("5 cameras [view0, view1, view2, view3, view4]"),
+        "{stderr}"
+    );
     let params = std::fs::read_to_string(dir.join("rig.params.yaml")).unwrap();
     assert!(params.contains("reference_camera: view2"), "{params}");
     // The rig file gives no depth range: the dataset's, as -p.
@@ -500,4 +578,37 @@ fn pack_images_and_rig_file_then_bag() {
     assert_eq!(image.header.frame_id, "view2_optical_frame");
     let bad = bad_fraction(values, image.width, image.height);
     assert!(bad < 0.10, "bad pixels {:.1} %", bad * 100.0);
+}
+
+/// Stamps jittered by a few milliseconds per camera (free-running cameras): approximate sync
+/// pairs them, and the last set, which only later messages could prove best, is still emitted
+/// at the end of the bag.
+#[test]
+fn jittered_stamps_every_set_out_including_the_last() {
+    let dir = scratch("jitter");
+    let bag = dir.join("jitter.mcap");
+    let fixture = messages(&fixture());
+    let mut w = sweepdepth::bag::BagWriter::create(&bag, true).unwrap();
+    for m in &fixture {
+        w.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        let data = if m.topic.ends_with("image_raw") {
+            let mut image: Image = from_cdr(&m.data).unwrap();
+            let cam = u32::from(m.topic.as_bytes()[4] - b'0');
+            image.header.stamp.nanosec +=
+                (cam * 3 + image.header.stamp.nanosec / 100_000_000) % 7 * 1_000_000;
+            sweepdepth::msgs::to_cdr(&image).unwrap()
+        } else {
+            m.data.clone()
+        };
+        w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &data)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let out = dir.join("out.mcap");
+    let stderr = run_bag(&bag, &out, &[]);
+    assert!(
+        stderr.contains("3 frame sets found, 3 processed"),
+        "{stderr}"
+    );
+    assert_eq!(depths(&out).len(), 3);
 }

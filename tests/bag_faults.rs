@@ -45,7 +45,8 @@ fn write_bag(path: &Path, sets: u64, present: impl Fn(u64, usize) -> bool) {
     for m in &fixture {
         w.add_topic(&m.topic, &m.msg_type, None).unwrap();
     }
-    w.write("/tf_static", T0_NS - 1_000_000, T0_NS - 1_000_000, &tf.data).unwrap();
+    w.write("/tf_static", T0_NS - 1_000_000, T0_NS - 1_000_000, &tf.data)
+        .unwrap();
     for k in 0..sets {
         let stamp_ns = T0_NS + k * PERIOD_NS;
         for i in 0..5usize {
@@ -121,7 +122,10 @@ fn agreement(a: &Image, b: &Image) -> f64 {
         .map(|(x, y)| (*x, *y))
         .collect();
     assert!(both.len() * 2 > a.len(), "too few valid depths");
-    both.iter().filter(|(x, y)| ((x - y) / y).abs() <= 0.05).count() as f64 / both.len() as f64
+    both.iter()
+        .filter(|(x, y)| ((x - y) / y).abs() <= 0.05)
+        .count() as f64
+        / both.len() as f64
 }
 
 #[test]
@@ -134,32 +138,50 @@ fn cameras_that_stop_leave_the_rig_and_come_back() {
     });
     let (stderr, sets, depths) = run(&bag, &dir.join("out.mcap"), &["-p", "camera_timeout:=0.25"]);
     eprintln!("{stderr}\nsets with depth: {sets:?}");
-    assert!(stderr.contains("camera 'cam4' has sent nothing for"), "{stderr}");
+    assert!(
+        stderr.contains("camera 'cam4' has sent nothing for"),
+        "{stderr}"
+    );
     assert!(stderr.contains("going on with the other 4"), "{stderr}");
-    assert!(stderr.contains("camera 'cam4' is sending again"), "{stderr}");
+    assert!(
+        stderr.contains("camera 'cam4' is sending again"),
+        "{stderr}"
+    );
     assert!(
         stderr.contains("camera 'cam2' has sent nothing for")
             && stderr.contains("it is the reference camera: no depth is published"),
         "{stderr}"
     );
-    assert!(stderr.contains("degraded rig"), "the summary counts the skipped sets: {stderr}");
+    assert!(
+        stderr.contains("degraded rig"),
+        "the summary counts the skipped sets: {stderr}"
+    );
     // The full rig before the dropout.
     for k in 0..3 {
         assert!(sets.contains(&k), "set {k} missing: {sets:?}");
     }
     // cam4 out (after the timeout, the others go on), back from set 8.
-    assert!(sets.contains(&6) && sets.contains(&7), "degraded sets missing: {sets:?}");
+    assert!(
+        sets.contains(&6) && sets.contains(&7),
+        "degraded sets missing: {sets:?}"
+    );
     for k in 8..=10 {
         assert!(sets.contains(&k), "set {k} missing: {sets:?}");
     }
     // Never a depth map for a set without the reference, and none stale.
     for k in 11..=14 {
-        assert!(!sets.contains(&k), "depth published for set {k} without its reference image");
+        assert!(
+            !sets.contains(&k),
+            "depth published for set {k} without its reference image"
+        );
     }
     // The reference is back with set 15; the images of set 15 that came before it were not
     // kept (the rig was not publishing), so set 15 itself may be lost.
     for k in 16..18 {
-        assert!(sets.contains(&k), "set {k} missing after the reference came back: {sets:?}");
+        assert!(
+            sets.contains(&k),
+            "set {k} missing after the reference came back: {sets:?}"
+        );
     }
     let mut sorted = sets.clone();
     sorted.dedup();
@@ -168,7 +190,10 @@ fn cameras_that_stop_leave_the_rig_and_come_back() {
     let full = &depths[0];
     let degraded = &depths[sets.iter().position(|&k| k == 7).unwrap()];
     let share = agreement(degraded, full);
-    assert!(share > 0.9, "4-camera depth agrees with the full rig on only {share:.3}");
+    assert!(
+        share > 0.9,
+        "4-camera depth agrees with the full rig on only {share:.3}"
+    );
 }
 
 #[test]

@@ -16,7 +16,9 @@ use std::time::{Duration, Instant};
 
 use netns::{in_private_netns, KillOnDrop};
 use ros2_client::qos::{History, WhenFull};
-use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+};
 use sweepdepth::bag::{BagMessage, BagReader};
 use sweepdepth::msgs::{from_cdr, Image, Time};
 
@@ -44,7 +46,11 @@ fn depth_values(image: &Image) -> Vec<f32> {
 
 #[test]
 fn bag_played_live_gives_the_offline_depth() {
-    in_private_netns(INNER, "bag_played_live_gives_the_offline_depth", live_vs_offline);
+    in_private_netns(
+        INNER,
+        "bag_played_live_gives_the_offline_depth",
+        live_vs_offline,
+    );
 }
 
 fn live_vs_offline() {
@@ -57,12 +63,20 @@ fn live_vs_offline() {
     std::fs::create_dir_all(&dir).unwrap();
     let offline_path = dir.join("offline.mcap");
     let out = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(["bag", fixture.to_str().unwrap(), offline_path.to_str().unwrap()])
+        .args([
+            "bag",
+            fixture.to_str().unwrap(),
+            offline_path.to_str().unwrap(),
+        ])
         .args(["--params-file", params.to_str().unwrap()])
         .stdin(Stdio::null())
         .output()
         .expect("run sweepdepth bag");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let offline: HashMap<Time, Image> = messages(&offline_path)
         .into_iter()
         .filter(|m| m.topic == "/depth/image")
@@ -75,7 +89,12 @@ fn live_vs_offline() {
 
     // Live: the node with the same parameter file, the bag played into it.
     let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(["node", "--ros-args", "--params-file", params.to_str().unwrap()])
+        .args([
+            "node",
+            "--ros-args",
+            "--params-file",
+            params.to_str().unwrap(),
+        ])
         .env("ROS_DOMAIN_ID", DOMAIN.to_string())
         .env("RUST_LOG", "warn,sweepdepth=info")
         .stdin(Stdio::null())
@@ -145,7 +164,10 @@ fn live_vs_offline() {
             .get(stamp)
             .unwrap_or_else(|| panic!("live depth stamped {stamp:?}, which no offline output has"));
         assert_eq!(image.header, reference.header);
-        assert_eq!((image.width, image.height, &image.encoding), (reference.width, reference.height, &reference.encoding));
+        assert_eq!(
+            (image.width, image.height, &image.encoding),
+            (reference.width, reference.height, &reference.encoding)
+        );
         let (a, b) = (depth_values(image), depth_values(reference));
         let mut worst = 0f32;
         for (x, y) in a.iter().zip(&b) {
@@ -154,6 +176,9 @@ fn live_vs_offline() {
                 worst = worst.max((x - y).abs() / y.abs().max(1e-6));
             }
         }
-        assert!(worst <= 1e-5, "live and offline depth differ by {worst} (relative)");
+        assert!(
+            worst <= 1e-5,
+            "live and offline depth differ by {worst} (relative)"
+        );
     }
 }

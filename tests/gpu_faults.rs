@@ -25,12 +25,19 @@ fn fixture_job(config: &NodeConfig) -> Job {
     for m in bag {
         let m = m.unwrap();
         if m.topic == "/tf_static" {
-            assert!(pipeline.on_tf(&from_cdr::<TFMessage>(&m.data).unwrap()).is_empty());
+            assert!(pipeline
+                .on_tf(&from_cdr::<TFMessage>(&m.data).unwrap())
+                .is_empty());
         } else if let Some(i) = config.info_topics.iter().position(|t| *t == m.topic) {
             pipeline.on_info(i, from_cdr::<CameraInfo>(&m.data).unwrap());
         } else if let Some(i) = config.image_topics.iter().position(|t| *t == m.topic) {
             let image: Image = from_cdr(&m.data).unwrap();
-            for set in pipeline.on_image(i, image, m.log_time_ns).unwrap() {
+            if let Some(set) = pipeline
+                .on_image(i, image, m.log_time_ns)
+                .unwrap()
+                .into_iter()
+                .next()
+            {
                 return set.expect("a job");
             }
         }
@@ -55,7 +62,10 @@ fn lost_device_is_recreated_and_the_set_processed() {
         .expect("the run after the loss succeeds on a new device");
     assert_eq!(host.recreated, 1);
     assert!(!host.is_lost());
-    assert_eq!(before.depth.data, after.depth.data, "same depth on the new device");
+    assert_eq!(
+        before.depth.data, after.depth.data,
+        "same depth on the new device"
+    );
     // And it keeps working.
     host.process(&job, &config.sweep, false).expect("third run");
     assert_eq!(host.recreated, 1);
@@ -97,5 +107,7 @@ fn configuration_beyond_the_adapter_limits_is_refused_up_front() {
     .unwrap();
     let scene = Scene::wall_and_box(2.0, None, synthetic::intrinsics(64, 48).fx_px);
     let images = synthetic::render_rig(&scene, &rig_small);
-    engine.run(&rig_small, &images, &small).expect("a small set still runs");
+    engine
+        .run(&rig_small, &images, &small)
+        .expect("a small set still runs");
 }

@@ -19,9 +19,11 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use ros2_client::qos::{History, WhenFull};
-use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+};
 use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
-use sweepdepth::msgs::{from_cdr, to_cdr, CameraInfo, Image, TFMessage, Time};
+use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage, Time};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
 const T0_NS: u64 = 1_700_000_000_000_000_000;
@@ -118,9 +120,11 @@ fn write_hostile_bag(path: &Path, live: bool) -> Vec<(u64, Case)> {
         w.add_topic(&m.topic, &m.msg_type, None).unwrap();
     }
     if !live {
-        w.add_topic("/unknown", "foo_msgs/msg/Bar", Some(b"int32 x")).unwrap();
+        w.add_topic("/unknown", "foo_msgs/msg/Bar", Some(b"int32 x"))
+            .unwrap();
     }
-    w.write("/tf_static", T0_NS - 1_000_000, T0_NS - 1_000_000, &tf.data).unwrap();
+    w.write("/tf_static", T0_NS - 1_000_000, T0_NS - 1_000_000, &tf.data)
+        .unwrap();
     let plan = schedule(live);
     // Receive times keep increasing even when the stamps jump back (the loop).
     for (n, &(k, case)) in plan.iter().enumerate() {
@@ -136,11 +140,18 @@ fn write_hostile_bag(path: &Path, live: bool) -> Vec<(u64, Case)> {
             w.write_msg("/tf_static", log0 - 500_000, &msg).unwrap();
         }
         if !live && n == 3 {
-            w.write("/unknown", log0 - 400_000, log0 - 400_000, &[0, 1, 0, 0, 42, 0, 0, 0]).unwrap();
+            w.write(
+                "/unknown",
+                log0 - 400_000,
+                log0 - 400_000,
+                &[0, 1, 0, 0, 42, 0, 0, 0],
+            )
+            .unwrap();
         }
         for i in 0..5usize {
             let log = log0 + 1_000 * i as u64;
-            let mut info: CameraInfo = from_cdr(&original(&format!("/cam{i}/camera_info")).data).unwrap();
+            let mut info: CameraInfo =
+                from_cdr(&original(&format!("/cam{i}/camera_info")).data).unwrap();
             info.header.stamp = time(stamp_ns);
             match (case, i) {
                 (Case::InfoZeros, 2) => {
@@ -155,7 +166,8 @@ fn write_hostile_bag(path: &Path, live: bool) -> Vec<(u64, Case)> {
                 (Case::InfoDistortion, 0) => info.distortion_model = "weird_model".into(),
                 _ => {}
             }
-            w.write_msg(&format!("/cam{i}/camera_info"), log, &info).unwrap();
+            w.write_msg(&format!("/cam{i}/camera_info"), log, &info)
+                .unwrap();
             let topic = format!("/cam{i}/image_raw");
             let mut image: Image = from_cdr(&original(&topic).data).unwrap();
             image.header.stamp = time(stamp_ns);
@@ -174,7 +186,13 @@ fn write_hostile_bag(path: &Path, live: bool) -> Vec<(u64, Case)> {
                 _ => {}
             }
             if case == Case::Garbage && i == 2 {
-                w.write(&topic, log + 500, log + 500, &[0xde, 0xad, 0xbe, 0xef, 1, 2, 3]).unwrap();
+                w.write(
+                    &topic,
+                    log + 500,
+                    log + 500,
+                    &[0xde, 0xad, 0xbe, 0xef, 1, 2, 3],
+                )
+                .unwrap();
             } else {
                 w.write_msg(&topic, log + 500, &image).unwrap();
             }
@@ -199,23 +217,33 @@ fn depth_values(image: &Image) -> Vec<f32> {
 fn same_depth(a: &Image, b: &Image) -> bool {
     let (a, b) = (depth_values(a), depth_values(b));
     a.len() == b.len()
-        && a.iter().zip(&b).all(|(x, y)| {
-            (x.is_nan() && y.is_nan()) || (x - y).abs() <= 1e-5 * y.abs().max(1e-6)
-        })
+        && a.iter()
+            .zip(&b)
+            .all(|(x, y)| (x.is_nan() && y.is_nan()) || (x - y).abs() <= 1e-5 * y.abs().max(1e-6))
 }
 
 /// Checks the depth images (in output order) against the schedule: exactly the sets that must
 /// give depth do (each once, `required` of them at least; live drops none at this rate), all
 /// equal to the clean depth.
 fn check(outputs: &[Image], plan: &[(u64, Case)], clean: &Image, what: &str) {
-    let expected: Vec<u64> = plan.iter().filter(|(_, c)| c.gives_depth()).map(|(k, _)| *k).collect();
+    let expected: Vec<u64> = plan
+        .iter()
+        .filter(|(_, c)| c.gives_depth())
+        .map(|(k, _)| *k)
+        .collect();
     let got: Vec<u64> = outputs
         .iter()
         .map(|d| (d.header.stamp.to_nanos() as u64 - T0_NS) / PERIOD_NS)
         .collect();
-    assert_eq!(got, expected, "{what}: depth for exactly the good sets, in order");
+    assert_eq!(
+        got, expected,
+        "{what}: depth for exactly the good sets, in order"
+    );
     for (image, k) in outputs.iter().zip(&got) {
-        assert!(same_depth(image, clean), "{what}: set {k} does not have the clean depth");
+        assert!(
+            same_depth(image, clean),
+            "{what}: set {k} does not have the clean depth"
+        );
     }
 }
 
@@ -252,7 +280,8 @@ fn clean_depth(dir: &Path) -> Image {
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("sweepdepth-hostile-{}-{name}", std::process::id()));
+    let dir =
+        std::env::temp_dir().join(format!("sweepdepth-hostile-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -282,7 +311,10 @@ fn hostile_bag_through_sweepdepth_bag() {
         "time went backwards",
         "cannot decode Image on /cam2/image_raw",
     ] {
-        assert!(stderr.contains(needle), "no message mentions {needle:?}: {stderr}");
+        assert!(
+            stderr.contains(needle),
+            "no message mentions {needle:?}: {stderr}"
+        );
     }
 }
 
@@ -298,8 +330,20 @@ fn live() {
     let clean = clean_depth(&dir);
     let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
     let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(["node", "--ros-args", "--params-file", params.to_str().unwrap()])
-        .args(["-p", "camera_timeout:=5.0", "-p", "input_qos_reliable:=true", "-p", "input_qos_depth:=20"])
+        .args([
+            "node",
+            "--ros-args",
+            "--params-file",
+            params.to_str().unwrap(),
+        ])
+        .args([
+            "-p",
+            "camera_timeout:=5.0",
+            "-p",
+            "input_qos_reliable:=true",
+            "-p",
+            "input_qos_depth:=20",
+        ])
         .env("ROS_DOMAIN_ID", "46")
         .env("RUST_LOG", "warn,sweepdepth=info")
         .stdin(Stdio::null())
@@ -310,7 +354,9 @@ fn live() {
     let mut peer = context
         .new_node(
             NodeName::new("/", "sweepdepth_hostile_player").unwrap(),
-            NodeOptions::new().enable_rosout(false).start_parameter_services(false),
+            NodeOptions::new()
+                .enable_rosout(false)
+                .start_parameter_services(false),
         )
         .unwrap();
     let bag_messages = messages(&bag);
@@ -319,9 +365,15 @@ fn live() {
         .reliability_reliable(WhenFull::DEFAULT)
         .history(History::KeepLast { depth: 50 });
     let topic = peer
-        .create_topic(&Name::parse("/depth/image").unwrap(), MessageTypeName::new("sensor_msgs", "Image"), &reliable)
+        .create_topic(
+            &Name::parse("/depth/image").unwrap(),
+            MessageTypeName::new("sensor_msgs", "Image"),
+            &reliable,
+        )
         .unwrap();
-    let depth_sub = peer.create_subscription::<Image>(&topic, Some(reliable.clone())).unwrap();
+    let depth_sub = peer
+        .create_subscription::<Image>(&topic, Some(reliable.clone()))
+        .unwrap();
     let spinner = peer.spinner().unwrap();
     std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
     player.wait_for_subscribers(&peer, Duration::from_secs(30));
@@ -344,16 +396,24 @@ fn live() {
             finished_at = Some(Instant::now());
         }
         // After the last message, give the GPU a few seconds for the last set.
-        if finished_at.is_some_and(|t| t.elapsed() > Duration::from_secs(5)) || outputs.len() >= expected {
+        if finished_at.is_some_and(|t| t.elapsed() > Duration::from_secs(5))
+            || outputs.len() >= expected
+        {
             break;
         }
-        assert!(started.elapsed() < Duration::from_secs(120), "the live run takes too long");
+        assert!(
+            started.elapsed() < Duration::from_secs(120),
+            "the live run takes too long"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     std::thread::sleep(Duration::from_millis(500));
     while let Ok(Some((image, _))) = depth_sub.take() {
         outputs.push(image);
     }
-    assert!(node.0.try_wait().unwrap().is_none(), "the node is alive at the end");
+    assert!(
+        node.0.try_wait().unwrap().is_none(),
+        "the node is alive at the end"
+    );
     check(&outputs, &plan, &clean, "live");
 }

@@ -66,7 +66,10 @@ fn received_ns() -> u64 {
 fn push_set(p: &mut Pipeline<'_>, ms: i64, width: u32, height: u32) -> Vec<Result<Job, Skip>> {
     let mut out = Vec::new();
     for (i, camera) in CAMERAS.iter().enumerate() {
-        out.extend(p.on_image(i, image(camera, ms, width, height), received_ns()).unwrap());
+        out.extend(
+            p.on_image(i, image(camera, ms, width, height), received_ns())
+                .unwrap(),
+        );
     }
     out
 }
@@ -174,8 +177,10 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
         }
         assert!(p.take_notices().is_empty(), "{policy}");
         // A duplicate on mid, a stamp an hour ahead on right.
-        p.on_image(1, image("mid", 2900, 8, 8), received_ns()).unwrap();
-        p.on_image(2, image("right", 3_600_000, 8, 8), received_ns()).unwrap();
+        p.on_image(1, image("mid", 2900, 8, 8), received_ns())
+            .unwrap();
+        p.on_image(2, image("right", 3_600_000, 8, 8), received_ns())
+            .unwrap();
         let notices = p.take_notices();
         let kinds: Vec<&str> = notices.iter().map(|n| n.kind).collect();
         assert_eq!(kinds, ["duplicate stamp", "future stamp"], "{policy}");

@@ -76,7 +76,7 @@ fn rig_from_file(file: &RigFile, names: &[String], reference: usize) -> Rig {
         .map(|n| {
             file.camera_for(n)
                 .unwrap_or_else(|| panic!("{n} is not in {}", file.path.display()))
-                .rig_camera(model.clone())
+                .rig_camera(model)
         })
         .collect();
     Rig::new(cameras, Reference::Camera(reference)).unwrap()

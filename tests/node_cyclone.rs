@@ -18,8 +18,8 @@
 mod netns;
 #[path = "common/python.rs"]
 mod python;
-use python::{python, INSTALL_HINT};
 use netns::{in_private_netns, KillOnDrop};
+use python::{python, INSTALL_HINT};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -46,8 +46,6 @@ const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
     <Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/></Interfaces>\
     <AllowMulticast>true</AllowMulticast>\
     </General></Domain></CycloneDDS>";
-
-/// Network interfaces of this process's network namespace (from /proc/self/net/dev).
 
 fn peer_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/cyclone_peer.py")

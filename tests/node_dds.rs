@@ -780,9 +780,7 @@ fn virtual_reference() {
         if info.is_none() {
             info = info_sub.take().ok().flatten().map(|(m, _)| m);
         }
-        if info.is_none() {
-            return None;
-        }
+        info.as_ref()?;
         depth_sub
             .take()
             .ok()

@@ -40,7 +40,10 @@ fn stop_with(signal: &str) {
     let mut log = Vec::new();
     let started = Instant::now();
     while !log.iter().any(|l: &String| l.contains("is up")) {
-        assert!(started.elapsed() < Duration::from_secs(30), "the node did not come up: {log:?}");
+        assert!(
+            started.elapsed() < Duration::from_secs(30),
+            "the node did not come up: {log:?}"
+        );
         if let Ok(line) = rx.recv_timeout(Duration::from_millis(100)) {
             log.push(line);
         }
@@ -64,9 +67,13 @@ fn stop_with(signal: &str) {
     while let Ok(line) = rx.recv_timeout(Duration::from_millis(200)) {
         log.push(line);
     }
-    assert!(exit.success(), "SIG{signal}: exit status {exit}; log: {log:?}");
     assert!(
-        log.iter().any(|l| l.contains("shutting down (signal received)")),
+        exit.success(),
+        "SIG{signal}: exit status {exit}; log: {log:?}"
+    );
+    assert!(
+        log.iter()
+            .any(|l| l.contains("shutting down (signal received)")),
         "SIG{signal}: {log:?}"
     );
 }

@@ -12,7 +12,9 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use ros2_client::qos::{Durability, History, WhenFull};
-use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
+};
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::image::Rgba8Image;
 use sweepdepth::msgs::{
@@ -87,7 +89,9 @@ fn run() {
     let mut peer = context
         .new_node(
             NodeName::new("/", "sweepdepth_soak").unwrap(),
-            NodeOptions::new().enable_rosout(false).start_parameter_services(false),
+            NodeOptions::new()
+                .enable_rosout(false)
+                .start_parameter_services(false),
         )
         .unwrap();
     let qos = QosProfile::publisher_default()
@@ -98,25 +102,51 @@ fn run() {
         .history(History::KeepLast { depth: 5 });
     let tf_qos = reliable.clone().durability(Durability::TransientLocal);
     let tf_topic = peer
-        .create_topic(&Name::parse("/tf_static").unwrap(), MessageTypeName::new("tf2_msgs", "TFMessage"), &tf_qos)
+        .create_topic(
+            &Name::parse("/tf_static").unwrap(),
+            MessageTypeName::new("tf2_msgs", "TFMessage"),
+            &tf_qos,
+        )
         .unwrap();
-    let tf_pub = peer.create_publisher::<TFMessage>(&tf_topic, Some(tf_qos.clone())).unwrap();
+    let tf_pub = peer
+        .create_publisher::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
+        .unwrap();
     let mut image_pubs = Vec::new();
     let mut info_pubs = Vec::new();
     for i in 0..CAMERAS {
         let t = peer
-            .create_topic(&Name::parse(&format!("/cam{i}/image_raw")).unwrap(), MessageTypeName::new("sensor_msgs", "Image"), &qos)
+            .create_topic(
+                &Name::parse(&format!("/cam{i}/image_raw")).unwrap(),
+                MessageTypeName::new("sensor_msgs", "Image"),
+                &qos,
+            )
             .unwrap();
-        image_pubs.push(peer.create_publisher::<Image>(&t, Some(qos.clone())).unwrap());
+        image_pubs.push(
+            peer.create_publisher::<Image>(&t, Some(qos.clone()))
+                .unwrap(),
+        );
         let t = peer
-            .create_topic(&Name::parse(&format!("/cam{i}/camera_info")).unwrap(), MessageTypeName::new("sensor_msgs", "CameraInfo"), &qos)
+            .create_topic(
+                &Name::parse(&format!("/cam{i}/camera_info")).unwrap(),
+                MessageTypeName::new("sensor_msgs", "CameraInfo"),
+                &qos,
+            )
             .unwrap();
-        info_pubs.push(peer.create_publisher::<CameraInfo>(&t, Some(qos.clone())).unwrap());
+        info_pubs.push(
+            peer.create_publisher::<CameraInfo>(&t, Some(qos.clone()))
+                .unwrap(),
+        );
     }
     let depth_topic = peer
-        .create_topic(&Name::parse("/depth/image").unwrap(), MessageTypeName::new("sensor_msgs", "Image"), &reliable)
+        .create_topic(
+            &Name::parse("/depth/image").unwrap(),
+            MessageTypeName::new("sensor_msgs", "Image"),
+            &reliable,
+        )
         .unwrap();
-    let depth_sub = peer.create_subscription::<Image>(&depth_topic, Some(reliable.clone())).unwrap();
+    let depth_sub = peer
+        .create_subscription::<Image>(&depth_topic, Some(reliable.clone()))
+        .unwrap();
     let transforms = rig
         .cameras
         .iter()
@@ -124,10 +154,17 @@ fn run() {
         .map(|(i, cam)| {
             let c = cam.centre_in_rig();
             TransformStamped {
-                header: Header { stamp: stamp(0), frame_id: "rig".into() },
+                header: Header {
+                    stamp: stamp(0),
+                    frame_id: "rig".into(),
+                },
                 child_frame_id: format!("cam{i}_optical"),
                 transform: Transform {
-                    translation: Vector3 { x: c.x, y: c.y, z: c.z },
+                    translation: Vector3 {
+                        x: c.x,
+                        y: c.y,
+                        z: c.z,
+                    },
                     rotation: Quaternion::default(),
                 },
             }
@@ -151,7 +188,10 @@ fn run() {
     let publish = |frame: u64| {
         let ns = 1_000_000_000_000 + frame * 1_000_000;
         for i in 0..CAMERAS {
-            let header = Header { stamp: stamp(ns), frame_id: format!("cam{i}_optical") };
+            let header = Header {
+                stamp: stamp(ns),
+                frame_id: format!("cam{i}_optical"),
+            };
             let info = CameraInfo {
                 header: header.clone(),
                 width: WIDTH,
@@ -160,7 +200,9 @@ fn run() {
                 d: vec![0.0; 5],
                 k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
                 r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-                p: [k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
+                p: [
+                    k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0,
+                ],
                 ..CameraInfo::default()
             };
             let _ = info_pubs[i].publish(info);

@@ -147,7 +147,11 @@ fn frame_id(camera: &str) -> String {
 }
 
 /// Cameras from a dataset folder (one frame each).
-fn dataset_cameras(dir: &Path) -> Result<(Vec<PackCamera>, usize, String, Option<(f64, f64, u32)>), PackError> {
+/// Cameras, the reference index, a description of the source, and the depth range and plane
+/// count when the source knows them.
+type Packed = (Vec<PackCamera>, usize, String, Option<(f64, f64, u32)>);
+
+fn dataset_cameras(dir: &Path) -> Result<Packed, PackError> {
     let dataset = load_dataset(dir)?;
     let reference = dataset.reference_index();
     let cameras = dataset
@@ -156,12 +160,14 @@ fn dataset_cameras(dir: &Path) -> Result<(Vec<PackCamera>, usize, String, Option
         .iter()
         .zip(&dataset.images)
         .enumerate()
-        .map(|(i, (c, img)): (usize, (&RigCamera, &Rgba8Image))| PackCamera {
-            name: format!("cam{i}"),
-            model: c.model,
-            cam_from_rig: c.cam_from_rig,
-            frames: vec![img.clone()],
-        })
+        .map(
+            |(i, (c, img)): (usize, (&RigCamera, &Rgba8Image))| PackCamera {
+                name: format!("cam{i}"),
+                model: c.model,
+                cam_from_rig: c.cam_from_rig,
+                frames: vec![img.clone()],
+            },
+        )
         .collect();
     let p = &dataset.params;
     let note = format!("{} ({})", dataset.name, layout_name(dataset.layout));
@@ -186,7 +192,10 @@ fn is_image(p: &Path) -> bool {
 }
 
 /// Cameras from a folder of images and a rig file.
-fn rig_folder_cameras(dir: &Path, rig: &Path) -> Result<(Vec<PackCamera>, usize, String), PackError> {
+fn rig_folder_cameras(
+    dir: &Path,
+    rig: &Path,
+) -> Result<(Vec<PackCamera>, usize, String), PackError> {
     let file = load_rig_file(rig)?;
     let mut cameras = Vec::new();
     for c in &file.cameras {
@@ -268,7 +277,9 @@ fn keep_nearest(
         return Ok((cameras, reference));
     }
     if keep < 2 {
-        return Err(PackError::Invalid("--cameras must be 0 (all) or at least 2".into()));
+        return Err(PackError::Invalid(
+            "--cameras must be 0 (all) or at least 2".into(),
+        ));
     }
     let mut order: Vec<usize> = (0..cameras.len()).collect();
     order.sort_by_key(|&i| (i.abs_diff(reference), i));
@@ -293,13 +304,19 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         )));
     }
     if !(args.rate_hz > 0.0 && args.rate_hz.is_finite()) {
-        return Err(PackError::Invalid(format!("--rate-hz must be > 0, got {}", args.rate_hz)));
+        return Err(PackError::Invalid(format!(
+            "--rate-hz must be > 0, got {}",
+            args.rate_hz
+        )));
     }
     if args.frames == 0 {
         return Err(PackError::Invalid("--frames must be at least 1".into()));
     }
     if !(args.start >= 0.0 && args.start < 2.0e9) {
-        return Err(PackError::Invalid(format!("--start must be in [0, 2e9) s, got {}", args.start)));
+        return Err(PackError::Invalid(format!(
+            "--start must be in [0, 2e9) s, got {}",
+            args.start
+        )));
     }
     let params_file = params_path(&args.output);
     writer::check_output(&args.output, args.force)?;
@@ -401,7 +418,8 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         names[reference],
     );
     if let Some((min, max, planes)) = depth {
-        yaml += &format!("    min_depth: {min:?}\n    max_depth: {max:?}\n    num_planes: {planes}\n");
+        yaml +=
+            &format!("    min_depth: {min:?}\n    max_depth: {max:?}\n    num_planes: {planes}\n");
     }
     std::fs::write(&params_file, yaml).map_err(|e| BagError::io(&params_file, e))?;
     let k = cameras[reference].model.intrinsics;

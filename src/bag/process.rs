@@ -126,7 +126,11 @@ impl BagReport {
             None => s += "; no set processed",
         }
         if let Some(out) = &self.output {
-            s += &format!("; wrote {} messages to {}", out.messages, out.path.display());
+            s += &format!(
+                "; wrote {} messages to {}",
+                out.messages,
+                out.path.display()
+            );
         }
         s
     }
@@ -150,6 +154,71 @@ enum Route {
     Image(usize),
     Info(usize),
     Tf,
+}
+
+/// Offline every distinct message is printed once (the first 200); the summary counts.
+fn warn(bar: &ProgressBar, seen: &mut HashSet<String>, _key: &str, msg: &str) {
+    if seen.len() < 200 && seen.insert(msg.to_string()) {
+        bar.suspend(|| tracing::warn!("{msg}"));
+        if seen.len() == 200 {
+            bar.suspend(|| tracing::warn!("further distinct warnings are not printed"));
+        }
+    }
+}
+
+/// Where the sets go: the engine, the output bag, the report.
+struct Sink<'a> {
+    config: &'a NodeConfig,
+    host: EngineHost,
+    writer: BagWriter,
+    report: BagReport,
+    seen: HashSet<String>,
+    busy: Duration,
+    bar: ProgressBar,
+}
+
+impl Sink<'_> {
+    /// Processes one synchronised set (or records why not), writing its outputs at `log_time_ns`.
+    fn set(
+        &mut self,
+        set: Result<crate::node::pipeline::Job, crate::node::pipeline::Skip>,
+        log_time_ns: u64,
+    ) -> Result<(), BagError> {
+        let config = self.config;
+        self.report.sets_found += 1;
+        let t0 = Instant::now();
+        let result = set.and_then(|job| {
+            self.host
+                .process(&job, &config.sweep, config.publish_points)
+        });
+        match result {
+            Ok(out) => {
+                write_outputs(
+                    &mut self.writer,
+                    &config.output_topics,
+                    &config.points_topic,
+                    log_time_ns,
+                    &out,
+                )?;
+                self.busy += t0.elapsed();
+                self.report.sets_processed += 1;
+            }
+            Err(skip) => {
+                *self
+                    .report
+                    .skipped
+                    .entry(skip.kind.to_string())
+                    .or_default() += 1;
+                warn(
+                    &self.bar,
+                    &mut self.seen,
+                    &skip.key,
+                    &format!("set skipped: {skip}"),
+                );
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Writes the outputs of one set.
@@ -255,9 +324,12 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         }
     }
     let ref_topic = &config.image_topics[config.reference];
-    let total = known.iter().find(|t| &t.name == ref_topic).and_then(|t| t.count);
+    let total = known
+        .iter()
+        .find(|t| &t.name == ref_topic)
+        .and_then(|t| t.count);
 
-    let mut host = EngineHost::new().map_err(BagRunError::Gpu)?;
+    let host = EngineHost::new().map_err(BagRunError::Gpu)?;
     tracing::info!("GPU adapter: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
@@ -268,44 +340,48 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         writer.add_topic(&config.points_topic, POINT_CLOUD2, None)?;
     }
 
-    let bar = progress_bar(total);
-    let warn = |bar: &ProgressBar, seen: &mut HashSet<String>, _key: &str, msg: &str| {
-        // Offline every distinct message is printed once (the first 200); the summary counts.
-        if seen.len() < 200 && seen.insert(msg.to_string()) {
-            bar.suspend(|| tracing::warn!("{msg}"));
-            if seen.len() == 200 {
-                bar.suspend(|| tracing::warn!("further distinct warnings are not printed"));
-            }
-        }
-    };
-    let mut seen: HashSet<String> = HashSet::new();
     let mut pipeline = Pipeline::new(&config)?;
-    let mut busy = Duration::ZERO;
+    let mut sink = Sink {
+        config: &config,
+        host,
+        writer,
+        report,
+        seen: HashSet::new(),
+        busy: Duration::ZERO,
+        bar: progress_bar(total),
+    };
     let started = Instant::now();
+    let mut last_log_ns = 0u64;
     for item in reader.by_ref() {
         let msg = match item {
             Ok(m) => m,
             Err(e) => {
                 let e = e.to_string();
-                bar.suspend(|| tracing::error!("{e}"));
-                report.read_errors.push(e);
+                sink.bar.suspend(|| tracing::error!("{e}"));
+                sink.report.read_errors.push(e);
                 continue;
             }
         };
-        report.messages += 1;
+        sink.report.messages += 1;
+        last_log_ns = last_log_ns.max(msg.log_time_ns);
         if args.copy_inputs {
             let schema = known
                 .iter()
                 .find(|t| t.name == msg.topic)
                 .and_then(|t| t.schema.as_deref());
-            writer.add_topic(&msg.topic, &msg.msg_type, schema)?;
-            writer.write(&msg.topic, msg.log_time_ns, msg.publish_time_ns, &msg.data)?;
+            sink.writer.add_topic(&msg.topic, &msg.msg_type, schema)?;
+            sink.writer
+                .write(&msg.topic, msg.log_time_ns, msg.publish_time_ns, &msg.data)?;
         }
         let Some(&route) = routes.get(&msg.topic) else {
             continue;
         };
         if wrong_type.contains(&msg.topic) {
-            *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
+            *sink
+                .report
+                .bad_messages
+                .entry(msg.topic.clone())
+                .or_default() += 1;
             continue;
         }
         let position = format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
@@ -313,77 +389,110 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
             Route::Info(i) => match from_cdr::<CameraInfo>(&msg.data) {
                 Ok(info) => pipeline.on_info(i, info),
                 Err(e) => {
-                    *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
-                    warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode CameraInfo on {position}: {e}"));
+                    *sink
+                        .report
+                        .bad_messages
+                        .entry(msg.topic.clone())
+                        .or_default() += 1;
+                    warn(
+                        &sink.bar,
+                        &mut sink.seen,
+                        &format!("decode{}", msg.topic),
+                        &format!("cannot decode CameraInfo on {position}: {e}"),
+                    );
                 }
             },
             Route::Tf => match from_cdr::<TFMessage>(&msg.data) {
                 Ok(tf) => {
                     for e in pipeline.on_tf(&tf) {
-                        warn(&bar, &mut seen, &e, &format!("{}: {e}", msg.topic));
+                        warn(
+                            &sink.bar,
+                            &mut sink.seen,
+                            &e,
+                            &format!("{}: {e}", msg.topic),
+                        );
                     }
                 }
                 Err(e) => {
-                    *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
-                    warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode TFMessage on {position}: {e}"));
+                    *sink
+                        .report
+                        .bad_messages
+                        .entry(msg.topic.clone())
+                        .or_default() += 1;
+                    warn(
+                        &sink.bar,
+                        &mut sink.seen,
+                        &format!("decode{}", msg.topic),
+                        &format!("cannot decode TFMessage on {position}: {e}"),
+                    );
                 }
             },
             Route::Image(i) => {
                 if i == config.reference {
-                    bar.inc(1);
+                    sink.bar.inc(1);
                 }
                 let image = match from_cdr::<Image>(&msg.data) {
                     Ok(image) => image,
                     Err(e) => {
-                        *report.bad_messages.entry(msg.topic.clone()).or_default() += 1;
-                        warn(&bar, &mut seen, &format!("decode{}", msg.topic), &format!("cannot decode Image on {position}: {e}"));
+                        *sink
+                            .report
+                            .bad_messages
+                            .entry(msg.topic.clone())
+                            .or_default() += 1;
+                        warn(
+                            &sink.bar,
+                            &mut sink.seen,
+                            &format!("decode{}", msg.topic),
+                            &format!("cannot decode Image on {position}: {e}"),
+                        );
                         continue;
                     }
                 };
                 let result = pipeline.on_image(i, image, msg.log_time_ns);
                 for event in pipeline.take_events() {
-                    bar.suspend(|| tracing::warn!("{event}"));
+                    sink.bar.suspend(|| tracing::warn!("{event}"));
                 }
                 for notice in pipeline.take_notices() {
-                    *report.dropped_images.entry(notice.kind.to_string()).or_default() += 1;
-                    warn(&bar, &mut seen, &notice.key, &notice.message);
+                    *sink
+                        .report
+                        .dropped_images
+                        .entry(notice.kind.to_string())
+                        .or_default() += 1;
+                    warn(&sink.bar, &mut sink.seen, &notice.key, &notice.message);
                 }
                 let sets = match result {
                     Ok(sets) => sets,
                     Err(e) => {
-                        warn(&bar, &mut seen, "sync", &format!("synchroniser: {e}"));
+                        warn(
+                            &sink.bar,
+                            &mut sink.seen,
+                            "sync",
+                            &format!("synchroniser: {e}"),
+                        );
                         continue;
                     }
                 };
                 for set in sets {
-                    report.sets_found += 1;
-                    let t0 = Instant::now();
-                    let result = set.and_then(|job| {
-                        host.process(&job, &config.sweep, config.publish_points)
-                    });
-                    match result {
-                        Ok(out) => {
-                            write_outputs(
-                                &mut writer,
-                                &config.output_topics,
-                                &config.points_topic,
-                                msg.log_time_ns,
-                                &out,
-                            )?;
-                            busy += t0.elapsed();
-                            report.sets_processed += 1;
-                        }
-                        Err(skip) => {
-                            *report.skipped.entry(skip.kind.to_string()).or_default() += 1;
-                            warn(&bar, &mut seen, &skip.key, &format!("set skipped: {skip}"));
-                        }
-                    }
+                    sink.set(set, msg.log_time_ns)?;
                 }
-                let rate = report.sets_processed as f64 / started.elapsed().as_secs_f64().max(1e-9);
-                bar.set_message(format!("{} sets, {rate:.2} sets/s", report.sets_processed));
+                let done = sink.report.sets_processed;
+                let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
+                sink.bar
+                    .set_message(format!("{done} sets, {rate:.2} sets/s"));
             }
         }
     }
+    // The sets the synchroniser held back waiting for later messages that never came.
+    for set in pipeline.finish() {
+        sink.set(set, last_log_ns)?;
+    }
+    let Sink {
+        writer,
+        mut report,
+        busy,
+        bar,
+        ..
+    } = sink;
     bar.finish_and_clear();
     report.sets_incomplete = pipeline.sync_stats().incomplete;
     if report.sets_processed > 0 {
@@ -418,7 +527,11 @@ pub fn run(args: &BagArgs) -> anyhow::Result<()> {
         anyhow::bail!(
             "no frame set could be processed ({} found{}{})",
             report.sets_found,
-            if reasons.is_empty() { "" } else { "; skipped for: " },
+            if reasons.is_empty() {
+                ""
+            } else {
+                "; skipped for: "
+            },
             reasons.join(", ")
         );
     }

@@ -56,7 +56,7 @@ pub struct BagReader {
 
 enum Source {
     Mcap(Box<McapSource>),
-    Sqlite(SqliteSource),
+    Sqlite(Box<SqliteSource>),
 }
 
 impl BagReader {
@@ -151,7 +151,7 @@ impl BagReader {
         };
         self.current = Some(match storage_kind(&file)? {
             StorageKind::Mcap => Source::Mcap(Box::new(McapSource::open(&file)?)),
-            StorageKind::Sqlite => Source::Sqlite(SqliteSource::open(&file, 256)?),
+            StorageKind::Sqlite => Source::Sqlite(Box::new(SqliteSource::open(&file, 256)?)),
         });
         Ok(true)
     }
@@ -266,9 +266,11 @@ fn decompress_to_temp(path: &Path) -> Result<PathBuf, BagError> {
     let tmp = std::env::temp_dir().join(format!("sweepdepth-{}-{name}", std::process::id()));
     let input = File::open(path).map_err(|e| BagError::io(path, e))?;
     let mut output = File::create(&tmp).map_err(|e| BagError::io(&tmp, e))?;
-    zstd::stream::copy_decode(BufReader::new(input), &mut output).map_err(|e| BagError::Format {
-        path: path.to_path_buf(),
-        reason: format!("zstd file compression: {e}"),
+    zstd::stream::copy_decode(BufReader::new(input), &mut output).map_err(|e| {
+        BagError::Format {
+            path: path.to_path_buf(),
+            reason: format!("zstd file compression: {e}"),
+        }
     })?;
     Ok(tmp)
 }
@@ -440,7 +442,10 @@ fn read_mcap_summary(path: &Path) -> Result<McapSummary, BagError> {
         let mut b = [0u8; 8];
         b.copy_from_slice(&summary[at + 1..at + 9]);
         let body_len = usize::try_from(u64::from_le_bytes(b)).unwrap_or(usize::MAX);
-        let Some(end) = (at + 9).checked_add(body_len).filter(|e| *e <= summary.len()) else {
+        let Some(end) = (at + 9)
+            .checked_add(body_len)
+            .filter(|e| *e <= summary.len())
+        else {
             break;
         };
         match mcap::parse_record(op, &summary[at + 9..end]) {
@@ -629,7 +634,10 @@ impl McapSource {
                     // exabytes. Read at most 1 MiB per request (the reader asks again), so the
                     // buffer never outgrows what the file really holds.
                     let buf = self.reader.insert(need.min(MAX_READ_REQUEST));
-                    let n = self.file.read(buf).map_err(|e| BagError::io(&self.path, e))?;
+                    let n = self
+                        .file
+                        .read(buf)
+                        .map_err(|e| BagError::io(&self.path, e))?;
                     self.reader.notify_read(n);
                     self.offset += n as u64;
                 }

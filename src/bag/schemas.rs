@@ -41,7 +41,9 @@ mod tests {
         let image = definition(IMAGE).unwrap();
         assert!(image.starts_with("std_msgs/Header header\n"));
         assert!(image.contains("MSG: builtin_interfaces/Time"));
-        assert!(definition(CAMERA_INFO).unwrap().contains("RegionOfInterest roi"));
+        assert!(definition(CAMERA_INFO)
+            .unwrap()
+            .contains("RegionOfInterest roi"));
         assert!(definition("foo_msgs/msg/Bar").is_none());
     }
 

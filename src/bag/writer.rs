@@ -263,7 +263,8 @@ mod tests {
     fn round_trip(out: &Path) {
         let mut w = BagWriter::create(out, true).unwrap();
         w.add_topic("/a", schemas::IMAGE, None).unwrap();
-        w.add_topic("/b", "foo_msgs/msg/Bar", Some(b"int32 x")).unwrap();
+        w.add_topic("/b", "foo_msgs/msg/Bar", Some(b"int32 x"))
+            .unwrap();
         w.write("/a", 10, 10, &[0, 1, 0, 0, 7]).unwrap();
         w.write("/b", 20, 20, &[0, 1, 0, 0, 8]).unwrap();
         w.write("/a", 30, 30, &[0, 1, 0, 0, 9]).unwrap();

@@ -122,8 +122,14 @@ impl Stats {
         kv("sync matched".into(), self.sync.matched.to_string());
         kv("sync dropped".into(), self.sync.dropped.to_string());
         kv("sync incomplete".into(), self.sync.incomplete.to_string());
-        kv("sync duplicate stamps".into(), self.sync.duplicates.to_string());
-        kv("sync late stamps".into(), self.sync.out_of_order.to_string());
+        kv(
+            "sync duplicate stamps".into(),
+            self.sync.duplicates.to_string(),
+        );
+        kv(
+            "sync late stamps".into(),
+            self.sync.out_of_order.to_string(),
+        );
         kv("sync future stamps".into(), self.sync.future.to_string());
         kv("sync resets".into(), self.sync.resets.to_string());
         kv("gpu sets dropped".into(), self.gpu_dropped.to_string());

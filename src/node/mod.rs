@@ -297,7 +297,11 @@ impl NodeConfig {
         // The engine parameters against the rig's shape, before any frame arrives.
         let virtual_reference = virtual_ref.is_some();
         if let Some(shape) = params::shape_rig(cameras.len(), reference, virtual_reference) {
-            let context = if virtual_reference { "virtual_reference: " } else { "" };
+            let context = if virtual_reference {
+                "virtual_reference: "
+            } else {
+                ""
+            };
             sweep
                 .validate(&shape)
                 .map_err(|e| NodeError::Param(format!("{context}{e}")))?;
@@ -309,9 +313,7 @@ impl NodeConfig {
             domain_id: crate::ros::args::domain_id(domain_env)?,
             queue_size: usize_param("queue_size")?,
             camera_timeout: {
-                let t = params
-                    .get_f64("camera_timeout")
-                    .map_err(NodeError::Param)?;
+                let t = params.get_f64("camera_timeout").map_err(NodeError::Param)?;
                 (t > 0.0).then(|| Duration::from_secs_f64(t))
             },
             input_reliable: params
@@ -926,9 +928,11 @@ fn worker_loop(shared: &WorkerShared<'_>, mut host: EngineHost, outputs: &Output
         };
         let stamp = out.header.stamp;
         let points = match (&outputs.points, out.points) {
-            (Some(publisher), Some(cloud)) => {
-                Some(publisher.publish(cloud).map_err(|e| format!("points: {e:?}")))
-            }
+            (Some(publisher), Some(cloud)) => Some(
+                publisher
+                    .publish(cloud)
+                    .map_err(|e| format!("points: {e:?}")),
+            ),
             _ => None,
         };
         let results = [
@@ -958,12 +962,7 @@ fn worker_loop(shared: &WorkerShared<'_>, mut host: EngineHost, outputs: &Output
                 log.warn("publish", || format!("publish failed: {e}"));
             }
         }
-        lock(shared.stats).on_published(
-            started.elapsed(),
-            Instant::now(),
-            wall_time_now(),
-            stamp,
-        );
+        lock(shared.stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         published += 1;
         if published == 1 || published % 100 == 0 {
             log_info(&format!(

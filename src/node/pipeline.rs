@@ -150,7 +150,12 @@ impl<'a> Pipeline<'a> {
             let silent: Vec<(usize, u64)> = self
                 .active
                 .iter()
-                .map(|&j| (j, now_ns.saturating_sub(self.last_seen_ns[j].unwrap_or(first))))
+                .map(|&j| {
+                    (
+                        j,
+                        now_ns.saturating_sub(self.last_seen_ns[j].unwrap_or(first)),
+                    )
+                })
                 .filter(|&(_, quiet)| quiet > timeout_ns)
                 .collect();
             for (j, quiet) in silent {
@@ -288,7 +293,11 @@ impl<'a> Pipeline<'a> {
             ));
         };
         if after.duplicates > before.duplicates {
-            note("duplicate stamp", "time_duplicate", "repeats the camera's previous stamp".into());
+            note(
+                "duplicate stamp",
+                "time_duplicate",
+                "repeats the camera's previous stamp".into(),
+            );
         }
         if after.out_of_order > before.out_of_order {
             note(
@@ -298,13 +307,26 @@ impl<'a> Pipeline<'a> {
             );
         }
         if after.future > before.future {
-            let window = self.config.params.get_f64("sync_future_window").unwrap_or(f64::NAN);
+            let window = self
+                .config
+                .params
+                .get_f64("sync_future_window")
+                .unwrap_or(f64::NAN);
             note(
                 "future stamp",
                 "time_future",
                 format!("is more than {window} s (sync_future_window) ahead of every other camera"),
             );
         }
+    }
+
+    /// End of input (the end of a bag): the sets the synchroniser still held back.
+    pub fn finish(&mut self) -> Vec<Result<Job, Skip>> {
+        if !self.active.contains(&self.config.reference) || self.active.len() < 2 {
+            return Vec::new();
+        }
+        let sets = self.sync.flush();
+        sets.into_iter().map(|set| self.on_set(set)).collect()
     }
 
     pub fn sync_stats(&self) -> SyncStats {
@@ -596,9 +618,8 @@ pub fn process_job(
     } else {
         images.get(job.reference)
     };
-    let rig = Rig::new(job.cameras.clone(), reference).map_err(|e| {
-        Skip::new("rig", "rig".into(), format!("cannot build the rig: {e}"))
-    })?;
+    let rig = Rig::new(job.cameras.clone(), reference)
+        .map_err(|e| Skip::new("rig", "rig".into(), format!("cannot build the rig: {e}")))?;
     let maps = engine
         .run(&rig, &images, sweep)
         .map_err(|e| Skip::new("engine", "engine".into(), format!("sweep failed: {e}")))?;

@@ -318,6 +318,14 @@ pub trait Synchronizer<T> {
     /// The latest reset (time rule 2), if any.
     fn last_reset(&self) -> Option<TimeJump>;
 
+    /// End of input (the end of a bag): emits the sets that were only waiting for later
+    /// messages to prove them best. [`ApproximateSync`] publishes its pending candidate (with
+    /// no more messages to come, no better one can form) and goes on while it can; exact
+    /// matching has nothing pending that could complete.
+    fn flush(&mut self) -> Vec<SyncedSet<T>> {
+        Vec::new()
+    }
+
     /// [`Synchronizer::push`] with a ROS `builtin_interfaces/Time` stamp.
     fn push_stamped(
         &mut self,
@@ -944,7 +952,27 @@ impl<T> ApproximateSync<T> {
     }
 }
 
+impl<T> ApproximateSync<T> {
+    fn flush_pending(&mut self) -> Vec<SyncedSet<T>> {
+        let mut out = Vec::new();
+        // Each round publishes one set (the candidate) and lets process() form the next; the
+        // bound keeps this finite whatever the state.
+        for _ in 0..=self.queue_size * self.num_streams {
+            if self.candidate.is_none() {
+                break;
+            }
+            self.publish_candidate(&mut out);
+            self.process(&mut out);
+        }
+        out
+    }
+}
+
 impl<T> Synchronizer<T> for ApproximateSync<T> {
+    fn flush(&mut self) -> Vec<SyncedSet<T>> {
+        self.flush_pending()
+    }
+
     fn num_streams(&self) -> usize {
         self.num_streams
     }

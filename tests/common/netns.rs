@@ -52,7 +52,13 @@ fn reexec_in_private_netns(marker: &str, test_name: &str) {
         .arg(flags)
         .args(["sh", "-c", script])
         .arg(&exe)
-        .args([test_name, "--exact", "--include-ignored", "--nocapture", "--test-threads=1"])
+        .args([
+            test_name,
+            "--exact",
+            "--include-ignored",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env(marker, "1")
         .status();
     match status {

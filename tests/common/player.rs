@@ -38,9 +38,15 @@ impl Player {
             let typed = match m.msg_type.as_str() {
                 "sensor_msgs/msg/Image" => {
                     let t = node
-                        .create_topic(&name, MessageTypeName::new("sensor_msgs", "Image"), &reliable)
+                        .create_topic(
+                            &name,
+                            MessageTypeName::new("sensor_msgs", "Image"),
+                            &reliable,
+                        )
                         .unwrap();
-                    TypedPublisher::Image(node.create_publisher(&t, Some(reliable.clone())).unwrap())
+                    TypedPublisher::Image(
+                        node.create_publisher(&t, Some(reliable.clone())).unwrap(),
+                    )
                 }
                 "sensor_msgs/msg/CameraInfo" => {
                     let t = node
@@ -54,7 +60,11 @@ impl Player {
                 }
                 "tf2_msgs/msg/TFMessage" => {
                     let t = node
-                        .create_topic(&name, MessageTypeName::new("tf2_msgs", "TFMessage"), &latched)
+                        .create_topic(
+                            &name,
+                            MessageTypeName::new("tf2_msgs", "TFMessage"),
+                            &latched,
+                        )
                         .unwrap();
                     TypedPublisher::Tf(node.create_publisher(&t, Some(latched.clone())).unwrap())
                 }
