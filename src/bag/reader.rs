@@ -102,7 +102,7 @@ impl BagReader {
                         .entry(t.name.clone())
                         .and_modify(|e| {
                             e.count = match (e.count, t.count) {
-                                (Some(a), Some(b)) => Some(a + b),
+                                (Some(a), Some(b)) => Some(a.saturating_add(b)),
                                 _ => None,
                             }
                         })
@@ -354,6 +354,13 @@ impl Metadata {
 
 /// Topics and message counts from an MCAP file's summary section (channels, schemas and the
 /// statistics record), read from the end of the file. Empty when the file has no summary.
+/// `mcap::parse_record`, with a panic of the parser (mcap 0.26 slices out of range on some
+/// short records) turned into an error.
+fn parse_record(opcode: u8, body: &[u8]) -> mcap::McapResult<mcap::records::Record<'_>> {
+    std::panic::catch_unwind(move || mcap::parse_record(opcode, body))
+        .unwrap_or(Err(mcap::McapError::UnexpectedEoc))
+}
+
 fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
     let mut file = File::open(path).map_err(|e| BagError::io(path, e))?;
     let len = file
@@ -400,7 +407,7 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
         let Some(end) = (at + 9).checked_add(body_len).filter(|e| *e <= summary.len()) else {
             break;
         };
-        match mcap::parse_record(op, &summary[at + 9..end]) {
+        match parse_record(op, &summary[at + 9..end]) {
             Ok(mcap::records::Record::Schema { header, data }) => {
                 schemas.insert(header.id, (header.name, data.into_owned()));
             }
@@ -426,7 +433,7 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
             .entry(topic.clone())
             .and_modify(|t| {
                 t.count = match (t.count, count) {
-                    (Some(a), Some(b)) => Some(a + b),
+                    (Some(a), Some(b)) => Some(a.saturating_add(b)),
                     _ => None,
                 }
             })
@@ -495,28 +502,21 @@ impl McapSource {
         }
     }
 
+    /// The next message. The mcap crate (0.26) still panics on some corrupt records (an
+    /// arithmetic overflow when a record is longer than its uncompressed chunk, a slice out of
+    /// range in a short attachment record). A bag must never panic the program: such a panic
+    /// becomes a corrupt-file error at the current offset (the reader ends after it).
     fn next_message(&mut self) -> Result<Option<BagMessage>, BagError> {
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.next_message_inner()))
+        {
+            Ok(result) => result,
+            Err(_) => Err(self.error("the MCAP parser failed on a corrupt record")),
+        }
+    }
+
+    fn next_message_inner(&mut self) -> Result<Option<BagMessage>, BagError> {
         loop {
-            // The mcap crate (0.26) can still hit an arithmetic overflow on some corrupt
-            // lengths (e.g. a record longer than its uncompressed chunk): a panic in debug
-            // builds. A bag must never panic the program, so it becomes a corrupt-file error
-            // (the reader ends after it).
-            let reader = &mut self.reader;
-            let event = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                let reader = reader; // moved in: the closure is FnOnce and may return a borrow
-                reader.next_event()
-            })) {
-                Ok(event) => event,
-                Err(_) => {
-                    let offset = self.offset;
-                    return Err(BagError::Corrupt {
-                        path: self.path.clone(),
-                        offset,
-                        reason: "the MCAP parser failed on a corrupt record".into(),
-                    });
-                }
-            };
-            let event = match event {
+            let event = match self.reader.next_event() {
                 None => return Ok(None),
                 Some(Err(e)) => {
                     let reason = match e {
