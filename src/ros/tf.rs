@@ -334,7 +334,8 @@ impl TfBuffer {
         for (frame, ancestor_from_target) in &target_chain {
             if let Some(&i) = source_index.get(frame) {
                 let ancestor_from_source = &source_chain[i].1;
-                let target_from_source = ancestor_from_target.inverse().compose(ancestor_from_source);
+                let target_from_source =
+                    ancestor_from_target.inverse().compose(ancestor_from_source);
                 // Each transform is finite, but huge translations can overflow when chained.
                 if !(target_from_source.translation.is_finite()
                     && target_from_source.rotation.is_finite())
