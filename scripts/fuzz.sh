@@ -13,6 +13,10 @@ seconds=${1:-300}
 targets=${FUZZ_TARGETS:-cdr_image cdr_camera_info cdr_tf sync params bag_reader}
 export RUSTC_BOOTSTRAP=1
 
+if ! command -v c++ >/dev/null 2>&1; then
+    echo "fuzz: libFuzzer needs a C++ compiler (apt-get install g++)" >&2
+    exit 1
+fi
 if ! cargo fuzz --version >/dev/null 2>&1; then
     echo "fuzz: installing cargo-fuzz"
     cargo install cargo-fuzz --locked

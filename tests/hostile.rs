@@ -26,6 +26,10 @@ use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage, Time};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
+
+/// The two tests run one after the other: the live one must not compete with the offline one
+/// for the (software) GPU, or the node, correctly, drops sets it cannot keep up with.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 const T0_NS: u64 = 1_700_000_000_000_000_000;
 const PERIOD_NS: u64 = 1_000_000_000;
 
@@ -289,6 +293,7 @@ fn scratch(name: &str) -> PathBuf {
 
 #[test]
 fn hostile_bag_through_sweepdepth_bag() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch("bag");
     let bag = dir.join("hostile.mcap");
     let plan = write_hostile_bag(&bag, false);
@@ -320,6 +325,7 @@ fn hostile_bag_through_sweepdepth_bag() {
 
 #[test]
 fn hostile_bag_played_live_into_the_node() {
+    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     netns::in_private_netns(INNER, "hostile_bag_played_live_into_the_node", live);
 }
 

@@ -275,6 +275,7 @@ fn fuzz_found_bags_are_errors_not_crashes() {
         "huge_record_length.bin",
         "length_overflow.bin",
         "record_longer_than_chunk.bin",
+        "panic_outside_reader.bin",
     ] {
         let input = std::fs::read(dir.join(name)).unwrap();
         let mut bytes = Vec::new();

@@ -102,7 +102,7 @@ impl BagReader {
                         .entry(t.name.clone())
                         .and_modify(|e| {
                             e.count = match (e.count, t.count) {
-                                (Some(a), Some(b)) => Some(a + b),
+                                (Some(a), Some(b)) => Some(a.saturating_add(b)),
                                 _ => None,
                             }
                         })
@@ -359,6 +359,13 @@ impl Metadata {
     }
 }
 
+/// `mcap::parse_record`, with a panic of the parser (mcap 0.26 slices out of range on some
+/// short records) turned into an error.
+fn parse_record(opcode: u8, body: &[u8]) -> mcap::McapResult<mcap::records::Record<'_>> {
+    std::panic::catch_unwind(move || mcap::parse_record(opcode, body))
+        .unwrap_or(Err(mcap::McapError::UnexpectedEoc))
+}
+
 /// What an MCAP file's summary section says (read from the end of the file): schemas,
 /// channels, per-channel message counts and where the chunks start. Empty when the file has no
 /// summary (truncated, or written without one).
@@ -387,7 +394,7 @@ fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
             .entry(topic.clone())
             .and_modify(|t| {
                 t.count = match (t.count, count) {
-                    (Some(a), Some(b)) => Some(a + b),
+                    (Some(a), Some(b)) => Some(a.saturating_add(b)),
                     _ => None,
                 }
             })
@@ -448,7 +455,7 @@ fn read_mcap_summary(path: &Path) -> Result<McapSummary, BagError> {
         else {
             break;
         };
-        match mcap::parse_record(op, &summary[at + 9..end]) {
+        match parse_record(op, &summary[at + 9..end]) {
             Ok(mcap::records::Record::Schema { header, data }) => {
                 out.schemas
                     .insert(header.id, (header.name, data.into_owned()));
@@ -591,31 +598,25 @@ impl McapSource {
         }
     }
 
+    /// The next message. The mcap crate (0.26) still panics on some corrupt records (an
+    /// arithmetic overflow when a record is longer than its uncompressed chunk, a slice out of
+    /// range in a short attachment record). A bag must never panic the program: such a panic
+    /// becomes a corrupt-file error at the current offset (reading resumes at the next chunk
+    /// when the summary lists one, else it ends).
     fn next_message(&mut self) -> Result<Option<BagMessage>, BagError> {
         if self.ended {
             return Ok(None);
         }
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.next_message_inner())) {
+            Ok(result) => result,
+            // The reader's state is unknown after a panic: resume at the next chunk, or end.
+            Err(_) => Err(self.damaged("the MCAP parser failed on a corrupt record".into())),
+        }
+    }
+
+    fn next_message_inner(&mut self) -> Result<Option<BagMessage>, BagError> {
         loop {
-            // The mcap crate (0.26) can still hit an arithmetic overflow on some corrupt
-            // lengths (e.g. a record longer than its uncompressed chunk): a panic in debug
-            // builds. A bag must never panic the program, so it becomes a corrupt-file error
-            // (the reader ends after it).
-            let reader = &mut self.reader;
-            let event = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-                let reader = reader; // moved in: the closure is FnOnce and may return a borrow
-                reader.next_event()
-            })) {
-                Ok(event) => event,
-                Err(_) => {
-                    let offset = self.offset;
-                    return Err(BagError::Corrupt {
-                        path: self.path.clone(),
-                        offset,
-                        reason: "the MCAP parser failed on a corrupt record".into(),
-                    });
-                }
-            };
-            let event = match event {
+            let event = match self.reader.next_event() {
                 None => return Ok(None),
                 Some(Err(e)) => {
                     let reason = match e {

@@ -5,7 +5,10 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
-use crate::ros::sync::SyncStats;
+use crate::ros::sync::{SyncStats, TimeJump};
+
+use super::pipeline::Skip;
+use super::NodeConfig;
 
 /// Window of the input rates.
 pub const RATE_WINDOW: Duration = Duration::from_secs(1);
@@ -194,6 +197,74 @@ impl Stats {
             }],
         }
     }
+}
+
+/// What the synchroniser's time rules did with the image of camera `i` stamped `stamp` (the
+/// counters before and after its push, the latest reset): one [`Skip`] per dropped image
+/// (duplicate, late, far-future stamp) and per reset, naming the camera, with keys per camera
+/// and rule for rate-limited logging.
+pub fn time_rule_notices(
+    config: &NodeConfig,
+    i: usize,
+    stamp: Time,
+    before: &SyncStats,
+    after: &SyncStats,
+    last_reset: Option<TimeJump>,
+) -> Vec<Skip> {
+    let camera = |i: usize| config.cameras.get(i).map_or("?", String::as_str);
+    let secs = |ns: i64| ns as f64 / 1e9;
+    let t = secs(stamp.to_nanos());
+    let mut notices = Vec::new();
+    if after.resets > before.resets {
+        let (from, to, name) = match last_reset {
+            Some(j) => (secs(j.from_ns), secs(j.to_ns), camera(j.stream)),
+            None => (t, t, camera(i)),
+        };
+        notices.push(Skip {
+            kind: "time reset",
+            key: "time_reset".into(),
+            message: format!(
+                "camera '{name}': time went backwards from {from:.3} s to {to:.3} s (by {:.3} s, more than sync_reset_backwards; a bag played in a loop?): the synchroniser was reset and the queued images dropped",
+                from - to
+            ),
+        });
+    }
+    let mut note = |kind: &'static str, key: &str, what: String| {
+        notices.push(Skip {
+            kind,
+            key: format!("{key}{i}"),
+            message: format!(
+                "camera '{}': image stamped {t:.3} s {what}; dropped",
+                camera(i)
+            ),
+        });
+    };
+    if after.duplicates > before.duplicates {
+        note(
+            "duplicate stamp",
+            "time_duplicate",
+            "repeats the camera's previous stamp".into(),
+        );
+    }
+    if after.out_of_order > before.out_of_order {
+        note(
+            "late stamp",
+            "time_late",
+            "is older than the camera's previous image (or from before a reset)".into(),
+        );
+    }
+    if after.future > before.future {
+        let window = config
+            .params
+            .get_f64("sync_future_window")
+            .unwrap_or(f64::NAN);
+        note(
+            "future stamp",
+            "time_future",
+            format!("is more than {window} s (sync_future_window) ahead of every other camera"),
+        );
+    }
+    notices
 }
 
 /// The wall-clock time now, as a ROS stamp.

@@ -17,6 +17,7 @@ use crate::sweep::gpu::GpuEngine;
 use crate::sweep::SweepParams;
 
 use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
+use super::diag::time_rule_notices;
 use super::{NodeConfig, NodeError};
 
 /// One synchronised set with its calibration, ready for the engine.
@@ -248,7 +249,20 @@ impl<'a> Pipeline<'a> {
             .sync
             .push_stamped(stream, &stamp, image)
             .map_err(NodeError::Sync)?;
-        self.note_time_rules(i, stamp, before);
+        let after = self.sync.stats();
+        // The synchroniser counts streams (the active cameras); the notices name rig cameras.
+        let jump = self.sync.last_reset().map(|mut j| {
+            j.stream = self.active.get(j.stream).copied().unwrap_or(j.stream);
+            j
+        });
+        self.notices.extend(time_rule_notices(
+            self.config,
+            i,
+            stamp,
+            &before,
+            &after,
+            jump,
+        ));
         Ok(sets.into_iter().map(|set| self.on_set(set)).collect())
     }
 
@@ -257,67 +271,6 @@ impl<'a> Pipeline<'a> {
     /// for the caller to log (keys per camera and rule, for rate limiting).
     pub fn take_notices(&mut self) -> Vec<Skip> {
         std::mem::take(&mut self.notices)
-    }
-
-    fn note_time_rules(&mut self, i: usize, stamp: crate::msgs::Time, before: SyncStats) {
-        let after = self.sync.stats();
-        let name = self.config.cameras.get(i).map_or("?", String::as_str);
-        let secs = |ns: i64| ns as f64 / 1e9;
-        let t = secs(stamp.to_nanos());
-        if after.resets > before.resets {
-            let (from, to, camera) = match self.sync.last_reset() {
-                Some(j) => (
-                    secs(j.from_ns),
-                    secs(j.to_ns),
-                    self.active
-                        .get(j.stream)
-                        .and_then(|&c| self.config.cameras.get(c))
-                        .map_or("?", String::as_str),
-                ),
-                None => (t, t, name),
-            };
-            self.notices.push(Skip::new(
-                "time reset",
-                "time_reset".into(),
-                format!(
-                    "camera '{camera}': time went backwards from {from:.3} s to {to:.3} s (by {:.3} s, more than sync_reset_backwards; a bag played in a loop?): the synchroniser was reset and the queued images dropped",
-                    from - to
-                ),
-            ));
-        }
-        let mut note = |kind: &'static str, key: &str, what: String| {
-            self.notices.push(Skip::new(
-                kind,
-                format!("{key}{i}"),
-                format!("camera '{name}': image stamped {t:.3} s {what}; dropped"),
-            ));
-        };
-        if after.duplicates > before.duplicates {
-            note(
-                "duplicate stamp",
-                "time_duplicate",
-                "repeats the camera's previous stamp".into(),
-            );
-        }
-        if after.out_of_order > before.out_of_order {
-            note(
-                "late stamp",
-                "time_late",
-                "is older than the camera's previous image (or from before a reset)".into(),
-            );
-        }
-        if after.future > before.future {
-            let window = self
-                .config
-                .params
-                .get_f64("sync_future_window")
-                .unwrap_or(f64::NAN);
-            note(
-                "future stamp",
-                "time_future",
-                format!("is more than {window} s (sync_future_window) ahead of every other camera"),
-            );
-        }
     }
 
     /// End of input (the end of a bag): the sets the synchroniser still held back.

@@ -334,7 +334,20 @@ impl TfBuffer {
         for (frame, ancestor_from_target) in &target_chain {
             if let Some(&i) = source_index.get(frame) {
                 let ancestor_from_source = &source_chain[i].1;
-                return Ok(ancestor_from_target.inverse().compose(ancestor_from_source));
+                let target_from_source =
+                    ancestor_from_target.inverse().compose(ancestor_from_source);
+                // Each transform is finite, but huge translations can overflow when chained.
+                if !(target_from_source.translation.is_finite()
+                    && target_from_source.rotation.is_finite())
+                {
+                    return Err(TfError::InvalidTransform {
+                        parent: target.to_string(),
+                        child: source.to_string(),
+                        reason: "the chained transform is not finite (translations too large)"
+                            .into(),
+                    });
+                }
+                return Ok(target_from_source);
             }
         }
         let root = |chain: &[(&'_ str, RigidTransform)]| {
@@ -702,6 +715,20 @@ mod tests {
             .unwrap();
         let q = b.parent_from_child("cam1").unwrap().rotation;
         assert!((q.length() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn chained_transforms_that_overflow_are_an_error() {
+        // Found by the cdr_tf fuzz target: each translation is finite, their chain is not.
+        let mut buf = TfBuffer::new();
+        buf.insert(&ts("root", "a", [1e308, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
+            .unwrap();
+        buf.insert(&ts("root", "b", [-1e308, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]))
+            .unwrap();
+        let e = buf.lookup("a", "b").unwrap_err();
+        assert!(matches!(e, TfError::InvalidTransform { .. }), "{e}");
+        assert!(e.to_string().contains("not finite"), "{e}");
+        assert!(buf.lookup("root", "b").is_ok());
     }
 
     #[test]
