@@ -169,14 +169,12 @@ impl BagReader {
             match next {
                 Some(mut msg) => {
                     if self.message_zstd {
-                        msg.data = zstd::stream::decode_all(msg.data.as_slice()).map_err(|e| {
-                            BagError::Format {
-                                path: self.path.clone(),
-                                reason: format!(
-                                    "message on {} at log time {} ns: zstd: {e}",
-                                    msg.topic, msg.log_time_ns
-                                ),
-                            }
+                        msg.data = decompress_message(&msg.data).map_err(|e| BagError::Format {
+                            path: self.path.clone(),
+                            reason: format!(
+                                "message on {} at log time {} ns: zstd: {e}",
+                                msg.topic, msg.log_time_ns
+                            ),
                         })?;
                     }
                     return Ok(Some(msg));
@@ -185,6 +183,22 @@ impl BagReader {
             }
         }
     }
+}
+
+/// A zstd-compressed message (rosbag2's per-message compression), at most
+/// [`MAX_RECORD_BYTES`] once decompressed (a zstd bomb is an error, not an allocation).
+fn decompress_message(data: &[u8]) -> std::io::Result<Vec<u8>> {
+    let decoder = zstd::stream::Decoder::new(data)?;
+    let mut out = Vec::new();
+    decoder
+        .take(MAX_RECORD_BYTES as u64 + 1)
+        .read_to_end(&mut out)?;
+    if out.len() > MAX_RECORD_BYTES {
+        return Err(std::io::Error::other(format!(
+            "decompresses to more than {MAX_RECORD_BYTES} bytes"
+        )));
+    }
+    Ok(out)
 }
 
 impl Iterator for BagReader {
