@@ -267,6 +267,45 @@ fn rig_folder_cameras(
     Ok((cameras, reference, format!("images of {}", rig.display())))
 }
 
+/// ROS expects positive focal lengths (and our CameraInfo checks refuse others), but some
+/// datasets (ICL-NUIM: fy < 0) describe a mirrored image. Mirroring the image back along that
+/// axis with `c' = size - 1 - c` gives the same rays from the same pose with a positive focal
+/// length.
+fn make_focal_positive(c: &mut PackCamera) -> Result<(), PackError> {
+    let k = c.model.intrinsics;
+    if k.fx_px >= 0.0 && k.fy_px >= 0.0 {
+        return Ok(());
+    }
+    if !c.model.distortion.is_none() {
+        return Err(PackError::Invalid(format!(
+            "camera '{}': a negative focal length with lens distortion cannot be normalised",
+            c.name
+        )));
+    }
+    let (flip_x, flip_y) = (k.fx_px < 0.0, k.fy_px < 0.0);
+    let k2 = &mut c.model.intrinsics;
+    if flip_x {
+        k2.fx_px = -k.fx_px;
+        k2.cx_px = f64::from(k.width_px) - 1.0 - k.cx_px;
+    }
+    if flip_y {
+        k2.fy_px = -k.fy_px;
+        k2.cy_px = f64::from(k.height_px) - 1.0 - k.cy_px;
+    }
+    for f in &mut c.frames {
+        let (w, h) = (f.width as usize, f.height as usize);
+        let src = f.pixels.clone();
+        for y in 0..h {
+            for x in 0..w {
+                let sx = if flip_x { w - 1 - x } else { x };
+                let sy = if flip_y { h - 1 - y } else { y };
+                f.pixels[y * w + x] = src[sy * w + sx];
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The reference and the `keep - 1` cameras nearest to it in order (ties: the earlier one).
 fn keep_nearest(
     cameras: Vec<PackCamera>,
@@ -333,6 +372,9 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         None => dataset_cameras(&args.dir)?,
     };
     let (mut cameras, reference) = keep_nearest(cameras, reference, args.cameras)?;
+    for c in &mut cameras {
+        make_focal_positive(c)?;
+    }
     for (i, c) in cameras.iter_mut().enumerate() {
         if rig.is_none() {
             c.name = format!("cam{i}");
