@@ -680,3 +680,41 @@ fn icl_nuim_pack_and_bag_match_ground_truth() {
     // without the mirroring it would be 14 %.
     assert!(share > 0.45, "only {:.1} % within 5 %", share * 100.0);
 }
+
+/// A topic of the wrong type is named and ignored; here it is /tf_static, so no set can be
+/// placed and the run fails with the reasons.
+#[test]
+fn topic_of_the_wrong_type_is_named() {
+    let dir = scratch("wrongtype");
+    let bag = dir.join("wrong.mcap");
+    let mut w = sweepdepth::bag::BagWriter::create(&bag, true).unwrap();
+    for m in messages(&fixture()) {
+        let ty = if m.topic == "/tf_static" {
+            "std_msgs/msg/String"
+        } else {
+            m.msg_type.as_str()
+        };
+        w.add_topic(&m.topic, ty, None).unwrap();
+        w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &m.data)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let out = sweepdepth(&[
+        "bag",
+        bag.to_str().unwrap(),
+        dir.join("out.mcap").to_str().unwrap(),
+        "--params-file",
+        fixture_params().to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("topic /tf_static has type std_msgs/msg/String in the bag, but the node reads tf2_msgs/msg/TFMessage there"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("no frame set could be processed"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("waiting for transform"), "{stderr}");
+}

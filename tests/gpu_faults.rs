@@ -111,3 +111,68 @@ fn configuration_beyond_the_adapter_limits_is_refused_up_front() {
         .run(&rig_small, &images, &small)
         .expect("a small set still runs");
 }
+
+/// A transform that changes at run time (a re-published /tf_static) is used from the next
+/// frame set on; a missing one is reported by name until it arrives.
+#[test]
+fn transform_changes_apply_from_the_next_set() {
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let config = NodeConfig::from_args(&args, None).expect("config");
+    let mut pipeline = Pipeline::new(&config).expect("pipeline");
+    let bag: Vec<_> = BagReader::open(&root().join("tests/fixtures/bags/tsukuba_half.mcap"))
+        .unwrap()
+        .map(|m| m.unwrap())
+        .collect();
+    let tf_msg: TFMessage =
+        from_cdr(&bag.iter().find(|m| m.topic == "/tf_static").unwrap().data).unwrap();
+    // The sets of the fixture, one by one; /tf_static only after the first set.
+    let mut jobs = Vec::new();
+    let mut skips = Vec::new();
+    let mut set_index = 0;
+    for m in &bag {
+        if let Some(i) = config.info_topics.iter().position(|t| *t == m.topic) {
+            pipeline.on_info(i, from_cdr::<CameraInfo>(&m.data).unwrap());
+        } else if let Some(i) = config.image_topics.iter().position(|t| *t == m.topic) {
+            let image: Image = from_cdr(&m.data).unwrap();
+            for set in pipeline.on_image(i, image, m.log_time_ns).unwrap() {
+                match set {
+                    Ok(job) => jobs.push(job),
+                    Err(skip) => skips.push(skip),
+                }
+                set_index += 1;
+                if set_index == 1 {
+                    assert!(pipeline.on_tf(&tf_msg).is_empty());
+                } else if set_index == 2 {
+                    // cam4 moves 10 cm further right.
+                    let mut moved = tf_msg.clone();
+                    for t in &mut moved.transforms {
+                        if t.child_frame_id == "cam4_optical_frame" {
+                            t.transform.translation.x += 0.1;
+                        }
+                    }
+                    assert!(pipeline.on_tf(&moved).is_empty());
+                }
+            }
+        }
+    }
+    assert_eq!(skips.len(), 1, "the first set waits for /tf_static");
+    assert!(
+        skips[0]
+            .message
+            .contains("waiting for the transform from 'cam2_optical_frame'"),
+        "{}",
+        skips[0].message
+    );
+    assert_eq!(jobs.len(), 2);
+    let centre = |job: &Job, k: usize| job.cameras[k].cam_from_rig.inverse().translation;
+    let (before, after) = (centre(&jobs[0], 4), centre(&jobs[1], 4));
+    assert!(
+        ((after.x - before.x) - 0.1).abs() < 1e-9,
+        "{before:?} -> {after:?}"
+    );
+    assert!((centre(&jobs[1], 0) - centre(&jobs[0], 0)).length() < 1e-12);
+}
