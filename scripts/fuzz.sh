@@ -57,9 +57,12 @@ for target in $targets; do
     [ "$target" = bag_reader ] && max_len=65536
     echo "fuzz: $target for ${seconds} s"
     log="fuzz/logs/$target.log"
+    # FUZZ_SEED (CI sets 1) makes the input sequence reproducible.
+    seed_arg=()
+    [ -n "${FUZZ_SEED:-}" ] && seed_arg=(-seed="$FUZZ_SEED")
     if cargo fuzz run -s none "$target" "fuzz/corpus/$target" -- \
         -max_total_time="$seconds" -max_len="$max_len" -timeout=10 -rss_limit_mb=2048 \
-        -print_final_stats=1 >"$log" 2>&1; then
+        "${seed_arg[@]}" -print_final_stats=1 >"$log" 2>&1; then
         status=ok
     else
         status=CRASH

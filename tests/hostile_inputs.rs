@@ -276,6 +276,7 @@ fn fuzz_found_bags_are_errors_not_crashes() {
         "length_overflow.bin",
         "record_longer_than_chunk.bin",
         "panic_outside_reader.bin",
+        "resume_point_past_the_end.bin",
     ] {
         let input = std::fs::read(dir.join(name)).unwrap();
         let mut bytes = Vec::new();

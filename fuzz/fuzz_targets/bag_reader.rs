@@ -1,6 +1,8 @@
 //! Arbitrary bytes as an MCAP bag (the MCAP magic is prepended unless the input starts with
-//! it): `BagReader` must open it or refuse it, and iterate it to the end or to its first
-//! error, without panicking; after an error it must end.
+//! it): `BagReader` must open it or refuse it, and iterate it to the end without panicking.
+//! After an error it may go on (a damaged chunk is skipped when the summary lists a later one;
+//! a message on a non-CDR channel is reported and passed over), but it must always make
+//! progress: two million items from an input of at most 64 KiB means it is stuck.
 //!
 //! The one exception: a panic inside the `mcap` crate (an overflow on a corrupt length) is
 //! caught by `BagReader`, which turns it into a corrupt-file error, so such a panic must not
@@ -45,16 +47,9 @@ fuzz_target!(|data: &[u8]| {
     if let Ok(reader) = BagReader::open(&path) {
         let _ = reader.topics().len();
         let mut reader = reader;
-        let mut failed = false;
-        for item in reader.by_ref().take(100_000) {
-            assert!(!failed, "the reader went on after an error");
-            if item.is_err() {
-                failed = true;
-            }
-        }
-        if failed {
-            assert!(reader.next().is_none());
-        }
+        const BOUND: usize = 2_000_000;
+        let items = reader.by_ref().take(BOUND).count();
+        assert!(items < BOUND, "the reader makes no progress");
     }
     let _ = std::fs::remove_file(&path);
 });

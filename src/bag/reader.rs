@@ -529,6 +529,9 @@ struct McapSource {
     schemas: HashMap<u16, (String, Vec<u8>)>,
     channels: HashMap<u16, McapChannel>,
     chunk_starts: Vec<u64>,
+    /// Where reading last resumed after damage (resume points only move forward).
+    resumed_at: Option<u64>,
+    file_len: u64,
     /// Set after an error: no resume point is left.
     ended: bool,
 }
@@ -562,6 +565,8 @@ impl McapSource {
             schemas: summary.schemas,
             channels,
             chunk_starts: summary.chunk_starts,
+            resumed_at: None,
+            file_len: std::fs::metadata(path).map(|m| m.len()).unwrap_or(0),
             ended: false,
         })
     }
@@ -575,7 +580,15 @@ impl McapSource {
             .rev()
             .find(|&&s| s < self.offset)
             .copied()?;
-        let next = self.chunk_starts.iter().find(|&&s| s > damaged).copied()?;
+        // Strictly after the damaged chunk and after the last resume point (so a damaged
+        // resume point cannot be chosen again), and inside the file.
+        let floor = self.resumed_at.map_or(damaged, |r| r.max(damaged));
+        let next = self
+            .chunk_starts
+            .iter()
+            .find(|&&s| s > floor && s < self.file_len)
+            .copied()?;
+        self.resumed_at = Some(next);
         self.file.seek(SeekFrom::Start(next)).ok()?;
         self.reader = LinearReader::new_with_options(reader_options(true));
         self.offset = next;
