@@ -55,12 +55,6 @@ impl BagError {
     }
 }
 
-/// Nanoseconds since the epoch of a ROS time (negative times clamp to 0).
-pub fn time_ns(t: &crate::msgs::Time) -> u64 {
-    let ns = i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec);
-    u64::try_from(ns).unwrap_or(0)
-}
-
 /// The ROS time of nanoseconds since the epoch.
 pub fn ns_time(ns: u64) -> crate::msgs::Time {
     crate::msgs::Time {

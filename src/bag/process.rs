@@ -157,7 +157,7 @@ enum Route {
 }
 
 /// Offline every distinct message is printed once (the first 200); the summary counts.
-fn warn(bar: &ProgressBar, seen: &mut HashSet<String>, _key: &str, msg: &str) {
+fn warn(bar: &ProgressBar, seen: &mut HashSet<String>, msg: &str) {
     if seen.len() < 200 && seen.insert(msg.to_string()) {
         bar.suspend(|| tracing::warn!("{msg}"));
         if seen.len() == 200 {
@@ -178,6 +178,16 @@ struct Sink<'a> {
 }
 
 impl Sink<'_> {
+    /// A message that could not be decoded: counted per topic, reported once per topic.
+    fn bad_message(&mut self, topic: &str, message: &str) {
+        *self
+            .report
+            .bad_messages
+            .entry(topic.to_string())
+            .or_default() += 1;
+        warn(&self.bar, &mut self.seen, message);
+    }
+
     /// Processes one synchronised set (or records why not), writing its outputs at `log_time_ns`.
     fn set(
         &mut self,
@@ -209,12 +219,7 @@ impl Sink<'_> {
                     .skipped
                     .entry(skip.kind.to_string())
                     .or_default() += 1;
-                warn(
-                    &self.bar,
-                    &mut self.seen,
-                    &skip.key,
-                    &format!("set skipped: {skip}"),
-                );
+                warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
             }
         }
         Ok(())
@@ -389,15 +394,8 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
             Route::Info(i) => match from_cdr::<CameraInfo>(&msg.data) {
                 Ok(info) => pipeline.on_info(i, info),
                 Err(e) => {
-                    *sink
-                        .report
-                        .bad_messages
-                        .entry(msg.topic.clone())
-                        .or_default() += 1;
-                    warn(
-                        &sink.bar,
-                        &mut sink.seen,
-                        &format!("decode{}", msg.topic),
+                    sink.bad_message(
+                        &msg.topic,
                         &format!("cannot decode CameraInfo on {position}: {e}"),
                     );
                 }
@@ -405,24 +403,12 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
             Route::Tf => match from_cdr::<TFMessage>(&msg.data) {
                 Ok(tf) => {
                     for e in pipeline.on_tf(&tf) {
-                        warn(
-                            &sink.bar,
-                            &mut sink.seen,
-                            &e,
-                            &format!("{}: {e}", msg.topic),
-                        );
+                        warn(&sink.bar, &mut sink.seen, &format!("{}: {e}", msg.topic));
                     }
                 }
                 Err(e) => {
-                    *sink
-                        .report
-                        .bad_messages
-                        .entry(msg.topic.clone())
-                        .or_default() += 1;
-                    warn(
-                        &sink.bar,
-                        &mut sink.seen,
-                        &format!("decode{}", msg.topic),
+                    sink.bad_message(
+                        &msg.topic,
                         &format!("cannot decode TFMessage on {position}: {e}"),
                     );
                 }
@@ -434,15 +420,8 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                 let image = match from_cdr::<Image>(&msg.data) {
                     Ok(image) => image,
                     Err(e) => {
-                        *sink
-                            .report
-                            .bad_messages
-                            .entry(msg.topic.clone())
-                            .or_default() += 1;
-                        warn(
-                            &sink.bar,
-                            &mut sink.seen,
-                            &format!("decode{}", msg.topic),
+                        sink.bad_message(
+                            &msg.topic,
                             &format!("cannot decode Image on {position}: {e}"),
                         );
                         continue;
@@ -458,17 +437,12 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                         .dropped_images
                         .entry(notice.kind.to_string())
                         .or_default() += 1;
-                    warn(&sink.bar, &mut sink.seen, &notice.key, &notice.message);
+                    warn(&sink.bar, &mut sink.seen, &notice.message);
                 }
                 let sets = match result {
                     Ok(sets) => sets,
                     Err(e) => {
-                        warn(
-                            &sink.bar,
-                            &mut sink.seen,
-                            "sync",
-                            &format!("synchroniser: {e}"),
-                        );
+                        warn(&sink.bar, &mut sink.seen, &format!("synchroniser: {e}"));
                         continue;
                     }
                 };

@@ -114,27 +114,10 @@ impl BagReader {
         Ok(reader)
     }
 
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     /// The topics known before reading (from metadata.yaml, the MCAP summary or the sqlite
     /// topics table). A lone MCAP file without a summary lists its topics only as they appear.
     pub fn topics(&self) -> &[TopicInfo] {
         &self.topics
-    }
-
-    /// Schema of a topic's type, learned while reading (MCAP only).
-    pub fn schema_of(&self, topic: &str) -> Option<Vec<u8>> {
-        if let Some(t) = self.topics.iter().find(|t| t.name == topic) {
-            if t.schema.is_some() {
-                return t.schema.clone();
-            }
-        }
-        match &self.current {
-            Some(Source::Mcap(m)) => m.schema_of(topic),
-            _ => None,
-        }
     }
 
     fn open_next(&mut self) -> Result<bool, BagError> {
@@ -496,7 +479,6 @@ struct McapChannel {
     topic: String,
     msg_type: String,
     encoding: String,
-    schema_id: u16,
 }
 
 /// The largest MCAP record (or decompressed chunk) accepted: 1 GiB, a 16384 x 16384 rgba8 image.
@@ -553,7 +535,6 @@ impl McapSource {
                         .map(|(n, _)| normalise_type(n))
                         .unwrap_or_default(),
                     encoding: encoding.clone(),
-                    schema_id: *schema_id,
                 },
             );
         }
@@ -610,11 +591,6 @@ impl McapSource {
                 None => reason,
             },
         }
-    }
-
-    fn schema_of(&self, topic: &str) -> Option<Vec<u8>> {
-        let channel = self.channels.values().find(|c| c.topic == topic)?;
-        self.schemas.get(&channel.schema_id).map(|(_, d)| d.clone())
     }
 
     fn error(&self, reason: impl std::fmt::Display) -> BagError {
@@ -694,7 +670,6 @@ impl McapSource {
                                     topic: c.topic,
                                     msg_type,
                                     encoding: c.message_encoding,
-                                    schema_id: c.schema_id,
                                 },
                             );
                         }

@@ -97,10 +97,6 @@ impl BagWriter {
         })
     }
 
-    pub fn path(&self) -> &Path {
-        &self.out
-    }
-
     /// Declares a topic; `schema` is the definition text, our own for known types when `None`.
     pub fn add_topic(
         &mut self,

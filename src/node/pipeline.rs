@@ -32,16 +32,6 @@ pub struct Job {
     pub ref_info: CameraInfo,
 }
 
-impl Job {
-    /// The stamp of the outputs: the reference camera's input stamp.
-    pub fn stamp(&self) -> crate::msgs::Time {
-        self.images
-            .get(self.reference)
-            .map(|m| m.header.stamp)
-            .unwrap_or_default()
-    }
-}
-
 /// Why a set or a message was not processed. `kind` is a short stable category (used to count
 /// skips in the bag summary and to rate-limit log lines), `key` is unique per camera and kind,
 /// `message` says precisely what is wrong.
