@@ -792,6 +792,15 @@ fn run_dds(
     }
     let mut events = futures::stream::select_all(streams);
     let spinner = node.spinner().map_err(ros_err)?;
+    // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
+    // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
+    // the node says it is up, so a signal sent as soon as it is up is never the default action.
+    let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
+    if let Err(e) = ctrlc::set_handler(move || {
+        let _ = signal_tx.unbounded_send(());
+    }) {
+        tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
+    }
     log_info(&format!("node {} is up", config.identity.fqn()));
 
     let mut state = LoopState {
@@ -812,14 +821,6 @@ fn run_dds(
             .name("sweepdepth-diagnostics".into())
             .spawn_scoped(scope, || diagnostics_loop(config, shared, diag_pub, &stop))
             .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
-        // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
-        // publishers, subscriptions and the DDS participant are dropped cleanly.
-        let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
-        if let Err(e) = ctrlc::set_handler(move || {
-            let _ = signal_tx.unbounded_send(());
-        }) {
-            tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
-        }
         let outcome = futures::executor::block_on(async {
             futures::pin_mut!(event_loop);
             let spin = spinner.spin();
