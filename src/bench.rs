@@ -7,8 +7,9 @@ use serde::Serialize;
 
 use crate::geometry::CameraModel;
 use crate::gpu_context::GpuContext;
+use crate::params::EngineOptions;
 use crate::sweep::gpu::{GpuEngine, STAGES};
-use crate::sweep::{Optimizer, ParamOverrides, Scoring, SweepParams, WindowMode};
+use crate::sweep::{Optimizer, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
 #[derive(Debug, clap::Args)]
@@ -24,7 +25,7 @@ pub struct BenchArgs {
     pub quick: bool,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
-    pub params: ParamOverrides,
+    pub params: EngineOptions,
 }
 
 /// One benchmark configuration.
@@ -96,7 +97,7 @@ fn median(mut values: Vec<f64>) -> f64 {
 /// and the given optimizer (the options apply to both columns, all but the optimizer).
 pub fn bench_params(
     config: &BenchConfig,
-    overrides: &ParamOverrides,
+    overrides: &EngineOptions,
     optimizer: Optimizer,
 ) -> SweepParams {
     let mut params = SweepParams {
@@ -161,7 +162,7 @@ pub fn run_config(
     engine: &mut GpuEngine,
     adapter: &str,
     config: &BenchConfig,
-    overrides: &ParamOverrides,
+    overrides: &EngineOptions,
     repeats: usize,
 ) -> anyhow::Result<BenchResult> {
     let model = CameraModel::pinhole(synthetic::intrinsics(config.width, config.height));

@@ -10,8 +10,8 @@ use anyhow::Context;
 use crate::datasets;
 use crate::eval::{self, Metrics};
 use crate::gpu_context::GpuContext;
+use crate::params::EngineOptions;
 use crate::sweep::gpu::GpuEngine;
-use crate::sweep::ParamOverrides;
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
@@ -20,7 +20,7 @@ pub struct DemoArgs {
     pub out: PathBuf,
     /// Engine options.
     #[command(flatten)]
-    pub params: ParamOverrides,
+    pub params: EngineOptions,
 }
 
 /// The sample data, embedded so the demo runs from any directory.

@@ -31,7 +31,7 @@ pub struct EvalArgs {
     #[arg(long, value_enum, default_value_t = EvalMask::All)]
     pub mask: EvalMask,
     #[command(flatten)]
-    pub params: crate::sweep::ParamOverrides,
+    pub params: crate::params::EngineOptions,
 }
 
 /// Which pixels with ground truth are evaluated.

@@ -13,6 +13,7 @@ pub mod image;
 pub mod io;
 pub mod msgs;
 pub mod node;
+pub mod params;
 pub mod ros;
 pub mod sweep;
 pub mod synthetic;

@@ -10,9 +10,8 @@ use std::process::Command;
 
 use sweepdepth::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera};
 use sweepdepth::node::NodeConfig;
-use sweepdepth::ros::args::{
-    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamSource, DEFAULT_NODE_NAME,
-};
+use sweepdepth::params::{apply_to_sweep, ParamSet, ParamSource};
+use sweepdepth::ros::args::{parse_ros_args, NodeIdentity, DEFAULT_NODE_NAME};
 use sweepdepth::ros::rig_file::{load_rig_file, RigFile};
 use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
 
@@ -51,7 +50,7 @@ fn node_params(file: &str, namespace: &str) -> Result<(ParamSet, Vec<String>), S
         }
     );
     let (set, notes) = ParamSet::from_ros_args(&ros, &identity).map_err(|e| e.to_string())?;
-    set.check_node()?;
+    set.check_node().map_err(|e| e.to_string())?;
     Ok((set, notes))
 }
 
@@ -262,7 +261,7 @@ fn params_files_values_are_all_known_parameters() {
         let parsed = sweepdepth::ros::args::load_params_file(&repo_path(file)).unwrap();
         assert_eq!(parsed.sections.len(), 1, "{file}");
         for (name, value) in &parsed.sections[0].params {
-            sweepdepth::ros::args::coerce(name, value)
+            sweepdepth::params::coerce(name, value)
                 .unwrap_or_else(|e| panic!("{file}: {name}: {e}"));
         }
     }

@@ -10,7 +10,7 @@ use libfuzzer_sys::fuzz_target;
 use ros2_client::parameters::ParameterValue as RosValue;
 use sweepdepth::node::params::LiveParams;
 use sweepdepth::node::NodeConfig;
-use sweepdepth::ros::args::{apply_to_sweep, param_table, validate, ParamSet, ParamValue};
+use sweepdepth::params::{apply_to_sweep, param_table, validate, ParamSet, ParamValue};
 use sweepdepth::sweep::SweepParams;
 
 #[derive(Debug, Arbitrary)]

@@ -43,10 +43,9 @@ use glam::{DQuat, DVec3};
 
 use crate::geometry::{PinholeIntrinsics, RigidTransform};
 use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
-use crate::ros::args::{
-    apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamValue, RosArgs, RosArgsError,
-    DEFAULT_NODE_NAME,
-};
+use crate::params::checks::{check_start, shape_rig};
+use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
+use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
 use crate::sweep::SweepParams;
@@ -64,8 +63,10 @@ const LOG_INTERVAL: Duration = Duration::from_secs(2);
 pub enum NodeError {
     #[error(transparent)]
     Args(#[from] RosArgsError),
+    #[error(transparent)]
+    Param(#[from] ParamError),
     #[error("{0}")]
-    Param(String),
+    Config(String),
     #[error("unexpected arguments {0:?}: `sweepdepth node` takes only `--ros-args ...`")]
     ExtraArgs(Vec<String>),
     #[error(transparent)]
@@ -118,24 +119,20 @@ pub struct VirtualConfig {
 
 impl VirtualConfig {
     fn from_params(params: &ParamSet) -> Result<Self, NodeError> {
-        let p = NodeError::Param;
-        let pose = params.virtual_pose().map_err(p)?;
+        let pose = params.virtual_pose()?;
         let ref_from_virtual = RigidTransform::from_quat_translation(
             "virtual_pose",
             DQuat::from_xyzw(pose[3], pose[4], pose[5], pose[6]),
             DVec3::new(pose[0], pose[1], pose[2]),
         )
-        .map_err(|e| NodeError::Param(e.to_string()))?;
+        .map_err(|e| NodeError::Config(e.to_string()))?;
         let size = |name: &str| -> Result<u32, NodeError> {
-            let v = params.get_i64(name).map_err(NodeError::Param)?;
-            u32::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
+            let v = params.get_i64(name)?;
+            u32::try_from(v).map_err(|_| NodeError::Config(format!("parameter '{name}': {v}")))
         };
-        let f = |name: &str| params.get_f64(name).map_err(NodeError::Param);
+        let f = |name: &str| params.get_f64(name);
         Ok(Self {
-            frame_id: params
-                .get_str("virtual_frame_id")
-                .map_err(NodeError::Param)?
-                .to_string(),
+            frame_id: params.get_str("virtual_frame_id")?.to_string(),
             ref_from_virtual,
             width: size("virtual_width")?,
             height: size("virtual_height")?,
@@ -211,16 +208,11 @@ impl NodeConfig {
         let (params, mut notes) = ParamSet::from_ros_args(&ros, &identity)?;
         notes.extend(ros.notes.iter().cloned());
         let mut params = params;
-        params.check_node().map_err(NodeError::Param)?;
-        let virtual_ref = if params
-            .get_bool("virtual_reference")
-            .map_err(NodeError::Param)?
-        {
+        params.check_node()?;
+        let virtual_ref = if params.get_bool("virtual_reference")? {
             // check_node rejected an explicit pairs:=reference; the default becomes all.
-            if params.get_str("pairs").map_err(NodeError::Param)? != "all" {
-                params
-                    .set("pairs", &ParamValue::String("all".into()))
-                    .map_err(NodeError::Param)?;
+            if params.get_str("pairs")? != "all" {
+                params.set("pairs", &ParamValue::String("all".into()))?;
                 notes.push("virtual_reference: pairs set to 'all' (a virtual camera has no image of its own)".into());
             }
             let v = VirtualConfig::from_params(&params)?;
@@ -232,19 +224,16 @@ impl NodeConfig {
             None
         };
         let mut sweep = SweepParams::default();
-        apply_to_sweep(&params, &mut sweep).map_err(NodeError::Param)?;
-        let cameras = params
-            .get_string_array("cameras")
-            .map_err(NodeError::Param)?
-            .to_vec();
+        apply_to_sweep(&params, &mut sweep)?;
+        let cameras = params.get_string_array("cameras")?.to_vec();
         let reference_name = params
             .reference_camera()
-            .ok_or_else(|| NodeError::Param("no reference camera".into()))?;
+            .ok_or_else(|| NodeError::Config("no reference camera".into()))?;
         let reference = cameras
             .iter()
             .position(|c| *c == reference_name)
-            .ok_or_else(|| NodeError::Param(format!("unknown reference '{reference_name}'")))?;
-        let image_topic = params.get_str("image_topic").map_err(NodeError::Param)?;
+            .ok_or_else(|| NodeError::Config(format!("unknown reference '{reference_name}'")))?;
+        let image_topic = params.get_str("image_topic")?;
         let resolve = |name: &str| ros.resolve_topic(name, &identity);
         let mut image_topics = Vec::new();
         let mut info_topics = Vec::new();
@@ -263,7 +252,7 @@ impl NodeConfig {
         let tf_static_topic = resolve("/tf_static")?;
         let points_topic = resolve("points")?;
         let diagnostics_topic = resolve("/diagnostics")?;
-        let rig_path = params.get_str("rig_file").map_err(NodeError::Param)?;
+        let rig_path = params.get_str("rig_file")?;
         let rig_file = if rig_path.is_empty() {
             None
         } else {
@@ -279,46 +268,31 @@ impl NodeConfig {
             notes.extend(file.notes.iter().cloned());
             Some(file)
         };
-        let sync = match params.get_str("sync").map_err(NodeError::Param)? {
+        let sync = match params.get_str("sync")? {
             "exact" => SyncPolicy::Exact,
             _ => SyncPolicy::Approximate {
-                max_interval_ns: (params
-                    .get_f64("sync_max_interval")
-                    .map_err(NodeError::Param)?
-                    * 1e9)
-                    .round() as i64,
-                age_penalty: params.get_f64("age_penalty").map_err(NodeError::Param)?,
+                max_interval_ns: (params.get_f64("sync_max_interval")? * 1e9).round() as i64,
+                age_penalty: params.get_f64("age_penalty")?,
             },
         };
         let usize_param = |name: &str| -> Result<usize, NodeError> {
-            let v = params.get_i64(name).map_err(NodeError::Param)?;
-            usize::try_from(v).map_err(|_| NodeError::Param(format!("parameter '{name}': {v}")))
+            let v = params.get_i64(name)?;
+            usize::try_from(v).map_err(|_| NodeError::Config(format!("parameter '{name}': {v}")))
         };
         // The engine parameters against the rig's shape, before any frame arrives.
         let virtual_reference = virtual_ref.is_some();
-        if let Some(shape) = params::shape_rig(cameras.len(), reference, virtual_reference) {
-            let context = if virtual_reference {
-                "virtual_reference: "
-            } else {
-                ""
-            };
-            sweep
-                .validate(&shape)
-                .map_err(|e| NodeError::Param(format!("{context}{e}")))?;
-            params::check_rig_consistency(&SweepParams::default(), &sweep, cameras.len())
-                .map_err(NodeError::Param)?;
+        if let Some(shape) = shape_rig(cameras.len(), reference, virtual_reference) {
+            check_start(&sweep, &shape, virtual_reference)?;
         }
         Ok(Self {
             virtual_ref,
             domain_id: crate::ros::args::domain_id(domain_env)?,
             queue_size: usize_param("queue_size")?,
             camera_timeout: {
-                let t = params.get_f64("camera_timeout").map_err(NodeError::Param)?;
+                let t = params.get_f64("camera_timeout")?;
                 (t > 0.0).then(|| Duration::from_secs_f64(t))
             },
-            input_reliable: params
-                .get_bool("input_qos_reliable")
-                .map_err(NodeError::Param)?,
+            input_reliable: params.get_bool("input_qos_reliable")?,
             input_depth: usize_param("input_qos_depth")?,
             output_depth: usize_param("output_qos_depth")?,
             identity,
@@ -329,9 +303,7 @@ impl NodeConfig {
             info_topics,
             output_topics,
             points_topic,
-            publish_points: params
-                .get_bool("publish_points")
-                .map_err(NodeError::Param)?,
+            publish_points: params.get_bool("publish_points")?,
             diagnostics_topic,
             tf_static_topic,
             rig_file,
@@ -363,7 +335,7 @@ impl NodeConfig {
     /// The synchroniser's time rules from `sync_future_window` and `sync_reset_backwards`.
     pub fn time_rules(&self) -> Result<TimeRules, NodeError> {
         let ns = |name: &str| -> Result<i64, NodeError> {
-            let seconds = self.params.get_f64(name).map_err(NodeError::Param)?;
+            let seconds = self.params.get_f64(name)?;
             Ok((seconds * 1e9).round() as i64)
         };
         Ok(TimeRules {

@@ -1,80 +1,24 @@
 //! The node's parameters over ros2-client's parameter services: declaration of the table with
-//! the current values, validation of sets (read-only parameters, [`validate`], the checks
-//! across engine parameters) and application of accepted engine parameter changes (the GPU
-//! worker takes the new [`SweepParams`] from the next frame set on). No DDS; unit-tested.
+//! the current values, validation of sets ([`crate::params::checks::check_change`]) and
+//! application of accepted engine parameter changes (the GPU worker takes the new
+//! [`SweepParams`] from the next frame set on). No DDS; unit-tested.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use ros2_client::parameters::ParameterValue as RosValue;
 
-use crate::geometry::{CameraModel, Reference, Rig};
-use crate::ros::args::{apply_to_sweep, param_spec, validate, ParamSet, ParamValue};
-use crate::sweep::{PairSet, Scoring, SweepParams};
+use crate::geometry::Rig;
+use crate::params::checks::{check_change, shape_rig};
+use crate::params::{ParamSet, ParamValue};
+use crate::sweep::SweepParams;
 
-/// A stand-in rig with `cameras` cameras and the node's kind of reference (camera `reference`,
-/// or a virtual camera there), for the structural checks of [`SweepParams::validate`].
-pub fn shape_rig(cameras: usize, reference: usize, virtual_reference: bool) -> Option<Rig> {
-    let model = CameraModel::pinhole(crate::synthetic::intrinsics(8, 8));
-    let rig = crate::synthetic::row_rig(cameras, 0.1, model, reference).ok()?;
-    if !virtual_reference {
-        return Some(rig);
-    }
-    let cam_from_rig = rig.ref_from_rig();
-    Rig::new(
-        rig.cameras,
-        Reference::Virtual {
-            model,
-            cam_from_rig,
-        },
-    )
-    .ok()
-}
-
-/// Camera pairs a score combines for `sweep` on a rig of `cameras` cameras (m of best n of m).
-fn pair_count(sweep: &SweepParams, cameras: usize) -> usize {
-    match sweep.effective_pairs() {
-        PairSet::Reference => cameras.saturating_sub(1),
-        PairSet::All => cameras * cameras.saturating_sub(1) / 2,
-    }
-}
-
-/// The checks of a parameter set against the rig's shape, for the values it changes (`old` ->
-/// `new`; a set to the current value always passes, so the declarations at start-up do too;
-/// at start-up `old` is the defaults):
-///
-/// - best n of m: `best_n` may not exceed the m camera pairs, when `best_n` is set or when a
-///   change of `scoring` or `pairs` brings m below a `best_n` that fitted before;
-/// - `min_visible_cameras` may not exceed the number of cameras (every pixel would be invalid).
-pub fn check_rig_consistency(
-    old: &SweepParams,
-    new: &SweepParams,
-    cameras: usize,
-) -> Result<(), String> {
-    let m = pair_count(new, cameras);
-    let fitted_before =
-        old.scoring != Scoring::BestNOfM || old.best_n as usize <= pair_count(old, cameras);
-    if new.scoring == Scoring::BestNOfM
-        && new.best_n as usize > m
-        && (new.best_n != old.best_n || fitted_before)
-    {
-        return Err(format!(
-            "best_n ({}) is larger than the {m} camera pairs of this rig ({cameras} cameras, {} pairs)",
-            new.best_n,
-            match new.effective_pairs() {
-                PairSet::Reference => "reference",
-                PairSet::All => "all",
-            }
-        ));
-    }
-    if new.min_visible_cameras != old.min_visible_cameras
-        && new.min_visible_cameras as usize > cameras
-    {
-        return Err(format!(
-            "min_visible_cameras ({}) is larger than the {cameras} cameras of this rig (every pixel would be invalid)",
-            new.min_visible_cameras
-        ));
-    }
-    Ok(())
+/// A value a ROS peer sent that no parameter of this node can hold.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UnsupportedValue {
+    #[error("parameters of this node cannot be unset")]
+    NotSet,
+    #[error("byte array parameters are not supported")]
+    ByteArray,
 }
 
 /// `ParamValue` as a ros2-client value.
@@ -92,7 +36,7 @@ pub fn to_ros(value: &ParamValue) -> RosValue {
 }
 
 /// A ros2-client value as a `ParamValue` (not set and byte arrays are not supported).
-pub fn from_ros(value: &RosValue) -> Result<ParamValue, String> {
+pub fn from_ros(value: &RosValue) -> Result<ParamValue, UnsupportedValue> {
     Ok(match value {
         RosValue::Boolean(b) => ParamValue::Bool(*b),
         RosValue::Integer(i) => ParamValue::Int(*i),
@@ -102,8 +46,8 @@ pub fn from_ros(value: &RosValue) -> Result<ParamValue, String> {
         RosValue::IntegerArray(v) => ParamValue::IntArray(v.clone()),
         RosValue::DoubleArray(v) => ParamValue::DoubleArray(v.clone()),
         RosValue::StringArray(v) => ParamValue::StringArray(v.clone()),
-        RosValue::NotSet => return Err("parameters of this node cannot be unset".into()),
-        RosValue::ByteArray(_) => return Err("byte array parameters are not supported".into()),
+        RosValue::NotSet => return Err(UnsupportedValue::NotSet),
+        RosValue::ByteArray(_) => return Err(UnsupportedValue::ByteArray),
     })
 }
 
@@ -158,45 +102,21 @@ impl LiveParams {
     }
 
     /// The parameter set and engine parameters that setting `name` to `value` gives, or why
-    /// the set is rejected.
+    /// the set is rejected (the message the parameter service answers).
     fn candidate(&self, name: &str, value: &RosValue) -> Result<(ParamSet, SweepParams), String> {
-        let spec = param_spec(name).ok_or_else(|| format!("unknown parameter '{name}'"))?;
-        let value = from_ros(value)?;
-        if spec.read_only {
-            // ros2-client validates and applies the declared values at start-up: a read-only
-            // parameter accepts its current value (no change) and nothing else.
-            let params = self.params();
-            if params.get(name) == Some(&value) {
-                return Ok((params, self.sweep()));
-            }
-            return Err(format!(
-                "parameter '{name}' is read-only (it is fixed once the node runs)"
-            ));
-        }
-        validate(name, &value).map_err(|e| format!("parameter '{name}': {e}"))?;
-        let mut params = self.params();
-        params
-            .set(name, &value)
-            .map_err(|e| format!("parameter '{name}': {e}"))?;
-        let mut sweep = self.sweep();
-        apply_to_sweep(&params, &mut sweep)?;
-        if sweep.min_depth_m >= sweep.max_depth_m {
-            return Err(format!(
-                "min_depth ({}) must be smaller than max_depth ({})",
-                sweep.min_depth_m, sweep.max_depth_m
-            ));
-        }
-        if let Some(rig) = &self.shape {
-            sweep
-                .validate(rig)
-                .map_err(|e| format!("parameter '{name}': {e}"))?;
-            check_rig_consistency(&self.sweep(), &sweep, rig.cameras.len())
-                .map_err(|e| format!("parameter '{name}': {e}; the current values stay"))?;
-        }
-        Ok((params, sweep))
+        let value = from_ros(value).map_err(|e| e.to_string())?;
+        check_change(
+            &self.params(),
+            &self.sweep(),
+            self.shape.as_ref(),
+            name,
+            &value,
+        )
+        .map_err(|e| e.to_string())
     }
 
-    /// The validator: Ok if `name` may be set to `value`, else the reason.
+    /// The validator: Ok if `name` may be set to `value`, else the reason (ros2-client's
+    /// parameter callbacks take the reason as a `String`).
     pub fn check(&self, name: &str, value: &RosValue) -> Result<(), String> {
         self.candidate(name, value).map(|_| ())
     }
@@ -226,7 +146,7 @@ mod tests {
         )
         .unwrap();
         let mut sweep = SweepParams::default();
-        apply_to_sweep(&set, &mut sweep).unwrap();
+        crate::params::apply_to_sweep(&set, &mut sweep).unwrap();
         LiveParams::new(set, sweep, 2, 1, false)
     }
 
@@ -234,7 +154,7 @@ mod tests {
     fn declarations_cover_the_table() {
         let l = live();
         let d = l.declarations();
-        assert_eq!(d.len(), crate::ros::args::param_table().len());
+        assert_eq!(d.len(), crate::params::param_table().len());
         assert!(d.contains(&(
             "cameras".to_string(),
             RosValue::StringArray(vec!["a".into(), "b".into()])
@@ -286,7 +206,7 @@ mod tests {
             params.set(name, value).unwrap();
         }
         let mut sweep = SweepParams::default();
-        apply_to_sweep(&params, &mut sweep).unwrap();
+        crate::params::apply_to_sweep(&params, &mut sweep).unwrap();
         LiveParams::new(params, sweep, cameras, cameras / 2, false)
     }
 
@@ -382,7 +302,7 @@ mod tests {
         let mut set = ParamSet::defaults();
         set.set("pairs", &ParamValue::String("all".into())).unwrap();
         let mut sweep = SweepParams::default();
-        apply_to_sweep(&set, &mut sweep).unwrap();
+        crate::params::apply_to_sweep(&set, &mut sweep).unwrap();
         let l = LiveParams::new(set, sweep, 3, 1, true);
         let e = l
             .check("pairs", &RosValue::String("reference".into()))

@@ -1,7 +1,9 @@
-//! ROS 2 plumbing that needs no DDS: time synchronisation of camera sets and the ROS command
-//! line / parameter handling. The node itself (over `ros2-client`) builds on these.
+//! ROS 2 plumbing that needs no DDS: the command line and names ([`args`]), parameter values
+//! ([`param_value`]), N-ary time synchronisation of camera sets ([`sync`]) and a tf2-style
+//! buffer of static transforms ([`tf`]). The node (over `ros2-client`) builds on these.
 
 pub mod args;
+pub mod param_value;
 pub mod rig_file;
 pub mod sync;
 pub mod tf;

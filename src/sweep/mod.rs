@@ -76,7 +76,9 @@ pub enum Optimizer {
     Sgm,
 }
 
-/// Engine parameters. Defaults are the ones measured best on the shared data (see README).
+/// Engine parameters. Their defaults (measured best on the shared data, see README), node
+/// parameter names, command-line options, ranges and descriptions are declared once, in
+/// `src/params/engine.rs`, which also implements `Default` for this struct.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct SweepParams {
@@ -119,37 +121,6 @@ pub struct SweepParams {
     /// Colour step (largest RGB channel difference between path neighbours, 0..255) at which
     /// P2 is halved: P2 / (1 + step / sgm_edge), at least P1; 0 keeps P2 constant.
     pub sgm_edge: f32,
-}
-
-impl Default for SweepParams {
-    fn default() -> Self {
-        Self {
-            min_depth_m: 0.5,
-            max_depth_m: 10.0,
-            num_planes: 64,
-            scoring: Scoring::BestNOfM,
-            pairs: PairSet::Reference,
-            best_n: 2,
-            half_best_n: 2,
-            aggregation: Aggregation::PerPair,
-            window_width: 9,
-            window_height: 9,
-            window_mode: WindowMode::Centred,
-            tau: 100.0,
-            max_cost: 100.0,
-            subpixel: true,
-            median: true,
-            min_visible_cameras: 2,
-            occlusion_tolerance: 0.01,
-            half_margin: 0.1,
-            optimizer: Optimizer::Sgm,
-            // Chosen on the evaluation sets themselves (Tsukuba, Teddy, Laundry; README, Quality).
-            sgm_p1: 3.0,
-            sgm_p2: 100.0,
-            sgm_paths: 8,
-            sgm_edge: 10.0,
-        }
-    }
 }
 
 /// Errors from the engines.
@@ -415,157 +386,4 @@ pub fn check_images(rig: &Rig, images: &[Rgba8Image]) -> Result<(), SweepError> 
         }
     }
     Ok(())
-}
-
-/// Engine options on the command line (`eval`, `demo`, `bench`); each overrides the defaults a
-/// command starts from.
-#[derive(Debug, Clone, Default, clap::Args)]
-pub struct ParamOverrides {
-    /// Nearest depth swept, metres.
-    #[arg(long)]
-    pub min_depth: Option<f64>,
-    /// Farthest depth swept, metres.
-    #[arg(long)]
-    pub max_depth: Option<f64>,
-    /// Number of depth planes (uniform in inverse depth).
-    #[arg(long)]
-    pub planes: Option<u32>,
-    /// Multi-camera score.
-    #[arg(long, value_enum)]
-    pub scoring: Option<Scoring>,
-    /// Camera pairs that are scored.
-    #[arg(long, value_enum)]
-    pub pairs: Option<PairSet>,
-    /// n of best n of m.
-    #[arg(long)]
-    pub best_n: Option<u32>,
-    /// Best half-sequence: average the n best pairs of each half (0 = all, the paper).
-    #[arg(long)]
-    pub half_best_n: Option<u32>,
-    /// Where windows aggregate: the scored cost, each half, or each pair.
-    #[arg(long, value_enum)]
-    pub aggregation: Option<Aggregation>,
-    /// Window as WxH (1x1 = none, 2x2 = the paper's shiftable window).
-    #[arg(long, value_parser = parse_window)]
-    pub window: Option<(u32, u32)>,
-    /// Window placement.
-    #[arg(long, value_enum)]
-    pub window_mode: Option<WindowMode>,
-    /// TSSD truncation (sum of squared 0..255 RGB differences).
-    #[arg(long)]
-    pub tau: Option<f32>,
-    /// Best score above which a pixel is invalid.
-    #[arg(long)]
-    pub max_cost: Option<f32>,
-    /// Sub-pixel refinement on/off.
-    #[arg(long)]
-    pub subpixel: Option<bool>,
-    /// 3x3 median on/off.
-    #[arg(long)]
-    pub median: Option<bool>,
-    /// Minimum cameras that must see a pixel (reference counted); 0 disables the check.
-    #[arg(long)]
-    pub min_visible: Option<u32>,
-    /// Relative depth tolerance of the occlusion test.
-    #[arg(long)]
-    pub occlusion_tolerance: Option<f32>,
-    /// Depth selection: local winner-take-all (the paper) or semi-global matching.
-    #[arg(long, value_enum)]
-    pub optimizer: Option<Optimizer>,
-    /// SGM penalty P1 (a one-plane step), score units.
-    #[arg(long)]
-    pub sgm_p1: Option<f32>,
-    /// SGM penalty P2 (a larger step), score units.
-    #[arg(long)]
-    pub sgm_p2: Option<f32>,
-    /// SGM path directions (4 or 8).
-    #[arg(long)]
-    pub sgm_paths: Option<u32>,
-    /// SGM: colour step (0..255) at which P2 is halved; 0 = constant P2.
-    #[arg(long)]
-    pub sgm_edge: Option<f32>,
-}
-
-fn parse_window(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("window '{s}' is not WxH, e.g. 2x2"))?;
-    let w = w
-        .trim()
-        .parse()
-        .map_err(|e| format!("window width '{w}': {e}"))?;
-    let h = h
-        .trim()
-        .parse()
-        .map_err(|e| format!("window height '{h}': {e}"))?;
-    Ok((w, h))
-}
-
-impl ParamOverrides {
-    pub fn apply(&self, p: &mut SweepParams) {
-        if let Some(v) = self.min_depth {
-            p.min_depth_m = v;
-        }
-        if let Some(v) = self.max_depth {
-            p.max_depth_m = v;
-        }
-        if let Some(v) = self.planes {
-            p.num_planes = v;
-        }
-        if let Some(v) = self.scoring {
-            p.scoring = v;
-        }
-        if let Some(v) = self.pairs {
-            p.pairs = v;
-        }
-        if let Some(v) = self.best_n {
-            p.best_n = v;
-        }
-        if let Some(v) = self.half_best_n {
-            p.half_best_n = v;
-        }
-        if let Some(v) = self.aggregation {
-            p.aggregation = v;
-        }
-        if let Some((w, h)) = self.window {
-            p.window_width = w;
-            p.window_height = h;
-        }
-        if let Some(v) = self.window_mode {
-            p.window_mode = v;
-        }
-        if let Some(v) = self.tau {
-            p.tau = v;
-        }
-        if let Some(v) = self.max_cost {
-            p.max_cost = v;
-        }
-        if let Some(v) = self.subpixel {
-            p.subpixel = v;
-        }
-        if let Some(v) = self.median {
-            p.median = v;
-        }
-        if let Some(v) = self.min_visible {
-            p.min_visible_cameras = v;
-        }
-        if let Some(v) = self.occlusion_tolerance {
-            p.occlusion_tolerance = v;
-        }
-        if let Some(v) = self.optimizer {
-            p.optimizer = v;
-        }
-        if let Some(v) = self.sgm_p1 {
-            p.sgm_p1 = v;
-        }
-        if let Some(v) = self.sgm_p2 {
-            p.sgm_p2 = v;
-        }
-        if let Some(v) = self.sgm_paths {
-            p.sgm_paths = v;
-        }
-        if let Some(v) = self.sgm_edge {
-            p.sgm_edge = v;
-        }
-    }
 }

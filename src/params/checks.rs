@@ -1,0 +1,140 @@
+//! The checks across parameters that one value's range cannot say: against the rig's shape
+//! (best n of m, `min_visible_cameras`, the engine's own [`SweepParams::validate`]) and the
+//! depth range, at start-up and for every change of a running node ([`check_change`]).
+
+use super::engine::apply_to_sweep;
+use super::set::ParamSet;
+use super::spec::{param_spec, validate};
+use super::ParamError;
+use crate::geometry::{CameraModel, Reference, Rig};
+use crate::ros::param_value::ParamValue;
+use crate::sweep::{PairSet, Scoring, SweepParams};
+
+/// A stand-in rig with `cameras` cameras and the node's kind of reference (camera `reference`,
+/// or a virtual camera there), for the structural checks of [`SweepParams::validate`].
+pub fn shape_rig(cameras: usize, reference: usize, virtual_reference: bool) -> Option<Rig> {
+    let model = CameraModel::pinhole(crate::synthetic::intrinsics(8, 8));
+    let rig = crate::synthetic::row_rig(cameras, 0.1, model, reference).ok()?;
+    if !virtual_reference {
+        return Some(rig);
+    }
+    let cam_from_rig = rig.ref_from_rig();
+    Rig::new(
+        rig.cameras,
+        Reference::Virtual {
+            model,
+            cam_from_rig,
+        },
+    )
+    .ok()
+}
+
+/// Camera pairs a score combines for `sweep` on a rig of `cameras` cameras (m of best n of m).
+fn pair_count(sweep: &SweepParams, cameras: usize) -> usize {
+    match sweep.effective_pairs() {
+        PairSet::Reference => cameras.saturating_sub(1),
+        PairSet::All => cameras * cameras.saturating_sub(1) / 2,
+    }
+}
+
+/// The checks of a parameter set against the rig's shape, for the values it changes (`old` ->
+/// `new`; a set to the current value always passes, so the declarations at start-up do too;
+/// at start-up `old` is the defaults):
+///
+/// - best n of m: `best_n` may not exceed the m camera pairs, when `best_n` is set or when a
+///   change of `scoring` or `pairs` brings m below a `best_n` that fitted before;
+/// - `min_visible_cameras` may not exceed the number of cameras (every pixel would be invalid).
+pub fn check_rig_consistency(
+    old: &SweepParams,
+    new: &SweepParams,
+    cameras: usize,
+) -> Result<(), ParamError> {
+    let m = pair_count(new, cameras);
+    let fitted_before =
+        old.scoring != Scoring::BestNOfM || old.best_n as usize <= pair_count(old, cameras);
+    if new.scoring == Scoring::BestNOfM
+        && new.best_n as usize > m
+        && (new.best_n != old.best_n || fitted_before)
+    {
+        return Err(ParamError::BestNAbovePairs {
+            best_n: new.best_n,
+            pairs: m,
+            cameras,
+            pair_set: match new.effective_pairs() {
+                PairSet::Reference => "reference",
+                PairSet::All => "all",
+            },
+        });
+    }
+    if new.min_visible_cameras != old.min_visible_cameras
+        && new.min_visible_cameras as usize > cameras
+    {
+        return Err(ParamError::MinVisibleAboveCameras {
+            min_visible: new.min_visible_cameras,
+            cameras,
+        });
+    }
+    Ok(())
+}
+
+/// The engine parameters of a node at start-up against its rig's shape (`shape`:
+/// [`shape_rig`]); `virtual_reference` says what the rig's reference is, for the message.
+pub fn check_start(
+    sweep: &SweepParams,
+    shape: &Rig,
+    virtual_reference: bool,
+) -> Result<(), ParamError> {
+    sweep.validate(shape).map_err(|e| ParamError::Engine {
+        context: if virtual_reference {
+            "virtual_reference: "
+        } else {
+            ""
+        },
+        message: e.to_string(),
+    })?;
+    check_rig_consistency(&SweepParams::default(), sweep, shape.cameras.len())
+}
+
+/// The parameter set and engine parameters that setting `name` to `value` gives a running
+/// node (`current`, `current_sweep`; `shape` its rig's shape), or why the change is refused:
+/// read-only parameters accept their current value and nothing else (the declaration at
+/// start-up sets every parameter to its value); other values are checked against their range,
+/// the other end of the depth range and the rig.
+pub fn check_change(
+    current: &ParamSet,
+    current_sweep: &SweepParams,
+    shape: Option<&Rig>,
+    name: &str,
+    value: &ParamValue,
+) -> Result<(ParamSet, SweepParams), ParamError> {
+    let spec = param_spec(name).ok_or_else(|| ParamError::Unknown(name.to_string()))?;
+    if spec.read_only {
+        if current.get(name) == Some(value) {
+            return Ok((current.clone(), current_sweep.clone()));
+        }
+        return Err(ParamError::ReadOnly(name.to_string()));
+    }
+    validate(name, value).map_err(|e| e.named(name))?;
+    let mut params = current.clone();
+    params.set(name, value).map_err(|e| e.named(name))?;
+    let mut sweep = current_sweep.clone();
+    apply_to_sweep(&params, &mut sweep)?;
+    if sweep.min_depth_m >= sweep.max_depth_m {
+        return Err(ParamError::DepthOrder {
+            min: sweep.min_depth_m,
+            max: sweep.max_depth_m,
+        });
+    }
+    if let Some(rig) = shape {
+        sweep.validate(rig).map_err(|e| {
+            ParamError::Engine {
+                context: "",
+                message: e.to_string(),
+            }
+            .named(name)
+        })?;
+        check_rig_consistency(current_sweep, &sweep, rig.cameras.len())
+            .map_err(|e| ParamError::KeepCurrent(Box::new(e.named(name))))?;
+    }
+    Ok((params, sweep))
+}

@@ -1,0 +1,34 @@
+//! The node's parameters and the engine options, each declared once.
+//!
+//! * [`engine`]: the engine parameters (one line each: the [`crate::sweep::SweepParams`]
+//!   field, node name, type, default, command-line option, range, description). The engine's
+//!   defaults, the engine part of the node's table, the CLI engine options and their range
+//!   checks are all made from it.
+//! * [`node`]: the node's own parameters (cameras, topics, synchronisation, QoS, rig file,
+//!   virtual reference), read-only once the node runs.
+//! * [`spec`]: what a parameter is ([`ParamSpec`], [`ParamRange`]), the checks of one value,
+//!   and the one table of all of them ([`param_table`]).
+//! * [`set`]: the current values ([`ParamSet`]) and how a command line's parameter files and
+//!   `-p` rules set them.
+//! * [`checks`]: the checks across parameters (depth range, best n of m, the rig's shape).
+//! * [`cli`]: [`EngineOptions`], the engine options of `demo`, `eval`, `bench`.
+//! * [`docs`]: the README's parameter table.
+//!
+//! No DDS: the node serves these over its parameter services (`crate::node::params`).
+
+pub mod checks;
+pub mod cli;
+pub mod docs;
+pub mod engine;
+mod error;
+pub mod node;
+pub mod set;
+pub mod spec;
+
+pub use crate::ros::param_value::{ParamKind, ParamValue};
+pub use cli::EngineOptions;
+pub use docs::markdown_table;
+pub use engine::{apply_to_sweep, engine_param, engine_params, EngineParam, Flag};
+pub use error::ParamError;
+pub use set::{ParamSet, ParamSource};
+pub use spec::{coerce, param_spec, param_table, validate, ParamRange, ParamSpec};

@@ -1,0 +1,186 @@
+//! The node's own parameters (not the engine's): cameras and topics, synchronisation, the rig
+//! file, QoS and the virtual reference camera. Each is declared here once, with its default,
+//! range and description; all are read-only once the node runs.
+
+use super::spec::{ParamRange, ParamSpec};
+use crate::ros::param_value::ParamValue;
+
+fn node_spec(
+    name: &'static str,
+    default: ParamValue,
+    range: ParamRange,
+    description: &'static str,
+) -> ParamSpec {
+    ParamSpec {
+        name,
+        kind: default.kind(),
+        default,
+        range,
+        description,
+        read_only: true,
+        required: false,
+    }
+}
+
+fn s(v: &str) -> ParamValue {
+    ParamValue::String(v.to_string())
+}
+
+/// The node parameters, in the order of the docs.
+pub fn node_params() -> Vec<ParamSpec> {
+    use ParamValue::{Bool, Double, Int};
+    vec![
+        ParamSpec {
+            required: true,
+            ..node_spec(
+                "cameras",
+                ParamValue::StringArray(Vec::new()),
+                ParamRange::NameList { min_len: 2 },
+                "Camera namespaces, left to right; images come from `<camera>/<image_topic>`, calibration from `<camera>/camera_info` or rig_file.",
+            )
+        },
+        node_spec(
+            "image_topic",
+            s("image_raw"),
+            ParamRange::RelativeName,
+            "Image topic under each camera namespace.",
+        ),
+        node_spec(
+            "reference_camera",
+            s(""),
+            ParamRange::OptionalName,
+            "Camera whose view the depth map is in; empty = the middle entry of cameras.",
+        ),
+        node_spec(
+            "sync",
+            s("approximate"),
+            ParamRange::one_of(&["exact", "approximate"]),
+            "Time synchronisation of the camera images: equal stamps, or approximate.",
+        ),
+        node_spec(
+            "camera_timeout",
+            Double(1.0),
+            ParamRange::closed(0.0, 3600.0),
+            "A camera silent for this long (seconds; receive time live, log time in bags) leaves the rig until it sends again; the node goes on with the others while at least 2 remain with the reference among them. 0 = never.",
+        ),
+        node_spec(
+            "sync_max_interval",
+            Double(0.02),
+            ParamRange::closed(0.0, 60.0),
+            "Approximate sync: largest spread of the stamps of one set, seconds.",
+        ),
+        node_spec(
+            "queue_size",
+            Int(5),
+            ParamRange::ints(1, 100),
+            "Messages kept per camera while waiting for a matching set.",
+        ),
+        node_spec(
+            "age_penalty",
+            Double(0.1),
+            ParamRange::at_least(0.0),
+            "Approximate sync: penalty on waiting for newer messages (as message_filters' ApproximateTime).",
+        ),
+        node_spec(
+            "sync_future_window",
+            Double(10.0),
+            ParamRange::closed(1.0, 86400.0),
+            "An image stamped more than this many seconds ahead of the newest stamp of every other camera is dropped (counted as future).",
+        ),
+        node_spec(
+            "sync_reset_backwards",
+            Double(1.0),
+            ParamRange::Double {
+                min: 0.0,
+                max: 86400.0,
+                min_exclusive: true,
+                max_exclusive: false,
+            },
+            "A camera whose stamps go back by more than this many seconds (a bag played in a loop) resets the synchroniser; less is a late image, dropped.",
+        ),
+        node_spec(
+            "rig_file",
+            s(""),
+            ParamRange::Any,
+            "Rig calibration file (our YAML or Kalibr's camchain.yaml); empty = extrinsics from /tf_static and intrinsics from each camera_info.",
+        ),
+        node_spec(
+            "publish_points",
+            Bool(false),
+            ParamRange::Any,
+            "Also publish a sensor_msgs/PointCloud2 of the valid depths.",
+        ),
+        node_spec(
+            "input_qos_reliable",
+            Bool(false),
+            ParamRange::Any,
+            "Subscribe to the images with reliable QoS (default: best effort, the sensor-data profile).",
+        ),
+        node_spec(
+            "input_qos_depth",
+            Int(5),
+            ParamRange::ints(1, 1000),
+            "History depth of the image subscriptions.",
+        ),
+        node_spec(
+            "output_qos_depth",
+            Int(1),
+            ParamRange::ints(1, 1000),
+            "History depth of the publishers.",
+        ),
+        node_spec(
+            "virtual_reference",
+            Bool(false),
+            ParamRange::Any,
+            "Estimate depth for a virtual camera (virtual_* parameters) instead of reference_camera; needs pairs = all (the default reference becomes all).",
+        ),
+        node_spec(
+            "virtual_frame_id",
+            s(""),
+            ParamRange::Any,
+            "Virtual reference: tf frame of its optical frame, the outputs' frame_id; placed from /tf_static (with rig_file: by virtual_pose). Empty = virtual_pose, outputs in the reference camera's frame.",
+        ),
+        node_spec(
+            "virtual_pose",
+            ParamValue::DoubleArray(vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+            ParamRange::Any,
+            "Virtual reference: [x, y, z, qx, qy, qz, qw] pose of its optical frame in the reference camera's optical frame (metres; unit quaternion); unused when virtual_frame_id is placed by /tf_static.",
+        ),
+        node_spec(
+            "virtual_width",
+            Int(0),
+            ParamRange::ints(0, 16384),
+            "Virtual reference: image width, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_height",
+            Int(0),
+            ParamRange::ints(0, 16384),
+            "Virtual reference: image height, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_fx",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: focal length fx, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_fy",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: focal length fy, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_cx",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: principal point cx, pixels (0 = the reference camera's).",
+        ),
+        node_spec(
+            "virtual_cy",
+            Double(0.0),
+            ParamRange::at_least(0.0),
+            "Virtual reference: principal point cy, pixels (0 = the reference camera's).",
+        ),
+    ]
+}

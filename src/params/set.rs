@@ -1,0 +1,253 @@
+//! The current value of every parameter ([`ParamSet`]), where it came from, and how a
+//! command line's parameter files and `-p` rules set it for one node.
+
+use std::path::PathBuf;
+
+use super::spec::{coerce, param_index, param_spec, param_table, ParamSpec};
+use super::ParamError;
+use crate::ros::args::{node_pattern_matches, NodeIdentity, RosArgs};
+use crate::ros::param_value::ParamValue;
+
+/// Parameters every rclcpp node has, or that tools set for all nodes: accepted from parameter
+/// files and ignored with a note.
+const IGNORED_STANDARD_PARAMS: &[&str] = &["use_sim_time", "start_type_description_service"];
+
+/// Where a parameter's current value came from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ParamSource {
+    Default,
+    /// A parameter file and the section that matched.
+    File {
+        path: PathBuf,
+        section: String,
+    },
+    /// `-p` on the command line.
+    CommandLine,
+    /// Set by the program (e.g. a parameter service).
+    Set,
+}
+
+/// The current value of every parameter in [`param_table`], in table order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParamSet {
+    values: Vec<ParamValue>,
+    sources: Vec<ParamSource>,
+}
+
+impl Default for ParamSet {
+    fn default() -> Self {
+        Self::defaults()
+    }
+}
+
+impl ParamSet {
+    /// Every parameter at its default.
+    pub fn defaults() -> Self {
+        Self {
+            values: param_table().iter().map(|p| p.default.clone()).collect(),
+            sources: vec![ParamSource::Default; param_table().len()],
+        }
+    }
+
+    pub fn get(&self, name: &str) -> Option<&ParamValue> {
+        param_index(name).and_then(|i| self.values.get(i))
+    }
+
+    pub fn source(&self, name: &str) -> Option<&ParamSource> {
+        param_index(name).and_then(|i| self.sources.get(i))
+    }
+
+    /// Validates and sets one value (see [`coerce`]).
+    pub fn set(&mut self, name: &str, value: &ParamValue) -> Result<(), ParamError> {
+        self.set_from(name, value, ParamSource::Set)
+    }
+
+    fn set_from(
+        &mut self,
+        name: &str,
+        value: &ParamValue,
+        source: ParamSource,
+    ) -> Result<(), ParamError> {
+        let value = coerce(name, value)?;
+        let i = param_index(name).ok_or_else(|| ParamError::Unknown(name.to_string()))?;
+        self.values[i] = value;
+        self.sources[i] = source;
+        Ok(())
+    }
+
+    /// `(spec, value)` for every parameter, in table order.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static ParamSpec, &ParamValue)> {
+        param_table().iter().zip(self.values.iter())
+    }
+
+    fn typed<'a, T>(
+        &'a self,
+        name: &str,
+        f: impl Fn(&'a ParamValue) -> Option<T>,
+    ) -> Result<T, ParamError> {
+        let v = self
+            .get(name)
+            .ok_or_else(|| ParamError::Unknown(name.to_string()))?;
+        f(v).ok_or_else(|| ParamError::NotA {
+            name: name.to_string(),
+            kind: v.kind(),
+        })
+    }
+
+    pub fn get_bool(&self, name: &str) -> Result<bool, ParamError> {
+        self.typed(name, ParamValue::as_bool)
+    }
+    pub fn get_i64(&self, name: &str) -> Result<i64, ParamError> {
+        self.typed(name, ParamValue::as_i64)
+    }
+    pub fn get_f64(&self, name: &str) -> Result<f64, ParamError> {
+        self.typed(name, ParamValue::as_f64)
+    }
+    pub fn get_str(&self, name: &str) -> Result<&str, ParamError> {
+        self.typed(name, ParamValue::as_str)
+    }
+    pub fn get_string_array(&self, name: &str) -> Result<&[String], ParamError> {
+        self.typed(name, ParamValue::as_string_array)
+    }
+    pub fn get_f64_array(&self, name: &str) -> Result<&[f64], ParamError> {
+        self.typed(name, ParamValue::as_f64_array)
+    }
+
+    /// The node's checks across parameters: `cameras` is set (>= 2 distinct names) and
+    /// `reference_camera` is empty or one of them.
+    pub fn check_node(&self) -> Result<(), ParamError> {
+        let cameras = self.get_string_array("cameras")?;
+        if let Some(spec) = param_spec("cameras") {
+            spec.range
+                .check(&ParamValue::StringArray(cameras.to_vec()))
+                .map_err(|e| ParamError::Required {
+                    name: "cameras".into(),
+                    source: Box::new(e),
+                })?;
+        }
+        let reference = self.get_str("reference_camera")?;
+        if !reference.is_empty() && !cameras.iter().any(|c| c == reference) {
+            return Err(ParamError::UnknownReference {
+                reference: reference.to_string(),
+                cameras: cameras.to_vec(),
+            });
+        }
+        if self.get_bool("virtual_reference")? {
+            if self.get_str("pairs")? == "reference"
+                && self.source("pairs") != Some(&ParamSource::Default)
+            {
+                return Err(ParamError::VirtualNeedsAllPairs);
+            }
+            self.virtual_pose()?;
+        }
+        Ok(())
+    }
+
+    /// `virtual_pose` checked: 7 finite numbers `[x, y, z, qx, qy, qz, qw]` with a unit
+    /// quaternion (within 1e-3, as tf2 checks).
+    pub fn virtual_pose(&self) -> Result<[f64; 7], ParamError> {
+        let v = self.get_f64_array("virtual_pose")?;
+        let pose: [f64; 7] = v.try_into().map_err(|_| ParamError::PoseLength(v.len()))?;
+        if pose.iter().any(|x| !x.is_finite()) {
+            return Err(ParamError::PoseNotFinite);
+        }
+        let norm = pose[3..].iter().map(|q| q * q).sum::<f64>().sqrt();
+        if (norm - 1.0).abs() > 1e-3 {
+            return Err(ParamError::PoseNotUnit(norm));
+        }
+        Ok(pose)
+    }
+
+    /// `reference_camera`, or the middle entry of `cameras` when it is empty (None without
+    /// cameras).
+    pub fn reference_camera(&self) -> Option<String> {
+        let reference = self.get_str("reference_camera").ok()?;
+        if !reference.is_empty() {
+            return Some(reference.to_string());
+        }
+        let cameras = self.get_string_array("cameras").ok()?;
+        cameras.get(cameras.len() / 2).cloned()
+    }
+
+    /// Defaults, then the matching sections of the parameter files in command-line order, then
+    /// `-p` overrides (in order) for this node. Returns the notes on what was ignored.
+    ///
+    /// Unknown parameters are errors in sections for this node and in `-p`; in wildcard
+    /// sections (shared with other nodes) they are ignored with a note. Values of known
+    /// parameters are always checked.
+    pub fn from_ros_args(
+        args: &RosArgs,
+        node: &NodeIdentity,
+    ) -> Result<(ParamSet, Vec<String>), ParamError> {
+        let mut set = ParamSet::defaults();
+        let mut notes = Vec::new();
+        let fqn = node.fqn();
+        for file in &args.params_files {
+            for section in &file.sections {
+                if !node_pattern_matches(&section.node_pattern, &fqn) {
+                    continue;
+                }
+                let wildcard = section.node_pattern.contains('*');
+                let origin = format!(
+                    "params file '{}', section '{}'",
+                    file.path.display(),
+                    section.node_pattern
+                );
+                for (name, value) in &section.params {
+                    if param_spec(name).is_none() {
+                        if let Some(note) = ignored_standard(name) {
+                            notes.push(format!("{origin}: {note}"));
+                            continue;
+                        }
+                        if wildcard {
+                            notes.push(format!(
+                                "{origin}: ignoring parameter '{name}', which {fqn} does not have"
+                            ));
+                            continue;
+                        }
+                    }
+                    let source = ParamSource::File {
+                        path: file.path.clone(),
+                        section: section.node_pattern.clone(),
+                    };
+                    set.set_from(name, value, source)
+                        .map_err(|e| ParamError::From {
+                            name: name.clone(),
+                            origin: origin.clone(),
+                            source: Box::new(e),
+                        })?;
+                }
+            }
+        }
+        for p in &args.params {
+            if let Some(target) = &p.node {
+                if target != &node.name {
+                    continue;
+                }
+            }
+            if param_spec(&p.name).is_none() {
+                if let Some(note) = ignored_standard(&p.name) {
+                    notes.push(format!("-p {}: {note}", p.rule));
+                    continue;
+                }
+            }
+            set.set_from(&p.name, &p.value, ParamSource::CommandLine)
+                .map_err(|e| ParamError::From {
+                    name: p.name.clone(),
+                    origin: format!("-p {}", p.rule),
+                    source: Box::new(e),
+                })?;
+        }
+        Ok((set, notes))
+    }
+}
+
+fn ignored_standard(name: &str) -> Option<String> {
+    if IGNORED_STANDARD_PARAMS.contains(&name) || name.starts_with("qos_overrides.") {
+        Some(format!(
+            "the standard parameter '{name}' is not supported by this node and is ignored"
+        ))
+    } else {
+        None
+    }
+}
