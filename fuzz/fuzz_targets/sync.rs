@@ -4,7 +4,8 @@
 //! most `queue_size` messages per stream; every set has exactly one message per stream, in
 //! stream order, each with the stamp it was pushed with, emitted at most once; exact sets share
 //! one stamp, approximate sets span at most `max_interval`; `pushes == N * matched + dropped +
-//! buffered`; the rejection counters add up to no more than `dropped`.
+//! buffered`; the rejection counters add up to no more than `dropped`; the verdicts of the
+//! pushes, counted, are the synchroniser's counters.
 #![no_main]
 
 use std::collections::HashMap;
@@ -70,6 +71,7 @@ fuzz_target!(|input: Input| {
     let mut stamps: HashMap<usize, i64> = HashMap::new();
     let mut emitted: HashMap<usize, ()> = HashMap::new();
     let mut accepted: u64 = 0;
+    let mut counted = SyncStats::default();
     for (id, (stream, stamp)) in input.pushes.iter().take(2000).enumerate() {
         let stream = usize::from(*stream % (n as u8 + 1)); // n is out of range
         let base = previous.get(stream).copied().unwrap_or(0);
@@ -94,8 +96,10 @@ fuzz_target!(|input: Input| {
         previous[stream] = t;
         stamps.insert(id, t);
         accepted += 1;
-        let sets = result.expect("a valid stream index is never an error");
-        for set in sets {
+        let pushed = result.expect("a valid stream index is never an error");
+        counted.count_push(&pushed);
+        assert_eq!(counted, sync.stats(), "the verdicts, counted, are the counters");
+        for set in pushed.sets {
             assert_eq!(set.messages.len(), n);
             assert_eq!(set.stamps_ns.len(), n);
             for (i, (&(s, msg_id), &stamp)) in set.messages.iter().zip(&set.stamps_ns).enumerate() {

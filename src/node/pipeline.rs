@@ -253,7 +253,7 @@ impl<'a> Pipeline<'a> {
             &after,
             jump,
         ));
-        Ok(sets.into_iter().map(|set| self.on_set(set)).collect())
+        Ok(sets.sets.into_iter().map(|set| self.on_set(set)).collect())
     }
 
     /// What the time rules of the synchroniser did since the last call: one [`Skip`] per
@@ -269,7 +269,7 @@ impl<'a> Pipeline<'a> {
             return Vec::new();
         }
         let sets = self.sync.flush();
-        sets.into_iter().map(|set| self.on_set(set)).collect()
+        sets.sets.into_iter().map(|set| self.on_set(set)).collect()
     }
 
     pub fn sync_stats(&self) -> SyncStats {
