@@ -14,6 +14,7 @@ pub mod io;
 pub mod msgs;
 pub mod node;
 pub mod params;
+pub mod pipeline;
 pub mod ros;
 pub mod sweep;
 pub mod synthetic;

@@ -50,7 +50,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => sweepdepth::bench::run(&args),
         Command::Demo(args) => sweepdepth::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
-        Command::Bag(args) => sweepdepth::bag::process::run(&args),
+        Command::Bag(args) => sweepdepth::bag::process::run(&args).map_err(anyhow::Error::from),
         Command::Pack(args) => sweepdepth::bag::pack::run(&args),
     };
     match result {

@@ -8,8 +8,7 @@ use sweepdepth::bag::BagReader;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::gpu_context::GpuContext;
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use sweepdepth::node::pipeline::{EngineHost, Job, Pipeline};
-use sweepdepth::node::NodeConfig;
+use sweepdepth::pipeline::{EngineHost, Input, Job, Pipeline, PipelineConfig};
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{SweepError, SweepParams};
 use sweepdepth::synthetic::{self, Scene};
@@ -19,27 +18,26 @@ fn root() -> PathBuf {
 }
 
 /// The first job of the Tsukuba bag fixture, through the node's pipeline.
-fn fixture_job(config: &NodeConfig) -> Job {
+fn fixture_job(config: &PipelineConfig) -> Job {
     let mut pipeline = Pipeline::new(config).expect("pipeline");
     let bag = BagReader::open(&root().join("tests/fixtures/bags/tsukuba_half.mcap")).unwrap();
     for m in bag {
         let m = m.unwrap();
-        if m.topic == "/tf_static" {
-            assert!(pipeline
-                .on_tf(&from_cdr::<TFMessage>(&m.data).unwrap())
-                .is_empty());
-        } else if let Some(i) = config.info_topics.iter().position(|t| *t == m.topic) {
-            pipeline.on_info(i, from_cdr::<CameraInfo>(&m.data).unwrap());
-        } else if let Some(i) = config.image_topics.iter().position(|t| *t == m.topic) {
+        let input = if m.topic == "/tf_static" {
+            Input::TfStatic(from_cdr::<TFMessage>(&m.data).unwrap())
+        } else if let Some(camera) = config.info_topics.iter().position(|t| *t == m.topic) {
+            let info = Box::new(from_cdr::<CameraInfo>(&m.data).unwrap());
+            Input::CameraInfo { camera, info }
+        } else if let Some(camera) = config.image_topics.iter().position(|t| *t == m.topic) {
             let image: Image = from_cdr(&m.data).unwrap();
-            if let Some(set) = pipeline
-                .on_image(i, image, m.log_time_ns)
-                .unwrap()
-                .into_iter()
-                .next()
-            {
-                return set.expect("a job");
-            }
+            Input::Image { camera, image }
+        } else {
+            continue;
+        };
+        let outcome = pipeline.push(input, m.log_time_ns);
+        assert!(outcome.notices.is_empty(), "{:?}", outcome.notices);
+        if let Some(set) = outcome.sets.into_iter().next() {
+            return set.expect("a job");
         }
     }
     panic!("no complete set in the fixture");
@@ -52,7 +50,7 @@ fn lost_device_is_recreated_and_the_set_processed() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    let config = NodeConfig::from_args(&args, None).expect("config");
+    let config = PipelineConfig::from_args(&args).expect("config");
     let job = fixture_job(&config);
     let mut host = EngineHost::new().expect("GPU");
     let before = host.process(&job, &config.sweep, false).expect("first run");
@@ -121,7 +119,7 @@ fn transform_changes_apply_from_the_next_set() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    let config = NodeConfig::from_args(&args, None).expect("config");
+    let config = PipelineConfig::from_args(&args).expect("config");
     let mut pipeline = Pipeline::new(&config).expect("pipeline");
     let bag: Vec<_> = BagReader::open(&root().join("tests/fixtures/bags/tsukuba_half.mcap"))
         .unwrap()
@@ -134,18 +132,21 @@ fn transform_changes_apply_from_the_next_set() {
     let mut skips = Vec::new();
     let mut set_index = 0;
     for m in &bag {
-        if let Some(i) = config.info_topics.iter().position(|t| *t == m.topic) {
-            pipeline.on_info(i, from_cdr::<CameraInfo>(&m.data).unwrap());
-        } else if let Some(i) = config.image_topics.iter().position(|t| *t == m.topic) {
+        if let Some(camera) = config.info_topics.iter().position(|t| *t == m.topic) {
+            let info = Box::new(from_cdr::<CameraInfo>(&m.data).unwrap());
+            let _ = pipeline.push(Input::CameraInfo { camera, info }, m.log_time_ns);
+        } else if let Some(camera) = config.image_topics.iter().position(|t| *t == m.topic) {
             let image: Image = from_cdr(&m.data).unwrap();
-            for set in pipeline.on_image(i, image, m.log_time_ns).unwrap() {
+            let outcome = pipeline.push(Input::Image { camera, image }, m.log_time_ns);
+            for set in outcome.sets {
                 match set {
                     Ok(job) => jobs.push(job),
                     Err(skip) => skips.push(skip),
                 }
                 set_index += 1;
                 if set_index == 1 {
-                    assert!(pipeline.on_tf(&tf_msg).is_empty());
+                    let tf = Input::TfStatic(tf_msg.clone());
+                    assert!(pipeline.push(tf, m.log_time_ns).notices.is_empty());
                 } else if set_index == 2 {
                     // cam4 moves 10 cm further right.
                     let mut moved = tf_msg.clone();
@@ -154,7 +155,8 @@ fn transform_changes_apply_from_the_next_set() {
                             t.transform.translation.x += 0.1;
                         }
                     }
-                    assert!(pipeline.on_tf(&moved).is_empty());
+                    let tf = Input::TfStatic(moved);
+                    assert!(pipeline.push(tf, m.log_time_ns).notices.is_empty());
                 }
             }
         }

@@ -4,11 +4,12 @@
 //! parameter, and the pipeline keeps working.
 
 use sweepdepth::msgs::{CameraInfo, Header, Image, RegionOfInterest, Time};
-use sweepdepth::node::pipeline::{Job, Pipeline, Skip};
-use sweepdepth::node::{NodeConfig, NodeError};
-use sweepdepth::ros::sync::TimeRules;
+use sweepdepth::pipeline::{
+    ConfigError, Input, Job, NoticeKind, Outcome, Pipeline, PipelineConfig, Skip, SkipKind,
+};
+use sweepdepth::ros::sync::{SyncStats, TimeRules};
 
-fn config(extra: &[&str]) -> Result<NodeConfig, NodeError> {
+fn config(extra: &[&str]) -> Result<PipelineConfig, ConfigError> {
     let mut args: Vec<String> = ["--ros-args", "-p", "cameras:=[left, mid, right]"]
         .iter()
         .map(|s| s.to_string())
@@ -17,7 +18,7 @@ fn config(extra: &[&str]) -> Result<NodeConfig, NodeError> {
         args.push("-p".into());
         args.push(p.to_string());
     }
-    NodeConfig::from_args(&args, None)
+    PipelineConfig::from_args(&args)
 }
 
 fn stamp(ms: i64) -> Time {
@@ -62,16 +63,35 @@ fn received_ns() -> u64 {
     CLOCK.fetch_add(1_000_000, std::sync::atomic::Ordering::Relaxed)
 }
 
+/// Pushes one image per camera at `ms` and returns the outcomes.
+fn push_set_outcomes(p: &mut Pipeline<'_>, ms: i64, width: u32, height: u32) -> Vec<Outcome> {
+    CAMERAS
+        .iter()
+        .enumerate()
+        .map(|(i, camera)| {
+            let image = image(camera, ms, width, height);
+            p.push(Input::Image { camera: i, image }, received_ns())
+        })
+        .collect()
+}
+
 /// Pushes one image per camera at `ms` and returns the results of the sets completed.
 fn push_set(p: &mut Pipeline<'_>, ms: i64, width: u32, height: u32) -> Vec<Result<Job, Skip>> {
-    let mut out = Vec::new();
-    for (i, camera) in CAMERAS.iter().enumerate() {
-        out.extend(
-            p.on_image(i, image(camera, ms, width, height), received_ns())
-                .unwrap(),
-        );
-    }
-    out
+    push_set_outcomes(p, ms, width, height)
+        .into_iter()
+        .flat_map(|o| o.sets)
+        .collect()
+}
+
+fn set_info(p: &mut Pipeline<'_>, camera: usize, info: CameraInfo) {
+    let outcome = p.push(
+        Input::CameraInfo {
+            camera,
+            info: Box::new(info),
+        },
+        0,
+    );
+    assert!(outcome.sets.is_empty() && outcome.notices.is_empty());
 }
 
 fn only_skip(results: Vec<Result<Job, Skip>>) -> Skip {
@@ -87,12 +107,12 @@ fn camera_info_that_does_not_describe_the_image_skips_the_set() {
     let cfg = config(&["sync:=exact"]).unwrap();
     let mut p = Pipeline::new(&cfg).unwrap();
     for i in 0..3 {
-        p.on_info(i, info(64, 48));
+        set_info(&mut p, i, info(64, 48));
     }
     // Images of 32x24 against CameraInfos of 64x48 without binning: refused, naming the
     // camera and what the CameraInfo says.
     let skip = only_skip(push_set(&mut p, 100, 32, 24));
-    assert_eq!(skip.kind, "camera_info");
+    assert_eq!(skip.kind, SkipKind::CameraInfo);
     assert!(
         skip.message.contains("camera 'left'")
             && skip.message.contains("32x24")
@@ -107,10 +127,10 @@ fn camera_info_that_does_not_describe_the_image_skips_the_set() {
         let mut binned = info(64, 48);
         binned.binning_x = 2;
         binned.binning_y = 2;
-        p.on_info(i, binned);
+        set_info(&mut p, i, binned);
     }
     let skip = only_skip(push_set(&mut p, 200, 32, 24));
-    assert_eq!(skip.kind, "waiting for transform", "{}", skip.message);
+    assert_eq!(skip.kind, SkipKind::WaitingForTransform, "{}", skip.message);
     // So does an ROI of 32x24 (REP 104: the image is the ROI).
     for i in 0..3 {
         let mut roi = info(64, 48);
@@ -121,10 +141,10 @@ fn camera_info_that_does_not_describe_the_image_skips_the_set() {
             height: 24,
             do_rectify: false,
         };
-        p.on_info(i, roi);
+        set_info(&mut p, i, roi);
     }
     let skip = only_skip(push_set(&mut p, 300, 32, 24));
-    assert_eq!(skip.kind, "waiting for transform", "{}", skip.message);
+    assert_eq!(skip.kind, SkipKind::WaitingForTransform, "{}", skip.message);
 }
 
 #[test]
@@ -132,13 +152,13 @@ fn uncalibrated_or_non_finite_camera_info_skips_the_set() {
     let cfg = config(&["sync:=exact"]).unwrap();
     let mut p = Pipeline::new(&cfg).unwrap();
     for i in 0..3 {
-        p.on_info(i, info(64, 48));
+        set_info(&mut p, i, info(64, 48));
     }
     // (Camera 0 is checked first; the others would then wait for /tf_static.)
     let mut zero = info(64, 48);
     zero.k = [0.0; 9];
     zero.p = [0.0; 12];
-    p.on_info(0, zero);
+    set_info(&mut p, 0, zero);
     let skip = only_skip(push_set(&mut p, 100, 64, 48));
     assert!(
         skip.message.contains("camera 'left'") && skip.message.contains("uncalibrated"),
@@ -147,7 +167,7 @@ fn uncalibrated_or_non_finite_camera_info_skips_the_set() {
     );
     let mut nan = info(64, 48);
     nan.d[2] = f64::NAN;
-    p.on_info(0, nan);
+    set_info(&mut p, 0, nan);
     let skip = only_skip(push_set(&mut p, 200, 64, 48));
     assert!(
         skip.message.contains("camera 'left'") && skip.message.contains("D[2] is NaN"),
@@ -157,7 +177,7 @@ fn uncalibrated_or_non_finite_camera_info_skips_the_set() {
     let mut unknown = info(64, 48);
     unknown.distortion_model = "kannala_brandt".into();
     unknown.d = vec![0.1; 8];
-    p.on_info(0, unknown);
+    set_info(&mut p, 0, unknown);
     let skip = only_skip(push_set(&mut p, 300, 64, 48));
     assert!(
         skip.message.contains("camera 'left'") && skip.message.contains("kannala_brandt"),
@@ -171,19 +191,46 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
     for policy in ["sync:=exact", "sync:=approximate"] {
         let cfg = config(&[policy]).unwrap();
         let mut p = Pipeline::new(&cfg).unwrap();
+        let mut stats = SyncStats::default();
         let mut sets = 0;
+        let mut notices = Vec::new();
+        let mut take = |outcomes: Vec<Outcome>, notices: &mut Vec<_>| {
+            let mut n = 0;
+            for o in outcomes {
+                if let Some(v) = &o.sync {
+                    v.count(&mut stats);
+                }
+                n += o.sets.len();
+                notices.extend(o.notices);
+            }
+            n
+        };
         for k in 0..20 {
-            sets += push_set(&mut p, 1000 + 100 * k, 8, 8).len();
+            sets += take(
+                push_set_outcomes(&mut p, 1000 + 100 * k, 8, 8),
+                &mut notices,
+            );
         }
-        assert!(p.take_notices().is_empty(), "{policy}");
+        assert!(notices.is_empty(), "{policy}");
         // A duplicate on mid, a stamp an hour ahead on right.
-        p.on_image(1, image("mid", 2900, 8, 8), received_ns())
-            .unwrap();
-        p.on_image(2, image("right", 3_600_000, 8, 8), received_ns())
-            .unwrap();
-        let notices = p.take_notices();
-        let kinds: Vec<&str> = notices.iter().map(|n| n.kind).collect();
-        assert_eq!(kinds, ["duplicate stamp", "future stamp"], "{policy}");
+        let mid = Input::Image {
+            camera: 1,
+            image: image("mid", 2900, 8, 8),
+        };
+        let right = Input::Image {
+            camera: 2,
+            image: image("right", 3_600_000, 8, 8),
+        };
+        take(
+            vec![p.push(mid, received_ns()), p.push(right, received_ns())],
+            &mut notices,
+        );
+        let kinds: Vec<NoticeKind> = notices.iter().map(|n| n.kind).collect();
+        assert_eq!(
+            kinds,
+            [NoticeKind::DuplicateStamp, NoticeKind::FutureStamp],
+            "{policy}"
+        );
         assert!(
             notices[0].message.contains("camera 'mid'"),
             "{}",
@@ -195,20 +242,22 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
             "{}",
             notices[1].message
         );
+        notices.clear();
         // The bag loops: back to 1000 ms (1.9 s back, more than sync_reset_backwards).
         for k in 0..20 {
-            sets += push_set(&mut p, 1000 + 100 * k, 8, 8).len();
+            sets += take(
+                push_set_outcomes(&mut p, 1000 + 100 * k, 8, 8),
+                &mut notices,
+            );
         }
-        let notices = p.take_notices();
         assert_eq!(notices.len(), 1, "{policy}: {notices:?}");
-        assert_eq!(notices[0].kind, "time reset");
+        assert_eq!(notices[0].kind, NoticeKind::TimeReset);
         assert!(
             notices[0].message.contains("camera 'left'")
                 && notices[0].message.contains("from 2.900 s to 1.000 s"),
             "{}",
             notices[0].message
         );
-        let stats = p.sync_stats();
         assert_eq!(
             (stats.resets, stats.duplicates, stats.future),
             (1, 1, 1),
@@ -222,10 +271,10 @@ fn time_rules_are_reported_per_camera_and_the_pipeline_recovers() {
 #[test]
 fn time_rule_thresholds_come_from_the_parameters() {
     let cfg = config(&[]).unwrap();
-    assert_eq!(cfg.time_rules().unwrap(), TimeRules::default());
+    assert_eq!(cfg.time_rules, TimeRules::default());
     let cfg = config(&["sync_future_window:=2.5", "sync_reset_backwards:=0.25"]).unwrap();
     assert_eq!(
-        cfg.time_rules().unwrap(),
+        cfg.time_rules,
         TimeRules {
             future_window_ns: 2_500_000_000,
             reset_backwards_ns: 250_000_000
@@ -259,7 +308,7 @@ fn inconsistent_engine_parameters_are_refused_at_start_up() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    assert!(NodeConfig::from_args(&args, None).is_ok());
+    assert!(PipelineConfig::from_args(&args).is_ok());
 }
 
 /// The fuzz inputs that crashed `BagReader` (tests/fixtures/fuzz/README.md): each must now end

@@ -227,7 +227,9 @@ fn node_config_accepts_the_params_files() {
         args.push(repo_path(file).display().to_string());
         args.push("-r".into());
         args.push(format!("__ns:={namespace}"));
-        NodeConfig::from_args(&args, None).unwrap_or_else(|e| panic!("{file}: {e}"))
+        NodeConfig::from_args(&args, None)
+            .unwrap_or_else(|e| panic!("{file}: {e}"))
+            .pipeline
     };
 
     let four = config(FOUR_CAMERAS, "/rig");
@@ -244,7 +246,7 @@ fn node_config_accepts_the_params_files() {
         ])
     );
     assert_eq!(four.info_topics[3], "/rig/cam3/camera_info");
-    assert_eq!(four.output_topics[0], "/rig/depth/image");
+    assert_eq!(four.outputs.depth, "/rig/depth/image");
     assert_eq!(four.tf_static_topic, "/tf_static");
 
     let row = config(CAMERA_ROW, "/row");

@@ -5,7 +5,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use sweepdepth::msgs::{from_cdr, Image};
-use sweepdepth::node::convert::image_to_rgba8;
+use sweepdepth::pipeline::convert::image_to_rgba8;
 
 fuzz_target!(|data: &[u8]| {
     let Ok(msg) = from_cdr::<Image>(data) else {

@@ -9,7 +9,7 @@ use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use ros2_client::parameters::ParameterValue as RosValue;
 use sweepdepth::node::params::LiveParams;
-use sweepdepth::node::NodeConfig;
+use sweepdepth::pipeline::PipelineConfig;
 use sweepdepth::params::{apply_to_sweep, param_table, validate, ParamSet, ParamValue};
 use sweepdepth::sweep::SweepParams;
 
@@ -131,8 +131,8 @@ fuzz_target!(|input: Input| {
         args.push("-p".into());
         args.push(format!("{name}:={text}"));
     }
-    if let Ok(config) = NodeConfig::from_args(&args, None) {
+    if let Ok(config) = PipelineConfig::from_args(&args) {
         assert!(config.sweep.min_depth_m < config.sweep.max_depth_m);
-        let _ = config.time_rules();
+        assert!(config.time_rules.future_window_ns > 0 && config.time_rules.reset_backwards_ns > 0);
     }
 });

@@ -1,10 +1,11 @@
 //! rosbag2 bags: reading ([`reader`]: MCAP and sqlite3), writing ([`writer`]: MCAP, lone or as
-//! a rosbag2 directory), `sweepdepth bag` ([`process`]: a bag through the node's pipeline) and
-//! `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
+//! a rosbag2 directory), `sweepdepth bag` ([`process`]: a bag through the node's pipeline,
+//! [`report`]: what it did) and `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
 
 pub mod pack;
 pub mod process;
 pub mod reader;
+pub mod report;
 pub mod schemas;
 pub mod writer;
 

@@ -1,18 +1,21 @@
 //! `sweepdepth bag IN OUT`: a recorded bag through the node's own pipeline
-//! ([`crate::node::pipeline`]: the same synchronisation, extrinsics, engine and output messages
-//! as the live node), every frame set processed (nothing dropped for speed), the outputs written
+//! ([`crate::pipeline`]: the same synchronisation, extrinsics, engine and output messages as
+//! the live node), every frame set processed (nothing dropped for speed), the outputs written
 //! to OUT under the node's topic names.
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{HashMap, HashSet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use crate::node::pipeline::{EngineHost, FrameOutputs, Pipeline};
-use crate::node::NodeConfig;
+use crate::pipeline::{
+    ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
+    PipelineConfig, Skip,
+};
 
+use super::report::BagReport;
 use super::schemas::{CAMERA_INFO, IMAGE, POINT_CLOUD2, TF_MESSAGE};
 use super::{writer, BagError, BagReader, BagWriter};
 
@@ -64,89 +67,31 @@ impl BagArgs {
     }
 }
 
-/// What a bag run did.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct BagReport {
-    /// Messages read from the bag.
-    pub messages: u64,
-    /// Synchronised frame sets found.
-    pub sets_found: u64,
-    pub sets_processed: u64,
-    /// Partial sets the synchroniser abandoned (a camera's image missing).
-    pub sets_incomplete: u64,
-    /// Sets not processed, by reason.
-    pub skipped: BTreeMap<String, u64>,
-    /// Messages that could not be decoded or had the wrong type, by topic.
-    pub bad_messages: BTreeMap<String, u64>,
-    /// Images the synchroniser's time rules dropped (duplicate, late, future stamps) and its
-    /// resets (time going backwards), by kind.
-    pub dropped_images: BTreeMap<String, u64>,
-    /// Topics of the bag the pipeline does not read.
-    pub ignored_topics: Vec<String>,
-    pub mean_time_per_set: Option<Duration>,
-    /// Read errors (a truncated or corrupt file: each names the file and byte offset); reading
-    /// goes on at the next intact chunk where the file allows.
-    pub read_errors: Vec<String>,
-    pub output: Option<super::WriteSummary>,
-}
-
-impl BagReport {
-    /// The one-line summary printed at the end.
-    pub fn summary_line(&self) -> String {
-        let skipped: u64 = self.skipped.values().sum();
-        let mut s = format!(
-            "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
-            self.sets_found, self.sets_processed, self.sets_incomplete, skipped
-        );
-        if skipped > 0 {
-            let reasons: Vec<String> = self
-                .skipped
-                .iter()
-                .map(|(k, n)| format!("{n} {k}"))
-                .collect();
-            s += &format!(" ({})", reasons.join(", "));
-        }
-        if !self.dropped_images.is_empty() {
-            let parts: Vec<String> = self
-                .dropped_images
-                .iter()
-                .map(|(k, n)| format!("{n} {k}"))
-                .collect();
-            s += &format!(", time rules: {}", parts.join(", "));
-        }
-        if !self.read_errors.is_empty() {
-            s += &format!(", {} read errors (damaged bag)", self.read_errors.len());
-        }
-        if !self.bad_messages.is_empty() {
-            let bad: u64 = self.bad_messages.values().sum();
-            s += &format!(", {bad} unreadable messages");
-        }
-        match self.mean_time_per_set {
-            Some(t) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
-            None => s += "; no set processed",
-        }
-        if let Some(out) = &self.output {
-            s += &format!(
-                "; wrote {} messages to {}",
-                out.messages,
-                out.path.display()
-            );
-        }
-        s
-    }
-}
-
 /// Errors that end a bag run.
 #[derive(Debug, thiserror::Error)]
 pub enum BagRunError {
     #[error(transparent)]
     Bag(#[from] BagError),
     #[error(transparent)]
-    Node(#[from] crate::node::NodeError),
+    Config(#[from] ConfigError),
     #[error("GPU: {0}")]
-    Gpu(String),
-    #[error("{0}")]
-    NoInput(String),
+    Gpu(#[from] HostError),
+    #[error("{bag}: none of the image topics [{}] is in the bag (set `cameras`/`image_topic` or remap); the bag has: {}", wanted.join(", "), found.join(", "))]
+    NoInput {
+        bag: String,
+        wanted: Vec<String>,
+        /// `topic (type)` of every topic in the bag.
+        found: Vec<String>,
+    },
+    #[error("the bag is damaged ({count} read errors, the first: {first}); the {sets} sets that could be read are in {output}")]
+    Damaged {
+        count: usize,
+        first: String,
+        sets: u64,
+        output: String,
+    },
+    #[error("no frame set could be processed ({found} found{}{})", if reasons.is_empty() { "" } else { "; skipped for: " }, reasons.join(", "))]
+    NothingProcessed { found: u64, reasons: Vec<String> },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -168,7 +113,7 @@ fn warn(bar: &ProgressBar, seen: &mut HashSet<String>, msg: &str) {
 
 /// Where the sets go: the engine, the output bag, the report.
 struct Sink<'a> {
-    config: &'a NodeConfig,
+    config: &'a PipelineConfig,
     host: EngineHost,
     writer: BagWriter,
     report: BagReport,
@@ -188,37 +133,41 @@ impl Sink<'_> {
         warn(&self.bar, &mut self.seen, message);
     }
 
+    /// What one input gave: logged, counted, and its sets processed (outputs written at
+    /// `log_time_ns`).
+    fn outcome(&mut self, outcome: Outcome, log_time_ns: u64) -> Result<(), BagError> {
+        for event in &outcome.rig_events {
+            self.bar.suspend(|| tracing::warn!("{event}"));
+        }
+        for notice in &outcome.notices {
+            warn(&self.bar, &mut self.seen, &notice.message);
+        }
+        if let Some(verdict) = &outcome.sync {
+            verdict.count(&mut self.report.sync);
+        }
+        for set in outcome.sets {
+            self.set(set, log_time_ns)?;
+        }
+        Ok(())
+    }
+
     /// Processes one synchronised set (or records why not), writing its outputs at `log_time_ns`.
-    fn set(
-        &mut self,
-        set: Result<crate::node::pipeline::Job, crate::node::pipeline::Skip>,
-        log_time_ns: u64,
-    ) -> Result<(), BagError> {
+    fn set(&mut self, set: Result<Job, Skip>, log_time_ns: u64) -> Result<(), BagError> {
         let config = self.config;
         self.report.sets_found += 1;
         let t0 = Instant::now();
         let result = set.and_then(|job| {
             self.host
-                .process(&job, &config.sweep, config.publish_points)
+                .process(&job, &config.sweep, config.outputs.points.is_some())
         });
         match result {
             Ok(out) => {
-                write_outputs(
-                    &mut self.writer,
-                    &config.output_topics,
-                    &config.points_topic,
-                    log_time_ns,
-                    &out,
-                )?;
+                write_outputs(&mut self.writer, &config.outputs, log_time_ns, &out)?;
                 self.busy += t0.elapsed();
                 self.report.sets_processed += 1;
             }
             Err(skip) => {
-                *self
-                    .report
-                    .skipped
-                    .entry(skip.kind.to_string())
-                    .or_default() += 1;
+                *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
                 warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
             }
         }
@@ -229,18 +178,17 @@ impl Sink<'_> {
 /// Writes the outputs of one set.
 fn write_outputs(
     writer: &mut BagWriter,
-    topics: &[String; 5],
-    points_topic: &str,
+    topics: &OutputTopics,
     log_time_ns: u64,
     out: &FrameOutputs,
 ) -> Result<(), BagError> {
-    writer.write_msg(&topics[0], log_time_ns, &out.depth)?;
-    writer.write_msg(&topics[1], log_time_ns, &out.depth_info)?;
-    writer.write_msg(&topics[2], log_time_ns, &out.confidence)?;
-    writer.write_msg(&topics[3], log_time_ns, &out.cost)?;
-    writer.write_msg(&topics[4], log_time_ns, &out.selection)?;
-    if let Some(points) = &out.points {
-        writer.write_msg(points_topic, log_time_ns, points)?;
+    writer.write_msg(&topics.depth, log_time_ns, &out.depth)?;
+    writer.write_msg(&topics.depth_info, log_time_ns, &out.depth_info)?;
+    writer.write_msg(&topics.confidence, log_time_ns, &out.confidence)?;
+    writer.write_msg(&topics.cost, log_time_ns, &out.cost)?;
+    writer.write_msg(&topics.selection, log_time_ns, &out.selection)?;
+    if let (Some(topic), Some(points)) = (&topics.points, &out.points) {
+        writer.write_msg(topic, log_time_ns, points)?;
     }
     Ok(())
 }
@@ -267,7 +215,7 @@ fn progress_bar(total: Option<u64>) -> ProgressBar {
 /// through `tracing`. Returns the report also when reading stopped at a damaged part of the
 /// bag (then `read_errors` says where, and everything readable is in OUT).
 pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
-    let config = NodeConfig::from_args(&args.ros_args(), None)?;
+    let config = PipelineConfig::from_args(&args.ros_args())?;
     for note in &config.notes {
         tracing::info!("{note}");
     }
@@ -313,16 +261,14 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
             .filter(|t| !known.iter().any(|k| &k.name == *t) || wrong_type.contains(*t))
             .collect();
         if missing.len() == config.image_topics.len() {
-            let have: Vec<String> = known
-                .iter()
-                .map(|t| format!("{} ({})", t.name, t.msg_type))
-                .collect();
-            return Err(BagRunError::NoInput(format!(
-                "{}: none of the image topics [{}] is in the bag (set `cameras`/`image_topic` or remap); the bag has: {}",
-                args.input.display(),
-                config.image_topics.join(", "),
-                have.join(", ")
-            )));
+            return Err(BagRunError::NoInput {
+                bag: args.input.display().to_string(),
+                wanted: config.image_topics.clone(),
+                found: known
+                    .iter()
+                    .map(|t| format!("{} ({})", t.name, t.msg_type))
+                    .collect(),
+            });
         }
         for m in missing {
             tracing::warn!("image topic {m} is not in the bag; sets need every camera");
@@ -334,18 +280,25 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         .find(|t| &t.name == ref_topic)
         .and_then(|t| t.count);
 
-    let host = EngineHost::new().map_err(BagRunError::Gpu)?;
+    let host = EngineHost::new()?;
     tracing::info!("GPU adapter: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
-    for (k, topic) in config.output_topics.iter().enumerate() {
-        writer.add_topic(topic, if k == 1 { CAMERA_INFO } else { IMAGE }, None)?;
+    let outputs = &config.outputs;
+    for topic in [
+        &outputs.depth,
+        &outputs.confidence,
+        &outputs.cost,
+        &outputs.selection,
+    ] {
+        writer.add_topic(topic, IMAGE, None)?;
     }
-    if config.publish_points {
-        writer.add_topic(&config.points_topic, POINT_CLOUD2, None)?;
+    writer.add_topic(&outputs.depth_info, CAMERA_INFO, None)?;
+    if let Some(points) = &outputs.points {
+        writer.add_topic(points, POINT_CLOUD2, None)?;
     }
 
-    let mut pipeline = Pipeline::new(&config)?;
+    let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
     let mut sink = Sink {
         config: &config,
         host,
@@ -389,77 +342,41 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
                 .or_default() += 1;
             continue;
         }
-        let position = format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
-        match route {
-            Route::Info(i) => match from_cdr::<CameraInfo>(&msg.data) {
-                Ok(info) => pipeline.on_info(i, info),
-                Err(e) => {
-                    sink.bad_message(
-                        &msg.topic,
-                        &format!("cannot decode CameraInfo on {position}: {e}"),
-                    );
-                }
-            },
-            Route::Tf => match from_cdr::<TFMessage>(&msg.data) {
-                Ok(tf) => {
-                    for e in pipeline.on_tf(&tf) {
-                        warn(&sink.bar, &mut sink.seen, &format!("{}: {e}", msg.topic));
-                    }
-                }
-                Err(e) => {
-                    sink.bad_message(
-                        &msg.topic,
-                        &format!("cannot decode TFMessage on {position}: {e}"),
-                    );
-                }
-            },
-            Route::Image(i) => {
-                if i == config.reference {
-                    sink.bar.inc(1);
-                }
-                let image = match from_cdr::<Image>(&msg.data) {
-                    Ok(image) => image,
-                    Err(e) => {
-                        sink.bad_message(
-                            &msg.topic,
-                            &format!("cannot decode Image on {position}: {e}"),
-                        );
-                        continue;
-                    }
-                };
-                let result = pipeline.on_image(i, image, msg.log_time_ns);
-                for event in pipeline.take_events() {
-                    sink.bar.suspend(|| tracing::warn!("{event}"));
-                }
-                for notice in pipeline.take_notices() {
-                    *sink
-                        .report
-                        .dropped_images
-                        .entry(notice.kind.to_string())
-                        .or_default() += 1;
-                    warn(&sink.bar, &mut sink.seen, &notice.message);
-                }
-                let sets = match result {
-                    Ok(sets) => sets,
-                    Err(e) => {
-                        warn(&sink.bar, &mut sink.seen, &format!("synchroniser: {e}"));
-                        continue;
-                    }
-                };
-                for set in sets {
-                    sink.set(set, msg.log_time_ns)?;
-                }
-                let done = sink.report.sets_processed;
-                let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
-                sink.bar
-                    .set_message(format!("{done} sets, {rate:.2} sets/s"));
+        if route == Route::Image(config.reference) {
+            sink.bar.inc(1);
+        }
+        let position = || format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
+        let input = match route {
+            Route::Info(camera) => from_cdr::<CameraInfo>(&msg.data)
+                .map(|info| Input::CameraInfo {
+                    camera,
+                    info: Box::new(info),
+                })
+                .map_err(|e| format!("cannot decode CameraInfo on {}: {e}", position())),
+            Route::Tf => from_cdr::<TFMessage>(&msg.data)
+                .map(Input::TfStatic)
+                .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
+            Route::Image(camera) => from_cdr::<Image>(&msg.data)
+                .map(|image| Input::Image { camera, image })
+                .map_err(|e| format!("cannot decode Image on {}: {e}", position())),
+        };
+        let input = match input {
+            Ok(input) => input,
+            Err(message) => {
+                sink.bad_message(&msg.topic, &message);
+                continue;
             }
+        };
+        sink.outcome(pipeline.push(input, msg.log_time_ns), msg.log_time_ns)?;
+        if matches!(route, Route::Image(_)) {
+            let done = sink.report.sets_processed;
+            let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
+            sink.bar
+                .set_message(format!("{done} sets, {rate:.2} sets/s"));
         }
     }
     // The sets the synchroniser held back waiting for later messages that never came.
-    for set in pipeline.finish() {
-        sink.set(set, last_log_ns)?;
-    }
+    sink.outcome(pipeline.finish(), last_log_ns)?;
     let Sink {
         writer,
         mut report,
@@ -468,7 +385,6 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         ..
     } = sink;
     bar.finish_and_clear();
-    report.sets_incomplete = pipeline.sync_stats().incomplete;
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
@@ -476,38 +392,31 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
     Ok(report)
 }
 
-/// The `bag` subcommand: prints the summary; fails when the bag is damaged or nothing usable
-/// was in it.
-pub fn run(args: &BagArgs) -> anyhow::Result<()> {
+/// The `bag` subcommand: prints the summary; fails when the bag is damaged (with `--strict`,
+/// or when nothing could be read) or nothing usable was in it.
+pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
     let report = process_bag(args)?;
     eprintln!("{}", report.summary_line());
     if !report.ignored_topics.is_empty() {
         tracing::info!("topics not read: {}", report.ignored_topics.join(", "));
     }
     if let Some(first) = report.read_errors.first() {
-        let what = format!(
-            "the bag is damaged ({} read errors, the first: {first}); the {} sets that could be read are in {}",
-            report.read_errors.len(),
-            report.sets_processed,
-            args.output.display()
-        );
+        let damaged = BagRunError::Damaged {
+            count: report.read_errors.len(),
+            first: first.clone(),
+            sets: report.sets_processed,
+            output: args.output.display().to_string(),
+        };
         if args.strict || report.sets_processed == 0 {
-            anyhow::bail!("{what}");
+            return Err(damaged);
         }
-        tracing::warn!("{what}");
+        tracing::warn!("{damaged}");
     }
     if report.sets_processed == 0 {
-        let reasons: Vec<String> = report.skipped.keys().cloned().collect();
-        anyhow::bail!(
-            "no frame set could be processed ({} found{}{})",
-            report.sets_found,
-            if reasons.is_empty() {
-                ""
-            } else {
-                "; skipped for: "
-            },
-            reasons.join(", ")
-        );
+        return Err(BagRunError::NothingProcessed {
+            found: report.sets_found,
+            reasons: report.skipped.keys().map(|k| k.to_string()).collect(),
+        });
     }
     Ok(())
 }

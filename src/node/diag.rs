@@ -1,26 +1,30 @@
-//! Run-time statistics of the node and the `/diagnostics` message built from them (no DDS,
-//! unit-tested).
+//! Run-time statistics of the node ([`Stats`]: input rates, the synchroniser's verdicts
+//! counted, GPU drops, processing time, latency), the `/diagnostics` message built from them
+//! (unit-tested), and the thread that publishes it once a second.
 
 use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
-use crate::ros::sync::{SyncStats, TimeJump};
+use ros2_client::Publisher;
 
-use super::pipeline::Skip;
-use super::NodeConfig;
+use super::log::{lock, RateLimited};
+use super::{NodeConfig, Shared};
+use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
+use crate::ros::sync::SyncStats;
 
 /// Window of the input rates.
 pub const RATE_WINDOW: Duration = Duration::from_secs(1);
 /// No set published for this long makes the status WARN.
 pub const STALE_AFTER: Duration = Duration::from_secs(5);
 
-/// Counters shared by the executor (inputs, sync), the GPU worker (processing, publishing)
-/// and the diagnostics publisher.
+/// Counters shared by the executor (inputs, the synchroniser's verdicts), the GPU worker
+/// (processing, publishing) and the diagnostics publisher.
 #[derive(Debug)]
 pub struct Stats {
     /// Arrival times of the images of each camera within the last [`RATE_WINDOW`].
     arrivals: Vec<VecDeque<Instant>>,
+    /// The synchroniser's verdicts, counted ([`crate::pipeline::SyncVerdict::count`]).
     pub sync: SyncStats,
     pub gpu_dropped: u64,
     pub published: u64,
@@ -199,74 +203,6 @@ impl Stats {
     }
 }
 
-/// What the synchroniser's time rules did with the image of camera `i` stamped `stamp` (the
-/// counters before and after its push, the latest reset): one [`Skip`] per dropped image
-/// (duplicate, late, far-future stamp) and per reset, naming the camera, with keys per camera
-/// and rule for rate-limited logging.
-pub fn time_rule_notices(
-    config: &NodeConfig,
-    i: usize,
-    stamp: Time,
-    before: &SyncStats,
-    after: &SyncStats,
-    last_reset: Option<TimeJump>,
-) -> Vec<Skip> {
-    let camera = |i: usize| config.cameras.get(i).map_or("?", String::as_str);
-    let secs = |ns: i64| ns as f64 / 1e9;
-    let t = secs(stamp.to_nanos());
-    let mut notices = Vec::new();
-    if after.resets > before.resets {
-        let (from, to, name) = match last_reset {
-            Some(j) => (secs(j.from_ns), secs(j.to_ns), camera(j.stream)),
-            None => (t, t, camera(i)),
-        };
-        notices.push(Skip {
-            kind: "time reset",
-            key: "time_reset".into(),
-            message: format!(
-                "camera '{name}': time went backwards from {from:.3} s to {to:.3} s (by {:.3} s, more than sync_reset_backwards; a bag played in a loop?): the synchroniser was reset and the queued images dropped",
-                from - to
-            ),
-        });
-    }
-    let mut note = |kind: &'static str, key: &str, what: String| {
-        notices.push(Skip {
-            kind,
-            key: format!("{key}{i}"),
-            message: format!(
-                "camera '{}': image stamped {t:.3} s {what}; dropped",
-                camera(i)
-            ),
-        });
-    };
-    if after.duplicates > before.duplicates {
-        note(
-            "duplicate stamp",
-            "time_duplicate",
-            "repeats the camera's previous stamp".into(),
-        );
-    }
-    if after.out_of_order > before.out_of_order {
-        note(
-            "late stamp",
-            "time_late",
-            "is older than the camera's previous image (or from before a reset)".into(),
-        );
-    }
-    if after.future > before.future {
-        let window = config
-            .params
-            .get_f64("sync_future_window")
-            .unwrap_or(f64::NAN);
-        note(
-            "future stamp",
-            "time_future",
-            format!("is more than {window} s (sync_future_window) ahead of every other camera"),
-        );
-    }
-    notices
-}
-
 /// The wall-clock time now, as a ROS stamp.
 pub fn wall_time_now() -> Time {
     let d = std::time::SystemTime::now()
@@ -275,6 +211,45 @@ pub fn wall_time_now() -> Time {
     Time {
         sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
         nanosec: d.subsec_nanos(),
+    }
+}
+
+/// Publishes `/diagnostics` once a second until `stop` is set.
+pub(super) fn publish_loop(
+    config: &NodeConfig,
+    shared: &Shared<'_>,
+    publisher: Publisher<DiagnosticArray>,
+    stop: &AtomicBool,
+) {
+    let fqn = config.pipeline.identity.fqn();
+    let mut next = Instant::now() + Duration::from_secs(1);
+    let mut log = RateLimited::default();
+    while !stop.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep((next - now).min(Duration::from_millis(100)));
+            continue;
+        }
+        next += Duration::from_secs(1);
+        if next < now {
+            next = now + Duration::from_secs(1);
+        }
+        let msg = {
+            let mut stats = lock(shared.stats);
+            stats.gpu_dropped = shared.slot.dropped();
+            stats.diagnostics(
+                &fqn,
+                &config.pipeline.cameras,
+                shared.adapter,
+                now,
+                wall_time_now(),
+            )
+        };
+        if let Err(e) = publisher.publish(msg) {
+            log.warn("diagnostics", || {
+                format!("publishing /diagnostics failed: {e:?}")
+            });
+        }
     }
 }
 

@@ -6,7 +6,9 @@
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use ros2_client::parameters::ParameterValue as RosValue;
+use ros2_client::NodeOptions;
 
+use super::log::{log_info, node_log};
 use crate::geometry::Rig;
 use crate::params::checks::{check_change, shape_rig};
 use crate::params::{ParamSet, ParamValue};
@@ -132,6 +134,39 @@ impl LiveParams {
         *lock(&self.sweep) = sweep;
         Ok(changed)
     }
+}
+
+/// The node's options: rosout on, parameter services with every parameter of the table
+/// declared, sets validated and applied by [`LiveParams`].
+pub(super) fn node_options(live: &Arc<LiveParams>) -> NodeOptions {
+    let mut options = NodeOptions::new()
+        .enable_rosout(true)
+        .start_parameter_services(true)
+        .allow_undeclared_parameters(false);
+    for (name, value) in live.declarations() {
+        options = options.declare_parameter(&name, value);
+    }
+    let validator = Arc::clone(live);
+    let action = Arc::clone(live);
+    options
+        .parameter_validator(Box::new(move |name, value| {
+            let r = validator.check(name, value);
+            if let Err(e) = &r {
+                node_log(
+                    tracing::Level::WARN,
+                    &format!("rejected setting parameter '{name}' to {value:?}: {e}"),
+                );
+            }
+            r
+        }))
+        .parameter_set_action(Box::new(move |name, value| {
+            if action.apply(name, value)? {
+                log_info(&format!(
+                    "parameter '{name}' set to {value:?} (used from the next frame set on)"
+                ));
+            }
+            Ok(())
+        }))
 }
 
 #[cfg(test)]

@@ -1,93 +1,144 @@
-//! A one-slot hand-over from the executor to the GPU worker thread: the newest complete set
-//! replaces a pending one (which is counted as dropped).
+//! The GPU thread: owns the [`EngineHost`], takes the newest set from the [`LatestSlot`], runs
+//! it with the engine parameters of the moment and publishes its outputs.
 
-use std::sync::{Condvar, Mutex};
+use std::sync::{mpsc, Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Instant;
 
-struct Slot<T> {
-    pending: Option<T>,
-    closed: bool,
-    dropped: u64,
+use ros2_client::Publisher;
+
+use super::diag::{wall_time_now, Stats};
+use super::log::{lock, log_info, RateLimited};
+use super::params::LiveParams;
+use super::slot::LatestSlot;
+use super::NodeError;
+use crate::msgs::{CameraInfo, Image, PointCloud2};
+use crate::pipeline::{EngineHost, Job};
+
+/// The publishers of one set's outputs (made once DDS is up, then handed to the thread).
+pub(super) struct Publishers {
+    pub depth: Publisher<Image>,
+    pub depth_info: Publisher<CameraInfo>,
+    pub confidence: Publisher<Image>,
+    pub cost: Publisher<Image>,
+    pub selection: Publisher<Image>,
+    pub points: Option<Publisher<PointCloud2>>,
 }
 
-/// Capacity-1 "latest wins" channel.
-pub struct LatestSlot<T> {
-    slot: Mutex<Slot<T>>,
-    ready: Condvar,
+/// The running GPU thread.
+pub(super) struct GpuThread {
+    pub handle: JoinHandle<()>,
+    /// The adapter the engine runs on.
+    pub adapter: String,
+    /// Where the publishers go once DDS is up; the thread waits for them.
+    pub publishers: mpsc::Sender<Publishers>,
 }
 
-impl<T> Default for LatestSlot<T> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl<T> LatestSlot<T> {
-    pub fn new() -> Self {
-        Self {
-            slot: Mutex::new(Slot {
-                pending: None,
-                closed: false,
-                dropped: 0,
-            }),
-            ready: Condvar::new(),
+/// Starts the GPU thread and waits until its engine is up (so that a missing adapter fails
+/// before DDS comes up).
+pub(super) fn spawn(
+    slot: Arc<LatestSlot<Job>>,
+    live: Arc<LiveParams>,
+    stats: Arc<Mutex<Stats>>,
+) -> Result<GpuThread, NodeError> {
+    let (init_tx, init_rx) = mpsc::channel::<Result<String, String>>();
+    let (publishers_tx, publishers_rx) = mpsc::channel::<Publishers>();
+    let handle = std::thread::Builder::new()
+        .name("sweepdepth-gpu".into())
+        .spawn(move || {
+            let host = match EngineHost::new() {
+                Ok(host) => host,
+                Err(e) => {
+                    let _ = init_tx.send(Err(e.to_string()));
+                    return;
+                }
+            };
+            let _ = init_tx.send(Ok(host.adapter_label()));
+            let Ok(publishers) = publishers_rx.recv() else {
+                return;
+            };
+            worker_loop(&slot, &live, &stats, host, &publishers);
+        })
+        .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
+    let adapter = match init_rx.recv() {
+        Ok(Ok(adapter)) => adapter,
+        Ok(Err(e)) => return Err(NodeError::Gpu(e)),
+        Err(_) => {
+            return Err(NodeError::Gpu(
+                "the GPU thread ended during start-up".into(),
+            ))
         }
-    }
+    };
+    Ok(GpuThread {
+        handle,
+        adapter,
+        publishers: publishers_tx,
+    })
+}
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, Slot<T>> {
-        // A poisoned lock only means a holder panicked; the slot itself is always consistent.
-        self.slot.lock().unwrap_or_else(|e| e.into_inner())
-    }
-
-    /// Offers `item`; returns true if it replaced a pending one (that one is dropped).
-    pub fn offer(&self, item: T) -> bool {
-        let mut slot = self.lock();
-        let replaced = slot.pending.replace(item).is_some();
-        if replaced {
-            slot.dropped += 1;
-        }
-        drop(slot);
-        self.ready.notify_one();
-        replaced
-    }
-
-    /// Blocks until an item is pending (Some) or the slot is closed (None).
-    pub fn take(&self) -> Option<T> {
-        let mut slot = self.lock();
-        loop {
-            if let Some(item) = slot.pending.take() {
-                return Some(item);
+fn worker_loop(
+    slot: &LatestSlot<Job>,
+    live: &LiveParams,
+    stats: &Mutex<Stats>,
+    mut host: EngineHost,
+    publishers: &Publishers,
+) {
+    let mut log = RateLimited::default();
+    let mut published: u64 = 0;
+    while let Some(job) = slot.take() {
+        let started = Instant::now();
+        // Parameter changes apply from the next set on.
+        let sweep = live.sweep();
+        let out = match host.process(&job, &sweep, publishers.points.is_some()) {
+            Ok(out) => out,
+            Err(skip) => {
+                log.warn(&skip.key(), || format!("{skip}; skipping this set"));
+                continue;
             }
-            if slot.closed {
-                return None;
+        };
+        let stamp = out.header.stamp;
+        let points = match (&publishers.points, out.points) {
+            (Some(publisher), Some(cloud)) => Some(
+                publisher
+                    .publish(cloud)
+                    .map_err(|e| format!("points: {e:?}")),
+            ),
+            _ => None,
+        };
+        let results = [
+            publishers
+                .depth
+                .publish(out.depth)
+                .map_err(|e| format!("depth/image: {e:?}")),
+            publishers
+                .depth_info
+                .publish(out.depth_info)
+                .map_err(|e| format!("depth/camera_info: {e:?}")),
+            publishers
+                .confidence
+                .publish(out.confidence)
+                .map_err(|e| format!("confidence/image: {e:?}")),
+            publishers
+                .cost
+                .publish(out.cost)
+                .map_err(|e| format!("cost/image: {e:?}")),
+            publishers
+                .selection
+                .publish(out.selection)
+                .map_err(|e| format!("selection/image: {e:?}")),
+        ];
+        for r in results.into_iter().chain(points) {
+            if let Err(e) = r {
+                log.warn("publish", || format!("publish failed: {e}"));
             }
-            slot = self.ready.wait(slot).unwrap_or_else(|e| e.into_inner());
         }
-    }
-
-    /// Wakes the taker; later `take`s return None once the slot is empty.
-    pub fn close(&self) {
-        self.lock().closed = true;
-        self.ready.notify_all();
-    }
-
-    /// Sets replaced before the worker took them.
-    pub fn dropped(&self) -> u64 {
-        self.lock().dropped
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn newest_replaces_pending() {
-        let slot = LatestSlot::new();
-        assert!(!slot.offer(1));
-        assert!(slot.offer(2));
-        assert_eq!(slot.take(), Some(2));
-        assert_eq!(slot.dropped(), 1);
-        slot.close();
-        assert_eq!(slot.take(), None);
+        lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
+        published += 1;
+        if published == 1 || published % 100 == 0 {
+            log_info(&format!(
+                "published {published} depth images ({} sets dropped waiting for the GPU)",
+                slot.dropped()
+            ));
+        }
     }
 }

@@ -1,4 +1,6 @@
-//! Conversions between ROS image messages and the engine's images (no DDS, unit-tested).
+//! Conversions between ROS image messages and the engine's images: input images checked
+//! ([`check_image`]) and converted ([`image_to_rgba8`]); depth, confidence, cost and selection
+//! maps and point clouds out. No DDS, unit-tested.
 
 use glam::DVec2;
 
@@ -59,14 +61,19 @@ fn bytes_per_pixel(encoding: &str) -> Option<u32> {
     }
 }
 
-/// Converts a `sensor_msgs/Image` (rgb8, bgr8, rgba8, bgra8, mono8, mono16) into an
-/// [`Rgba8Image`], honouring `step` and, for mono16, `is_bigendian` (any non-zero value is
-/// big-endian; scaled to 8 bits by the high byte). The last row may omit its padding.
-///
-/// Never panics and never allocates more than the message's data justifies: the encoding, the
-/// size (non-zero, at most [`MAX_IMAGE_SIDE`] per side), `step` (at least one row) and the data
-/// length (at least `step * (height - 1) + row`, computed in `u64`) are checked first.
-pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertError> {
+/// The layout of a valid image message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ImageLayout {
+    pub bytes_per_pixel: u32,
+    /// Bytes of pixels in one row (without padding).
+    pub row_bytes: u64,
+}
+
+/// Checks the header of an image message against its data, as [`image_to_rgba8`] needs it:
+/// a supported encoding, a size that is non-zero and at most [`MAX_IMAGE_SIDE`] per side,
+/// `step` at least one row, and at least `step * (height - 1) + row` data bytes (computed in
+/// `u64`). The pipeline checks this when a set is formed; nothing is allocated.
+pub fn check_image(camera: &str, msg: &Image) -> Result<ImageLayout, ConvertError> {
     let bpp = bytes_per_pixel(&msg.encoding).ok_or_else(|| ConvertError::UnsupportedEncoding {
         camera: camera.to_string(),
         encoding: msg.encoding.clone(),
@@ -110,6 +117,24 @@ pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertEr
             needed,
         });
     }
+    Ok(ImageLayout {
+        bytes_per_pixel: bpp,
+        row_bytes,
+    })
+}
+
+/// Converts a `sensor_msgs/Image` (rgb8, bgr8, rgba8, bgra8, mono8, mono16) into an
+/// [`Rgba8Image`], honouring `step` and, for mono16, `is_bigendian` (any non-zero value is
+/// big-endian; scaled to 8 bits by the high byte). The last row may omit its padding.
+///
+/// Never panics and never allocates more than the message's data justifies: the header is
+/// checked first ([`check_image`]).
+pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertError> {
+    let ImageLayout {
+        bytes_per_pixel: bpp,
+        row_bytes,
+    } = check_image(camera, msg)?;
+    let (width, height, step) = (msg.width, msg.height, msg.step);
     // From here every row lies inside `data` (checked above), so the sizes fit in usize.
     let big_endian = msg.is_bigendian != 0;
     let pixel = |p: &[u8]| -> u32 {

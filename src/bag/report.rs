@@ -1,0 +1,83 @@
+//! What a `sweepdepth bag` run did ([`BagReport`]) and its one-line summary.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use crate::pipeline::NoticeKind;
+use crate::ros::sync::SyncStats;
+
+/// What a bag run did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BagReport {
+    /// Messages read from the bag.
+    pub messages: u64,
+    /// Synchronised frame sets found.
+    pub sets_found: u64,
+    pub sets_processed: u64,
+    /// Sets not processed, by reason ([`crate::pipeline::SkipKind::label`]).
+    pub skipped: BTreeMap<&'static str, u64>,
+    /// Messages that could not be decoded or had the wrong type, by topic.
+    pub bad_messages: BTreeMap<String, u64>,
+    /// The synchroniser's verdicts, counted: partial sets it abandoned (a camera's image
+    /// missing), images its time rules dropped (duplicate, late, future stamps), its resets
+    /// (time going backwards).
+    pub sync: SyncStats,
+    /// Topics of the bag the pipeline does not read.
+    pub ignored_topics: Vec<String>,
+    pub mean_time_per_set: Option<Duration>,
+    /// Read errors (a truncated or corrupt file: each names the file and byte offset); reading
+    /// goes on at the next intact chunk where the file allows.
+    pub read_errors: Vec<String>,
+    pub output: Option<super::WriteSummary>,
+}
+
+impl BagReport {
+    /// The one-line summary printed at the end.
+    pub fn summary_line(&self) -> String {
+        let skipped: u64 = self.skipped.values().sum();
+        let mut s = format!(
+            "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
+            self.sets_found, self.sets_processed, self.sync.incomplete, skipped
+        );
+        if skipped > 0 {
+            let reasons: Vec<String> = self
+                .skipped
+                .iter()
+                .map(|(k, n)| format!("{n} {k}"))
+                .collect();
+            s += &format!(" ({})", reasons.join(", "));
+        }
+        let time_rules: Vec<String> = [
+            (self.sync.duplicates, NoticeKind::DuplicateStamp),
+            (self.sync.future, NoticeKind::FutureStamp),
+            (self.sync.out_of_order, NoticeKind::LateStamp),
+            (self.sync.resets, NoticeKind::TimeReset),
+        ]
+        .iter()
+        .filter(|(n, _)| *n > 0)
+        .map(|(n, kind)| format!("{n} {}", kind.label()))
+        .collect();
+        if !time_rules.is_empty() {
+            s += &format!(", time rules: {}", time_rules.join(", "));
+        }
+        if !self.read_errors.is_empty() {
+            s += &format!(", {} read errors (damaged bag)", self.read_errors.len());
+        }
+        if !self.bad_messages.is_empty() {
+            let bad: u64 = self.bad_messages.values().sum();
+            s += &format!(", {bad} unreadable messages");
+        }
+        match self.mean_time_per_set {
+            Some(t) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
+            None => s += "; no set processed",
+        }
+        if let Some(out) = &self.output {
+            s += &format!(
+                "; wrote {} messages to {}",
+                out.messages,
+                out.path.display()
+            );
+        }
+        s
+    }
+}

@@ -1,0 +1,257 @@
+//! The node on DDS: the context and the node (with its parameter services), a subscription
+//! per camera image and camera_info and for `/tf_static`, the output publishers, then the
+//! event loop (on a `futures` executor that also drives the ros2-client spinner) beside the
+//! diagnostics thread until SIGINT/SIGTERM.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::Instant;
+
+use futures::StreamExt;
+use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{
+    Context, ContextOptions, MessageTypeName, Name, NodeName, Publisher, QosProfile,
+};
+
+use super::events::{Event, EventStream, LoopState};
+use super::log::{lock, log_info, RateLimited, ROSOUT};
+use super::params::node_options;
+use super::worker::Publishers;
+use super::{diag, NodeConfig, NodeError, Shared};
+use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
+use crate::pipeline::{ConfigError, Pipeline};
+
+/// A ros2-client error, as it says it.
+fn ros_err(e: impl std::fmt::Debug) -> NodeError {
+    NodeError::Ros(format!("{e:?}"))
+}
+
+fn topic_name(name: &str) -> Result<Name, NodeError> {
+    Name::parse(name).map_err(|e| NodeError::Name {
+        name: name.to_string(),
+        reason: format!("{e:?}"),
+    })
+}
+
+/// Brings the node up on DDS and runs it until a signal (or an error) ends it.
+pub(super) fn run(
+    config: &NodeConfig,
+    shared: &Shared<'_>,
+    publishers_tx: mpsc::Sender<Publishers>,
+) -> Result<(), NodeError> {
+    let pipeline = &config.pipeline;
+    let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
+        .map_err(ros_err)?;
+    let node_name =
+        NodeName::new(&pipeline.identity.namespace, &pipeline.identity.name).map_err(|e| {
+            NodeError::Name {
+                name: pipeline.identity.fqn(),
+                reason: format!("{e:?}"),
+            }
+        })?;
+    let mut node = context
+        .new_node(node_name, node_options(shared.live))
+        .map_err(ros_err)?;
+    let logger_name = pipeline
+        .identity
+        .fqn()
+        .trim_start_matches('/')
+        .replace('/', ".");
+    *lock(&ROSOUT) = Some((node.logging_handle(), logger_name));
+
+    let image_type = || MessageTypeName::new("sensor_msgs", "Image");
+    let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
+    let input_qos = {
+        let q = QosProfile::subscription_default().history(History::KeepLast {
+            depth: config.input_depth,
+        });
+        if config.input_reliable {
+            q.reliability_reliable(WhenFull::DEFAULT)
+        } else {
+            q.reliability_best_effort()
+        }
+    };
+    let info_qos = QosProfile::subscription_default().history(History::KeepLast { depth: 1 });
+    let output_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast {
+            depth: config.output_depth,
+        });
+    let tf_qos = QosProfile::subscription_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1000 });
+
+    let mut image_subs = Vec::new();
+    let mut info_subs = Vec::new();
+    for i in 0..pipeline.cameras.len() {
+        let topic = node
+            .create_topic(
+                &topic_name(&pipeline.image_topics[i])?,
+                image_type(),
+                &input_qos,
+            )
+            .map_err(ros_err)?;
+        image_subs.push(
+            node.create_subscription::<Image>(&topic, Some(input_qos.clone()))
+                .map_err(ros_err)?,
+        );
+        let topic = node
+            .create_topic(
+                &topic_name(&pipeline.info_topics[i])?,
+                info_type(),
+                &info_qos,
+            )
+            .map_err(ros_err)?;
+        info_subs.push(
+            node.create_subscription::<CameraInfo>(&topic, Some(info_qos.clone()))
+                .map_err(ros_err)?,
+        );
+    }
+    let tf_sub = if pipeline.rig_file.is_none() {
+        let topic = node
+            .create_topic(
+                &topic_name(&pipeline.tf_static_topic)?,
+                MessageTypeName::new("tf2_msgs", "TFMessage"),
+                &tf_qos,
+            )
+            .map_err(ros_err)?;
+        Some(
+            node.create_subscription::<TFMessage>(&topic, Some(tf_qos.clone()))
+                .map_err(ros_err)?,
+        )
+    } else {
+        None
+    };
+
+    let mut publisher = |name: &str| -> Result<Publisher<Image>, NodeError> {
+        let topic = node
+            .create_topic(&topic_name(name)?, image_type(), &output_qos)
+            .map_err(ros_err)?;
+        node.create_publisher::<Image>(&topic, Some(output_qos.clone()))
+            .map_err(ros_err)
+    };
+    let outputs = &pipeline.outputs;
+    let depth = publisher(&outputs.depth)?;
+    let confidence = publisher(&outputs.confidence)?;
+    let cost = publisher(&outputs.cost)?;
+    let selection = publisher(&outputs.selection)?;
+    let depth_info_topic = node
+        .create_topic(&topic_name(&outputs.depth_info)?, info_type(), &output_qos)
+        .map_err(ros_err)?;
+    let depth_info = node
+        .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
+        .map_err(ros_err)?;
+    let points = if let Some(points_topic) = &outputs.points {
+        let topic = node
+            .create_topic(
+                &topic_name(points_topic)?,
+                MessageTypeName::new("sensor_msgs", "PointCloud2"),
+                &output_qos,
+            )
+            .map_err(ros_err)?;
+        Some(
+            node.create_publisher::<PointCloud2>(&topic, Some(output_qos.clone()))
+                .map_err(ros_err)?,
+        )
+    } else {
+        None
+    };
+    let diag_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast { depth: 10 });
+    let diag_topic = node
+        .create_topic(
+            &topic_name(&config.diagnostics_topic)?,
+            MessageTypeName::new("diagnostic_msgs", "DiagnosticArray"),
+            &diag_qos,
+        )
+        .map_err(ros_err)?;
+    let diag_pub = node
+        .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos.clone()))
+        .map_err(ros_err)?;
+    publishers_tx
+        .send(Publishers {
+            points,
+            depth,
+            depth_info,
+            confidence,
+            cost,
+            selection,
+        })
+        .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
+
+    let mut streams: Vec<EventStream<'_>> = Vec::new();
+    for (i, sub) in image_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            Event::Image(i, r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    for (i, sub) in info_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            Event::Info(i, r.map(|(m, _)| Box::new(m)).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    if let Some(sub) = &tf_sub {
+        streams
+            .push(Box::pin(sub.async_stream().map(|r| {
+                Event::Tf(r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+            })));
+    }
+    let mut events = futures::stream::select_all(streams);
+    let spinner = node.spinner().map_err(ros_err)?;
+    // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
+    // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
+    // the node says it is up, so a signal sent as soon as it is up is never the default action.
+    let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
+    if let Err(e) = ctrlc::set_handler(move || {
+        let _ = signal_tx.unbounded_send(());
+    }) {
+        tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
+    }
+    log_info(&format!("node {} is up", pipeline.identity.fqn()));
+
+    let mut state = LoopState {
+        pipeline: Pipeline::new(pipeline).map_err(ConfigError::from)?,
+        started: Instant::now(),
+        log: RateLimited::default(),
+        slot: shared.slot,
+        stats: shared.stats,
+    };
+    let event_loop = async {
+        while let Some(event) = events.next().await {
+            state.handle(event);
+        }
+    };
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let diag = std::thread::Builder::new()
+            .name("sweepdepth-diagnostics".into())
+            .spawn_scoped(scope, || {
+                diag::publish_loop(config, shared, diag_pub, &stop)
+            })
+            .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
+        let outcome = futures::executor::block_on(async {
+            futures::pin_mut!(event_loop);
+            let spin = spinner.spin();
+            futures::pin_mut!(spin);
+            let stopped = signal_rx.next();
+            match futures::future::select(futures::future::select(spin, event_loop), stopped).await
+            {
+                futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
+                    r.map_err(ros_err)
+                }
+                futures::future::Either::Left((futures::future::Either::Right(((), _)), _)) => {
+                    Err(NodeError::Ros("the subscription streams ended".into()))
+                }
+                futures::future::Either::Right(_) => {
+                    log_info("shutting down (signal received)");
+                    Ok(())
+                }
+            }
+        });
+        stop.store(true, Ordering::Relaxed);
+        let _ = diag.join();
+        outcome
+    })
+}

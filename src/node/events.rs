@@ -1,0 +1,92 @@
+//! The event loop's handling of one subscription event: the message goes into the pipeline,
+//! its outcome is logged and counted, and each ready set is offered to the GPU worker (the
+//! newest set replaces one still waiting).
+
+use std::pin::Pin;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use futures::Stream;
+
+use super::diag::Stats;
+use super::log::{lock, node_log, RateLimited};
+use super::slot::LatestSlot;
+use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::pipeline::{Input, Job, Pipeline};
+
+/// A subscription's next message, or what ros2-client said instead.
+pub(super) enum Event {
+    Image(usize, Result<Image, String>),
+    Info(usize, Result<Box<CameraInfo>, String>),
+    Tf(Result<TFMessage, String>),
+}
+
+pub(super) type EventStream<'a> = Pin<Box<dyn Stream<Item = Event> + 'a>>;
+
+pub(super) struct LoopState<'a> {
+    pub pipeline: Pipeline<'a>,
+    /// The clock of camera dropout (receive time).
+    pub started: Instant,
+    pub log: RateLimited,
+    pub slot: &'a LatestSlot<Job>,
+    pub stats: &'a Mutex<Stats>,
+}
+
+impl LoopState<'_> {
+    pub fn handle(&mut self, event: Event) {
+        let now_ns = u64::try_from(self.started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+        let input = match event {
+            Event::Image(camera, Ok(image)) => {
+                lock(self.stats).on_image(camera, Instant::now());
+                Input::Image { camera, image }
+            }
+            Event::Info(camera, Ok(info)) => Input::CameraInfo { camera, info },
+            Event::Tf(Ok(msg)) => Input::TfStatic(msg),
+            Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
+                let camera = self
+                    .pipeline
+                    .config()
+                    .cameras
+                    .get(i)
+                    .map_or("?", String::as_str);
+                self.log.warn(&format!("read{i}"), || {
+                    format!("camera '{camera}': read error: {e}")
+                });
+                return;
+            }
+            Event::Tf(Err(e)) => {
+                self.log
+                    .warn("tf_read", || format!("/tf_static: read error: {e}"));
+                return;
+            }
+        };
+        let outcome = self.pipeline.push(input, now_ns);
+        for event in &outcome.rig_events {
+            node_log(tracing::Level::WARN, &event.to_string());
+        }
+        for notice in &outcome.notices {
+            self.log.warn(&notice.key(), || notice.message.clone());
+        }
+        for skip in outcome.skips() {
+            self.log.warn(&skip.key(), || skip.message.clone());
+        }
+        {
+            let mut stats = lock(self.stats);
+            if let Some(verdict) = &outcome.sync {
+                verdict.count(&mut stats.sync);
+            }
+            stats.inactive_cameras = self.pipeline.inactive_cameras();
+        }
+        for job in outcome.jobs() {
+            self.offer(job);
+        }
+    }
+
+    fn offer(&mut self, job: Job) {
+        if self.slot.offer(job) {
+            let dropped = self.slot.dropped();
+            lock(self.stats).gpu_dropped = dropped;
+            tracing::debug!("a pending set was replaced (dropped: {dropped})");
+        }
+    }
+}

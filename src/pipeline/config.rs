@@ -1,0 +1,412 @@
+//! What the pipeline is told ([`PipelineConfig`]): the cameras and their topics, how their
+//! images are synchronised, where the calibration comes from (CameraInfo and `/tf_static`, or
+//! a rig file), the virtual reference camera, the engine parameters and the output topics.
+//! Made from a `--ros-args` command line (the node's, or the equivalent one `bag` builds)
+//! through the node's parameter table, with every name resolved as rcl resolves it.
+
+use std::time::Duration;
+
+use glam::{DQuat, DVec3};
+
+use crate::geometry::{GeometryError, PinholeIntrinsics, RigidTransform};
+use crate::msgs::Image;
+use crate::params::checks::{check_start, shape_rig};
+use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
+use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
+use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
+use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
+use crate::sweep::SweepParams;
+
+/// Why a configuration cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error(transparent)]
+    Args(#[from] RosArgsError),
+    #[error(transparent)]
+    Param(#[from] ParamError),
+    #[error("unexpected arguments {0:?}: `sweepdepth node` takes only `--ros-args ...`")]
+    ExtraArgs(Vec<String>),
+    #[error(transparent)]
+    RigFile(#[from] RigFileError),
+    #[error("rig file '{path}' has no camera for '{camera}'")]
+    RigFileCamera { path: String, camera: String },
+    #[error(transparent)]
+    Geometry(#[from] GeometryError),
+    #[error(transparent)]
+    Sync(#[from] SyncError),
+    #[error("parameter '{name}': {value} does not fit a {what}")]
+    Size {
+        name: &'static str,
+        value: i64,
+        what: &'static str,
+    },
+}
+
+/// Time synchronisation of the camera images.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SyncPolicy {
+    Exact,
+    Approximate {
+        max_interval_ns: i64,
+        age_penalty: f64,
+    },
+}
+
+/// The virtual reference camera (`virtual_reference:=true`).
+///
+/// Placement: with `frame_id` set and no rig file, from /tf_static (the transform from the
+/// reference camera's frame to `frame_id`); otherwise `ref_from_virtual` (`virtual_pose`)
+/// composed with the reference camera's pose. Outputs carry `frame_id`, or the reference
+/// camera's frame when it is empty (then `virtual_pose` must be applied by the consumer), and
+/// the stamp of the reference camera's image. Intrinsics of 0 copy the reference camera's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VirtualConfig {
+    pub frame_id: String,
+    /// Pose of the virtual optical frame in the reference camera's optical frame.
+    pub ref_from_virtual: RigidTransform,
+    pub width: u32,
+    pub height: u32,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl VirtualConfig {
+    fn from_params(params: &ParamSet) -> Result<Self, ConfigError> {
+        let pose = params.virtual_pose()?;
+        let ref_from_virtual = RigidTransform::from_quat_translation(
+            "virtual_pose",
+            DQuat::from_xyzw(pose[3], pose[4], pose[5], pose[6]),
+            DVec3::new(pose[0], pose[1], pose[2]),
+        )?;
+        let size = |name: &'static str| -> Result<u32, ConfigError> {
+            let value = params.get_i64(name)?;
+            u32::try_from(value).map_err(|_| ConfigError::Size {
+                name,
+                value,
+                what: "u32",
+            })
+        };
+        let f = |name: &str| params.get_f64(name);
+        Ok(Self {
+            frame_id: params.get_str("virtual_frame_id")?.to_string(),
+            ref_from_virtual,
+            width: size("virtual_width")?,
+            height: size("virtual_height")?,
+            fx: f("virtual_fx")?,
+            fy: f("virtual_fy")?,
+            cx: f("virtual_cx")?,
+            cy: f("virtual_cy")?,
+        })
+    }
+
+    /// The virtual intrinsics, 0 values taken from the reference camera's `base`.
+    pub fn intrinsics(&self, base: &PinholeIntrinsics) -> PinholeIntrinsics {
+        let or = |v: f64, b: f64| if v == 0.0 { b } else { v };
+        let or_size = |v: u32, b: u32| if v == 0 { b } else { v };
+        PinholeIntrinsics {
+            width_px: or_size(self.width, base.width_px),
+            height_px: or_size(self.height, base.height_px),
+            fx_px: or(self.fx, base.fx_px),
+            fy_px: or(self.fy, base.fy_px),
+            cx_px: or(self.cx, base.cx_px),
+            cy_px: or(self.cy, base.cy_px),
+        }
+    }
+}
+
+/// The fully qualified (remapped) names of the outputs of one frame set.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct OutputTopics {
+    /// `depth/image`: 32FC1, metres along the reference optical axis, NaN invalid.
+    pub depth: String,
+    /// `depth/camera_info`: the CameraInfo of the depth image.
+    pub depth_info: String,
+    /// `confidence/image`: 32FC1 in [0, 1].
+    pub confidence: String,
+    /// `cost/image`: 32FC1, the winning score.
+    pub cost: String,
+    /// `selection/image`: rgb8, the half-sequence selection (Fig. 7 colours).
+    pub selection: String,
+    /// `points`: a PointCloud2 of the valid depths, when `publish_points` is true.
+    pub points: Option<String>,
+}
+
+/// Everything the pipeline needs, from the command line.
+#[derive(Debug, Clone)]
+pub struct PipelineConfig {
+    /// The node's name and namespace (names resolve against them).
+    pub identity: NodeIdentity,
+    /// Every parameter's value at start-up (the node declares them on its services).
+    pub params: ParamSet,
+    pub sweep: SweepParams,
+    pub cameras: Vec<String>,
+    /// Index of the reference camera in `cameras`.
+    pub reference: usize,
+    /// Fully qualified (remapped) image and camera_info topic names, per camera.
+    pub image_topics: Vec<String>,
+    pub info_topics: Vec<String>,
+    pub outputs: OutputTopics,
+    pub tf_static_topic: String,
+    pub rig_file: Option<RigFile>,
+    pub sync: SyncPolicy,
+    pub queue_size: usize,
+    pub time_rules: TimeRules,
+    /// A camera silent this long leaves the rig until it sends again (`None`: never).
+    pub camera_timeout: Option<Duration>,
+    /// The virtual reference camera, when `virtual_reference` is true.
+    pub virtual_ref: Option<VirtualConfig>,
+    /// What was accepted and ignored or adjusted, for the log.
+    pub notes: Vec<String>,
+}
+
+impl PipelineConfig {
+    /// From a command line holding only a `--ros-args` block.
+    pub fn from_args(args: &[String]) -> Result<Self, ConfigError> {
+        let ros = parse_ros_args(args)?;
+        if !ros.other.is_empty() {
+            return Err(ConfigError::ExtraArgs(ros.other.clone()));
+        }
+        Self::from_ros_args(&ros)
+    }
+
+    /// From a parsed command line: the parameters (defaults, parameter files, `-p`) checked
+    /// against each other and against the rig's shape, every topic name resolved.
+    pub fn from_ros_args(ros: &RosArgs) -> Result<Self, ConfigError> {
+        let identity = ros.node_identity(DEFAULT_NODE_NAME, "/")?;
+        let (mut params, mut notes) = ParamSet::from_ros_args(ros, &identity)?;
+        notes.extend(ros.notes.iter().cloned());
+        params.check_node()?;
+        let virtual_ref = if params.get_bool("virtual_reference")? {
+            // check_node rejected an explicit pairs:=reference; the default becomes all.
+            if params.get_str("pairs")? != "all" {
+                params.set("pairs", &ParamValue::String("all".into()))?;
+                notes.push("virtual_reference: pairs set to 'all' (a virtual camera has no image of its own)".into());
+            }
+            let v = VirtualConfig::from_params(&params)?;
+            if v.frame_id.is_empty() && v.ref_from_virtual != RigidTransform::IDENTITY {
+                notes.push("virtual_reference: virtual_frame_id is empty, so the outputs carry the reference camera's frame_id although the virtual camera is at virtual_pose in it".into());
+            }
+            Some(v)
+        } else {
+            None
+        };
+        let mut sweep = SweepParams::default();
+        apply_to_sweep(&params, &mut sweep)?;
+        let cameras = params.get_string_array("cameras")?.to_vec();
+        // check_node made sure the reference is one of the cameras.
+        let reference_name = params.reference_camera().unwrap_or_default();
+        let reference = cameras
+            .iter()
+            .position(|c| *c == reference_name)
+            .ok_or_else(|| ParamError::UnknownReference {
+                reference: reference_name.clone(),
+                cameras: cameras.clone(),
+            })?;
+        let image_topic = params.get_str("image_topic")?;
+        let resolve = |name: &str| ros.resolve_topic(name, &identity);
+        let mut image_topics = Vec::new();
+        let mut info_topics = Vec::new();
+        for camera in &cameras {
+            let camera = camera.trim_end_matches('/');
+            image_topics.push(resolve(&format!("{camera}/{image_topic}"))?);
+            info_topics.push(resolve(&format!("{camera}/camera_info"))?);
+        }
+        let points = resolve("points")?;
+        let outputs = OutputTopics {
+            depth: resolve("depth/image")?,
+            depth_info: resolve("depth/camera_info")?,
+            confidence: resolve("confidence/image")?,
+            cost: resolve("cost/image")?,
+            selection: resolve("selection/image")?,
+            points: params.get_bool("publish_points")?.then_some(points),
+        };
+        let tf_static_topic = resolve("/tf_static")?;
+        let rig_path = params.get_str("rig_file")?;
+        let rig_file = if rig_path.is_empty() {
+            None
+        } else {
+            let file = load_rig_file(rig_path)?;
+            for camera in &cameras {
+                if file.camera_for(camera).is_none() {
+                    return Err(ConfigError::RigFileCamera {
+                        path: rig_path.to_string(),
+                        camera: camera.clone(),
+                    });
+                }
+            }
+            notes.extend(file.notes.iter().cloned());
+            Some(file)
+        };
+        let sync = match params.get_str("sync")? {
+            "exact" => SyncPolicy::Exact,
+            _ => SyncPolicy::Approximate {
+                max_interval_ns: seconds_to_ns(params.get_f64("sync_max_interval")?),
+                age_penalty: params.get_f64("age_penalty")?,
+            },
+        };
+        let time_rules = TimeRules {
+            future_window_ns: seconds_to_ns(params.get_f64("sync_future_window")?),
+            reset_backwards_ns: seconds_to_ns(params.get_f64("sync_reset_backwards")?),
+        };
+        let queue_size = {
+            let value = params.get_i64("queue_size")?;
+            usize::try_from(value).map_err(|_| ConfigError::Size {
+                name: "queue_size",
+                value,
+                what: "usize",
+            })?
+        };
+        // The engine parameters against the rig's shape, before any frame arrives.
+        let virtual_reference = virtual_ref.is_some();
+        if let Some(shape) = shape_rig(cameras.len(), reference, virtual_reference) {
+            check_start(&sweep, &shape, virtual_reference)?;
+        }
+        let config = Self {
+            identity,
+            sweep,
+            cameras,
+            reference,
+            image_topics,
+            info_topics,
+            outputs,
+            tf_static_topic,
+            rig_file,
+            sync,
+            queue_size,
+            time_rules,
+            camera_timeout: {
+                let t = params.get_f64("camera_timeout")?;
+                (t > 0.0).then(|| Duration::from_secs_f64(t))
+            },
+            virtual_ref,
+            params,
+            notes,
+        };
+        // The synchroniser is made now so that its parameters fail here, not at the first image.
+        config.synchronizer(config.cameras.len())?;
+        Ok(config)
+    }
+
+    /// A synchroniser over `n` of the cameras.
+    pub fn synchronizer(&self, n: usize) -> Result<Box<dyn Synchronizer<Image> + Send>, SyncError> {
+        Ok(match &self.sync {
+            SyncPolicy::Exact => {
+                Box::new(ExactSync::new(n, self.queue_size)?.with_time_rules(self.time_rules)?)
+            }
+            SyncPolicy::Approximate {
+                max_interval_ns,
+                age_penalty,
+            } => Box::new(
+                ApproximateSync::new(n, self.queue_size)?
+                    .with_age_penalty(*age_penalty)?
+                    .with_max_interval_ns(*max_interval_ns)?
+                    .with_time_rules(self.time_rules)?,
+            ),
+        })
+    }
+}
+
+fn seconds_to_ns(seconds: f64) -> i64 {
+    (seconds * 1e9).round() as i64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn config_resolves_topics_in_namespace_with_remaps() {
+        let cfg = PipelineConfig::from_args(&args(&[
+            "--ros-args",
+            "-r",
+            "__ns:=/rig",
+            "-r",
+            "/rig/b/image_raw:=/other/image",
+            "-p",
+            "cameras:=[a, b, c]",
+            "-p",
+            "sync:=exact",
+        ]))
+        .unwrap();
+        assert_eq!(cfg.identity.name, "sweepdepth");
+        assert_eq!(cfg.reference, 1);
+        assert_eq!(
+            cfg.image_topics,
+            vec!["/rig/a/image_raw", "/other/image", "/rig/c/image_raw"]
+        );
+        assert_eq!(cfg.info_topics[0], "/rig/a/camera_info");
+        assert_eq!(cfg.outputs.depth, "/rig/depth/image");
+        assert_eq!(cfg.outputs.depth_info, "/rig/depth/camera_info");
+        assert_eq!(cfg.outputs.selection, "/rig/selection/image");
+        assert_eq!(cfg.outputs.points, None);
+        assert_eq!(cfg.tf_static_topic, "/tf_static");
+        assert_eq!(cfg.sync, SyncPolicy::Exact);
+        assert_eq!(cfg.time_rules, TimeRules::default());
+        let with_points = PipelineConfig::from_args(&args(&[
+            "--ros-args",
+            "-r",
+            "__ns:=/rig",
+            "-p",
+            "cameras:=[a, b]",
+            "-p",
+            "publish_points:=true",
+        ]))
+        .unwrap();
+        assert_eq!(with_points.outputs.points.as_deref(), Some("/rig/points"));
+    }
+
+    #[test]
+    fn config_errors() {
+        assert!(PipelineConfig::from_args(&args(&["--ros-args"])).is_err());
+        assert!(matches!(
+            PipelineConfig::from_args(&args(&["extra", "--ros-args", "-p", "cameras:=[a, b]"])),
+            Err(ConfigError::ExtraArgs(_))
+        ));
+        assert!(matches!(
+            PipelineConfig::from_args(&args(&[
+                "--ros-args",
+                "-p",
+                "cameras:=[a, b]",
+                "-p",
+                "rig_file:=/nonexistent.yaml"
+            ])),
+            Err(ConfigError::RigFile(_))
+        ));
+    }
+
+    #[test]
+    fn config_virtual_reference() {
+        let base = [
+            "--ros-args",
+            "-p",
+            "cameras:=[a, b, c]",
+            "-p",
+            "virtual_reference:=true",
+            "-p",
+            "virtual_width:=64",
+            "-p",
+            "virtual_pose:=[0.15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+        ];
+        let cfg = PipelineConfig::from_args(&args(&base)).unwrap();
+        assert_eq!(cfg.sweep.pairs, crate::sweep::PairSet::All);
+        let v = cfg.virtual_ref.unwrap();
+        assert_eq!(v.width, 64);
+        assert_eq!(v.ref_from_virtual.translation.x, 0.15);
+        let mut explicit = args(&base);
+        explicit.extend(args(&["-p", "pairs:=reference"]));
+        let e = PipelineConfig::from_args(&explicit).unwrap_err();
+        assert!(e.to_string().contains("pairs = all"), "{e}");
+        let mut bad_pose = args(&base);
+        bad_pose.extend(args(&["-p", "virtual_pose:=[1.0, 2.0]"]));
+        let e = PipelineConfig::from_args(&bad_pose).unwrap_err();
+        assert!(e.to_string().contains("7 values"), "{e}");
+        let plain = PipelineConfig::from_args(&args(&base[..3])).unwrap();
+        assert!(plain.virtual_ref.is_none());
+    }
+}

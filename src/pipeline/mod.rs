@@ -1,0 +1,225 @@
+//! The DDS-free pipeline that the live node (`node`) and the offline bag processor (`bag`)
+//! both run, so that a bag and the same bag played live give the same depth. It never imports
+//! `node` or `bag`: they drive it through one small API.
+//!
+//! * [`Pipeline::push`] takes one input message ([`Input`]: an image, a CameraInfo, a
+//!   `/tf_static` message) and says what it gave ([`Outcome`]): the sets it completed, each a
+//!   [`Job`] for the engine or a [`Skip`] that says why not; the synchroniser's verdict on an
+//!   image ([`SyncVerdict`]); problems with the input ([`Notice`]); cameras that left or
+//!   rejoined the rig ([`RigEvent`]). [`Pipeline::finish`] ends the input (a bag's end).
+//! * [`EngineHost::process`] runs a job through the engine and builds the output messages
+//!   ([`FrameOutputs`], published or recorded under [`OutputTopics`]).
+//!
+//! The path of an image, room by room: [`roster`] (is its camera in the rig? a silent camera
+//! leaves it after `camera_timeout`) → the synchroniser (`crate::ros::sync`: the time rules'
+//! verdict, then exact or approximate matching over the cameras in the rig) → [`calibration`]
+//! (each image of a complete set gets its camera model from its CameraInfo or the rig file,
+//! its pose from `/tf_static` or the rig file; the image headers are checked: a set that fails
+//! is skipped here, before it can take another set's place in the node's GPU queue) →
+//! [`EngineHost`] ([`convert`] into the engine's images, the sweep, the output messages).
+
+pub mod calibration;
+pub mod config;
+pub mod convert;
+pub mod engine_host;
+pub mod outcome;
+pub mod outputs;
+mod roster;
+
+pub use calibration::intrinsics_info;
+pub use config::{ConfigError, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig};
+pub use engine_host::{EngineHost, HostError};
+pub use outcome::{
+    Degraded, Input, Job, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind, SyncVerdict,
+};
+pub use outputs::{process_job, FrameOutputs};
+
+use crate::msgs::{Image, Time};
+use crate::ros::sync::{Admission, SyncError, Synchronizer};
+
+use calibration::Calibration;
+use roster::Roster;
+
+/// The input side: calibration state, which cameras are in the rig, the synchroniser.
+pub struct Pipeline<'a> {
+    config: &'a PipelineConfig,
+    calibration: Calibration,
+    roster: Roster,
+    sync: Box<dyn Synchronizer<Image> + Send>,
+}
+
+impl<'a> Pipeline<'a> {
+    pub fn new(config: &'a PipelineConfig) -> Result<Self, SyncError> {
+        let n = config.cameras.len();
+        Ok(Self {
+            config,
+            calibration: Calibration::new(n),
+            roster: Roster::new(
+                config.cameras.clone(),
+                config.reference,
+                config.camera_timeout,
+            ),
+            sync: config.synchronizer(n)?,
+        })
+    }
+
+    pub fn config(&self) -> &PipelineConfig {
+        self.config
+    }
+
+    /// Names of the cameras currently out of the rig.
+    pub fn inactive_cameras(&self) -> Vec<String> {
+        self.roster.inactive()
+    }
+
+    /// One input message, received at `now_ns` (any monotonic clock in nanoseconds: receive
+    /// time live, log time in a bag; it times camera dropout).
+    pub fn push(&mut self, input: Input, now_ns: u64) -> Outcome {
+        let n = self.config.cameras.len();
+        let out_of_range = |what: &str, camera: usize| {
+            Outcome::notice(
+                NoticeKind::Input,
+                None,
+                format!("{what} of camera index {camera}, but the rig has {n} cameras; ignored"),
+            )
+        };
+        match input {
+            Input::Image { camera, image } => {
+                if camera >= n {
+                    return out_of_range("an image", camera);
+                }
+                self.on_image(camera, image, now_ns)
+            }
+            Input::CameraInfo { camera, info } => {
+                if camera >= n {
+                    return out_of_range("a camera_info", camera);
+                }
+                self.calibration.set_info(camera, *info);
+                Outcome::default()
+            }
+            Input::TfStatic(msg) => Outcome {
+                notices: self
+                    .calibration
+                    .add_tf(&msg)
+                    .into_iter()
+                    .map(|e| Notice {
+                        kind: NoticeKind::Transform,
+                        camera: None,
+                        message: format!("{}: {e}", self.config.tf_static_topic),
+                    })
+                    .collect(),
+                ..Outcome::default()
+            },
+        }
+    }
+
+    /// End of input (the end of a bag): the sets the synchroniser still held back.
+    pub fn finish(&mut self) -> Outcome {
+        if !self.roster.publishing() {
+            return Outcome::default();
+        }
+        let flushed = self.sync.flush();
+        Outcome {
+            sync: Some(SyncVerdict {
+                camera: None,
+                stamp: Time::default(),
+                admission: None,
+                sets: flushed.sets.len(),
+                discarded: flushed.discarded,
+            }),
+            sets: flushed
+                .sets
+                .into_iter()
+                .map(|set| self.calibration.job(self.config, self.roster.active(), set))
+                .collect(),
+            ..Outcome::default()
+        }
+    }
+
+    fn on_image(&mut self, camera: usize, image: Image, now_ns: u64) -> Outcome {
+        let config = self.config;
+        let mut outcome = Outcome {
+            rig_events: self.roster.track(camera, now_ns),
+            ..Outcome::default()
+        };
+        // The synchroniser runs over the cameras in the rig; below 2 nothing is pushed.
+        if !outcome.rig_events.is_empty() && self.roster.active().len() >= 2 {
+            match config.synchronizer(self.roster.active().len()) {
+                Ok(sync) => self.sync = sync,
+                Err(e) => outcome.notices.push(Notice {
+                    kind: NoticeKind::Input,
+                    camera: None,
+                    message: format!("cannot make the synchroniser: {e}"),
+                }),
+            }
+        }
+        if !self.roster.publishing() {
+            // Once per round of images (at the first active camera), not once per image.
+            let active = self.roster.active();
+            if active.first() == Some(&camera) || active.len() <= 1 {
+                outcome.sets.push(Err(self.degraded()));
+            }
+            return outcome;
+        }
+        let Some(stream) = self.roster.stream_of(camera) else {
+            return outcome;
+        };
+        let stamp = image.header.stamp;
+        let pushed = match self.sync.push_stamped(stream, &stamp, image) {
+            Ok(pushed) => pushed,
+            Err(e) => {
+                outcome.notices.push(Notice {
+                    kind: NoticeKind::Input,
+                    camera: Some(camera),
+                    message: format!("synchroniser: {e}"),
+                });
+                return outcome;
+            }
+        };
+        // The synchroniser counts streams (the cameras in the rig); the verdict names cameras.
+        let admission = match pushed.admission {
+            Admission::Reset(mut jump) => {
+                jump.stream = self.roster.camera_of(jump.stream);
+                Admission::Reset(jump)
+            }
+            other => other,
+        };
+        let verdict = SyncVerdict {
+            camera: Some(camera),
+            stamp,
+            admission: Some(admission),
+            sets: pushed.sets.len(),
+            discarded: pushed.discarded,
+        };
+        let future_window_s = config.time_rules.future_window_ns as f64 / 1e9;
+        outcome
+            .notices
+            .extend(verdict.notice(&config.cameras, future_window_s));
+        outcome.sync = Some(verdict);
+        outcome.sets = pushed
+            .sets
+            .into_iter()
+            .map(|set| self.calibration.job(config, self.roster.active(), set))
+            .collect();
+        outcome
+    }
+
+    /// Why no set is formed while the rig is degraded.
+    fn degraded(&self) -> Skip {
+        let reference = self.config.reference;
+        let silent = self.roster.inactive().join(", ");
+        let why = if !self.roster.active().contains(&reference) {
+            format!(
+                "the reference camera '{}' is silent",
+                self.config.cameras[reference]
+            )
+        } else {
+            "fewer than 2 cameras are sending".to_string()
+        };
+        Skip::new(
+            SkipKind::DegradedRig,
+            None,
+            format!("{why} (out of the rig: {silent}); not publishing"),
+        )
+    }
+}
