@@ -15,6 +15,7 @@ pub mod msgs;
 pub mod node;
 pub mod params;
 pub mod pipeline;
+pub mod rig_file;
 pub mod ros;
 pub mod sweep;
 pub mod synthetic;

@@ -11,8 +11,8 @@ use std::process::Command;
 use sweepdepth::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera};
 use sweepdepth::node::NodeConfig;
 use sweepdepth::params::{apply_to_sweep, ParamSet, ParamSource};
+use sweepdepth::rig_file::{load_rig_file, RigFile};
 use sweepdepth::ros::args::{parse_ros_args, NodeIdentity, DEFAULT_NODE_NAME};
-use sweepdepth::ros::rig_file::{load_rig_file, RigFile};
 use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
 
 const FOUR_CAMERAS: &str = "launch_configs/four_cameras.params.yaml";

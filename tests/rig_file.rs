@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use glam::{DMat3, DQuat, DVec2, DVec3};
 use sweepdepth::geometry::{CameraModel, Distortion, RigidTransform};
-use sweepdepth::ros::rig_file::*;
+use sweepdepth::rig_file::*;
 
 /// A YAML file under the temp dir with a unique name; removed on drop.
 struct TempYaml(PathBuf);

@@ -11,7 +11,7 @@ use crate::image::Rgba8Image;
 use crate::msgs::{
     CameraInfo, Header, Image, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
 };
-use crate::ros::rig_file::load_rig_file;
+use crate::rig_file::load_rig_file;
 
 use super::schemas::{CAMERA_INFO, IMAGE, TF_MESSAGE};
 use super::{ns_time, writer, BagError, BagWriter};
@@ -57,7 +57,7 @@ pub enum PackError {
     #[error(transparent)]
     Dataset(#[from] crate::datasets::DatasetError),
     #[error(transparent)]
-    RigFile(#[from] crate::ros::rig_file::RigFileError),
+    RigFile(#[from] crate::rig_file::RigFileError),
     #[error("{0}")]
     Invalid(String),
 }

@@ -12,8 +12,8 @@ use crate::geometry::{GeometryError, PinholeIntrinsics, RigidTransform};
 use crate::msgs::Image;
 use crate::params::checks::{check_start, shape_rig};
 use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
+use crate::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
-use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
 use crate::sweep::SweepParams;
 

@@ -4,6 +4,5 @@
 
 pub mod args;
 pub mod param_value;
-pub mod rig_file;
 pub mod sync;
 pub mod tf;

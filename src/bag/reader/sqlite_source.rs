@@ -1,0 +1,158 @@
+//! The sqlite3 source of [`super::BagReader`]: the messages table of a rosbag2 database,
+//! paged in timestamp order through `rusqlite`.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use super::super::schemas::normalise_type;
+use super::super::BagError;
+use super::{BagMessage, TopicInfo};
+
+/// Pages through the messages table of a rosbag2 sqlite3 database in timestamp order.
+pub(super) struct SqliteSource {
+    path: PathBuf,
+    conn: rusqlite::Connection,
+    topics: HashMap<i64, (String, String, String)>,
+    counts: HashMap<i64, u64>,
+    page: std::collections::VecDeque<BagMessage>,
+    page_size: usize,
+    after: Option<(i64, i64)>,
+    done: bool,
+}
+
+impl SqliteSource {
+    pub fn open(path: &Path, page_size: usize) -> Result<Self, BagError> {
+        let sql = |e: rusqlite::Error| BagError::Format {
+            path: path.to_path_buf(),
+            reason: format!("sqlite3: {e}"),
+        };
+        let conn = rusqlite::Connection::open_with_flags(
+            path,
+            rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(sql)?;
+        let mut topics = HashMap::new();
+        {
+            let mut stmt = conn
+                .prepare("SELECT id, name, type, serialization_format FROM topics")
+                .map_err(sql)?;
+            let rows = stmt
+                .query_map([], |r| {
+                    Ok((
+                        r.get::<_, i64>(0)?,
+                        r.get::<_, String>(1)?,
+                        r.get::<_, String>(2)?,
+                        r.get::<_, String>(3)?,
+                    ))
+                })
+                .map_err(sql)?;
+            for row in rows {
+                let (id, name, ty, fmt) = row.map_err(sql)?;
+                topics.insert(id, (name, normalise_type(&ty), fmt));
+            }
+        }
+        let mut counts = HashMap::new();
+        {
+            let mut stmt = conn
+                .prepare("SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id")
+                .map_err(sql)?;
+            let rows = stmt
+                .query_map([], |r| Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?)))
+                .map_err(sql)?;
+            for row in rows {
+                let (id, n) = row.map_err(sql)?;
+                counts.insert(id, u64::try_from(n).unwrap_or(0));
+            }
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            conn,
+            topics,
+            counts,
+            page: Default::default(),
+            page_size,
+            after: None,
+            done: false,
+        })
+    }
+
+    pub fn topic_infos(&self) -> Vec<TopicInfo> {
+        let mut v: Vec<TopicInfo> = self
+            .topics
+            .iter()
+            .map(|(id, (name, ty, fmt))| TopicInfo {
+                name: name.clone(),
+                msg_type: ty.clone(),
+                encoding: fmt.clone(),
+                count: Some(self.counts.get(id).copied().unwrap_or(0)),
+                schema: None,
+            })
+            .collect();
+        v.sort_by(|a, b| a.name.cmp(&b.name));
+        v
+    }
+
+    fn fill_page(&mut self) -> Result<(), BagError> {
+        let sql = |e: rusqlite::Error| BagError::Format {
+            path: self.path.clone(),
+            reason: format!("sqlite3: {e}"),
+        };
+        let (t, id) = self.after.unwrap_or((i64::MIN, i64::MIN));
+        let mut stmt = self
+            .conn
+            .prepare_cached(
+                "SELECT id, topic_id, timestamp, data FROM messages \
+                 WHERE timestamp > ?1 OR (timestamp = ?1 AND id > ?2) \
+                 ORDER BY timestamp, id LIMIT ?3",
+            )
+            .map_err(sql)?;
+        let limit = i64::try_from(self.page_size).unwrap_or(256);
+        let rows = stmt
+            .query_map(rusqlite::params![t, id, limit], |r| {
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, i64>(1)?,
+                    r.get::<_, i64>(2)?,
+                    r.get::<_, Vec<u8>>(3)?,
+                ))
+            })
+            .map_err(sql)?;
+        let mut n = 0;
+        for row in rows {
+            let (id, topic_id, timestamp, data) = row.map_err(sql)?;
+            n += 1;
+            self.after = Some((timestamp, id));
+            let Some((topic, msg_type, fmt)) = self.topics.get(&topic_id) else {
+                return Err(BagError::Format {
+                    path: self.path.clone(),
+                    reason: format!("message {id} refers to unknown topic id {topic_id}"),
+                });
+            };
+            if fmt != "cdr" {
+                return Err(BagError::Format {
+                    path: self.path.clone(),
+                    reason: format!("topic {topic} has serialization_format '{fmt}', not 'cdr'"),
+                });
+            }
+            let t = u64::try_from(timestamp).unwrap_or(0);
+            self.page.push_back(BagMessage {
+                topic: topic.clone(),
+                msg_type: msg_type.clone(),
+                log_time_ns: t,
+                publish_time_ns: t,
+                data,
+            });
+        }
+        if n == 0 {
+            self.done = true;
+        }
+        Ok(())
+    }
+
+    pub fn next_message(&mut self) -> Result<Option<BagMessage>, BagError> {
+        if self.page.is_empty() && !self.done {
+            self.fill_page()?;
+        }
+        Ok(self.page.pop_front())
+    }
+}
