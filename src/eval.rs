@@ -555,9 +555,23 @@ fn eval_one(
     ))
 }
 
+/// Why `sweepdepth eval` failed as a whole (a folder that fails is reported, and counted in
+/// [`EvalRunError::Failed`]).
+#[derive(Debug, thiserror::Error)]
+pub enum EvalRunError {
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu_context::GpuContextError),
+    #[error(transparent)]
+    Engine(#[from] SweepError),
+    #[error("writing the table: {0}")]
+    Stdout(#[from] std::io::Error),
+    #[error("{} of {total} dataset(s) failed: {}", failed.len(), failed.join(", "))]
+    Failed { failed: Vec<String>, total: usize },
+}
+
 /// `sweepdepth eval`: one GPU engine for all folders; a folder that fails is reported and the
 /// others still run; the command fails at the end if any did.
-pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
+pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
     let ctx = GpuContext::new()?;
     let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
     let mut stdout = std::io::stdout();
@@ -586,11 +600,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
         }
     }
     if !failed.is_empty() {
-        anyhow::bail!(
-            "{} of {total} dataset(s) failed: {}",
-            failed.len(),
-            failed.join(", ")
-        );
+        return Err(EvalRunError::Failed { failed, total });
     }
     Ok(())
 }

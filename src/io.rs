@@ -33,8 +33,8 @@ pub enum IoError {
         path: PathBuf,
         source: image::ImageError,
     },
-    #[error("{path}: bad PFM: {reason}")]
-    Pfm { path: PathBuf, reason: String },
+    #[error("{path}: bad PFM: {source}")]
+    Pfm { path: PathBuf, source: PfmError },
     #[error("{path}: {reason}")]
     Unsupported { path: PathBuf, reason: String },
     #[error("{path}: image data does not match its size: {reason}")]
@@ -79,12 +79,42 @@ pub fn write_pfm(path: &Path, image: &ImageF32) -> Result<(), IoError> {
     })
 }
 
+/// Why bytes are not a single-channel PFM.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PfmError {
+    #[error("header field '{0}' is too long (not a PFM?)")]
+    FieldTooLong(&'static str),
+    #[error("header ends before '{0}'")]
+    HeaderEnds(&'static str),
+    #[error("header field '{0}' is not text")]
+    NotText(&'static str),
+    #[error("'PF' is a 3-channel (colour) PFM; only single-channel 'Pf' is supported")]
+    Colour,
+    #[error("magic is '{0}', expected 'Pf'")]
+    Magic(String),
+    #[error("{field}: {reason}")]
+    Number { field: &'static str, reason: String },
+    #[error("scale must be finite and non-zero, got {0}")]
+    Scale(f64),
+    #[error("no whitespace after the scale")]
+    NoSeparator,
+    #[error("size {width}x{height} is too large")]
+    TooLarge { width: u32, height: u32 },
+    #[error("{width}x{height} needs {needed} data bytes, the file has {got}")]
+    ShortData {
+        width: u32,
+        height: u32,
+        needed: usize,
+        got: usize,
+    },
+}
+
 /// Decodes a single-channel PFM held in memory; rows are returned top first.
-pub fn decode_pfm(bytes: &[u8]) -> Result<ImageF32, String> {
+pub fn decode_pfm(bytes: &[u8]) -> Result<ImageF32, PfmError> {
     // Header: three whitespace-separated fields ("Pf", "W H", scale), then exactly one
     // whitespace byte before the binary data.
     let mut pos = 0usize;
-    let mut next_token = |what: &str| -> Result<String, String> {
+    let mut next_token = |what: &'static str| -> Result<String, PfmError> {
         while pos < bytes.len() && bytes[pos].is_ascii_whitespace() {
             pos += 1;
         }
@@ -92,60 +122,55 @@ pub fn decode_pfm(bytes: &[u8]) -> Result<ImageF32, String> {
         while pos < bytes.len() && !bytes[pos].is_ascii_whitespace() {
             pos += 1;
             if pos - start > 64 {
-                return Err(format!("header field '{what}' is too long (not a PFM?)"));
+                return Err(PfmError::FieldTooLong(what));
             }
         }
         if start == pos {
-            return Err(format!("header ends before '{what}'"));
+            return Err(PfmError::HeaderEnds(what));
         }
-        String::from_utf8(bytes[start..pos].to_vec())
-            .map_err(|_| format!("header field '{what}' is not text"))
+        String::from_utf8(bytes[start..pos].to_vec()).map_err(|_| PfmError::NotText(what))
     };
     let magic = next_token("magic")?;
     match magic.as_str() {
         "Pf" => {}
-        "PF" => {
-            return Err(
-                "'PF' is a 3-channel (colour) PFM; only single-channel 'Pf' is supported".into(),
-            )
-        }
-        other => {
-            return Err(format!(
-                "magic is '{}', expected 'Pf'",
-                other.escape_default()
-            ))
-        }
+        "PF" => return Err(PfmError::Colour),
+        other => return Err(PfmError::Magic(other.escape_default().to_string())),
     }
+    let number = |field: &'static str, e: &dyn std::fmt::Display| PfmError::Number {
+        field,
+        reason: e.to_string(),
+    };
     let width: u32 = next_token("width")?
         .parse()
-        .map_err(|e| format!("width: {e}"))?;
+        .map_err(|e| number("width", &e))?;
     let height: u32 = next_token("height")?
         .parse()
-        .map_err(|e| format!("height: {e}"))?;
+        .map_err(|e| number("height", &e))?;
     let scale: f64 = next_token("scale")?
         .parse()
-        .map_err(|e| format!("scale: {e}"))?;
+        .map_err(|e| number("scale", &e))?;
     if !scale.is_finite() || scale == 0.0 {
-        return Err(format!("scale must be finite and non-zero, got {scale}"));
+        return Err(PfmError::Scale(scale));
     }
     let little_endian = scale < 0.0;
     // One whitespace byte ends the header.
     if pos >= bytes.len() || !bytes[pos].is_ascii_whitespace() {
-        return Err("no whitespace after the scale".into());
+        return Err(PfmError::NoSeparator);
     }
     pos += 1;
     let (w, h) = (width as usize, height as usize);
     let count = w
         .checked_mul(h)
         .filter(|&n| n.checked_mul(4).is_some())
-        .ok_or_else(|| format!("size {width}x{height} is too large"))?;
+        .ok_or(PfmError::TooLarge { width, height })?;
     let data_bytes = &bytes[pos..];
     if data_bytes.len() < count * 4 {
-        return Err(format!(
-            "{width}x{height} needs {} data bytes, the file has {}",
-            count * 4,
-            data_bytes.len()
-        ));
+        return Err(PfmError::ShortData {
+            width,
+            height,
+            needed: count * 4,
+            got: data_bytes.len(),
+        });
     }
     let mut data = vec![0f32; count];
     for (i, chunk) in data_bytes[..count * 4].chunks_exact(4).enumerate() {
@@ -173,9 +198,9 @@ pub fn read_pfm(path: &Path) -> Result<ImageF32, IoError> {
         path: path.to_path_buf(),
         source,
     })?;
-    decode_pfm(&bytes).map_err(|reason| IoError::Pfm {
+    decode_pfm(&bytes).map_err(|source| IoError::Pfm {
         path: path.to_path_buf(),
-        reason,
+        source,
     })
 }
 
@@ -373,9 +398,10 @@ mod tests {
         bytes.extend_from_slice(&(-2.0f32).to_be_bytes());
         let img = decode_pfm(&bytes).unwrap();
         assert_eq!(img.data, vec![1.5, -2.0]);
-        assert!(decode_pfm(b"PF\n1 1\n-1.0\n\0\0\0\0\0\0\0\0\0\0\0\0")
-            .unwrap_err()
-            .contains("3-channel"));
+        assert_eq!(
+            decode_pfm(b"PF\n1 1\n-1.0\n\0\0\0\0\0\0\0\0\0\0\0\0"),
+            Err(PfmError::Colour)
+        );
         assert!(decode_pfm(b"P5\n1 1\n255\n\0").is_err());
         assert!(decode_pfm(b"Pf\n2 2\n-1.0\n\0\0\0\0").is_err());
         assert!(decode_pfm(b"Pf\nx 2\n-1.0\n").is_err());

@@ -2,6 +2,10 @@
 //!
 //! See `ARCHITECTURE.md` for the map of modules and the path a frame takes.
 
+// No unwrap()/expect() in library code: input reaches most of it (messages, bags, parameter
+// files), and every failure there is an error with a reason. Tests may unwrap.
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
+
 pub mod bag;
 pub mod bench;
 pub mod datasets;

@@ -46,12 +46,12 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Eval(args) => sweepdepth::eval::run(&args),
+        Command::Eval(args) => sweepdepth::eval::run(&args).map_err(anyhow::Error::from),
         Command::Bench(args) => sweepdepth::bench::run(&args),
         Command::Demo(args) => sweepdepth::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
         Command::Bag(args) => sweepdepth::bag::process::run(&args).map_err(anyhow::Error::from),
-        Command::Pack(args) => sweepdepth::bag::pack::run(&args),
+        Command::Pack(args) => sweepdepth::bag::pack::run(&args).map_err(anyhow::Error::from),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -61,7 +61,7 @@ other frames at once, so there is no single evaluation pair; SGBM is run once
 per neighbour (0010, 0015, 0025, 0030), each a two-view pair with the
 reference:
 
-* Cameras as in datasets.rs / SOURCE.md (POV-Ray .txt: fx = W|dir|/|right|,
+* Cameras as in src/datasets/icl_nuim.rs / SOURCE.md (POV-Ray .txt: fx = W|dir|/|right|,
   fy = -H|dir|/|up| < 0, cx = (W-1)/2, cy = (H-1)/2, X_c = R_wc^T (X_w - C)).
   OpenCV wants positive focal lengths, so both cameras are taken with their y
   axis flipped (F = diag(1,-1,1): X' = F X_c, fy' = -fy); the relative pose of
@@ -117,7 +117,7 @@ DATASETS = [
      "disp1.png", 3.0, 10, 80, "disp5.png"),
 ]
 
-NONOCC_TOLERANCE_PX = 1.0  # as datasets.rs NONOCC_TOLERANCE_PX
+NONOCC_TOLERANCE_PX = 1.0  # as src/datasets/middlebury.rs NONOCC_TOLERANCE_PX
 
 MODES = {
     "HH": cv2.STEREO_SGBM_MODE_HH,
@@ -193,7 +193,7 @@ def fill_holes(disp, valid):
 
 
 def nonocc_mask(gt_left, gt_right, known_left):
-    """datasets.rs nonocc_mask: left pixel x with disparity d is kept when the right view's
+    """src/datasets/middlebury.rs nonocc_mask: left pixel x with disparity d is kept when the right view's
     ground truth at round(x - d) is known (> 0) and within NONOCC_TOLERANCE_PX of d."""
     h, w = gt_left.shape
     xs = np.arange(w)[None, :].repeat(h, axis=0)
@@ -229,7 +229,7 @@ def metrics(disp, valid, gt, mask):
 
 
 def icl_camera(txt_path, width, height):
-    """(K, R_cw, C) of a POV-Ray .txt camera, as datasets.rs povray_camera_model (fy < 0)."""
+    """(K, R_cw, C) of a POV-Ray .txt camera, as src/datasets/icl_nuim.rs povray_camera_model (fy < 0)."""
     fields = {}
     for line in Path(txt_path).read_text().splitlines():
         if "=" not in line:

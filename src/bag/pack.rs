@@ -58,6 +58,9 @@ pub enum PackError {
     Dataset(#[from] crate::datasets::DatasetError),
     #[error(transparent)]
     RigFile(#[from] crate::rig_file::RigFileError),
+    #[error(transparent)]
+    Io(#[from] crate::io::IoError),
+    /// Arguments or inputs that do not fit together, with the reason.
     #[error("{0}")]
     Invalid(String),
 }
@@ -235,7 +238,7 @@ fn rig_folder_cameras(
         }
         let mut frames = Vec::new();
         for p in paths {
-            let img = crate::io::load_rgba8(&p).map_err(|e| PackError::Invalid(e.to_string()))?;
+            let img = crate::io::load_rgba8(&p)?;
             let k = &model.intrinsics;
             if img.width != k.width_px || img.height != k.height_px {
                 return Err(PackError::Invalid(format!(
@@ -477,7 +480,7 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
 }
 
 /// The `pack` subcommand.
-pub fn run(args: &PackArgs) -> anyhow::Result<()> {
+pub fn run(args: &PackArgs) -> Result<(), PackError> {
     let report = pack(args)?;
     eprintln!(
         "pack: {} cameras [{}] ({}x{} reference {}), {} frame sets, {} messages to {}; parameters in {}",

@@ -2,7 +2,7 @@
 //! pipeline's configuration and the DDS side's own (domain, QoS, `/diagnostics`).
 
 use crate::params::ParamError;
-use crate::pipeline::{ConfigError, PipelineConfig};
+use crate::pipeline::{ConfigError, HostError, PipelineConfig};
 use crate::ros::args::{domain_id, parse_ros_args, RosArgsError};
 
 /// Errors that stop the node (at start-up).
@@ -21,6 +21,9 @@ pub enum NodeError {
     /// What ros2-client (RustDDS) said, as it says it.
     #[error("ROS 2 (ros2-client): {0}")]
     Ros(String),
+    #[error("GPU: {0}")]
+    Engine(#[from] HostError),
+    /// The GPU thread could not start or ended early.
     #[error("GPU: {0}")]
     Gpu(String),
 }

@@ -11,8 +11,17 @@ use ros2_client::NodeOptions;
 use super::log::{log_info, node_log};
 use crate::geometry::Rig;
 use crate::params::checks::{check_change, shape_rig};
-use crate::params::{ParamSet, ParamValue};
+use crate::params::{ParamError, ParamSet, ParamValue};
 use crate::sweep::SweepParams;
+
+/// Why a parameter set is refused (the parameter service answers with its message).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SetError {
+    #[error(transparent)]
+    Unsupported(#[from] UnsupportedValue),
+    #[error(transparent)]
+    Param(#[from] ParamError),
+}
 
 /// A value a ROS peer sent that no parameter of this node can hold.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -104,28 +113,26 @@ impl LiveParams {
     }
 
     /// The parameter set and engine parameters that setting `name` to `value` gives, or why
-    /// the set is rejected (the message the parameter service answers).
-    fn candidate(&self, name: &str, value: &RosValue) -> Result<(ParamSet, SweepParams), String> {
-        let value = from_ros(value).map_err(|e| e.to_string())?;
-        check_change(
+    /// the set is rejected.
+    fn candidate(&self, name: &str, value: &RosValue) -> Result<(ParamSet, SweepParams), SetError> {
+        let value = from_ros(value)?;
+        Ok(check_change(
             &self.params(),
             &self.sweep(),
             self.shape.as_ref(),
             name,
             &value,
-        )
-        .map_err(|e| e.to_string())
+        )?)
     }
 
-    /// The validator: Ok if `name` may be set to `value`, else the reason (ros2-client's
-    /// parameter callbacks take the reason as a `String`).
-    pub fn check(&self, name: &str, value: &RosValue) -> Result<(), String> {
+    /// The validator: Ok if `name` may be set to `value`, else the reason.
+    pub fn check(&self, name: &str, value: &RosValue) -> Result<(), SetError> {
         self.candidate(name, value).map(|_| ())
     }
 
     /// The set action: stores the value; the worker uses the new engine parameters from the
     /// next frame set on. Returns whether the value changed.
-    pub fn apply(&self, name: &str, value: &RosValue) -> Result<bool, String> {
+    pub fn apply(&self, name: &str, value: &RosValue) -> Result<bool, SetError> {
         let (params, sweep) = self.candidate(name, value)?;
         let mut current = lock(&self.params);
         let changed = current.get(name) != params.get(name);
@@ -149,6 +156,7 @@ pub(super) fn node_options(live: &Arc<LiveParams>) -> NodeOptions {
     let validator = Arc::clone(live);
     let action = Arc::clone(live);
     options
+        // ros2-client takes the reason as a String.
         .parameter_validator(Box::new(move |name, value| {
             let r = validator.check(name, value);
             if let Err(e) = &r {
@@ -157,10 +165,10 @@ pub(super) fn node_options(live: &Arc<LiveParams>) -> NodeOptions {
                     &format!("rejected setting parameter '{name}' to {value:?}: {e}"),
                 );
             }
-            r
+            r.map_err(|e| e.to_string())
         }))
         .parameter_set_action(Box::new(move |name, value| {
-            if action.apply(name, value)? {
+            if action.apply(name, value).map_err(|e| e.to_string())? {
                 log_info(&format!(
                     "parameter '{name}' set to {value:?} (used from the next frame set on)"
                 ));
@@ -201,7 +209,8 @@ mod tests {
         let l = live();
         let e = l
             .check("sync", &RosValue::String("exact".into()))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("read-only"), "{e}");
         // The current value of a read-only parameter is accepted (declaration).
         assert!(l
@@ -211,15 +220,22 @@ mod tests {
             l.apply("sync", &RosValue::String("approximate".into())),
             Ok(false)
         );
-        let e = l.check("num_planes", &RosValue::Integer(1)).unwrap_err();
+        let e = l
+            .check("num_planes", &RosValue::Integer(1))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("num_planes"), "{e}");
-        let e = l.check("min_depth", &RosValue::Double(100.0)).unwrap_err();
+        let e = l
+            .check("min_depth", &RosValue::Double(100.0))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("max_depth"), "{e}");
         assert!(l.check("nope", &RosValue::Integer(1)).is_err());
         // Checks across parameters: a shiftable window must be 1 or even (default 9x9).
         let e = l
             .check("window_mode", &RosValue::String("shiftable".into()))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("window_mode") && e.contains("even"), "{e}");
         assert!(l.check("median", &RosValue::NotSet).is_err());
         assert!(l.check("num_planes", &RosValue::Integer(32)).is_ok());
@@ -249,7 +265,10 @@ mod tests {
     fn best_n_larger_than_the_pairs_is_rejected_and_the_old_value_stays() {
         // 4 cameras, reference pairs: m = 3.
         let l = live_rig(4, &[]);
-        let e = l.apply("best_n", &RosValue::Integer(4)).unwrap_err();
+        let e = l
+            .apply("best_n", &RosValue::Integer(4))
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("best_n (4)") && e.contains("3 camera pairs") && e.contains("4 cameras"),
             "{e}"
@@ -262,7 +281,8 @@ mod tests {
         assert_eq!(l.apply("best_n", &RosValue::Integer(5)), Ok(true));
         let e = l
             .check("pairs", &RosValue::String("reference".into()))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("parameter 'pairs'") && e.contains("best_n (5)"),
             "{e}"
@@ -289,7 +309,8 @@ mod tests {
         let l = live_rig(3, &[]);
         let e = l
             .apply("min_visible_cameras", &RosValue::Integer(4))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("min_visible_cameras (4)") && e.contains("3 cameras"),
             "{e}"
@@ -306,13 +327,19 @@ mod tests {
         let l = live_rig(3, &[]);
         // max_depth is 10: min_depth 10 (equal) and 20 are refused, 9 is fine.
         for bad in [10.0, 20.0] {
-            let e = l.apply("min_depth", &RosValue::Double(bad)).unwrap_err();
+            let e = l
+                .apply("min_depth", &RosValue::Double(bad))
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("max_depth (10)"), "{e}");
         }
         assert_eq!(l.sweep().min_depth_m, 0.5);
         l.apply("min_depth", &RosValue::Double(9.0)).unwrap();
         // Now max_depth below the new min_depth is refused, and the old one stays.
-        let e = l.apply("max_depth", &RosValue::Double(8.0)).unwrap_err();
+        let e = l
+            .apply("max_depth", &RosValue::Double(8.0))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("min_depth (9)"), "{e}");
         assert_eq!(l.sweep().max_depth_m, 10.0);
         assert_eq!(l.params().get_f64("max_depth").unwrap(), 10.0);
@@ -328,7 +355,8 @@ mod tests {
         // Read-only node parameters: reference_camera cannot change at run time.
         let e = l
             .check("reference_camera", &RosValue::String("cam0".into()))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("read-only"), "{e}");
     }
 
@@ -341,7 +369,8 @@ mod tests {
         let l = LiveParams::new(set, sweep, 3, 1, true);
         let e = l
             .check("pairs", &RosValue::String("reference".into()))
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("virtual"), "{e}");
         assert!(l.check("num_planes", &RosValue::Integer(32)).is_ok());
     }

@@ -13,7 +13,7 @@ use super::params::LiveParams;
 use super::slot::LatestSlot;
 use super::NodeError;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
-use crate::pipeline::{EngineHost, Job};
+use crate::pipeline::{EngineHost, HostError, Job};
 
 /// The publishers of one set's outputs (made once DDS is up, then handed to the thread).
 pub(super) struct Publishers {
@@ -41,7 +41,7 @@ pub(super) fn spawn(
     live: Arc<LiveParams>,
     stats: Arc<Mutex<Stats>>,
 ) -> Result<GpuThread, NodeError> {
-    let (init_tx, init_rx) = mpsc::channel::<Result<String, String>>();
+    let (init_tx, init_rx) = mpsc::channel::<Result<String, HostError>>();
     let (publishers_tx, publishers_rx) = mpsc::channel::<Publishers>();
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
@@ -49,7 +49,7 @@ pub(super) fn spawn(
             let host = match EngineHost::new() {
                 Ok(host) => host,
                 Err(e) => {
-                    let _ = init_tx.send(Err(e.to_string()));
+                    let _ = init_tx.send(Err(e));
                     return;
                 }
             };
@@ -62,7 +62,7 @@ pub(super) fn spawn(
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
     let adapter = match init_rx.recv() {
         Ok(Ok(adapter)) => adapter,
-        Ok(Err(e)) => return Err(NodeError::Gpu(e)),
+        Ok(Err(e)) => return Err(NodeError::Engine(e)),
         Err(_) => {
             return Err(NodeError::Gpu(
                 "the GPU thread ended during start-up".into(),
@@ -134,7 +134,7 @@ fn worker_loop(
         }
         lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         published += 1;
-        if published == 1 || published % 100 == 0 {
+        if published == 1 || published.is_multiple_of(100) {
             log_info(&format!(
                 "published {published} depth images ({} sets dropped waiting for the GPU)",
                 slot.dropped()

@@ -71,14 +71,23 @@ fn parse_value(param: &EngineParam, text: &str) -> Result<ParamValue, ParamError
 
 /// `WxH` (or `WXH`) for the width and height parameters of one `--NAME WxH` option, as
 /// `IntArray([w, h])`.
-fn parse_size(width: &EngineParam, height: &EngineParam, text: &str) -> Result<ParamValue, String> {
+fn parse_size(
+    width: &EngineParam,
+    height: &EngineParam,
+    text: &str,
+) -> Result<ParamValue, ParamError> {
     let (w, h) = text
         .split_once(['x', 'X'])
-        .ok_or_else(|| format!("'{text}' is not WxH, e.g. 2x2"))?;
+        .ok_or_else(|| ParamError::NotASize(text.to_string()))?;
     let part = |param: &EngineParam, t: &str| match parse_value(param, t) {
         Ok(ParamValue::Int(v)) => Ok(v),
-        Ok(other) => Err(format!("{}: {other} is not an integer", param.spec.name)),
-        Err(e) => Err(format!("{}: {e}", param.spec.name)),
+        Ok(other) => Err(ParamError::WrongType {
+            expected: ParamKind::Int,
+            got: other.kind(),
+            value: other.to_string(),
+        }
+        .named(param.spec.name)),
+        Err(e) => Err(e.named(param.spec.name)),
     };
     Ok(ParamValue::IntArray(vec![
         part(width, w)?,
@@ -256,7 +265,10 @@ mod tests {
     fn values_outside_the_declared_range_are_refused() {
         for (args, needle) in [
             (&["--planes", "1"][..], "out of range"),
-            (&["--window", "2x40"], "window_height: out of range"),
+            (
+                &["--window", "2x40"],
+                "parameter 'window_height': out of range",
+            ),
             (&["--window", "3"], "not WxH"),
             (&["--tau=-1"], "out of range"),
             (&["--tau", "abc"], "wrong type"),

@@ -29,6 +29,8 @@ pub enum ParamError {
     NotOneOf { value: String, allowed: Vec<String> },
     #[error("invalid ROS name '{name}': {reason}")]
     InvalidName { name: String, reason: String },
+    #[error("'{0}' is not WxH, e.g. 2x2")]
+    NotASize(String),
     #[error("'{0}' must be a relative name")]
     NotRelative(String),
     #[error("needs at least {min_len} entries, got {got}")]
