@@ -3,15 +3,15 @@
 //!
 //! Data flow: per camera an image and a camera_info subscription (and `/tf_static` unless
 //! `rig_file` is set) feed one async loop on a `futures` executor that also drives the
-//! ros2-client spinner ([`dds`]). Each message goes into the pipeline ([`events`]); each set
+//! ros2-client spinner (`dds`). Each message goes into the pipeline (`events`); each set
 //! it makes ready goes to the GPU thread through a one-slot channel ([`slot::LatestSlot`]: the
-//! newest set replaces a pending one). The GPU thread ([`worker`]) owns the
+//! newest set replaces a pending one). The GPU thread (`worker`) owns the
 //! [`crate::pipeline::EngineHost`], runs the sweep and publishes `depth/image`,
 //! `depth/camera_info`, `confidence/image`, `cost/image`, `selection/image` and, with
 //! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
 //!
 //! A diagnostics thread publishes `/diagnostics` once a second ([`diag`]). Log messages go to
-//! stderr and, once DDS is up, to `/rosout` ([`log`]). The parameter services of ros2-client
+//! stderr and, once DDS is up, to `/rosout` (`log`). The parameter services of ros2-client
 //! serve every parameter of the table ([`params`]); engine parameters can be set at run time
 //! (validated, then used from the next frame set on), node parameters are read-only.
 //!

@@ -10,7 +10,7 @@
 //! * [`EngineHost::process`] runs a job through the engine and builds the output messages
 //!   ([`FrameOutputs`], published or recorded under [`OutputTopics`]).
 //!
-//! The path of an image, room by room: [`roster`] (is its camera in the rig? a silent camera
+//! The path of an image, room by room: `roster` (is its camera in the rig? a silent camera
 //! leaves it after `camera_timeout`) → the synchroniser (`crate::ros::sync`: the time rules'
 //! verdict, then exact or approximate matching over the cameras in the rig) → [`calibration`]
 //! (each image of a complete set gets its camera model from its CameraInfo or the rig file,
