@@ -40,13 +40,13 @@ struct Window<'a> {
 impl Window<'_> {
     fn mean(&self, z: usize, ch: usize, ax: i32, ay: i32) -> f32 {
         let p = &self.plan.params;
-        if p.window[0] <= 2 && p.window[1] <= 2 {
+        if p.window_w <= 2 && p.window_h <= 2 {
             // Direct path, as the shader: sum the slab texels of the window.
-            let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
+            let (width, height) = (p.width as i32, p.height as i32);
             let base = (z * self.plan.channels() + ch) * self.plan.pixel_count();
             let mut acc = [0.0f32; 2];
-            for y in ay.max(0)..(ay + p.window[1] as i32).min(height) {
-                for x in ax.max(0)..(ax + p.window[0] as i32).min(width) {
+            for y in ay.max(0)..(ay + p.window_h as i32).min(height) {
+                for x in ax.max(0)..(ax + p.window_w as i32).min(width) {
                     let c = self.cost_slab[base + (y * width + x) as usize];
                     if c >= 0.0 {
                         acc[0] += c;
@@ -56,9 +56,9 @@ impl Window<'_> {
             }
             return if acc[1] <= 0.0 { BIG } else { acc[0] / acc[1] };
         }
-        let (padded_w, padded_h) = (p.extra[2] as usize, p.extra[3] as usize);
-        let px = (ax + p.window[0] as i32 - 1) as usize;
-        let py = (ay + p.window[1] as i32 - 1) as usize;
+        let (padded_w, padded_h) = (p.padded_w as usize, p.padded_h as usize);
+        let px = (ax + p.window_w as i32 - 1) as usize;
+        let py = (ay + p.window_h as i32 - 1) as usize;
         let s = self.box_sums[((z * self.plan.channels() + ch) * padded_h + py) * padded_w + px];
         if s[1] <= 0.0 {
             BIG
@@ -69,9 +69,9 @@ impl Window<'_> {
 
     fn score(&self, z: usize, ax: i32, ay: i32) -> [f32; 2] {
         let p = &self.plan.params;
-        let margin = p.thresholds[3];
-        let (scoring, n) = (p.modes[0], p.modes[2]);
-        if p.modes[3] == AGG_PER_PAIR {
+        let margin = p.half_margin;
+        let (scoring, n) = (p.scoring, p.best_n);
+        if p.aggregation == AGG_PER_PAIR {
             let (mut sum, mut count) = (0.0f32, 0u32);
             let (mut left_sum, mut left_count, mut right_sum, mut right_count) =
                 (0.0f32, 0u32, 0.0f32, 0u32);
@@ -106,7 +106,7 @@ impl Window<'_> {
                     kept = (kept + 1).min(n);
                 }
             }
-            let half_n = p.counts[3] as usize;
+            let half_n = p.half_best_n as usize;
             let mut left = if left_count > 0 {
                 left_sum / left_count as f32
             } else {
@@ -144,7 +144,7 @@ impl Window<'_> {
             let left = self.mean(z, 0, ax, ay);
             let right = self.mean(z, 1, ax, ay);
             let mut score = left.min(right);
-            if p.modes[3] == AGG_SCORED {
+            if p.aggregation == AGG_SCORED {
                 score = self.mean(z, 2, ax, ay);
             }
             return [score, half_decision(margin, left, right)];
@@ -165,8 +165,8 @@ pub fn run(
     mut volume: Option<&mut [u32]>,
 ) {
     let p = &plan.params;
-    let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
-    let (w, h) = (p.window[0] as i32, p.window[1] as i32);
+    let (width, height) = (p.width as i32, p.height as i32);
+    let (w, h) = (p.window_w as i32, p.window_h as i32);
     let window = Window {
         plan,
         box_sums,
@@ -175,7 +175,7 @@ pub fn run(
     for z in 0..plane_count as usize {
         for y in 0..height {
             for x in 0..width {
-                let best = if p.extra[1] == WINDOW_CENTRED || (w == 1 && h == 1) {
+                let best = if p.window_mode == WINDOW_CENTRED || (w == 1 && h == 1) {
                     window.score(z, x - (w - 1) / 2, y - (h - 1) / 2)
                 } else {
                     let mut best = [BIG, 0.0];

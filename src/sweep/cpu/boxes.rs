@@ -6,11 +6,11 @@ use crate::sweep::plan::SweepPlan;
 pub fn box_h(plan: &SweepPlan, plane_count: u32, cost_slab: &[f32], row_sums: &mut [[f32; 2]]) {
     let params = &plan.params;
     let (width, height, npix) = (
-        params.ref_size[0] as i32,
-        params.ref_size[1] as usize,
+        params.width as i32,
+        params.height as usize,
         plan.pixel_count(),
     );
-    let window_w = params.window[0] as i32;
+    let window_w = params.window_w as i32;
     let (padded_w, _) = plan.padded_size();
     let slices = plane_count as usize * plan.channels();
     for zc in 0..slices {
@@ -39,8 +39,8 @@ pub fn box_h(plan: &SweepPlan, plane_count: u32, cost_slab: &[f32], row_sums: &m
 /// Vertical sums of the row sums: the w x h window sums for every anchor.
 pub fn box_v(plan: &SweepPlan, plane_count: u32, row_sums: &[[f32; 2]], box_sums: &mut [[f32; 2]]) {
     let params = &plan.params;
-    let height = params.ref_size[1] as i32;
-    let window_h = params.window[1] as i32;
+    let height = params.height as i32;
+    let window_h = params.window_h as i32;
     let (padded_w, padded_h) = (plan.padded_size().0 as usize, plan.padded_size().1 as usize);
     let slices = plane_count as usize * plan.channels();
     for zc in 0..slices {

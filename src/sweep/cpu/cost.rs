@@ -62,8 +62,8 @@ fn add_pair(acc: &mut Acc, params: &GpuParams, cost: f32, half: u32) {
         acc.right_sum += cost;
         acc.right_count += 1;
     }
-    let n = params.modes[2];
-    if params.modes[0] == SCORING_BEST_N {
+    let n = params.best_n;
+    if params.scoring == SCORING_BEST_N {
         let kept = acc.n_best;
         if kept == n && cost >= acc.best[(n - 1) as usize] {
             return;
@@ -106,15 +106,11 @@ pub fn run(
     cost_slab: &mut [f32],
 ) {
     let params = &plan.params;
-    let (width, height, npix) = (
-        params.ref_size[0],
-        params.ref_size[1],
-        params.ref_size[2] as usize,
-    );
-    let channels = params.counts[2] as usize;
-    let ref_index = params.ref_size[3];
-    let n_cameras = params.counts[0];
-    let tau = params.thresholds[0];
+    let (width, height, npix) = (params.width, params.height, params.pixel_count as usize);
+    let channels = params.channels as usize;
+    let ref_index = params.reference;
+    let n_cameras = params.cameras;
+    let tau = params.tau;
     for z in 0..plane_count {
         for y in 0..height {
             for x in 0..width {
@@ -129,9 +125,9 @@ pub fn run(
                     continue;
                 }
                 let point_in_ref = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
-                let per_pair = params.modes[3] == AGG_PER_PAIR;
+                let per_pair = params.aggregation == AGG_PER_PAIR;
                 let mut acc = Acc::default();
-                if params.modes[1] == PAIRS_REFERENCE {
+                if params.pair_mode == PAIRS_REFERENCE {
                     let ref_cam = &plan.cameras[ref_index as usize];
                     let ref_colour = texel(images, ref_cam, x, y);
                     let mut p = 0;
@@ -199,7 +195,7 @@ pub fn run(
                         continue;
                     }
                 }
-                let scoring = params.modes[0];
+                let scoring = params.scoring;
                 if scoring == SCORING_HALF {
                     let left = mean_or_invalid(acc.left_sum, acc.left_count);
                     let right = mean_or_invalid(acc.right_sum, acc.right_count);

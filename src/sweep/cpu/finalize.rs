@@ -15,8 +15,8 @@ fn inverse_depth(plan: &SweepPlan, k: u32, ray: Vec3) -> f32 {
 pub fn run(plan: &SweepPlan, state: &[PixelState], maps: &mut [f32]) {
     let params = &plan.params;
     let npix = plan.pixel_count();
-    let n_planes = params.counts[1];
-    let max_cost = params.thresholds[1];
+    let n_planes = params.planes;
+    let max_cost = params.max_cost;
     for pix in 0..npix {
         let [s0, s1, s2] = state[pix];
         let best = s0[0];
@@ -30,7 +30,7 @@ pub fn run(plan: &SweepPlan, state: &[PixelState], maps: &mut [f32]) {
         let k = s0[1] as u32;
         let ray = xyz(plan.rays[pix]);
         let mut q = inverse_depth(plan, k, ray);
-        if params.window[2] != 0
+        if params.subpixel != 0
             && k > 0
             && k + 1 < n_planes
             && s0[2] < 0.5 * BIG

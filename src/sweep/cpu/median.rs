@@ -40,13 +40,13 @@ fn sort9(v: &mut [f32; 9]) {
 
 pub fn run(plan: &SweepPlan, maps: &mut [f32]) {
     let params = &plan.params;
-    let (width, height) = (params.ref_size[0] as i32, params.ref_size[1] as i32);
+    let (width, height) = (params.width as i32, params.height as i32);
     let npix = plan.pixel_count();
     for gy in 0..height {
         for gx in 0..width {
             let pix = (gy * width + gx) as usize;
             let centre = maps[MAP_DEPTH_RAW * npix + pix];
-            if centre.is_nan() || params.window[3] == 0 {
+            if centre.is_nan() || params.median == 0 {
                 maps[MAP_DEPTH_MEDIAN * npix + pix] = centre;
                 continue;
             }

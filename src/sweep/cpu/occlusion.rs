@@ -20,7 +20,7 @@ fn nearest_texel(cam: &GpuCamera, projected: Vec3) -> Option<usize> {
 
 pub fn splat(plan: &SweepPlan, maps: &[f32], zbuffer: &mut [u32]) {
     let npix = plan.pixel_count();
-    let ref_index = plan.params.ref_size[3];
+    let ref_index = plan.params.reference;
     for pix in 0..npix {
         let depth = maps[MAP_DEPTH_MEDIAN * npix + pix];
         if depth.is_nan() {
@@ -42,8 +42,8 @@ pub fn splat(plan: &SweepPlan, maps: &[f32], zbuffer: &mut [u32]) {
 pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut [f32]) {
     let params = &plan.params;
     let npix = plan.pixel_count();
-    let ref_index = params.ref_size[3];
-    let tolerance = params.thresholds[2];
+    let ref_index = params.reference;
+    let tolerance = params.occlusion_tolerance;
     for pix in 0..npix {
         let depth = maps[MAP_DEPTH_MEDIAN * npix + pix];
         if depth.is_nan() {
@@ -66,7 +66,7 @@ pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut [f32]) {
             }
         }
         maps[MAP_VISIBLE * npix + pix] = seen as f32;
-        if seen < params.extra[0] {
+        if seen < params.min_visible {
             maps[MAP_DEPTH * npix + pix] = f32::NAN;
             maps[MAP_CONFIDENCE * npix + pix] = 0.0;
             maps[MAP_SELECTION * npix + pix] = 3.0;

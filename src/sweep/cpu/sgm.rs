@@ -13,7 +13,7 @@ pub fn volume_level(plan: &SweepPlan, score: f32) -> u32 {
     if score >= 0.5 * BIG {
         return SGM_COST_MAX;
     }
-    ((score * plan.params.sgm_scale[0] + 0.5).floor() as u32).min(SGM_COST_MAX)
+    ((score * plan.params.sgm_levels_per_unit + 0.5).floor() as u32).min(SGM_COST_MAX)
 }
 
 /// Writes plane `plane`'s level at pixel `pix` into the packed volume (aggregate.wgsl's
@@ -70,14 +70,14 @@ pub fn pass(
     sums: &mut [u32],
 ) {
     let p = &plan.params;
-    let (w, h) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
-    let planes = p.counts[1] as usize;
+    let (w, h) = (p.width as i32, p.height as i32);
+    let planes = p.planes as usize;
     let words = plan.volume_words();
-    let [_, p1, p2, edge] = p.sgm;
-    let image_offset = if p.ref_size[3] == NO_CAMERA {
+    let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
+    let image_offset = if p.reference == NO_CAMERA {
         0
     } else {
-        plan.cameras[p.ref_size[3] as usize].size[2] as usize
+        plan.cameras[p.reference as usize].size[2] as usize
     };
     let mut prev_costs = vec![0u32; 2 * words];
     let mut next_costs = vec![0u32; 2 * words];
@@ -149,7 +149,7 @@ pub fn pass(
 pub fn select(plan: &SweepPlan, sums: &[u32], state: &mut [PixelState]) {
     let planes = plan.num_planes() as usize;
     let words = plan.volume_words();
-    let unit = plan.params.sgm_scale[1];
+    let unit = plan.params.sgm_unit_per_level;
     for (pix, st) in state.iter_mut().enumerate() {
         let local = st[0];
         if !(local[0] < 0.5 * BIG) || local[1] < 0.0 {
@@ -195,8 +195,11 @@ mod tests {
             ..SweepParams::default()
         };
         let mut plan = SweepPlan::new(&rig, &params).expect("plan");
-        plan.params.sgm = [1, 10, 30, 0];
-        plan.params.sgm_scale[1] = 1.0;
+        plan.params.sgm_paths = 1;
+        plan.params.sgm_p1 = 10;
+        plan.params.sgm_p2 = 30;
+        plan.params.sgm_edge = 0;
+        plan.params.sgm_unit_per_level = 1.0;
         plan
     }
 
@@ -234,7 +237,7 @@ mod tests {
     fn edge_step_lowers_p2() {
         let mut plan = plan();
         // Edge = 8 grey levels (x 16): a step of 8 halves P2 (30 -> 15).
-        plan.params.sgm[3] = 8 * 16;
+        plan.params.sgm_edge = 8 * 16;
         let images = [0u32, 8];
         let costs = volume(&[[0, 50, 50], [50, 50, 0]]);
         let mut sums = vec![0u32; costs.len()];
