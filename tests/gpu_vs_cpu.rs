@@ -39,7 +39,9 @@ fn compare_with(
         engine.set_sgm_line_per_invocation(on);
     }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
-    let cpu = CpuEngine.run_plan(plan, rig, images).expect("cpu run");
+    let mut cpu_engine = CpuEngine::new();
+    cpu_engine.set_fast_paths(std::env::var_os("NO_FAST").is_none());
+    let cpu = cpu_engine.trace(plan, rig, images).expect("cpu run");
     let npix = plan.pixel_count();
     for (s, label) in [
         (MAP_DEPTH_RAW, "depth_raw"),
@@ -155,14 +157,12 @@ fn sgm_agrees_on_synthetic() {
     let plan = SweepPlan::new(&rig, &sgm).expect("plan");
     let wta_plan = SweepPlan::new(&rig, &base()).expect("plan");
     let npix = plan.pixel_count();
-    let sgm_maps = CpuEngine
-        .run_plan(&plan, &rig, &images)
-        .expect("cpu run")
-        .maps;
-    let wta_maps = CpuEngine
-        .run_plan(&wta_plan, &rig, &images)
-        .expect("cpu run")
-        .maps;
+    let sgm_maps = CpuEngine::new()
+        .run_plan_raw(&plan, &rig, &images)
+        .expect("cpu run");
+    let wta_maps = CpuEngine::new()
+        .run_plan_raw(&wta_plan, &rig, &images)
+        .expect("cpu run");
     assert_ne!(
         section(&sgm_maps, npix, MAP_COST),
         section(&wta_maps, npix, MAP_COST)

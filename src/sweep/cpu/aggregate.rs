@@ -1,201 +1,329 @@
-//! Twin of `shaders/aggregate.wgsl`: window placement and scoring.
+//! Twin of `shaders/aggregate.wgsl` (window placement and scoring), one output row at a time:
+//! the window means of every channel for each placement (shiftable: the four windows with the
+//! pixel at a corner; centred: one), the score over pairs or halves, and the best placement.
+//! Every loop runs along the row over plain slices (one per accumulator), so it vectorises.
 
-use super::select::{self, PixelState};
+use super::boxes::RowRing;
+use super::common::fmin;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+const SEL_NONE: f32 = 0.0;
+const SEL_LEFT: f32 = 1.0;
+const SEL_RIGHT: f32 = 2.0;
+
 /// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
 /// by less than `margin` of HALF_NOISE_FLOOR.
+#[inline(always)]
 fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
-    let floor_cost = HALF_NOISE_FLOOR;
-    if left < BIG && (right >= BIG || (right - left) > margin * right.max(floor_cost)) {
-        SEL_LEFT as f32
-    } else if right < BIG && (left >= BIG || (left - right) > margin * left.max(floor_cost)) {
-        SEL_RIGHT as f32
+    let is_left =
+        left < BIG && (right >= BIG || (right - left) > margin * right.max(HALF_NOISE_FLOOR));
+    let is_right =
+        right < BIG && (left >= BIG || (left - right) > margin * left.max(HALF_NOISE_FLOOR));
+    if is_left {
+        SEL_LEFT
+    } else if is_right {
+        SEL_RIGHT
     } else {
-        SEL_NONE as f32
+        SEL_NONE
     }
 }
 
-const SEL_NONE: u32 = 0;
-const SEL_LEFT: u32 = 1;
-const SEL_RIGHT: u32 = 2;
-
-/// Mean of the `n` smallest values (all of them when fewer), BIG when there are none.
-fn best_mean(values: &mut [f32], n: usize) -> f32 {
-    if values.is_empty() {
-        return BIG;
+#[inline(always)]
+fn mean_or_big(sum: f32, count: f32) -> f32 {
+    if count > 0.0 {
+        sum / count
+    } else {
+        BIG
     }
-    values.sort_by(|a, b| a.total_cmp(b));
-    let k = n.min(values.len());
-    values[..k].iter().sum::<f32>() / k as f32
 }
 
-struct Window<'a> {
-    plan: &'a SweepPlan,
-    box_sums: &'a [[f32; 2]],
-    cost_slab: &'a [f32],
+/// Inserts `v` into the ascending list `list` (one slice per rank) at pixel `x`, dropping the
+/// largest: the `list.len()` smallest values stay exact.
+#[inline(always)]
+fn bubble(list: &mut [Vec<f32>], x: usize, mut v: f32) {
+    for rank in list.iter_mut() {
+        let b = rank[x];
+        rank[x] = fmin(b, v);
+        v = if b < v { v } else { b };
+    }
 }
 
-impl Window<'_> {
-    fn mean(&self, z: usize, ch: usize, ax: i32, ay: i32) -> f32 {
-        let p = &self.plan.params;
-        if p.window_w <= 2 && p.window_h <= 2 {
-            // Direct path, as the shader: sum the slab texels of the window.
-            let (width, height) = (p.width as i32, p.height as i32);
-            let base = (z * self.plan.channels() + ch) * self.plan.pixel_count();
-            let mut acc = [0.0f32; 2];
-            for y in ay.max(0)..(ay + p.window_h as i32).min(height) {
-                for x in ax.max(0)..(ax + p.window_w as i32).min(width) {
-                    let c = self.cost_slab[base + (y * width + x) as usize];
-                    if c >= 0.0 {
-                        acc[0] += c;
-                        acc[1] += 1.0;
-                    }
-                }
-            }
-            return if acc[1] <= 0.0 { BIG } else { acc[0] / acc[1] };
+/// Window geometry of the plan: which rows each output row's placements cover.
+#[derive(Debug, Clone, Copy)]
+pub struct Windows {
+    pub w: usize,
+    pub h: usize,
+    /// Four placements (shiftable windows larger than 1x1) or one (centred).
+    pub shiftable: bool,
+}
+
+impl Windows {
+    pub fn of(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        let (w, h) = (p.window_w as usize, p.window_h as usize);
+        Self {
+            w,
+            h,
+            shiftable: p.window_mode == WINDOW_SHIFTABLE && !(w == 1 && h == 1),
         }
-        let (padded_w, padded_h) = (p.padded_w as usize, p.padded_h as usize);
-        let px = (ax + p.window_w as i32 - 1) as usize;
-        let py = (ay + p.window_h as i32 - 1) as usize;
-        let s = self.box_sums[((z * self.plan.channels() + ch) * padded_h + py) * padded_w + px];
-        if s[1] <= 0.0 {
-            BIG
+    }
+
+    /// Rows above and below the pixel that its windows reach.
+    pub fn reach(&self) -> (usize, usize) {
+        if self.shiftable {
+            (self.h - 1, self.h - 1)
         } else {
-            s[0] / s[1]
+            let up = (self.h - 1) / 2;
+            (up, self.h - 1 - up)
         }
     }
 
-    fn score(&self, z: usize, ax: i32, ay: i32) -> [f32; 2] {
-        let p = &self.plan.params;
-        let margin = p.half_margin;
-        let (scoring, n) = (p.scoring, p.best_n);
-        if p.aggregation == AGG_PER_PAIR {
-            let (mut sum, mut count) = (0.0f32, 0u32);
-            let (mut left_sum, mut left_count, mut right_sum, mut right_count) =
-                (0.0f32, 0u32, 0.0f32, 0u32);
-            let mut smallest = [0.0f32; MAX_BEST_N as usize];
-            let mut kept = 0u32;
-            let mut left_values = Vec::new();
-            let mut right_values = Vec::new();
-            for pair in 0..self.plan.channels() {
-                let a = self.mean(z, pair, ax, ay);
-                if a >= BIG {
-                    continue;
-                }
-                sum += a;
-                count += 1;
-                let half = self.plan.pairs[pair][2];
-                if half == HALF_LEFT {
-                    left_sum += a;
-                    left_count += 1;
-                    left_values.push(a);
-                } else if half == HALF_RIGHT {
-                    right_sum += a;
-                    right_count += 1;
-                    right_values.push(a);
-                }
-                if scoring == SCORING_BEST_N && (kept < n || a < smallest[(n - 1) as usize]) {
-                    let mut i = kept.min(n - 1) as usize;
-                    while i > 0 && smallest[i - 1] > a {
-                        smallest[i] = smallest[i - 1];
-                        i -= 1;
-                    }
-                    smallest[i] = a;
-                    kept = (kept + 1).min(n);
-                }
-            }
-            let half_n = p.half_best_n as usize;
-            let mut left = if left_count > 0 {
-                left_sum / left_count as f32
-            } else {
-                BIG
-            };
-            let mut right = if right_count > 0 {
-                right_sum / right_count as f32
-            } else {
-                BIG
-            };
-            if half_n > 0 {
-                left = best_mean(&mut left_values, half_n);
-                right = best_mean(&mut right_values, half_n);
-            }
-            if scoring == SCORING_HALF {
-                return [left.min(right), half_decision(margin, left, right)];
-            }
-            if scoring == SCORING_BEST_N {
-                // The halves also tell which side matched better (the selection image).
-                let sel = half_decision(margin, left, right);
-                if kept == 0 {
-                    return [BIG, sel];
-                }
-                return [
-                    smallest[..kept as usize].iter().sum::<f32>() / kept as f32,
-                    sel,
-                ];
-            }
-            if count == 0 {
-                return [BIG, 0.0];
-            }
-            return [sum / count as f32, 0.0];
+    /// The first rows of the window row sets of output row y: (upper, lower) for shiftable
+    /// windows, (centred, centred) otherwise; signed (may lie above the image).
+    fn anchor_rows(&self, y: usize) -> [isize; 2] {
+        let y = y as isize;
+        if self.shiftable {
+            [y - self.h as isize + 1, y]
+        } else {
+            let a = y - (self.h as isize - 1) / 2;
+            [a, a]
         }
-        if scoring == SCORING_HALF {
-            let left = self.mean(z, 0, ax, ay);
-            let right = self.mean(z, 1, ax, ay);
-            let mut score = left.min(right);
-            if p.aggregation == AGG_SCORED {
-                score = self.mean(z, 2, ax, ay);
-            }
-            return [score, half_decision(margin, left, right)];
+    }
+
+    /// Per placement lane: (row set 0 = upper / 1 = lower, column offset into the padded sums).
+    fn lanes(&self) -> Vec<(usize, usize)> {
+        if self.shiftable {
+            vec![(0, 0), (0, self.w - 1), (1, 0), (1, self.w - 1)]
+        } else {
+            vec![(0, self.w / 2)]
         }
-        [self.mean(z, 0, ax, ay), 0.0]
     }
 }
 
-/// Scores every plane of the batch for every pixel and feeds the winner-take-all state; with
-/// a `volume` (optimizer sgm) also writes each score's level into it.
-pub fn run(
-    plan: &SweepPlan,
-    first_plane: u32,
-    plane_count: u32,
-    box_sums: &[[f32; 2]],
-    cost_slab: &[f32],
-    state: &mut [PixelState],
-    mut volume: Option<&mut [u32]>,
-) {
-    let p = &plan.params;
-    let (width, height) = (p.width as i32, p.height as i32);
-    let (w, h) = (p.window_w as i32, p.window_h as i32);
-    let window = Window {
-        plan,
-        box_sums,
-        cost_slab,
-    };
-    for z in 0..plane_count as usize {
-        for y in 0..height {
-            for x in 0..width {
-                let best = if p.window_mode == WINDOW_CENTRED || (w == 1 && h == 1) {
-                    window.score(z, x - (w - 1) / 2, y - (h - 1) / 2)
-                } else {
-                    let mut best = [BIG, 0.0];
-                    for corner in 0..4 {
-                        let ax = if corner & 1 == 0 { x - w + 1 } else { x };
-                        let ay = if corner & 2 == 0 { y - h + 1 } else { y };
-                        let s = window.score(z, ax, ay);
-                        if s[0] < best[0] {
-                            best = s;
-                        }
-                    }
-                    best
-                };
-                let pix = (y * width + x) as usize;
-                let plane = first_plane + z as u32;
-                select::update(&mut state[pix], plane as f32, best);
-                if let Some(volume) = volume.as_deref_mut() {
-                    super::sgm::store_level(plan, volume, pix, plane, best[0]);
+/// Scratch of one plane's scoring; rows of `width` pixels.
+pub struct RowScorer {
+    width: usize,
+    padded: usize,
+    windows: Windows,
+    /// channel x row set x padded: vertical sums and counts.
+    sums: Vec<f32>,
+    counts: Vec<f32>,
+    mean: Vec<f32>,
+    lane_score: Vec<f32>,
+    lane_sel: Vec<f32>,
+    acc: [Vec<f32>; 6],
+    best: Vec<Vec<f32>>,
+    left_best: Vec<Vec<f32>>,
+    right_best: Vec<Vec<f32>>,
+}
+
+impl RowScorer {
+    pub fn new(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        let width = p.width as usize;
+        let windows = Windows::of(plan);
+        let padded = width + windows.w - 1;
+        let channels = p.channels as usize;
+        let ranks = |n: usize| (0..n).map(|_| vec![BIG; width]).collect();
+        Self {
+            width,
+            padded,
+            windows,
+            sums: vec![0.0; channels * 2 * padded],
+            counts: vec![0.0; channels * 2 * padded],
+            mean: vec![0.0; width],
+            lane_score: vec![0.0; width],
+            lane_sel: vec![0.0; width],
+            acc: std::array::from_fn(|_| vec![0.0; width]),
+            best: ranks(if p.scoring == SCORING_BEST_N {
+                p.best_n as usize
+            } else {
+                0
+            }),
+            left_best: ranks(p.half_best_n as usize),
+            right_best: ranks(p.half_best_n as usize),
+        }
+    }
+
+    /// Scores output row `y` from the horizontal sums in `ring` (rows of the image `height`):
+    /// the best placement's score and selection into `score` and `sel`.
+    pub fn score_row(
+        &mut self,
+        plan: &SweepPlan,
+        ring: &RowRing,
+        y: usize,
+        height: usize,
+        score: &mut [f32],
+        sel: &mut [u8],
+    ) {
+        let p = &plan.params;
+        let channels = p.channels as usize;
+        let padded = self.padded;
+        let anchors = self.windows.anchor_rows(y);
+        let row_sets = if self.windows.shiftable { 2 } else { 1 };
+        for ch in 0..channels {
+            for (set, &ay) in anchors.iter().enumerate().take(row_sets) {
+                let first = ay.max(0) as usize;
+                let end = ((ay + self.windows.h as isize).max(0) as usize).min(height);
+                let at = (ch * 2 + set) * padded;
+                ring.box_v(
+                    ch,
+                    first,
+                    end,
+                    &mut self.sums[at..at + padded],
+                    &mut self.counts[at..at + padded],
+                );
+            }
+        }
+        let lanes = self.windows.lanes();
+        for (lane, &(set, offset)) in lanes.iter().enumerate() {
+            if p.aggregation == AGG_PER_PAIR {
+                self.score_pairs(plan, set, offset);
+            } else {
+                self.score_channels(plan, set, offset);
+            }
+            let (score, sel) = (&mut score[..self.width], &mut sel[..self.width]);
+            if lane == 0 {
+                for x in 0..self.width {
+                    score[x] = self.lane_score[x];
+                    sel[x] = self.lane_sel[x] as u8;
+                }
+            } else {
+                // First lane on ties, as `best_placement`.
+                for x in 0..self.width {
+                    let better = self.lane_score[x] < score[x];
+                    score[x] = if better { self.lane_score[x] } else { score[x] };
+                    sel[x] = if better {
+                        self.lane_sel[x] as u8
+                    } else {
+                        sel[x]
+                    };
                 }
             }
+        }
+    }
+
+    /// The window means of `channel` for one placement into `self.mean`.
+    fn means(&mut self, channel: usize, set: usize, offset: usize) {
+        let at = (channel * 2 + set) * self.padded + offset;
+        let (sums, counts) = (
+            &self.sums[at..at + self.width],
+            &self.counts[at..at + self.width],
+        );
+        for ((m, &s), &n) in self.mean.iter_mut().zip(sums).zip(counts) {
+            *m = mean_or_big(s, n);
+        }
+    }
+
+    /// Scored or per-half aggregation (`finish_channels`).
+    fn score_channels(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
+        let p = &plan.params;
+        if p.scoring != SCORING_HALF {
+            self.means(0, set, offset);
+            self.lane_score.copy_from_slice(&self.mean);
+            self.lane_sel.fill(SEL_NONE);
+            return;
+        }
+        let margin = p.half_margin;
+        self.means(0, set, offset);
+        self.acc[0].copy_from_slice(&self.mean);
+        self.means(1, set, offset);
+        self.acc[1].copy_from_slice(&self.mean);
+        if p.aggregation == AGG_SCORED {
+            self.means(2, set, offset);
+        }
+        let scored = p.aggregation == AGG_SCORED;
+        for x in 0..self.width {
+            let (left, right) = (self.acc[0][x], self.acc[1][x]);
+            self.lane_score[x] = if scored {
+                self.mean[x]
+            } else {
+                left.min(right)
+            };
+            self.lane_sel[x] = half_decision(margin, left, right);
+        }
+    }
+
+    /// Per-pair aggregation (`accumulate` + `finish_pairs`).
+    fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
+        let p = &plan.params;
+        let width = self.width;
+        let halves = p.scoring == SCORING_HALF || p.scoring == SCORING_BEST_N;
+        for a in &mut self.acc {
+            a.fill(0.0);
+        }
+        for list in [&mut self.best, &mut self.left_best, &mut self.right_best] {
+            for rank in list.iter_mut() {
+                rank.fill(BIG);
+            }
+        }
+        for (pair, info) in plan.pairs.iter().enumerate().take(p.channels as usize) {
+            self.means(pair, set, offset);
+            let half = info[2];
+            let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
+            for x in 0..width {
+                let a = self.mean[x];
+                let seen = a < BIG;
+                let (a0, one) = if seen { (a, 1.0) } else { (0.0, 0.0) };
+                sum[x] += a0;
+                count[x] += one;
+                if halves && half == HALF_LEFT {
+                    left_sum[x] += a0;
+                    left_count[x] += one;
+                } else if halves && half == HALF_RIGHT {
+                    right_sum[x] += a0;
+                    right_count[x] += one;
+                }
+            }
+            if halves && half == HALF_LEFT && !self.left_best.is_empty() {
+                for x in 0..width {
+                    bubble(&mut self.left_best, x, self.mean[x]);
+                }
+            } else if halves && half == HALF_RIGHT && !self.right_best.is_empty() {
+                for x in 0..width {
+                    bubble(&mut self.right_best, x, self.mean[x]);
+                }
+            }
+            if !self.best.is_empty() {
+                for x in 0..width {
+                    bubble(&mut self.best, x, self.mean[x]);
+                }
+            }
+        }
+        let margin = p.half_margin;
+        let best_mean = |list: &[Vec<f32>], x: usize| {
+            let (mut s, mut c) = (0.0f32, 0.0f32);
+            for rank in list {
+                if rank[x] < BIG {
+                    s += rank[x];
+                    c += 1.0;
+                }
+            }
+            mean_or_big(s, c)
+        };
+        let [sum, count, left_sum, left_count, right_sum, right_count] = &self.acc;
+        for x in 0..width {
+            let (left, right) = if self.left_best.is_empty() {
+                (
+                    mean_or_big(left_sum[x], left_count[x]),
+                    mean_or_big(right_sum[x], right_count[x]),
+                )
+            } else {
+                (
+                    best_mean(&self.left_best, x),
+                    best_mean(&self.right_best, x),
+                )
+            };
+            let (score, sel) = if p.scoring == SCORING_HALF {
+                (left.min(right), half_decision(margin, left, right))
+            } else if p.scoring == SCORING_BEST_N {
+                (best_mean(&self.best, x), half_decision(margin, left, right))
+            } else {
+                (mean_or_big(sum[x], count[x]), SEL_NONE)
+            };
+            self.lane_score[x] = score;
+            self.lane_sel[x] = sel;
         }
     }
 }

@@ -63,3 +63,67 @@ pub fn plane_depth(plane: [f32; 4], ray: Vec3) -> f32 {
     }
     plane[3] / denom
 }
+
+/// One camera image as planar f32 channels (0..255, as the shaders' `texel`), so that rows
+/// of samples are contiguous slices the compiler vectorises.
+pub struct PlanarImage {
+    pub width: usize,
+    pub height: usize,
+    /// R, G, B planes, row-major.
+    pub channels: [Vec<f32>; 3],
+}
+
+impl PlanarImage {
+    /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
+    pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
+        let unpack = |shift: u32| -> Vec<f32> {
+            pixels
+                .iter()
+                .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0)
+                .collect()
+        };
+        Self {
+            width,
+            height,
+            channels: [unpack(0), unpack(8), unpack(16)],
+        }
+    }
+
+    /// The colour at texel (x, y).
+    pub fn texel(&self, x: usize, y: usize) -> Vec3 {
+        let i = y * self.width + x;
+        [
+            self.channels[0][i],
+            self.channels[1][i],
+            self.channels[2][i],
+        ]
+    }
+
+    /// Twin of `sample_bilinear` (cost.wgsl) for a pixel that `inside` accepted.
+    pub fn sample_bilinear(&self, pixel: Vec2) -> Vec3 {
+        let bx = pixel[0].floor();
+        let by = pixel[1].floor();
+        let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
+        let (x0, y0) = (bx as usize, by as usize);
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let mut out = [0.0; 3];
+        for (c, plane) in self.channels.iter().enumerate() {
+            let top = mix(plane[y0 * self.width + x0], plane[y0 * self.width + x1], fx);
+            let bottom = mix(plane[y1 * self.width + x0], plane[y1 * self.width + x1], fx);
+            out[c] = mix(top, bottom, fy);
+        }
+        out
+    }
+}
+
+/// `if a < b { a } else { b }`: the WGSL `min` of two non-NaN values, one instruction.
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
