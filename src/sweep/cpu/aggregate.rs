@@ -8,14 +8,17 @@ use super::common::fmin;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
-const SEL_NONE: f32 = 0.0;
-const SEL_LEFT: f32 = 1.0;
-const SEL_RIGHT: f32 = 2.0;
+/// The vertical window sums slide down the rows and are summed anew every this many rows.
+const RESTART_ROWS: usize = 16;
+
+const SEL_NONE: u8 = 0;
+const SEL_LEFT: u8 = 1;
+const SEL_RIGHT: u8 = 2;
 
 /// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
 /// by less than `margin` of HALF_NOISE_FLOOR.
 #[inline(always)]
-fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
+fn half_decision(margin: f32, left: f32, right: f32) -> u8 {
     let is_left =
         left < BIG && (right >= BIG || (right - left) > margin * right.max(HALF_NOISE_FLOOR));
     let is_right =
@@ -35,17 +38,6 @@ fn mean_or_big(sum: f32, count: f32) -> f32 {
         sum / count
     } else {
         BIG
-    }
-}
-
-/// Inserts `v` into the ascending list `list` (one slice per rank) at pixel `x`, dropping the
-/// largest: the `list.len()` smallest values stay exact.
-#[inline(always)]
-fn bubble(list: &mut [Vec<f32>], x: usize, mut v: f32) {
-    for rank in list.iter_mut() {
-        let b = rank[x];
-        rank[x] = fmin(b, v);
-        v = if b < v { v } else { b };
     }
 }
 
@@ -111,7 +103,8 @@ pub struct RowScorer {
     counts: Vec<f32>,
     mean: Vec<f32>,
     lane_score: Vec<f32>,
-    lane_sel: Vec<f32>,
+    lane_sel: Vec<u8>,
+    carry: Vec<f32>,
     acc: [Vec<f32>; 6],
     best: Vec<Vec<f32>>,
     left_best: Vec<Vec<f32>>,
@@ -134,7 +127,8 @@ impl RowScorer {
             counts: vec![0.0; channels * 2 * padded],
             mean: vec![0.0; width],
             lane_score: vec![0.0; width],
-            lane_sel: vec![0.0; width],
+            lane_sel: vec![0; width],
+            carry: vec![0.0; width],
             acc: std::array::from_fn(|_| vec![0.0; width]),
             best: ranks(if p.scoring == SCORING_BEST_N {
                 p.best_n as usize
@@ -148,6 +142,7 @@ impl RowScorer {
 
     /// Scores output row `y` from the horizontal sums in `ring` (rows of the image `height`):
     /// the best placement's score and selection into `score` and `sel`.
+    #[inline(always)]
     pub fn score_row(
         &mut self,
         plan: &SweepPlan,
@@ -162,18 +157,27 @@ impl RowScorer {
         let padded = self.padded;
         let anchors = self.windows.anchor_rows(y);
         let row_sets = if self.windows.shiftable { 2 } else { 1 };
+        let h = self.windows.h as isize;
+        let rows = |from: isize| (from.max(0) as usize).min(height);
+        // Sliding by one row: drop the row that left the window, add the one that entered;
+        // summed anew (in the shader's order) every RESTART_ROWS rows so rounding cannot drift.
+        let slide = y % RESTART_ROWS != 0;
         for ch in 0..channels {
             for (set, &ay) in anchors.iter().enumerate().take(row_sets) {
-                let first = ay.max(0) as usize;
-                let end = ((ay + self.windows.h as isize).max(0) as usize).min(height);
                 let at = (ch * 2 + set) * padded;
-                ring.box_v(
-                    ch,
-                    first,
-                    end,
-                    &mut self.sums[at..at + padded],
-                    &mut self.counts[at..at + padded],
-                );
+                let sums = &mut self.sums[at..at + padded];
+                let counts = &mut self.counts[at..at + padded];
+                if slide {
+                    let (left, entered) = (ay - 1, ay + h - 1);
+                    if left >= 0 && (left as usize) < height {
+                        ring.add_row(ch, left as usize, -1.0, sums, counts);
+                    }
+                    if entered >= 0 && (entered as usize) < height {
+                        ring.add_row(ch, entered as usize, 1.0, sums, counts);
+                    }
+                } else {
+                    ring.box_v(ch, rows(ay), rows(ay + h), sums, counts);
+                }
             }
         }
         let lanes = self.windows.lanes();
@@ -185,26 +189,26 @@ impl RowScorer {
             }
             let (score, sel) = (&mut score[..self.width], &mut sel[..self.width]);
             if lane == 0 {
-                for x in 0..self.width {
-                    score[x] = self.lane_score[x];
-                    sel[x] = self.lane_sel[x] as u8;
-                }
+                score.copy_from_slice(&self.lane_score);
+                sel.copy_from_slice(&self.lane_sel);
             } else {
                 // First lane on ties, as `best_placement`.
-                for x in 0..self.width {
-                    let better = self.lane_score[x] < score[x];
-                    score[x] = if better { self.lane_score[x] } else { score[x] };
-                    sel[x] = if better {
-                        self.lane_sel[x] as u8
-                    } else {
-                        sel[x]
-                    };
+                for (((s, e), &ls), &le) in score
+                    .iter_mut()
+                    .zip(sel.iter_mut())
+                    .zip(&self.lane_score)
+                    .zip(&self.lane_sel)
+                {
+                    let better = ls < *s;
+                    *s = if better { ls } else { *s };
+                    *e = if better { le } else { *e };
                 }
             }
         }
     }
 
     /// The window means of `channel` for one placement into `self.mean`.
+    #[inline(always)]
     fn means(&mut self, channel: usize, set: usize, offset: usize) {
         let at = (channel * 2 + set) * self.padded + offset;
         let (sums, counts) = (
@@ -217,6 +221,7 @@ impl RowScorer {
     }
 
     /// Scored or per-half aggregation (`finish_channels`).
+    #[inline(always)]
     fn score_channels(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
         let p = &plan.params;
         if p.scoring != SCORING_HALF {
@@ -245,10 +250,10 @@ impl RowScorer {
         }
     }
 
-    /// Per-pair aggregation (`accumulate` + `finish_pairs`).
+    /// Per-pair aggregation (`accumulate` + `finish_pairs`), rank by rank along the row.
+    #[inline(always)]
     fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
         let p = &plan.params;
-        let width = self.width;
         let halves = p.scoring == SCORING_HALF || p.scoring == SCORING_BEST_N;
         for a in &mut self.acc {
             a.fill(0.0);
@@ -262,68 +267,101 @@ impl RowScorer {
             self.means(pair, set, offset);
             let half = info[2];
             let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
-            for x in 0..width {
-                let a = self.mean[x];
-                let seen = a < BIG;
-                let (a0, one) = if seen { (a, 1.0) } else { (0.0, 0.0) };
-                sum[x] += a0;
-                count[x] += one;
-                if halves && half == HALF_LEFT {
-                    left_sum[x] += a0;
-                    left_count[x] += one;
-                } else if halves && half == HALF_RIGHT {
-                    right_sum[x] += a0;
-                    right_count[x] += one;
-                }
+            add_seen(&self.mean, sum, count);
+            if halves && half == HALF_LEFT {
+                add_seen(&self.mean, left_sum, left_count);
+                bubble(&mut self.left_best, &self.mean, &mut self.carry);
+            } else if halves && half == HALF_RIGHT {
+                add_seen(&self.mean, right_sum, right_count);
+                bubble(&mut self.right_best, &self.mean, &mut self.carry);
             }
-            if halves && half == HALF_LEFT && !self.left_best.is_empty() {
-                for x in 0..width {
-                    bubble(&mut self.left_best, x, self.mean[x]);
-                }
-            } else if halves && half == HALF_RIGHT && !self.right_best.is_empty() {
-                for x in 0..width {
-                    bubble(&mut self.right_best, x, self.mean[x]);
-                }
-            }
-            if !self.best.is_empty() {
-                for x in 0..width {
-                    bubble(&mut self.best, x, self.mean[x]);
-                }
-            }
+            bubble(&mut self.best, &self.mean, &mut self.carry);
         }
         let margin = p.half_margin;
-        let best_mean = |list: &[Vec<f32>], x: usize| {
-            let (mut s, mut c) = (0.0f32, 0.0f32);
-            for rank in list {
-                if rank[x] < BIG {
-                    s += rank[x];
-                    c += 1.0;
-                }
-            }
-            mean_or_big(s, c)
-        };
-        let [sum, count, left_sum, left_count, right_sum, right_count] = &self.acc;
-        for x in 0..width {
-            let (left, right) = if self.left_best.is_empty() {
-                (
-                    mean_or_big(left_sum[x], left_count[x]),
-                    mean_or_big(right_sum[x], right_count[x]),
-                )
-            } else {
-                (
-                    best_mean(&self.left_best, x),
-                    best_mean(&self.right_best, x),
-                )
-            };
-            let (score, sel) = if p.scoring == SCORING_HALF {
-                (left.min(right), half_decision(margin, left, right))
-            } else if p.scoring == SCORING_BEST_N {
-                (best_mean(&self.best, x), half_decision(margin, left, right))
-            } else {
-                (mean_or_big(sum[x], count[x]), SEL_NONE)
-            };
-            self.lane_score[x] = score;
-            self.lane_sel[x] = sel;
+        let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
+        // The halves' scores: the mean of all their pairs, or of their n best.
+        if !self.left_best.is_empty() {
+            best_mean(&self.left_best, left_sum, left_count);
+            best_mean(&self.right_best, right_sum, right_count);
         }
+        let w = self.width;
+        for (s, &n) in left_sum[..w].iter_mut().zip(&left_count[..w]) {
+            *s = mean_or_big(*s, n);
+        }
+        for (s, &n) in right_sum[..w].iter_mut().zip(&right_count[..w]) {
+            *s = mean_or_big(*s, n);
+        }
+        let (left, right) = (&left_sum[..w], &right_sum[..w]);
+        let (score, sel) = (&mut self.lane_score[..w], &mut self.lane_sel[..w]);
+        if p.scoring == SCORING_HALF {
+            for (((score, sel), &l), &r) in
+                score.iter_mut().zip(sel.iter_mut()).zip(left).zip(right)
+            {
+                *score = fmin(l, r);
+                *sel = half_decision(margin, l, r);
+            }
+        } else if p.scoring == SCORING_BEST_N {
+            best_mean(&self.best, sum, count);
+            for ((((score, sel), &l), &r), (&s, &n)) in score
+                .iter_mut()
+                .zip(sel.iter_mut())
+                .zip(left)
+                .zip(right)
+                .zip(sum.iter().zip(count.iter()))
+            {
+                *score = mean_or_big(s, n);
+                *sel = half_decision(margin, l, r);
+            }
+        } else {
+            for ((score, sel), (&s, &n)) in score
+                .iter_mut()
+                .zip(sel.iter_mut())
+                .zip(sum.iter().zip(count.iter()))
+            {
+                *score = mean_or_big(s, n);
+                *sel = SEL_NONE;
+            }
+        }
+    }
+}
+
+/// Adds the seen values (< BIG) of `values` and their count.
+#[inline(always)]
+fn add_seen(values: &[f32], sum: &mut [f32], count: &mut [f32]) {
+    for ((s, n), &a) in sum.iter_mut().zip(count.iter_mut()).zip(values) {
+        let seen = a < BIG;
+        *s += if seen { a } else { 0.0 };
+        *n += if seen { 1.0 } else { 0.0 };
+    }
+}
+
+/// Inserts `values` into the ascending lists `list` (one row per rank), dropping the largest:
+/// the `list.len()` smallest values of every pixel stay exact (the shader's bubble).
+#[inline(always)]
+fn bubble(list: &mut [Vec<f32>], values: &[f32], carry: &mut [f32]) {
+    let Some((first, rest)) = list.split_first_mut() else {
+        return;
+    };
+    for ((b, &v), c) in first.iter_mut().zip(values).zip(carry.iter_mut()) {
+        let old = *b;
+        *b = fmin(old, v);
+        *c = old.max(v);
+    }
+    for rank in rest {
+        for (b, v) in rank.iter_mut().zip(carry.iter_mut()) {
+            let old = *b;
+            *b = fmin(old, *v);
+            *v = old.max(*v);
+        }
+    }
+}
+
+/// Sum and count of the seen (< BIG) entries of the ranks, in rank order (`best_mean`).
+#[inline(always)]
+fn best_mean(list: &[Vec<f32>], sum: &mut [f32], count: &mut [f32]) {
+    sum.fill(0.0);
+    count.fill(0.0);
+    for rank in list {
+        add_seen(rank, sum, count);
     }
 }

@@ -5,6 +5,7 @@
 
 /// Horizontal sums of one row of costs for every padded anchor: index i is the window whose
 /// first column is i - (w - 1) (box_h.wgsl). `pad` is scratch of at least width + 2 (w - 1).
+#[inline(always)]
 pub fn box_h(
     costs: &[f32],
     w: usize,
@@ -65,11 +66,13 @@ impl RowRing {
         }
     }
 
+    #[inline(always)]
     fn at(&self, channel: usize, row: usize) -> usize {
         (channel * self.slots + row % self.slots) * 2 * self.padded
     }
 
     /// (sums, counts) of `row` of `channel`, to be written.
+    #[inline(always)]
     pub fn row_mut(&mut self, channel: usize, row: usize) -> (&mut [f32], &mut [f32]) {
         let at = self.at(channel, row);
         self.data[at..at + 2 * self.padded].split_at_mut(self.padded)
@@ -77,6 +80,7 @@ impl RowRing {
 
     /// Vertical sums (box_v.wgsl) of rows `first..end` of `channel` into (sums, counts), added
     /// top to bottom from zero.
+    #[inline(always)]
     pub fn box_v(
         &self,
         channel: usize,
@@ -98,6 +102,29 @@ impl RowRing {
                 *s += a;
                 *n += b;
             }
+        }
+    }
+
+    /// Adds `sign` (1 or -1) times row `row` of `channel` into (sums, counts): the step of a
+    /// window sliding down by one row.
+    #[inline(always)]
+    pub fn add_row(
+        &self,
+        channel: usize,
+        row: usize,
+        sign: f32,
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) {
+        let at = self.at(channel, row);
+        let (s_row, n_row) = self.data[at..at + 2 * self.padded].split_at(self.padded);
+        for ((s, n), (&a, &b)) in sums
+            .iter_mut()
+            .zip(counts.iter_mut())
+            .zip(s_row.iter().zip(n_row))
+        {
+            *s += sign * a;
+            *n += sign * b;
         }
     }
 }

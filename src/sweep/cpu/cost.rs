@@ -104,6 +104,7 @@ pub fn colour_row(width: usize) -> ColourRow {
 /// Camera `cam`'s colours along reference row `y` on plane `k` (twin of the projection,
 /// `inside` and `sample_bilinear` of cost.wgsl).
 #[allow(clippy::too_many_arguments)]
+#[inline(always)]
 pub fn sample_row(
     plan: &SweepPlan,
     image: &PlanarImage,
@@ -138,6 +139,7 @@ pub fn sample_row(
 }
 
 /// The fast path: row `y` shifted by (dx, dy), constant bilinear weights, contiguous loads.
+#[inline(always)]
 fn sample_row_shifted(
     image: &PlanarImage,
     dx: f64,
@@ -193,7 +195,8 @@ fn sample_row_shifted(
 }
 
 /// Pair TSSD along a row: `min(tau, |a - b|^2)`, INVALID where either colour is missing.
-pub fn pair_cost_row(tau: f32, a: &ColourRow, b: &ColourRow, out: &mut [f32]) {
+#[inline(always)]
+pub fn pair_cost_row(tau: f32, a: [&[f32]; 3], b: [&[f32]; 3], out: &mut [f32]) {
     let n = out.len();
     let (ar, ag, ab) = (&a[0][..n], &a[1][..n], &a[2][..n]);
     let (br, bg, bb) = (&b[0][..n], &b[1][..n], &b[2][..n]);
@@ -251,6 +254,7 @@ impl ScoreAcc {
 
 /// The scored channels of one row (not per-pair aggregation) from the pair costs, as
 /// `score_plane` of cost.wgsl: SSSD, best n, or the half means (and their min when scored).
+#[inline(always)]
 pub fn scored_channels(
     plan: &SweepPlan,
     pair_costs: &[Vec<f32>],

@@ -205,26 +205,15 @@ impl CpuEngine {
             // The planes of the batch in order: winner-take-all, and the volume levels.
             let chunk = 2048;
             let (scores, sels) = (&scores, &sels);
+            let batch = Batch {
+                first,
+                count,
+                npix,
+                stride,
+                levels_per_unit,
+            };
             let merge = |c: usize, st: &mut select::WtaChunk<'_>, vol: Option<&mut [u16]>| {
-                let start = c * chunk;
-                let len = st.best.len();
-                for z in 0..count {
-                    let at = z * npix + start;
-                    st.update(
-                        (first + z) as f32,
-                        &scores[at..at + len],
-                        &sels[at..at + len],
-                    );
-                }
-                if let Some(vol) = vol {
-                    for i in 0..len {
-                        let levels = &mut vol[i * stride + first..i * stride + first + count];
-                        for (z, level) in levels.iter_mut().enumerate() {
-                            *level =
-                                sgm::volume_level(levels_per_unit, scores[z * npix + start + i]);
-                        }
-                    }
-                }
+                merge_batch(&batch, c * chunk, scores, sels, st, vol)
             };
             let mut chunks = state.chunks_mut(chunk);
             if sgm {
@@ -301,4 +290,40 @@ impl StageClock {
             gpu_timestamps: false,
         }
     }
+}
+
+/// A batch of planes, merged into the selection state and the volume.
+struct Batch {
+    first: usize,
+    count: usize,
+    npix: usize,
+    stride: usize,
+    levels_per_unit: f32,
+}
+
+common::vectorised_fn! {
+/// The batch's planes in order into the winner-take-all state of the pixels `start..` of `st`,
+/// and their volume levels into `vol` (optimizer sgm).
+fn merge_batch(
+    b: &Batch,
+    start: usize,
+    scores: &[f32],
+    sels: &[u8],
+    st: &mut select::WtaChunk<'_>,
+    vol: Option<&mut [u16]>,
+) {
+    let len = st.best.len();
+    for z in 0..b.count {
+        let at = z * b.npix + start;
+        st.update((b.first + z) as f32, &scores[at..at + len], &sels[at..at + len]);
+    }
+    if let Some(vol) = vol {
+        for z in 0..b.count {
+            let at = z * b.npix + start;
+            for (i, &score) in scores[at..at + len].iter().enumerate() {
+                vol[i * b.stride + b.first + z] = sgm::volume_level(b.levels_per_unit, score);
+            }
+        }
+    }
+}
 }

@@ -6,7 +6,7 @@
 
 use super::aggregate::{RowScorer, Windows};
 use super::boxes::{box_h, RowRing};
-use super::common::PlanarImage;
+use super::common::{vectorised_fn, PlanarImage};
 use super::cost::{self, ColourRow, Mapping, ScoreAcc};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -56,6 +56,7 @@ pub struct FrameImages {
     pub planar: Vec<PlanarImage>,
 }
 
+vectorised_fn! {
 /// Sweeps plane `k`: the best placement's score and selection code of every reference pixel
 /// into `score` and `sel` (the `best` argument of `select_plane`).
 pub fn sweep_plane(
@@ -89,9 +90,11 @@ pub fn sweep_plane(
         );
     }
 }
+}
 
 /// Costs of reference row `y` on plane `k` into the ring: every camera's colours, the pair
 /// TSSDs, the channels, their horizontal window sums.
+#[inline(always)]
 fn cost_row(
     plan: &SweepPlan,
     images: &FrameImages,
@@ -103,14 +106,10 @@ fn cost_row(
     let p = &plan.params;
     let width = p.width as usize;
     let reference = p.reference;
-    // Every camera's colours along the row: the reference's own texels, the others sampled.
+    // Every camera's colours along the row: the reference's own texels (read in place), the
+    // others sampled.
     for (i, cam) in plan.cameras.iter().enumerate() {
-        if i as u32 == reference {
-            let image = &images.planar[i];
-            for (c, out) in s.colours[i].iter_mut().enumerate() {
-                out.copy_from_slice(&image.channels[c][y * image.width..y * image.width + width]);
-            }
-        } else {
+        if i as u32 != reference {
             cost::sample_row(
                 plan,
                 &images.planar[i],
@@ -122,9 +121,18 @@ fn cost_row(
             );
         }
     }
+    let colours = &s.colours;
+    let row = |i: usize| -> [&[f32]; 3] {
+        if i as u32 == reference {
+            let image = &images.planar[i];
+            let at = y * image.width;
+            std::array::from_fn(|c| &image.channels[c][at..at + width])
+        } else {
+            std::array::from_fn(|c| colours[i][c].as_slice())
+        }
+    };
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
-        let (a, b) = (pair[0] as usize, pair[1] as usize);
-        cost::pair_cost_row(p.tau, &s.colours[a], &s.colours[b], costs);
+        cost::pair_cost_row(p.tau, row(pair[0] as usize), row(pair[1] as usize), costs);
     }
     let w = p.window_w as usize;
     let rows: &[Vec<f32>] = if p.aggregation == AGG_PER_PAIR {

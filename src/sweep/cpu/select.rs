@@ -126,42 +126,49 @@ impl<'a> WtaChunk<'a> {
 
     /// `select_plane` for plane `k` on every pixel of the chunk: `cost[i]` and `sel[i]` are
     /// pixel i's aggregated score and selection code. Branch-free, so it vectorises.
+    #[inline(always)]
     pub fn update(&mut self, k: f32, cost: &[f32], sel: &[u8]) {
         let n = self.best.len();
+        // Every field re-sliced to n, so the loop has no bounds checks and vectorises.
         let (cost, sel) = (&cost[..n], &sel[..n]);
+        let best = &mut self.best[..n];
+        let best_plane = &mut self.best_plane[..n];
+        let before = &mut self.before[..n];
+        let after = &mut self.after[..n];
+        let rival = &mut self.rival[..n];
+        let min_to_last = &mut self.min_to_last[..n];
+        let min_to_second_last = &mut self.min_to_second_last[..n];
+        let last = &mut self.last[..n];
+        let selection = &mut self.selection[..n];
         for i in 0..n {
             let c = cost[i];
-            let new_best = c < self.best[i];
-            let next_to_best = k == self.best_plane[i] + 1.0;
-            let rival = self.rival[i];
-            let second_last = self.min_to_second_last[i];
-            let last = self.last[i];
-            self.rival[i] = if new_best {
-                second_last
+            let new_best = c < best[i];
+            let next_to_best = k == best_plane[i] + 1.0;
+            rival[i] = if new_best {
+                min_to_second_last[i]
             } else if next_to_best {
-                rival
+                rival[i]
             } else {
-                fmin(rival, c)
+                fmin(rival[i], c)
             };
-            self.after[i] = if new_best {
+            after[i] = if new_best {
                 BIG
             } else if next_to_best {
                 c
             } else {
-                self.after[i]
+                after[i]
             };
-            self.before[i] = if new_best { last } else { self.before[i] };
-            self.best_plane[i] = if new_best { k } else { self.best_plane[i] };
-            self.selection[i] = if new_best {
+            before[i] = if new_best { last[i] } else { before[i] };
+            best_plane[i] = if new_best { k } else { best_plane[i] };
+            selection[i] = if new_best {
                 f32::from(sel[i])
             } else {
-                self.selection[i]
+                selection[i]
             };
-            self.best[i] = if new_best { c } else { self.best[i] };
-            let min_to_last = self.min_to_last[i];
-            self.min_to_second_last[i] = min_to_last;
-            self.min_to_last[i] = fmin(min_to_last, c);
-            self.last[i] = c;
+            best[i] = if new_best { c } else { best[i] };
+            min_to_second_last[i] = min_to_last[i];
+            min_to_last[i] = fmin(min_to_last[i], c);
+            last[i] = c;
         }
     }
 }

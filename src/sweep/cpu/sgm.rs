@@ -9,6 +9,7 @@
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+use super::common::vectorised_fn;
 use super::select::WtaState;
 
 /// Planes per pixel in the CPU volume are rounded up to a multiple of this (vector lanes).
@@ -38,29 +39,63 @@ fn colour_step(a: u32, b: u32) -> u32 {
     d(0).max(d(8)).max(d(16))
 }
 
-/// One path step for one pixel (`line_term` of sgm.wgsl over all planes at once):
-/// `out = cost + min(prev, prev -+ 1 + P1, prev_min + P2) - prev_min`, or `cost` at the start
-/// of a path. `prev` holds the predecessor's costs with one PAD lane on each side. Returns the
-/// minimum over the lanes.
+/// One path step for one pixel over all its planes (`line_term` of sgm.wgsl):
+/// `L = cost + min(prev, prev -+ 1 + P1, prev_min + P2) - prev_min`, or `L = cost` at the
+/// start of a path (`START`); `L` goes into `out` (one PAD lane on each side, as `prev`) and is
+/// written (`FIRST`) or added into `sum`. Returns the minimum of `L`.
 #[inline(always)]
-fn path_step(cost: &[u16], prev: Option<(&[u16], u16)>, p1: u16, p2: u16, out: &mut [u16]) -> u16 {
+#[allow(clippy::too_many_arguments)]
+fn step<const START: bool, const FIRST: bool>(
+    cost: &[u16],
+    prev: &[u16],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
     let n = cost.len();
-    let out = &mut out[1..=n];
-    match prev {
-        None => out.copy_from_slice(cost),
-        Some((prev, prev_min)) => {
-            let (minus, mid, plus) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
-            let jump = prev_min.saturating_add(p2);
-            for d in 0..n {
-                let best = mid[d]
-                    .min(minus[d].saturating_add(p1))
-                    .min(plus[d].saturating_add(p1))
-                    .min(jump);
-                out[d] = cost[d].saturating_add(best - prev_min);
-            }
-        }
+    let (out, sum) = (&mut out[1..=n], &mut sum[..n]);
+    let (minus, mid, plus) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
+    let jump = prev_min.saturating_add(p2);
+    let mut lowest = u16::MAX;
+    for d in 0..n {
+        let l = if START {
+            cost[d]
+        } else {
+            let best = mid[d]
+                .min(minus[d].saturating_add(p1))
+                .min(plus[d].saturating_add(p1))
+                .min(jump);
+            cost[d].saturating_add(best - prev_min)
+        };
+        out[d] = l;
+        sum[d] = if FIRST { l } else { sum[d].wrapping_add(l) };
+        lowest = lowest.min(l);
     }
-    out.iter().copied().fold(u16::MAX, u16::min)
+    lowest
+}
+
+/// `step` with its two switches as run-time values.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn step_dyn(
+    start: bool,
+    first: bool,
+    cost: &[u16],
+    prev: &[u16],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
+    match (start, first) {
+        (true, true) => step::<true, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (true, false) => step::<true, false>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, true) => step::<false, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, false) => step::<false, false>(cost, prev, prev_min, p1, p2, out, sum),
+    }
 }
 
 /// The per-pixel penalties of one path step: P2 lowered at colour edges (`sgm_edge`).
@@ -72,41 +107,29 @@ fn penalty2(p1: u32, p2: u32, edge: u32, colour: u32, previous: u32) -> u16 {
     p1.max(p2 * edge / (edge + 16 * colour_step(colour, previous))) as u16
 }
 
+vectorised_fn! {
 /// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
 /// reverse), summing the path costs of its directions into `sums` (written, not added).
-fn pass(
-    plan: &SweepPlan,
-    reference_colours: &[u32],
-    volume: &[u16],
-    forward: bool,
-    sums: &mut [u16],
-) {
+fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16]) {
     let p = &plan.params;
     let (w, h) = (p.width as usize, p.height as usize);
-    let planes = p.planes as usize;
-    let n = stride(planes);
+    let n = stride(p.planes as usize);
     let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
-    let diagonals = p.sgm_paths == 8;
     // Path costs with a PAD lane on each side: the previous and current row of the vertical
-    // and the two diagonal directions, and the last two pixels of the horizontal one.
+    // and (8 paths) the two diagonal directions, and the last two pixels of the horizontal one.
+    let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
     let row_buffer = || vec![PAD; w * (n + 2)];
-    let row_dirs = if diagonals { 3 } else { 1 };
     let mut prev_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
     let mut cur_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
     let mut prev_mins = vec![vec![0u16; w]; row_dirs];
     let mut cur_mins = vec![vec![0u16; w]; row_dirs];
     let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
-    let colour = |pix: usize| {
-        if edge > 0 {
-            reference_colours[pix]
-        } else {
-            0
-        }
-    };
+    let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
+    let penalty = |here: u32, pix: usize| penalty2(p1, p2, edge, here, colour(pix));
+    let p1 = p1 as u16;
     for walk_y in 0..h {
         let y = if forward { walk_y } else { h - 1 - walk_y };
         let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
-        let has_prev_row = walk_y > 0;
         let mut h_min = 0u16;
         for walk_x in 0..w {
             let x = if forward { walk_x } else { w - 1 - walk_x };
@@ -115,78 +138,41 @@ fn pass(
             let here = colour(pix);
             let sum = &mut sums[pix * n..(pix + 1) * n];
             // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
-            let behind = if forward {
-                x.checked_sub(1)
-            } else {
-                (x + 1 < w).then_some(x + 1)
-            };
-            let ahead = if forward {
-                (x + 1 < w).then_some(x + 1)
-            } else {
-                x.checked_sub(1)
-            };
+            let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
+            let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
 
-            // Horizontal: the previous pixel of this row.
-            let (h_prev, h_out) = {
-                let [a, b] = &mut horizontal;
-                if walk_x % 2 == 0 {
-                    (&*a, b)
-                } else {
-                    (&*b, a)
-                }
-            };
-            let prev = behind.map(|bx| {
-                let pen = penalty2(p1, p2, edge, here, colour(y * w + bx));
-                ((h_prev.as_slice(), h_min), pen)
-            });
-            h_min = step_into(cost, prev, p1 as u16, p2 as u16, h_out, sum, true);
+            // Horizontal: the previous pixel of this row; it writes the sums.
+            let [a, b] = &mut horizontal;
+            let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
+            let start = walk_x == 0;
+            let pen = if start { 0 } else { penalty(here, y * w + behind) };
+            h_min = step_dyn(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
 
             // Vertical and diagonals: the previous row at x, behind and ahead.
             for dir in 0..row_dirs {
                 let px = match dir {
-                    0 => Some(x),
+                    0 => x,
                     1 => behind,
                     _ => ahead,
                 };
-                let prev = px.filter(|_| has_prev_row).map(|px| {
-                    let pen = penalty2(p1, p2, edge, here, colour(prev_y * w + px));
-                    let row = &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)];
-                    ((row, prev_mins[dir][px]), pen)
-                });
+                let start = walk_y == 0 || px >= w;
+                let (prev, prev_min, pen) = if start {
+                    (&prev_rows[dir][..n + 2], 0, 0)
+                } else {
+                    (
+                        &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)],
+                        prev_mins[dir][px],
+                        penalty(here, prev_y * w + px),
+                    )
+                };
                 let out = &mut cur_rows[dir][x * (n + 2)..(x + 1) * (n + 2)];
-                cur_mins[dir][x] = step_into(cost, prev, p1 as u16, p2 as u16, out, sum, false);
+                cur_mins[dir][x] = step_dyn(start, false, cost, prev, prev_min, p1, pen, out, sum);
             }
         }
         std::mem::swap(&mut prev_rows, &mut cur_rows);
         std::mem::swap(&mut prev_mins, &mut cur_mins);
     }
 }
-
-/// A path step into `out`, its costs written (`first`) or added into `sum`; returns the min.
-#[inline(always)]
-fn step_into(
-    cost: &[u16],
-    prev: Option<((&[u16], u16), u16)>,
-    p1: u16,
-    p2: u16,
-    out: &mut [u16],
-    sum: &mut [u16],
-    first: bool,
-) -> u16 {
-    let (prev, penalty) = match prev {
-        Some((prev, penalty)) => (Some(prev), penalty),
-        None => (None, p2),
-    };
-    let min = path_step(cost, prev, p1, penalty, out);
-    let costs = &out[1..=cost.len()];
-    if first {
-        sum.copy_from_slice(costs);
-    } else {
-        for (s, &c) in sum.iter_mut().zip(costs) {
-            *s = s.wrapping_add(c);
-        }
-    }
-    min
 }
 
 /// Both passes (on two threads) and the sum of their path costs, per pixel and plane.
