@@ -8,9 +8,8 @@ use std::time::Instant;
 use anyhow::Context;
 
 use crate::datasets;
+use crate::engine::{Engine, Sweeper};
 use crate::eval::{self, Metrics};
-use crate::gpu_context::GpuContext;
-use crate::sweep::gpu::GpuEngine;
 use crate::sweep::ParamOverrides;
 
 #[derive(Debug, clap::Args)]
@@ -66,16 +65,16 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let input = extract_sample(&args.out.join("input"))?;
     let mut dataset = datasets::load_dataset(&input)?;
     args.params.apply(&mut dataset.params);
-    let gpu = GpuContext::new()?;
-    let adapter = gpu.adapter_label();
-    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue)?;
+    let mut engine = Engine::new(args.params.device)?;
+    let adapter = engine.label();
     let (w, h) = dataset.reference_size();
     eprintln!(
         "demo: Middlebury Tsukuba, {} views {w}x{h}, {} planes, on {adapter}",
         dataset.rig.cameras.len(),
         dataset.params.num_planes
     );
-    // The first run builds the pipelines; time the second, as a live node would see it.
+    // The first run builds the pipelines (GPU) and the plan; time the second, as a live node
+    // would see it.
     engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
     let started = Instant::now();
     let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;

@@ -10,10 +10,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::datasets::{self, Dataset, DatasetError, GroundTruth};
-use crate::gpu_context::GpuContext;
+use crate::engine::{Engine, Sweeper};
 use crate::image::ImageF32;
 use crate::io::{self, IoError};
-use crate::sweep::gpu::GpuEngine;
 use crate::sweep::{DepthMaps, SweepError};
 
 /// Command-line arguments of `sweepdepth eval`.
@@ -382,7 +381,7 @@ pub fn restrict_to_nonocc(dataset: &mut Dataset) -> Result<(), EvalError> {
 
 /// Runs the engine on a dataset with its `params` and scores the result.
 pub fn evaluate(
-    engine: &mut GpuEngine,
+    engine: &mut impl Sweeper,
     dataset: &Dataset,
 ) -> Result<(DepthMaps, Option<Metrics>), EvalError> {
     let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
@@ -513,7 +512,7 @@ pub fn table_row(
 }
 
 fn eval_one(
-    engine: &mut GpuEngine,
+    engine: &mut Engine,
     dir: &Path,
     args: &EvalArgs,
     progress: &str,
@@ -558,10 +557,9 @@ fn eval_one(
 /// `sweepdepth eval`: one GPU engine for all folders; a folder that fails is reported and the
 /// others still run; the command fails at the end if any did.
 pub fn run(args: &EvalArgs) -> anyhow::Result<()> {
-    let ctx = GpuContext::new()?;
-    let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
+    let mut engine = Engine::new(args.params.device)?;
     let mut stdout = std::io::stdout();
-    writeln!(stdout, "# adapter: {}", ctx.adapter_label())?;
+    writeln!(stdout, "# engine: {}", engine.label())?;
     if args.mask == EvalMask::Nonocc {
         writeln!(
             stdout,

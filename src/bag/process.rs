@@ -334,8 +334,8 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         .find(|t| &t.name == ref_topic)
         .and_then(|t| t.count);
 
-    let host = EngineHost::new().map_err(BagRunError::Gpu)?;
-    tracing::info!("GPU adapter: {}", host.adapter_label());
+    let host = EngineHost::new(config.device()).map_err(BagRunError::Gpu)?;
+    tracing::info!("engine: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
     for (k, topic) in config.output_topics.iter().enumerate() {

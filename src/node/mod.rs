@@ -201,6 +201,15 @@ pub struct NodeConfig {
 }
 
 impl NodeConfig {
+    /// The `device` parameter (validated by the table; `auto` if unreadable).
+    pub fn device(&self) -> crate::sweep::Device {
+        self.params
+            .get_str("device")
+            .ok()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or_default()
+    }
+
     /// From the arguments after `node` and the value of `ROS_DOMAIN_ID`.
     pub fn from_args(args: &[String], domain_env: Option<&str>) -> Result<Self, NodeError> {
         let ros: RosArgs = parse_ros_args(args)?;
@@ -493,10 +502,11 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let worker_slot = Arc::clone(&slot);
     let worker_live = Arc::clone(&live);
     let worker_stats = Arc::clone(&stats);
+    let device = config.device();
     let worker = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
-            let host = match EngineHost::new() {
+            let host = match EngineHost::new(device) {
                 Ok(host) => host,
                 Err(e) => {
                     let _ = init_tx.send(Err(e));

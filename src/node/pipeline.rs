@@ -7,13 +7,16 @@
 //! the set cannot be processed yet. [`process_job`] runs a job through the engine and builds the
 //! output messages ([`FrameOutputs`]); the caller publishes or records them.
 
+use crate::engine::Sweeper;
 use crate::geometry::{
     check_image_size, CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform,
 };
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
 use crate::ros::tf::TfBuffer;
+use crate::sweep::cpu::CpuEngine;
 use crate::sweep::gpu::GpuEngine;
+use crate::sweep::Device;
 use crate::sweep::SweepParams;
 
 use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
@@ -439,37 +442,37 @@ pub struct FrameOutputs {
     pub points: Option<PointCloud2>,
 }
 
-/// The GPU side of the node: the device and the engine, recreated when the device is lost
-/// (a driver reset, a GPU that fell off the bus, `Device::destroy`).
+/// The engine side of the node: the CPU engine, or the WGSL engine with its device, recreated
+/// when the device is lost (a driver reset, a GPU that fell off the bus, `Device::destroy`).
 pub struct EngineHost {
-    gpu: crate::gpu_context::GpuContext,
-    engine: GpuEngine,
-    lost: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    backend: Backend,
     /// How many times the device was lost and the engine recreated.
     pub recreated: u64,
 }
 
+enum Backend {
+    Gpu {
+        gpu: Box<crate::gpu_context::GpuContext>,
+        engine: Box<GpuEngine>,
+        lost: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    },
+    Cpu(CpuEngine),
+}
+
 impl EngineHost {
-    pub fn new() -> Result<Self, String> {
-        let (gpu, engine, lost) = Self::create()?;
+    /// The engine for `device` (parameter `device`; `auto`: a hardware GPU, else the CPU engine).
+    pub fn new(device: Device) -> Result<Self, String> {
+        let backend = match crate::engine::Engine::new(device).map_err(|e| e.to_string())? {
+            crate::engine::Engine::Cpu(cpu) => Backend::Cpu(cpu),
+            crate::engine::Engine::Gpu { gpu, .. } => Self::gpu_backend(*gpu)?,
+        };
         Ok(Self {
-            gpu,
-            engine,
-            lost,
+            backend,
             recreated: 0,
         })
     }
 
-    #[allow(clippy::type_complexity)]
-    fn create() -> Result<
-        (
-            crate::gpu_context::GpuContext,
-            GpuEngine,
-            std::sync::Arc<std::sync::atomic::AtomicBool>,
-        ),
-        String,
-    > {
-        let gpu = crate::gpu_context::GpuContext::new().map_err(|e| e.to_string())?;
+    fn gpu_backend(gpu: crate::gpu_context::GpuContext) -> Result<Backend, String> {
         let lost = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
         let flag = std::sync::Arc::clone(&lost);
         gpu.device.set_device_lost_callback(move |reason, message| {
@@ -477,20 +480,35 @@ impl EngineHost {
             tracing::error!("GPU device lost ({reason:?}): {message}");
         });
         let engine = GpuEngine::new(&gpu.device, &gpu.queue).map_err(|e| e.to_string())?;
-        Ok((gpu, engine, lost))
+        Ok(Backend::Gpu {
+            gpu: Box::new(gpu),
+            engine: Box::new(engine),
+            lost,
+        })
     }
 
+    /// "WGSL engine on <adapter>" or "CPU engine (N threads)".
     pub fn adapter_label(&self) -> String {
-        self.gpu.adapter_label()
+        match &self.backend {
+            Backend::Gpu { gpu, .. } => format!("WGSL engine on {}", gpu.adapter_label()),
+            Backend::Cpu(cpu) => cpu.label(),
+        }
     }
 
-    /// The device, e.g. to simulate a loss in tests (`device().destroy()`).
-    pub fn device(&self) -> &wgpu::Device {
-        &self.gpu.device
+    /// The wgpu device of the WGSL engine, e.g. to simulate a loss in tests
+    /// (`device().destroy()`); None for the CPU engine.
+    pub fn device(&self) -> Option<&wgpu::Device> {
+        match &self.backend {
+            Backend::Gpu { gpu, .. } => Some(&gpu.device),
+            Backend::Cpu(_) => None,
+        }
     }
 
     pub fn is_lost(&self) -> bool {
-        self.lost.load(std::sync::atomic::Ordering::SeqCst)
+        match &self.backend {
+            Backend::Gpu { lost, .. } => lost.load(std::sync::atomic::Ordering::SeqCst),
+            Backend::Cpu(_) => false,
+        }
     }
 
     /// Runs `job`; when the device is lost (before or during the run) the device and engine are
@@ -501,8 +519,15 @@ impl EngineHost {
         sweep: &SweepParams,
         with_points: bool,
     ) -> Result<FrameOutputs, Skip> {
-        if !self.is_lost() {
-            match process_job(&mut self.engine, job, sweep, with_points) {
+        let lost = self.is_lost();
+        if !lost {
+            let result = match &mut self.backend {
+                Backend::Gpu { engine, .. } => {
+                    process_job(engine.as_mut(), job, sweep, with_points)
+                }
+                Backend::Cpu(cpu) => process_job(cpu, job, sweep, with_points),
+            };
+            match result {
                 Err(skip) if skip.kind == "engine" && self.is_lost() => {
                     tracing::warn!("{skip}");
                 }
@@ -510,25 +535,33 @@ impl EngineHost {
             }
         }
         tracing::warn!("the GPU device was lost: recreating the device and the engine");
-        let (gpu, engine, lost) = Self::create().map_err(|e| {
-            Skip::new(
-                "gpu lost",
-                "gpu_lost".into(),
-                format!("the GPU device was lost and cannot be recreated: {e}"),
-            )
-        })?;
-        self.gpu = gpu;
-        self.engine = engine;
-        self.lost = lost;
+        let backend = crate::gpu_context::GpuContext::new()
+            .map_err(|e| e.to_string())
+            .and_then(Self::gpu_backend)
+            .map_err(|e| {
+                Skip::new(
+                    "gpu lost",
+                    "gpu_lost".into(),
+                    format!("the GPU device was lost and cannot be recreated: {e}"),
+                )
+            })?;
+        self.backend = backend;
         self.recreated += 1;
-        tracing::info!("GPU engine recreated on {}", self.gpu.adapter_label());
-        process_job(&mut self.engine, job, sweep, with_points)
+        tracing::info!("GPU engine recreated: {}", self.adapter_label());
+        let Backend::Gpu { engine, .. } = &mut self.backend else {
+            return Err(Skip::new(
+                "engine",
+                "engine".into(),
+                "internal: no GPU engine".into(),
+            ));
+        };
+        process_job(engine.as_mut(), job, sweep, with_points)
     }
 }
 
 /// Runs one job through the engine with the given parameters and builds its output messages.
 pub fn process_job(
-    engine: &mut GpuEngine,
+    engine: &mut impl Sweeper,
     job: &Job,
     sweep: &SweepParams,
     with_points: bool,

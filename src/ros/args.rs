@@ -637,6 +637,12 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             "Camera whose view the depth map is in; empty = the middle entry of cameras.",
         ),
         node_spec(
+            "device",
+            s("auto"),
+            ParamRange::OneOf(&["auto", "gpu", "cpu"]),
+            "Engine: auto = a hardware GPU if wgpu offers one, else the CPU engine; gpu = the WGSL engine on the wgpu adapter (lavapipe without a GPU); cpu = the CPU engine.",
+        ),
+        node_spec(
             "sync",
             s("approximate"),
             ParamRange::OneOf(&["exact", "approximate"]),

@@ -76,6 +76,35 @@ pub enum Optimizer {
     Sgm,
 }
 
+/// Which engine runs the sweep (`--device`, parameter `device`): see `crate::engine`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Device {
+    /// A hardware GPU if wgpu offers one (not a CPU adapter such as lavapipe), else the CPU
+    /// engine.
+    #[default]
+    Auto,
+    /// The WGSL engine on the wgpu adapter (`WGPU_ADAPTER_NAME` / `WGPU_BACKEND` pick one;
+    /// lavapipe when there is no GPU).
+    Gpu,
+    /// The CPU engine.
+    Cpu,
+}
+
+impl std::str::FromStr for Device {
+    type Err = SweepError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "gpu" => Ok(Self::Gpu),
+            "cpu" => Ok(Self::Cpu),
+            other => Err(SweepError::InvalidParams(format!(
+                "device '{other}' is not one of auto, gpu, cpu"
+            ))),
+        }
+    }
+}
+
 /// Engine parameters. Defaults are the ones measured best on the shared data (see README).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -421,6 +450,10 @@ pub fn check_images(rig: &Rig, images: &[Rgba8Image]) -> Result<(), SweepError> 
 /// command starts from.
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct ParamOverrides {
+    /// Which engine runs the sweep: a hardware GPU if there is one, else the CPU engine
+    /// (auto); the WGSL engine on the wgpu adapter, lavapipe included (gpu); the CPU engine.
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
     /// Nearest depth swept, metres.
     #[arg(long)]
     pub min_depth: Option<f64>,
