@@ -77,6 +77,17 @@ pub struct CpuEngine {
     plan: Option<(Rig, SweepParams, SweepPlan)>,
     timings: StageTimings,
     fast_paths: bool,
+    buffers: Buffers,
+}
+
+/// The large buffers, kept across frame sets (no page faults for each new set).
+#[derive(Debug, Default)]
+struct Buffers {
+    volume: Vec<u16>,
+    forward: Vec<u16>,
+    backward: Vec<u16>,
+    scores: Vec<f32>,
+    sels: Vec<u8>,
 }
 
 impl Default for CpuEngine {
@@ -91,6 +102,7 @@ impl CpuEngine {
             plan: None,
             timings: StageTimings::default(),
             fast_paths: true,
+            buffers: Buffers::default(),
         }
     }
 
@@ -178,15 +190,20 @@ impl CpuEngine {
 
         let sgm = plan.sgm_paths() > 0;
         let stride = sgm::stride(planes);
-        let mut volume = if sgm {
-            vec![sgm::PAD; npix * stride]
-        } else {
-            Vec::new()
-        };
+        // The volume is kept across frame sets of the same shape: the planes' lanes are written
+        // every time, the padding lanes stay PAD.
+        let mut volume = std::mem::take(&mut self.buffers.volume);
+        if !sgm {
+            volume = Vec::new();
+        } else if volume.len() != npix * stride {
+            volume = vec![sgm::PAD; npix * stride];
+        }
         let mut state = WtaState::new(npix);
         let batch = (BATCH_BUDGET_BYTES / (npix * 5).max(1)).clamp(1, planes);
-        let mut scores = vec![0.0f32; batch * npix];
-        let mut sels = vec![0u8; batch * npix];
+        let mut scores = std::mem::take(&mut self.buffers.scores);
+        let mut sels = std::mem::take(&mut self.buffers.sels);
+        scores.resize(batch * npix, 0.0);
+        sels.resize(batch * npix, 0);
         let levels_per_unit = p.sgm_levels_per_unit;
         for first in (0..planes).step_by(batch) {
             let count = batch.min(planes - first);
@@ -237,9 +254,10 @@ impl CpuEngine {
             } else {
                 &images[p.reference as usize].pixels
             };
-            let sums = sgm::run(plan, colours, &volume);
+            let buffers = &mut self.buffers;
+            sgm::run(plan, colours, &volume, &mut buffers.forward, &mut buffers.backward);
             clock.lap("sgm");
-            sgm::select(plan, &sums, &mut state);
+            sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
             clock.lap("sgm_select");
         }
         let mut maps = Maps::new(npix);
@@ -253,6 +271,9 @@ impl CpuEngine {
         occlusion::visibility(plan, &zbuffer, &mut maps);
         clock.lap("visibility");
         self.timings = clock.timings();
+        self.buffers.volume = volume;
+        self.buffers.scores = scores;
+        self.buffers.sels = sels;
         Ok(CpuTrace {
             maps: maps.data,
             zbuffer,

@@ -129,46 +129,84 @@ impl<'a> WtaChunk<'a> {
     #[inline(always)]
     pub fn update(&mut self, k: f32, cost: &[f32], sel: &[u8]) {
         let n = self.best.len();
-        // Every field re-sliced to n, so the loop has no bounds checks and vectorises.
-        let (cost, sel) = (&cost[..n], &sel[..n]);
-        let best = &mut self.best[..n];
-        let best_plane = &mut self.best_plane[..n];
-        let before = &mut self.before[..n];
-        let after = &mut self.after[..n];
-        let rival = &mut self.rival[..n];
-        let min_to_last = &mut self.min_to_last[..n];
-        let min_to_second_last = &mut self.min_to_second_last[..n];
-        let last = &mut self.last[..n];
-        let selection = &mut self.selection[..n];
-        for i in 0..n {
-            let c = cost[i];
-            let new_best = c < best[i];
-            let next_to_best = k == best_plane[i] + 1.0;
-            rival[i] = if new_best {
-                min_to_second_last[i]
-            } else if next_to_best {
-                rival[i]
-            } else {
-                fmin(rival[i], c)
-            };
-            after[i] = if new_best {
-                BIG
-            } else if next_to_best {
-                c
-            } else {
-                after[i]
-            };
-            before[i] = if new_best { last[i] } else { before[i] };
-            best_plane[i] = if new_best { k } else { best_plane[i] };
-            selection[i] = if new_best {
-                f32::from(sel[i])
-            } else {
-                selection[i]
-            };
-            best[i] = if new_best { c } else { best[i] };
-            min_to_second_last[i] = min_to_last[i];
-            min_to_last[i] = fmin(min_to_last[i], c);
-            last[i] = c;
-        }
+        update_fields(
+            k,
+            &cost[..n],
+            &sel[..n],
+            self.best,
+            self.best_plane,
+            self.before,
+            self.after,
+            self.rival,
+            self.min_to_last,
+            self.min_to_second_last,
+            self.last,
+            self.selection,
+        );
+    }
+}
+
+/// The body of [`WtaChunk::update`]. The fields come in as separate `&mut` arguments: the
+/// compiler then knows they do not overlap and vectorises the loop without run-time checks.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn update_fields(
+    k: f32,
+    cost: &[f32],
+    sel: &[u8],
+    best: &mut [f32],
+    best_plane: &mut [f32],
+    before: &mut [f32],
+    after: &mut [f32],
+    rival: &mut [f32],
+    min_to_last: &mut [f32],
+    min_to_second_last: &mut [f32],
+    last: &mut [f32],
+    selection: &mut [f32],
+) {
+    let n = cost.len();
+    let (sel, best, best_plane, before, after) = (
+        &sel[..n],
+        &mut best[..n],
+        &mut best_plane[..n],
+        &mut before[..n],
+        &mut after[..n],
+    );
+    let (rival, min_to_last, min_to_second_last, last, selection) = (
+        &mut rival[..n],
+        &mut min_to_last[..n],
+        &mut min_to_second_last[..n],
+        &mut last[..n],
+        &mut selection[..n],
+    );
+    for i in 0..n {
+        let c = cost[i];
+        let new_best = c < best[i];
+        let next_to_best = k == best_plane[i] + 1.0;
+        rival[i] = if new_best {
+            min_to_second_last[i]
+        } else if next_to_best {
+            rival[i]
+        } else {
+            fmin(rival[i], c)
+        };
+        after[i] = if new_best {
+            BIG
+        } else if next_to_best {
+            c
+        } else {
+            after[i]
+        };
+        before[i] = if new_best { last[i] } else { before[i] };
+        best_plane[i] = if new_best { k } else { best_plane[i] };
+        selection[i] = if new_best {
+            f32::from(sel[i])
+        } else {
+            selection[i]
+        };
+        best[i] = if new_best { c } else { best[i] };
+        min_to_second_last[i] = min_to_last[i];
+        min_to_last[i] = fmin(min_to_last[i], c);
+        last[i] = c;
     }
 }

@@ -58,22 +58,33 @@ fn step<const START: bool, const FIRST: bool>(
     let (out, sum) = (&mut out[1..=n], &mut sum[..n]);
     let (minus, mid, plus) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
     let jump = prev_min.saturating_add(p2);
-    let mut lowest = u16::MAX;
-    for d in 0..n {
-        let l = if START {
-            cost[d]
-        } else {
-            let best = mid[d]
-                .min(minus[d].saturating_add(p1))
-                .min(plus[d].saturating_add(p1))
-                .min(jump);
-            cost[d].saturating_add(best - prev_min)
-        };
-        out[d] = l;
-        sum[d] = if FIRST { l } else { sum[d].wrapping_add(l) };
-        lowest = lowest.min(l);
+    // Fixed chunks of LANES, so the compiler keeps each in one vector register (n is a
+    // multiple of LANES).
+    let mut lowest = [u16::MAX; LANES];
+    for (((((cost, out), sum), minus), mid), plus) in cost
+        .chunks_exact(LANES)
+        .zip(out.chunks_exact_mut(LANES))
+        .zip(sum.chunks_exact_mut(LANES))
+        .zip(minus.chunks_exact(LANES))
+        .zip(mid.chunks_exact(LANES))
+        .zip(plus.chunks_exact(LANES))
+    {
+        for i in 0..LANES {
+            let l = if START {
+                cost[i]
+            } else {
+                let best = mid[i]
+                    .min(minus[i].saturating_add(p1))
+                    .min(plus[i].saturating_add(p1))
+                    .min(jump);
+                cost[i].saturating_add(best - prev_min)
+            };
+            out[i] = l;
+            sum[i] = if FIRST { l } else { sum[i].wrapping_add(l) };
+            lowest[i] = lowest[i].min(l);
+        }
     }
-    lowest
+    lowest.iter().fold(u16::MAX, |a, &b| a.min(b))
 }
 
 /// `step` with its two switches as run-time values.
@@ -100,11 +111,11 @@ fn step_dyn(
 
 /// The per-pixel penalties of one path step: P2 lowered at colour edges (`sgm_edge`).
 #[inline(always)]
-fn penalty2(p1: u32, p2: u32, edge: u32, colour: u32, previous: u32) -> u16 {
+fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
     if edge == 0 {
         return p2 as u16;
     }
-    p1.max(p2 * edge / (edge + 16 * colour_step(colour, previous))) as u16
+    p1.max(p2 * edge / (edge + 16 * step)) as u16
 }
 
 vectorised_fn! {
@@ -125,7 +136,11 @@ fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bo
     let mut cur_mins = vec![vec![0u16; w]; row_dirs];
     let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
     let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
-    let penalty = |here: u32, pix: usize| penalty2(p1, p2, edge, here, colour(pix));
+    // P2 for every colour step (0..255): the shader's integer division, done once.
+    let penalties: Vec<u16> = (0..256u32)
+        .map(|step| penalty2(p1, p2, edge, step))
+        .collect();
+    let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
     let p1 = p1 as u16;
     for walk_y in 0..h {
         let y = if forward { walk_y } else { h - 1 - walk_y };
@@ -175,25 +190,28 @@ fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bo
 }
 }
 
-/// Both passes (on two threads) and the sum of their path costs, per pixel and plane.
-pub fn run(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16]) -> Vec<u16> {
-    let mut forward = vec![0u16; volume.len()];
-    let mut backward = vec![0u16; volume.len()];
+/// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
+/// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
+pub fn run(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+) {
+    forward.resize(volume.len(), 0);
+    backward.resize(volume.len(), 0);
     rayon::join(
-        || pass(plan, reference_colours, volume, true, &mut forward),
-        || pass(plan, reference_colours, volume, false, &mut backward),
+        || pass(plan, reference_colours, volume, true, forward),
+        || pass(plan, reference_colours, volume, false, backward),
     );
-    for (f, &b) in forward.iter_mut().zip(&backward) {
-        *f = f.wrapping_add(b);
-    }
-    forward
 }
 
 /// Twin of `sgm_select.wgsl`: winner-take-all over the summed path costs (score units) into
 /// the selection state, for every pixel the local winner-take-all found valid. The streaming
 /// selection's result written directly: the first minimum, its two neighbours, and the
 /// smallest sum away from them (`u16` sums map to scores strictly monotonically).
-pub fn select(plan: &SweepPlan, sums: &[u16], state: &mut WtaState) {
+pub fn select(plan: &SweepPlan, forward: &[u16], backward: &[u16], state: &mut WtaState) {
     use rayon::prelude::*;
     let planes = plan.num_planes() as usize;
     let n = stride(planes);
@@ -203,13 +221,18 @@ pub fn select(plan: &SweepPlan, sums: &[u16], state: &mut WtaState) {
     state
         .chunks_mut(chunk)
         .into_par_iter()
-        .zip(sums.par_chunks(chunk * n))
-        .for_each(|(st, sums)| {
+        .zip(forward.par_chunks(chunk * n).zip(backward.par_chunks(chunk * n)))
+        .for_each(|(st, (forward, backward))| {
+            let mut sums = vec![0u16; planes];
             for i in 0..st.best.len() {
                 if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
                     continue;
                 }
-                let s = &sums[i * n..i * n + planes];
+                let (f, b) = (&forward[i * n..i * n + planes], &backward[i * n..i * n + planes]);
+                for ((s, &f), &b) in sums.iter_mut().zip(f).zip(b) {
+                    *s = f.wrapping_add(b);
+                }
+                let s = &sums[..];
                 let mut best = 0;
                 for d in 1..planes {
                     if s[d] < s[best] {
@@ -291,12 +314,18 @@ mod tests {
         // 5 + 10, 0 + 10, 30) - 0 = 60; d2 = 50 + min(0, 40 + 10, 30) = 50.
         pass(&plan, &[0, 0], &costs, false, &mut sums);
         assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
-        let total = run(&plan, &[0, 0], &costs);
+        let (mut forward, mut backward) = (Vec::new(), Vec::new());
+        run(&plan, &[0, 0], &costs, &mut forward, &mut backward);
+        let total: Vec<u16> = forward
+            .iter()
+            .zip(&backward)
+            .map(|(a, b)| a.wrapping_add(*b))
+            .collect();
         assert_eq!(real(&total), [[5, 210, 200], [20, 170, 30]]);
         let mut state = WtaState::new(2);
         state.best.fill(0.0);
         state.best_plane.fill(2.0);
-        select(&plan, &total, &mut state);
+        select(&plan, &forward, &backward, &mut state);
         // Pixel 1 moves to plane 0; its neighbour is plane 1, and plane 2 is the rival.
         assert_eq!(state.best_plane, [0.0, 0.0]);
         assert_eq!(
