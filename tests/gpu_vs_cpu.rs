@@ -419,7 +419,12 @@ fn cpu_fast_path_agrees_with_general_path() {
     params.num_planes = 32;
     let (synthetic_rig, synthetic_images) = synthetic_case();
     let cases = [
-        ("tsukuba_crop_defaults", rig.clone(), images.clone(), params.clone()),
+        (
+            "tsukuba_crop_defaults",
+            rig.clone(),
+            images.clone(),
+            params.clone(),
+        ),
         (
             "tsukuba_crop_wta_shiftable",
             rig,
@@ -433,10 +438,15 @@ fn cpu_fast_path_agrees_with_general_path() {
                 ..params
             },
         ),
-        ("synthetic_all_pairs", synthetic_rig, synthetic_images, SweepParams {
-            scoring: Scoring::AllPairs,
-            ..base()
-        }),
+        (
+            "synthetic_all_pairs",
+            synthetic_rig,
+            synthetic_images,
+            SweepParams {
+                scoring: Scoring::AllPairs,
+                ..base()
+            },
+        ),
     ];
     for (name, rig, images, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
@@ -451,7 +461,9 @@ fn cpu_fast_path_agrees_with_general_path() {
                 );
             }
         }
-        let fast = CpuEngine::new().run_plan_raw(&plan, &rig, &images).expect("fast");
+        let fast = CpuEngine::new()
+            .run_plan_raw(&plan, &rig, &images)
+            .expect("fast");
         let mut general_engine = CpuEngine::new();
         general_engine.set_fast_paths(false);
         let general = general_engine

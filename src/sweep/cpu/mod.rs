@@ -255,7 +255,13 @@ impl CpuEngine {
                 &images[p.reference as usize].pixels
             };
             let buffers = &mut self.buffers;
-            sgm::run(plan, colours, &volume, &mut buffers.forward, &mut buffers.backward);
+            sgm::run(
+                plan,
+                colours,
+                &volume,
+                &mut buffers.forward,
+                &mut buffers.backward,
+            );
             clock.lap("sgm");
             sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
             clock.lap("sgm_select");
@@ -339,10 +345,17 @@ fn merge_batch(
         st.update((b.first + z) as f32, &scores[at..at + len], &sels[at..at + len]);
     }
     if let Some(vol) = vol {
-        for z in 0..b.count {
-            let at = z * b.npix + start;
-            for (i, &score) in scores[at..at + len].iter().enumerate() {
-                vol[i * b.stride + b.first + z] = sgm::volume_level(b.levels_per_unit, score);
+        // Blocks of 16 pixels: their volume rows (16 x stride lanes) stay in L1 while every
+        // plane of the batch fills its lane, and each plane's scores are read 16 at a time.
+        const BLOCK: usize = 16;
+        for block in (0..len).step_by(BLOCK) {
+            let pixels = BLOCK.min(len - block);
+            for z in 0..b.count {
+                let at = z * b.npix + start + block;
+                for (i, &score) in scores[at..at + pixels].iter().enumerate() {
+                    vol[(block + i) * b.stride + b.first + z] =
+                        sgm::volume_level(b.levels_per_unit, score);
+                }
             }
         }
     }

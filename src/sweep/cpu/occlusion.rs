@@ -6,17 +6,20 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rayon::prelude::*;
 
+use super::common::vectorised_fn;
 use super::common::*;
 use super::Maps;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+#[inline(always)]
 fn ref_point(plan: &SweepPlan, pix: usize, depth: f32) -> Vec3 {
     let r = xyz(plan.rays[pix]);
     [r[0] * depth, r[1] * depth, r[2] * depth]
 }
 
 /// Index of the nearest texel of camera `cam` to the projection, if inside and in front.
+#[inline(always)]
 fn nearest_texel(cam: &GpuCamera, projected: Vec3) -> Option<usize> {
     let texel = [(projected[0] + 0.5).floor(), (projected[1] + 0.5).floor()];
     if projected[2] <= 0.0 || !inside(cam, texel) {
@@ -31,26 +34,34 @@ pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32]) {
     let ref_index = plan.params.reference;
     let median = maps.section(MAP_DEPTH_MEDIAN);
     let atomic: Vec<AtomicU32> = zbuffer.iter().map(|&z| AtomicU32::new(z)).collect();
-    median.par_chunks(width).enumerate().for_each(|(y, row)| {
-        for (x, &depth) in row.iter().enumerate() {
-            if depth.is_nan() {
-                continue;
-            }
-            let point = ref_point(plan, y * width + x, depth);
-            for (i, cam) in plan.cameras.iter().enumerate() {
-                if i as u32 == ref_index {
-                    continue;
-                }
-                let projected = project(cam, point);
-                if let Some(index) = nearest_texel(cam, projected) {
-                    atomic[index].fetch_max(!projected[2].to_bits(), Ordering::Relaxed);
-                }
-            }
-        }
-    });
+    median
+        .par_chunks(width)
+        .enumerate()
+        .for_each(|(y, row)| splat_row(plan, ref_index, y * width, row, &atomic));
     for (z, a) in zbuffer.iter_mut().zip(atomic) {
         *z = a.into_inner();
     }
+}
+
+vectorised_fn! {
+/// Splats one row of depths (first pixel `first`).
+fn splat_row(plan: &SweepPlan, ref_index: u32, first: usize, row: &[f32], zbuffer: &[AtomicU32]) {
+    for (x, &depth) in row.iter().enumerate() {
+        if depth.is_nan() {
+            continue;
+        }
+        let point = ref_point(plan, first + x, depth);
+        for (i, cam) in plan.cameras.iter().enumerate() {
+            if i as u32 == ref_index {
+                continue;
+            }
+            let projected = project(cam, point);
+            if let Some(index) = nearest_texel(cam, projected) {
+                zbuffer[index].fetch_max(!projected[2].to_bits(), Ordering::Relaxed);
+            }
+        }
+    }
+}
 }
 
 /// Counts the cameras that see each pixel and invalidates those seen by too few.

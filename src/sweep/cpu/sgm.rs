@@ -10,7 +10,7 @@ use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
 use super::common::vectorised_fn;
-use super::select::WtaState;
+use super::select::{WtaChunk, WtaState};
 
 /// Planes per pixel in the CPU volume are rounded up to a multiple of this (vector lanes).
 pub const LANES: usize = 16;
@@ -207,6 +207,42 @@ pub fn run(
     );
 }
 
+/// The winner over the summed path costs of one pixel.
+struct Winner {
+    best: usize,
+    best_sum: u16,
+    before: Option<u16>,
+    after: Option<u16>,
+    rival: Option<u16>,
+}
+
+/// Sums `forward + backward` into `sums` and finds the first minimum, its neighbours and the
+/// smallest sum away from them (vector adds and minimum reductions, one scan for the index).
+#[inline(always)]
+fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
+    let planes = sums.len();
+    for ((s, &f), &b) in sums
+        .iter_mut()
+        .zip(&forward[..planes])
+        .zip(&backward[..planes])
+    {
+        *s = f.wrapping_add(b);
+    }
+    let lowest = |v: &[u16]| v.iter().copied().fold(u16::MAX, u16::min);
+    let best_sum = lowest(sums);
+    let best = sums.iter().position(|&v| v == best_sum).unwrap_or(0);
+    let left = &sums[..best.saturating_sub(1)];
+    let right = &sums[(best + 2).min(planes)..];
+    let rival = (!left.is_empty() || !right.is_empty()).then(|| lowest(left).min(lowest(right)));
+    Winner {
+        best,
+        best_sum,
+        before: best.checked_sub(1).map(|d| sums[d]),
+        after: sums.get(best + 1).copied(),
+        rival,
+    }
+}
+
 /// Twin of `sgm_select.wgsl`: winner-take-all over the summed path costs (score units) into
 /// the selection state, for every pixel the local winner-take-all found valid. The streaming
 /// selection's result written directly: the first minimum, its two neighbours, and the
@@ -216,48 +252,45 @@ pub fn select(plan: &SweepPlan, forward: &[u16], backward: &[u16], state: &mut W
     let planes = plan.num_planes() as usize;
     let n = stride(planes);
     let unit = plan.params.sgm_unit_per_level;
-    let score = |v: u16| f32::from(v) * unit;
     let chunk = 1024;
     state
         .chunks_mut(chunk)
         .into_par_iter()
-        .zip(forward.par_chunks(chunk * n).zip(backward.par_chunks(chunk * n)))
-        .for_each(|(st, (forward, backward))| {
-            let mut sums = vec![0u16; planes];
-            for i in 0..st.best.len() {
-                if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
-                    continue;
-                }
-                let (f, b) = (&forward[i * n..i * n + planes], &backward[i * n..i * n + planes]);
-                for ((s, &f), &b) in sums.iter_mut().zip(f).zip(b) {
-                    *s = f.wrapping_add(b);
-                }
-                let s = &sums[..];
-                let mut best = 0;
-                for d in 1..planes {
-                    if s[d] < s[best] {
-                        best = d;
-                    }
-                }
-                let mut rival = u16::MAX;
-                let mut any_rival = false;
-                for (d, &v) in s.iter().enumerate() {
-                    if d + 1 < best || d > best + 1 {
-                        rival = rival.min(v);
-                        any_rival = true;
-                    }
-                }
-                st.best[i] = score(s[best]);
-                st.best_plane[i] = best as f32;
-                st.before[i] = if best > 0 { score(s[best - 1]) } else { BIG };
-                st.after[i] = if best + 1 < planes {
-                    score(s[best + 1])
-                } else {
-                    BIG
-                };
-                st.rival[i] = if any_rival { score(rival) } else { BIG };
-            }
+        .zip(
+            forward
+                .par_chunks(chunk * n)
+                .zip(backward.par_chunks(chunk * n)),
+        )
+        .for_each(|(mut st, (forward, backward))| {
+            select_chunk(planes, n, unit, forward, backward, &mut st)
         });
+}
+
+vectorised_fn! {
+/// [`select`] for one run of pixels.
+fn select_chunk(
+    planes: usize,
+    n: usize,
+    unit: f32,
+    forward: &[u16],
+    backward: &[u16],
+    st: &mut WtaChunk<'_>,
+) {
+    let score = |v: u16| f32::from(v) * unit;
+    let mut sums = vec![0u16; planes];
+    for i in 0..st.best.len() {
+        if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
+            continue;
+        }
+        let (f, b) = (&forward[i * n..i * n + planes], &backward[i * n..i * n + planes]);
+        let s = winner(f, b, &mut sums);
+        st.best[i] = score(s.best_sum);
+        st.best_plane[i] = s.best as f32;
+        st.before[i] = s.before.map_or(BIG, score);
+        st.after[i] = s.after.map_or(BIG, score);
+        st.rival[i] = s.rival.map_or(BIG, score);
+    }
+}
 }
 
 #[cfg(test)]
