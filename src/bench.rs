@@ -388,16 +388,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         .collect();
     if !args.json {
         println!(
-            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  {}",
-            "config",
-            "engine",
-            "size",
-            "settings",
-            "wta ms",
-            "sgm ms",
-            "wta/peer",
-            "sgm/peer",
-            "SGM stages (ms)"
+            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  SGM stages (ms)",
+            "config", "engine", "size", "settings", "wta ms", "sgm ms", "wta/peer", "sgm/peer",
         );
     }
     for engine in &mut engines {

@@ -75,6 +75,8 @@ fn hardware_gpu() -> Option<GpuContext> {
 }
 
 /// The engine a command runs: the WGSL engine with its device, or the CPU engine.
+// One engine per process: the size of the CPU variant does not matter.
+#[allow(clippy::large_enum_variant)]
 pub enum Engine {
     Gpu {
         gpu: Box<GpuContext>,

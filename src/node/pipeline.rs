@@ -450,6 +450,8 @@ pub struct EngineHost {
     pub recreated: u64,
 }
 
+// One engine per host: the size of the CPU variant does not matter.
+#[allow(clippy::large_enum_variant)]
 enum Backend {
     Gpu {
         gpu: Box<crate::gpu_context::GpuContext>,

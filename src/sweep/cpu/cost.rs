@@ -8,6 +8,8 @@
 //! weights, no gathers. Every other case projects each pixel as the shader does.
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Loops over x index several rows at once, as the shader indexes its buffers.
+#![allow(clippy::needless_range_loop)]
 
 use super::common::*;
 use crate::sweep::gpu_types::*;

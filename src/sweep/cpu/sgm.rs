@@ -5,6 +5,8 @@
 //! (-1,1)), a backward pass the four opposite ones; each keeps only the previous row's path
 //! costs, and the two passes run on two threads. The planes of a pixel are u16 lanes; the
 //! integer arithmetic is the shader's, so the summed path costs are exactly equal.
+// The `!(x < BIG)` test mirrors the shader and is NaN-safe on purpose.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
