@@ -11,19 +11,19 @@
 // One invocation per reference pixel; it walks the planes of the batch. CPU twins:
 // src/sweep/cpu/aggregate.rs and src/sweep/cpu/select.rs.
 
-override WINDOW_W: u32 = 2u;      // = params.window.x
-override WINDOW_H: u32 = 2u;      // = params.window.y
-override WINDOW_MODE: u32 = 0u;   // = params.extra.y
-override CHANNELS: u32 = 1u;      // = params.counts.z
-override AGGREGATION: u32 = 0u;   // = params.modes.w
-override SCORING: u32 = 0u;       // = params.modes.x
-override BEST_N: u32 = 2u;        // = params.modes.z
-override HALF_BEST_N: u32 = 2u;   // = params.counts.w
+override WINDOW_W: u32 = 2u;      // = params.window_w
+override WINDOW_H: u32 = 2u;      // = params.window_h
+override WINDOW_MODE: u32 = 0u;   // = params.window_mode
+override CHANNELS: u32 = 1u;      // = params.channels
+override AGGREGATION: u32 = 0u;   // = params.aggregation
+override SCORING: u32 = 0u;       // = params.scoring
+override BEST_N: u32 = 2u;        // = params.best_n
+override HALF_BEST_N: u32 = 2u;   // = params.half_best_n
 // Two horizontally adjacent pixels per invocation, sharing the loads of their 2x2 windows.
 override PAIRED: bool = false;
 // Optimizer sgm: also write every plane's score into the u16 cost volume (see common.wgsl);
 // the winner-take-all state still gives validity and the selection image.
-override VOLUME: bool = false;     // = params.sgm.x != 0
+override VOLUME: bool = false;     // = params.sgm_paths != 0
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -43,7 +43,7 @@ override VOLUME: bool = false;     // = params.sgm.x != 0
 // (the odd one fills the high half next), an odd plane that opens a batch keeps the low half.
 fn store_level(pix: u32, plane: u32, score: f32, low: u32, first_in_batch: bool) -> u32 {
     let level = volume_level(score);
-    let word = pix * ((params.counts.y + 1u) / 2u) + plane / 2u;
+    let word = pix * ((params.planes + 1u) / 2u) + plane / 2u;
     if ((plane & 1u) == 0u) {
         volume[word] = level;
         return level;
@@ -66,8 +66,8 @@ fn direct_windows() -> bool {
 // Mean of channel `ch` of plane `z` in the window anchored at (ax, ay) from the box sums; BIG
 // when nothing is valid.
 fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
-    let padded_w = params.extra.z;
-    let padded_h = params.extra.w;
+    let padded_w = params.padded_w;
+    let padded_h = params.padded_h;
     let px = u32(ax + i32(WINDOW_W) - 1);
     let py = u32(ay + i32(WINDOW_H) - 1);
     let s = box_sums[((z * CHANNELS + ch) * padded_h + py) * padded_w + px];
@@ -80,8 +80,8 @@ fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
 // One texel of the cost slab as (cost, 1), or (0, 0) when invalid or outside the image.
 fn slab_texel(base: u32, x: i32, y: i32) -> vec2<f32> {
     // Branch-free: the load is clamped into the image and weighs nothing outside it.
-    let w = i32(params.ref_size.x);
-    let h = i32(params.ref_size.y);
+    let w = i32(params.width);
+    let h = i32(params.height);
     let inside_image = x >= 0 && y >= 0 && x < w && y < h;
     let c = cost_slab[base + u32(clamp(y, 0, h - 1) * w + clamp(x, 0, w - 1))];
     return select(vec2<f32>(0.0), vec2<f32>(c, 1.0), inside_image && c >= 0.0);
@@ -101,7 +101,7 @@ fn means_2x2(u0: vec2<f32>, u1: vec2<f32>, u2: vec2<f32>, l0: vec2<f32>, l1: vec
 // The 2x2 window means of channel `ch` for pixels (x, y) and (x + 1, y) from one 4x3 block of
 // texels (12 loads for two pixels instead of 18).
 fn pair_means_2x2(z: u32, ch: u32, x: i32, y: i32) -> array<vec4<f32>, 2> {
-    let base = (z * CHANNELS + ch) * params.ref_size.z;
+    let base = (z * CHANNELS + ch) * params.pixel_count;
     let c0 = slab_texel(base, x - 1, y - 1);
     let c1 = slab_texel(base, x, y - 1);
     let c2 = slab_texel(base, x + 1, y - 1);
@@ -134,7 +134,7 @@ fn channel_means(z: u32, ch: u32, x: i32, y: i32) -> vec4<f32> {
     let h = i32(WINDOW_H);
     if (direct_windows() && WINDOW_W == 2u && WINDOW_H == 2u) {
         // The paper's shiftable 2x2: the four windows from column sums of the 3x3 texels.
-        let base = (z * CHANNELS + ch) * params.ref_size.z;
+        let base = (z * CHANNELS + ch) * params.pixel_count;
         let c00 = slab_texel(base, x - 1, y - 1);
         let c01 = slab_texel(base, x, y - 1);
         let c02 = slab_texel(base, x + 1, y - 1);
@@ -148,9 +148,9 @@ fn channel_means(z: u32, ch: u32, x: i32, y: i32) -> vec4<f32> {
         return means_2x2(c00 + c10, c01 + c11, c02 + c12, c10 + c20, c11 + c21, c12 + c22);
     }
     if (direct_windows()) {
-        let width = i32(params.ref_size.x);
-        let height = i32(params.ref_size.y);
-        let base = (z * CHANNELS + ch) * params.ref_size.z;
+        let width = i32(params.width);
+        let height = i32(params.height);
+        let base = (z * CHANNELS + ch) * params.pixel_count;
         var sum = vec4<f32>(0.0);
         var count = vec4<f32>(0.0);
         for (var dy = 1 - h; dy <= h - 1; dy++) {
@@ -212,7 +212,7 @@ fn best_mean(v0: vec4<f32>, v1: vec4<f32>, v2: vec4<f32>, v3: vec4<f32>, n: u32)
 // Which half is clearly better: by at least `half_margin` of the worse score, and never by less
 // than `half_margin` of HALF_NOISE_FLOOR (near-zero costs differ by sensor noise alone).
 fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
-    let margin = params.thresholds.w;
+    let margin = params.half_margin;
     let floor_cost = vec4<f32>(HALF_NOISE_FLOOR);
     let big = vec4<f32>(BIG);
     let is_left = left < big & (right >= big | (right - left) > margin * max(right, floor_cost));
@@ -430,8 +430,8 @@ fn store_state(pix: u32, st: Wta) {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    let height = params.ref_size.y;
+    let width = params.width;
+    let height = params.height;
     if (PAIRED) {
         let x = 2u * gid.x;
         if (x >= width || gid.y >= height) {

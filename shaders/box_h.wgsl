@@ -2,8 +2,8 @@
 // ax in [-(w-1), W-1], the sum and count of the valid (>= 0) costs in columns ax .. ax+w-1.
 // One invocation per (padded column, row); it walks the planes x channels of the batch. CPU twin: src/sweep/cpu/boxes.rs.
 
-override WINDOW_W: u32 = 2u;      // = params.window.x
-override CHANNELS: u32 = 1u;      // = params.counts.z
+override WINDOW_W: u32 = 2u;      // = params.window_w
+override CHANNELS: u32 = 1u;      // = params.channels
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -12,13 +12,13 @@ override CHANNELS: u32 = 1u;      // = params.counts.z
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    let height = params.ref_size.y;
-    let padded_w = params.extra.z;
+    let width = params.width;
+    let height = params.height;
+    let padded_w = params.padded_w;
     if (gid.x >= padded_w || gid.y >= height) {
         return;
     }
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let ax = i32(gid.x) - i32(WINDOW_W) + 1;
     // The columns of the window that lie inside the image.
     let x_first = max(ax, 0);

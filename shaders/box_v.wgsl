@@ -2,8 +2,8 @@
 // the valid costs in the w x h window whose top-left texel is (ax, ay).
 // One invocation per (padded column, padded row); it walks the planes x channels of the batch. CPU twin: src/sweep/cpu/boxes.rs.
 
-override WINDOW_H: u32 = 2u;      // = params.window.y
-override CHANNELS: u32 = 1u;      // = params.counts.z
+override WINDOW_H: u32 = 2u;      // = params.window_h
+override CHANNELS: u32 = 1u;      // = params.channels
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -12,9 +12,9 @@ override CHANNELS: u32 = 1u;      // = params.counts.z
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let height = params.ref_size.y;
-    let padded_w = params.extra.z;
-    let padded_h = params.extra.w;
+    let height = params.height;
+    let padded_w = params.padded_w;
+    let padded_h = params.padded_h;
     if (gid.x >= padded_w || gid.y >= padded_h) {
         return;
     }

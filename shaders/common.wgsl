@@ -58,14 +58,44 @@ struct Camera {
 }
 
 struct Params {
-    ref_size: vec4<u32>,      // width, height, pixel count, reference camera index or NO_CAMERA
-    counts: vec4<u32>,        // cameras, planes, channels, half best n (0 = all pairs of a half)
-    modes: vec4<u32>,         // scoring, pair mode, best n, aggregation
-    window: vec4<u32>,        // window width, height (1 = no aggregation), subpixel, median
-    thresholds: vec4<f32>,    // tau, max_cost, occlusion tolerance (relative), half margin
-    extra: vec4<u32>,         // min visible cameras, window mode, padded width, padded height
-    sgm: vec4<u32>,           // SGM paths (0 = winner-take-all), P1, P2 (volume levels), edge step (1/16 grey levels)
-    sgm_scale: vec4<f32>,     // volume levels per score unit, score units per summed level, 0, 0
+    // The reference image.
+    width: u32,
+    height: u32,
+    pixel_count: u32,
+    reference: u32,               // reference camera index, or NO_CAMERA (virtual reference)
+    // Counts.
+    cameras: u32,
+    planes: u32,
+    channels: u32,                // cost-slab channels per plane (pairs m in per-pair aggregation)
+    half_best_n: u32,             // 0 = all pairs of a half
+    // Modes (SCORING_*, PAIRS_*, AGG_*).
+    scoring: u32,
+    pair_mode: u32,
+    best_n: u32,
+    aggregation: u32,
+    // Windows and post-processing switches.
+    window_w: u32,                // 1 = no aggregation
+    window_h: u32,
+    subpixel: u32,                // 0 or 1
+    median: u32,                  // 0 or 1
+    // Thresholds.
+    tau: f32,
+    max_cost: f32,
+    occlusion_tolerance: f32,     // relative
+    half_margin: f32,
+    min_visible: u32,             // cameras, the reference counted
+    window_mode: u32,             // WINDOW_*
+    padded_w: u32,                // width + window_w - 1 (box-sum anchors)
+    padded_h: u32,
+    // SGM (optimizer sgm; sgm_paths = 0: winner-take-all).
+    sgm_paths: u32,
+    sgm_p1: u32,                  // volume levels
+    sgm_p2: u32,                  // volume levels
+    sgm_edge: u32,                // 1/16 grey levels, 0 = constant P2
+    sgm_levels_per_unit: f32,     // SGM_COST_MAX / tau
+    sgm_unit_per_level: f32,      // 1 / (paths x levels per unit): score units per summed level
+    _pad0: u32,
+    _pad1: u32,
 }
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as
@@ -79,7 +109,7 @@ fn volume_level(score: f32) -> u32 {
     if (score >= 0.5 * BIG) {
         return SGM_COST_MAX;
     }
-    return min(u32(floor(score * params.sgm_scale.x + 0.5)), SGM_COST_MAX);
+    return min(u32(floor(score * params.sgm_levels_per_unit + 0.5)), SGM_COST_MAX);
 }
 
 // Window anchors (top-left texel of a window) run from -(w-1) to W-1 (and likewise in y), so the

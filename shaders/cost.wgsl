@@ -1,11 +1,11 @@
 // Stage 1+2+3: hypotheses -> per-camera bilinear colour -> pair TSSD -> multi-camera score.
 // CPU twin: src/sweep/cpu/cost.rs.
 
-override SCORING: u32 = 0u;       // = params.modes.x
-override PAIRS: u32 = 0u;         // = params.modes.y
-override BEST_N: u32 = 2u;        // = params.modes.z
-override AGGREGATION: u32 = 0u;   // = params.modes.w
-override CHANNELS: u32 = 1u;      // = params.counts.z (pairs m in per-pair aggregation)
+override SCORING: u32 = 0u;       // = params.scoring
+override PAIRS: u32 = 0u;         // = params.pair_mode
+override BEST_N: u32 = 2u;        // = params.best_n
+override AGGREGATION: u32 = 0u;   // = params.aggregation
+override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggregation)
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
@@ -31,7 +31,7 @@ fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
 
 fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
     let d = a - b;
-    return min(params.thresholds.x, dot(d, d));
+    return min(params.tau, dot(d, d));
 }
 
 // Running sums of one hypothesis's pair costs. Passed by value, with the n smallest costs in
@@ -126,7 +126,7 @@ fn pair_half(a: u32, b: u32) -> u32 {
 
 // Scores plane `z` of the batch for pixel `pixel`; `ref_colour` is the reference texel.
 fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>) {
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let channels = CHANNELS;
     let slot = (z * channels) * npix + pix;
     let depth = plane_depth(batch.planes[z], ray);
@@ -137,8 +137,8 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
         return;
     }
     let point_in_ref = ray * depth;
-    let ref_index = params.ref_size.w;
-    let n_cameras = params.counts.x;
+    let ref_index = params.reference;
+    let n_cameras = params.cameras;
 
     let per_pair = AGGREGATION == AGG_PER_PAIR;
     var acc = empty_acc();
@@ -226,22 +226,22 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
 // reference colour are loaded once).
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    if (gid.x >= width || gid.y >= params.ref_size.y) {
+    let width = params.width;
+    if (gid.x >= width || gid.y >= params.height) {
         return;
     }
     let pix = gid.y * width + gid.x;
     let ray = rays[pix].xyz;
-    let ref_index = params.ref_size.w;
+    let ref_index = params.reference;
     var ref_colour = vec3<f32>(0.0);
     if (ref_index != NO_CAMERA) {
         ref_colour = texel(cameras[ref_index], gid.x, gid.y);
     }
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
         // Camera-outer order: each camera's parameters are loaded once for all planes.
-        let npix = params.ref_size.z;
+        let npix = params.pixel_count;
         var p = 0u;
-        for (var i = 0u; i < params.counts.x; i++) {
+        for (var i = 0u; i < params.cameras; i++) {
             if (i == ref_index) {
                 continue;
             }

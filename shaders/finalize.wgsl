@@ -14,18 +14,18 @@ fn inverse_depth(k: u32, ray: vec3<f32>) -> f32 {
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    if (gid.x >= width || gid.y >= params.ref_size.y) {
+    let width = params.width;
+    if (gid.x >= width || gid.y >= params.height) {
         return;
     }
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let pix = gid.y * width + gid.x;
     let s0 = state[3u * pix];
     let s1 = state[3u * pix + 1u];
     let s2 = state[3u * pix + 2u];
     let best = s0.x;
-    let n_planes = params.counts.y;
-    let max_cost = params.thresholds.y;
+    let n_planes = params.planes;
+    let max_cost = params.max_cost;
 
     if (!(best < 0.5 * BIG) || best > max_cost || s0.y < 0.0) {
         maps[MAP_DEPTH_RAW * npix + pix] = nan();
@@ -37,7 +37,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let k = u32(s0.y);
     let ray = rays[pix].xyz;
     var q = inverse_depth(k, ray);
-    if (params.window.z != 0u && k > 0u && k + 1u < n_planes && s0.z < 0.5 * BIG && s0.w < 0.5 * BIG) {
+    if (params.subpixel != 0u && k > 0u && k + 1u < n_planes && s0.z < 0.5 * BIG && s0.w < 0.5 * BIG) {
         let curvature = s0.z - 2.0 * best + s0.w;
         if (curvature > 0.0) {
             let offset = clamp(0.5 * (s0.z - s0.w) / curvature, -0.5, 0.5);

@@ -1,5 +1,5 @@
 // Stage 6a: 3x3 median of the depth over valid neighbours; invalid pixels stay invalid.
-// With the median disabled (params.window.w == 0) the depth is copied.
+// With the median disabled (params.median == 0) the depth is copied.
 // One invocation per reference pixel. CPU twin: src/sweep/cpu/median.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -9,24 +9,24 @@
 fn neighbour(gid: vec3<u32>, dx: i32, dy: i32) -> f32 {
     let x = i32(gid.x) + dx;
     let y = i32(gid.y) + dy;
-    if (x < 0 || y < 0 || x >= i32(params.ref_size.x) || y >= i32(params.ref_size.y)) {
+    if (x < 0 || y < 0 || x >= i32(params.width) || y >= i32(params.height)) {
         return BIG;
     }
-    let d = maps[MAP_DEPTH_RAW * params.ref_size.z + u32(y) * params.ref_size.x + u32(x)];
+    let d = maps[MAP_DEPTH_RAW * params.pixel_count + u32(y) * params.width + u32(x)];
     return select(d, BIG, is_invalid(d));
 }
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    let height = params.ref_size.y;
+    let width = params.width;
+    let height = params.height;
     if (gid.x >= width || gid.y >= height) {
         return;
     }
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let pix = gid.y * width + gid.x;
     let centre = maps[MAP_DEPTH_RAW * npix + pix];
-    if (is_invalid(centre) || params.window.w == 0u) {
+    if (is_invalid(centre) || params.median == 0u) {
         maps[MAP_DEPTH_MEDIAN * npix + pix] = centre;
         return;
     }

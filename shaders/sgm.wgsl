@@ -91,17 +91,17 @@ fn line_term(prev: u32, d: u32, planes: u32, prev_min: u32, p1: u32, p2: u32) ->
 
 // LINE_PER_INVOCATION: the whole path line `line`, plane after plane, by one invocation.
 fn walk_line(line: i32) {
-    let w = i32(params.ref_size.x);
-    let h = i32(params.ref_size.y);
+    let w = i32(params.width);
+    let h = i32(params.height);
     let dx = sgm_pass.direction.x;
     let dy = sgm_pass.direction.y;
     let first_pass = sgm_pass.direction.w != 0;
-    let planes = params.counts.y;
+    let planes = params.planes;
     let words = (planes + 1u) / 2u;
-    let p1 = params.sgm.y;
-    let p2 = params.sgm.z;
-    let edge = params.sgm.w;
-    let reference = params.ref_size.w;
+    let p1 = params.sgm_p1;
+    let p2 = params.sgm_p2;
+    let edge = params.sgm_edge;
+    let reference = params.reference;
     var image_offset = 0u;
     if (reference != NO_CAMERA) {
         image_offset = cameras[reference].size.z;
@@ -176,17 +176,17 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     if (line >= sgm_pass.direction.z) {
         return;
     }
-    let w = i32(params.ref_size.x);
-    let h = i32(params.ref_size.y);
+    let w = i32(params.width);
+    let h = i32(params.height);
     let dx = sgm_pass.direction.x;
     let dy = sgm_pass.direction.y;
     let first_pass = sgm_pass.direction.w != 0;
-    let planes = params.counts.y;
+    let planes = params.planes;
     let words = (planes + 1u) / 2u;
-    let p1 = params.sgm.y;
-    let p2 = params.sgm.z;
-    let edge = params.sgm.w;
-    let reference = params.ref_size.w;
+    let p1 = params.sgm_p1;
+    let p2 = params.sgm_p2;
+    let edge = params.sgm_edge;
+    let reference = params.reference;
     var image_offset = 0u;
     if (reference != NO_CAMERA) {
         image_offset = cameras[reference].size.z;

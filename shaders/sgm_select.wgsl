@@ -11,8 +11,8 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    if (gid.x >= width || gid.y >= params.ref_size.y) {
+    let width = params.width;
+    if (gid.x >= width || gid.y >= params.height) {
         return;
     }
     let pix = gid.y * width + gid.x;
@@ -21,9 +21,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let selection = state[3u * pix + 2u].x;
-    let planes = params.counts.y;
+    let planes = params.planes;
     let words = (planes + 1u) / 2u;
-    let unit = params.sgm_scale.y;
+    let unit = params.sgm_unit_per_level;
     var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, 0.0, 0.0, 0.0));
     for (var j = 0u; j < words; j++) {
         let word = sums[pix * words + j];

@@ -12,19 +12,19 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    if (gid.x >= width || gid.y >= params.ref_size.y) {
+    let width = params.width;
+    if (gid.x >= width || gid.y >= params.height) {
         return;
     }
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let pix = gid.y * width + gid.x;
     let depth = maps[MAP_DEPTH_MEDIAN * npix + pix];
     if (is_invalid(depth)) {
         return;
     }
     let point_in_ref = rays[pix].xyz * depth;
-    for (var i = 0u; i < params.counts.x; i++) {
-        if (i == params.ref_size.w) {
+    for (var i = 0u; i < params.cameras; i++) {
+        if (i == params.reference) {
             continue;
         }
         let projected = project(cameras[i], point_in_ref);

@@ -11,11 +11,11 @@
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let width = params.ref_size.x;
-    if (gid.x >= width || gid.y >= params.ref_size.y) {
+    let width = params.width;
+    if (gid.x >= width || gid.y >= params.height) {
         return;
     }
-    let npix = params.ref_size.z;
+    let npix = params.pixel_count;
     let pix = gid.y * width + gid.x;
     let depth = maps[MAP_DEPTH_MEDIAN * npix + pix];
     if (is_invalid(depth)) {
@@ -24,13 +24,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let point_in_ref = rays[pix].xyz * depth;
-    let tolerance = params.thresholds.z;
+    let tolerance = params.occlusion_tolerance;
     var seen = 0u;
-    if (params.ref_size.w != NO_CAMERA) {
+    if (params.reference != NO_CAMERA) {
         seen = 1u;
     }
-    for (var i = 0u; i < params.counts.x; i++) {
-        if (i == params.ref_size.w) {
+    for (var i = 0u; i < params.cameras; i++) {
+        if (i == params.reference) {
             continue;
         }
         let projected = project(cameras[i], point_in_ref);
@@ -44,7 +44,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     maps[MAP_VISIBLE * npix + pix] = f32(seen);
-    if (seen < params.extra.x) {
+    if (seen < params.min_visible) {
         maps[MAP_DEPTH * npix + pix] = nan();
         maps[MAP_CONFIDENCE * npix + pix] = 0.0;
         maps[MAP_SELECTION * npix + pix] = f32(SEL_INVALID);

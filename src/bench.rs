@@ -1,87 +1,152 @@
-//! `sweepdepth bench`: hypotheses per second and per-stage GPU times on synthetic rigs.
+//! `sweepdepth bench`: how fast, compared to what. In one run: the CPU engine and the WGSL
+//! engine (on the wgpu adapter, lavapipe without a GPU) on the paper's configuration,
+//! 640x480x64, 1280x960x128, a 9-camera 450x375x57 rig and the demo's Tsukuba set, each with
+//! winner-take-all and SGM; and the peer, OpenCV StereoSGBM 3-way on two Tsukuba views with 32
+//! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it.
 
+use std::path::{Path, PathBuf};
+use std::process::Command;
 use std::time::Instant;
 
 use anyhow::Context;
 use serde::Serialize;
 
-use crate::geometry::CameraModel;
-use crate::gpu_context::GpuContext;
+use crate::engine::{Device, Engine, Sweeper};
+use crate::geometry::{CameraModel, Rig};
+use crate::image::Rgba8Image;
 use crate::params::EngineOptions;
-use crate::sweep::gpu::{GpuEngine, STAGES};
 use crate::sweep::{Optimizer, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
 #[derive(Debug, clap::Args)]
 pub struct BenchArgs {
-    /// One JSON object per line and configuration.
+    /// One JSON object per line: the peer, then one per engine and configuration.
     #[arg(long)]
     pub json: bool,
     /// Timed runs per configuration (after one warm-up run); the median is reported.
     #[arg(long, default_value_t = 7)]
     pub repeats: usize,
-    /// Only the paper's configuration (4 cameras, 320x240, 20 planes).
+    /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
+    /// Python with OpenCV for the peer (default: target/test-venv, then python3).
+    #[arg(long)]
+    pub python: Option<PathBuf>,
+    /// Which engines are timed: both (auto, the default), the WGSL engine on the wgpu
+    /// adapter (gpu) or the CPU engine (cpu).
+    #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
+    pub device: crate::engine::Device,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
 }
 
+/// What a configuration sweeps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Workload {
+    /// A synthetic row of cameras with the paper's settings (best half-sequence, shiftable 2x2
+    /// windows, per-pair aggregation).
+    Paper,
+    /// A synthetic row of cameras with the engine defaults (best 2 of m, centred 9x9), as a
+    /// live node would run.
+    Defaults,
+    /// The demo: the built-in Tsukuba set (5 views 384x288, 32 planes) with its defaults.
+    Demo,
+}
+
 /// One benchmark configuration.
 #[derive(Debug, Clone, Copy)]
 pub struct BenchConfig {
+    pub name: &'static str,
     pub cameras: usize,
     pub width: u32,
     pub height: u32,
     pub planes: u32,
+    pub workload: Workload,
 }
 
-/// The issue's three configurations: the paper's, then 640x480x64 and 1280x960x128.
-pub const CONFIGS: [BenchConfig; 3] = [
+/// The issue's configurations.
+pub const CONFIGS: [BenchConfig; 5] = [
     BenchConfig {
+        name: "paper",
         cameras: 4,
         width: 320,
         height: 240,
         planes: 20,
+        workload: Workload::Paper,
     },
     BenchConfig {
+        name: "demo",
+        cameras: 5,
+        width: 384,
+        height: 288,
+        planes: 32,
+        workload: Workload::Demo,
+    },
+    BenchConfig {
+        name: "9-camera",
+        cameras: 9,
+        width: 450,
+        height: 375,
+        planes: 57,
+        workload: Workload::Defaults,
+    },
+    BenchConfig {
+        name: "vga",
         cameras: 4,
         width: 640,
         height: 480,
         planes: 64,
+        workload: Workload::Paper,
     },
     BenchConfig {
+        name: "sxga",
         cameras: 4,
         width: 1280,
         height: 960,
         planes: 128,
+        workload: Workload::Paper,
     },
 ];
 
+/// The peer's timing (`tools/sgbm_baseline.py --time --json`).
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+pub struct PeerResult {
+    pub peer: String,
+    pub opencv: String,
+    pub threads: u32,
+    pub pair: String,
+    pub width: u32,
+    pub height: u32,
+    pub num_disparities: u32,
+    pub runs: u32,
+    pub ms_median: f64,
+    pub ms_min: f64,
+}
+
 #[derive(Debug, Serialize)]
 pub struct BenchResult {
+    pub config: &'static str,
+    pub engine: String,
     pub cameras: usize,
     pub width: u32,
     pub height: u32,
     pub planes: u32,
-    pub scoring: String,
-    pub window: String,
-    pub pairs: String,
-    pub aggregation: String,
-    /// The paper's local winner-take-all.
-    pub ms_per_frame: f64,
-    pub hypotheses_per_s: f64,
-    pub stage_ms: serde_json::Map<String, serde_json::Value>,
-    /// The same configuration with `optimizer: sgm` (`sgm_paths` directions); `None` with
-    /// `sgm_error` when the cost volume does not fit this adapter.
-    pub sgm_ms_per_frame: Option<f64>,
-    pub sgm_paths: u32,
+    pub settings: String,
+    /// Winner-take-all: median ms per frame set, hypotheses (pixels x planes) per second.
+    pub wta_ms: Option<f64>,
+    pub wta_hypotheses_per_s: Option<f64>,
+    /// SGM (`sgm_paths` directions).
+    pub sgm_ms: Option<f64>,
+    pub sgm_hypotheses_per_s: Option<f64>,
+    /// Why a column is empty (e.g. a volume larger than the adapter allows).
+    pub notes: Vec<String>,
+    /// Ratios to the peer's median time (None without the peer).
+    pub wta_vs_peer: Option<f64>,
+    pub sgm_vs_peer: Option<f64>,
+    /// Per-stage median ms of the SGM runs (GPU timestamps or the CPU clock).
     pub sgm_stage_ms: serde_json::Map<String, serde_json::Value>,
-    pub sgm_error: Option<String>,
-    pub stage_timer: &'static str,
     pub runs: usize,
-    pub adapter: String,
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -93,8 +158,12 @@ fn median(mut values: Vec<f64>) -> f64 {
     }
 }
 
-/// The benchmark's engine settings: best half-sequence with the paper's shiftable 2x2 window,
-/// and the given optimizer (the options apply to both columns, all but the optimizer).
+fn round3(v: f64) -> f64 {
+    (v * 1000.0).round() / 1000.0
+}
+
+/// The paper's benchmark settings: best half-sequence with the shiftable 2x2 window, and the
+/// given optimizer (the options apply to every configuration, all but the optimizer).
 pub fn bench_params(
     config: &BenchConfig,
     overrides: &EngineOptions,
@@ -104,183 +173,274 @@ pub fn bench_params(
         min_depth_m: 1.0,
         max_depth_m: 6.0,
         num_planes: config.planes,
-        scoring: Scoring::BestHalfSequence,
-        window_width: 2,
-        window_height: 2,
-        window_mode: WindowMode::Shiftable,
         ..SweepParams::default()
     };
+    if config.workload == Workload::Paper {
+        params.scoring = Scoring::BestHalfSequence;
+        params.window_width = 2;
+        params.window_height = 2;
+        params.window_mode = WindowMode::Shiftable;
+    }
     overrides.apply(&mut params);
     params.num_planes = config.planes;
     params.optimizer = optimizer;
     params
 }
 
-/// Median frame time and per-stage medians of `repeats` timed runs after a warm-up.
+/// The rig, images and base parameters of a configuration.
+fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Option<SweepParams>)> {
+    if config.workload == Workload::Demo {
+        let dir = std::env::temp_dir().join(format!("sweepdepth-bench-{}", std::process::id()));
+        let input = crate::demo::extract_sample(&dir)?;
+        let dataset = crate::datasets::load_dataset(&input);
+        let _ = std::fs::remove_dir_all(&dir);
+        let dataset = dataset?;
+        return Ok((dataset.rig, dataset.images, Some(dataset.params)));
+    }
+    let model = CameraModel::pinhole(synthetic::intrinsics(config.width, config.height));
+    let reference = (config.cameras - 1) / 2;
+    let rig = synthetic::row_rig(config.cameras, 0.1, model, reference)?;
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    Ok((rig, images, None))
+}
+
+/// Median frame time of `repeats` timed runs after a warm-up, and the per-stage medians.
 fn time_runs(
-    engine: &mut GpuEngine,
-    rig: &crate::geometry::Rig,
-    images: &[crate::image::Rgba8Image],
+    engine: &mut Engine,
+    rig: &Rig,
+    images: &[Rgba8Image],
     params: &SweepParams,
     repeats: usize,
-) -> Result<(f64, serde_json::Map<String, serde_json::Value>, bool), crate::sweep::SweepError> {
+) -> Result<(f64, serde_json::Map<String, serde_json::Value>), crate::sweep::SweepError> {
     engine.run(rig, images, params)?;
     let mut frame_ms = Vec::with_capacity(repeats);
-    let mut stage_ms: Vec<Vec<f64>> = vec![Vec::new(); STAGES.len()];
-    let mut gpu_timestamps = false;
+    let mut stage_ms: Vec<(String, Vec<f64>)> = Vec::new();
     for _ in 0..repeats.max(1) {
         let started = Instant::now();
         engine.run(rig, images, params)?;
         frame_ms.push(started.elapsed().as_secs_f64() * 1e3);
-        let timings = engine.last_timings();
-        gpu_timestamps = timings.gpu_timestamps;
-        if timings.gpu_timestamps {
-            for (i, (_, ms)) in timings.stages.iter().enumerate().take(STAGES.len()) {
-                stage_ms[i].push(*ms);
+        for (name, ms) in &engine.last_timings().stages {
+            match stage_ms.iter_mut().find(|(n, _)| n == name) {
+                Some((_, v)) => v.push(*ms),
+                None => stage_ms.push((name.clone(), vec![*ms])),
             }
         }
     }
     let mut stages = serde_json::Map::new();
-    if gpu_timestamps {
-        for (name, values) in STAGES.iter().zip(stage_ms) {
-            let ms = median(values);
-            // Stages a mode does not run (box passes of small windows, SGM under WTA) are left out.
-            if ms > 0.0 {
-                stages.insert(
-                    name.to_string(),
-                    serde_json::json!((ms * 1000.0).round() / 1000.0),
-                );
-            }
+    for (name, values) in stage_ms {
+        let ms = median(values);
+        // Stages a mode does not run (box passes of small windows, SGM under WTA) are left out.
+        if ms > 0.0 {
+            stages.insert(name, serde_json::json!(round3(ms)));
         }
     }
-    Ok((median(frame_ms), stages, gpu_timestamps))
+    Ok((median(frame_ms), stages))
 }
 
-/// Runs one configuration: a warm-up, then `repeats` timed frame sets, with the paper's
-/// winner-take-all and then with SGM.
+/// Runs one configuration on one engine: winner-take-all, then SGM.
 pub fn run_config(
-    engine: &mut GpuEngine,
-    adapter: &str,
+    engine: &mut Engine,
     config: &BenchConfig,
     overrides: &EngineOptions,
     repeats: usize,
+    peer_ms: Option<f64>,
 ) -> anyhow::Result<BenchResult> {
-    let model = CameraModel::pinhole(synthetic::intrinsics(config.width, config.height));
-    let rig = synthetic::row_rig(config.cameras, 0.1, model, 1)?;
-    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let params = bench_params(config, overrides, Optimizer::Wta);
-    let (ms, stages, gpu_timestamps) =
-        time_runs(engine, &rig, &images, &params, repeats).context("winner-take-all runs")?;
-    let sgm_params = bench_params(config, overrides, Optimizer::Sgm);
-    let (sgm_ms_per_frame, sgm_stage_ms, sgm_error) =
-        match time_runs(engine, &rig, &images, &sgm_params, repeats) {
-            Ok((ms, stages, _)) => (Some((ms * 1000.0).round() / 1000.0), stages, None),
+    let (rig, images, base) = workload(config)?;
+    let params_for = |optimizer| match &base {
+        Some(base) => {
+            let mut p = base.clone();
+            overrides.apply(&mut p);
+            p.optimizer = optimizer;
+            p
+        }
+        None => bench_params(config, overrides, optimizer),
+    };
+    let hypotheses = f64::from(config.width) * f64::from(config.height) * f64::from(config.planes);
+    let mut notes = Vec::new();
+    let mut column = |optimizer: Optimizer| -> anyhow::Result<_> {
+        let params = params_for(optimizer);
+        match time_runs(engine, &rig, &images, &params, repeats) {
+            Ok((ms, stages)) => Ok((Some(round3(ms)), stages)),
             // A volume too large for the adapter is a result, not a failure of the bench.
             Err(crate::sweep::SweepError::InvalidParams(reason)) => {
-                (None, serde_json::Map::new(), Some(reason))
+                notes.push(format!("{optimizer:?}: {reason}"));
+                Ok((None, serde_json::Map::new()))
             }
-            Err(other) => return Err(other).context("SGM runs"),
-        };
-    let hypotheses = f64::from(config.width) * f64::from(config.height) * f64::from(config.planes);
+            Err(other) => Err(other).with_context(|| format!("{optimizer:?} runs")),
+        }
+    };
+    let (wta_ms, _) = column(Optimizer::Wta)?;
+    let (sgm_ms, sgm_stage_ms) = column(Optimizer::Sgm)?;
+    let params = params_for(Optimizer::Sgm);
+    let settings = format!(
+        "{}, {} {}x{}, {}",
+        serde_json::to_value(params.scoring)?
+            .as_str()
+            .unwrap_or("?"),
+        serde_json::to_value(params.window_mode)?
+            .as_str()
+            .unwrap_or("?"),
+        params.window_width,
+        params.window_height,
+        serde_json::to_value(params.aggregation)?
+            .as_str()
+            .unwrap_or("?"),
+    );
+    let per_s = |ms: Option<f64>| ms.map(|ms| (hypotheses / (ms / 1e3)).round());
+    let ratio = |ms: Option<f64>| Some(round3(ms? / peer_ms?));
     Ok(BenchResult {
+        config: config.name,
+        engine: engine.label(),
         cameras: config.cameras,
         width: config.width,
         height: config.height,
         planes: config.planes,
-        scoring: serde_json::to_value(params.scoring)?
-            .as_str()
-            .unwrap_or("?")
-            .to_string(),
-        window: format!(
-            "{} {}x{}",
-            serde_json::to_value(params.window_mode)?
-                .as_str()
-                .unwrap_or("?"),
-            params.window_width,
-            params.window_height
-        ),
-        pairs: serde_json::to_value(params.effective_pairs())?
-            .as_str()
-            .unwrap_or("?")
-            .to_string(),
-        aggregation: serde_json::to_value(params.aggregation)?
-            .as_str()
-            .unwrap_or("?")
-            .to_string(),
-        ms_per_frame: (ms * 1000.0).round() / 1000.0,
-        hypotheses_per_s: (hypotheses / (ms / 1e3)).round(),
-        stage_ms: stages,
-        sgm_ms_per_frame,
-        sgm_paths: sgm_params.sgm_paths,
+        settings,
+        wta_ms,
+        wta_hypotheses_per_s: per_s(wta_ms),
+        sgm_ms,
+        sgm_hypotheses_per_s: per_s(sgm_ms),
+        notes,
+        wta_vs_peer: ratio(wta_ms),
+        sgm_vs_peer: ratio(sgm_ms),
         sgm_stage_ms,
-        sgm_error,
-        stage_timer: if gpu_timestamps {
-            "gpu timestamps"
-        } else {
-            "none (adapter has no timestamp queries)"
-        },
         runs: repeats.max(1),
-        adapter: adapter.to_string(),
     })
 }
 
+/// A Python that can import cv2: `--python`, the repo's test venv, then `python3`.
+fn peer_python(explicit: Option<&Path>) -> Option<PathBuf> {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let candidates: Vec<PathBuf> = match explicit {
+        Some(p) => vec![p.to_path_buf()],
+        None => vec![
+            repo.join("target/test-venv/bin/python"),
+            PathBuf::from("python3"),
+        ],
+    };
+    candidates.into_iter().find(|python| {
+        Command::new(python)
+            .args(["-c", "import cv2"])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false)
+    })
+}
+
+/// Times the peer, or says why it is missing.
+pub fn run_peer(explicit_python: Option<&Path>, repeats: usize) -> Result<PeerResult, String> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/sgbm_baseline.py");
+    let python = peer_python(explicit_python).ok_or_else(|| {
+        "no Python with OpenCV (cv2) found: `pip install opencv-python-headless` into \
+         target/test-venv or the system python3, or pass --python"
+            .to_string()
+    })?;
+    let output = Command::new(&python)
+        .arg(&script)
+        .args(["--time", "--json", "--repeats", &repeats.max(5).to_string()])
+        .output()
+        .map_err(|e| format!("running {}: {e}", python.display()))?;
+    if !output.status.success() {
+        return Err(format!(
+            "{} {} --time failed: {}",
+            python.display(),
+            script.display(),
+            String::from_utf8_lossy(&output.stderr).trim()
+        ));
+    }
+    serde_json::from_slice(&output.stdout).map_err(|e| format!("the peer's output: {e}"))
+}
+
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
-    let gpu = GpuContext::new()?;
-    let adapter = gpu.adapter_label();
-    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue)?;
+    let repeats = if args.quick { 3 } else { args.repeats };
+    let peer = run_peer(args.python.as_deref(), 3 * repeats);
+    let peer_ms = peer.as_ref().ok().map(|p| p.ms_median);
+    match (&peer, args.json) {
+        (Ok(p), true) => println!("{}", serde_json::to_string(p)?),
+        (Err(reason), true) => println!("{}", serde_json::json!({ "peer_missing": reason })),
+        (Ok(p), false) => println!(
+            "peer: {} (OpenCV {}, {} threads), {} {}x{}, {} disparities: {:.2} ms (median of {})",
+            p.peer,
+            p.opencv,
+            p.threads,
+            p.pair,
+            p.width,
+            p.height,
+            p.num_disparities,
+            p.ms_median,
+            p.runs
+        ),
+        (Err(reason), false) => println!("peer: missing ({reason}); no ratios"),
+    }
+    let mut engines = Vec::new();
+    if args.device != Device::Gpu {
+        engines.push(Engine::new(Device::Cpu)?);
+    }
+    if args.device != Device::Cpu {
+        match Engine::new(Device::Gpu) {
+            Ok(engine) => engines.push(engine),
+            Err(e) if args.device == Device::Auto => {
+                println!("WGSL engine: not timed ({e})");
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    let configs: Vec<&BenchConfig> = CONFIGS
+        .iter()
+        .filter(|c| !args.quick || matches!(c.name, "paper" | "demo"))
+        .collect();
     if !args.json {
-        println!("adapter: {adapter}");
         println!(
-            "{:>4} {:>11} {:>6} {:>34} {:>10} {:>12} {:>10}  per-stage GPU ms (wta | sgm)",
-            "cams", "size", "planes", "scoring/window", "wta ms", "Mhyp/s", "sgm ms"
+            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  SGM stages (ms)",
+            "config", "engine", "size", "settings", "wta ms", "sgm ms", "wta/peer", "sgm/peer",
         );
     }
-    let configs: &[BenchConfig] = if args.quick { &CONFIGS[..1] } else { &CONFIGS };
-    for config in configs {
-        // Fewer repeats for the big frame on slow adapters keeps the run bounded.
-        let result = run_config(&mut engine, &adapter, config, &args.params, args.repeats)
-            .with_context(|| {
-                format!(
-                    "{}x{} with {} planes",
-                    config.width, config.height, config.planes
-                )
-            })?;
-        if args.json {
-            println!("{}", serde_json::to_string(&result)?);
-        } else {
-            let list = |stages: &serde_json::Map<String, serde_json::Value>| {
-                stages
-                    .iter()
-                    .map(|(k, v)| format!("{k} {:.2}", v.as_f64().unwrap_or(f64::NAN)))
-                    .collect::<Vec<String>>()
-                    .join(", ")
-            };
-            let stages = list(&result.stage_ms);
-            let sgm_ms = match result.sgm_ms_per_frame {
-                Some(ms) => format!("{ms:.2}"),
-                None => "n/a".to_string(),
-            };
+    for engine in &mut engines {
+        for config in &configs {
+            let result = run_config(engine, config, &args.params, repeats, peer_ms)
+                .with_context(|| format!("{} on {}", config.name, engine.label()))?;
+            if args.json {
+                println!("{}", serde_json::to_string(&result)?);
+                continue;
+            }
+            let ms = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.1}"));
+            let ratio = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}x"));
+            let stages = result
+                .sgm_stage_ms
+                .iter()
+                .map(|(k, v)| format!("{k} {:.1}", v.as_f64().unwrap_or(f64::NAN)))
+                .collect::<Vec<String>>()
+                .join(", ");
             println!(
-                "{:>4} {:>11} {:>6} {:>34} {:>10.2} {:>12.1} {:>10}  {} | {}",
-                result.cameras,
-                format!("{}x{}", result.width, result.height),
-                result.planes,
-                format!("{}/{}", result.scoring, result.window),
-                result.ms_per_frame,
-                result.hypotheses_per_s / 1e6,
-                sgm_ms,
-                if stages.is_empty() {
-                    result.stage_timer.to_string()
+                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  {}{}",
+                result.config,
+                truncate(&result.engine, 44),
+                format!(
+                    "{}x{}x{}x{}",
+                    result.cameras, result.width, result.height, result.planes
+                ),
+                truncate(&result.settings, 30),
+                ms(result.wta_ms),
+                ms(result.sgm_ms),
+                ratio(result.wta_vs_peer),
+                ratio(result.sgm_vs_peer),
+                stages,
+                if result.notes.is_empty() {
+                    String::new()
                 } else {
-                    stages
-                },
-                match &result.sgm_error {
-                    Some(reason) => reason.clone(),
-                    None => list(&result.sgm_stage_ms),
+                    format!(" [{}]", result.notes.join("; "))
                 }
             );
         }
     }
     Ok(())
+}
+
+fn truncate(s: &str, n: usize) -> String {
+    if s.chars().count() <= n {
+        s.to_string()
+    } else {
+        s.chars().take(n - 1).chain(std::iter::once('~')).collect()
+    }
 }

@@ -8,16 +8,19 @@ use std::time::Instant;
 use anyhow::Context;
 
 use crate::datasets;
+use crate::engine::{Engine, Sweeper};
 use crate::eval::{self, Metrics};
-use crate::gpu_context::GpuContext;
 use crate::params::EngineOptions;
-use crate::sweep::gpu::GpuEngine;
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
     /// Where to write the images.
     #[arg(long, default_value = "sweepdepth-demo")]
     pub out: PathBuf,
+    /// Which engine runs the sweep: a hardware GPU if there is one, else the CPU engine
+    /// (auto); the WGSL engine on the wgpu adapter, lavapipe included (gpu); the CPU engine.
+    #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
+    pub device: crate::engine::Device,
     /// Engine options.
     #[command(flatten)]
     pub params: EngineOptions,
@@ -66,16 +69,16 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let input = extract_sample(&args.out.join("input"))?;
     let mut dataset = datasets::load_dataset(&input)?;
     args.params.apply(&mut dataset.params);
-    let gpu = GpuContext::new()?;
-    let adapter = gpu.adapter_label();
-    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue)?;
+    let mut engine = Engine::new(args.device)?;
+    let adapter = engine.label();
     let (w, h) = dataset.reference_size();
     eprintln!(
         "demo: Middlebury Tsukuba, {} views {w}x{h}, {} planes, on {adapter}",
         dataset.rig.cameras.len(),
         dataset.params.num_planes
     );
-    // The first run builds the pipelines; time the second, as a live node would see it.
+    // The first run builds the pipelines (GPU) and the plan; time the second, as a live node
+    // would see it.
     engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
     let started = Instant::now();
     let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;

@@ -10,10 +10,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use crate::datasets::{self, Dataset, DatasetError, GroundTruth};
-use crate::gpu_context::GpuContext;
+use crate::engine::{Engine, Sweeper};
 use crate::image::ImageF32;
 use crate::io::{self, IoError};
-use crate::sweep::gpu::GpuEngine;
 use crate::sweep::{DepthMaps, SweepError};
 
 /// Command-line arguments of `sweepdepth eval`.
@@ -30,6 +29,10 @@ pub struct EvalArgs {
     /// Middlebury 2003/2005 only, an error for the others).
     #[arg(long, value_enum, default_value_t = EvalMask::All)]
     pub mask: EvalMask,
+    /// Which engine runs the sweep: a hardware GPU if there is one, else the CPU engine
+    /// (auto); the WGSL engine on the wgpu adapter, lavapipe included (gpu); the CPU engine.
+    #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
+    pub device: crate::engine::Device,
     #[command(flatten)]
     pub params: crate::params::EngineOptions,
 }
@@ -382,7 +385,7 @@ pub fn restrict_to_nonocc(dataset: &mut Dataset) -> Result<(), EvalError> {
 
 /// Runs the engine on a dataset with its `params` and scores the result.
 pub fn evaluate(
-    engine: &mut GpuEngine,
+    engine: &mut impl Sweeper,
     dataset: &Dataset,
 ) -> Result<(DepthMaps, Option<Metrics>), EvalError> {
     let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
@@ -513,7 +516,7 @@ pub fn table_row(
 }
 
 fn eval_one(
-    engine: &mut GpuEngine,
+    engine: &mut Engine,
     dir: &Path,
     args: &EvalArgs,
     progress: &str,
@@ -560,7 +563,7 @@ fn eval_one(
 #[derive(Debug, thiserror::Error)]
 pub enum EvalRunError {
     #[error(transparent)]
-    Gpu(#[from] crate::gpu_context::GpuContextError),
+    Setup(#[from] crate::engine::EngineError),
     #[error(transparent)]
     Engine(#[from] SweepError),
     #[error("writing the table: {0}")]
@@ -569,13 +572,12 @@ pub enum EvalRunError {
     Failed { failed: Vec<String>, total: usize },
 }
 
-/// `sweepdepth eval`: one GPU engine for all folders; a folder that fails is reported and the
+/// `sweepdepth eval`: one engine (`--device`) for all folders; a folder that fails is reported and the
 /// others still run; the command fails at the end if any did.
 pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
-    let ctx = GpuContext::new()?;
-    let mut engine = GpuEngine::new(&ctx.device, &ctx.queue)?;
+    let mut engine = Engine::new(args.device)?;
     let mut stdout = std::io::stdout();
-    writeln!(stdout, "# adapter: {}", ctx.adapter_label())?;
+    writeln!(stdout, "# engine: {}", engine.label())?;
     if args.mask == EvalMask::Nonocc {
         writeln!(
             stdout,

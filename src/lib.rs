@@ -10,6 +10,7 @@ pub mod bag;
 pub mod bench;
 pub mod datasets;
 pub mod demo;
+pub mod engine;
 pub mod eval;
 pub mod geometry;
 pub mod gpu_context;

@@ -52,9 +52,11 @@ fn lost_device_is_recreated_and_the_set_processed() {
         .collect();
     let config = PipelineConfig::from_args(&args).expect("config");
     let job = fixture_job(&config);
-    let mut host = EngineHost::new().expect("GPU");
+    let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
     let before = host.process(&job, &config.sweep, false).expect("first run");
-    host.device().destroy();
+    host.device()
+        .expect("the WGSL engine has a device")
+        .destroy();
     let after = host
         .process(&job, &config.sweep, false)
         .expect("the run after the loss succeeds on a new device");

@@ -13,7 +13,10 @@ use sweepdepth::sweep::{Aggregation, Optimizer, PairSet, Scoring, SweepParams, W
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
-/// few pixels, so at most 1 % of pixels may disagree in validity or by more than 1e-3.
+/// few pixels, so at most 1 % of pixels may disagree in validity or by more than 1e-3. The CPU
+/// engine adds its own roundings, inside the same tolerances: window sums that slide down the
+/// rows (re-summed every 16 rows), and, on rectified rigs, one shift per camera and plane
+/// instead of the shader's per-pixel f32 projection (within 1e-4 px of it).
 const REL_TOL: f32 = 1e-3;
 const MAX_DISAGREE: f64 = 0.01;
 
@@ -39,7 +42,7 @@ fn compare_with(
         engine.set_sgm_line_per_invocation(on);
     }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
-    let cpu = CpuEngine.run_plan(plan, rig, images).expect("cpu run");
+    let cpu = CpuEngine::new().trace(plan, rig, images).expect("cpu run");
     let npix = plan.pixel_count();
     for (s, label) in [
         (MAP_DEPTH_RAW, "depth_raw"),
@@ -155,14 +158,12 @@ fn sgm_agrees_on_synthetic() {
     let plan = SweepPlan::new(&rig, &sgm).expect("plan");
     let wta_plan = SweepPlan::new(&rig, &base()).expect("plan");
     let npix = plan.pixel_count();
-    let sgm_maps = CpuEngine
-        .run_plan(&plan, &rig, &images)
-        .expect("cpu run")
-        .maps;
-    let wta_maps = CpuEngine
-        .run_plan(&wta_plan, &rig, &images)
-        .expect("cpu run")
-        .maps;
+    let sgm_maps = CpuEngine::new()
+        .run_plan_raw(&plan, &rig, &images)
+        .expect("cpu run");
+    let wta_maps = CpuEngine::new()
+        .run_plan_raw(&wta_plan, &rig, &images)
+        .expect("cpu run");
     assert_ne!(
         section(&sgm_maps, npix, MAP_COST),
         section(&wta_maps, npix, MAP_COST)
@@ -407,4 +408,90 @@ fn sgm_many_planes_real_crop_agrees() {
     let plan = SweepPlan::new(&rig, &params).expect("plan");
     compare_with("sgm_many_planes_lanes", &plan, &rig, &images, Some(false));
     compare_with("sgm_many_planes_lines", &plan, &rig, &images, Some(true));
+}
+
+/// The CPU engine's translation fast path (rectified rows: contiguous shifted samples) against
+/// its general per-pixel projection on rigs where both apply: same depth within the stated
+/// tolerances, and the fast path really ran (every non-reference camera maps by a shift).
+#[test]
+fn cpu_fast_path_agrees_with_general_path() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 32;
+    let (synthetic_rig, synthetic_images) = synthetic_case();
+    let cases = [
+        (
+            "tsukuba_crop_defaults",
+            rig.clone(),
+            images.clone(),
+            params.clone(),
+        ),
+        (
+            "tsukuba_crop_wta_shiftable",
+            rig,
+            images,
+            SweepParams {
+                optimizer: Optimizer::Wta,
+                window_mode: WindowMode::Shiftable,
+                window_width: 2,
+                window_height: 2,
+                scoring: Scoring::BestHalfSequence,
+                ..params
+            },
+        ),
+        (
+            "synthetic_all_pairs",
+            synthetic_rig,
+            synthetic_images,
+            SweepParams {
+                scoring: Scoring::AllPairs,
+                ..base()
+            },
+        ),
+    ];
+    for (name, rig, images, params) in cases {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let reference = plan.params.reference as usize;
+        for k in 0..plan.num_planes() as usize {
+            let mappings = sweepdepth::sweep::cpu::cost::mappings(&plan, k, true);
+            for (i, m) in mappings.iter().enumerate() {
+                assert!(
+                    i == reference
+                        || matches!(m, sweepdepth::sweep::cpu::cost::Mapping::Translation { .. }),
+                    "{name}: camera {i} on plane {k} is not a translation: {m:?}"
+                );
+            }
+        }
+        let fast = CpuEngine::new()
+            .run_plan_raw(&plan, &rig, &images)
+            .expect("fast");
+        let mut general_engine = CpuEngine::new();
+        general_engine.set_fast_paths(false);
+        let general = general_engine
+            .run_plan_raw(&plan, &rig, &images)
+            .expect("general");
+        let npix = plan.pixel_count();
+        for s in [MAP_DEPTH, MAP_CONFIDENCE, MAP_COST, MAP_SELECTION] {
+            let (a, b) = (section(&fast, npix, s), section(&general, npix, s));
+            let disagree = a
+                .iter()
+                .zip(b)
+                .filter(|(a, b)| {
+                    if a.is_nan() || b.is_nan() {
+                        a.is_nan() != b.is_nan()
+                    } else {
+                        (*a - *b).abs() > REL_TOL * a.abs().max(b.abs()).max(1.0)
+                    }
+                })
+                .count();
+            assert!(
+                (disagree as f64) <= MAX_DISAGREE * npix as f64,
+                "{name}: section {s} differs on {disagree} of {npix} pixels"
+            );
+        }
+        let valid = section(&fast, npix, MAP_DEPTH)
+            .iter()
+            .filter(|d| d.is_finite())
+            .count();
+        assert!(valid * 2 > npix, "{name}: only {valid} valid pixels");
+    }
 }

@@ -778,6 +778,7 @@ fn table_has_node_parameters() {
         ("cameras", ParamValue::StringArray(vec![])),
         ("image_topic", ParamValue::String("image_raw".into())),
         ("reference_camera", ParamValue::String(String::new())),
+        ("device", ParamValue::String("auto".into())),
         ("sync", ParamValue::String("approximate".into())),
         ("sync_max_interval", ParamValue::Double(0.02)),
         ("queue_size", ParamValue::Int(5)),

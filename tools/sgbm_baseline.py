@@ -6,6 +6,13 @@ Run (from anywhere):
     pip install opencv-python-headless numpy
     python3 tools/sgbm_baseline.py [DATA_ROOT] [--mode HH|SGBM|3WAY|HH4] [--pad-left]
     python3 tools/sgbm_baseline.py [DATA_ROOT] --icl [--check-pfm DEPTH_PFM]
+    python3 tools/sgbm_baseline.py --time [--repeats N] [--json]
+
+--time is the speed peer of `sweepdepth bench`: StereoSGBM in MODE_SGBM_3WAY
+(OpenCV's fastest full SGBM) on Tsukuba scene1.row3.col3 / col4 (the repo's
+data/tsukuba, so no DATA_ROOT is needed) with 32 disparities and the settings
+below, one warm-up then N timed runs; prints the median in milliseconds
+(`--json`: one object). OpenCV's own thread count is left as it is.
 
 DATA_ROOT defaults to <repo root>/../shared/data, computed from this file's
 location (tools/ -> repo root -> its parent -> shared/data).  It must contain
@@ -410,6 +417,46 @@ def main_icl(args):
               f"| {m['within5']:.2f} | {m['invalid']:.2f} |")
 
 
+TIME_NUM_DISPARITIES = 32
+REPO_TSUKUBA = Path(__file__).resolve().parent.parent / "data" / "tsukuba"
+
+
+def main_time(args):
+    import json
+    import time
+
+    left = imread(REPO_TSUKUBA / "scene1.row3.col3.png", cv2.IMREAD_COLOR)
+    right = imread(REPO_TSUKUBA / "scene1.row3.col4.png", cv2.IMREAD_COLOR)
+    mode = cv2.STEREO_SGBM_MODE_SGBM_3WAY
+    run_sgbm(left, right, TIME_NUM_DISPARITIES, mode)
+    times_ms = []
+    for _ in range(max(1, args.repeats)):
+        started = time.perf_counter()
+        run_sgbm(left, right, TIME_NUM_DISPARITIES, mode)
+        times_ms.append((time.perf_counter() - started) * 1e3)
+    times_ms.sort()
+    n = len(times_ms)
+    median = times_ms[n // 2] if n % 2 else 0.5 * (times_ms[n // 2 - 1] + times_ms[n // 2])
+    result = {
+        "peer": "OpenCV StereoSGBM MODE_SGBM_3WAY",
+        "opencv": cv2.__version__,
+        "threads": cv2.getNumThreads(),
+        "pair": "Tsukuba scene1.row3.col3 / col4",
+        "width": int(left.shape[1]),
+        "height": int(left.shape[0]),
+        "num_disparities": TIME_NUM_DISPARITIES,
+        "runs": n,
+        "ms_median": round(median, 3),
+        "ms_min": round(times_ms[0], 3),
+    }
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{result['peer']} (OpenCV {result['opencv']}, {result['threads']} threads) on "
+              f"{result['pair']} {result['width']}x{result['height']}, {TIME_NUM_DISPARITIES} "
+              f"disparities: median {median:.2f} ms over {n} runs (min {times_ms[0]:.2f} ms)")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("data_root", nargs="?", default=str(DEFAULT_DATA_ROOT),
@@ -432,7 +479,14 @@ def main():
     ap.add_argument("--oracle", action="store_true",
                     help="with --icl: the rectified ground-truth disparity instead of SGBM's "
                          "(checks the rectification and the mapping back)")
+    ap.add_argument("--time", action="store_true",
+                    help="speed peer: time SGBM 3-way on the repo's Tsukuba pair, 32 disparities")
+    ap.add_argument("--repeats", type=int, default=21, help="with --time: timed runs")
+    ap.add_argument("--json", action="store_true", help="with --time: one JSON object")
     args = ap.parse_args()
+    if args.time:
+        main_time(args)
+        return
     if args.icl:
         main_icl(args)
         return

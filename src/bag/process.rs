@@ -280,8 +280,8 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         .find(|t| &t.name == ref_topic)
         .and_then(|t| t.count);
 
-    let host = EngineHost::new()?;
-    tracing::info!("GPU adapter: {}", host.adapter_label());
+    let host = EngineHost::new(config.device())?;
+    tracing::info!("engine: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
     let outputs = &config.outputs;

@@ -74,8 +74,13 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         pipeline.virtual_ref.is_some(),
     );
     let stats = Arc::new(Mutex::new(Stats::new(pipeline.cameras.len())));
-    let gpu = worker::spawn(Arc::clone(&slot), Arc::clone(&live), Arc::clone(&stats))?;
-    tracing::info!("GPU adapter: {}", gpu.adapter);
+    let gpu = worker::spawn(
+        pipeline.device(),
+        Arc::clone(&slot),
+        Arc::clone(&live),
+        Arc::clone(&stats),
+    )?;
+    tracing::info!("engine: {}", gpu.adapter);
 
     let shared = Shared {
         slot: &slot,

@@ -37,6 +37,7 @@ pub(super) struct GpuThread {
 /// Starts the GPU thread and waits until its engine is up (so that a missing adapter fails
 /// before DDS comes up).
 pub(super) fn spawn(
+    device: crate::engine::Device,
     slot: Arc<LatestSlot<Job>>,
     live: Arc<LiveParams>,
     stats: Arc<Mutex<Stats>>,
@@ -46,7 +47,7 @@ pub(super) fn spawn(
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
-            let host = match EngineHost::new() {
+            let host = match EngineHost::new(device) {
                 Ok(host) => host,
                 Err(e) => {
                     let _ = init_tx.send(Err(e));

@@ -52,6 +52,12 @@ pub fn node_params() -> Vec<ParamSpec> {
             "Camera whose view the depth map is in; empty = the middle entry of cameras.",
         ),
         node_spec(
+            "device",
+            s("auto"),
+            ParamRange::one_of(&["auto", "gpu", "cpu"]),
+            "Engine: auto = a hardware GPU if wgpu offers one, else the CPU engine; gpu = the WGSL engine on the wgpu adapter (lavapipe without a GPU); cpu = the CPU engine.",
+        ),
+        node_spec(
             "sync",
             s("approximate"),
             ParamRange::one_of(&["exact", "approximate"]),

@@ -162,6 +162,16 @@ pub struct PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// The `device` parameter: which engine runs the sweep (checked against its range when
+    /// the parameters were read; `auto` if it were ever unreadable).
+    pub fn device(&self) -> crate::engine::Device {
+        self.params
+            .get_str("device")
+            .ok()
+            .and_then(|d| d.parse().ok())
+            .unwrap_or_default()
+    }
+
     /// From a command line holding only a `--ros-args` block.
     pub fn from_args(args: &[String]) -> Result<Self, ConfigError> {
         let ros = parse_ros_args(args)?;

@@ -1,14 +1,15 @@
-//! The GPU side of the pipeline ([`EngineHost`]): the device and the engine, made anew when
-//! the device is lost (a driver reset, a GPU that fell off the bus, `Device::destroy`).
+//! The engine side of the pipeline ([`EngineHost`]): the CPU engine, or the WGSL engine with
+//! its device, made anew when the device is lost (a driver reset, a GPU that fell off the bus,
+//! `Device::destroy`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use super::outcome::{Job, Skip, SkipKind};
 use super::outputs::{process_job, FrameOutputs};
+use crate::engine::{Device, Engine, EngineError};
 use crate::gpu_context::{GpuContext, GpuContextError};
-use crate::sweep::gpu::GpuEngine;
-use crate::sweep::{SweepError, SweepParams};
+use crate::sweep::SweepParams;
 
 /// Why no engine could be made.
 #[derive(Debug, thiserror::Error)]
@@ -16,48 +17,52 @@ pub enum HostError {
     #[error(transparent)]
     Context(#[from] GpuContextError),
     #[error(transparent)]
-    Engine(#[from] SweepError),
+    Engine(#[from] EngineError),
 }
 
-/// The device and the engine, and whether the device was lost.
+/// The engine, and for the WGSL engine whether its device was lost.
 pub struct EngineHost {
-    gpu: GpuContext,
-    engine: GpuEngine,
+    engine: Engine,
+    /// Set by the device-lost callback of the WGSL engine's device (never for the CPU engine).
     lost: Arc<AtomicBool>,
     /// How many times the device was lost and the engine recreated.
     pub recreated: u64,
 }
 
 impl EngineHost {
-    pub fn new() -> Result<Self, HostError> {
-        let (gpu, engine, lost) = Self::create()?;
+    /// The engine for `device` (parameter `device`; `auto`: a hardware GPU, else the CPU engine).
+    pub fn new(device: Device) -> Result<Self, HostError> {
+        let engine = Engine::new(device)?;
+        let lost = Self::watch(&engine);
         Ok(Self {
-            gpu,
             engine,
             lost,
             recreated: 0,
         })
     }
 
-    fn create() -> Result<(GpuContext, GpuEngine, Arc<AtomicBool>), HostError> {
-        let gpu = GpuContext::new()?;
+    /// A flag the device-lost callback sets (the WGSL engine's device only).
+    fn watch(engine: &Engine) -> Arc<AtomicBool> {
         let lost = Arc::new(AtomicBool::new(false));
-        let flag = Arc::clone(&lost);
-        gpu.device.set_device_lost_callback(move |reason, message| {
-            flag.store(true, Ordering::SeqCst);
-            tracing::error!("GPU device lost ({reason:?}): {message}");
-        });
-        let engine = GpuEngine::new(&gpu.device, &gpu.queue)?;
-        Ok((gpu, engine, lost))
+        if let Some(gpu) = engine.gpu() {
+            let flag = Arc::clone(&lost);
+            gpu.device.set_device_lost_callback(move |reason, message| {
+                flag.store(true, Ordering::SeqCst);
+                tracing::error!("GPU device lost ({reason:?}): {message}");
+            });
+        }
+        lost
     }
 
+    /// "WGSL engine on <adapter>" or "CPU engine (N threads)".
     pub fn adapter_label(&self) -> String {
-        self.gpu.adapter_label()
+        self.engine.label()
     }
 
-    /// The device, e.g. to simulate a loss in tests (`device().destroy()`).
-    pub fn device(&self) -> &wgpu::Device {
-        &self.gpu.device
+    /// The wgpu device of the WGSL engine, e.g. to simulate a loss in tests
+    /// (`device().destroy()`); None for the CPU engine.
+    pub fn device(&self) -> Option<&wgpu::Device> {
+        self.engine.gpu().map(|gpu| &gpu.device)
     }
 
     pub fn is_lost(&self) -> bool {
@@ -81,18 +86,20 @@ impl EngineHost {
             }
         }
         tracing::warn!("the GPU device was lost: recreating the device and the engine");
-        let (gpu, engine, lost) = Self::create().map_err(|e| {
-            Skip::new(
-                SkipKind::GpuLost,
-                None,
-                format!("the GPU device was lost and cannot be recreated: {e}"),
-            )
-        })?;
-        self.gpu = gpu;
+        let engine = GpuContext::new()
+            .map_err(EngineError::from)
+            .and_then(Engine::on_gpu)
+            .map_err(|e| {
+                Skip::new(
+                    SkipKind::GpuLost,
+                    None,
+                    format!("the GPU device was lost and cannot be recreated: {e}"),
+                )
+            })?;
+        self.lost = Self::watch(&engine);
         self.engine = engine;
-        self.lost = lost;
         self.recreated += 1;
-        tracing::info!("GPU engine recreated on {}", self.gpu.adapter_label());
+        tracing::info!("engine recreated: {}", self.engine.label());
         process_job(&mut self.engine, job, sweep, with_points)
     }
 }

@@ -5,7 +5,7 @@ use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_m
 use super::outcome::{Job, Skip, SkipKind};
 use crate::geometry::{Reference, Rig};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
-use crate::sweep::gpu::GpuEngine;
+use crate::engine::Sweeper;
 use crate::sweep::SweepParams;
 
 /// The messages one frame set produces, all with the same header (the reference camera's
@@ -24,7 +24,7 @@ pub struct FrameOutputs {
 /// Runs one job through the engine with the given parameters and builds its output messages
 /// (`with_points`: the point cloud too).
 pub fn process_job(
-    engine: &mut GpuEngine,
+    engine: &mut impl Sweeper,
     job: &Job,
     sweep: &SweepParams,
     with_points: bool,

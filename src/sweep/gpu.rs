@@ -186,16 +186,16 @@ impl Specialisation {
         let sgm_lanes = if sgm_line_per_invocation { 8 } else { 32 };
         Self {
             distorted: plan.cameras.iter().any(|c| c.size[3] != DIST_NONE),
-            scoring: p.modes[0],
-            pairs: p.modes[1],
-            best_n: p.modes[2],
-            window_w: p.window[0],
-            window_h: p.window[1],
-            channels: p.counts[2],
-            aggregation: p.modes[3],
-            window_mode: p.extra[1],
-            half_best_n: p.counts[3],
-            volume: p.sgm[0] > 0,
+            scoring: p.scoring,
+            pairs: p.pair_mode,
+            best_n: p.best_n,
+            window_w: p.window_w,
+            window_h: p.window_h,
+            channels: p.channels,
+            aggregation: p.aggregation,
+            window_mode: p.window_mode,
+            half_best_n: p.half_best_n,
+            volume: p.sgm_paths > 0,
             sgm_lanes,
             sgm_line_per_invocation,
         }
@@ -661,9 +661,9 @@ impl GpuEngine {
             planes,
             channels: plan.channels() as u32,
             batch,
-            direct_windows: plan.params.extra[1] == WINDOW_SHIFTABLE
-                && plan.params.window[0] <= 2
-                && plan.params.window[1] <= 2,
+            direct_windows: plan.params.window_mode == WINDOW_SHIFTABLE
+                && plan.params.window_w <= 2
+                && plan.params.window_h <= 2,
             sgm_paths,
             volume_words,
         })

@@ -66,28 +66,63 @@ pub struct GpuCamera {
     pub info: [u32; 4],
 }
 
-/// WGSL `Params`.
+/// WGSL `Params`: named scalars, 32 x 4 bytes (the size test below and naga's layout of the
+/// WGSL struct agree).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
 pub struct GpuParams {
-    /// width, height, pixel count, reference camera index or NO_CAMERA.
-    pub ref_size: [u32; 4],
-    /// cameras, planes, channels, half best n (0 = all pairs of a half).
-    pub counts: [u32; 4],
-    /// scoring, pair mode, best n, aggregation.
-    pub modes: [u32; 4],
-    /// window width, window height, subpixel, median.
-    pub window: [u32; 4],
-    /// tau, max_cost, occlusion tolerance, half margin.
-    pub thresholds: [f32; 4],
-    /// min visible cameras, window mode, padded width (W + w - 1), padded height (H + h - 1).
-    pub extra: [u32; 4],
-    /// SGM: paths (0 = winner-take-all), P1 and P2 in cost-volume levels, edge step in
-    /// 1/16 grey levels (0 = constant P2).
-    pub sgm: [u32; 4],
-    /// SGM: cost-volume levels per score unit (SGM_COST_MAX / tau), score units per summed
-    /// level (1 / (paths x levels per unit)), 0, 0.
-    pub sgm_scale: [f32; 4],
+    /// The reference image, pixels.
+    pub width: u32,
+    pub height: u32,
+    pub pixel_count: u32,
+    /// Reference camera index, or [`NO_CAMERA`] (virtual reference).
+    pub reference: u32,
+    pub cameras: u32,
+    pub planes: u32,
+    /// Cost-slab channels per plane (the pairs m in per-pair aggregation).
+    pub channels: u32,
+    /// Best half-sequence with per-pair aggregation: the n best pairs of each half (0 = all).
+    pub half_best_n: u32,
+    /// `SCORING_*`.
+    pub scoring: u32,
+    /// `PAIRS_*`.
+    pub pair_mode: u32,
+    pub best_n: u32,
+    /// `AGG_*`.
+    pub aggregation: u32,
+    /// Window size, pixels (1 = no aggregation).
+    pub window_w: u32,
+    pub window_h: u32,
+    /// 0 or 1.
+    pub subpixel: u32,
+    /// 0 or 1.
+    pub median: u32,
+    /// TSSD truncation (sum over RGB of squared 0..255 differences).
+    pub tau: f32,
+    pub max_cost: f32,
+    /// Relative depth tolerance of the occlusion z-test.
+    pub occlusion_tolerance: f32,
+    pub half_margin: f32,
+    /// Cameras that must see a pixel, the reference counted.
+    pub min_visible: u32,
+    /// `WINDOW_*`.
+    pub window_mode: u32,
+    /// Box-sum image size: width + window_w - 1, height + window_h - 1.
+    pub padded_w: u32,
+    pub padded_h: u32,
+    /// SGM path directions (0 = winner-take-all, no cost volume).
+    pub sgm_paths: u32,
+    /// SGM penalties in cost-volume levels.
+    pub sgm_p1: u32,
+    pub sgm_p2: u32,
+    /// The colour step that halves P2, in 1/16 grey levels (0 = constant P2).
+    pub sgm_edge: u32,
+    /// Cost-volume levels per score unit (SGM_COST_MAX / tau).
+    pub sgm_levels_per_unit: f32,
+    /// Score units per summed level: 1 / (paths x levels per unit).
+    pub sgm_unit_per_level: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
 }
 
 /// WGSL `SgmPass`: one direction of the semi-global optimiser.
@@ -126,6 +161,25 @@ mod tests {
             16 + 16 * MAX_BATCH_PLANES as usize
         );
         let common = include_str!("../../shaders/common.wgsl");
+        // The WGSL `Params` names the same fields in the same order (all 4-byte scalars).
+        let start = common
+            .find("struct Params {")
+            .expect("common.wgsl has Params");
+        let body = &common[start..start + common[start..].find('}').expect("Params closes")];
+        let wgsl_fields: Vec<&str> = body
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.trim().split_once(':').map(|(name, _)| name.trim()))
+            .filter(|name| !name.starts_with("//"))
+            .collect();
+        let p = GpuParams::zeroed();
+        let rust_fields = format!("{p:?}");
+        let rust_fields: Vec<&str> = rust_fields
+            .trim_start_matches("GpuParams {")
+            .split(',')
+            .filter_map(|f| f.split_once(':').map(|(name, _)| name.trim()))
+            .collect();
+        assert_eq!(wgsl_fields, rust_fields, "GpuParams and WGSL Params differ");
         for (name, value) in [
             ("MAX_CAMERAS", MAX_CAMERAS),
             ("MAX_RIG_CAMERAS", MAX_RIG_CAMERAS),

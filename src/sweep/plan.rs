@@ -2,6 +2,7 @@
 //! arrays the shaders read. Both engines consume a [`SweepPlan`], so the CPU twin reads the same
 //! numbers the GPU does.
 
+use bytemuck::Zeroable;
 use glam::DVec2;
 
 use super::gpu_types::*;
@@ -163,50 +164,36 @@ impl SweepPlan {
         } else {
             1
         };
-        let gpu_params = GpuParams {
-            ref_size: [
-                width,
-                height,
-                width * height,
-                reference.map_or(NO_CAMERA, |i| i as u32),
-            ],
-            counts: [
-                rig.cameras.len() as u32,
-                planes.len() as u32,
-                channels,
-                params.half_best_n,
-            ],
-            modes: [
-                scoring,
-                pairs,
-                params.best_n.clamp(1, MAX_BEST_N),
-                aggregation,
-            ],
-            window: [
-                params.window_width,
-                params.window_height,
-                u32::from(params.subpixel),
-                u32::from(params.median),
-            ],
-            thresholds: [
-                params.tau,
-                params.max_cost,
-                params.occlusion_tolerance,
-                params.half_margin,
-            ],
-            extra: [
-                params.min_visible_cameras,
-                match params.window_mode {
-                    WindowMode::Shiftable => WINDOW_SHIFTABLE,
-                    WindowMode::Centred => WINDOW_CENTRED,
-                },
-                width + params.window_width - 1,
-                height + params.window_height - 1,
-            ],
-            sgm: [0; 4],
-            sgm_scale: [0.0; 4],
+        let mut gpu_params = GpuParams {
+            width,
+            height,
+            pixel_count: width * height,
+            reference: reference.map_or(NO_CAMERA, |i| i as u32),
+            cameras: rig.cameras.len() as u32,
+            planes: planes.len() as u32,
+            channels,
+            half_best_n: params.half_best_n,
+            scoring,
+            pair_mode: pairs,
+            best_n: params.best_n.clamp(1, MAX_BEST_N),
+            aggregation,
+            window_w: params.window_width,
+            window_h: params.window_height,
+            subpixel: u32::from(params.subpixel),
+            median: u32::from(params.median),
+            tau: params.tau,
+            max_cost: params.max_cost,
+            occlusion_tolerance: params.occlusion_tolerance,
+            half_margin: params.half_margin,
+            min_visible: params.min_visible_cameras,
+            window_mode: match params.window_mode {
+                WindowMode::Shiftable => WINDOW_SHIFTABLE,
+                WindowMode::Centred => WINDOW_CENTRED,
+            },
+            padded_w: width + params.window_width - 1,
+            padded_h: height + params.window_height - 1,
+            ..GpuParams::zeroed()
         };
-        let mut gpu_params = gpu_params;
         if params.optimizer == Optimizer::Sgm {
             if planes.len() > MAX_SGM_PLANES as usize {
                 return Err(SweepError::InvalidParams(format!(
@@ -224,13 +211,12 @@ impl SweepPlan {
             } else {
                 0
             };
-            gpu_params.sgm = [params.sgm_paths, p1, p2, edge];
-            gpu_params.sgm_scale = [
-                levels_per_unit,
-                1.0 / (params.sgm_paths as f32 * levels_per_unit),
-                0.0,
-                0.0,
-            ];
+            gpu_params.sgm_paths = params.sgm_paths;
+            gpu_params.sgm_p1 = p1;
+            gpu_params.sgm_p2 = p2;
+            gpu_params.sgm_edge = edge;
+            gpu_params.sgm_levels_per_unit = levels_per_unit;
+            gpu_params.sgm_unit_per_level = 1.0 / (params.sgm_paths as f32 * levels_per_unit);
         }
         static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         Ok(Self {
@@ -251,21 +237,21 @@ impl SweepPlan {
     }
 
     pub fn channels(&self) -> usize {
-        self.params.counts[2] as usize
+        self.params.channels as usize
     }
 
     /// Width and height of the box-sum images (window anchors from -(w-1)).
     pub fn padded_size(&self) -> (u32, u32) {
-        (self.params.extra[2], self.params.extra[3])
+        (self.params.padded_w, self.params.padded_h)
     }
 
     pub fn num_planes(&self) -> u32 {
-        self.params.counts[1]
+        self.params.planes
     }
 
     /// SGM path directions; 0 = winner-take-all (no cost volume).
     pub fn sgm_paths(&self) -> u32 {
-        self.params.sgm[0]
+        self.params.sgm_paths
     }
 
     /// u32 words per pixel of the u16 cost volume (two planes per word).

@@ -1,201 +1,367 @@
-//! Twin of `shaders/aggregate.wgsl`: window placement and scoring.
+//! Twin of `shaders/aggregate.wgsl` (window placement and scoring), one output row at a time:
+//! the window means of every channel for each placement (shiftable: the four windows with the
+//! pixel at a corner; centred: one), the score over pairs or halves, and the best placement.
+//! Every loop runs along the row over plain slices (one per accumulator), so it vectorises.
 
-use super::select::{self, PixelState};
+use super::boxes::RowRing;
+use super::common::fmin;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+/// The vertical window sums slide down the rows and are summed anew every this many rows.
+const RESTART_ROWS: usize = 16;
+
+const SEL_NONE: u8 = 0;
+const SEL_LEFT: u8 = 1;
+const SEL_RIGHT: u8 = 2;
+
 /// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
 /// by less than `margin` of HALF_NOISE_FLOOR.
-fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
-    let floor_cost = HALF_NOISE_FLOOR;
-    if left < BIG && (right >= BIG || (right - left) > margin * right.max(floor_cost)) {
-        SEL_LEFT as f32
-    } else if right < BIG && (left >= BIG || (left - right) > margin * left.max(floor_cost)) {
-        SEL_RIGHT as f32
+#[inline(always)]
+fn half_decision(margin: f32, left: f32, right: f32) -> u8 {
+    let is_left =
+        left < BIG && (right >= BIG || (right - left) > margin * right.max(HALF_NOISE_FLOOR));
+    let is_right =
+        right < BIG && (left >= BIG || (left - right) > margin * left.max(HALF_NOISE_FLOOR));
+    if is_left {
+        SEL_LEFT
+    } else if is_right {
+        SEL_RIGHT
     } else {
-        SEL_NONE as f32
+        SEL_NONE
     }
 }
 
-const SEL_NONE: u32 = 0;
-const SEL_LEFT: u32 = 1;
-const SEL_RIGHT: u32 = 2;
-
-/// Mean of the `n` smallest values (all of them when fewer), BIG when there are none.
-fn best_mean(values: &mut [f32], n: usize) -> f32 {
-    if values.is_empty() {
-        return BIG;
+#[inline(always)]
+fn mean_or_big(sum: f32, count: f32) -> f32 {
+    if count > 0.0 {
+        sum / count
+    } else {
+        BIG
     }
-    values.sort_by(|a, b| a.total_cmp(b));
-    let k = n.min(values.len());
-    values[..k].iter().sum::<f32>() / k as f32
 }
 
-struct Window<'a> {
-    plan: &'a SweepPlan,
-    box_sums: &'a [[f32; 2]],
-    cost_slab: &'a [f32],
+/// Window geometry of the plan: which rows each output row's placements cover.
+#[derive(Debug, Clone, Copy)]
+pub struct Windows {
+    pub w: usize,
+    pub h: usize,
+    /// Four placements (shiftable windows larger than 1x1) or one (centred).
+    pub shiftable: bool,
 }
 
-impl Window<'_> {
-    fn mean(&self, z: usize, ch: usize, ax: i32, ay: i32) -> f32 {
-        let p = &self.plan.params;
-        if p.window[0] <= 2 && p.window[1] <= 2 {
-            // Direct path, as the shader: sum the slab texels of the window.
-            let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
-            let base = (z * self.plan.channels() + ch) * self.plan.pixel_count();
-            let mut acc = [0.0f32; 2];
-            for y in ay.max(0)..(ay + p.window[1] as i32).min(height) {
-                for x in ax.max(0)..(ax + p.window[0] as i32).min(width) {
-                    let c = self.cost_slab[base + (y * width + x) as usize];
-                    if c >= 0.0 {
-                        acc[0] += c;
-                        acc[1] += 1.0;
-                    }
-                }
-            }
-            return if acc[1] <= 0.0 { BIG } else { acc[0] / acc[1] };
+impl Windows {
+    pub fn of(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        let (w, h) = (p.window_w as usize, p.window_h as usize);
+        Self {
+            w,
+            h,
+            shiftable: p.window_mode == WINDOW_SHIFTABLE && !(w == 1 && h == 1),
         }
-        let (padded_w, padded_h) = (p.extra[2] as usize, p.extra[3] as usize);
-        let px = (ax + p.window[0] as i32 - 1) as usize;
-        let py = (ay + p.window[1] as i32 - 1) as usize;
-        let s = self.box_sums[((z * self.plan.channels() + ch) * padded_h + py) * padded_w + px];
-        if s[1] <= 0.0 {
-            BIG
+    }
+
+    /// Rows above and below the pixel that its windows reach.
+    pub fn reach(&self) -> (usize, usize) {
+        if self.shiftable {
+            (self.h - 1, self.h - 1)
         } else {
-            s[0] / s[1]
+            let up = (self.h - 1) / 2;
+            (up, self.h - 1 - up)
         }
     }
 
-    fn score(&self, z: usize, ax: i32, ay: i32) -> [f32; 2] {
-        let p = &self.plan.params;
-        let margin = p.thresholds[3];
-        let (scoring, n) = (p.modes[0], p.modes[2]);
-        if p.modes[3] == AGG_PER_PAIR {
-            let (mut sum, mut count) = (0.0f32, 0u32);
-            let (mut left_sum, mut left_count, mut right_sum, mut right_count) =
-                (0.0f32, 0u32, 0.0f32, 0u32);
-            let mut smallest = [0.0f32; MAX_BEST_N as usize];
-            let mut kept = 0u32;
-            let mut left_values = Vec::new();
-            let mut right_values = Vec::new();
-            for pair in 0..self.plan.channels() {
-                let a = self.mean(z, pair, ax, ay);
-                if a >= BIG {
-                    continue;
-                }
-                sum += a;
-                count += 1;
-                let half = self.plan.pairs[pair][2];
-                if half == HALF_LEFT {
-                    left_sum += a;
-                    left_count += 1;
-                    left_values.push(a);
-                } else if half == HALF_RIGHT {
-                    right_sum += a;
-                    right_count += 1;
-                    right_values.push(a);
-                }
-                if scoring == SCORING_BEST_N && (kept < n || a < smallest[(n - 1) as usize]) {
-                    let mut i = kept.min(n - 1) as usize;
-                    while i > 0 && smallest[i - 1] > a {
-                        smallest[i] = smallest[i - 1];
-                        i -= 1;
-                    }
-                    smallest[i] = a;
-                    kept = (kept + 1).min(n);
-                }
-            }
-            let half_n = p.counts[3] as usize;
-            let mut left = if left_count > 0 {
-                left_sum / left_count as f32
-            } else {
-                BIG
-            };
-            let mut right = if right_count > 0 {
-                right_sum / right_count as f32
-            } else {
-                BIG
-            };
-            if half_n > 0 {
-                left = best_mean(&mut left_values, half_n);
-                right = best_mean(&mut right_values, half_n);
-            }
-            if scoring == SCORING_HALF {
-                return [left.min(right), half_decision(margin, left, right)];
-            }
-            if scoring == SCORING_BEST_N {
-                // The halves also tell which side matched better (the selection image).
-                let sel = half_decision(margin, left, right);
-                if kept == 0 {
-                    return [BIG, sel];
-                }
-                return [
-                    smallest[..kept as usize].iter().sum::<f32>() / kept as f32,
-                    sel,
-                ];
-            }
-            if count == 0 {
-                return [BIG, 0.0];
-            }
-            return [sum / count as f32, 0.0];
+    /// The first rows of the window row sets of output row y: (upper, lower) for shiftable
+    /// windows, (centred, centred) otherwise; signed (may lie above the image).
+    fn anchor_rows(&self, y: usize) -> [isize; 2] {
+        let y = y as isize;
+        if self.shiftable {
+            [y - self.h as isize + 1, y]
+        } else {
+            let a = y - (self.h as isize - 1) / 2;
+            [a, a]
         }
-        if scoring == SCORING_HALF {
-            let left = self.mean(z, 0, ax, ay);
-            let right = self.mean(z, 1, ax, ay);
-            let mut score = left.min(right);
-            if p.modes[3] == AGG_SCORED {
-                score = self.mean(z, 2, ax, ay);
-            }
-            return [score, half_decision(margin, left, right)];
+    }
+
+    /// Per placement lane: (row set 0 = upper / 1 = lower, column offset into the padded sums).
+    fn lanes(&self) -> Vec<(usize, usize)> {
+        if self.shiftable {
+            vec![(0, 0), (0, self.w - 1), (1, 0), (1, self.w - 1)]
+        } else {
+            vec![(0, self.w / 2)]
         }
-        [self.mean(z, 0, ax, ay), 0.0]
     }
 }
 
-/// Scores every plane of the batch for every pixel and feeds the winner-take-all state; with
-/// a `volume` (optimizer sgm) also writes each score's level into it.
-pub fn run(
-    plan: &SweepPlan,
-    first_plane: u32,
-    plane_count: u32,
-    box_sums: &[[f32; 2]],
-    cost_slab: &[f32],
-    state: &mut [PixelState],
-    mut volume: Option<&mut [u32]>,
-) {
-    let p = &plan.params;
-    let (width, height) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
-    let (w, h) = (p.window[0] as i32, p.window[1] as i32);
-    let window = Window {
-        plan,
-        box_sums,
-        cost_slab,
-    };
-    for z in 0..plane_count as usize {
-        for y in 0..height {
-            for x in 0..width {
-                let best = if p.extra[1] == WINDOW_CENTRED || (w == 1 && h == 1) {
-                    window.score(z, x - (w - 1) / 2, y - (h - 1) / 2)
-                } else {
-                    let mut best = [BIG, 0.0];
-                    for corner in 0..4 {
-                        let ax = if corner & 1 == 0 { x - w + 1 } else { x };
-                        let ay = if corner & 2 == 0 { y - h + 1 } else { y };
-                        let s = window.score(z, ax, ay);
-                        if s[0] < best[0] {
-                            best = s;
-                        }
+/// Scratch of one plane's scoring; rows of `width` pixels.
+pub struct RowScorer {
+    width: usize,
+    padded: usize,
+    windows: Windows,
+    /// channel x row set x padded: vertical sums and counts.
+    sums: Vec<f32>,
+    counts: Vec<f32>,
+    mean: Vec<f32>,
+    lane_score: Vec<f32>,
+    lane_sel: Vec<u8>,
+    carry: Vec<f32>,
+    acc: [Vec<f32>; 6],
+    best: Vec<Vec<f32>>,
+    left_best: Vec<Vec<f32>>,
+    right_best: Vec<Vec<f32>>,
+}
+
+impl RowScorer {
+    pub fn new(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        let width = p.width as usize;
+        let windows = Windows::of(plan);
+        let padded = width + windows.w - 1;
+        let channels = p.channels as usize;
+        let ranks = |n: usize| (0..n).map(|_| vec![BIG; width]).collect();
+        Self {
+            width,
+            padded,
+            windows,
+            sums: vec![0.0; channels * 2 * padded],
+            counts: vec![0.0; channels * 2 * padded],
+            mean: vec![0.0; width],
+            lane_score: vec![0.0; width],
+            lane_sel: vec![0; width],
+            carry: vec![0.0; width],
+            acc: std::array::from_fn(|_| vec![0.0; width]),
+            best: ranks(if p.scoring == SCORING_BEST_N {
+                p.best_n as usize
+            } else {
+                0
+            }),
+            left_best: ranks(p.half_best_n as usize),
+            right_best: ranks(p.half_best_n as usize),
+        }
+    }
+
+    /// Scores output row `y` from the horizontal sums in `ring` (rows of the image `height`):
+    /// the best placement's score and selection into `score` and `sel`.
+    #[inline(always)]
+    pub fn score_row(
+        &mut self,
+        plan: &SweepPlan,
+        ring: &RowRing,
+        y: usize,
+        height: usize,
+        score: &mut [f32],
+        sel: &mut [u8],
+    ) {
+        let p = &plan.params;
+        let channels = p.channels as usize;
+        let padded = self.padded;
+        let anchors = self.windows.anchor_rows(y);
+        let row_sets = if self.windows.shiftable { 2 } else { 1 };
+        let h = self.windows.h as isize;
+        let rows = |from: isize| (from.max(0) as usize).min(height);
+        // Sliding by one row: drop the row that left the window, add the one that entered;
+        // summed anew (in the shader's order) every RESTART_ROWS rows so rounding cannot drift.
+        let slide = !y.is_multiple_of(RESTART_ROWS);
+        for ch in 0..channels {
+            for (set, &ay) in anchors.iter().enumerate().take(row_sets) {
+                let at = (ch * 2 + set) * padded;
+                let sums = &mut self.sums[at..at + padded];
+                let counts = &mut self.counts[at..at + padded];
+                if slide {
+                    let (left, entered) = (ay - 1, ay + h - 1);
+                    if left >= 0 && (left as usize) < height {
+                        ring.add_row(ch, left as usize, -1.0, sums, counts);
                     }
-                    best
-                };
-                let pix = (y * width + x) as usize;
-                let plane = first_plane + z as u32;
-                select::update(&mut state[pix], plane as f32, best);
-                if let Some(volume) = volume.as_deref_mut() {
-                    super::sgm::store_level(plan, volume, pix, plane, best[0]);
+                    if entered >= 0 && (entered as usize) < height {
+                        ring.add_row(ch, entered as usize, 1.0, sums, counts);
+                    }
+                } else {
+                    ring.box_v(ch, rows(ay), rows(ay + h), sums, counts);
                 }
             }
         }
+        let lanes = self.windows.lanes();
+        for (lane, &(set, offset)) in lanes.iter().enumerate() {
+            if p.aggregation == AGG_PER_PAIR {
+                self.score_pairs(plan, set, offset);
+            } else {
+                self.score_channels(plan, set, offset);
+            }
+            let (score, sel) = (&mut score[..self.width], &mut sel[..self.width]);
+            if lane == 0 {
+                score.copy_from_slice(&self.lane_score);
+                sel.copy_from_slice(&self.lane_sel);
+            } else {
+                // First lane on ties, as `best_placement`.
+                for (((s, e), &ls), &le) in score
+                    .iter_mut()
+                    .zip(sel.iter_mut())
+                    .zip(&self.lane_score)
+                    .zip(&self.lane_sel)
+                {
+                    let better = ls < *s;
+                    *s = if better { ls } else { *s };
+                    *e = if better { le } else { *e };
+                }
+            }
+        }
+    }
+
+    /// The window means of `channel` for one placement into `self.mean`.
+    #[inline(always)]
+    fn means(&mut self, channel: usize, set: usize, offset: usize) {
+        let at = (channel * 2 + set) * self.padded + offset;
+        let (sums, counts) = (
+            &self.sums[at..at + self.width],
+            &self.counts[at..at + self.width],
+        );
+        for ((m, &s), &n) in self.mean.iter_mut().zip(sums).zip(counts) {
+            *m = mean_or_big(s, n);
+        }
+    }
+
+    /// Scored or per-half aggregation (`finish_channels`).
+    #[inline(always)]
+    fn score_channels(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
+        let p = &plan.params;
+        if p.scoring != SCORING_HALF {
+            self.means(0, set, offset);
+            self.lane_score.copy_from_slice(&self.mean);
+            self.lane_sel.fill(SEL_NONE);
+            return;
+        }
+        let margin = p.half_margin;
+        self.means(0, set, offset);
+        self.acc[0].copy_from_slice(&self.mean);
+        self.means(1, set, offset);
+        self.acc[1].copy_from_slice(&self.mean);
+        if p.aggregation == AGG_SCORED {
+            self.means(2, set, offset);
+        }
+        let scored = p.aggregation == AGG_SCORED;
+        for x in 0..self.width {
+            let (left, right) = (self.acc[0][x], self.acc[1][x]);
+            self.lane_score[x] = if scored {
+                self.mean[x]
+            } else {
+                left.min(right)
+            };
+            self.lane_sel[x] = half_decision(margin, left, right);
+        }
+    }
+
+    /// Per-pair aggregation (`accumulate` + `finish_pairs`), rank by rank along the row.
+    #[inline(always)]
+    fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
+        let p = &plan.params;
+        let halves = p.scoring == SCORING_HALF || p.scoring == SCORING_BEST_N;
+        for a in &mut self.acc {
+            a.fill(0.0);
+        }
+        for list in [&mut self.best, &mut self.left_best, &mut self.right_best] {
+            for rank in list.iter_mut() {
+                rank.fill(BIG);
+            }
+        }
+        for (pair, info) in plan.pairs.iter().enumerate().take(p.channels as usize) {
+            self.means(pair, set, offset);
+            let half = info[2];
+            let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
+            add_seen(&self.mean, sum, count);
+            if halves && half == HALF_LEFT {
+                add_seen(&self.mean, left_sum, left_count);
+                bubble(&mut self.left_best, &self.mean, &mut self.carry);
+            } else if halves && half == HALF_RIGHT {
+                add_seen(&self.mean, right_sum, right_count);
+                bubble(&mut self.right_best, &self.mean, &mut self.carry);
+            }
+            bubble(&mut self.best, &self.mean, &mut self.carry);
+        }
+        let margin = p.half_margin;
+        let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
+        // The halves' scores: the mean of all their pairs, or of their n best.
+        if !self.left_best.is_empty() {
+            best_mean(&self.left_best, left_sum, left_count);
+            best_mean(&self.right_best, right_sum, right_count);
+        }
+        let w = self.width;
+        for (s, &n) in left_sum[..w].iter_mut().zip(&left_count[..w]) {
+            *s = mean_or_big(*s, n);
+        }
+        for (s, &n) in right_sum[..w].iter_mut().zip(&right_count[..w]) {
+            *s = mean_or_big(*s, n);
+        }
+        let (left, right) = (&left_sum[..w], &right_sum[..w]);
+        let (score, sel) = (&mut self.lane_score[..w], &mut self.lane_sel[..w]);
+        if p.scoring == SCORING_HALF {
+            for (((score, sel), &l), &r) in
+                score.iter_mut().zip(sel.iter_mut()).zip(left).zip(right)
+            {
+                *score = fmin(l, r);
+                *sel = half_decision(margin, l, r);
+            }
+        } else if p.scoring == SCORING_BEST_N {
+            best_mean(&self.best, sum, count);
+            for ((((score, sel), &l), &r), (&s, &n)) in score
+                .iter_mut()
+                .zip(sel.iter_mut())
+                .zip(left)
+                .zip(right)
+                .zip(sum.iter().zip(count.iter()))
+            {
+                *score = mean_or_big(s, n);
+                *sel = half_decision(margin, l, r);
+            }
+        } else {
+            for ((score, sel), (&s, &n)) in score
+                .iter_mut()
+                .zip(sel.iter_mut())
+                .zip(sum.iter().zip(count.iter()))
+            {
+                *score = mean_or_big(s, n);
+                *sel = SEL_NONE;
+            }
+        }
+    }
+}
+
+/// Adds the seen values (< BIG) of `values` and their count.
+#[inline(always)]
+fn add_seen(values: &[f32], sum: &mut [f32], count: &mut [f32]) {
+    for ((s, n), &a) in sum.iter_mut().zip(count.iter_mut()).zip(values) {
+        let seen = a < BIG;
+        *s += if seen { a } else { 0.0 };
+        *n += if seen { 1.0 } else { 0.0 };
+    }
+}
+
+/// Inserts `values` into the ascending lists `list` (one row per rank), dropping the largest:
+/// the `list.len()` smallest values of every pixel stay exact (the shader's bubble).
+#[inline(always)]
+fn bubble(list: &mut [Vec<f32>], values: &[f32], carry: &mut [f32]) {
+    let Some((first, rest)) = list.split_first_mut() else {
+        return;
+    };
+    for ((b, &v), c) in first.iter_mut().zip(values).zip(carry.iter_mut()) {
+        let old = *b;
+        *b = fmin(old, v);
+        *c = old.max(v);
+    }
+    for rank in rest {
+        for (b, v) in rank.iter_mut().zip(carry.iter_mut()) {
+            let old = *b;
+            *b = fmin(old, *v);
+            *v = old.max(*v);
+        }
+    }
+}
+
+/// Sum and count of the seen (< BIG) entries of the ranks, in rank order (`best_mean`).
+#[inline(always)]
+fn best_mean(list: &[Vec<f32>], sum: &mut [f32], count: &mut [f32]) {
+    sum.fill(0.0);
+    count.fill(0.0);
+    for rank in list {
+        add_seen(rank, sum, count);
     }
 }

@@ -1,64 +1,130 @@
-//! Twins of `shaders/box_h.wgsl` and `shaders/box_v.wgsl`.
+//! Twins of `shaders/box_h.wgsl` and `shaders/box_v.wgsl`: window sums (sum, count) of the
+//! valid costs, added in the shaders' order (left to right, then top to bottom) so the sums are
+//! the same floats. Rows are processed as they are made: a ring keeps the last rows' horizontal
+//! sums, so a plane never needs its whole cost slab.
 
-use crate::sweep::plan::SweepPlan;
-
-/// Horizontal window sums (sum, count) for every padded column anchor.
-pub fn box_h(plan: &SweepPlan, plane_count: u32, cost_slab: &[f32], row_sums: &mut [[f32; 2]]) {
-    let params = &plan.params;
-    let (width, height, npix) = (
-        params.ref_size[0] as i32,
-        params.ref_size[1] as usize,
-        plan.pixel_count(),
+/// Horizontal sums of one row of costs for every padded anchor: index i is the window whose
+/// first column is i - (w - 1) (box_h.wgsl). `pad` is scratch of at least width + 2 (w - 1).
+#[inline(always)]
+pub fn box_h(
+    costs: &[f32],
+    w: usize,
+    pad: &mut [f32],
+    pad_ones: &mut [f32],
+    sums: &mut [f32],
+    counts: &mut [f32],
+) {
+    let width = costs.len();
+    let padded = width + w - 1;
+    let (pad, pad_ones) = (
+        &mut pad[..width + 2 * (w - 1)],
+        &mut pad_ones[..width + 2 * (w - 1)],
     );
-    let window_w = params.window[0] as i32;
-    let (padded_w, _) = plan.padded_size();
-    let slices = plane_count as usize * plan.channels();
-    for zc in 0..slices {
-        for y in 0..height {
-            let row = zc * npix + y * width as usize;
-            for gx in 0..padded_w as usize {
-                let ax = gx as i32 - window_w + 1;
-                let mut acc = [0.0f32; 2];
-                for dx in 0..window_w {
-                    let x = ax + dx;
-                    if x < 0 || x >= width {
-                        continue;
-                    }
-                    let c = cost_slab[row + x as usize];
-                    if c >= 0.0 {
-                        acc[0] += c;
-                        acc[1] += 1.0;
-                    }
-                }
-                row_sums[(zc * height + y) * padded_w as usize + gx] = acc;
-            }
+    pad[..w - 1].fill(0.0);
+    pad_ones[..w - 1].fill(0.0);
+    pad[w - 1 + width..].fill(0.0);
+    pad_ones[w - 1 + width..].fill(0.0);
+    for ((v, one), &c) in pad[w - 1..w - 1 + width]
+        .iter_mut()
+        .zip(&mut pad_ones[w - 1..w - 1 + width])
+        .zip(costs)
+    {
+        // Invalid costs (< 0) add nothing, as the shader skips them.
+        let valid = c >= 0.0;
+        *v = if valid { c } else { 0.0 };
+        *one = if valid { 1.0 } else { 0.0 };
+    }
+    let (sums, counts) = (&mut sums[..padded], &mut counts[..padded]);
+    sums.fill(0.0);
+    counts.fill(0.0);
+    for dx in 0..w {
+        for ((s, n), (&v, &one)) in sums
+            .iter_mut()
+            .zip(counts.iter_mut())
+            .zip(pad[dx..dx + padded].iter().zip(&pad_ones[dx..dx + padded]))
+        {
+            *s += v;
+            *n += one;
         }
     }
 }
 
-/// Vertical sums of the row sums: the w x h window sums for every anchor.
-pub fn box_v(plan: &SweepPlan, plane_count: u32, row_sums: &[[f32; 2]], box_sums: &mut [[f32; 2]]) {
-    let params = &plan.params;
-    let height = params.ref_size[1] as i32;
-    let window_h = params.window[1] as i32;
-    let (padded_w, padded_h) = (plan.padded_size().0 as usize, plan.padded_size().1 as usize);
-    let slices = plane_count as usize * plan.channels();
-    for zc in 0..slices {
-        for gy in 0..padded_h {
-            let ay = gy as i32 - window_h + 1;
-            for gx in 0..padded_w {
-                let mut acc = [0.0f32; 2];
-                for dy in 0..window_h {
-                    let y = ay + dy;
-                    if y < 0 || y >= height {
-                        continue;
-                    }
-                    let s = row_sums[(zc * height as usize + y as usize) * padded_w + gx];
-                    acc[0] += s[0];
-                    acc[1] += s[1];
-                }
-                box_sums[(zc * padded_h + gy) * padded_w + gx] = acc;
+/// The horizontal sums of the last rows of one plane, per channel (a ring of `slots` rows).
+pub struct RowRing {
+    padded: usize,
+    slots: usize,
+    /// channel x slot x (sums, counts) x padded.
+    data: Vec<f32>,
+}
+
+impl RowRing {
+    pub fn new(channels: usize, slots: usize, padded: usize) -> Self {
+        Self {
+            padded,
+            slots,
+            data: vec![0.0; channels * slots * 2 * padded],
+        }
+    }
+
+    #[inline(always)]
+    fn at(&self, channel: usize, row: usize) -> usize {
+        (channel * self.slots + row % self.slots) * 2 * self.padded
+    }
+
+    /// (sums, counts) of `row` of `channel`, to be written.
+    #[inline(always)]
+    pub fn row_mut(&mut self, channel: usize, row: usize) -> (&mut [f32], &mut [f32]) {
+        let at = self.at(channel, row);
+        self.data[at..at + 2 * self.padded].split_at_mut(self.padded)
+    }
+
+    /// Vertical sums (box_v.wgsl) of rows `first..end` of `channel` into (sums, counts), added
+    /// top to bottom from zero.
+    #[inline(always)]
+    pub fn box_v(
+        &self,
+        channel: usize,
+        first: usize,
+        end: usize,
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) {
+        sums.fill(0.0);
+        counts.fill(0.0);
+        for row in first..end {
+            let at = self.at(channel, row);
+            let (s_row, n_row) = self.data[at..at + 2 * self.padded].split_at(self.padded);
+            for ((s, n), (&a, &b)) in sums
+                .iter_mut()
+                .zip(counts.iter_mut())
+                .zip(s_row.iter().zip(n_row))
+            {
+                *s += a;
+                *n += b;
             }
+        }
+    }
+
+    /// Adds `sign` (1 or -1) times row `row` of `channel` into (sums, counts): the step of a
+    /// window sliding down by one row.
+    #[inline(always)]
+    pub fn add_row(
+        &self,
+        channel: usize,
+        row: usize,
+        sign: f32,
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) {
+        let at = self.at(channel, row);
+        let (s_row, n_row) = self.data[at..at + 2 * self.padded].split_at(self.padded);
+        for ((s, n), (&a, &b)) in sums
+            .iter_mut()
+            .zip(counts.iter_mut())
+            .zip(s_row.iter().zip(n_row))
+        {
+            *s += sign * a;
+            *n += sign * b;
         }
     }
 }

@@ -5,15 +5,18 @@ use crate::sweep::gpu_types::*;
 pub type Vec2 = [f32; 2];
 pub type Vec3 = [f32; 3];
 
+#[inline(always)]
 pub fn dot3(a: Vec3, b: Vec3) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+#[inline(always)]
 pub fn xyz(v: [f32; 4]) -> Vec3 {
     [v[0], v[1], v[2]]
 }
 
 /// Returns (pixel x, pixel y, depth in camera); depth <= 0 when behind.
+#[inline(always)]
 pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
     let p = [
         dot3(xyz(cam.row0), point_in_ref) + cam.row0[3],
@@ -50,12 +53,14 @@ pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
     ]
 }
 
+#[inline(always)]
 pub fn inside(cam: &GpuCamera, pixel: Vec2) -> bool {
     let w = cam.size[0] as f32 - 1.0;
     let h = cam.size[1] as f32 - 1.0;
     pixel[0] >= 0.0 && pixel[1] >= 0.0 && pixel[0] <= w && pixel[1] <= h
 }
 
+#[inline(always)]
 pub fn plane_depth(plane: [f32; 4], ray: Vec3) -> f32 {
     let denom = dot3(xyz(plane), ray);
     if denom.abs() < 1e-12 {
@@ -63,3 +68,107 @@ pub fn plane_depth(plane: [f32; 4], ray: Vec3) -> f32 {
     }
     plane[3] / denom
 }
+
+/// One camera image as planar f32 channels (0..255, as the shaders' `texel`), so that rows
+/// of samples are contiguous slices the compiler vectorises.
+pub struct PlanarImage {
+    pub width: usize,
+    pub height: usize,
+    /// R, G, B planes, row-major.
+    pub channels: [Vec<f32>; 3],
+}
+
+impl PlanarImage {
+    /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
+    pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
+        let unpack = |shift: u32| -> Vec<f32> {
+            pixels
+                .iter()
+                .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0)
+                .collect()
+        };
+        Self {
+            width,
+            height,
+            channels: [unpack(0), unpack(8), unpack(16)],
+        }
+    }
+
+    /// The colour at texel (x, y).
+    pub fn texel(&self, x: usize, y: usize) -> Vec3 {
+        let i = y * self.width + x;
+        [
+            self.channels[0][i],
+            self.channels[1][i],
+            self.channels[2][i],
+        ]
+    }
+
+    /// Twin of `sample_bilinear` (cost.wgsl) for a pixel that `inside` accepted.
+    #[inline(always)]
+    pub fn sample_bilinear(&self, pixel: Vec2) -> Vec3 {
+        let bx = pixel[0].floor();
+        let by = pixel[1].floor();
+        let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
+        let (x0, y0) = (bx as usize, by as usize);
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let mut out = [0.0; 3];
+        for (c, plane) in self.channels.iter().enumerate() {
+            let top = mix(plane[y0 * self.width + x0], plane[y0 * self.width + x1], fx);
+            let bottom = mix(plane[y1 * self.width + x0], plane[y1 * self.width + x1], fx);
+            out[c] = mix(top, bottom, fy);
+        }
+        out
+    }
+}
+
+/// The WGSL `min` of two non-NaN values (`f32::min`: an unconditional select, which keeps the
+/// compiler from turning `x = min(x, v)` into slow masked stores).
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    a.min(b)
+}
+
+/// Whether the CPU has AVX2 and FMA (cached by std).
+#[inline(always)]
+pub fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Defines a function twice, for the portable baseline and for AVX2 + FMA, and picks one at
+/// run time. The hot loops are plain loops that the compiler vectorises (8 f32 / 16 u16 lanes
+/// with AVX2); everything the body calls that should profit must be `#[inline(always)]`. No
+/// result changes: Rust never contracts a multiply and an add into an FMA by itself.
+macro_rules! vectorised_fn {
+    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+        $(#[$meta])*
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[inline(always)]
+            fn body($($arg: $ty),*) $(-> $ret)? $body
+            // The one unsafe block of the crate: calling the AVX2 + FMA build of the body.
+            #[cfg(target_arch = "x86_64")]
+            #[allow(unsafe_code)]
+            {
+                #[target_feature(enable = "avx2,fma")]
+                fn avx2($($arg: $ty),*) $(-> $ret)? {
+                    body($($arg),*)
+                }
+                if $crate::sweep::cpu::common::has_avx2_fma() {
+                    // SAFETY: the CPU has AVX2 and FMA, checked just above.
+                    return unsafe { avx2($($arg),*) };
+                }
+            }
+            body($($arg),*)
+        }
+    };
+}
+pub(crate) use vectorised_fn;

@@ -1,224 +1,330 @@
-//! Twin of `shaders/cost.wgsl`.
+//! Twin of `shaders/cost.wgsl`, one reference row at a time: every camera's bilinear colour on
+//! one plane, the pair TSSDs, and the channels the windows aggregate (one per pair, or the
+//! scored cost). Rows are contiguous slices, so the loops vectorise.
+//!
+//! Fast path: when a camera sees the reference grid on a plane through a pure translation
+//! (undistorted cameras, same focal lengths, no rotation, fronto-parallel planes: Middlebury
+//! rows, parallel rigs) its samples are contiguous shifted rows with constant bilinear
+//! weights, no gathers. Every other case projects each pixel as the shader does.
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Loops over x index several rows at once, as the shader indexes its buffers.
+#![allow(clippy::needless_range_loop)]
 
 use super::common::*;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
-#[derive(Default)]
-struct Acc {
-    sum: f32,
-    count: u32,
-    left_sum: f32,
-    left_count: u32,
-    right_sum: f32,
-    right_count: u32,
-    n_best: u32,
-    best: [f32; MAX_BEST_N as usize],
+/// How camera `c` sees the reference grid on one plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mapping {
+    /// Reference pixel (x, y) lands on (x + dx, y + dy) in the camera, for every pixel.
+    Translation { dx: f64, dy: f64 },
+    /// Anything else: project every pixel (`project` in common.wgsl).
+    General,
 }
 
-fn texel(images: &[u32], cam: &GpuCamera, x: u32, y: u32) -> Vec3 {
-    let p = images[(cam.size[2] + y * cam.size[0] + x) as usize].to_le_bytes();
-    [
-        f32::from(p[0]) / 255.0 * 255.0,
-        f32::from(p[1]) / 255.0 * 255.0,
-        f32::from(p[2]) / 255.0 * 255.0,
-    ]
+/// Largest deviation (pixels) from one shift over the image corners that still counts as a
+/// translation; the shader's own f32 projection is off by about 1e-5 px.
+const TRANSLATION_TOLERANCE_PX: f64 = 1e-4;
+
+/// The mapping of every camera (rig order) on plane `k`. The reference camera itself is never
+/// sampled through it.
+pub fn mappings(plan: &SweepPlan, k: usize, allow_fast: bool) -> Vec<Mapping> {
+    let p = &plan.params;
+    let reference = p.reference;
+    // Rays of a real, undistorted reference are a pinhole's: the map is a homography, so
+    // agreeing with one translation at the four corners means being that translation.
+    let pinhole_reference =
+        reference != NO_CAMERA && plan.cameras[reference as usize].size[3] == DIST_NONE;
+    let plane = plan.planes[k].map(f64::from);
+    let (w, h) = (p.width as usize, p.height as usize);
+    let corners = [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)];
+    plan.cameras
+        .iter()
+        .map(|cam| {
+            if !allow_fast || !pinhole_reference || cam.size[3] != DIST_NONE {
+                return Mapping::General;
+            }
+            let mut shifts = Vec::with_capacity(4);
+            for &(x, y) in &corners {
+                let ray = plan.rays[y * w + x].map(f64::from);
+                let denom = plane[0] * ray[0] + plane[1] * ray[1] + plane[2] * ray[2];
+                if denom.abs() < 1e-12 {
+                    return Mapping::General;
+                }
+                let depth = plane[3] / denom;
+                let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
+                let row = |r: [f32; 4]| {
+                    f64::from(r[0]) * point[0]
+                        + f64::from(r[1]) * point[1]
+                        + f64::from(r[2]) * point[2]
+                        + f64::from(r[3])
+                };
+                let cam_point = [row(cam.row0), row(cam.row1), row(cam.row2)];
+                if !(depth > 0.0) || !(cam_point[2] > 1e-6) {
+                    return Mapping::General;
+                }
+                let k = cam.intrinsics.map(f64::from);
+                let u = k[0] * cam_point[0] / cam_point[2] + k[2];
+                let v = k[1] * cam_point[1] / cam_point[2] + k[3];
+                shifts.push((u - x as f64, v - y as f64));
+            }
+            let (dx, dy) = shifts[0];
+            let same = shifts.iter().all(|&(sx, sy)| {
+                (sx - dx).abs() < TRANSLATION_TOLERANCE_PX
+                    && (sy - dy).abs() < TRANSLATION_TOLERANCE_PX
+            });
+            // A shift within the tolerance of a whole pixel is that pixel (the f32 camera data
+            // leave ~1e-7 px of noise: a row shifted by 7e-7 would lose the image's last row).
+            let snap = |v: f64| {
+                if (v - v.round()).abs() < TRANSLATION_TOLERANCE_PX {
+                    v.round()
+                } else {
+                    v
+                }
+            };
+            if same {
+                Mapping::Translation {
+                    dx: snap(dx),
+                    dy: snap(dy),
+                }
+            } else {
+                Mapping::General
+            }
+        })
+        .collect()
 }
 
-fn mix3(a: Vec3, b: Vec3, t: f32) -> Vec3 {
-    [
-        a[0] + (b[0] - a[0]) * t,
-        a[1] + (b[1] - a[1]) * t,
-        a[2] + (b[2] - a[2]) * t,
-    ]
+/// One row of colours: R, G, B; NaN in R where the camera does not see the pixel.
+pub type ColourRow = [Vec<f32>; 3];
+
+pub fn colour_row(width: usize) -> ColourRow {
+    [vec![0.0; width], vec![0.0; width], vec![0.0; width]]
 }
 
-fn sample_bilinear(images: &[u32], cam: &GpuCamera, pixel: Vec2) -> Vec3 {
-    let bx = pixel[0].floor();
-    let by = pixel[1].floor();
-    let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
-    let (x0, y0) = (bx as u32, by as u32);
-    let x1 = (x0 + 1).min(cam.size[0] - 1);
-    let y1 = (y0 + 1).min(cam.size[1] - 1);
-    let top = mix3(texel(images, cam, x0, y0), texel(images, cam, x1, y0), fx);
-    let bottom = mix3(texel(images, cam, x0, y1), texel(images, cam, x1, y1), fx);
-    mix3(top, bottom, fy)
-}
-
-fn tssd(tau: f32, a: Vec3, b: Vec3) -> f32 {
-    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    tau.min(dot3(d, d))
-}
-
-fn add_pair(acc: &mut Acc, params: &GpuParams, cost: f32, half: u32) {
-    acc.sum += cost;
-    acc.count += 1;
-    if half == HALF_LEFT {
-        acc.left_sum += cost;
-        acc.left_count += 1;
-    } else if half == HALF_RIGHT {
-        acc.right_sum += cost;
-        acc.right_count += 1;
-    }
-    let n = params.modes[2];
-    if params.modes[0] == SCORING_BEST_N {
-        let kept = acc.n_best;
-        if kept == n && cost >= acc.best[(n - 1) as usize] {
-            return;
-        }
-        let mut i = kept.min(n - 1) as usize;
-        while i > 0 && acc.best[i - 1] > cost {
-            acc.best[i] = acc.best[i - 1];
-            i -= 1;
-        }
-        acc.best[i] = cost;
-        acc.n_best = (kept + 1).min(n);
-    }
-}
-
-fn mean_or_invalid(sum: f32, count: u32) -> f32 {
-    if count == 0 {
-        INVALID
-    } else {
-        sum / count as f32
-    }
-}
-
-fn pair_half(a: u32, b: u32) -> u32 {
-    if a == HALF_REFERENCE {
-        return b;
-    }
-    if b == HALF_REFERENCE || a == b {
-        return a;
-    }
-    HALF_REFERENCE
-}
-
-/// Fills `cost_slab` (channels x pixels per plane) for planes `first_plane ..
-/// first_plane + plane_count`.
-pub fn run(
+/// Camera `cam`'s colours along reference row `y` on plane `k` (twin of the projection,
+/// `inside` and `sample_bilinear` of cost.wgsl).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn sample_row(
     plan: &SweepPlan,
-    images: &[u32],
-    first_plane: u32,
-    plane_count: u32,
-    cost_slab: &mut [f32],
+    image: &PlanarImage,
+    cam: &GpuCamera,
+    mapping: Mapping,
+    k: usize,
+    y: usize,
+    out: &mut ColourRow,
 ) {
-    let params = &plan.params;
-    let (width, height, npix) = (
-        params.ref_size[0],
-        params.ref_size[1],
-        params.ref_size[2] as usize,
-    );
-    let channels = params.counts[2] as usize;
-    let ref_index = params.ref_size[3];
-    let n_cameras = params.counts[0];
-    let tau = params.thresholds[0];
-    for z in 0..plane_count {
-        for y in 0..height {
+    let width = plan.params.width as usize;
+    match mapping {
+        Mapping::Translation { dx, dy } => sample_row_shifted(image, dx, dy, y, width, out),
+        Mapping::General => {
+            let plane = plan.planes[k];
             for x in 0..width {
-                let pix = (y * width + x) as usize;
-                let slot = z as usize * channels * npix + pix;
-                let ray = xyz(plan.rays[pix]);
-                let depth = plane_depth(plan.planes[(first_plane + z) as usize], ray);
-                if !(depth > 0.0) {
-                    for ch in 0..channels {
-                        cost_slab[slot + ch * npix] = INVALID;
-                    }
-                    continue;
-                }
-                let point_in_ref = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
-                let per_pair = params.modes[3] == AGG_PER_PAIR;
-                let mut acc = Acc::default();
-                if params.modes[1] == PAIRS_REFERENCE {
-                    let ref_cam = &plan.cameras[ref_index as usize];
-                    let ref_colour = texel(images, ref_cam, x, y);
-                    let mut p = 0;
-                    for i in 0..n_cameras {
-                        if i == ref_index {
-                            continue;
-                        }
-                        let cam = &plan.cameras[i as usize];
-                        let projected = project(cam, point_in_ref);
-                        let visible =
-                            projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
-                        let cost = || {
-                            tssd(
-                                tau,
-                                ref_colour,
-                                sample_bilinear(images, cam, [projected[0], projected[1]]),
-                            )
-                        };
-                        if per_pair {
-                            cost_slab[slot + p * npix] = if visible { cost() } else { INVALID };
-                            p += 1;
-                        } else if visible {
-                            add_pair(&mut acc, params, cost(), cam.info[0]);
-                        }
-                    }
-                    if per_pair {
-                        continue;
-                    }
-                } else {
-                    let mut colours = [[0.0f32; 3]; MAX_CAMERAS as usize];
-                    let mut visible = [false; MAX_CAMERAS as usize];
-                    for i in 0..n_cameras as usize {
-                        let cam = &plan.cameras[i];
-                        if i as u32 == ref_index {
-                            colours[i] = texel(images, cam, x, y);
-                            visible[i] = true;
-                            continue;
-                        }
-                        let projected = project(cam, point_in_ref);
-                        visible[i] =
-                            projected[2] > 0.0 && inside(cam, [projected[0], projected[1]]);
-                        if visible[i] {
-                            colours[i] = sample_bilinear(images, cam, [projected[0], projected[1]]);
-                        }
-                    }
-                    let mut p = 0;
-                    for i in 0..n_cameras as usize {
-                        for j in i + 1..n_cameras as usize {
-                            let both = visible[i] && visible[j];
-                            if per_pair {
-                                cost_slab[slot + p * npix] = if both {
-                                    tssd(tau, colours[i], colours[j])
-                                } else {
-                                    INVALID
-                                };
-                                p += 1;
-                            } else if both {
-                                let half =
-                                    pair_half(plan.cameras[i].info[0], plan.cameras[j].info[0]);
-                                add_pair(&mut acc, params, tssd(tau, colours[i], colours[j]), half);
-                            }
-                        }
-                    }
-                    if per_pair {
-                        continue;
+                let ray = xyz(plan.rays[y * width + x]);
+                let depth = plane_depth(plane, ray);
+                let mut colour = [f32::NAN; 3];
+                if depth > 0.0 {
+                    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+                    let pixel = [projected[0], projected[1]];
+                    if projected[2] > 0.0 && inside(cam, pixel) {
+                        colour = image.sample_bilinear(pixel);
                     }
                 }
-                let scoring = params.modes[0];
-                if scoring == SCORING_HALF {
-                    let left = mean_or_invalid(acc.left_sum, acc.left_count);
-                    let right = mean_or_invalid(acc.right_sum, acc.right_count);
-                    cost_slab[slot] = left;
-                    cost_slab[slot + npix] = right;
-                    if channels == 3 {
-                        let mut m = left;
-                        if left < 0.0 || (right >= 0.0 && right < left) {
-                            m = right;
-                        }
-                        cost_slab[slot + 2 * npix] = m;
-                    }
-                } else if scoring == SCORING_BEST_N {
-                    let s: f32 = acc.best[..acc.n_best as usize].iter().sum();
-                    cost_slab[slot] = mean_or_invalid(s, acc.n_best);
-                } else {
-                    cost_slab[slot] = mean_or_invalid(acc.sum, acc.count);
+                for c in 0..3 {
+                    out[c][x] = colour[c];
                 }
             }
+        }
+    }
+}
+
+/// The fast path: row `y` shifted by (dx, dy), constant bilinear weights, contiguous loads.
+#[inline(always)]
+fn sample_row_shifted(
+    image: &PlanarImage,
+    dx: f64,
+    dy: f64,
+    y: usize,
+    width: usize,
+    out: &mut ColourRow,
+) {
+    let (cw, ch) = (image.width as f64, image.height as f64);
+    let v = y as f64 + dy;
+    // Columns whose sample lies inside the camera image (`inside`): 0 <= x + dx <= cw - 1.
+    let x_lo = (-dx).ceil().max(0.0);
+    let x_hi = (cw - 1.0 - dx).floor().min(width as f64 - 1.0);
+    if !(v >= 0.0 && v <= ch - 1.0) || x_hi < x_lo {
+        out[0].fill(f32::NAN);
+        return;
+    }
+    let (x_lo, x_hi) = (x_lo as usize, x_hi as usize);
+    out[0][..x_lo].fill(f32::NAN);
+    out[0][x_hi + 1..].fill(f32::NAN);
+    let ix = dx.floor();
+    let fx = (dx - ix) as f32;
+    let first = (x_lo as f64 + ix) as usize;
+    let count = x_hi + 1 - x_lo;
+    let y0 = v.floor();
+    let fy = (v - y0) as f32;
+    let y0 = y0 as usize;
+    let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    for (plane, row_out) in image.channels.iter().zip(out.iter_mut()) {
+        let dst = &mut row_out[x_lo..x_lo + count];
+        let row = |yy: usize| &plane[yy * image.width + first..];
+        let top = row(y0);
+        if fx == 0.0 {
+            dst.copy_from_slice(&top[..count]);
+        } else {
+            for ((d, &a), &b) in dst.iter_mut().zip(&top[..count]).zip(&top[1..=count]) {
+                *d = mix(a, b, fx);
+            }
+        }
+        if fy != 0.0 {
+            let bottom = row(y0 + 1);
+            if fx == 0.0 {
+                for (d, &b) in dst.iter_mut().zip(&bottom[..count]) {
+                    *d = mix(*d, b, fy);
+                }
+            } else {
+                for ((d, &a), &b) in dst.iter_mut().zip(&bottom[..count]).zip(&bottom[1..=count]) {
+                    *d = mix(*d, mix(a, b, fx), fy);
+                }
+            }
+        }
+    }
+}
+
+/// Pair TSSD along a row: `min(tau, |a - b|^2)`, INVALID where either colour is missing.
+#[inline(always)]
+pub fn pair_cost_row(tau: f32, a: [&[f32]; 3], b: [&[f32]; 3], out: &mut [f32]) {
+    let n = out.len();
+    let (ar, ag, ab) = (&a[0][..n], &a[1][..n], &a[2][..n]);
+    let (br, bg, bb) = (&b[0][..n], &b[1][..n], &b[2][..n]);
+    for x in 0..n {
+        let (dr, dg, db) = (ar[x] - br[x], ag[x] - bg[x], ab[x] - bb[x]);
+        let ssd = dr * dr + dg * dg + db * db;
+        // NaN (a missing colour) fails the test.
+        out[x] = if ssd >= 0.0 { fmin(tau, ssd) } else { INVALID };
+    }
+}
+
+/// Per-pixel accumulation of the visible pair costs for the scored channels (`Acc` of
+/// cost.wgsl), one slice per field.
+pub struct ScoreAcc {
+    sum: Vec<f32>,
+    count: Vec<f32>,
+    left_sum: Vec<f32>,
+    left_count: Vec<f32>,
+    right_sum: Vec<f32>,
+    right_count: Vec<f32>,
+    /// The best_n smallest costs, ascending (BIG = none).
+    best: Vec<Vec<f32>>,
+}
+
+impl ScoreAcc {
+    pub fn new(width: usize, best_n: usize) -> Self {
+        let v = || vec![0.0; width];
+        Self {
+            sum: v(),
+            count: v(),
+            left_sum: v(),
+            left_count: v(),
+            right_sum: v(),
+            right_count: v(),
+            best: (0..best_n).map(|_| vec![BIG; width]).collect(),
+        }
+    }
+
+    fn clear(&mut self) {
+        for v in [
+            &mut self.sum,
+            &mut self.count,
+            &mut self.left_sum,
+            &mut self.left_count,
+            &mut self.right_sum,
+            &mut self.right_count,
+        ] {
+            v.fill(0.0);
+        }
+        for b in &mut self.best {
+            b.fill(BIG);
+        }
+    }
+}
+
+/// The scored channels of one row (not per-pair aggregation) from the pair costs, as
+/// `score_plane` of cost.wgsl: SSSD, best n, or the half means (and their min when scored).
+#[inline(always)]
+pub fn scored_channels(
+    plan: &SweepPlan,
+    pair_costs: &[Vec<f32>],
+    acc: &mut ScoreAcc,
+    channels: &mut [Vec<f32>],
+) {
+    let p = &plan.params;
+    let n = channels[0].len();
+    acc.clear();
+    let best_n = p.scoring == SCORING_BEST_N;
+    for (pair, costs) in plan.pairs.iter().zip(pair_costs) {
+        let half = pair[2];
+        for x in 0..n {
+            let c = costs[x];
+            let seen = c >= 0.0;
+            let (v, one) = if seen { (c, 1.0) } else { (0.0, 0.0) };
+            acc.sum[x] += v;
+            acc.count[x] += one;
+            if half == HALF_LEFT {
+                acc.left_sum[x] += v;
+                acc.left_count[x] += one;
+            } else if half == HALF_RIGHT {
+                acc.right_sum[x] += v;
+                acc.right_count[x] += one;
+            }
+        }
+        if best_n {
+            // Bubble each visible cost through the sorted list (the n smallest are exact).
+            for x in 0..n {
+                let c = costs[x];
+                let mut v = if c >= 0.0 { c } else { BIG };
+                for b in acc.best.iter_mut() {
+                    let t = fmin(b[x], v);
+                    v = if b[x] < v { v } else { b[x] };
+                    b[x] = t;
+                }
+            }
+        }
+    }
+    let mean_or_invalid = |s: f32, c: f32| if c > 0.0 { s / c } else { INVALID };
+    if p.scoring == SCORING_HALF {
+        for x in 0..n {
+            let left = mean_or_invalid(acc.left_sum[x], acc.left_count[x]);
+            let right = mean_or_invalid(acc.right_sum[x], acc.right_count[x]);
+            channels[0][x] = left;
+            channels[1][x] = right;
+            if channels.len() == 3 {
+                channels[2][x] = if left < 0.0 || (right >= 0.0 && right < left) {
+                    right
+                } else {
+                    left
+                };
+            }
+        }
+    } else if best_n {
+        for x in 0..n {
+            let (mut s, mut k) = (0.0f32, 0.0f32);
+            for b in &acc.best {
+                if b[x] < BIG {
+                    s += b[x];
+                    k += 1.0;
+                }
+            }
+            channels[0][x] = mean_or_invalid(s, k);
+        }
+    } else {
+        for x in 0..n {
+            channels[0][x] = mean_or_invalid(acc.sum[x], acc.count[x]);
         }
     }
 }

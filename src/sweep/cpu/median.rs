@@ -1,4 +1,8 @@
-//! Twin of `shaders/median.wgsl`.
+//! Twin of `shaders/median.wgsl`. Rows in parallel.
+
+use rayon::prelude::*;
+
+use super::Maps;
 
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -38,33 +42,37 @@ fn sort9(v: &mut [f32; 9]) {
     sort2(v, 5, 6);
 }
 
-pub fn run(plan: &SweepPlan, maps: &mut [f32]) {
+pub fn run(plan: &SweepPlan, maps: &mut Maps) {
     let params = &plan.params;
-    let (width, height) = (params.ref_size[0] as i32, params.ref_size[1] as i32);
-    let npix = plan.pixel_count();
-    for gy in 0..height {
-        for gx in 0..width {
-            let pix = (gy * width + gx) as usize;
-            let centre = maps[MAP_DEPTH_RAW * npix + pix];
-            if centre.is_nan() || params.window[3] == 0 {
-                maps[MAP_DEPTH_MEDIAN * npix + pix] = centre;
-                continue;
-            }
-            let mut v = [BIG; 9];
-            let mut count = 0usize;
-            for (i, value) in v.iter_mut().enumerate() {
-                let x = gx + (i % 3) as i32 - 1;
-                let y = gy + (i / 3) as i32 - 1;
-                if x >= 0 && y >= 0 && x < width && y < height {
-                    let d = maps[MAP_DEPTH_RAW * npix + (y * width + x) as usize];
-                    if !d.is_nan() {
-                        *value = d;
-                        count += 1;
+    let (width, height) = (params.width as usize, params.height as usize);
+    let enabled = params.median != 0;
+    let [raw, median, ..] = maps.sections_mut();
+    let raw = &*raw;
+    median
+        .par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(gy, out)| {
+            for gx in 0..width {
+                let centre = raw[gy * width + gx];
+                if centre.is_nan() || !enabled {
+                    out[gx] = centre;
+                    continue;
+                }
+                let mut v = [BIG; 9];
+                let mut count = 0usize;
+                for (i, value) in v.iter_mut().enumerate() {
+                    let x = gx as isize + (i % 3) as isize - 1;
+                    let y = gy as isize + (i / 3) as isize - 1;
+                    if x >= 0 && y >= 0 && (x as usize) < width && (y as usize) < height {
+                        let d = raw[y as usize * width + x as usize];
+                        if !d.is_nan() {
+                            *value = d;
+                            count += 1;
+                        }
                     }
                 }
+                sort9(&mut v);
+                out[gx] = v[(count - 1) / 2];
             }
-            sort9(&mut v);
-            maps[MAP_DEPTH_MEDIAN * npix + pix] = v[(count - 1) / 2];
-        }
-    }
+        });
 }

@@ -1,6 +1,12 @@
-//! The CPU twin of the GPU pipeline: one module per shader, written to read like it, on the same
-//! packed [`SweepPlan`]. Slow (single-threaded) and meant for tests and for tracing a wrong result
-//! to one stage, not for production.
+//! The CPU engine: the pipeline of `shaders/` in Rust, one module per shader written to read
+//! like it (`cost.rs` twins `cost.wgsl`, ...), on the same packed [`SweepPlan`], multi-threaded
+//! (rayon) and vectorised. The WGSL engine and this one agree stage by stage within the
+//! tolerances of `tests/gpu_vs_cpu.rs`.
+//!
+//! Where the GPU runs one dispatch per stage over the whole image, the CPU fuses a plane's
+//! cost, window sums and scoring row by row (`plane.rs`) so the working set stays in cache, and
+//! runs the planes in parallel; the winner-take-all state and the SGM volume are then updated in
+//! plane order, pixels in parallel.
 
 pub mod aggregate;
 pub mod boxes;
@@ -9,15 +15,51 @@ pub mod cost;
 pub mod finalize;
 pub mod median;
 pub mod occlusion;
+pub mod plane;
 pub mod select;
 pub mod sgm;
 
-use super::gpu::{sgm_lines, SGM_DIRECTIONS};
-use super::gpu_types::MAP_COUNT;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::gpu_types::*;
 use super::plan::SweepPlan;
-use super::{DepthMaps, SweepError, SweepParams};
+use super::{check_images, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
+use common::PlanarImage;
+use plane::{FrameImages, PlaneScratch};
+use select::WtaState;
+
+/// The `maps` buffer of the shaders: MAP_COUNT sections of one reference image each.
+pub struct Maps {
+    npix: usize,
+    pub data: Vec<f32>,
+}
+
+impl Maps {
+    fn new(npix: usize) -> Self {
+        Self {
+            npix,
+            data: vec![0.0; MAP_COUNT * npix],
+        }
+    }
+
+    pub fn section(&self, s: usize) -> &[f32] {
+        &self.data[s * self.npix..(s + 1) * self.npix]
+    }
+
+    /// Every section, mutably (MAP_DEPTH_RAW .. MAP_VISIBLE).
+    pub fn sections_mut(&mut self) -> [&mut [f32]; MAP_COUNT] {
+        let mut rest = self.data.as_mut_slice();
+        std::array::from_fn(|_| {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(self.npix);
+            rest = tail;
+            head
+        })
+    }
+}
 
 /// Intermediate results of a CPU run, for stage-by-stage comparison with the GPU.
 pub struct CpuTrace {
@@ -26,72 +68,296 @@ pub struct CpuTrace {
     pub zbuffer: Vec<u32>,
 }
 
+/// Bytes of per-plane scores a batch may hold (planes run in parallel within a batch).
+const BATCH_BUDGET_BYTES: usize = 64 << 20;
+
+/// The CPU plane-sweep engine. It keeps the plan of the last rig and parameters.
+#[derive(Debug)]
+pub struct CpuEngine {
+    plan: Option<(Rig, SweepParams, SweepPlan)>,
+    timings: StageTimings,
+    fast_paths: bool,
+    buffers: Buffers,
+}
+
+/// The large buffers, kept across frame sets (no page faults for each new set).
 #[derive(Debug, Default)]
-pub struct CpuEngine;
+struct Buffers {
+    volume: Vec<u16>,
+    forward: Vec<u16>,
+    backward: Vec<u16>,
+    scores: Vec<f32>,
+    sels: Vec<u8>,
+}
+
+impl Default for CpuEngine {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 impl CpuEngine {
+    pub fn new() -> Self {
+        Self {
+            plan: None,
+            timings: StageTimings::default(),
+            fast_paths: true,
+            buffers: Buffers::default(),
+        }
+    }
+
+    /// Turns the translation fast path of the cost stage off (tests compare it with the
+    /// general path, which must give the same depth).
+    pub fn set_fast_paths(&mut self, on: bool) {
+        self.fast_paths = on;
+    }
+
+    /// Per-stage times of the last frame set (CPU clock).
+    pub fn last_timings(&self) -> &StageTimings {
+        &self.timings
+    }
+
+    /// "CPU engine (N threads)" for reports.
+    pub fn label(&self) -> String {
+        format!("CPU engine ({} threads)", rayon::current_num_threads())
+    }
+
+    /// Runs the sweep on one frame set (one image per rig camera, in rig order).
     pub fn run(
-        &self,
+        &mut self,
         rig: &Rig,
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        let plan = SweepPlan::new(rig, params)?;
-        let trace = self.run_plan(&plan, rig, images)?;
+        let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
+        if !reuse {
+            let plan = SweepPlan::new(rig, params)?;
+            self.plan = Some((rig.clone(), params.clone(), plan));
+        }
+        let Some(cached) = self.plan.take() else {
+            return Err(SweepError::InvalidParams("internal: no plan".into()));
+        };
+        let result = self.run_plan(&cached.2, rig, images);
+        self.plan = Some(cached);
+        result
+    }
+
+    /// Runs a prepared plan (e.g. with a custom hypothesis family).
+    pub fn run_plan(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        let trace = self.trace(plan, rig, images)?;
         Ok(plan.depth_maps(&trace.maps))
     }
 
-    pub fn run_plan(
-        &self,
+    /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
+    pub fn run_plan_raw(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<Vec<f32>, SweepError> {
+        Ok(self.trace(plan, rig, images)?.maps)
+    }
+
+    /// Runs a plan, keeping the intermediate buffers.
+    pub fn trace(
+        &mut self,
         plan: &SweepPlan,
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<CpuTrace, SweepError> {
-        let mut packed = Vec::new();
-        plan.pack_images(rig, images, &mut packed)?;
+        check_images(rig, images)?;
+        let mut clock = StageClock::new();
+        let p = &plan.params;
         let npix = plan.pixel_count();
-        let channels = plan.channels();
-        let n_planes = plan.num_planes();
-        let batch = 8u32.min(n_planes);
-        let mut cost_slab = vec![0.0f32; batch as usize * channels * npix];
-        let (padded_w, padded_h) = plan.padded_size();
-        let slices = batch as usize * channels;
-        let mut row_sums = vec![[0.0f32; 2]; slices * padded_w as usize * plan.height as usize];
-        let mut box_sums = vec![[0.0f32; 2]; slices * padded_w as usize * padded_h as usize];
-        let mut state = vec![select::initial(); npix];
-        let sgm_paths = plan.sgm_paths();
-        let volume_len = if sgm_paths > 0 {
-            npix * plan.volume_words()
-        } else {
-            0
+        let planes = plan.num_planes() as usize;
+        let frame = FrameImages {
+            planar: images
+                .par_iter()
+                .map(|im| {
+                    PlanarImage::from_packed(im.width as usize, im.height as usize, &im.pixels)
+                })
+                .collect(),
         };
-        let mut volume = vec![0u32; volume_len];
-        let mut first = 0;
-        while first < n_planes {
-            let count = batch.min(n_planes - first);
-            cost::run(plan, &packed, first, count, &mut cost_slab);
-            boxes::box_h(plan, count, &cost_slab, &mut row_sums);
-            boxes::box_v(plan, count, &row_sums, &mut box_sums);
-            let volume_out = (sgm_paths > 0).then_some(volume.as_mut_slice());
-            aggregate::run(
-                plan, first, count, &box_sums, &cost_slab, &mut state, volume_out,
-            );
-            first += count;
+        let mappings: Vec<Vec<cost::Mapping>> = (0..planes)
+            .map(|k| cost::mappings(plan, k, self.fast_paths))
+            .collect();
+        clock.lap("images");
+
+        let sgm = plan.sgm_paths() > 0;
+        let stride = sgm::stride(planes);
+        // The volume is kept across frame sets of the same shape: the planes' lanes are written
+        // every time, the padding lanes stay PAD.
+        let mut volume = std::mem::take(&mut self.buffers.volume);
+        if !sgm {
+            volume = Vec::new();
+        } else if volume.len() != npix * stride {
+            volume = vec![sgm::PAD; npix * stride];
         }
-        if sgm_paths > 0 {
-            let mut sums = vec![0u32; volume_len];
-            for (r, &(dx, dy)) in SGM_DIRECTIONS.iter().enumerate().take(sgm_paths as usize) {
-                let lines = sgm_lines(dx, dy, plan.width, plan.height);
-                sgm::pass(plan, &packed, dx, dy, lines, r == 0, &volume, &mut sums);
+        let mut state = WtaState::new(npix);
+        let batch = (BATCH_BUDGET_BYTES / (npix * 5).max(1)).clamp(1, planes);
+        let mut scores = std::mem::take(&mut self.buffers.scores);
+        let mut sels = std::mem::take(&mut self.buffers.sels);
+        scores.resize(batch * npix, 0.0);
+        sels.resize(batch * npix, 0);
+        let levels_per_unit = p.sgm_levels_per_unit;
+        for first in (0..planes).step_by(batch) {
+            let count = batch.min(planes - first);
+            scores[..count * npix]
+                .par_chunks_mut(npix)
+                .zip(sels[..count * npix].par_chunks_mut(npix))
+                .enumerate()
+                .for_each_init(
+                    || PlaneScratch::new(plan),
+                    |scratch, (z, (score, sel))| {
+                        let k = first + z;
+                        plane::sweep_plane(plan, &frame, &mappings[k], k, scratch, score, sel);
+                    },
+                );
+            clock.lap("sweep");
+            // The planes of the batch in order: winner-take-all, and the volume levels.
+            let chunk = 2048;
+            let (scores, sels) = (&scores, &sels);
+            let batch = Batch {
+                first,
+                count,
+                npix,
+                stride,
+                levels_per_unit,
+            };
+            let merge = |c: usize, st: &mut select::WtaChunk<'_>, vol: Option<&mut [u16]>| {
+                merge_batch(&batch, c * chunk, scores, sels, st, vol)
+            };
+            let mut chunks = state.chunks_mut(chunk);
+            if sgm {
+                chunks
+                    .par_iter_mut()
+                    .zip(volume.par_chunks_mut(chunk * stride))
+                    .enumerate()
+                    .for_each(|(c, (st, vol))| merge(c, st, Some(vol)));
+            } else {
+                chunks
+                    .par_iter_mut()
+                    .enumerate()
+                    .for_each(|(c, st)| merge(c, st, None));
             }
-            sgm::select(plan, &sums, &mut state);
+            clock.lap("select");
         }
-        let mut maps = vec![0.0f32; MAP_COUNT * npix];
+
+        if sgm {
+            let colours: &[u32] = if p.reference == NO_CAMERA {
+                &[]
+            } else {
+                &images[p.reference as usize].pixels
+            };
+            let buffers = &mut self.buffers;
+            sgm::run(
+                plan,
+                colours,
+                &volume,
+                &mut buffers.forward,
+                &mut buffers.backward,
+            );
+            clock.lap("sgm");
+            sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
+            clock.lap("sgm_select");
+        }
+        let mut maps = Maps::new(npix);
         finalize::run(plan, &state, &mut maps);
+        clock.lap("finalize");
         median::run(plan, &mut maps);
+        clock.lap("median");
         let mut zbuffer = vec![0u32; plan.total_camera_pixels];
         occlusion::splat(plan, &maps, &mut zbuffer);
+        clock.lap("splat");
         occlusion::visibility(plan, &zbuffer, &mut maps);
-        Ok(CpuTrace { maps, zbuffer })
+        clock.lap("visibility");
+        self.timings = clock.timings();
+        self.buffers.volume = volume;
+        self.buffers.scores = scores;
+        self.buffers.sels = sels;
+        Ok(CpuTrace {
+            maps: maps.data,
+            zbuffer,
+        })
     }
+}
+
+/// Wall-clock time per stage, summed over repeated laps of the same name.
+struct StageClock {
+    last: Instant,
+    stages: Vec<(String, f64)>,
+}
+
+impl StageClock {
+    fn new() -> Self {
+        Self {
+            last: Instant::now(),
+            stages: Vec::new(),
+        }
+    }
+
+    fn lap(&mut self, name: &str) {
+        let now = Instant::now();
+        let ms = (now - self.last).as_secs_f64() * 1e3;
+        self.last = now;
+        match self.stages.iter_mut().find(|(n, _)| n == name) {
+            Some((_, total)) => *total += ms,
+            None => self.stages.push((name.to_string(), ms)),
+        }
+    }
+
+    fn timings(self) -> StageTimings {
+        StageTimings {
+            stages: self.stages,
+            gpu_timestamps: false,
+        }
+    }
+}
+
+/// A batch of planes, merged into the selection state and the volume.
+struct Batch {
+    first: usize,
+    count: usize,
+    npix: usize,
+    stride: usize,
+    levels_per_unit: f32,
+}
+
+common::vectorised_fn! {
+/// The batch's planes in order into the winner-take-all state of the pixels `start..` of `st`,
+/// and their volume levels into `vol` (optimizer sgm).
+fn merge_batch(
+    b: &Batch,
+    start: usize,
+    scores: &[f32],
+    sels: &[u8],
+    st: &mut select::WtaChunk<'_>,
+    vol: Option<&mut [u16]>,
+) {
+    let len = st.best.len();
+    for z in 0..b.count {
+        let at = z * b.npix + start;
+        st.update((b.first + z) as f32, &scores[at..at + len], &sels[at..at + len]);
+    }
+    if let Some(vol) = vol {
+        // Blocks of 16 pixels: their volume rows (16 x stride lanes) stay in L1 while every
+        // plane of the batch fills its lane, and each plane's scores are read 16 at a time.
+        const BLOCK: usize = 16;
+        for block in (0..len).step_by(BLOCK) {
+            let pixels = BLOCK.min(len - block);
+            for z in 0..b.count {
+                let at = z * b.npix + start + block;
+                for (i, &score) in scores[at..at + pixels].iter().enumerate() {
+                    vol[(block + i) * b.stride + b.first + z] =
+                        sgm::volume_level(b.levels_per_unit, score);
+                }
+            }
+        }
+    }
+}
 }

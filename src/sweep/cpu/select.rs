@@ -1,29 +1,212 @@
-//! Twin of the selection step of `shaders/aggregate.wgsl`: streaming winner-take-all with exact
-//! neighbours and rival.
+//! Twin of the selection step (`select_plane` in `shaders/common.wgsl`): streaming
+//! winner-take-all with the winner's exact neighbours and rival, one slice per field so a plane
+//! updates a run of pixels in vector lanes.
 
+use super::common::fmin;
 use crate::sweep::gpu_types::*;
 
-/// Per pixel: [best, best plane, cost before, cost after], [rival, min 0..k-1, min 0..k-2,
-/// last cost], [selection at best, 0, 0, 0].
-pub type PixelState = [[f32; 4]; 3];
-
-pub fn initial() -> PixelState {
-    [[BIG, -1.0, BIG, BIG], [BIG; 4], [3.0, 0.0, 0.0, 0.0]]
+/// Selection state of every pixel (the shader's `Wta`, field by field).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WtaState {
+    /// Best score (s0.x).
+    pub best: Vec<f32>,
+    /// Its plane, -1 = none yet (s0.y).
+    pub best_plane: Vec<f32>,
+    /// Score of plane best - 1 (s0.z), BIG when none.
+    pub before: Vec<f32>,
+    /// Score of plane best + 1 (s0.w), BIG when none.
+    pub after: Vec<f32>,
+    /// Best score away from best +- 1 (s1.x).
+    pub rival: Vec<f32>,
+    /// Minimum over planes 0..k-1 (s1.y).
+    pub min_to_last: Vec<f32>,
+    /// Minimum over planes 0..k-2 (s1.z).
+    pub min_to_second_last: Vec<f32>,
+    /// Score of plane k-1 (s1.w).
+    pub last: Vec<f32>,
+    /// Half-sequence selection at the best plane (s2.x).
+    pub selection: Vec<f32>,
 }
 
-/// One step of the streaming winner-take-all: plane `k` with aggregated `[cost, selection]`.
-pub fn update(st: &mut PixelState, k: f32, [c, sel]: [f32; 2]) {
-    let [s0, s1, s2] = st;
-    if c < s0[0] {
-        *s0 = [c, k, s1[3], BIG];
-        s1[0] = s1[2];
-        s2[0] = sel;
-    } else if k == s0[1] + 1.0 {
-        s0[3] = c;
-    } else {
-        s1[0] = s1[0].min(c);
+impl WtaState {
+    pub fn new(pixels: usize) -> Self {
+        let v = |x: f32| vec![x; pixels];
+        Self {
+            best: v(BIG),
+            best_plane: v(-1.0),
+            before: v(BIG),
+            after: v(BIG),
+            rival: v(BIG),
+            min_to_last: v(BIG),
+            min_to_second_last: v(BIG),
+            last: v(BIG),
+            selection: v(3.0),
+        }
     }
-    s1[2] = s1[1];
-    s1[1] = s1[1].min(c);
-    s1[3] = c;
+
+    /// The pixels `range` of every field, to be updated by one worker.
+    pub fn chunk_mut(&mut self, start: usize, end: usize) -> WtaChunk<'_> {
+        WtaChunk {
+            best: &mut self.best[start..end],
+            best_plane: &mut self.best_plane[start..end],
+            before: &mut self.before[start..end],
+            after: &mut self.after[start..end],
+            rival: &mut self.rival[start..end],
+            min_to_last: &mut self.min_to_last[start..end],
+            min_to_second_last: &mut self.min_to_second_last[start..end],
+            last: &mut self.last[start..end],
+            selection: &mut self.selection[start..end],
+        }
+    }
+
+    /// Splits the state into chunks of `size` pixels (the last may be shorter).
+    pub fn chunks_mut(&mut self, size: usize) -> Vec<WtaChunk<'_>> {
+        let n = self.best.len();
+        let mut out = Vec::with_capacity(n.div_ceil(size.max(1)));
+        let mut fields = self.chunk_mut(0, n);
+        while !fields.best.is_empty() {
+            let take = size.min(fields.best.len());
+            let (head, tail) = fields.split_at(take);
+            out.push(head);
+            fields = tail;
+        }
+        out
+    }
+}
+
+/// A run of pixels of [`WtaState`].
+pub struct WtaChunk<'a> {
+    pub best: &'a mut [f32],
+    pub best_plane: &'a mut [f32],
+    pub before: &'a mut [f32],
+    pub after: &'a mut [f32],
+    pub rival: &'a mut [f32],
+    pub min_to_last: &'a mut [f32],
+    pub min_to_second_last: &'a mut [f32],
+    pub last: &'a mut [f32],
+    pub selection: &'a mut [f32],
+}
+
+impl<'a> WtaChunk<'a> {
+    fn split_at(self, mid: usize) -> (WtaChunk<'a>, WtaChunk<'a>) {
+        let (a0, b0) = self.best.split_at_mut(mid);
+        let (a1, b1) = self.best_plane.split_at_mut(mid);
+        let (a2, b2) = self.before.split_at_mut(mid);
+        let (a3, b3) = self.after.split_at_mut(mid);
+        let (a4, b4) = self.rival.split_at_mut(mid);
+        let (a5, b5) = self.min_to_last.split_at_mut(mid);
+        let (a6, b6) = self.min_to_second_last.split_at_mut(mid);
+        let (a7, b7) = self.last.split_at_mut(mid);
+        let (a8, b8) = self.selection.split_at_mut(mid);
+        (
+            WtaChunk {
+                best: a0,
+                best_plane: a1,
+                before: a2,
+                after: a3,
+                rival: a4,
+                min_to_last: a5,
+                min_to_second_last: a6,
+                last: a7,
+                selection: a8,
+            },
+            WtaChunk {
+                best: b0,
+                best_plane: b1,
+                before: b2,
+                after: b3,
+                rival: b4,
+                min_to_last: b5,
+                min_to_second_last: b6,
+                last: b7,
+                selection: b8,
+            },
+        )
+    }
+
+    /// `select_plane` for plane `k` on every pixel of the chunk: `cost[i]` and `sel[i]` are
+    /// pixel i's aggregated score and selection code. Branch-free, so it vectorises.
+    #[inline(always)]
+    pub fn update(&mut self, k: f32, cost: &[f32], sel: &[u8]) {
+        let n = self.best.len();
+        update_fields(
+            k,
+            &cost[..n],
+            &sel[..n],
+            self.best,
+            self.best_plane,
+            self.before,
+            self.after,
+            self.rival,
+            self.min_to_last,
+            self.min_to_second_last,
+            self.last,
+            self.selection,
+        );
+    }
+}
+
+/// The body of [`WtaChunk::update`]. The fields come in as separate `&mut` arguments: the
+/// compiler then knows they do not overlap and vectorises the loop without run-time checks.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn update_fields(
+    k: f32,
+    cost: &[f32],
+    sel: &[u8],
+    best: &mut [f32],
+    best_plane: &mut [f32],
+    before: &mut [f32],
+    after: &mut [f32],
+    rival: &mut [f32],
+    min_to_last: &mut [f32],
+    min_to_second_last: &mut [f32],
+    last: &mut [f32],
+    selection: &mut [f32],
+) {
+    let n = cost.len();
+    let (sel, best, best_plane, before, after) = (
+        &sel[..n],
+        &mut best[..n],
+        &mut best_plane[..n],
+        &mut before[..n],
+        &mut after[..n],
+    );
+    let (rival, min_to_last, min_to_second_last, last, selection) = (
+        &mut rival[..n],
+        &mut min_to_last[..n],
+        &mut min_to_second_last[..n],
+        &mut last[..n],
+        &mut selection[..n],
+    );
+    for i in 0..n {
+        let c = cost[i];
+        let new_best = c < best[i];
+        let next_to_best = k == best_plane[i] + 1.0;
+        rival[i] = if new_best {
+            min_to_second_last[i]
+        } else if next_to_best {
+            rival[i]
+        } else {
+            fmin(rival[i], c)
+        };
+        after[i] = if new_best {
+            BIG
+        } else if next_to_best {
+            c
+        } else {
+            after[i]
+        };
+        before[i] = if new_best { last[i] } else { before[i] };
+        best_plane[i] = if new_best { k } else { best_plane[i] };
+        selection[i] = if new_best {
+            f32::from(sel[i])
+        } else {
+            selection[i]
+        };
+        best[i] = if new_best { c } else { best[i] };
+        min_to_second_last[i] = min_to_last[i];
+        min_to_last[i] = fmin(min_to_last[i], c);
+        last[i] = c;
+    }
 }

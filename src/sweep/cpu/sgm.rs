@@ -1,181 +1,298 @@
-//! Twin of `shaders/sgm.wgsl` (one path direction of semi-global matching) and
-//! `shaders/sgm_select.wgsl` (winner-take-all over the summed path costs). Integer path costs,
-//! so both sides agree exactly up to the final f32 scaling.
+//! Twin of `shaders/sgm.wgsl` (semi-global matching over the u16 cost volume) and
+//! `shaders/sgm_select.wgsl` (winner-take-all over the summed path costs), in the classic
+//! two-pass layout: a forward pass (rows top to bottom, pixels left to right) runs the
+//! directions whose predecessor it has already visited ((1,0), (0,1), and with 8 paths (1,1),
+//! (-1,1)), a backward pass the four opposite ones; each keeps only the previous row's path
+//! costs, and the two passes run on two threads. The planes of a pixel are u16 lanes; the
+//! integer arithmetic is the shader's, so the summed path costs are exactly equal.
 // The `!(x < BIG)` test mirrors the shader and is NaN-safe on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use super::select::{self, PixelState};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+use super::common::vectorised_fn;
+use super::select::{WtaChunk, WtaState};
+
+/// Planes per pixel in the CPU volume are rounded up to a multiple of this (vector lanes).
+pub const LANES: usize = 16;
+/// The cost of a padding lane: larger than any real path cost, so it never wins a minimum
+/// (the shader skips planes >= planes instead).
+pub const PAD: u16 = 0x7fff;
+
+/// u16 lanes per pixel of the CPU cost volume.
+pub fn stride(planes: usize) -> usize {
+    planes.next_multiple_of(LANES)
+}
+
 /// Twin of `volume_level` (common.wgsl): a scored cost as u16 levels.
-pub fn volume_level(plan: &SweepPlan, score: f32) -> u32 {
+#[inline(always)]
+pub fn volume_level(levels_per_unit: f32, score: f32) -> u16 {
     if score >= 0.5 * BIG {
-        return SGM_COST_MAX;
+        return SGM_COST_MAX as u16;
     }
-    ((score * plan.params.sgm_scale[0] + 0.5).floor() as u32).min(SGM_COST_MAX)
+    ((score * levels_per_unit + 0.5).floor() as u32).min(SGM_COST_MAX) as u16
 }
 
-/// Writes plane `plane`'s level at pixel `pix` into the packed volume (aggregate.wgsl's
-/// `store_level`, without the write ordering it needs).
-pub fn store_level(plan: &SweepPlan, volume: &mut [u32], pix: usize, plane: u32, score: f32) {
-    let level = volume_level(plan, score);
-    let word = &mut volume[pix * plan.volume_words() + plane as usize / 2];
-    if plane & 1 == 0 {
-        *word = (*word & 0xffff_0000) | level;
-    } else {
-        *word = (*word & 0xffff) | (level << 16);
-    }
-}
-
-/// Twin of `line_start`.
-fn line_start(line: i32, dx: i32, dy: i32, w: i32, h: i32) -> (i32, i32) {
-    let x_edge = if dx > 0 { 0 } else { w - 1 };
-    let y_edge = if dy > 0 { 0 } else { h - 1 };
-    if dy == 0 {
-        return (x_edge, line);
-    }
-    if dx == 0 {
-        return (line, y_edge);
-    }
-    if line < h {
-        return (x_edge, line);
-    }
-    let i = line - h + 1;
-    (if dx > 0 { i } else { w - 1 - i }, y_edge)
-}
-
-/// Twin of `colour_step`: the largest RGB channel difference.
+/// Twin of `colour_step`: the largest RGB channel difference of two packed colours.
+#[inline(always)]
 fn colour_step(a: u32, b: u32) -> u32 {
-    (0..3)
-        .map(|c| {
-            let (ca, cb) = ((a >> (8 * c)) & 0xff, (b >> (8 * c)) & 0xff);
-            ca.abs_diff(cb)
-        })
-        .max()
-        .unwrap_or(0)
+    let d = |shift: u32| ((a >> shift) & 0xff).abs_diff((b >> shift) & 0xff);
+    d(0).max(d(8)).max(d(16))
 }
 
-/// One direction (dx, dy): every path line, pixel by pixel; the first pass writes `sums`, the
-/// others add to it.
+/// One path step for one pixel over all its planes (`line_term` of sgm.wgsl):
+/// `L = cost + min(prev, prev -+ 1 + P1, prev_min + P2) - prev_min`, or `L = cost` at the
+/// start of a path (`START`); `L` goes into `out` (one PAD lane on each side, as `prev`) and is
+/// written (`FIRST`) or added into `sum`. Returns the minimum of `L`.
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub fn pass(
-    plan: &SweepPlan,
-    images: &[u32],
-    dx: i32,
-    dy: i32,
-    lines: u32,
-    first_pass: bool,
-    volume: &[u32],
-    sums: &mut [u32],
-) {
-    let p = &plan.params;
-    let (w, h) = (p.ref_size[0] as i32, p.ref_size[1] as i32);
-    let planes = p.counts[1] as usize;
-    let words = plan.volume_words();
-    let [_, p1, p2, edge] = p.sgm;
-    let image_offset = if p.ref_size[3] == NO_CAMERA {
-        0
-    } else {
-        plan.cameras[p.ref_size[3] as usize].size[2] as usize
-    };
-    let mut prev_costs = vec![0u32; 2 * words];
-    let mut next_costs = vec![0u32; 2 * words];
-    for line in 0..lines as i32 {
-        let (mut x, mut y) = line_start(line, dx, dy, w, h);
-        let mut step = 0u32;
-        let mut previous_colour = 0u32;
-        let mut prev_min = 0u32;
-        while x >= 0 && y >= 0 && x < w && y < h {
-            let pix = (y * w + x) as usize;
-            let mut penalty2 = p2;
-            let mut colour = 0;
-            if edge > 0 {
-                colour = images[image_offset + pix];
-                if step > 0 {
-                    penalty2 =
-                        p1.max(p2 * edge / (edge + 16 * colour_step(colour, previous_colour)));
-                }
-            }
-            let path_term = |d: usize| {
-                let mut best = prev_costs[d].min(prev_min + penalty2);
-                if d > 0 {
-                    best = best.min(prev_costs[d - 1] + p1);
-                }
-                if d + 1 < planes {
-                    best = best.min(prev_costs[d + 1] + p1);
-                }
-                best - prev_min
+fn step<const START: bool, const FIRST: bool>(
+    cost: &[u16],
+    prev: &[u16],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
+    let n = cost.len();
+    let (out, sum) = (&mut out[1..=n], &mut sum[..n]);
+    let (minus, mid, plus) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
+    let jump = prev_min.saturating_add(p2);
+    // Fixed chunks of LANES, so the compiler keeps each in one vector register (n is a
+    // multiple of LANES).
+    let mut lowest = [u16::MAX; LANES];
+    for (((((cost, out), sum), minus), mid), plus) in cost
+        .chunks_exact(LANES)
+        .zip(out.chunks_exact_mut(LANES))
+        .zip(sum.chunks_exact_mut(LANES))
+        .zip(minus.chunks_exact(LANES))
+        .zip(mid.chunks_exact(LANES))
+        .zip(plus.chunks_exact(LANES))
+    {
+        for i in 0..LANES {
+            let l = if START {
+                cost[i]
+            } else {
+                let best = mid[i]
+                    .min(minus[i].saturating_add(p1))
+                    .min(plus[i].saturating_add(p1))
+                    .min(jump);
+                cost[i].saturating_add(best - prev_min)
             };
-            let mut local_min = u32::MAX;
-            for j in 0..words {
-                let at = pix * words + j;
-                let c = volume[at];
-                let d = 2 * j;
-                let mut l0 = c & 0xffff;
-                let mut l1 = c >> 16;
-                if step > 0 {
-                    l0 += path_term(d);
-                    if d + 1 < planes {
-                        l1 += path_term(d + 1);
-                    }
-                }
-                if d + 1 >= planes {
-                    l1 = 0;
-                } else {
-                    local_min = local_min.min(l1);
-                }
-                local_min = local_min.min(l0);
-                next_costs[d] = l0;
-                next_costs[d + 1] = l1;
-                let packed = l0 | (l1 << 16);
-                sums[at] = if first_pass {
-                    packed
-                } else {
-                    sums[at].wrapping_add(packed)
-                };
-            }
-            std::mem::swap(&mut prev_costs, &mut next_costs);
-            prev_min = local_min;
-            previous_colour = colour;
-            x += dx;
-            y += dy;
-            step += 1;
+            out[i] = l;
+            sum[i] = if FIRST { l } else { sum[i].wrapping_add(l) };
+            lowest[i] = lowest[i].min(l);
         }
     }
+    lowest.iter().fold(u16::MAX, |a, &b| a.min(b))
 }
 
-/// Twin of `sgm_select.wgsl`.
-pub fn select(plan: &SweepPlan, sums: &[u32], state: &mut [PixelState]) {
+/// `step` with its two switches as run-time values.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn step_dyn(
+    start: bool,
+    first: bool,
+    cost: &[u16],
+    prev: &[u16],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
+    match (start, first) {
+        (true, true) => step::<true, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (true, false) => step::<true, false>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, true) => step::<false, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, false) => step::<false, false>(cost, prev, prev_min, p1, p2, out, sum),
+    }
+}
+
+/// The per-pixel penalties of one path step: P2 lowered at colour edges (`sgm_edge`).
+#[inline(always)]
+fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
+    if edge == 0 {
+        return p2 as u16;
+    }
+    p1.max(p2 * edge / (edge + 16 * step)) as u16
+}
+
+vectorised_fn! {
+/// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
+/// reverse), summing the path costs of its directions into `sums` (written, not added).
+fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16]) {
+    let p = &plan.params;
+    let (w, h) = (p.width as usize, p.height as usize);
+    let n = stride(p.planes as usize);
+    let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
+    // Path costs with a PAD lane on each side: the previous and current row of the vertical
+    // and (8 paths) the two diagonal directions, and the last two pixels of the horizontal one.
+    let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
+    let row_buffer = || vec![PAD; w * (n + 2)];
+    let mut prev_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
+    let mut cur_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
+    let mut prev_mins = vec![vec![0u16; w]; row_dirs];
+    let mut cur_mins = vec![vec![0u16; w]; row_dirs];
+    let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
+    let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
+    // P2 for every colour step (0..255): the shader's integer division, done once.
+    let penalties: Vec<u16> = (0..256u32)
+        .map(|step| penalty2(p1, p2, edge, step))
+        .collect();
+    let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
+    let p1 = p1 as u16;
+    for walk_y in 0..h {
+        let y = if forward { walk_y } else { h - 1 - walk_y };
+        let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
+        let mut h_min = 0u16;
+        for walk_x in 0..w {
+            let x = if forward { walk_x } else { w - 1 - walk_x };
+            let pix = y * w + x;
+            let cost = &volume[pix * n..(pix + 1) * n];
+            let here = colour(pix);
+            let sum = &mut sums[pix * n..(pix + 1) * n];
+            // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
+            let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
+            let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
+
+            // Horizontal: the previous pixel of this row; it writes the sums.
+            let [a, b] = &mut horizontal;
+            let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
+            let start = walk_x == 0;
+            let pen = if start { 0 } else { penalty(here, y * w + behind) };
+            h_min = step_dyn(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
+
+            // Vertical and diagonals: the previous row at x, behind and ahead.
+            for dir in 0..row_dirs {
+                let px = match dir {
+                    0 => x,
+                    1 => behind,
+                    _ => ahead,
+                };
+                let start = walk_y == 0 || px >= w;
+                let (prev, prev_min, pen) = if start {
+                    (&prev_rows[dir][..n + 2], 0, 0)
+                } else {
+                    (
+                        &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)],
+                        prev_mins[dir][px],
+                        penalty(here, prev_y * w + px),
+                    )
+                };
+                let out = &mut cur_rows[dir][x * (n + 2)..(x + 1) * (n + 2)];
+                cur_mins[dir][x] = step_dyn(start, false, cost, prev, prev_min, p1, pen, out, sum);
+            }
+        }
+        std::mem::swap(&mut prev_rows, &mut cur_rows);
+        std::mem::swap(&mut prev_mins, &mut cur_mins);
+    }
+}
+}
+
+/// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
+/// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
+pub fn run(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+) {
+    forward.resize(volume.len(), 0);
+    backward.resize(volume.len(), 0);
+    rayon::join(
+        || pass(plan, reference_colours, volume, true, forward),
+        || pass(plan, reference_colours, volume, false, backward),
+    );
+}
+
+/// The winner over the summed path costs of one pixel.
+struct Winner {
+    best: usize,
+    best_sum: u16,
+    before: Option<u16>,
+    after: Option<u16>,
+    rival: Option<u16>,
+}
+
+/// Sums `forward + backward` into `sums` and finds the first minimum, its neighbours and the
+/// smallest sum away from them (vector adds and minimum reductions, one scan for the index).
+#[inline(always)]
+fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
+    let planes = sums.len();
+    for ((s, &f), &b) in sums
+        .iter_mut()
+        .zip(&forward[..planes])
+        .zip(&backward[..planes])
+    {
+        *s = f.wrapping_add(b);
+    }
+    let lowest = |v: &[u16]| v.iter().copied().fold(u16::MAX, u16::min);
+    let best_sum = lowest(sums);
+    let best = sums.iter().position(|&v| v == best_sum).unwrap_or(0);
+    let left = &sums[..best.saturating_sub(1)];
+    let right = &sums[(best + 2).min(planes)..];
+    let rival = (!left.is_empty() || !right.is_empty()).then(|| lowest(left).min(lowest(right)));
+    Winner {
+        best,
+        best_sum,
+        before: best.checked_sub(1).map(|d| sums[d]),
+        after: sums.get(best + 1).copied(),
+        rival,
+    }
+}
+
+/// Twin of `sgm_select.wgsl`: winner-take-all over the summed path costs (score units) into
+/// the selection state, for every pixel the local winner-take-all found valid. The streaming
+/// selection's result written directly: the first minimum, its two neighbours, and the
+/// smallest sum away from them (`u16` sums map to scores strictly monotonically).
+pub fn select(plan: &SweepPlan, forward: &[u16], backward: &[u16], state: &mut WtaState) {
+    use rayon::prelude::*;
     let planes = plan.num_planes() as usize;
-    let words = plan.volume_words();
-    let unit = plan.params.sgm_scale[1];
-    for (pix, st) in state.iter_mut().enumerate() {
-        let local = st[0];
-        if !(local[0] < 0.5 * BIG) || local[1] < 0.0 {
+    let n = stride(planes);
+    let unit = plan.params.sgm_unit_per_level;
+    let chunk = 1024;
+    state
+        .chunks_mut(chunk)
+        .into_par_iter()
+        .zip(
+            forward
+                .par_chunks(chunk * n)
+                .zip(backward.par_chunks(chunk * n)),
+        )
+        .for_each(|(mut st, (forward, backward))| {
+            select_chunk(planes, n, unit, forward, backward, &mut st)
+        });
+}
+
+vectorised_fn! {
+/// [`select`] for one run of pixels.
+fn select_chunk(
+    planes: usize,
+    n: usize,
+    unit: f32,
+    forward: &[u16],
+    backward: &[u16],
+    st: &mut WtaChunk<'_>,
+) {
+    let score = |v: u16| f32::from(v) * unit;
+    let mut sums = vec![0u16; planes];
+    for i in 0..st.best.len() {
+        if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
             continue;
         }
-        let selection = st[2][0];
-        let mut fresh = select::initial();
-        fresh[2][0] = selection;
-        for j in 0..words {
-            let word = sums[pix * words + j];
-            let d = 2 * j;
-            select::update(
-                &mut fresh,
-                d as f32,
-                [(word & 0xffff) as f32 * unit, selection],
-            );
-            if d + 1 < planes {
-                select::update(
-                    &mut fresh,
-                    (d + 1) as f32,
-                    [(word >> 16) as f32 * unit, selection],
-                );
-            }
-        }
-        *st = fresh;
+        let (f, b) = (&forward[i * n..i * n + planes], &backward[i * n..i * n + planes]);
+        let s = winner(f, b, &mut sums);
+        st.best[i] = score(s.best_sum);
+        st.best_plane[i] = s.best as f32;
+        st.before[i] = s.before.map_or(BIG, score);
+        st.after[i] = s.after.map_or(BIG, score);
+        st.rival[i] = s.rival.map_or(BIG, score);
     }
+}
 }
 
 #[cfg(test)]
@@ -185,7 +302,8 @@ mod tests {
     use crate::sweep::{Optimizer, SweepParams};
     use crate::synthetic;
 
-    /// A 2x1 image with 3 planes, one left-to-right path, P1 = 10, P2 = 30 levels.
+    /// A 2x1 image with 3 planes, P1 = 10, P2 = 30 levels, 4 paths (the vertical ones are
+    /// one pixel long, so they add each pixel's own cost).
     fn plan() -> SweepPlan {
         let model = CameraModel::pinhole(synthetic::intrinsics(2, 1));
         let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
@@ -195,16 +313,25 @@ mod tests {
             ..SweepParams::default()
         };
         let mut plan = SweepPlan::new(&rig, &params).expect("plan");
-        plan.params.sgm = [1, 10, 30, 0];
-        plan.params.sgm_scale[1] = 1.0;
+        plan.params.sgm_paths = 4;
+        plan.params.sgm_p1 = 10;
+        plan.params.sgm_p2 = 30;
+        plan.params.sgm_edge = 0;
+        plan.params.sgm_unit_per_level = 1.0;
         plan
     }
 
-    fn volume(pixels: &[[u32; 3]]) -> Vec<u32> {
-        pixels
-            .iter()
-            .flat_map(|c| [c[0] | (c[1] << 16), c[2]])
-            .collect()
+    fn volume(pixels: &[[u16; 3]]) -> Vec<u16> {
+        let n = stride(3);
+        let mut v = vec![PAD; pixels.len() * n];
+        for (i, c) in pixels.iter().enumerate() {
+            v[i * n..i * n + 3].copy_from_slice(c);
+        }
+        v
+    }
+
+    fn real(sums: &[u16]) -> Vec<[u16; 3]> {
+        sums.chunks(stride(3)).map(|c| [c[0], c[1], c[2]]).collect()
     }
 
     #[test]
@@ -212,34 +339,46 @@ mod tests {
         let plan = plan();
         // Pixel 0 is sure of plane 0; pixel 1 slightly prefers plane 2 locally.
         let costs = volume(&[[0, 50, 50], [5, 40, 0]]);
-        let mut sums = vec![0u32; costs.len()];
-        pass(&plan, &[], 1, 0, 1, true, &costs, &mut sums);
-        // Pixel 1: d0 = 5 + min(0, 50 + 10, 0 + 30) - 0 = 5; d1 = 40 + min(50, 0 + 10, 50 + 10,
-        // 30) = 50; d2 = 0 + min(50, 50 + 10, 30) = 30.
-        assert_eq!(sums, volume(&[[0, 50, 50], [5, 50, 30]]));
-        // The second pass adds; the selection over the sums moves pixel 1 to plane 0.
-        pass(&plan, &[], 1, 0, 1, false, &costs, &mut sums);
-        assert_eq!(sums, volume(&[[0, 100, 100], [10, 100, 60]]));
-        let mut state = vec![select::initial(); 2];
-        for st in &mut state {
-            st[0] = [0.0, 2.0, BIG, BIG];
-        }
-        select(&plan, &sums, &mut state);
-        assert_eq!(state[1][0], [10.0, 0.0, BIG, 100.0]);
-        // The rival away from the winner's neighbours is plane 2.
-        assert_eq!(state[1][1][0], 60.0);
+        let mut sums = vec![0u16; costs.len()];
+        pass(&plan, &[0, 0], &costs, true, &mut sums);
+        // Left to right, pixel 1: d0 = 5 + min(0, 50 + 10, 0 + 30) - 0 = 5; d1 = 40 + min(50,
+        // 0 + 10, 50 + 10, 30) = 50; d2 = 0 + min(50, 50 + 10, 30) = 30. The vertical path
+        // adds the pixel's own cost.
+        assert_eq!(real(&sums), [[0, 100, 100], [10, 90, 30]]);
+        // Right to left, pixel 0: d0 = 0 + min(5, 40 + 10, 0 + 30) - 0 = 5; d1 = 50 + min(40,
+        // 5 + 10, 0 + 10, 30) - 0 = 60; d2 = 50 + min(0, 40 + 10, 30) = 50.
+        pass(&plan, &[0, 0], &costs, false, &mut sums);
+        assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
+        let (mut forward, mut backward) = (Vec::new(), Vec::new());
+        run(&plan, &[0, 0], &costs, &mut forward, &mut backward);
+        let total: Vec<u16> = forward
+            .iter()
+            .zip(&backward)
+            .map(|(a, b)| a.wrapping_add(*b))
+            .collect();
+        assert_eq!(real(&total), [[5, 210, 200], [20, 170, 30]]);
+        let mut state = WtaState::new(2);
+        state.best.fill(0.0);
+        state.best_plane.fill(2.0);
+        select(&plan, &forward, &backward, &mut state);
+        // Pixel 1 moves to plane 0; its neighbour is plane 1, and plane 2 is the rival.
+        assert_eq!(state.best_plane, [0.0, 0.0]);
+        assert_eq!(
+            (state.best[1], state.after[1], state.rival[1]),
+            (20.0, 170.0, 30.0)
+        );
+        assert_eq!(state.before[1], BIG);
     }
 
     #[test]
     fn edge_step_lowers_p2() {
         let mut plan = plan();
         // Edge = 8 grey levels (x 16): a step of 8 halves P2 (30 -> 15).
-        plan.params.sgm[3] = 8 * 16;
-        let images = [0u32, 8];
+        plan.params.sgm_edge = 8 * 16;
         let costs = volume(&[[0, 50, 50], [50, 50, 0]]);
-        let mut sums = vec![0u32; costs.len()];
-        pass(&plan, &images, 1, 0, 1, true, &costs, &mut sums);
-        assert_eq!(sums[2] & 0xffff, 50);
-        assert_eq!(sums[3], 15);
+        let mut sums = vec![0u16; costs.len()];
+        pass(&plan, &[0, 8], &costs, true, &mut sums);
+        // Pixel 1, plane 2: 0 + min(50, 50 + 10, 0 + 15) = 15, plus its own vertical 0.
+        assert_eq!(real(&sums)[1], [100, 110, 15]);
     }
 }

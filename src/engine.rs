@@ -1,0 +1,196 @@
+//! Which engine runs the sweep: the WGSL engine on a wgpu adapter, or the CPU engine. `auto`
+//! takes a hardware GPU when wgpu offers one (an adapter that is not `DeviceType::Cpu`) and the
+//! CPU engine otherwise: on a machine without a GPU, the CPU engine is several times faster than
+//! the same shaders on Mesa's lavapipe (see README, Speed).
+
+use crate::geometry::Rig;
+use crate::gpu_context::{GpuContext, GpuContextError};
+use crate::image::Rgba8Image;
+use crate::sweep::cpu::CpuEngine;
+use crate::sweep::gpu::GpuEngine;
+use crate::sweep::{DepthMaps, StageTimings, SweepError, SweepParams};
+
+/// Which engine runs the sweep (`--device`, parameter `device`): this module.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Device {
+    /// A hardware GPU if wgpu offers one (not a CPU adapter such as lavapipe), else the CPU
+    /// engine.
+    #[default]
+    Auto,
+    /// The WGSL engine on the wgpu adapter (`WGPU_ADAPTER_NAME` / `WGPU_BACKEND` pick one;
+    /// lavapipe when there is no GPU).
+    Gpu,
+    /// The CPU engine.
+    Cpu,
+}
+
+impl std::str::FromStr for Device {
+    type Err = SweepError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "gpu" => Ok(Self::Gpu),
+            "cpu" => Ok(Self::Cpu),
+            other => Err(SweepError::InvalidParams(format!(
+                "device '{other}' is not one of auto, gpu, cpu"
+            ))),
+        }
+    }
+}
+
+
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    #[error(transparent)]
+    Gpu(#[from] GpuContextError),
+    #[error(transparent)]
+    Sweep(#[from] SweepError),
+}
+
+/// Runs the sweep; both engines and the wrapper implement it.
+pub trait Sweeper {
+    fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError>;
+}
+
+impl Sweeper for GpuEngine {
+    fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        GpuEngine::run(self, rig, images, params)
+    }
+}
+
+impl Sweeper for CpuEngine {
+    fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        CpuEngine::run(self, rig, images, params)
+    }
+}
+
+/// Whether the machine may have a GPU that wgpu can drive: a DRM render node or an NVIDIA
+/// device node. Without one, `auto` does not start wgpu at all, so nothing of Vulkan's (the
+/// lavapipe driver's "XDG_RUNTIME_DIR is invalid" line) reaches the log.
+fn gpu_device_nodes() -> bool {
+    let render = std::fs::read_dir("/dev/dri")
+        .map(|dir| {
+            dir.flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with("renderD"))
+        })
+        .unwrap_or(false);
+    render || std::path::Path::new("/dev/nvidiactl").exists() || cfg!(not(target_os = "linux"))
+}
+
+/// A hardware adapter, if wgpu offers one (not a CPU adapter such as lavapipe).
+fn hardware_gpu() -> Option<GpuContext> {
+    if !gpu_device_nodes() && std::env::var_os("WGPU_ADAPTER_NAME").is_none() {
+        return None;
+    }
+    let gpu = GpuContext::new().ok()?;
+    (gpu.adapter.get_info().device_type != wgpu::DeviceType::Cpu).then_some(gpu)
+}
+
+/// The engine a command runs: the WGSL engine with its device, or the CPU engine.
+// One engine per process: the size of the CPU variant does not matter.
+#[allow(clippy::large_enum_variant)]
+pub enum Engine {
+    Gpu {
+        gpu: Box<GpuContext>,
+        engine: Box<GpuEngine>,
+    },
+    Cpu(CpuEngine),
+}
+
+impl Engine {
+    /// The engine for `device` (`auto`: a hardware GPU, else the CPU engine).
+    pub fn new(device: Device) -> Result<Self, EngineError> {
+        let gpu = match device {
+            Device::Cpu => None,
+            Device::Gpu => Some(GpuContext::new()?),
+            Device::Auto => hardware_gpu(),
+        };
+        match gpu {
+            Some(gpu) => Self::on_gpu(gpu),
+            None => Ok(Self::Cpu(CpuEngine::new())),
+        }
+    }
+
+    /// The WGSL engine on a device the caller made.
+    pub fn on_gpu(gpu: GpuContext) -> Result<Self, EngineError> {
+        let engine = GpuEngine::new(&gpu.device, &gpu.queue)?;
+        Ok(Self::Gpu {
+            gpu: Box::new(gpu),
+            engine: Box::new(engine),
+        })
+    }
+
+    /// "WGSL engine on <adapter>" or "CPU engine (N threads)".
+    pub fn label(&self) -> String {
+        match self {
+            Self::Gpu { gpu, .. } => format!("WGSL engine on {}", gpu.adapter_label()),
+            Self::Cpu(cpu) => cpu.label(),
+        }
+    }
+
+    /// The wgpu device, for the WGSL engine.
+    pub fn gpu(&self) -> Option<&GpuContext> {
+        match self {
+            Self::Gpu { gpu, .. } => Some(gpu),
+            Self::Cpu(_) => None,
+        }
+    }
+
+    /// Per-stage times of the last frame set (GPU timestamps, or the CPU clock).
+    pub fn last_timings(&self) -> &StageTimings {
+        match self {
+            Self::Gpu { engine, .. } => engine.last_timings(),
+            Self::Cpu(cpu) => cpu.last_timings(),
+        }
+    }
+}
+
+impl Sweeper for Engine {
+    fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        match self {
+            Self::Gpu { engine, .. } => engine.run(rig, images, params),
+            Self::Cpu(cpu) => cpu.run(rig, images, params),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_names() {
+        assert_eq!("auto".parse::<Device>().ok(), Some(Device::Auto));
+        assert_eq!("cpu".parse::<Device>().ok(), Some(Device::Cpu));
+        assert_eq!("gpu".parse::<Device>().ok(), Some(Device::Gpu));
+        assert!("tpu".parse::<Device>().is_err());
+    }
+
+    #[test]
+    fn cpu_engine_is_labelled() {
+        let engine = Engine::new(Device::Cpu).expect("the CPU engine always exists");
+        assert!(engine.label().starts_with("CPU engine"));
+        assert!(engine.gpu().is_none());
+    }
+}

@@ -1,0 +1,148 @@
+//! One plane, top to bottom: the CPU's fused form of a batch's cost -> box_h -> box_v ->
+//! aggregate dispatches. Each reference row's costs are made once (`cost.rs`), summed along the
+//! row into a ring (`boxes.rs`), and every output row whose windows are complete is scored
+//! (`aggregate.rs`). The working set is a few rows, so it stays in cache; planes run in
+//! parallel.
+
+use super::aggregate::{RowScorer, Windows};
+use super::boxes::{box_h, RowRing};
+use super::common::{vectorised_fn, PlanarImage};
+use super::cost::{self, ColourRow, Mapping, ScoreAcc};
+use crate::sweep::gpu_types::*;
+use crate::sweep::plan::SweepPlan;
+
+/// Everything one worker needs to sweep planes; made once per worker and reused.
+pub struct PlaneScratch {
+    colours: Vec<ColourRow>,
+    pair_costs: Vec<Vec<f32>>,
+    channel_rows: Vec<Vec<f32>>,
+    score_acc: ScoreAcc,
+    pad: Vec<f32>,
+    pad_ones: Vec<f32>,
+    ring: RowRing,
+    scorer: RowScorer,
+}
+
+impl PlaneScratch {
+    pub fn new(plan: &SweepPlan) -> Self {
+        let p = &plan.params;
+        let width = p.width as usize;
+        let windows = Windows::of(plan);
+        let channels = p.channels as usize;
+        let per_pair = p.aggregation == AGG_PER_PAIR;
+        let best_n = if p.scoring == SCORING_BEST_N {
+            p.best_n as usize
+        } else {
+            0
+        };
+        Self {
+            colours: (0..p.cameras).map(|_| cost::colour_row(width)).collect(),
+            pair_costs: (0..plan.pairs.len()).map(|_| vec![0.0; width]).collect(),
+            channel_rows: (0..if per_pair { 0 } else { channels })
+                .map(|_| vec![0.0; width])
+                .collect(),
+            score_acc: ScoreAcc::new(width, best_n),
+            pad: vec![0.0; width + 2 * windows.w],
+            pad_ones: vec![0.0; width + 2 * windows.w],
+            ring: RowRing::new(channels, 2 * windows.h, width + windows.w - 1),
+            scorer: RowScorer::new(plan),
+        }
+    }
+}
+
+/// The camera images of a frame set as the CPU stages read them.
+pub struct FrameImages {
+    /// Planar colours per rig camera.
+    pub planar: Vec<PlanarImage>,
+}
+
+vectorised_fn! {
+/// Sweeps plane `k`: the best placement's score and selection code of every reference pixel
+/// into `score` and `sel` (the `best` argument of `select_plane`).
+pub fn sweep_plane(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    mappings: &[Mapping],
+    k: usize,
+    scratch: &mut PlaneScratch,
+    score: &mut [f32],
+    sel: &mut [u8],
+) {
+    let p = &plan.params;
+    let (width, height) = (p.width as usize, p.height as usize);
+    let windows = Windows::of(plan);
+    let (_, down) = windows.reach();
+    let mut next_row = 0;
+    for y in 0..height {
+        let needed = (y + down + 1).min(height);
+        while next_row < needed {
+            cost_row(plan, images, mappings, k, next_row, scratch);
+            next_row += 1;
+        }
+        let at = y * width;
+        scratch.scorer.score_row(
+            plan,
+            &scratch.ring,
+            y,
+            height,
+            &mut score[at..at + width],
+            &mut sel[at..at + width],
+        );
+    }
+}
+}
+
+/// Costs of reference row `y` on plane `k` into the ring: every camera's colours, the pair
+/// TSSDs, the channels, their horizontal window sums.
+#[inline(always)]
+fn cost_row(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    mappings: &[Mapping],
+    k: usize,
+    y: usize,
+    s: &mut PlaneScratch,
+) {
+    let p = &plan.params;
+    let width = p.width as usize;
+    let reference = p.reference;
+    // Every camera's colours along the row: the reference's own texels (read in place), the
+    // others sampled.
+    for (i, cam) in plan.cameras.iter().enumerate() {
+        if i as u32 != reference {
+            cost::sample_row(
+                plan,
+                &images.planar[i],
+                cam,
+                mappings[i],
+                k,
+                y,
+                &mut s.colours[i],
+            );
+        }
+    }
+    let colours = &s.colours;
+    let row = |i: usize| -> [&[f32]; 3] {
+        if i as u32 == reference {
+            let image = &images.planar[i];
+            let at = y * image.width;
+            std::array::from_fn(|c| &image.channels[c][at..at + width])
+        } else {
+            std::array::from_fn(|c| colours[i][c].as_slice())
+        }
+    };
+    for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
+        cost::pair_cost_row(p.tau, row(pair[0] as usize), row(pair[1] as usize), costs);
+    }
+    let w = p.window_w as usize;
+    let rows: &[Vec<f32>] = if p.aggregation == AGG_PER_PAIR {
+        &s.pair_costs
+    } else {
+        cost::scored_channels(plan, &s.pair_costs, &mut s.score_acc, &mut s.channel_rows);
+        &s.channel_rows
+    };
+    for (ch, costs) in rows.iter().enumerate() {
+        let (sums, counts) = s.ring.row_mut(ch, y);
+        box_h(costs, w, &mut s.pad, &mut s.pad_ones, sums, counts);
+    }
+}
