@@ -4,7 +4,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sweepdepth::geometry::{camera_info_image_size, check_image_size, CameraModel};
+use sweepdepth::geometry::CameraModel;
+use sweepdepth::ros::camera_info::{camera_info_image_size, check_image_size};
 use sweepdepth::msgs::{from_cdr, CameraInfo};
 
 fuzz_target!(|data: &[u8]| {

@@ -7,10 +7,9 @@
 //! the set cannot be processed yet. [`process_job`] runs a job through the engine and builds the
 //! output messages ([`FrameOutputs`]); the caller publishes or records them.
 
-use crate::geometry::{
-    check_image_size, CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform,
-};
+use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
+use crate::ros::camera_info::check_image_size;
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
 use crate::ros::tf::TfBuffer;
 use crate::sweep::gpu::GpuEngine;

@@ -2,6 +2,7 @@
 //! line / parameter handling. The node itself (over `ros2-client`) builds on these.
 
 pub mod args;
+pub mod camera_info;
 pub mod rig_file;
 pub mod sync;
 pub mod tf;
