@@ -5,6 +5,40 @@ use serde::{Deserialize, Serialize};
 
 use super::GeometryError;
 
+/// tf2's tolerance on the squared norm of a quaternion (`QUATERNION_NORMALIZATION_TOLERANCE`
+/// in tf2's `buffer_core.cpp`, `BufferCore::setTransformImpl`): a rotation is accepted when
+/// `|x² + y² + z² + w² - 1| < 0.01`. A hand-typed `(0.71, 0, 0, 0.71)` (squared norm 1.0082)
+/// passes; `(0, 0, 0, 1.1)` (1.21) does not.
+pub const QUATERNION_NORM_SQUARED_TOLERANCE: f64 = 0.01;
+
+/// Why a quaternion is not a rotation.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum QuaternionError {
+    #[error("quaternion has a NaN or infinite component")]
+    NotFinite,
+    #[error(
+        "quaternion is not unit length (x² + y² + z² + w² = {norm_squared}; tf2 accepts \
+         |x² + y² + z² + w² - 1| < {QUATERNION_NORM_SQUARED_TOLERANCE})"
+    )]
+    NotUnit { norm_squared: f64 },
+}
+
+/// The rotation of a quaternion as tf2 accepts it: finite, with
+/// `|x² + y² + z² + w² - 1| <` [`QUATERNION_NORM_SQUARED_TOLERANCE`]; returned normalised.
+/// (tf2 refuses NaN but not infinity; an infinite component is refused here too.)
+pub fn unit_quaternion(q: DQuat) -> Result<DQuat, QuaternionError> {
+    if !q.is_finite() {
+        return Err(QuaternionError::NotFinite);
+    }
+    let norm_squared = q.length_squared();
+    // Written as tf2 writes it, so that NaN-free values on the boundary fall the same way.
+    if (norm_squared - 1.0).abs() < QUATERNION_NORM_SQUARED_TOLERANCE {
+        Ok(q / norm_squared.sqrt())
+    } else {
+        Err(QuaternionError::NotUnit { norm_squared })
+    }
+}
+
 /// A rigid transform `a_from_b`: `point_in_a = rotation * point_in_b + translation`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RigidTransform {
@@ -24,31 +58,25 @@ impl RigidTransform {
         translation: DVec3::ZERO,
     };
 
-    /// From a quaternion that must be finite and of unit length (within 1e-3, as tf2 checks),
-    /// and a finite translation. The quaternion is renormalised.
+    /// From a quaternion accepted by tf2's rule ([`unit_quaternion`]: finite, and
+    /// |x² + y² + z² + w² - 1| < 0.01), which is then normalised, and a finite translation.
     pub fn from_quat_translation(
         frame: &str,
         rotation: DQuat,
         translation: DVec3,
     ) -> Result<Self, GeometryError> {
-        let bad = |reason: &str| GeometryError::InvalidPose {
+        let bad = |reason: String| GeometryError::InvalidPose {
             frame: frame.to_string(),
-            reason: reason.to_string(),
+            reason,
         };
-        if !rotation.is_finite() {
-            return Err(bad("quaternion has a NaN or infinite component"));
-        }
+        let rotation = unit_quaternion(rotation).map_err(|e| bad(e.to_string()))?;
         if !translation.is_finite() {
-            return Err(bad("translation has a NaN or infinite component"));
-        }
-        let norm = rotation.length();
-        if (norm - 1.0).abs() > 1e-3 {
-            return Err(bad(&format!(
-                "quaternion is not unit length (|q| = {norm})"
-            )));
+            return Err(bad(
+                "translation has a NaN or infinite component".to_string()
+            ));
         }
         Ok(Self {
-            rotation: rotation / norm,
+            rotation,
             translation,
         })
     }
@@ -142,5 +170,28 @@ mod tests {
             DVec3::ZERO
         )
         .is_err());
+    }
+
+    #[test]
+    fn quaternions_follow_tf2s_tolerance_and_are_normalised() {
+        // A hand-typed 90 degrees about x, as `static_transform_publisher` users type it.
+        let q = unit_quaternion(DQuat::from_xyzw(0.71, 0.0, 0.0, 0.71)).unwrap();
+        assert!((q.length() - 1.0).abs() < 1e-15);
+        let p = q * DVec3::Y;
+        assert!((p - DVec3::Z).length() < 1e-12, "{p}");
+        // Inside / outside the squared-norm tolerance of 0.01 (|q| = 1.004987 / 1.005038).
+        assert!(unit_quaternion(DQuat::from_xyzw(0.0, 0.0, 0.0, 1.004987)).is_ok());
+        let e = unit_quaternion(DQuat::from_xyzw(0.0, 0.0, 0.0, 1.005038)).unwrap_err();
+        assert!(matches!(e, QuaternionError::NotUnit { .. }), "{e}");
+        assert!(e.to_string().contains("not unit length"), "{e}");
+        assert!(unit_quaternion(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.995)).is_ok());
+        assert!(unit_quaternion(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.994)).is_err());
+        assert!(unit_quaternion(DQuat::from_xyzw(0.0, 0.0, 0.0, 0.0)).is_err());
+        for bad in [f64::NAN, f64::INFINITY] {
+            assert_eq!(
+                unit_quaternion(DQuat::from_xyzw(bad, 0.0, 0.0, 1.0)),
+                Err(QuaternionError::NotFinite)
+            );
+        }
     }
 }

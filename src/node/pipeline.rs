@@ -11,7 +11,7 @@ use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera,
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
 use crate::ros::camera_info::check_image_size;
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
-use crate::ros::tf::TfBuffer;
+use crate::ros::tf::{TfBuffer, TfError};
 use crate::sweep::gpu::GpuEngine;
 use crate::sweep::SweepParams;
 
@@ -349,11 +349,11 @@ impl<'a> Pipeline<'a> {
                     .lookup(&image.header.frame_id, &ref_frame)
                     .map_err(|e| {
                         let frame = &image.header.frame_id;
-                        Skip::new(
-                            "waiting for transform",
+                        tf_skip(
+                            &e,
                             format!("tf{i}"),
                             format!(
-                                "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}'): {e}"
+                                "the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}')"
                             ),
                         )
                     })?,
@@ -371,11 +371,11 @@ impl<'a> Pipeline<'a> {
             let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
                 self.tf.lookup(&v.frame_id, &ref_frame).map_err(|e| {
                     let frame = &v.frame_id;
-                    Skip::new(
-                        "waiting for transform",
+                    tf_skip(
+                        &e,
                         "tf_virtual".into(),
                         format!(
-                            "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id): {e}"
+                            "the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id)"
                         ),
                     )
                 })?
@@ -406,6 +406,24 @@ impl<'a> Pipeline<'a> {
             virtual_ref,
             ref_info,
         })
+    }
+}
+
+/// The skip for a failed transform lookup: "waiting for transform" while the tree may still
+/// bring it, "frame_id" when tf2 would refuse the lookup itself (an empty id, or one starting
+/// with '/'), which no `/tf_static` can cure.
+fn tf_skip(e: &TfError, key: String, what: String) -> Skip {
+    match e {
+        TfError::InvalidLookupFrame { .. } => Skip::new(
+            "frame_id",
+            key,
+            format!("cannot look up {what}: {e} (publish frame ids as tf2 wants them)"),
+        ),
+        _ => Skip::new(
+            "waiting for transform",
+            key,
+            format!("waiting for {what}: {e}"),
+        ),
     }
 }
 

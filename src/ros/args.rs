@@ -1057,7 +1057,7 @@ impl ParamSet {
     }
 
     /// `virtual_pose` checked: 7 finite numbers `[x, y, z, qx, qy, qz, qw]` with a unit
-    /// quaternion (within 1e-3, as tf2 checks).
+    /// quaternion by tf2's rule (`geometry::pose::unit_quaternion`).
     pub fn virtual_pose(&self) -> Result<[f64; 7], String> {
         let v = self
             .get("virtual_pose")
@@ -1072,12 +1072,10 @@ impl ParamSet {
         if pose.iter().any(|x| !x.is_finite()) {
             return Err("parameter 'virtual_pose' has a NaN or infinite value".into());
         }
-        let norm = pose[3..].iter().map(|q| q * q).sum::<f64>().sqrt();
-        if (norm - 1.0).abs() > 1e-3 {
-            return Err(format!(
-                "parameter 'virtual_pose': the quaternion [qx, qy, qz, qw] is not unit length (|q| = {norm})"
-            ));
-        }
+        crate::geometry::pose::unit_quaternion(glam::DQuat::from_xyzw(
+            pose[3], pose[4], pose[5], pose[6],
+        ))
+        .map_err(|e| format!("parameter 'virtual_pose': [qx, qy, qz, qw]: {e}"))?;
         Ok(pose)
     }
 
