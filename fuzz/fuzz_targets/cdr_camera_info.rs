@@ -25,7 +25,8 @@ fuzz_target!(|data: &[u8]| {
     assert_eq!((k.width_px, k.height_px), (width, height));
     assert!(check_image_size("fuzz", &info, width, height).is_ok());
     let centre = glam::DVec2::new(f64::from(width) / 2.0, f64::from(height) / 2.0);
-    let ray = model.unproject_z1(centre);
-    let _ = model.project(ray);
+    if let Some(ray) = model.unproject_z1(centre) {
+        let _ = model.project(ray);
+    }
     let _ = model.contains(centre);
 });

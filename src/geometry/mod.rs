@@ -50,6 +50,20 @@ pub enum GeometryError {
         expected_height: u32,
         explanation: String,
     },
+    #[error(
+        "camera '{camera}': the {model} distortion {coefficients:?} folds over {fold_deg:.1} \
+         degrees off axis (distorted radius {fold_radius:.4}), inside the image, which reaches \
+         {image_radius:.4}: pixels beyond the fold have no ray, and rays beyond it would land \
+         back in the image; the calibration does not hold over the whole image"
+    )]
+    DistortionFolds {
+        camera: String,
+        model: &'static str,
+        coefficients: Vec<f64>,
+        fold_deg: f64,
+        fold_radius: f64,
+        image_radius: f64,
+    },
     #[error("pose of '{frame}' is not a rigid transform: {reason}")]
     InvalidPose { frame: String, reason: String },
     #[error("rig: {0}")]

@@ -49,7 +49,7 @@ impl Rig {
             )));
         }
         for camera in &cameras {
-            camera.model.intrinsics.validate(&camera.name)?;
+            camera.model.validate(&camera.name)?;
         }
         match &reference {
             Reference::Camera(i) if *i >= cameras.len() => {
@@ -58,7 +58,7 @@ impl Rig {
                     cameras.len()
                 )));
             }
-            Reference::Virtual { model, .. } => model.intrinsics.validate("virtual reference")?,
+            Reference::Virtual { model, .. } => model.validate("virtual reference")?,
             _ => {}
         }
         Ok(Self { cameras, reference })

@@ -211,12 +211,15 @@ pub fn point_cloud_msg(
     for (i, &z) in depth.data.iter().enumerate() {
         let u = (i % width.max(1) as usize) as f64;
         let v = (i / width.max(1) as usize) as f64;
-        let [x, y, z] = if z.is_finite() && z > 0.0 {
-            let ray = model.unproject_z1(DVec2::new(u, v));
-            let z64 = f64::from(z);
-            [(ray.x * z64) as f32, (ray.y * z64) as f32, z]
-        } else {
-            [f32::NAN; 3]
+        let ray = (z.is_finite() && z > 0.0)
+            .then(|| model.unproject_z1(DVec2::new(u, v)))
+            .flatten();
+        let [x, y, z] = match ray {
+            Some(ray) => {
+                let z64 = f64::from(z);
+                [(ray.x * z64) as f32, (ray.y * z64) as f32, z]
+            }
+            None => [f32::NAN; 3],
         };
         let [r, g, b, _] = colour.map_or([0; 4], |c| Rgba8Image::unpack(c.pixels[i]));
         for value in [x, y, z, pack_rgb_f32(r, g, b)] {

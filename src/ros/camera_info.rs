@@ -4,6 +4,74 @@
 use crate::geometry::{CameraModel, Distortion, GeometryError, PinholeIntrinsics};
 use crate::msgs::CameraInfo;
 
+impl Distortion {
+    /// Parses a ROS `distortion_model` + `D`.
+    pub fn from_ros(camera: &str, model: &str, d: &[f64]) -> Result<Self, GeometryError> {
+        let all_zero = d.iter().all(|&v| v == 0.0);
+        let need = |expected: usize| {
+            if d.len() < expected {
+                Err(GeometryError::DistortionCoefficients {
+                    camera: camera.to_string(),
+                    model: model.to_string(),
+                    expected,
+                    got: d.len(),
+                })
+            } else {
+                Ok(())
+            }
+        };
+        match model {
+            "" | "none" if all_zero => Ok(Distortion::None),
+            "plumb_bob" | "rational_polynomial" => {
+                if all_zero {
+                    return Ok(Distortion::None);
+                }
+                need(5)?;
+                if d.iter().skip(5).any(|&v| v != 0.0) {
+                    let model = if model == "rational_polynomial" {
+                        "rational_polynomial with non-zero k4..k6".to_string()
+                    } else {
+                        format!("plumb_bob with {} coefficients (it has 5)", d.len())
+                    };
+                    return Err(GeometryError::UnsupportedDistortion {
+                        camera: camera.to_string(),
+                        model,
+                    });
+                }
+                Ok(Distortion::PlumbBob {
+                    k1: d[0],
+                    k2: d[1],
+                    p1: d[2],
+                    p2: d[3],
+                    k3: d[4],
+                })
+            }
+            "equidistant" | "fisheye" => {
+                if all_zero {
+                    return Ok(Distortion::None);
+                }
+                need(4)?;
+                if d.iter().skip(4).any(|&v| v != 0.0) {
+                    return Err(GeometryError::UnsupportedDistortion {
+                        camera: camera.to_string(),
+                        model: format!("{model} with {} coefficients (it has 4)", d.len()),
+                    });
+                }
+                Ok(Distortion::Equidistant {
+                    k1: d[0],
+                    k2: d[1],
+                    k3: d[2],
+                    k4: d[3],
+                })
+            }
+            other => Err(GeometryError::UnsupportedDistortion {
+                camera: camera.to_string(),
+                model: other.to_string(),
+            }),
+        }
+    }
+}
+
 impl CameraModel {
     /// Builds the model from a ROS `sensor_msgs/CameraInfo`.
     ///
@@ -84,11 +152,12 @@ impl CameraModel {
             cx_px: (cx - x_offset + 0.5) / binning_x - 0.5,
             cy_px: (cy - y_offset + 0.5) / binning_y - 0.5,
         };
-        intrinsics.validate(camera)?;
-        Ok(Self {
+        let model = Self {
             intrinsics,
             distortion,
-        })
+        };
+        model.validate(camera)?;
+        Ok(model)
     }
 }
 
@@ -195,7 +264,7 @@ mod tests {
         assert_eq!(m.intrinsics.fx_px, 245.0);
         // A full-resolution point at pixel (321 + 10, 241) sits at ((331 - 100 + 0.5) / 2 - 0.5).
         let full = CameraModel::from_camera_info("c", &info()).unwrap();
-        let point = full.unproject_z1(DVec2::new(331.0, 241.0)) * 2.0;
+        let point = full.unproject_z1(DVec2::new(331.0, 241.0)).unwrap() * 2.0;
         let px = m.project(point).unwrap();
         assert!((px.x - ((331.0 - 100.0 + 0.5) / 2.0 - 0.5)).abs() < 1e-9);
         assert!((px.y - ((241.0 - 40.0 + 0.5) / 2.0 - 0.5)).abs() < 1e-9);

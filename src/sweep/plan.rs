@@ -111,8 +111,10 @@ impl SweepPlan {
         let mut rays = Vec::with_capacity(width as usize * height as usize);
         for y in 0..height {
             for x in 0..width {
+                // A pixel without a ray (a fisheye's beyond 90 degrees) gets the zero ray: no
+                // plane is in front along it, so it stays invalid in every stage.
                 let ray = ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y)));
-                rays.push([ray.x as f32, ray.y as f32, 1.0, 0.0]);
+                rays.push(ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]));
             }
         }
 
