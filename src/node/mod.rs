@@ -47,6 +47,7 @@ use crate::ros::args::{
     apply_to_sweep, parse_ros_args, NodeIdentity, ParamSet, ParamValue, RosArgs, RosArgsError,
     DEFAULT_NODE_NAME,
 };
+use crate::ros::camera_info::ImageKind;
 use crate::ros::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
 use crate::sweep::SweepParams;
@@ -179,6 +180,9 @@ pub struct NodeConfig {
     pub reference: usize,
     /// Fully qualified (remapped) topic names, per camera.
     pub image_topics: Vec<String>,
+    /// What each camera's image topic carries, raw or rectified (`image_kinds`, else the
+    /// topic's name): which part of its CameraInfo describes it.
+    pub image_kinds: Vec<ImageKind>,
     pub info_topics: Vec<String>,
     /// Fully qualified output topic names: depth, depth info, confidence, cost, selection.
     pub output_topics: [String; 5],
@@ -253,6 +257,7 @@ impl NodeConfig {
             image_topics.push(resolve(&format!("{camera}/{image_topic}"))?);
             info_topics.push(resolve(&format!("{camera}/camera_info"))?);
         }
+        let image_kinds = image_kinds(&params, &cameras, &image_topics, &mut notes)?;
         let output_topics = [
             resolve("depth/image")?,
             resolve("depth/camera_info")?,
@@ -326,6 +331,7 @@ impl NodeConfig {
             cameras,
             reference,
             image_topics,
+            image_kinds,
             info_topics,
             output_topics,
             points_topic,
@@ -371,6 +377,42 @@ impl NodeConfig {
             reset_backwards_ns: ns("sync_reset_backwards")?,
         })
     }
+}
+
+/// Each camera's [`ImageKind`]: `image_kinds` (one entry per camera, `raw`, `rect` or `auto`),
+/// else (empty, or `auto`) the name of its resolved image topic; a name that says neither is
+/// taken as raw, with a note.
+fn image_kinds(
+    params: &ParamSet,
+    cameras: &[String],
+    image_topics: &[String],
+    notes: &mut Vec<String>,
+) -> Result<Vec<ImageKind>, NodeError> {
+    let declared = params
+        .get_string_array("image_kinds")
+        .map_err(NodeError::Param)?;
+    if !declared.is_empty() && declared.len() != cameras.len() {
+        return Err(NodeError::Param(format!(
+            "parameter 'image_kinds' has {} entries but 'cameras' has {}: give one (raw, rect or auto) per camera, or none",
+            declared.len(),
+            cameras.len()
+        )));
+    }
+    let mut kinds = Vec::with_capacity(cameras.len());
+    for (i, (camera, topic)) in cameras.iter().zip(image_topics).enumerate() {
+        let declared = declared.get(i).map(String::as_str).unwrap_or("auto");
+        let kind = match ImageKind::parse(declared) {
+            Some(kind) => kind,
+            None => ImageKind::from_topic(topic).unwrap_or_else(|| {
+                notes.push(format!(
+                    "camera '{camera}': the name of its image topic '{topic}' says neither raw (image_raw, image, image_color) nor rectified (image_rect*): its images are taken as raw (described by K and D); set image_kinds to say otherwise"
+                ));
+                ImageKind::Raw
+            }),
+        };
+        kinds.push(kind);
+    }
+    Ok(kinds)
 }
 
 /// The node's `/rosout` writer and logger name (`ns.name`) once DDS is up.

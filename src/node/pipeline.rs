@@ -9,7 +9,7 @@
 
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2, TFMessage};
-use crate::ros::camera_info::check_image_size;
+use crate::ros::camera_info::{camera_from_info, check_image_size, CameraCalibration, ImageKind};
 use crate::ros::sync::{SyncError, SyncStats, SyncedSet, Synchronizer};
 use crate::ros::tf::{TfBuffer, TfError};
 use crate::sweep::gpu::GpuEngine;
@@ -29,6 +29,10 @@ pub struct Job {
     pub virtual_ref: Option<(CameraModel, RigidTransform, String)>,
     /// The CameraInfo of the outputs (the reference camera's, or the virtual one's).
     pub ref_info: CameraInfo,
+    /// The reference camera (the one its model describes: rotated by R for a rectified image)
+    /// in the frame its image's `header.frame_id` names; the points are published in that
+    /// frame. Identity for a raw image and for a virtual reference.
+    pub ref_cam_from_frame: RigidTransform,
 }
 
 /// Why a set or a message was not processed. `kind` is a short stable category (used to count
@@ -299,14 +303,19 @@ impl<'a> Pipeline<'a> {
             .map(|m| m.header.frame_id.clone())
             .unwrap_or_default();
         let mut cameras = Vec::with_capacity(set.messages.len());
+        // The reference camera's image frame, in the rig, and its camera in that frame.
+        let mut ref_frame_from_rig = RigidTransform::IDENTITY;
+        let mut ref_cam_from_frame = RigidTransform::IDENTITY;
         for (k, image) in set.messages.iter().enumerate() {
             let i = self.active.get(k).copied().unwrap_or(k);
             let name = &config.cameras[i];
             let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
-            let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
-                (Some(info), _) => CameraModel::from_camera_info(name, info)
-                    .and_then(|model| {
-                        check_image_size(name, info, image.width, image.height).map(|()| model)
+            let kind = config.image_kinds.get(i).copied().unwrap_or(ImageKind::Raw);
+            let calibration = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
+                (Some(info), _) => camera_from_info(name, info, kind)
+                    .and_then(|calibration| {
+                        check_image_size(name, info, image.width, image.height)
+                            .map(|()| calibration)
                     })
                     .map_err(|e| Skip::new("camera_info", format!("model{i}"), e.to_string()))?,
                 (None, Some(model)) => {
@@ -321,7 +330,7 @@ impl<'a> Pipeline<'a> {
                             ),
                         ));
                     }
-                    model
+                    CameraCalibration::unrectified(model)
                 }
                 (None, None) => {
                     let topic = &config.info_topics[i];
@@ -332,7 +341,7 @@ impl<'a> Pipeline<'a> {
                     ));
                 }
             };
-            let cam_from_rig = match (&config.rig_file, file_camera) {
+            let frame_from_rig = match (&config.rig_file, file_camera) {
                 (Some(_), Some(c)) => c.cam_from_rig,
                 (Some(path), None) => {
                     return Err(Skip::new(
@@ -358,16 +367,32 @@ impl<'a> Pipeline<'a> {
                         )
                     })?,
             };
+            // A rectified image's camera is its frame rotated by R, moved by P's translation
+            // when the frame is shared with another camera (see `cam_from_frame`); with a rig
+            // file every camera has a pose of its own.
+            let frame_shared = config.rig_file.is_none()
+                && set
+                    .messages
+                    .iter()
+                    .enumerate()
+                    .any(|(other, m)| other != k && m.header.frame_id == image.header.frame_id);
+            let cam_from_frame = calibration.cam_from_frame(frame_shared);
+            if k == reference {
+                ref_frame_from_rig = frame_from_rig;
+                ref_cam_from_frame = cam_from_frame;
+            }
             cameras.push(RigCamera {
                 name: name.clone(),
-                model,
-                cam_from_rig,
+                model: calibration.model,
+                cam_from_rig: cam_from_frame.compose(&frame_from_rig),
             });
         }
         let mut virtual_ref = None;
         let ref_info = if let Some(v) = &config.virtual_ref {
             let intrinsics = v.intrinsics(&cameras[reference].model.intrinsics);
-            let ref_from_rig = cameras[reference].cam_from_rig;
+            // The virtual camera is placed relative to the reference's frame (tf, or
+            // virtual_pose), not to its rectified camera.
+            let ref_from_rig = ref_frame_from_rig;
             let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
                 self.tf.lookup(&v.frame_id, &ref_frame).map_err(|e| {
                     let frame = &v.frame_id;
@@ -399,12 +424,17 @@ impl<'a> Pipeline<'a> {
                 None => intrinsics_info(&cameras[reference].model.intrinsics),
             }
         };
+        // A virtual camera's points are in its own frame.
+        if virtual_ref.is_some() {
+            ref_cam_from_frame = RigidTransform::IDENTITY;
+        }
         Ok(Job {
             images: set.messages,
             cameras,
             reference,
             virtual_ref,
             ref_info,
+            ref_cam_from_frame,
         })
     }
 }
@@ -585,8 +615,15 @@ pub fn process_job(
         .map_err(|e| Skip::new("engine", "engine".into(), format!("sweep failed: {e}")))?;
     let mut depth_info = job.ref_info.clone();
     depth_info.header = header.clone();
-    let points = with_points
-        .then(|| point_cloud_msg(&header, &maps.depth_m, colour, &rig.reference_model()));
+    let points = with_points.then(|| {
+        point_cloud_msg(
+            &header,
+            &maps.depth_m,
+            colour,
+            &rig.reference_model(),
+            &job.ref_cam_from_frame.inverse(),
+        )
+    });
     Ok(FrameOutputs {
         depth: f32_image_msg(&header, &maps.depth_m),
         depth_info,

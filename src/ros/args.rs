@@ -349,6 +349,8 @@ pub enum ParamRange {
     NameList {
         min_len: usize,
     },
+    /// A list whose every entry is one of these strings.
+    EachOneOf(&'static [&'static str]),
 }
 
 impl ParamRange {
@@ -395,6 +397,7 @@ impl ParamRange {
             ParamRange::RelativeName => "relative ROS name".into(),
             ParamRange::OptionalName => "empty or a ROS name".into(),
             ParamRange::NameList { min_len } => format!(">= {min_len} distinct ROS names"),
+            ParamRange::EachOneOf(values) => format!("each {}", values.join(" | ")),
         }
     }
 }
@@ -629,6 +632,12 @@ static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
             s("image_raw"),
             ParamRange::RelativeName,
             "Image topic under each camera namespace.",
+        ),
+        node_spec(
+            "image_kinds",
+            ParamValue::StringArray(Vec::new()),
+            ParamRange::EachOneOf(&["raw", "rect", "auto"]),
+            "Per camera (in the order of cameras), what its image topic carries: raw (described by the CameraInfo's K and D) or rect (rectified: P, in the frame rotated by R); auto or an empty list = from the topic's name (image_raw, image, image_color: raw; image_rect*: rect; any other name: raw, with a note at start-up).",
         ),
         node_spec(
             "reference_camera",
@@ -923,6 +932,15 @@ fn check_range(spec: &ParamSpec, value: &ParamValue) -> Result<(), String> {
                 }
             }
             Ok(())
+        }
+        (ParamRange::EachOneOf(allowed), ParamValue::StringArray(values)) => {
+            match values.iter().find(|v| !allowed.contains(&v.as_str())) {
+                None => Ok(()),
+                Some(v) => Err(format!(
+                    "'{v}' is not one of the allowed values: {}",
+                    allowed.join(", ")
+                )),
+            }
         }
         (range, v) => Err(format!(
             "internal: range {range:?} does not apply to a {}",
