@@ -59,17 +59,26 @@ impl SweepPlan {
             let r = cam_from_ref.rotation_matrix();
             let t = cam_from_ref.translation;
             let k = &camera.model.intrinsics;
+            // The end of the model's monotonic branch, as (x/z)² + (y/z)² (f32::MAX: none).
+            let branch_r2 = {
+                let r = camera.model.distortion.max_undistorted_radius();
+                if r.is_finite() {
+                    (r * r) as f32
+                } else {
+                    f32::MAX
+                }
+            };
             let (model, dist_a, dist_b) = match camera.model.distortion {
-                Distortion::None => (DIST_NONE, [0.0; 4], [0.0; 4]),
+                Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
                 Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
                     DIST_PLUMB_BOB,
                     [k1 as f32, k2 as f32, p1 as f32, p2 as f32],
-                    [k3 as f32, 0.0, 0.0, 0.0],
+                    [k3 as f32, branch_r2, 0.0, 0.0],
                 ),
                 Distortion::Equidistant { k1, k2, k3, k4 } => (
                     DIST_EQUIDISTANT,
                     [k1 as f32, k2 as f32, k3 as f32, k4 as f32],
-                    [0.0; 4],
+                    [0.0, branch_r2, 0.0, 0.0],
                 ),
             };
             let half = match split[i] {
