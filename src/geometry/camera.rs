@@ -90,14 +90,16 @@ impl CameraModel {
     /// `fisheye::projectPoints`); `None` if it is not in front, or lies past the distortion
     /// model's fold (where the model would wrongly bring it back into the image).
     pub fn project(&self, point_in_cam: DVec3) -> Option<DVec2> {
-        if !(point_in_cam.z > 1e-9) {
+        // (NaN fails the test too.)
+        if point_in_cam.z.is_nan() || point_in_cam.z <= 1e-9 {
             return None;
         }
         let normalised = DVec2::new(
             point_in_cam.x / point_in_cam.z,
             point_in_cam.y / point_in_cam.z,
         );
-        if !(normalised.length() <= self.distortion.max_undistorted_radius()) {
+        let r = normalised.length();
+        if r.is_nan() || r > self.distortion.max_undistorted_radius() {
             return None;
         }
         let d = self.distortion.distort(normalised);
