@@ -153,7 +153,9 @@ pub fn camera_from_info(
     let k_is_set = info.k.iter().any(|&v| v != 0.0);
     let p_is_set = info.p.iter().any(|&v| v != 0.0);
     if !k_is_set && !p_is_set {
-        return Err(bad("both K and P are all zero (uncalibrated camera)".to_string()));
+        return Err(bad(
+            "both K and P are all zero (uncalibrated camera)".to_string()
+        ));
     }
     // fx, fy, cx, cy of the full-resolution image, and the rest of the calibration. (P's
     // Tx / fx' and Ty / fy' do not change with binning, which scales Tx with fx'.)
