@@ -6,7 +6,8 @@
 #   private network namespace so that no DDS traffic leaves the machine;
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
 #   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
-#   tests/bag.rs): the system Python when it already has them, else a virtual environment at
+#   tests/bag.rs; `opencv-python-headless`, the camera-model reference of
+#   tests/camera_conventions.rs): the system Python when it already has them, else a virtual environment at
 #   target/test-venv (Debian's Python refuses global pip installs).
 # Run it from the repository root.
 set -eu
@@ -29,12 +30,12 @@ command -v ip >/dev/null 2>&1 || packages="$packages iproute2"
 command -v unshare >/dev/null 2>&1 || packages="$packages util-linux"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
-PY_CHECK='import cyclonedds, rosbags, mcap'
+PY_CHECK='import cyclonedds, rosbags, mcap, cv2'
 install_python_tools() {
     python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
     [ -x target/test-venv/bin/python3 ] &&
         target/test-venv/bin/python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
-    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap) into target/test-venv ..." >&2
+    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless) into target/test-venv ..." >&2
     python3 -m venv target/test-venv &&
         target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt
 }

@@ -52,7 +52,7 @@ struct Camera {
     row2: vec4<f32>,
     intrinsics: vec4<f32>,   // fx, fy, cx, cy (pixels)
     dist_a: vec4<f32>,       // plumb_bob: k1 k2 p1 p2; equidistant: k1 k2 k3 k4
-    dist_b: vec4<f32>,       // plumb_bob: k3 in x
+    dist_b: vec4<f32>,       // plumb_bob: k3 in x; both: y = the largest (x/z)² + (y/z)² of the model's monotonic branch
     size: vec4<u32>,         // width, height, offset of pixel (0,0) in the image buffer, distortion model
     info: vec4<u32>,         // half (HALF_*), is_reference, 0, 0
 }
@@ -147,6 +147,10 @@ fn project_in_cam(cam: Camera, p: vec3<f32>) -> vec3<f32> {
     }
     var n = p.xy / p.z;
     let model = select(DIST_NONE, cam.size.w, DISTORTED);
+    // Past the distortion model's fold the point would land back in the image: not seen.
+    if (model != DIST_NONE && dot(n, n) > cam.dist_b.y) {
+        return vec3<f32>(0.0, 0.0, -1.0);
+    }
     if (model == DIST_PLUMB_BOB) {
         let r2 = dot(n, n);
         let radial = 1.0 + r2 * (cam.dist_a.x + r2 * (cam.dist_a.y + r2 * cam.dist_b.x));

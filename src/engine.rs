@@ -11,7 +11,17 @@ use crate::sweep::gpu::GpuEngine;
 use crate::sweep::{DepthMaps, StageTimings, SweepError, SweepParams};
 
 /// Which engine runs the sweep (`--device`, parameter `device`): this module.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Device {
     /// A hardware GPU if wgpu offers one (not a CPU adapter such as lavapipe), else the CPU
@@ -38,7 +48,6 @@ impl std::str::FromStr for Device {
         }
     }
 }
-
 
 #[derive(Debug, thiserror::Error)]
 pub enum EngineError {

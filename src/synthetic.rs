@@ -155,8 +155,11 @@ impl Scene {
                 let mut sum = [0.0; 3];
                 for (sx, sy) in [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)] {
                     let pixel = DVec2::new(f64::from(x) + sx, f64::from(y) + sy);
-                    let dir = rig_from_cam.transform_vector(camera.model.unproject_z1(pixel));
-                    let rgb = self.cast(centre, dir).map_or([0.5; 3], |(_, c)| c);
+                    let rgb = camera
+                        .model
+                        .unproject_z1(pixel)
+                        .and_then(|ray| self.cast(centre, rig_from_cam.transform_vector(ray)))
+                        .map_or([0.5; 3], |(_, c)| c);
                     for c in 0..3 {
                         sum[c] += rgb[c] * 0.25;
                     }
@@ -179,13 +182,13 @@ impl Scene {
         let mut data = Vec::with_capacity((k.width_px * k.height_px) as usize);
         for y in 0..k.height_px {
             for x in 0..k.width_px {
-                let ray = model.unproject_z1(DVec2::new(f64::from(x), f64::from(y)));
-                let dir = rig_from_cam.transform_vector(ray);
-                // dir has z = 1 in the camera frame, so t is the z-depth.
-                data.push(
-                    self.cast(rig_from_cam.translation, dir)
-                        .map_or(f32::NAN, |(t, _)| t as f32),
-                );
+                // The ray has z = 1 in the camera frame, so t is the z-depth.
+                let hit = model
+                    .unproject_z1(DVec2::new(f64::from(x), f64::from(y)))
+                    .and_then(|ray| {
+                        self.cast(rig_from_cam.translation, rig_from_cam.transform_vector(ray))
+                    });
+                data.push(hit.map_or(f32::NAN, |(t, _)| t as f32));
             }
         }
         ImageF32 {

@@ -64,7 +64,7 @@ fn reproject(
     let z = fb_eval / d_eval;
     let r = ds.reference_index();
     let ref_model = ds.rig.cameras[r].model;
-    let p_ref = ref_model.unproject_z1(glam::DVec2::new(x, y)) * z;
+    let p_ref = ref_model.unproject_z1(glam::DVec2::new(x, y)).unwrap() * z;
     let p_k = ds.rig.cam_from_ref(k).transform_point(p_ref);
     ds.rig.cameras[k].model.project(p_k).unwrap()
 }

@@ -356,3 +356,33 @@ fn fuzz_found_bags_are_errors_not_crashes() {
         );
     }
 }
+
+#[test]
+fn image_frame_id_with_a_leading_slash_is_refused_as_tf2_refuses_it() {
+    let cfg = config(&["sync:=exact"]).unwrap();
+    let mut p = Pipeline::new(&cfg).unwrap();
+    for i in 0..3 {
+        set_info(&mut p, i, info(64, 48));
+    }
+    let mut results = Vec::new();
+    for (i, camera) in CAMERAS.iter().enumerate() {
+        let mut image = image(camera, 100, 64, 48);
+        if i == 0 {
+            image.header.frame_id = "/left_optical".into();
+        }
+        results.extend(
+            p.push(Input::Image { camera: i, image }, received_ns())
+                .sets,
+        );
+    }
+    let skip = only_skip(results);
+    assert_eq!(skip.kind, SkipKind::FrameId, "{}", skip.message);
+    assert!(
+        skip.message.contains("camera 'left'")
+            && skip
+                .message
+                .contains("\"/left_optical\": in tf2 frame_ids cannot start with a '/'"),
+        "{}",
+        skip.message
+    );
+}

@@ -777,6 +777,7 @@ fn table_has_node_parameters() {
     let expect = [
         ("cameras", ParamValue::StringArray(vec![])),
         ("image_topic", ParamValue::String("image_raw".into())),
+        ("image_kinds", ParamValue::StringArray(vec![])),
         ("reference_camera", ParamValue::String(String::new())),
         ("device", ParamValue::String("auto".into())),
         ("sync", ParamValue::String("approximate".into())),

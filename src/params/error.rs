@@ -76,10 +76,8 @@ pub enum ParamError {
     PoseLength(usize),
     #[error("parameter 'virtual_pose' has a NaN or infinite value")]
     PoseNotFinite,
-    #[error(
-        "parameter 'virtual_pose': the quaternion [qx, qy, qz, qw] is not unit length (|q| = {0})"
-    )]
-    PoseNotUnit(f64),
+    #[error("parameter 'virtual_pose': [qx, qy, qz, qw]: {0}")]
+    PoseNotUnit(crate::geometry::pose::QuaternionError),
     #[error("parameter '{0}' is read-only (it is fixed once the node runs)")]
     ReadOnly(String),
     #[error("min_depth ({min}) must be smaller than max_depth ({max})")]

@@ -46,6 +46,12 @@ pub fn node_params() -> Vec<ParamSpec> {
             "Image topic under each camera namespace.",
         ),
         node_spec(
+            "image_kinds",
+            ParamValue::StringArray(Vec::new()),
+            ParamRange::each_one_of(&["raw", "rect", "auto"]),
+            "Per camera (in the order of cameras), what its image topic carries: raw (described by the CameraInfo's K and D) or rect (rectified: P, in the frame rotated by R); auto or an empty list = from the topic's name (image_raw, image, image_color: raw; image_rect*: rect; any other name: raw, with a note at start-up).",
+        ),
+        node_spec(
             "reference_camera",
             s(""),
             ParamRange::OptionalName,

@@ -144,17 +144,17 @@ impl ParamSet {
     }
 
     /// `virtual_pose` checked: 7 finite numbers `[x, y, z, qx, qy, qz, qw]` with a unit
-    /// quaternion (within 1e-3, as tf2 checks).
+    /// quaternion by tf2's rule (`geometry::pose::unit_quaternion`).
     pub fn virtual_pose(&self) -> Result<[f64; 7], ParamError> {
         let v = self.get_f64_array("virtual_pose")?;
         let pose: [f64; 7] = v.try_into().map_err(|_| ParamError::PoseLength(v.len()))?;
         if pose.iter().any(|x| !x.is_finite()) {
             return Err(ParamError::PoseNotFinite);
         }
-        let norm = pose[3..].iter().map(|q| q * q).sum::<f64>().sqrt();
-        if (norm - 1.0).abs() > 1e-3 {
-            return Err(ParamError::PoseNotUnit(norm));
-        }
+        crate::geometry::pose::unit_quaternion(glam::DQuat::from_xyzw(
+            pose[3], pose[4], pose[5], pose[6],
+        ))
+        .map_err(ParamError::PoseNotUnit)?;
         Ok(pose)
     }
 

@@ -35,6 +35,8 @@ pub enum ParamRange {
     NameList {
         min_len: usize,
     },
+    /// A list whose every entry is one of these strings.
+    EachOneOf(Vec<String>),
 }
 
 impl ParamRange {
@@ -78,6 +80,11 @@ impl ParamRange {
         ParamRange::OneOf(values.iter().map(|v| v.to_string()).collect())
     }
 
+    /// A list whose every entry is one of `values`.
+    pub fn each_one_of(values: &[&str]) -> Self {
+        ParamRange::EachOneOf(values.iter().map(|v| v.to_string()).collect())
+    }
+
     /// How the range reads in the docs and in errors.
     pub fn describe(&self) -> String {
         match self {
@@ -103,6 +110,7 @@ impl ParamRange {
             ParamRange::RelativeName => "relative ROS name".into(),
             ParamRange::OptionalName => "empty or a ROS name".into(),
             ParamRange::NameList { min_len } => format!(">= {min_len} distinct ROS names"),
+            ParamRange::EachOneOf(values) => format!("each {}", values.join(" | ")),
         }
     }
 
@@ -191,6 +199,15 @@ impl ParamRange {
                     }
                 }
                 Ok(())
+            }
+            (ParamRange::EachOneOf(allowed), ParamValue::StringArray(values)) => {
+                match values.iter().find(|v| !allowed.contains(v)) {
+                    None => Ok(()),
+                    Some(v) => Err(ParamError::NotOneOf {
+                        value: v.clone(),
+                        allowed: allowed.clone(),
+                    }),
+                }
             }
             (range, v) => Err(ParamError::RangeMismatch {
                 range: format!("{range:?}"),

@@ -6,10 +6,11 @@
 use super::config::PipelineConfig;
 use super::convert::check_image;
 use super::outcome::{Job, Skip, SkipKind};
-use crate::geometry::{check_image_size, CameraModel, PinholeIntrinsics, RigCamera};
+use crate::geometry::{CameraModel, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::ros::camera_info::{camera_from_info, check_image_size, CameraCalibration, ImageKind};
 use crate::ros::sync::SyncedSet;
-use crate::ros::tf::TfBuffer;
+use crate::ros::tf::{TfBuffer, TfError};
 
 #[derive(Debug, Default)]
 pub(super) struct Calibration {
@@ -59,9 +60,26 @@ impl Calibration {
             .map(|m| m.header.frame_id.clone())
             .unwrap_or_default();
         let mut cameras = Vec::with_capacity(set.messages.len());
+        // The reference camera's image frame, in the rig, and its camera in that frame.
+        let mut ref_frame_from_rig = RigidTransform::IDENTITY;
+        let mut ref_cam_from_frame = RigidTransform::IDENTITY;
         for (k, image) in set.messages.iter().enumerate() {
             let i = active.get(k).copied().unwrap_or(k);
-            cameras.push(self.camera(config, i, image, &ref_frame)?);
+            // A rectified image's camera is its frame rotated by R, moved by P's translation
+            // when the frame is shared with another camera (see `cam_from_frame`); with a rig
+            // file every camera has a pose of its own.
+            let frame_shared = config.rig_file.is_none()
+                && set
+                    .messages
+                    .iter()
+                    .enumerate()
+                    .any(|(other, m)| other != k && m.header.frame_id == image.header.frame_id);
+            let placed = self.camera(config, i, image, &ref_frame, frame_shared)?;
+            if k == reference {
+                ref_frame_from_rig = placed.frame_from_rig;
+                ref_cam_from_frame = placed.cam_from_frame;
+            }
+            cameras.push(placed.camera);
         }
         // The headers, before the set can take the place of another one waiting for the
         // engine (after the calibration, whose complaints about sizes are the more precise).
@@ -73,15 +91,17 @@ impl Calibration {
         let mut virtual_ref = None;
         let ref_info = if let Some(v) = &config.virtual_ref {
             let intrinsics = v.intrinsics(&cameras[reference].model.intrinsics);
-            let ref_from_rig = cameras[reference].cam_from_rig;
+            // The virtual camera is placed relative to the reference's frame (tf, or
+            // virtual_pose), not to its rectified camera.
+            let ref_from_rig = ref_frame_from_rig;
             let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
                 self.tf.lookup(&v.frame_id, &ref_frame).map_err(|e| {
                     let frame = &v.frame_id;
-                    Skip::new(
-                        SkipKind::WaitingForTransform,
+                    tf_skip(
+                        &e,
                         None,
                         format!(
-                            "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id): {e}"
+                            "the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id)"
                         ),
                     )
                 })?
@@ -105,30 +125,37 @@ impl Calibration {
                 None => intrinsics_info(&cameras[reference].model.intrinsics),
             }
         };
+        // A virtual camera's points are in its own frame.
+        if virtual_ref.is_some() {
+            ref_cam_from_frame = RigidTransform::IDENTITY;
+        }
         Ok(Job {
             images: set.messages,
             cameras,
             reference,
             virtual_ref,
             ref_info,
+            ref_cam_from_frame,
         })
     }
 
     /// Camera `i` of the rig for its `image`: model and pose (`ref_frame`: the reference
-    /// camera's frame).
+    /// camera's frame; `frame_shared`: another image of the set has the same frame_id).
     fn camera(
         &self,
         config: &PipelineConfig,
         i: usize,
         image: &Image,
         ref_frame: &str,
-    ) -> Result<RigCamera, Skip> {
+        frame_shared: bool,
+    ) -> Result<PlacedCamera, Skip> {
         let name = &config.cameras[i];
         let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
-        let model = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
-            (Some(info), _) => CameraModel::from_camera_info(name, info)
-                .and_then(|model| {
-                    check_image_size(name, info, image.width, image.height).map(|()| model)
+        let kind = config.image_kinds.get(i).copied().unwrap_or(ImageKind::Raw);
+        let calibration = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
+            (Some(info), _) => camera_from_info(name, info, kind)
+                .and_then(|calibration| {
+                    check_image_size(name, info, image.width, image.height).map(|()| calibration)
                 })
                 .map_err(|e| Skip::new(SkipKind::CameraInfo, Some(i), e.to_string()))?,
             (None, Some(model)) => {
@@ -143,7 +170,7 @@ impl Calibration {
                         ),
                     ));
                 }
-                model
+                CameraCalibration::unrectified(model)
             }
             (None, None) => {
                 let topic = &config.info_topics[i];
@@ -154,7 +181,7 @@ impl Calibration {
                 ));
             }
         };
-        let cam_from_rig = match (&config.rig_file, file_camera) {
+        let frame_from_rig = match (&config.rig_file, file_camera) {
             (Some(_), Some(c)) => c.cam_from_rig,
             (Some(file), None) => {
                 return Err(Skip::new(
@@ -171,20 +198,51 @@ impl Calibration {
                 .lookup(&image.header.frame_id, ref_frame)
                 .map_err(|e| {
                     let frame = &image.header.frame_id;
-                    Skip::new(
-                        SkipKind::WaitingForTransform,
+                    tf_skip(
+                        &e,
                         Some(i),
                         format!(
-                            "waiting for the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}'): {e}"
+                            "the transform from '{ref_frame}' (reference camera) to '{frame}' (camera '{name}')"
                         ),
                     )
                 })?,
         };
-        Ok(RigCamera {
-            name: name.clone(),
-            model,
-            cam_from_rig,
+        let cam_from_frame = calibration.cam_from_frame(frame_shared);
+        Ok(PlacedCamera {
+            camera: RigCamera {
+                name: name.clone(),
+                model: calibration.model,
+                cam_from_rig: cam_from_frame.compose(&frame_from_rig),
+            },
+            frame_from_rig,
+            cam_from_frame,
         })
+    }
+}
+
+/// A camera of the rig, with the pose of its image's frame in the rig and its camera (rotated
+/// by R for a rectified image) in that frame.
+struct PlacedCamera {
+    camera: RigCamera,
+    frame_from_rig: RigidTransform,
+    cam_from_frame: RigidTransform,
+}
+
+/// The skip for a failed transform lookup: "waiting for transform" while the tree may still
+/// bring it, "frame_id" when tf2 would refuse the lookup itself (an empty id, or one starting
+/// with '/'), which no `/tf_static` can cure.
+fn tf_skip(e: &TfError, camera: Option<usize>, what: String) -> Skip {
+    match e {
+        TfError::InvalidLookupFrame { .. } => Skip::new(
+            SkipKind::FrameId,
+            camera,
+            format!("cannot look up {what}: {e} (publish frame ids as tf2 wants them)"),
+        ),
+        _ => Skip::new(
+            SkipKind::WaitingForTransform,
+            camera,
+            format!("waiting for {what}: {e}"),
+        ),
     }
 }
 

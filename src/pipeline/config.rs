@@ -14,6 +14,7 @@ use crate::params::checks::{check_start, shape_rig};
 use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
 use crate::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
+use crate::ros::camera_info::ImageKind;
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
 use crate::sweep::SweepParams;
 
@@ -34,6 +35,8 @@ pub enum ConfigError {
     Geometry(#[from] GeometryError),
     #[error(transparent)]
     Sync(#[from] SyncError),
+    #[error("parameter 'image_kinds' has {kinds} entries but 'cameras' has {cameras}: give one (raw, rect or auto) per camera, or none")]
+    ImageKindsCount { kinds: usize, cameras: usize },
     #[error("parameter '{name}': {value} does not fit a {what}")]
     Size {
         name: &'static str,
@@ -133,6 +136,39 @@ pub struct OutputTopics {
     pub points: Option<String>,
 }
 
+/// Each camera's [`ImageKind`]: `image_kinds` (one entry per camera, `raw`, `rect` or `auto`),
+/// else (empty, or `auto`) the name of its resolved image topic; a name that says neither is
+/// taken as raw, with a note.
+fn image_kinds(
+    params: &ParamSet,
+    cameras: &[String],
+    image_topics: &[String],
+    notes: &mut Vec<String>,
+) -> Result<Vec<ImageKind>, ConfigError> {
+    let declared = params.get_string_array("image_kinds")?;
+    if !declared.is_empty() && declared.len() != cameras.len() {
+        return Err(ConfigError::ImageKindsCount {
+            kinds: declared.len(),
+            cameras: cameras.len(),
+        });
+    }
+    let mut kinds = Vec::with_capacity(cameras.len());
+    for (i, (camera, topic)) in cameras.iter().zip(image_topics).enumerate() {
+        let declared = declared.get(i).map(String::as_str).unwrap_or("auto");
+        let kind = match ImageKind::parse(declared) {
+            Some(kind) => kind,
+            None => ImageKind::from_topic(topic).unwrap_or_else(|| {
+                notes.push(format!(
+                    "camera '{camera}': the name of its image topic '{topic}' says neither raw (image_raw, image, image_color) nor rectified (image_rect*): its images are taken as raw (described by K and D); set image_kinds to say otherwise"
+                ));
+                ImageKind::Raw
+            }),
+        };
+        kinds.push(kind);
+    }
+    Ok(kinds)
+}
+
 /// Everything the pipeline needs, from the command line.
 #[derive(Debug, Clone)]
 pub struct PipelineConfig {
@@ -146,6 +182,9 @@ pub struct PipelineConfig {
     pub reference: usize,
     /// Fully qualified (remapped) image and camera_info topic names, per camera.
     pub image_topics: Vec<String>,
+    /// What each camera's image topic carries, raw or rectified (`image_kinds`, else the
+    /// topic's name): which part of its CameraInfo describes it.
+    pub image_kinds: Vec<ImageKind>,
     pub info_topics: Vec<String>,
     pub outputs: OutputTopics,
     pub tf_static_topic: String,
@@ -223,6 +262,7 @@ impl PipelineConfig {
             image_topics.push(resolve(&format!("{camera}/{image_topic}"))?);
             info_topics.push(resolve(&format!("{camera}/camera_info"))?);
         }
+        let image_kinds = image_kinds(&params, &cameras, &image_topics, &mut notes)?;
         let points = resolve("points")?;
         let outputs = OutputTopics {
             depth: resolve("depth/image")?,
@@ -279,6 +319,7 @@ impl PipelineConfig {
             cameras,
             reference,
             image_topics,
+            image_kinds,
             info_topics,
             outputs,
             tf_static_topic,

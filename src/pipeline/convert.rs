@@ -4,7 +4,7 @@
 
 use glam::DVec2;
 
-use crate::geometry::CameraModel;
+use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{Header, Image, PointCloud2, PointField};
 
@@ -213,15 +213,18 @@ pub fn pack_rgb_f32(r: u8, g: u8, b: u8) -> f32 {
     f32::from_bits(u32::from_le_bytes([b, g, r, 0]))
 }
 
-/// An organised `sensor_msgs/PointCloud2` (height x width of `depth`) in the reference optical
-/// frame: fields x, y, z (FLOAT32, metres) and rgb (FLOAT32, [`pack_rgb_f32`]) from `colour`
-/// (same size as `depth`, else black). Invalid depths (NaN, non-positive) give NaN x, y, z.
-/// `model` back-projects the pixel centres (integer coordinates, as in ROS).
+/// An organised `sensor_msgs/PointCloud2` (height x width of `depth`) in the header's frame:
+/// fields x, y, z (FLOAT32, metres) and rgb (FLOAT32, [`pack_rgb_f32`]) from `colour` (same
+/// size as `depth`, else black). Invalid depths (NaN, non-positive) give NaN x, y, z. `model`
+/// back-projects the pixel centres (integer coordinates, as in ROS) into its camera, which
+/// `frame_from_cam` places in the header's frame (a rectified reference: R, and P's
+/// translation; identity for a raw one).
 pub fn point_cloud_msg(
     header: &Header,
     depth: &ImageF32,
     colour: Option<&Rgba8Image>,
     model: &CameraModel,
+    frame_from_cam: &RigidTransform,
 ) -> PointCloud2 {
     let (width, height) = (depth.width, depth.height);
     let colour = colour
@@ -236,12 +239,19 @@ pub fn point_cloud_msg(
     for (i, &z) in depth.data.iter().enumerate() {
         let u = (i % width.max(1) as usize) as f64;
         let v = (i / width.max(1) as usize) as f64;
-        let [x, y, z] = if z.is_finite() && z > 0.0 {
-            let ray = model.unproject_z1(DVec2::new(u, v));
-            let z64 = f64::from(z);
-            [(ray.x * z64) as f32, (ray.y * z64) as f32, z]
-        } else {
-            [f32::NAN; 3]
+        let ray = (z.is_finite() && z > 0.0)
+            .then(|| model.unproject_z1(DVec2::new(u, v)))
+            .flatten();
+        let [x, y, z] = match ray {
+            Some(ray) if *frame_from_cam == RigidTransform::IDENTITY => {
+                let z64 = f64::from(z);
+                [(ray.x * z64) as f32, (ray.y * z64) as f32, z]
+            }
+            Some(ray) => {
+                let p = frame_from_cam.transform_point(ray * f64::from(z));
+                [p.x as f32, p.y as f32, p.z as f32]
+            }
+            None => [f32::NAN; 3],
         };
         let [r, g, b, _] = colour.map_or([0; 4], |c| Rgba8Image::unpack(c.pixels[i]));
         for value in [x, y, z, pack_rgb_f32(r, g, b)] {
@@ -510,7 +520,13 @@ mod tests {
             frame_id: "cam".into(),
             ..Header::default()
         };
-        let m = point_cloud_msg(&header, &depth, Some(&colour), &model);
+        let m = point_cloud_msg(
+            &header,
+            &depth,
+            Some(&colour),
+            &model,
+            &RigidTransform::IDENTITY,
+        );
         assert_eq!(
             (m.width, m.height, m.point_step, m.row_step),
             (2, 1, 16, 32)

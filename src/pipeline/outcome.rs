@@ -35,6 +35,10 @@ pub struct Job {
     pub virtual_ref: Option<(CameraModel, RigidTransform, String)>,
     /// The CameraInfo of the outputs (the reference camera's, or the virtual one's).
     pub ref_info: CameraInfo,
+    /// The reference camera (the one its model describes: rotated by R for a rectified image)
+    /// in the frame its image's `header.frame_id` names; the points are published in that
+    /// frame. Identity for a raw image and for a virtual reference.
+    pub ref_cam_from_frame: RigidTransform,
 }
 
 /// Why a set was not processed.
@@ -48,6 +52,9 @@ pub enum SkipKind {
     WaitingForCameraInfo,
     /// A transform of `/tf_static` not known yet.
     WaitingForTransform,
+    /// A frame id tf2 would refuse to look up (empty, or starting with '/'): no `/tf_static`
+    /// can cure it.
+    FrameId,
     /// The rig file's intrinsics do not fit the image, or it lacks the camera.
     RigFile,
     /// An image header the engine cannot take (encoding, size, step, data length).
@@ -68,6 +75,7 @@ impl SkipKind {
             SkipKind::CameraInfo => "camera_info",
             SkipKind::WaitingForCameraInfo => "waiting for camera_info",
             SkipKind::WaitingForTransform => "waiting for transform",
+            SkipKind::FrameId => "frame_id",
             SkipKind::RigFile => "rig file",
             SkipKind::Image => "image",
             SkipKind::Rig => "rig",

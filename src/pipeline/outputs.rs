@@ -3,9 +3,9 @@
 
 use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
 use super::outcome::{Job, Skip, SkipKind};
+use crate::engine::Sweeper;
 use crate::geometry::{Reference, Rig};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
-use crate::engine::Sweeper;
 use crate::sweep::SweepParams;
 
 /// The messages one frame set produces, all with the same header (the reference camera's
@@ -64,8 +64,15 @@ pub fn process_job(
         .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
     let mut depth_info = job.ref_info.clone();
     depth_info.header = header.clone();
-    let points = with_points
-        .then(|| point_cloud_msg(&header, &maps.depth_m, colour, &rig.reference_model()));
+    let points = with_points.then(|| {
+        point_cloud_msg(
+            &header,
+            &maps.depth_m,
+            colour,
+            &rig.reference_model(),
+            &job.ref_cam_from_frame.inverse(),
+        )
+    });
     Ok(FrameOutputs {
         depth: f32_image_msg(&header, &maps.depth_m),
         depth_info,

@@ -32,7 +32,7 @@
 //!   `translation`, its axes are the columns of the rotation, both in rig coordinates). What is
 //!   stored, [`RigFileCamera::cam_from_rig`], is its inverse, as [`RigCamera`] wants.
 //! - Checks: unknown keys are errors (a misspelt `rotaton` is not silently ignored); numbers
-//!   must be finite; the quaternion must have unit length within 1e-3 (it is then normalised);
+//!   must be finite; the quaternion must pass tf2's test |x²+y²+z²+w² - 1| < 0.01 (it is then normalised);
 //!   the matrix must be orthonormal with determinant +1 (within 1e-3); exactly one of
 //!   `rotation` and `rotation_matrix`; names non-empty and unique; at least one camera;
 //!   `fx`, `fy` > 0 and a non-zero image size; exact distortion coefficient counts.

@@ -3,6 +3,7 @@
 //! buffer of static transforms ([`tf`]). The node (over `ros2-client`) builds on these.
 
 pub mod args;
+pub mod camera_info;
 pub mod param_value;
 pub mod sync;
 pub mod tf;

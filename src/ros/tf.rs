@@ -7,7 +7,15 @@
 //! - The frames form a forest: each child has exactly one parent. Inserting a child again
 //!   replaces its transform, and its parent too if that changed (tf2 behaviour), unless the new
 //!   edge would close a cycle.
-//! - Frame ids are normalised by stripping one leading `/`, as tf2 does.
+//! - Frame ids as tf2 has them (`BufferCore` in tf2's `buffer_core.cpp`): an inserted
+//!   transform's `header.frame_id` and `child_frame_id` lose one leading `/` (tf2's
+//!   `stripSlash`), but a frame id *looked up* must not start with `/`: tf2 refuses it ("in tf2
+//!   frame_ids cannot start with a '/'", `validateFrameId`), and so does [`TfBuffer::lookup`].
+//!   An image whose `header.frame_id` is `/cam0_optical` therefore gets no transform, with that
+//!   message, however `/tf_static` spelt the frame.
+//! - A rotation is accepted as tf2 accepts it, `|x² + y² + z² + w² - 1| < 0.01`, and then
+//!   normalised ([`crate::geometry::pose::unit_quaternion`]); tf2 refuses NaN, and we refuse
+//!   infinite values too.
 //! - Only the latest transform of each child is kept (no history, no interpolation): the last
 //!   accepted insertion wins, whatever its stamp.
 //!
@@ -37,8 +45,8 @@ pub enum TfError {
     },
     /// `header.frame_id == child_frame_id`.
     SelfParent { frame: String },
-    /// NaN / infinite translation or rotation, or a quaternion whose norm is off by more than
-    /// 1e-3.
+    /// NaN / infinite translation or rotation, or a quaternion tf2 would not accept
+    /// (`|x² + y² + z² + w² - 1| >= 0.01`).
     InvalidTransform {
         parent: String,
         child: String,
@@ -51,8 +59,14 @@ pub enum TfError {
         child: String,
         path: Vec<String>,
     },
-    /// No transform `target_from_source` can be formed (unknown frame, different trees, empty
-    /// frame id).
+    /// A frame id given to [`TfBuffer::lookup`] that tf2 refuses: empty, or starting with `/`.
+    InvalidLookupFrame {
+        /// "target" or "source".
+        argument: &'static str,
+        frame: String,
+        reason: String,
+    },
+    /// No transform `target_from_source` can be formed (unknown frame, different trees).
     NotConnected {
         target: String,
         source: String,
@@ -87,6 +101,11 @@ impl fmt::Display for TfError {
                  ('{child}' is already an ancestor of '{parent}': {})",
                 path.join(" -> ")
             ),
+            TfError::InvalidLookupFrame {
+                argument,
+                frame,
+                reason,
+            } => write!(f, "invalid {argument} frame id \"{frame}\": {reason}"),
             TfError::NotConnected {
                 target,
                 source,
@@ -98,9 +117,22 @@ impl fmt::Display for TfError {
 
 impl std::error::Error for TfError {}
 
-/// Strips one leading `/` from a frame id, as tf2 does (`"/base_link"` -> `"base_link"`).
+/// Strips one leading `/` from a frame id, as tf2 does on insertion (`stripSlash`:
+/// `"/base_link"` -> `"base_link"`, `"//a"` -> `"/a"`).
 pub fn normalize_frame_id(frame_id: &str) -> &str {
     frame_id.strip_prefix('/').unwrap_or(frame_id)
+}
+
+/// tf2's check of a frame id passed to a lookup (`BufferCore::validateFrameId`): not empty and
+/// not starting with `/`; the reasons are tf2's words.
+pub fn validate_lookup_frame_id(frame_id: &str) -> Result<(), &'static str> {
+    if frame_id.is_empty() {
+        Err("in tf2 frame_ids cannot be empty")
+    } else if frame_id.starts_with('/') {
+        Err("in tf2 frame_ids cannot start with a '/'")
+    } else {
+        Ok(())
+    }
 }
 
 /// The stored edge of one child frame.
@@ -147,34 +179,29 @@ impl TfBuffer {
         set.into_iter().collect()
     }
 
-    /// Whether `frame` (normalised) appears in the tree, as a child or as a parent.
+    /// Whether `frame` appears in the tree, as a child or as a parent.
     pub fn contains(&self, frame: &str) -> bool {
-        let frame = normalize_frame_id(frame);
         self.edges.contains_key(frame) || self.edges.values().any(|e| e.parent == frame)
     }
 
-    /// The parent of `frame` (normalised), or `None` for a root or an unknown frame.
+    /// The parent of `frame`, or `None` for a root or an unknown frame.
     pub fn parent_of(&self, frame: &str) -> Option<&str> {
-        self.edges
-            .get(normalize_frame_id(frame))
-            .map(|e| e.parent.as_str())
+        self.edges.get(frame).map(|e| e.parent.as_str())
     }
 
-    /// The stamp of the stored transform of child `frame` (normalised).
+    /// The stamp of the stored transform of child `frame`.
     pub fn stamp_of(&self, frame: &str) -> Option<Time> {
-        self.edges.get(normalize_frame_id(frame)).map(|e| e.stamp)
+        self.edges.get(frame).map(|e| e.stamp)
     }
 
-    /// The stored `parent_from_child` of child `frame` (normalised).
+    /// The stored `parent_from_child` of child `frame`.
     pub fn parent_from_child(&self, frame: &str) -> Option<&RigidTransform> {
-        self.edges
-            .get(normalize_frame_id(frame))
-            .map(|e| &e.parent_from_child)
+        self.edges.get(frame).map(|e| &e.parent_from_child)
     }
 
     /// The root of the tree `frame` belongs to (the frame itself for a root or unknown frame).
     pub fn root_of<'a>(&'a self, frame: &'a str) -> &'a str {
-        let mut current = normalize_frame_id(frame);
+        let mut current = frame;
         // The forest has no cycles (insert guarantees it); the bound is only a safeguard.
         for _ in 0..=self.edges.len() {
             match self.edges.get(current) {
@@ -273,34 +300,33 @@ impl TfBuffer {
 
     /// `target_from_source`: maps a point in `source_frame` into `target_frame`.
     ///
-    /// Identity when the two (normalised) frames are equal, even if the frame is not in the tree
-    /// (as tf2 does). Otherwise both frames must be in the same tree; the chain goes through
-    /// their lowest common ancestor.
+    /// Identity when the two frame ids are equal, even if the frame is not in the tree (as tf2
+    /// does). Otherwise each must be a valid tf2 frame id (not empty, no leading `/`:
+    /// [`TfError::InvalidLookupFrame`], tf2's message) and both must be in the same tree; the
+    /// chain goes through their lowest common ancestor.
     pub fn lookup(
         &self,
         target_frame: &str,
         source_frame: &str,
     ) -> Result<RigidTransform, TfError> {
-        let target = normalize_frame_id(target_frame);
-        let source = normalize_frame_id(source_frame);
+        let (target, source) = (target_frame, source_frame);
+        // As tf2: equal frame ids are the identity before any check (tf2 even for empty ids;
+        // we refuse those below).
+        if target == source && !target.is_empty() {
+            return Ok(RigidTransform::IDENTITY);
+        }
+        for (argument, frame) in [("target", target), ("source", source)] {
+            validate_lookup_frame_id(frame).map_err(|reason| TfError::InvalidLookupFrame {
+                argument,
+                frame: frame.to_string(),
+                reason: reason.to_string(),
+            })?;
+        }
         let not_connected = |reason: String| TfError::NotConnected {
             target: target.to_string(),
             source: source.to_string(),
             reason,
         };
-        match (target.is_empty(), source.is_empty()) {
-            (true, true) => {
-                return Err(not_connected(
-                    "the target and source frame ids are empty".into(),
-                ))
-            }
-            (true, false) => return Err(not_connected("the target frame id is empty".into())),
-            (false, true) => return Err(not_connected("the source frame id is empty".into())),
-            (false, false) => {}
-        }
-        if target == source {
-            return Ok(RigidTransform::IDENTITY);
-        }
 
         match (self.contains(target), self.contains(source)) {
             (true, true) => {}
@@ -585,7 +611,8 @@ mod tests {
     fn same_frame_is_identity() {
         let b = rig_buffer();
         assert_eq!(b.lookup("rig", "rig").unwrap(), RigidTransform::IDENTITY);
-        assert_eq!(b.lookup("/rig", "rig").unwrap(), RigidTransform::IDENTITY);
+        // tf2 answers equal ids before it checks them.
+        assert_eq!(b.lookup("/rig", "/rig").unwrap(), RigidTransform::IDENTITY);
         // As in tf2, even for a frame the buffer has never seen.
         assert_eq!(
             TfBuffer::new().lookup("x", "x").unwrap(),
@@ -611,7 +638,7 @@ mod tests {
             ]
         );
         assert_eq!(b.parent_of("cam1_optical"), Some("cam1"));
-        assert_eq!(b.parent_of("/cam1"), Some("rig"));
+        assert_eq!(b.parent_of("/cam1"), None);
         assert_eq!(b.parent_of("base"), None);
         assert_eq!(b.parent_of("nope"), None);
         assert!(b.contains("base"));
@@ -652,7 +679,11 @@ mod tests {
              the tree (waiting for /tf_static); no transform received yet"
         );
         let msg = b.lookup("", "rig").unwrap_err().to_string();
-        assert!(msg.contains("target frame id is empty"), "{msg}");
+        assert_eq!(
+            msg,
+            "invalid target frame id \"\": in tf2 frame_ids cannot be empty"
+        );
+        assert!(b.lookup("", "").is_err());
     }
 
     #[test]
@@ -710,11 +741,23 @@ mod tests {
             .unwrap_err();
         assert!(matches!(err, TfError::InvalidTransform { .. }));
         assert_eq!(b.parent_from_child("cam1").copied(), before);
-        // Within 1e-3: accepted and renormalised.
-        b.insert(&ts("rig", "cam1", [0.0; 3], [0.0, 0.0, 0.0, 1.0005]))
+        // Just outside tf2's tolerance (|x²+y²+z²+w² - 1| = 0.0101): refused.
+        let err = b
+            .insert(&ts("rig", "cam1", [0.0; 3], [0.0, 0.0, 0.0, 1.00504]))
+            .unwrap_err();
+        assert!(err.to_string().contains("tf2 accepts"), "{err}");
+        assert_eq!(b.parent_from_child("cam1").copied(), before);
+        // A hand-typed static_transform_publisher quaternion (0.71, 0, 0, 0.71): squared
+        // norm 1.0082, accepted as tf2 accepts it and normalised: 90 degrees about x.
+        b.insert(&ts("rig", "cam1", [0.0; 3], [0.71, 0.0, 0.0, 0.71]))
             .unwrap();
-        let q = b.parent_from_child("cam1").unwrap().rotation;
-        assert!((q.length() - 1.0).abs() < 1e-12);
+        let parent_from_child = b.parent_from_child("cam1").unwrap();
+        assert!((parent_from_child.rotation.length() - 1.0).abs() < 1e-12);
+        assert_close(
+            parent_from_child.transform_point(DVec3::Y),
+            DVec3::Z,
+            "90 degrees about x",
+        );
     }
 
     #[test]
@@ -809,28 +852,52 @@ mod tests {
     }
 
     #[test]
-    fn leading_slash_is_stripped() {
+    fn leading_slash_is_stripped_on_insert_and_refused_in_lookups() {
         let mut b = TfBuffer::new();
         b.insert(&ts("/base", "/rig", [1.0, 2.0, 3.0], IDENT))
             .unwrap();
         b.insert(&ts("rig", "/cam0", [0.5, 0.0, 0.0], IDENT))
             .unwrap();
         assert_eq!(b.frames(), vec!["base", "cam0", "rig"]);
-        assert_eq!(b.parent_of("/rig"), Some("base"));
+        assert_eq!(b.parent_of("rig"), Some("base"));
         let expected = DVec3::new(1.5, 2.0, 3.0);
         assert_close(
             b.lookup("base", "cam0").unwrap().translation,
             expected,
             "plain",
         );
-        assert_close(
-            b.lookup("/base", "/cam0").unwrap().translation,
-            expected,
-            "slashed",
+        // Lookups with a leading '/' are refused, as tf2's validateFrameId refuses them.
+        let err = b.lookup("base", "/cam0").unwrap_err();
+        assert_eq!(
+            err,
+            TfError::InvalidLookupFrame {
+                argument: "source",
+                frame: "/cam0".into(),
+                reason: "in tf2 frame_ids cannot start with a '/'".into(),
+            }
         );
+        assert_eq!(
+            err.to_string(),
+            "invalid source frame id \"/cam0\": in tf2 frame_ids cannot start with a '/'"
+        );
+        let err = b.lookup("/base", "cam0").unwrap_err();
+        assert!(
+            matches!(
+                &err,
+                TfError::InvalidLookupFrame {
+                    argument: "target",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        // tf2 strips one slash only: "//x" is stored as "/x", which no lookup can name.
+        b.insert(&ts("base", "//x", [0.0; 3], IDENT)).unwrap();
+        assert!(b.contains("/x"));
+        assert!(b.lookup("base", "/x").is_err());
         // "/rig" and "rig" are the same child: replaced, not duplicated.
         b.insert(&ts("base", "rig", [0.0; 3], IDENT)).unwrap();
-        assert_eq!(b.len(), 2);
+        assert_eq!(b.len(), 3);
         assert_eq!(normalize_frame_id("/a/b"), "a/b");
         assert_eq!(normalize_frame_id("a"), "a");
     }

@@ -60,17 +60,26 @@ impl SweepPlan {
             let r = cam_from_ref.rotation_matrix();
             let t = cam_from_ref.translation;
             let k = &camera.model.intrinsics;
+            // The end of the model's monotonic branch, as (x/z)² + (y/z)² (f32::MAX: none).
+            let branch_r2 = {
+                let r = camera.model.distortion.max_undistorted_radius();
+                if r.is_finite() {
+                    (r * r) as f32
+                } else {
+                    f32::MAX
+                }
+            };
             let (model, dist_a, dist_b) = match camera.model.distortion {
-                Distortion::None => (DIST_NONE, [0.0; 4], [0.0; 4]),
+                Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
                 Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
                     DIST_PLUMB_BOB,
                     [k1 as f32, k2 as f32, p1 as f32, p2 as f32],
-                    [k3 as f32, 0.0, 0.0, 0.0],
+                    [k3 as f32, branch_r2, 0.0, 0.0],
                 ),
                 Distortion::Equidistant { k1, k2, k3, k4 } => (
                     DIST_EQUIDISTANT,
                     [k1 as f32, k2 as f32, k3 as f32, k4 as f32],
-                    [0.0; 4],
+                    [0.0, branch_r2, 0.0, 0.0],
                 ),
             };
             let half = match split[i] {
@@ -112,8 +121,10 @@ impl SweepPlan {
         let mut rays = Vec::with_capacity(width as usize * height as usize);
         for y in 0..height {
             for x in 0..width {
+                // A pixel without a ray (a fisheye's beyond 90 degrees) gets the zero ray: no
+                // plane is in front along it, so it stays invalid in every stage.
                 let ray = ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y)));
-                rays.push([ray.x as f32, ray.y as f32, 1.0, 0.0]);
+                rays.push(ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]));
             }
         }
 

@@ -1,5 +1,5 @@
 //! The Python that has the test tools of `tools/requirements-test.txt` (cyclonedds, rosbags,
-//! mcap): `SWEEPDEPTH_PYTHON`, else the virtual environment `scripts/setup.sh` makes when the
+//! mcap, cv2): `SWEEPDEPTH_PYTHON`, else the virtual environment `scripts/setup.sh` makes when the
 //! system Python lacks them (`target/test-venv`), else `python3`.
 #![allow(dead_code)]
 

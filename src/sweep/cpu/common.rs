@@ -27,6 +27,10 @@ pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
         return [0.0, 0.0, -1.0];
     }
     let mut n = [p[0] / p[2], p[1] / p[2]];
+    // Past the distortion model's fold the point would land back in the image: not seen.
+    if cam.size[3] != DIST_NONE && n[0] * n[0] + n[1] * n[1] > cam.dist_b[1] {
+        return [0.0, 0.0, -1.0];
+    }
     let [k1, k2, p1, p2] = cam.dist_a;
     if cam.size[3] == DIST_PLUMB_BOB {
         let r2 = n[0] * n[0] + n[1] * n[1];
@@ -172,3 +176,75 @@ macro_rules! vectorised_fn {
     };
 }
 pub(crate) use vectorised_fn;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::RigidTransform;
+    use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics, Reference, Rig, RigCamera};
+    use crate::sweep::plan::SweepPlan;
+    use crate::sweep::SweepParams;
+    use glam::DVec3;
+
+    /// The plan packs the end of each camera's monotonic branch, and the projection (here the
+    /// CPU twin of the shader's) does not see points past it, which the model would fold back
+    /// into the image.
+    #[test]
+    fn points_past_a_distortion_fold_are_not_seen() {
+        let intrinsics = PinholeIntrinsics {
+            width_px: 64,
+            height_px: 48,
+            fx_px: 80.0,
+            fy_px: 80.0,
+            cx_px: 31.5,
+            cy_px: 23.5,
+        };
+        // Barrel k1 = -0.3: the fold is at r = 1/sqrt(0.9) = 1.054 (46.5 degrees).
+        let barrel = CameraModel {
+            intrinsics,
+            distortion: Distortion::PlumbBob {
+                k1: -0.3,
+                k2: 0.0,
+                p1: 0.0,
+                p2: 0.0,
+                k3: 0.0,
+            },
+        };
+        let cameras = (0..2)
+            .map(|i| RigCamera {
+                name: format!("c{i}"),
+                model: if i == 0 {
+                    CameraModel::pinhole(intrinsics)
+                } else {
+                    barrel
+                },
+                cam_from_rig: RigidTransform {
+                    rotation: glam::DQuat::IDENTITY,
+                    translation: DVec3::new(-0.1 * i as f64, 0.0, 0.0),
+                },
+            })
+            .collect();
+        let rig = Rig::new(cameras, Reference::Camera(0)).unwrap();
+        let plan = SweepPlan::new(&rig, &SweepParams::default()).unwrap();
+        let cam = &plan.cameras[1];
+        assert!(
+            (f64::from(cam.dist_b[1]) - 1.0 / 0.9).abs() < 1e-6,
+            "{:?}",
+            cam.dist_b
+        );
+        assert_eq!(plan.cameras[0].dist_b[1], f32::MAX);
+        // In the camera's frame (its row transform is a translation by -0.1 m along x).
+        let at = |x_over_z: f32| [x_over_z * 2.0 + 0.1, 0.0, 2.0];
+        // Inside the branch: projected where the model says.
+        let inside = project(cam, at(0.9));
+        let want = barrel.project(DVec3::new(0.9, 0.0, 1.0)).unwrap();
+        assert!(inside[2] > 0.0 && (f64::from(inside[0]) - want.x).abs() < 1e-3);
+        // Past the fold (r = 1.6: the model would put it at 0.371, inside the image): unseen.
+        let distorted = barrel.distortion.distort(glam::DVec2::new(1.6, 0.0));
+        assert!(
+            distorted.x * 80.0 + 31.5 < 63.0,
+            "the fold lands inside the image"
+        );
+        assert!(project(cam, at(1.6))[2] < 0.0);
+    }
+}
