@@ -39,6 +39,11 @@ pub const REPAIR_INTERVAL_MAX: Duration = Duration::from_millis(100);
 // one reader. A round always sends at least one sample, even a larger one.
 pub const REPAIR_BATCH_MAX_BYTES: usize = 8192;
 
+// Most fragments one NACK_FRAG repair round sends to one reader. A NACK_FRAG
+// names at most 256 fragments of one sample, so a round answers one whole;
+// more (several samples, repeated NACK_FRAGs) waits for the next round.
+pub const REPAIR_FRAGS_BATCH_MAX: u32 = 256;
+
 // Periodic HEARTBEAT period for reliable Writers. The period is adaptive: while
 // some matched reader is behind (has unacknowledged samples), heartbeats are
 // sent at the FAST period to prompt prompt repair (some peers rely on a
@@ -107,7 +112,20 @@ pub const DATAGRAM_HEADER_OVERHEAD: usize = 48;
 // Readers (v2.5 Section 8.4.14.1.1), so this is a constant and must NOT be
 // varied per peer. Per-peer path MTU only controls how many fragments we pack
 // into each DATAFRAG submessage / datagram, never the fragment size itself.
-pub const FRAGMENT_SIZE: usize = 256;
+//
+// 64000 bytes, about what Fast DDS uses (its 65500-byte UDP message size less
+// headers): one fragment per datagram on loopback, IP-fragmented on a
+// 1500-byte path as Fast DDS's are. It decides how fast a lossy reader is
+// repaired: a NACK_FRAG names at most 256 fragments, from the reader's first
+// missing one, and each costs the reader a HEARTBEAT round trip, so a reader
+// that lost much of a large sample (a default 208 KiB socket buffer overrun by
+// a multi-megabyte image) needs (lost bytes) / (256 x FRAGMENT_SIZE) round
+// trips. With the former 256 bytes that was one round trip per 64 KiB, and a
+// 4.9 MB image reached a default Fast DDS subscriber seconds late; with 64000
+// one NACK_FRAG covers 16 MB. The margin below the 65507-byte UDP payload limit
+// leaves room for the RTPS header, INFO_TS, INFO_DST, the DATAFRAG header,
+// inline QoS and security encoding.
+pub const FRAGMENT_SIZE: usize = 64000;
 
 /// Convert an interface MTU into the RTPS-message (UDP payload) budget usable
 /// for submessage/fragment packing: `mtu - DATAGRAM_HEADER_OVERHEAD`, floored

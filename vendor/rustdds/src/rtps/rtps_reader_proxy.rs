@@ -584,6 +584,21 @@ impl RtpsReaderProxy {
     }
   }
 
+  /// Whether fragment `frag_num` of `seq_num` is requested and not yet sent.
+  pub fn frag_requested(&self, seq_num: SequenceNumber, frag_num: FragmentNumber) -> bool {
+    self
+      .frags_requested
+      .get(&seq_num)
+      .zip(usize::from(frag_num).checked_sub(1))
+      .and_then(|(bv, idx)| bv.get(idx))
+      .unwrap_or(false)
+  }
+
+  /// Drops every fragment request for `seq_num` (e.g. the sample is gone).
+  pub fn forget_frags_requested(&mut self, seq_num: SequenceNumber) {
+    self.frags_requested.remove(&seq_num);
+  }
+
   // Note: The current implementation produces an iterator that iterates only
   // over one fragmented sample, but the upper layer should detect that
   // there are still other fragmented samples requested (if any)

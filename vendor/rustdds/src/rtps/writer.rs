@@ -29,6 +29,7 @@ use crate::{
   rtps::{
     constant::{
       DEFAULT_WRITER_MAX_SAMPLES, FALLBACK_MAX_AGGREGATED_DATAGRAM_SIZE, FRAGMENT_SIZE,
+      REPAIR_FRAGS_BATCH_MAX,
       HEARTBEAT_PERIOD_FAST, HEARTBEAT_PERIOD_SLOW, HEARTBEAT_SUBMESSAGE_SERIALIZED_SIZE,
       NACK_RESPONSE_DELAY, NACK_SUPPRESSION_DURATION, REPAIR_BATCH_MAX_BYTES,
       REPAIR_INTERVAL_DEFAULT, REPAIR_INTERVAL_MAX, REPAIR_INTERVAL_MIN,
@@ -1577,79 +1578,113 @@ impl Writer {
     }
   }
 
+  // One repair round for NACK_FRAG requests from one reader: every requested
+  // fragment, lowest sample first, as runs of contiguous fragment numbers packed
+  // into DATAFRAG submessages of the reader's datagram budget (one datagram per
+  // run, or per budget's worth of it), up to REPAIR_FRAGS_BATCH_MAX fragments
+  // a round; what is left goes in the next round. A NACK_FRAG names at most 256
+  // fragments of a sample, so one round normally answers it whole.
   fn handle_repair_frags_send_worker(
     &mut self,
     reader_proxy: &mut RtpsReaderProxy, /* This is mutable proxy temporarily detached from the
                                          * set of reader proxies */
   ) {
-    // Decide the (max) number of frags to be sent
-    let max_send_count = 8;
-
     let reader_guid = reader_proxy.remote_reader_guid;
+    let budget = reader_proxy.max_datagram_payload();
+    let mut sent_frags = 0u32;
 
-    // Get (an iterator to) frags requested but not yet sent
-    // reader_proxy.
-    // Iterate over frags to be sent
-    for (seq_num, frag_num) in reader_proxy.frags_requested_iterator().take(max_send_count) {
-      // Sanity check request
-      // ^^^ TODO
-
-      if let Some(cache_change) = self.send_buffer.get_by_sn(seq_num) {
-        // If the data is meant for a single reader only, make sure it is the one we're
-        // about to send frags to.
-        if let Some(single_reader_guid) = cache_change.write_options.to_single_reader() {
-          if single_reader_guid != reader_guid {
-            error!(
-              "We were asked to send datafrags meant for the reader {single_reader_guid:?} to a \
-               different reader {reader_guid:?}. Not gonna happen."
-            );
-            return;
-          }
-        }
-
-        // Generate datafrag message
-        let mut message_builder = MessageBuilder::new();
-        if let Some(src_ts) = cache_change.write_options.source_timestamp() {
-          message_builder = message_builder.ts_msg(self.endianness, Some(src_ts));
-        }
-
-        let fragment_size: u32 = FRAGMENT_SIZE as u32;
-        let data_size: u32 = cache_change.data_value.payload_size() as u32; // TODO: overflow check
-
-        message_builder = message_builder.data_frag_msg(
-          &cache_change,
-          reader_guid.entity_id, // reader
-          self.my_guid,          // writer
-          frag_num,
-          // Repair responds to specifically-NACKed fragment numbers (possibly
-          // non-contiguous), so retransmit one fragment per submessage.
-          1,
-          fragment_size as u16, // TODO: overflow check
-          data_size,
-          self.endianness,
-          self.security_plugins.as_ref(),
-        );
-
-        // Repair frags are a reliability action (response to a NACK_FRAG), so
-        // they must actually reach the reader. Use the never-dropped `Control`
-        // queue: dropping repair on WouldBlock livelocks under sustained send
-        // congestion (reader re-NACKs, retransmit dropped again, forever).
-        let _blocked = self.send_message_to_readers(
-          DeliveryMode::Unicast,
-          message_builder.add_header_and_build(self.my_guid.prefix),
-          &mut std::iter::once(&*reader_proxy),
-          TrafficClass::Control,
-        );
-      } else {
+    while sent_frags < REPAIR_FRAGS_BATCH_MAX {
+      let Some((seq_num, first)) = reader_proxy.frags_requested_iterator().next() else {
+        break;
+      };
+      let Some(cache_change) = self.send_buffer.get_by_sn(seq_num) else {
         error!(
           "handle_repair_frags_send_worker: {:?} missing from send buffer. topic={:?}",
           seq_num, self.my_topic_name
         );
         // TODO: Should we send a GAP message then?
+        reader_proxy.forget_frags_requested(seq_num);
+        continue;
+      };
+      // If the data is meant for a single reader only, make sure it is the one we're
+      // about to send frags to.
+      if let Some(single_reader_guid) = cache_change.write_options.to_single_reader() {
+        if single_reader_guid != reader_guid {
+          error!(
+            "We were asked to send datafrags meant for the reader {single_reader_guid:?} to a \
+             different reader {reader_guid:?}. Not gonna happen."
+          );
+          reader_proxy.forget_frags_requested(seq_num);
+          continue;
+        }
       }
 
-      reader_proxy.mark_frag_sent(seq_num, &frag_num);
-    } // for
+      let data_size = cache_change.data_value.payload_size();
+      let (num_frags, fragment_size) = self.num_frags_and_frag_size(data_size);
+      let first_num = u32::from(first);
+      if first_num > num_frags {
+        // A request beyond the end of the sample: nothing to send.
+        reader_proxy.forget_frags_requested(seq_num);
+        continue;
+      }
+      // The run of contiguous requested fragments starting at `first`.
+      let mut run = 1u32;
+      while first_num + run <= num_frags
+        && reader_proxy.frag_requested(seq_num, FragmentNumber::new(first_num + run))
+      {
+        run += 1;
+      }
+
+      // Generate datafrag message
+      let mut message_builder = MessageBuilder::new();
+      if let Some(src_ts) = cache_change.write_options.source_timestamp() {
+        message_builder = message_builder.ts_msg(self.endianness, Some(src_ts));
+      }
+      let k = frags_per_datafrag(
+        message_builder.len_serialized(),
+        budget,
+        first_num,
+        num_frags,
+        fragment_size,
+        data_size,
+      )
+      .min(run);
+      let Ok(sample_size) = u32::try_from(data_size) else {
+        error!("handle_repair_frags_send_worker: data_size {data_size} does not fit in u32");
+        reader_proxy.forget_frags_requested(seq_num);
+        continue;
+      };
+      // k <= 256 (a NACK_FRAG names at most 256 fragments) or at most what fits
+      // one datagram, so it fits u16.
+      let k = k.min(u32::from(u16::MAX));
+      message_builder = message_builder.data_frag_msg(
+        &cache_change,
+        reader_guid.entity_id, // reader
+        self.my_guid,          // writer
+        first,
+        k as u16,
+        fragment_size,
+        sample_size,
+        self.endianness,
+        self.security_plugins.as_ref(),
+      );
+
+      // Repair frags are a reliability action (response to a NACK_FRAG), so
+      // they must actually reach the reader. Use the never-dropped `Control`
+      // queue: dropping repair on WouldBlock livelocks under sustained send
+      // congestion (reader re-NACKs, retransmit dropped again, forever).
+      let _blocked = self.send_message_to_readers(
+        DeliveryMode::Unicast,
+        message_builder.add_header_and_build(self.my_guid.prefix),
+        &mut std::iter::once(&*reader_proxy),
+        TrafficClass::Control,
+      );
+
+      for f in first_num..first_num + k {
+        reader_proxy.mark_frag_sent(seq_num, &FragmentNumber::new(f));
+      }
+      sent_frags += k;
+    }
   } // fn
 
   /// Removes permanently cacheChanges from DDSCache.
