@@ -186,13 +186,15 @@ impl Node {
             "-p",
             "reference_camera:=cam1",
             "-p",
-            "min_depth:=1.0",
+            // A narrow range around the wall: 24 planes, steps of 1.6 % in depth at 2 m, so
+            // that 1280x960 runs in reasonable time on a software adapter.
+            "min_depth:=1.6",
             "-p",
-            "max_depth:=4.0",
+            "max_depth:=2.6",
             "-p",
             "optimizer:=wta",
             "-p",
-            "num_planes:=32",
+            "num_planes:=24",
             "-p",
             "window_width:=5",
             "-p",
@@ -421,14 +423,14 @@ fn graph_parameters_rosout_diagnostics_sigint() {
     );
 
     let params = &probe["parameters"];
-    assert_eq!(params["num_planes"], 32);
+    assert_eq!(params["num_planes"], 24);
     assert_eq!(params["cameras"], json!(["cam0", "cam1", "cam2", "cam3"]));
     assert_eq!(params["optimizer"], "wta");
     let sets = &probe["sets"];
     assert_eq!(
-        sets["num_planes=24"]["successful"], true,
+        sets["num_planes=20"]["successful"], true,
         "{}",
-        sets["num_planes=24"]
+        sets["num_planes=20"]
     );
     for refused in ["num_planes=1", "num_planes='many'", "cameras=[a, b]"] {
         assert_eq!(
@@ -441,7 +443,7 @@ fn graph_parameters_rosout_diagnostics_sigint() {
             "{refused} refused without a reason"
         );
     }
-    assert_eq!(probe["after"]["num_planes"], 24);
+    assert_eq!(probe["after"]["num_planes"], 20);
     assert_eq!(
         probe["after"]["cameras"],
         json!(["cam0", "cam1", "cam2", "cam3"])

@@ -339,8 +339,8 @@ def run_probe(node: Node, fqn: str) -> None:
         "floating_point_range": [[r.from_value, r.to_value, r.step] for r in d.floating_point_range],
     } for d in described}
     sets = {
-        "num_planes=24": set_param(node, fqn, "num_planes", ParameterValue(
-            type=ParameterType.PARAMETER_INTEGER, integer_value=24)),
+        "num_planes=20": set_param(node, fqn, "num_planes", ParameterValue(
+            type=ParameterType.PARAMETER_INTEGER, integer_value=20)),
         "num_planes=1": set_param(node, fqn, "num_planes", ParameterValue(
             type=ParameterType.PARAMETER_INTEGER, integer_value=1)),
         "num_planes='many'": set_param(node, fqn, "num_planes", ParameterValue(
