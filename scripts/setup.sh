@@ -7,8 +7,11 @@
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
 #   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
 #   tests/bag.rs; `opencv-python-headless`, the camera-model reference of
-#   tests/camera_conventions.rs): the system Python when it already has them, else a virtual environment at
-#   target/test-venv (Debian's Python refuses global pip installs).
+#   tests/camera_conventions.rs) and the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
+#   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python):
+#   the system Python when it already has them all, else a virtual environment at target/test-venv
+#   (Debian's Python refuses global pip installs) made from a Python 3.11, the only version the
+#   ROS wheels are built for. Pinned versions; nothing is installed when all is present.
 # Run it from the repository root.
 set -eu
 
@@ -30,14 +33,32 @@ command -v ip >/dev/null 2>&1 || packages="$packages iproute2"
 command -v unshare >/dev/null 2>&1 || packages="$packages util-linux"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
-PY_CHECK='import cyclonedds, rosbags, mcap, cv2'
+PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg'
+# The ROS wheels are cp311 only: the venv needs a Python 3.11.
+python311() {
+    for py in python3.11 python3; do
+        command -v "$py" >/dev/null 2>&1 &&
+            "$py" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null &&
+            { echo "$py"; return 0; }
+    done
+    return 1
+}
 install_python_tools() {
     python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
     [ -x target/test-venv/bin/python3 ] &&
         target/test-venv/bin/python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
-    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless) into target/test-venv ..." >&2
-    python3 -m venv target/test-venv &&
-        target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt
+    if ! py=$(python311); then
+        echo "setup: the ROS 2 wheels (tools/requirements-ros.txt) need Python 3.11 (python3.11 or a python3 of that version); none found" >&2
+        return 1
+    fi
+    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless; rclpy and the ROS 2 Jazzy messages) into target/test-venv ..." >&2
+    if [ -x target/test-venv/bin/python3 ] &&
+        ! target/test-venv/bin/python3 -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+        echo "setup: target/test-venv is not Python 3.11; making it anew" >&2
+        rm -rf target/test-venv
+    fi
+    [ -x target/test-venv/bin/python3 ] || "$py" -m venv target/test-venv
+    target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt -r tools/requirements-ros.txt
 }
 
 if [ -z "$packages" ]; then

@@ -1,0 +1,495 @@
+//! `sweepdepth node` driven by the real ROS 2 stack: `tools/rclpy_peer.py` on rclpy 7.1.6 over
+//! rcl 9.2.8 and rmw_fastrtps_cpp / Fast DDS 2.14.5 (the Jazzy wheels `scripts/setup.sh` installs),
+//! run through `tools/ros_python`. The peer is the four camera drivers (rgb8 images of a textured
+//! wall at 2 m rendered by `sweepdepth::synthetic`, written to files by this test) and a consumer
+//! with default QoS and default socket buffers; it also reads the graph, calls the parameter
+//! services and listens to /rosout and /diagnostics. Extrinsics come from a rig file: tf2_msgs is
+//! not published as a wheel, so rclpy cannot speak /tf_static here (the Cyclone peer of
+//! tests/node_cyclone.rs does).
+//!
+//! Pacing: the peer sends the next frame set only after the depth of the previous one arrived
+//! (or a generous timeout), so no test depends on how fast the engine or the machine is.
+//!
+//! rclpy missing is a FAILURE, not a skip. SAFETY: every test runs its node and peers inside a
+//! private network namespace with only loopback (tests/common/netns.rs); the launcher refuses to
+//! start outside one.
+
+#[path = "common/netns.rs"]
+mod netns;
+#[path = "common/python.rs"]
+mod python;
+#[path = "common/rclpy.rs"]
+mod rclpy;
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use netns::{in_private_netns, KillOnDrop};
+use rclpy::{event, require_rclpy, Peer};
+use serde_json::{json, Value};
+use sweepdepth::geometry::CameraModel;
+use sweepdepth::image::Rgba8Image;
+use sweepdepth::synthetic::{self, Scene};
+
+const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS_RCLPY";
+const DOMAIN: &str = "48";
+const NAMESPACE: &str = "/rig";
+const NODE_FQN: &str = "/rig/sweepdepth";
+const CAMERAS: usize = 4;
+const EXPECTED_DEPTH_M: f64 = 2.0;
+const TOLERANCE: f64 = 0.02;
+/// How long the peer waits for the depth of one set before it sends the next.
+const SET_TIMEOUT_S: f64 = 180.0;
+
+/// The heavy tests one at a time (each runs the engine on both cores).
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn run(test_name: &str, body: impl FnOnce()) {
+    require_rclpy();
+    let _one_at_a_time = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    in_private_netns(INNER, test_name, body);
+}
+
+#[test]
+fn rclpy_graph_parameters_rosout_diagnostics_sigint() {
+    run(
+        "rclpy_graph_parameters_rosout_diagnostics_sigint",
+        graph_parameters_rosout_diagnostics_sigint,
+    );
+}
+
+#[test]
+fn rclpy_depth_640x480_best_effort_driver() {
+    run("rclpy_depth_640x480_best_effort_driver", || {
+        depth_run(640, 480, false)
+    });
+}
+
+#[test]
+fn rclpy_depth_640x480_reliable_driver() {
+    run("rclpy_depth_640x480_reliable_driver", || {
+        depth_run(640, 480, true)
+    });
+}
+
+#[test]
+fn rclpy_depth_1280x960_best_effort_driver() {
+    run("rclpy_depth_1280x960_best_effort_driver", || {
+        depth_run(1280, 960, false)
+    });
+}
+
+#[test]
+fn rclpy_depth_1280x960_reliable_driver() {
+    run("rclpy_depth_1280x960_reliable_driver", || {
+        depth_run(1280, 960, true)
+    });
+}
+
+/// A scratch directory removed on every exit path.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new() -> Self {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.subsec_nanos())
+            .unwrap_or(0);
+        let dir =
+            std::env::temp_dir().join(format!("sweepdepth-rclpy-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("create the temp dir");
+        TempDir(dir)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn rgb(image: &Rgba8Image) -> Vec<u8> {
+    let mut data = Vec::with_capacity(image.pixels.len() * 3);
+    for &p in &image.pixels {
+        let [r, g, b, _] = Rgba8Image::unpack(p);
+        data.extend_from_slice(&[r, g, b]);
+    }
+    data
+}
+
+/// Renders the 4-camera row (10 cm apart, reference cam1) looking at a textured wall at 2 m and
+/// writes the peer's `rig.json` with the raw rgb8 files, and the node's rig file `rig.yaml`.
+fn write_scene(dir: &Path, width: u32, height: u32, reliable: bool, sets: u32) -> PathBuf {
+    let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
+    let rig = synthetic::row_rig(CAMERAS, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(EXPECTED_DEPTH_M, None, model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut cameras = Vec::new();
+    let mut yaml = String::from("rig_frame: rig\ncameras:\n");
+    for (i, cam) in rig.cameras.iter().enumerate() {
+        let file = format!("cam{i}.raw");
+        std::fs::write(dir.join(&file), rgb(&images[i])).expect("write image");
+        let k = cam.model.intrinsics;
+        let c = cam.centre_in_rig();
+        cameras.push(json!({
+            "name": format!("cam{i}"),
+            "frame_id": format!("cam{i}_optical"),
+            "image_file": file,
+            "k": [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
+            "p": [k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0],
+        }));
+        yaml.push_str(&format!(
+            "  - name: cam{i}\n    translation: [{}, {}, {}]\n    rotation: [0.0, 0.0, 0.0, 1.0]\n",
+            c.x, c.y, c.z
+        ));
+    }
+    let spec = json!({
+        "namespace": NAMESPACE,
+        "width": width,
+        "height": height,
+        "expected_depth_m": EXPECTED_DEPTH_M,
+        "tolerance": TOLERANCE,
+        "sets": sets,
+        "set_timeout_s": SET_TIMEOUT_S,
+        "period_s": 0.1,
+        "image_reliable": reliable,
+        "cameras": cameras,
+    });
+    std::fs::write(
+        dir.join("rig.json"),
+        serde_json::to_vec_pretty(&spec).unwrap(),
+    )
+    .expect("write rig.json");
+    let rig_file = dir.join("rig.yaml");
+    std::fs::write(&rig_file, yaml).expect("write rig.yaml");
+    rig_file
+}
+
+/// The node under test with its stderr lines kept.
+struct Node {
+    child: KillOnDrop,
+    log: Arc<Mutex<Vec<String>>>,
+}
+
+impl Node {
+    fn start(rig_file: &Path, extra: &[&str]) -> Node {
+        let mut args: Vec<String> = [
+            "node",
+            "--ros-args",
+            "-r",
+            &format!("__ns:={NAMESPACE}"),
+            "-p",
+            "cameras:=[cam0, cam1, cam2, cam3]",
+            "-p",
+            "reference_camera:=cam1",
+            "-p",
+            // A narrow range around the wall: 24 planes, steps of 1.6 % in depth at 2 m, so
+            // that 1280x960 runs in reasonable time on a software adapter.
+            "min_depth:=1.6",
+            "-p",
+            "max_depth:=2.6",
+            "-p",
+            "optimizer:=wta",
+            "-p",
+            "num_planes:=24",
+            "-p",
+            "window_width:=5",
+            "-p",
+            "window_height:=5",
+            "-p",
+            "sync:=exact",
+            // The peer sends a set only after the previous depth arrived, so its cameras are
+            // silent while the engine runs: they must not leave the rig for it.
+            "-p",
+            "camera_timeout:=0.0",
+            "-p",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        args.push(format!("rig_file:={}", rig_file.display()));
+        for p in extra {
+            args.push("-p".into());
+            args.push(p.to_string());
+        }
+        let mut child = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .args(&args)
+            .env("ROS_DOMAIN_ID", DOMAIN)
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
+            )
+            .stdin(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start the node");
+        let stderr = child.stderr.take().expect("node stderr");
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let sink = Arc::clone(&log);
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("[node] {line}");
+                sink.lock().unwrap_or_else(|e| e.into_inner()).push(line);
+            }
+        });
+        Node {
+            child: KillOnDrop(child),
+            log,
+        }
+    }
+
+    fn lines(&self) -> Vec<String> {
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+}
+
+/// Runs the peer's `drive` over `dir` and returns its summary, checking every set received.
+fn drive(dir: &Path, node: &mut Node, sets: u32) -> (Vec<Value>, Value) {
+    let dir_arg = dir.to_string_lossy().into_owned();
+    let mut peer = Peer::start("rclpy driver", DOMAIN, &["drive", &dir_arg], &[]);
+    let mut results = Vec::new();
+    let deadline = Duration::from_secs(120 + (SET_TIMEOUT_S as u64 + 10) * u64::from(sets));
+    let started = Instant::now();
+    let summary = loop {
+        if let Some(status) = node.child.0.try_wait().expect("poll the node") {
+            panic!("the node exited during the run ({status}); see its output above");
+        }
+        let v = peer.wait_for(
+            deadline.saturating_sub(started.elapsed()),
+            "the drive summary",
+            |_| true,
+            |_| {},
+        );
+        match event(&v) {
+            "set" => {
+                eprintln!("set {}: {}", v["k"], v);
+                results.push(v);
+            }
+            "summary" => break v,
+            _ => eprintln!("peer: {v}"),
+        }
+    };
+    (results, summary)
+}
+
+fn depth_run(width: u32, height: u32, reliable: bool) {
+    const SETS: u32 = 10;
+    let dir = TempDir::new();
+    let rig_file = write_scene(&dir.0, width, height, reliable, SETS);
+    let qos = if reliable { "reliable" } else { "best_effort" };
+    // The node subscribes best effort by default (matches both drivers); reliable on request.
+    let reliable_input = format!("input_qos_reliable:={reliable}");
+    let mut node = Node::start(&rig_file, &[&reliable_input]);
+    let (sets, summary) = drive(&dir.0, &mut node, SETS);
+    let received: Vec<&Value> = sets.iter().filter(|s| s["received"] == true).collect();
+    eprintln!(
+        "{width}x{height} rgb8, {qos} driver: {} of {SETS} depth images; latency from the node's publish to the default rclpy subscriber: median {} ms, max {} ms",
+        received.len(),
+        summary["latency_median_ms"],
+        summary["latency_max_ms"]
+    );
+    assert!(
+        received.len() as u32 * 10 >= SETS * 9,
+        "only {} of {SETS} sets gave a depth image at the rclpy subscriber ({qos} driver, {width}x{height})",
+        received.len()
+    );
+    for s in &received {
+        assert_eq!(s["encoding"], "32FC1");
+        assert_eq!(s["width"], width);
+        assert_eq!(s["height"], height);
+        assert_eq!(s["frame_id"], "cam1_optical");
+        let total = s["total"].as_u64().unwrap();
+        let valid = s["valid"].as_u64().unwrap();
+        let within = s["within"].as_u64().unwrap();
+        assert!(
+            valid * 2 >= total,
+            "set {}: only {valid} of {total} depths valid",
+            s["k"]
+        );
+        assert!(
+            within * 10 >= valid * 9,
+            "set {}: only {within} of {valid} valid depths within 2 % of {EXPECTED_DEPTH_M} m (median {})",
+            s["k"],
+            s["median_m"]
+        );
+    }
+}
+
+fn names(v: &Value) -> Vec<String> {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|x| x.as_str().map(String::from))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn graph_parameters_rosout_diagnostics_sigint() {
+    let dir = TempDir::new();
+    let rig_file = write_scene(&dir.0, 160, 120, false, 3);
+    let mut node = Node::start(&rig_file, &[]);
+    let (sets, summary) = drive(&dir.0, &mut node, 3);
+    assert!(
+        sets.iter().any(|s| s["received"] == true),
+        "no depth image reached the rclpy subscriber"
+    );
+
+    // /rosout: the node's own log lines, under its logger name.
+    let rosout = summary["rosout"].as_array().cloned().unwrap_or_default();
+    assert!(
+        rosout.iter().any(|l| l["name"] == "rig.sweepdepth"
+            && l["msg"].as_str().unwrap_or("").contains("published")),
+        "no '/rosout' line of rig.sweepdepth saying it published; got {rosout:?}"
+    );
+    // /diagnostics: a status of the node once a second.
+    let diagnostics = summary["diagnostics"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert!(
+        diagnostics
+            .iter()
+            .any(|d| d["name"].as_str().unwrap_or("").contains("sweepdepth")),
+        "no /diagnostics status of the node; got {diagnostics:?}"
+    );
+
+    // The graph and the parameter services as rcl sees them.
+    let mut peer = Peer::start("rclpy probe", DOMAIN, &["probe", NODE_FQN], &[]);
+    let probe = peer.wait_for(
+        Duration::from_secs(180),
+        "the probe result",
+        |v| event(v) == "probe",
+        |_| {},
+    );
+    let nodes = probe["nodes"].as_array().cloned().unwrap_or_default();
+    assert!(
+        nodes.contains(&json!(["sweepdepth", "/rig"])),
+        "rcl does not see the node /rig/sweepdepth; nodes: {nodes:?}"
+    );
+    let topics = &probe["topics"];
+    for (topic, ty) in [
+        ("/rig/depth/image", "sensor_msgs/msg/Image"),
+        ("/rig/depth/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/rig/confidence/image", "sensor_msgs/msg/Image"),
+        ("/rig/cost/image", "sensor_msgs/msg/Image"),
+        ("/rig/selection/image", "sensor_msgs/msg/Image"),
+        ("/rig/cam0/image_raw", "sensor_msgs/msg/Image"),
+        ("/rig/cam3/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+        ("/rosout", "rcl_interfaces/msg/Log"),
+    ] {
+        assert_eq!(
+            names(&topics[topic]),
+            vec![ty.to_string()],
+            "topic {topic}: types {}",
+            topics[topic]
+        );
+    }
+    let depth_pubs = probe["publishers"]["/rig/depth/image"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    let ours: Vec<&Value> = depth_pubs
+        .iter()
+        .filter(|p| p["node_name"] == "sweepdepth")
+        .collect();
+    assert_eq!(
+        ours.len(),
+        1,
+        "publishers of /rig/depth/image: {depth_pubs:?}"
+    );
+    assert_eq!(ours[0]["node_namespace"], "/rig");
+    assert_eq!(ours[0]["qos"]["reliability"], "RELIABLE");
+    let image_subs = probe["subscriptions"]["/rig/cam0/image_raw"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    let ours: Vec<&Value> = image_subs
+        .iter()
+        .filter(|p| p["node_name"] == "sweepdepth")
+        .collect();
+    assert_eq!(
+        ours.len(),
+        1,
+        "subscriptions of /rig/cam0/image_raw: {image_subs:?}"
+    );
+    assert_eq!(
+        ours[0]["qos"]["reliability"], "BEST_EFFORT",
+        "camera inputs subscribe best effort (sensor data), matching both kinds of driver"
+    );
+
+    let params = &probe["parameters"];
+    assert_eq!(params["num_planes"], 24);
+    assert_eq!(params["cameras"], json!(["cam0", "cam1", "cam2", "cam3"]));
+    assert_eq!(params["optimizer"], "wta");
+    let sets = &probe["sets"];
+    assert_eq!(
+        sets["num_planes=20"]["successful"], true,
+        "{}",
+        sets["num_planes=20"]
+    );
+    for refused in ["num_planes=1", "num_planes='many'", "cameras=[a, b]"] {
+        assert_eq!(
+            sets[refused]["successful"], false,
+            "{refused}: {}",
+            sets[refused]
+        );
+        assert!(
+            !sets[refused]["reason"].as_str().unwrap_or("").is_empty(),
+            "{refused} refused without a reason"
+        );
+    }
+    assert_eq!(probe["after"]["num_planes"], 20);
+    assert_eq!(
+        probe["after"]["cameras"],
+        json!(["cam0", "cam1", "cam2", "cam3"])
+    );
+    // describe_parameters: what it answers today (issue 12 item 3 makes it serve our table).
+    let descriptors = probe["descriptors"]
+        .as_object()
+        .cloned()
+        .unwrap_or_default();
+    assert_eq!(
+        descriptors.len(),
+        params.as_object().map_or(0, |p| p.len()),
+        "one descriptor per parameter"
+    );
+    eprintln!(
+        "describe_parameters today: num_planes {} / cameras {}; get_parameter_types: num_planes {}",
+        descriptors["num_planes"], descriptors["cameras"], probe["types"]["num_planes"]
+    );
+
+    // SIGINT: exit status 0 (what it logs on the way out is reported, issue 12 item 7).
+    let status = Command::new("kill")
+        .args(["-INT", &node.child.0.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    let sent = Instant::now();
+    let exit = loop {
+        if let Some(s) = node.child.0.try_wait().expect("poll the node") {
+            break s;
+        }
+        assert!(
+            sent.elapsed() < Duration::from_secs(60),
+            "the node did not stop within 60 s of SIGINT"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let stopped = sent.elapsed();
+    std::thread::sleep(Duration::from_millis(200));
+    let errors: Vec<String> = node
+        .lines()
+        .into_iter()
+        .filter(|l| l.contains("ERROR"))
+        .collect();
+    eprintln!(
+        "SIGINT: exit {exit} after {stopped:?}; {} ERROR lines: {errors:#?}",
+        errors.len()
+    );
+    assert_eq!(exit.code(), Some(0), "exit status after SIGINT: {exit}");
+}

@@ -1,0 +1,389 @@
+#!/usr/bin/env python3
+"""The real ROS 2 stack as a test peer of `sweepdepth node`: rclpy 7.1.6 over rcl 9.2.8 and
+rmw_fastrtps_cpp / Fast DDS 2.14.5 (the PyPI wheels of tools/requirements-ros.txt). Run it through
+`tools/ros_python` (environment) inside a private network namespace (tests/node_rclpy.rs does).
+
+Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on stderr):
+
+  latency TOPIC[,TOPIC...] [--bytes]
+      A consumer as RViz or image_proc would be one: default QoS (reliable, volatile, keep last
+      10), default Fast DDS settings and socket buffers. For every sensor_msgs/Image received it
+      prints {"event": "image", "topic", "frame_id", "stamp_ns", "source_ns", "received_ns",
+      "now_ns", "bytes"}: `source_ns` is the writer's source timestamp (RTPS INFO_TS, set when the
+      publisher wrote the sample), `received_ns` Fast DDS's reception time, `now_ns` the wall time
+      in the callback.
+  image-pub TOPIC WIDTH HEIGHT
+      A Fast DDS publisher of 32FC1 images (reliable keep last 1, the node's output QoS). Reads
+      commands on stdin: `pub ID` publishes one image with frame_id ID, `quit` leaves. Prints
+      {"event": "ready"} once, {"event": "published", "id", "source_ns"} per image.
+
+  drive DIR
+      The camera drivers and a consumer of the node, from DIR/rig.json (written by the Rust test:
+      namespace, cameras with their raw rgb8 pixel files and K/P, image QoS, expected depth):
+      publishes one set (camera_info + image per camera, one stamp) at a time and waits for the
+      depth image with that stamp (default-QoS subscriber) or `set_timeout_s`, then the camera
+      period, then the next; listens to /rosout and /diagnostics meanwhile. Prints one
+      {"event": "set", ...} per set (depth statistics against the expected depth, latency from
+      the node's publish time) and a final {"event": "summary", ...}.
+  probe NODE_FQN
+      The graph as rcl sees it (node names and namespaces, topic names and types, endpoint QoS)
+      and the node's parameter services (list, get, describe, get types, set: a valid engine
+      value, an out-of-range value, a read-only parameter). Prints {"event": "probe", ...}.
+
+Exit status: 0 done, 2 timeout, 3 bad setup or arguments, 4 rclpy missing.
+
+SAFETY: refuses to open DDS unless this process's network namespace has only `lo`.
+"""
+
+import json
+import pathlib
+import sys
+import threading
+import time
+
+PREFIX = "RCLPY_PEER "
+
+
+def interfaces() -> list[str]:
+    try:
+        lines = pathlib.Path("/proc/self/net/dev").read_text().splitlines()[2:]
+    except OSError:
+        return []
+    return [l.split(":")[0].strip() for l in lines if l.split(":")[0].strip()]
+
+
+def fail(code: int, msg: str) -> None:
+    print(f"rclpy_peer: {msg}", file=sys.stderr, flush=True)
+    sys.exit(code)
+
+
+def emit(obj: dict) -> None:
+    print(PREFIX + json.dumps(obj), flush=True)
+
+
+if interfaces() != ["lo"]:
+    fail(3, f"refusing to open DDS: this network namespace has interfaces {interfaces()} (only lo allowed)")
+
+try:
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import CameraInfo, Image
+    from builtin_interfaces.msg import Time
+    from rcl_interfaces.msg import Log, Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import (DescribeParameters, GetParameters, GetParameterTypes,
+                                    ListParameters, SetParameters)
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import qos_profile_sensor_data
+    import numpy as np
+except ImportError as e:  # the Rust tests look for exit status 4
+    fail(4, f"RCLPY_MISSING: cannot import rclpy ({e}); run `sh scripts/setup.sh`")
+
+
+def default_qos() -> QoSProfile:
+    """rclcpp/rclpy's default: reliable, volatile, keep last 10."""
+    return QoSProfile(depth=10)
+
+
+def output_qos() -> QoSProfile:
+    """The node's output QoS: reliable, volatile, keep last 1."""
+    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      history=HistoryPolicy.KEEP_LAST)
+
+
+def stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def run_latency(node: Node, topics: list[str]) -> None:
+    def callback_for(topic: str):
+        def callback(msg: Image, info) -> None:
+            now = time.time_ns()
+            emit({
+                "event": "image", "topic": topic, "frame_id": msg.header.frame_id,
+                "stamp_ns": stamp_ns(msg.header.stamp),
+                "source_ns": int(info["source_timestamp"]),
+                "received_ns": int(info["received_timestamp"]),
+                "now_ns": now, "bytes": len(msg.data),
+                "width": msg.width, "height": msg.height, "encoding": msg.encoding,
+            })
+        return callback
+
+    subs = [node.create_subscription(Image, t, callback_for(t), default_qos()) for t in topics]
+    emit({"event": "ready", "topics": topics})
+    rclpy.spin(node)
+    del subs
+
+
+def run_image_pub(node: Node, topic: str, width: int, height: int) -> None:
+    publisher = node.create_publisher(Image, topic, output_qos())
+    payload = bytes(range(256)) * (width * height * 4 // 256 + 1)
+    payload = payload[: width * height * 4]
+    commands: list[str] = []
+    lock = threading.Lock()
+
+    def read_stdin() -> None:
+        for line in sys.stdin:
+            with lock:
+                commands.append(line.strip())
+        with lock:
+            commands.append("quit")
+
+    threading.Thread(target=read_stdin, daemon=True).start()
+    emit({"event": "ready", "topic": topic})
+    while rclpy.ok():
+        rclpy.spin_once(node, timeout_sec=0.005)
+        with lock:
+            todo, commands[:] = list(commands), []
+        for cmd in todo:
+            if cmd == "quit":
+                return
+            if cmd.startswith("pub "):
+                msg = Image()
+                now = node.get_clock().now().to_msg()
+                msg.header.stamp = now
+                msg.header.frame_id = cmd[4:]
+                msg.width, msg.height, msg.encoding = width, height, "32FC1"
+                msg.is_bigendian, msg.step = 0, width * 4
+                msg.data = payload
+                source = time.time_ns()
+                publisher.publish(msg)
+                emit({"event": "published", "id": cmd[4:], "source_ns": source})
+
+
+def qos_name(q) -> dict:
+    return {"reliability": q.reliability.name, "durability": q.durability.name,
+            "history": q.history.name, "depth": q.depth}
+
+
+def run_drive(node: Node, directory: pathlib.Path) -> None:
+    rig = json.loads((directory / "rig.json").read_text())
+    ns = rig["namespace"].rstrip("/")
+    w, h = int(rig["width"]), int(rig["height"])
+    expected, tolerance = float(rig["expected_depth_m"]), float(rig["tolerance"])
+    sets, set_timeout = int(rig["sets"]), float(rig["set_timeout_s"])
+    period = float(rig.get("period_s", 0.1))
+    if rig["image_reliable"]:
+        image_qos = QoSProfile(depth=10)  # rclcpp's default / image_transport's
+    else:
+        image_qos = qos_profile_sensor_data  # best effort, keep last 5
+    cams = []
+    for cam in rig["cameras"]:
+        raw = (directory / cam["image_file"]).read_bytes()
+        if len(raw) != w * h * 3:
+            fail(3, f"{cam['image_file']}: {len(raw)} bytes, expected {w * h * 3}")
+        base = f"{ns}/{cam['name']}"
+        info = CameraInfo()
+        info.header.frame_id = cam["frame_id"]
+        info.width, info.height = w, h
+        info.distortion_model = "plumb_bob"
+        info.d = [0.0] * 5
+        info.k = [float(v) for v in cam["k"]]
+        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        info.p = [float(v) for v in cam["p"]]
+        image = Image()
+        image.header.frame_id = cam["frame_id"]
+        image.width, image.height, image.encoding = w, h, "rgb8"
+        image.is_bigendian, image.step = 0, w * 3
+        image.data = raw
+        cams.append({
+            "info": info, "image": image,
+            "info_pub": node.create_publisher(CameraInfo, f"{base}/camera_info", image_qos),
+            "image_pub": node.create_publisher(Image, f"{base}/image_raw", image_qos),
+        })
+
+    depths: dict[int, tuple] = {}
+
+    def on_depth(msg: Image, info) -> None:
+        depths[stamp_ns(msg.header.stamp)] = (msg, info, time.time_ns())
+
+    rosout: list[dict] = []
+
+    def on_rosout(msg: Log) -> None:
+        rosout.append({"name": msg.name, "level": int(msg.level), "msg": msg.msg})
+
+    diagnostics: list[dict] = []
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for st in msg.status:
+            diagnostics.append({"name": st.name, "level": int.from_bytes(st.level, "little")
+                                if isinstance(st.level, bytes) else int(st.level),
+                                "message": st.message,
+                                "values": {kv.key: kv.value for kv in st.values}})
+
+    subs = [
+        node.create_subscription(Image, f"{ns}/depth/image", on_depth, default_qos()),
+        node.create_subscription(Log, "/rosout", on_rosout, QoSProfile(depth=1000)),
+        node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, default_qos()),
+    ]
+
+    def spin_for(seconds: float, until=lambda: False) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            rclpy.spin_once(node, timeout_sec=min(0.01, max(0.0, end - time.monotonic())))
+
+    # Until the node's subscriptions match ours (discovery), nothing sent would arrive.
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and any(
+            c["image_pub"].get_subscription_count() == 0 for c in cams):
+        spin_for(0.1)
+    emit({"event": "matched", "after_s": round(60 - (deadline - time.monotonic()), 3)})
+    spin_for(1.0)  # let the node's readers settle (reliable first samples)
+
+    results = []
+    for k in range(1, sets + 1):
+        stamp = Time(sec=1000 + k, nanosec=0)
+        sent_ns = time.time_ns()
+        for cam in cams:
+            cam["info"].header.stamp = stamp
+            cam["image"].header.stamp = stamp
+            cam["info_pub"].publish(cam["info"])
+            cam["image_pub"].publish(cam["image"])
+        key = stamp_ns(stamp)
+        spin_for(set_timeout, lambda: key in depths)
+        got = depths.get(key)
+        result = {"event": "set", "k": k, "received": got is not None}
+        if got is not None:
+            msg, info, now = got
+            arr = np.frombuffer(bytes(msg.data), dtype=">f4" if msg.is_bigendian else "<f4")
+            valid = arr[np.isfinite(arr)]
+            within = int(np.sum(np.abs(valid - expected) <= tolerance * expected))
+            result.update({
+                "encoding": msg.encoding, "width": msg.width, "height": msg.height,
+                "frame_id": msg.header.frame_id, "total": int(arr.size),
+                "valid": int(valid.size), "within": within,
+                "median_m": float(np.median(valid)) if valid.size else None,
+                "latency_ms": (now - int(info["source_timestamp"])) / 1e6,
+                "reception_ms": (int(info["received_timestamp"]) - int(info["source_timestamp"])) / 1e6,
+                "since_sent_ms": (now - sent_ns) / 1e6,
+            })
+        emit(result)
+        results.append(result)
+        spin_for(period)
+    spin_for(1.5, lambda: bool(diagnostics))  # /diagnostics comes once a second
+    received = [r for r in results if r["received"]]
+    latencies = sorted(r["latency_ms"] for r in received)
+    emit({
+        "event": "summary", "sets": sets, "received": len(received),
+        "latency_median_ms": latencies[len(latencies) // 2] if latencies else None,
+        "latency_max_ms": latencies[-1] if latencies else None,
+        "image_qos": qos_name(image_qos),
+        "rosout": rosout[-200:], "diagnostics": diagnostics[-50:],
+    })
+    del subs
+
+
+def call(node: Node, srv_type, name: str, request, timeout: float = 30.0):
+    client = node.create_client(srv_type, name)
+    if not client.wait_for_service(timeout_sec=timeout):
+        fail(2, f"service {name} not available within {timeout} s")
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+    if not future.done():
+        fail(2, f"no answer from {name} within {timeout} s")
+    node.destroy_client(client)
+    return future.result()
+
+
+def value_json(v: ParameterValue):
+    t = v.type
+    return {
+        ParameterType.PARAMETER_NOT_SET: lambda: None,
+        ParameterType.PARAMETER_BOOL: lambda: v.bool_value,
+        ParameterType.PARAMETER_INTEGER: lambda: v.integer_value,
+        ParameterType.PARAMETER_DOUBLE: lambda: v.double_value,
+        ParameterType.PARAMETER_STRING: lambda: v.string_value,
+        ParameterType.PARAMETER_STRING_ARRAY: lambda: list(v.string_array_value),
+        ParameterType.PARAMETER_DOUBLE_ARRAY: lambda: list(v.double_array_value),
+        ParameterType.PARAMETER_INTEGER_ARRAY: lambda: list(v.integer_array_value),
+        ParameterType.PARAMETER_BOOL_ARRAY: lambda: list(v.bool_array_value),
+    }.get(t, lambda: f"type {t}")()
+
+
+def set_param(node: Node, fqn: str, name: str, value: ParameterValue) -> dict:
+    req = SetParameters.Request(parameters=[Parameter(name=name, value=value)])
+    res = call(node, SetParameters, f"{fqn}/set_parameters", req).results[0]
+    return {"successful": bool(res.successful), "reason": res.reason}
+
+
+def run_probe(node: Node, fqn: str) -> None:
+    ns, _, name = fqn.rpartition("/")
+    ns = ns or "/"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (name, ns) not in node.get_node_names_and_namespaces():
+        rclpy.spin_once(node, timeout_sec=0.1)
+    nodes = node.get_node_names_and_namespaces()
+    # The graph fills in as discovery goes on: wait for the node's output topics.
+    want = f"{ns.rstrip('/')}/depth/image"
+    while time.monotonic() < deadline and want not in dict(node.get_topic_names_and_types()):
+        rclpy.spin_once(node, timeout_sec=0.1)
+    topics = {t: list(types) for t, types in node.get_topic_names_and_types()}
+
+    def endpoints(infos):
+        return [{"node_name": i.node_name, "node_namespace": i.node_namespace,
+                 "topic_type": i.topic_type, "qos": qos_name(i.qos_profile)} for i in infos]
+
+    pubs = {t: endpoints(node.get_publishers_info_by_topic(t)) for t in topics}
+    subs = {t: endpoints(node.get_subscriptions_info_by_topic(t)) for t in topics}
+    listed = call(node, ListParameters, f"{fqn}/list_parameters", ListParameters.Request())
+    names = list(listed.result.names)
+    got = call(node, GetParameters, f"{fqn}/get_parameters", GetParameters.Request(names=names))
+    values = {n: value_json(v) for n, v in zip(names, got.values)}
+    types = call(node, GetParameterTypes, f"{fqn}/get_parameter_types",
+                 GetParameterTypes.Request(names=names)).types
+    described = call(node, DescribeParameters, f"{fqn}/describe_parameters",
+                     DescribeParameters.Request(names=names)).descriptors
+    descriptors = {d.name: {
+        "type": int(d.type), "description": d.description, "read_only": bool(d.read_only),
+        "integer_range": [[r.from_value, r.to_value, r.step] for r in d.integer_range],
+        "floating_point_range": [[r.from_value, r.to_value, r.step] for r in d.floating_point_range],
+    } for d in described}
+    sets = {
+        "num_planes=20": set_param(node, fqn, "num_planes", ParameterValue(
+            type=ParameterType.PARAMETER_INTEGER, integer_value=20)),
+        "num_planes=1": set_param(node, fqn, "num_planes", ParameterValue(
+            type=ParameterType.PARAMETER_INTEGER, integer_value=1)),
+        "num_planes='many'": set_param(node, fqn, "num_planes", ParameterValue(
+            type=ParameterType.PARAMETER_STRING, string_value="many")),
+        "cameras=[a, b]": set_param(node, fqn, "cameras", ParameterValue(
+            type=ParameterType.PARAMETER_STRING_ARRAY, string_array_value=["a", "b"])),
+    }
+    after = call(node, GetParameters, f"{fqn}/get_parameters",
+                 GetParameters.Request(names=["num_planes", "cameras"]))
+    emit({
+        "event": "probe", "nodes": [list(n) for n in nodes], "topics": topics,
+        "publishers": pubs, "subscriptions": subs, "parameters": values,
+        "types": dict(zip(names, [int(t) for t in types])), "descriptors": descriptors,
+        "sets": sets, "after": {"num_planes": value_json(after.values[0]),
+                                "cameras": value_json(after.values[1])},
+    })
+
+
+def main() -> None:
+    args = sys.argv[1:]
+    if not args:
+        fail(3, "usage: rclpy_peer.py latency TOPICS | image-pub TOPIC W H | drive DIR | probe NODE_FQN")
+    mode, rest = args[0], args[1:]
+    rclpy.init(args=None)
+    node = Node("sweepdepth_rclpy_peer")
+    try:
+        if mode == "latency" and len(rest) == 1:
+            run_latency(node, rest[0].split(","))
+        elif mode == "image-pub" and len(rest) == 3:
+            run_image_pub(node, rest[0], int(rest[1]), int(rest[2]))
+        elif mode == "drive" and len(rest) == 1:
+            run_drive(node, pathlib.Path(rest[0]))
+        elif mode == "probe" and len(rest) == 1:
+            run_probe(node, rest[0])
+        else:
+            fail(3, f"bad arguments {args}")
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()
