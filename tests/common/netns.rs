@@ -9,7 +9,6 @@
 //! test ran to its end: the inner run writes the test's name into a file the outer one names
 //! ([`DONE_FILE`]) after the body returns. A test renamed without updating the name it passes
 //! here would otherwise run zero tests inside the namespace and pass.
-#![allow(dead_code)]
 
 use std::path::PathBuf;
 use std::process::{Child, Command};
