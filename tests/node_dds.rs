@@ -251,8 +251,8 @@ fn on_surface(depths: &[f32], truth: &ImageF32, surface_m: f32, rel: f32) -> (us
 }
 
 fn end_to_end() {
-    // Reliable inputs: the idle point below waits for one particular set, which must not be
-    // lost; outputs kept 10 deep, so that none is lost to a slow reader either.
+    // Reliable inputs: the idle point and the control below wait for one particular set each,
+    // which must not be lost; outputs kept 10 deep, so that none is lost to a slow reader.
     let mut h = Harness::start(
         wall(),
         &[
@@ -263,6 +263,7 @@ fn end_to_end() {
     );
     let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
     let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", dds::CAMERA_INFO);
+    let mut diag = Diagnostics::new(&mut h.peer);
     let mut depths: Vec<Image> = Vec::new();
     let mut infos: Vec<CameraInfo> = Vec::new();
     let (_, k) = h.feed_until("a depth image", 1, same_stamps, || {
@@ -307,39 +308,50 @@ fn end_to_end() {
     );
 
     // Exact sync must not pair jittered stamps: sets whose cameras' stamps differ by a few ms
-    // give no depth. Then a positive control: sets with equal stamps again until one gives
-    // depth. The idle GPU would have taken a wrongly paired jittered set at once and published
-    // it before the control, so every depth image from here to the control's is the control's.
+    // give no depth. The synchroniser's own count says so, whatever the GPU hand-over dropped:
+    // from the idle point, through the jittered sets and one set with equal stamps (the
+    // positive control, which must give depth: a stalled node fails here), exactly one set is
+    // matched, and the only depth image is the control's.
+    let before = diag.wait_after(dds::wall_time_now(), &mut h.node);
     let seen = depths.len();
     let jittered = k + 1..k + 16;
     for j in jittered.clone() {
         h.publish_set(jittered_stamps(j));
     }
-    let control = k + 16;
-    h.feed_until(
-        "the depth of an equal-stamp set after the jittered ones",
-        control,
-        same_stamps,
+    let control = stamp_of(k + 16);
+    h.publish_set([control; CAMERAS]);
+    dds::wait_for(
+        format!("the depth of the equal-stamp set after the jittered ones ({control:?})"),
+        &mut h.node,
         || {
             depths.extend(dds::take_all(&depth_sub));
             depths[seen..]
                 .iter()
-                .any(|d| nanos(d.header.stamp) >= nanos(stamp_of(control)))
+                .any(|d| d.header.stamp == control)
                 .then_some(())
         },
     );
+    let after = diag.wait_after(dds::wall_time_now(), &mut h.node);
+    depths.extend(dds::take_all(&depth_sub));
     for d in &depths[seen..] {
         let s = d.header.stamp;
         assert!(
             !jittered.clone().any(|j| jittered_stamps(j).contains(&s)),
             "exact sync published a depth image for jittered stamps ({s:?})"
         );
-        assert!(
-            (control..control + 10_000).any(|j| stamp_of(j) == s),
-            "a depth image stamped {s:?} after the jittered sets, which is no control set's"
+        assert_eq!(
+            s, control,
+            "a depth image after the idle point that is not the control's"
         );
         check_depth_image(d);
     }
+    let matched = |status: &DiagnosticStatus| dds::counter(status, "sync matched");
+    assert_eq!(
+        matched(&after) - matched(&before),
+        1,
+        "from the idle point to the control, exact sync matched {} sets where only the control may match: {after:?}",
+        matched(&after) - matched(&before)
+    );
 }
 
 fn approximate_sync_jitter() {
