@@ -1,8 +1,9 @@
 //! Overload soak of `sweepdepth node` (a benchmark run by `scripts/soak.sh [MINUTES]`, ignored by
 //! `cargo test`): a synthetic 4-camera rig published faster than the GPU can go, while the
-//! node's resident memory is sampled. It fails if the node dies, if it published nothing or
-//! everything (then it was not overloaded, and the run shows nothing), if its memory cannot be
-//! read, or if its memory grows by more than 10 % after the warm-up.
+//! node's resident memory is sampled. It fails if the node dies, if it published nothing, or
+//! everything, or dropped nothing at the GPU by its own count (then it was not overloaded and
+//! the run shows nothing), if its memory cannot be read, or if its memory grows by more than
+//! 10 % after the warm-up.
 //!
 //! DDS only inside a private network namespace (tests/common/netns.rs). Phases:
 //! 1. calibration: 20 s at 30 Hz; the node's output rate is the sustainable rate S;
@@ -16,7 +17,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::dds::{self, NodeProcess, Peer, RigFeed};
+use common::dds::{self, Diagnostics, NodeProcess, Peer, RigFeed};
 use common::netns;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{Image, Time};
@@ -89,6 +90,7 @@ fn run() {
     let mut peer = Peer::new(DOMAIN, "sweepdepth_soak");
     let feed = RigFeed::new(&mut peer, rig, &images, &dds::best_effort(2), None);
     let depth_sub = peer.subscription::<Image>("/depth/image", dds::IMAGE, &dds::reliable(5));
+    let mut diagnostics = Diagnostics::new(&mut peer);
     let publish = |frame: u64| feed.publish_set(&[stamp(frame); CAMERAS]);
     let drain = || dds::take_all(&depth_sub).len() as u64;
 
@@ -120,6 +122,10 @@ fn run() {
     let (mut sent, mut received) = (0u64, 0u64);
     let mut samples: Vec<(Duration, u64)> = Vec::new();
     let mut next_frame = soak_start;
+    // The node's first /diagnostics of the soak phase: the counters it starts from (those of
+    // the calibration are discarded).
+    diagnostics.take();
+    let mut soak_start_status = None;
     while soak_start.elapsed() < soak_for {
         node.check_alive();
         let now = Instant::now();
@@ -130,6 +136,9 @@ fn run() {
             next_frame += period;
         }
         received += drain();
+        for status in diagnostics.take() {
+            soak_start_status.get_or_insert(status);
+        }
         if now >= next_sample {
             let rss = rss_kib(pid);
             let t = soak_start.elapsed();
@@ -143,6 +152,11 @@ fn run() {
         std::thread::sleep(Duration::from_millis(2));
     }
     node.check_alive();
+    // The node's own count of the sets it dropped because the GPU was busy, during the soak.
+    let status = diagnostics.wait_after(dds::wall_time_now(), &mut node);
+    let start_status = soak_start_status.expect("a /diagnostics status during the soak");
+    let gpu_dropped =
+        dds::counter(&status, "gpu sets dropped") - dds::counter(&start_status, "gpu sets dropped");
     drop(node);
     let rss: Vec<u64> = samples.iter().map(|(_, r)| *r).collect();
     let first = rss.first().copied().unwrap_or(0);
@@ -167,7 +181,7 @@ fn run() {
         .max()
         .unwrap_or(0);
     println!(
-        "soak summary: {minutes} min at {rate:.2} sets/s (2 x sustainable {sustainable:.2}); sent {sent} sets, received {received} depth images ({:.0} % dropped); RSS first {first} KiB, last {last} KiB, max {max} KiB; after the warm-up ({} samples) {smin}..{smax} KiB",
+        "soak summary: {minutes} min at {rate:.2} sets/s (2 x sustainable {sustainable:.2}); sent {sent} sets, received {received} depth images ({:.0} % dropped; the node counts {gpu_dropped} dropped at the GPU); RSS first {first} KiB, last {last} KiB, max {max} KiB; after the warm-up ({} samples) {smin}..{smax} KiB",
         100.0 * (1.0 - received as f64 / sent.max(1) as f64),
         settled.len()
     );
@@ -176,8 +190,8 @@ fn run() {
         "soak: the node published no depth image while {sent} sets were sent"
     );
     assert!(
-        received < sent,
-        "soak: {received} depth images for {sent} sets: nothing was dropped, so the node was not overloaded and the run shows nothing about overload (did the machine get much faster after the calibration?)"
+        received < sent && gpu_dropped > 0,
+        "soak: {received} depth images for {sent} sets, {gpu_dropped} dropped at the GPU: the node was not overloaded and the run shows nothing about overload (did the machine get much faster after the calibration?)"
     );
     assert!(
         third >= 2,
