@@ -4,8 +4,9 @@
 //! truth and read back by independent readers (Python rosbags and mcap), and bags written by an
 //! independent writer (rosbags: MCAP, sqlite3, sqlite3 with zstd per message or per file).
 
-#[path = "common/python.rs"]
-mod python;
+mod common;
+
+use common::python;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -618,11 +619,12 @@ fn jittered_stamps_every_set_out_including_the_last() {
 /// truth (mirrored the same way).
 #[test]
 fn icl_nuim_pack_and_bag_match_ground_truth() {
-    let data = root().join("../shared/data/iclnuim_livingroom_traj2_frames");
-    if !data.is_dir() {
-        eprintln!("skipped: {} is not here (it is on CI)", data.display());
+    let Some(data) = common::shared_data::dataset(
+        "icl_nuim_pack_and_bag_match_ground_truth",
+        "iclnuim_livingroom_traj2_frames",
+    ) else {
         return;
-    }
+    };
     let dir = scratch("icl");
     let bag = dir.join("icl.mcap");
     ok(

@@ -1,12 +1,14 @@
 //! Faults in a recording, through `sweepdepth bag` (the node's pipeline): cameras that stop and
 //! come back. Built from the Tsukuba fixture (tests/fixtures/bags/tsukuba_half.mcap): its first
-//! frame set re-stamped at 10 Hz, with cameras left out of chosen sets.
+//! frame set re-stamped at 10 Hz, with cameras left out of chosen sets. Every image carries a
+//! faint pattern of its own (one grey level, different for every set and camera), so that no
+//! set looks like another: a stale image or a stale output cannot pass for a fresh one.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
-use sweepdepth::msgs::{from_cdr, to_cdr, CameraInfo, Image, Time};
+use sweepdepth::msgs::{from_cdr, to_cdr, CameraInfo, Image, PointCloud2, Time};
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -36,8 +38,23 @@ fn time(ns: u64) -> Time {
     }
 }
 
-/// Writes `sets` frame sets of the fixture's five cameras; `present(k, i)` says whether camera
-/// `i` sends in set `k`.
+/// Camera `i`'s image of set `k`: the fixture's (`original`) with one byte in four moved by 1
+/// up or down, chosen by a hash of (k, i, byte): invisible to the depth, unique to the set.
+fn set_image(original: &Image, k: u64, i: usize) -> Image {
+    let mut image = original.clone();
+    for (j, byte) in image.data.iter_mut().enumerate() {
+        let h = (k * 1_000_003 + i as u64 * 7_919 + j as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        *byte = match h >> 61 {
+            0 => byte.saturating_add(1),
+            1 => byte.saturating_sub(1),
+            _ => *byte,
+        };
+    }
+    image
+}
+
+/// Writes `sets` frame sets of the fixture's five cameras (images from [`set_image`]);
+/// `present(k, i)` says whether camera `i` sends in set `k`.
 fn write_bag(path: &Path, sets: u64, present: impl Fn(u64, usize) -> bool) {
     let fixture = messages(&root().join("tests/fixtures/bags/tsukuba_half.mcap"));
     let tf = fixture.iter().find(|m| m.topic == "/tf_static").unwrap();
@@ -60,7 +77,7 @@ fn write_bag(path: &Path, sets: u64, present: impl Fn(u64, usize) -> bool) {
             ] {
                 let original = fixture.iter().find(|m| m.topic == topic).unwrap();
                 let data = if is_image {
-                    let mut image: Image = from_cdr(&original.data).unwrap();
+                    let mut image = set_image(&from_cdr(&original.data).unwrap(), k, i);
                     image.header.stamp = time(stamp_ns);
                     to_cdr(&image).unwrap()
                 } else {
@@ -75,9 +92,24 @@ fn write_bag(path: &Path, sets: u64, present: impl Fn(u64, usize) -> bool) {
     w.finish().unwrap();
 }
 
-/// Runs `sweepdepth bag` with the fixture's parameters plus `extra`; (stderr, depth stamps in
-/// set numbers, depth images).
-fn run(input: &Path, output: &Path, extra: &[&str]) -> (String, Vec<u64>, Vec<Image>) {
+/// The outputs of one `sweepdepth bag` run.
+struct Run {
+    stderr: String,
+    /// The set of each depth image, in output order.
+    sets: Vec<u64>,
+    depths: Vec<Image>,
+    /// The point clouds (with `publish_points:=true`), in output order.
+    points: Vec<PointCloud2>,
+}
+
+/// The set number of a stamp.
+fn set_of(t: Time) -> u64 {
+    let ns = t.sec as u64 * 1_000_000_000 + u64::from(t.nanosec);
+    (ns - T0_NS) / PERIOD_NS
+}
+
+/// Runs `sweepdepth bag` with the fixture's parameters plus `extra`.
+fn run(input: &Path, output: &Path, extra: &[&str]) -> Run {
     let out = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
         .arg("bag")
         .arg(input)
@@ -96,25 +128,53 @@ fn run(input: &Path, output: &Path, extra: &[&str]) -> (String, Vec<u64>, Vec<Im
         .filter(|m| m.topic == "/depth/image")
         .map(|m| from_cdr(&m.data).unwrap())
         .collect();
-    let sets = depths
-        .iter()
-        .map(|d| {
-            let ns = d.header.stamp.sec as u64 * 1_000_000_000 + u64::from(d.header.stamp.nanosec);
-            (ns - T0_NS) / PERIOD_NS
-        })
+    let points: Vec<PointCloud2> = messages(output)
+        .into_iter()
+        .filter(|m| m.topic == "/points")
+        .map(|m| from_cdr(&m.data).unwrap())
         .collect();
-    (stderr, sets, depths)
+    let sets = depths.iter().map(|d| set_of(d.header.stamp)).collect();
+    Run {
+        stderr,
+        sets,
+        depths,
+        points,
+    }
+}
+
+fn depth_values(image: &Image) -> Vec<f32> {
+    image
+        .data
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+/// Equal within floating-point tolerance, NaN where NaN.
+fn same_depth(a: &Image, b: &Image) -> bool {
+    let (a, b) = (depth_values(a), depth_values(b));
+    a.len() == b.len()
+        && a.iter()
+            .zip(&b)
+            .all(|(x, y)| (x.is_nan() && y.is_nan()) || (x - y).abs() <= 1e-5 * y.abs().max(1e-6))
+}
+
+/// Checks that a point cloud is coloured by `reference` (an rgb8 image): the output was made
+/// from that very image.
+fn coloured_by(cloud: &PointCloud2, reference: &Image) -> bool {
+    assert_eq!(reference.encoding, "rgb8");
+    let w = reference.width as usize;
+    cloud.data.chunks_exact(16).enumerate().all(|(n, p)| {
+        let (x, y) = (n % w, n / w);
+        let o = y * reference.step as usize + 3 * x;
+        let rgb = &reference.data[o..o + 3];
+        p[12..16] == [rgb[2], rgb[1], rgb[0], 0]
+    })
 }
 
 /// Share of valid depths within 5 % of the depth the full rig gives for the same pixel.
 fn agreement(a: &Image, b: &Image) -> f64 {
-    let f = |img: &Image| -> Vec<f32> {
-        img.data
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    };
-    let (a, b) = (f(a), f(b));
+    let (a, b) = (depth_values(a), depth_values(b));
     let both: Vec<(f32, f32)> = a
         .iter()
         .zip(&b)
@@ -136,7 +196,12 @@ fn cameras_that_stop_leave_the_rig_and_come_back() {
     write_bag(&bag, 18, |k, i| {
         !((i == 4 && (3..=7).contains(&k)) || (i == 2 && (11..=14).contains(&k)))
     });
-    let (stderr, sets, depths) = run(&bag, &dir.join("out.mcap"), &["-p", "camera_timeout:=0.25"]);
+    let out = run(
+        &bag,
+        &dir.join("out.mcap"),
+        &["-p", "camera_timeout:=0.25", "-p", "publish_points:=true"],
+    );
+    let (stderr, sets) = (&out.stderr, &out.sets);
     eprintln!("{stderr}\nsets with depth: {sets:?}");
     assert!(
         stderr.contains("camera 'cam4' has sent nothing for"),
@@ -155,6 +220,10 @@ fn cameras_that_stop_leave_the_rig_and_come_back() {
     assert!(
         stderr.contains("degraded rig"),
         "the summary counts the skipped sets: {stderr}"
+    );
+    assert!(
+        sets.windows(2).all(|w| w[0] < w[1]),
+        "one output per set, in order: {sets:?}"
     );
     // The full rig before the dropout.
     for k in 0..3 {
@@ -183,13 +252,68 @@ fn cameras_that_stop_leave_the_rig_and_come_back() {
             "set {k} missing after the reference came back: {sets:?}"
         );
     }
-    let mut sorted = sets.clone();
-    sorted.dedup();
-    assert_eq!(sorted, sets, "one output per set, in order");
+    // Every output was made from its own set: its point cloud has the colours of that set's
+    // reference image (cam2), and the same stamp as its depth image.
+    let fixture = messages(&root().join("tests/fixtures/bags/tsukuba_half.mcap"));
+    let cam2: Image = from_cdr(
+        &fixture
+            .iter()
+            .find(|m| m.topic == "/cam2/image_raw")
+            .unwrap()
+            .data,
+    )
+    .unwrap();
+    assert_eq!(
+        out.points.len(),
+        sets.len(),
+        "one point cloud per depth image"
+    );
+    for ((cloud, depth), &k) in out.points.iter().zip(&out.depths).zip(sets) {
+        assert_eq!(cloud.header, depth.header);
+        assert!(
+            coloured_by(cloud, &set_image(&cam2, k, 2)),
+            "the output of set {k} is not coloured by set {k}'s reference image"
+        );
+        assert!(
+            !coloured_by(cloud, &set_image(&cam2, k + 1, 2)),
+            "the colours cannot tell set {k} from set {}",
+            k + 1
+        );
+    }
+
+    // The sets without cam4 are 4-camera jobs: each equals the depth of the same set from a bag
+    // in which the 4 cameras are all there is, and differs from the 5-camera depth.
+    let reference_bag = dir.join("reference.mcap");
+    write_bag(&reference_bag, 18, |k, _| (5..=7).contains(&k));
+    let five = run(&reference_bag, &dir.join("five.mcap"), &[]);
+    let four = run(
+        &reference_bag,
+        &dir.join("four.mcap"),
+        &["-p", "cameras:=[cam0, cam1, cam2, cam3]"],
+    );
+    assert_eq!((&five.sets, &four.sets), (&vec![5, 6, 7], &vec![5, 6, 7]));
+    for (n, &k) in sets
+        .iter()
+        .enumerate()
+        .filter(|(_, k)| (5..=7).contains(*k))
+    {
+        let depth = &out.depths[n];
+        let (four_k, five_k) = (
+            &four.depths[(k - 5) as usize],
+            &five.depths[(k - 5) as usize],
+        );
+        assert!(
+            same_depth(depth, four_k),
+            "set {k} (cam4 out of the rig) is not the 4-camera depth"
+        );
+        assert!(
+            !same_depth(depth, five_k),
+            "set {k}: the 4-camera and 5-camera depths cannot be told apart"
+        );
+    }
     // The 4-camera depth agrees with the 5-camera depth.
-    let full = &depths[0];
-    let degraded = &depths[sets.iter().position(|&k| k == 7).unwrap()];
-    let share = agreement(degraded, full);
+    let share = agreement(&four.depths[2], &five.depths[2]);
+    eprintln!("set 7: the 4-camera depth agrees with the 5-camera depth on {share:.3}");
     assert!(
         share > 0.9,
         "4-camera depth agrees with the full rig on only {share:.3}"
@@ -201,7 +325,7 @@ fn no_timeout_means_waiting_for_every_camera() {
     let dir = scratch("notimeout");
     let bag = dir.join("b.mcap");
     write_bag(&bag, 8, |k, i| !(i == 4 && (3..=5).contains(&k)));
-    let (stderr, sets, _) = run(&bag, &dir.join("out.mcap"), &["-p", "camera_timeout:=0.0"]);
-    assert!(!stderr.contains("leaves the rig"), "{stderr}");
-    assert_eq!(sets, vec![0, 1, 2, 6, 7], "{stderr}");
+    let out = run(&bag, &dir.join("out.mcap"), &["-p", "camera_timeout:=0.0"]);
+    assert!(!out.stderr.contains("leaves the rig"), "{}", out.stderr);
+    assert_eq!(out.sets, vec![0, 1, 2, 6, 7], "{}", out.stderr);
 }

@@ -1,5 +1,7 @@
 //! Dataset loaders, PFM I/O and evaluation metrics, on tiny fake folders (and on the shared
-//! datasets when `../shared/data` exists). No GPU needed.
+//! datasets when `../shared/data` exists, or must: tests/common/shared_data.rs). No GPU needed.
+
+mod common;
 
 use std::path::{Path, PathBuf};
 
@@ -377,17 +379,8 @@ fn depth_metrics_by_hand() {
 
 #[test]
 fn shared_datasets_load() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if !root.is_dir() {
-        println!("skipped: ../shared/data not present");
-        return;
-    }
     let load = |name: &str| {
-        let dir = root.join(name);
-        if !dir.is_dir() {
-            println!("skipped {name}: not present");
-            return None;
-        }
+        let dir = common::shared_data::dataset("shared_datasets_load", name)?;
         Some(load_dataset(&dir).unwrap_or_else(|e| panic!("{name}: {e}")))
     };
     if let Some(ds) = load("middlebury2001_tsukuba") {

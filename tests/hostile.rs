@@ -6,30 +6,26 @@
 //! the node must be alive at the end.
 //!
 //! Built from the Tsukuba fixture (tests/fixtures/bags/tsukuba_half.mcap): its first frame set,
-//! re-stamped once a second. SAFETY: DDS only inside the private network namespace of
-//! tests/common/netns.rs.
+//! re-stamped once a second. Live, the player is paced on the node's answers, never on the
+//! bag's clock: a set is published once the node has answered the previous one (its depth, or
+//! for a set that must give none, `/diagnostics` counting it as matched by the synchroniser, or
+//! its image as a future stamp), so no outcome depends on how fast the machine is.
+//! SAFETY: DDS only inside the private network namespace of tests/common/netns.rs.
 
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/player.rs"]
-mod player;
+mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
-use ros2_client::qos::{History, WhenFull};
-use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
-};
+use common::dds::{self, Diagnostics, NodeProcess, Peer};
+use common::netns;
+use common::player::Player;
 use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage, Time};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
+const DOMAIN: u16 = 46;
 
-/// The two tests run one after the other: the live one must not compete with the offline one
-/// for the (software) GPU, or the node, correctly, drops sets it cannot keep up with.
-static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 const T0_NS: u64 = 1_700_000_000_000_000_000;
 const PERIOD_NS: u64 = 1_000_000_000;
 
@@ -230,20 +226,26 @@ fn same_depth(a: &Image, b: &Image) -> bool {
 /// give depth do (each once, `required` of them at least; live drops none at this rate), all
 /// equal to the clean depth.
 fn check(outputs: &[Image], plan: &[(u64, Case)], clean: &Image, what: &str) {
-    let expected: Vec<u64> = plan
+    let expected: Vec<i64> = plan
         .iter()
         .filter(|(_, c)| c.gives_depth())
-        .map(|(k, _)| *k)
+        .map(|(k, _)| *k as i64)
         .collect();
-    let got: Vec<u64> = outputs
+    // Set numbers, whole seconds from T0 (negative: a stamp from before the schedule).
+    let got: Vec<i64> = outputs
         .iter()
-        .map(|d| (d.header.stamp.to_nanos() as u64 - T0_NS) / PERIOD_NS)
+        .map(|d| (d.header.stamp.to_nanos() - T0_NS as i64).div_euclid(PERIOD_NS as i64))
         .collect();
     assert_eq!(
         got, expected,
         "{what}: depth for exactly the good sets, in order"
     );
     for (image, k) in outputs.iter().zip(&got) {
+        assert_eq!(
+            image.header.stamp,
+            time(T0_NS + *k as u64 * PERIOD_NS),
+            "{what}: set {k}: a stamp that was never sent"
+        );
         assert!(
             same_depth(image, clean),
             "{what}: set {k} does not have the clean depth"
@@ -276,11 +278,40 @@ fn depth_outputs(path: &Path) -> Vec<Image> {
         .collect()
 }
 
-/// The clean depth of the fixture's set (the reference for every good set).
+/// The clean depth of the fixture's first set (the reference for every good set), from a bag
+/// of that set alone.
 fn clean_depth(dir: &Path) -> Image {
+    let fixture = messages(&root().join("tests/fixtures/bags/tsukuba_half.mcap"));
+    let first_stamp = fixture
+        .iter()
+        .filter(|m| m.msg_type == "sensor_msgs/msg/Image")
+        .map(|m| from_cdr::<Image>(&m.data).unwrap().header.stamp)
+        .min()
+        .expect("images in the fixture");
+    let input = dir.join("clean_in.mcap");
+    let mut w = BagWriter::create(&input, true).unwrap();
+    for m in &fixture {
+        w.add_topic(&m.topic, &m.msg_type, None).unwrap();
+    }
+    for m in &fixture {
+        let stamp = match m.msg_type.as_str() {
+            "sensor_msgs/msg/Image" => Some(from_cdr::<Image>(&m.data).unwrap().header.stamp),
+            "sensor_msgs/msg/CameraInfo" => {
+                Some(from_cdr::<CameraInfo>(&m.data).unwrap().header.stamp)
+            }
+            _ => None,
+        };
+        if stamp.is_none_or(|s| s == first_stamp) {
+            w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &m.data)
+                .unwrap();
+        }
+    }
+    w.finish().unwrap();
     let out = dir.join("clean.mcap");
-    run_bag(&root().join("tests/fixtures/bags/tsukuba_half.mcap"), &out);
-    depth_outputs(&out).remove(0)
+    run_bag(&input, &out);
+    let mut depths = depth_outputs(&out);
+    assert_eq!(depths.len(), 1, "one set, one depth image");
+    depths.remove(0)
 }
 
 fn scratch(name: &str) -> PathBuf {
@@ -293,7 +324,6 @@ fn scratch(name: &str) -> PathBuf {
 
 #[test]
 fn hostile_bag_through_sweepdepth_bag() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let dir = scratch("bag");
     let bag = dir.join("hostile.mcap");
     let plan = write_hostile_bag(&bag, false);
@@ -301,7 +331,23 @@ fn hostile_bag_through_sweepdepth_bag() {
     let stderr = run_bag(&bag, &dir.join("out.mcap"));
     eprintln!("{stderr}");
     check(&depth_outputs(&dir.join("out.mcap")), &plan, &clean, "bag");
-    // Every problem named.
+    // Every problem named, the duplicate and the future stamp with their camera and stamp.
+    let stamp_of_case = |case: Case| {
+        let k = plan
+            .iter()
+            .find(|(_, c)| *c == case)
+            .expect("in the plan")
+            .0;
+        (T0_NS + k * PERIOD_NS) as f64 / 1e9
+    };
+    let duplicate = format!(
+        "camera 'cam1': image stamped {:.3} s repeats the camera's previous stamp",
+        stamp_of_case(Case::Duplicate)
+    );
+    let future = format!(
+        "camera 'cam3': image stamped {:.3} s is more than 10 s (sync_future_window) ahead of every other camera",
+        stamp_of_case(Case::Future) + 1000.0
+    );
     for needle in [
         "unsupported image encoding 'yuv422_yuy2_x'",
         "step 575 is smaller than one row",
@@ -315,6 +361,9 @@ fn hostile_bag_through_sweepdepth_bag() {
         "rejected transform 'rig' -> 'cam4_optical_frame'",
         "time went backwards",
         "cannot decode Image on /cam2/image_raw",
+        &duplicate,
+        &future,
+        "topics not read: /unknown",
     ] {
         assert!(
             stderr.contains(needle),
@@ -325,7 +374,6 @@ fn hostile_bag_through_sweepdepth_bag() {
 
 #[test]
 fn hostile_bag_played_live_into_the_node() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     netns::in_private_netns(INNER, "hostile_bag_played_live_into_the_node", live);
 }
 
@@ -335,91 +383,125 @@ fn live() {
     let plan = write_hostile_bag(&bag, true);
     let clean = clean_depth(&dir);
     let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
-    let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args([
-            "node",
-            "--ros-args",
+    // Inputs reliable and deep enough that a paced peer loses nothing; no camera leaves the
+    // rig while the peer waits for an answer (camera dropout is bag_faults.rs's subject).
+    let mut node = NodeProcess::start(
+        DOMAIN,
+        &[
             "--params-file",
             params.to_str().unwrap(),
-        ])
-        .args([
             "-p",
-            "camera_timeout:=5.0",
+            "camera_timeout:=0.0",
             "-p",
             "input_qos_reliable:=true",
             "-p",
             "input_qos_depth:=20",
-        ])
-        .env("ROS_DOMAIN_ID", "46")
-        .env("RUST_LOG", "warn,sweepdepth=info")
-        .stdin(Stdio::null())
-        .spawn()
-        .expect("start the node");
-    let mut node = netns::KillOnDrop(node);
-    let context = Context::with_options(ContextOptions::new().domain_id(46)).unwrap();
-    let mut peer = context
-        .new_node(
-            NodeName::new("/", "sweepdepth_hostile_player").unwrap(),
-            NodeOptions::new()
-                .enable_rosout(false)
-                .start_parameter_services(false),
-        )
-        .unwrap();
-    let bag_messages = messages(&bag);
-    let player = player::Player::new(&mut peer, &bag_messages);
-    let reliable = QosProfile::subscription_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .history(History::KeepLast { depth: 50 });
-    let topic = peer
-        .create_topic(
-            &Name::parse("/depth/image").unwrap(),
-            MessageTypeName::new("sensor_msgs", "Image"),
-            &reliable,
-        )
-        .unwrap();
-    let depth_sub = peer
-        .create_subscription::<Image>(&topic, Some(reliable.clone()))
-        .unwrap();
-    let spinner = peer.spinner().unwrap();
-    std::thread::spawn(move || futures::executor::block_on(spinner.spin()));
-    player.wait_for_subscribers(&peer, Duration::from_secs(30));
-    std::thread::sleep(Duration::from_millis(500));
-
-    // Play on a thread; collect depth meanwhile.
-    let played = std::thread::spawn(move || player.play(&bag_messages));
-    let mut outputs: Vec<Image> = Vec::new();
-    let expected = plan.iter().filter(|(_, c)| c.gives_depth()).count();
-    let started = Instant::now();
-    let mut finished_at: Option<Instant> = None;
-    loop {
-        if let Some(status) = node.0.try_wait().unwrap() {
-            panic!("the node died: {status}");
-        }
-        while let Ok(Some((image, _))) = depth_sub.take() {
-            outputs.push(image);
-        }
-        if played.is_finished() && finished_at.is_none() {
-            finished_at = Some(Instant::now());
-        }
-        // After the last message, give the GPU a few seconds for the last set.
-        if finished_at.is_some_and(|t| t.elapsed() > Duration::from_secs(5))
-            || outputs.len() >= expected
-        {
-            break;
-        }
-        assert!(
-            started.elapsed() < Duration::from_secs(120),
-            "the live run takes too long"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    std::thread::sleep(Duration::from_millis(500));
-    while let Ok(Some((image, _))) = depth_sub.take() {
-        outputs.push(image);
-    }
-    assert!(
-        node.0.try_wait().unwrap().is_none(),
-        "the node is alive at the end"
+            "-p",
+            "output_qos_depth:=10",
+        ],
     );
+    let mut peer = Peer::new(DOMAIN, "sweepdepth_hostile_player");
+    let bag_messages = messages(&bag);
+    let player = Player::new(&mut peer, &bag_messages);
+    let depth_sub = peer.subscription::<Image>("/depth/image", dds::IMAGE, &dds::reliable(50));
+    let mut diagnostics = Diagnostics::new(&mut peer);
+    peer.spin_in_background();
+    player.wait_for_subscribers(&peer, &mut node);
+
+    // The bag's messages by schedule entry (entry n is logged from T0 + n s, a NaN /tf_static
+    // just before it); the first /tf_static comes before everything.
+    let (initial_tf, rest): (Vec<&BagMessage>, Vec<&BagMessage>) = bag_messages
+        .iter()
+        .partition(|m| m.topic == "/tf_static" && m.log_time_ns < T0_NS);
+    let mut entries: Vec<Vec<&BagMessage>> = vec![Vec::new(); plan.len()];
+    for m in rest {
+        let n = ((m.log_time_ns + PERIOD_NS / 2 - T0_NS) / PERIOD_NS) as usize;
+        entries[n].push(m);
+    }
+    for m in initial_tf {
+        player.publish(m);
+    }
+
+    // Warm-up: the first (good) set stamped 5 s before T0, 1 ms apart, until one gives depth;
+    // after that set's depth the node is idle.
+    let warm_stamp = |j: u32| {
+        assert!(j < 5000, "more than 5000 warm-up sets");
+        dds::time_of_ns(T0_NS - 5_000_000_000 + u64::from(j) * 1_000_000)
+    };
+    let warm_set: Vec<&BagMessage> = entries[0]
+        .iter()
+        .copied()
+        .filter(|m| m.topic != "/tf_static")
+        .collect();
+    let mut warm_outputs: Vec<Image> = Vec::new();
+    let last = player.warm_up(&warm_set, warm_stamp, &mut node, || {
+        warm_outputs.extend(dds::take_all(&depth_sub));
+        !warm_outputs.is_empty()
+    });
+    dds::wait_for(
+        format!("the depth of the last warm-up set ({:?})", warm_stamp(last)),
+        &mut node,
+        || {
+            warm_outputs.extend(dds::take_all(&depth_sub));
+            warm_outputs
+                .iter()
+                .any(|d| d.header.stamp == warm_stamp(last))
+                .then_some(())
+        },
+    );
+    let before = diagnostics.wait_after(dds::wall_time_now(), &mut node);
+    let count = |status: &sweepdepth::msgs::DiagnosticStatus, key: &str| dds::counter(status, key);
+    let matched0 = count(&before, "sync matched");
+    let future0 = count(&before, "sync future stamps");
+
+    // The schedule, one entry at a time, each once the node has answered the previous one.
+    let mut outputs: Vec<Image> = Vec::new();
+    let mut matched = matched0;
+    for (n, (entry, &(k, case))) in entries.iter().zip(&plan).enumerate() {
+        for m in entry {
+            player.publish(m);
+        }
+        // Every set but the one whose cam3 image is dropped as a future stamp is matched.
+        if case != Case::Future {
+            matched += 1;
+        }
+        let what = format!("entry {n} of the schedule (set {k}, {case:?})");
+        if case.gives_depth() {
+            let seen = outputs.len();
+            dds::wait_for(format!("the depth of {what}"), &mut node, || {
+                outputs.extend(dds::take_all(&depth_sub));
+                outputs[seen..]
+                    .iter()
+                    .any(|d| d.header.stamp == time(T0_NS + k * PERIOD_NS))
+                    .then_some(())
+            });
+        } else if case == Case::Future {
+            diagnostics.wait_until(format!("the future stamp of {what}"), &mut node, |s| {
+                count(s, "sync future stamps") > future0
+            });
+        } else {
+            diagnostics.wait_until(
+                format!("{what} matched (sync matched {matched})"),
+                &mut node,
+                |s| count(s, "sync matched") >= matched,
+            );
+        }
+    }
+    let after = diagnostics.wait_after(dds::wall_time_now(), &mut node);
+    outputs.extend(dds::take_all(&depth_sub));
+    assert!(node.is_alive(), "the node is alive at the end");
+    // The synchroniser saw exactly what was sent: one duplicate, one future stamp, one reset.
+    assert_eq!(count(&after, "sync matched"), matched, "{after:?}");
+    for (key, n) in [
+        ("sync duplicate stamps", 1),
+        ("sync future stamps", 1),
+        ("sync resets", 1),
+    ] {
+        assert_eq!(
+            count(&after, key) - count(&before, key),
+            n,
+            "{key}: {after:?}"
+        );
+    }
     check(&outputs, &plan, &clean, "live");
 }

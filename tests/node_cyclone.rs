@@ -14,12 +14,11 @@
 //! and a multicast route on `lo`, and fails with a clear message if that is impossible. The peer
 //! checks the interfaces again and Cyclone is pinned to `lo` through `CYCLONEDDS_URI`.
 
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/python.rs"]
-mod python;
-use netns::{in_private_netns, KillOnDrop};
-use python::{python, INSTALL_HINT};
+mod common;
+
+use common::dds::{self, NodeProcess};
+use common::netns::{in_private_netns, KillOnDrop};
+use common::python::{python, INSTALL_HINT};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -32,14 +31,12 @@ use sweepdepth::image::Rgba8Image;
 use sweepdepth::synthetic::{self, Scene};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS_CYCLONE";
-const DOMAIN: &str = "43";
+const DOMAIN: u16 = 43;
 const NAMESPACE: &str = "/rig";
 const WIDTH: u32 = 80;
 const HEIGHT: u32 = 60;
 const EXPECTED_DEPTH_M: f64 = 2.0;
 const TOLERANCE: f64 = 0.02;
-/// The peer gives up after this long without a depth image (exit 2).
-const PEER_TIMEOUT_S: u64 = 60;
 const RESULT_PREFIX: &str = "CYCLONE_PEER_RESULT ";
 /// Cyclone restricted to loopback, multicast forced on (SPDP with RustDDS uses 239.255.0.1).
 const CYCLONEDDS_URI: &str = "<CycloneDDS><Domain Id=\"any\"><General>\
@@ -161,14 +158,14 @@ fn write_rig(dir: &Path, qos: ImageQos) {
         }));
     }
     let spec = json!({
-        "domain_id": DOMAIN.parse::<u32>().unwrap(),
+        "domain_id": DOMAIN,
         "namespace": NAMESPACE,
         "rig_frame": "rig",
         "width": WIDTH,
         "height": HEIGHT,
         "expected_depth_m": EXPECTED_DEPTH_M,
         "tolerance": TOLERANCE,
-        "timeout_s": PEER_TIMEOUT_S,
+        "timeout_s": dds::timeout().as_secs(),
         "period_s": 0.1,
         "image_reliable": matches!(qos, ImageQos::Reliable),
         "image_qos_depth": match qos {
@@ -189,10 +186,9 @@ fn end_to_end(qos: ImageQos) {
     write_rig(&dir.0, qos);
     let started = Instant::now();
 
-    let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args([
-            "node",
-            "--ros-args",
+    let mut node = NodeProcess::start(
+        DOMAIN,
+        &[
             "-r",
             &format!("__ns:={NAMESPACE}"),
             "-p",
@@ -205,16 +201,8 @@ fn end_to_end(qos: ImageQos) {
             "num_planes:=48",
             "-p",
             "sync:=exact",
-        ])
-        .env("ROS_DOMAIN_ID", DOMAIN)
-        .env(
-            "RUST_LOG",
-            std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
-        )
-        .stdin(Stdio::null())
-        .spawn()
-        .expect("start the node");
-    let mut node = KillOnDrop(node);
+        ],
+    );
 
     let peer = Command::new(python())
         .arg("-u")
@@ -239,16 +227,16 @@ fn end_to_end(qos: ImageQos) {
         }
     });
 
-    let deadline = Duration::from_secs(PEER_TIMEOUT_S + 30);
+    // The peer gives up after dds::timeout() without a depth image (exit 2); this is later.
+    let peer_timeout = dds::timeout();
+    let deadline = peer_timeout + Duration::from_secs(30);
     let mut result = None;
     while result.is_none() {
         if let Ok(line) = rx.recv_timeout(Duration::from_millis(50)) {
             result = Some(line);
             break;
         }
-        if let Some(status) = node.0.try_wait().expect("poll node") {
-            panic!("the node exited early: {status}");
-        }
+        node.check_alive();
         if let Some(status) = peer.0.try_wait().expect("poll peer") {
             // Drain a result printed just before exiting.
             if let Ok(line) = rx.recv_timeout(Duration::from_millis(500)) {
@@ -260,7 +248,7 @@ fn end_to_end(qos: ImageQos) {
                     "the peer cannot import cyclonedds; run `{INSTALL_HINT}`"
                 ),
                 Some(2) => panic!(
-                    "the Cyclone DDS peer got no depth image from the node within {PEER_TIMEOUT_S} s ({status}); see its output above"
+                    "the Cyclone DDS peer got no depth image from the node within {peer_timeout:?} ({status}); see its output above"
                 ),
                 _ => panic!("the Cyclone DDS peer exited without a result: {status}"),
             }

@@ -1,36 +1,32 @@
 //! End-to-end test of `sweepdepth node` over DDS (ros2-client peers in this process).
 //!
+//! Pace: each test feeds fresh frame sets until the node answers (whatever the machine's
+//! speed), and where it must know that the node is idle (the exact-sync check) it waits for the
+//! depth of the last set it sent. Every wait has the generous limit of tests/common/dds.rs.
+//!
 //! SAFETY: no DDS packet may leave the machine. The test never opens DDS in the host network
 //! namespace: unless it already runs inside the private namespace it creates itself (marker
 //! variable [`INNER`] AND a check that only `lo` exists), it re-executes its own binary inside
 //! `unshare -n` (`unshare -rn` when not root) with loopback up and a multicast route on `lo`,
 //! and fails with a clear message if that is impossible.
 
-#[path = "common/netns.rs"]
-mod netns;
-use netns::{in_private_netns, KillOnDrop};
+mod common;
 
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
+use common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
+use common::netns::in_private_netns;
 use ros2_client::log::Log;
 use ros2_client::parameters::{Parameter, ParameterValue};
-use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::rcl_interfaces::{SetParametersRequest, SetParametersResponse};
-use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
-    ServiceMapping, ServiceTypeName,
-};
-use sweepdepth::geometry::CameraModel;
-use sweepdepth::image::Rgba8Image;
-use sweepdepth::msgs::{
-    CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, PointCloud2, PointField,
-    Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
-};
+use ros2_client::{Name, ServiceMapping, ServiceTypeName};
+use sweepdepth::geometry::{CameraModel, RigidTransform};
+use sweepdepth::image::{ImageF32, Rgba8Image};
+use sweepdepth::msgs::{CameraInfo, DiagnosticStatus, Image, PointCloud2, PointField, Time};
 use sweepdepth::synthetic::{self, Scene};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
-const DOMAIN: &str = "42";
+const DOMAIN: u16 = 42;
 const WIDTH: u32 = 80;
 const HEIGHT: u32 = 60;
 /// Cameras of the synthetic rig (a row, 10 cm apart; the reference is cam1).
@@ -77,40 +73,6 @@ fn stamp_of(k: u32) -> Time {
     }
 }
 
-fn camera_info(header: &Header, model: &CameraModel) -> CameraInfo {
-    let k = model.intrinsics;
-    CameraInfo {
-        header: header.clone(),
-        width: k.width_px,
-        height: k.height_px,
-        distortion_model: "plumb_bob".into(),
-        d: vec![0.0; 5],
-        k: [k.fx_px, 0.0, k.cx_px, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 1.0],
-        r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-        p: [
-            k.fx_px, 0.0, k.cx_px, 0.0, 0.0, k.fy_px, k.cy_px, 0.0, 0.0, 0.0, 1.0, 0.0,
-        ],
-        ..CameraInfo::default()
-    }
-}
-
-fn image_msg(header: &Header, image: &Rgba8Image, bgr: bool) -> Image {
-    let mut data = Vec::with_capacity(image.pixels.len() * 3);
-    for &p in &image.pixels {
-        let [r, g, b, _] = Rgba8Image::unpack(p);
-        data.extend_from_slice(&if bgr { [b, g, r] } else { [r, g, b] });
-    }
-    Image {
-        header: header.clone(),
-        height: image.height,
-        width: image.width,
-        encoding: if bgr { "bgr8" } else { "rgb8" }.into(),
-        is_bigendian: 0,
-        step: image.width * 3,
-        data,
-    }
-}
-
 /// Nanoseconds of a stamp.
 fn nanos(t: Time) -> i64 {
     i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec)
@@ -123,36 +85,41 @@ fn time_of(ns: i64) -> Time {
     }
 }
 
-/// The node under test and a peer node that feeds it the synthetic 4-camera rig (wall at
-/// 2 m, cam1 the reference).
-struct Harness {
-    rig: sweepdepth::geometry::Rig,
-    images: Vec<Rgba8Image>,
-    image_pubs: Vec<ros2_client::Publisher<Image>>,
-    info_pubs: Vec<ros2_client::Publisher<CameraInfo>>,
-    _tf_pub: ros2_client::Publisher<TFMessage>,
-    reliable: QosProfile,
-    peer: ros2_client::Node,
-    node: KillOnDrop,
-    _context: Context,
+/// The wall at 2 m alone (the pose of a camera along the row changes nothing but the texture).
+fn wall() -> Scene {
+    Scene::wall_and_box(2.0, None, synthetic::intrinsics(WIDTH, HEIGHT).fx_px)
 }
 
-fn frame(i: usize) -> String {
-    format!("cam{i}_optical")
+/// The wall at 2 m with a square box 40 cm wide at 1.2 m in front of cam1 (the reference):
+/// depth that a parameter or a pose changes visibly.
+fn wall_and_box() -> Scene {
+    Scene::wall_and_box(
+        2.0,
+        Some((1.2, 0.2)),
+        synthetic::intrinsics(WIDTH, HEIGHT).fx_px,
+    )
+}
+
+/// The node under test and a peer node that feeds it a synthetic 4-camera row rig looking at
+/// `scene` (cam1 the reference; cam2 sends bgr8).
+struct Harness {
+    scene: Scene,
+    feed: RigFeed,
+    /// The rendered images (cam1's colours the point cloud).
+    images: Vec<Rgba8Image>,
+    peer: Peer,
+    node: NodeProcess,
 }
 
 impl Harness {
-    /// Starts the node with `cameras:=[cam0, cam1, cam2, cam3]` (reference cam1), depths 1..4 m, 48 planes and
-    /// `extra` parameters (`name:=value`, later ones win), and publishes /tf_static.
-    fn start(extra: &[&str]) -> Harness {
+    /// Starts the node with `cameras:=[cam0, cam1, cam2, cam3]` (reference cam1), depths 1..4 m,
+    /// 48 planes, no camera timeout (a test that waits must not see a camera leave the rig)
+    /// and `extra` parameters (`name:=value`, later ones win), and publishes /tf_static.
+    fn start(scene: Scene, extra: &[&str]) -> Harness {
         let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
         let rig = synthetic::row_rig(CAMERAS, 0.1, model, 1).expect("rig");
-        let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
         let images = synthetic::render_rig(&scene, &rig);
-
-        let mut args: Vec<String> = [
-            "node",
-            "--ros-args",
+        let mut args = vec![
             "-p",
             "cameras:=[cam0, cam1, cam2, cam3]",
             "-p",
@@ -163,195 +130,60 @@ impl Harness {
             "max_depth:=4.0",
             "-p",
             "num_planes:=48",
-        ]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+            "-p",
+            "camera_timeout:=0.0",
+        ];
         for p in extra {
-            args.push("-p".into());
-            args.push(p.to_string());
+            args.extend(["-p", p]);
         }
-        let node = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-            .args(&args)
-            .env("ROS_DOMAIN_ID", DOMAIN)
-            .env(
-                "RUST_LOG",
-                std::env::var("RUST_LOG").unwrap_or_else(|_| "warn,sweepdepth=info".into()),
-            )
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("start the node");
-        let node = KillOnDrop(node);
-
-        let context =
-            Context::with_options(ContextOptions::new().domain_id(DOMAIN.parse().unwrap()))
-                .expect("DDS context");
-        let mut peer = context
-            .new_node(
-                NodeName::new("/", "sweepdepth_test_peer").unwrap(),
-                NodeOptions::new()
-                    .enable_rosout(false)
-                    .start_parameter_services(false),
-            )
-            .expect("test node");
-        let reliable = QosProfile::publisher_default()
-            .reliability_reliable(WhenFull::DEFAULT)
-            .history(History::KeepLast { depth: 10 });
-        let tf_qos = reliable.clone().durability(Durability::TransientLocal);
-        let image_type = || MessageTypeName::new("sensor_msgs", "Image");
-        let info_type = || MessageTypeName::new("sensor_msgs", "CameraInfo");
-
-        let tf_topic = peer
-            .create_topic(
-                &Name::parse("/tf_static").unwrap(),
-                MessageTypeName::new("tf2_msgs", "TFMessage"),
-                &tf_qos,
-            )
-            .unwrap();
-        let tf_pub = peer
-            .create_publisher::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
-            .unwrap();
-        let mut image_pubs = Vec::new();
-        let mut info_pubs = Vec::new();
-        for i in 0..rig.cameras.len() {
-            let t = peer
-                .create_topic(
-                    &Name::parse(&format!("/cam{i}/image_raw")).unwrap(),
-                    image_type(),
-                    &reliable,
-                )
-                .unwrap();
-            image_pubs.push(
-                peer.create_publisher::<Image>(&t, Some(reliable.clone()))
-                    .unwrap(),
-            );
-            let t = peer
-                .create_topic(
-                    &Name::parse(&format!("/cam{i}/camera_info")).unwrap(),
-                    info_type(),
-                    &reliable,
-                )
-                .unwrap();
-            info_pubs.push(
-                peer.create_publisher::<CameraInfo>(&t, Some(reliable.clone()))
-                    .unwrap(),
-            );
-        }
-
-        // The static transforms, published once (transient local: the node gets them late).
-        let transforms = rig
-            .cameras
-            .iter()
-            .enumerate()
-            .map(|(i, cam)| {
-                let c = cam.centre_in_rig();
-                TransformStamped {
-                    header: Header {
-                        stamp: stamp_of(0),
-                        frame_id: "rig".into(),
-                    },
-                    child_frame_id: frame(i),
-                    transform: Transform {
-                        translation: Vector3 {
-                            x: c.x,
-                            y: c.y,
-                            z: c.z,
-                        },
-                        rotation: Quaternion::default(),
-                    },
-                }
-            })
-            .collect();
-        tf_pub
-            .publish(TFMessage { transforms })
-            .expect("publish /tf_static");
+        let node = NodeProcess::start(DOMAIN, &args);
+        let mut peer = Peer::new(DOMAIN, "sweepdepth_test_peer");
+        let feed = RigFeed::new(&mut peer, rig, &images, &dds::reliable(10), Some(2));
         Harness {
-            rig,
+            scene,
+            feed,
             images,
-            image_pubs,
-            info_pubs,
-            _tf_pub: tf_pub,
-            reliable,
             peer,
             node,
-            _context: context,
         }
     }
 
     fn subscribe<T: 'static + serde::de::DeserializeOwned>(
         &mut self,
         topic: &str,
-        package: &str,
-        type_name: &str,
+        message_type: (&str, &str),
     ) -> ros2_client::Subscription<T> {
-        let t = self
-            .peer
-            .create_topic(
-                &Name::parse(topic).unwrap(),
-                MessageTypeName::new(package, type_name),
-                &self.reliable,
-            )
-            .unwrap();
         self.peer
-            .create_subscription::<T>(&t, Some(self.reliable.clone()))
-            .unwrap()
+            .subscription(topic, message_type, &dds::reliable(50))
     }
 
     /// Publishes one set, camera `i` stamped `stamps[i]`.
     fn publish_set(&self, stamps: [Time; CAMERAS]) {
-        for (i, stamp) in stamps.into_iter().enumerate() {
-            let header = Header {
-                stamp,
-                frame_id: frame(i),
-            };
-            self.info_pubs[i]
-                .publish(camera_info(&header, &self.rig.cameras[i].model))
-                .expect("info");
-            self.image_pubs[i]
-                .publish(image_msg(&header, &self.images[i], i == 2))
-                .expect("image");
-        }
-    }
-
-    fn check_alive(&mut self) {
-        if let Some(status) = self.node.0.try_wait().expect("poll node") {
-            panic!("the node exited early: {status}");
-        }
+        self.feed.publish_set(&stamps);
     }
 
     /// Publishes sets `k = first, first + 1, ...` (stamps from `stamps(k)`) every 100 ms
-    /// until `poll` returns Some (checked every 5 ms), for at most `limit`.
+    /// until `poll` returns Some; returns it and the last `k` sent.
     fn feed_until<R>(
         &mut self,
+        what: &str,
         first: u32,
-        limit: Duration,
         stamps: impl Fn(u32) -> [Time; CAMERAS],
-        mut poll: impl FnMut() -> Option<R>,
+        poll: impl FnMut() -> Option<R>,
     ) -> (R, u32) {
-        let started = Instant::now();
-        let mut k = first;
-        loop {
-            assert!(
-                started.elapsed() < limit,
-                "nothing within {limit:?} ({} sets sent)",
-                k - first
-            );
-            self.check_alive();
-            self.publish_set(stamps(k));
-            let tick = Instant::now();
-            while tick.elapsed() < Duration::from_millis(100) {
-                if let Some(r) = poll() {
-                    eprintln!(
-                        "got it after {:?} and {} sets",
-                        started.elapsed(),
-                        k - first + 1
-                    );
-                    return (r, k);
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            k += 1;
-        }
+        let feed = &self.feed;
+        dds::feed_until(
+            what,
+            &mut self.node,
+            first,
+            |k| feed.publish_set(&stamps(k)),
+            poll,
+        )
+    }
+
+    /// The true depth of `scene` for the reference camera.
+    fn reference_truth(&self) -> ImageF32 {
+        synthetic::reference_depth(&self.scene, &self.feed.rig)
     }
 }
 
@@ -368,13 +200,6 @@ fn jittered_stamps(k: u32) -> [Time; CAMERAS] {
     })
 }
 
-fn depths_of(msg: &Image) -> Vec<f32> {
-    msg.data
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect()
-}
-
 /// Checks a depth image of the 2 m wall from the reference camera.
 fn check_depth_image(received: &Image) {
     assert_eq!(received.encoding, "32FC1");
@@ -383,7 +208,7 @@ fn check_depth_image(received: &Image) {
     assert_eq!(received.is_bigendian, 0);
     assert_eq!(received.header.frame_id, frame(1));
     assert_eq!(received.data.len(), (4 * WIDTH * HEIGHT) as usize);
-    check_wall_depths(&depths_of(received));
+    check_wall_depths(&dds::depth_values(received));
 }
 
 /// At least half the depths valid, 90 % of those within 2 % of 2.0 m.
@@ -406,13 +231,46 @@ fn check_wall_depths(depths: &[f32]) {
     );
 }
 
+/// Of the pixels whose true depth is `surface_m` (within 0.1 %), how many there are, how many
+/// have a valid depth, and how many of those are within `rel` of it.
+fn on_surface(depths: &[f32], truth: &ImageF32, surface_m: f32, rel: f32) -> (usize, usize, usize) {
+    let (mut total, mut valid, mut within) = (0, 0, 0);
+    for (d, t) in depths.iter().zip(&truth.data) {
+        if ((t - surface_m) / surface_m).abs() > 1e-3 {
+            continue;
+        }
+        total += 1;
+        if d.is_finite() {
+            valid += 1;
+            if ((d - surface_m) / surface_m).abs() <= rel {
+                within += 1;
+            }
+        }
+    }
+    (total, valid, within)
+}
+
 fn end_to_end() {
-    let mut h = Harness::start(&["sync:=exact"]);
-    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
-    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", "sensor_msgs", "CameraInfo");
-    let (received, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
-        depth_sub.take().ok().flatten().map(|(m, _)| m)
+    // Reliable inputs: the idle point and the control below wait for one particular set each,
+    // which must not be lost; outputs kept 10 deep, so that none is lost to a slow reader.
+    let mut h = Harness::start(
+        wall(),
+        &[
+            "sync:=exact",
+            "input_qos_reliable:=true",
+            "output_qos_depth:=10",
+        ],
+    );
+    let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", dds::CAMERA_INFO);
+    let mut diag = Diagnostics::new(&mut h.peer);
+    let mut depths: Vec<Image> = Vec::new();
+    let mut infos: Vec<CameraInfo> = Vec::new();
+    let (_, k) = h.feed_until("a depth image", 1, same_stamps, || {
+        depths.extend(dds::take_all(&depth_sub));
+        (!depths.is_empty()).then_some(())
     });
+    let received = depths[0].clone();
     let stamp = received.header.stamp;
     assert!(
         (1..=k).any(|j| stamp_of(j) == stamp),
@@ -421,55 +279,89 @@ fn end_to_end() {
     check_depth_image(&received);
 
     // depth/camera_info: the reference camera's model with the depth image's header.
-    let deadline = Instant::now() + Duration::from_secs(10);
-    let info = loop {
-        if let Ok(Some((info, _))) = info_sub.take() {
-            if info.header.stamp == stamp {
-                break info;
-            }
-        }
-        assert!(
-            Instant::now() < deadline,
-            "no depth/camera_info stamped {stamp:?}"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    };
+    let info = dds::wait_for(
+        format!("depth/camera_info stamped {stamp:?}"),
+        &mut h.node,
+        || {
+            infos.extend(dds::take_all(&info_sub));
+            infos.iter().find(|i| i.header.stamp == stamp).cloned()
+        },
+    );
     assert_eq!(info.header.frame_id, received.header.frame_id);
     assert_eq!((info.width, info.height), (WIDTH, HEIGHT));
-    let k_ref = h.rig.reference_model().intrinsics;
+    let k_ref = h.feed.rig.reference_model().intrinsics;
     assert!((info.k[0] - k_ref.fx_px).abs() < 1e-9 && (info.k[2] - k_ref.cx_px).abs() < 1e-9);
     assert!((info.p[0] - k_ref.fx_px).abs() < 1e-9 && (info.p[6] - k_ref.cy_px).abs() < 1e-9);
 
-    // Exact sync must not pair jittered stamps: after the node has shown it works, sets whose
-    // cameras' stamps differ by a few ms produce no depth image.
-    std::thread::sleep(Duration::from_millis(500));
-    while let Ok(Some(_)) = depth_sub.take() {}
-    let first_jittered = k + 1;
-    for j in first_jittered..first_jittered + 15 {
+    // The node is idle once the last set sent has its depth (each camera's images arrive in
+    // order, so every earlier set has been dealt with).
+    dds::wait_for(
+        format!("the depth of the last set sent ({:?})", stamp_of(k)),
+        &mut h.node,
+        || {
+            depths.extend(dds::take_all(&depth_sub));
+            depths
+                .iter()
+                .any(|d| d.header.stamp == stamp_of(k))
+                .then_some(())
+        },
+    );
+
+    // Exact sync must not pair jittered stamps: sets whose cameras' stamps differ by a few ms
+    // give no depth. The synchroniser's own count says so, whatever the GPU hand-over dropped:
+    // from the idle point, through the jittered sets and one set with equal stamps (the
+    // positive control, which must give depth: a stalled node fails here), exactly one set is
+    // matched, and the only depth image is the control's.
+    let before = diag.wait_after(dds::wall_time_now(), &mut h.node);
+    let seen = depths.len();
+    let jittered = k + 1..k + 16;
+    for j in jittered.clone() {
         h.publish_set(jittered_stamps(j));
-        std::thread::sleep(Duration::from_millis(100));
-        h.check_alive();
     }
-    std::thread::sleep(Duration::from_millis(500));
-    while let Ok(Some((m, _))) = depth_sub.take() {
-        let s = m.header.stamp;
+    let control = stamp_of(k + 16);
+    h.publish_set([control; CAMERAS]);
+    dds::wait_for(
+        format!("the depth of the equal-stamp set after the jittered ones ({control:?})"),
+        &mut h.node,
+        || {
+            depths.extend(dds::take_all(&depth_sub));
+            depths[seen..]
+                .iter()
+                .any(|d| d.header.stamp == control)
+                .then_some(())
+        },
+    );
+    let after = diag.wait_after(dds::wall_time_now(), &mut h.node);
+    depths.extend(dds::take_all(&depth_sub));
+    for d in &depths[seen..] {
+        let s = d.header.stamp;
         assert!(
-            !(first_jittered..first_jittered + 15).any(|j| jittered_stamps(j).contains(&s)),
+            !jittered.clone().any(|j| jittered_stamps(j).contains(&s)),
             "exact sync published a depth image for jittered stamps ({s:?})"
         );
+        assert_eq!(
+            s, control,
+            "a depth image after the idle point that is not the control's"
+        );
+        check_depth_image(d);
     }
+    let matched = |status: &DiagnosticStatus| dds::counter(status, "sync matched");
+    assert_eq!(
+        matched(&after) - matched(&before),
+        1,
+        "from the idle point to the control, exact sync matched {} sets where only the control may match: {after:?}",
+        matched(&after) - matched(&before)
+    );
 }
 
 fn approximate_sync_jitter() {
-    let mut h = Harness::start(&["sync:=approximate"]);
-    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
+    let mut h = Harness::start(wall(), &["sync:=approximate"]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
     // Two depth images, so that at least one set was matched across jittered stamps after
     // the first.
     let mut got = Vec::new();
-    let (_, k) = h.feed_until(1, Duration::from_secs(60), jittered_stamps, || {
-        while let Ok(Some((m, _))) = depth_sub.take() {
-            got.push(m);
-        }
+    let (_, k) = h.feed_until("two depth images", 1, jittered_stamps, || {
+        got.extend(dds::take_all(&depth_sub));
         (got.len() >= 2).then_some(())
     });
     for received in &got {
@@ -488,9 +380,9 @@ fn approximate_sync_jitter() {
 }
 
 fn points_cloud() {
-    let mut h = Harness::start(&["sync:=exact", "publish_points:=true"]);
-    let points_sub = h.subscribe::<PointCloud2>("/points", "sensor_msgs", "PointCloud2");
-    let (cloud, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+    let mut h = Harness::start(wall(), &["sync:=exact", "publish_points:=true"]);
+    let points_sub = h.subscribe::<PointCloud2>("/points", dds::POINT_CLOUD2);
+    let (cloud, k) = h.feed_until("a point cloud", 1, same_stamps, || {
         points_sub.take().ok().flatten().map(|(m, _)| m)
     });
     assert!(
@@ -520,7 +412,7 @@ fn points_cloud() {
     assert!(!cloud.is_bigendian);
     assert!(!cloud.is_dense);
     assert_eq!(cloud.data.len(), (16 * WIDTH * HEIGHT) as usize);
-    let k = h.rig.cameras[1].model.intrinsics;
+    let k = h.feed.rig.cameras[1].model.intrinsics;
     let reference = &h.images[1];
     let mut zs = Vec::new();
     for (i, p) in cloud.data.chunks_exact(16).enumerate() {
@@ -546,142 +438,151 @@ fn points_cloud() {
 }
 
 fn diagnostics() {
-    let mut h = Harness::start(&["sync:=exact"]);
-    let diag_sub =
-        h.subscribe::<DiagnosticArray>("/diagnostics", "diagnostic_msgs", "DiagnosticArray");
+    let mut h = Harness::start(wall(), &["sync:=exact"]);
+    let mut diag = Diagnostics::new(&mut h.peer);
     // /rosout is transient local (depth 1): the latest log line arrives even if it predates
     // the subscription.
-    let rosout_qos = h.reliable.clone().durability(Durability::TransientLocal);
-    let rosout_topic = h
-        .peer
-        .create_topic(
-            &Name::parse("/rosout").unwrap(),
-            MessageTypeName::new("rcl_interfaces", "Log"),
-            &rosout_qos,
-        )
-        .unwrap();
     let rosout_sub = h
         .peer
-        .create_subscription::<Log>(&rosout_topic, Some(rosout_qos))
-        .unwrap();
-    let mut first_warn = None;
-    // Until a diagnostics message reports published sets (at most 1 s after the first).
-    let (status, _) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
-        while let Ok(Some((m, _))) = diag_sub.take() {
-            assert_eq!(m.status.len(), 1, "{m:?}");
-            let status = m.status.into_iter().next()?;
-            let published = value_of(&status, "sets published")
-                .and_then(|v| v.parse::<u64>().ok())
-                .unwrap_or(0);
-            if published == 0 {
-                first_warn.get_or_insert(status);
-            } else {
-                return Some(status);
+        .subscription::<Log>("/rosout", dds::LOG, &dds::latched(10));
+    let mut first = None;
+    // Sets keep coming until a status reports published sets, with every camera's input
+    // rate above 0 (it counts the last second) and the level OK (a set published within the
+    // last 5 s): what a healthy node says.
+    let rates_up = |status: &DiagnosticStatus| {
+        (0..CAMERAS).all(|i| {
+            dds::value_of(status, &format!("input rate cam{i} (Hz)"))
+                .and_then(|v| v.parse::<f64>().ok())
+                .is_some_and(|r| r > 0.0)
+        })
+    };
+    let (status, _) = h.feed_until(
+        "a /diagnostics status with sets published, every input rate above 0 and level OK",
+        1,
+        same_stamps,
+        || {
+            for status in diag.take() {
+                first.get_or_insert(status.clone());
+                let published = dds::value_of(&status, "sets published")
+                    .and_then(|v| v.parse::<u64>().ok())
+                    .unwrap_or(0);
+                if published > 0 && rates_up(&status) && status.level == DiagnosticStatus::OK {
+                    return Some(status);
+                }
             }
-        }
-        None
-    });
+            None
+        },
+    );
     assert_eq!(status.name, "sweepdepth: /sweepdepth");
-    assert_eq!(status.level, DiagnosticStatus::OK, "{status:?}");
     for key in [
         "input rate cam0 (Hz)",
         "input rate cam1 (Hz)",
         "input rate cam2 (Hz)",
+        "input rate cam3 (Hz)",
         "sync matched",
         "sync dropped",
         "sync incomplete",
+        "sync duplicate stamps",
+        "sync late stamps",
+        "sync future stamps",
+        "sync resets",
         "gpu sets dropped",
+        "sets published",
         "processing time last (ms)",
         "processing time mean (ms)",
         "latency (ms)",
         "gpu adapter",
+        "cameras out of the rig",
     ] {
         assert!(
-            value_of(&status, key).is_some(),
+            dds::value_of(&status, key).is_some(),
             "no key '{key}' in {status:?}"
         );
     }
     let number = |key: &str| -> f64 {
-        value_of(&status, key)
+        dds::value_of(&status, key)
             .and_then(|v| v.parse().ok())
             .unwrap_or_else(|| panic!("'{key}' is not a number in {status:?}"))
     };
     for i in 0..CAMERAS {
+        // Sets go out every 100 ms; a burst after a stall is at most the input queue deep.
         let rate = number(&format!("input rate cam{i} (Hz)"));
         assert!(rate > 0.0 && rate <= 40.0, "cam{i} rate {rate}");
     }
-    assert!(number("sync matched") >= 1.0);
+    assert!(number("sync matched") >= number("sets published"));
+    assert!(number("sets published") >= 1.0);
     assert!(number("processing time last (ms)") > 0.0);
     assert!(number("processing time mean (ms)") > 0.0);
     assert!(number("latency (ms)").is_finite());
-    assert!(!value_of(&status, "gpu adapter").unwrap_or("").is_empty());
-    if let Some(warn) = first_warn {
-        assert_eq!(warn.level, DiagnosticStatus::WARN, "{warn:?}");
+    assert!(!dds::value_of(&status, "gpu adapter")
+        .unwrap_or("")
+        .is_empty());
+    assert_eq!(
+        dds::value_of(&status, "cameras out of the rig"),
+        Some("none")
+    );
+    // The very first status came before any set was published: WARN, saying so.
+    let first = first.expect("a first status");
+    if dds::counter(&first, "sets published") == 0 {
+        assert_eq!(first.level, DiagnosticStatus::WARN, "{first:?}");
+        assert!(first.message.contains("no depth published"), "{first:?}");
     }
     // The node's log lines also go to /rosout.
-    let started = Instant::now();
-    let log = loop {
-        assert!(
-            started.elapsed() < Duration::from_secs(20),
-            "no /rosout line from the node within 20 s"
-        );
-        if let Ok(Some((log, _))) = rosout_sub.take() {
-            if log.name == "sweepdepth" {
-                break log;
-            }
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    };
+    let log = dds::wait_for("a /rosout line from the node", &mut h.node, || {
+        dds::take_all(&rosout_sub)
+            .into_iter()
+            .find(|log| log.name == "sweepdepth")
+    });
     assert!(log.level == Log::INFO || log.level == Log::WARN, "{log:?}");
     assert!(!log.msg.is_empty());
 }
 
-fn value_of<'a>(status: &'a DiagnosticStatus, key: &str) -> Option<&'a str> {
-    status
-        .values
-        .iter()
-        .find(|kv| kv.key == key)
-        .map(|kv| kv.value.as_str())
-}
-
 type SetClient = ros2_client::Client<SetParametersRequest, SetParametersResponse>;
 
-/// Calls `~/set_parameters` with one parameter (retrying until the service answers) and
-/// returns (successful, reason).
-fn set_parameter(client: &SetClient, name: &str, value: ParameterValue) -> (bool, String) {
-    let started = Instant::now();
-    while started.elapsed() < Duration::from_secs(30) {
-        let request = SetParametersRequest {
-            parameter: vec![Parameter {
-                name: name.to_string(),
-                value: value.clone(),
+/// Calls `~/set_parameters` with one parameter (sending the request again every second until
+/// the service answers) and returns (successful, reason).
+fn set_parameter(
+    client: &SetClient,
+    node: &mut NodeProcess,
+    name: &str,
+    value: ParameterValue,
+) -> (bool, String) {
+    let mut ids = Vec::new();
+    let mut sent = Instant::now() - std::time::Duration::from_secs(1);
+    dds::wait_for(
+        format!("an answer from /sweepdepth/set_parameters ({name})"),
+        node,
+        || {
+            if sent.elapsed() >= std::time::Duration::from_secs(1) {
+                let request = SetParametersRequest {
+                    parameter: vec![Parameter {
+                        name: name.to_string(),
+                        value: value.clone(),
+                    }
+                    .into()],
+                };
+                ids.push(client.send_request(request).expect("send the request"));
+                sent = Instant::now();
             }
-            .into()],
-        };
-        let id = client.send_request(request).expect("send the request");
-        let tick = Instant::now();
-        while tick.elapsed() < Duration::from_secs(1) {
-            if let Ok(Some((rid, response))) = client.receive_response() {
-                if rid == id {
+            match client.receive_response() {
+                Ok(Some((rid, response))) if ids.contains(&rid) => {
                     assert_eq!(response.results.len(), 1, "{response:?}");
                     let r = &response.results[0];
-                    return (r.successful, r.reason.clone());
+                    Some((r.successful, r.reason.clone()))
                 }
+                _ => None,
             }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-    }
-    panic!("no answer from /sweepdepth/set_parameters within 30 s");
+        },
+    )
 }
 
 fn parameter_services() {
-    let mut h = Harness::start(&["sync:=exact"]);
-    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
-    let service_qos = QosProfile::publisher_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .history(History::KeepLast { depth: 1 });
+    let mut h = Harness::start(wall_and_box(), &["sync:=exact"]);
+    let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let service_qos = dds::reliable(1);
     let client: SetClient = h
         .peer
+        .node
         .create_client(
             ServiceMapping::Enhanced,
             &Name::parse("/sweepdepth/set_parameters").unwrap(),
@@ -690,103 +591,128 @@ fn parameter_services() {
             service_qos,
         )
         .expect("set_parameters client");
+    let truth = h.reference_truth();
 
-    // The wall at 2 m, swept over 1..4 m.
-    let (before, k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
+    // The wall at 2 m and the box at 1.2 m, swept over 1..4 m: both found.
+    let (before, k) = h.feed_until("a depth image", 1, same_stamps, || {
         depth_sub.take().ok().flatten().map(|(m, _)| m)
     });
-    check_depth_image(&before);
+    let depths = dds::depth_values(&before);
+    for (surface, name) in [(2.0, "wall"), (1.2, "box")] {
+        let (total, valid, within) = on_surface(&depths, &truth, surface, 0.02);
+        eprintln!("before: {name}: {valid} of {total} pixels valid, {within} within 2 %");
+        assert!(
+            total > 300 && within * 10 >= total * 6,
+            "before the change only {within} of the {total} pixels of the {name} at {surface} m are within 2 % of it"
+        );
+    }
 
     // Rejected, with reasons.
-    let (ok, reason) = set_parameter(&client, "min_depth", ParameterValue::Double(5.0));
+    let node = &mut h.node;
+    let (ok, reason) = set_parameter(&client, node, "min_depth", ParameterValue::Double(5.0));
     assert!(!ok && reason.contains("max_depth"), "{reason}");
-    let (ok, reason) = set_parameter(&client, "num_planes", ParameterValue::Integer(1));
+    let (ok, reason) = set_parameter(&client, node, "num_planes", ParameterValue::Integer(1));
     assert!(!ok && reason.contains("num_planes"), "{reason}");
     let (ok, reason) = set_parameter(
         &client,
+        node,
         "sync",
         ParameterValue::String("approximate".into()),
     );
     assert!(!ok && reason.contains("read-only"), "{reason}");
     let (ok, reason) = set_parameter(
         &client,
+        node,
         "window_mode",
         ParameterValue::String("shiftable".into()),
     );
     assert!(!ok && reason.contains("even"), "{reason}");
-    let (ok, reason) = set_parameter(&client, "no_such_parameter", ParameterValue::Integer(1));
+    let (ok, reason) = set_parameter(
+        &client,
+        node,
+        "no_such_parameter",
+        ParameterValue::Integer(1),
+    );
     assert!(!ok && !reason.is_empty());
     // Four cameras, reference pairs: best 4 of the 3 pairs does not fit the rig.
-    let (ok, reason) = set_parameter(&client, "best_n", ParameterValue::Integer(4));
+    let (ok, reason) = set_parameter(&client, node, "best_n", ParameterValue::Integer(4));
     assert!(
         !ok && reason.contains("best_n (4)") && reason.contains("3 camera pairs"),
         "{reason}"
     );
 
-    // Sweep 2.5..4 m: the wall at 2 m is out of range, no depth may be near it.
-    let (ok, reason) = set_parameter(&client, "min_depth", ParameterValue::Double(2.5));
-    assert!(ok, "min_depth:=2.5 rejected: {reason}");
+    // Sweep 1.5..4 m: the box at 1.2 m is out of range, the wall still in it. The next sets'
+    // depth has nothing nearer than 1.5 m, and the wall is found as before.
+    let (ok, reason) = set_parameter(&client, node, "min_depth", ParameterValue::Double(1.5));
+    assert!(ok, "min_depth:=1.5 rejected: {reason}");
     let first_after = k + 1_000;
-    let (after, _) = h.feed_until(first_after, Duration::from_secs(60), same_stamps, || {
-        while let Ok(Some((m, _))) = depth_sub.take() {
-            if nanos(m.header.stamp) >= nanos(stamp_of(first_after)) {
-                return Some(m);
-            }
-        }
-        None
-    });
-    let depths = depths_of(&after);
-    let valid: Vec<f32> = depths.iter().copied().filter(|d| d.is_finite()).collect();
-    assert!(
-        valid.iter().all(|d| *d >= 2.5 * 0.999 && *d <= 4.0 * 1.001),
-        "depths outside 2.5..4 m after min_depth:=2.5: {:?}",
-        valid
-            .iter()
-            .filter(|d| **d < 2.5 * 0.999)
-            .take(5)
-            .collect::<Vec<_>>()
+    let (after, _) = h.feed_until(
+        "a depth image of a set sent after min_depth:=1.5",
+        first_after,
+        same_stamps,
+        || {
+            dds::take_all(&depth_sub)
+                .into_iter()
+                .find(|m| nanos(m.header.stamp) >= nanos(stamp_of(first_after)))
+        },
     );
-    let near_wall = valid
+    let depths = dds::depth_values(&after);
+    let nearer: Vec<f32> = depths
         .iter()
-        .filter(|d| ((**d - 2.0) / 2.0).abs() <= 0.02)
-        .count();
-    assert_eq!(near_wall, 0);
-    eprintln!(
-        "after min_depth:=2.5: {} of {} depths valid, none near the wall",
-        valid.len(),
-        depths.len()
+        .copied()
+        .filter(|d| d.is_finite() && *d < 1.5 * 0.999)
+        .collect();
+    assert!(
+        nearer.is_empty(),
+        "{} depths nearer than 1.5 m after min_depth:=1.5, e.g. {:?}",
+        nearer.len(),
+        &nearer[..nearer.len().min(5)]
+    );
+    let (total, valid, within) = on_surface(&depths, &truth, 2.0, 0.02);
+    eprintln!("after min_depth:=1.5: wall: {valid} of {total} pixels valid, {within} within 2 %");
+    assert!(
+        within * 10 >= total * 6,
+        "after min_depth:=1.5 only {within} of the {total} wall pixels are within 2 % of 2 m"
     );
 }
 
 /// A virtual reference camera 15 cm right of cam1 (between cam2 and cam3 of the row, which
 /// sit at 0.1 and 0.2 m), 64x48 with its own intrinsics: the depth image is the virtual
-/// camera's, stamped like cam1's image and in cam1's frame (virtual_frame_id empty).
+/// camera's, stamped like cam1's image and in cam1's frame (virtual_frame_id empty). The box
+/// in front of the wall shows where the camera is: its depth must be where the virtual pose
+/// sees it, not where cam1 (the pose ignored) would.
 fn virtual_reference() {
-    let mut h = Harness::start(&[
-        "sync:=exact",
-        "virtual_reference:=true",
-        "virtual_pose:=[0.15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
-        "virtual_width:=64",
-        "virtual_height:=48",
-        "virtual_fx:=60.0",
-        "virtual_fy:=60.0",
-        "virtual_cx:=31.5",
-        "virtual_cy:=23.5",
-    ]);
-    let depth_sub = h.subscribe::<Image>("/depth/image", "sensor_msgs", "Image");
-    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", "sensor_msgs", "CameraInfo");
-    let mut info: Option<CameraInfo> = None;
-    let ((depth, info), k) = h.feed_until(1, Duration::from_secs(60), same_stamps, || {
-        if info.is_none() {
-            info = info_sub.take().ok().flatten().map(|(m, _)| m);
-        }
-        info.as_ref()?;
-        depth_sub
-            .take()
-            .ok()
-            .flatten()
-            .map(|(m, _)| (m, info.clone().unwrap()))
+    let mut h = Harness::start(
+        wall_and_box(),
+        &[
+            "sync:=exact",
+            "virtual_reference:=true",
+            "virtual_pose:=[0.15, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]",
+            "virtual_width:=64",
+            "virtual_height:=48",
+            "virtual_fx:=60.0",
+            "virtual_fy:=60.0",
+            "virtual_cx:=31.5",
+            "virtual_cy:=23.5",
+        ],
+    );
+    let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let info_sub = h.subscribe::<CameraInfo>("/depth/camera_info", dds::CAMERA_INFO);
+    let mut infos: Vec<CameraInfo> = Vec::new();
+    let (depth, k) = h.feed_until("a depth image", 1, same_stamps, || {
+        depth_sub.take().ok().flatten().map(|(m, _)| m)
     });
+    let info = dds::wait_for(
+        format!("depth/camera_info stamped {:?}", depth.header.stamp),
+        &mut h.node,
+        || {
+            infos.extend(dds::take_all(&info_sub));
+            infos
+                .iter()
+                .find(|i| i.header.stamp == depth.header.stamp)
+                .cloned()
+        },
+    );
     assert!(
         (1..=k).any(|j| stamp_of(j) == depth.header.stamp),
         "stamp {:?} was never sent",
@@ -804,5 +730,49 @@ fn virtual_reference() {
         [60.0, 0.0, 31.5, 0.0, 0.0, 60.0, 23.5, 0.0, 0.0, 0.0, 1.0, 0.0]
     );
     assert!(info.d.is_empty(), "{:?}", info.d);
-    check_wall_depths(&depths_of(&depth));
+
+    // The true depth from the virtual pose, and from cam1's (where the box appears 7.5 px
+    // further right): the pixels where the two differ decide.
+    let model = CameraModel::pinhole(sweepdepth::geometry::PinholeIntrinsics {
+        width_px: 64,
+        height_px: 48,
+        fx_px: 60.0,
+        fy_px: 60.0,
+        cx_px: 31.5,
+        cy_px: 23.5,
+    });
+    let at_x = |x: f64| RigidTransform {
+        rotation: glam::DQuat::IDENTITY,
+        translation: glam::DVec3::new(-x, 0.0, 0.0),
+    };
+    let right = h.scene.depth(&model, &at_x(0.15));
+    let wrong = h.scene.depth(&model, &at_x(0.0));
+    let depths = dds::depth_values(&depth);
+    let near = |d: f32, t: f32| d.is_finite() && ((d - t) / t).abs() <= 0.05;
+    let (mut telling, mut near_right, mut near_wrong) = (0, 0, 0);
+    for ((d, r), w) in depths.iter().zip(&right.data).zip(&wrong.data) {
+        if ((r - w) / r).abs() > 0.2 {
+            telling += 1;
+            near_right += usize::from(near(*d, *r));
+            near_wrong += usize::from(near(*d, *w));
+        }
+    }
+    let all_right = depths
+        .iter()
+        .zip(&right.data)
+        .filter(|(d, r)| near(**d, **r))
+        .count();
+    eprintln!(
+        "virtual reference: {all_right} of {} depths within 5 % of the truth; of the {telling} pixels where the pose tells, {near_right} agree with the virtual pose, {near_wrong} with cam1's",
+        depths.len()
+    );
+    assert!(
+        all_right * 10 >= depths.len() * 7,
+        "only {all_right} of {} depths are within 5 % of the virtual camera's true depth",
+        depths.len()
+    );
+    assert!(
+        telling > 100 && near_right * 2 >= telling && near_wrong * 5 <= telling,
+        "of the {telling} pixels where the pose tells, {near_right} agree with the virtual pose and {near_wrong} with cam1's"
+    );
 }

@@ -3,6 +3,8 @@
 
 mod common;
 
+use common::shared_data;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -13,16 +15,6 @@ use sweepdepth::sweep::gpu::GpuEngine;
 
 fn tsukuba_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba")
-}
-
-fn shared_data() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("skipped: ../shared/data not present (a user's clone has only data/tsukuba)");
-        None
-    }
 }
 
 fn engine() -> GpuEngine {
@@ -254,10 +246,10 @@ fn demo_writes_its_images_and_a_quality_line() {
     }
 }
 
-/// The bar on the shared Middlebury sets (present in CI, not in a user's clone).
+/// The bar on the shared Middlebury sets (present in CI, not in a user's clone:
+/// tests/common/shared_data.rs).
 #[test]
 fn shared_middlebury_sets_meet_the_quality_bar() {
-    let Some(data) = shared_data() else { return };
     // SGBM (two views, invalid counted as bad): 7.00 / 25.10 / 36.66 %; Teddy must beat it by a
     // third (<= 16.7 %).
     for (name, max_bad1) in [
@@ -265,7 +257,11 @@ fn shared_middlebury_sets_meet_the_quality_bar() {
         ("middlebury2003_teddy_9view", 12.5),
         ("middlebury2005_Laundry_thirdsize", 24.0),
     ] {
-        let m = disparity_metrics(&data.join(name), |_| {});
+        let Some(dir) = shared_data::dataset("shared_middlebury_sets_meet_the_quality_bar", name)
+        else {
+            continue;
+        };
+        let m = disparity_metrics(&dir, |_| {});
         eprintln!("{name}: bad>1 {:.2} %, invalid {:.2} %", m.bad1, m.invalid);
         assert!(
             m.bad1 <= max_bad1,
@@ -288,8 +284,13 @@ fn shared_middlebury_sets_meet_the_quality_bar() {
 /// it is not: README, Quality).
 #[test]
 fn icl_confidence_ranks_coarse_depth_errors() {
-    let Some(data) = shared_data() else { return };
-    let dataset = load_dataset(&data.join("iclnuim_livingroom_traj2_frames")).expect("dataset");
+    let Some(dir) = shared_data::dataset(
+        "icl_confidence_ranks_coarse_depth_errors",
+        "iclnuim_livingroom_traj2_frames",
+    ) else {
+        return;
+    };
+    let dataset = load_dataset(&dir).expect("dataset");
     let maps = engine()
         .run(&dataset.rig, &dataset.images, &dataset.params)
         .expect("sweep");

@@ -1,6 +1,14 @@
 //! Shared test helpers: one GPU context per test process, result comparison with images written
-//! on failure.
+//! on failure; and, as submodules, the DDS safety guard ([`netns`]), the DDS peer side of the
+//! node tests ([`dds`]), a bag player ([`player`]), the Python with the test tools ([`python`])
+//! and the shared datasets ([`shared_data`]). Each test binary uses a part of it.
 #![allow(dead_code)]
+
+pub mod dds;
+pub mod netns;
+pub mod player;
+pub mod python;
+pub mod shared_data;
 
 use std::path::PathBuf;
 use std::sync::OnceLock;

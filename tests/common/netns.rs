@@ -4,9 +4,17 @@
 //! `unshare -n` (`-rn` when not root) with loopback up and a multicast route on `lo`, marked by
 //! an environment variable; inside, it refuses to open anything unless `/proc/self/net/dev`
 //! lists only `lo`.
-#![allow(dead_code)]
+//!
+//! The outer test passes only if the inner run exited successfully AND the body of exactly that
+//! test ran to its end: the inner run writes the test's name into a file the outer one names
+//! ([`DONE_FILE`]) after the body returns. A test renamed without updating the name it passes
+//! here would otherwise run zero tests inside the namespace and pass.
 
+use std::path::PathBuf;
 use std::process::{Child, Command};
+
+/// The environment variable naming the file the inner run writes when the body has finished.
+pub const DONE_FILE: &str = "SWEEPDEPTH_TEST_NETNS_DONE_FILE";
 
 /// Network interfaces of this process's network namespace (from /proc/self/net/dev).
 pub fn interfaces() -> Vec<String> {
@@ -29,8 +37,16 @@ fn is_root() -> bool {
 }
 
 /// Runs `body` only inside a private network namespace marked by the environment variable
-/// `marker`; from anywhere else re-executes the test `test_name` inside a new one.
+/// `marker`; from anywhere else re-executes the test `test_name` (which must be the name of the
+/// calling test) inside a new one and checks that exactly that test's body ran to its end.
 pub fn in_private_netns(marker: &str, test_name: &str, body: impl FnOnce()) {
+    // libtest names the thread of a test after it (the main thread with one test thread).
+    if let Some(thread) = std::thread::current().name() {
+        assert!(
+            thread == "main" || thread == test_name,
+            "in_private_netns was given the name '{test_name}' but runs in the test '{thread}': pass the test's own name"
+        );
+    }
     if std::env::var_os(marker).is_none() {
         reexec_in_private_netns(marker, test_name);
         return;
@@ -41,11 +57,24 @@ pub fn in_private_netns(marker: &str, test_name: &str, body: impl FnOnce()) {
         "refusing to open DDS: {marker} is set but this network namespace has interfaces {ifaces:?} (only lo allowed)"
     );
     body();
+    if let Some(done) = std::env::var_os(DONE_FILE) {
+        std::fs::write(&done, test_name).unwrap_or_else(|e| {
+            panic!(
+                "cannot write the completion marker {}: {e}",
+                PathBuf::from(&done).display()
+            )
+        });
+    }
 }
 
 fn reexec_in_private_netns(marker: &str, test_name: &str) {
     let exe = std::env::current_exe().expect("test binary path");
     let flags = if is_root() { "-n" } else { "-rn" };
+    let done = std::env::temp_dir().join(format!(
+        "sweepdepth-netns-done-{}-{test_name}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_file(&done);
     let script = "ip link set lo up && ip link set lo multicast on && \
                   ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
     let status = Command::new("unshare")
@@ -60,6 +89,7 @@ fn reexec_in_private_netns(marker: &str, test_name: &str) {
             "--test-threads=1",
         ])
         .env(marker, "1")
+        .env(DONE_FILE, &done)
         .status();
     match status {
         Err(e) => panic!(
@@ -68,6 +98,19 @@ fn reexec_in_private_netns(marker: &str, test_name: &str) {
         Ok(s) => assert!(
             s.success(),
             "the DDS test {test_name} inside `unshare {flags}` failed ({s}); see its output above (if unshare itself failed, namespaces may be unavailable here)"
+        ),
+    }
+    let ran = std::fs::read_to_string(&done);
+    let _ = std::fs::remove_file(&done);
+    match ran {
+        Ok(name) if name == test_name => {}
+        Ok(name) => panic!(
+            "inside the namespace the test '{name}' finished, not '{test_name}' (completion marker {})",
+            done.display()
+        ),
+        Err(_) => panic!(
+            "the run inside the namespace exited successfully but the body of '{test_name}' never finished there (no completion marker {}): no test of that exact name ran; pass the test's own name to in_private_netns",
+            done.display()
         ),
     }
 }

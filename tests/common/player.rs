@@ -1,16 +1,17 @@
-//! A rosbag2 player for tests: publishes the messages of a bag over DDS (ros2-client) with
-//! their original relative timing, like `ros2 bag play`. Images, camera infos and `/tf_static`
-//! (reliable, transient local, as static transform broadcasters publish it) are supported.
-//! Only for use inside the private network namespace of tests/common/netns.rs.
-#![allow(dead_code)]
+//! A rosbag2 player for tests: publishes messages of a bag over DDS (ros2-client) one at a time,
+//! as the test paces them (never on the bag's clock: a test publishes a frame set once the
+//! node has answered the previous one). Images, camera infos and `/tf_static` (reliable,
+//! transient local, as static transform broadcasters publish it) are supported.
+//! Only for use inside the private network namespace of [`super::netns`].
 
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use ros2_client::qos::{Durability, History, WhenFull};
-use ros2_client::{MessageTypeName, Name, Node, Publisher, QosProfile};
+use ros2_client::Publisher;
 use sweepdepth::bag::BagMessage;
-use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
+use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage, Time};
+
+use super::dds::{self, NodeProcess, Peer};
 
 enum TypedPublisher {
     Image(Publisher<Image>),
@@ -23,50 +24,25 @@ pub struct Player {
 }
 
 impl Player {
-    /// Publishers on `node` for every topic of `messages` with a supported type.
-    pub fn new(node: &mut Node, messages: &[BagMessage]) -> Player {
-        let reliable = QosProfile::publisher_default()
-            .reliability_reliable(WhenFull::DEFAULT)
-            .history(History::KeepLast { depth: 10 });
-        let latched = reliable.clone().durability(Durability::TransientLocal);
+    /// Publishers on `peer` for every topic of `messages` with a supported type: images and
+    /// camera infos reliable keep-last 10, `/tf_static` also transient local.
+    pub fn new(peer: &mut Peer, messages: &[BagMessage]) -> Player {
+        let reliable = dds::reliable(10);
+        let latched = dds::latched(10);
         let mut publishers = HashMap::new();
         for m in messages {
             if publishers.contains_key(&m.topic) {
                 continue;
             }
-            let name = Name::parse(&m.topic).expect("topic name");
             let typed = match m.msg_type.as_str() {
                 "sensor_msgs/msg/Image" => {
-                    let t = node
-                        .create_topic(
-                            &name,
-                            MessageTypeName::new("sensor_msgs", "Image"),
-                            &reliable,
-                        )
-                        .unwrap();
-                    TypedPublisher::Image(
-                        node.create_publisher(&t, Some(reliable.clone())).unwrap(),
-                    )
+                    TypedPublisher::Image(peer.publisher(&m.topic, dds::IMAGE, &reliable))
                 }
                 "sensor_msgs/msg/CameraInfo" => {
-                    let t = node
-                        .create_topic(
-                            &name,
-                            MessageTypeName::new("sensor_msgs", "CameraInfo"),
-                            &reliable,
-                        )
-                        .unwrap();
-                    TypedPublisher::Info(node.create_publisher(&t, Some(reliable.clone())).unwrap())
+                    TypedPublisher::Info(peer.publisher(&m.topic, dds::CAMERA_INFO, &reliable))
                 }
                 "tf2_msgs/msg/TFMessage" => {
-                    let t = node
-                        .create_topic(
-                            &name,
-                            MessageTypeName::new("tf2_msgs", "TFMessage"),
-                            &latched,
-                        )
-                        .unwrap();
-                    TypedPublisher::Tf(node.create_publisher(&t, Some(latched.clone())).unwrap())
+                    TypedPublisher::Tf(peer.publisher(&m.topic, dds::TF_MESSAGE, &latched))
                 }
                 other => panic!("the test player cannot publish {other} ({})", m.topic),
             };
@@ -76,8 +52,9 @@ impl Player {
     }
 
     /// Waits until every publisher has a matched subscription (the node under test), polling
-    /// discovery; panics after `limit`.
-    pub fn wait_for_subscribers(&self, node: &Node, limit: Duration) {
+    /// discovery (the peer must spin, [`Peer::spin_in_background`]).
+    pub fn wait_for_subscribers(&self, peer: &Peer, node: &mut NodeProcess) {
+        let limit = dds::timeout();
         let started = Instant::now();
         loop {
             let missing: Vec<&String> = self
@@ -85,9 +62,9 @@ impl Player {
                 .iter()
                 .filter(|(_, p)| {
                     let n = match p {
-                        TypedPublisher::Image(p) => p.get_subscription_count(node),
-                        TypedPublisher::Info(p) => p.get_subscription_count(node),
-                        TypedPublisher::Tf(p) => p.get_subscription_count(node),
+                        TypedPublisher::Image(p) => p.get_subscription_count(&peer.node),
+                        TypedPublisher::Info(p) => p.get_subscription_count(&peer.node),
+                        TypedPublisher::Tf(p) => p.get_subscription_count(&peer.node),
                     };
                     n == 0
                 })
@@ -96,40 +73,90 @@ impl Player {
             if missing.is_empty() {
                 return;
             }
+            node.check_alive();
             assert!(
                 started.elapsed() < limit,
-                "no subscriber within {limit:?} on {missing:?}"
+                "waited {limit:?} in vain for the node to subscribe to {missing:?}"
             );
-            std::thread::sleep(Duration::from_millis(50));
+            std::thread::sleep(Duration::from_millis(20));
         }
     }
 
-    /// Publishes `messages` in order, each at its log time relative to the first one.
-    pub fn play(&self, messages: &[BagMessage]) {
-        let Some(first) = messages.first().map(|m| m.log_time_ns) else {
-            return;
-        };
-        let started = Instant::now();
-        for m in messages {
-            let due = Duration::from_nanos(m.log_time_ns.saturating_sub(first));
-            if let Some(wait) = due.checked_sub(started.elapsed()) {
-                std::thread::sleep(wait);
+    /// Publishes one message of the bag (on a topic of the bag given to [`Player::new`]).
+    pub fn publish(&self, m: &BagMessage) {
+        self.publish_stamped(m, None);
+    }
+
+    /// Publishes one message, its header stamp replaced by `stamp` when given (images and
+    /// camera infos).
+    pub fn publish_stamped(&self, m: &BagMessage, stamp: Option<Time>) {
+        let p = self
+            .publishers
+            .get(&m.topic)
+            .unwrap_or_else(|| panic!("the player has no publisher for {}", m.topic));
+        let r = match p {
+            TypedPublisher::Image(p) => {
+                let mut image: Image = from_cdr(&m.data).expect("an Image");
+                if let Some(stamp) = stamp {
+                    image.header.stamp = stamp;
+                }
+                p.publish(image).map_err(|e| format!("{e:?}"))
             }
-            let Some(p) = self.publishers.get(&m.topic) else {
-                continue;
-            };
-            let r = match p {
-                TypedPublisher::Image(p) => p
-                    .publish(from_cdr::<Image>(&m.data).expect("image"))
-                    .map_err(|e| format!("{e:?}")),
-                TypedPublisher::Info(p) => p
-                    .publish(from_cdr::<CameraInfo>(&m.data).expect("camera info"))
-                    .map_err(|e| format!("{e:?}")),
-                TypedPublisher::Tf(p) => p
-                    .publish(from_cdr::<TFMessage>(&m.data).expect("tf"))
-                    .map_err(|e| format!("{e:?}")),
-            };
-            r.unwrap_or_else(|e| panic!("publish on {}: {e}", m.topic));
+            TypedPublisher::Info(p) => {
+                let mut info: CameraInfo = from_cdr(&m.data).expect("a CameraInfo");
+                if let Some(stamp) = stamp {
+                    info.header.stamp = stamp;
+                }
+                p.publish(info).map_err(|e| format!("{e:?}"))
+            }
+            TypedPublisher::Tf(p) => p
+                .publish(from_cdr::<TFMessage>(&m.data).expect("a TFMessage"))
+                .map_err(|e| format!("{e:?}")),
+        };
+        r.unwrap_or_else(|e| panic!("publish on {}: {e}", m.topic));
+    }
+
+    /// The start of a live run, while it is not known when the node's subscriptions match the
+    /// player's publishers (and `/tf_static` reaches it): publishes copies of one frame set
+    /// (`set`: its camera infos and images) stamped `stamp_of(0)`, `stamp_of(1)`, ... until
+    /// `answered` returns true, waiting 0.1 s after the first, then twice as long after each
+    /// (at most 1.6 s: a slow machine gets fewer sets to work through), for at most
+    /// [`dds::timeout`]. Returns the last index published. The test then waits for that set's
+    /// depth, after which the node is idle and every later set can be paced on its answers.
+    pub fn warm_up(
+        &self,
+        set: &[&BagMessage],
+        stamp_of: impl Fn(u32) -> Time,
+        node: &mut NodeProcess,
+        mut answered: impl FnMut() -> bool,
+    ) -> u32 {
+        let limit = dds::timeout();
+        let started = Instant::now();
+        let mut wait = Duration::from_millis(100);
+        for j in 0.. {
+            for m in set {
+                self.publish_stamped(m, Some(stamp_of(j)));
+            }
+            let sent = Instant::now();
+            while sent.elapsed() < wait {
+                if answered() {
+                    eprintln!(
+                        "warm-up: the node answered after {:?} and {} sets",
+                        started.elapsed(),
+                        j + 1
+                    );
+                    return j;
+                }
+                node.check_alive();
+                assert!(
+                    started.elapsed() < limit,
+                    "waited {limit:?} in vain for the depth of any of {} warm-up sets",
+                    j + 1
+                );
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            wait = (wait * 2).min(Duration::from_millis(1600));
         }
+        unreachable!("the warm-up loop ends by returning or panicking")
     }
 }
