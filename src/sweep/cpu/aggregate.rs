@@ -97,6 +97,14 @@ impl Windows {
 pub struct RowScorer {
     width: usize,
     padded: usize,
+    /// Length of one scored row: `width` placements (centred), or every window anchor of the
+    /// padded row (shiftable: each window is scored once and read by its four pixels).
+    span: usize,
+    /// Shiftable windows: the scores and selection codes of the last `h` window rows (by top
+    /// row), `padded` each, and the top row of the next window row to score.
+    window_scores: Vec<f32>,
+    window_sels: Vec<u8>,
+    next_top: isize,
     windows: Windows,
     /// channel x row set x padded: vertical sums and counts.
     sums: Vec<f32>,
@@ -118,18 +126,24 @@ impl RowScorer {
         let windows = Windows::of(plan);
         let padded = width + windows.w - 1;
         let channels = p.channels as usize;
-        let ranks = |n: usize| (0..n).map(|_| vec![BIG; width]).collect();
+        let span = if windows.shiftable { padded } else { width };
+        let ring_rows = if windows.shiftable { windows.h } else { 0 };
+        let ranks = |n: usize| (0..n).map(|_| vec![BIG; span]).collect();
         Self {
             width,
             padded,
+            span,
+            window_scores: vec![0.0; ring_rows * padded],
+            window_sels: vec![0; ring_rows * padded],
+            next_top: 0,
             windows,
             sums: vec![0.0; channels * 2 * padded],
             counts: vec![0.0; channels * 2 * padded],
-            mean: vec![0.0; width],
-            lane_score: vec![0.0; width],
-            lane_sel: vec![0; width],
-            carry: vec![0.0; width],
-            acc: std::array::from_fn(|_| vec![0.0; width]),
+            mean: vec![0.0; span],
+            lane_score: vec![0.0; span],
+            lane_sel: vec![0; span],
+            carry: vec![0.0; span],
+            acc: std::array::from_fn(|_| vec![0.0; span]),
             best: ranks(if p.scoring == SCORING_BEST_N {
                 p.best_n as usize
             } else {
@@ -152,6 +166,10 @@ impl RowScorer {
         score: &mut [f32],
         sel: &mut [u8],
     ) {
+        if self.windows.shiftable {
+            self.score_row_shiftable(plan, ring, y, height, score, sel);
+            return;
+        }
         let p = &plan.params;
         let channels = p.channels as usize;
         let padded = self.padded;
@@ -207,13 +225,96 @@ impl RowScorer {
         }
     }
 
+    /// Shiftable windows: every window row is scored once over its padded anchors (top rows
+    /// y - h + 1 and y are the upper and lower placements of output row y), and each pixel takes
+    /// the best of its four windows, the first placement on ties as `best_placement`.
+    #[inline(always)]
+    fn score_row_shiftable(
+        &mut self,
+        plan: &SweepPlan,
+        ring: &RowRing,
+        y: usize,
+        height: usize,
+        score: &mut [f32],
+        sel: &mut [u8],
+    ) {
+        let h = self.windows.h as isize;
+        if y == 0 {
+            self.next_top = 1 - h;
+        }
+        while self.next_top <= y as isize {
+            self.score_window_row(plan, ring, self.next_top, height);
+            self.next_top += 1;
+        }
+        let (padded, width) = (self.padded, self.width);
+        let slot = |top: isize| (top + h - 1) as usize % self.windows.h * padded;
+        let (upper, lower) = (slot(y as isize - h + 1), slot(y as isize));
+        let right = self.windows.w - 1;
+        let (score, sel) = (&mut score[..width], &mut sel[..width]);
+        score.copy_from_slice(&self.window_scores[upper..upper + width]);
+        sel.copy_from_slice(&self.window_sels[upper..upper + width]);
+        for at in [upper + right, lower, lower + right] {
+            let (lane_score, lane_sel) = (
+                &self.window_scores[at..at + width],
+                &self.window_sels[at..at + width],
+            );
+            for (((s, e), &ls), &le) in score
+                .iter_mut()
+                .zip(sel.iter_mut())
+                .zip(lane_score)
+                .zip(lane_sel)
+            {
+                let better = ls < *s;
+                *s = if better { ls } else { *s };
+                *e = if better { le } else { *e };
+            }
+        }
+    }
+
+    /// Scores the windows whose top row is `top` (may lie above the image) at every padded
+    /// anchor into the window-row ring. The vertical sums slide down from the previous top row,
+    /// summed anew every RESTART_ROWS rows.
+    #[inline(always)]
+    fn score_window_row(&mut self, plan: &SweepPlan, ring: &RowRing, top: isize, height: usize) {
+        let p = &plan.params;
+        let channels = p.channels as usize;
+        let padded = self.padded;
+        let h = self.windows.h as isize;
+        let rows = |from: isize| (from.max(0) as usize).min(height);
+        let slide = (top + h - 1) % RESTART_ROWS as isize != 0;
+        for ch in 0..channels {
+            let at = ch * 2 * padded;
+            let sums = &mut self.sums[at..at + padded];
+            let counts = &mut self.counts[at..at + padded];
+            if slide {
+                let (left, entered) = (top - 1, top + h - 1);
+                if left >= 0 && (left as usize) < height {
+                    ring.add_row(ch, left as usize, -1.0, sums, counts);
+                }
+                if entered >= 0 && (entered as usize) < height {
+                    ring.add_row(ch, entered as usize, 1.0, sums, counts);
+                }
+            } else {
+                ring.box_v(ch, rows(top), rows(top + h), sums, counts);
+            }
+        }
+        if p.aggregation == AGG_PER_PAIR {
+            self.score_pairs(plan, 0, 0);
+        } else {
+            self.score_channels(plan, 0, 0);
+        }
+        let at = (top + h - 1) as usize % self.windows.h * padded;
+        self.window_scores[at..at + padded].copy_from_slice(&self.lane_score);
+        self.window_sels[at..at + padded].copy_from_slice(&self.lane_sel);
+    }
+
     /// The window means of `channel` for one placement into `self.mean`.
     #[inline(always)]
     fn means(&mut self, channel: usize, set: usize, offset: usize) {
         let at = (channel * 2 + set) * self.padded + offset;
         let (sums, counts) = (
-            &self.sums[at..at + self.width],
-            &self.counts[at..at + self.width],
+            &self.sums[at..at + self.span],
+            &self.counts[at..at + self.span],
         );
         for ((m, &s), &n) in self.mean.iter_mut().zip(sums).zip(counts) {
             *m = mean_or_big(s, n);
@@ -239,7 +340,7 @@ impl RowScorer {
             self.means(2, set, offset);
         }
         let scored = p.aggregation == AGG_SCORED;
-        for x in 0..self.width {
+        for x in 0..self.span {
             let (left, right) = (self.acc[0][x], self.acc[1][x]);
             self.lane_score[x] = if scored {
                 self.mean[x]
@@ -284,7 +385,7 @@ impl RowScorer {
             best_mean(&self.left_best, left_sum, left_count);
             best_mean(&self.right_best, right_sum, right_count);
         }
-        let w = self.width;
+        let w = self.span;
         for (s, &n) in left_sum[..w].iter_mut().zip(&left_count[..w]) {
             *s = mean_or_big(*s, n);
         }

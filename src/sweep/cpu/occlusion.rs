@@ -1,8 +1,6 @@
-//! Twins of `shaders/splat.wgsl` and `shaders/visibility.wgsl`. Rows in parallel; the z-buffer
-//! keeps the nearest depth with an atomic max of the inverted bits, as the shader does, so the
-//! order of the writes does not matter.
-
-use std::sync::atomic::{AtomicU32, Ordering};
+//! Twins of `shaders/splat.wgsl` and `shaders/visibility.wgsl`. The z-buffer keeps the nearest
+//! depth as the max of the inverted bits, as the shader's atomic max does, so the order of the
+//! writes does not matter: splat runs cameras in parallel, visibility rows in parallel.
 
 use rayon::prelude::*;
 
@@ -29,35 +27,43 @@ fn nearest_texel(cam: &GpuCamera, projected: Vec3) -> Option<usize> {
 }
 
 /// Splats the median depth into every other camera's z-buffer (cleared to 0 = empty).
+/// Cameras in parallel, each writing only its own section: the nearest depth kept with a plain
+/// max of the inverted bits, so the result is the shader's atomic max without atomics.
 pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32]) {
-    let width = plan.width as usize;
     let ref_index = plan.params.reference;
     let median = maps.section(MAP_DEPTH_MEDIAN);
-    let atomic: Vec<AtomicU32> = zbuffer.iter().map(|&z| AtomicU32::new(z)).collect();
-    median
-        .par_chunks(width)
-        .enumerate()
-        .for_each(|(y, row)| splat_row(plan, ref_index, y * width, row, &atomic));
-    for (z, a) in zbuffer.iter_mut().zip(atomic) {
-        *z = a.into_inner();
+    let mut sections: Vec<(&GpuCamera, &mut [u32])> = Vec::with_capacity(plan.cameras.len());
+    let mut rest = zbuffer;
+    let mut offset = 0usize;
+    for (i, cam) in plan.cameras.iter().enumerate() {
+        let start = cam.size[2] as usize;
+        let len = cam.size[0] as usize * cam.size[1] as usize;
+        // Sections lie in camera order (plan.rs); skip any gap before this one.
+        let (_, tail) = std::mem::take(&mut rest).split_at_mut(start.saturating_sub(offset));
+        let (section, tail) = tail.split_at_mut(len.min(tail.len()));
+        rest = tail;
+        offset = start + section.len();
+        if i as u32 != ref_index {
+            sections.push((cam, section));
+        }
     }
+    sections
+        .into_par_iter()
+        .for_each(|(cam, section)| splat_camera(plan, cam, median, section));
 }
 
 vectorised_fn! {
-/// Splats one row of depths (first pixel `first`).
-fn splat_row(plan: &SweepPlan, ref_index: u32, first: usize, row: &[f32], zbuffer: &[AtomicU32]) {
-    for (x, &depth) in row.iter().enumerate() {
+/// Splats every reference depth into one camera's z-buffer section.
+fn splat_camera(plan: &SweepPlan, cam: &GpuCamera, median: &[f32], section: &mut [u32]) {
+    let first = cam.size[2] as usize;
+    for (pix, &depth) in median.iter().enumerate() {
         if depth.is_nan() {
             continue;
         }
-        let point = ref_point(plan, first + x, depth);
-        for (i, cam) in plan.cameras.iter().enumerate() {
-            if i as u32 == ref_index {
-                continue;
-            }
-            let projected = project(cam, point);
-            if let Some(index) = nearest_texel(cam, projected) {
-                zbuffer[index].fetch_max(!projected[2].to_bits(), Ordering::Relaxed);
+        let projected = project(cam, ref_point(plan, pix, depth));
+        if let Some(index) = nearest_texel(cam, projected) {
+            if let Some(z) = section.get_mut(index - first) {
+                *z = (*z).max(!projected[2].to_bits());
             }
         }
     }

@@ -5,7 +5,7 @@
 //! parallel.
 
 use super::aggregate::{RowScorer, Windows};
-use super::boxes::{box_h, RowRing};
+use super::boxes::{BoxH, RowRing};
 use super::common::{vectorised_fn, PlanarImage};
 use super::cost::{self, ColourRow, Mapping, ScoreAcc};
 use crate::sweep::gpu_types::*;
@@ -17,8 +17,7 @@ pub struct PlaneScratch {
     pair_costs: Vec<Vec<f32>>,
     channel_rows: Vec<Vec<f32>>,
     score_acc: ScoreAcc,
-    pad: Vec<f32>,
-    pad_ones: Vec<f32>,
+    box_h: BoxH,
     ring: RowRing,
     scorer: RowScorer,
 }
@@ -42,8 +41,7 @@ impl PlaneScratch {
                 .map(|_| vec![0.0; width])
                 .collect(),
             score_acc: ScoreAcc::new(width, best_n),
-            pad: vec![0.0; width + 2 * windows.w],
-            pad_ones: vec![0.0; width + 2 * windows.w],
+            box_h: BoxH::new(width, windows.w),
             ring: RowRing::new(channels, 2 * windows.h, width + windows.w - 1),
             scorer: RowScorer::new(plan),
         }
@@ -134,7 +132,6 @@ fn cost_row(
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
         cost::pair_cost_row(p.tau, row(pair[0] as usize), row(pair[1] as usize), costs);
     }
-    let w = p.window_w as usize;
     let rows: &[Vec<f32>] = if p.aggregation == AGG_PER_PAIR {
         &s.pair_costs
     } else {
@@ -143,6 +140,6 @@ fn cost_row(
     };
     for (ch, costs) in rows.iter().enumerate() {
         let (sums, counts) = s.ring.row_mut(ch, y);
-        box_h(costs, w, &mut s.pad, &mut s.pad_ones, sums, counts);
+        s.box_h.run(costs, sums, counts);
     }
 }

@@ -1,0 +1,15 @@
+#!/bin/sh
+# The live node's rate (issue 11, item 5): a 9-camera 450x375 rig with 57 planes played at 2 Hz
+# into `sweepdepth node` (CPU engine when there is no GPU), on a release build. Runs the test
+# tests/node_live_rate.rs with more sets (SETS, default 30), which plays inside its own private
+# network namespace (no DDS packet leaves the machine) and prints the share of sets answered,
+# the sets dropped for newer ones and the node's mean processing time per set.
+# Usage: sh scripts/live_rate.sh [SETS]
+set -eu
+cd "$(dirname "$0")/.."
+SETS="${1:-30}"
+echo "load average: $(cut -d' ' -f1-3 /proc/loadavg)"
+SWEEPDEPTH_LIVE_SETS="$SETS" RUST_LOG="${RUST_LOG:-warn}" \
+    cargo test --release --test node_live_rate -- --nocapture 2>&1 |
+    grep -E "live rate|test result|panicked|error"
+echo "load average: $(cut -d' ' -f1-3 /proc/loadavg)"
