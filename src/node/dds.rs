@@ -4,7 +4,7 @@
 //! diagnostics thread until SIGINT/SIGTERM.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc};
 use std::time::Instant;
 
 use futures::StreamExt;
@@ -15,6 +15,7 @@ use ros2_client::{
 
 use super::events::{Event, EventStream, LoopState};
 use super::log::{lock, log_info, RateLimited, ROSOUT};
+use super::param_services::ParamServices;
 use super::params::node_options;
 use super::worker::Publishers;
 use super::{diag, NodeConfig, NodeError, Shared};
@@ -61,8 +62,10 @@ pub(super) fn run(
             }
         })?;
     let mut node = context
-        .new_node(node_name, node_options(shared.live))
+        .new_node(node_name, node_options())
         .map_err(ros_err)?;
+    let param_services =
+        ParamServices::new(&mut node, &pipeline.identity.fqn(), Arc::clone(shared.live))?;
     let logger_name = pipeline
         .identity
         .fqn()
@@ -230,8 +233,18 @@ pub(super) fn run(
         stats: shared.stats,
     };
     let event_loop = async {
-        while let Some(event) = events.next().await {
-            state.handle(event);
+        let events = async {
+            while let Some(event) = events.next().await {
+                state.handle(event);
+            }
+        };
+        let params = param_services.serve();
+        futures::pin_mut!(events, params);
+        match futures::future::select(events, params).await {
+            futures::future::Either::Left(((), _)) => {
+                NodeError::Ros("the subscription streams ended".into())
+            }
+            futures::future::Either::Right((e, _)) => e,
         }
     };
     let stop = AtomicBool::new(false);
@@ -251,8 +264,8 @@ pub(super) fn run(
                 futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
                     r.map_err(ros_err)
                 }
-                futures::future::Either::Left((futures::future::Either::Right(((), _)), _)) => {
-                    Err(NodeError::Ros("the subscription streams ended".into()))
+                futures::future::Either::Left((futures::future::Either::Right((e, _)), _)) => {
+                    Err(e)
                 }
                 futures::future::Either::Right(_) => {
                     log_info("shutting down (signal received)");

@@ -11,7 +11,8 @@
 //! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
 //!
 //! A diagnostics thread publishes `/diagnostics` once a second ([`diag`]). Log messages go to
-//! stderr and, once DDS is up, to `/rosout` (`log`). The parameter services of ros2-client
+//! stderr and, once DDS is up, to `/rosout` (`log`). Our own parameter services
+//! ([`param_services`], as rclcpp's: descriptors with our descriptions, ranges and read_only)
 //! serve every parameter of the table ([`params`]); engine parameters can be set at run time
 //! (validated, then used from the next frame set on), node parameters are read-only.
 //!
@@ -26,6 +27,7 @@ mod dds;
 pub mod diag;
 mod events;
 mod log;
+pub mod param_services;
 pub mod params;
 pub mod slot;
 mod worker;
