@@ -8,7 +8,7 @@ use crate::gpu_context::{GpuContext, GpuContextError};
 use crate::image::Rgba8Image;
 use crate::sweep::cpu::CpuEngine;
 use crate::sweep::gpu::GpuEngine;
-use crate::sweep::{DepthMaps, StageTimings, SweepError, SweepParams};
+use crate::sweep::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 
 /// Which engine runs the sweep (`--device`, parameter `device`): this module.
 #[derive(
@@ -158,6 +158,14 @@ impl Engine {
         match self {
             Self::Gpu { gpu, .. } => Some(gpu),
             Self::Cpu(_) => None,
+        }
+    }
+
+    /// Runs stop at their next pass boundary once `cancel` is set ([`SweepError::Cancelled`]).
+    pub fn set_cancel(&mut self, cancel: CancelFlag) {
+        match self {
+            Self::Gpu { engine, .. } => engine.set_cancel(cancel),
+            Self::Cpu(cpu) => cpu.set_cancel(cancel),
         }
     }
 

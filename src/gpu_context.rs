@@ -18,7 +18,7 @@ pub enum GpuContextError {
 
 impl GpuContext {
     /// Picks the adapter named by `WGPU_ADAPTER_NAME` / `WGPU_BACKEND` if set, else the default
-    /// high-performance one; asks for timestamp queries when the adapter has them and for the
+    /// high-performance one of the primary backends (Vulkan, Metal, DX12); asks for timestamp queries when the adapter has them and for the
     /// adapter's own storage-buffer limits (large cost slabs), nothing else.
     pub fn new() -> Result<Self, GpuContextError> {
         futures::executor::block_on(Self::new_async())
@@ -36,8 +36,12 @@ impl GpuContext {
     }
 
     async fn create(max_storage_binding: Option<u64>) -> Result<Self, GpuContextError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        // The primary backends (Vulkan, Metal, DX12) unless WGPU_BACKEND names others: the GL
+        // backend's EGL probe logs errors on machines without a GL driver ("eglInitialize
+        // DRI2: failed to load driver") and has nothing the engine needs.
+        let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle();
+        descriptor.backends = wgpu::Backends::PRIMARY;
+        let instance = wgpu::Instance::new(descriptor.with_env());
         let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
             .await
             .map_err(|e| GpuContextError::NoAdapter(e.to_string()))?;

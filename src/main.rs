@@ -36,15 +36,16 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-                tracing_subscriber::EnvFilter::new("warn,sweepdepth=info,rustdds=error")
-            }),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    sweepdepth::logging::init();
     let cli = Cli::parse();
+    // Before any thread starts (set_var is only sound then).
+    let mut defaults = vec![sweepdepth::process_env::quiet_vulkan_device_select()];
+    if matches!(cli.command, Command::Node { .. }) {
+        defaults.push(sweepdepth::process_env::default_ros_distro());
+    }
+    for note in defaults.into_iter().flatten() {
+        tracing::debug!("{note}");
+    }
     let result = match cli.command {
         Command::Eval(args) => sweepdepth::eval::run(&args).map_err(anyhow::Error::from),
         Command::Bench(args) => sweepdepth::bench::run(&args),

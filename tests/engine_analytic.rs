@@ -5,10 +5,12 @@ mod common;
 use glam::{DQuat, DVec2, DVec3};
 use sweepdepth::geometry::{CameraModel, Reference, Rig, RigCamera, RigidTransform};
 use sweepdepth::image::ImageF32;
+use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::plan::SweepPlan;
 use sweepdepth::sweep::{
-    selection, Aggregation, Optimizer, PairSet, PlaneFamily, Scoring, SweepParams, WindowMode,
+    selection, Aggregation, CancelFlag, Optimizer, PairSet, PlaneFamily, Scoring, SweepError,
+    SweepParams, WindowMode,
 };
 use sweepdepth::synthetic::{self, Scene, TexturedQuad};
 
@@ -407,4 +409,35 @@ fn bad_input_is_an_error_not_a_panic() {
     images.pop();
     assert!(engine.run(&rig, &images, &p).is_err(), "missing image");
     let _ = Aggregation::PerHalf;
+}
+
+/// A cancel flag stops both engines: once set, a run returns `Cancelled` at its first pass
+/// boundary instead of depth; with a fresh flag the same engine runs again. (A flag set in the
+/// middle of a long run: tests/node_shutdown.rs, through the node.)
+#[test]
+fn cancel_flag_stops_both_engines() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, synthetic::intrinsics(160, 120).fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = params(1.0, 4.0, 48);
+    let cancelled = || {
+        let flag = CancelFlag::new();
+        flag.cancel();
+        flag
+    };
+
+    let mut cpu = CpuEngine::new();
+    cpu.set_cancel(cancelled());
+    let r = cpu.run(&rig, &images, &p);
+    assert!(matches!(r, Err(SweepError::Cancelled)), "cpu: {r:?}");
+    cpu.set_cancel(CancelFlag::new());
+    assert!(cpu.run(&rig, &images, &p).is_ok(), "cpu: a fresh flag runs");
+
+    let mut gpu = engine();
+    gpu.set_cancel(cancelled());
+    let r = gpu.run(&rig, &images, &p);
+    assert!(matches!(r, Err(SweepError::Cancelled)), "gpu: {r:?}");
+    gpu.set_cancel(CancelFlag::new());
+    assert!(gpu.run(&rig, &images, &p).is_ok(), "gpu: a fresh flag runs");
 }

@@ -448,7 +448,8 @@ fn graph_parameters_rosout_diagnostics_sigint() {
         probe["after"]["cameras"],
         json!(["cam0", "cam1", "cam2", "cam3"])
     );
-    // describe_parameters: what it answers today (issue 12 item 3 makes it serve our table).
+    // describe_parameters and get_parameter_types: our table, as an rclcpp node that
+    // declared it would answer.
     let descriptors = probe["descriptors"]
         .as_object()
         .cloned()
@@ -458,9 +459,31 @@ fn graph_parameters_rosout_diagnostics_sigint() {
         params.as_object().map_or(0, |p| p.len()),
         "one descriptor per parameter"
     );
+    for spec in sweepdepth::params::param_table() {
+        let d = &descriptors[spec.name];
+        assert_eq!(d["description"], spec.description, "{}: {d}", spec.name);
+        assert_eq!(d["read_only"], spec.read_only, "{}: {d}", spec.name);
+        assert_eq!(d["type"], probe["types"][spec.name], "{}: {d}", spec.name);
+    }
+    // Integer and floating-point ranges with their step (rcl_interfaces' FloatingPointRange
+    // and IntegerRange: from_value, to_value, step).
+    let num_planes = &descriptors["num_planes"];
+    assert_eq!(num_planes["type"], 2, "integer: {num_planes}");
+    assert_eq!(num_planes["read_only"], false, "live: {num_planes}");
+    assert_eq!(num_planes["integer_range"], json!([[2, 4096, 1]]));
+    let sgm_p1 = &descriptors["sgm_p1"];
+    assert_eq!(sgm_p1["type"], 3, "double: {sgm_p1}");
+    assert_eq!(sgm_p1["floating_point_range"][0][0], 0.0, "{sgm_p1}");
+    assert_eq!(
+        sgm_p1["floating_point_range"][0][2], 0.0,
+        "continuous: {sgm_p1}"
+    );
+    let cameras = &descriptors["cameras"];
+    assert_eq!(cameras["type"], 9, "string array: {cameras}");
+    assert_eq!(cameras["read_only"], true, "fixed at start: {cameras}");
     eprintln!(
-        "describe_parameters today: num_planes {} / cameras {}; get_parameter_types: num_planes {}",
-        descriptors["num_planes"], descriptors["cameras"], probe["types"]["num_planes"]
+        "describe_parameters: num_planes {} / cameras {}",
+        descriptors["num_planes"], descriptors["cameras"]
     );
 
     // SIGINT: exit status 0 (what it logs on the way out is reported, issue 12 item 7).

@@ -4,7 +4,7 @@
 //! diagnostics thread until SIGINT/SIGTERM.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc;
+use std::sync::{mpsc, Arc};
 use std::time::Instant;
 
 use futures::StreamExt;
@@ -15,6 +15,7 @@ use ros2_client::{
 
 use super::events::{Event, EventStream, LoopState};
 use super::log::{lock, log_info, RateLimited, ROSOUT};
+use super::param_services::ParamServices;
 use super::params::node_options;
 use super::worker::Publishers;
 use super::{diag, NodeConfig, NodeError, Shared};
@@ -33,15 +34,26 @@ fn topic_name(name: &str) -> Result<Name, NodeError> {
     })
 }
 
-/// Brings the node up on DDS and runs it until a signal (or an error) ends it.
+/// The spinner's future, kept until the node is dropped: the node's `Drop` tells the spinner to
+/// stop, which fails (with an ERROR line) once the spinner is gone.
+type SpinFuture =
+    std::pin::Pin<Box<dyn std::future::Future<Output = ros2_client::CreateResult<()>>>>;
+
+/// Brings the node up on DDS and runs it until a signal (or an error) ends it. `stop_worker`
+/// stops the GPU thread (cancelling its run) and waits for it: it is called before any DDS
+/// entity is dropped, so that the output publishers the thread owns go before the node and
+/// the participant.
 pub(super) fn run(
     config: &NodeConfig,
     shared: &Shared<'_>,
     publishers_tx: mpsc::Sender<Publishers>,
+    stop_worker: &mut dyn FnMut(),
 ) -> Result<(), NodeError> {
     let pipeline = &config.pipeline;
     let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
         .map_err(ros_err)?;
+    // Declared before the node, so dropped after it (locals drop in reverse order).
+    let mut spin: SpinFuture;
     let node_name =
         NodeName::new(&pipeline.identity.namespace, &pipeline.identity.name).map_err(|e| {
             NodeError::Name {
@@ -50,8 +62,10 @@ pub(super) fn run(
             }
         })?;
     let mut node = context
-        .new_node(node_name, node_options(shared.live))
+        .new_node(node_name, node_options())
         .map_err(ros_err)?;
+    let param_services =
+        ParamServices::new(&mut node, &pipeline.identity.fqn(), Arc::clone(shared.live))?;
     let logger_name = pipeline
         .identity
         .fqn()
@@ -199,7 +213,7 @@ pub(super) fn run(
             })));
     }
     let mut events = futures::stream::select_all(streams);
-    let spinner = node.spinner().map_err(ros_err)?;
+    spin = Box::pin(node.spinner().map_err(ros_err)?.spin());
     // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
     // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
     // the node says it is up, so a signal sent as soon as it is up is never the default action.
@@ -219,12 +233,22 @@ pub(super) fn run(
         stats: shared.stats,
     };
     let event_loop = async {
-        while let Some(event) = events.next().await {
-            state.handle(event);
+        let events = async {
+            while let Some(event) = events.next().await {
+                state.handle(event);
+            }
+        };
+        let params = param_services.serve();
+        futures::pin_mut!(events, params);
+        match futures::future::select(events, params).await {
+            futures::future::Either::Left(((), _)) => {
+                NodeError::Ros("the subscription streams ended".into())
+            }
+            futures::future::Either::Right((e, _)) => e,
         }
     };
     let stop = AtomicBool::new(false);
-    std::thread::scope(|scope| {
+    let outcome = std::thread::scope(|scope| {
         let diag = std::thread::Builder::new()
             .name("sweepdepth-diagnostics".into())
             .spawn_scoped(scope, || {
@@ -233,16 +257,15 @@ pub(super) fn run(
             .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
         let outcome = futures::executor::block_on(async {
             futures::pin_mut!(event_loop);
-            let spin = spinner.spin();
-            futures::pin_mut!(spin);
             let stopped = signal_rx.next();
-            match futures::future::select(futures::future::select(spin, event_loop), stopped).await
+            match futures::future::select(futures::future::select(&mut spin, event_loop), stopped)
+                .await
             {
                 futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
                     r.map_err(ros_err)
                 }
-                futures::future::Either::Left((futures::future::Either::Right(((), _)), _)) => {
-                    Err(NodeError::Ros("the subscription streams ended".into()))
+                futures::future::Either::Left((futures::future::Either::Right((e, _)), _)) => {
+                    Err(e)
                 }
                 futures::future::Either::Right(_) => {
                     log_info("shutting down (signal received)");
@@ -253,5 +276,10 @@ pub(super) fn run(
         stop.store(true, Ordering::Relaxed);
         let _ = diag.join();
         outcome
-    })
+    });
+    // The GPU thread (its run cancelled, its pending set abandoned) and the `/rosout` writer
+    // go before the node and the participant.
+    stop_worker();
+    *lock(&ROSOUT) = None;
+    outcome
 }

@@ -11,18 +11,23 @@
 //! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
 //!
 //! A diagnostics thread publishes `/diagnostics` once a second ([`diag`]). Log messages go to
-//! stderr and, once DDS is up, to `/rosout` (`log`). The parameter services of ros2-client
+//! stderr and, once DDS is up, to `/rosout` (`log`). Our own parameter services
+//! ([`param_services`], as rclcpp's: descriptors with our descriptions, ranges and read_only)
 //! serve every parameter of the table ([`params`]); engine parameters can be set at run time
 //! (validated, then used from the next frame set on), node parameters are read-only.
 //!
-//! SIGINT and SIGTERM end the node cleanly: the event loop stops, the GPU thread finishes its
-//! set and ends, DDS entities are dropped, and the process exits 0.
+//! SIGINT and SIGTERM end the node cleanly and promptly: the event loop stops, the pending set
+//! is abandoned, the running one is cancelled at the engine's next pass boundary
+//! ([`crate::sweep::CancelFlag`]), the GPU thread ends and drops its publishers, then the node
+//! and the DDS participant are dropped (in that order, so nothing logs an error), and the
+//! process exits 0.
 
 pub mod config;
 mod dds;
 pub mod diag;
 mod events;
 mod log;
+pub mod param_services;
 pub mod params;
 pub mod slot;
 mod worker;
@@ -36,6 +41,7 @@ use self::log::{lock, ROSOUT};
 use self::params::LiveParams;
 use self::slot::LatestSlot;
 use crate::pipeline::Job;
+use crate::sweep::CancelFlag;
 
 /// What the executor side (event loop, parameter callbacks, diagnostics) shares with the GPU
 /// thread.
@@ -74,8 +80,10 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         pipeline.virtual_ref.is_some(),
     );
     let stats = Arc::new(Mutex::new(Stats::new(pipeline.cameras.len())));
+    let cancel = CancelFlag::new();
     let gpu = worker::spawn(
         pipeline.device(),
+        cancel.clone(),
         Arc::clone(&slot),
         Arc::clone(&live),
         Arc::clone(&stats),
@@ -88,9 +96,18 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         stats: &stats,
         adapter: &gpu.adapter,
     };
-    let result = dds::run(&config, &shared, gpu.publishers);
+    let mut handle = Some(gpu.handle);
+    // On shutdown: no more sets, the pending one abandoned, the running one stopped at its
+    // next pass boundary.
+    let mut stop_worker = || {
+        slot.close();
+        cancel.cancel();
+        if let Some(handle) = handle.take() {
+            let _ = handle.join();
+        }
+    };
+    let result = dds::run(&config, &shared, gpu.publishers, &mut stop_worker);
     *lock(&ROSOUT) = None;
-    slot.close();
-    let _ = gpu.handle.join();
+    stop_worker();
     result
 }

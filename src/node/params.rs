@@ -1,14 +1,13 @@
-//! The node's parameters over ros2-client's parameter services: declaration of the table with
-//! the current values, validation of sets ([`crate::params::checks::check_change`]) and
-//! application of accepted engine parameter changes (the GPU worker takes the new
-//! [`SweepParams`] from the next frame set on). No DDS; unit-tested.
+//! The node's parameter values ([`LiveParams`]): validation of sets
+//! ([`crate::params::checks::check_change`]) and application of accepted engine parameter
+//! changes (the GPU worker takes the new [`SweepParams`] from the next frame set on); the
+//! services that serve them: [`super::param_services`]. No DDS; unit-tested.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use ros2_client::parameters::ParameterValue as RosValue;
 use ros2_client::NodeOptions;
 
-use super::log::{log_info, node_log};
 use crate::geometry::Rig;
 use crate::params::checks::{check_change, shape_rig};
 use crate::params::{ParamError, ParamSet, ParamValue};
@@ -141,40 +140,33 @@ impl LiveParams {
         *lock(&self.sweep) = sweep;
         Ok(changed)
     }
+
+    /// All or none: each change is checked on the values the earlier ones give; when every
+    /// one is accepted all are stored. Returns, per change, whether it changed the value.
+    pub fn apply_all(&self, changes: &[(String, RosValue)]) -> Result<Vec<bool>, SetError> {
+        let mut current = lock(&self.params);
+        let mut params = current.clone();
+        let mut sweep = self.sweep();
+        let mut changed = Vec::with_capacity(changes.len());
+        for (name, value) in changes {
+            let before = params.get(name).cloned();
+            let value = from_ros(value)?;
+            (params, sweep) = check_change(&params, &sweep, self.shape.as_ref(), name, &value)?;
+            changed.push(params.get(name) != before.as_ref());
+        }
+        *current = params;
+        drop(current);
+        *lock(&self.sweep) = sweep;
+        Ok(changed)
+    }
 }
 
-/// The node's options: rosout on, parameter services with every parameter of the table
-/// declared, sets validated and applied by [`LiveParams`].
-pub(super) fn node_options(live: &Arc<LiveParams>) -> NodeOptions {
-    let mut options = NodeOptions::new()
+/// The node's options: rosout on; the parameter services are ours
+/// ([`super::param_services`]), not ros2-client's (which cannot serve descriptors).
+pub(super) fn node_options() -> NodeOptions {
+    NodeOptions::new()
         .enable_rosout(true)
-        .start_parameter_services(true)
-        .allow_undeclared_parameters(false);
-    for (name, value) in live.declarations() {
-        options = options.declare_parameter(&name, value);
-    }
-    let validator = Arc::clone(live);
-    let action = Arc::clone(live);
-    options
-        // ros2-client takes the reason as a String.
-        .parameter_validator(Box::new(move |name, value| {
-            let r = validator.check(name, value);
-            if let Err(e) = &r {
-                node_log(
-                    tracing::Level::WARN,
-                    &format!("rejected setting parameter '{name}' to {value:?}: {e}"),
-                );
-            }
-            r.map_err(|e| e.to_string())
-        }))
-        .parameter_set_action(Box::new(move |name, value| {
-            if action.apply(name, value).map_err(|e| e.to_string())? {
-                log_info(&format!(
-                    "parameter '{name}' set to {value:?} (used from the next frame set on)"
-                ));
-            }
-            Ok(())
-        }))
+        .start_parameter_services(false)
 }
 
 #[cfg(test)]
@@ -202,6 +194,30 @@ mod tests {
             "cameras".to_string(),
             RosValue::StringArray(vec!["a".into(), "b".into()])
         )));
+    }
+
+    #[test]
+    fn atomic_sets_are_all_or_none() {
+        let l = live();
+        let int = |i| RosValue::Integer(i);
+        // The second change is refused: nothing is stored.
+        assert!(l
+            .apply_all(&[
+                ("num_planes".into(), int(32)),
+                ("num_planes".into(), int(1))
+            ])
+            .is_err());
+        assert_eq!(l.sweep().num_planes, 64);
+        // Checked in order: max_depth first makes the min_depth change valid.
+        let changed = l
+            .apply_all(&[
+                ("max_depth".into(), RosValue::Double(200.0)),
+                ("min_depth".into(), RosValue::Double(100.0)),
+                ("num_planes".into(), int(64)),
+            ])
+            .unwrap();
+        assert_eq!(changed, [true, true, false]);
+        assert_eq!(l.sweep().min_depth_m, 100.0);
     }
 
     #[test]

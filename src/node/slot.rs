@@ -41,6 +41,9 @@ impl<T> LatestSlot<T> {
     /// Offers `item`; returns true if it replaced a pending one (that one is dropped).
     pub fn offer(&self, item: T) -> bool {
         let mut slot = self.lock();
+        if slot.closed {
+            return false;
+        }
         let replaced = slot.pending.replace(item).is_some();
         if replaced {
             slot.dropped += 1;
@@ -50,21 +53,24 @@ impl<T> LatestSlot<T> {
         replaced
     }
 
-    /// Blocks until an item is pending (Some) or the slot is closed (None).
+    /// Blocks until an item is pending (Some) or the slot is closed (None: a pending item is
+    /// abandoned, as a node shutting down has nobody to give its outputs to).
     pub fn take(&self) -> Option<T> {
         let mut slot = self.lock();
         loop {
+            if slot.closed {
+                slot.pending = None;
+                return None;
+            }
             if let Some(item) = slot.pending.take() {
                 return Some(item);
-            }
-            if slot.closed {
-                return None;
             }
             slot = self.ready.wait(slot).unwrap_or_else(|e| e.into_inner());
         }
     }
 
-    /// Wakes the taker; later `take`s return None once the slot is empty.
+    /// Wakes the taker; later `take`s return None (a pending item is dropped) and `offer`s
+    /// drop their item.
     pub fn close(&self) {
         self.lock().closed = true;
         self.ready.notify_all();
@@ -88,6 +94,16 @@ mod tests {
         assert_eq!(slot.take(), Some(2));
         assert_eq!(slot.dropped(), 1);
         slot.close();
+        assert_eq!(slot.take(), None);
+    }
+
+    #[test]
+    fn close_abandons_the_pending_item() {
+        let slot = LatestSlot::new();
+        slot.offer(1);
+        slot.close();
+        assert_eq!(slot.take(), None);
+        assert!(!slot.offer(2));
         assert_eq!(slot.take(), None);
     }
 }

@@ -14,6 +14,7 @@ use super::slot::LatestSlot;
 use super::NodeError;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{EngineHost, HostError, Job};
+use crate::sweep::CancelFlag;
 
 /// The publishers of one set's outputs (made once DDS is up, then handed to the thread).
 pub(super) struct Publishers {
@@ -38,6 +39,7 @@ pub(super) struct GpuThread {
 /// before DDS comes up).
 pub(super) fn spawn(
     device: crate::engine::Device,
+    cancel: CancelFlag,
     slot: Arc<LatestSlot<Job>>,
     live: Arc<LiveParams>,
     stats: Arc<Mutex<Stats>>,
@@ -47,13 +49,14 @@ pub(super) fn spawn(
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
-            let host = match EngineHost::new(device) {
+            let mut host = match EngineHost::new(device) {
                 Ok(host) => host,
                 Err(e) => {
                     let _ = init_tx.send(Err(e));
                     return;
                 }
             };
+            host.set_cancel(cancel);
             let _ = init_tx.send(Ok(host.adapter_label()));
             let Ok(publishers) = publishers_rx.recv() else {
                 return;
@@ -88,10 +91,19 @@ fn worker_loop(
     let mut published: u64 = 0;
     while let Some(job) = slot.take() {
         let started = Instant::now();
+        if let Some(image) = job.images.get(job.reference) {
+            let stamp = image.header.stamp;
+            tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
+        }
         // Parameter changes apply from the next set on.
         let sweep = live.sweep();
         let out = match host.process(&job, &sweep, publishers.points.is_some()) {
             Ok(out) => out,
+            // Shutting down: the run was stopped between passes; nobody waits for it.
+            Err(_) if host.is_cancelled() => {
+                log_info("shutting down: the set in flight was cancelled");
+                break;
+            }
             Err(skip) => {
                 log.warn(&skip.key(), || format!("{skip}; skipping this set"));
                 continue;

@@ -9,7 +9,7 @@ use super::outcome::{Job, Skip, SkipKind};
 use super::outputs::{process_job, FrameOutputs};
 use crate::engine::{Device, Engine, EngineError};
 use crate::gpu_context::{GpuContext, GpuContextError};
-use crate::sweep::SweepParams;
+use crate::sweep::{CancelFlag, SweepParams};
 
 /// Why no engine could be made.
 #[derive(Debug, thiserror::Error)]
@@ -27,6 +27,8 @@ pub struct EngineHost {
     lost: Arc<AtomicBool>,
     /// How many times the device was lost and the engine recreated.
     pub recreated: u64,
+    /// Stops a run between passes (given to every engine made here).
+    cancel: CancelFlag,
 }
 
 impl EngineHost {
@@ -38,7 +40,19 @@ impl EngineHost {
             engine,
             lost,
             recreated: 0,
+            cancel: CancelFlag::new(),
         })
+    }
+
+    /// Runs stop at their next pass boundary once `cancel` is set (the job is then skipped
+    /// with [`SkipKind::Engine`] and [`EngineHost::is_cancelled`] says why).
+    pub fn set_cancel(&mut self, cancel: CancelFlag) {
+        self.engine.set_cancel(cancel.clone());
+        self.cancel = cancel;
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.cancel.is_cancelled()
     }
 
     /// A flag the device-lost callback sets (the WGSL engine's device only).
@@ -77,6 +91,13 @@ impl EngineHost {
         sweep: &SweepParams,
         with_points: bool,
     ) -> Result<FrameOutputs, Skip> {
+        if self.is_cancelled() {
+            return Err(Skip::new(
+                SkipKind::Engine,
+                None,
+                "the engine was cancelled".into(),
+            ));
+        }
         if !self.is_lost() {
             match process_job(&mut self.engine, job, sweep, with_points) {
                 Err(skip) if skip.kind == SkipKind::Engine && self.is_lost() => {
@@ -86,7 +107,7 @@ impl EngineHost {
             }
         }
         tracing::warn!("the GPU device was lost: recreating the device and the engine");
-        let engine = GpuContext::new()
+        let mut engine = GpuContext::new()
             .map_err(EngineError::from)
             .and_then(Engine::on_gpu)
             .map_err(|e| {
@@ -97,6 +118,7 @@ impl EngineHost {
                 )
             })?;
         self.lost = Self::watch(&engine);
+        engine.set_cancel(self.cancel.clone());
         self.engine = engine;
         self.recreated += 1;
         tracing::info!("engine recreated: {}", self.engine.label());

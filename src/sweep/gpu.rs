@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use super::gpu_types::*;
 use super::plan::SweepPlan;
-use super::{DepthMaps, StageTimings, SweepError, SweepParams};
+use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 
@@ -222,7 +222,11 @@ pub struct GpuEngine {
     uploaded_plan: Option<u64>,
     packed: Vec<u32>,
     timings: StageTimings,
+    cancel: CancelFlag,
 }
+
+/// How often a wait for the GPU looks at the cancel flag.
+const CANCEL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
 fn gpu_err(e: impl std::fmt::Display) -> SweepError {
     SweepError::Gpu(e.to_string())
@@ -301,6 +305,7 @@ impl GpuEngine {
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
+            cancel: CancelFlag::new(),
         })
     }
 
@@ -353,6 +358,44 @@ impl GpuEngine {
     }
 
     /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
+    /// Stops a run between submissions (one per batch of planes, then the rest) and while it
+    /// waits for the GPU once `cancel` is set ([`SweepError::Cancelled`]).
+    pub fn set_cancel(&mut self, cancel: CancelFlag) {
+        self.cancel = cancel;
+    }
+
+    /// Submits `encoder`, then waits (cancellably) for the submission before it: at most two
+    /// are in flight, and a cancel is seen between them.
+    fn submit_step(
+        &self,
+        encoder: wgpu::CommandEncoder,
+        previous: &mut Option<wgpu::SubmissionIndex>,
+    ) -> Result<(), SweepError> {
+        self.cancel.check()?;
+        let index = self.queue.submit([encoder.finish()]);
+        match previous.replace(index) {
+            Some(before) => self.wait(Some(before)),
+            None => Ok(()),
+        }
+    }
+
+    /// Waits for `index` (None: the latest submission), looking at the cancel flag every
+    /// [`CANCEL_POLL`].
+    fn wait(&self, index: Option<wgpu::SubmissionIndex>) -> Result<(), SweepError> {
+        loop {
+            match self.device.poll(wgpu::PollType::Wait {
+                submission_index: index.clone(),
+                timeout: Some(CANCEL_POLL),
+            }) {
+                Ok(_) => return Ok(()),
+                Err(wgpu::PollError::Timeout) => self.cancel.check()?,
+                // A submission that failed (a lost device, a validation error) has no index
+                // to wait for: nothing is running; the error scope or the read says why.
+                Err(wgpu::PollError::WrongSubmissionIndex(..)) => return Ok(()),
+            }
+        }
+    }
+
     pub fn run_plan_raw(
         &mut self,
         plan: &SweepPlan,
@@ -387,11 +430,14 @@ impl GpuEngine {
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
 
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("sweep"),
-            });
+        let new_encoder = || {
+            self.device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("sweep"),
+                })
+        };
+        let mut previous = None;
+        let mut encoder = new_encoder();
         encoder.clear_buffer(&buffers.zbuffer, 0, None);
         let groups = |w: u32, h: u32, z: u32| (w.div_ceil(8), h.div_ceil(8), z);
         let image_groups = groups(plan.width, plan.height, 1);
@@ -446,6 +492,10 @@ impl GpuEngine {
                 image_groups
             };
             run_pass(&mut encoder, STAGE_AGGREGATE, offset, aggregate_groups);
+            self.submit_step(
+                std::mem::replace(&mut encoder, new_encoder()),
+                &mut previous,
+            )?;
         }
         // Optimizer sgm: one pass per path direction over the cost volume, then the
         // winner-take-all over the summed path costs rewrites the selection state.
@@ -475,7 +525,7 @@ impl GpuEngine {
             encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
             encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, t.resolve.size());
         }
-        self.queue.submit([encoder.finish()]);
+        self.submit_step(encoder, &mut previous)?;
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
@@ -589,9 +639,7 @@ impl GpuEngine {
         buffer.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = sender.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(gpu_err)?;
+        self.wait(None)?;
         receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
         let data = buffer.get_mapped_range(..).map_err(gpu_err)?.to_vec();
         buffer.unmap();

@@ -144,6 +144,41 @@ pub enum SweepError {
     Geometry(#[from] GeometryError),
     #[error("GPU: {0}")]
     Gpu(String),
+    /// The run was stopped between passes by its [`CancelFlag`] (the node shutting down).
+    #[error("the run was cancelled")]
+    Cancelled,
+}
+
+/// Asks a running engine to stop at its next pass boundary (the CPU engine: between planes
+/// and between stages; the WGSL engine: between submissions and while it waits for the GPU),
+/// so that a node shutting down does not finish a set nobody will receive. Clones share the
+/// flag; once cancelled it stays cancelled.
+#[derive(Debug, Clone, Default)]
+pub struct CancelFlag(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl CancelFlag {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Every engine holding a clone stops at its next pass boundary with
+    /// [`SweepError::Cancelled`].
+    pub fn cancel(&self) {
+        self.0.store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// `Err(Cancelled)` once cancelled.
+    pub fn check(&self) -> Result<(), SweepError> {
+        if self.is_cancelled() {
+            Err(SweepError::Cancelled)
+        } else {
+            Ok(())
+        }
+    }
 }
 
 impl SweepParams {

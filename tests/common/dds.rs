@@ -110,6 +110,16 @@ impl NodeProcess {
         }
     }
 
+    /// The node's stderr, when the command piped it.
+    pub fn take_stderr(&mut self) -> std::process::ChildStderr {
+        self.0 .0.stderr.take().expect("the node's stderr is piped")
+    }
+
+    /// The exit status once the node has exited.
+    pub fn try_wait(&mut self) -> Option<std::process::ExitStatus> {
+        self.0 .0.try_wait().expect("poll the node")
+    }
+
     /// Whether the node is still running.
     pub fn is_alive(&mut self) -> bool {
         matches!(self.0 .0.try_wait(), Ok(None))

@@ -25,7 +25,7 @@ use rayon::prelude::*;
 
 use super::gpu_types::*;
 use super::plan::SweepPlan;
-use super::{check_images, DepthMaps, StageTimings, SweepError, SweepParams};
+use super::{check_images, CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 use common::PlanarImage;
@@ -78,6 +78,7 @@ pub struct CpuEngine {
     timings: StageTimings,
     fast_paths: bool,
     buffers: Buffers,
+    cancel: CancelFlag,
 }
 
 /// The large buffers, kept across frame sets (no page faults for each new set).
@@ -103,7 +104,14 @@ impl CpuEngine {
             timings: StageTimings::default(),
             fast_paths: true,
             buffers: Buffers::default(),
+            cancel: CancelFlag::new(),
         }
+    }
+
+    /// Stops a run between planes and between stages once `cancel` is set
+    /// ([`SweepError::Cancelled`]).
+    pub fn set_cancel(&mut self, cancel: CancelFlag) {
+        self.cancel = cancel;
     }
 
     /// Turns the translation fast path of the cost stage off (tests compare it with the
@@ -205,6 +213,7 @@ impl CpuEngine {
         scores.resize(batch * npix, 0.0);
         sels.resize(batch * npix, 0);
         let levels_per_unit = p.sgm_levels_per_unit;
+        let cancel = self.cancel.clone();
         for first in (0..planes).step_by(batch) {
             let count = batch.min(planes - first);
             scores[..count * npix]
@@ -214,11 +223,15 @@ impl CpuEngine {
                 .for_each_init(
                     || PlaneScratch::new(plan),
                     |scratch, (z, (score, sel))| {
+                        if cancel.is_cancelled() {
+                            return;
+                        }
                         let k = first + z;
                         plane::sweep_plane(plan, &frame, &mappings[k], k, scratch, score, sel);
                     },
                 );
             clock.lap("sweep");
+            cancel.check()?;
             // The planes of the batch in order: winner-take-all, and the volume levels.
             let chunk = 2048;
             let (scores, sels) = (&scores, &sels);
@@ -261,19 +274,25 @@ impl CpuEngine {
                 &volume,
                 &mut buffers.forward,
                 &mut buffers.backward,
-            );
+                &cancel,
+            )?;
             clock.lap("sgm");
+            cancel.check()?;
             sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
             clock.lap("sgm_select");
+            cancel.check()?;
         }
         let mut maps = Maps::new(npix);
         finalize::run(plan, &state, &mut maps);
         clock.lap("finalize");
+        cancel.check()?;
         median::run(plan, &mut maps);
         clock.lap("median");
+        cancel.check()?;
         let mut zbuffer = vec![0u32; plan.total_camera_pixels];
         occlusion::splat(plan, &maps, &mut zbuffer);
         clock.lap("splat");
+        cancel.check()?;
         occlusion::visibility(plan, &zbuffer, &mut maps);
         clock.lap("visibility");
         self.timings = clock.timings();

@@ -10,6 +10,7 @@
 
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
+use crate::sweep::{CancelFlag, SweepError};
 
 use super::common::vectorised_fn;
 use super::select::{WtaChunk, WtaState};
@@ -122,8 +123,9 @@ fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
 
 vectorised_fn! {
 /// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
-/// reverse), summing the path costs of its directions into `sums` (written, not added).
-fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16]) {
+/// reverse), summing the path costs of its directions into `sums` (written, not added). Stops
+/// between rows once `cancel` is set (the sums are then incomplete; the caller checks).
+fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16], cancel: &CancelFlag) {
     let p = &plan.params;
     let (w, h) = (p.width as usize, p.height as usize);
     let n = stride(p.planes as usize);
@@ -145,6 +147,9 @@ fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bo
     let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
     let p1 = p1 as u16;
     for walk_y in 0..h {
+        if cancel.is_cancelled() {
+            return;
+        }
         let y = if forward { walk_y } else { h - 1 - walk_y };
         let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
         let mut h_min = 0u16;
@@ -194,19 +199,22 @@ fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bo
 
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
 /// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
+/// `Err(Cancelled)` when `cancel` stopped it between rows.
 pub fn run(
     plan: &SweepPlan,
     reference_colours: &[u32],
     volume: &[u16],
     forward: &mut Vec<u16>,
     backward: &mut Vec<u16>,
-) {
+    cancel: &CancelFlag,
+) -> Result<(), SweepError> {
     forward.resize(volume.len(), 0);
     backward.resize(volume.len(), 0);
     rayon::join(
-        || pass(plan, reference_colours, volume, true, forward),
-        || pass(plan, reference_colours, volume, false, backward),
+        || pass(plan, reference_colours, volume, true, forward, cancel),
+        || pass(plan, reference_colours, volume, false, backward, cancel),
     );
+    cancel.check()
 }
 
 /// The winner over the summed path costs of one pixel.
@@ -340,17 +348,25 @@ mod tests {
         // Pixel 0 is sure of plane 0; pixel 1 slightly prefers plane 2 locally.
         let costs = volume(&[[0, 50, 50], [5, 40, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass(&plan, &[0, 0], &costs, true, &mut sums);
+        pass(&plan, &[0, 0], &costs, true, &mut sums, &CancelFlag::new());
         // Left to right, pixel 1: d0 = 5 + min(0, 50 + 10, 0 + 30) - 0 = 5; d1 = 40 + min(50,
         // 0 + 10, 50 + 10, 30) = 50; d2 = 0 + min(50, 50 + 10, 30) = 30. The vertical path
         // adds the pixel's own cost.
         assert_eq!(real(&sums), [[0, 100, 100], [10, 90, 30]]);
         // Right to left, pixel 0: d0 = 0 + min(5, 40 + 10, 0 + 30) - 0 = 5; d1 = 50 + min(40,
         // 5 + 10, 0 + 10, 30) - 0 = 60; d2 = 50 + min(0, 40 + 10, 30) = 50.
-        pass(&plan, &[0, 0], &costs, false, &mut sums);
+        pass(&plan, &[0, 0], &costs, false, &mut sums, &CancelFlag::new());
         assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
         let (mut forward, mut backward) = (Vec::new(), Vec::new());
-        run(&plan, &[0, 0], &costs, &mut forward, &mut backward);
+        run(
+            &plan,
+            &[0, 0],
+            &costs,
+            &mut forward,
+            &mut backward,
+            &CancelFlag::new(),
+        )
+        .expect("not cancelled");
         let total: Vec<u16> = forward
             .iter()
             .zip(&backward)
@@ -377,7 +393,7 @@ mod tests {
         plan.params.sgm_edge = 8 * 16;
         let costs = volume(&[[0, 50, 50], [50, 50, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass(&plan, &[0, 8], &costs, true, &mut sums);
+        pass(&plan, &[0, 8], &costs, true, &mut sums, &CancelFlag::new());
         // Pixel 1, plane 2: 0 + min(50, 50 + 10, 0 + 15) = 15, plus its own vertical 0.
         assert_eq!(real(&sums)[1], [100, 110, 15]);
     }

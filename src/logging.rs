@@ -1,0 +1,104 @@
+//! The process's log: `tracing` to stderr, filtered by `RUST_LOG` (default
+//! `warn,sweepdepth=info,rustdds=error`), with the DDS libraries' own lines rate-limited per
+//! call site ([`RateLimitDds`]): RustDDS logs some warnings once per message (a large sample,
+//! a late acknowledgement), which at camera rates would bury everything else.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use tracing::callsite::Identifier;
+use tracing::{Event, Subscriber};
+use tracing_subscriber::layer::{Context, SubscriberExt};
+use tracing_subscriber::util::SubscriberInitExt;
+use tracing_subscriber::Layer;
+
+/// The targets whose lines are rate-limited: the DDS stack under ros2-client.
+const DDS_TARGETS: [&str; 2] = ["rustdds", "ros2_client"];
+
+/// At most one line per call site per this interval.
+pub const DDS_LOG_INTERVAL: Duration = Duration::from_secs(10);
+
+/// A layer that lets at most one event per call site of the DDS libraries through per
+/// [`DDS_LOG_INTERVAL`] (any level); every other event passes untouched.
+#[derive(Debug, Default)]
+pub struct RateLimitDds {
+    last: Mutex<HashMap<Identifier, Instant>>,
+}
+
+impl RateLimitDds {
+    /// Whether an event of `target` from call site `id` at `now` may be logged.
+    fn admit(&self, target: &str, id: Identifier, now: Instant) -> bool {
+        if !DDS_TARGETS
+            .iter()
+            .any(|t| target == *t || target.strip_prefix(t).is_some_and(|r| r.starts_with("::")))
+        {
+            return true;
+        }
+        let mut last = self.last.lock().unwrap_or_else(|e| e.into_inner());
+        match last.get(&id) {
+            Some(at) if now.duration_since(*at) < DDS_LOG_INTERVAL => false,
+            _ => {
+                last.insert(id, now);
+                true
+            }
+        }
+    }
+}
+
+impl<S: Subscriber> Layer<S> for RateLimitDds {
+    fn event_enabled(&self, event: &Event<'_>, _ctx: Context<'_, S>) -> bool {
+        let meta = event.metadata();
+        self.admit(meta.target(), meta.callsite(), Instant::now())
+    }
+}
+
+/// Installs the stderr log (once, in `main`).
+pub fn init() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new("warn,sweepdepth=info,rustdds=error")
+    });
+    tracing_subscriber::registry()
+        .with(filter)
+        .with(RateLimitDds::default())
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .init();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Call sites are told apart by address: each has a byte, so two are never one.
+    struct Site(#[allow(dead_code)] u8);
+    impl tracing::callsite::Callsite for Site {
+        fn set_interest(&self, _: tracing::subscriber::Interest) {}
+        fn metadata(&self) -> &tracing::Metadata<'_> {
+            panic!("not called by the rate limiter")
+        }
+    }
+    static SITE_A: Site = Site(0);
+    static SITE_B: Site = Site(1);
+
+    #[test]
+    fn dds_lines_are_rate_limited_per_call_site() {
+        let limit = RateLimitDds::default();
+        let a = || Identifier(&SITE_A);
+        let b = || Identifier(&SITE_B);
+        let t0 = Instant::now();
+        assert!(limit.admit("rustdds::network::udp_sender", a(), t0));
+        assert!(!limit.admit(
+            "rustdds::network::udp_sender",
+            a(),
+            t0 + Duration::from_secs(1)
+        ));
+        // Another call site has its own budget.
+        assert!(limit.admit("rustdds::dds::pubsub", b(), t0 + Duration::from_secs(1)));
+        assert!(limit.admit("rustdds::network::udp_sender", a(), t0 + DDS_LOG_INTERVAL));
+        // Our own lines and other crates' are never limited.
+        assert!(limit.admit("sweepdepth::node", a(), t0));
+        assert!(limit.admit("sweepdepth::node", a(), t0));
+        assert!(limit.admit("rustdds_like", a(), t0));
+        assert!(limit.admit("rustdds_like", a(), t0));
+    }
+}

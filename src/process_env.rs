@@ -1,0 +1,38 @@
+//! Environment defaults the process sets for the libraries under it, once, in `main` before
+//! any thread starts (the only time `std::env::set_var` is sound). Each returns what it set,
+//! for a debug line; a value the user set is never changed.
+
+/// Mesa's Vulkan device-select layer (`VK_LAYER_MESA_device_select`, an implicit layer loaded
+/// with every Vulkan instance) connects to Wayland to find the compositor's GPU; without a
+/// usable `XDG_RUNTIME_DIR` (a headless machine, a service, a container) libwayland prints
+/// "error: XDG_RUNTIME_DIR is invalid or not set in the environment." twice on stderr. With no
+/// runtime directory there is no compositor to ask, so the layer has nothing to decide: it is
+/// turned off with its own switch, `NODEVICE_SELECT=1` (wgpu picks the adapter itself, and
+/// `WGPU_ADAPTER_NAME` still names one).
+pub fn quiet_vulkan_device_select() -> Option<String> {
+    let runtime_dir_usable =
+        std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|dir| std::path::Path::new(&dir).is_dir());
+    if runtime_dir_usable || std::env::var_os("NODEVICE_SELECT").is_some() {
+        return None;
+    }
+    std::env::set_var("NODEVICE_SELECT", "1");
+    Some(
+        "no usable XDG_RUNTIME_DIR: Mesa's Vulkan device-select layer turned off \
+         (NODEVICE_SELECT=1)"
+            .into(),
+    )
+}
+
+/// ros2-client warns at every start when `ROS_DISTRO` is unset. The node speaks the wire
+/// format of the distribution ros2-client was built for (`jazzy`), so an unset `ROS_DISTRO`
+/// defaults to it; a different value the user set is left for ros2-client to judge.
+pub fn default_ros_distro() -> Option<String> {
+    if std::env::var_os("ROS_DISTRO").is_some() {
+        return None;
+    }
+    let distro = ros2_client::COMPILED_ROS_DISTRO.as_str();
+    std::env::set_var("ROS_DISTRO", distro);
+    Some(format!(
+        "ROS_DISTRO is not set: taken as '{distro}', the distribution ros2-client was built for"
+    ))
+}
