@@ -544,7 +544,9 @@ fn precedence_file_order_then_command_line() {
     );
     let second =
         TempYaml::new("sweepdepth:\n  ros__parameters:\n    num_planes: 20\n    tau: 2.0\n");
-    // -p before the files still wins.
+    // As rcl merges them (checked against rcl itself in tests/ros_args_rcl.rs): every -p lives
+    // under `/**`, so a file's section for the node, a later entry of the merged table, wins
+    // over -p, even a later one.
     let p = params_for(
         &[
             "--ros-args",
@@ -559,10 +561,10 @@ fn precedence_file_order_then_command_line() {
         ],
         &root_node(),
     );
-    assert_eq!(p.get_i64("num_planes").unwrap(), 40);
+    assert_eq!(p.get_i64("num_planes").unwrap(), 20);
     assert_eq!(p.get_f64("tau").unwrap(), 2.0);
     assert_eq!(p.get_f64("max_cost").unwrap(), 1.0);
-    // Reverse file order: the first file (now later) wins.
+    // Reverse file order: the node's section is now the first entry, `/**` the later one.
     let p = params_for(
         &[
             "--ros-args",

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use super::spec::{coerce, param_index, param_spec, param_table, ParamSpec};
 use super::ParamError;
-use crate::ros::args::{node_pattern_matches, NodeIdentity, RosArgs};
+use crate::ros::args::{node_pattern_matches, NodeIdentity, ParamArg, RosArgs};
 use crate::ros::param_value::ParamValue;
 
 /// Parameters every rclcpp node has, or that tools set for all nodes: accepted from parameter
@@ -169,8 +169,14 @@ impl ParamSet {
         cameras.get(cameras.len() / 2).cloned()
     }
 
-    /// Defaults, then the matching sections of the parameter files in command-line order, then
-    /// `-p` overrides (in order) for this node. Returns the notes on what was ignored.
+    /// The node's parameters from the command line, merged as rcl merges them: every
+    /// `--params-file` section and every `-p` (under `/**`; a node-targeted one under its node)
+    /// go, in command-line order, into one table of node entries kept in the order each entry
+    /// first appeared, a later value for the same entry and name replacing the earlier one in
+    /// place; then the entries that match the node apply their values, entry by entry in that
+    /// order, over the defaults. (So `/**` then `/node` in one file gives the node's value, and
+    /// a `-p`, which lives under `/**`, loses to a file's section for the node, as in rcl.)
+    /// Returns the notes on what was ignored.
     ///
     /// Unknown parameters are errors in sections for this node and in `-p`; in wildcard
     /// sections (shared with other nodes) they are ignored with a note. Values of known
@@ -179,67 +185,151 @@ impl ParamSet {
         args: &RosArgs,
         node: &NodeIdentity,
     ) -> Result<(ParamSet, Vec<String>), ParamError> {
-        let mut set = ParamSet::defaults();
-        let mut notes = Vec::new();
         let fqn = node.fqn();
-        for file in &args.params_files {
-            for section in &file.sections {
-                if !node_pattern_matches(&section.node_pattern, &fqn) {
-                    continue;
+        let order: Vec<ParamArg> = if args.param_order.is_empty() {
+            (0..args.params_files.len())
+                .map(ParamArg::File)
+                .chain((0..args.params.len()).map(ParamArg::Param))
+                .collect()
+        } else {
+            args.param_order.clone()
+        };
+        let mut entries: Vec<Entry> = Vec::new();
+        let mut add = |target: Target, item: Item| {
+            let at = match entries.iter().position(|e| e.target == target) {
+                Some(at) => at,
+                None => {
+                    entries.push(Entry {
+                        target,
+                        items: Vec::new(),
+                    });
+                    entries.len() - 1
                 }
-                let wildcard = section.node_pattern.contains('*');
-                let origin = format!(
-                    "params file '{}', section '{}'",
-                    file.path.display(),
-                    section.node_pattern
-                );
-                for (name, value) in &section.params {
-                    if param_spec(name).is_none() {
-                        if let Some(note) = ignored_standard(name) {
-                            notes.push(format!("{origin}: {note}"));
-                            continue;
-                        }
-                        if wildcard {
-                            notes.push(format!(
-                                "{origin}: ignoring parameter '{name}', which {fqn} does not have"
-                            ));
-                            continue;
+            };
+            let items = &mut entries[at].items;
+            match items.iter_mut().find(|i| i.name == item.name) {
+                Some(old) => *old = item,
+                None => items.push(item),
+            }
+        };
+        for arg in order {
+            match arg {
+                ParamArg::File(i) => {
+                    let Some(file) = args.params_files.get(i) else {
+                        continue;
+                    };
+                    for section in &file.sections {
+                        let origin = format!(
+                            "params file '{}', section '{}'",
+                            file.path.display(),
+                            section.node_pattern
+                        );
+                        for (name, value) in &section.params {
+                            add(
+                                Target::pattern(&section.node_pattern),
+                                Item {
+                                    name: name.clone(),
+                                    value: value.clone(),
+                                    source: ParamSource::File {
+                                        path: file.path.clone(),
+                                        section: section.node_pattern.clone(),
+                                    },
+                                    origin: origin.clone(),
+                                    wildcard: section.node_pattern.contains('*'),
+                                },
+                            );
                         }
                     }
-                    let source = ParamSource::File {
-                        path: file.path.clone(),
-                        section: section.node_pattern.clone(),
+                }
+                ParamArg::Param(i) => {
+                    let Some(p) = args.params.get(i) else {
+                        continue;
                     };
-                    set.set_from(name, value, source)
-                        .map_err(|e| ParamError::From {
-                            name: name.clone(),
-                            origin: origin.clone(),
-                            source: Box::new(e),
-                        })?;
+                    let target = match &p.node {
+                        Some(name) => Target::NodeName(name.clone()),
+                        None => Target::Pattern("/**".into()),
+                    };
+                    add(
+                        target,
+                        Item {
+                            name: p.name.clone(),
+                            value: p.value.clone(),
+                            source: ParamSource::CommandLine,
+                            origin: format!("-p {}", p.rule),
+                            wildcard: false,
+                        },
+                    );
                 }
             }
         }
-        for p in &args.params {
-            if let Some(target) = &p.node {
-                if target != &node.name {
-                    continue;
-                }
+        let mut set = ParamSet::defaults();
+        let mut notes = Vec::new();
+        for entry in &entries {
+            let applies = match &entry.target {
+                Target::Pattern(pattern) => node_pattern_matches(pattern, &fqn),
+                Target::NodeName(name) => name == &node.name,
+            };
+            if !applies {
+                continue;
             }
-            if param_spec(&p.name).is_none() {
-                if let Some(note) = ignored_standard(&p.name) {
-                    notes.push(format!("-p {}: {note}", p.rule));
-                    continue;
+            for item in &entry.items {
+                if param_spec(&item.name).is_none() {
+                    if let Some(note) = ignored_standard(&item.name) {
+                        notes.push(format!("{}: {note}", item.origin));
+                        continue;
+                    }
+                    if item.wildcard {
+                        notes.push(format!(
+                            "{}: ignoring parameter '{}', which {fqn} does not have",
+                            item.origin, item.name
+                        ));
+                        continue;
+                    }
                 }
+                set.set_from(&item.name, &item.value, item.source.clone())
+                    .map_err(|e| ParamError::From {
+                        name: item.name.clone(),
+                        origin: item.origin.clone(),
+                        source: Box::new(e),
+                    })?;
             }
-            set.set_from(&p.name, &p.value, ParamSource::CommandLine)
-                .map_err(|e| ParamError::From {
-                    name: p.name.clone(),
-                    origin: format!("-p {}", p.rule),
-                    source: Box::new(e),
-                })?;
         }
         Ok((set, notes))
     }
+}
+
+/// Which nodes an entry of rcl's merged parameter table is for.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Target {
+    /// A parameter file's node pattern (`/**`, `/ns/name`, wildcards); `-p` uses `/**`.
+    Pattern(String),
+    /// A node-targeted `-p name:param:=value`.
+    NodeName(String),
+}
+
+impl Target {
+    /// rcl's YAML parser keys a section `name` as `/name`.
+    fn pattern(pattern: &str) -> Self {
+        if pattern.starts_with('/') {
+            Target::Pattern(pattern.to_string())
+        } else {
+            Target::Pattern(format!("/{pattern}"))
+        }
+    }
+}
+
+/// One value of an entry, with where it came from.
+struct Item {
+    name: String,
+    value: ParamValue,
+    source: ParamSource,
+    origin: String,
+    wildcard: bool,
+}
+
+struct Entry {
+    target: Target,
+    items: Vec<Item>,
 }
 
 fn ignored_standard(name: &str) -> Option<String> {

@@ -31,7 +31,7 @@ pub use params_file::{
     load_params_file, parse_params_yaml, ParamsFile, ParamsFileError, ParamsSection,
 };
 pub use parse::{
-    parse_ros_args, LogLevel, NodeIdentity, ParamOverride, RemapKind, RemapRule, RosArgs,
+    parse_ros_args, LogLevel, NodeIdentity, ParamArg, ParamOverride, RemapKind, RemapRule, RosArgs,
 };
 
 /// The node's default name (before `__node` remaps).

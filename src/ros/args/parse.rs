@@ -209,14 +209,24 @@ pub struct RosArgs {
     pub other: Vec<String>,
     /// `-r` rules in order (the first matching rule wins).
     pub remaps: Vec<RemapRule>,
-    /// `-p` rules in order (later ones win; all win over files).
+    /// `-p` rules in order (merged with the files as rcl does: `ParamSet::from_ros_args`).
     pub params: Vec<ParamOverride>,
-    /// `--params-file`s in order (later ones win).
+    /// `--params-file`s in order.
     pub params_files: Vec<ParamsFile>,
     /// `--log-level`s in order.
     pub log_levels: Vec<LogLevel>,
+    /// The `--params-file`s and `-p`s in command-line order (rcl merges them in that order:
+    /// [`crate::params::ParamSet::from_ros_args`]).
+    pub param_order: Vec<ParamArg>,
     /// What was accepted and ignored.
     pub notes: Vec<String>,
+}
+
+/// One parameter source on the command line: `--params-file` number i or `-p` number i.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParamArg {
+    File(usize),
+    Param(usize),
 }
 
 /// A node's name and namespace after `__node`/`__ns`.
@@ -263,6 +273,32 @@ impl RosArgs {
         Ok(NodeIdentity { name, namespace })
     }
 
+    /// The effective level of `logger` (dotted, as rcl names a node's logger: `ns.name`) as
+    /// rcutils has it: the last `--log-level` for the logger or its nearest ancestor, else the
+    /// last one without a logger, else `info`.
+    pub fn log_level(&self, logger: &str) -> &str {
+        let mut name = logger;
+        loop {
+            if let Some(rule) = self
+                .log_levels
+                .iter()
+                .rev()
+                .find(|l| l.logger.as_deref() == Some(name) && l.level != "unset")
+            {
+                return &rule.level;
+            }
+            match name.rsplit_once('.') {
+                Some((parent, _)) => name = parent,
+                None => break,
+            }
+        }
+        self.log_levels
+            .iter()
+            .rev()
+            .find(|l| l.logger.is_none() && l.level != "unset")
+            .map_or("info", |l| l.level.as_str())
+    }
+
     /// [`resolve_topic`] with this command line's remaps.
     pub fn resolve_topic(&self, name: &str, node: &NodeIdentity) -> Result<String, RosArgsError> {
         resolve_topic(name, &node.namespace, &node.name, &self.remaps)
@@ -294,10 +330,15 @@ pub fn parse_ros_args(args: &[String]) -> Result<RosArgs, RosArgsError> {
             "--" => in_ros = false,
             "--ros-args" => {}
             "-r" | "--remap" => out.remaps.push(RemapRule::parse(value(arg)?)?),
-            "-p" | "--param" => out.params.push(ParamOverride::parse(value(arg)?)?),
+            "-p" | "--param" => {
+                out.params.push(ParamOverride::parse(value(arg)?)?);
+                out.param_order.push(ParamArg::Param(out.params.len() - 1));
+            }
             "--params-file" => {
                 let path = value(arg)?;
                 out.params_files.push(load_params_file(Path::new(path))?);
+                out.param_order
+                    .push(ParamArg::File(out.params_files.len() - 1));
             }
             "--log-level" => out.log_levels.push(LogLevel::parse(value(arg)?)?),
             "-e" | "--enclave" => {
