@@ -103,6 +103,17 @@ struct Params {
 const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau, and of a hypothesis with no valid pair
 const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
 
+// One row band of the cost volume and the path sums (keep in sync with GpuBand): an adapter's
+// storage binding limit may hold fewer rows than the image, so the volume and the sums are
+// separate buffers of `rows` rows each, and the stages that touch them run once per band. Pixel
+// `pix` of the image is word `(pix - first_pixel) * words + j` of its band's buffers.
+struct Band {
+    first_row: u32,
+    rows: u32,
+    first_pixel: u32,
+    _pad: u32,
+}
+
 // The volume level of a scored cost (BIG = no valid pair -> SGM_COST_MAX); floor(x + 0.5) as
 // the CPU twin (WGSL's round() rounds halves to even).
 fn volume_level(score: f32) -> u32 {

@@ -41,6 +41,7 @@ const LAYOUTS: [&[Slot]; 10] = {
             Uniform,
             Read,
             ReadWrite,
+            Uniform,
         ], // aggregate
         &[Uniform, Read, Read, Read, ReadWrite],                  // finalize
         &[Uniform, ReadWrite],                                    // median
@@ -54,8 +55,9 @@ const LAYOUTS: [&[Slot]; 10] = {
             Read,
             ReadWrite,
             ReadWrite,
+            Uniform,
         ], // sgm
-        &[Uniform, Read, ReadWrite],                              // sgm_select
+        &[Uniform, Read, ReadWrite, Uniform],                     // sgm_select
     ]
 };
 
@@ -104,10 +106,12 @@ struct Buffers {
     planes: wgpu::Buffer,
     pairs: wgpu::Buffer,
     sgm_passes: wgpu::Buffer,
+    bands: wgpu::Buffer,
     maps: wgpu::Buffer,
     zbuffer: wgpu::Buffer,
     readback: wgpu::Buffer,
-    bind_groups: Vec<wgpu::BindGroup>,
+    /// Per stage, one bind group per SGM row band (the stages that touch the volume) or one.
+    bind_groups: Vec<Vec<wgpu::BindGroup>>,
     timestamps: Option<Timestamps>,
 }
 
@@ -135,16 +139,33 @@ struct ShapeKey {
     sgm_paths: u32,
     /// u32 words per pixel of the cost volume (0 without SGM).
     volume_words: u32,
+    /// Rows per band of the cost volume and the path sums (the height when one binding holds
+    /// them; fewer when the adapter's storage binding limit does not).
+    band_rows: u32,
 }
 
 impl ShapeKey {
     fn batches(&self) -> u32 {
         self.planes.div_ceil(self.batch)
     }
+    fn bands(&self) -> u32 {
+        self.height.div_ceil(self.band_rows)
+    }
+    /// The band of rows `b`.
+    fn band(&self, b: u32) -> GpuBand {
+        let first_row = b * self.band_rows;
+        GpuBand {
+            first_row,
+            rows: self.band_rows.min(self.height - first_row),
+            first_pixel: first_row * self.width,
+            _pad: 0,
+        }
+    }
     fn passes(&self) -> u32 {
-        let per_batch = if self.direct_windows { 2 } else { 4 };
+        let per_batch = if self.direct_windows { 1 } else { 3 };
+        let per_batch = per_batch + self.bands();
         let sgm = if self.sgm_paths > 0 {
-            self.sgm_paths + 1
+            (self.sgm_paths + 1) * self.bands()
         } else {
             0
         };
@@ -216,6 +237,8 @@ pub struct GpuEngine {
     pass_align: u64,
     /// The SGM layout: one invocation per path line, or one workgroup per line.
     sgm_line_per_invocation: bool,
+    /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
+    sgm_band_bytes: Option<u64>,
     buffers: Option<Buffers>,
     plan: Option<(Rig, SweepParams, SweepPlan)>,
     /// Id of the plan whose arrays are in the buffers.
@@ -296,6 +319,7 @@ impl GpuEngine {
             // batch of 8 lanes: there each invocation walks a whole path line (no barriers). A
             // GPU wants a full warp per line, the planes across its lanes.
             sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
+            sgm_band_bytes: None,
             buffers: None,
             plan: None,
             uploaded_plan: None,
@@ -309,6 +333,18 @@ impl GpuEngine {
     /// the planes across its lanes. Results are identical.
     pub fn set_sgm_line_per_invocation(&mut self, on: bool) {
         self.sgm_line_per_invocation = on;
+    }
+
+    /// Caps the bytes of one row band of the SGM cost volume below the adapter's storage binding
+    /// limit (`None`: the adapter's limit). Tests use it to run small volumes in several bands;
+    /// the result equals the run in one band.
+    pub fn set_sgm_band_bytes(&mut self, max_bytes: Option<u64>) {
+        self.sgm_band_bytes = max_bytes;
+    }
+
+    /// Row bands of the SGM volume in the last frame set (1 when one binding held it).
+    pub fn sgm_bands(&self) -> u32 {
+        self.buffers.as_ref().map_or(0, |b| b.key.bands())
     }
 
     /// Per-stage times of the last frame set.
@@ -367,7 +403,10 @@ impl GpuEngine {
             self.buffers = Some(self.allocate(key)?);
             self.uploaded_plan = None;
         }
-        let specialisation = Specialisation::of(plan, self.sgm_line_per_invocation);
+        // Workgroup memory does not outlive a dispatch: bands carry the path state in the
+        // per-line scratch of the line-per-invocation layout.
+        let specialisation =
+            Specialisation::of(plan, self.sgm_line_per_invocation || key.bands() > 1);
         if !self.pipelines.contains_key(&specialisation) {
             let built = self.build_pipelines(&specialisation)?;
             self.pipelines.insert(specialisation, built);
@@ -399,6 +438,7 @@ impl GpuEngine {
         let mut pass_stages: Vec<usize> = Vec::with_capacity(key.passes() as usize);
         let mut run_pass = |encoder: &mut wgpu::CommandEncoder,
                             stage: usize,
+                            band: usize,
                             offset: Option<u32>,
                             (gx, gy, gz): (u32, u32, u32)| {
             let timestamp_writes =
@@ -415,9 +455,10 @@ impl GpuEngine {
                 timestamp_writes,
             });
             pass.set_pipeline(&pipelines[stage]);
+            let group = &buffers.bind_groups[stage][band];
             match offset {
-                Some(o) => pass.set_bind_group(0, &buffers.bind_groups[stage], &[o]),
-                None => pass.set_bind_group(0, &buffers.bind_groups[stage], &[]),
+                Some(o) => pass.set_bind_group(0, group, &[o]),
+                None => pass.set_bind_group(0, group, &[]),
             }
             pass.dispatch_workgroups(gx, gy, gz);
             pass_stages.push(stage);
@@ -425,35 +466,64 @@ impl GpuEngine {
         };
         for b in 0..key.batches() {
             let offset = Some((u64::from(b) * self.uniform_align) as u32);
-            run_pass(&mut encoder, STAGE_COST, offset, image_groups);
+            run_pass(&mut encoder, STAGE_COST, 0, offset, image_groups);
             if !key.direct_windows {
                 run_pass(
                     &mut encoder,
                     STAGE_BOX_H,
+                    0,
                     offset,
                     groups(key.padded_width, key.height, 1),
                 );
                 run_pass(
                     &mut encoder,
                     STAGE_BOX_V,
+                    0,
                     offset,
                     groups(key.padded_width, key.padded_height, 1),
                 );
             }
-            let aggregate_groups = if specialisation.paired() {
-                groups(plan.width.div_ceil(2), plan.height, 1)
-            } else {
-                image_groups
-            };
-            run_pass(&mut encoder, STAGE_AGGREGATE, offset, aggregate_groups);
+            // Once per band of the volume it writes.
+            for band in 0..key.bands() {
+                let rows = key.band(band).rows;
+                let aggregate_groups = if specialisation.paired() {
+                    groups(plan.width.div_ceil(2), rows, 1)
+                } else {
+                    groups(plan.width, rows, 1)
+                };
+                run_pass(
+                    &mut encoder,
+                    STAGE_AGGREGATE,
+                    band as usize,
+                    offset,
+                    aggregate_groups,
+                );
+            }
         }
-        // Optimizer sgm: one pass per path direction over the cost volume, then the
-        // winner-take-all over the summed path costs rewrites the selection state.
-        for (r, &(dx, dy)) in SGM_DIRECTIONS
+        // Optimizer sgm: one pass per path direction and band over the cost volume, then the
+        // winner-take-all over the summed path costs rewrites the selection state. The
+        // directions going down (and the horizontal ones, among them the first, which writes
+        // the sums) run band after band from the top, those going up from the bottom, so each
+        // line finds the state it left in the band before.
+        let directions: Vec<(usize, (i32, i32))> = SGM_DIRECTIONS
             .iter()
+            .copied()
             .enumerate()
             .take(key.sgm_paths as usize)
-        {
+            .collect();
+        let down = (0..key.bands()).flat_map(|b| {
+            directions
+                .iter()
+                .filter(|(_, (_, dy))| *dy >= 0)
+                .map(move |&d| (b, d))
+        });
+        let up = (0..key.bands()).rev().flat_map(|b| {
+            directions
+                .iter()
+                .filter(|(_, (_, dy))| *dy < 0)
+                .map(move |&d| (b, d))
+        });
+        for (band, (r, (dx, dy))) in down.chain(up) {
             let offset = Some((r as u64 * self.pass_align) as u32);
             let lines = sgm_lines(dx, dy, plan.width, plan.height);
             let workgroups = if specialisation.sgm_line_per_invocation {
@@ -461,13 +531,28 @@ impl GpuEngine {
             } else {
                 lines
             };
-            run_pass(&mut encoder, STAGE_SGM, offset, (workgroups, 1, 1));
+            run_pass(
+                &mut encoder,
+                STAGE_SGM,
+                band as usize,
+                offset,
+                (workgroups, 1, 1),
+            );
         }
         if key.sgm_paths > 0 {
-            run_pass(&mut encoder, STAGE_SGM_SELECT, None, image_groups);
+            for band in 0..key.bands() {
+                let rows = key.band(band).rows;
+                run_pass(
+                    &mut encoder,
+                    STAGE_SGM_SELECT,
+                    band as usize,
+                    None,
+                    groups(plan.width, rows, 1),
+                );
+            }
         }
         for stage in STAGE_FINALIZE..=STAGE_VISIBILITY {
-            run_pass(&mut encoder, stage, None, image_groups);
+            run_pass(&mut encoder, stage, 0, None, image_groups);
         }
         let maps_bytes = buffers.maps.size();
         encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_bytes);
@@ -631,18 +716,23 @@ impl GpuEngine {
         } else {
             0
         };
-        if sgm_paths > 0 {
-            // The cost volume and the path sums: u16 per pixel and plane each.
-            let volume_bytes = npix * u64::from(volume_words) * 4;
-            if volume_bytes > max_binding {
+        // The cost volume and the path sums (u16 per pixel and plane each) in row bands that
+        // each fit one binding.
+        let band_rows = if sgm_paths > 0 {
+            let band_limit = self.sgm_band_bytes.unwrap_or(u64::MAX).min(max_binding);
+            let row_bytes = u64::from(plan.width) * u64::from(volume_words) * 4;
+            let rows = band_limit / row_bytes.max(1);
+            if rows == 0 {
                 return Err(SweepError::InvalidParams(format!(
-                    "optimizer sgm: the cost volume of {}x{} pixels x {} planes needs {volume_bytes} bytes (u16 per pixel and plane, twice: costs and path sums), more than this adapter's storage binding limit of {max_binding} bytes; use fewer planes or a smaller image, or optimizer wta (no cost volume)",
+                    "optimizer sgm: one row of the cost volume ({} pixels x {} planes) needs {row_bytes} bytes, more than this adapter's storage binding limit of {band_limit} bytes; use fewer planes or a narrower image, or optimizer wta (no cost volume)",
                     plan.width,
-                    plan.height,
                     plan.num_planes()
                 )));
             }
-        }
+            rows.min(u64::from(plan.height)) as u32
+        } else {
+            plan.height
+        };
         let planes = plan.num_planes();
         let max_z = limits.max_compute_workgroups_per_dimension;
         let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
@@ -666,6 +756,7 @@ impl GpuEngine {
                 && plan.params.window_h <= 2,
             sgm_paths,
             volume_words,
+            band_rows,
         })
     }
 
@@ -711,7 +802,7 @@ impl GpuEngine {
                     dx,
                     dy,
                     sgm_lines(dx, dy, key.width, key.height) as i32,
-                    i32::from(r == 0),
+                    r as i32,
                 ],
             };
             let at = (r as u64 * self.pass_align) as usize;
@@ -719,6 +810,13 @@ impl GpuEngine {
                 .copy_from_slice(bytemuck::bytes_of(&pass));
         }
         self.queue.write_buffer(&buffers.sgm_passes, 0, &passes);
+        let mut bands = vec![0u8; buffers.bands.size() as usize];
+        for b in 0..key.bands() {
+            let at = (u64::from(b) * self.pass_align) as usize;
+            bands[at..at + std::mem::size_of::<GpuBand>()]
+                .copy_from_slice(bytemuck::bytes_of(&key.band(b)));
+        }
+        self.queue.write_buffer(&buffers.bands, 0, &bands);
     }
 
     fn allocate(&self, key: ShapeKey) -> Result<Buffers, SweepError> {
@@ -773,19 +871,43 @@ impl GpuEngine {
             none,
         );
         let state = storage("state", npix * 48, none);
-        let volume_bytes = npix * u64::from(key.volume_words) * 4;
-        let volume = storage("sgm volume", volume_bytes, none);
-        let sums = storage("sgm sums", volume_bytes, none);
-        // One row of path costs per line (one invocation per line on CPU adapters).
+        // The cost volume and the path sums, one buffer per row band.
+        let band_bytes = |b: u32| {
+            u64::from(key.band(b).rows) * u64::from(key.width) * u64::from(key.volume_words) * 4
+        };
+        let volumes: Vec<wgpu::Buffer> = (0..key.bands())
+            .map(|b| storage("sgm volume", band_bytes(b), none))
+            .collect();
+        let sums: Vec<wgpu::Buffer> = (0..key.bands())
+            .map(|b| storage("sgm sums", band_bytes(b), none))
+            .collect();
+        // Per direction and line: two rows of path costs and the minimum of the previous one
+        // (one invocation per line on CPU adapters and in bands).
         let line_costs = storage(
             "sgm line costs",
             if key.sgm_paths > 0 {
-                u64::from(key.width + key.height) * u64::from(key.volume_words) * 16
+                u64::from(key.sgm_paths)
+                    * u64::from(key.width + key.height)
+                    * (u64::from(key.volume_words) * 4 + 1)
+                    * 4
             } else {
                 0
             },
             none,
         );
+        let bands = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("sgm bands"),
+            size: u64::from(key.bands()) * self.pass_align,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let band_binding = |b: u32| {
+            wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &bands,
+                offset: u64::from(b) * self.pass_align,
+                size: wgpu::BufferSize::new(std::mem::size_of::<GpuBand>() as u64),
+            })
+        };
         let sgm_passes = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("sgm passes"),
             size: SGM_DIRECTIONS.len() as u64 * self.pass_align,
@@ -829,8 +951,15 @@ impl GpuEngine {
                 entries: &entries,
             })
         };
+        // One bind group per band of the volume.
+        let per_band = |stage: usize, resources: Vec<Vec<wgpu::BindingResource>>| {
+            resources
+                .into_iter()
+                .map(|r| bind(stage, r))
+                .collect::<Vec<_>>()
+        };
         let bind_groups = vec![
-            bind(
+            vec![bind(
                 0,
                 vec![
                     params.as_entire_binding(),
@@ -840,8 +969,8 @@ impl GpuEngine {
                     rays.as_entire_binding(),
                     cost_slab.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            vec![bind(
                 1,
                 vec![
                     params.as_entire_binding(),
@@ -849,8 +978,8 @@ impl GpuEngine {
                     cost_slab.as_entire_binding(),
                     row_sums.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            vec![bind(
                 2,
                 vec![
                     params.as_entire_binding(),
@@ -858,20 +987,25 @@ impl GpuEngine {
                     row_sums.as_entire_binding(),
                     box_sums.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            per_band(
                 3,
-                vec![
-                    params.as_entire_binding(),
-                    batch_binding.clone(),
-                    box_sums.as_entire_binding(),
-                    state.as_entire_binding(),
-                    pairs.as_entire_binding(),
-                    cost_slab.as_entire_binding(),
-                    volume.as_entire_binding(),
-                ],
+                (0..key.bands())
+                    .map(|b| {
+                        vec![
+                            params.as_entire_binding(),
+                            batch_binding.clone(),
+                            box_sums.as_entire_binding(),
+                            state.as_entire_binding(),
+                            pairs.as_entire_binding(),
+                            cost_slab.as_entire_binding(),
+                            volumes[b as usize].as_entire_binding(),
+                            band_binding(b),
+                        ]
+                    })
+                    .collect(),
             ),
-            bind(
+            vec![bind(
                 4,
                 vec![
                     params.as_entire_binding(),
@@ -880,12 +1014,12 @@ impl GpuEngine {
                     state.as_entire_binding(),
                     maps.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            vec![bind(
                 5,
                 vec![params.as_entire_binding(), maps.as_entire_binding()],
-            ),
-            bind(
+            )],
+            vec![bind(
                 6,
                 vec![
                     params.as_entire_binding(),
@@ -894,8 +1028,8 @@ impl GpuEngine {
                     maps.as_entire_binding(),
                     zbuffer.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            vec![bind(
                 7,
                 vec![
                     params.as_entire_binding(),
@@ -904,26 +1038,36 @@ impl GpuEngine {
                     zbuffer.as_entire_binding(),
                     maps.as_entire_binding(),
                 ],
-            ),
-            bind(
+            )],
+            per_band(
                 8,
-                vec![
-                    params.as_entire_binding(),
-                    pass_binding,
-                    cameras.as_entire_binding(),
-                    images.as_entire_binding(),
-                    volume.as_entire_binding(),
-                    sums.as_entire_binding(),
-                    line_costs.as_entire_binding(),
-                ],
+                (0..key.bands())
+                    .map(|b| {
+                        vec![
+                            params.as_entire_binding(),
+                            pass_binding.clone(),
+                            cameras.as_entire_binding(),
+                            images.as_entire_binding(),
+                            volumes[b as usize].as_entire_binding(),
+                            sums[b as usize].as_entire_binding(),
+                            line_costs.as_entire_binding(),
+                            band_binding(b),
+                        ]
+                    })
+                    .collect(),
             ),
-            bind(
+            per_band(
                 9,
-                vec![
-                    params.as_entire_binding(),
-                    sums.as_entire_binding(),
-                    state.as_entire_binding(),
-                ],
+                (0..key.bands())
+                    .map(|b| {
+                        vec![
+                            params.as_entire_binding(),
+                            sums[b as usize].as_entire_binding(),
+                            state.as_entire_binding(),
+                            band_binding(b),
+                        ]
+                    })
+                    .collect(),
             ),
         ];
         let timestamps = if self
@@ -969,6 +1113,7 @@ impl GpuEngine {
             planes,
             pairs,
             sgm_passes,
+            bands,
             maps,
             zbuffer,
             readback,
