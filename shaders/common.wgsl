@@ -41,8 +41,8 @@ const MAX_BEST_N: u32 = 8u;
 const MAX_HALF_BEST_N: u32 = 4u;  // best half-sequence: the n best pairs of each half
 
 // Pipeline-overridable constants: the engine specialises each pipeline to the mode at hand so
-// the compiler drops the code of the other modes (set from src/sweep/gpu.rs; the values repeat
-// fields of Params, which the CPU twin reads).
+// the compiler drops the code of the other modes (named per stage in src/sweep/stages.rs, set
+// by src/sweep/gpu/pipelines.rs; the values repeat fields of Params, which the CPU twin reads).
 override DISTORTED: bool = true;      // some camera has lens distortion
 
 struct Camera {

@@ -219,11 +219,12 @@ impl Buffers {
             }
             bind_groups.push(per_stage);
         }
-        let timestamps = device
-            .features()
-            .contains(wgpu::Features::TIMESTAMP_QUERY)
+        // Two timestamps per dispatch, when the adapter has them and a query set holds them
+        // (many row bands may not: then the engine reports its total time).
+        let count = 2 * key.schedule().dispatches().len() as u32;
+        let timestamps = (device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
+            && count <= wgpu::QUERY_SET_MAX_QUERIES)
             .then(|| {
-                let count = 2 * key.schedule().dispatches().len() as u32;
                 let bytes = u64::from(count) * 8;
                 Timestamps {
                     query_set: device.create_query_set(&wgpu::QuerySetDescriptor {
