@@ -36,14 +36,16 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 @group(0) @binding(3) var<storage, read_write> state: array<vec4<f32>>;
 // Per pair: camera a, camera b, half (HALF_*), 0.
 @group(0) @binding(4) var<uniform> pairs: array<vec4<u32>, MAX_PAIRS>;
-// The u16 cost volume (optimizer sgm; a placeholder otherwise).
+// The u16 cost volume of this row band (optimizer sgm; a placeholder otherwise).
 @group(0) @binding(6) var<storage, read_write> volume: array<u32>;
+// The rows this dispatch covers (the whole image unless the volume is split into bands).
+@group(0) @binding(7) var<uniform> band: Band;
 
 // Writes the level of plane `plane`'s score at pixel `pix`: an even plane starts its word
 // (the odd one fills the high half next), an odd plane that opens a batch keeps the low half.
 fn store_level(pix: u32, plane: u32, score: f32, low: u32, first_in_batch: bool) -> u32 {
     let level = volume_level(score);
-    let word = pix * ((params.planes + 1u) / 2u) + plane / 2u;
+    let word = (pix - band.first_pixel) * ((params.planes + 1u) / 2u) + plane / 2u;
     if ((plane & 1u) == 0u) {
         volume[word] = level;
         return level;
@@ -431,14 +433,15 @@ fn store_state(pix: u32, st: Wta) {
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.width;
-    let height = params.height;
+    let y = band.first_row + gid.y;
+    let height = min(params.height, band.first_row + band.rows);
     if (PAIRED) {
         let x = 2u * gid.x;
-        if (x >= width || gid.y >= height) {
+        if (x >= width || y >= height) {
             return;
         }
         let has_b = x + 1u < width;
-        let pix = gid.y * width + x;
+        let pix = y * width + x;
         var a = load_state(pix);
         var b = a;
         if (has_b) {
@@ -448,7 +451,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var low_b = 0u;
         for (var z = 0u; z < batch.plane_count; z++) {
             let k = f32(batch.first_plane + z);
-            let best = score_plane_paired(z, i32(x), i32(gid.y));
+            let best = score_plane_paired(z, i32(x), i32(y));
             a = select_plane(a, k, best[0]);
             b = select_plane(b, k, best[1]);
             if (VOLUME) {
@@ -464,14 +467,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         return;
     }
-    if (gid.x >= width || gid.y >= height) {
+    if (gid.x >= width || y >= height) {
         return;
     }
-    let pix = gid.y * width + gid.x;
+    let pix = y * width + gid.x;
     var st = load_state(pix);
     var low = 0u;
     for (var z = 0u; z < batch.plane_count; z++) {
-        let best = score_plane(z, i32(gid.x), i32(gid.y));
+        let best = score_plane(z, i32(gid.x), i32(y));
         st = select_plane(st, f32(batch.first_plane + z), best);
         if (VOLUME) {
             low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u);

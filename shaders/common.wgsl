@@ -41,8 +41,8 @@ const MAX_BEST_N: u32 = 8u;
 const MAX_HALF_BEST_N: u32 = 4u;  // best half-sequence: the n best pairs of each half
 
 // Pipeline-overridable constants: the engine specialises each pipeline to the mode at hand so
-// the compiler drops the code of the other modes (set from src/sweep/gpu.rs; the values repeat
-// fields of Params, which the CPU twin reads).
+// the compiler drops the code of the other modes (named per stage in src/sweep/stages.rs, set
+// by src/sweep/gpu/pipelines.rs; the values repeat fields of Params, which the CPU twin reads).
 override DISTORTED: bool = true;      // some camera has lens distortion
 
 struct Camera {
@@ -102,6 +102,17 @@ struct Params {
 // u16 levels, two planes per u32 word (even plane in the low half), pixel-major.
 const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau, and of a hypothesis with no valid pair
 const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
+
+// One row band of the cost volume and the path sums (keep in sync with GpuBand): an adapter's
+// storage binding limit may hold fewer rows than the image, so the volume and the sums are
+// separate buffers of `rows` rows each, and the stages that touch them run once per band. Pixel
+// `pix` of the image is word `(pix - first_pixel) * words + j` of its band's buffers.
+struct Band {
+    first_row: u32,
+    rows: u32,
+    first_pixel: u32,
+    _pad: u32,
+}
 
 // The volume level of a scored cost (BIG = no valid pair -> SGM_COST_MAX); floor(x + 0.5) as
 // the CPU twin (WGSL's round() rounds halves to even).

@@ -13,23 +13,34 @@
 // - CPU adapters (lavapipe, LINE_PER_INVOCATION = true): one invocation per path line loops over
 //   the planes itself, its previous L in `line_costs` (global scratch, one row per line): no
 //   barriers, which a software rasteriser pays for with a coroutine switch per SIMD batch.
+// Row bands (an adapter whose storage binding limit holds fewer rows of the volume than the
+// image): each pass covers the rows of one band, and a line carries its state in `line_costs`
+// (its previous L, double-buffered by step parity, and the minimum of that L) from one band to
+// the next. The engine runs the directions going down (and the horizontal ones) band by band
+// from the top, then the directions going up band by band from the bottom, so a line always
+// finds the state its previous pixel left; a line's step count at a band's edge follows from
+// its start. Banded runs use the LINE_PER_INVOCATION layout (workgroup memory does not outlive
+// a dispatch); the result equals the untiled run bit for bit (integer sums).
 // CPU twin: src/sweep/cpu/sgm.rs.
 
 override SGM_LANES: u32 = 32u;
 override LINE_PER_INVOCATION: bool = false;
 
 struct SgmPass {
-    direction: vec4<i32>,   // dx, dy, path lines, 1 = first pass (write, not add)
+    direction: vec4<i32>,   // dx, dy, path lines, index of the direction (0 = the first pass: write, not add)
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> sgm_pass: SgmPass;
 @group(0) @binding(2) var<uniform> cameras: array<Camera, MAX_RIG_CAMERAS>;
 @group(0) @binding(3) var<storage, read> images: array<u32>;
+// The volume and the sums of this pass's row band.
 @group(0) @binding(4) var<storage, read> volume: array<u32>;
 @group(0) @binding(5) var<storage, read_write> sums: array<u32>;
-// LINE_PER_INVOCATION: the previous and the current pixel's L of each line, 4 x words per line.
+// LINE_PER_INVOCATION: per direction and line, the previous and the current pixel's L
+// (4 x words), then the minimum of the previous L (carried from band to band).
 @group(0) @binding(6) var<storage, read_write> line_costs: array<u32>;
+@group(0) @binding(7) var<uniform> band: Band;
 
 // L of the previous pixel of the line (one half) and of the current one (the other half).
 var<workgroup> path_costs: array<u32, 2 * MAX_SGM_PLANES>;
@@ -95,7 +106,7 @@ fn walk_line(line: i32) {
     let h = i32(params.height);
     let dx = sgm_pass.direction.x;
     let dy = sgm_pass.direction.y;
-    let first_pass = sgm_pass.direction.w != 0;
+    let first_pass = sgm_pass.direction.w == 0;
     let planes = params.planes;
     let words = (planes + 1u) / 2u;
     let p1 = params.sgm_p1;
@@ -106,16 +117,36 @@ fn walk_line(line: i32) {
     if (reference != NO_CAMERA) {
         image_offset = cameras[reference].size.z;
     }
-    let base = u32(line) * 4u * words;
+    // Each direction has its own rows of scratch: in bands, directions interleave.
+    let lines_max = u32(w + h);
+    let base = (u32(sgm_pass.direction.w) * lines_max + u32(line)) * (4u * words + 1u);
+    let top = i32(band.first_row);
+    let bottom = min(h, top + i32(band.rows));
     var p = line_start(line, dx, dy, w, h);
-    var step = 0u;
+    // Steps the line took before this band (its pixels in the bands before).
+    var skipped = 0;
+    if (dy > 0 && p.y < top) {
+        skipped = top - p.y;
+    } else if (dy < 0 && p.y >= bottom) {
+        skipped = p.y - (bottom - 1);
+    }
+    p += skipped * vec2<i32>(dx, dy);
+    var step = u32(skipped);
     var previous_colour = 0u;
     var prev_min = 0u;
+    if (step > 0u && p.x >= 0 && p.x < w) {
+        prev_min = line_costs[base + 4u * words];
+        if (edge > 0u) {
+            let q = p - vec2<i32>(dx, dy);
+            previous_colour = images[image_offset + u32(q.y * w + q.x)];
+        }
+    }
     loop {
-        if (p.x < 0 || p.y < 0 || p.x >= w || p.y >= h) {
+        if (p.x < 0 || p.y < top || p.x >= w || p.y >= bottom) {
             break;
         }
         let pix = u32(p.y * w + p.x);
+        let local_pix = pix - band.first_pixel;
         var penalty2 = p2;
         var colour = 0u;
         if (edge > 0u) {
@@ -130,7 +161,7 @@ fn walk_line(line: i32) {
         let prev = base + (step & 1u) * 2u * words;
         let next = base + (1u - (step & 1u)) * 2u * words;
         for (var j = 0u; j < words; j++) {
-            let at = pix * words + j;
+            let at = local_pix * words + j;
             let c = volume[at];
             let d = 2u * j;
             var l0 = c & 0xffffu;
@@ -161,6 +192,8 @@ fn walk_line(line: i32) {
         p += vec2<i32>(dx, dy);
         step += 1u;
     }
+    // For the next band (read there only by a line that went on).
+    line_costs[base + 4u * words] = prev_min;
 }
 
 @compute @workgroup_size(SGM_LANES, 1, 1)
@@ -180,7 +213,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let h = i32(params.height);
     let dx = sgm_pass.direction.x;
     let dy = sgm_pass.direction.y;
-    let first_pass = sgm_pass.direction.w != 0;
+    let first_pass = sgm_pass.direction.w == 0;
     let planes = params.planes;
     let words = (planes + 1u) / 2u;
     let p1 = params.sgm_p1;
@@ -220,8 +253,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             prev_min = atomicLoad(&path_min[step % 3u]);
         }
         var local_min = 0xffffffffu;
+        // One band covers the image in this layout (first_pixel = 0).
         for (var j = lane; j < words; j += SGM_LANES) {
-            let at = pix * words + j;
+            let at = (pix - band.first_pixel) * words + j;
             let c = volume[at];
             let d = 2u * j;
             var l0 = c & 0xffffu;

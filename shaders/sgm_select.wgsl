@@ -8,14 +8,18 @@
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> sums: array<u32>;
 @group(0) @binding(2) var<storage, read_write> state: array<vec4<f32>>;
+// The rows of this dispatch; `sums` holds only theirs.
+@group(0) @binding(3) var<uniform> band: Band;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.width;
-    if (gid.x >= width || gid.y >= params.height) {
+    let y = band.first_row + gid.y;
+    if (gid.x >= width || y >= min(params.height, band.first_row + band.rows)) {
         return;
     }
-    let pix = gid.y * width + gid.x;
+    let pix = y * width + gid.x;
+    let local_pix = pix - band.first_pixel;
     let local = state[3u * pix];
     if (!(local.x < 0.5 * BIG) || local.y < 0.0) {
         return;
@@ -26,7 +30,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let unit = params.sgm_unit_per_level;
     var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, 0.0, 0.0, 0.0));
     for (var j = 0u; j < words; j++) {
-        let word = sums[pix * words + j];
+        let word = sums[local_pix * words + j];
         let d = 2u * j;
         st = select_plane(st, f32(d), vec2<f32>(f32(word & 0xffffu) * unit, selection));
         if (d + 1u < planes) {

@@ -29,6 +29,9 @@ pub struct BenchArgs {
     /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
+    /// Only these configurations (repeatable): paper, demo, 9-camera, vga, sxga.
+    #[arg(long = "config", value_name = "NAME")]
+    pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
     #[arg(long)]
     pub python: Option<PathBuf>,
@@ -386,9 +389,21 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Err(e) => return Err(e.into()),
         }
     }
+    if let Some(unknown) = args
+        .configs
+        .iter()
+        .find(|n| !CONFIGS.iter().any(|c| c.name == n.as_str()))
+    {
+        let known: Vec<&str> = CONFIGS.iter().map(|c| c.name).collect();
+        anyhow::bail!(
+            "unknown bench configuration '{unknown}' (known: {})",
+            known.join(", ")
+        );
+    }
     let configs: Vec<&BenchConfig> = CONFIGS
         .iter()
         .filter(|c| !args.quick || matches!(c.name, "paper" | "demo"))
+        .filter(|c| args.configs.is_empty() || args.configs.iter().any(|n| n == c.name))
         .collect();
     if !args.json {
         println!(

@@ -170,6 +170,91 @@ fn sgm_agrees_on_synthetic() {
     );
 }
 
+/// An adapter whose storage binding limit holds fewer rows of the SGM volume than the image runs
+/// SGM in row bands, the path state carried from band to band: the maps equal the run in one
+/// band bit for bit (both layouts of the one-band run), and the CPU engine within the
+/// tolerances, for 8 and 4 paths, edge-scaled P2, paired windows, bands of 1, 5 and 7 rows.
+#[test]
+fn sgm_in_row_bands_equals_one_band() {
+    let (rig, images) = synthetic_case();
+    let sgm = SweepParams {
+        optimizer: Optimizer::Sgm,
+        ..base()
+    };
+    let cases: Vec<(&str, SweepParams)> = vec![
+        ("bands_8_paths", sgm.clone()),
+        (
+            "bands_4_paths_odd_planes_edge",
+            SweepParams {
+                sgm_paths: 4,
+                num_planes: 23,
+                sgm_edge: 8.0,
+                ..sgm.clone()
+            },
+        ),
+        (
+            "bands_8_paths_edge_paired",
+            SweepParams {
+                scoring: Scoring::BestHalfSequence,
+                window_width: 2,
+                window_height: 2,
+                window_mode: WindowMode::Shiftable,
+                sgm_p2: 60.0,
+                sgm_edge: 20.0,
+                ..sgm.clone()
+            },
+        ),
+    ];
+    let gpu = common::gpu();
+    for (name, params) in cases {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let row_bytes = u64::from(plan.width) * plan.volume_words() as u64 * 4;
+        let mut whole = Vec::new();
+        for layout in [false, true] {
+            let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+            engine.set_sgm_line_per_invocation(layout);
+            whole.push(engine.run_plan_raw(&plan, &rig, &images).expect("one band"));
+        }
+        let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+        assert_eq!(bits(&whole[0]), bits(&whole[1]), "{name}: the two layouts");
+        for rows in [1u64, 5, 7] {
+            let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+            // A limit that is not a multiple of a row: the band holds the whole rows that fit.
+            engine.set_sgm_band_bytes(Some(rows * row_bytes + row_bytes / 2));
+            let banded = engine
+                .run_plan_raw(&plan, &rig, &images)
+                .expect("banded run");
+            assert_eq!(
+                engine.sgm_bands(),
+                plan.height.div_ceil(rows as u32),
+                "{name}: the volume was split into bands of {rows} rows"
+            );
+            let differing = bits(&banded)
+                .iter()
+                .zip(bits(&whole[0]))
+                .filter(|(a, b)| **a != *b)
+                .count();
+            assert_eq!(
+                differing, 0,
+                "{name}: bands of {rows} rows differ from one band in {differing} map values"
+            );
+        }
+        // And the CPU engine agrees (the shared tolerances).
+        compare_with(name, &plan, &rig, &images, Some(true));
+    }
+    // A row that does not fit the limit is refused with the sizes named.
+    let plan = SweepPlan::new(&rig, &sgm).expect("plan");
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    engine.set_sgm_band_bytes(Some(64));
+    let err = engine
+        .run_plan_raw(&plan, &rig, &images)
+        .expect_err("one row cannot fit 64 bytes");
+    assert!(
+        err.to_string().contains("one row of the cost volume"),
+        "{err}"
+    );
+}
+
 #[test]
 fn every_scoring_and_window_agrees_on_synthetic() {
     let (rig, images) = synthetic_case();

@@ -131,8 +131,20 @@ pub struct GpuParams {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
 pub struct GpuSgmPass {
-    /// dx, dy (each -1, 0 or 1), number of path lines, 1 for the first pass (writes the sums).
+    /// dx, dy (each -1, 0 or 1), number of path lines, index of the direction (0: the first
+    /// pass, which writes the sums; the others add).
     pub direction: [i32; 4],
+}
+
+/// WGSL `Band`: one row band of the SGM cost volume and path sums.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
+pub struct GpuBand {
+    pub first_row: u32,
+    pub rows: u32,
+    /// `first_row * width`: the band's buffers start at this pixel.
+    pub first_pixel: u32,
+    pub _pad: u32,
 }
 
 /// Planes per batch (they travel in the batch's uniform block).
@@ -158,6 +170,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
         assert_eq!(std::mem::size_of::<GpuParams>(), 128);
         assert_eq!(std::mem::size_of::<GpuSgmPass>(), 16);
+        assert_eq!(std::mem::size_of::<GpuBand>(), 16);
         assert_eq!(
             std::mem::size_of::<GpuBatch>(),
             16 + 16 * MAX_BATCH_PLANES as usize

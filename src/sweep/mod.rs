@@ -7,6 +7,8 @@ pub mod gpu;
 pub mod gpu_types;
 pub mod hypotheses;
 pub mod plan;
+pub mod schedule;
+pub mod stages;
 
 use serde::{Deserialize, Serialize};
 

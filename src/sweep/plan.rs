@@ -260,6 +260,13 @@ impl SweepPlan {
         self.params.planes
     }
 
+    /// Window sums need the separable box passes: shiftable windows of at most 2x2 are summed
+    /// straight from the cost slab instead.
+    pub fn box_passes(&self) -> bool {
+        let p = &self.params;
+        !(p.window_mode == WINDOW_SHIFTABLE && p.window_w <= 2 && p.window_h <= 2)
+    }
+
     /// SGM path directions; 0 = winner-take-all (no cost volume).
     pub fn sgm_paths(&self) -> u32 {
         self.params.sgm_paths

@@ -25,6 +25,7 @@ use rayon::prelude::*;
 
 use super::gpu_types::*;
 use super::plan::SweepPlan;
+use super::schedule::{Phase, Schedule};
 use super::{check_images, CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
@@ -261,40 +262,53 @@ impl CpuEngine {
             clock.lap("select");
         }
 
-        if sgm {
-            let colours: &[u32] = if p.reference == NO_CAMERA {
-                &[]
-            } else {
-                &images[p.reference as usize].pixels
-            };
-            let buffers = &mut self.buffers;
-            sgm::run(
-                plan,
-                colours,
-                &volume,
-                &mut buffers.forward,
-                &mut buffers.backward,
-                &cancel,
-            )?;
-            clock.lap("sgm");
-            cancel.check()?;
-            sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
-            clock.lap("sgm_select");
-            cancel.check()?;
-        }
+        // The rest of the plan's schedule (the sweep above is its first phase).
         let mut maps = Maps::new(npix);
-        finalize::run(plan, &state, &mut maps);
-        clock.lap("finalize");
-        cancel.check()?;
-        median::run(plan, &mut maps);
-        clock.lap("median");
-        cancel.check()?;
         let mut zbuffer = vec![0u32; plan.total_camera_pixels];
-        occlusion::splat(plan, &maps, &mut zbuffer);
-        clock.lap("splat");
-        cancel.check()?;
-        occlusion::visibility(plan, &zbuffer, &mut maps);
-        clock.lap("visibility");
+        for phase in Schedule::of_plan(plan).phases() {
+            cancel.check()?;
+            match phase {
+                Phase::Sweep => {}
+                Phase::Sgm => {
+                    let colours: &[u32] = if p.reference == NO_CAMERA {
+                        &[]
+                    } else {
+                        &images[p.reference as usize].pixels
+                    };
+                    let buffers = &mut self.buffers;
+                    sgm::run(
+                        plan,
+                        colours,
+                        &volume,
+                        &mut buffers.forward,
+                        &mut buffers.backward,
+                        &cancel,
+                    )?;
+                    clock.lap("sgm");
+                }
+                Phase::SgmSelect => {
+                    let buffers = &self.buffers;
+                    sgm::select(plan, &buffers.forward, &buffers.backward, &mut state);
+                    clock.lap("sgm_select");
+                }
+                Phase::Finalize => {
+                    finalize::run(plan, &state, &mut maps);
+                    clock.lap("finalize");
+                }
+                Phase::Median => {
+                    median::run(plan, &mut maps);
+                    clock.lap("median");
+                }
+                Phase::Splat => {
+                    occlusion::splat(plan, &maps, &mut zbuffer);
+                    clock.lap("splat");
+                }
+                Phase::Visibility => {
+                    occlusion::visibility(plan, &zbuffer, &mut maps);
+                    clock.lap("visibility");
+                }
+            }
+        }
         self.timings = clock.timings();
         self.buffers.volume = volume;
         self.buffers.scores = scores;

@@ -1,0 +1,331 @@
+//! The device buffers of one shape of work, their bind groups (made by binding name from the
+//! stage registry), and the upload of a plan's arrays into them.
+
+use super::super::gpu_types::*;
+use super::super::plan::SweepPlan;
+use super::super::schedule::{sgm_lines, SGM_DIRECTIONS};
+use super::super::stages::{Stage, STAGES};
+use super::super::SweepError;
+use super::shape::ShapeKey;
+
+/// Strides of the uniform arrays bound at offsets (the adapter's offset alignment).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Alignments {
+    /// Of the `batches` array.
+    pub batch: u64,
+    /// Of the `sgm_passes` and `bands` arrays.
+    pub pass: u64,
+}
+
+impl Alignments {
+    pub fn of(device: &wgpu::Device) -> Self {
+        let align = u64::from(device.limits().min_uniform_buffer_offset_alignment).max(16);
+        Self {
+            batch: (std::mem::size_of::<GpuBatch>() as u64).next_multiple_of(align),
+            pass: (std::mem::size_of::<GpuSgmPass>() as u64)
+                .max(std::mem::size_of::<GpuBand>() as u64)
+                .next_multiple_of(align),
+        }
+    }
+}
+
+/// Buffers for one shape of work.
+pub(super) struct Buffers {
+    pub key: ShapeKey,
+    params: wgpu::Buffer,
+    batches: wgpu::Buffer,
+    cameras: wgpu::Buffer,
+    pub images: wgpu::Buffer,
+    rays: wgpu::Buffer,
+    planes: wgpu::Buffer,
+    pairs: wgpu::Buffer,
+    sgm_passes: wgpu::Buffer,
+    bands: wgpu::Buffer,
+    pub maps: wgpu::Buffer,
+    pub zbuffer: wgpu::Buffer,
+    pub readback: wgpu::Buffer,
+    /// Per stage (registry order), one bind group per row band of the SGM volume for the
+    /// stages that bind it, else one.
+    bind_groups: Vec<Vec<wgpu::BindGroup>>,
+    pub timestamps: Option<Timestamps>,
+}
+
+pub(super) struct Timestamps {
+    pub query_set: wgpu::QuerySet,
+    pub resolve: wgpu::Buffer,
+    pub readback: wgpu::Buffer,
+    pub count: u32,
+}
+
+/// A binding that depends on the row band.
+fn per_band(name: &str) -> bool {
+    matches!(name, "volume" | "sums" | "band")
+}
+
+impl Buffers {
+    pub fn new(
+        device: &wgpu::Device,
+        layouts: &[wgpu::BindGroupLayout],
+        align: Alignments,
+        key: ShapeKey,
+    ) -> Result<Self, SweepError> {
+        let npix = u64::from(key.width) * u64::from(key.height);
+        let storage = |label: &str, size: u64, extra: wgpu::BufferUsages| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(16).next_multiple_of(4),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+                mapped_at_creation: false,
+            })
+        };
+        let uniform = |label: &str, size: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let none = wgpu::BufferUsages::empty();
+        let params = uniform("params", std::mem::size_of::<GpuParams>() as u64);
+        let batches = uniform("batches", u64::from(key.batches()) * align.batch);
+        let cameras = uniform(
+            "cameras",
+            u64::from(MAX_RIG_CAMERAS) * std::mem::size_of::<GpuCamera>() as u64,
+        );
+        let images = storage("images", key.camera_pixels as u64 * 4, none);
+        let rays = storage("rays", npix * 16, none);
+        let planes = storage("planes", u64::from(key.planes) * 16, none);
+        let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
+        let slices = u64::from(key.channels) * u64::from(key.batch);
+        let cost_slab = storage("cost_slab", npix * 4 * slices, none);
+        let row_sums = storage(
+            "row_sums",
+            u64::from(key.padded_width) * u64::from(key.height) * 8 * slices,
+            none,
+        );
+        let box_sums = storage(
+            "box_sums",
+            u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices,
+            none,
+        );
+        let state = storage("state", npix * 48, none);
+        // The cost volume and the path sums, one buffer per row band.
+        let band_bytes = |b: u32| {
+            u64::from(key.band(b).rows) * u64::from(key.width) * u64::from(key.volume_words) * 4
+        };
+        let volumes: Vec<wgpu::Buffer> = (0..key.bands())
+            .map(|b| storage("sgm volume", band_bytes(b), none))
+            .collect();
+        let sums: Vec<wgpu::Buffer> = (0..key.bands())
+            .map(|b| storage("sgm sums", band_bytes(b), none))
+            .collect();
+        // Per direction and line: two rows of path costs and the minimum of the previous one
+        // (one invocation per line on CPU adapters and in bands).
+        let line_costs = storage(
+            "sgm line costs",
+            if key.sgm_paths > 0 {
+                u64::from(key.sgm_paths)
+                    * u64::from(key.width + key.height)
+                    * (u64::from(key.volume_words) * 4 + 1)
+                    * 4
+            } else {
+                0
+            },
+            none,
+        );
+        let sgm_passes = uniform("sgm passes", SGM_DIRECTIONS.len() as u64 * align.pass);
+        let bands = uniform("sgm bands", u64::from(key.bands()) * align.pass);
+        let maps = storage(
+            "maps",
+            npix * 4 * MAP_COUNT as u64,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let zbuffer = storage("zbuffer", key.camera_pixels as u64 * 4, none);
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: maps.size(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        // One element of an array bound at a (dynamic or fixed) offset.
+        fn element(buffer: &wgpu::Buffer, offset: u64, size: usize) -> wgpu::BindingResource<'_> {
+            wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer,
+                offset,
+                size: wgpu::BufferSize::new(size as u64),
+            })
+        }
+        fn whole(buffer: &wgpu::Buffer) -> wgpu::BindingResource<'_> {
+            buffer.as_entire_binding()
+        }
+        // The resources by the names the shaders (and the registry) give them.
+        let resource = |name: &str, band: u32| -> Option<wgpu::BindingResource<'_>> {
+            Some(match name {
+                "params" => whole(&params),
+                "batch" => element(&batches, 0, std::mem::size_of::<GpuBatch>()),
+                "sgm_pass" => element(&sgm_passes, 0, std::mem::size_of::<GpuSgmPass>()),
+                "band" => element(
+                    &bands,
+                    u64::from(band) * align.pass,
+                    std::mem::size_of::<GpuBand>(),
+                ),
+                "cameras" => whole(&cameras),
+                "images" => whole(&images),
+                "rays" => whole(&rays),
+                "planes" => whole(&planes),
+                "pairs" => whole(&pairs),
+                "cost_slab" => whole(&cost_slab),
+                "row_sums" => whole(&row_sums),
+                "box_sums" => whole(&box_sums),
+                "state" => whole(&state),
+                "volume" => whole(volumes.get(band as usize)?),
+                "sums" => whole(sums.get(band as usize)?),
+                "line_costs" => whole(&line_costs),
+                "maps" => whole(&maps),
+                "zbuffer" => whole(&zbuffer),
+                _ => return None,
+            })
+        };
+        let mut bind_groups = Vec::with_capacity(STAGES.len());
+        for (stage, layout) in STAGES.iter().zip(layouts) {
+            let banded = stage.bindings.iter().any(|b| per_band(b.name));
+            let groups = if banded { key.bands() } else { 1 };
+            let mut per_stage = Vec::with_capacity(groups as usize);
+            for band in 0..groups {
+                let entries = stage
+                    .bindings
+                    .iter()
+                    .enumerate()
+                    .map(|(number, binding)| {
+                        resource(binding.name, band)
+                            .map(|resource| wgpu::BindGroupEntry {
+                                binding: number as u32,
+                                resource,
+                            })
+                            .ok_or_else(|| {
+                                SweepError::Gpu(format!(
+                                    "internal: no buffer for binding `{}` of stage {}",
+                                    binding.name, stage.name
+                                ))
+                            })
+                    })
+                    .collect::<Result<Vec<_>, SweepError>>()?;
+                per_stage.push(device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some(stage.name),
+                    layout,
+                    entries: &entries,
+                }));
+            }
+            bind_groups.push(per_stage);
+        }
+        // Two timestamps per dispatch, when the adapter has them and a query set holds them
+        // (many row bands may not: then the engine reports its total time).
+        let count = 2 * key.schedule().dispatches().len() as u32;
+        let timestamps = (device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
+            && count <= wgpu::QUERY_SET_MAX_QUERIES)
+            .then(|| {
+                let bytes = u64::from(count) * 8;
+                Timestamps {
+                    query_set: device.create_query_set(&wgpu::QuerySetDescriptor {
+                        label: Some("stage timestamps"),
+                        ty: wgpu::QueryType::Timestamp,
+                        count,
+                    }),
+                    resolve: device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("timestamp resolve"),
+                        size: bytes,
+                        usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                        mapped_at_creation: false,
+                    }),
+                    readback: device.create_buffer(&wgpu::BufferDescriptor {
+                        label: Some("timestamp readback"),
+                        size: bytes,
+                        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                        mapped_at_creation: false,
+                    }),
+                    count,
+                }
+            });
+        Ok(Self {
+            key,
+            params,
+            batches,
+            cameras,
+            images,
+            rays,
+            planes,
+            pairs,
+            sgm_passes,
+            bands,
+            maps,
+            zbuffer,
+            readback,
+            bind_groups,
+            timestamps,
+        })
+    }
+
+    /// The bind group of `stage` for row band `band` (band 0 for the stages not banded).
+    pub fn bind_group(&self, stage: Stage, band: u32) -> &wgpu::BindGroup {
+        let groups = &self.bind_groups[stage as usize];
+        &groups[(band as usize).min(groups.len() - 1)]
+    }
+
+    /// Writes the plan's arrays: parameters, cameras, planes, rays, pairs, batches of planes,
+    /// SGM directions and row bands.
+    pub fn upload_plan(&self, queue: &wgpu::Queue, align: Alignments, plan: &SweepPlan) {
+        let key = self.key;
+        queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&plan.params));
+        queue.write_buffer(&self.cameras, 0, bytemuck::cast_slice(&plan.cameras));
+        queue.write_buffer(&self.planes, 0, bytemuck::cast_slice(&plan.planes));
+        queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
+        // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
+        let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];
+        queue.write_buffer(&self.pairs, 0, bytemuck::cast_slice(pairs));
+        let mut batches = vec![0u8; self.batches.size() as usize];
+        for b in 0..key.batches() {
+            let first = b * key.batch;
+            let count = key.batch.min(key.planes - first);
+            let mut batch = GpuBatch {
+                first_plane: first,
+                plane_count: count,
+                is_first: u32::from(b == 0),
+                _pad: 0,
+                planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
+            };
+            batch.planes[..count as usize]
+                .copy_from_slice(&plan.planes[first as usize..(first + count) as usize]);
+            let at = (u64::from(b) * align.batch) as usize;
+            batches[at..at + std::mem::size_of::<GpuBatch>()]
+                .copy_from_slice(bytemuck::bytes_of(&batch));
+        }
+        queue.write_buffer(&self.batches, 0, &batches);
+        let mut passes = vec![0u8; self.sgm_passes.size() as usize];
+        for (r, &(dx, dy)) in SGM_DIRECTIONS
+            .iter()
+            .enumerate()
+            .take(key.sgm_paths as usize)
+        {
+            let pass = GpuSgmPass {
+                direction: [
+                    dx,
+                    dy,
+                    sgm_lines(dx, dy, key.width, key.height) as i32,
+                    r as i32,
+                ],
+            };
+            let at = (r as u64 * align.pass) as usize;
+            passes[at..at + std::mem::size_of::<GpuSgmPass>()]
+                .copy_from_slice(bytemuck::bytes_of(&pass));
+        }
+        queue.write_buffer(&self.sgm_passes, 0, &passes);
+        let mut bands = vec![0u8; self.bands.size() as usize];
+        for b in 0..key.bands() {
+            let at = (u64::from(b) * align.pass) as usize;
+            bands[at..at + std::mem::size_of::<GpuBand>()]
+                .copy_from_slice(bytemuck::bytes_of(&key.band(b)));
+        }
+        queue.write_buffer(&self.bands, 0, &bands);
+    }
+}

@@ -1,0 +1,207 @@
+//! "How to run it": the wgpu engine. It takes a device and queue from its caller, makes its
+//! layouts and pipelines from the stage registry (`sweep/stages.rs`) once, and keeps its buffers
+//! across frame sets of the same shape; a new rig or new parameters re-plan, a new shape
+//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded dispatch by
+//! dispatch.
+//!
+//! - `shape.rs`: the shape of work on this adapter (batches, SGM row bands; limits checked).
+//! - `pipelines.rs`: layouts, modules and specialised pipelines from the registry.
+//! - `buffers.rs`: the buffers of a shape, bind groups by binding name, the plan's upload.
+//! - `record.rs`: recording the schedule, readback and per-stage timestamps.
+
+mod buffers;
+mod pipelines;
+mod record;
+mod shape;
+
+use std::time::Instant;
+
+use super::plan::SweepPlan;
+use super::schedule::Schedule;
+use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
+use crate::geometry::Rig;
+use crate::image::Rgba8Image;
+use buffers::{Alignments, Buffers};
+use pipelines::{Pipelines, Specialisation};
+use shape::ShapeKey;
+
+pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
+
+/// The GPU plane-sweep engine.
+pub struct GpuEngine {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipelines: Pipelines,
+    align: Alignments,
+    /// The SGM layout: one invocation per path line, or one workgroup per line.
+    sgm_line_per_invocation: bool,
+    /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
+    sgm_band_bytes: Option<u64>,
+    /// The buffers of the last shape, and what runs on them.
+    buffers: Option<(Buffers, Schedule)>,
+    plan: Option<(Rig, SweepParams, SweepPlan)>,
+    /// Id of the plan whose arrays are in the buffers.
+    uploaded_plan: Option<u64>,
+    packed: Vec<u32>,
+    timings: StageTimings,
+    cancel: CancelFlag,
+}
+
+fn gpu_err(e: impl std::fmt::Display) -> SweepError {
+    SweepError::Gpu(e.to_string())
+}
+
+impl GpuEngine {
+    /// Builds the layouts and shader modules on the caller's device. Shader compilation errors
+    /// are caught with an error scope and returned.
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, SweepError> {
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            pipelines: Pipelines::new(device)?,
+            align: Alignments::of(device),
+            // A CPU adapter (lavapipe) pays for every barrier with a coroutine switch per SIMD
+            // batch of 8 lanes: there each invocation walks a whole path line (no barriers). A
+            // GPU wants a full warp per line, the planes across its lanes.
+            sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
+            sgm_band_bytes: None,
+            buffers: None,
+            plan: None,
+            uploaded_plan: None,
+            packed: Vec::new(),
+            timings: StageTimings::default(),
+            cancel: CancelFlag::new(),
+        })
+    }
+
+    /// Chooses the SGM layout instead of the adapter's default (tests run both on any
+    /// adapter): `true` = one invocation per path line, `false` = one workgroup per line with
+    /// the planes across its lanes. Results are identical. Row bands always use the first.
+    pub fn set_sgm_line_per_invocation(&mut self, on: bool) {
+        self.sgm_line_per_invocation = on;
+    }
+
+    /// Caps the bytes of one row band of the SGM cost volume below the adapter's storage binding
+    /// limit (`None`: the adapter's limit). Tests use it to run small volumes in several bands;
+    /// the result equals the run in one band.
+    pub fn set_sgm_band_bytes(&mut self, max_bytes: Option<u64>) {
+        self.sgm_band_bytes = max_bytes;
+    }
+
+    /// Row bands of the SGM volume in the last frame set (1 when one binding held it).
+    pub fn sgm_bands(&self) -> u32 {
+        self.buffers.as_ref().map_or(0, |(b, _)| b.key.bands())
+    }
+
+    /// Per-stage times of the last frame set.
+    pub fn last_timings(&self) -> &StageTimings {
+        &self.timings
+    }
+
+    pub fn adapter_info(&self) -> wgpu::AdapterInfo {
+        self.device.adapter_info()
+    }
+
+    /// Stops a run between submissions (one per batch of planes, then the rest) and while it
+    /// waits for the GPU once `cancel` is set ([`SweepError::Cancelled`]).
+    pub fn set_cancel(&mut self, cancel: CancelFlag) {
+        self.cancel = cancel;
+    }
+
+    /// Runs the sweep on one frame set (one image per rig camera, in rig order).
+    pub fn run(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
+        if !reuse {
+            let plan = SweepPlan::new(rig, params)?;
+            self.plan = Some((rig.clone(), params.clone(), plan));
+        }
+        // Taken out and put back (no per-frame clone) so run_plan can borrow self mutably.
+        let Some(cached) = self.plan.take() else {
+            return Err(SweepError::Gpu("internal: no plan".into()));
+        };
+        let result = self.run_plan(&cached.2, rig, images);
+        self.plan = Some(cached);
+        result
+    }
+
+    /// Runs a prepared plan (e.g. with a custom hypothesis family).
+    pub fn run_plan(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        let maps = self.run_plan_raw(plan, rig, images)?;
+        Ok(plan.depth_maps(&maps))
+    }
+
+    /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
+    pub fn run_plan_raw(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<Vec<f32>, SweepError> {
+        let started = Instant::now();
+        let mut packed = std::mem::take(&mut self.packed);
+        plan.pack_images(rig, images, &mut packed)?;
+        let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
+        if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
+            let buffers = Buffers::new(&self.device, &self.pipelines.layouts, self.align, key)?;
+            self.buffers = Some((buffers, key.schedule()));
+            self.uploaded_plan = None;
+        }
+        // Workgroup memory does not outlive a dispatch: bands carry the path state in the
+        // per-line scratch of the line-per-invocation layout.
+        let spec = Specialisation::of(plan, self.sgm_line_per_invocation || key.bands() > 1);
+        let pipelines = self.pipelines.get(&self.device, &spec)?;
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let Some((buffers, schedule)) = self.buffers.as_ref() else {
+            return Err(SweepError::Gpu("internal: no buffers".into()));
+        };
+        if self.uploaded_plan != Some(plan.id) {
+            buffers.upload_plan(&self.queue, self.align, plan);
+            self.uploaded_plan = Some(plan.id);
+        }
+        self.queue
+            .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
+        self.packed = packed;
+
+        let mut submitter = record::Submitter::new(&self.device, &self.queue, &self.cancel);
+        record::record(
+            &mut submitter,
+            buffers,
+            pipelines,
+            &spec,
+            schedule,
+            self.align,
+        )?;
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
+        }
+        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&record::read_buffer(
+            &self.device,
+            &self.cancel,
+            &buffers.readback,
+        )?);
+        self.timings = match record::stage_times(
+            &self.device,
+            &self.cancel,
+            &self.queue,
+            buffers,
+            schedule,
+        )? {
+            Some(timings) => timings,
+            None => StageTimings {
+                stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
+                gpu_timestamps: false,
+            },
+        };
+        Ok(maps)
+    }
+}

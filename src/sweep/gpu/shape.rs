@@ -1,0 +1,145 @@
+//! The shape of work of one plan on one adapter: image and slab sizes, batches of planes, row
+//! bands of the SGM volume (what the buffers are allocated for), checked against the adapter's
+//! limits up front.
+
+use super::super::gpu_types::*;
+use super::super::plan::SweepPlan;
+use super::super::schedule::{Schedule, ScheduleShape};
+use super::super::SweepError;
+
+/// Largest cost slab + window sums we allocate for one batch of planes.
+const SLAB_BUDGET_BYTES: u64 = 192 << 20;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct ShapeKey {
+    pub width: u32,
+    pub height: u32,
+    pub padded_width: u32,
+    pub padded_height: u32,
+    pub cameras: u32,
+    pub camera_pixels: usize,
+    pub planes: u32,
+    pub channels: u32,
+    /// Planes per batch.
+    pub batch: u32,
+    /// Windows of at most 2x2 are summed straight from the cost slab (no box passes).
+    pub direct_windows: bool,
+    /// SGM path directions (0 = winner-take-all: no cost volume).
+    pub sgm_paths: u32,
+    /// u32 words per pixel of the cost volume (0 without SGM).
+    pub volume_words: u32,
+    /// Rows per band of the cost volume and the path sums (the height when one binding holds
+    /// them; fewer when the adapter's storage binding limit does not).
+    pub band_rows: u32,
+}
+
+impl ShapeKey {
+    pub fn batches(&self) -> u32 {
+        self.planes.div_ceil(self.batch)
+    }
+
+    pub fn bands(&self) -> u32 {
+        self.height.div_ceil(self.band_rows)
+    }
+
+    /// The band of rows `b`.
+    pub fn band(&self, b: u32) -> GpuBand {
+        let first_row = b * self.band_rows;
+        GpuBand {
+            first_row,
+            rows: self.band_rows.min(self.height - first_row),
+            first_pixel: first_row * self.width,
+            _pad: 0,
+        }
+    }
+
+    /// What runs for this shape.
+    pub fn schedule(&self) -> Schedule {
+        Schedule::new(ScheduleShape {
+            batches: self.batches(),
+            box_passes: !self.direct_windows,
+            sgm_paths: self.sgm_paths,
+            bands: self.bands(),
+        })
+    }
+
+    /// The shape of `plan` on a device with `limits`; `sgm_band_bytes` caps one band of the SGM
+    /// volume below the binding limit. Refuses what the adapter cannot hold, with the sizes.
+    pub fn of(
+        plan: &SweepPlan,
+        limits: &wgpu::Limits,
+        sgm_band_bytes: Option<u64>,
+    ) -> Result<Self, SweepError> {
+        let npix = plan.pixel_count() as u64;
+        let channels = plan.channels() as u64;
+        let (padded_w, padded_h) = plan.padded_size();
+        let row_bytes = u64::from(padded_w) * u64::from(plan.height) * 8 * channels;
+        let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
+        // Cost slab + row sums + box sums, per plane.
+        let per_plane = npix * 4 * channels + row_bytes + box_bytes;
+        let max_binding = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let budget = SLAB_BUDGET_BYTES.min(max_binding);
+        if box_bytes > budget {
+            return Err(SweepError::InvalidParams(format!(
+                "reference image of {npix} pixels needs {box_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({budget})"
+            )));
+        }
+        let maps_bytes = npix * 4 * MAP_COUNT as u64;
+        let image_bytes = plan.total_camera_pixels as u64 * 4;
+        for (what, bytes) in [("output maps", maps_bytes), ("camera images", image_bytes)] {
+            if bytes > max_binding {
+                return Err(SweepError::InvalidParams(format!(
+                    "{what} need {bytes} bytes, more than this adapter's storage binding limit ({max_binding})"
+                )));
+            }
+        }
+        let sgm_paths = plan.sgm_paths();
+        let volume_words = if sgm_paths > 0 {
+            plan.volume_words() as u32
+        } else {
+            0
+        };
+        // The cost volume and the path sums (u16 per pixel and plane each) in row bands that
+        // each fit one binding.
+        let band_rows = if sgm_paths > 0 {
+            let band_limit = sgm_band_bytes.unwrap_or(u64::MAX).min(max_binding);
+            let row_bytes = u64::from(plan.width) * u64::from(volume_words) * 4;
+            let rows = band_limit / row_bytes.max(1);
+            if rows == 0 {
+                return Err(SweepError::InvalidParams(format!(
+                    "optimizer sgm: one row of the cost volume ({} pixels x {} planes) needs {row_bytes} bytes, more than this adapter's storage binding limit of {band_limit} bytes; use fewer planes or a narrower image, or optimizer wta (no cost volume)",
+                    plan.width,
+                    plan.num_planes()
+                )));
+            }
+            rows.min(u64::from(plan.height)) as u32
+        } else {
+            plan.height
+        };
+        let planes = plan.num_planes();
+        let max_z = limits.max_compute_workgroups_per_dimension;
+        let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
+        let batch = max_slices
+            .clamp(1, planes)
+            .min(MAX_BATCH_PLANES)
+            .min(max_z / (channels as u32).max(1))
+            .max(1);
+        Ok(Self {
+            width: plan.width,
+            height: plan.height,
+            padded_width: padded_w,
+            padded_height: padded_h,
+            cameras: plan.cameras.len() as u32,
+            camera_pixels: plan.total_camera_pixels,
+            planes,
+            channels: plan.channels() as u32,
+            batch,
+            direct_windows: !plan.box_passes(),
+            sgm_paths,
+            volume_words,
+            band_rows,
+        })
+    }
+}

@@ -1,0 +1,264 @@
+//! "What runs for this plan": the stage schedule of one frame set, made once per plan and shape
+//! and read by both engines. [`Schedule::phases`] is the order of the stages (the CPU engine
+//! runs one function per phase); [`Schedule::dispatches`] expands it into the WGSL engine's
+//! dispatches (per batch of planes, per row band of the SGM volume, per SGM direction).
+
+use super::plan::SweepPlan;
+use super::stages::Stage;
+
+/// SGM path directions (dx, dy): the first four for 4 paths, all eight for 8.
+pub const SGM_DIRECTIONS: [(i32, i32); 8] = [
+    (1, 0),
+    (-1, 0),
+    (0, 1),
+    (0, -1),
+    (1, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+];
+
+/// Path lines of direction (dx, dy) over a width x height image.
+pub fn sgm_lines(dx: i32, dy: i32, width: u32, height: u32) -> u32 {
+    match (dx, dy) {
+        (_, 0) => height,
+        (0, _) => width,
+        _ => width + height - 1,
+    }
+}
+
+/// One step of a frame set, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Costs, window sums, scoring and the streaming winner-take-all over every plane (and the
+    /// SGM cost volume).
+    Sweep,
+    /// Every SGM path direction over the volume, summed.
+    Sgm,
+    /// Winner-take-all over the summed path costs.
+    SgmSelect,
+    Finalize,
+    Median,
+    Splat,
+    Visibility,
+}
+
+/// One dispatch of the WGSL engine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Dispatch {
+    pub stage: Stage,
+    /// Batch of planes (cost, box passes, aggregate).
+    pub batch: u32,
+    /// Row band of the SGM volume (aggregate, sgm, sgm_select).
+    pub band: u32,
+    /// Index into [`SGM_DIRECTIONS`] (sgm).
+    pub direction: u32,
+}
+
+impl Dispatch {
+    fn of(stage: Stage) -> Self {
+        Self {
+            stage,
+            batch: 0,
+            band: 0,
+            direction: 0,
+        }
+    }
+}
+
+/// The shape of work a schedule is made for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ScheduleShape {
+    /// Batches of planes the sweep runs in.
+    pub batches: u32,
+    /// Window sums need the two box passes (windows larger than 2x2, or centred ones).
+    pub box_passes: bool,
+    /// SGM path directions (0: winner-take-all).
+    pub sgm_paths: u32,
+    /// Row bands of the SGM volume (1 when one binding holds it).
+    pub bands: u32,
+}
+
+/// The phases and dispatches of one frame set.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Schedule {
+    pub shape: ScheduleShape,
+    phases: Vec<Phase>,
+    dispatches: Vec<Dispatch>,
+}
+
+impl Schedule {
+    pub fn new(shape: ScheduleShape) -> Self {
+        let sgm = shape.sgm_paths > 0;
+        let mut phases = vec![Phase::Sweep];
+        if sgm {
+            phases.extend([Phase::Sgm, Phase::SgmSelect]);
+        }
+        phases.extend([
+            Phase::Finalize,
+            Phase::Median,
+            Phase::Splat,
+            Phase::Visibility,
+        ]);
+        let bands = shape.bands.max(1);
+        let mut dispatches = Vec::new();
+        for phase in &phases {
+            match phase {
+                Phase::Sweep => {
+                    for batch in 0..shape.batches {
+                        let at = |stage| Dispatch {
+                            batch,
+                            ..Dispatch::of(stage)
+                        };
+                        dispatches.push(at(Stage::Cost));
+                        if shape.box_passes {
+                            dispatches.extend([at(Stage::BoxH), at(Stage::BoxV)]);
+                        }
+                        // Once per band of the volume it writes.
+                        dispatches.extend((0..bands).map(|band| Dispatch {
+                            band,
+                            ..at(Stage::Aggregate)
+                        }));
+                    }
+                }
+                Phase::Sgm => {
+                    // The directions going down (and the horizontal ones, among them the first,
+                    // which writes the sums) band after band from the top, those going up from
+                    // the bottom: each line finds the state it left in the band before.
+                    let directions = || 0..shape.sgm_paths.min(SGM_DIRECTIONS.len() as u32);
+                    let going_down = |r: &u32| SGM_DIRECTIONS[*r as usize].1 >= 0;
+                    for band in 0..bands {
+                        for direction in directions().filter(going_down) {
+                            dispatches.push(Dispatch {
+                                band,
+                                direction,
+                                ..Dispatch::of(Stage::Sgm)
+                            });
+                        }
+                    }
+                    for band in (0..bands).rev() {
+                        for direction in directions().filter(|r| !going_down(r)) {
+                            dispatches.push(Dispatch {
+                                band,
+                                direction,
+                                ..Dispatch::of(Stage::Sgm)
+                            });
+                        }
+                    }
+                }
+                Phase::SgmSelect => dispatches.extend((0..bands).map(|band| Dispatch {
+                    band,
+                    ..Dispatch::of(Stage::SgmSelect)
+                })),
+                Phase::Finalize => dispatches.push(Dispatch::of(Stage::Finalize)),
+                Phase::Median => dispatches.push(Dispatch::of(Stage::Median)),
+                Phase::Splat => dispatches.push(Dispatch::of(Stage::Splat)),
+                Phase::Visibility => dispatches.push(Dispatch::of(Stage::Visibility)),
+            }
+        }
+        Self {
+            shape,
+            phases,
+            dispatches,
+        }
+    }
+
+    /// The schedule of a plan in one batch and one band (the phases are all the CPU engine
+    /// reads; the WGSL engine makes its own from its shape of work on the adapter).
+    pub fn of_plan(plan: &SweepPlan) -> Self {
+        Self::new(ScheduleShape {
+            batches: 1,
+            box_passes: plan.box_passes(),
+            sgm_paths: plan.sgm_paths(),
+            bands: 1,
+        })
+    }
+
+    /// The stages in order, one entry each.
+    pub fn phases(&self) -> &[Phase] {
+        &self.phases
+    }
+
+    /// The WGSL engine's dispatches in order.
+    pub fn dispatches(&self) -> &[Dispatch] {
+        &self.dispatches
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape(batches: u32, box_passes: bool, sgm_paths: u32, bands: u32) -> ScheduleShape {
+        ScheduleShape {
+            batches,
+            box_passes,
+            sgm_paths,
+            bands,
+        }
+    }
+
+    #[test]
+    fn winner_take_all_runs_no_sgm() {
+        let s = Schedule::new(shape(2, true, 0, 1));
+        assert!(!s.phases().contains(&Phase::Sgm));
+        let stages: Vec<Stage> = s.dispatches().iter().map(|d| d.stage).collect();
+        use Stage::*;
+        assert_eq!(
+            stages,
+            [
+                Cost, BoxH, BoxV, Aggregate, Cost, BoxH, BoxV, Aggregate, Finalize, Median, Splat,
+                Visibility
+            ]
+        );
+    }
+
+    #[test]
+    fn sgm_bands_run_down_then_up_and_the_first_direction_writes_first() {
+        let s = Schedule::new(shape(1, false, 8, 3));
+        let sgm: Vec<(u32, u32)> = s
+            .dispatches()
+            .iter()
+            .filter(|d| d.stage == Stage::Sgm)
+            .map(|d| (d.band, d.direction))
+            .collect();
+        assert_eq!(sgm.len(), 8 * 3);
+        // Every band sees direction 0 (which writes the sums) before any other direction.
+        for band in 0..3 {
+            let first = sgm.iter().position(|&(b, _)| b == band);
+            assert_eq!(first.map(|i| sgm[i].1), Some(0), "band {band}");
+        }
+        // Down-going directions visit bands 0, 1, 2; up-going ones 2, 1, 0.
+        for r in 0..8u32 {
+            let bands: Vec<u32> = sgm
+                .iter()
+                .filter(|&&(_, d)| d == r)
+                .map(|&(b, _)| b)
+                .collect();
+            let expected = if SGM_DIRECTIONS[r as usize].1 >= 0 {
+                vec![0, 1, 2]
+            } else {
+                vec![2, 1, 0]
+            };
+            assert_eq!(bands, expected, "direction {r}");
+        }
+        let aggregates = s
+            .dispatches()
+            .iter()
+            .filter(|d| d.stage == Stage::Aggregate)
+            .count();
+        assert_eq!(aggregates, 3);
+        assert_eq!(
+            s.phases(),
+            [
+                Phase::Sweep,
+                Phase::Sgm,
+                Phase::SgmSelect,
+                Phase::Finalize,
+                Phase::Median,
+                Phase::Splat,
+                Phase::Visibility
+            ]
+        );
+    }
+}

@@ -1,0 +1,262 @@
+// The stage registry: one table naming every WGSL stage (shader file, entry point, bindings by
+// name and kind, workgroup size, override constants). build.rs `include!`s this file and checks
+// each shader against its row with naga (a binding renamed or retyped, an override the engine
+// would set but the shader lacks, a workgroup size changed fails `cargo build` with the stage's
+// name); the WGSL engine makes its layouts, pipelines and bind groups from it by name.
+// (Plain `//` comments: build.rs includes this file as items.)
+
+/// The kind of one binding (all in group 0, numbered in table order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BindingKind {
+    /// A uniform block bound whole (or at a fixed offset).
+    Uniform,
+    /// A uniform block bound at a dynamic offset per dispatch (a batch of planes, an SGM
+    /// direction).
+    DynamicUniform,
+    /// `var<storage, read>`.
+    Read,
+    /// `var<storage, read_write>`.
+    ReadWrite,
+}
+
+/// One binding of a stage: the shader's variable name and its kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Binding {
+    pub name: &'static str,
+    pub kind: BindingKind,
+}
+
+/// One compute stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StageInfo {
+    /// Also the shader file: `shaders/{name}.wgsl` (with `common.wgsl` prepended).
+    pub name: &'static str,
+    pub entry_point: &'static str,
+    /// Binding `i` of group 0 is `bindings[i]`.
+    pub bindings: &'static [Binding],
+    /// The shader's `@workgroup_size`; `None` where an override constant sets it.
+    pub workgroup_size: Option<[u32; 3]>,
+    /// The override constants the engine sets when it specialises the stage to a plan.
+    pub overrides: &'static [&'static str],
+}
+
+/// The stages, by name. `Stage::X as usize` indexes [`STAGES`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stage {
+    Cost,
+    BoxH,
+    BoxV,
+    Aggregate,
+    Finalize,
+    Median,
+    Splat,
+    Visibility,
+    Sgm,
+    SgmSelect,
+}
+
+impl Stage {
+    pub const ALL: [Stage; 10] = [
+        Stage::Cost,
+        Stage::BoxH,
+        Stage::BoxV,
+        Stage::Aggregate,
+        Stage::Finalize,
+        Stage::Median,
+        Stage::Splat,
+        Stage::Visibility,
+        Stage::Sgm,
+        Stage::SgmSelect,
+    ];
+
+    /// This stage's row of the registry.
+    pub fn info(self) -> &'static StageInfo {
+        &STAGES[self as usize]
+    }
+
+    pub fn name(self) -> &'static str {
+        self.info().name
+    }
+}
+
+const fn uniform(name: &'static str) -> Binding {
+    Binding {
+        name,
+        kind: BindingKind::Uniform,
+    }
+}
+
+const fn dynamic(name: &'static str) -> Binding {
+    Binding {
+        name,
+        kind: BindingKind::DynamicUniform,
+    }
+}
+
+const fn read(name: &'static str) -> Binding {
+    Binding {
+        name,
+        kind: BindingKind::Read,
+    }
+}
+
+const fn read_write(name: &'static str) -> Binding {
+    Binding {
+        name,
+        kind: BindingKind::ReadWrite,
+    }
+}
+
+/// The 8x8 tile of reference pixels most stages run per workgroup.
+const TILE: Option<[u32; 3]> = Some([8, 8, 1]);
+
+/// The registry, in `Stage` order.
+pub const STAGES: [StageInfo; 10] = [
+    StageInfo {
+        name: "cost",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            dynamic("batch"),
+            uniform("cameras"),
+            read("images"),
+            read("rays"),
+            read_write("cost_slab"),
+        ],
+        workgroup_size: TILE,
+        overrides: &[
+            "DISTORTED",
+            "SCORING",
+            "PAIRS",
+            "BEST_N",
+            "AGGREGATION",
+            "CHANNELS",
+        ],
+    },
+    StageInfo {
+        name: "box_h",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            dynamic("batch"),
+            read("cost_slab"),
+            read_write("row_sums"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED", "WINDOW_W", "CHANNELS"],
+    },
+    StageInfo {
+        name: "box_v",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            dynamic("batch"),
+            read("row_sums"),
+            read_write("box_sums"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED", "WINDOW_H", "CHANNELS"],
+    },
+    StageInfo {
+        name: "aggregate",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            dynamic("batch"),
+            read("box_sums"),
+            read_write("state"),
+            uniform("pairs"),
+            read("cost_slab"),
+            read_write("volume"),
+            uniform("band"),
+        ],
+        workgroup_size: TILE,
+        overrides: &[
+            "DISTORTED",
+            "WINDOW_W",
+            "WINDOW_H",
+            "CHANNELS",
+            "AGGREGATION",
+            "SCORING",
+            "BEST_N",
+            "WINDOW_MODE",
+            "HALF_BEST_N",
+            "PAIRED",
+            "VOLUME",
+        ],
+    },
+    StageInfo {
+        name: "finalize",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            read("rays"),
+            read("planes"),
+            read("state"),
+            read_write("maps"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED"],
+    },
+    StageInfo {
+        name: "median",
+        entry_point: "main",
+        bindings: &[uniform("params"), read_write("maps")],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED"],
+    },
+    StageInfo {
+        name: "splat",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            uniform("cameras"),
+            read("rays"),
+            read("maps"),
+            read_write("zbuffer"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED"],
+    },
+    StageInfo {
+        name: "visibility",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            uniform("cameras"),
+            read("rays"),
+            read("zbuffer"),
+            read_write("maps"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED"],
+    },
+    StageInfo {
+        name: "sgm",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            dynamic("sgm_pass"),
+            uniform("cameras"),
+            read("images"),
+            read("volume"),
+            read_write("sums"),
+            read_write("line_costs"),
+            uniform("band"),
+        ],
+        workgroup_size: None,
+        overrides: &["DISTORTED", "SGM_LANES", "LINE_PER_INVOCATION"],
+    },
+    StageInfo {
+        name: "sgm_select",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            read("sums"),
+            read_write("state"),
+            uniform("band"),
+        ],
+        workgroup_size: TILE,
+        overrides: &["DISTORTED"],
+    },
+];
