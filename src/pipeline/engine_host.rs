@@ -8,14 +8,12 @@ use std::sync::Arc;
 use super::outcome::{Job, Skip, SkipKind};
 use super::outputs::{process_job, FrameOutputs};
 use crate::engine::{Device, Engine, EngineError};
-use crate::gpu_context::{GpuContext, GpuContextError};
+use crate::gpu_context::GpuContext;
 use crate::sweep::{CancelFlag, SweepParams};
 
-/// Why no engine could be made.
+/// Why no engine could be made (the device, or the engine on it).
 #[derive(Debug, thiserror::Error)]
 pub enum HostError {
-    #[error(transparent)]
-    Context(#[from] GpuContextError),
     #[error(transparent)]
     Engine(#[from] EngineError),
 }
