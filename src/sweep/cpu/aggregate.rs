@@ -9,7 +9,7 @@ use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
 /// The vertical window sums slide down the rows and are summed anew every this many rows.
-const RESTART_ROWS: usize = 16;
+pub const RESTART_ROWS: usize = 16;
 
 const SEL_NONE: u8 = 0;
 const SEL_LEFT: u8 = 1;
@@ -105,6 +105,8 @@ pub struct RowScorer {
     window_scores: Vec<f32>,
     window_sels: Vec<u8>,
     next_top: isize,
+    /// First output row of the band being scored: the vertical sums start anew there.
+    band_start: usize,
     windows: Windows,
     /// channel x row set x padded: vertical sums and counts.
     sums: Vec<f32>,
@@ -136,6 +138,7 @@ impl RowScorer {
             window_scores: vec![0.0; ring_rows * padded],
             window_sels: vec![0; ring_rows * padded],
             next_top: 0,
+            band_start: 0,
             windows,
             sums: vec![0.0; channels * 2 * padded],
             counts: vec![0.0; channels * 2 * padded],
@@ -152,6 +155,13 @@ impl RowScorer {
             left_best: ranks(p.half_best_n as usize),
             right_best: ranks(p.half_best_n as usize),
         }
+    }
+
+    /// Starts a band of output rows at `y0`: its first row sums its windows anew (no sliding
+    /// from a row of another band), and the shiftable window rows start above it.
+    pub fn begin(&mut self, y0: usize) {
+        self.band_start = y0;
+        self.next_top = y0 as isize - self.windows.h as isize + 1;
     }
 
     /// Scores output row `y` from the horizontal sums in `ring` (rows of the image `height`):
@@ -179,7 +189,7 @@ impl RowScorer {
         let rows = |from: isize| (from.max(0) as usize).min(height);
         // Sliding by one row: drop the row that left the window, add the one that entered;
         // summed anew (in the shader's order) every RESTART_ROWS rows so rounding cannot drift.
-        let slide = !y.is_multiple_of(RESTART_ROWS);
+        let slide = !y.is_multiple_of(RESTART_ROWS) && y != self.band_start;
         for ch in 0..channels {
             for (set, &ay) in anchors.iter().enumerate().take(row_sets) {
                 let at = (ch * 2 + set) * padded;
@@ -239,9 +249,6 @@ impl RowScorer {
         sel: &mut [u8],
     ) {
         let h = self.windows.h as isize;
-        if y == 0 {
-            self.next_top = 1 - h;
-        }
         while self.next_top <= y as isize {
             self.score_window_row(plan, ring, self.next_top, height);
             self.next_top += 1;
@@ -281,7 +288,8 @@ impl RowScorer {
         let padded = self.padded;
         let h = self.windows.h as isize;
         let rows = |from: isize| (from.max(0) as usize).min(height);
-        let slide = (top + h - 1) % RESTART_ROWS as isize != 0;
+        let slide =
+            (top + h - 1) % RESTART_ROWS as isize != 0 && top != self.band_start as isize - h + 1;
         for ch in 0..channels {
             let at = ch * 2 * padded;
             let sums = &mut self.sums[at..at + padded];

@@ -4,9 +4,10 @@
 //! tolerances of `tests/gpu_vs_cpu.rs`.
 //!
 //! Where the GPU runs one dispatch per stage over the whole image, the CPU fuses a plane's
-//! cost, window sums and scoring row by row (`plane.rs`) so the working set stays in cache, and
-//! runs the planes in parallel; the winner-take-all state and the SGM volume are then updated in
-//! plane order, pixels in parallel.
+//! cost, window sums and scoring row by row (`plane.rs`) so the working set stays in cache. Bands
+//! of rows run in parallel, each sweeping every plane in order and updating its pixels'
+//! winner-take-all state and SGM volume levels right after each plane, while the scores are in
+//! cache (no per-plane score images travel through memory).
 
 pub mod aggregate;
 pub mod boxes;
@@ -69,9 +70,6 @@ pub struct CpuTrace {
     pub zbuffer: Vec<u32>,
 }
 
-/// Bytes of per-plane scores a batch may hold (planes run in parallel within a batch).
-const BATCH_BUDGET_BYTES: usize = 64 << 20;
-
 /// The CPU plane-sweep engine. It keeps the plan of the last rig and parameters.
 #[derive(Debug)]
 pub struct CpuEngine {
@@ -88,8 +86,6 @@ struct Buffers {
     volume: Vec<u16>,
     forward: Vec<u16>,
     backward: Vec<u16>,
-    scores: Vec<f32>,
-    sels: Vec<u8>,
 }
 
 impl Default for CpuEngine {
@@ -208,59 +204,67 @@ impl CpuEngine {
             volume = vec![sgm::PAD; npix * stride];
         }
         let mut state = WtaState::new(npix);
-        let batch = (BATCH_BUDGET_BYTES / (npix * 5).max(1)).clamp(1, planes);
-        let mut scores = std::mem::take(&mut self.buffers.scores);
-        let mut sels = std::mem::take(&mut self.buffers.sels);
-        scores.resize(batch * npix, 0.0);
-        sels.resize(batch * npix, 0);
+        let width = p.width as usize;
+        let height = p.height as usize;
+        let (up, down) = aggregate::Windows::of(plan).reach();
+        let band = band_rows(height, rayon::current_num_threads(), up + down);
         let levels_per_unit = p.sgm_levels_per_unit;
         let cancel = self.cancel.clone();
-        for first in (0..planes).step_by(batch) {
-            let count = batch.min(planes - first);
-            scores[..count * npix]
-                .par_chunks_mut(npix)
-                .zip(sels[..count * npix].par_chunks_mut(npix))
-                .enumerate()
-                .for_each_init(
-                    || PlaneScratch::new(plan),
-                    |scratch, (z, (score, sel))| {
-                        if cancel.is_cancelled() {
-                            return;
-                        }
-                        let k = first + z;
-                        plane::sweep_plane(plan, &frame, &mappings[k], k, scratch, score, sel);
-                    },
+        // Bands of rows in parallel, each sweeping every plane in order: the winner-take-all
+        // state and the volume levels of a band are updated while its scores are in cache,
+        // with the planes in the shader's order (no per-plane score images in memory).
+        let sweep_band = |scratch: &mut BandScratch,
+                          b: usize,
+                          st: &mut select::WtaChunk<'_>,
+                          mut vol: Option<&mut [u16]>| {
+            let rows = b * band..((b + 1) * band).min(height);
+            let len = rows.len() * width;
+            for (k, plane_mappings) in mappings.iter().enumerate() {
+                if cancel.is_cancelled() {
+                    return;
+                }
+                let (score, sel) = (&mut scratch.score[..len], &mut scratch.sel[..len]);
+                plane::sweep_plane(
+                    plan,
+                    &frame,
+                    plane_mappings,
+                    k,
+                    rows.clone(),
+                    &mut scratch.plane,
+                    score,
+                    sel,
                 );
-            clock.lap("sweep");
-            cancel.check()?;
-            // The planes of the batch in order: winner-take-all, and the volume levels.
-            let chunk = 2048;
-            let (scores, sels) = (&scores, &sels);
-            let batch = Batch {
-                first,
-                count,
-                npix,
-                stride,
-                levels_per_unit,
-            };
-            let merge = |c: usize, st: &mut select::WtaChunk<'_>, vol: Option<&mut [u16]>| {
-                merge_batch(&batch, c * chunk, scores, sels, st, vol)
-            };
-            let mut chunks = state.chunks_mut(chunk);
-            if sgm {
-                chunks
-                    .par_iter_mut()
-                    .zip(volume.par_chunks_mut(chunk * stride))
-                    .enumerate()
-                    .for_each(|(c, (st, vol))| merge(c, st, Some(vol)));
-            } else {
-                chunks
-                    .par_iter_mut()
-                    .enumerate()
-                    .for_each(|(c, st)| merge(c, st, None));
+                st.update(k as f32, score, sel);
+                if let Some(vol) = vol.as_deref_mut() {
+                    write_levels(levels_per_unit, stride, k, score, vol);
+                }
             }
-            clock.lap("select");
+        };
+        let new_scratch = || BandScratch {
+            plane: PlaneScratch::new(plan),
+            score: vec![0.0; band * width],
+            sel: vec![0; band * width],
+        };
+        let mut chunks = state.chunks_mut(band * width);
+        if sgm {
+            chunks
+                .par_iter_mut()
+                .zip(volume.par_chunks_mut(band * width * stride))
+                .enumerate()
+                .for_each_init(new_scratch, |scratch, (b, (st, vol))| {
+                    sweep_band(scratch, b, st, Some(vol))
+                });
+        } else {
+            chunks
+                .par_iter_mut()
+                .enumerate()
+                .for_each_init(new_scratch, |scratch, (b, st)| {
+                    sweep_band(scratch, b, st, None)
+                });
         }
+        drop(chunks);
+        clock.lap("sweep");
+        cancel.check()?;
 
         // The rest of the plan's schedule (the sweep above is its first phase).
         let mut maps = Maps::new(npix);
@@ -311,8 +315,6 @@ impl CpuEngine {
         }
         self.timings = clock.timings();
         self.buffers.volume = volume;
-        self.buffers.scores = scores;
-        self.buffers.sels = sels;
         Ok(CpuTrace {
             maps: maps.data,
             zbuffer,
@@ -352,45 +354,30 @@ impl StageClock {
     }
 }
 
-/// A batch of planes, merged into the selection state and the volume.
-struct Batch {
-    first: usize,
-    count: usize,
-    npix: usize,
-    stride: usize,
-    levels_per_unit: f32,
+/// Rows per band: a multiple of the window sums' restart interval (so the sums are the same
+/// floats whatever the banding), and bands enough for the threads to balance: four per thread
+/// when a band's windows reach few rows beyond it, two when they reach more (the halo rows'
+/// costs are made by both bands beside them, so fewer, taller bands waste less).
+fn band_rows(height: usize, threads: usize, halo_rows: usize) -> usize {
+    const STEP: usize = aggregate::RESTART_ROWS;
+    let per_thread = if halo_rows <= 2 { 4 } else { 2 };
+    let target = height.div_ceil(per_thread * threads.max(1));
+    target.div_ceil(STEP).max(1) * STEP
+}
+
+/// One band worker's scratch: the plane sweep's rows and the band's scores of one plane.
+struct BandScratch {
+    plane: PlaneScratch,
+    score: Vec<f32>,
+    sel: Vec<u8>,
 }
 
 common::vectorised_fn! {
-/// The batch's planes in order into the winner-take-all state of the pixels `start..` of `st`,
-/// and their volume levels into `vol` (optimizer sgm).
-fn merge_batch(
-    b: &Batch,
-    start: usize,
-    scores: &[f32],
-    sels: &[u8],
-    st: &mut select::WtaChunk<'_>,
-    vol: Option<&mut [u16]>,
-) {
-    let len = st.best.len();
-    for z in 0..b.count {
-        let at = z * b.npix + start;
-        st.update((b.first + z) as f32, &scores[at..at + len], &sels[at..at + len]);
-    }
-    if let Some(vol) = vol {
-        // Blocks of 16 pixels: their volume rows (16 x stride lanes) stay in L1 while every
-        // plane of the batch fills its lane, and each plane's scores are read 16 at a time.
-        const BLOCK: usize = 16;
-        for block in (0..len).step_by(BLOCK) {
-            let pixels = BLOCK.min(len - block);
-            for z in 0..b.count {
-                let at = z * b.npix + start + block;
-                for (i, &score) in scores[at..at + pixels].iter().enumerate() {
-                    vol[(block + i) * b.stride + b.first + z] =
-                        sgm::volume_level(b.levels_per_unit, score);
-                }
-            }
-        }
+/// Plane `k`'s volume levels of a band's pixels (optimizer sgm): lane k of each pixel's
+/// `stride` lanes.
+fn write_levels(levels_per_unit: f32, stride: usize, k: usize, scores: &[f32], vol: &mut [u16]) {
+    for (lanes, &score) in vol.chunks_exact_mut(stride).zip(scores) {
+        lanes[k] = sgm::volume_level(levels_per_unit, score);
     }
 }
 }

@@ -1,8 +1,8 @@
 //! One plane, top to bottom: the CPU's fused form of a batch's cost -> box_h -> box_v ->
 //! aggregate dispatches. Each reference row's costs are made once (`cost.rs`), summed along the
 //! row into a ring (`boxes.rs`), and every output row whose windows are complete is scored
-//! (`aggregate.rs`). The working set is a few rows, so it stays in cache; planes run in
-//! parallel.
+//! (`aggregate.rs`). The working set is a few rows, so it stays in cache; bands of rows run in
+//! parallel (`mod.rs`).
 
 use super::aggregate::{RowScorer, Windows};
 use super::boxes::{BoxH, RowRing};
@@ -55,13 +55,17 @@ pub struct FrameImages {
 }
 
 vectorised_fn! {
-/// Sweeps plane `k`: the best placement's score and selection code of every reference pixel
-/// into `score` and `sel` (the `best` argument of `select_plane`).
+/// Sweeps plane `k` over the band of reference rows `rows`: the best placement's score and
+/// selection code of every pixel of the band into `score` and `sel` (row-major from the band's
+/// first row; the `best` argument of `select_plane`). The costs of the rows the band's windows
+/// reach above and below it are made too (a band's halo).
+#[allow(clippy::too_many_arguments)]
 pub fn sweep_plane(
     plan: &SweepPlan,
     images: &FrameImages,
     mappings: &[Mapping],
     k: usize,
+    rows: std::ops::Range<usize>,
     scratch: &mut PlaneScratch,
     score: &mut [f32],
     sel: &mut [u8],
@@ -69,15 +73,16 @@ pub fn sweep_plane(
     let p = &plan.params;
     let (width, height) = (p.width as usize, p.height as usize);
     let windows = Windows::of(plan);
-    let (_, down) = windows.reach();
-    let mut next_row = 0;
-    for y in 0..height {
+    let (up, down) = windows.reach();
+    let mut next_row = rows.start.saturating_sub(up);
+    scratch.scorer.begin(rows.start);
+    for y in rows.clone() {
         let needed = (y + down + 1).min(height);
         while next_row < needed {
             cost_row(plan, images, mappings, k, next_row, scratch);
             next_row += 1;
         }
-        let at = y * width;
+        let at = (y - rows.start) * width;
         scratch.scorer.score_row(
             plan,
             &scratch.ring,
