@@ -234,7 +234,7 @@ impl CpuEngine {
                     score,
                     sel,
                 );
-                st.update(k as f32, score, sel);
+                select_plane(k as f32, score, sel, st);
                 if let Some(vol) = vol.as_deref_mut() {
                     write_levels(levels_per_unit, stride, k, score, vol);
                 }
@@ -370,6 +370,14 @@ struct BandScratch {
     plane: PlaneScratch,
     score: Vec<f32>,
     sel: Vec<u8>,
+}
+
+common::vectorised_fn! {
+/// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
+/// where the CPU has it, as every hot loop here).
+fn select_plane(k: f32, scores: &[f32], sels: &[u8], st: &mut select::WtaChunk<'_>) {
+    st.update(k, scores, sels);
+}
 }
 
 common::vectorised_fn! {

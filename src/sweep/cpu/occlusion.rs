@@ -72,10 +72,7 @@ fn splat_camera(plan: &SweepPlan, cam: &GpuCamera, median: &[f32], section: &mut
 
 /// Counts the cameras that see each pixel and invalidates those seen by too few.
 pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut Maps) {
-    let params = &plan.params;
     let width = plan.width as usize;
-    let ref_index = params.reference;
-    let tolerance = params.occlusion_tolerance;
     let [_, median, depth_out, confidence, _, selection, visible] = maps.sections_mut();
     let median = &*median;
     depth_out
@@ -85,38 +82,70 @@ pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut Maps) {
         .zip(visible.par_chunks_mut(width))
         .enumerate()
         .for_each(|(y, (((depth_out, confidence), selection), visible))| {
-            for x in 0..width {
-                let pix = y * width + x;
-                let depth = median[pix];
-                if depth.is_nan() {
-                    depth_out[x] = depth;
-                    visible[x] = 0.0;
-                    continue;
-                }
-                let point = ref_point(plan, pix, depth);
-                let mut seen = u32::from(ref_index != NO_CAMERA);
-                for (i, cam) in plan.cameras.iter().enumerate() {
-                    if i as u32 == ref_index {
-                        continue;
-                    }
-                    let projected = project(cam, point);
-                    if let Some(index) = nearest_texel(cam, projected) {
-                        let stored = zbuffer[index];
-                        if stored == 0
-                            || projected[2] <= f32::from_bits(!stored) * (1.0 + tolerance)
-                        {
-                            seen += 1;
-                        }
-                    }
-                }
-                visible[x] = seen as f32;
-                if seen < params.min_visible {
-                    depth_out[x] = f32::NAN;
-                    confidence[x] = 0.0;
-                    selection[x] = 3.0;
-                } else {
-                    depth_out[x] = depth;
+            let row = VisibilityRow {
+                depth_out,
+                confidence,
+                selection,
+                visible,
+            };
+            visibility_row(plan, zbuffer, median, y, row);
+        });
+}
+
+/// One reference row's outputs of the visibility stage.
+struct VisibilityRow<'a> {
+    depth_out: &'a mut [f32],
+    confidence: &'a mut [f32],
+    selection: &'a mut [f32],
+    visible: &'a mut [f32],
+}
+
+vectorised_fn! {
+/// The visibility of reference row `y` (compiled for AVX2+FMA where the CPU has it: the
+/// projections are most of the stage).
+fn visibility_row(plan: &SweepPlan, zbuffer: &[u32], median: &[f32], y: usize, row: VisibilityRow<'_>) {
+    let params = &plan.params;
+    let width = plan.width as usize;
+    let ref_index = params.reference;
+    let tolerance = params.occlusion_tolerance;
+    let VisibilityRow {
+        depth_out,
+        confidence,
+        selection,
+        visible,
+    } = row;
+    for x in 0..width {
+        let pix = y * width + x;
+        let depth = median[pix];
+        if depth.is_nan() {
+            depth_out[x] = depth;
+            visible[x] = 0.0;
+            continue;
+        }
+        let point = ref_point(plan, pix, depth);
+        let mut seen = u32::from(ref_index != NO_CAMERA);
+        for (i, cam) in plan.cameras.iter().enumerate() {
+            if i as u32 == ref_index {
+                continue;
+            }
+            let projected = project(cam, point);
+            if let Some(index) = nearest_texel(cam, projected) {
+                let stored = zbuffer[index];
+                if stored == 0
+                    || projected[2] <= f32::from_bits(!stored) * (1.0 + tolerance)
+                {
+                    seen += 1;
                 }
             }
-        });
+        }
+        visible[x] = seen as f32;
+        if seen < params.min_visible {
+            depth_out[x] = f32::NAN;
+            confidence[x] = 0.0;
+            selection[x] = 3.0;
+        } else {
+            depth_out[x] = depth;
+        }
+    }
+}
 }
