@@ -11,14 +11,16 @@ use crate::sweep::plan::SweepPlan;
 /// The vertical window sums slide down the rows and are summed anew every this many rows.
 pub const RESTART_ROWS: usize = 16;
 
-const SEL_NONE: u8 = 0;
-const SEL_LEFT: u8 = 1;
-const SEL_RIGHT: u8 = 2;
+// Selection codes as f32, the type the winner-take-all state keeps them in (one lane width
+// with the scores, so the loops that carry both vectorise).
+const SEL_NONE: f32 = 0.0;
+const SEL_LEFT: f32 = 1.0;
+const SEL_RIGHT: f32 = 2.0;
 
 /// Twin of `half_decisions`: the better half by at least `margin` of the worse score, and never
 /// by less than `margin` of HALF_NOISE_FLOOR.
 #[inline(always)]
-fn half_decision(margin: f32, left: f32, right: f32) -> u8 {
+fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
     let is_left =
         left < BIG && (right >= BIG || (right - left) > margin * right.max(HALF_NOISE_FLOOR));
     let is_right =
@@ -103,7 +105,7 @@ pub struct RowScorer {
     /// Shiftable windows: the scores and selection codes of the last `h` window rows (by top
     /// row), `padded` each, and the top row of the next window row to score.
     window_scores: Vec<f32>,
-    window_sels: Vec<u8>,
+    window_sels: Vec<f32>,
     next_top: isize,
     /// First output row of the band being scored: the vertical sums start anew there.
     band_start: usize,
@@ -113,7 +115,7 @@ pub struct RowScorer {
     counts: Vec<f32>,
     mean: Vec<f32>,
     lane_score: Vec<f32>,
-    lane_sel: Vec<u8>,
+    lane_sel: Vec<f32>,
     carry: Vec<f32>,
     acc: [Vec<f32>; 6],
     best: Vec<Vec<f32>>,
@@ -136,7 +138,7 @@ impl RowScorer {
             padded,
             span,
             window_scores: vec![0.0; ring_rows * padded],
-            window_sels: vec![0; ring_rows * padded],
+            window_sels: vec![0.0; ring_rows * padded],
             next_top: 0,
             band_start: 0,
             windows,
@@ -144,7 +146,7 @@ impl RowScorer {
             counts: vec![0.0; channels * 2 * padded],
             mean: vec![0.0; span],
             lane_score: vec![0.0; span],
-            lane_sel: vec![0; span],
+            lane_sel: vec![0.0; span],
             carry: vec![0.0; span],
             acc: std::array::from_fn(|_| vec![0.0; span]),
             best: ranks(if p.scoring == SCORING_BEST_N {
@@ -174,7 +176,7 @@ impl RowScorer {
         y: usize,
         height: usize,
         score: &mut [f32],
-        sel: &mut [u8],
+        sel: &mut [f32],
     ) {
         if self.windows.shiftable {
             self.score_row_shiftable(plan, ring, y, height, score, sel);
@@ -221,16 +223,7 @@ impl RowScorer {
                 sel.copy_from_slice(&self.lane_sel);
             } else {
                 // First lane on ties, as `best_placement`.
-                for (((s, e), &ls), &le) in score
-                    .iter_mut()
-                    .zip(sel.iter_mut())
-                    .zip(&self.lane_score)
-                    .zip(&self.lane_sel)
-                {
-                    let better = ls < *s;
-                    *s = if better { ls } else { *s };
-                    *e = if better { le } else { *e };
-                }
+                take_better(score, sel, &self.lane_score, &self.lane_sel);
             }
         }
     }
@@ -246,7 +239,7 @@ impl RowScorer {
         y: usize,
         height: usize,
         score: &mut [f32],
-        sel: &mut [u8],
+        sel: &mut [f32],
     ) {
         let h = self.windows.h as isize;
         while self.next_top <= y as isize {
@@ -265,16 +258,7 @@ impl RowScorer {
                 &self.window_scores[at..at + width],
                 &self.window_sels[at..at + width],
             );
-            for (((s, e), &ls), &le) in score
-                .iter_mut()
-                .zip(sel.iter_mut())
-                .zip(lane_score)
-                .zip(lane_sel)
-            {
-                let better = ls < *s;
-                *s = if better { ls } else { *s };
-                *e = if better { le } else { *e };
-            }
+            take_better(score, sel, lane_score, lane_sel);
         }
     }
 
@@ -431,6 +415,23 @@ impl RowScorer {
                 *sel = SEL_NONE;
             }
         }
+    }
+}
+
+/// Where a lane's score is lower than the best so far, takes its score and selection (the first
+/// lane stays on ties). Every operand is loaded before the choice, so the loop is two blends.
+#[inline(always)]
+fn take_better(score: &mut [f32], sel: &mut [f32], lane_score: &[f32], lane_sel: &[f32]) {
+    let n = score.len();
+    let (sel, lane_score, lane_sel) = (&mut sel[..n], &lane_score[..n], &lane_sel[..n]);
+    for i in 0..n {
+        let (best, best_sel, candidate, candidate_sel) =
+            (score[i], sel[i], lane_score[i], lane_sel[i]);
+        let better = candidate < best;
+        // The same value as `if better { candidate } else { best }` for non-NaN scores, as an
+        // unconditional min (a select here becomes a masked store).
+        score[i] = fmin(best, candidate);
+        sel[i] = if better { candidate_sel } else { best_sel };
     }
 }
 

@@ -42,7 +42,12 @@ impl BoxH {
     pub fn run(&mut self, costs: &[f32], sums: &mut [f32], counts: &mut [f32]) {
         let width = costs.len();
         let padded = width + self.w - 1;
-        if costs.iter().all(|&c| c >= 0.0) {
+        // Every cost valid? (No early exit: the whole-row and of the tests vectorises.)
+        let mut all_valid = true;
+        for &c in costs {
+            all_valid &= c >= 0.0;
+        }
+        if all_valid {
             counts[..padded].copy_from_slice(&self.full_counts[..padded]);
             self.sums(costs, sums);
             return;

@@ -243,7 +243,7 @@ impl CpuEngine {
         let new_scratch = || BandScratch {
             plane: PlaneScratch::new(plan),
             score: vec![0.0; band * width],
-            sel: vec![0; band * width],
+            sel: vec![0.0; band * width],
         };
         let mut chunks = state.chunks_mut(band * width);
         if sgm {
@@ -369,13 +369,13 @@ fn band_rows(height: usize, threads: usize, halo_rows: usize) -> usize {
 struct BandScratch {
     plane: PlaneScratch,
     score: Vec<f32>,
-    sel: Vec<u8>,
+    sel: Vec<f32>,
 }
 
 common::vectorised_fn! {
 /// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
 /// where the CPU has it, as every hot loop here).
-fn select_plane(k: f32, scores: &[f32], sels: &[u8], st: &mut select::WtaChunk<'_>) {
+fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>) {
     st.update(k, scores, sels);
 }
 }

@@ -68,7 +68,7 @@ pub fn sweep_plane(
     rows: std::ops::Range<usize>,
     scratch: &mut PlaneScratch,
     score: &mut [f32],
-    sel: &mut [u8],
+    sel: &mut [f32],
 ) {
     let p = &plan.params;
     let (width, height) = (p.width as usize, p.height as usize);

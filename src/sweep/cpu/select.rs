@@ -127,7 +127,7 @@ impl<'a> WtaChunk<'a> {
     /// `select_plane` for plane `k` on every pixel of the chunk: `cost[i]` and `sel[i]` are
     /// pixel i's aggregated score and selection code. Branch-free, so it vectorises.
     #[inline(always)]
-    pub fn update(&mut self, k: f32, cost: &[f32], sel: &[u8]) {
+    pub fn update(&mut self, k: f32, cost: &[f32], sel: &[f32]) {
         let n = self.best.len();
         update_fields(
             k,
@@ -153,7 +153,7 @@ impl<'a> WtaChunk<'a> {
 fn update_fields(
     k: f32,
     cost: &[f32],
-    sel: &[u8],
+    sel: &[f32],
     best: &mut [f32],
     best_plane: &mut [f32],
     before: &mut [f32],
@@ -180,33 +180,25 @@ fn update_fields(
         &mut selection[..n],
     );
     for i in 0..n {
-        let c = cost[i];
-        let new_best = c < best[i];
-        let next_to_best = k == best_plane[i] + 1.0;
-        rival[i] = if new_best {
-            min_to_second_last[i]
-        } else if next_to_best {
-            rival[i]
-        } else {
-            fmin(rival[i], c)
-        };
-        after[i] = if new_best {
-            BIG
-        } else if next_to_best {
-            c
-        } else {
-            after[i]
-        };
-        before[i] = if new_best { last[i] } else { before[i] };
-        best_plane[i] = if new_best { k } else { best_plane[i] };
-        selection[i] = if new_best {
-            f32::from(sel[i])
-        } else {
-            selection[i]
-        };
-        best[i] = if new_best { c } else { best[i] };
-        min_to_second_last[i] = min_to_last[i];
-        min_to_last[i] = fmin(min_to_last[i], c);
+        // Every field loaded first, each store a plain two-way choice between loaded values
+        // (a choice that may keep the stored value in place becomes a masked store, and the
+        // loop then stays scalar).
+        let (c, s) = (cost[i], sel[i]);
+        let (b, plane, r, a, bf) = (best[i], best_plane[i], rival[i], after[i], before[i]);
+        let (m1, m2, l, se) = (min_to_last[i], min_to_second_last[i], last[i], selection[i]);
+        let new_best = c < b;
+        let next_to_best = k == plane + 1.0;
+        let rival_kept = if next_to_best { r } else { fmin(r, c) };
+        let after_kept = if next_to_best { c } else { a };
+        rival[i] = if new_best { m2 } else { rival_kept };
+        after[i] = if new_best { BIG } else { after_kept };
+        before[i] = if new_best { l } else { bf };
+        best_plane[i] = if new_best { k } else { plane };
+        selection[i] = if new_best { s } else { se };
+        // `if new_best { c } else { b }` for non-NaN scores.
+        best[i] = fmin(b, c);
+        min_to_second_last[i] = m1;
+        min_to_last[i] = fmin(m1, c);
         last[i] = c;
     }
 }
