@@ -236,7 +236,17 @@ impl CpuEngine {
                 );
                 select_plane(k as f32, score, sel, st);
                 if let Some(vol) = vol.as_deref_mut() {
-                    write_levels(levels_per_unit, stride, k, score, vol);
+                    // Levels of a group of planes are gathered plane by plane, then written
+                    // pixel by pixel (each pixel's group of lanes at once: the band's volume
+                    // is far larger than the cache, so a lane at a time would pull every
+                    // pixel's lanes in once per plane).
+                    let g = k % LEVEL_GROUP;
+                    let levels = &mut scratch.levels[g * len..(g + 1) * len];
+                    volume_levels(levels_per_unit, score, levels);
+                    if g + 1 == LEVEL_GROUP || k + 1 == planes {
+                        let first = k - g;
+                        write_level_group(&scratch.levels, len, stride, first, g + 1, vol);
+                    }
                 }
             }
         };
@@ -244,6 +254,11 @@ impl CpuEngine {
             plane: PlaneScratch::new(plan),
             score: vec![0.0; band * width],
             sel: vec![0.0; band * width],
+            levels: if sgm {
+                vec![0; LEVEL_GROUP * band * width]
+            } else {
+                Vec::new()
+            },
         };
         let mut chunks = state.chunks_mut(band * width);
         if sgm {
@@ -370,7 +385,13 @@ struct BandScratch {
     plane: PlaneScratch,
     score: Vec<f32>,
     sel: Vec<f32>,
+    /// SGM volume levels of up to LEVEL_GROUP planes, plane-major.
+    levels: Vec<u16>,
 }
+
+/// Planes whose volume levels a band gathers before writing them into the pixels' lanes: one
+/// SIMD group of the SGM volume (a multiple of it divides every stride).
+const LEVEL_GROUP: usize = sgm::LANES;
 
 common::vectorised_fn! {
 /// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
@@ -381,11 +402,29 @@ fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<
 }
 
 common::vectorised_fn! {
-/// Plane `k`'s volume levels of a band's pixels (optimizer sgm): lane k of each pixel's
-/// `stride` lanes.
-fn write_levels(levels_per_unit: f32, stride: usize, k: usize, scores: &[f32], vol: &mut [u16]) {
-    for (lanes, &score) in vol.chunks_exact_mut(stride).zip(scores) {
-        lanes[k] = sgm::volume_level(levels_per_unit, score);
+/// One plane's scores as SGM volume levels.
+fn volume_levels(levels_per_unit: f32, scores: &[f32], levels: &mut [u16]) {
+    for (level, &score) in levels.iter_mut().zip(scores) {
+        *level = sgm::volume_level(levels_per_unit, score);
+    }
+}
+}
+
+common::vectorised_fn! {
+/// The levels of planes `first..first + count` (plane-major in `levels`, `len` pixels each)
+/// into lanes `first..` of each pixel's `stride` lanes of `vol`.
+fn write_level_group(
+    levels: &[u16],
+    len: usize,
+    stride: usize,
+    first: usize,
+    count: usize,
+    vol: &mut [u16],
+) {
+    for (i, lanes) in vol.chunks_exact_mut(stride).take(len).enumerate() {
+        for (g, lane) in lanes[first..first + count].iter_mut().enumerate() {
+            *lane = levels[g * len + i];
+        }
     }
 }
 }
