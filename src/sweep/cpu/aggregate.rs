@@ -348,7 +348,10 @@ impl RowScorer {
     fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
         let p = &plan.params;
         let halves = p.scoring == SCORING_HALF || p.scoring == SCORING_BEST_N;
-        for a in &mut self.acc {
+        // Half-sequence scoring reads only the halves' sums: the all-pairs sum is not made.
+        let all_pairs = p.scoring != SCORING_HALF;
+        let first_acc = if all_pairs { 0 } else { 2 };
+        for a in &mut self.acc[first_acc..] {
             a.fill(0.0);
         }
         for list in [&mut self.best, &mut self.left_best, &mut self.right_best] {
@@ -360,7 +363,9 @@ impl RowScorer {
             self.means(pair, set, offset);
             let half = info[2];
             let [sum, count, left_sum, left_count, right_sum, right_count] = &mut self.acc;
-            add_seen(&self.mean, sum, count);
+            if all_pairs {
+                add_seen(&self.mean, sum, count);
+            }
             if halves && half == HALF_LEFT {
                 add_seen(&self.mean, left_sum, left_count);
                 bubble(&mut self.left_best, &self.mean, &mut self.carry);
