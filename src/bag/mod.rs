@@ -3,10 +3,12 @@
 //! [`report`]: what it did) and `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
 
 pub mod pack;
+pub mod pace;
 pub mod process;
 pub mod reader;
 pub mod report;
-pub mod schemas;
+/// The message definitions (shared with `viewer/`).
+pub use crate::msgdefs as schemas;
 pub mod writer;
 
 use std::path::{Path, PathBuf};
