@@ -63,7 +63,11 @@ impl Harness {
     fn start(extra: &[&str]) -> Harness {
         let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
         let rig = synthetic::row_rig(CAMERAS, 0.1, model, 1).expect("rig");
-        let scene = Scene::wall_and_box(2.0, Some((1.2, 0.2)), synthetic::intrinsics(WIDTH, HEIGHT).fx_px);
+        let scene = Scene::wall_and_box(
+            2.0,
+            Some((1.2, 0.2)),
+            synthetic::intrinsics(WIDTH, HEIGHT).fx_px,
+        );
         let images = synthetic::render_rig(&scene, &rig);
         let mut args = vec![
             "-p",
@@ -118,10 +122,7 @@ fn http_get(port: u16, path: &str) -> (String, Vec<u8>) {
 }
 
 fn same_as_dds() {
-    let mut h = Harness::start(&[
-        "publish_points:=true",
-        &format!("foxglove_port:={PORT}"),
-    ]);
+    let mut h = Harness::start(&["publish_points:=true", &format!("foxglove_port:={PORT}")]);
     let depth_sub = h
         .peer
         .subscription::<Image>("/depth/image", dds::IMAGE, &dds::reliable(50));
@@ -150,7 +151,8 @@ fn same_as_dds() {
         };
         assert_eq!(c.schema_name, expected, "{topic}");
         assert!(
-            c.schema.starts_with("std_msgs/Header header\n") && c.schema.contains("MSG: builtin_interfaces/Time"),
+            c.schema.starts_with("std_msgs/Header header\n")
+                && c.schema.contains("MSG: builtin_interfaces/Time"),
             "{topic}: the full ros2msg definition, as foxglove_bridge sends it; got {:?}",
             c.schema
         );
@@ -197,25 +199,47 @@ fn same_as_dds() {
     );
     let (ws, over_dds) = depth;
     assert_eq!(ws.header.frame_id, frame(1));
-    assert_eq!((ws.width, ws.height, ws.encoding.as_str()), (WIDTH, HEIGHT, "32FC1"));
-    assert_eq!(ws, over_dds, "the viewer's depth equals the DDS depth, byte for byte");
-    let valid = dds::depth_values(&ws).iter().filter(|z| z.is_finite()).count();
-    assert!(valid > (WIDTH * HEIGHT / 2) as usize, "{valid} valid depths");
+    assert_eq!(
+        (ws.width, ws.height, ws.encoding.as_str()),
+        (WIDTH, HEIGHT, "32FC1")
+    );
+    assert_eq!(
+        ws, over_dds,
+        "the viewer's depth equals the DDS depth, byte for byte"
+    );
+    let valid = dds::depth_values(&ws)
+        .iter()
+        .filter(|z| z.is_finite())
+        .count();
+    assert!(
+        valid > (WIDTH * HEIGHT / 2) as usize,
+        "{valid} valid depths"
+    );
     let (ws, over_dds) = points;
     assert_eq!((ws.width, ws.height), (WIDTH, HEIGHT));
-    assert_eq!(ws, over_dds, "the viewer's points equal the DDS points, byte for byte");
+    assert_eq!(
+        ws, over_dds,
+        "the viewer's points equal the DDS points, byte for byte"
+    );
 
     // The page, on the next port, from the binary (works offline).
     let (status, body) = http_get(PORT + 1, "/");
     assert!(status.contains("200"), "{status}");
     let html = String::from_utf8_lossy(&body);
-    assert!(html.contains("viewer.js") && html.contains("three.module.min.js"), "{html}");
+    assert!(
+        html.contains("viewer.js") && html.contains("three.module.min.js"),
+        "{html}"
+    );
     let (status, body) = http_get(PORT + 1, "/config.json");
     assert!(status.contains("200"), "{status}");
     let config: serde_json::Value = serde_json::from_slice(&body).expect("config.json");
     assert_eq!(config["websocket_port"], PORT);
     let (status, body) = http_get(PORT + 1, "/three.module.min.js");
-    assert!(status.contains("200") && body.len() > 100_000, "{status}, {} bytes", body.len());
+    assert!(
+        status.contains("200") && body.len() > 100_000,
+        "{status}, {} bytes",
+        body.len()
+    );
     let (status, _) = http_get(PORT + 1, "/nothing-here");
     assert!(status.contains("404"), "{status}");
 }
@@ -237,7 +261,10 @@ fn off_by_default() {
     // ... and nothing listens on the viewer's ports.
     for port in [PORT, PORT + 1, sweepdepth::viewer::DEFAULT_PORT] {
         let refused = TcpStream::connect(("127.0.0.1", port));
-        assert!(refused.is_err(), "something listens on {port} without foxglove_port");
+        assert!(
+            refused.is_err(),
+            "something listens on {port} without foxglove_port"
+        );
     }
 }
 
@@ -253,7 +280,12 @@ fn rss_kb(pid: u32) -> u64 {
 
 /// Feeds `sets` sets one at a time, each after the depth of the one before came back over DDS
 /// (closed loop: the node's own pace); returns the time they took.
-fn closed_loop(h: &mut Harness, depth_sub: &ros2_client::Subscription<Image>, first: u32, sets: u32) -> Duration {
+fn closed_loop(
+    h: &mut Harness,
+    depth_sub: &ros2_client::Subscription<Image>,
+    first: u32,
+    sets: u32,
+) -> Duration {
     let started = Instant::now();
     for k in first..first + sets {
         h.publish(k);

@@ -55,14 +55,38 @@ fn free_port_pair() -> u16 {
     panic!("no two free consecutive ports");
 }
 
+/// `GET path` as JSON. Chromium keeps the connection open: the body is read by its
+/// Content-Length.
 fn http_get_json(port: u16, path: &str) -> Option<Value> {
     let mut stream = TcpStream::connect(("127.0.0.1", port)).ok()?;
-    stream.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
-    write!(stream, "GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n").ok()?;
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .ok()?;
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n"
+    )
+    .ok()?;
     let mut response = Vec::new();
-    stream.read_to_end(&mut response).ok()?;
-    let split = response.windows(4).position(|w| w == b"\r\n\r\n")?;
-    serde_json::from_slice(&response[split + 4..]).ok()
+    let mut buf = [0u8; 8192];
+    loop {
+        let n = stream.read(&mut buf).ok()?;
+        if n == 0 {
+            return None;
+        }
+        response.extend_from_slice(&buf[..n]);
+        let Some(split) = response.windows(4).position(|w| w == b"\r\n\r\n") else {
+            continue;
+        };
+        let head = String::from_utf8_lossy(&response[..split]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length:"))
+            .and_then(|v| v.trim().parse().ok())?;
+        if response.len() >= split + 4 + length {
+            return serde_json::from_slice(&response[split + 4..split + 4 + length]).ok();
+        }
+    }
 }
 
 /// Standard base64 (the screenshot's encoding).
@@ -126,7 +150,12 @@ impl DevTools {
 }
 
 /// Pixels of `rect` (CSS px, scaled by `scale`) in `image` that differ from `background`.
-fn share_not_background(image: &image::RgbaImage, rect: &Value, scale: f64, background: [u8; 3]) -> f64 {
+fn share_not_background(
+    image: &image::RgbaImage,
+    rect: &Value,
+    scale: f64,
+    background: [u8; 3],
+) -> f64 {
     let f = |k: &str| rect[k].as_f64().unwrap_or(0.0) * scale;
     let (x0, y0) = (f("x").max(0.0) as u32, f("y").max(0.0) as u32);
     let x1 = ((f("x") + f("width")) as u32).min(image.width());
@@ -137,7 +166,9 @@ fn share_not_background(image: &image::RgbaImage, rect: &Value, scale: f64, back
         for x in x0..x1 {
             let p = image.get_pixel(x, y).0;
             total += 1;
-            let d = (0..3).map(|i| p[i].abs_diff(background[i]) as u32).sum::<u32>();
+            let d = (0..3)
+                .map(|i| p[i].abs_diff(background[i]) as u32)
+                .sum::<u32>();
             if d > 24 {
                 differ += 1;
             }
@@ -151,7 +182,8 @@ fn share_not_background(image: &image::RgbaImage, rect: &Value, scale: f64, back
 fn page_draws_the_point_cloud_of_bag_view() {
     let chromium = chromium();
     let port = free_port_pair();
-    let out_dir = std::env::temp_dir().join(format!("sweepdepth-viewer-page-{}", std::process::id()));
+    let out_dir =
+        std::env::temp_dir().join(format!("sweepdepth-viewer-page-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out_dir);
     std::fs::create_dir_all(&out_dir).expect("temp dir");
     let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
@@ -163,7 +195,13 @@ fn page_draws_the_point_cloud_of_bag_view() {
             .arg(out_dir.join("out.mcap"))
             .arg("--params-file")
             .arg(&params)
-            .args(["--view", "--view-rate", "max", "-p", &format!("foxglove_port:={port}")])
+            .args([
+                "--view",
+                "--view-rate",
+                "max",
+                "-p",
+                &format!("foxglove_port:={port}"),
+            ])
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
             .spawn()
@@ -195,7 +233,11 @@ fn page_draws_the_point_cloud_of_bag_view() {
     );
     let started = Instant::now();
     let wait = |what: &str| {
-        assert!(started.elapsed() < timeout(), "waited {:?} for {what} in vain", timeout());
+        assert!(
+            started.elapsed() < timeout(),
+            "waited {:?} for {what} in vain",
+            timeout()
+        );
         std::thread::sleep(Duration::from_millis(200));
     };
     // Chromium writes its DevTools port into the profile.
@@ -236,7 +278,8 @@ fn page_draws_the_point_cloud_of_bag_view() {
         let state = devtools.evaluate(
             "JSON.stringify({drawn: document.body && document.body.dataset.drawn || '', state: window.sweepdepthState || null, status: (document.getElementById('status')||{}).textContent || ''})",
         );
-        let state: Value = serde_json::from_str(state.as_str().unwrap_or("{}")).unwrap_or(Value::Null);
+        let state: Value =
+            serde_json::from_str(state.as_str().unwrap_or("{}")).unwrap_or(Value::Null);
         if state["drawn"] == "1" {
             break state;
         }
@@ -251,8 +294,14 @@ fn page_draws_the_point_cloud_of_bag_view() {
         std::thread::sleep(Duration::from_millis(250));
     };
     eprintln!("page state: {state}");
-    assert!(state["state"]["points"].as_u64().unwrap_or(0) > 1000, "{state}");
-    assert!(state["state"]["depthFrames"].as_u64().unwrap_or(0) >= 1, "{state}");
+    assert!(
+        state["state"]["points"].as_u64().unwrap_or(0) > 1000,
+        "{state}"
+    );
+    assert!(
+        state["state"]["depthFrames"].as_u64().unwrap_or(0) >= 1,
+        "{state}"
+    );
     assert_eq!(state["state"]["errors"], json!([]), "{state}");
 
     // Let one more animation frame paint, then look at the pixels.
@@ -272,9 +321,24 @@ fn page_draws_the_point_cloud_of_bag_view() {
     let scale = rects["scale"].as_f64().unwrap_or(1.0);
     let cloud = share_not_background(&image, &rects["cloud"], scale, [0x14, 0x16, 0x1a]);
     let depth = share_not_background(&image, &rects["depth"], scale, [0, 0, 0]);
-    eprintln!("screenshot {}: 3D view {:.1} % drawn, depth image {:.1} % coloured", saved.display(), cloud * 100.0, depth * 100.0);
-    assert!(cloud > 0.05, "the 3D view is (nearly) empty: {:.2} % of it drawn; see {}", cloud * 100.0, saved.display());
-    assert!(depth > 0.5, "the depth image is (nearly) empty: {:.2} % coloured; see {}", depth * 100.0, saved.display());
+    eprintln!(
+        "screenshot {}: 3D view {:.1} % drawn, depth image {:.1} % coloured",
+        saved.display(),
+        cloud * 100.0,
+        depth * 100.0
+    );
+    assert!(
+        cloud > 0.05,
+        "the 3D view is (nearly) empty: {:.2} % of it drawn; see {}",
+        cloud * 100.0,
+        saved.display()
+    );
+    assert!(
+        depth > 0.5,
+        "the depth image is (nearly) empty: {:.2} % coloured; see {}",
+        depth * 100.0,
+        saved.display()
+    );
 
     // `bag --view` ends cleanly on SIGTERM, its output written.
     Command::new("kill")
@@ -282,7 +346,10 @@ fn page_draws_the_point_cloud_of_bag_view() {
         .status()
         .expect("kill -TERM");
     let status = sweepdepth.0.wait().expect("wait for sweepdepth");
-    assert!(status.success(), "sweepdepth bag --view after SIGTERM: {status}");
+    assert!(
+        status.success(),
+        "sweepdepth bag --view after SIGTERM: {status}"
+    );
     assert!(out_dir.join("out.mcap").exists());
     let _ = std::fs::remove_dir_all(&out_dir);
     let _ = Path::new("");

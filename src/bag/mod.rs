@@ -2,8 +2,8 @@
 //! a rosbag2 directory), `sweepdepth bag` ([`process`]: a bag through the node's pipeline,
 //! [`report`]: what it did) and `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
 
-pub mod pack;
 pub mod pace;
+pub mod pack;
 pub mod process;
 pub mod reader;
 pub mod report;

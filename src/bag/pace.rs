@@ -81,10 +81,7 @@ mod tests {
         let t0 = Instant::now();
         assert_eq!(pacer.delay(10_000_000_000, t0), Duration::ZERO);
         // One recorded second later, at twice the rate: due half a second after the first.
-        assert_eq!(
-            pacer.delay(11_000_000_000, t0),
-            Duration::from_millis(500)
-        );
+        assert_eq!(pacer.delay(11_000_000_000, t0), Duration::from_millis(500));
         // Processing fell behind: no wait.
         assert_eq!(
             pacer.delay(11_000_000_000, t0 + Duration::from_secs(3)),

@@ -10,11 +10,11 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 use crate::pipeline::{
     ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
     PipelineConfig, Skip,
 };
+use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
 use super::pace::{Pacer, ViewRate};
 use super::report::BagReport;
@@ -173,8 +173,7 @@ impl Sink<'_> {
         let t0 = Instant::now();
         // The live view always shows the point cloud.
         let with_points = config.outputs.points.is_some() || self.viewer.is_some();
-        let result =
-            set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
+        let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
             Ok(out) => {
                 // (Points go into OUT only with publish_points: `write_outputs`.)

@@ -23,10 +23,7 @@ pub fn points_topic(topics: &OutputTopics) -> String {
     match &topics.points {
         Some(points) => points.clone(),
         None => {
-            let base = topics
-                .depth
-                .strip_suffix("depth/image")
-                .unwrap_or("/");
+            let base = topics.depth.strip_suffix("depth/image").unwrap_or("/");
             format!("{base}points")
         }
     }
@@ -68,11 +65,7 @@ fn channel(
 
 /// Encodes `msg` and logs it, only when a viewer subscribed to the channel (encoding a point
 /// cloud nobody reads would be wasted). An encoding failure is returned, not logged here.
-fn log<T: Serialize>(
-    channel: &RawChannel,
-    msg: &T,
-    log_time_ns: u64,
-) -> Result<(), ViewerError> {
+fn log<T: Serialize>(channel: &RawChannel, msg: &T, log_time_ns: u64) -> Result<(), ViewerError> {
     if !channel.has_sinks() {
         return Ok(());
     }

@@ -81,7 +81,9 @@ impl ViewerConfig {
 pub enum ViewerError {
     #[error(transparent)]
     Param(#[from] ParamError),
-    #[error("foxglove_port {0}: the page is served on the next port, so the port must be in 1..=65534")]
+    #[error(
+        "foxglove_port {0}: the page is served on the next port, so the port must be in 1..=65534"
+    )]
     Port(i64),
     #[error("foxglove_port is set, but this sweepdepth was built without the `viewer` cargo feature (build with `--features viewer`)")]
     NotBuilt,

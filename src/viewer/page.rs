@@ -50,13 +50,12 @@ fn header(name: &str, value: &str) -> Option<Header> {
 impl PageServer {
     pub(super) fn start(config: &ViewerConfig) -> Result<Self, ViewerError> {
         let port = config.page_port()?;
-        let server = Server::http((config.address.as_str(), port)).map_err(|e| {
-            ViewerError::Page {
+        let server =
+            Server::http((config.address.as_str(), port)).map_err(|e| ViewerError::Page {
                 address: config.address.clone(),
                 port,
                 reason: e.to_string(),
-            }
-        })?;
+            })?;
         let server = Arc::new(server);
         let ws_port = config.port;
         let thread = {

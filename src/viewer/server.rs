@@ -50,6 +50,8 @@ impl ServerListener for Listener {
 /// A running live view. Dropping it stops the servers and the thread.
 pub struct Viewer {
     config: ViewerConfig,
+    /// The SDK's context of the channels and the server (they hold it weakly: kept here).
+    _context: Arc<Context>,
     channels: Arc<OutputChannels>,
     latch: Arc<Latch>,
     handoff: Arc<Handoff<Offered>>,
@@ -100,6 +102,7 @@ impl Viewer {
         };
         Ok(Self {
             config: config.clone(),
+            _context: context,
             channels,
             latch,
             handoff,

@@ -122,7 +122,11 @@ impl Client {
                 Some(Err(value))
             }
             Message::Binary(bytes) => {
-                assert!(bytes.len() >= 13, "message data frame of {} bytes", bytes.len());
+                assert!(
+                    bytes.len() >= 13,
+                    "message data frame of {} bytes",
+                    bytes.len()
+                );
                 if bytes[0] != 1 {
                     return Some(Err(Value::String(format!("binary opcode {}", bytes[0]))));
                 }

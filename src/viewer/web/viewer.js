@@ -51,6 +51,15 @@ function decodeCloud(buf) {
   return { header, height, width, fields, bigEndian, pointStep, rowStep, data };
 }
 
+/** The q-quantiles of finite values (from at most 4096 evenly spread samples). */
+function quantiles(values, qs) {
+  const step = Math.max(1, Math.floor(values.length / 4096));
+  const sample = [];
+  for (let i = 0; i < values.length; i += step) if (Number.isFinite(values[i])) sample.push(values[i]);
+  sample.sort((a, b) => a - b);
+  return qs.map((q) => (sample.length ? sample[Math.min(sample.length - 1, Math.floor(q * sample.length))] : NaN));
+}
+
 // ---- 3D view ----
 const container = $('cloud');
 const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
@@ -85,14 +94,12 @@ function showCloud(cloud) {
   const view = new DataView(cloud.data.buffer, cloud.data.byteOffset, cloud.data.byteLength);
   const pos = new Float32Array(n * 3), col = new Float32Array(n * 3);
   let k = 0;
-  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
   for (let i = 0; i < n; i++) {
     const o = i * cloud.pointStep;
     if (o + cloud.pointStep > cloud.data.byteLength) break;
     const x = view.getFloat32(o + f.x, true), y = view.getFloat32(o + f.y, true), z = view.getFloat32(o + f.z, true);
     if (!Number.isFinite(x) || !Number.isFinite(y) || !Number.isFinite(z)) continue;
     pos[3 * k] = x; pos[3 * k + 1] = y; pos[3 * k + 2] = z;
-    for (const [j, v] of [x, y, z].entries()) { lo[j] = Math.min(lo[j], v); hi[j] = Math.max(hi[j], v); }
     if (f.rgb !== undefined) {
       const rgb = view.getUint32(o + f.rgb, true);
       col[3 * k] = ((rgb >> 16) & 255) / 255; col[3 * k + 1] = ((rgb >> 8) & 255) / 255; col[3 * k + 2] = (rgb & 255) / 255;
@@ -103,11 +110,18 @@ function showCloud(cloud) {
   geometry.setAttribute('color', new THREE.BufferAttribute(col.subarray(0, 3 * k), 3));
   geometry.computeBoundingSphere();
   if (!framed && k > 0) {
-    // Look from the reference camera's origin towards the cloud's centre (in three.js axes).
-    const centre = new THREE.Vector3((lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -(lo[2] + hi[2]) / 2);
-    const span = Math.max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2], 1e-3);
+    // Look from the reference camera's origin towards the cloud's median (in three.js axes:
+    // y and z flipped); the 5-95 % spread sets the clipping planes (a few far outliers must
+    // not decide the view).
+    const axis = (j) => quantiles(pos.subarray(0, 3 * k).filter((_, i) => i % 3 === j), [0.05, 0.5, 0.95]);
+    const [ax, ay, az] = [axis(0), axis(1), axis(2)];
+    const centre = new THREE.Vector3(ax[1], -ay[1], -az[1]);
+    const span = Math.max(ax[2] - ax[0], ay[2] - ay[0], az[2], 1e-3);
     camera.near = span / 1000; camera.far = span * 100; camera.updateProjectionMatrix();
-    camera.position.set(0, 0, 0);
+    // From beside the reference camera (a quarter of the distance to the right and up), so
+    // the depth shows at once; orbit from there.
+    const d = centre.length();
+    camera.position.set(0.35 * d, 0.2 * d, 0);
     controls.target.copy(centre);
     controls.update();
     framed = true;
@@ -130,18 +144,17 @@ function showFloatImage(canvasId, img, colourise) {
   canvas.width = img.width; canvas.height = img.height;
   const view = new DataView(img.data.buffer, img.data.byteOffset, img.data.byteLength);
   const values = new Float32Array(img.width * img.height);
-  let lo = Infinity, hi = -Infinity;
   for (let v = 0; v < img.height; v++) for (let u = 0; u < img.width; u++) {
-    const x = view.getFloat32(v * img.step + 4 * u, !img.bigEndian);
-    values[v * img.width + u] = x;
-    if (Number.isFinite(x)) { lo = Math.min(lo, x); hi = Math.max(hi, x); }
+    values[v * img.width + u] = view.getFloat32(v * img.step + 4 * u, !img.bigEndian);
   }
+  // The colour scale spans the 2-98 % range (a few outliers would flatten it).
+  const [lo, hi] = quantiles(values, [0.02, 0.98]);
   const ctx = canvas.getContext('2d');
   const out = ctx.createImageData(img.width, img.height);
   for (let i = 0; i < values.length; i++) {
     const x = values[i];
     let rgb = [0, 0, 0];
-    if (Number.isFinite(x)) rgb = colourise(hi > lo ? (x - lo) / (hi - lo) : 0.5, x);
+    if (Number.isFinite(x)) rgb = colourise(hi > lo ? Math.max(0, Math.min(1, (x - lo) / (hi - lo))) : 0.5, x);
     out.data.set([rgb[0], rgb[1], rgb[2], 255], 4 * i);
   }
   ctx.putImageData(out, 0, 0);
