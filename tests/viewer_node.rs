@@ -7,6 +7,9 @@
 //! SAFETY: DDS only inside a private network namespace (tests/common/netns.rs), as every node
 //! test; the WebSocket and HTTP servers bind 127.0.0.1 there too.
 
+// The live view is the cargo feature `viewer` (on by default).
+#![cfg(feature = "viewer")]
+
 mod common;
 
 use std::io::{Read, Write};

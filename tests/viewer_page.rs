@@ -9,6 +9,9 @@
 //! runs with every background-networking feature off (its flags below), so it opens no
 //! connection beyond the page's.
 
+// The live view is the cargo feature `viewer` (on by default).
+#![cfg(feature = "viewer")]
+
 mod common;
 
 use std::io::{Read, Write};
