@@ -4,6 +4,8 @@
 #   and Mesa's lavapipe (a software Vulkan driver that runs the compute shaders on the CPU);
 # - `ip` (iproute2) and `unshare` (util-linux), with which the DDS tests move themselves into a
 #   private network namespace so that no DDS traffic leaves the machine;
+# - Debian's Chromium (package `chromium`), the headless browser in which tests/viewer_page.rs
+#   loads the built-in live-view page (no browser download: the distribution's package);
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
 #   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
 #   tests/bag.rs; `opencv-python-headless`, the camera-model reference of
@@ -31,6 +33,8 @@ if ! (have_loader && have_icd); then
 fi
 command -v ip >/dev/null 2>&1 || packages="$packages iproute2"
 command -v unshare >/dev/null 2>&1 || packages="$packages util-linux"
+command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 ||
+    packages="$packages chromium"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
 PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg'

@@ -794,6 +794,8 @@ fn table_has_node_parameters() {
         ("input_qos_depth", ParamValue::Int(5)),
         ("output_qos_depth", ParamValue::Int(1)),
         ("camera_timeout", ParamValue::Double(1.0)),
+        ("foxglove_port", ParamValue::Int(0)),
+        ("foxglove_address", ParamValue::String("127.0.0.1".into())),
     ];
     for (name, default) in &expect {
         let spec = param_spec(name).unwrap_or_else(|| panic!("{name} missing"));

@@ -2,11 +2,13 @@
 //! a rosbag2 directory), `sweepdepth bag` ([`process`]: a bag through the node's pipeline,
 //! [`report`]: what it did) and `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
 
+pub mod pace;
 pub mod pack;
 pub mod process;
 pub mod reader;
 pub mod report;
-pub mod schemas;
+/// The message definitions (shared with `viewer/`).
+pub use crate::msgdefs as schemas;
 pub mod writer;
 
 use std::path::{Path, PathBuf};

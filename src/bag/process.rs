@@ -14,7 +14,9 @@ use crate::pipeline::{
     ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
     PipelineConfig, Skip,
 };
+use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
+use super::pace::{Pacer, ViewRate};
 use super::report::BagReport;
 use super::schemas::{CAMERA_INFO, IMAGE, POINT_CLOUD2, TF_MESSAGE};
 use super::{writer, BagError, BagReader, BagWriter};
@@ -41,6 +43,15 @@ pub struct BagArgs {
     /// Replace OUT if it exists.
     #[arg(long)]
     pub force: bool,
+    /// Serve the outputs live while processing: a Foxglove WebSocket server (for Foxglove and
+    /// Lichtblick) on `foxglove_port` (8765 when not set) and the built-in page on the next
+    /// port, at `foxglove_address`. When done it keeps serving the last set until Ctrl-C.
+    #[arg(long)]
+    pub view: bool,
+    /// With --view: the pace, a multiple of the recording's rate (1 = as recorded), or `max`
+    /// (as fast as it goes).
+    #[arg(long, value_name = "RATE|max", default_value = "1", requires = "view")]
+    pub view_rate: ViewRate,
     /// Exit non-zero when the bag is damaged even if usable sets were processed (by default a
     /// damaged bag is reported, the rest processed, and only a bag with nothing usable fails).
     #[arg(long)]
@@ -76,6 +87,8 @@ pub enum BagRunError {
     Config(#[from] ConfigError),
     #[error("GPU: {0}")]
     Gpu(#[from] HostError),
+    #[error("live view: {0}")]
+    Viewer(#[from] ViewerError),
     #[error("{bag}: none of the image topics [{}] is in the bag (set `cameras`/`image_topic` or remap); the bag has: {}", wanted.join(", "), found.join(", "))]
     NoInput {
         bag: String,
@@ -120,6 +133,8 @@ struct Sink<'a> {
     seen: HashSet<String>,
     busy: Duration,
     bar: ProgressBar,
+    /// `--view`: the live view, fed every processed set.
+    viewer: Option<Viewer>,
 }
 
 impl Sink<'_> {
@@ -156,15 +171,18 @@ impl Sink<'_> {
         let config = self.config;
         self.report.sets_found += 1;
         let t0 = Instant::now();
-        let result = set.and_then(|job| {
-            self.host
-                .process(&job, &config.sweep, config.outputs.points.is_some())
-        });
+        // The live view always shows the point cloud.
+        let with_points = config.outputs.points.is_some() || self.viewer.is_some();
+        let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
             Ok(out) => {
+                // (Points go into OUT only with publish_points: `write_outputs`.)
                 write_outputs(&mut self.writer, &config.outputs, log_time_ns, &out)?;
                 self.busy += t0.elapsed();
                 self.report.sets_processed += 1;
+                if let Some(viewer) = &self.viewer {
+                    viewer.offer_owned(out);
+                }
             }
             Err(skip) => {
                 *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
@@ -215,6 +233,11 @@ fn progress_bar(total: Option<u64>) -> ProgressBar {
 /// through `tracing`. Returns the report also when reading stopped at a damaged part of the
 /// bag (then `read_errors` says where, and everything readable is in OUT).
 pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
+    process_bag_viewing(args).map(|(report, _viewer)| report)
+}
+
+/// [`process_bag`], also returning the live view of `--view` (still serving the last set).
+fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), BagRunError> {
     let config = PipelineConfig::from_args(&args.ros_args())?;
     for note in &config.notes {
         tracing::info!("{note}");
@@ -298,6 +321,23 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         writer.add_topic(points, POINT_CLOUD2, None)?;
     }
 
+    let viewer = if args.view {
+        let viewer = Viewer::start(&ViewerConfig::for_bag(&config.params)?, &config.outputs)?;
+        tracing::info!(
+            "live view: Foxglove/Lichtblick at {}, the page at {}",
+            viewer.websocket_url(),
+            viewer.page_url()
+        );
+        Some(viewer)
+    } else {
+        None
+    };
+    let mut pacer = if args.view {
+        Pacer::new(args.view_rate)
+    } else {
+        None
+    };
+
     let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
     let mut sink = Sink {
         config: &config,
@@ -307,6 +347,7 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         seen: HashSet::new(),
         busy: Duration::ZERO,
         bar: progress_bar(total),
+        viewer,
     };
     let started = Instant::now();
     let mut last_log_ns = 0u64;
@@ -345,6 +386,9 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         if route == Route::Image(config.reference) {
             sink.bar.inc(1);
         }
+        if let Some(pacer) = &mut pacer {
+            pacer.wait(msg.log_time_ns);
+        }
         let position = || format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
         let input = match route {
             Route::Info(camera) => from_cdr::<CameraInfo>(&msg.data)
@@ -382,6 +426,7 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         mut report,
         busy,
         bar,
+        viewer,
         ..
     } = sink;
     bar.finish_and_clear();
@@ -389,14 +434,34 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
     report.output = Some(writer.finish()?);
-    Ok(report)
+    Ok((report, viewer))
+}
+
+/// `--view` after the bag: the last set stays on view until Ctrl-C (or SIGTERM).
+fn hold_view(viewer: &Viewer) {
+    let (tx, rx) = std::sync::mpsc::channel();
+    if let Err(e) = ctrlc::set_handler(move || {
+        let _ = tx.send(());
+    }) {
+        tracing::warn!("cannot wait for Ctrl-C ({e}); the live view ends now");
+        return;
+    }
+    eprintln!(
+        "done; the last set stays on view at {} (Foxglove/Lichtblick: {}) until Ctrl-C",
+        viewer.page_url(),
+        viewer.websocket_url()
+    );
+    let _ = rx.recv();
 }
 
 /// The `bag` subcommand: prints the summary; fails when the bag is damaged (with `--strict`,
 /// or when nothing could be read) or nothing usable was in it.
 pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
-    let report = process_bag(args)?;
+    let (report, viewer) = process_bag_viewing(args)?;
     eprintln!("{}", report.summary_line());
+    if let Some(viewer) = viewer {
+        hold_view(&viewer);
+    }
     if !report.ignored_topics.is_empty() {
         tracing::info!("topics not read: {}", report.ignored_topics.join(", "));
     }

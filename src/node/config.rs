@@ -23,6 +23,9 @@ pub enum NodeError {
     Ros(String),
     #[error("GPU: {0}")]
     Engine(#[from] HostError),
+    /// The live view (`foxglove_port`) could not start.
+    #[error("live view: {0}")]
+    Viewer(#[from] crate::viewer::ViewerError),
     /// The GPU thread could not start or ended early.
     #[error("GPU: {0}")]
     Gpu(String),

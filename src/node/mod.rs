@@ -9,6 +9,7 @@
 //! [`crate::pipeline::EngineHost`], runs the sweep and publishes `depth/image`,
 //! `depth/camera_info`, `confidence/image`, `cost/image`, `selection/image` and, with
 //! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
+//! With `foxglove_port`, the same outputs go to the live view ([`crate::viewer`]) too.
 //!
 //! A diagnostics thread publishes `/diagnostics` once a second ([`diag`]). Log messages go to
 //! stderr and, once DDS is up, to `/rosout` (`log`). Our own parameter services
@@ -42,6 +43,7 @@ use self::params::LiveParams;
 use self::slot::LatestSlot;
 use crate::pipeline::Job;
 use crate::sweep::CancelFlag;
+use crate::viewer::{Viewer, ViewerConfig};
 
 /// What the executor side (event loop, parameter callbacks, diagnostics) shares with the GPU
 /// thread.
@@ -70,6 +72,19 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         pipeline.image_topics
     );
 
+    // The live view (`foxglove_port`), before the GPU thread, which owns it.
+    let viewer = match ViewerConfig::from_params(&pipeline.params)? {
+        Some(viewer_config) => {
+            let viewer = Viewer::start(&viewer_config, &pipeline.outputs)?;
+            tracing::info!(
+                "live view: Foxglove/Lichtblick at {}, the page at {}",
+                viewer.websocket_url(),
+                viewer.page_url()
+            );
+            Some(viewer)
+        }
+        None => None,
+    };
     // The GPU thread starts first so that a missing adapter fails before DDS comes up.
     let slot: Arc<LatestSlot<Job>> = Arc::new(LatestSlot::new());
     let live = LiveParams::new(
@@ -87,6 +102,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         Arc::clone(&slot),
         Arc::clone(&live),
         Arc::clone(&stats),
+        viewer,
     )?;
     tracing::info!("engine: {}", gpu.adapter);
 

@@ -15,6 +15,7 @@ use super::NodeError;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{EngineHost, HostError, Job};
 use crate::sweep::CancelFlag;
+use crate::viewer::Viewer;
 
 /// The publishers of one set's outputs (made once DDS is up, then handed to the thread).
 pub(super) struct Publishers {
@@ -43,6 +44,7 @@ pub(super) fn spawn(
     slot: Arc<LatestSlot<Job>>,
     live: Arc<LiveParams>,
     stats: Arc<Mutex<Stats>>,
+    viewer: Option<Viewer>,
 ) -> Result<GpuThread, NodeError> {
     let (init_tx, init_rx) = mpsc::channel::<Result<String, HostError>>();
     let (publishers_tx, publishers_rx) = mpsc::channel::<Publishers>();
@@ -61,7 +63,7 @@ pub(super) fn spawn(
             let Ok(publishers) = publishers_rx.recv() else {
                 return;
             };
-            worker_loop(&slot, &live, &stats, host, &publishers);
+            worker_loop(&slot, &live, &stats, host, &publishers, viewer.as_ref());
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
     let adapter = match init_rx.recv() {
@@ -86,6 +88,7 @@ fn worker_loop(
     stats: &Mutex<Stats>,
     mut host: EngineHost,
     publishers: &Publishers,
+    viewer: Option<&Viewer>,
 ) {
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
@@ -97,7 +100,9 @@ fn worker_loop(
         }
         // Parameter changes apply from the next set on.
         let sweep = live.sweep();
-        let out = match host.process(&job, &sweep, publishers.points.is_some()) {
+        // A subscribed viewer shows the point cloud even when DDS does not carry it.
+        let with_points = publishers.points.is_some() || viewer.is_some_and(Viewer::wants_points);
+        let out = match host.process(&job, &sweep, with_points) {
             Ok(out) => out,
             // Shutting down: the run was stopped between passes; nobody waits for it.
             Err(_) if host.is_cancelled() => {
@@ -109,6 +114,10 @@ fn worker_loop(
                 continue;
             }
         };
+        // A copy for the live view (only while a viewer is subscribed; never waits for it).
+        if let Some(viewer) = viewer {
+            viewer.offer(&out);
+        }
         let stamp = out.header.stamp;
         let points = match (&publishers.points, out.points) {
             (Some(publisher), Some(cloud)) => Some(

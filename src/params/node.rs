@@ -141,6 +141,18 @@ pub fn node_params() -> Vec<ParamSpec> {
             "History depth of the publishers.",
         ),
         node_spec(
+            "foxglove_port",
+            Int(0),
+            ParamRange::ints(0, 65534),
+            "Live view: TCP port of the Foxglove WebSocket server (ROS 2 CDR outputs for Foxglove and Lichtblick); the built-in page is served on the next port. 0 = off.",
+        ),
+        node_spec(
+            "foxglove_address",
+            s("127.0.0.1"),
+            ParamRange::Any,
+            "Live view: address the Foxglove server and the page bind (0.0.0.0 = every interface).",
+        ),
+        node_spec(
             "virtual_reference",
             Bool(false),
             ParamRange::Any,

@@ -1,0 +1,133 @@
+//! The Foxglove channels of one node's outputs: one per output topic, ROS 2 CDR with the
+//! type's full `ros2msg` definition as its schema (as foxglove_bridge advertises them), so that
+//! Foxglove and Lichtblick decode them in their image and 3D panels.
+
+use std::sync::Arc;
+
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
+use serde::Serialize;
+
+use super::ViewerError;
+use crate::msgdefs::{self, CAMERA_INFO, IMAGE, POINT_CLOUD2};
+use crate::msgs::to_cdr;
+use crate::pipeline::{FrameOutputs, OutputTopics};
+
+/// The message encoding of every channel (the ROS 2 wire format).
+pub const MESSAGE_ENCODING: &str = "cdr";
+/// The schema encoding of every channel (a `.msg` definition with its dependencies).
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+
+/// The topic of the point cloud on the viewer: `points` beside `depth/image` when the node does
+/// not publish it over DDS (the viewer always shows it).
+pub fn points_topic(topics: &OutputTopics) -> String {
+    match &topics.points {
+        Some(points) => points.clone(),
+        None => {
+            let base = topics.depth.strip_suffix("depth/image").unwrap_or("/");
+            format!("{base}points")
+        }
+    }
+}
+
+/// One channel per output.
+pub(super) struct OutputChannels {
+    depth: Arc<RawChannel>,
+    depth_info: Arc<RawChannel>,
+    confidence: Arc<RawChannel>,
+    cost: Arc<RawChannel>,
+    selection: Arc<RawChannel>,
+    points: Arc<RawChannel>,
+}
+
+fn channel(
+    context: &Arc<Context>,
+    topic: &str,
+    msg_type: &'static str,
+) -> Result<Arc<RawChannel>, ViewerError> {
+    let definition = msgdefs::definition(msg_type).ok_or_else(|| ViewerError::Channel {
+        topic: topic.to_string(),
+        reason: format!("no message definition for {msg_type}"),
+    })?;
+    ChannelBuilder::new(topic)
+        .message_encoding(MESSAGE_ENCODING)
+        .schema(Schema::new(
+            msg_type,
+            SCHEMA_ENCODING,
+            definition.as_bytes().to_vec(),
+        ))
+        .context(context)
+        .build_raw()
+        .map_err(|e| ViewerError::Channel {
+            topic: topic.to_string(),
+            reason: e.to_string(),
+        })
+}
+
+/// Encodes `msg` and logs it, only when a viewer subscribed to the channel (encoding a point
+/// cloud nobody reads would be wasted). An encoding failure is returned, not logged here.
+fn log<T: Serialize>(channel: &RawChannel, msg: &T, log_time_ns: u64) -> Result<(), ViewerError> {
+    if !channel.has_sinks() {
+        return Ok(());
+    }
+    let bytes = to_cdr(msg).map_err(|e| ViewerError::Encode {
+        topic: channel.topic().to_string(),
+        reason: e.to_string(),
+    })?;
+    channel.log_with_meta(
+        &bytes,
+        PartialMetadata {
+            log_time: Some(log_time_ns),
+        },
+    );
+    Ok(())
+}
+
+impl OutputChannels {
+    pub(super) fn new(context: &Arc<Context>, topics: &OutputTopics) -> Result<Self, ViewerError> {
+        Ok(Self {
+            depth: channel(context, &topics.depth, IMAGE)?,
+            depth_info: channel(context, &topics.depth_info, CAMERA_INFO)?,
+            confidence: channel(context, &topics.confidence, IMAGE)?,
+            cost: channel(context, &topics.cost, IMAGE)?,
+            selection: channel(context, &topics.selection, IMAGE)?,
+            points: channel(context, &points_topic(topics), POINT_CLOUD2)?,
+        })
+    }
+
+    /// Whether any viewer subscribed to any of the channels.
+    pub(super) fn has_subscribers(&self) -> bool {
+        self.all().iter().any(|c| c.has_sinks())
+    }
+
+    fn all(&self) -> [&Arc<RawChannel>; 6] {
+        [
+            &self.depth,
+            &self.depth_info,
+            &self.confidence,
+            &self.cost,
+            &self.selection,
+            &self.points,
+        ]
+    }
+
+    /// Logs one set's outputs to the subscribed viewers (`log_time_ns`: wall clock, when the
+    /// engine gave them). Each queue is bounded: a viewer that does not keep up loses the
+    /// oldest messages, the caller never waits for it.
+    pub(super) fn log(&self, out: &FrameOutputs, log_time_ns: u64) -> Result<(), ViewerError> {
+        log(&self.depth, &out.depth, log_time_ns)?;
+        log(&self.depth_info, &out.depth_info, log_time_ns)?;
+        log(&self.confidence, &out.confidence, log_time_ns)?;
+        log(&self.cost, &out.cost, log_time_ns)?;
+        log(&self.selection, &out.selection, log_time_ns)?;
+        if let Some(points) = &out.points {
+            log(&self.points, points, log_time_ns)?;
+        }
+        Ok(())
+    }
+
+    pub(super) fn close(&self) {
+        for channel in self.all() {
+            channel.close();
+        }
+    }
+}

@@ -1,0 +1,359 @@
+//! The built-in page (issue 13) in a real browser: `sweepdepth bag --view` on the built-in
+//! Tsukuba sample (tests/fixtures/bags/tsukuba_half.mcap), Debian's Chromium headless (driven
+//! over the DevTools protocol) loads the page, the test waits for the marker the page sets when
+//! it has drawn a point cloud and a depth image (`document.body.dataset.drawn`), then a
+//! screenshot must show a non-empty 3D view and the depth image.
+//!
+//! Chromium is required: `scripts/setup.sh` installs it (package `chromium`); without it the
+//! test fails and says so. No DDS here (`bag` opens none); the servers bind 127.0.0.1. Chromium
+//! runs with every background-networking feature off (its flags below), so it opens no
+//! connection beyond the page's.
+
+// The live view is the cargo feature `viewer` (on by default).
+#![cfg(feature = "viewer")]
+
+mod common;
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::netns::KillOnDrop;
+use serde_json::{json, Value};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn timeout() -> Duration {
+    common::dds::timeout()
+}
+
+fn chromium() -> PathBuf {
+    for candidate in ["chromium", "chromium-browser"] {
+        if let Ok(out) = Command::new("sh")
+            .args(["-c", &format!("command -v {candidate}")])
+            .output()
+        {
+            let path = String::from_utf8_lossy(&out.stdout).trim().to_string();
+            if out.status.success() && !path.is_empty() {
+                return PathBuf::from(path);
+            }
+        }
+    }
+    panic!("Chromium is not installed: run scripts/setup.sh (it installs Debian's `chromium`), which this test needs");
+}
+
+/// Two free consecutive ports (the WebSocket server's and the page's).
+fn free_port_pair() -> u16 {
+    for _ in 0..100 {
+        let a = TcpListener::bind(("127.0.0.1", 0)).expect("bind");
+        let port = a.local_addr().expect("addr").port();
+        if port < u16::MAX && TcpListener::bind(("127.0.0.1", port + 1)).is_ok() {
+            return port;
+        }
+    }
+    panic!("no two free consecutive ports");
+}
+
+/// `GET path` as JSON. Chromium keeps the connection open: the body is read by its
+/// Content-Length.
+fn http_get_json(port: u16, path: &str) -> Option<Value> {
+    let mut stream = TcpStream::connect(("127.0.0.1", port)).ok()?;
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .ok()?;
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n\r\n"
+    )
+    .ok()?;
+    let mut response = Vec::new();
+    let mut buf = [0u8; 8192];
+    loop {
+        let n = stream.read(&mut buf).ok()?;
+        if n == 0 {
+            return None;
+        }
+        response.extend_from_slice(&buf[..n]);
+        let Some(split) = response.windows(4).position(|w| w == b"\r\n\r\n") else {
+            continue;
+        };
+        let head = String::from_utf8_lossy(&response[..split]).to_ascii_lowercase();
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length:"))
+            .and_then(|v| v.trim().parse().ok())?;
+        if response.len() >= split + 4 + length {
+            return serde_json::from_slice(&response[split + 4..split + 4 + length]).ok();
+        }
+    }
+}
+
+/// Standard base64 (the screenshot's encoding).
+fn base64_decode(text: &str) -> Vec<u8> {
+    let value = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => panic!("not base64: {c}"),
+        }
+    };
+    let bytes: Vec<u8> = text.bytes().filter(|c| *c != b'=').collect();
+    let mut out = Vec::with_capacity(bytes.len() * 3 / 4);
+    for chunk in bytes.chunks(4) {
+        let mut acc = 0u32;
+        for (i, c) in chunk.iter().enumerate() {
+            acc |= value(*c) << (18 - 6 * i);
+        }
+        let n = chunk.len() * 6 / 8;
+        out.extend_from_slice(&acc.to_be_bytes()[1..1 + n]);
+    }
+    out
+}
+
+/// The DevTools protocol over the page's WebSocket.
+struct DevTools {
+    ws: tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>,
+    next_id: u64,
+}
+
+impl DevTools {
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        self.next_id += 1;
+        let id = self.next_id;
+        let msg = json!({"id": id, "method": method, "params": params});
+        self.ws
+            .send(tungstenite::Message::Text(msg.to_string().into()))
+            .expect("DevTools send");
+        loop {
+            let frame = self.ws.read().expect("DevTools read");
+            if let tungstenite::Message::Text(text) = frame {
+                let value: Value = serde_json::from_str(&text).expect("DevTools JSON");
+                if value["id"] == id {
+                    assert!(value.get("error").is_none(), "{method}: {value}");
+                    return value["result"].clone();
+                }
+            }
+        }
+    }
+
+    fn evaluate(&mut self, expression: &str) -> Value {
+        let result = self.call(
+            "Runtime.evaluate",
+            json!({"expression": expression, "returnByValue": true}),
+        );
+        result["result"]["value"].clone()
+    }
+}
+
+/// Pixels of `rect` (CSS px, scaled by `scale`) in `image` that differ from `background`.
+fn share_not_background(
+    image: &image::RgbaImage,
+    rect: &Value,
+    scale: f64,
+    background: [u8; 3],
+) -> f64 {
+    let f = |k: &str| rect[k].as_f64().unwrap_or(0.0) * scale;
+    let (x0, y0) = (f("x").max(0.0) as u32, f("y").max(0.0) as u32);
+    let x1 = ((f("x") + f("width")) as u32).min(image.width());
+    let y1 = ((f("y") + f("height")) as u32).min(image.height());
+    let mut differ = 0u64;
+    let mut total = 0u64;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let p = image.get_pixel(x, y).0;
+            total += 1;
+            let d = (0..3)
+                .map(|i| p[i].abs_diff(background[i]) as u32)
+                .sum::<u32>();
+            if d > 24 {
+                differ += 1;
+            }
+        }
+    }
+    assert!(total > 0, "empty region {rect}");
+    differ as f64 / total as f64
+}
+
+#[test]
+fn page_draws_the_point_cloud_of_bag_view() {
+    let chromium = chromium();
+    let port = free_port_pair();
+    let out_dir =
+        std::env::temp_dir().join(format!("sweepdepth-viewer-page-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out_dir);
+    std::fs::create_dir_all(&out_dir).expect("temp dir");
+    let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let mut sweepdepth = KillOnDrop(
+        Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .arg("bag")
+            .arg(&bag)
+            .arg(out_dir.join("out.mcap"))
+            .arg("--params-file")
+            .arg(&params)
+            .args([
+                "--view",
+                "--view-rate",
+                "max",
+                "-p",
+                &format!("foxglove_port:={port}"),
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start sweepdepth bag --view"),
+    );
+    let profile = out_dir.join("chromium-profile");
+    let page_url = format!("http://127.0.0.1:{}/", port + 1);
+    let _browser = KillOnDrop(
+        Command::new(&chromium)
+            .args([
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--enable-unsafe-swiftshader",
+                "--disable-quic",
+                "--no-first-run",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--window-size=1280,800",
+                "--remote-debugging-port=0",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg("about:blank")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start chromium"),
+    );
+    let started = Instant::now();
+    let wait = |what: &str| {
+        assert!(
+            started.elapsed() < timeout(),
+            "waited {:?} for {what} in vain",
+            timeout()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    // Chromium writes its DevTools port into the profile.
+    let devtools_port: u16 = loop {
+        if let Ok(text) = std::fs::read_to_string(profile.join("DevToolsActivePort")) {
+            if let Some(port) = text.lines().next().and_then(|l| l.trim().parse().ok()) {
+                break port;
+            }
+        }
+        wait("Chromium's DevToolsActivePort");
+    };
+    let target = loop {
+        let page = http_get_json(devtools_port, "/json/list").and_then(|list| {
+            list.as_array()?
+                .iter()
+                .find(|t| t["type"] == "page")
+                .and_then(|t| t["webSocketDebuggerUrl"].as_str().map(str::to_string))
+        });
+        if let Some(url) = page {
+            break url;
+        }
+        wait("a Chromium page target");
+    };
+    let (ws, _) = tungstenite::connect(target.as_str()).expect("DevTools WebSocket");
+    let mut devtools = DevTools { ws, next_id: 0 };
+    // The page server is up once `bag --view` has started its viewer.
+    loop {
+        if TcpStream::connect(("127.0.0.1", port + 1)).is_ok() {
+            break;
+        }
+        if let Some(status) = sweepdepth.0.try_wait().expect("wait") {
+            panic!("sweepdepth bag --view ended ({status}) before serving the page");
+        }
+        wait("the page server");
+    }
+    devtools.call("Page.navigate", json!({"url": page_url}));
+    let state = loop {
+        let state = devtools.evaluate(
+            "JSON.stringify({drawn: document.body && document.body.dataset.drawn || '', state: window.sweepdepthState || null, status: (document.getElementById('status')||{}).textContent || ''})",
+        );
+        let state: Value =
+            serde_json::from_str(state.as_str().unwrap_or("{}")).unwrap_or(Value::Null);
+        if state["drawn"] == "1" {
+            break state;
+        }
+        if let Some(status) = sweepdepth.0.try_wait().expect("wait") {
+            panic!("sweepdepth bag --view ended ({status}) while the page waited; page: {state}");
+        }
+        assert!(
+            started.elapsed() < timeout(),
+            "the page did not draw within {:?}; its state: {state}",
+            timeout()
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    };
+    eprintln!("page state: {state}");
+    assert!(
+        state["state"]["points"].as_u64().unwrap_or(0) > 1000,
+        "{state}"
+    );
+    assert!(
+        state["state"]["depthFrames"].as_u64().unwrap_or(0) >= 1,
+        "{state}"
+    );
+    assert_eq!(state["state"]["errors"], json!([]), "{state}");
+
+    // Let one more animation frame paint, then look at the pixels.
+    devtools.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))");
+    let rects: Value = serde_json::from_str(
+        devtools
+            .evaluate("JSON.stringify({cloud: document.querySelector('#cloud canvas').getBoundingClientRect(), depth: document.getElementById('depth').getBoundingClientRect(), scale: window.devicePixelRatio})")
+            .as_str()
+            .unwrap_or("{}"),
+    )
+    .expect("rects");
+    let shot = devtools.call("Page.captureScreenshot", json!({"format": "png"}));
+    let png = base64_decode(shot["data"].as_str().expect("screenshot data"));
+    let saved = root().join("target/viewer-page.png");
+    std::fs::write(&saved, &png).expect("save the screenshot");
+    let image = image::load_from_memory(&png).expect("PNG").to_rgba8();
+    let scale = rects["scale"].as_f64().unwrap_or(1.0);
+    let cloud = share_not_background(&image, &rects["cloud"], scale, [0x14, 0x16, 0x1a]);
+    let depth = share_not_background(&image, &rects["depth"], scale, [0, 0, 0]);
+    eprintln!(
+        "screenshot {}: 3D view {:.1} % drawn, depth image {:.1} % coloured",
+        saved.display(),
+        cloud * 100.0,
+        depth * 100.0
+    );
+    assert!(
+        cloud > 0.05,
+        "the 3D view is (nearly) empty: {:.2} % of it drawn; see {}",
+        cloud * 100.0,
+        saved.display()
+    );
+    assert!(
+        depth > 0.5,
+        "the depth image is (nearly) empty: {:.2} % coloured; see {}",
+        depth * 100.0,
+        saved.display()
+    );
+
+    // `bag --view` ends cleanly on SIGTERM, its output written.
+    Command::new("kill")
+        .args(["-TERM", &sweepdepth.0.id().to_string()])
+        .status()
+        .expect("kill -TERM");
+    let status = sweepdepth.0.wait().expect("wait for sweepdepth");
+    assert!(
+        status.success(),
+        "sweepdepth bag --view after SIGTERM: {status}"
+    );
+    assert!(out_dir.join("out.mcap").exists());
+    let _ = std::fs::remove_dir_all(&out_dir);
+    let _ = Path::new("");
+}
