@@ -8,6 +8,9 @@ const NO_CAMERA: u32 = 0xffffffffu;
 const SCORING_SSSD: u32 = 0u;      // mean of pair TSSDs (pairs per pair_mode)
 const SCORING_BEST_N: u32 = 1u;    // mean of the n smallest pair TSSDs
 const SCORING_HALF: u32 = 2u;      // best half-sequence
+const COST_TSSD: u32 = 0u;         // pair cost: truncated colour SSD
+const COST_CENSUS: u32 = 1u;       // 5x5 census Hamming distance, tau / 24 per bit
+const COST_AD_CENSUS: u32 = 2u;    // the mean of the two
 
 const PAIRS_REFERENCE: u32 = 0u;   // reference-vs-other pairs
 const PAIRS_ALL: u32 = 1u;         // all pairs among visible cameras
@@ -94,8 +97,8 @@ struct Params {
     sgm_edge: u32,                // 1/16 grey levels, 0 = constant P2
     sgm_levels_per_unit: f32,     // SGM_COST_MAX / tau
     sgm_unit_per_level: f32,      // 1 / (paths x levels per unit): score units per summed level
-    _pad0: u32,
-    _pad1: u32,
+    cost: u32,                    // COST_*
+    census_offset: u32,           // word of camera 0's census in `images` (camera c: + size.z)
 }
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as

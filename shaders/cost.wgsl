@@ -1,4 +1,5 @@
-// Stage 1+2+3: hypotheses -> per-camera bilinear colour -> pair TSSD -> multi-camera score.
+// Stage 1+2+3: hypotheses -> per-camera bilinear colour (and census) -> pair cost -> multi-camera
+// score.
 // CPU twin: src/sweep/cpu/cost.rs.
 
 override SCORING: u32 = 0u;       // = params.scoring
@@ -32,6 +33,51 @@ fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
 fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
     let d = a - b;
     return min(params.tau, dot(d, d));
+}
+
+// Census words (sweep/census.rs): after every camera's pixels in `images`.
+const CENSUS_BITS: f32 = 24.0;
+fn census_word(cam: Camera, x: u32, y: u32) -> u32 {
+    return images[params.census_offset + cam.size.z + y * cam.size.x + x];
+}
+// The word of the texel nearest to a sample.
+fn census_nearest(cam: Camera, pixel: vec2<f32>) -> u32 {
+    let x = min(u32(floor(pixel.x + 0.5)), cam.size.x - 1u);
+    let y = min(u32(floor(pixel.y + 0.5)), cam.size.y - 1u);
+    return census_word(cam, x, y);
+}
+// Hamming distance of `word` to the words around a sample, interpolated bilinearly as the
+// colours are (so the cost changes smoothly from plane to plane).
+fn census_distance(cam: Camera, pixel: vec2<f32>, word: u32) -> f32 {
+    let base = floor(pixel);
+    let f = pixel - base;
+    let x0 = u32(base.x);
+    let y0 = u32(base.y);
+    let x1 = min(x0 + 1u, cam.size.x - 1u);
+    let y1 = min(y0 + 1u, cam.size.y - 1u);
+    let h00 = f32(countOneBits(census_word(cam, x0, y0) ^ word));
+    let h10 = f32(countOneBits(census_word(cam, x1, y0) ^ word));
+    let h01 = f32(countOneBits(census_word(cam, x0, y1) ^ word));
+    let h11 = f32(countOneBits(census_word(cam, x1, y1) ^ word));
+    let top = h00 + (h10 - h00) * f.x;
+    let bottom = h01 + (h11 - h01) * f.x;
+    return top + (bottom - top) * f.y;
+}
+// The cost (COST_*) of a census distance and a colour pair's TSSD.
+fn mixed_cost(tssd_cost: f32, census_bits: f32) -> f32 {
+    let census_cost = census_bits * (params.tau / CENSUS_BITS);
+    if (params.cost == COST_CENSUS) {
+        return census_cost;
+    }
+    return 0.5 * (tssd_cost + census_cost);
+}
+// The cost of the reference pixel (colour, census word) against camera `cam` at `pixel`.
+fn reference_pair_cost(ref_colour: vec3<f32>, ref_word: u32, cam: Camera, pixel: vec2<f32>) -> f32 {
+    let t = tssd(ref_colour, sample_bilinear(cam, pixel));
+    if (params.cost == COST_TSSD) {
+        return t;
+    }
+    return mixed_cost(t, census_distance(cam, pixel, ref_word));
 }
 
 // Running sums of one hypothesis's pair costs. Passed by value, with the n smallest costs in
@@ -125,7 +171,7 @@ fn pair_half(a: u32, b: u32) -> u32 {
 }
 
 // Scores plane `z` of the batch for pixel `pixel`; `ref_colour` is the reference texel.
-fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>) {
+fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>, ref_word: u32) {
     let npix = params.pixel_count;
     let channels = CHANNELS;
     let slot = (z * channels) * npix + pix;
@@ -154,12 +200,12 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
             if (per_pair) {
                 var cost = INVALID;
                 if (visible) {
-                    cost = tssd(ref_colour, sample_bilinear(cam, projected.xy));
+                    cost = reference_pair_cost(ref_colour, ref_word, cam, projected.xy);
                 }
                 cost_slab[slot + p * npix] = cost;
                 p += 1u;
             } else if (visible) {
-                acc = add_pair(acc, tssd(ref_colour, sample_bilinear(cam, projected.xy)), cam.info.x);
+                acc = add_pair(acc, reference_pair_cost(ref_colour, ref_word, cam, projected.xy), cam.info.x);
             }
         }
         if (per_pair) {
@@ -168,10 +214,16 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
     } else {
         var colours: array<vec3<f32>, 32>;
         var visible: array<bool, 32>;
+        // Census costs: the nearest texel's word, and where the camera saw the point (pairs
+        // with the reference interpolate the distance there).
+        var words: array<u32, 32>;
+        var samples: array<vec2<f32>, 32>;
+        let census = params.cost != COST_TSSD;
         for (var i = 0u; i < n_cameras; i++) {
             let cam = cameras[i];
             if (i == ref_index) {
                 colours[i] = ref_colour;
+                words[i] = ref_word;
                 visible[i] = true;
                 continue;
             }
@@ -179,21 +231,36 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
             visible[i] = projected.z > 0.0 && inside(cam, projected.xy);
             if (visible[i]) {
                 colours[i] = sample_bilinear(cam, projected.xy);
+                samples[i] = projected.xy;
+                if (census) {
+                    words[i] = census_nearest(cam, projected.xy);
+                }
             }
         }
         var p = 0u;
         for (var i = 0u; i < n_cameras; i++) {
             for (var j = i + 1u; j < n_cameras; j++) {
                 let both = visible[i] && visible[j];
-                if (per_pair) {
-                    var cost = INVALID;
-                    if (both) {
-                        cost = tssd(colours[i], colours[j]);
+                var cost = INVALID;
+                if (both) {
+                    cost = tssd(colours[i], colours[j]);
+                    if (census) {
+                        var bits = 0.0;
+                        if (i == ref_index) {
+                            bits = census_distance(cameras[j], samples[j], ref_word);
+                        } else if (j == ref_index) {
+                            bits = census_distance(cameras[i], samples[i], ref_word);
+                        } else {
+                            bits = f32(countOneBits(words[i] ^ words[j]));
+                        }
+                        cost = mixed_cost(cost, bits);
                     }
+                }
+                if (per_pair) {
                     cost_slab[slot + p * npix] = cost;
                     p += 1u;
                 } else if (both) {
-                    acc = add_pair(acc, tssd(colours[i], colours[j]), pair_half(cameras[i].info.x, cameras[j].info.x));
+                    acc = add_pair(acc, cost, pair_half(cameras[i].info.x, cameras[j].info.x));
                 }
             }
         }
@@ -234,8 +301,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ray = rays[pix].xyz;
     let ref_index = params.reference;
     var ref_colour = vec3<f32>(0.0);
+    var ref_word = 0u;
     if (ref_index != NO_CAMERA) {
         ref_colour = texel(cameras[ref_index], gid.x, gid.y);
+        if (params.cost != COST_TSSD) {
+            ref_word = census_word(cameras[ref_index], gid.x, gid.y);
+        }
     }
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
         // Camera-outer order: each camera's parameters are loaded once for all planes.
@@ -256,7 +327,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 if (depth > 0.0) {
                     let projected = project_in_cam(cam, ray_in_cam * depth + offset);
                     if (projected.z > 0.0 && inside(cam, projected.xy)) {
-                        cost = tssd(ref_colour, sample_bilinear(cam, projected.xy));
+                        cost = reference_pair_cost(ref_colour, ref_word, cam, projected.xy);
                     }
                 }
                 cost_slab[(z * CHANNELS + p) * npix + pix] = cost;
@@ -266,6 +337,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     for (var z = 0u; z < batch.plane_count; z++) {
-        score_plane(gid.xy, pix, z, ray, ref_colour);
+        score_plane(gid.xy, pix, z, ray, ref_colour, ref_word);
     }
 }

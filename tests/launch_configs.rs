@@ -124,6 +124,8 @@ fn four_cameras_params() {
     assert_eq!(sweep.max_cost, defaults.max_cost);
     assert_eq!(sweep.half_best_n, defaults.half_best_n);
     assert_eq!(sweep.half_margin, defaults.half_margin);
+    assert_eq!(sweep.cost, defaults.cost);
+    assert_eq!((sweep.sgm_p1, sweep.sgm_p2), (defaults.sgm_p1, defaults.sgm_p2));
 
     // The engine's own checks, on the 2x2 rig of rig_four_cameras.yaml.
     let rig_file = load_rig_file(repo_path(RIG_FOUR_CAMERAS)).unwrap();
@@ -161,7 +163,7 @@ fn camera_row_params() {
         assert_eq!(sweep.scoring, Scoring::BestNOfM);
         assert_eq!(sweep.best_n, 2);
         assert_eq!(sweep.pairs, PairSet::Reference);
-        // The engine's default window: per pair, centred, 9x9.
+        // The engine's default window: per pair, centred, 5x5.
         assert_eq!(sweep.aggregation, defaults.aggregation);
         assert_eq!(sweep.window_mode, defaults.window_mode);
         assert_eq!(
@@ -170,7 +172,7 @@ fn camera_row_params() {
         );
         assert_eq!(sweep.aggregation, Aggregation::PerPair);
         assert_eq!(sweep.window_mode, WindowMode::Centred);
-        assert_eq!((sweep.window_width, sweep.window_height), (9, 9));
+        assert_eq!((sweep.window_width, sweep.window_height), (5, 5));
         assert_eq!(sweep.min_depth_m, 0.5);
         assert_eq!(sweep.max_depth_m, 5.0);
         assert_eq!(sweep.num_planes, 128);

@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 23);
+    assert_eq!(fields.len(), 24);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -710,6 +710,7 @@ fn defaults_match_sweep_params() {
         min_depth_m: 1.0,
         max_depth_m: 2.0,
         num_planes: 3,
+        cost: sweepdepth::sweep::Cost::Census,
         scoring: Scoring::Sssd,
         pairs: PairSet::All,
         best_n: 5,
@@ -754,11 +755,14 @@ fn apply_to_sweep_maps_names_and_enums() {
             "window_width:=2",
             "-p",
             "tau:=64",
+            "-p",
+            "cost:=census",
         ],
         &root_node(),
     );
     let mut s = SweepParams::default();
     apply_to_sweep(&p, &mut s).unwrap();
+    assert_eq!(s.cost, sweepdepth::sweep::Cost::Census);
     assert_eq!(s.min_depth_m, 0.25);
     assert_eq!(s.scoring, Scoring::BestHalfSequence);
     assert_eq!(s.pairs, PairSet::All);
@@ -802,8 +806,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 23 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 23 + expect.len() + 9);
+    // 24 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 24 + expect.len() + 9);
 }
 
 #[test]

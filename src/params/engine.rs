@@ -20,7 +20,7 @@ use super::spec::{ParamRange, ParamSpec};
 use super::ParamError;
 use crate::ros::param_value::{ParamKind, ParamValue};
 use crate::sweep::gpu_types::{MAX_BEST_N, MAX_HALF_BEST_N, MAX_RIG_CAMERAS};
-use crate::sweep::{Aggregation, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
+use crate::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 
 /// The command-line option of an engine parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -140,7 +140,7 @@ macro_rules! enum_field {
     )*};
 }
 
-enum_field!(Scoring, PairSet, Aggregation, WindowMode, Optimizer);
+enum_field!(Cost, Scoring, PairSet, Aggregation, WindowMode, Optimizer);
 
 /// The serde (snake_case) name of an enum variant.
 fn variant_name<T: serde::Serialize + std::fmt::Debug>(v: &T) -> String {
@@ -200,6 +200,10 @@ engine_params! {
         "Farthest depth swept, metres.";
     num_planes: u32 = 64, "num_planes", Long("planes"), ParamRange::ints(2, 4096),
         "Number of depth planes, uniform in inverse depth.";
+    // The cost, the window and the SGM penalties were chosen together on the evaluation sets
+    // (README, Quality).
+    cost: Cost = Cost::AdCensus, "cost", Long("cost"), variants::<Cost>(),
+        "Pair matching cost: truncated colour SSD, 5x5 census (blind to gain and offset), or their mean.";
     scoring: Scoring = Scoring::BestNOfM, "scoring", Long("scoring"), variants::<Scoring>(),
         "How the camera pairs of one hypothesis combine into one score.";
     pairs: PairSet = PairSet::Reference, "pairs", Long("pairs"), variants::<PairSet>(),
@@ -212,15 +216,15 @@ engine_params! {
     aggregation: Aggregation = Aggregation::PerPair, "aggregation", Long("aggregation"),
         variants::<Aggregation>(),
         "Where the windows aggregate: the scored cost, each half, or each camera pair.";
-    window_width: u32 = 9, "window_width", Width("window"), ParamRange::ints(1, 33),
+    window_width: u32 = 5, "window_width", Width("window"), ParamRange::ints(1, 33),
         "Aggregation window width, pixels (1 = none; shiftable windows: 1 or even).";
-    window_height: u32 = 9, "window_height", Height("window"), ParamRange::ints(1, 33),
+    window_height: u32 = 5, "window_height", Height("window"), ParamRange::ints(1, 33),
         "Aggregation window height, pixels (1 = none; shiftable windows: 1 or even).";
     window_mode: WindowMode = WindowMode::Centred, "window_mode", Long("window-mode"),
         variants::<WindowMode>(),
         "Window placement: the best of the four corner windows (the paper), or one centred window.";
     tau: f32 = 100.0, "tau", Long("tau"), ParamRange::above(0.0),
-        "Truncation of the colour SSD (sum over RGB of squared 0..255 differences).";
+        "Truncation of the colour SSD (sum over RGB of squared 0..255 differences); the scale of every cost (a census cost of tau = all 24 bits differ).";
     max_cost: f32 = 100.0, "max_cost", Long("max-cost"), ParamRange::above(0.0),
         "A best score above this makes the pixel invalid.";
     subpixel: bool = true, "subpixel", Long("subpixel"), ParamRange::Any,
@@ -241,9 +245,9 @@ engine_params! {
         "Depth selection: local winner-take-all (the paper) or semi-global matching over a u16 cost volume.";
     // SGM penalties chosen on the evaluation sets themselves (Tsukuba, Teddy, Laundry;
     // README, Quality).
-    sgm_p1: f32 = 3.0, "sgm_p1", Long("sgm-p1"), ParamRange::at_least(0.0),
+    sgm_p1: f32 = 10.0, "sgm_p1", Long("sgm-p1"), ParamRange::at_least(0.0),
         "SGM penalty for a one-plane step between neighbours, score units (those of tau).";
-    sgm_p2: f32 = 100.0, "sgm_p2", Long("sgm-p2"), ParamRange::at_least(0.0),
+    sgm_p2: f32 = 200.0, "sgm_p2", Long("sgm-p2"), ParamRange::at_least(0.0),
         "SGM penalty for a larger step, score units (>= sgm_p1; paths x (tau + P2) must fit 16 bits: P2 <= 7 x tau with 8 paths).";
     sgm_paths: u32 = 8, "sgm_paths", Long("sgm-paths"), ParamRange::ints(4, 8),
         "SGM path directions: 4 (rows and columns) or 8 (plus diagonals).";

@@ -15,6 +15,9 @@ pub const SCORING_BEST_N: u32 = 1;
 pub const SCORING_HALF: u32 = 2;
 pub const PAIRS_REFERENCE: u32 = 0;
 pub const PAIRS_ALL: u32 = 1;
+pub const COST_TSSD: u32 = 0;
+pub const COST_CENSUS: u32 = 1;
+pub const COST_AD_CENSUS: u32 = 2;
 pub const AGG_SCORED: u32 = 0;
 pub const AGG_PER_HALF: u32 = 1;
 pub const AGG_PER_PAIR: u32 = 2;
@@ -123,8 +126,11 @@ pub struct GpuParams {
     pub sgm_levels_per_unit: f32,
     /// Score units per summed level: 1 / (paths x levels per unit).
     pub sgm_unit_per_level: f32,
-    pub _pad0: u32,
-    pub _pad1: u32,
+    /// `COST_*`.
+    pub cost: u32,
+    /// Word of the first camera's census in the `images` buffer (after every camera's pixels;
+    /// camera `c`'s census starts at `census_offset + size.z`). 0 with `COST_TSSD`.
+    pub census_offset: u32,
 }
 
 /// WGSL `SgmPass`: one direction of the semi-global optimiser.
@@ -200,6 +206,8 @@ mod tests {
             ("MAX_RIG_CAMERAS", MAX_RIG_CAMERAS),
             ("MAX_BEST_N", MAX_BEST_N),
             ("SCORING_HALF", SCORING_HALF),
+            ("COST_CENSUS", COST_CENSUS),
+            ("COST_AD_CENSUS", COST_AD_CENSUS),
             ("AGG_PER_HALF", AGG_PER_HALF),
             ("AGG_PER_PAIR", AGG_PER_PAIR),
             ("MAX_PAIRS", MAX_PAIRS),

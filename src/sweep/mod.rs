@@ -2,6 +2,7 @@
 //! engines that run it, [`gpu::GpuEngine`] (wgpu compute shaders in `shaders/`) and its stage-by-stage
 //! CPU twin [`cpu::CpuEngine`].
 
+pub mod census;
 pub mod cpu;
 pub mod gpu;
 pub mod gpu_types;
@@ -29,6 +30,19 @@ pub enum Scoring {
     BestNOfM,
     /// min(mean of the left half's pairs, mean of the right half's pairs).
     BestHalfSequence,
+}
+
+/// The matching cost of one camera pair at one hypothesis (`tau` sets the scale of all three).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Cost {
+    /// Truncated squared RGB difference of the bilinear samples: min(tau, |a - b|^2).
+    Tssd,
+    /// Hamming distance of the 5 x 5 census words (`sweep/census.rs`), tau / 24 per bit:
+    /// blind to gain and offset between cameras.
+    Census,
+    /// The mean of the two (Mei et al.'s AD-census in spirit).
+    AdCensus,
 }
 
 /// Which camera pairs are scored.
@@ -87,6 +101,7 @@ pub struct SweepParams {
     pub min_depth_m: f64,
     pub max_depth_m: f64,
     pub num_planes: u32,
+    pub cost: Cost,
     pub scoring: Scoring,
     pub pairs: PairSet,
     /// n of best n of m.

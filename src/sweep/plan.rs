@@ -7,7 +7,7 @@ use glam::DVec2;
 
 use super::gpu_types::*;
 use super::{
-    check_images, Aggregation, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
+    census, check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
     SweepParams, WindowMode,
 };
 use crate::geometry::{Distortion, Rig};
@@ -203,6 +203,12 @@ impl SweepPlan {
             },
             padded_w: width + params.window_width - 1,
             padded_h: height + params.window_height - 1,
+            cost: match params.cost {
+                Cost::Tssd => COST_TSSD,
+                Cost::Census => COST_CENSUS,
+                Cost::AdCensus => COST_AD_CENSUS,
+            },
+            census_offset: if params.cost == Cost::Tssd { 0 } else { offset },
             ..GpuParams::zeroed()
         };
         if params.optimizer == Optimizer::Sgm {
@@ -277,7 +283,19 @@ impl SweepPlan {
         self.num_planes().div_ceil(2) as usize
     }
 
-    /// Concatenates the camera images in rig order (the layout of the image buffer).
+    /// The cost compares census words (`sweep/census.rs`).
+    pub fn uses_census(&self) -> bool {
+        self.params.cost != COST_TSSD
+    }
+
+    /// Words of the `images` buffer: every camera's pixels, then (census costs) their census
+    /// words in the same layout.
+    pub fn image_words(&self) -> usize {
+        self.total_camera_pixels * if self.uses_census() { 2 } else { 1 }
+    }
+
+    /// Concatenates the camera images in rig order, then with a census cost their census words
+    /// (the layout of the `images` buffer).
     pub fn pack_images(
         &self,
         rig: &Rig,
@@ -286,9 +304,19 @@ impl SweepPlan {
     ) -> Result<(), SweepError> {
         check_images(rig, images)?;
         out.clear();
-        out.reserve(self.total_camera_pixels);
+        out.reserve(self.image_words());
         for image in images {
             out.extend_from_slice(&image.pixels);
+        }
+        if self.uses_census() {
+            for image in images {
+                census::transform(
+                    image.width as usize,
+                    image.height as usize,
+                    &image.pixels,
+                    out,
+                );
+            }
         }
         Ok(())
     }

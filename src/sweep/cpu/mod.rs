@@ -11,6 +11,7 @@
 
 pub mod aggregate;
 pub mod boxes;
+pub mod census;
 pub mod common;
 pub mod cost;
 pub mod finalize;
@@ -187,6 +188,23 @@ impl CpuEngine {
                     PlanarImage::from_packed(im.width as usize, im.height as usize, &im.pixels)
                 })
                 .collect(),
+            census: if plan.uses_census() {
+                images
+                    .iter()
+                    .map(|im| {
+                        let mut words = Vec::new();
+                        crate::sweep::census::transform(
+                            im.width as usize,
+                            im.height as usize,
+                            &im.pixels,
+                            &mut words,
+                        );
+                        words
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            },
         };
         let mappings: Vec<Vec<cost::Mapping>> = (0..planes)
             .map(|k| cost::mappings(plan, k, self.fast_paths))

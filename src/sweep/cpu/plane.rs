@@ -7,6 +7,7 @@
 use super::aggregate::{RowScorer, Windows};
 use super::boxes::{BoxH, RowRing};
 use super::common::{vectorised_fn, PlanarImage};
+use super::census;
 use super::cost::{self, ColourRow, Mapping, ScoreAcc};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -20,6 +21,11 @@ pub struct PlaneScratch {
     box_h: BoxH,
     ring: RowRing,
     scorer: RowScorer,
+    /// Census costs: per camera, the distances to the reference's words (pairs with the
+    /// reference) and the nearest words (pairs of two sampled cameras).
+    census_distances: Vec<Vec<f32>>,
+    census_nearest: Vec<Vec<u32>>,
+    census_bits: Vec<f32>,
 }
 
 impl PlaneScratch {
@@ -44,6 +50,13 @@ impl PlaneScratch {
             box_h: BoxH::new(width, windows.w),
             ring: RowRing::new(channels, 2 * windows.h, width + windows.w - 1),
             scorer: RowScorer::new(plan),
+            census_distances: (0..if plan.uses_census() { p.cameras } else { 0 })
+                .map(|_| vec![0.0; width])
+                .collect(),
+            census_nearest: (0..if plan.uses_census() { p.cameras } else { 0 })
+                .map(|_| vec![0; width])
+                .collect(),
+            census_bits: vec![0.0; width],
         }
     }
 }
@@ -52,6 +65,8 @@ impl PlaneScratch {
 pub struct FrameImages {
     /// Planar colours per rig camera.
     pub planar: Vec<PlanarImage>,
+    /// Census words per rig camera (`sweep/census.rs`); empty with the TSSD cost.
+    pub census: Vec<Vec<u32>>,
 }
 
 vectorised_fn! {
@@ -137,6 +152,9 @@ fn cost_row(
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
         cost::pair_cost_row(p.tau, row(pair[0] as usize), row(pair[1] as usize), costs);
     }
+    if plan.uses_census() {
+        census_costs(plan, images, mappings, k, y, s);
+    }
     let rows: &[Vec<f32>] = if p.aggregation == AGG_PER_PAIR {
         &s.pair_costs
     } else {
@@ -146,5 +164,64 @@ fn cost_row(
     for (ch, costs) in rows.iter().enumerate() {
         let (sums, counts) = s.ring.row_mut(ch, y);
         s.box_h.run(costs, sums, counts);
+    }
+}
+
+/// Census costs (`cost = census | ad_census`) of row `y` on plane `k`: the pair TSSDs in
+/// `s.pair_costs` become the plan's cost (`reference_pair_cost` and the all-pairs loop of
+/// cost.wgsl).
+#[inline(always)]
+fn census_costs(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    mappings: &[Mapping],
+    k: usize,
+    y: usize,
+    s: &mut PlaneScratch,
+) {
+    let p = &plan.params;
+    let width = p.width as usize;
+    let reference = p.reference;
+    let reference_words = (reference != NO_CAMERA).then(|| {
+        let at = y * width;
+        &images.census[reference as usize][at..at + width]
+    });
+    for (i, cam) in plan.cameras.iter().enumerate() {
+        if i as u32 == reference {
+            continue;
+        }
+        let visible = &s.colours[i][0];
+        if let Some(words) = reference_words {
+            census::distance_row(
+                plan,
+                &images.census[i],
+                cam,
+                mappings[i],
+                k,
+                y,
+                visible,
+                words,
+                &mut s.census_distances[i],
+            );
+        }
+        if p.pair_mode == PAIRS_ALL {
+            census::nearest_row(plan, &images.census[i], cam, k, y, visible, &mut s.census_nearest[i]);
+        }
+    }
+    for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
+        let (a, b) = (pair[0], pair[1]);
+        let bits: &[f32] = if a == reference {
+            &s.census_distances[b as usize]
+        } else if b == reference {
+            &s.census_distances[a as usize]
+        } else {
+            census::nearest_distance_row(
+                &s.census_nearest[a as usize],
+                &s.census_nearest[b as usize],
+                &mut s.census_bits,
+            );
+            &s.census_bits
+        };
+        census::mix_row(plan, bits, costs);
     }
 }

@@ -93,7 +93,7 @@ impl Buffers {
             "cameras",
             u64::from(MAX_RIG_CAMERAS) * std::mem::size_of::<GpuCamera>() as u64,
         );
-        let images = storage("images", key.camera_pixels as u64 * 4, none);
+        let images = storage("images", key.image_words as u64 * 4, none);
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);

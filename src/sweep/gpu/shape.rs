@@ -18,6 +18,8 @@ pub(super) struct ShapeKey {
     pub padded_height: u32,
     pub cameras: u32,
     pub camera_pixels: usize,
+    /// Words of the `images` buffer (pixels, and census words with a census cost).
+    pub image_words: usize,
     pub planes: u32,
     pub channels: u32,
     /// Planes per batch.
@@ -87,7 +89,7 @@ impl ShapeKey {
             )));
         }
         let maps_bytes = npix * 4 * MAP_COUNT as u64;
-        let image_bytes = plan.total_camera_pixels as u64 * 4;
+        let image_bytes = plan.image_words() as u64 * 4;
         for (what, bytes) in [("output maps", maps_bytes), ("camera images", image_bytes)] {
             if bytes > max_binding {
                 return Err(SweepError::InvalidParams(format!(
@@ -133,6 +135,7 @@ impl ShapeKey {
             padded_height: padded_h,
             cameras: plan.cameras.len() as u32,
             camera_pixels: plan.total_camera_pixels,
+            image_words: plan.image_words(),
             planes,
             channels: plan.channels() as u32,
             batch,

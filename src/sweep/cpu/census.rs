@@ -1,0 +1,182 @@
+//! Twin of the census half of `shaders/cost.wgsl` (`census_distance`, `census_nearest`,
+//! `mixed_cost`), one reference row at a time. The words themselves are made once per frame set
+//! by `sweep/census.rs` for both engines.
+// The `!(x > 0.0)` style tests mirror the shaders and are NaN-safe on purpose.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// Loops over x index several rows at once, as the shader indexes its buffers.
+#![allow(clippy::needless_range_loop)]
+
+use super::common::*;
+use super::cost::Mapping;
+use crate::sweep::census::BITS;
+use crate::sweep::gpu_types::*;
+use crate::sweep::plan::SweepPlan;
+
+#[inline(always)]
+fn ones(a: u32, b: u32) -> f32 {
+    (a ^ b).count_ones() as f32
+}
+
+/// Where reference pixel `x` of row `y` lands in the camera on plane `k` (a visible sample:
+/// `visible[x]` is not NaN), as `sample_row` projects it.
+#[inline(always)]
+fn sample_at(plan: &SweepPlan, cam: &GpuCamera, k: usize, x: usize, y: usize) -> Vec2 {
+    let width = plan.params.width as usize;
+    let ray = xyz(plan.rays[y * width + x]);
+    let depth = plane_depth(plan.planes[k], ray);
+    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+    [projected[0], projected[1]]
+}
+
+/// Distances of `refs` to the camera row `row` (sample i between texels i and i + 1 at `fx`).
+#[inline(always)]
+fn along_row(row: &[u32], refs: &[u32], fx: f32, dst: &mut [f32]) {
+    let n = dst.len();
+    if fx == 0.0 {
+        for ((d, &a), &r) in dst.iter_mut().zip(&row[..n]).zip(&refs[..n]) {
+            *d = ones(a, r);
+        }
+    } else {
+        for (((d, &a), &b), &r) in dst
+            .iter_mut()
+            .zip(&row[..n])
+            .zip(&row[1..=n])
+            .zip(&refs[..n])
+        {
+            let (h0, h1) = (ones(a, r), ones(b, r));
+            *d = h0 + (h1 - h0) * fx;
+        }
+    }
+}
+
+/// `census_distance` along a row: the Hamming distance of each reference word to the words
+/// around the camera's sample, interpolated bilinearly. Only visible samples (`visible[x]` not
+/// NaN: the camera's red channel from `cost::sample_row`) are written.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn distance_row(
+    plan: &SweepPlan,
+    words: &[u32],
+    cam: &GpuCamera,
+    mapping: Mapping,
+    k: usize,
+    y: usize,
+    visible: &[f32],
+    reference: &[u32],
+    out: &mut [f32],
+) {
+    let width = plan.params.width as usize;
+    let (cw, ch) = (cam.size[0] as usize, cam.size[1] as usize);
+    match mapping {
+        Mapping::Translation { dx, dy } => {
+            // The columns `sample_row_shifted` found inside, with its constant weights.
+            let x_lo = (-dx).ceil().max(0.0);
+            let x_hi = (cw as f64 - 1.0 - dx).floor().min(width as f64 - 1.0);
+            let v = y as f64 + dy;
+            if !(v >= 0.0 && v <= ch as f64 - 1.0) || x_hi < x_lo {
+                return;
+            }
+            let (x_lo, x_hi) = (x_lo as usize, x_hi as usize);
+            let ix = dx.floor();
+            let fx = (dx - ix) as f32;
+            let first = (x_lo as f64 + ix) as usize;
+            let count = x_hi + 1 - x_lo;
+            let y0 = v.floor();
+            let fy = (v - y0) as f32;
+            let y0 = y0 as usize;
+            let refs = &reference[x_lo..x_lo + count];
+            let dst = &mut out[x_lo..x_lo + count];
+            let row = |yy: usize| &words[yy * cw + first..];
+            along_row(row(y0), refs, fx, dst);
+            if fy != 0.0 {
+                // The next camera row, in chunks on the stack, blended in.
+                let mut bottom = [0.0f32; 64];
+                let next = row(y0 + 1);
+                for (start, chunk) in (0..count).step_by(64).zip(dst.chunks_mut(64)) {
+                    let n = chunk.len();
+                    along_row(&next[start..], &refs[start..start + n], fx, &mut bottom[..n]);
+                    for (d, &b) in chunk.iter_mut().zip(&bottom[..n]) {
+                        *d += (b - *d) * fy;
+                    }
+                }
+            }
+        }
+        Mapping::General => {
+            for x in 0..width {
+                if visible[x].is_nan() {
+                    continue;
+                }
+                let pixel = sample_at(plan, cam, k, x, y);
+                let bx = pixel[0].floor();
+                let by = pixel[1].floor();
+                let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
+                let (x0, y0) = (bx as usize, by as usize);
+                let x1 = (x0 + 1).min(cw - 1);
+                let y1 = (y0 + 1).min(ch - 1);
+                let r = reference[x];
+                let h = |xx: usize, yy: usize| ones(words[yy * cw + xx], r);
+                let (h00, h10, h01, h11) = (h(x0, y0), h(x1, y0), h(x0, y1), h(x1, y1));
+                let top = h00 + (h10 - h00) * fx;
+                let bottom = h01 + (h11 - h01) * fx;
+                out[x] = top + (bottom - top) * fy;
+            }
+        }
+    }
+}
+
+/// `census_nearest` along a row: the word of the texel nearest to each visible sample.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn nearest_row(
+    plan: &SweepPlan,
+    words: &[u32],
+    cam: &GpuCamera,
+    k: usize,
+    y: usize,
+    visible: &[f32],
+    out: &mut [u32],
+) {
+    let width = plan.params.width as usize;
+    let (cw, ch) = (cam.size[0] as usize, cam.size[1] as usize);
+    for x in 0..width {
+        if visible[x].is_nan() {
+            continue;
+        }
+        let pixel = sample_at(plan, cam, k, x, y);
+        let xi = ((pixel[0] + 0.5).floor() as usize).min(cw - 1);
+        let yi = ((pixel[1] + 0.5).floor() as usize).min(ch - 1);
+        out[x] = words[yi * cw + xi];
+    }
+}
+
+/// `mixed_cost` along a row: the pair's TSSDs in `costs` become the plan's cost (`COST_*`) with
+/// the census distances `bits`; missing pairs (negative) stay as they are.
+#[inline(always)]
+pub fn mix_row(plan: &SweepPlan, bits: &[f32], costs: &mut [f32]) {
+    let p = &plan.params;
+    let scale = p.tau / BITS as f32;
+    let n = costs.len();
+    let bits = &bits[..n];
+    if p.cost == COST_CENSUS {
+        for x in 0..n {
+            if costs[x] >= 0.0 {
+                costs[x] = bits[x] * scale;
+            }
+        }
+    } else {
+        for x in 0..n {
+            if costs[x] >= 0.0 {
+                costs[x] = 0.5 * (costs[x] + bits[x] * scale);
+            }
+        }
+    }
+}
+
+/// The distances of a pair of two sampled cameras (nearest words).
+#[inline(always)]
+pub fn nearest_distance_row(a: &[u32], b: &[u32], out: &mut [f32]) {
+    let n = out.len();
+    for x in 0..n {
+        out[x] = ones(a[x], b[x]);
+    }
+}
