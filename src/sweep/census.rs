@@ -10,6 +10,8 @@
 
 use rayon::prelude::*;
 
+use super::cpu::common::vectorised_fn;
+
 /// Window radius: 5 x 5 texels.
 pub const RADIUS: usize = 2;
 /// Bits of a census word: the window less its centre.
@@ -31,7 +33,7 @@ pub fn transform(width: usize, height: usize, pixels: &[u32], out: &mut Vec<u32>
     // Grey with the edges repeated RADIUS texels outwards, so every window is a plain slice.
     let r = RADIUS;
     let padded_width = width + 2 * r;
-    let mut padded = vec![0u32; padded_width * (height + 2 * r)];
+    let mut padded = vec![0i32; padded_width * (height + 2 * r)];
     padded
         .par_chunks_mut(padded_width)
         .enumerate()
@@ -39,7 +41,8 @@ pub fn transform(width: usize, height: usize, pixels: &[u32], out: &mut Vec<u32>
             let y = py.saturating_sub(r).min(height - 1);
             let src = &pixels[y * width..(y + 1) * width];
             for (d, &p) in line[r..r + width].iter_mut().zip(src) {
-                *d = luma(p);
+                // At most 255 x 256: an i32 compares in one vector instruction.
+                *d = luma(p) as i32;
             }
             let (first, last) = (line[r], line[r + width - 1]);
             line[..r].fill(first);
@@ -48,24 +51,31 @@ pub fn transform(width: usize, height: usize, pixels: &[u32], out: &mut Vec<u32>
     out[start..]
         .par_chunks_mut(width)
         .enumerate()
-        .for_each(|(y, words)| {
-            let at = |dy: usize, dx: usize| {
-                let o = (y + dy) * padded_width + dx;
-                &padded[o..o + width]
-            };
-            let centre = at(r, r);
-            // One pass over the row per neighbour: the loops vectorise.
-            for dy in 0..=2 * r {
-                for dx in 0..=2 * r {
-                    if dy == r && dx == r {
-                        continue;
-                    }
-                    for ((w, &n), &c) in words.iter_mut().zip(at(dy, dx)).zip(centre) {
-                        *w = (*w << 1) | u32::from(n < c);
-                    }
-                }
+        .for_each(|(y, words)| census_row(&padded, padded_width, y, words));
+}
+
+vectorised_fn! {
+/// The words of output row `y` from the padded grey image: one pass over the row per neighbour,
+/// so the loops vectorise.
+fn census_row(padded: &[i32], padded_width: usize, y: usize, words: &mut [u32]) {
+    let r = RADIUS;
+    let width = words.len();
+    let at = |dy: usize, dx: usize| {
+        let o = (y + dy) * padded_width + dx;
+        &padded[o..o + width]
+    };
+    let centre = at(r, r);
+    for dy in 0..=2 * r {
+        for dx in 0..=2 * r {
+            if dy == r && dx == r {
+                continue;
             }
-        });
+            for ((w, &n), &c) in words.iter_mut().zip(at(dy, dx)).zip(centre) {
+                *w = (*w << 1) | u32::from(n < c);
+            }
+        }
+    }
+}
 }
 
 #[cfg(test)]

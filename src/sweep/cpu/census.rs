@@ -150,25 +150,24 @@ pub fn nearest_row(
 }
 
 /// `mixed_cost` along a row: the pair's TSSDs in `costs` become the plan's cost (`COST_*`) with
-/// the census distances `bits`; missing pairs (negative) stay as they are.
+/// the census distances `bits`; missing pairs stay INVALID.
 #[inline(always)]
 pub fn mix_row(plan: &SweepPlan, bits: &[f32], costs: &mut [f32]) {
     let p = &plan.params;
     let scale = p.tau / BITS as f32;
     let n = costs.len();
     let bits = &bits[..n];
-    if p.cost == COST_CENSUS {
-        for x in 0..n {
-            if costs[x] >= 0.0 {
-                costs[x] = bits[x] * scale;
-            }
-        }
-    } else {
-        for x in 0..n {
-            if costs[x] >= 0.0 {
-                costs[x] = 0.5 * (costs[x] + bits[x] * scale);
-            }
-        }
+    // Every lane is written (a select, not a masked store: the loop stays vectorised).
+    let census_only = p.cost == COST_CENSUS;
+    for (c, &b) in costs.iter_mut().zip(bits) {
+        let census_cost = b * scale;
+        let mixed = if census_only {
+            census_cost
+        } else {
+            0.5 * (*c + census_cost)
+        };
+        // Missing pairs are INVALID (`pair_cost_row`); writing the constant keeps this a blend.
+        *c = if *c >= 0.0 { mixed } else { INVALID };
     }
 }
 
