@@ -56,7 +56,12 @@ fn census_cost_is_blind_to_gain_and_offset_between_cameras() {
     let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
     let scene = Scene::wall_and_box(2.0, Some((1.4, 0.3)), 70.0);
     let mut images = synthetic::render_rig(&scene, &rig);
-    for (camera, gain, offset) in [(0, 0.55, 60.0), (1, 0.7, 40.0), (3, 1.3, -20.0), (4, 0.6, 50.0)] {
+    for (camera, gain, offset) in [
+        (0, 0.55, 60.0),
+        (1, 0.7, 40.0),
+        (3, 1.3, -20.0),
+        (4, 0.6, 50.0),
+    ] {
         for pixel in &mut images[camera].pixels {
             let channel = |shift: u32| {
                 let v = f64::from((*pixel >> shift) & 0xff) * gain + offset;
@@ -136,7 +141,10 @@ fn sub_pixel_refinement_lowers_the_error_between_planes() {
         v.iter().sum::<f64>() / v.len().max(1) as f64
     };
     for (cost, most) in [(Cost::Tssd, 0.6), (Cost::AdCensus, 0.8)] {
-        let mut p = SweepParams { cost, ..base.clone() };
+        let mut p = SweepParams {
+            cost,
+            ..base.clone()
+        };
         p.subpixel = false;
         let coarse = mean_abs_error(&engine.run(&rig, &images, &p).expect("sweep"));
         p.subpixel = true;

@@ -9,9 +9,7 @@ use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::SweepPlan;
-use sweepdepth::sweep::{
-    Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode,
-};
+use sweepdepth::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
@@ -461,7 +459,12 @@ fn every_cost_agrees_on_synthetic() {
             ..base()
         };
         let plan = SweepPlan::new(&virtual_rig, &params).expect("plan");
-        compare(&format!("virtual_reference_{cost:?}"), &plan, &virtual_rig, &images);
+        compare(
+            &format!("virtual_reference_{cost:?}"),
+            &plan,
+            &virtual_rig,
+            &images,
+        );
     }
 }
 

@@ -125,7 +125,10 @@ fn four_cameras_params() {
     assert_eq!(sweep.half_best_n, defaults.half_best_n);
     assert_eq!(sweep.half_margin, defaults.half_margin);
     assert_eq!(sweep.cost, defaults.cost);
-    assert_eq!((sweep.sgm_p1, sweep.sgm_p2), (defaults.sgm_p1, defaults.sgm_p2));
+    assert_eq!(
+        (sweep.sgm_p1, sweep.sgm_p2),
+        (defaults.sgm_p1, defaults.sgm_p2)
+    );
 
     // The engine's own checks, on the 2x2 rig of rig_four_cameras.yaml.
     let rig_file = load_rig_file(repo_path(RIG_FOUR_CAMERAS)).unwrap();

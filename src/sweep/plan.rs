@@ -7,8 +7,8 @@ use glam::DVec2;
 
 use super::gpu_types::*;
 use super::{
-    census, check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
-    SweepParams, WindowMode,
+    census, check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring,
+    SweepError, SweepParams, WindowMode,
 };
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;

@@ -94,7 +94,12 @@ pub fn distance_row(
                 let next = row(y0 + 1);
                 for (start, chunk) in (0..count).step_by(64).zip(dst.chunks_mut(64)) {
                     let n = chunk.len();
-                    along_row(&next[start..], &refs[start..start + n], fx, &mut bottom[..n]);
+                    along_row(
+                        &next[start..],
+                        &refs[start..start + n],
+                        fx,
+                        &mut bottom[..n],
+                    );
                     for (d, &b) in chunk.iter_mut().zip(&bottom[..n]) {
                         *d += (b - *d) * fy;
                     }

@@ -6,8 +6,8 @@
 
 use super::aggregate::{RowScorer, Windows};
 use super::boxes::{BoxH, RowRing};
-use super::common::{vectorised_fn, PlanarImage};
 use super::census;
+use super::common::{vectorised_fn, PlanarImage};
 use super::cost::{self, ColourRow, Mapping, ScoreAcc};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -205,7 +205,15 @@ fn census_costs(
             );
         }
         if p.pair_mode == PAIRS_ALL {
-            census::nearest_row(plan, &images.census[i], cam, k, y, visible, &mut s.census_nearest[i]);
+            census::nearest_row(
+                plan,
+                &images.census[i],
+                cam,
+                k,
+                y,
+                visible,
+                &mut s.census_nearest[i],
+            );
         }
     }
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
