@@ -15,19 +15,35 @@ override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggr
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> cost_slab: array<f32>;
 
-fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
-    return unpack4x8unorm(images[cam.size.z + y * cam.size.x + x]).rgb * 255.0;
+// The four texels around a sample that `inside` accepted (row-major indices in the camera's
+// image) and its weights (CPU twin: `Bilinear` in cpu/common.rs).
+struct Bilinear {
+    i00: u32,
+    i10: u32,
+    i01: u32,
+    i11: u32,
+    f: vec2<f32>,
 }
-fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
+fn bilinear_at(cam: Camera, pixel: vec2<f32>) -> Bilinear {
     let base = floor(pixel);
-    let f = pixel - base;
     let x0 = u32(base.x);
     let y0 = u32(base.y);
     let x1 = min(x0 + 1u, cam.size.x - 1u);
     let y1 = min(y0 + 1u, cam.size.y - 1u);
-    let top = mix(texel(cam, x0, y0), texel(cam, x1, y0), f.x);
-    let bottom = mix(texel(cam, x0, y1), texel(cam, x1, y1), f.x);
-    return mix(top, bottom, f.y);
+    let w = cam.size.x;
+    return Bilinear(y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1, pixel - base);
+}
+fn texel_at(cam: Camera, i: u32) -> vec3<f32> {
+    return unpack4x8unorm(images[cam.size.z + i]).rgb * 255.0;
+}
+fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
+    return texel_at(cam, y * cam.size.x + x);
+}
+fn sample_bilinear(cam: Camera, pixel: vec2<f32>) -> vec3<f32> {
+    let b = bilinear_at(cam, pixel);
+    let top = mix(texel_at(cam, b.i00), texel_at(cam, b.i10), b.f.x);
+    let bottom = mix(texel_at(cam, b.i01), texel_at(cam, b.i11), b.f.x);
+    return mix(top, bottom, b.f.y);
 }
 
 fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
@@ -37,31 +53,26 @@ fn tssd(a: vec3<f32>, b: vec3<f32>) -> f32 {
 
 // Census words (sweep/census.rs): after every camera's pixels in `images`.
 const CENSUS_BITS: f32 = 24.0;
-fn census_word(cam: Camera, x: u32, y: u32) -> u32 {
-    return images[params.census_offset + cam.size.z + y * cam.size.x + x];
+fn census_word(cam: Camera, i: u32) -> u32 {
+    return images[params.census_offset + cam.size.z + i];
 }
 // The word of the texel nearest to a sample.
 fn census_nearest(cam: Camera, pixel: vec2<f32>) -> u32 {
     let x = min(u32(floor(pixel.x + 0.5)), cam.size.x - 1u);
     let y = min(u32(floor(pixel.y + 0.5)), cam.size.y - 1u);
-    return census_word(cam, x, y);
+    return census_word(cam, y * cam.size.x + x);
 }
 // Hamming distance of `word` to the words around a sample, interpolated bilinearly as the
 // colours are (so the cost changes smoothly from plane to plane).
 fn census_distance(cam: Camera, pixel: vec2<f32>, word: u32) -> f32 {
-    let base = floor(pixel);
-    let f = pixel - base;
-    let x0 = u32(base.x);
-    let y0 = u32(base.y);
-    let x1 = min(x0 + 1u, cam.size.x - 1u);
-    let y1 = min(y0 + 1u, cam.size.y - 1u);
-    let h00 = f32(countOneBits(census_word(cam, x0, y0) ^ word));
-    let h10 = f32(countOneBits(census_word(cam, x1, y0) ^ word));
-    let h01 = f32(countOneBits(census_word(cam, x0, y1) ^ word));
-    let h11 = f32(countOneBits(census_word(cam, x1, y1) ^ word));
-    let top = h00 + (h10 - h00) * f.x;
-    let bottom = h01 + (h11 - h01) * f.x;
-    return top + (bottom - top) * f.y;
+    let b = bilinear_at(cam, pixel);
+    let h00 = f32(countOneBits(census_word(cam, b.i00) ^ word));
+    let h10 = f32(countOneBits(census_word(cam, b.i10) ^ word));
+    let h01 = f32(countOneBits(census_word(cam, b.i01) ^ word));
+    let h11 = f32(countOneBits(census_word(cam, b.i11) ^ word));
+    let top = h00 + (h10 - h00) * b.f.x;
+    let bottom = h01 + (h11 - h01) * b.f.x;
+    return top + (bottom - top) * b.f.y;
 }
 // The cost (COST_*) of a census distance and a colour pair's TSSD.
 fn mixed_cost(tssd_cost: f32, census_bits: f32) -> f32 {
@@ -305,7 +316,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (ref_index != NO_CAMERA) {
         ref_colour = texel(cameras[ref_index], gid.x, gid.y);
         if (params.cost != COST_TSSD) {
-            ref_word = census_word(cameras[ref_index], gid.x, gid.y);
+            ref_word = census_word(cameras[ref_index], gid.y * cameras[ref_index].size.x + gid.x);
         }
     }
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {

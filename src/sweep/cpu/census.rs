@@ -7,7 +7,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::common::*;
-use super::cost::Mapping;
+use super::cost::{Mapping, ShiftedSpan};
 use crate::sweep::census::BITS;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -70,20 +70,17 @@ pub fn distance_row(
     match mapping {
         Mapping::Translation { dx, dy } => {
             // The columns `sample_row_shifted` found inside, with its constant weights.
-            let x_lo = (-dx).ceil().max(0.0);
-            let x_hi = (cw as f64 - 1.0 - dx).floor().min(width as f64 - 1.0);
-            let v = y as f64 + dy;
-            if !(v >= 0.0 && v <= ch as f64 - 1.0) || x_hi < x_lo {
+            let Some(ShiftedSpan {
+                x_lo,
+                count,
+                first,
+                y0,
+                fx,
+                fy,
+            }) = ShiftedSpan::of(cw, ch, dx, dy, y, width)
+            else {
                 return;
-            }
-            let (x_lo, x_hi) = (x_lo as usize, x_hi as usize);
-            let ix = dx.floor();
-            let fx = (dx - ix) as f32;
-            let first = (x_lo as f64 + ix) as usize;
-            let count = x_hi + 1 - x_lo;
-            let y0 = v.floor();
-            let fy = (v - y0) as f32;
-            let y0 = y0 as usize;
+            };
             let refs = &reference[x_lo..x_lo + count];
             let dst = &mut out[x_lo..x_lo + count];
             let row = |yy: usize| &words[yy * cw + first..];
@@ -111,19 +108,9 @@ pub fn distance_row(
                 if visible[x].is_nan() {
                     continue;
                 }
-                let pixel = sample_at(plan, cam, k, x, y);
-                let bx = pixel[0].floor();
-                let by = pixel[1].floor();
-                let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
-                let (x0, y0) = (bx as usize, by as usize);
-                let x1 = (x0 + 1).min(cw - 1);
-                let y1 = (y0 + 1).min(ch - 1);
                 let r = reference[x];
-                let h = |xx: usize, yy: usize| ones(words[yy * cw + xx], r);
-                let (h00, h10, h01, h11) = (h(x0, y0), h(x1, y0), h(x0, y1), h(x1, y1));
-                let top = h00 + (h10 - h00) * fx;
-                let bottom = h01 + (h11 - h01) * fx;
-                out[x] = top + (bottom - top) * fy;
+                out[x] = Bilinear::at(cw, ch, sample_at(plan, cam, k, x, y))
+                    .mix(|i| ones(words[i], r));
             }
         }
     }

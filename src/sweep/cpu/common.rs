@@ -111,20 +111,48 @@ impl PlanarImage {
     /// Twin of `sample_bilinear` (cost.wgsl) for a pixel that `inside` accepted.
     #[inline(always)]
     pub fn sample_bilinear(&self, pixel: Vec2) -> Vec3 {
+        let b = Bilinear::at(self.width, self.height, pixel);
+        std::array::from_fn(|c| b.mix(|i| self.channels[c][i]))
+    }
+}
+
+/// Twin of `Bilinear` (cost.wgsl): the four texels around a sample that `inside` accepted
+/// (row-major indices into an image of `width` x `height`) and its weights.
+#[derive(Debug, Clone, Copy)]
+pub struct Bilinear {
+    i00: usize,
+    i10: usize,
+    i01: usize,
+    i11: usize,
+    fx: f32,
+    fy: f32,
+}
+
+impl Bilinear {
+    #[inline(always)]
+    pub fn at(width: usize, height: usize, pixel: Vec2) -> Self {
         let bx = pixel[0].floor();
         let by = pixel[1].floor();
-        let (fx, fy) = (pixel[0] - bx, pixel[1] - by);
         let (x0, y0) = (bx as usize, by as usize);
-        let x1 = (x0 + 1).min(self.width - 1);
-        let y1 = (y0 + 1).min(self.height - 1);
-        let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
-        let mut out = [0.0; 3];
-        for (c, plane) in self.channels.iter().enumerate() {
-            let top = mix(plane[y0 * self.width + x0], plane[y0 * self.width + x1], fx);
-            let bottom = mix(plane[y1 * self.width + x0], plane[y1 * self.width + x1], fx);
-            out[c] = mix(top, bottom, fy);
+        let x1 = (x0 + 1).min(width - 1);
+        let y1 = (y0 + 1).min(height - 1);
+        Self {
+            i00: y0 * width + x0,
+            i10: y0 * width + x1,
+            i01: y1 * width + x0,
+            i11: y1 * width + x1,
+            fx: pixel[0] - bx,
+            fy: pixel[1] - by,
         }
-        out
+    }
+
+    /// `value` (of a texel index) interpolated at the sample.
+    #[inline(always)]
+    pub fn mix(&self, value: impl Fn(usize) -> f32) -> f32 {
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let top = lerp(value(self.i00), value(self.i10), self.fx);
+        let bottom = lerp(value(self.i01), value(self.i11), self.fx);
+        lerp(top, bottom, self.fy)
     }
 }
 

@@ -140,6 +140,43 @@ pub fn sample_row(
     }
 }
 
+/// Where reference row `y` lands in a camera image of `cw` x `ch` texels that sees it shifted by
+/// (dx, dy): the reference columns `x_lo .. x_lo + count` whose samples are inside (`inside`:
+/// 0 <= x + dx <= cw - 1), starting at camera column `first` of row `y0`, with the constant
+/// bilinear weights `fx`, `fy`. `None` when no sample of the row is inside.
+#[derive(Debug, Clone, Copy)]
+pub struct ShiftedSpan {
+    pub x_lo: usize,
+    pub count: usize,
+    pub first: usize,
+    pub y0: usize,
+    pub fx: f32,
+    pub fy: f32,
+}
+
+impl ShiftedSpan {
+    #[inline(always)]
+    pub fn of(cw: usize, ch: usize, dx: f64, dy: f64, y: usize, width: usize) -> Option<Self> {
+        let (cw, ch) = (cw as f64, ch as f64);
+        let v = y as f64 + dy;
+        let x_lo = (-dx).ceil().max(0.0);
+        let x_hi = (cw - 1.0 - dx).floor().min(width as f64 - 1.0);
+        if !(v >= 0.0 && v <= ch - 1.0) || x_hi < x_lo {
+            return None;
+        }
+        let ix = dx.floor();
+        let y0 = v.floor();
+        Some(Self {
+            x_lo: x_lo as usize,
+            count: (x_hi - x_lo) as usize + 1,
+            first: (x_lo + ix) as usize,
+            y0: y0 as usize,
+            fx: (dx - ix) as f32,
+            fy: (v - y0) as f32,
+        })
+    }
+}
+
 /// The fast path: row `y` shifted by (dx, dy), constant bilinear weights, contiguous loads.
 #[inline(always)]
 fn sample_row_shifted(
@@ -150,25 +187,20 @@ fn sample_row_shifted(
     width: usize,
     out: &mut ColourRow,
 ) {
-    let (cw, ch) = (image.width as f64, image.height as f64);
-    let v = y as f64 + dy;
-    // Columns whose sample lies inside the camera image (`inside`): 0 <= x + dx <= cw - 1.
-    let x_lo = (-dx).ceil().max(0.0);
-    let x_hi = (cw - 1.0 - dx).floor().min(width as f64 - 1.0);
-    if !(v >= 0.0 && v <= ch - 1.0) || x_hi < x_lo {
+    let Some(ShiftedSpan {
+        x_lo,
+        count,
+        first,
+        y0,
+        fx,
+        fy,
+    }) = ShiftedSpan::of(image.width, image.height, dx, dy, y, width)
+    else {
         out[0].fill(f32::NAN);
         return;
-    }
-    let (x_lo, x_hi) = (x_lo as usize, x_hi as usize);
+    };
     out[0][..x_lo].fill(f32::NAN);
-    out[0][x_hi + 1..].fill(f32::NAN);
-    let ix = dx.floor();
-    let fx = (dx - ix) as f32;
-    let first = (x_lo as f64 + ix) as usize;
-    let count = x_hi + 1 - x_lo;
-    let y0 = v.floor();
-    let fy = (v - y0) as f32;
-    let y0 = y0 as usize;
+    out[0][x_lo + count..].fill(f32::NAN);
     let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
     for (plane, row_out) in image.channels.iter().zip(out.iter_mut()) {
         let dst = &mut row_out[x_lo..x_lo + count];
