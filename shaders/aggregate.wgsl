@@ -18,7 +18,8 @@ override CHANNELS: u32 = 1u;      // = params.channels
 override AGGREGATION: u32 = 0u;   // = params.aggregation
 override SCORING: u32 = 0u;       // = params.scoring
 override BEST_N: u32 = 2u;        // = params.best_n
-override HALF_BEST_N: u32 = 2u;   // = params.half_best_n
+override HALF_BEST_LEFT: u32 = 1u;  // = SweepPlan::half_ranks()[0] (0 = all pairs of the half)
+override HALF_BEST_RIGHT: u32 = 1u; // = SweepPlan::half_ranks()[1]
 // Two horizontally adjacent pixels per invocation, sharing the loads of their 2x2 windows.
 override PAIRED: bool = false;
 // Optimizer sgm: also write every plane's score into the u16 cost volume (see common.wgsl);
@@ -222,6 +223,17 @@ fn half_decisions(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
     return select(select(vec4<f32>(f32(SEL_NONE)), vec4<f32>(f32(SEL_RIGHT)), is_right), vec4<f32>(f32(SEL_LEFT)), is_left);
 }
 
+// The smaller half's score, blended with the other where the two are within HALF_NOISE_FLOOR
+// of each other (a quadratic smooth minimum): where no occlusion hits either side the score follows both
+// halves, not whichever is lower at each plane. CPU twin: half_min in cpu/aggregate.rs.
+fn half_min(left: vec4<f32>, right: vec4<f32>) -> vec4<f32> {
+    let h = HALF_NOISE_FLOOR;
+    let m = min(left, right);
+    let t = max(vec4<f32>(h) - abs(left - right), vec4<f32>(0.0));
+    let big = vec4<f32>(BIG);
+    return select(m, m - t * t / (4.0 * h), left < big & right < big);
+}
+
 // Running sums over the pairs of one pixel and plane, per window placement (lanes). By value,
 // no arrays (software rasterisers run run-time-indexed arrays slowly).
 struct Acc {
@@ -240,7 +252,7 @@ struct Acc {
     b5: vec4<f32>,
     b6: vec4<f32>,
     b7: vec4<f32>,
-    // The HALF_BEST_N smallest pair means of each half, likewise.
+    // The HALF_BEST_LEFT / HALF_BEST_RIGHT smallest pair means of each half, likewise.
     l0: vec4<f32>,
     l1: vec4<f32>,
     l2: vec4<f32>,
@@ -323,12 +335,14 @@ fn finish_pairs(acc: Acc) -> vec2<f32> {
     let one = vec4<f32>(1.0);
     var left = mean_or_big(acc.left_sum, acc.left_count);
     var right = mean_or_big(acc.right_sum, acc.right_count);
-    if (HALF_BEST_N > 0u) {
-        left = best_mean(acc.l0, acc.l1, acc.l2, acc.l3, HALF_BEST_N);
-        right = best_mean(acc.r0, acc.r1, acc.r2, acc.r3, HALF_BEST_N);
+    if (HALF_BEST_LEFT > 0u) {
+        left = best_mean(acc.l0, acc.l1, acc.l2, acc.l3, HALF_BEST_LEFT);
+    }
+    if (HALF_BEST_RIGHT > 0u) {
+        right = best_mean(acc.r0, acc.r1, acc.r2, acc.r3, HALF_BEST_RIGHT);
     }
     if (SCORING == SCORING_HALF) {
-        return best_placement(min(left, right), half_decisions(left, right));
+        return best_placement(half_min(left, right), half_decisions(left, right));
     }
     let none = vec4<f32>(f32(SEL_NONE));
     if (SCORING == SCORING_BEST_N) {

@@ -114,10 +114,13 @@ fn fronto_parallel_plane_comes_back_at_its_depth() {
 }
 
 /// The parabola through the winner and its neighbours moves the depth between planes, for a wall
-/// halfway between two planes (the worst case). Measured with the defaults' 5x5 windows and SGM:
-/// the colour SSD (smooth in the sample position) 0.050 m vs 0.090 m without; census distances
-/// are interpolated linearly between texels, so a cost with a census part is less smooth there
-/// and refines less ("pixel locking"; README, Quality): 0.066 vs 0.092 m.
+/// halfway between two planes (the worst case). Measured with the defaults (best half-sequence,
+/// 5x5 windows, SGM) on this 3-camera row, whose halves are one pair each: the colour SSD
+/// (smooth in the sample position) 0.055 m vs 0.091 m without (best 2 of 2: 0.050 m; the
+/// smaller half's curve is less smooth than both pairs' mean where the halves differ by more
+/// than the blend of `half_min`); census distances are interpolated linearly between texels,
+/// so a cost with a census part is less smooth there and refines less ("pixel locking";
+/// README, Quality).
 #[test]
 fn sub_pixel_refinement_lowers_the_error_between_planes() {
     use sweepdepth::sweep::Cost;
@@ -140,7 +143,7 @@ fn sub_pixel_refinement_lowers_the_error_between_planes() {
             .collect();
         v.iter().sum::<f64>() / v.len().max(1) as f64
     };
-    for (cost, most) in [(Cost::Tssd, 0.6), (Cost::AdCensus, 0.8)] {
+    for (cost, most) in [(Cost::Tssd, 0.65), (Cost::AdCensus, 0.8)] {
         let mut p = SweepParams {
             cost,
             ..base.clone()

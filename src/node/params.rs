@@ -263,6 +263,11 @@ mod tests {
         assert_eq!(l.sweep().max_depth_m, 3.0);
     }
 
+    /// best_n is checked against the rig only while it is read (scoring best_n_of_m).
+    fn best_n_of_m() -> ParamValue {
+        ParamValue::String("best_n_of_m".into())
+    }
+
     fn live_rig(cameras: usize, set: &[(&str, ParamValue)]) -> Arc<LiveParams> {
         let mut params = ParamSet::defaults();
         let names: Vec<String> = (0..cameras).map(|i| format!("cam{i}")).collect();
@@ -280,7 +285,7 @@ mod tests {
     #[test]
     fn best_n_larger_than_the_pairs_is_rejected_and_the_old_value_stays() {
         // 4 cameras, reference pairs: m = 3.
-        let l = live_rig(4, &[]);
+        let l = live_rig(4, &[("scoring", best_n_of_m())]);
         let e = l
             .apply("best_n", &RosValue::Integer(4))
             .unwrap_err()
@@ -312,7 +317,7 @@ mod tests {
     fn a_default_best_n_above_a_small_rig_does_not_block_other_sets() {
         // 2 cameras: m = 1 < the default best_n 2 (harmless: best 1 of 1). Sets that leave
         // best_n alone pass, the declaration of the current value passes, raising it fails.
-        let l = live_rig(2, &[]);
+        let l = live_rig(2, &[("scoring", best_n_of_m())]);
         assert_eq!(l.apply("best_n", &RosValue::Integer(2)), Ok(false));
         assert_eq!(l.apply("num_planes", &RosValue::Integer(32)), Ok(true));
         assert_eq!(l.apply("pairs", &RosValue::String("all".into())), Ok(true));

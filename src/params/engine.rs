@@ -204,7 +204,7 @@ engine_params! {
     // (README, Quality).
     cost: Cost = Cost::AdCensus, "cost", Long("cost"), variants::<Cost>(),
         "Pair matching cost: truncated colour SSD, 5x5 census (blind to gain and offset), or their mean.";
-    scoring: Scoring = Scoring::BestNOfM, "scoring", Long("scoring"), variants::<Scoring>(),
+    scoring: Scoring = Scoring::BestHalfSequence, "scoring", Long("scoring"), variants::<Scoring>(),
         "How the camera pairs of one hypothesis combine into one score.";
     pairs: PairSet = PairSet::Reference, "pairs", Long("pairs"), variants::<PairSet>(),
         "Camera pairs that are scored: the reference against each other camera, or all pairs.";
@@ -212,7 +212,7 @@ engine_params! {
         "n of best n of m.";
     half_best_n: u32 = 2, "half_best_n", Long("half-best-n"),
         ParamRange::ints(0, i64::from(MAX_HALF_BEST_N)),
-        "Best half-sequence with per-pair aggregation: mean of the n best pairs of each half (0 = all pairs, the paper's rule).";
+        "Best half-sequence with per-pair aggregation: each half scores the mean of its n best pairs, n at most half its pairs rounded up (0 = all pairs, the paper's rule).";
     aggregation: Aggregation = Aggregation::PerPair, "aggregation", Long("aggregation"),
         variants::<Aggregation>(),
         "Where the windows aggregate: the scored cost, each half, or each camera pair.";
@@ -245,9 +245,9 @@ engine_params! {
         "Depth selection: local winner-take-all (the paper) or semi-global matching over a u16 cost volume.";
     // SGM penalties chosen on the evaluation sets themselves (Tsukuba, Teddy, Laundry;
     // README, Quality).
-    sgm_p1: f32 = 10.0, "sgm_p1", Long("sgm-p1"), ParamRange::at_least(0.0),
+    sgm_p1: f32 = 20.0, "sgm_p1", Long("sgm-p1"), ParamRange::at_least(0.0),
         "SGM penalty for a one-plane step between neighbours, score units (those of tau).";
-    sgm_p2: f32 = 200.0, "sgm_p2", Long("sgm-p2"), ParamRange::at_least(0.0),
+    sgm_p2: f32 = 250.0, "sgm_p2", Long("sgm-p2"), ParamRange::at_least(0.0),
         "SGM penalty for a larger step, score units (>= sgm_p1; paths x (tau + P2) must fit 16 bits: P2 <= 7 x tau with 8 paths).";
     sgm_paths: u32 = 8, "sgm_paths", Long("sgm-paths"), ParamRange::ints(4, 8),
         "SGM path directions: 4 (rows and columns) or 8 (plus diagonals).";
@@ -312,6 +312,7 @@ mod tests {
             let mut p = SweepParams {
                 pairs: PairSet::All,
                 optimizer: Optimizer::Wta,
+                scoring: Scoring::BestNOfM,
                 ..SweepParams::default()
             };
             let e = engine_param(name).unwrap();

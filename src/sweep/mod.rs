@@ -28,7 +28,8 @@ pub enum Scoring {
     AllPairs,
     /// Mean of the `best_n` smallest pair TSSDs.
     BestNOfM,
-    /// min(mean of the left half's pairs, mean of the right half's pairs).
+    /// min(left half's score, right half's score), each half the mean of its best pairs
+    /// (`half_best_n`, `SweepPlan::half_ranks`); the default.
     BestHalfSequence,
 }
 
@@ -107,7 +108,8 @@ pub struct SweepParams {
     /// n of best n of m.
     pub best_n: u32,
     /// Best half-sequence with per-pair aggregation scores each half by the mean of its n best
-    /// pairs (0 = all pairs of the half, the paper's rule; at most 4).
+    /// pairs, n at most half the half's pairs rounded up (0 = all pairs of the half, the
+    /// paper's rule; at most 4).
     pub half_best_n: u32,
     pub aggregation: Aggregation,
     /// Window width and height in pixels: 1x1 = no aggregation, 2x2 = the paper's shiftable

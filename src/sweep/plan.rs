@@ -283,6 +283,19 @@ impl SweepPlan {
         self.num_planes().div_ceil(2) as usize
     }
 
+    /// Best half-sequence with per-pair aggregation: how many of its best pairs each half
+    /// (left, right) scores. Each half keeps at most the better half of its pairs (rounded up)
+    /// and at most `half_best_n` of them, so a half of two pairs scores its better pair: the
+    /// occlusion assumption of the halves applied once more within a half (README, Quality).
+    /// 0 = all pairs of the half (the paper's rule, `half_best_n` 0).
+    pub fn half_ranks(&self) -> [u32; 2] {
+        let n = self.params.half_best_n;
+        [HALF_LEFT, HALF_RIGHT].map(|side| {
+            let pairs = self.pairs.iter().filter(|p| p[2] == side).count() as u32;
+            n.min(pairs.div_ceil(2))
+        })
+    }
+
     /// The cost compares census words (`sweep/census.rs`).
     pub fn uses_census(&self) -> bool {
         self.params.cost != COST_TSSD

@@ -34,6 +34,23 @@ fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
     }
 }
 
+/// Twin of `half_min`: the smaller half's score, blended with the other where the two are
+/// within `h` (HALF_NOISE_FLOOR) of each other (a quadratic smooth minimum, continuous in both halves): where no
+/// occlusion hits either side the score follows both halves' curves, not the one that happens to
+/// be lower at each plane, so neighbouring planes keep one shape (SGM and the sub-pixel parabola
+/// read it; README, Quality).
+#[inline(always)]
+fn half_min(h: f32, left: f32, right: f32) -> f32 {
+    let m = fmin(left, right);
+    let t = (h - (left - right).abs()).max(0.0);
+    let both = left < BIG && right < BIG;
+    if both {
+        m - t * t / (4.0 * h)
+    } else {
+        m
+    }
+}
+
 #[inline(always)]
 fn mean_or_big(sum: f32, count: f32) -> f32 {
     if count > 0.0 {
@@ -154,8 +171,8 @@ impl RowScorer {
             } else {
                 0
             }),
-            left_best: ranks(p.half_best_n as usize),
-            right_best: ranks(p.half_best_n as usize),
+            left_best: ranks(plan.half_ranks()[0] as usize),
+            right_best: ranks(plan.half_ranks()[1] as usize),
         }
     }
 
@@ -380,6 +397,8 @@ impl RowScorer {
         // The halves' scores: the mean of all their pairs, or of their n best.
         if !self.left_best.is_empty() {
             best_mean(&self.left_best, left_sum, left_count);
+        }
+        if !self.right_best.is_empty() {
             best_mean(&self.right_best, right_sum, right_count);
         }
         let w = self.span;
@@ -392,10 +411,11 @@ impl RowScorer {
         let (left, right) = (&left_sum[..w], &right_sum[..w]);
         let (score, sel) = (&mut self.lane_score[..w], &mut self.lane_sel[..w]);
         if p.scoring == SCORING_HALF {
+            let h = HALF_NOISE_FLOOR;
             for (((score, sel), &l), &r) in
                 score.iter_mut().zip(sel.iter_mut()).zip(left).zip(right)
             {
-                *score = fmin(l, r);
+                *score = half_min(h, l, r);
                 *sel = half_decision(margin, l, r);
             }
         } else if p.scoring == SCORING_BEST_N {

@@ -109,8 +109,8 @@ pub fn distance_row(
                     continue;
                 }
                 let r = reference[x];
-                out[x] = Bilinear::at(cw, ch, sample_at(plan, cam, k, x, y))
-                    .mix(|i| ones(words[i], r));
+                out[x] =
+                    Bilinear::at(cw, ch, sample_at(plan, cam, k, x, y)).mix(|i| ones(words[i], r));
             }
         }
     }

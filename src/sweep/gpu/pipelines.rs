@@ -25,7 +25,8 @@ pub(super) struct Specialisation {
     pub channels: u32,
     pub aggregation: u32,
     pub window_mode: u32,
-    pub half_best_n: u32,
+    /// `SweepPlan::half_ranks`.
+    pub half_ranks: [u32; 2],
     /// The aggregate stage writes the cost volume (optimizer sgm).
     pub volume: bool,
     /// Workgroup size of the SGM passes.
@@ -55,7 +56,7 @@ impl Specialisation {
             channels: p.channels,
             aggregation: p.aggregation,
             window_mode: p.window_mode,
-            half_best_n: p.half_best_n,
+            half_ranks: plan.half_ranks(),
             volume: p.sgm_paths > 0,
             sgm_lanes,
             sgm_line_per_invocation,
@@ -75,7 +76,8 @@ impl Specialisation {
             "WINDOW_W" => f64::from(self.window_w),
             "WINDOW_H" => f64::from(self.window_h),
             "WINDOW_MODE" => f64::from(self.window_mode),
-            "HALF_BEST_N" => f64::from(self.half_best_n),
+            "HALF_BEST_LEFT" => f64::from(self.half_ranks[0]),
+            "HALF_BEST_RIGHT" => f64::from(self.half_ranks[1]),
             "PAIRED" => flag(self.paired()),
             "VOLUME" => flag(self.volume),
             "SGM_LANES" => f64::from(self.sgm_lanes),
@@ -234,7 +236,7 @@ mod tests {
             channels: 1,
             aggregation: 0,
             window_mode: 0,
-            half_best_n: 0,
+            half_ranks: [0, 0],
             volume: false,
             sgm_lanes: 8,
             sgm_line_per_invocation: true,
