@@ -290,13 +290,15 @@ fn time_rule_thresholds_come_from_the_parameters() {
 fn inconsistent_engine_parameters_are_refused_at_start_up() {
     let e = config(&["min_depth:=20.0"]).unwrap_err().to_string();
     assert!(e.contains("max_depth"), "{e}");
-    // 3 cameras, reference pairs: m = 2.
-    let e = config(&["best_n:=3"]).unwrap_err().to_string();
+    // 3 cameras, reference pairs: m = 2 (best_n is checked while it is read: best_n_of_m).
+    let e = config(&["scoring:=best_n_of_m", "best_n:=3"])
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("best_n (3)") && e.contains("2 camera pairs"),
         "{e}"
     );
-    assert!(config(&["best_n:=3", "pairs:=all"]).is_ok());
+    assert!(config(&["scoring:=best_n_of_m", "best_n:=3", "pairs:=all"]).is_ok());
     let e = config(&["min_visible_cameras:=4"]).unwrap_err().to_string();
     assert!(e.contains("min_visible_cameras (4)"), "{e}");
     let e = config(&["reference_camera:=centre"])

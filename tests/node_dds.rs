@@ -634,12 +634,27 @@ fn parameter_services() {
         ParameterValue::Integer(1),
     );
     assert!(!ok && !reason.is_empty());
-    // Four cameras, reference pairs: best 4 of the 3 pairs does not fit the rig.
+    // Four cameras, reference pairs: best 4 of the 3 pairs does not fit the rig (checked while
+    // best_n is read: scoring best_n_of_m; the default best half-sequence does not read it).
+    let (ok, reason) = set_parameter(
+        &client,
+        node,
+        "scoring",
+        ParameterValue::String("best_n_of_m".into()),
+    );
+    assert!(ok, "scoring:=best_n_of_m rejected: {reason}");
     let (ok, reason) = set_parameter(&client, node, "best_n", ParameterValue::Integer(4));
     assert!(
         !ok && reason.contains("best_n (4)") && reason.contains("3 camera pairs"),
         "{reason}"
     );
+    let (ok, reason) = set_parameter(
+        &client,
+        node,
+        "scoring",
+        ParameterValue::String("best_half_sequence".into()),
+    );
+    assert!(ok, "scoring:=best_half_sequence rejected: {reason}");
 
     // Sweep 1.5..4 m: the box at 1.2 m is out of range, the wall still in it. The next sets'
     // depth has nothing nearer than 1.5 m, and the wall is found as before.
@@ -694,6 +709,11 @@ fn virtual_reference() {
             "virtual_fy:=60.0",
             "virtual_cx:=31.5",
             "virtual_cy:=23.5",
+            // With a virtual reference the half-sequence's halves hold only the pairs on one
+            // side (the pairs that straddle the virtual camera are in neither), so this rig's
+            // halves are one far pair each: best n of m over all pairs is the scoring for it
+            // (README, Quality; the default half-sequence got 122 of 280 telling pixels here).
+            "scoring:=best_n_of_m",
         ],
     );
     let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
