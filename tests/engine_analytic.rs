@@ -395,6 +395,68 @@ fn virtual_reference_between_cameras() {
     check_within("virtual_reference", &maps.depth_m, &truth, 0.02, 0.85);
 }
 
+/// A virtual reference beside the last camera of its side (the row's cameras at -0.1, 0, 0.1
+/// and 0.2 m, the virtual camera at 0.15): its right half has no pair, so the half-sequence
+/// scores best n of m over all pairs (the straddling pairs would otherwise go unused); with
+/// the virtual camera in the middle (0.05) both halves have pairs and it stays the
+/// half-sequence. Both engines, and the box edge where the pose tells must be right.
+#[test]
+fn virtual_reference_with_an_empty_half_scores_all_pairs() {
+    use sweepdepth::sweep::gpu_types::{SCORING_BEST_N, SCORING_HALF};
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let row = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    // tests/node_dds.rs's virtual camera and scene.
+    let virtual_model = CameraModel::pinhole(sweepdepth::geometry::PinholeIntrinsics {
+        width_px: 64,
+        height_px: 48,
+        fx_px: 60.0,
+        fy_px: 60.0,
+        cx_px: 31.5,
+        cy_px: 23.5,
+    });
+    let at_x = |x: f64| RigidTransform {
+        rotation: DQuat::IDENTITY,
+        translation: DVec3::new(-x, 0.0, 0.0),
+    };
+    let scene = Scene::wall_and_box(2.0, Some((1.2, 0.2)), synthetic::intrinsics(80, 60).fx_px);
+    let mut p = params(1.0, 4.0, 48);
+    p.pairs = PairSet::All;
+    assert_eq!(p.scoring, Scoring::BestHalfSequence, "the default");
+    for (x, scoring) in [(0.15, SCORING_BEST_N), (0.05, SCORING_HALF)] {
+        let rig = Rig::new(
+            row.cameras.clone(),
+            Reference::Virtual {
+                model: virtual_model,
+                cam_from_rig: at_x(x),
+            },
+        )
+        .expect("rig");
+        let plan = SweepPlan::new(&rig, &p).expect("plan");
+        assert_eq!(plan.params.scoring, scoring, "virtual camera at x = {x}");
+        let images = synthetic::render_rig(&scene, &rig);
+        let right = Scene::depth(&scene, &virtual_model, &at_x(x));
+        // Where the box would be seen from 15 cm to the left: the pixels where the pose tells.
+        let wrong = Scene::depth(&scene, &virtual_model, &at_x(x - 0.15));
+        let cpu = CpuEngine::new().run(&rig, &images, &p).expect("cpu sweep");
+        let gpu = engine().run(&rig, &images, &p).expect("gpu sweep");
+        for (name, maps) in [("cpu", &cpu), ("gpu", &gpu)] {
+            let near = |d: f32, t: f32| d.is_finite() && ((d - t) / t).abs() <= 0.05;
+            let (mut telling, mut near_right) = (0, 0);
+            for ((d, r), w) in maps.depth_m.data.iter().zip(&right.data).zip(&wrong.data) {
+                if ((r - w) / r).abs() > 0.2 {
+                    telling += 1;
+                    near_right += usize::from(near(*d, *r));
+                }
+            }
+            eprintln!("x = {x} ({name}): {near_right} of {telling} telling pixels right");
+            assert!(
+                telling > 100 && near_right * 2 >= telling,
+                "x = {x} ({name}): {near_right} of {telling} telling pixels right"
+            );
+        }
+    }
+}
+
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
 #[test]
 fn tilted_plane_family_recovers_a_floor() {

@@ -709,11 +709,9 @@ fn virtual_reference() {
             "virtual_fy:=60.0",
             "virtual_cx:=31.5",
             "virtual_cy:=23.5",
-            // With a virtual reference the half-sequence's halves hold only the pairs on one
-            // side (the pairs that straddle the virtual camera are in neither), so this rig's
-            // halves are one far pair each: best n of m over all pairs is the scoring for it
-            // (README, Quality; the default half-sequence got 122 of 280 telling pixels here).
-            "scoring:=best_n_of_m",
+            // The default scoring: this virtual camera's right half has no pair (only cam3
+            // is right of it), so the half-sequence scores best n of m over all pairs
+            // (README, Quality; the halves alone got 122 of 280 telling pixels here).
         ],
     );
     let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);

@@ -29,7 +29,8 @@ pub enum Scoring {
     /// Mean of the `best_n` smallest pair TSSDs.
     BestNOfM,
     /// min(left half's score, right half's score), each half the mean of its best pairs
-    /// (`half_best_n`, `SweepPlan::half_ranks`); the default.
+    /// (`half_best_n`, `SweepPlan::half_ranks`); the default. A virtual reference with no
+    /// pair on one side (pairs straddling it in neither half) scores best n of m instead.
     BestHalfSequence,
 }
 

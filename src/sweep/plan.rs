@@ -161,6 +161,20 @@ impl SweepPlan {
                 }
             }
         }
+        // The halves score only the pairs on one side of the reference. A virtual reference
+        // beside the last camera of its side has no pair on that side: that half is empty and
+        // the pairs that straddle the virtual camera (in neither half) would go unused, so the
+        // half-sequence scores best n of m over all pairs there (README, Quality).
+        let half_empty = |side: u32| !pair_table.iter().any(|p| p[2] == side);
+        let straddling = pair_table.iter().any(|p| p[2] == HALF_REFERENCE);
+        let scoring = if scoring == SCORING_HALF
+            && straddling
+            && (half_empty(HALF_LEFT) || half_empty(HALF_RIGHT))
+        {
+            SCORING_BEST_N
+        } else {
+            scoring
+        };
         let aggregation = match params.aggregation {
             Aggregation::Scored => AGG_SCORED,
             Aggregation::PerHalf => AGG_PER_HALF,
@@ -186,7 +200,7 @@ impl SweepPlan {
             half_best_n: params.half_best_n,
             scoring,
             pair_mode: pairs,
-            best_n: params.best_n.clamp(1, MAX_BEST_N),
+            best_n: params.best_n.clamp(1, MAX_BEST_N).min(pair_table.len().max(1) as u32),
             aggregation,
             window_w: params.window_width,
             window_h: params.window_height,
