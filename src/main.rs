@@ -39,7 +39,10 @@ fn main() -> ExitCode {
     sweepdepth::logging::init();
     let cli = Cli::parse();
     // Before any thread starts (set_var is only sound then).
-    let mut defaults = vec![sweepdepth::process_env::quiet_vulkan_device_select()];
+    let mut defaults = vec![
+        sweepdepth::process_env::quiet_vulkan_device_select(),
+        sweepdepth::process_env::keep_freed_memory(),
+    ];
     if matches!(cli.command, Command::Node { .. }) {
         defaults.push(sweepdepth::process_env::default_ros_distro());
     }

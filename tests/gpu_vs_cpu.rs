@@ -703,3 +703,67 @@ fn cpu_bands_of_rows_give_the_same_floats() {
         }
     }
 }
+
+/// The CPU engine keeps its buffers across frame sets (maps, z-buffer, winner-take-all state,
+/// band scratch, images): a run after runs of other shapes, optimizers and thread counts gives
+/// the same floats as a fresh engine's run.
+#[test]
+fn cpu_buffers_kept_across_sets_change_nothing() {
+    let (crop_rig, crop_images, mut crop_params) = tsukuba_crop();
+    crop_params.num_planes = 32;
+    let (syn_rig, syn_images) = synthetic_case();
+    let wta = SweepParams {
+        optimizer: Optimizer::Wta,
+        window_mode: WindowMode::Shiftable,
+        window_width: 2,
+        window_height: 2,
+        ..crop_params.clone()
+    };
+    let cases = [
+        (&crop_rig, &crop_images, crop_params.clone()),
+        (&syn_rig, &syn_images, base()),
+        (&crop_rig, &crop_images, wta),
+        (
+            &syn_rig,
+            &syn_images,
+            SweepParams {
+                optimizer: Optimizer::Sgm,
+                ..base()
+            },
+        ),
+    ];
+    let fresh: Vec<Vec<f32>> = cases
+        .iter()
+        .map(|(rig, images, params)| {
+            let plan = SweepPlan::new(rig, params).expect("plan");
+            CpuEngine::new()
+                .run_plan_raw(&plan, rig, images)
+                .expect("fresh run")
+        })
+        .collect();
+    let mut engine = CpuEngine::new();
+    for threads in [2, 3] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        for (i, (rig, images, params)) in cases
+            .iter()
+            .enumerate()
+            .chain(cases.iter().enumerate().rev())
+        {
+            let plan = SweepPlan::new(rig, params).expect("plan");
+            let kept = pool.install(|| engine.run_plan_raw(&plan, rig, images).expect("kept run"));
+            let differing = kept
+                .iter()
+                .zip(&fresh[i])
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert!(
+                kept.len() == fresh[i].len() && differing == 0,
+                "case {i}, {threads} threads: {differing} of {} floats differ from a fresh engine's",
+                fresh[i].len()
+            );
+        }
+    }
+}

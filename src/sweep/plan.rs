@@ -200,7 +200,10 @@ impl SweepPlan {
             half_best_n: params.half_best_n,
             scoring,
             pair_mode: pairs,
-            best_n: params.best_n.clamp(1, MAX_BEST_N).min(pair_table.len().max(1) as u32),
+            best_n: params
+                .best_n
+                .clamp(1, MAX_BEST_N)
+                .min(pair_table.len().max(1) as u32),
             aggregation,
             window_w: params.window_width,
             window_h: params.window_height,

@@ -75,6 +75,7 @@ pub fn plane_depth(plane: [f32; 4], ray: Vec3) -> f32 {
 
 /// One camera image as planar f32 channels (0..255, as the shaders' `texel`), so that rows
 /// of samples are contiguous slices the compiler vectorises.
+#[derive(Debug, Default)]
 pub struct PlanarImage {
     pub width: usize,
     pub height: usize,
@@ -85,16 +86,23 @@ pub struct PlanarImage {
 impl PlanarImage {
     /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
     pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
-        let unpack = |shift: u32| -> Vec<f32> {
-            pixels
-                .iter()
-                .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0)
-                .collect()
-        };
-        Self {
-            width,
-            height,
-            channels: [unpack(0), unpack(8), unpack(16)],
+        let mut image = Self::default();
+        image.fill_from_packed(width, height, pixels);
+        image
+    }
+
+    /// [`Self::from_packed`] into this image's buffers (kept across frame sets).
+    pub fn fill_from_packed(&mut self, width: usize, height: usize, pixels: &[u32]) {
+        self.width = width;
+        self.height = height;
+        for (c, channel) in self.channels.iter_mut().enumerate() {
+            let shift = 8 * c as u32;
+            channel.clear();
+            channel.extend(
+                pixels
+                    .iter()
+                    .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0),
+            );
         }
     }
 
@@ -186,7 +194,8 @@ macro_rules! vectorised_fn {
         $vis fn $name($($arg: $ty),*) $(-> $ret)? {
             #[inline(always)]
             fn body($($arg: $ty),*) $(-> $ret)? $body
-            // The one unsafe block of the crate: calling the AVX2 + FMA build of the body.
+            // One of the crate's two unsafe blocks (the other: process_env's mallopt):
+            // calling the AVX2 + FMA build of the body.
             #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
             {

@@ -42,11 +42,11 @@ pub struct Maps {
 }
 
 impl Maps {
-    fn new(npix: usize) -> Self {
-        Self {
-            npix,
-            data: vec![0.0; MAP_COUNT * npix],
-        }
+    /// The maps of `npix` pixels in `data` (kept across frame sets), cleared to 0.
+    fn reuse(mut data: Vec<f32>, npix: usize) -> Self {
+        data.clear();
+        data.resize(MAP_COUNT * npix, 0.0);
+        Self { npix, data }
     }
 
     pub fn section(&self, s: usize) -> &[f32] {
@@ -81,12 +81,33 @@ pub struct CpuEngine {
     cancel: CancelFlag,
 }
 
-/// The large buffers, kept across frame sets (no page faults for each new set).
-#[derive(Debug, Default)]
+/// The buffers of a run, kept across frame sets: fresh ones cost a page fault per 4 KiB on
+/// first touch (2-3 ms of the paper configuration's ~15 ms, `perf`), and freeing them
+/// costs TLB shootdowns.
+#[derive(Default)]
 struct Buffers {
     volume: Vec<u16>,
     forward: Vec<u16>,
     backward: Vec<u16>,
+    /// The `maps` buffer of the last run (MAP_COUNT sections).
+    maps: Vec<f32>,
+    /// The z-buffer of the last run (every camera's pixels).
+    zbuffer: Vec<u32>,
+    state: Option<WtaState>,
+    planar: Vec<PlanarImage>,
+    /// One per band of rows, reused by whichever worker sweeps that band.
+    bands: Vec<BandScratch>,
+}
+
+impl std::fmt::Debug for Buffers {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Buffers")
+            .field("volume", &self.volume.len())
+            .field("maps", &self.maps.len())
+            .field("zbuffer", &self.zbuffer.len())
+            .field("bands", &self.bands.len())
+            .finish_non_exhaustive()
+    }
 }
 
 impl Default for CpuEngine {
@@ -155,8 +176,8 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        let trace = self.trace(plan, rig, images)?;
-        Ok(plan.depth_maps(&trace.maps))
+        self.execute(plan, rig, images)?;
+        Ok(plan.depth_maps(&self.buffers.maps))
     }
 
     /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
@@ -166,7 +187,8 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        Ok(self.trace(plan, rig, images)?.maps)
+        self.execute(plan, rig, images)?;
+        Ok(self.buffers.maps.clone())
     }
 
     /// Runs a plan, keeping the intermediate buffers.
@@ -176,18 +198,33 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<CpuTrace, SweepError> {
+        self.execute(plan, rig, images)?;
+        Ok(CpuTrace {
+            maps: self.buffers.maps.clone(),
+            zbuffer: self.buffers.zbuffer.clone(),
+        })
+    }
+
+    /// Runs a plan; the maps and the z-buffer stay in `self.buffers`.
+    fn execute(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<(), SweepError> {
         check_images(rig, images)?;
         let mut clock = StageClock::new();
         let p = &plan.params;
         let npix = plan.pixel_count();
         let planes = plan.num_planes() as usize;
+        let mut planar = std::mem::take(&mut self.buffers.planar);
+        planar.resize_with(images.len(), PlanarImage::default);
+        planar.truncate(images.len());
+        planar.par_iter_mut().zip(images).for_each(|(planar, im)| {
+            planar.fill_from_packed(im.width as usize, im.height as usize, &im.pixels)
+        });
         let frame = FrameImages {
-            planar: images
-                .par_iter()
-                .map(|im| {
-                    PlanarImage::from_packed(im.width as usize, im.height as usize, &im.pixels)
-                })
-                .collect(),
+            planar,
             census: if plan.uses_census() {
                 images
                     .iter()
@@ -221,7 +258,13 @@ impl CpuEngine {
         } else if volume.len() != npix * stride {
             volume = vec![sgm::PAD; npix * stride];
         }
-        let mut state = WtaState::new(npix);
+        let mut state = match self.buffers.state.take() {
+            Some(mut state) => {
+                state.reset(npix);
+                state
+            }
+            None => WtaState::new(npix),
+        };
         let width = p.width as usize;
         let height = p.height as usize;
         let (up, down) = aggregate::Windows::of(plan).reach();
@@ -268,40 +311,41 @@ impl CpuEngine {
                 }
             }
         };
-        let new_scratch = || BandScratch {
-            plane: PlaneScratch::new(plan),
-            score: vec![0.0; band * width],
-            sel: vec![0.0; band * width],
-            levels: if sgm {
-                vec![0; LEVEL_GROUP * band * width]
-            } else {
-                Vec::new()
-            },
-        };
         let mut chunks = state.chunks_mut(band * width);
+        let mut scratches = std::mem::take(&mut self.buffers.bands);
+        let levels = if sgm { LEVEL_GROUP * band * width } else { 0 };
+        scratches.truncate(chunks.len());
+        for scratch in &mut scratches {
+            scratch.fit(plan, band * width, levels);
+        }
+        scratches.resize_with(chunks.len(), || {
+            BandScratch::new(plan, band * width, levels)
+        });
         if sgm {
             chunks
                 .par_iter_mut()
+                .zip(scratches.par_iter_mut())
                 .zip(volume.par_chunks_mut(band * width * stride))
                 .enumerate()
-                .for_each_init(new_scratch, |scratch, (b, (st, vol))| {
-                    sweep_band(scratch, b, st, Some(vol))
-                });
+                .for_each(|(b, ((st, scratch), vol))| sweep_band(scratch, b, st, Some(vol)));
         } else {
             chunks
                 .par_iter_mut()
+                .zip(scratches.par_iter_mut())
                 .enumerate()
-                .for_each_init(new_scratch, |scratch, (b, st)| {
-                    sweep_band(scratch, b, st, None)
-                });
+                .for_each(|(b, (st, scratch))| sweep_band(scratch, b, st, None));
         }
         drop(chunks);
+        self.buffers.bands = scratches;
+        self.buffers.planar = frame.planar;
         clock.lap("sweep");
         cancel.check()?;
 
         // The rest of the plan's schedule (the sweep above is its first phase).
-        let mut maps = Maps::new(npix);
-        let mut zbuffer = vec![0u32; plan.total_camera_pixels];
+        let mut maps = Maps::reuse(std::mem::take(&mut self.buffers.maps), npix);
+        let mut zbuffer = std::mem::take(&mut self.buffers.zbuffer);
+        zbuffer.clear();
+        zbuffer.resize(plan.total_camera_pixels, 0);
         for phase in Schedule::of_plan(plan).phases() {
             cancel.check()?;
             match phase {
@@ -348,10 +392,10 @@ impl CpuEngine {
         }
         self.timings = clock.timings();
         self.buffers.volume = volume;
-        Ok(CpuTrace {
-            maps: maps.data,
-            zbuffer,
-        })
+        self.buffers.state = Some(state);
+        self.buffers.maps = maps.data;
+        self.buffers.zbuffer = zbuffer;
+        Ok(())
     }
 }
 
@@ -398,13 +442,39 @@ fn band_rows(height: usize, threads: usize, halo_rows: usize) -> usize {
     target.div_ceil(STEP).max(1) * STEP
 }
 
-/// One band worker's scratch: the plane sweep's rows and the band's scores of one plane.
+/// One band's scratch: the plane sweep's rows and the band's scores of one plane.
 struct BandScratch {
     plane: PlaneScratch,
+    /// The plan the rows were sized for.
+    plan_id: u64,
     score: Vec<f32>,
     sel: Vec<f32>,
     /// SGM volume levels of up to LEVEL_GROUP planes, plane-major.
     levels: Vec<u16>,
+}
+
+impl BandScratch {
+    fn new(plan: &SweepPlan, pixels: usize, levels: usize) -> Self {
+        Self {
+            plane: PlaneScratch::new(plan),
+            plan_id: plan.id,
+            score: vec![0.0; pixels],
+            sel: vec![0.0; pixels],
+            levels: vec![0; levels],
+        }
+    }
+
+    /// Sized for `plan` (the rows made anew for another plan; every buffer is written before
+    /// it is read, so the contents of the last set do not matter).
+    fn fit(&mut self, plan: &SweepPlan, pixels: usize, levels: usize) {
+        if self.plan_id != plan.id {
+            self.plane = PlaneScratch::new(plan);
+            self.plan_id = plan.id;
+        }
+        self.score.resize(pixels, 0.0);
+        self.sel.resize(pixels, 0.0);
+        self.levels.resize(levels, 0);
+    }
 }
 
 /// Planes whose volume levels a band gathers before writing them into the pixels' lanes: one

@@ -44,6 +44,23 @@ impl WtaState {
         }
     }
 
+    /// Back to the state before the first plane, for `pixels` pixels (buffers kept).
+    pub fn reset(&mut self, pixels: usize) {
+        let fill = |v: &mut Vec<f32>, x: f32| {
+            v.clear();
+            v.resize(pixels, x);
+        };
+        fill(&mut self.best, BIG);
+        fill(&mut self.best_plane, -1.0);
+        fill(&mut self.before, BIG);
+        fill(&mut self.after, BIG);
+        fill(&mut self.rival, BIG);
+        fill(&mut self.min_to_last, BIG);
+        fill(&mut self.min_to_second_last, BIG);
+        fill(&mut self.last, BIG);
+        fill(&mut self.selection, 3.0);
+    }
+
     /// The pixels `range` of every field, to be updated by one worker.
     pub fn chunk_mut(&mut self, start: usize, end: usize) -> WtaChunk<'_> {
         WtaChunk {
