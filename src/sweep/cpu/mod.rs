@@ -95,6 +95,7 @@ struct Buffers {
     zbuffer: Vec<u32>,
     state: Option<WtaState>,
     planar: Vec<PlanarImage>,
+    projections: occlusion::Projections,
     /// One per band of rows, reused by whichever worker sweeps that band.
     bands: Vec<BandScratch>,
 }
@@ -381,11 +382,11 @@ impl CpuEngine {
                     clock.lap("median");
                 }
                 Phase::Splat => {
-                    occlusion::splat(plan, &maps, &mut zbuffer);
+                    occlusion::splat(plan, &maps, &mut zbuffer, &mut self.buffers.projections);
                     clock.lap("splat");
                 }
                 Phase::Visibility => {
-                    occlusion::visibility(plan, &zbuffer, &mut maps);
+                    occlusion::visibility(plan, &zbuffer, &self.buffers.projections, &mut maps);
                     clock.lap("visibility");
                 }
             }

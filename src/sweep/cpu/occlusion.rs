@@ -10,29 +10,28 @@ use super::Maps;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
-#[inline(always)]
-fn ref_point(plan: &SweepPlan, pix: usize, depth: f32) -> Vec3 {
-    let r = xyz(plan.rays[pix]);
-    [r[0] * depth, r[1] * depth, r[2] * depth]
-}
-
-/// Index of the nearest texel of camera `cam` to the projection, if inside and in front.
-#[inline(always)]
-fn nearest_texel(cam: &GpuCamera, projected: Vec3) -> Option<usize> {
-    let texel = [(projected[0] + 0.5).floor(), (projected[1] + 0.5).floor()];
-    if projected[2] <= 0.0 || !inside(cam, texel) {
-        return None;
-    }
-    Some((cam.size[2] + texel[1] as u32 * cam.size[0] + texel[0] as u32) as usize)
+/// Where every reference pixel's median depth lands in each camera (rig order; empty for the
+/// reference): the texel index (NONE: not seen) and the depth there. The splat makes them
+/// and the visibility stage reads them again instead of projecting twice (the shaders project
+/// in both stages; the floats are the same). Kept across frame sets.
+#[derive(Debug, Default)]
+pub struct Projections {
+    cameras: Vec<(Vec<u32>, Vec<f32>)>,
 }
 
 /// Splats the median depth into every other camera's z-buffer (cleared to 0 = empty).
 /// Cameras in parallel, each writing only its own section: the nearest depth kept with a plain
 /// max of the inverted bits, so the result is the shader's atomic max without atomics.
-pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32]) {
+pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32], projections: &mut Projections) {
     let ref_index = plan.params.reference;
     let median = maps.section(MAP_DEPTH_MEDIAN);
-    let mut sections: Vec<(&GpuCamera, &mut [u32])> = Vec::with_capacity(plan.cameras.len());
+    let npix = plan.pixel_count();
+    projections
+        .cameras
+        .resize_with(plan.cameras.len(), Default::default);
+    let mut slots = projections.cameras.iter_mut();
+    let mut sections: Vec<(&GpuCamera, &mut [u32], &mut (Vec<u32>, Vec<f32>))> =
+        Vec::with_capacity(plan.cameras.len());
     let mut rest = zbuffer;
     let mut offset = 0usize;
     for (i, cam) in plan.cameras.iter().enumerate() {
@@ -43,27 +42,71 @@ pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32]) {
         let (section, tail) = tail.split_at_mut(len.min(tail.len()));
         rest = tail;
         offset = start + section.len();
-        if i as u32 != ref_index {
-            sections.push((cam, section));
+        let Some(slot) = slots.next() else { break };
+        if i as u32 == ref_index {
+            slot.0.clear();
+            slot.1.clear();
+        } else {
+            slot.0.resize(npix, NONE);
+            slot.1.resize(npix, 0.0);
+            sections.push((cam, section, slot));
         }
     }
     sections
         .into_par_iter()
-        .for_each(|(cam, section)| splat_camera(plan, cam, median, section));
+        .for_each(|(cam, section, (index, z))| splat_camera(plan, cam, median, section, index, z));
+}
+
+/// "Not seen" in a row of texel indices.
+const NONE: u32 = u32::MAX;
+
+/// The nearest texel of camera `cam` (its index in the image buffer, NONE when outside,
+/// behind or the depth is NaN) and the depth in that camera of every pixel of a reference
+/// row: the projections of a whole row in one loop the compiler vectorises (`nearest_texel`'s
+/// arithmetic, the same floats), so that only the z-buffer's scatter or gather stays scalar.
+#[inline(always)]
+fn project_row(
+    cam: &GpuCamera,
+    rays: &[[f32; 4]],
+    depths: &[f32],
+    index: &mut [u32],
+    z: &mut [f32],
+) {
+    for (((&ray, &depth), index), z) in rays.iter().zip(depths).zip(index).zip(z) {
+        let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+        let texel = [(projected[0] + 0.5).floor(), (projected[1] + 0.5).floor()];
+        let seen = !depth.is_nan() && projected[2] > 0.0 && inside(cam, texel);
+        let at = cam.size[2]
+            .wrapping_add((texel[1] as u32).wrapping_mul(cam.size[0]))
+            .wrapping_add(texel[0] as u32);
+        *index = if seen { at } else { NONE };
+        *z = projected[2];
+    }
 }
 
 vectorised_fn! {
-/// Splats every reference depth into one camera's z-buffer section.
-fn splat_camera(plan: &SweepPlan, cam: &GpuCamera, median: &[f32], section: &mut [u32]) {
+/// Splats every reference depth into one camera's z-buffer section, a row at a time.
+fn splat_camera(
+    plan: &SweepPlan,
+    cam: &GpuCamera,
+    median: &[f32],
+    section: &mut [u32],
+    index: &mut [u32],
+    z: &mut [f32],
+) {
     let first = cam.size[2] as usize;
-    for (pix, &depth) in median.iter().enumerate() {
-        if depth.is_nan() {
-            continue;
-        }
-        let projected = project(cam, ref_point(plan, pix, depth));
-        if let Some(index) = nearest_texel(cam, projected) {
-            if let Some(z) = section.get_mut(index - first) {
-                *z = (*z).max(!projected[2].to_bits());
+    let width = plan.width as usize;
+    let rows = median
+        .chunks_exact(width)
+        .zip(plan.rays.chunks_exact(width))
+        .zip(index.chunks_exact_mut(width).zip(z.chunks_exact_mut(width)));
+    for ((depths, rays), (index, z)) in rows {
+        project_row(cam, rays, depths, index, z);
+        for (&at, &z) in index.iter().zip(z.iter()) {
+            if at != NONE {
+                if let Some(stored) = section.get_mut(at as usize - first) {
+                    *stored = (*stored).max(!z.to_bits());
+                }
             }
         }
     }
@@ -71,7 +114,7 @@ fn splat_camera(plan: &SweepPlan, cam: &GpuCamera, median: &[f32], section: &mut
 }
 
 /// Counts the cameras that see each pixel and invalidates those seen by too few.
-pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut Maps) {
+pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], projections: &Projections, maps: &mut Maps) {
     let width = plan.width as usize;
     let [_, median, depth_out, confidence, _, selection, visible] = maps.sections_mut();
     let median = &*median;
@@ -88,7 +131,7 @@ pub fn visibility(plan: &SweepPlan, zbuffer: &[u32], maps: &mut Maps) {
                 selection,
                 visible,
             };
-            visibility_row(plan, zbuffer, median, y, row);
+            visibility_row(plan, zbuffer, projections, median, y, row);
         });
 }
 
@@ -103,7 +146,14 @@ struct VisibilityRow<'a> {
 vectorised_fn! {
 /// The visibility of reference row `y` (compiled for AVX2+FMA where the CPU has it: the
 /// projections are most of the stage).
-fn visibility_row(plan: &SweepPlan, zbuffer: &[u32], median: &[f32], y: usize, row: VisibilityRow<'_>) {
+fn visibility_row(
+    plan: &SweepPlan,
+    zbuffer: &[u32],
+    projections: &Projections,
+    median: &[f32],
+    y: usize,
+    row: VisibilityRow<'_>,
+) {
     let params = &plan.params;
     let width = plan.width as usize;
     let ref_index = params.reference;
@@ -114,32 +164,32 @@ fn visibility_row(plan: &SweepPlan, zbuffer: &[u32], median: &[f32], y: usize, r
         selection,
         visible,
     } = row;
+    let depths = &median[y * width..(y + 1) * width];
+    let mut seen = vec![u32::from(ref_index != NO_CAMERA); width];
+    let row_of = |v: &[u32]| -> std::ops::Range<usize> { (y * width).min(v.len())..((y + 1) * width).min(v.len()) };
+    for (i, (index, z)) in projections.cameras.iter().enumerate() {
+        if i as u32 == ref_index {
+            continue;
+        }
+        let range = row_of(index);
+        for ((&at, &z), seen) in index[range.clone()].iter().zip(&z[range]).zip(seen.iter_mut()) {
+            if at != NONE {
+                let stored = zbuffer[at as usize];
+                if stored == 0 || z <= f32::from_bits(!stored) * (1.0 + tolerance) {
+                    *seen += 1;
+                }
+            }
+        }
+    }
     for x in 0..width {
-        let pix = y * width + x;
-        let depth = median[pix];
+        let depth = depths[x];
         if depth.is_nan() {
             depth_out[x] = depth;
             visible[x] = 0.0;
             continue;
         }
-        let point = ref_point(plan, pix, depth);
-        let mut seen = u32::from(ref_index != NO_CAMERA);
-        for (i, cam) in plan.cameras.iter().enumerate() {
-            if i as u32 == ref_index {
-                continue;
-            }
-            let projected = project(cam, point);
-            if let Some(index) = nearest_texel(cam, projected) {
-                let stored = zbuffer[index];
-                if stored == 0
-                    || projected[2] <= f32::from_bits(!stored) * (1.0 + tolerance)
-                {
-                    seen += 1;
-                }
-            }
-        }
-        visible[x] = seen as f32;
-        if seen < params.min_visible {
+        visible[x] = seen[x] as f32;
+        if seen[x] < params.min_visible {
             depth_out[x] = f32::NAN;
             confidence[x] = 0.0;
             selection[x] = 3.0;
