@@ -16,8 +16,11 @@ use crate::sweep::plan::SweepPlan;
 /// in both stages; the floats are the same). Kept across frame sets.
 #[derive(Debug, Default)]
 pub struct Projections {
-    cameras: Vec<(Vec<u32>, Vec<f32>)>,
+    cameras: Vec<CameraProjections>,
 }
+
+/// One camera's texel index and depth of every reference pixel.
+type CameraProjections = (Vec<u32>, Vec<f32>);
 
 /// Splats the median depth into every other camera's z-buffer (cleared to 0 = empty).
 /// Cameras in parallel, each writing only its own section: the nearest depth kept with a plain
@@ -30,7 +33,7 @@ pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32], projections: &m
         .cameras
         .resize_with(plan.cameras.len(), Default::default);
     let mut slots = projections.cameras.iter_mut();
-    let mut sections: Vec<(&GpuCamera, &mut [u32], &mut (Vec<u32>, Vec<f32>))> =
+    let mut sections: Vec<(&GpuCamera, &mut [u32], &mut CameraProjections)> =
         Vec::with_capacity(plan.cameras.len());
     let mut rest = zbuffer;
     let mut offset = 0usize;
