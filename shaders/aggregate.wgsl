@@ -41,6 +41,20 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 @group(0) @binding(6) var<storage, read_write> volume: array<u32>;
 // The rows this dispatch covers (the whole image unless the volume is split into bands).
 @group(0) @binding(7) var<uniform> band: Band;
+// Per reference row, the planes it sweeps (first, last): outside it a plane scores BIG
+// (coarse to fine; SweepPlan::plane_ranges).
+@group(0) @binding(8) var<storage, read> plane_ranges: array<vec2<u32>>;
+
+// Whether row `y` sweeps plane `k`.
+fn sweeps(y: u32, k: u32) -> bool {
+    let range = plane_ranges[y];
+    return k >= range.x && k <= range.y;
+}
+
+// No hypothesis: the score of a plane outside the row's range.
+fn no_hypothesis() -> vec2<f32> {
+    return vec2<f32>(BIG, f32(SEL_INVALID));
+}
 
 // Writes the level of plane `plane`'s score at pixel `pix`: an even plane starts its word
 // (the odd one fills the high half next), an odd plane that opens a batch keeps the low half.
@@ -465,7 +479,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         var low_b = 0u;
         for (var z = 0u; z < batch.plane_count; z++) {
             let k = f32(batch.first_plane + z);
-            let best = score_plane_paired(z, i32(x), i32(y));
+            var best = array<vec2<f32>, 2>(no_hypothesis(), no_hypothesis());
+            if (sweeps(y, batch.first_plane + z)) {
+                best = score_plane_paired(z, i32(x), i32(y));
+            }
             a = select_plane(a, k, best[0]);
             b = select_plane(b, k, best[1]);
             if (VOLUME) {
@@ -488,7 +505,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var st = load_state(pix);
     var low = 0u;
     for (var z = 0u; z < batch.plane_count; z++) {
-        let best = score_plane(z, i32(gid.x), i32(y));
+        var best = no_hypothesis();
+        if (sweeps(y, batch.first_plane + z)) {
+            best = score_plane(z, i32(gid.x), i32(y));
+        }
         st = select_plane(st, f32(batch.first_plane + z), best);
         if (VOLUME) {
             low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u);

@@ -767,3 +767,59 @@ fn cpu_buffers_kept_across_sets_change_nothing() {
         }
     }
 }
+
+/// Coarse to fine: rows that sweep only some planes (`SweepPlan::narrow_planes`) score BIG
+/// elsewhere, in both engines alike (the CPU engine skips the planes no row of a band needs),
+/// with the winner-take-all and with SGM.
+#[test]
+fn narrowed_plane_ranges_agree() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 32;
+    for optimizer in [Optimizer::Wta, Optimizer::Sgm] {
+        let plan = SweepPlan::new(&rig, &SweepParams { optimizer, ..params.clone() })
+            .expect("plan");
+        let planes = plan.num_planes();
+        // Row bands of different ranges, some rows with every plane, one with a single plane.
+        let ranges: Vec<[u32; 2]> = (0..plan.height)
+            .map(|y| match (y / 9) % 4 {
+                0 => [0, planes - 1],
+                1 => [4, 20],
+                2 => [10, 10],
+                _ => [12 + y % 5, planes - 1],
+            })
+            .collect();
+        let narrowed = plan.narrow_planes(ranges.clone()).expect("narrowed plan");
+        assert_ne!(narrowed.id, plan.id);
+        compare(&format!("narrowed_{optimizer:?}"), &narrowed, &rig, &images);
+        // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
+        // neighbour (SGM's path sums are finite on the masked planes).
+        let maps = CpuEngine::new().run_plan(&narrowed, &rig, &images).expect("cpu");
+        let depth_of = |k: u32, y: usize, x: usize| {
+            let ray = narrowed.rays[y * narrowed.width as usize + x];
+            let p = narrowed.planes[k as usize];
+            p[3] / (p[0] * ray[0] + p[1] * ray[1] + p[2])
+        };
+        let mut checked = 0;
+        for (y, range) in ranges.iter().enumerate() {
+            for x in 0..narrowed.width as usize {
+                let d = maps.depth_raw_m.data[y * narrowed.width as usize + x];
+                if d.is_finite() {
+                    let (near, far) = (
+                        depth_of((range[1] + 1).min(planes - 1), y, x),
+                        depth_of(range[0].saturating_sub(1), y, x),
+                    );
+                    assert!(
+                        d >= near * 0.999 && d <= far * 1.001,
+                        "{optimizer:?} ({x}, {y}): depth {d} outside planes {range:?} ({near}..{far})"
+                    );
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > narrowed.pixel_count() / 2, "{optimizer:?}: {checked} valid");
+    }
+    assert!(SweepPlan::new(&rig, &params)
+        .expect("plan")
+        .narrow_planes(vec![[0, 99]; 72])
+        .is_err());
+}

@@ -26,10 +26,21 @@ pub struct SweepPlan {
     pub pairs: Vec<[u32; 4]>,
     /// The z = 1 ray of every reference pixel, in the reference frame (undistorted).
     pub rays: Vec<[f32; 4]>,
+    /// Per reference row, the planes it sweeps (first, last; inclusive): a plane outside a
+    /// row's range scores BIG on that row (no hypothesis), and the CPU engine skips a plane
+    /// that no row of a band needs. Every plane for every row unless narrowed
+    /// ([`SweepPlan::narrow_planes`], coarse to fine).
+    pub plane_ranges: Vec<[u32; 2]>,
     /// Total pixels of all camera images (image buffer and z-buffer length).
     pub total_camera_pixels: usize,
     pub width: u32,
     pub height: u32,
+}
+
+/// A new plan's id.
+fn next_plan_id() -> u64 {
+    static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl SweepPlan {
@@ -252,18 +263,61 @@ impl SweepPlan {
             gpu_params.sgm_levels_per_unit = levels_per_unit;
             gpu_params.sgm_unit_per_level = 1.0 / (params.sgm_paths as f32 * levels_per_unit);
         }
-        static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+        let last_plane = planes.len() as u32 - 1;
         Ok(Self {
-            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            id: next_plan_id(),
             params: gpu_params,
             cameras,
             planes,
             pairs: pair_table,
             rays,
             total_camera_pixels: offset as usize,
+            plane_ranges: vec![[0, last_plane]; height as usize],
             width,
             height,
         })
+    }
+
+    /// The same plan with each row sweeping only `ranges[y]` (first, last plane, inclusive);
+    /// a new plan id (the engines' buffers keyed by it are made anew).
+    pub fn narrow_planes(&self, ranges: Vec<[u32; 2]>) -> Result<Self, SweepError> {
+        let planes = self.num_planes();
+        if ranges.len() != self.height as usize {
+            return Err(SweepError::InvalidParams(format!(
+                "plane ranges for {} rows; the reference has {}",
+                ranges.len(),
+                self.height
+            )));
+        }
+        if let Some((y, r)) = ranges
+            .iter()
+            .enumerate()
+            .find(|(_, r)| r[0] > r[1] || r[1] >= planes)
+        {
+            return Err(SweepError::InvalidParams(format!(
+                "row {y}: plane range {}..={} is not within 0..{planes}",
+                r[0], r[1]
+            )));
+        }
+        Ok(Self {
+            id: next_plan_id(),
+            plane_ranges: ranges,
+            params: self.params,
+            cameras: self.cameras.clone(),
+            planes: self.planes.clone(),
+            pairs: self.pairs.clone(),
+            rays: self.rays.clone(),
+            total_camera_pixels: self.total_camera_pixels,
+            width: self.width,
+            height: self.height,
+        })
+    }
+
+    /// Whether row `y` sweeps plane `k`.
+    pub fn sweeps(&self, y: usize, k: u32) -> bool {
+        self.plane_ranges
+            .get(y)
+            .is_none_or(|r| r[0] <= k && k <= r[1])
     }
 
     pub fn pixel_count(&self) -> usize {

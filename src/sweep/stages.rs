@@ -169,6 +169,7 @@ pub const STAGES: [StageInfo; 10] = [
             read("cost_slab"),
             read_write("volume"),
             uniform("band"),
+            read("plane_ranges"),
         ],
         workgroup_size: TILE,
         overrides: &[

@@ -286,16 +286,29 @@ impl CpuEngine {
                     return;
                 }
                 let (score, sel) = (&mut scratch.score[..len], &mut scratch.sel[..len]);
-                plane::sweep_plane(
-                    plan,
-                    &frame,
-                    plane_mappings,
-                    k,
-                    rows.clone(),
-                    &mut scratch.plane,
-                    score,
-                    sel,
-                );
+                // Coarse to fine: a plane no row of the band sweeps is not costed at all; the
+                // rows that do not sweep a costed plane score BIG on it (`plan.plane_ranges`).
+                if rows.clone().any(|y| plan.sweeps(y, k as u32)) {
+                    plane::sweep_plane(
+                        plan,
+                        &frame,
+                        plane_mappings,
+                        k,
+                        rows.clone(),
+                        &mut scratch.plane,
+                        score,
+                        sel,
+                    );
+                    for (i, y) in rows.clone().enumerate() {
+                        if !plan.sweeps(y, k as u32) {
+                            score[i * width..(i + 1) * width].fill(BIG);
+                            sel[i * width..(i + 1) * width].fill(f32::from(crate::sweep::selection::INVALID));
+                        }
+                    }
+                } else {
+                    score.fill(BIG);
+                    sel.fill(f32::from(crate::sweep::selection::INVALID));
+                }
                 select_plane(k as f32, score, sel, st);
                 if let Some(vol) = vol.as_deref_mut() {
                     // Levels of a group of planes are gathered plane by plane, then written

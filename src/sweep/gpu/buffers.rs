@@ -38,6 +38,7 @@ pub(super) struct Buffers {
     pub images: wgpu::Buffer,
     rays: wgpu::Buffer,
     planes: wgpu::Buffer,
+    plane_ranges: wgpu::Buffer,
     pairs: wgpu::Buffer,
     sgm_passes: wgpu::Buffer,
     bands: wgpu::Buffer,
@@ -96,6 +97,7 @@ impl Buffers {
         let images = storage("images", key.image_words as u64 * 4, none);
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
+        let plane_ranges = storage("plane_ranges", u64::from(key.height) * 8, none);
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
         let slices = u64::from(key.channels) * u64::from(key.batch);
         let cost_slab = storage("cost_slab", npix * 4 * slices, none);
@@ -174,6 +176,7 @@ impl Buffers {
                 "images" => whole(&images),
                 "rays" => whole(&rays),
                 "planes" => whole(&planes),
+                "plane_ranges" => whole(&plane_ranges),
                 "pairs" => whole(&pairs),
                 "cost_slab" => whole(&cost_slab),
                 "row_sums" => whole(&row_sums),
@@ -255,6 +258,7 @@ impl Buffers {
             images,
             rays,
             planes,
+            plane_ranges,
             pairs,
             sgm_passes,
             bands,
@@ -279,6 +283,7 @@ impl Buffers {
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&plan.params));
         queue.write_buffer(&self.cameras, 0, bytemuck::cast_slice(&plan.cameras));
         queue.write_buffer(&self.planes, 0, bytemuck::cast_slice(&plan.planes));
+        queue.write_buffer(&self.plane_ranges, 0, bytemuck::cast_slice(&plan.plane_ranges));
         queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
         // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
         let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];
