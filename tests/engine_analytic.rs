@@ -457,6 +457,56 @@ fn virtual_reference_with_an_empty_half_scores_all_pairs() {
     }
 }
 
+/// Coarse to fine (the default from 48 planes, on references of at least 160 px): a 320x240
+/// row of four cameras before a wall and a box, 64 planes. Both engines give the same depth as
+/// the full-resolution sweep within a point, and it is right.
+#[test]
+fn coarse_to_fine_keeps_the_depth() {
+    use sweepdepth::sweep::coarse;
+    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.5, Some((1.3, 0.3)), synthetic::intrinsics(320, 240).fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    let p = params(1.0, 4.0, 64);
+    assert!(p.coarse_to_fine, "the default");
+    assert!(coarse::applies(&rig, &p));
+    let full = SweepParams {
+        coarse_to_fine: false,
+        ..p.clone()
+    };
+    assert!(!coarse::applies(&rig, &full));
+    let cpu_full = CpuEngine::new()
+        .run(&rig, &images, &full)
+        .expect("cpu full");
+    let (full_within, _) = common::fraction_within(&cpu_full.depth_m, &truth, 0.02);
+    let mut cpu = CpuEngine::new();
+    let mut gpu = engine();
+    // Twice each: the second run reuses the cached plans and buffers of both levels.
+    for run in 0..2 {
+        for (name, maps) in [
+            (
+                "cpu",
+                cpu.run(&rig, &images, &p).expect("cpu coarse to fine"),
+            ),
+            (
+                "gpu",
+                gpu.run(&rig, &images, &p).expect("gpu coarse to fine"),
+            ),
+        ] {
+            let (within, _) = common::fraction_within(&maps.depth_m, &truth, 0.02);
+            eprintln!(
+                "run {run} {name}: {within:.3} within 2 % (full resolution only {full_within:.3})"
+            );
+            check_within("coarse_to_fine", &maps.depth_m, &truth, 0.02, 0.85);
+            assert!(
+                within >= full_within - 0.01,
+                "{name}: {within:.3} within 2 % vs {full_within:.3} at full resolution only"
+            );
+        }
+    }
+}
+
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
 #[test]
 fn tilted_plane_family_recovers_a_floor() {

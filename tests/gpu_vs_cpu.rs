@@ -776,8 +776,14 @@ fn narrowed_plane_ranges_agree() {
     let (rig, images, mut params) = tsukuba_crop();
     params.num_planes = 32;
     for optimizer in [Optimizer::Wta, Optimizer::Sgm] {
-        let plan = SweepPlan::new(&rig, &SweepParams { optimizer, ..params.clone() })
-            .expect("plan");
+        let plan = SweepPlan::new(
+            &rig,
+            &SweepParams {
+                optimizer,
+                ..params.clone()
+            },
+        )
+        .expect("plan");
         let planes = plan.num_planes();
         // Row bands of different ranges, some rows with every plane, one with a single plane.
         let ranges: Vec<[u32; 2]> = (0..plan.height)
@@ -793,7 +799,9 @@ fn narrowed_plane_ranges_agree() {
         compare(&format!("narrowed_{optimizer:?}"), &narrowed, &rig, &images);
         // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
         // neighbour (SGM's path sums are finite on the masked planes).
-        let maps = CpuEngine::new().run_plan(&narrowed, &rig, &images).expect("cpu");
+        let maps = CpuEngine::new()
+            .run_plan(&narrowed, &rig, &images)
+            .expect("cpu");
         let depth_of = |k: u32, y: usize, x: usize| {
             let ray = narrowed.rays[y * narrowed.width as usize + x];
             let p = narrowed.planes[k as usize];
@@ -816,7 +824,10 @@ fn narrowed_plane_ranges_agree() {
                 }
             }
         }
-        assert!(checked > narrowed.pixel_count() / 2, "{optimizer:?}: {checked} valid");
+        assert!(
+            checked > narrowed.pixel_count() / 2,
+            "{optimizer:?}: {checked} valid"
+        );
     }
     assert!(SweepPlan::new(&rig, &params)
         .expect("plan")

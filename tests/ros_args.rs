@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 24);
+    assert_eq!(fields.len(), 25);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -731,6 +731,7 @@ fn defaults_match_sweep_params() {
         sgm_p2: 4.0,
         sgm_paths: 4,
         sgm_edge: 9.0,
+        coarse_to_fine: false,
     };
     apply_to_sweep(&ParamSet::defaults(), &mut p).unwrap();
     assert_eq!(p, SweepParams::default());
@@ -806,8 +807,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 24 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 24 + expect.len() + 9);
+    // 25 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 25 + expect.len() + 9);
 }
 
 #[test]

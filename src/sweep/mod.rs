@@ -3,6 +3,7 @@
 //! CPU twin [`cpu::CpuEngine`].
 
 pub mod census;
+pub mod coarse;
 pub mod cpu;
 pub mod gpu;
 pub mod gpu_types;
@@ -141,6 +142,9 @@ pub struct SweepParams {
     /// Colour step (largest RGB channel difference between path neighbours, 0..255) at which
     /// P2 is halved: P2 / (1 + step / sgm_edge), at least P1; 0 keeps P2 constant.
     pub sgm_edge: f32,
+    /// Sweep at half resolution first, then each full-resolution row only over the planes
+    /// its neighbourhood needs (`sweep/coarse.rs`).
+    pub coarse_to_fine: bool,
 }
 
 /// Errors from the engines.

@@ -283,7 +283,11 @@ impl Buffers {
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&plan.params));
         queue.write_buffer(&self.cameras, 0, bytemuck::cast_slice(&plan.cameras));
         queue.write_buffer(&self.planes, 0, bytemuck::cast_slice(&plan.planes));
-        queue.write_buffer(&self.plane_ranges, 0, bytemuck::cast_slice(&plan.plane_ranges));
+        queue.write_buffer(
+            &self.plane_ranges,
+            0,
+            bytemuck::cast_slice(&plan.plane_ranges),
+        );
         queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
         // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
         let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];

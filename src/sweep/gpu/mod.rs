@@ -39,7 +39,12 @@ pub struct GpuEngine {
     sgm_band_bytes: Option<u64>,
     /// The buffers of the last shape, and what runs on them.
     buffers: Option<(Buffers, Schedule)>,
+    /// The buffers of the shape before (with the id of the plan uploaded into them): a
+    /// coarse-to-fine sweep alternates two shapes every frame set.
+    spare: Option<(Buffers, Schedule, Option<u64>)>,
     plan: Option<(Rig, SweepParams, SweepPlan)>,
+    /// The plans of a coarse-to-fine sweep (`sweep/coarse.rs`).
+    coarse: super::coarse::PlanCache,
     /// Id of the plan whose arrays are in the buffers.
     uploaded_plan: Option<u64>,
     packed: Vec<u32>,
@@ -66,7 +71,9 @@ impl GpuEngine {
             sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             sgm_band_bytes: None,
             buffers: None,
+            spare: None,
             plan: None,
+            coarse: Default::default(),
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
@@ -115,6 +122,14 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
+        if super::coarse::applies(rig, params) {
+            let mut cache = std::mem::take(&mut self.coarse);
+            let result = super::coarse::run(self, &mut cache, rig, images, params);
+            self.coarse = cache;
+            return result;
+        }
+        // One shape at a time outside coarse to fine: the other level's buffers go.
+        self.spare = None;
         let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
         if !reuse {
             let plan = SweepPlan::new(rig, params)?;
@@ -152,9 +167,18 @@ impl GpuEngine {
         plan.pack_images(rig, images, &mut packed)?;
         let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
-            let buffers = Buffers::new(&self.device, &self.pipelines.layouts, self.align, key)?;
-            self.buffers = Some((buffers, key.schedule()));
-            self.uploaded_plan = None;
+            let (buffers, schedule, uploaded) = match self.spare.take() {
+                Some(spare) if spare.0.key == key => spare,
+                _ => {
+                    let buffers =
+                        Buffers::new(&self.device, &self.pipelines.layouts, self.align, key)?;
+                    (buffers, key.schedule(), None)
+                }
+            };
+            if let Some((old, old_schedule)) = self.buffers.replace((buffers, schedule)) {
+                self.spare = Some((old, old_schedule, self.uploaded_plan));
+            }
+            self.uploaded_plan = uploaded;
         }
         // Workgroup memory does not outlive a dispatch: bands carry the path state in the
         // per-line scratch of the line-per-invocation layout.
@@ -203,5 +227,16 @@ impl GpuEngine {
             },
         };
         Ok(maps)
+    }
+}
+
+impl super::coarse::PlanRunner for GpuEngine {
+    fn run_plan(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        GpuEngine::run_plan(self, plan, rig, images)
     }
 }

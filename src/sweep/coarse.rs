@@ -1,0 +1,345 @@
+//! Coarse to fine (`coarse_to_fine`): a sweep at half resolution over every plane, then the
+//! full-resolution sweep with each reference row narrowed to the planes its neighbourhood
+//! chose at half resolution (`SweepPlan::narrow_planes`), so a rig pays for the depths its
+//! scene has. Both engines run it through [`run`]; what a narrowed row does not sweep scores
+//! BIG in both (`aggregate.wgsl`, `cpu/mod.rs`), and the CPU engine skips the planes no row of
+//! a band sweeps.
+
+use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
+use crate::image::{ImageF32, Rgba8Image};
+
+use super::plan::SweepPlan;
+use super::{DepthMaps, SweepError, SweepParams};
+
+/// Planes added on each side of the range the half-resolution depths span (a half-resolution
+/// pixel's plane is about twice as uncertain; chosen on the public sets, README, Speed).
+pub const MARGIN_PLANES: u32 = 3;
+
+/// Half-resolution rows above and below a row's own whose depths set its range.
+const NEIGHBOUR_ROWS: usize = 1;
+
+/// The smallest reference (width and height, pixels) that is swept coarse to fine; a smaller
+/// one is swept at full resolution only (it is fast anyway, and at 80x60 the 40x30
+/// half-resolution images are too coarse for 5x5 windows: `tests/engine_analytic.rs`'s
+/// synthetic scenes lose most of their depth through wrong ranges).
+pub const MIN_SIZE: u32 = 160;
+
+/// The fewest planes that are swept coarse to fine: with fewer the half-resolution pass costs
+/// more than the narrowed rows save (`bench --device cpu`: the demo's 32 planes 43 -> 49 ms,
+/// the paper's 20 planes 11 -> 15 ms; 9 cameras with 57 planes 183 -> 110 ms).
+pub const MIN_PLANES: u32 = 48;
+
+/// Runs a plan on an engine (both engines implement it).
+pub trait PlanRunner {
+    fn run_plan(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError>;
+}
+
+/// The plans of the two levels, kept while the rig and the parameters stay the same.
+#[derive(Debug, Default)]
+pub struct PlanCache {
+    coarse: Option<(Rig, SweepParams, SweepPlan)>,
+    fine: Option<(Rig, SweepParams, SweepPlan)>,
+}
+
+fn cached<'a>(
+    slot: &'a mut Option<(Rig, SweepParams, SweepPlan)>,
+    rig: &Rig,
+    params: &SweepParams,
+) -> Result<&'a SweepPlan, SweepError> {
+    let reuse = matches!(slot, Some((r, p, _)) if r == rig && p == params);
+    if !reuse {
+        *slot = Some((rig.clone(), params.clone(), SweepPlan::new(rig, params)?));
+    }
+    match slot {
+        Some((_, _, plan)) => Ok(plan),
+        None => Err(SweepError::InvalidParams("internal: no plan".into())),
+    }
+}
+
+/// Whether a sweep of `rig` with `params` runs coarse to fine.
+pub fn applies(rig: &Rig, params: &SweepParams) -> bool {
+    let reference = rig.reference_model().intrinsics;
+    params.coarse_to_fine
+        && params.num_planes >= MIN_PLANES
+        && reference.width_px >= MIN_SIZE
+        && reference.height_px >= MIN_SIZE
+}
+
+/// The sweep of one frame set coarse to fine (see the module).
+pub fn run(
+    engine: &mut dyn PlanRunner,
+    cache: &mut PlanCache,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    params: &SweepParams,
+) -> Result<DepthMaps, SweepError> {
+    super::check_images(rig, images)?;
+    let fine_params = SweepParams {
+        coarse_to_fine: false,
+        ..params.clone()
+    };
+    let (coarse_rig, coarse_images) = half_size(rig, images)?;
+    let coarse_params = SweepParams {
+        num_planes: coarse_planes(params.num_planes),
+        ..fine_params.clone()
+    };
+    let coarse_plan = cached(&mut cache.coarse, &coarse_rig, &coarse_params)?;
+    let coarse = engine.run_plan(coarse_plan, &coarse_rig, &coarse_images)?;
+    let fine = cached(&mut cache.fine, rig, &fine_params)?;
+    let ranges = plane_ranges(fine, &coarse.depth_raw_m);
+    let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
+    tracing::debug!(
+        "coarse to fine: rows sweep {:.0} % of the planes on average",
+        100.0 * swept as f64 / (ranges.len() as f64 * f64::from(fine.num_planes()))
+    );
+    let narrowed = fine.narrow_planes(ranges)?;
+    engine.run_plan(&narrowed, rig, images)
+}
+
+/// Planes of the half-resolution sweep: every other plane of the full sweep's range (a
+/// half-resolution pixel tells half as many depths apart), at least 2.
+fn coarse_planes(planes: u32) -> u32 {
+    planes.div_ceil(2).max(2)
+}
+
+/// The camera model of a half-size image (pixel centres: x' = (x + 0.5) / 2 - 0.5).
+fn half_model(model: &CameraModel) -> CameraModel {
+    let k = model.intrinsics;
+    let mut half = *model;
+    half.intrinsics.width_px = k.width_px / 2;
+    half.intrinsics.height_px = k.height_px / 2;
+    half.intrinsics.fx_px = k.fx_px / 2.0;
+    half.intrinsics.fy_px = k.fy_px / 2.0;
+    half.intrinsics.cx_px = (k.cx_px + 0.5) / 2.0 - 0.5;
+    half.intrinsics.cy_px = (k.cy_px + 0.5) / 2.0 - 0.5;
+    half
+}
+
+/// The rig and images at half resolution (each 2x2 block averaged, per 8-bit channel).
+fn half_size(rig: &Rig, images: &[Rgba8Image]) -> Result<(Rig, Vec<Rgba8Image>), SweepError> {
+    let cameras = rig
+        .cameras
+        .iter()
+        .map(|c| RigCamera {
+            model: half_model(&c.model),
+            ..c.clone()
+        })
+        .collect();
+    let reference = match &rig.reference {
+        Reference::Camera(i) => Reference::Camera(*i),
+        Reference::Virtual {
+            model,
+            cam_from_rig,
+        } => Reference::Virtual {
+            model: half_model(model),
+            cam_from_rig: *cam_from_rig,
+        },
+    };
+    let half_rig = Rig::new(cameras, reference)
+        .map_err(|e| SweepError::InvalidParams(format!("coarse to fine: {e}")))?;
+    let half_images = images.iter().map(half_image).collect();
+    Ok((half_rig, half_images))
+}
+
+fn half_image(image: &Rgba8Image) -> Rgba8Image {
+    let (w, h) = (image.width / 2, image.height / 2);
+    let src = |x: u32, y: u32| image.pixels[(y * image.width + x) as usize];
+    let mut pixels = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let quad = [
+                src(2 * x, 2 * y),
+                src(2 * x + 1, 2 * y),
+                src(2 * x, 2 * y + 1),
+                src(2 * x + 1, 2 * y + 1),
+            ];
+            let mut packed = 0u32;
+            for shift in [0, 8, 16, 24] {
+                let sum: u32 = quad.iter().map(|p| (p >> shift) & 0xff).sum();
+                packed |= ((sum + 2) / 4) << shift;
+            }
+            pixels.push(packed);
+        }
+    }
+    Rgba8Image {
+        width: w,
+        height: h,
+        pixels,
+    }
+}
+
+/// Each full-resolution row's planes: those of the half-resolution depths of its own and the
+/// neighbouring half-resolution rows (the plane nearest each depth in inverse depth along the
+/// full-resolution ray), widened by MARGIN_PLANES; every plane where those rows hold no depth.
+pub fn plane_ranges(plan: &SweepPlan, coarse: &ImageF32) -> Vec<[u32; 2]> {
+    let planes = plan.num_planes();
+    let (width, height) = (plan.width as usize, plan.height as usize);
+    let (cw, ch) = (coarse.width as usize, coarse.height as usize);
+    let all = vec![[0, planes - 1]; height];
+    if cw == 0 || ch == 0 {
+        return all;
+    }
+    // The span of planes of each half-resolution row (None: no depth there).
+    let row_spans: Vec<Option<[u32; 2]>> = (0..ch)
+        .map(|cy| {
+            let y = (2 * cy).min(height - 1);
+            let mut span: Option<[u32; 2]> = None;
+            for cx in 0..cw {
+                let depth = coarse.data[cy * cw + cx];
+                if !(depth.is_finite() && depth > 0.0) {
+                    continue;
+                }
+                let x = (2 * cx).min(width - 1);
+                let k = nearest_plane(plan, y * width + x, depth);
+                span = Some(span.map_or([k, k], |[lo, hi]| [lo.min(k), hi.max(k)]));
+            }
+            span
+        })
+        .collect();
+    (0..height)
+        .map(|y| {
+            let cy = (y / 2).min(ch - 1);
+            let rows = cy.saturating_sub(NEIGHBOUR_ROWS)..=(cy + NEIGHBOUR_ROWS).min(ch - 1);
+            let span = row_spans[rows]
+                .iter()
+                .flatten()
+                .fold(None, |acc: Option<[u32; 2]>, s| {
+                    Some(acc.map_or(*s, |a| [a[0].min(s[0]), a[1].max(s[1])]))
+                });
+            match span {
+                Some([lo, hi]) => [
+                    lo.saturating_sub(MARGIN_PLANES),
+                    (hi + MARGIN_PLANES).min(planes - 1),
+                ],
+                None => [0, planes - 1],
+            }
+        })
+        .collect()
+}
+
+/// The plane whose inverse depth along pixel `pix`'s ray is nearest 1 / `depth` (the sweep's
+/// planes are in order of inverse depth: a binary search).
+fn nearest_plane(plan: &SweepPlan, pix: usize, depth: f32) -> u32 {
+    let ray = plan.rays[pix];
+    let q_of = |k: usize| {
+        let p = plan.planes[k];
+        (p[0] * ray[0] + p[1] * ray[1] + p[2] * ray[2]) / p[3]
+    };
+    let q = 1.0 / depth;
+    let n = plan.planes.len();
+    let rising = q_of(n - 1) >= q_of(0);
+    // The first plane at or past q in the sweep's direction.
+    let (mut lo, mut hi) = (0usize, n);
+    while lo < hi {
+        let mid = (lo + hi) / 2;
+        let before = if rising { q_of(mid) < q } else { q_of(mid) > q };
+        if before {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    let k = if lo == 0 {
+        0
+    } else if lo == n || (q_of(lo - 1) - q).abs() <= (q_of(lo) - q).abs() {
+        lo - 1
+    } else {
+        lo
+    };
+    k as u32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn half_image_averages_each_channel_of_2x2_blocks() {
+        let image = Rgba8Image {
+            width: 3,
+            height: 2,
+            pixels: vec![
+                0x0000_0000,
+                0x0400_0a02,
+                0xffff_ffff,
+                0x0000_0000,
+                0x0400_0a02,
+                0xffff_ffff,
+            ],
+        };
+        let half = half_image(&image);
+        assert_eq!((half.width, half.height), (1, 1));
+        assert_eq!(half.pixels, vec![0x0200_0501]);
+    }
+
+    /// The binary search finds the plane a linear scan finds, and each row's range holds the
+    /// planes of the depths around it, widened by the margin.
+    #[test]
+    fn ranges_hold_the_planes_of_the_coarse_depths() {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(64, 48));
+        let rig = crate::synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let params = SweepParams {
+            min_depth_m: 1.0,
+            max_depth_m: 8.0,
+            num_planes: 64,
+            ..SweepParams::default()
+        };
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        for depth in [0.5f32, 1.0, 1.3, 2.0, 3.7, 7.9, 8.0, 20.0] {
+            let q = 1.0 / depth;
+            let scan = (0..64u32)
+                .min_by(|&a, &b| {
+                    let qa = plan.planes[a as usize][2] / plan.planes[a as usize][3];
+                    let qb = plan.planes[b as usize][2] / plan.planes[b as usize][3];
+                    (qa - q).abs().total_cmp(&(qb - q).abs())
+                })
+                .expect("planes");
+            assert_eq!(nearest_plane(&plan, 100, depth), scan, "depth {depth}");
+        }
+        // Half-resolution depths: 2 m on rows 0..12, NaN on 12..18, 4 m below.
+        let coarse = ImageF32 {
+            width: 32,
+            height: 24,
+            data: (0..24 * 32)
+                .map(|i| match i / 32 {
+                    0..12 => 2.0,
+                    12..18 => f32::NAN,
+                    _ => 4.0,
+                })
+                .collect(),
+        };
+        let ranges = plane_ranges(&plan, &coarse);
+        assert_eq!(ranges.len(), 48);
+        let k2 = nearest_plane(&plan, 0, 2.0);
+        let k4 = nearest_plane(&plan, 0, 4.0);
+        assert!(k4 < k2, "farther is a lower plane here: {k4} vs {k2}");
+        assert_eq!(ranges[0], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
+        // Row 22 (half-row 11) sees half-rows 10..=12: 2 m and nothing.
+        assert_eq!(ranges[22], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
+        // Rows 26..=29 (half-rows 13, 14) see no depth at all: every plane.
+        assert_eq!(ranges[27], [0, 63]);
+        // Row 35 (half-row 17) sees half-rows 16..=18: 4 m.
+        assert_eq!(ranges[35], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
+        assert_eq!(ranges[47], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
+    }
+
+    #[test]
+    fn half_model_keeps_pixel_centres() {
+        let model = CameraModel::pinhole(crate::geometry::PinholeIntrinsics {
+            width_px: 640,
+            height_px: 480,
+            fx_px: 500.0,
+            fy_px: 500.0,
+            cx_px: 319.5,
+            cy_px: 239.5,
+        });
+        let half = half_model(&model).intrinsics;
+        assert_eq!((half.width_px, half.height_px), (320, 240));
+        assert_eq!((half.cx_px, half.cy_px, half.fx_px), (159.5, 119.5, 250.0));
+    }
+}
