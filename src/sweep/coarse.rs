@@ -37,6 +37,9 @@ pub trait PlanRunner {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError>;
+
+    /// The per-stage times of the last run.
+    fn timings_mut(&mut self) -> &mut super::StageTimings;
 }
 
 /// The plans of the two levels, kept while the rig and the parameters stay the same.
@@ -89,6 +92,7 @@ pub fn run(
         ..fine_params.clone()
     };
     let coarse_plan = cached(&mut cache.coarse, &coarse_rig, &coarse_params)?;
+    let started = std::time::Instant::now();
     let coarse = engine.run_plan(coarse_plan, &coarse_rig, &coarse_images)?;
     let fine = cached(&mut cache.fine, rig, &fine_params)?;
     let ranges = plane_ranges(fine, &coarse.depth_raw_m);
@@ -98,7 +102,14 @@ pub fn run(
         100.0 * swept as f64 / (ranges.len() as f64 * f64::from(fine.num_planes()))
     );
     let narrowed = fine.narrow_planes(ranges)?;
-    engine.run_plan(&narrowed, rig, images)
+    let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
+    let maps = engine.run_plan(&narrowed, rig, images)?;
+    // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one.
+    engine
+        .timings_mut()
+        .stages
+        .insert(0, ("coarse".to_string(), coarse_ms));
+    Ok(maps)
 }
 
 /// Planes of the half-resolution sweep: every other plane of the full sweep's range (a

@@ -436,6 +436,10 @@ impl super::coarse::PlanRunner for CpuEngine {
     ) -> Result<DepthMaps, SweepError> {
         CpuEngine::run_plan(self, plan, rig, images)
     }
+
+    fn timings_mut(&mut self) -> &mut StageTimings {
+        &mut self.timings
+    }
 }
 
 /// Wall-clock time per stage, summed over repeated laps of the same name.

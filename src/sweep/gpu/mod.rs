@@ -239,4 +239,8 @@ impl super::coarse::PlanRunner for GpuEngine {
     ) -> Result<DepthMaps, SweepError> {
         GpuEngine::run_plan(self, plan, rig, images)
     }
+
+    fn timings_mut(&mut self) -> &mut StageTimings {
+        &mut self.timings
+    }
 }
