@@ -9,6 +9,8 @@ override CHANNELS: u32 = 1u;      // = params.channels
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> row_sums: array<vec2<f32>>;
 @group(0) @binding(3) var<storage, read_write> box_sums: array<vec2<f32>>;
+// Per reference row, the planes it sweeps (SweepPlan::plane_ranges; coarse to fine).
+@group(0) @binding(4) var<storage, read> plane_ranges: array<vec2<u32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -21,7 +23,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ay = i32(gid.y) - i32(WINDOW_H) + 1;
     let y_first = max(ay, 0);
     let y_end = min(ay + i32(WINDOW_H), i32(height));
+    // Only the rows of this window read its sums: the planes none of them sweeps are skipped.
+    var needed = vec2<u32>(0u, batch.first_plane + batch.plane_count);
+    if (y_first < y_end) {
+        needed = plane_ranges[y_first];
+        for (var y = y_first + 1; y < y_end; y++) {
+            let range = plane_ranges[y];
+            needed = vec2<u32>(min(needed.x, range.x), max(needed.y, range.y));
+        }
+    }
     for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
+        let k = batch.first_plane + zc / CHANNELS;
+        if (k < needed.x || k > needed.y) {
+            continue;
+        }
         var acc = vec2<f32>(0.0);
         for (var y = y_first; y < y_end; y++) {
             acc += row_sums[(zc * height + u32(y)) * padded_w + gid.x];

@@ -14,6 +14,24 @@ override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggr
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> cost_slab: array<f32>;
+// Per reference row, the planes it sweeps (first, last; SweepPlan::plane_ranges).
+@group(0) @binding(6) var<storage, read> plane_ranges: array<vec2<u32>>;
+
+// The planes whose costs row `y` must have: the hull of the ranges of the rows whose windows
+// reach it (window_h - 1 rows either way covers centred and shiftable windows). A skipped
+// plane's slab texels are not written; only the windows of rows that do not sweep that plane
+// read them, and aggregate.wgsl does not score those (coarse to fine).
+fn needed_planes(y: u32) -> vec2<u32> {
+    let reach = params.window_h - 1u;
+    let first = select(0u, y - reach, y > reach);
+    let last = min(y + reach, params.height - 1u);
+    var hull = plane_ranges[first];
+    for (var r = first + 1u; r <= last; r++) {
+        let range = plane_ranges[r];
+        hull = vec2<u32>(min(hull.x, range.x), max(hull.y, range.y));
+    }
+    return hull;
+}
 
 // The four texels around a sample that `inside` accepted (row-major indices in the camera's
 // image) and its weights (CPU twin: `Bilinear` in cpu/common.rs).
@@ -319,6 +337,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             ref_word = census_word(cameras[ref_index], gid.y * cameras[ref_index].size.x + gid.x);
         }
     }
+    let needed = needed_planes(gid.y);
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
         // Camera-outer order: each camera's parameters are loaded once for all planes.
         let npix = params.pixel_count;
@@ -333,6 +352,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let ray_in_cam = vec3<f32>(dot(cam.row0.xyz, ray), dot(cam.row1.xyz, ray), dot(cam.row2.xyz, ray));
             let offset = vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w);
             for (var z = 0u; z < batch.plane_count; z++) {
+                let k = batch.first_plane + z;
+                if (k < needed.x || k > needed.y) {
+                    continue;
+                }
                 let depth = plane_depth(batch.planes[z], ray);
                 var cost = INVALID;
                 if (depth > 0.0) {
@@ -348,6 +371,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     for (var z = 0u; z < batch.plane_count; z++) {
-        score_plane(gid.xy, pix, z, ray, ref_colour, ref_word);
+        let k = batch.first_plane + z;
+        if (k >= needed.x && k <= needed.y) {
+            score_plane(gid.xy, pix, z, ray, ref_colour, ref_word);
+        }
     }
 }

@@ -775,12 +775,23 @@ fn cpu_buffers_kept_across_sets_change_nothing() {
 fn narrowed_plane_ranges_agree() {
     let (rig, images, mut params) = tsukuba_crop();
     params.num_planes = 32;
-    for optimizer in [Optimizer::Wta, Optimizer::Sgm] {
+    let shiftable = SweepParams {
+        window_mode: WindowMode::Shiftable,
+        window_width: 2,
+        window_height: 2,
+        cost: Cost::Tssd,
+        ..params.clone()
+    };
+    for (optimizer, base) in [
+        (Optimizer::Wta, &params),
+        (Optimizer::Sgm, &params),
+        (Optimizer::Wta, &shiftable),
+    ] {
         let plan = SweepPlan::new(
             &rig,
             &SweepParams {
                 optimizer,
-                ..params.clone()
+                ..base.clone()
             },
         )
         .expect("plan");
@@ -796,7 +807,8 @@ fn narrowed_plane_ranges_agree() {
             .collect();
         let narrowed = plan.narrow_planes(ranges.clone()).expect("narrowed plan");
         assert_ne!(narrowed.id, plan.id);
-        compare(&format!("narrowed_{optimizer:?}"), &narrowed, &rig, &images);
+        let name = format!("narrowed_{optimizer:?}_{:?}", base.window_mode);
+        compare(&name, &narrowed, &rig, &images);
         // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
         // neighbour (SGM's path sums are finite on the masked planes).
         let maps = CpuEngine::new()

@@ -122,6 +122,7 @@ pub const STAGES: [StageInfo; 10] = [
             read("images"),
             read("rays"),
             read_write("cost_slab"),
+            read("plane_ranges"),
         ],
         workgroup_size: TILE,
         overrides: &[
@@ -141,6 +142,7 @@ pub const STAGES: [StageInfo; 10] = [
             dynamic("batch"),
             read("cost_slab"),
             read_write("row_sums"),
+            read("plane_ranges"),
         ],
         workgroup_size: TILE,
         overrides: &["DISTORTED", "WINDOW_W", "CHANNELS"],
@@ -153,6 +155,7 @@ pub const STAGES: [StageInfo; 10] = [
             dynamic("batch"),
             read("row_sums"),
             read_write("box_sums"),
+            read("plane_ranges"),
         ],
         workgroup_size: TILE,
         overrides: &["DISTORTED", "WINDOW_H", "CHANNELS"],
