@@ -41,13 +41,13 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 @group(0) @binding(6) var<storage, read_write> volume: array<u32>;
 // The rows this dispatch covers (the whole image unless the volume is split into bands).
 @group(0) @binding(7) var<uniform> band: Band;
-// Per reference row, the planes it sweeps (first, last): outside it a plane scores BIG
-// (coarse to fine; SweepPlan::plane_ranges).
-@group(0) @binding(8) var<storage, read> plane_ranges: array<vec2<u32>>;
+// Per reference row (SweepPlan::shader_plane_ranges): xy the planes it sweeps; outside them a
+// plane scores BIG (coarse to fine).
+@group(0) @binding(8) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 // Whether row `y` sweeps plane `k`.
 fn sweeps(y: u32, k: u32) -> bool {
-    let range = plane_ranges[y];
+    let range = plane_ranges[y].xy;
     return k >= range.x && k <= range.y;
 }
 

@@ -9,22 +9,9 @@ override CHANNELS: u32 = 1u;      // = params.channels
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> cost_slab: array<f32>;
 @group(0) @binding(3) var<storage, read_write> row_sums: array<vec2<f32>>;
-// Per reference row, the planes it sweeps (SweepPlan::plane_ranges; coarse to fine).
-@group(0) @binding(4) var<storage, read> plane_ranges: array<vec2<u32>>;
-
-// The planes row `y`'s sums are read for: the hull of the ranges of the rows within a window
-// height of it (as cost.wgsl's needed_planes); the others are not summed.
-fn needed_planes(y: u32) -> vec2<u32> {
-    let reach = params.window_h - 1u;
-    let first = select(0u, y - reach, y > reach);
-    let last = min(y + reach, params.height - 1u);
-    var hull = plane_ranges[first];
-    for (var r = first + 1u; r <= last; r++) {
-        let range = plane_ranges[r];
-        hull = vec2<u32>(min(hull.x, range.x), max(hull.y, range.y));
-    }
-    return hull;
-}
+// Per reference row (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes it sweeps,
+// zw the planes the rows within a window height of it sweep; only the zw planes are summed.
+@group(0) @binding(4) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -39,7 +26,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // The columns of the window that lie inside the image.
     let x_first = max(ax, 0);
     let x_end = min(ax + i32(WINDOW_W), i32(width));
-    let needed = needed_planes(gid.y);
+    let needed = plane_ranges[gid.y].zw;
     for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
         let k = batch.first_plane + zc / CHANNELS;
         if (k < needed.x || k > needed.y) {

@@ -9,8 +9,8 @@ override CHANNELS: u32 = 1u;      // = params.channels
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> row_sums: array<vec2<f32>>;
 @group(0) @binding(3) var<storage, read_write> box_sums: array<vec2<f32>>;
-// Per reference row, the planes it sweeps (SweepPlan::plane_ranges; coarse to fine).
-@group(0) @binding(4) var<storage, read> plane_ranges: array<vec2<u32>>;
+// Per reference row (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes it sweeps.
+@group(0) @binding(4) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -26,9 +26,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // Only the rows of this window read its sums: the planes none of them sweeps are skipped.
     var needed = vec2<u32>(0u, batch.first_plane + batch.plane_count);
     if (y_first < y_end) {
-        needed = plane_ranges[y_first];
+        needed = plane_ranges[y_first].xy;
         for (var y = y_first + 1; y < y_end; y++) {
-            let range = plane_ranges[y];
+            let range = plane_ranges[y].xy;
             needed = vec2<u32>(min(needed.x, range.x), max(needed.y, range.y));
         }
     }

@@ -14,24 +14,11 @@ override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggr
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> cost_slab: array<f32>;
-// Per reference row, the planes it sweeps (first, last; SweepPlan::plane_ranges).
-@group(0) @binding(6) var<storage, read> plane_ranges: array<vec2<u32>>;
-
-// The planes whose costs row `y` must have: the hull of the ranges of the rows whose windows
-// reach it (window_h - 1 rows either way covers centred and shiftable windows). A skipped
-// plane's slab texels are not written; only the windows of rows that do not sweep that plane
-// read them, and aggregate.wgsl does not score those (coarse to fine).
-fn needed_planes(y: u32) -> vec2<u32> {
-    let reach = params.window_h - 1u;
-    let first = select(0u, y - reach, y > reach);
-    let last = min(y + reach, params.height - 1u);
-    var hull = plane_ranges[first];
-    for (var r = first + 1u; r <= last; r++) {
-        let range = plane_ranges[r];
-        hull = vec2<u32>(min(hull.x, range.x), max(hull.y, range.y));
-    }
-    return hull;
-}
+// Per reference row (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes it sweeps,
+// zw the planes the rows within a window height of it sweep. A row costs only the zw planes;
+// the slab texels it skips are read only by windows of rows that do not sweep that plane,
+// which aggregate.wgsl does not score.
+@group(0) @binding(6) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 // The four texels around a sample that `inside` accepted (row-major indices in the camera's
 // image) and its weights (CPU twin: `Bilinear` in cpu/common.rs).
@@ -337,7 +324,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             ref_word = census_word(cameras[ref_index], gid.y * cameras[ref_index].size.x + gid.x);
         }
     }
-    let needed = needed_planes(gid.y);
+    let needed = plane_ranges[gid.y].zw;
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
         // Camera-outer order: each camera's parameters are loaded once for all planes.
         let npix = params.pixel_count;

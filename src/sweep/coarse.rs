@@ -1,9 +1,10 @@
 //! Coarse to fine (`coarse_to_fine`): a sweep at half resolution over every plane, then the
 //! full-resolution sweep with each reference row narrowed to the planes its neighbourhood
 //! chose at half resolution (`SweepPlan::narrow_planes`), so a rig pays for the depths its
-//! scene has. Both engines run it through [`run`]; what a narrowed row does not sweep scores
-//! BIG in both (`aggregate.wgsl`, `cpu/mod.rs`), and the CPU engine skips the planes no row of
-//! a band sweeps.
+//! scene has. Both engines' `run` is [`run`] (with or without coarse to fine); what a narrowed
+//! row does not sweep scores BIG in both (`aggregate.wgsl`, `cpu/mod.rs`), the WGSL engine
+//! costs and sums only the planes a row's windows need, and the CPU engine skips the planes no
+//! row of a band sweeps.
 
 use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
 use crate::image::{ImageF32, Rgba8Image};
@@ -42,9 +43,11 @@ pub trait PlanRunner {
     fn timings_mut(&mut self) -> &mut super::StageTimings;
 }
 
-/// The plans of the two levels, kept while the rig and the parameters stay the same.
+/// An engine's plans, kept while the rig and the parameters stay the same: the sweep's own,
+/// and the two levels of a coarse-to-fine sweep.
 #[derive(Debug, Default)]
-pub struct PlanCache {
+pub struct Plans {
+    whole: Option<(Rig, SweepParams, SweepPlan)>,
     coarse: Option<(Rig, SweepParams, SweepPlan)>,
     fine: Option<(Rig, SweepParams, SweepPlan)>,
 }
@@ -53,7 +56,7 @@ fn cached<'a>(
     slot: &'a mut Option<(Rig, SweepParams, SweepPlan)>,
     rig: &Rig,
     params: &SweepParams,
-) -> Result<&'a SweepPlan, SweepError> {
+) -> Result<&'a mut SweepPlan, SweepError> {
     let reuse = matches!(slot, Some((r, p, _)) if r == rig && p == params);
     if !reuse {
         *slot = Some((rig.clone(), params.clone(), SweepPlan::new(rig, params)?));
@@ -73,37 +76,68 @@ pub fn applies(rig: &Rig, params: &SweepParams) -> bool {
         && reference.height_px >= MIN_SIZE
 }
 
-/// The sweep of one frame set coarse to fine (see the module).
+/// The sweep of one frame set, as both engines' `run`: coarse to fine where it [`applies`]
+/// (and the rig has a half-resolution twin), else the plan of the rig and parameters.
 pub fn run(
     engine: &mut dyn PlanRunner,
-    cache: &mut PlanCache,
+    plans: &mut Plans,
     rig: &Rig,
     images: &[Rgba8Image],
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
-    super::check_images(rig, images)?;
+    if applies(rig, params) {
+        super::check_images(rig, images)?;
+        match half_size(rig, images) {
+            Ok((coarse_rig, coarse_images)) => {
+                return coarse_to_fine(
+                    engine,
+                    plans,
+                    rig,
+                    images,
+                    params,
+                    &coarse_rig,
+                    &coarse_images,
+                )
+            }
+            Err(e) => tracing::debug!("coarse to fine skipped: {e}"),
+        }
+    }
+    let plan = cached(&mut plans.whole, rig, params)?;
+    engine.run_plan(plan, rig, images)
+}
+
+/// The half-resolution sweep, then the full-resolution one with narrowed rows (the module).
+fn coarse_to_fine(
+    engine: &mut dyn PlanRunner,
+    plans: &mut Plans,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    params: &SweepParams,
+    coarse_rig: &Rig,
+    coarse_images: &[Rgba8Image],
+) -> Result<DepthMaps, SweepError> {
     let fine_params = SweepParams {
         coarse_to_fine: false,
         ..params.clone()
     };
-    let (coarse_rig, coarse_images) = half_size(rig, images)?;
     let coarse_params = SweepParams {
         num_planes: coarse_planes(params.num_planes),
         ..fine_params.clone()
     };
-    let coarse_plan = cached(&mut cache.coarse, &coarse_rig, &coarse_params)?;
+    let coarse_plan = cached(&mut plans.coarse, coarse_rig, &coarse_params)?;
     let started = std::time::Instant::now();
-    let coarse = engine.run_plan(coarse_plan, &coarse_rig, &coarse_images)?;
-    let fine = cached(&mut cache.fine, rig, &fine_params)?;
+    let coarse = engine.run_plan(coarse_plan, coarse_rig, coarse_images)?;
+    let fine = cached(&mut plans.fine, rig, &fine_params)?;
     let ranges = plane_ranges(fine, &coarse.depth_raw_m);
     let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
     tracing::debug!(
         "coarse to fine: rows sweep {:.0} % of the planes on average",
         100.0 * swept as f64 / (ranges.len() as f64 * f64::from(fine.num_planes()))
     );
-    let narrowed = fine.narrow_planes(ranges)?;
+    // Narrowed in place: the plan's arrays are neither copied nor uploaded again.
+    fine.set_plane_ranges(ranges)?;
     let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
-    let maps = engine.run_plan(&narrowed, rig, images)?;
+    let maps = engine.run_plan(fine, rig, images)?;
     // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one.
     engine
         .timings_mut()

@@ -29,7 +29,7 @@ pub struct SweepPlan {
     /// Per reference row, the planes it sweeps (first, last; inclusive): a plane outside a
     /// row's range scores BIG on that row (no hypothesis), and the CPU engine skips a plane
     /// that no row of a band needs. Every plane for every row unless narrowed
-    /// ([`SweepPlan::narrow_planes`], coarse to fine).
+    /// ([`SweepPlan::set_plane_ranges`], coarse to fine).
     pub plane_ranges: Vec<[u32; 2]>,
     /// Total pixels of all camera images (image buffer and z-buffer length).
     pub total_camera_pixels: usize,
@@ -278,9 +278,10 @@ impl SweepPlan {
         })
     }
 
-    /// The same plan with each row sweeping only `ranges[y]` (first, last plane, inclusive);
-    /// a new plan id (the engines' buffers keyed by it are made anew).
-    pub fn narrow_planes(&self, ranges: Vec<[u32; 2]>) -> Result<Self, SweepError> {
+    /// Narrows each row to `ranges[y]` (first, last plane, inclusive). The ranges are not part
+    /// of the plan's id: the engines read them on every run (a coarse-to-fine sweep sets new
+    /// ones on the same plan every frame set).
+    pub fn set_plane_ranges(&mut self, ranges: Vec<[u32; 2]>) -> Result<(), SweepError> {
         let planes = self.num_planes();
         if ranges.len() != self.height as usize {
             return Err(SweepError::InvalidParams(format!(
@@ -299,18 +300,34 @@ impl SweepPlan {
                 r[0], r[1]
             )));
         }
-        Ok(Self {
-            id: next_plan_id(),
-            plane_ranges: ranges,
-            params: self.params,
-            cameras: self.cameras.clone(),
-            planes: self.planes.clone(),
-            pairs: self.pairs.clone(),
-            rays: self.rays.clone(),
-            total_camera_pixels: self.total_camera_pixels,
-            width: self.width,
-            height: self.height,
-        })
+        self.plane_ranges = ranges;
+        Ok(())
+    }
+
+    /// A copy of the plan (a new id) with each row sweeping only `ranges[y]`.
+    pub fn narrow_planes(&self, ranges: Vec<[u32; 2]>) -> Result<Self, SweepError> {
+        let mut narrowed = self.clone();
+        narrowed.id = next_plan_id();
+        narrowed.set_plane_ranges(ranges)?;
+        Ok(narrowed)
+    }
+
+    /// The ranges as the shaders read them, per row: its own range (aggregate.wgsl, box_v.wgsl)
+    /// and the hull of the ranges of the rows within a window height of it, the planes whose
+    /// costs and row sums it must have (cost.wgsl, box_h.wgsl; window_h - 1 rows either way
+    /// covers centred and shiftable windows).
+    pub fn shader_plane_ranges(&self) -> Vec<[u32; 4]> {
+        let reach = self.params.window_h.saturating_sub(1) as usize;
+        let rows = self.plane_ranges.len();
+        (0..rows)
+            .map(|y| {
+                let near = &self.plane_ranges[y.saturating_sub(reach)..(y + reach + 1).min(rows)];
+                let lo = near.iter().map(|r| r[0]).min().unwrap_or(0);
+                let hi = near.iter().map(|r| r[1]).max().unwrap_or(0);
+                let own = self.plane_ranges[y];
+                [own[0], own[1], lo, hi]
+            })
+            .collect()
     }
 
     /// Whether row `y` sweeps plane `k`.

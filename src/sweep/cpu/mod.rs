@@ -74,9 +74,8 @@ pub struct CpuTrace {
 /// The CPU plane-sweep engine. It keeps the plan of the last rig and parameters.
 #[derive(Debug)]
 pub struct CpuEngine {
-    plan: Option<(Rig, SweepParams, SweepPlan)>,
-    /// The plans of a coarse-to-fine sweep (`sweep/coarse.rs`).
-    coarse: super::coarse::PlanCache,
+    /// The plans of the last rig and parameters (`sweep/coarse.rs`).
+    plans: super::coarse::Plans,
     timings: StageTimings,
     fast_paths: bool,
     buffers: Buffers,
@@ -122,8 +121,7 @@ impl Default for CpuEngine {
 impl CpuEngine {
     pub fn new() -> Self {
         Self {
-            plan: None,
-            coarse: Default::default(),
+            plans: Default::default(),
             timings: StageTimings::default(),
             fast_paths: true,
             buffers: Buffers::default(),
@@ -160,22 +158,9 @@ impl CpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        if super::coarse::applies(rig, params) {
-            let mut cache = std::mem::take(&mut self.coarse);
-            let result = super::coarse::run(self, &mut cache, rig, images, params);
-            self.coarse = cache;
-            return result;
-        }
-        let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
-        if !reuse {
-            let plan = SweepPlan::new(rig, params)?;
-            self.plan = Some((rig.clone(), params.clone(), plan));
-        }
-        let Some(cached) = self.plan.take() else {
-            return Err(SweepError::InvalidParams("internal: no plan".into()));
-        };
-        let result = self.run_plan(&cached.2, rig, images);
-        self.plan = Some(cached);
+        let mut plans = std::mem::take(&mut self.plans);
+        let result = super::coarse::run(self, &mut plans, rig, images, params);
+        self.plans = plans;
         result
     }
 

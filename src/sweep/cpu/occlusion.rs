@@ -169,12 +169,11 @@ fn visibility_row(
     } = row;
     let depths = &median[y * width..(y + 1) * width];
     let mut seen = vec![u32::from(ref_index != NO_CAMERA); width];
-    let row_of = |v: &[u32]| -> std::ops::Range<usize> { (y * width).min(v.len())..((y + 1) * width).min(v.len()) };
     for (i, (index, z)) in projections.cameras.iter().enumerate() {
         if i as u32 == ref_index {
             continue;
         }
-        let range = row_of(index);
+        let range = y * width..(y + 1) * width;
         for ((&at, &z), seen) in index[range.clone()].iter().zip(&z[range]).zip(seen.iter_mut()) {
             if at != NONE {
                 let stored = zbuffer[at as usize];

@@ -97,7 +97,7 @@ impl Buffers {
         let images = storage("images", key.image_words as u64 * 4, none);
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
-        let plane_ranges = storage("plane_ranges", u64::from(key.height) * 8, none);
+        let plane_ranges = storage("plane_ranges", u64::from(key.height) * 16, none);
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
         let slices = u64::from(key.channels) * u64::from(key.batch);
         let cost_slab = storage("cost_slab", npix * 4 * slices, none);
@@ -276,6 +276,12 @@ impl Buffers {
         &groups[(band as usize).min(groups.len() - 1)]
     }
 
+    /// Writes the plan's plane ranges (every run: they are not part of the plan's id).
+    pub fn upload_plane_ranges(&self, queue: &wgpu::Queue, plan: &SweepPlan) {
+        let ranges = plan.shader_plane_ranges();
+        queue.write_buffer(&self.plane_ranges, 0, bytemuck::cast_slice(&ranges));
+    }
+
     /// Writes the plan's arrays: parameters, cameras, planes, rays, pairs, batches of planes,
     /// SGM directions and row bands.
     pub fn upload_plan(&self, queue: &wgpu::Queue, align: Alignments, plan: &SweepPlan) {
@@ -283,11 +289,6 @@ impl Buffers {
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&plan.params));
         queue.write_buffer(&self.cameras, 0, bytemuck::cast_slice(&plan.cameras));
         queue.write_buffer(&self.planes, 0, bytemuck::cast_slice(&plan.planes));
-        queue.write_buffer(
-            &self.plane_ranges,
-            0,
-            bytemuck::cast_slice(&plan.plane_ranges),
-        );
         queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
         // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
         let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];

@@ -42,9 +42,8 @@ pub struct GpuEngine {
     /// The buffers of the shape before (with the id of the plan uploaded into them): a
     /// coarse-to-fine sweep alternates two shapes every frame set.
     spare: Option<(Buffers, Schedule, Option<u64>)>,
-    plan: Option<(Rig, SweepParams, SweepPlan)>,
-    /// The plans of a coarse-to-fine sweep (`sweep/coarse.rs`).
-    coarse: super::coarse::PlanCache,
+    /// The plans of the last rig and parameters (`sweep/coarse.rs`).
+    plans: super::coarse::Plans,
     /// Id of the plan whose arrays are in the buffers.
     uploaded_plan: Option<u64>,
     packed: Vec<u32>,
@@ -72,8 +71,7 @@ impl GpuEngine {
             sgm_band_bytes: None,
             buffers: None,
             spare: None,
-            plan: None,
-            coarse: Default::default(),
+            plans: Default::default(),
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
@@ -122,25 +120,13 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        if super::coarse::applies(rig, params) {
-            let mut cache = std::mem::take(&mut self.coarse);
-            let result = super::coarse::run(self, &mut cache, rig, images, params);
-            self.coarse = cache;
-            return result;
-        }
         // One shape at a time outside coarse to fine: the other level's buffers go.
-        self.spare = None;
-        let reuse = matches!(&self.plan, Some((r, p, _)) if r == rig && p == params);
-        if !reuse {
-            let plan = SweepPlan::new(rig, params)?;
-            self.plan = Some((rig.clone(), params.clone(), plan));
+        if !super::coarse::applies(rig, params) {
+            self.spare = None;
         }
-        // Taken out and put back (no per-frame clone) so run_plan can borrow self mutably.
-        let Some(cached) = self.plan.take() else {
-            return Err(SweepError::Gpu("internal: no plan".into()));
-        };
-        let result = self.run_plan(&cached.2, rig, images);
-        self.plan = Some(cached);
+        let mut plans = std::mem::take(&mut self.plans);
+        let result = super::coarse::run(self, &mut plans, rig, images, params);
+        self.plans = plans;
         result
     }
 
@@ -192,6 +178,7 @@ impl GpuEngine {
             buffers.upload_plan(&self.queue, self.align, plan);
             self.uploaded_plan = Some(plan.id);
         }
+        buffers.upload_plane_ranges(&self.queue, plan);
         self.queue
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
