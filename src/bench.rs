@@ -29,7 +29,8 @@ pub struct BenchArgs {
     /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
-    /// Only these configurations (repeatable): paper, demo, 9-camera, vga, sxga.
+    /// Only these configurations (repeatable): paper, demo, 9-camera, vga, ring,
+    /// ring-distorted, sxga.
     #[arg(long = "config", value_name = "NAME")]
     pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
@@ -55,6 +56,10 @@ pub enum Workload {
     Defaults,
     /// The demo: the built-in Tsukuba set (5 views 384x288, 32 planes) with its defaults.
     Demo,
+    /// Converging cameras on an arc (general poses, as the rings, ICL-NUIM or a capture rig
+    /// whose images are not rectified) with the engine defaults; `distorted`: every camera
+    /// with a mild plumb-bob barrel, as a driver's raw images.
+    Ring { distorted: bool },
 }
 
 /// One benchmark configuration.
@@ -69,7 +74,7 @@ pub struct BenchConfig {
 }
 
 /// The configurations.
-pub const CONFIGS: [BenchConfig; 5] = [
+pub const CONFIGS: [BenchConfig; 7] = [
     BenchConfig {
         name: "paper",
         cameras: 4,
@@ -101,6 +106,22 @@ pub const CONFIGS: [BenchConfig; 5] = [
         height: 480,
         planes: 64,
         workload: Workload::Paper,
+    },
+    BenchConfig {
+        name: "ring",
+        cameras: 5,
+        width: 640,
+        height: 480,
+        planes: 96,
+        workload: Workload::Ring { distorted: false },
+    },
+    BenchConfig {
+        name: "ring-distorted",
+        cameras: 5,
+        width: 640,
+        height: 480,
+        planes: 96,
+        workload: Workload::Ring { distorted: true },
     },
     BenchConfig {
         name: "sxga",
@@ -202,9 +223,18 @@ fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Optio
         let dataset = dataset?;
         return Ok((dataset.rig, dataset.images, Some(dataset.params)));
     }
-    let model = CameraModel::pinhole(synthetic::intrinsics(config.width, config.height));
+    let mut model = CameraModel::pinhole(synthetic::intrinsics(config.width, config.height));
     let reference = (config.cameras - 1) / 2;
-    let rig = synthetic::row_rig(config.cameras, 0.1, model, reference)?;
+    let rig = match config.workload {
+        Workload::Ring { distorted } => {
+            if distorted {
+                model.distortion = synthetic::plumb_bob_barrel();
+            }
+            // 6 degrees apart around a point 4 m ahead: 0.4 m between neighbours.
+            synthetic::arc_rig(config.cameras, 0.105, 4.0, model, reference)?
+        }
+        _ => synthetic::row_rig(config.cameras, 0.1, model, reference)?,
+    };
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
     Ok((rig, images, None))

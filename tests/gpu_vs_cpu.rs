@@ -3,7 +3,7 @@
 
 mod common;
 
-use sweepdepth::geometry::{CameraModel, Rig};
+use sweepdepth::geometry::{CameraModel, Distortion, Rig};
 use sweepdepth::image::{ImageF32, Rgba8Image};
 use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::GpuEngine;
@@ -565,20 +565,80 @@ fn sgm_many_planes_real_crop_agrees() {
     compare_with("sgm_many_planes_lines", &plan, &rig, &images, Some(true));
 }
 
-/// The CPU engine's translation fast path (rectified rows: contiguous shifted samples) against
-/// its general per-pixel projection on rigs where both apply: same depth within the stated
-/// tolerances, and the fast path really ran (every non-reference camera maps by a shift).
+/// A pinhole arc of converging cameras (no rectified rows): the CPU engine maps its planes by
+/// row-linear homographies.
+fn pinhole_arc_case() -> (Rig, Vec<Rgba8Image>) {
+    let model = CameraModel {
+        intrinsics: synthetic::intrinsics(48, 36),
+        distortion: Distortion::None,
+    };
+    let rig = synthetic::arc_rig(4, 0.05, 2.0, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    (rig, images)
+}
+
+/// Converging pinhole views with every cost: the CPU engine's homography path against the WGSL.
+#[test]
+fn pinhole_arc_agrees_with_every_cost() {
+    let (rig, images) = pinhole_arc_case();
+    for cost in [Cost::Tssd, Cost::Census, Cost::AdCensus] {
+        for scoring in [Scoring::BestHalfSequence, Scoring::AllPairs] {
+            let params = SweepParams {
+                cost,
+                scoring,
+                ..base()
+            };
+            let plan = SweepPlan::new(&rig, &params).expect("plan");
+            compare(&format!("pinhole_arc_{cost:?}_{scoring:?}"), &plan, &rig, &images);
+        }
+    }
+}
+
+fn is_translation(m: &sweepdepth::sweep::cpu::cost::Mapping) -> bool {
+    matches!(m, sweepdepth::sweep::cpu::cost::Mapping::Translation { .. })
+}
+
+fn is_projective(m: &sweepdepth::sweep::cpu::cost::Mapping) -> bool {
+    matches!(m, sweepdepth::sweep::cpu::cost::Mapping::Projective { .. })
+}
+
+/// The CPU engine's fast paths (rectified rows: contiguous shifted samples; converging pinhole
+/// views: row-linear homographies) against its general per-pixel projection on rigs where they
+/// apply: same depth within the stated tolerances, and the fast path really ran (every
+/// non-reference camera maps by a shift or by a homography).
 #[test]
 fn cpu_fast_path_agrees_with_general_path() {
     let (rig, images, mut params) = tsukuba_crop();
     params.num_planes = 32;
     let (synthetic_rig, synthetic_images) = synthetic_case();
-    let cases = [
+    let (arc_rig, arc_images) = pinhole_arc_case();
+    type Kind = fn(&sweepdepth::sweep::cpu::cost::Mapping) -> bool;
+    let cases: [(&str, Rig, Vec<Rgba8Image>, SweepParams, Kind); 5] = [
         (
             "tsukuba_crop_defaults",
             rig.clone(),
             images.clone(),
             params.clone(),
+            is_translation,
+        ),
+        (
+            "pinhole_arc_defaults",
+            arc_rig.clone(),
+            arc_images.clone(),
+            base(),
+            is_projective,
+        ),
+        (
+            "pinhole_arc_census_all_pairs",
+            arc_rig,
+            arc_images,
+            SweepParams {
+                cost: Cost::Census,
+                scoring: Scoring::AllPairs,
+                ..base()
+            },
+            is_projective,
         ),
         (
             "tsukuba_crop_wta_shiftable",
@@ -592,6 +652,7 @@ fn cpu_fast_path_agrees_with_general_path() {
                 scoring: Scoring::BestHalfSequence,
                 ..params
             },
+            is_translation,
         ),
         (
             "synthetic_all_pairs",
@@ -601,18 +662,18 @@ fn cpu_fast_path_agrees_with_general_path() {
                 scoring: Scoring::AllPairs,
                 ..base()
             },
+            is_translation,
         ),
     ];
-    for (name, rig, images, params) in cases {
+    for (name, rig, images, params, kind) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
         let reference = plan.params.reference as usize;
         for k in 0..plan.num_planes() as usize {
             let mappings = sweepdepth::sweep::cpu::cost::mappings(&plan, k, true);
             for (i, m) in mappings.iter().enumerate() {
                 assert!(
-                    i == reference
-                        || matches!(m, sweepdepth::sweep::cpu::cost::Mapping::Translation { .. }),
-                    "{name}: camera {i} on plane {k} is not a translation: {m:?}"
+                    i == reference || kind(m),
+                    "{name}: camera {i} on plane {k} does not take the fast path: {m:?}"
                 );
             }
         }

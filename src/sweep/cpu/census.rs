@@ -51,7 +51,8 @@ fn along_row(row: &[u32], refs: &[u32], fx: f32, dst: &mut [f32]) {
 
 /// `census_distance` along a row: the Hamming distance of each reference word to the words
 /// around the camera's sample, interpolated bilinearly. Only visible samples (`visible[x]` not
-/// NaN: the camera's red channel from `cost::sample_row`) are written.
+/// NaN: the camera's red channel from `cost::sample_row`) are written; mappings other than
+/// translations read the samples' positions that `sample_row` left in `coords`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn distance_row(
@@ -59,9 +60,9 @@ pub fn distance_row(
     words: &[u32],
     cam: &GpuCamera,
     mapping: Mapping,
-    k: usize,
     y: usize,
     visible: &[f32],
+    coords: &[Vec<f32>; 2],
     reference: &[u32],
     out: &mut [f32],
 ) {
@@ -103,38 +104,46 @@ pub fn distance_row(
                 }
             }
         }
-        Mapping::General => {
+        _ => {
+            let [xs, ys] = coords;
             for x in 0..width {
                 if visible[x].is_nan() {
                     continue;
                 }
                 let r = reference[x];
-                out[x] =
-                    Bilinear::at(cw, ch, sample_at(plan, cam, k, x, y)).mix(|i| ones(words[i], r));
+                out[x] = Bilinear::at(cw, ch, [xs[x], ys[x]]).mix(|i| ones(words[i], r));
             }
         }
     }
 }
 
-/// `census_nearest` along a row: the word of the texel nearest to each visible sample.
+/// `census_nearest` along a row: the word of the texel nearest to each visible sample (at the
+/// positions in `coords` for mappings other than translations, as `distance_row`).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn nearest_row(
     plan: &SweepPlan,
     words: &[u32],
     cam: &GpuCamera,
+    mapping: Mapping,
     k: usize,
     y: usize,
     visible: &[f32],
+    coords: &[Vec<f32>; 2],
     out: &mut [u32],
 ) {
     let width = plan.params.width as usize;
     let (cw, ch) = (cam.size[0] as usize, cam.size[1] as usize);
+    let translation = matches!(mapping, Mapping::Translation { .. });
     for x in 0..width {
         if visible[x].is_nan() {
             continue;
         }
-        let pixel = sample_at(plan, cam, k, x, y);
+        let pixel = if translation {
+            sample_at(plan, cam, k, x, y)
+        } else {
+            [coords[0][x], coords[1][x]]
+        };
         let xi = ((pixel[0] + 0.5).floor() as usize).min(cw - 1);
         let yi = ((pixel[1] + 0.5).floor() as usize).min(ch - 1);
         out[x] = words[yi * cw + xi];

@@ -26,10 +26,20 @@ pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
     if p[2] <= 1e-6 {
         return [0.0, 0.0, -1.0];
     }
-    let mut n = [p[0] / p[2], p[1] / p[2]];
-    // Past the distortion model's fold the point would land back in the image: not seen.
+    match lens(cam, [p[0] / p[2], p[1] / p[2]]) {
+        Some(pixel) => [pixel[0], pixel[1], p[2]],
+        None => [0.0, 0.0, -1.0],
+    }
+}
+
+/// The second half of `project`: a point on the camera's z = 1 plane through its distortion
+/// and intrinsics to a pixel; None past the distortion model's fold (where the point would
+/// land back in the image: not seen).
+#[inline(always)]
+pub fn lens(cam: &GpuCamera, normalised: Vec2) -> Option<Vec2> {
+    let mut n = normalised;
     if cam.size[3] != DIST_NONE && n[0] * n[0] + n[1] * n[1] > cam.dist_b[1] {
-        return [0.0, 0.0, -1.0];
+        return None;
     }
     let [k1, k2, p1, p2] = cam.dist_a;
     if cam.size[3] == DIST_PLUMB_BOB {
@@ -50,11 +60,10 @@ pub fn project(cam: &GpuCamera, point_in_ref: Vec3) -> Vec3 {
             n = [n[0] * theta_d / r, n[1] * theta_d / r];
         }
     }
-    [
+    Some([
         cam.intrinsics[0] * n[0] + cam.intrinsics[2],
         cam.intrinsics[1] * n[1] + cam.intrinsics[3],
-        p[2],
-    ]
+    ])
 }
 
 #[inline(always)]

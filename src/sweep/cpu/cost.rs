@@ -2,10 +2,14 @@
 //! one plane, the pair TSSDs, and the channels the windows aggregate (one per pair, or the
 //! scored cost). Rows are contiguous slices, so the loops vectorise.
 //!
-//! Fast path: when a camera sees the reference grid on a plane through a pure translation
+//! Fast paths: when a camera sees the reference grid on a plane through a pure translation
 //! (undistorted cameras, same focal lengths, no rotation, fronto-parallel planes: Middlebury
 //! rows, parallel rigs) its samples are contiguous shifted rows with constant bilinear
-//! weights, no gathers. Every other case projects each pixel as the shader does.
+//! weights, no gathers. With any other pose, an undistorted reference's rays are linear in
+//! the pixel, so along a row the camera's homogeneous coordinates are too (`Projective`): the
+//! sample positions come from a few multiply-adds per pixel in a loop that vectorises, then
+//! one gather loop reads the colours (and `census.rs` reuses the positions). A distorted
+//! reference projects each pixel as the shader does (`General`).
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 // Loops over x index several rows at once, as the shader indexes its buffers.
@@ -20,8 +24,92 @@ use crate::sweep::plan::SweepPlan;
 pub enum Mapping {
     /// Reference pixel (x, y) lands on (x + dx, y + dy) in the camera, for every pixel.
     Translation { dx: f64, dy: f64 },
+    /// An undistorted reference (its rays `ray(x, y) = c + x ex + y ey`, z = 1) and any
+    /// camera: on plane (n, d) the point of ray r is `r d / (n.r)`, in the camera
+    /// `(d / (n.r)) (R r + t (n.r) / d)`, whose second factor `m` is linear in (x, y) as n.r
+    /// is: `m = m0 + x mx + y my`, `n.r = q0 + x qx + y qy`. The pixel is then
+    /// `lens(m.xy / m.z)` where the plane depth `d / (n.r)` and the camera depth
+    /// `d / (n.r) m.z` are in front, as `project` decides per pixel.
+    Projective {
+        m0: [f64; 3],
+        mx: [f64; 3],
+        my: [f64; 3],
+        q: [f64; 3],
+        d: f64,
+    },
     /// Anything else: project every pixel (`project` in common.wgsl).
     General,
+}
+
+/// The rays of an undistorted reference (`ray(x, y) = (ax + bx x, ay + by y, 1)`), read off the
+/// plan's rays and checked on a 3x3 grid of pixels; None when they are not of that form (a
+/// distorted reference, a pixel without a ray).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinearRays {
+    ax: f64,
+    bx: f64,
+    ay: f64,
+    by: f64,
+}
+
+impl LinearRays {
+    pub fn of(plan: &SweepPlan) -> Option<Self> {
+        let (w, h) = (plan.params.width as usize, plan.params.height as usize);
+        if w < 2 || h < 2 {
+            return None;
+        }
+        let ray = |x: usize, y: usize| plan.rays[y * w + x].map(f64::from);
+        let (first, last_x, last_y) = (ray(0, 0), ray(w - 1, 0), ray(0, h - 1));
+        let rays = Self {
+            ax: first[0],
+            bx: (last_x[0] - first[0]) / (w - 1) as f64,
+            ay: first[1],
+            by: (last_y[1] - first[1]) / (h - 1) as f64,
+        };
+        // 1e-6 on the z = 1 plane is a thousandth of a pixel at a focal length of 1000 px.
+        const TOLERANCE: f64 = 1e-6;
+        let linear = [0, w / 2, w - 1].iter().all(|&x| {
+            [0, h / 2, h - 1].iter().all(|&y| {
+                let r = ray(x, y);
+                r[2] == 1.0
+                    && (r[0] - (rays.ax + rays.bx * x as f64)).abs() <= TOLERANCE
+                    && (r[1] - (rays.ay + rays.by * y as f64)).abs() <= TOLERANCE
+            })
+        });
+        linear.then_some(rays)
+    }
+
+    /// Camera `cam`'s `Mapping::Projective` on `plane` (None when the plane passes through
+    /// the reference's centre).
+    fn projective(&self, cam: &GpuCamera, plane: [f64; 4]) -> Option<Mapping> {
+        let d = plane[3];
+        if d == 0.0 || !d.is_finite() {
+            return None;
+        }
+        let rows = [cam.row0, cam.row1, cam.row2].map(|r| r.map(f64::from));
+        let n = [plane[0], plane[1], plane[2]];
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        // m(v) = R v + t (n.v) / d for a vector v of the ray's form.
+        let m = |v: [f64; 3]| -> [f64; 3] {
+            let nv = dot(n, v) / d;
+            std::array::from_fn(|i| {
+                let r = rows[i];
+                dot([r[0], r[1], r[2]], v) + r[3] * nv
+            })
+        };
+        let (c, ex, ey) = (
+            [self.ax, self.ay, 1.0],
+            [self.bx, 0.0, 0.0],
+            [0.0, self.by, 0.0],
+        );
+        Some(Mapping::Projective {
+            m0: m(c),
+            mx: m(ex),
+            my: m(ey),
+            q: [dot(n, c), dot(n, ex), dot(n, ey)],
+            d,
+        })
+    }
 }
 
 /// Largest deviation (pixels) from one shift over the image corners that still counts as a
@@ -40,18 +128,28 @@ pub fn mappings(plan: &SweepPlan, k: usize, allow_fast: bool) -> Vec<Mapping> {
     let plane = plan.planes[k].map(f64::from);
     let (w, h) = (p.width as usize, p.height as usize);
     let corners = [(0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)];
+    let linear_rays = if allow_fast {
+        LinearRays::of(plan)
+    } else {
+        None
+    };
+    let projective = |cam: &GpuCamera| {
+        linear_rays
+            .and_then(|rays| rays.projective(cam, plane))
+            .unwrap_or(Mapping::General)
+    };
     plan.cameras
         .iter()
         .map(|cam| {
             if !allow_fast || !pinhole_reference || cam.size[3] != DIST_NONE {
-                return Mapping::General;
+                return projective(cam);
             }
             let mut shifts = Vec::with_capacity(4);
             for &(x, y) in &corners {
                 let ray = plan.rays[y * w + x].map(f64::from);
                 let denom = plane[0] * ray[0] + plane[1] * ray[1] + plane[2] * ray[2];
                 if denom.abs() < 1e-12 {
-                    return Mapping::General;
+                    return projective(cam);
                 }
                 let depth = plane[3] / denom;
                 let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
@@ -63,7 +161,7 @@ pub fn mappings(plan: &SweepPlan, k: usize, allow_fast: bool) -> Vec<Mapping> {
                 };
                 let cam_point = [row(cam.row0), row(cam.row1), row(cam.row2)];
                 if !(depth > 0.0) || !(cam_point[2] > 1e-6) {
-                    return Mapping::General;
+                    return projective(cam);
                 }
                 let k = cam.intrinsics.map(f64::from);
                 let u = k[0] * cam_point[0] / cam_point[2] + k[2];
@@ -90,7 +188,7 @@ pub fn mappings(plan: &SweepPlan, k: usize, allow_fast: bool) -> Vec<Mapping> {
                     dy: snap(dy),
                 }
             } else {
-                Mapping::General
+                projective(cam)
             }
         })
         .collect()
@@ -103,8 +201,74 @@ pub fn colour_row(width: usize) -> ColourRow {
     [vec![0.0; width], vec![0.0; width], vec![0.0; width]]
 }
 
+/// Where reference row `y` lands in a camera on plane `k`: the pixel of every column in
+/// `coords` (x, y; x NaN where the camera does not see it: behind, past the distortion's
+/// fold, or outside its image). Twin of the projection and `inside` of cost.wgsl, for the
+/// mappings that are not translations.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn sample_coords(
+    plan: &SweepPlan,
+    cam: &GpuCamera,
+    mapping: Mapping,
+    k: usize,
+    y: usize,
+    coords: &mut [Vec<f32>; 2],
+) {
+    let width = plan.params.width as usize;
+    let [xs, ys] = coords;
+    let (xs, ys) = (&mut xs[..width], &mut ys[..width]);
+    let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
+    match mapping {
+        Mapping::Projective { m0, mx, my, q, d } => {
+            // The row's coefficients in f64, the pixels in f32 (as the shader's arithmetic).
+            let yf = y as f64;
+            let base: [f32; 3] = std::array::from_fn(|i| (m0[i] + yf * my[i]) as f32);
+            let step: [f32; 3] = mx.map(|v| v as f32);
+            let (q0, qx, d) = ((q[0] + yf * q[2]) as f32, q[1] as f32, d as f32);
+            let distorted = cam.size[3] != DIST_NONE;
+            let [fx, fy, cx, cy] = cam.intrinsics;
+            for x in 0..width {
+                let xf = x as f32;
+                let nr = q0 + xf * qx;
+                let depth = d / nr;
+                let m: [f32; 3] = std::array::from_fn(|i| base[i] + xf * step[i]);
+                let seen = nr.abs() >= 1e-12 && depth > 0.0 && depth * m[2] > 1e-6;
+                let n = [m[0] / m[2], m[1] / m[2]];
+                let pixel = if distorted {
+                    lens(cam, n).unwrap_or([f32::NAN; 2])
+                } else {
+                    [fx * n[0] + cx, fy * n[1] + cy]
+                };
+                // NaN fails every comparison: not inside.
+                let inside = pixel[0] >= 0.0 && pixel[1] >= 0.0 && pixel[0] <= w && pixel[1] <= h;
+                xs[x] = if seen && inside { pixel[0] } else { f32::NAN };
+                ys[x] = pixel[1];
+            }
+        }
+        _ => {
+            let plane = plan.planes[k];
+            for x in 0..width {
+                let ray = xyz(plan.rays[y * width + x]);
+                let depth = plane_depth(plane, ray);
+                let mut pixel = [f32::NAN; 2];
+                if depth > 0.0 {
+                    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+                    let p = [projected[0], projected[1]];
+                    if projected[2] > 0.0 && inside(cam, p) {
+                        pixel = p;
+                    }
+                }
+                xs[x] = pixel[0];
+                ys[x] = pixel[1];
+            }
+        }
+    }
+}
+
 /// Camera `cam`'s colours along reference row `y` on plane `k` (twin of the projection,
-/// `inside` and `sample_bilinear` of cost.wgsl).
+/// `inside` and `sample_bilinear` of cost.wgsl). Mappings other than translations leave the
+/// sample positions in `coords` (`sample_coords`) for the census costs.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn sample_row(
@@ -114,28 +278,24 @@ pub fn sample_row(
     mapping: Mapping,
     k: usize,
     y: usize,
+    coords: &mut [Vec<f32>; 2],
     out: &mut ColourRow,
 ) {
     let width = plan.params.width as usize;
-    match mapping {
-        Mapping::Translation { dx, dy } => sample_row_shifted(image, dx, dy, y, width, out),
-        Mapping::General => {
-            let plane = plan.planes[k];
-            for x in 0..width {
-                let ray = xyz(plan.rays[y * width + x]);
-                let depth = plane_depth(plane, ray);
-                let mut colour = [f32::NAN; 3];
-                if depth > 0.0 {
-                    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
-                    let pixel = [projected[0], projected[1]];
-                    if projected[2] > 0.0 && inside(cam, pixel) {
-                        colour = image.sample_bilinear(pixel);
-                    }
-                }
-                for c in 0..3 {
-                    out[c][x] = colour[c];
-                }
-            }
+    if let Mapping::Translation { dx, dy } = mapping {
+        sample_row_shifted(image, dx, dy, y, width, out);
+        return;
+    }
+    sample_coords(plan, cam, mapping, k, y, coords);
+    let [xs, ys] = coords;
+    for x in 0..width {
+        let colour = if xs[x].is_nan() {
+            [f32::NAN; 3]
+        } else {
+            image.sample_bilinear([xs[x], ys[x]])
+        };
+        for c in 0..3 {
+            out[c][x] = colour[c];
         }
     }
 }

@@ -15,6 +15,9 @@ use crate::sweep::plan::SweepPlan;
 /// Everything one worker needs to sweep planes; made once per worker and reused.
 pub struct PlaneScratch {
     colours: Vec<ColourRow>,
+    /// Per camera, where the row's pixels land in it (`cost::sample_coords`; not written
+    /// for translations).
+    coords: Vec<[Vec<f32>; 2]>,
     pair_costs: Vec<Vec<f32>>,
     channel_rows: Vec<Vec<f32>>,
     score_acc: ScoreAcc,
@@ -42,6 +45,9 @@ impl PlaneScratch {
         };
         Self {
             colours: (0..p.cameras).map(|_| cost::colour_row(width)).collect(),
+            coords: (0..p.cameras)
+                .map(|_| [vec![0.0; width], vec![0.0; width]])
+                .collect(),
             pair_costs: (0..plan.pairs.len()).map(|_| vec![0.0; width]).collect(),
             channel_rows: (0..if per_pair { 0 } else { channels })
                 .map(|_| vec![0.0; width])
@@ -135,6 +141,7 @@ fn cost_row(
                 mappings[i],
                 k,
                 y,
+                &mut s.coords[i],
                 &mut s.colours[i],
             );
         }
@@ -197,9 +204,9 @@ fn census_costs(
                 &images.census[i],
                 cam,
                 mappings[i],
-                k,
                 y,
                 visible,
+                &s.coords[i],
                 words,
                 &mut s.census_distances[i],
             );
@@ -209,9 +216,11 @@ fn census_costs(
                 plan,
                 &images.census[i],
                 cam,
+                mappings[i],
                 k,
                 y,
                 visible,
+                &s.coords[i],
                 &mut s.census_nearest[i],
             );
         }
