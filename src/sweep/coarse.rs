@@ -30,15 +30,14 @@ pub const MIN_SIZE: u32 = 160;
 /// the paper's 20 planes 11 -> 15 ms; 9 cameras with 57 planes 183 -> 110 ms).
 pub const MIN_PLANES: u32 = 48;
 
-/// With `optimizer: wta`, half-resolution depths below this confidence do not widen their
-/// rows' ranges: winner-take-all at half resolution is noisy, and its ambiguous pixels alone
-/// spread a row over most planes (the 640x480x64 bench scene: 53 % of the planes per row with
-/// them, 26 % without). Measured on the public sets (`eval --optimizer wta`, README, Speed):
-/// 0.2 keeps Teddy, Laundry and ICL-NUIM as good as every depth did (0.3 lost Teddy: 8.9 ->
-/// 11.7 % bad>1). SGM's half-resolution depths are kept whatever their confidence: where
-/// they are unsure they still carry what the paths propagated (Teddy 4.92 -> 5.01 % with the
-/// filter), and their rows are narrow already.
-pub const WTA_MIN_CONFIDENCE: f32 = 0.2;
+/// The half-resolution pass is always SGM, whatever the optimizer of the full-resolution one:
+/// winner-take-all at half resolution is noisy, and its ambiguous pixels alone spread a row
+/// over most planes (the bench's ring: 73 % of the planes per row with a wta pass, 24 % with
+/// SGM; 640x480x64: 53 %, or 26 % with the wta depths below confidence 0.2 left out), while the
+/// SGM pass costs a few milliseconds more. Measured on the public sets (`eval --optimizer wta`,
+/// README, Speed): Teddy 8.72 -> 8.65, Laundry 21.35 -> 21.15 % bad>1 against the filtered wta
+/// pass.
+pub const COARSE_OPTIMIZER: super::Optimizer = super::Optimizer::Sgm;
 
 /// Runs a plan on an engine (both engines implement it).
 pub trait PlanRunner {
@@ -132,17 +131,14 @@ fn coarse_to_fine(
     };
     let coarse_params = SweepParams {
         num_planes: coarse_planes(params.num_planes),
+        optimizer: COARSE_OPTIMIZER,
         ..fine_params.clone()
     };
     let coarse_plan = cached(&mut plans.coarse, coarse_rig, &coarse_params)?;
     let started = std::time::Instant::now();
     let coarse = engine.run_plan(coarse_plan, coarse_rig, coarse_images)?;
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
-    let min_confidence = match params.optimizer {
-        super::Optimizer::Wta => WTA_MIN_CONFIDENCE,
-        super::Optimizer::Sgm => 0.0,
-    };
-    let ranges = plane_ranges(fine, &coarse.depth_raw_m, &coarse.confidence, min_confidence);
+    let ranges = plane_ranges(fine, &coarse.depth_raw_m);
     let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
     tracing::debug!(
         "coarse to fine: rows sweep {:.0} % of the planes on average",
@@ -235,13 +231,7 @@ fn half_image(image: &Rgba8Image) -> Rgba8Image {
 /// Each full-resolution row's planes: those of the half-resolution depths of its own and the
 /// neighbouring half-resolution rows (the plane nearest each depth in inverse depth along the
 /// full-resolution ray), widened by MARGIN_PLANES; every plane where those rows hold no depth.
-/// Depths whose `confidence` is below `min_confidence` count as none.
-pub fn plane_ranges(
-    plan: &SweepPlan,
-    coarse: &ImageF32,
-    confidence: &ImageF32,
-    min_confidence: f32,
-) -> Vec<[u32; 2]> {
+pub fn plane_ranges(plan: &SweepPlan, coarse: &ImageF32) -> Vec<[u32; 2]> {
     let planes = plan.num_planes();
     let (width, height) = (plan.width as usize, plan.height as usize);
     let (cw, ch) = (coarse.width as usize, coarse.height as usize);
@@ -256,11 +246,7 @@ pub fn plane_ranges(
             let mut span: Option<[u32; 2]> = None;
             for cx in 0..cw {
                 let depth = coarse.data[cy * cw + cx];
-                let sure = confidence
-                    .data
-                    .get(cy * cw + cx)
-                    .is_some_and(|&c| c >= min_confidence);
-                if !(depth.is_finite() && depth > 0.0 && sure) {
+                if !(depth.is_finite() && depth > 0.0) {
                     continue;
                 }
                 let x = (2 * cx).min(width - 1);
@@ -382,12 +368,7 @@ mod tests {
                 })
                 .collect(),
         };
-        let sure = ImageF32 {
-            width: 32,
-            height: 24,
-            data: vec![1.0; 32 * 24],
-        };
-        let ranges = plane_ranges(&plan, &coarse, &sure, WTA_MIN_CONFIDENCE);
+        let ranges = plane_ranges(&plan, &coarse);
         assert_eq!(ranges.len(), 48);
         let k2 = nearest_plane(&plan, 0, 2.0);
         let k4 = nearest_plane(&plan, 0, 4.0);
@@ -400,15 +381,6 @@ mod tests {
         // Row 35 (half-row 17) sees half-rows 16..=18: 4 m.
         assert_eq!(ranges[35], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
         assert_eq!(ranges[47], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
-        // Unsure depths count as none: half-rows 0..6 unsure leave rows 0..=9 all planes,
-        // unless the confidence asked for is 0.
-        let mut unsure = sure.clone();
-        unsure.data[..6 * 32].fill(0.1);
-        let ranges = plane_ranges(&plan, &coarse, &unsure, WTA_MIN_CONFIDENCE);
-        assert_eq!(ranges[9], [0, 63]);
-        assert_eq!(ranges[10], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
-        let ranges = plane_ranges(&plan, &coarse, &unsure, 0.0);
-        assert_eq!(ranges[9], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
     }
 
     #[test]

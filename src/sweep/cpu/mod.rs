@@ -284,21 +284,28 @@ impl CpuEngine {
                     return;
                 }
                 let (score, sel) = (&mut scratch.score[..len], &mut scratch.sel[..len]);
-                // Coarse to fine: a plane no row of the band sweeps is not costed at all; the
-                // rows that do not sweep a costed plane score BIG on it (`plan.plane_ranges`).
-                if rows.clone().any(|y| plan.sweeps(y, k as u32)) {
+                // Coarse to fine: a plane is costed only from the first to the last row of the
+                // band that sweeps it (from the window sums' restart row at or above the first,
+                // so the floats are those of the whole band); the rows that do not sweep it
+                // score BIG on it (`plan.plane_ranges`).
+                let sweeping = |y: usize| plan.sweeps(y, k as u32);
+                if let Some(first) = rows.clone().find(|&y| sweeping(y)) {
+                    let last = rows.clone().rev().find(|&y| sweeping(y)).unwrap_or(first);
+                    let step = aggregate::RESTART_ROWS;
+                    let lo = rows.start + (first - rows.start) / step * step;
+                    let span = (lo - rows.start) * width..(last + 1 - rows.start) * width;
                     plane::sweep_plane(
                         plan,
                         &frame,
                         plane_mappings,
                         k,
-                        rows.clone(),
+                        lo..last + 1,
                         &mut scratch.plane,
-                        score,
-                        sel,
+                        &mut score[span.clone()],
+                        &mut sel[span],
                     );
                     for (i, y) in rows.clone().enumerate() {
-                        if !plan.sweeps(y, k as u32) {
+                        if !sweeping(y) {
                             score[i * width..(i + 1) * width].fill(BIG);
                             sel[i * width..(i + 1) * width]
                                 .fill(f32::from(crate::sweep::selection::INVALID));
