@@ -95,7 +95,7 @@ struct Params {
     sgm_p1: u32,                  // volume levels
     sgm_p2: u32,                  // volume levels
     sgm_edge: u32,                // 1/16 grey levels, 0 = constant P2
-    sgm_levels_per_unit: f32,     // SGM_COST_MAX / tau
+    sgm_levels_per_unit: f32,     // SGM_COST_MAX / (tau + SGM_VOLUME_OFFSET)
     sgm_unit_per_level: f32,      // 1 / (paths x levels per unit): score units per summed level
     cost: u32,                    // COST_*
     census_offset: u32,           // word of camera 0's census in `images` (camera c: + size.z)
@@ -103,7 +103,7 @@ struct Params {
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as
 // u16 levels, two planes per u32 word (even plane in the low half), pixel-major.
-const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau, and of a hypothesis with no valid pair
+const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau (raised by SGM_VOLUME_OFFSET), and of a hypothesis with no valid pair
 const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
 
 // One row band of the cost volume and the path sums (keep in sync with GpuBand): an adapter's
@@ -117,13 +117,19 @@ struct Band {
     _pad: u32,
 }
 
+// How far a score is raised into the SGM volume: the smooth minimum of the halves (half_min)
+// goes down to HALF_NOISE_FLOOR / 4 below the smaller half, and the levels start at 0.
+const SGM_VOLUME_OFFSET: f32 = 6.25;
+
 // The volume level of a scored cost (BIG = no valid pair -> SGM_COST_MAX); floor(x + 0.5) as
-// the CPU twin (WGSL's round() rounds halves to even).
+// the CPU twin (WGSL's round() rounds halves to even). The score is raised by
+// SGM_VOLUME_OFFSET first, so that every score keeps its own level (sgm_select takes it off).
 fn volume_level(score: f32) -> u32 {
     if (score >= 0.5 * BIG) {
         return SGM_COST_MAX;
     }
-    return min(u32(floor(score * params.sgm_levels_per_unit + 0.5)), SGM_COST_MAX);
+    let raised = max(score + SGM_VOLUME_OFFSET, 0.0);
+    return min(u32(floor(raised * params.sgm_levels_per_unit + 0.5)), SGM_COST_MAX);
 }
 
 // Window anchors (top-left texel of a window) run from -(w-1) to W-1 (and likewise in y), so the

@@ -32,9 +32,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var j = 0u; j < words; j++) {
         let word = sums[local_pix * words + j];
         let d = 2u * j;
-        st = select_plane(st, f32(d), vec2<f32>(f32(word & 0xffffu) * unit, selection));
+        // Summed levels back to score units, less the offset every volume level carries.
+        st = select_plane(st, f32(d), vec2<f32>(f32(word & 0xffffu) * unit - SGM_VOLUME_OFFSET, selection));
         if (d + 1u < planes) {
-            st = select_plane(st, f32(d + 1u), vec2<f32>(f32(word >> 16u) * unit, selection));
+            st = select_plane(st, f32(d + 1u), vec2<f32>(f32(word >> 16u) * unit - SGM_VOLUME_OFFSET, selection));
         }
     }
     state[3u * pix] = st.s0;

@@ -246,7 +246,8 @@ impl SweepPlan {
                     planes.len()
                 )));
             }
-            let levels_per_unit = SGM_COST_MAX as f32 / params.tau;
+            // Scores run from -SGM_VOLUME_OFFSET (the half-sequence's smooth minimum) to tau.
+            let levels_per_unit = SGM_COST_MAX as f32 / (params.tau + SGM_VOLUME_OFFSET);
             let level = |v: f32| (v * levels_per_unit + 0.5).floor() as u32;
             let p1 = level(params.sgm_p1);
             let p2 = level(params.sgm_p2).max(p1);

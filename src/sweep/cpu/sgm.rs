@@ -26,13 +26,15 @@ pub fn stride(planes: usize) -> usize {
     planes.next_multiple_of(LANES)
 }
 
-/// Twin of `volume_level` (common.wgsl): a scored cost as u16 levels.
+/// Twin of `volume_level` (common.wgsl): a scored cost, raised by SGM_VOLUME_OFFSET (the
+/// half-sequence's smooth minimum goes below zero), as u16 levels.
 #[inline(always)]
 pub fn volume_level(levels_per_unit: f32, score: f32) -> u16 {
     if score >= 0.5 * BIG {
         return SGM_COST_MAX as u16;
     }
-    ((score * levels_per_unit + 0.5).floor() as u32).min(SGM_COST_MAX) as u16
+    let raised = (score + SGM_VOLUME_OFFSET).max(0.0);
+    ((raised * levels_per_unit + 0.5).floor() as u32).min(SGM_COST_MAX) as u16
 }
 
 /// Twin of `colour_step`: the largest RGB channel difference of two packed colours.
@@ -286,7 +288,8 @@ fn select_chunk(
     backward: &[u16],
     st: &mut WtaChunk<'_>,
 ) {
-    let score = |v: u16| f32::from(v) * unit;
+    // Summed levels back to score units, less the offset every volume level carries.
+    let score = |v: u16| f32::from(v) * unit - SGM_VOLUME_OFFSET;
     let mut sums = vec![0u16; planes];
     for i in 0..st.best.len() {
         if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
@@ -377,13 +380,32 @@ mod tests {
         state.best.fill(0.0);
         state.best_plane.fill(2.0);
         select(&plan, &forward, &backward, &mut state);
-        // Pixel 1 moves to plane 0; its neighbour is plane 1, and plane 2 is the rival.
+        // Pixel 1 moves to plane 0; its neighbour is plane 1, and plane 2 is the rival (in
+        // score units, less the volume's offset).
         assert_eq!(state.best_plane, [0.0, 0.0]);
+        let o = SGM_VOLUME_OFFSET;
         assert_eq!(
             (state.best[1], state.after[1], state.rival[1]),
-            (20.0, 170.0, 30.0)
+            (20.0 - o, 170.0 - o, 30.0 - o)
         );
         assert_eq!(state.before[1], BIG);
+    }
+
+    /// The half-sequence's smooth minimum scores the best matches below zero (down to
+    /// -HALF_NOISE_FLOOR / 4): they keep distinct levels, and tau still fits.
+    #[test]
+    fn negative_scores_keep_their_levels() {
+        let plan = plan();
+        let per_unit = plan.params.sgm_levels_per_unit;
+        let level = |score: f32| volume_level(per_unit, score);
+        let floor = -HALF_NOISE_FLOOR / 4.0;
+        assert_eq!(level(floor), 0);
+        assert!(level(floor) < level(-4.0));
+        assert!(level(-4.0) < level(-1.0));
+        assert!(level(-1.0) < level(0.0));
+        assert_eq!(level(100.0), SGM_COST_MAX as u16, "tau (100) is the top level");
+        assert!(level(99.0) < SGM_COST_MAX as u16);
+        assert_eq!(level(BIG), SGM_COST_MAX as u16);
     }
 
     #[test]
