@@ -286,8 +286,14 @@ fn half_sequence_holds_on_rigs_that_are_not_a_row() {
     };
     let b = 0.15;
     let rigs = [
-        ("row of five", synthetic::row_rig(5, 0.1, model, 2).expect("rig")),
-        ("2x2 square", grid(&[(0.0, 0.0), (b, 0.0), (0.0, b), (b, b)])),
+        (
+            "row of five",
+            synthetic::row_rig(5, 0.1, model, 2).expect("rig"),
+        ),
+        (
+            "2x2 square",
+            grid(&[(0.0, 0.0), (b, 0.0), (0.0, b), (b, b)]),
+        ),
         (
             "cross of five",
             grid(&[(0.0, 0.0), (-b, 0.0), (b, 0.0), (0.0, -b), (0.0, b)]),

@@ -590,7 +590,12 @@ fn pinhole_arc_agrees_with_every_cost() {
                 ..base()
             };
             let plan = SweepPlan::new(&rig, &params).expect("plan");
-            compare(&format!("pinhole_arc_{cost:?}_{scoring:?}"), &plan, &rig, &images);
+            compare(
+                &format!("pinhole_arc_{cost:?}_{scoring:?}"),
+                &plan,
+                &rig,
+                &images,
+            );
         }
     }
 }

@@ -72,17 +72,38 @@ impl BoxH {
     /// doubling partial sums: for w = 9, out = s8[i] + s1[i + 8] with s8 made in three steps,
     /// instead of nine additions per anchor. (The rounding differs from the shader's
     /// left-to-right order by float ulps, inside the tolerances of tests/gpu_vs_cpu.rs.)
+    /// Windows of 1 and 2 columns (the paper's shiftable 2x2) are summed directly: the same
+    /// floats as the doubling (one addition of two values), without its copies.
     #[inline(always)]
     fn sums(&mut self, values: &[f32], out: &mut [f32]) {
         let w = self.w;
         let width = values.len();
-        let len = width + 2 * (w - 1);
         let padded = width + w - 1;
+        let out = &mut out[..padded];
+        match w {
+            1 => {
+                out.copy_from_slice(values);
+                return;
+            }
+            2 if width > 0 => {
+                // Anchor i covers columns i - 1 and i (0 outside the row).
+                out[0] = values[0];
+                for (o, (&a, &b)) in out[1..width]
+                    .iter_mut()
+                    .zip(values.iter().zip(&values[1..]))
+                {
+                    *o = a + b;
+                }
+                out[width] = values[width - 1];
+                return;
+            }
+            _ => {}
+        }
+        let len = width + 2 * (w - 1);
         let pad = &mut self.pad[..len];
         pad[..w - 1].fill(0.0);
         pad[w - 1..w - 1 + width].copy_from_slice(values);
         pad[w - 1 + width..].fill(0.0);
-        let out = &mut out[..padded];
         out.fill(0.0);
         // `level` holds s_h[i] = sum of pad[i..i + h] for i < len - h + 1.
         self.level[..len].copy_from_slice(pad);
@@ -186,6 +207,43 @@ impl RowRing {
         {
             *s += sign * a;
             *n += sign * b;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every window width against the plain left-to-right sum (BoxH's anchors: window i covers
+    /// columns i - (w - 1) ..= i): equal floats for the direct widths 1 and 2, within float
+    /// rounding for the doubling ones.
+    #[test]
+    fn window_sums_match_the_plain_sum() {
+        let width = 37;
+        let values: Vec<f32> = (0..width)
+            .map(|i| ((i * 7919) % 101) as f32 * 0.37 + 0.01)
+            .collect();
+        for w in 1..=9 {
+            let mut boxes = BoxH::new(width, w);
+            let mut out = vec![f32::NAN; width + w - 1];
+            boxes.sums(&values, &mut out);
+            for (i, &got) in out.iter().enumerate() {
+                let mut want = 0.0f32;
+                for x in i as isize - (w as isize - 1)..=i as isize {
+                    if x >= 0 && (x as usize) < width {
+                        want += values[x as usize];
+                    }
+                }
+                if w <= 2 {
+                    assert_eq!(got, want, "w {w}, anchor {i}");
+                } else {
+                    assert!(
+                        (got - want).abs() <= 1e-5 * want.max(1.0),
+                        "w {w}, anchor {i}: {got} vs {want}"
+                    );
+                }
+            }
         }
     }
 }

@@ -99,12 +99,20 @@ impl PlanarImage {
     /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
     pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
         let mut image = Self::default();
-        image.fill_from_packed(width, height, pixels);
+        image.fill_from_packed(width, height, pixels, true);
         image
     }
 
-    /// [`Self::from_packed`] into this image's buffers (kept across frame sets).
-    pub fn fill_from_packed(&mut self, width: usize, height: usize, pixels: &[u32]) {
+    /// [`Self::from_packed`] into this image's buffers (kept across frame sets); the
+    /// interleaved texels only `with_texels` (samples at scattered positions: a camera that
+    /// does not see the reference grid through a translation).
+    pub fn fill_from_packed(
+        &mut self,
+        width: usize,
+        height: usize,
+        pixels: &[u32],
+        with_texels: bool,
+    ) {
         self.width = width;
         self.height = height;
         for (c, channel) in self.channels.iter_mut().enumerate() {
@@ -116,14 +124,13 @@ impl PlanarImage {
                     .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0),
             );
         }
-        let [r, g, b] = &self.channels;
         self.texels.clear();
-        self.texels.extend(
-            r.iter()
-                .zip(g)
-                .zip(b)
-                .map(|((&r, &g), &b)| [r, g, b, 0.0]),
-        );
+        if !with_texels {
+            return;
+        }
+        let [r, g, b] = &self.channels;
+        self.texels
+            .extend(r.iter().zip(g).zip(b).map(|((&r, &g), &b)| [r, g, b, 0.0]));
     }
 
     /// The colour at texel (x, y).

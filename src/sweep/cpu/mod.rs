@@ -212,11 +212,21 @@ impl CpuEngine {
         let p = &plan.params;
         let npix = plan.pixel_count();
         let planes = plan.num_planes() as usize;
+        let mappings: Vec<Vec<cost::Mapping>> = (0..planes)
+            .map(|k| cost::mappings(plan, k, self.fast_paths))
+            .collect();
+        // Scattered samples (any mapping but a translation, the reference's own aside) read
+        // interleaved texels.
+        let scattered = mappings.iter().any(|m| {
+            m.iter().enumerate().any(|(i, m)| {
+                i as u32 != p.reference && !matches!(m, cost::Mapping::Translation { .. })
+            })
+        });
         let mut planar = std::mem::take(&mut self.buffers.planar);
         planar.resize_with(images.len(), PlanarImage::default);
         planar.truncate(images.len());
         planar.par_iter_mut().zip(images).for_each(|(planar, im)| {
-            planar.fill_from_packed(im.width as usize, im.height as usize, &im.pixels)
+            planar.fill_from_packed(im.width as usize, im.height as usize, &im.pixels, scattered)
         });
         let frame = FrameImages {
             planar,
@@ -238,9 +248,6 @@ impl CpuEngine {
                 Vec::new()
             },
         };
-        let mappings: Vec<Vec<cost::Mapping>> = (0..planes)
-            .map(|k| cost::mappings(plan, k, self.fast_paths))
-            .collect();
         clock.lap("images");
 
         let sgm = plan.sgm_paths() > 0;

@@ -403,7 +403,11 @@ mod tests {
         assert!(level(floor) < level(-4.0));
         assert!(level(-4.0) < level(-1.0));
         assert!(level(-1.0) < level(0.0));
-        assert_eq!(level(100.0), SGM_COST_MAX as u16, "tau (100) is the top level");
+        assert_eq!(
+            level(100.0),
+            SGM_COST_MAX as u16,
+            "tau (100) is the top level"
+        );
         assert!(level(99.0) < SGM_COST_MAX as u16);
         assert_eq!(level(BIG), SGM_COST_MAX as u16);
     }
