@@ -91,7 +91,11 @@ pub struct PlanarImage {
     pub height: usize,
     /// R, G, B planes, row-major.
     pub channels: [Vec<f32>; 3],
-    /// The same values as [R, G, B, 0] per texel, row-major.
+    /// The same values as [R, G, B, census word] per texel, row-major (the word's bits in the
+    /// fourth lane, `f32::from_bits`: no arithmetic ever reads that lane; 0 without census
+    /// words), so one load brings a scattered sample's colour and its census word
+    /// (`cost::sample_row`; the bits, not a conversion to f32 and back: 11 % of the ring's
+    /// time).
     pub texels: Vec<[f32; 4]>,
 }
 
@@ -99,19 +103,21 @@ impl PlanarImage {
     /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
     pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
         let mut image = Self::default();
-        image.fill_from_packed(width, height, pixels, true);
+        image.fill_from_packed(width, height, pixels, true, None);
         image
     }
 
     /// [`Self::from_packed`] into this image's buffers (kept across frame sets); the
     /// interleaved texels only `with_texels` (samples at scattered positions: a camera that
-    /// does not see the reference grid through a translation).
+    /// does not see the reference grid through a translation), with the image's census
+    /// `words` when there are some.
     pub fn fill_from_packed(
         &mut self,
         width: usize,
         height: usize,
         pixels: &[u32],
         with_texels: bool,
+        words: Option<&[u32]>,
     ) {
         self.width = width;
         self.height = height;
@@ -129,8 +135,14 @@ impl PlanarImage {
             return;
         }
         let [r, g, b] = &self.channels;
-        self.texels
-            .extend(r.iter().zip(g).zip(b).map(|((&r, &g), &b)| [r, g, b, 0.0]));
+        let rgb = r.iter().zip(g).zip(b);
+        match words {
+            Some(words) => self.texels.extend(
+                rgb.zip(words)
+                    .map(|(((&r, &g), &b), &word)| [r, g, b, f32::from_bits(word)]),
+            ),
+            None => self.texels.extend(rgb.map(|((&r, &g), &b)| [r, g, b, 0.0])),
+        }
     }
 
     /// The colour at texel (x, y).
@@ -146,16 +158,24 @@ impl PlanarImage {
     /// Twin of `sample_bilinear` (cost.wgsl) for a pixel that `inside` accepted.
     #[inline(always)]
     pub fn sample_bilinear(&self, pixel: Vec2) -> Vec3 {
+        self.sample_with_words(pixel).0
+    }
+
+    /// [`Self::sample_bilinear`], and the census words of the four texels around the sample
+    /// (00, 10, 01, 11) with the sample's weights (fx, fy), from the same four loads.
+    #[inline(always)]
+    pub fn sample_with_words(&self, pixel: Vec2) -> (Vec3, [u32; 4], [f32; 2]) {
         let b = Bilinear::at(self.width, self.height, pixel);
         let t = &self.texels;
-        // The arithmetic of `Bilinear::mix`, four channels at once.
-        let lerp = |a: [f32; 4], c: [f32; 4], f: f32| -> [f32; 4] {
+        let (t00, t10, t01, t11) = (t[b.i00], t[b.i10], t[b.i01], t[b.i11]);
+        // The arithmetic of `Bilinear::mix` on the three colour channels at once.
+        let lerp = |a: [f32; 4], c: [f32; 4], f: f32| -> [f32; 3] {
             std::array::from_fn(|i| a[i] + (c[i] - a[i]) * f)
         };
-        let top = lerp(t[b.i00], t[b.i10], b.fx);
-        let bottom = lerp(t[b.i01], t[b.i11], b.fx);
-        let v = lerp(top, bottom, b.fy);
-        [v[0], v[1], v[2]]
+        let (top, bottom) = (lerp(t00, t10, b.fx), lerp(t01, t11, b.fx));
+        let colour = std::array::from_fn(|i| top[i] + (bottom[i] - top[i]) * b.fy);
+        let words = [t00[3], t10[3], t01[3], t11[3]].map(f32::to_bits);
+        (colour, words, [b.fx, b.fy])
     }
 }
 

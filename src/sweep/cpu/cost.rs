@@ -268,7 +268,10 @@ pub fn sample_coords(
 
 /// Camera `cam`'s colours along reference row `y` on plane `k` (twin of the projection,
 /// `inside` and `sample_bilinear` of cost.wgsl). Mappings other than translations leave the
-/// sample positions in `coords` (`sample_coords`) for the census costs.
+/// sample positions in `coords` (`sample_coords`) for the census costs, and, given the
+/// reference row's census words (`census`: the words, the distances out), make the census
+/// distances of the samples too (`census::distance_row`'s arithmetic), from the same texel
+/// loads (`PlanarImage::sample_with_words`). Returns whether they did.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn sample_row(
@@ -280,24 +283,48 @@ pub fn sample_row(
     y: usize,
     coords: &mut [Vec<f32>; 2],
     out: &mut ColourRow,
-) {
+    census: Option<(&[u32], &mut [f32])>,
+) -> bool {
     let width = plan.params.width as usize;
     if let Mapping::Translation { dx, dy } = mapping {
         sample_row_shifted(image, dx, dy, y, width, out);
-        return;
+        return false;
     }
     sample_coords(plan, cam, mapping, k, y, coords);
     let [xs, ys] = coords;
+    let Some((reference, distances)) = census else {
+        for x in 0..width {
+            let colour = if xs[x].is_nan() {
+                [f32::NAN; 3]
+            } else {
+                image.sample_bilinear([xs[x], ys[x]])
+            };
+            for c in 0..3 {
+                out[c][x] = colour[c];
+            }
+        }
+        return false;
+    };
+    let (reference, distances) = (&reference[..width], &mut distances[..width]);
+    let ones = |a: u32, b: u32| (a ^ b).count_ones() as f32;
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
     for x in 0..width {
-        let colour = if xs[x].is_nan() {
-            [f32::NAN; 3]
-        } else {
-            image.sample_bilinear([xs[x], ys[x]])
-        };
+        if xs[x].is_nan() {
+            for c in 0..3 {
+                out[c][x] = f32::NAN;
+            }
+            continue;
+        }
+        let (colour, [w00, w10, w01, w11], [fx, fy]) = image.sample_with_words([xs[x], ys[x]]);
         for c in 0..3 {
             out[c][x] = colour[c];
         }
+        let r = reference[x];
+        let top = lerp(ones(w00, r), ones(w10, r), fx);
+        let bottom = lerp(ones(w01, r), ones(w11, r), fx);
+        distances[x] = lerp(top, bottom, fy);
     }
+    true
 }
 
 /// Where reference row `y` lands in a camera image of `cw` x `ch` texels that sees it shifted by

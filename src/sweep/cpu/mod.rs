@@ -222,32 +222,36 @@ impl CpuEngine {
                 i as u32 != p.reference && !matches!(m, cost::Mapping::Translation { .. })
             })
         });
+        let census: Vec<Vec<u32>> = if plan.uses_census() {
+            images
+                .par_iter()
+                .map(|im| {
+                    let mut words = Vec::new();
+                    crate::sweep::census::transform(
+                        im.width as usize,
+                        im.height as usize,
+                        &im.pixels,
+                        &mut words,
+                    );
+                    words
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         let mut planar = std::mem::take(&mut self.buffers.planar);
         planar.resize_with(images.len(), PlanarImage::default);
         planar.truncate(images.len());
-        planar.par_iter_mut().zip(images).for_each(|(planar, im)| {
-            planar.fill_from_packed(im.width as usize, im.height as usize, &im.pixels, scattered)
-        });
-        let frame = FrameImages {
-            planar,
-            census: if plan.uses_census() {
-                images
-                    .iter()
-                    .map(|im| {
-                        let mut words = Vec::new();
-                        crate::sweep::census::transform(
-                            im.width as usize,
-                            im.height as usize,
-                            &im.pixels,
-                            &mut words,
-                        );
-                        words
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            },
-        };
+        planar
+            .par_iter_mut()
+            .zip(images)
+            .enumerate()
+            .for_each(|(i, (planar, im))| {
+                let (width, height) = (im.width as usize, im.height as usize);
+                let words = census.get(i).map(Vec::as_slice);
+                planar.fill_from_packed(width, height, &im.pixels, scattered, words)
+            });
+        let frame = FrameImages { planar, census };
         clock.lap("images");
 
         let sgm = plan.sgm_paths() > 0;

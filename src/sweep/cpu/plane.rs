@@ -28,6 +28,9 @@ pub struct PlaneScratch {
     /// reference) and the nearest words (pairs of two sampled cameras).
     census_distances: Vec<Vec<f32>>,
     census_nearest: Vec<Vec<u32>>,
+    /// Per camera: its census distances of the current row were made with its colours
+    /// (scattered samples, `cost::sample_row`).
+    census_sampled: Vec<bool>,
     census_bits: Vec<f32>,
 }
 
@@ -62,6 +65,7 @@ impl PlaneScratch {
             census_nearest: (0..if plan.uses_census() { p.cameras } else { 0 })
                 .map(|_| vec![0; width])
                 .collect(),
+            census_sampled: vec![false; p.cameras as usize],
             census_bits: vec![0.0; width],
         }
     }
@@ -131,10 +135,15 @@ fn cost_row(
     let width = p.width as usize;
     let reference = p.reference;
     // Every camera's colours along the row: the reference's own texels (read in place), the
-    // others sampled.
+    // others sampled (scattered samples with their census distances to the reference's words).
+    let reference_words = (plan.uses_census() && reference != NO_CAMERA).then(|| {
+        let at = y * width;
+        &images.census[reference as usize][at..at + width]
+    });
     for (i, cam) in plan.cameras.iter().enumerate() {
         if i as u32 != reference {
-            cost::sample_row(
+            let census = reference_words.map(|words| (words, &mut s.census_distances[i][..]));
+            s.census_sampled[i] = cost::sample_row(
                 plan,
                 &images.planar[i],
                 cam,
@@ -143,6 +152,7 @@ fn cost_row(
                 y,
                 &mut s.coords[i],
                 &mut s.colours[i],
+                census,
             );
         }
     }
@@ -198,7 +208,7 @@ fn census_costs(
             continue;
         }
         let visible = &s.colours[i][0];
-        if let Some(words) = reference_words {
+        if let (Some(words), false) = (reference_words, s.census_sampled[i]) {
             census::distance_row(
                 plan,
                 &images.census[i],
