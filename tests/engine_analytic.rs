@@ -584,6 +584,53 @@ fn coarse_to_fine_keeps_the_depth() {
     }
 }
 
+/// Three levels: 400x320 with 96 planes sweeps 100x80 with 24 planes, then 200x160 with 48
+/// narrowed, then its own 96 narrowed; the depth is as good as at full resolution only, in both
+/// engines, on a second set too (cached plans and buffers of every level).
+#[test]
+fn coarse_to_fine_in_three_levels_keeps_the_depth() {
+    use sweepdepth::sweep::coarse;
+    let model = CameraModel::pinhole(synthetic::intrinsics(400, 320));
+    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.5, Some((1.3, 0.3)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    let p = params(1.0, 4.0, 96);
+    assert_eq!(coarse::levels(&rig, &p), 3);
+    let full = SweepParams {
+        coarse_to_fine: false,
+        ..p.clone()
+    };
+    let cpu_full = CpuEngine::new()
+        .run(&rig, &images, &full)
+        .expect("cpu full");
+    let (full_within, _) = common::fraction_within(&cpu_full.depth_m, &truth, 0.02);
+    let mut cpu = CpuEngine::new();
+    let mut gpu = engine();
+    for run in 0..2 {
+        for (name, maps) in [
+            ("cpu", cpu.run(&rig, &images, &p).expect("cpu three levels")),
+            ("gpu", gpu.run(&rig, &images, &p).expect("gpu three levels")),
+        ] {
+            let (within, _) = common::fraction_within(&maps.depth_m, &truth, 0.02);
+            eprintln!(
+                "run {run} {name}: {within:.3} within 2 % (full resolution only {full_within:.3})"
+            );
+            check_within(
+                "coarse_to_fine_three_levels",
+                &maps.depth_m,
+                &truth,
+                0.02,
+                0.85,
+            );
+            assert!(
+                within >= full_within - 0.01,
+                "{name}: {within:.3} within 2 % vs {full_within:.3} at full resolution only"
+            );
+        }
+    }
+}
+
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
 #[test]
 fn tilted_plane_family_recovers_a_floor() {

@@ -1,7 +1,10 @@
-//! Coarse to fine (`coarse_to_fine`): a sweep at half resolution over every plane, then the
-//! full-resolution sweep with each reference row narrowed to the planes its neighbourhood
+//! Coarse to fine (`coarse_to_fine`): a sweep at half resolution over every other plane, then
+//! the full-resolution sweep with each reference row narrowed to the planes its neighbourhood
 //! chose at half resolution (`SweepPlan::narrow_planes`), so a rig pays for the depths its
-//! scene has. Both engines' `run` is [`run`] (with or without coarse to fine); what a narrowed
+//! scene has. The half-resolution sweep is itself coarse to fine where it still [`applies`]
+//! (at least MIN_PLANES planes, MIN_SIZE pixels): a 640x480 reference with 96 planes runs
+//! three levels (160x120 with 24 planes, 320x240 with 48 narrowed, 640x480 with 96 narrowed;
+//! [`levels`]). Both engines' `run` is [`run`] (with or without coarse to fine); what a narrowed
 //! row does not sweep scores BIG in both (`aggregate.wgsl`, `cpu/mod.rs`), the WGSL engine
 //! costs and sums only the planes a row's windows need, and the CPU engine skips the planes no
 //! row of a band sweeps.
@@ -53,12 +56,13 @@ pub trait PlanRunner {
 }
 
 /// An engine's plans, kept while the rig and the parameters stay the same: the sweep's own,
-/// and the two levels of a coarse-to-fine sweep.
+/// the full-resolution level of a coarse-to-fine sweep, and the plans of the levels below.
 #[derive(Debug, Default)]
 pub struct Plans {
     whole: Option<(Rig, SweepParams, SweepPlan)>,
-    coarse: Option<(Rig, SweepParams, SweepPlan)>,
     fine: Option<(Rig, SweepParams, SweepPlan)>,
+    /// The half-resolution level's own plans (coarse to fine again where it applies).
+    below: Option<Box<Plans>>,
 }
 
 fn cached<'a>(
@@ -83,6 +87,21 @@ pub fn applies(rig: &Rig, params: &SweepParams) -> bool {
         && params.num_planes >= MIN_PLANES
         && reference.width_px >= MIN_SIZE
         && reference.height_px >= MIN_SIZE
+}
+
+/// How many levels a sweep of `rig` with `params` runs: 1 at full resolution only, 2 with a
+/// half-resolution pass, 3 when that pass is itself coarse to fine, ... (the rig's own
+/// half-size twin aside: [`run`] sweeps at full resolution when it has none).
+pub fn levels(rig: &Rig, params: &SweepParams) -> usize {
+    let reference = rig.reference_model().intrinsics;
+    let (mut width, mut height, mut planes) =
+        (reference.width_px, reference.height_px, params.num_planes);
+    let mut levels = 1;
+    while params.coarse_to_fine && planes >= MIN_PLANES && width >= MIN_SIZE && height >= MIN_SIZE {
+        levels += 1;
+        (width, height, planes) = (width / 2, height / 2, coarse_planes(planes));
+    }
+    levels
 }
 
 /// The sweep of one frame set, as both engines' `run`: coarse to fine where it [`applies`]
@@ -132,11 +151,13 @@ fn coarse_to_fine(
     let coarse_params = SweepParams {
         num_planes: coarse_planes(params.num_planes),
         optimizer: COARSE_OPTIMIZER,
+        // The half-resolution level runs coarse to fine again where it applies.
+        coarse_to_fine: true,
         ..fine_params.clone()
     };
-    let coarse_plan = cached(&mut plans.coarse, coarse_rig, &coarse_params)?;
     let started = std::time::Instant::now();
-    let coarse = engine.run_plan(coarse_plan, coarse_rig, coarse_images)?;
+    let below = plans.below.get_or_insert_with(Default::default);
+    let coarse = run(engine, below, coarse_rig, coarse_images, &coarse_params)?;
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
     let ranges = plane_ranges(fine, &coarse.depth_raw_m);
     let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
@@ -381,6 +402,40 @@ mod tests {
         // Row 35 (half-row 17) sees half-rows 16..=18: 4 m.
         assert_eq!(ranges[35], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
         assert_eq!(ranges[47], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
+    }
+
+    #[test]
+    fn levels_halve_until_too_small_or_too_few_planes() {
+        let rig = |w: u32, h: u32| {
+            let model = CameraModel::pinhole(crate::synthetic::intrinsics(w, h));
+            crate::synthetic::row_rig(3, 0.1, model, 1).expect("rig")
+        };
+        let params = |planes: u32| SweepParams {
+            num_planes: planes,
+            ..SweepParams::default()
+        };
+        // 640x480 with 96 planes: 320x240 with 48, then 160x120 with 24 (too few to halve).
+        assert_eq!(levels(&rig(640, 480), &params(96)), 3);
+        assert_eq!(levels(&rig(640, 480), &params(64)), 2);
+        assert_eq!(levels(&rig(450, 375), &params(125)), 3);
+        assert_eq!(
+            levels(&rig(300, 300), &params(125)),
+            2,
+            "150 px: too small to halve"
+        );
+        assert_eq!(levels(&rig(384, 288), &params(32)), 1);
+        let off = SweepParams {
+            coarse_to_fine: false,
+            ..params(96)
+        };
+        assert_eq!(levels(&rig(640, 480), &off), 1);
+        // `applies` is the first step of `levels`.
+        for (w, h, planes) in [(640, 480, 96), (384, 288, 32), (100, 500, 96)] {
+            assert_eq!(
+                applies(&rig(w, h), &params(planes)),
+                levels(&rig(w, h), &params(planes)) > 1
+            );
+        }
     }
 
     #[test]

@@ -39,9 +39,9 @@ pub struct GpuEngine {
     sgm_band_bytes: Option<u64>,
     /// The buffers of the last shape, and what runs on them.
     buffers: Option<(Buffers, Schedule)>,
-    /// The buffers of the shape before (with the id of the plan uploaded into them): a
-    /// coarse-to-fine sweep alternates two shapes every frame set.
-    spare: Option<(Buffers, Schedule, Option<u64>)>,
+    /// The buffers of the shapes before (with the id of the plan uploaded into them), the
+    /// latest last: a coarse-to-fine sweep cycles through its levels' shapes every frame set.
+    spares: Vec<(Buffers, Schedule, Option<u64>)>,
     /// The plans of the last rig and parameters (`sweep/coarse.rs`).
     plans: super::coarse::Plans,
     /// Id of the plan whose arrays are in the buffers.
@@ -50,6 +50,10 @@ pub struct GpuEngine {
     timings: StageTimings,
     cancel: CancelFlag,
 }
+
+/// Buffers of other shapes kept for the levels of a coarse-to-fine sweep (`coarse::levels`
+/// less the current one: three levels need two).
+const MAX_SPARES: usize = 3;
 
 fn gpu_err(e: impl std::fmt::Display) -> SweepError {
     SweepError::Gpu(e.to_string())
@@ -70,7 +74,7 @@ impl GpuEngine {
             sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             sgm_band_bytes: None,
             buffers: None,
-            spare: None,
+            spares: Vec::new(),
             plans: Default::default(),
             uploaded_plan: None,
             packed: Vec::new(),
@@ -120,10 +124,11 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        // One shape at a time outside coarse to fine: the other level's buffers go.
-        if !super::coarse::applies(rig, params) {
-            self.spare = None;
-        }
+        // One shape at a time outside coarse to fine: the other levels' buffers go; with it,
+        // the buffers of every level below the current one stay.
+        let below = super::coarse::levels(rig, params) - 1;
+        let excess = self.spares.len().saturating_sub(below);
+        self.spares.drain(..excess);
         let mut plans = std::mem::take(&mut self.plans);
         let result = super::coarse::run(self, &mut plans, rig, images, params);
         self.plans = plans;
@@ -153,16 +158,21 @@ impl GpuEngine {
         plan.pack_images(rig, images, &mut packed)?;
         let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
-            let (buffers, schedule, uploaded) = match self.spare.take() {
-                Some(spare) if spare.0.key == key => spare,
-                _ => {
-                    let buffers =
-                        Buffers::new(&self.device, &self.pipelines.layouts, self.align, key)?;
-                    (buffers, key.schedule(), None)
-                }
-            };
+            let (buffers, schedule, uploaded) =
+                match self.spares.iter().position(|spare| spare.0.key == key) {
+                    Some(i) => self.spares.remove(i),
+                    None => {
+                        let buffers =
+                            Buffers::new(&self.device, &self.pipelines.layouts, self.align, key)?;
+                        (buffers, key.schedule(), None)
+                    }
+                };
             if let Some((old, old_schedule)) = self.buffers.replace((buffers, schedule)) {
-                self.spare = Some((old, old_schedule, self.uploaded_plan));
+                self.spares.push((old, old_schedule, self.uploaded_plan));
+                // The levels of the deepest coarse-to-fine sweep so far, the current one aside.
+                if self.spares.len() > MAX_SPARES {
+                    self.spares.remove(0);
+                }
             }
             self.uploaded_plan = uploaded;
         }
