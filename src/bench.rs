@@ -51,8 +51,8 @@ pub enum Workload {
     /// A synthetic row of cameras with the paper's settings (best half-sequence, shiftable 2x2
     /// windows, per-pair aggregation).
     Paper,
-    /// A synthetic row of cameras with the engine defaults (best 2 of m, centred 9x9), as a
-    /// live node would run.
+    /// A synthetic row of cameras with the engine defaults (AD-census, best half-sequence,
+    /// centred 5x5, SGM, coarse to fine), as a live node would run.
     Defaults,
     /// The demo: the built-in Tsukuba set (5 views 384x288, 32 planes) with its defaults.
     Demo,

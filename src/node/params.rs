@@ -247,7 +247,7 @@ mod tests {
             .to_string();
         assert!(e.contains("max_depth"), "{e}");
         assert!(l.check("nope", &RosValue::Integer(1)).is_err());
-        // Checks across parameters: a shiftable window must be 1 or even (default 9x9).
+        // Checks across parameters: a shiftable window must be 1 or even (default 5x5).
         let e = l
             .check("window_mode", &RosValue::String("shiftable".into()))
             .unwrap_err()

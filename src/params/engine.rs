@@ -254,7 +254,7 @@ engine_params! {
     sgm_edge: f32 = 10.0, "sgm_edge", Long("sgm-edge"), ParamRange::closed(0.0, 255.0),
         "SGM: colour step (largest RGB difference between path neighbours, 0..255) at which P2 is halved (P2 / (1 + step / sgm_edge), at least P1); 0 = constant P2.";
     coarse_to_fine: bool = true, "coarse_to_fine", Long("coarse-to-fine"), ParamRange::Any,
-        "From 48 planes: sweep at half resolution (every other plane) first, then each row only over the planes its neighbourhood found there, plus 3 on each side.";
+        "From 48 planes: sweep at half resolution (every other plane; itself coarse to fine from 96 planes) first, then each row only over the planes its neighbourhood found there, plus 3 on each side.";
 }
 
 static ENGINE_PARAMS: LazyLock<Vec<EngineParam>> = LazyLock::new(declarations);
