@@ -424,6 +424,9 @@ mod tests {
             "150 px: too small to halve"
         );
         assert_eq!(levels(&rig(384, 288), &params(32)), 1);
+        // The deepest: 4096 planes (the most a plan takes) halve seven times (the WGSL
+        // engine keeps at most seven spare shapes, gpu/mod.rs MAX_SPARES).
+        assert_eq!(levels(&rig(16384, 16384), &params(4096)), 8);
         let off = SweepParams {
             coarse_to_fine: false,
             ..params(96)

@@ -51,9 +51,10 @@ pub struct GpuEngine {
     cancel: CancelFlag,
 }
 
-/// Buffers of other shapes kept for the levels of a coarse-to-fine sweep (`coarse::levels`
-/// less the current one: three levels need two).
-const MAX_SPARES: usize = 3;
+/// Buffers of other shapes kept at most: the levels below the full-resolution one of the
+/// deepest coarse-to-fine sweep (4096 planes halve seven times before they fall under 48:
+/// `coarse::levels` is at most 8).
+const MAX_SPARES: usize = 7;
 
 fn gpu_err(e: impl std::fmt::Display) -> SweepError {
     SweepError::Gpu(e.to_string())
@@ -168,8 +169,10 @@ impl GpuEngine {
                     }
                 };
             if let Some((old, old_schedule)) = self.buffers.replace((buffers, schedule)) {
+                // One per level below the current one: `run` drops the rest before each frame
+                // set, and a level's shape is taken out of the spares when it runs. The bound
+                // is for callers of `run_plan` alone, who cycle through shapes of their own.
                 self.spares.push((old, old_schedule, self.uploaded_plan));
-                // The levels of the deepest coarse-to-fine sweep so far, the current one aside.
                 if self.spares.len() > MAX_SPARES {
                     self.spares.remove(0);
                 }
