@@ -537,31 +537,38 @@ fn virtual_reference_with_an_empty_half_scores_all_pairs() {
 /// Coarse to fine (the default from 48 planes, on references of at least 160 px): a 320x240
 /// row of four cameras before a wall and a box, 64 planes. Both engines give the same depth as
 /// the full-resolution sweep within a point, and it is right.
-#[test]
-fn coarse_to_fine_keeps_the_depth() {
-    use sweepdepth::sweep::coarse;
-    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+/// A wall and a box seen by a row of 4 cameras of `width` x `height` with `planes` planes
+/// (the defaults, coarse to fine on; `check` sees the rig and parameters first): both engines,
+/// twice each (the second run reuses the cached plans and buffers of every level), keep at
+/// least 85 % of the pixels within 2 % and no less than a point below the full resolution
+/// only.
+fn check_coarse_to_fine(
+    name: &str,
+    width: u32,
+    height: u32,
+    planes: u32,
+    check: impl Fn(&Rig, &SweepParams),
+) {
+    let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
     let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(2.5, Some((1.3, 0.3)), synthetic::intrinsics(320, 240).fx_px);
+    let scene = Scene::wall_and_box(2.5, Some((1.3, 0.3)), model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
     let truth = synthetic::reference_depth(&scene, &rig);
-    let p = params(1.0, 4.0, 64);
-    assert!(p.coarse_to_fine, "the default");
-    assert!(coarse::applies(&rig, &p));
+    let p = params(1.0, 4.0, planes);
+    check(&rig, &p);
     let full = SweepParams {
         coarse_to_fine: false,
         ..p.clone()
     };
-    assert!(!coarse::applies(&rig, &full));
+    assert!(!sweepdepth::sweep::coarse::applies(&rig, &full));
     let cpu_full = CpuEngine::new()
         .run(&rig, &images, &full)
         .expect("cpu full");
     let (full_within, _) = common::fraction_within(&cpu_full.depth_m, &truth, 0.02);
     let mut cpu = CpuEngine::new();
     let mut gpu = engine();
-    // Twice each: the second run reuses the cached plans and buffers of both levels.
     for run in 0..2 {
-        for (name, maps) in [
+        for (engine, maps) in [
             (
                 "cpu",
                 cpu.run(&rig, &images, &p).expect("cpu coarse to fine"),
@@ -573,62 +580,32 @@ fn coarse_to_fine_keeps_the_depth() {
         ] {
             let (within, _) = common::fraction_within(&maps.depth_m, &truth, 0.02);
             eprintln!(
-                "run {run} {name}: {within:.3} within 2 % (full resolution only {full_within:.3})"
+                "{name} run {run} {engine}: {within:.3} within 2 % (full resolution only {full_within:.3})"
             );
-            check_within("coarse_to_fine", &maps.depth_m, &truth, 0.02, 0.85);
+            check_within(name, &maps.depth_m, &truth, 0.02, 0.85);
             assert!(
                 within >= full_within - 0.01,
-                "{name}: {within:.3} within 2 % vs {full_within:.3} at full resolution only"
+                "{name} {engine}: {within:.3} within 2 % vs {full_within:.3} at full resolution only"
             );
         }
     }
 }
 
+#[test]
+fn coarse_to_fine_keeps_the_depth() {
+    check_coarse_to_fine("coarse_to_fine", 320, 240, 64, |rig, p| {
+        assert!(p.coarse_to_fine, "the default");
+        assert!(sweepdepth::sweep::coarse::applies(rig, p));
+    });
+}
+
 /// Three levels: 400x320 with 96 planes sweeps 100x80 with 24 planes, then 200x160 with 48
-/// narrowed, then its own 96 narrowed; the depth is as good as at full resolution only, in both
-/// engines, on a second set too (cached plans and buffers of every level).
+/// narrowed, then its own 96 narrowed.
 #[test]
 fn coarse_to_fine_in_three_levels_keeps_the_depth() {
-    use sweepdepth::sweep::coarse;
-    let model = CameraModel::pinhole(synthetic::intrinsics(400, 320));
-    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(2.5, Some((1.3, 0.3)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let truth = synthetic::reference_depth(&scene, &rig);
-    let p = params(1.0, 4.0, 96);
-    assert_eq!(coarse::levels(&rig, &p), 3);
-    let full = SweepParams {
-        coarse_to_fine: false,
-        ..p.clone()
-    };
-    let cpu_full = CpuEngine::new()
-        .run(&rig, &images, &full)
-        .expect("cpu full");
-    let (full_within, _) = common::fraction_within(&cpu_full.depth_m, &truth, 0.02);
-    let mut cpu = CpuEngine::new();
-    let mut gpu = engine();
-    for run in 0..2 {
-        for (name, maps) in [
-            ("cpu", cpu.run(&rig, &images, &p).expect("cpu three levels")),
-            ("gpu", gpu.run(&rig, &images, &p).expect("gpu three levels")),
-        ] {
-            let (within, _) = common::fraction_within(&maps.depth_m, &truth, 0.02);
-            eprintln!(
-                "run {run} {name}: {within:.3} within 2 % (full resolution only {full_within:.3})"
-            );
-            check_within(
-                "coarse_to_fine_three_levels",
-                &maps.depth_m,
-                &truth,
-                0.02,
-                0.85,
-            );
-            assert!(
-                within >= full_within - 0.01,
-                "{name}: {within:.3} within 2 % vs {full_within:.3} at full resolution only"
-            );
-        }
-    }
+    check_coarse_to_fine("coarse_to_fine_three_levels", 400, 320, 96, |rig, p| {
+        assert_eq!(sweepdepth::sweep::coarse::levels(rig, p), 3);
+    });
 }
 
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.

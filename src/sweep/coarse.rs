@@ -80,24 +80,29 @@ fn cached<'a>(
     }
 }
 
+/// Whether a level of `width` x `height` pixels and `planes` planes has a level below it.
+fn halves(width: u32, height: u32, planes: u32) -> bool {
+    planes >= MIN_PLANES && width >= MIN_SIZE && height >= MIN_SIZE
+}
+
 /// Whether a sweep of `rig` with `params` runs coarse to fine.
 pub fn applies(rig: &Rig, params: &SweepParams) -> bool {
     let reference = rig.reference_model().intrinsics;
-    params.coarse_to_fine
-        && params.num_planes >= MIN_PLANES
-        && reference.width_px >= MIN_SIZE
-        && reference.height_px >= MIN_SIZE
+    params.coarse_to_fine && halves(reference.width_px, reference.height_px, params.num_planes)
 }
 
 /// How many levels a sweep of `rig` with `params` runs: 1 at full resolution only, 2 with a
 /// half-resolution pass, 3 when that pass is itself coarse to fine, ... (the rig's own
 /// half-size twin aside: [`run`] sweeps at full resolution when it has none).
 pub fn levels(rig: &Rig, params: &SweepParams) -> usize {
+    if !params.coarse_to_fine {
+        return 1;
+    }
     let reference = rig.reference_model().intrinsics;
     let (mut width, mut height, mut planes) =
         (reference.width_px, reference.height_px, params.num_planes);
     let mut levels = 1;
-    while params.coarse_to_fine && planes >= MIN_PLANES && width >= MIN_SIZE && height >= MIN_SIZE {
+    while halves(width, height, planes) {
         levels += 1;
         (width, height, planes) = (width / 2, height / 2, coarse_planes(planes));
     }
@@ -148,12 +153,12 @@ fn coarse_to_fine(
         coarse_to_fine: false,
         ..params.clone()
     };
+    // The half-resolution level keeps `coarse_to_fine`: it runs coarse to fine again where it
+    // applies.
     let coarse_params = SweepParams {
         num_planes: coarse_planes(params.num_planes),
         optimizer: COARSE_OPTIMIZER,
-        // The half-resolution level runs coarse to fine again where it applies.
-        coarse_to_fine: true,
-        ..fine_params.clone()
+        ..params.clone()
     };
     let started = std::time::Instant::now();
     let below = plans.below.get_or_insert_with(Default::default);

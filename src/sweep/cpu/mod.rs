@@ -96,6 +96,8 @@ struct Buffers {
     zbuffer: Vec<u32>,
     state: Option<WtaState>,
     planar: Vec<PlanarImage>,
+    /// The images' census words (empty without a census cost).
+    census: Vec<Vec<u32>>,
     projections: occlusion::Projections,
     /// One per band of rows, reused by whichever worker sweeps that band.
     bands: Vec<BandScratch>,
@@ -222,23 +224,13 @@ impl CpuEngine {
                 i as u32 != p.reference && !matches!(m, cost::Mapping::Translation { .. })
             })
         });
-        let census: Vec<Vec<u32>> = if plan.uses_census() {
-            images
-                .par_iter()
-                .map(|im| {
-                    let mut words = Vec::new();
-                    crate::sweep::census::transform(
-                        im.width as usize,
-                        im.height as usize,
-                        &im.pixels,
-                        &mut words,
-                    );
-                    words
-                })
-                .collect()
-        } else {
-            Vec::new()
-        };
+        let mut census = std::mem::take(&mut self.buffers.census);
+        census.resize_with(if plan.uses_census() { images.len() } else { 0 }, Vec::new);
+        census.par_iter_mut().zip(images).for_each(|(words, im)| {
+            words.clear();
+            let (width, height) = (im.width as usize, im.height as usize);
+            crate::sweep::census::transform(width, height, &im.pixels, words);
+        });
         let mut planar = std::mem::take(&mut self.buffers.planar);
         planar.resize_with(images.len(), PlanarImage::default);
         planar.truncate(images.len());
@@ -369,6 +361,7 @@ impl CpuEngine {
         drop(chunks);
         self.buffers.bands = scratches;
         self.buffers.planar = frame.planar;
+        self.buffers.census = frame.census;
         clock.lap("sweep");
         cancel.check()?;
 
