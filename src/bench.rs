@@ -1,6 +1,7 @@
 //! `sweepdepth bench`: how fast, compared to what. In one run: the CPU engine and the WGSL
 //! engine (on the wgpu adapter, lavapipe without a GPU) on the paper's configuration,
-//! 640x480x64, 1280x960x128, a 9-camera 450x375x57 rig and the demo's Tsukuba set, each with
+//! 640x480x64, 1280x960x128, a 9-camera 450x375x57 rig (one reference, and three references per
+//! set: `references`) and the demo's Tsukuba set, each with
 //! winner-take-all and SGM; and the peer, OpenCV StereoSGBM 3-way on two Tsukuba views with 32
 //! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it.
 
@@ -29,8 +30,8 @@ pub struct BenchArgs {
     /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
-    /// Only these configurations (repeatable): paper, demo, 9-camera, vga, ring,
-    /// ring-distorted, sxga.
+    /// Only these configurations (repeatable): paper, demo, 9-camera, 9-camera-3refs,
+    /// 9-camera-3refs-near4, vga, ring, ring-distorted, sxga.
     #[arg(long = "config", value_name = "NAME")]
     pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
@@ -71,10 +72,15 @@ pub struct BenchConfig {
     pub height: u32,
     pub planes: u32,
     pub workload: Workload,
+    /// Several references per set (`references`, camera indices); empty: the rig's middle
+    /// camera alone, as a plain sweep.
+    pub references: &'static [usize],
+    /// `max_neighbours` (0: every camera that sees the reference's view).
+    pub max_neighbours: u32,
 }
 
 /// The configurations.
-pub const CONFIGS: [BenchConfig; 7] = [
+pub const CONFIGS: [BenchConfig; 9] = [
     BenchConfig {
         name: "paper",
         cameras: 4,
@@ -82,6 +88,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 240,
         planes: 20,
         workload: Workload::Paper,
+        references: &[],
+        max_neighbours: 0,
     },
     BenchConfig {
         name: "demo",
@@ -90,6 +98,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 288,
         planes: 32,
         workload: Workload::Demo,
+        references: &[],
+        max_neighbours: 0,
     },
     BenchConfig {
         name: "9-camera",
@@ -98,6 +108,31 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 375,
         planes: 57,
         workload: Workload::Defaults,
+        references: &[],
+        max_neighbours: 0,
+    },
+    // The 9-camera rig with three references (cameras 1, 4 and 7: depth across the row): with
+    // every camera each, and with each reference's nearest two on each side
+    // (`max_neighbours` 4). Beside "9-camera" (the middle camera alone, all 8 others).
+    BenchConfig {
+        name: "9-camera-3refs",
+        cameras: 9,
+        width: 450,
+        height: 375,
+        planes: 57,
+        workload: Workload::Defaults,
+        references: &[1, 4, 7],
+        max_neighbours: 0,
+    },
+    BenchConfig {
+        name: "9-camera-3refs-near4",
+        cameras: 9,
+        width: 450,
+        height: 375,
+        planes: 57,
+        workload: Workload::Defaults,
+        references: &[1, 4, 7],
+        max_neighbours: 4,
     },
     BenchConfig {
         name: "vga",
@@ -106,6 +141,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 480,
         planes: 64,
         workload: Workload::Paper,
+        references: &[],
+        max_neighbours: 0,
     },
     BenchConfig {
         name: "ring",
@@ -114,6 +151,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 480,
         planes: 96,
         workload: Workload::Ring { distorted: false },
+        references: &[],
+        max_neighbours: 0,
     },
     BenchConfig {
         name: "ring-distorted",
@@ -122,6 +161,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 480,
         planes: 96,
         workload: Workload::Ring { distorted: true },
+        references: &[],
+        max_neighbours: 0,
     },
     BenchConfig {
         name: "sxga",
@@ -130,6 +171,8 @@ pub const CONFIGS: [BenchConfig; 7] = [
         height: 960,
         planes: 128,
         workload: Workload::Paper,
+        references: &[],
+        max_neighbours: 0,
     },
 ];
 
@@ -207,6 +250,7 @@ pub fn bench_params(
         params.window_height = 2;
         params.window_mode = WindowMode::Shiftable;
     }
+    params.max_neighbours = config.max_neighbours;
     overrides.apply(&mut params);
     params.num_planes = config.planes;
     params.optimizer = optimizer;
@@ -246,14 +290,25 @@ fn time_runs(
     rig: &Rig,
     images: &[Rgba8Image],
     params: &SweepParams,
+    references: &[usize],
     repeats: usize,
 ) -> Result<(f64, serde_json::Map<String, serde_json::Value>), crate::sweep::SweepError> {
-    engine.run(rig, images, params)?;
+    let run = |engine: &mut Engine| -> Result<(), crate::sweep::SweepError> {
+        if references.is_empty() {
+            engine.run(rig, images, params).map(|_| ())
+        } else {
+            engine
+                .run_references(&rig.cameras, images, references, params)
+                .into_iter()
+                .try_for_each(|r| r.map(|_| ()))
+        }
+    };
+    run(engine)?;
     let mut frame_ms = Vec::with_capacity(repeats);
     let mut stage_ms: Vec<(String, Vec<f64>)> = Vec::new();
     for _ in 0..repeats.max(1) {
         let started = Instant::now();
-        engine.run(rig, images, params)?;
+        run(engine)?;
         frame_ms.push(started.elapsed().as_secs_f64() * 1e3);
         for (name, ms) in &engine.last_timings().stages {
             match stage_ms.iter_mut().find(|(n, _)| n == name) {
@@ -295,7 +350,7 @@ pub fn run_config(
     let mut notes = Vec::new();
     let mut column = |optimizer: Optimizer| -> anyhow::Result<_> {
         let params = params_for(optimizer);
-        match time_runs(engine, &rig, &images, &params, repeats) {
+        match time_runs(engine, &rig, &images, &params, config.references, repeats) {
             Ok((ms, stages)) => Ok((Some(round3(ms)), stages)),
             // A volume too large for the adapter is a result, not a failure of the bench.
             Err(crate::sweep::SweepError::InvalidParams(reason)) => {

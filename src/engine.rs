@@ -3,11 +3,16 @@
 //! CPU engine otherwise: on a machine without a GPU, the CPU engine is several times faster than
 //! the same shaders on Mesa's lavapipe (see README, Speed).
 
-use crate::geometry::Rig;
+use std::borrow::Cow;
+
+use crate::geometry::{Rig, RigCamera};
 use crate::gpu_context::{GpuContext, GpuContextError};
 use crate::image::Rgba8Image;
+use crate::sweep::coarse::PlanRunner;
 use crate::sweep::cpu::CpuEngine;
+use crate::sweep::frame_memo::FrameMemo;
 use crate::sweep::gpu::GpuEngine;
+use crate::sweep::references::{reference_rig, ReferenceDepth};
 use crate::sweep::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 
 /// Which engine runs the sweep (`--device`, parameter `device`): this module.
@@ -65,6 +70,67 @@ pub trait Sweeper {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError>;
+
+    /// What the references of one frame set share (`sweep/frame_memo.rs`).
+    fn memo(&mut self) -> &mut FrameMemo;
+
+    /// The per-stage times of the last run.
+    fn timings_mut(&mut self) -> &mut StageTimings;
+
+    /// The depth of each of `references` (indices into the set's `cameras`, one image each
+    /// in `images`), each swept with its own neighbours (`sweep/references.rs`); the census
+    /// words and half-size images of the set are made once for all of them. One result per
+    /// reference, in order: a reference that fails does not stop the others.
+    fn run_references(
+        &mut self,
+        cameras: &[RigCamera],
+        images: &[Rgba8Image],
+        references: &[usize],
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        if images.len() != cameras.len() {
+            let error = || SweepError::ImageCount {
+                images: images.len(),
+                cameras: cameras.len(),
+            };
+            return references.iter().map(|_| Err(error())).collect();
+        }
+        self.memo().begin(cameras.iter().map(|c| c.name.as_str()));
+        let mut results = Vec::with_capacity(references.len());
+        let mut stages: Vec<(String, f64)> = Vec::new();
+        for &reference in references {
+            let result = reference_rig(cameras, reference, params).and_then(|r| {
+                let own: Cow<'_, [Rgba8Image]> = if r.cameras.len() == images.len() {
+                    Cow::Borrowed(images)
+                } else {
+                    Cow::Owned(r.cameras.iter().map(|&i| images[i].clone()).collect())
+                };
+                let maps = self.run(&r.rig, &own, params)?;
+                Ok(ReferenceDepth {
+                    reference,
+                    cameras: r.cameras,
+                    maps,
+                })
+            });
+            // The set's timings: every reference's stages summed.
+            for (name, ms) in &self.timings_mut().stages {
+                match stages.iter_mut().find(|(n, _)| n == name) {
+                    Some((_, total)) => *total += ms,
+                    None => stages.push((name.clone(), *ms)),
+                }
+            }
+            let cancelled = matches!(result, Err(SweepError::Cancelled));
+            results.push(result);
+            if cancelled {
+                break;
+            }
+        }
+        self.memo().end();
+        if references.len() > 1 {
+            self.timings_mut().stages = stages;
+        }
+        results
+    }
 }
 
 impl Sweeper for GpuEngine {
@@ -76,6 +142,14 @@ impl Sweeper for GpuEngine {
     ) -> Result<DepthMaps, SweepError> {
         GpuEngine::run(self, rig, images, params)
     }
+
+    fn memo(&mut self) -> &mut FrameMemo {
+        PlanRunner::memo(self)
+    }
+
+    fn timings_mut(&mut self) -> &mut StageTimings {
+        PlanRunner::timings_mut(self)
+    }
 }
 
 impl Sweeper for CpuEngine {
@@ -86,6 +160,14 @@ impl Sweeper for CpuEngine {
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
         CpuEngine::run(self, rig, images, params)
+    }
+
+    fn memo(&mut self) -> &mut FrameMemo {
+        PlanRunner::memo(self)
+    }
+
+    fn timings_mut(&mut self) -> &mut StageTimings {
+        PlanRunner::timings_mut(self)
     }
 }
 
@@ -188,6 +270,20 @@ impl Sweeper for Engine {
         match self {
             Self::Gpu { engine, .. } => engine.run(rig, images, params),
             Self::Cpu(cpu) => cpu.run(rig, images, params),
+        }
+    }
+
+    fn memo(&mut self) -> &mut FrameMemo {
+        match self {
+            Self::Gpu { engine, .. } => PlanRunner::memo(engine.as_mut()),
+            Self::Cpu(cpu) => PlanRunner::memo(cpu),
+        }
+    }
+
+    fn timings_mut(&mut self) -> &mut StageTimings {
+        match self {
+            Self::Gpu { engine, .. } => PlanRunner::timings_mut(engine.as_mut()),
+            Self::Cpu(cpu) => PlanRunner::timings_mut(cpu),
         }
     }
 }

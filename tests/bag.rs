@@ -720,3 +720,224 @@ fn topic_of_the_wrong_type_is_named() {
     );
     assert!(stderr.contains("waiting for transform"), "{stderr}");
 }
+
+/// A rig that moves (`world_frame`), recorded as a robot records it: `/tf` (world -> base) at
+/// 7 Hz, not at the images' stamps, each transform logged 0.3 s after its stamp (after the
+/// images it poses); `/tf_static` (base -> each camera); images at 2 Hz. Through the pipeline
+/// `bag` runs, each set's world pose equals the true pose at its stamp (interpolated) within
+/// 1 mm and 0.05 degrees; the set before the first transform and the set after the last are
+/// skipped with the reason, and `sweepdepth bag` counts them and writes depth for the others.
+#[test]
+fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
+    use glam::{DQuat, DVec3};
+    use sweepdepth::geometry::{CameraModel, RigCamera, RigidTransform};
+    use sweepdepth::msgdefs::{CAMERA_INFO, IMAGE, TF_MESSAGE};
+    use sweepdepth::msgs::{
+        to_cdr, Header, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
+    };
+    use sweepdepth::pipeline::{Input, Pipeline, PipelineConfig, SkipKind};
+    use sweepdepth::synthetic::{self, Scene};
+
+    let dir = scratch("moving");
+    let bag = dir.join("moving.mcap");
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let base_from_cam = |i: usize| RigidTransform {
+        rotation: DQuat::IDENTITY,
+        translation: DVec3::new(0.1 * i as f64 - 0.1, 0.0, 0.0),
+    };
+    // Along x at 0.2 m/s and forward at 0.05 m/s, turning about y at 0.05 rad/s: linear in
+    // translation and about one axis at a constant rate, so tf2's interpolation is exact.
+    let world_from_base = |t: f64| RigidTransform {
+        rotation: DQuat::from_rotation_y(0.05 * (t - 100.0)),
+        translation: DVec3::new(0.2 * (t - 100.0), 0.0, 0.05 * (t - 100.0)),
+    };
+    let time = |t: f64| Time {
+        sec: t.floor() as i32,
+        nanosec: ((t - t.floor()) * 1e9).round() as u32,
+    };
+    let ns = |t: f64| (t * 1e9).round() as u64;
+    let stamped = |parent: &str, child: &str, t: f64, pose: &RigidTransform| TransformStamped {
+        header: Header {
+            stamp: time(t),
+            frame_id: parent.into(),
+        },
+        child_frame_id: child.into(),
+        transform: Transform {
+            translation: Vector3 {
+                x: pose.translation.x,
+                y: pose.translation.y,
+                z: pose.translation.z,
+            },
+            rotation: Quaternion {
+                x: pose.rotation.x,
+                y: pose.rotation.y,
+                z: pose.rotation.z,
+                w: pose.rotation.w,
+            },
+        },
+    };
+    // (log time, topic, type, bytes), sorted by log time before writing.
+    let mut records: Vec<(u64, String, &str, Vec<u8>)> = Vec::new();
+    let statics = TFMessage {
+        transforms: (0..3)
+            .map(|i| stamped("base", &format!("cam{i}_optical"), 0.0, &base_from_cam(i)))
+            .collect(),
+    };
+    records.push((
+        ns(99.0),
+        "/tf_static".into(),
+        TF_MESSAGE,
+        to_cdr(&statics).unwrap(),
+    ));
+    let image_times = [100.5, 101.0, 101.5, 102.0, 102.5, 103.0];
+    for &t in &image_times {
+        for i in 0..3 {
+            let world_from_cam = world_from_base(t).compose(&base_from_cam(i));
+            let camera = RigCamera {
+                name: format!("cam{i}"),
+                model,
+                cam_from_rig: world_from_cam.inverse(),
+            };
+            let header = Header {
+                stamp: time(t),
+                frame_id: format!("cam{i}_optical"),
+            };
+            let image = common::dds::image_msg(&header, &scene.render(&camera), false);
+            let info = common::dds::camera_info(&header, &model);
+            let log = ns(t) + 10_000_000;
+            records.push((
+                log,
+                format!("/cam{i}/camera_info"),
+                CAMERA_INFO,
+                to_cdr(&info).unwrap(),
+            ));
+            records.push((
+                log + 1,
+                format!("/cam{i}/image_raw"),
+                IMAGE,
+                to_cdr(&image).unwrap(),
+            ));
+        }
+    }
+    // /tf from 100.93 s to 102.93 s at 7 Hz: the first set (100.5) is before it, the last
+    // (103.0) after it.
+    for k in 0..=14 {
+        let t = 100.93 + f64::from(k) / 7.0;
+        let msg = TFMessage {
+            transforms: vec![stamped("world", "base", t, &world_from_base(t))],
+        };
+        records.push((
+            ns(t) + 300_000_000,
+            "/tf".into(),
+            TF_MESSAGE,
+            to_cdr(&msg).unwrap(),
+        ));
+    }
+    records.sort_by_key(|r| r.0);
+    let mut w = sweepdepth::bag::BagWriter::create(&bag, true).unwrap();
+    for (log, topic, msg_type, data) in &records {
+        w.add_topic(topic, msg_type, None).unwrap();
+        w.write(topic, *log, *log, data).unwrap();
+    }
+    w.finish().unwrap();
+    let params = dir.join("moving.params.yaml");
+    std::fs::write(
+        &params,
+        "/**:\n  ros__parameters:\n    cameras: [cam0, cam1, cam2]\n    reference_camera: cam1\n    world_frame: world\n    tf_timeout: 0.5\n    min_depth: 1.0\n    max_depth: 8.0\n    num_planes: 32\n",
+    )
+    .unwrap();
+
+    // The pipeline `bag` runs, message by message: the poses.
+    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let config = PipelineConfig::from_args(&args).expect("config");
+    let mut pipeline = Pipeline::new(&config).expect("pipeline");
+    let (mut posed, mut skipped) = (Vec::new(), Vec::new());
+    for m in messages(&bag) {
+        let input = match m.topic.as_str() {
+            "/tf_static" => Input::TfStatic(from_cdr(&m.data).unwrap()),
+            "/tf" => Input::Tf(from_cdr(&m.data).unwrap()),
+            topic => {
+                let camera = usize::from(topic.as_bytes()[4] - b'0');
+                if topic.ends_with("camera_info") {
+                    Input::CameraInfo {
+                        camera,
+                        info: Box::new(from_cdr(&m.data).unwrap()),
+                    }
+                } else {
+                    Input::Image {
+                        camera,
+                        image: from_cdr(&m.data).unwrap(),
+                    }
+                }
+            }
+        };
+        let outcome = pipeline.push(input, m.log_time_ns);
+        for set in outcome.sets {
+            match set {
+                Ok(job) => posed.push(job),
+                Err(skip) => skipped.push(skip),
+            }
+        }
+    }
+    for set in pipeline.finish().sets {
+        match set {
+            Ok(job) => posed.push(job),
+            Err(skip) => skipped.push(skip),
+        }
+    }
+    let stamps: Vec<Time> = posed
+        .iter()
+        .map(|j| j.images[j.reference].header.stamp)
+        .collect();
+    assert_eq!(
+        stamps,
+        [101.0, 101.5, 102.0, 102.5].map(time).to_vec(),
+        "posed sets, in order"
+    );
+    for (job, t) in posed.iter().zip([101.0, 101.5, 102.0, 102.5]) {
+        let truth = world_from_base(t).compose(&base_from_cam(1));
+        let got = job.world_from_rig.expect("a posed set");
+        let mm = (got.translation - truth.translation).length() * 1e3;
+        let deg = got.rotation.angle_between(truth.rotation).to_degrees();
+        assert!(
+            mm < 1.0 && deg < 0.05,
+            "set at {t}: {mm:.4} mm, {deg:.5} deg off"
+        );
+    }
+    assert_eq!(skipped.len(), 2, "{skipped:?}");
+    assert!(skipped.iter().all(|s| s.kind == SkipKind::NoWorldPose));
+    assert!(
+        skipped[0]
+            .message
+            .contains("no pose of 'cam1_optical' in world_frame 'world' at the set's stamp 100.5"),
+        "{}",
+        skipped[0].message
+    );
+    assert!(
+        skipped[1].message.contains("input ended"),
+        "{}",
+        skipped[1].message
+    );
+
+    // `sweepdepth bag`: the same sets, counted, and depth for the posed ones.
+    let out = dir.join("out.mcap");
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            out.to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+        ]),
+        "sweepdepth bag",
+    );
+    assert!(
+        stderr.contains("6 frame sets found, 4 processed") && stderr.contains("2 no world pose"),
+        "{stderr}"
+    );
+    assert_eq!(depths(&out).len(), 4);
+}

@@ -419,7 +419,13 @@ fn rectified_images_give_the_right_depth() {
         num_planes: 48,
         ..SweepParams::default()
     };
-    let out = process_job(&mut engine, &job, &sweep, true).expect("the set runs");
+    let set = process_job(&mut engine, &job, &sweep, true).expect("the set runs");
+    assert!(set.skipped.is_empty(), "{:?}", set.skipped);
+    let out = set
+        .outputs
+        .into_iter()
+        .next()
+        .expect("the reference's outputs");
     let truth = scene.depth(&model, &rect_from_rig(1));
     let depth = sweepdepth::image::ImageF32 {
         width: WIDTH,

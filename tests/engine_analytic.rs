@@ -715,3 +715,120 @@ fn cancel_flag_stops_both_engines() {
     gpu.set_cancel(CancelFlag::new());
     assert!(gpu.run(&rig, &images, &p).is_ok(), "gpu: a fresh flag runs");
 }
+
+/// Several references per frame set (`references`): every camera of a 5-camera arc facing
+/// the scene gets its depth in both engines, each swept with its own neighbours and its own
+/// half-sequence split; on the CPU engine each equals, to the bit, a run for that reference
+/// alone (the shared census words and half-size images change nothing).
+#[test]
+fn every_reference_of_an_arc_gets_its_depth_as_if_alone() {
+    use sweepdepth::engine::{Engine, Sweeper};
+    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let rig = synthetic::arc_rig(5, 0.105, 4.0, model, 2).expect("rig");
+    let images = synthetic::render_rig(&scene, &rig);
+    // 64 planes: coarse to fine, so the half-size images are shared too.
+    let p = params(1.0, 8.0, 64);
+    let references = [0, 1, 2, 3, 4];
+    let truth = |r: usize| {
+        let rig_r = Rig::new(rig.cameras.clone(), Reference::Camera(r)).expect("rig");
+        synthetic::reference_depth(&scene, &rig_r)
+    };
+    let mut cpu = Engine::Cpu(CpuEngine::new());
+    let together = cpu.run_references(&rig.cameras, &images, &references, &p);
+    assert_eq!(together.len(), 5);
+    for (r, result) in references.iter().zip(together) {
+        let depth = result.unwrap_or_else(|e| panic!("reference {r}: {e}"));
+        assert_eq!(depth.reference, *r);
+        assert_eq!(
+            depth.cameras,
+            vec![0, 1, 2, 3, 4],
+            "the arc's cameras all see each other"
+        );
+        check_within(
+            &format!("arc_reference_{r}_cpu"),
+            &depth.maps.depth_m,
+            &truth(*r),
+            0.02,
+            0.85,
+        );
+        // Alone, on an engine of its own: the same floats.
+        let rig_r = Rig::new(rig.cameras.clone(), Reference::Camera(*r)).expect("rig");
+        let alone = CpuEngine::new().run(&rig_r, &images, &p).expect("alone");
+        let same = depth
+            .maps
+            .depth_m
+            .data
+            .iter()
+            .zip(&alone.depth_m.data)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "reference {r}: depth differs from its run alone");
+    }
+    let shared = common::gpu();
+    let context = sweepdepth::gpu_context::GpuContext {
+        adapter: shared.adapter.clone(),
+        device: shared.device.clone(),
+        queue: shared.queue.clone(),
+    };
+    let mut gpu = Engine::on_gpu(context).expect("WGSL engine");
+    for (r, result) in
+        references
+            .iter()
+            .zip(gpu.run_references(&rig.cameras, &images, &references, &p))
+    {
+        let depth = result.unwrap_or_else(|e| panic!("reference {r} (WGSL): {e}"));
+        check_within(
+            &format!("arc_reference_{r}_gpu"),
+            &depth.maps.depth_m,
+            &truth(*r),
+            0.02,
+            0.85,
+        );
+    }
+}
+
+/// Neighbours from the geometry: with `max_neighbours` 2 each reference of a row sweeps with
+/// its nearest camera on each side (and still finds the wall and box: within 5 % with two
+/// 0.1 m pairs), and a camera that faces away from every other is refused with a reason that
+/// names it, while the others go on.
+#[test]
+fn surround_references_take_their_neighbours_and_a_lonely_one_is_refused() {
+    use sweepdepth::engine::{Engine, Sweeper};
+    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+    // Six cameras 0.1 m apart in a row facing the wall, and one behind them facing away.
+    let mut cameras = synthetic::row_rig(6, 0.1, model, 0).expect("rig").cameras;
+    cameras.push(RigCamera {
+        name: "back".into(),
+        model,
+        cam_from_rig: RigidTransform {
+            rotation: DQuat::from_rotation_y(std::f64::consts::PI),
+            translation: DVec3::new(0.25, 0.0, 0.0),
+        },
+    });
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images: Vec<_> = cameras.iter().map(|c| scene.render(c)).collect();
+    let p = SweepParams {
+        max_neighbours: 2,
+        ..params(1.0, 8.0, 64)
+    };
+    let mut cpu = Engine::Cpu(CpuEngine::new());
+    let results = cpu.run_references(&cameras, &images, &[1, 4, 6], &p);
+    let first = results[0].as_ref().expect("reference 1");
+    assert_eq!(first.cameras, vec![0, 1, 2], "nearest on each side");
+    let second = results[1].as_ref().expect("reference 4");
+    assert_eq!(second.cameras, vec![3, 4, 5]);
+    match &results[2] {
+        Err(e @ SweepError::NoNeighbours { .. }) => {
+            assert!(e.to_string().contains("'back'"), "{e}");
+        }
+        other => panic!("the camera facing away has no neighbours: {other:?}"),
+    }
+    let rig_4 = Rig::new(cameras.clone(), Reference::Camera(4)).expect("rig");
+    check_within(
+        "row_reference_4_of_7",
+        &second.maps.depth_m,
+        &synthetic::reference_depth(&scene, &rig_4),
+        0.05,
+        0.85,
+    );
+}

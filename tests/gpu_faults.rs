@@ -62,8 +62,9 @@ fn lost_device_is_recreated_and_the_set_processed() {
         .expect("the run after the loss succeeds on a new device");
     assert_eq!(host.recreated, 1);
     assert!(!host.is_lost());
+    assert!(before.skipped.is_empty() && after.skipped.is_empty());
     assert_eq!(
-        before.depth.data, after.depth.data,
+        before.outputs[0].depth.data, after.outputs[0].depth.data,
         "same depth on the new device"
     );
     // And it keeps working.

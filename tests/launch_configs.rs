@@ -17,6 +17,7 @@ use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
 
 const FOUR_CAMERAS: &str = "launch_configs/four_cameras.params.yaml";
 const CAMERA_ROW: &str = "launch_configs/camera_row.params.yaml";
+const SURROUND: &str = "launch_configs/surround_rig.params.yaml";
 const RIG_CAMERA_ROW: &str = "launch_configs/rig_camera_row.yaml";
 const RIG_FOUR_CAMERAS: &str = "launch_configs/rig_four_cameras.yaml";
 const LAUNCH_FILE: &str = "launch_configs/sweepdepth.launch.py";
@@ -258,13 +259,39 @@ fn node_config_accepts_the_params_files() {
     assert_eq!(row.reference, 2);
     assert_eq!(row.rig_file.as_ref().map(|f| f.cameras.len()), Some(5));
     assert_eq!(row.image_topics[4], "/row/cam4/image_raw");
+
+    // Several references: each under its camera's namespace; a moving rig.
+    let surround = config(SURROUND, "/robot");
+    let indices: Vec<usize> = surround.references.iter().map(|(i, _)| *i).collect();
+    assert_eq!(indices, vec![0, 1, 2, 3, 4, 5]);
+    assert_eq!(surround.references[0].1.depth, "/robot/cam0/depth/image");
+    assert_eq!(
+        surround.references[5].1.depth_info,
+        "/robot/cam5/depth/camera_info"
+    );
+    assert_eq!(
+        surround.references[3].1.confidence,
+        "/robot/cam3/confidence/image"
+    );
+    assert_eq!(
+        surround.references[2].1.points.as_deref(),
+        Some("/robot/cam2/points")
+    );
+    assert_eq!(surround.outputs, surround.references[0].1);
+    let world = surround.world.as_ref().expect("world_frame is set");
+    assert_eq!(
+        (world.frame.as_str(), world.tf_topic.as_str()),
+        ("odom", "/tf")
+    );
+    assert_eq!(world.tf_timeout, std::time::Duration::from_millis(200));
+    assert_eq!(surround.sweep.max_neighbours, 2);
 }
 
 #[test]
 fn params_files_values_are_all_known_parameters() {
     // No typos hiding in the files: every key is a parameter of the node (a wildcard section
     // would otherwise skip an unknown key with only a note).
-    for file in [FOUR_CAMERAS, CAMERA_ROW] {
+    for file in [FOUR_CAMERAS, CAMERA_ROW, SURROUND] {
         let parsed = sweepdepth::ros::args::load_params_file(&repo_path(file)).unwrap();
         assert_eq!(parsed.sections.len(), 1, "{file}");
         for (name, value) in &parsed.sections[0].params {

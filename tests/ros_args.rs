@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 25);
+    assert_eq!(fields.len(), 26);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -732,6 +732,7 @@ fn defaults_match_sweep_params() {
         sgm_paths: 4,
         sgm_edge: 9.0,
         coarse_to_fine: false,
+        max_neighbours: 3,
     };
     apply_to_sweep(&ParamSet::defaults(), &mut p).unwrap();
     assert_eq!(p, SweepParams::default());
@@ -786,6 +787,9 @@ fn table_has_node_parameters() {
         ("image_topic", ParamValue::String("image_raw".into())),
         ("image_kinds", ParamValue::StringArray(vec![])),
         ("reference_camera", ParamValue::String(String::new())),
+        ("references", ParamValue::StringArray(vec![])),
+        ("world_frame", ParamValue::String(String::new())),
+        ("tf_timeout", ParamValue::Double(0.5)),
         ("device", ParamValue::String("auto".into())),
         ("sync", ParamValue::String("approximate".into())),
         ("sync_max_interval", ParamValue::Double(0.02)),
@@ -807,8 +811,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 25 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 25 + expect.len() + 9);
+    // 26 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 26 + expect.len() + 9);
 }
 
 #[test]

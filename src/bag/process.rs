@@ -112,6 +112,8 @@ enum Route {
     Image(usize),
     Info(usize),
     Tf,
+    /// `/tf` (a moving rig, `world_frame`).
+    TfDynamic,
 }
 
 /// Offline every distinct message is printed once (the first 200); the summary counts.
@@ -175,13 +177,26 @@ impl Sink<'_> {
         let with_points = config.outputs.points.is_some() || self.viewer.is_some();
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
-            Ok(out) => {
+            Ok(set) => {
+                for skip in &set.skipped {
+                    *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                    warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
+                }
                 // (Points go into OUT only with publish_points: `write_outputs`.)
-                write_outputs(&mut self.writer, &config.outputs, log_time_ns, &out)?;
+                for out in &set.outputs {
+                    if let Some((_, topics)) = config.references.get(out.output) {
+                        write_outputs(&mut self.writer, topics, log_time_ns, out)?;
+                    }
+                }
                 self.busy += t0.elapsed();
-                self.report.sets_processed += 1;
-                if let Some(viewer) = &self.viewer {
-                    viewer.offer_owned(out);
+                if !set.outputs.is_empty() {
+                    self.report.sets_processed += 1;
+                    self.report.depth_maps += set.outputs.len() as u64;
+                }
+                // The live view shows the first reference's outputs.
+                if let (Some(viewer), Some(first)) = (&self.viewer, set.outputs.into_iter().next())
+                {
+                    viewer.offer_owned(first);
                 }
             }
             Err(skip) => {
@@ -250,13 +265,16 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         routes.insert(config.image_topics[i].clone(), Route::Image(i));
         routes.insert(config.info_topics[i].clone(), Route::Info(i));
     }
-    if config.rig_file.is_none() {
+    if config.rig_file.is_none() || config.world.is_some() {
         routes.insert(config.tf_static_topic.clone(), Route::Tf);
+    }
+    if let Some(world) = &config.world {
+        routes.insert(world.tf_topic.clone(), Route::TfDynamic);
     }
     let expected_type = |r: Route| match r {
         Route::Image(_) => IMAGE,
         Route::Info(_) => CAMERA_INFO,
-        Route::Tf => TF_MESSAGE,
+        Route::Tf | Route::TfDynamic => TF_MESSAGE,
     };
     let mut report = BagReport::default();
     // Topics with a type other than the one the pipeline reads are left out, loudly.
@@ -307,18 +325,19 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     tracing::info!("engine: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
-    let outputs = &config.outputs;
-    for topic in [
-        &outputs.depth,
-        &outputs.confidence,
-        &outputs.cost,
-        &outputs.selection,
-    ] {
-        writer.add_topic(topic, IMAGE, None)?;
-    }
-    writer.add_topic(&outputs.depth_info, CAMERA_INFO, None)?;
-    if let Some(points) = &outputs.points {
-        writer.add_topic(points, POINT_CLOUD2, None)?;
+    for (_, outputs) in &config.references {
+        for topic in [
+            &outputs.depth,
+            &outputs.confidence,
+            &outputs.cost,
+            &outputs.selection,
+        ] {
+            writer.add_topic(topic, IMAGE, None)?;
+        }
+        writer.add_topic(&outputs.depth_info, CAMERA_INFO, None)?;
+        if let Some(points) = &outputs.points {
+            writer.add_topic(points, POINT_CLOUD2, None)?;
+        }
     }
 
     let viewer = if args.view {
@@ -399,6 +418,9 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .map_err(|e| format!("cannot decode CameraInfo on {}: {e}", position())),
             Route::Tf => from_cdr::<TFMessage>(&msg.data)
                 .map(Input::TfStatic)
+                .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
+            Route::TfDynamic => from_cdr::<TFMessage>(&msg.data)
+                .map(Input::Tf)
                 .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
             Route::Image(camera) => from_cdr::<Image>(&msg.data)
                 .map(|image| Input::Image { camera, image })

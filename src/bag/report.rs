@@ -14,6 +14,8 @@ pub struct BagReport {
     /// Synchronised frame sets found.
     pub sets_found: u64,
     pub sets_processed: u64,
+    /// Depth maps written: one per reference of each processed set (`references`).
+    pub depth_maps: u64,
     /// Sets not processed, by reason ([`crate::pipeline::SkipKind::label`]).
     pub skipped: BTreeMap<&'static str, u64>,
     /// Messages that could not be decoded or had the wrong type, by topic.
@@ -39,6 +41,9 @@ impl BagReport {
             "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
             self.sets_found, self.sets_processed, self.sync.incomplete, skipped
         );
+        if self.depth_maps > self.sets_processed {
+            s += &format!(" ({} depth maps)", self.depth_maps);
+        }
         if skipped > 0 {
             let reasons: Vec<String> = self
                 .skipped

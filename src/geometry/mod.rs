@@ -17,6 +17,7 @@
 
 pub mod camera;
 pub mod distortion;
+pub mod neighbours;
 pub mod pose;
 pub mod rig;
 

@@ -46,7 +46,7 @@ type SpinFuture =
 pub(super) fn run(
     config: &NodeConfig,
     shared: &Shared<'_>,
-    publishers_tx: mpsc::Sender<Publishers>,
+    publishers_tx: mpsc::Sender<Vec<Publishers>>,
     stop_worker: &mut dyn FnMut(),
 ) -> Result<(), NodeError> {
     let pipeline = &config.pipeline;
@@ -96,6 +96,27 @@ pub(super) fn run(
         .durability(Durability::TransientLocal)
         .history(History::KeepLast { depth: 1000 });
 
+    let dynamic_tf_sub = match &pipeline.world {
+        Some(world) => {
+            let qos = QosProfile::subscription_default()
+                .reliability_reliable(WhenFull::DEFAULT)
+                .durability(Durability::Volatile)
+                .history(History::KeepLast { depth: 100 });
+            let topic = node
+                .create_topic(
+                    &topic_name(&world.tf_topic)?,
+                    MessageTypeName::new("tf2_msgs", "TFMessage"),
+                    &qos,
+                )
+                .map_err(ros_err)?;
+            Some(
+                node.create_subscription::<TFMessage>(&topic, Some(qos))
+                    .map_err(ros_err)?,
+            )
+        }
+        None => None,
+    };
+
     let mut image_subs = Vec::new();
     let mut info_subs = Vec::new();
     for i in 0..pipeline.cameras.len() {
@@ -122,7 +143,10 @@ pub(super) fn run(
                 .map_err(ros_err)?,
         );
     }
-    let tf_sub = if pipeline.rig_file.is_none() {
+    // /tf_static for the rig's extrinsics (without a rig file) and for the static links of a
+    // moving rig's chain to world_frame; /tf only for a moving rig (tf2_ros's listener QoS:
+    // reliable, volatile, the last 100).
+    let tf_sub = if pipeline.rig_file.is_none() || pipeline.world.is_some() {
         let topic = node
             .create_topic(
                 &topic_name(&pipeline.tf_static_topic)?,
@@ -138,39 +162,50 @@ pub(super) fn run(
         None
     };
 
-    let mut publisher = |name: &str| -> Result<Publisher<Image>, NodeError> {
-        let topic = node
-            .create_topic(&topic_name(name)?, image_type(), &output_qos)
+    // One set of publishers per reference (`references`), in the configuration's order.
+    let mut reference_publishers = Vec::with_capacity(pipeline.references.len());
+    for (_, outputs) in &pipeline.references {
+        let mut publisher = |name: &str| -> Result<Publisher<Image>, NodeError> {
+            let topic = node
+                .create_topic(&topic_name(name)?, image_type(), &output_qos)
+                .map_err(ros_err)?;
+            node.create_publisher::<Image>(&topic, Some(output_qos.clone()))
+                .map_err(ros_err)
+        };
+        let depth = publisher(&outputs.depth)?;
+        let confidence = publisher(&outputs.confidence)?;
+        let cost = publisher(&outputs.cost)?;
+        let selection = publisher(&outputs.selection)?;
+        let depth_info_topic = node
+            .create_topic(&topic_name(&outputs.depth_info)?, info_type(), &output_qos)
             .map_err(ros_err)?;
-        node.create_publisher::<Image>(&topic, Some(output_qos.clone()))
-            .map_err(ros_err)
-    };
-    let outputs = &pipeline.outputs;
-    let depth = publisher(&outputs.depth)?;
-    let confidence = publisher(&outputs.confidence)?;
-    let cost = publisher(&outputs.cost)?;
-    let selection = publisher(&outputs.selection)?;
-    let depth_info_topic = node
-        .create_topic(&topic_name(&outputs.depth_info)?, info_type(), &output_qos)
-        .map_err(ros_err)?;
-    let depth_info = node
-        .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
-        .map_err(ros_err)?;
-    let points = if let Some(points_topic) = &outputs.points {
-        let topic = node
-            .create_topic(
-                &topic_name(points_topic)?,
-                MessageTypeName::new("sensor_msgs", "PointCloud2"),
-                &output_qos,
+        let depth_info = node
+            .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
+            .map_err(ros_err)?;
+        let points = if let Some(points_topic) = &outputs.points {
+            let topic = node
+                .create_topic(
+                    &topic_name(points_topic)?,
+                    MessageTypeName::new("sensor_msgs", "PointCloud2"),
+                    &output_qos,
+                )
+                .map_err(ros_err)?;
+            Some(
+                node.create_publisher::<PointCloud2>(&topic, Some(output_qos.clone()))
+                    .map_err(ros_err)?,
             )
-            .map_err(ros_err)?;
-        Some(
-            node.create_publisher::<PointCloud2>(&topic, Some(output_qos.clone()))
-                .map_err(ros_err)?,
-        )
-    } else {
-        None
-    };
+        } else {
+            None
+        };
+        reference_publishers.push(Publishers {
+            points,
+            depth,
+            depth_info,
+            confidence,
+            cost,
+            selection,
+        });
+    }
     let diag_qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)
         .history(History::KeepLast { depth: 10 });
@@ -185,14 +220,7 @@ pub(super) fn run(
         .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos.clone()))
         .map_err(ros_err)?;
     publishers_tx
-        .send(Publishers {
-            points,
-            depth,
-            depth_info,
-            confidence,
-            cost,
-            selection,
-        })
+        .send(reference_publishers)
         .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
 
     let mut streams: Vec<EventStream<'_>> = Vec::new();
@@ -211,6 +239,11 @@ pub(super) fn run(
             .push(Box::pin(sub.async_stream().map(|r| {
                 Event::Tf(r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
             })));
+    }
+    if let Some(sub) = &dynamic_tf_sub {
+        streams.push(Box::pin(sub.async_stream().map(|r| {
+            Event::TfDynamic(r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+        })));
     }
     let mut events = futures::stream::select_all(streams);
     spin = Box::pin(node.spinner().map_err(ros_err)?.spin());

@@ -35,6 +35,13 @@ pub struct Stats {
     last_latency_ms: Option<f64>,
     /// Cameras out of the rig (silent longer than `camera_timeout`).
     pub inactive_cameras: Vec<String>,
+    /// Sets (or, with several references, one reference of a set) that gave no depth, by
+    /// reason ([`crate::pipeline::SkipKind::label`]).
+    pub skipped: std::collections::BTreeMap<&'static str, u64>,
+    /// Sets waiting for their pose in `world_frame`.
+    pub waiting_for_pose: usize,
+    /// A moving rig: the latest world pose of each reference's frame, with its stamp.
+    pub world_poses: std::collections::BTreeMap<String, (Time, crate::geometry::RigidTransform)>,
 }
 
 impl Stats {
@@ -49,6 +56,9 @@ impl Stats {
             total_processing: Duration::ZERO,
             last_latency_ms: None,
             inactive_cameras: Vec::new(),
+            skipped: Default::default(),
+            waiting_for_pose: 0,
+            world_poses: Default::default(),
         }
     }
 
@@ -140,6 +150,25 @@ impl Stats {
         kv("sync future stamps".into(), self.sync.future.to_string());
         kv("sync resets".into(), self.sync.resets.to_string());
         kv("gpu sets dropped".into(), self.gpu_dropped.to_string());
+        for (reason, n) in &self.skipped {
+            kv(format!("skipped: {reason}"), n.to_string());
+        }
+        kv(
+            "sets waiting for a world pose".into(),
+            self.waiting_for_pose.to_string(),
+        );
+        // "<stamp> [x, y, z] [qx, qy, qz, qw]": the pose of the frame in world_frame that the
+        // last published set of that reference carried (what tf2 gives for that stamp).
+        for (frame, (stamp, pose)) in &self.world_poses {
+            let (t, q) = (pose.translation, pose.rotation);
+            kv(
+                format!("world pose {frame}"),
+                format!(
+                    "{}.{:09} [{:.6}, {:.6}, {:.6}] [{:.9}, {:.9}, {:.9}, {:.9}]",
+                    stamp.sec, stamp.nanosec, t.x, t.y, t.z, q.x, q.y, q.z, q.w
+                ),
+            );
+        }
         kv("sets published".into(), self.published.to_string());
         kv("processing time last (ms)".into(), ms(self.last_processing));
         kv(

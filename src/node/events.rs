@@ -19,6 +19,8 @@ pub(super) enum Event {
     Image(usize, Result<Image, String>),
     Info(usize, Result<Box<CameraInfo>, String>),
     Tf(Result<TFMessage, String>),
+    /// `/tf` (a moving rig, `world_frame`).
+    TfDynamic(Result<TFMessage, String>),
 }
 
 pub(super) type EventStream<'a> = Pin<Box<dyn Stream<Item = Event> + 'a>>;
@@ -42,6 +44,7 @@ impl LoopState<'_> {
             }
             Event::Info(camera, Ok(info)) => Input::CameraInfo { camera, info },
             Event::Tf(Ok(msg)) => Input::TfStatic(msg),
+            Event::TfDynamic(Ok(msg)) => Input::Tf(msg),
             Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
                 let camera = self
                     .pipeline
@@ -59,6 +62,11 @@ impl LoopState<'_> {
                     .warn("tf_read", || format!("/tf_static: read error: {e}"));
                 return;
             }
+            Event::TfDynamic(Err(e)) => {
+                self.log
+                    .warn("tf_dynamic_read", || format!("/tf: read error: {e}"));
+                return;
+            }
         };
         let outcome = self.pipeline.push(input, now_ns);
         for event in &outcome.rig_events {
@@ -72,6 +80,10 @@ impl LoopState<'_> {
         }
         {
             let mut stats = lock(self.stats);
+            for skip in outcome.skips() {
+                *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+            }
+            stats.waiting_for_pose = self.pipeline.waiting_for_pose();
             if let Some(verdict) = &outcome.sync {
                 verdict.count(&mut stats.sync);
             }

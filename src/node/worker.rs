@@ -13,7 +13,7 @@ use super::params::LiveParams;
 use super::slot::LatestSlot;
 use super::NodeError;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
-use crate::pipeline::{EngineHost, HostError, Job};
+use crate::pipeline::{EngineHost, FrameOutputs, HostError, Job};
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
 
@@ -33,7 +33,7 @@ pub(super) struct GpuThread {
     /// The adapter the engine runs on.
     pub adapter: String,
     /// Where the publishers go once DDS is up; the thread waits for them.
-    pub publishers: mpsc::Sender<Publishers>,
+    pub publishers: mpsc::Sender<Vec<Publishers>>,
 }
 
 /// Starts the GPU thread and waits until its engine is up (so that a missing adapter fails
@@ -47,7 +47,7 @@ pub(super) fn spawn(
     viewer: Option<Viewer>,
 ) -> Result<GpuThread, NodeError> {
     let (init_tx, init_rx) = mpsc::channel::<Result<String, HostError>>();
-    let (publishers_tx, publishers_rx) = mpsc::channel::<Publishers>();
+    let (publishers_tx, publishers_rx) = mpsc::channel::<Vec<Publishers>>();
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
@@ -87,72 +87,78 @@ fn worker_loop(
     live: &LiveParams,
     stats: &Mutex<Stats>,
     mut host: EngineHost,
-    publishers: &Publishers,
+    publishers: &[Publishers],
     viewer: Option<&Viewer>,
 ) {
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
+    let wants_points = publishers.iter().any(|p| p.points.is_some());
     while let Some(job) = slot.take() {
         let started = Instant::now();
         if let Some(image) = job.images.get(job.reference) {
             let stamp = image.header.stamp;
             tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
         }
+        for name in &job.absent_references {
+            log.warn(&format!("absent-reference {name}"), || {
+                format!("reference camera '{name}' is out of the rig: no depth for it")
+            });
+        }
         // Parameter changes apply from the next set on.
         let sweep = live.sweep();
         // A subscribed viewer shows the point cloud even when DDS does not carry it.
-        let with_points = publishers.points.is_some() || viewer.is_some_and(Viewer::wants_points);
-        let out = match host.process(&job, &sweep, with_points) {
-            Ok(out) => out,
+        let with_points = wants_points || viewer.is_some_and(Viewer::wants_points);
+        let set = match host.process(&job, &sweep, with_points) {
+            Ok(set) => set,
             // Shutting down: the run was stopped between passes; nobody waits for it.
             Err(_) if host.is_cancelled() => {
                 log_info("shutting down: the set in flight was cancelled");
                 break;
             }
             Err(skip) => {
+                *lock(stats).skipped.entry(skip.kind.label()).or_default() += 1;
                 log.warn(&skip.key(), || format!("{skip}; skipping this set"));
                 continue;
             }
         };
-        // A copy for the live view (only while a viewer is subscribed; never waits for it).
-        if let Some(viewer) = viewer {
-            viewer.offer(&out);
+        if host.is_cancelled() {
+            log_info("shutting down: the set in flight was cancelled");
+            break;
         }
-        let stamp = out.header.stamp;
-        let points = match (&publishers.points, out.points) {
-            (Some(publisher), Some(cloud)) => Some(
-                publisher
-                    .publish(cloud)
-                    .map_err(|e| format!("points: {e:?}")),
-            ),
-            _ => None,
-        };
-        let results = [
-            publishers
-                .depth
-                .publish(out.depth)
-                .map_err(|e| format!("depth/image: {e:?}")),
-            publishers
-                .depth_info
-                .publish(out.depth_info)
-                .map_err(|e| format!("depth/camera_info: {e:?}")),
-            publishers
-                .confidence
-                .publish(out.confidence)
-                .map_err(|e| format!("confidence/image: {e:?}")),
-            publishers
-                .cost
-                .publish(out.cost)
-                .map_err(|e| format!("cost/image: {e:?}")),
-            publishers
-                .selection
-                .publish(out.selection)
-                .map_err(|e| format!("selection/image: {e:?}")),
-        ];
-        for r in results.into_iter().chain(points) {
-            if let Err(e) = r {
-                log.warn("publish", || format!("publish failed: {e}"));
+        if !set.skipped.is_empty() {
+            let mut stats = lock(stats);
+            for skip in &set.skipped {
+                *stats.skipped.entry(skip.kind.label()).or_default() += 1;
             }
+        }
+        for skip in &set.skipped {
+            log.warn(&skip.key(), || {
+                format!("{skip}; no depth for it in this set")
+            });
+        }
+        let Some(stamp) = set.outputs.first().map(|o| o.header.stamp) else {
+            continue;
+        };
+        // A copy for the live view (only while a viewer is subscribed; never waits for it):
+        // the first reference's outputs.
+        if let (Some(viewer), Some(first)) = (viewer, set.outputs.first()) {
+            viewer.offer(first);
+        }
+        {
+            let mut stats = lock(stats);
+            for out in &set.outputs {
+                if let Some(pose) = out.world_from_frame {
+                    stats
+                        .world_poses
+                        .insert(out.header.frame_id.clone(), (out.header.stamp, pose));
+                }
+            }
+        }
+        for out in set.outputs {
+            let Some(publishers) = publishers.get(out.output) else {
+                continue;
+            };
+            publish(publishers, out, &mut log);
         }
         lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         published += 1;
@@ -161,6 +167,45 @@ fn worker_loop(
                 "published {published} depth images ({} sets dropped waiting for the GPU)",
                 slot.dropped()
             ));
+        }
+    }
+}
+
+/// Publishes one reference's outputs on its publishers.
+fn publish(publishers: &Publishers, out: FrameOutputs, log: &mut RateLimited) {
+    let points = match (&publishers.points, out.points) {
+        (Some(publisher), Some(cloud)) => Some(
+            publisher
+                .publish(cloud)
+                .map_err(|e| format!("points: {e:?}")),
+        ),
+        _ => None,
+    };
+    let results = [
+        publishers
+            .depth
+            .publish(out.depth)
+            .map_err(|e| format!("depth/image: {e:?}")),
+        publishers
+            .depth_info
+            .publish(out.depth_info)
+            .map_err(|e| format!("depth/camera_info: {e:?}")),
+        publishers
+            .confidence
+            .publish(out.confidence)
+            .map_err(|e| format!("confidence/image: {e:?}")),
+        publishers
+            .cost
+            .publish(out.cost)
+            .map_err(|e| format!("cost/image: {e:?}")),
+        publishers
+            .selection
+            .publish(out.selection)
+            .map_err(|e| format!("selection/image: {e:?}")),
+    ];
+    for r in results.into_iter().chain(points) {
+        if let Err(e) = r {
+            log.warn("publish", || format!("publish failed: {e}"));
         }
     }
 }

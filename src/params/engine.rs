@@ -255,6 +255,9 @@ engine_params! {
         "SGM: colour step (largest RGB difference between path neighbours, 0..255) at which P2 is halved (P2 / (1 + step / sgm_edge), at least P1); 0 = constant P2.";
     coarse_to_fine: bool = true, "coarse_to_fine", Long("coarse-to-fine"), ParamRange::Any,
         "From 48 planes: sweep at half resolution (every other plane; itself coarse to fine from 96 planes) first, then each row only over the planes its neighbourhood found there, plus 3 on each side.";
+    max_neighbours: u32 = 0, "max_neighbours", Long("max-neighbours"),
+        ParamRange::ints(0, i64::from(MAX_RIG_CAMERAS)),
+        "Cameras each reference sweeps with, at most: the nearest that see its view, alternately from each half of the rig; 0 = every camera that sees at least 10 % of its view (cameras that see less are always left out).";
 }
 
 static ENGINE_PARAMS: LazyLock<Vec<EngineParam>> = LazyLock::new(declarations);

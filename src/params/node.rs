@@ -58,6 +58,24 @@ pub fn node_params() -> Vec<ParamSpec> {
             "Camera whose view the depth map is in; empty = the middle entry of cameras.",
         ),
         node_spec(
+            "references",
+            ParamValue::StringArray(Vec::new()),
+            ParamRange::NameList { min_len: 0 },
+            "Cameras to estimate depth for, each with its own neighbours (the cameras that see its view, at most max_neighbours) and its own half-sequence split; every set gives each of them depth, confidence, cost, selection (and points). Empty = reference_camera alone, on the topics depth/image, ...; with several, each publishes under its own camera namespace: <camera>/depth/image, <camera>/depth/camera_info, <camera>/confidence/image, <camera>/cost/image, <camera>/selection/image, <camera>/points. Not with virtual_reference.",
+        ),
+        node_spec(
+            "world_frame",
+            s(""),
+            ParamRange::OptionalName,
+            "A moving rig: the fixed frame the rig moves in (e.g. odom or map). When set, /tf is read as well as /tf_static and every set's reference pose in world_frame at the set's stamp is looked up (interpolated as tf2 does); a set without a pose within tf_timeout is skipped with its reason. Empty = the rig stands still (no /tf).",
+        ),
+        node_spec(
+            "tf_timeout",
+            Double(0.5),
+            ParamRange::closed(0.0, 60.0),
+            "With world_frame: how long a set waits for /tf to reach its stamp (seconds; receive time live, log time in bags) before it is skipped.",
+        ),
+        node_spec(
             "device",
             s("auto"),
             ParamRange::one_of(&["auto", "gpu", "cpu"]),

@@ -5,7 +5,7 @@
 
 use super::config::PipelineConfig;
 use super::convert::check_image;
-use super::outcome::{Job, Skip, SkipKind};
+use super::outcome::{Job, JobReference, Skip, SkipKind};
 use crate::geometry::{CameraModel, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::ros::camera_info::{camera_from_info, check_image_size, CameraCalibration, ImageKind};
@@ -60,6 +60,7 @@ impl Calibration {
             .map(|m| m.header.frame_id.clone())
             .unwrap_or_default();
         let mut cameras = Vec::with_capacity(set.messages.len());
+        let mut cams_from_frame = Vec::with_capacity(set.messages.len());
         // The reference camera's image frame, in the rig, and its camera in that frame.
         let mut ref_frame_from_rig = RigidTransform::IDENTITY;
         let mut ref_cam_from_frame = RigidTransform::IDENTITY;
@@ -80,6 +81,7 @@ impl Calibration {
                 ref_cam_from_frame = placed.cam_from_frame;
             }
             cameras.push(placed.camera);
+            cams_from_frame.push(placed.cam_from_frame);
         }
         // The headers, before the set can take the place of another one waiting for the
         // engine (after the calibration, whose complaints about sizes are the more precise).
@@ -129,6 +131,30 @@ impl Calibration {
         if virtual_ref.is_some() {
             ref_cam_from_frame = RigidTransform::IDENTITY;
         }
+        // Every configured reference in the set, the first as above.
+        let mut references = Vec::with_capacity(config.references.len());
+        let mut absent_references = Vec::new();
+        for (output, &(camera, _)) in config.references.iter().enumerate() {
+            let Some(index) = active.iter().position(|&a| a == camera) else {
+                absent_references.push(config.cameras[camera].clone());
+                continue;
+            };
+            let (info, cam_from_frame) = if output == 0 {
+                (ref_info.clone(), ref_cam_from_frame)
+            } else {
+                let info = match &self.infos[camera] {
+                    Some(info) => info.clone(),
+                    None => intrinsics_info(&cameras[index].model.intrinsics),
+                };
+                (info, cams_from_frame[index])
+            };
+            references.push(JobReference {
+                index,
+                output,
+                info,
+                cam_from_frame,
+            });
+        }
         Ok(Job {
             images: set.messages,
             cameras,
@@ -136,6 +162,11 @@ impl Calibration {
             virtual_ref,
             ref_info,
             ref_cam_from_frame,
+            references,
+            absent_references,
+            ref_frame,
+            ref_frame_from_rig,
+            world_from_rig: None,
         })
     }
 

@@ -37,6 +37,13 @@ pub enum ConfigError {
     Sync(#[from] SyncError),
     #[error("parameter 'image_kinds' has {kinds} entries but 'cameras' has {cameras}: give one (raw, rect or auto) per camera, or none")]
     ImageKindsCount { kinds: usize, cameras: usize },
+    #[error("parameter 'references': '{reference}' is not one of cameras [{}]", cameras.join(", "))]
+    UnknownReference {
+        reference: String,
+        cameras: Vec<String>,
+    },
+    #[error("parameters 'references' and 'virtual_reference' cannot be used together: a virtual camera is one reference of its own")]
+    ReferencesWithVirtual,
     #[error("parameter '{name}': {value} does not fit a {what}")]
     Size {
         name: &'static str,
@@ -136,6 +143,41 @@ pub struct OutputTopics {
     pub points: Option<String>,
 }
 
+/// A moving rig: where its poses come from (`world_frame`, `tf_timeout`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorldConfig {
+    /// The fixed frame the rig moves in.
+    pub frame: String,
+    /// The resolved name of `/tf`.
+    pub tf_topic: String,
+    /// How long a set waits for `/tf` to reach its stamp.
+    pub tf_timeout: Duration,
+}
+
+/// The output topics of a reference whose outputs live under `prefix` ("" for the node's
+/// own names), resolved by `resolve`.
+fn output_topics(
+    prefix: &str,
+    points: bool,
+    resolve: &dyn Fn(&str) -> Result<String, RosArgsError>,
+) -> Result<OutputTopics, ConfigError> {
+    let name = |base: &str| {
+        if prefix.is_empty() {
+            resolve(base)
+        } else {
+            resolve(&format!("{}/{base}", prefix.trim_end_matches('/')))
+        }
+    };
+    Ok(OutputTopics {
+        depth: name("depth/image")?,
+        depth_info: name("depth/camera_info")?,
+        confidence: name("confidence/image")?,
+        cost: name("cost/image")?,
+        selection: name("selection/image")?,
+        points: if points { Some(name("points")?) } else { None },
+    })
+}
+
 /// Each camera's [`ImageKind`]: `image_kinds` (one entry per camera, `raw`, `rect` or `auto`),
 /// else (empty, or `auto`) the name of its resolved image topic; a name that says neither is
 /// taken as raw, with a note.
@@ -178,14 +220,23 @@ pub struct PipelineConfig {
     pub params: ParamSet,
     pub sweep: SweepParams,
     pub cameras: Vec<String>,
-    /// Index of the reference camera in `cameras`.
+    /// Index of the (first) reference camera in `cameras`: `references[0]`.
     pub reference: usize,
+    /// Every reference camera (`references`; `[reference]` when the parameter is empty), as
+    /// indices into `cameras`, each with its output topics: with one reference those of the
+    /// node (`depth/image`, ...), with several under its camera's namespace
+    /// (`<camera>/depth/image`, ...).
+    pub references: Vec<(usize, OutputTopics)>,
+    /// A moving rig (`world_frame`): the fixed frame, `/tf`'s resolved name, and how long a set
+    /// waits for its pose (`tf_timeout`).
+    pub world: Option<WorldConfig>,
     /// Fully qualified (remapped) image and camera_info topic names, per camera.
     pub image_topics: Vec<String>,
     /// What each camera's image topic carries, raw or rectified (`image_kinds`, else the
     /// topic's name): which part of its CameraInfo describes it.
     pub image_kinds: Vec<ImageKind>,
     pub info_topics: Vec<String>,
+    /// The first reference's output topics (`references[0].1`).
     pub outputs: OutputTopics,
     pub tf_static_topic: String,
     pub rig_file: Option<RigFile>,
@@ -263,14 +314,46 @@ impl PipelineConfig {
             info_topics.push(resolve(&format!("{camera}/camera_info"))?);
         }
         let image_kinds = image_kinds(&params, &cameras, &image_topics, &mut notes)?;
-        let points = resolve("points")?;
-        let outputs = OutputTopics {
-            depth: resolve("depth/image")?,
-            depth_info: resolve("depth/camera_info")?,
-            confidence: resolve("confidence/image")?,
-            cost: resolve("cost/image")?,
-            selection: resolve("selection/image")?,
-            points: params.get_bool("publish_points")?.then_some(points),
+        let publish_points = params.get_bool("publish_points")?;
+        let listed = params.get_string_array("references")?.to_vec();
+        if !listed.is_empty() && virtual_ref.is_some() {
+            return Err(ConfigError::ReferencesWithVirtual);
+        }
+        let mut references = Vec::new();
+        if listed.len() <= 1 {
+            let index = match listed.first() {
+                Some(name) => cameras.iter().position(|c| c == name).ok_or_else(|| {
+                    ConfigError::UnknownReference {
+                        reference: name.clone(),
+                        cameras: cameras.clone(),
+                    }
+                })?,
+                None => reference,
+            };
+            references.push((index, output_topics("", publish_points, &resolve)?));
+        } else {
+            // (The parameter's range refused repeated names.)
+            for name in &listed {
+                let index = cameras.iter().position(|c| c == name).ok_or_else(|| {
+                    ConfigError::UnknownReference {
+                        reference: name.clone(),
+                        cameras: cameras.clone(),
+                    }
+                })?;
+                references.push((index, output_topics(name, publish_points, &resolve)?));
+            }
+        }
+        let reference = references[0].0;
+        let outputs = references[0].1.clone();
+        let world_frame = params.get_str("world_frame")?.to_string();
+        let world = if world_frame.is_empty() {
+            None
+        } else {
+            Some(WorldConfig {
+                frame: world_frame,
+                tf_topic: resolve("/tf")?,
+                tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
+            })
         };
         let tf_static_topic = resolve("/tf_static")?;
         let rig_path = params.get_str("rig_file")?;
@@ -318,6 +401,8 @@ impl PipelineConfig {
             sweep,
             cameras,
             reference,
+            references,
+            world,
             image_topics,
             image_kinds,
             info_topics,
@@ -459,5 +544,48 @@ mod tests {
         assert!(e.to_string().contains("7 values"), "{e}");
         let plain = PipelineConfig::from_args(&args(&base[..3])).unwrap();
         assert!(plain.virtual_ref.is_none());
+    }
+
+    #[test]
+    fn config_references_topics_and_bad_lists() {
+        let with = |extra: &[&str]| {
+            let mut a = args(&["--ros-args", "-r", "__ns:=/rig", "-p", "cameras:=[a, b, c]"]);
+            a.extend(args(extra));
+            PipelineConfig::from_args(&a)
+        };
+        // One reference (or none listed): the node's own topic names, as always.
+        let one = with(&["-p", "references:=[c]"]).unwrap();
+        assert_eq!(one.reference, 2);
+        assert_eq!(one.references.len(), 1);
+        assert_eq!(one.outputs.depth, "/rig/depth/image");
+        let none = with(&[]).unwrap();
+        assert_eq!(none.references, vec![(1, none.outputs.clone())]);
+        assert!(none.world.is_none());
+        // Several: each under its camera's namespace, remaps apply as to any topic.
+        let two = with(&[
+            "-p",
+            "references:=[c, a]",
+            "-r",
+            "/rig/a/depth/image:=/left_depth",
+        ])
+        .unwrap();
+        assert_eq!(two.reference, 2);
+        assert_eq!(two.references[0].1.depth, "/rig/c/depth/image");
+        assert_eq!(two.references[0].1.selection, "/rig/c/selection/image");
+        assert_eq!(two.references[1].1.depth, "/left_depth");
+        assert_eq!(two.references[1].1.depth_info, "/rig/a/depth/camera_info");
+        // Bad lists: clear errors at start.
+        let e = with(&["-p", "references:=[a, d]"]).unwrap_err();
+        assert!(e.to_string().contains("'d' is not one of cameras"), "{e}");
+        let e = with(&["-p", "references:=[a, b, a]"]).unwrap_err();
+        assert!(e.to_string().contains("'a' appears more than once"), "{e}");
+        let e = with(&["-p", "references:=[a, b]", "-p", "virtual_reference:=true"]).unwrap_err();
+        assert!(e.to_string().contains("virtual_reference"), "{e}");
+        // A moving rig.
+        let moving = with(&["-p", "world_frame:=odom", "-p", "tf_timeout:=0.25"]).unwrap();
+        let world = moving.world.expect("world");
+        assert_eq!(world.frame, "odom");
+        assert_eq!(world.tf_topic, "/tf");
+        assert_eq!(world.tf_timeout, Duration::from_millis(250));
     }
 }

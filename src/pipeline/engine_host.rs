@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use super::outcome::{Job, Skip, SkipKind};
-use super::outputs::{process_job, FrameOutputs};
+use super::outputs::{process_job, SetOutputs};
 use crate::engine::{Device, Engine, EngineError};
 use crate::gpu_context::GpuContext;
 use crate::sweep::{CancelFlag, SweepParams};
@@ -88,7 +88,7 @@ impl EngineHost {
         job: &Job,
         sweep: &SweepParams,
         with_points: bool,
-    ) -> Result<FrameOutputs, Skip> {
+    ) -> Result<SetOutputs, Skip> {
         if self.is_cancelled() {
             return Err(Skip::new(
                 SkipKind::Engine,
@@ -100,6 +100,13 @@ impl EngineHost {
             match process_job(&mut self.engine, job, sweep, with_points) {
                 Err(skip) if skip.kind == SkipKind::Engine && self.is_lost() => {
                     tracing::warn!("{skip}");
+                }
+                Ok(set)
+                    if self.is_lost() && set.skipped.iter().any(|s| s.kind == SkipKind::Engine) =>
+                {
+                    for skip in &set.skipped {
+                        tracing::warn!("{skip}");
+                    }
                 }
                 other => return other,
             }

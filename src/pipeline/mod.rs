@@ -25,25 +25,32 @@ pub mod engine_host;
 pub mod outcome;
 pub mod outputs;
 mod roster;
+mod world;
 
 pub use calibration::intrinsics_info;
-pub use config::{ConfigError, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig};
+pub use config::{
+    ConfigError, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
+};
 pub use engine_host::{EngineHost, HostError};
 pub use outcome::{
-    Degraded, Input, Job, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind, SyncVerdict,
+    Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
+    SyncVerdict,
 };
-pub use outputs::{process_job, FrameOutputs};
+pub use outputs::{process_job, FrameOutputs, SetOutputs};
 
 use crate::msgs::{Image, Time};
 use crate::ros::sync::{Admission, SyncError, Synchronizer};
 
 use calibration::Calibration;
 use roster::Roster;
+use world::WorldPoses;
 
 /// The input side: calibration state, which cameras are in the rig, the synchroniser.
 pub struct Pipeline<'a> {
     config: &'a PipelineConfig,
     calibration: Calibration,
+    /// A moving rig (`world_frame`): the transforms and the sets waiting for their pose.
+    world: Option<WorldPoses>,
     roster: Roster,
     sync: Box<dyn Synchronizer<Image> + Send>,
 }
@@ -54,9 +61,10 @@ impl<'a> Pipeline<'a> {
         Ok(Self {
             config,
             calibration: Calibration::new(n),
+            world: config.world.as_ref().map(|_| WorldPoses::default()),
             roster: Roster::new(
                 config.cameras.clone(),
-                config.reference,
+                config.references.iter().map(|(r, _)| *r).collect(),
                 config.camera_timeout,
             ),
             sync: config.synchronizer(n)?,
@@ -97,29 +105,86 @@ impl<'a> Pipeline<'a> {
                 self.calibration.set_info(camera, *info);
                 Outcome::default()
             }
-            Input::TfStatic(msg) => Outcome {
-                notices: self
-                    .calibration
-                    .add_tf(&msg)
-                    .into_iter()
-                    .map(|e| Notice {
-                        kind: NoticeKind::Transform,
+            Input::TfStatic(msg) => {
+                let mut outcome = Outcome {
+                    notices: self
+                        .calibration
+                        .add_tf(&msg)
+                        .into_iter()
+                        .map(|e| Notice {
+                            kind: NoticeKind::Transform,
+                            camera: None,
+                            message: format!("{}: {e}", self.config.tf_static_topic),
+                        })
+                        .collect(),
+                    ..Outcome::default()
+                };
+                if let Some(world) = &mut self.world {
+                    // (Its complaints about the message are the calibration's, above.)
+                    let _ = world.add(&msg, true);
+                }
+                self.posed(&mut outcome, now_ns, false);
+                outcome
+            }
+            Input::Tf(msg) => {
+                let mut outcome = Outcome::default();
+                let (Some(world), Some(world_config)) = (&mut self.world, &self.config.world)
+                else {
+                    return outcome;
+                };
+                let (rejected, cleared) = world.add(&msg, false);
+                if cleared {
+                    outcome.notices.push(Notice {
+                        kind: NoticeKind::TimeReset,
                         camera: None,
-                        message: format!("{}: {e}", self.config.tf_static_topic),
-                    })
-                    .collect(),
-                ..Outcome::default()
-            },
+                        message: format!(
+                            "{}: time went back; the transforms of /tf received so far are cleared (as tf2 does)",
+                            world_config.tf_topic
+                        ),
+                    });
+                }
+                outcome.notices.extend(rejected.into_iter().map(|e| Notice {
+                    kind: NoticeKind::Transform,
+                    camera: None,
+                    message: format!("{}: {e}", world_config.tf_topic),
+                }));
+                self.posed(&mut outcome, now_ns, false);
+                outcome
+            }
         }
+    }
+
+    /// A moving rig: the completed sets of `outcome` wait for their pose; those done waiting
+    /// (`flush`: all of them) take their place, in order.
+    fn posed(&mut self, outcome: &mut Outcome, now_ns: u64, flush: bool) {
+        let (Some(world), Some(config)) = (&mut self.world, &self.config.world) else {
+            return;
+        };
+        let mut sets = Vec::with_capacity(outcome.sets.len());
+        for set in outcome.sets.drain(..) {
+            match set {
+                Ok(job) => world.push(job, now_ns, config),
+                Err(skip) => sets.push(Err(skip)),
+            }
+        }
+        sets.extend(world.ready(now_ns, config, flush));
+        outcome.sets = sets;
+    }
+
+    /// Sets waiting for their pose in the world frame (`world_frame`).
+    pub fn waiting_for_pose(&self) -> usize {
+        self.world.as_ref().map_or(0, WorldPoses::waiting)
     }
 
     /// End of input (the end of a bag): the sets the synchroniser still held back.
     pub fn finish(&mut self) -> Outcome {
         if !self.roster.publishing() {
-            return Outcome::default();
+            let mut outcome = Outcome::default();
+            self.posed(&mut outcome, u64::MAX, true);
+            return outcome;
         }
         let flushed = self.sync.flush();
-        Outcome {
+        let mut outcome = Outcome {
             sync: Some(SyncVerdict {
                 camera: None,
                 stamp: Time::default(),
@@ -133,7 +198,9 @@ impl<'a> Pipeline<'a> {
                 .map(|set| self.calibration.job(self.config, self.roster.active(), set))
                 .collect(),
             ..Outcome::default()
-        }
+        };
+        self.posed(&mut outcome, u64::MAX, true);
+        outcome
     }
 
     fn on_image(&mut self, camera: usize, image: Image, now_ns: u64) -> Outcome {
@@ -184,6 +251,7 @@ impl<'a> Pipeline<'a> {
             }
             other => other,
         };
+        let reset = matches!(admission, Admission::Reset(_));
         let verdict = SyncVerdict {
             camera: Some(camera),
             stamp,
@@ -201,18 +269,34 @@ impl<'a> Pipeline<'a> {
             .into_iter()
             .map(|set| self.calibration.job(config, self.roster.active(), set))
             .collect();
+        if reset {
+            if let Some(world) = &mut self.world {
+                world.clear_dynamic();
+            }
+        }
+        self.posed(&mut outcome, now_ns, false);
         outcome
     }
 
     /// Why no set is formed while the rig is degraded.
     fn degraded(&self) -> Skip {
-        let reference = self.config.reference;
+        let references: Vec<&str> = self
+            .config
+            .references
+            .iter()
+            .map(|(r, _)| self.config.cameras[*r].as_str())
+            .collect();
         let silent = self.roster.inactive().join(", ");
-        let why = if !self.roster.active().contains(&reference) {
-            format!(
-                "the reference camera '{}' is silent",
-                self.config.cameras[reference]
-            )
+        let why = if !self
+            .config
+            .references
+            .iter()
+            .any(|(r, _)| self.roster.active().contains(r))
+        {
+            match references.as_slice() {
+                [one] => format!("the reference camera '{one}' is silent"),
+                all => format!("every reference camera ({}) is silent", all.join(", ")),
+            }
         } else {
             "fewer than 2 cameras are sending".to_string()
         };

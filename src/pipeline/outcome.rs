@@ -21,6 +21,8 @@ pub enum Input {
     },
     /// A `/tf_static` message.
     TfStatic(TFMessage),
+    /// A `/tf` message (read only with `world_frame`: a moving rig).
+    Tf(TFMessage),
 }
 
 /// One synchronised set with its calibration, ready for the engine.
@@ -39,6 +41,31 @@ pub struct Job {
     /// in the frame its image's `header.frame_id` names; the points are published in that
     /// frame. Identity for a raw image and for a virtual reference.
     pub ref_cam_from_frame: RigidTransform,
+    /// Every reference of the set that is in the rig (`references`; the first is `reference`
+    /// above, or the virtual camera), in the order of the configuration.
+    pub references: Vec<JobReference>,
+    /// The names of the configured references out of the rig in this set (no depth for them).
+    pub absent_references: Vec<String>,
+    /// The frame of the reference's image (`header.frame_id`) and its pose in the rig frame
+    /// (the cameras' `cam_from_rig` are relative to the rig frame).
+    pub ref_frame: String,
+    pub ref_frame_from_rig: RigidTransform,
+    /// A moving rig (`world_frame`): the pose of the rig frame in the world frame at the set's
+    /// stamp.
+    pub world_from_rig: Option<RigidTransform>,
+}
+
+/// One reference of a [`Job`].
+#[derive(Debug, Clone)]
+pub struct JobReference {
+    /// Its camera, as an index into the job's `cameras` and `images`.
+    pub index: usize,
+    /// Its entry in the configuration's `references` (its output topics).
+    pub output: usize,
+    /// The CameraInfo of its outputs.
+    pub info: CameraInfo,
+    /// Its camera in the frame its image's `header.frame_id` names (as `ref_cam_from_frame`).
+    pub cam_from_frame: RigidTransform,
 }
 
 /// Why a set was not processed.
@@ -65,6 +92,8 @@ pub enum SkipKind {
     Engine,
     /// The GPU device was lost and could not be made anew.
     GpuLost,
+    /// A moving rig (`world_frame`): no pose of the set in the world frame at its stamp.
+    NoWorldPose,
 }
 
 impl SkipKind {
@@ -81,6 +110,7 @@ impl SkipKind {
             SkipKind::Rig => "rig",
             SkipKind::Engine => "engine",
             SkipKind::GpuLost => "gpu lost",
+            SkipKind::NoWorldPose => "no world pose",
         }
     }
 }

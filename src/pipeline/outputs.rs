@@ -4,14 +4,18 @@
 use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
-use crate::geometry::{Reference, Rig};
+use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
+use crate::image::Rgba8Image;
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
-use crate::sweep::SweepParams;
+use crate::sweep::{DepthMaps, SweepError, SweepParams};
 
-/// The messages one frame set produces, all with the same header (the reference camera's
-/// stamp; its frame_id, or the virtual camera's). Their topics: [`super::OutputTopics`].
+/// The messages one reference of a frame set produces, all with the same header (the
+/// reference camera's stamp; its frame_id, or the virtual camera's). Their topics:
+/// [`super::OutputTopics`], `output` of the configuration's `references`.
 #[derive(Debug, Clone)]
 pub struct FrameOutputs {
+    /// Which of the configuration's `references` (its topics).
+    pub output: usize,
     pub header: Header,
     pub depth: Image,
     pub depth_info: CameraInfo,
@@ -19,16 +23,28 @@ pub struct FrameOutputs {
     pub cost: Image,
     pub selection: Image,
     pub points: Option<PointCloud2>,
+    /// A moving rig (`world_frame`): the pose of the header's frame in the world frame at the
+    /// header's stamp (what tf2 gives a ROS user for the same stamp).
+    pub world_from_frame: Option<RigidTransform>,
+}
+
+/// What one frame set gives: each reference's outputs, and the references that failed.
+#[derive(Debug, Clone, Default)]
+pub struct SetOutputs {
+    pub outputs: Vec<FrameOutputs>,
+    /// One per reference that gave nothing, with why.
+    pub skipped: Vec<Skip>,
 }
 
 /// Runs one job through the engine with the given parameters and builds its output messages
-/// (`with_points`: the point cloud too).
+/// (`with_points`: the point clouds too): every reference of the job, the set's images
+/// converted once. Fails as a whole only when its images cannot be read.
 pub fn process_job(
     engine: &mut impl Sweeper,
     job: &Job,
     sweep: &SweepParams,
     with_points: bool,
-) -> Result<FrameOutputs, Skip> {
+) -> Result<SetOutputs, Skip> {
     let mut images = Vec::with_capacity(job.images.len());
     for (i, msg) in job.images.iter().enumerate() {
         let name = job.cameras.get(i).map_or("?", |c| c.name.as_str());
@@ -37,43 +53,108 @@ pub fn process_job(
                 .map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))?,
         );
     }
-    let mut header: Header = job
-        .images
-        .get(job.reference)
-        .map(|m| m.header.clone())
-        .unwrap_or_default();
-    let reference = match &job.virtual_ref {
-        Some((model, cam_from_rig, frame_id)) => {
-            header.frame_id = frame_id.clone();
-            Reference::Virtual {
-                model: *model,
-                cam_from_rig: *cam_from_rig,
-            }
-        }
-        None => Reference::Camera(job.reference),
-    };
-    let colour = if job.virtual_ref.is_some() {
-        None
-    } else {
-        images.get(job.reference)
-    };
-    let rig = Rig::new(job.cameras.clone(), reference)
-        .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
-    let maps = engine
-        .run(&rig, &images, sweep)
-        .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
-    let mut depth_info = job.ref_info.clone();
-    depth_info.header = header.clone();
-    let points = with_points.then(|| {
-        point_cloud_msg(
-            &header,
-            &maps.depth_m,
-            colour,
+    if let Some((model, cam_from_rig, frame_id)) = &job.virtual_ref {
+        let mut header: Header = job
+            .images
+            .get(job.reference)
+            .map(|m| m.header.clone())
+            .unwrap_or_default();
+        header.frame_id = frame_id.clone();
+        let reference = Reference::Virtual {
+            model: *model,
+            cam_from_rig: *cam_from_rig,
+        };
+        let rig = Rig::new(job.cameras.clone(), reference)
+            .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
+        let maps = engine
+            .run(&rig, &images, sweep)
+            .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
+        let world_from_frame = job
+            .world_from_rig
+            .map(|w| w.compose(&cam_from_rig.inverse()));
+        let outputs = messages(
+            0,
+            header,
+            &job.ref_info,
+            &maps,
+            None,
             &rig.reference_model(),
-            &job.ref_cam_from_frame.inverse(),
-        )
-    });
-    Ok(FrameOutputs {
+            &RigidTransform::IDENTITY,
+            with_points,
+            world_from_frame,
+        );
+        return Ok(SetOutputs {
+            outputs: vec![outputs],
+            skipped: Vec::new(),
+        });
+    }
+    let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
+    let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+    let mut set = SetOutputs::default();
+    for (reference, result) in job.references.iter().zip(results) {
+        let name = job
+            .cameras
+            .get(reference.index)
+            .map_or("?", |c| c.name.as_str());
+        let depth = match result {
+            Ok(depth) => depth,
+            Err(e) => {
+                let kind = match e {
+                    SweepError::NoNeighbours { .. } => SkipKind::Rig,
+                    _ => SkipKind::Engine,
+                };
+                set.skipped.push(Skip::new(
+                    kind,
+                    Some(reference.index),
+                    format!("reference '{name}': sweep failed: {e}"),
+                ));
+                continue;
+            }
+        };
+        let header: Header = job
+            .images
+            .get(reference.index)
+            .map(|m| m.header.clone())
+            .unwrap_or_default();
+        let camera = &job.cameras[reference.index];
+        let world_from_frame = job.world_from_rig.map(|w| {
+            w.compose(&camera.cam_from_rig.inverse())
+                .compose(&reference.cam_from_frame)
+        });
+        set.outputs.push(messages(
+            reference.output,
+            header,
+            &reference.info,
+            &depth.maps,
+            images.get(reference.index),
+            &camera.model,
+            &reference.cam_from_frame.inverse(),
+            with_points,
+            world_from_frame,
+        ));
+    }
+    Ok(set)
+}
+
+/// The messages of one reference's depth maps.
+#[allow(clippy::too_many_arguments)]
+fn messages(
+    output: usize,
+    header: Header,
+    info: &CameraInfo,
+    maps: &DepthMaps,
+    colour: Option<&Rgba8Image>,
+    model: &CameraModel,
+    frame_from_cam: &RigidTransform,
+    with_points: bool,
+    world_from_frame: Option<RigidTransform>,
+) -> FrameOutputs {
+    let mut depth_info = info.clone();
+    depth_info.header = header.clone();
+    let points =
+        with_points.then(|| point_cloud_msg(&header, &maps.depth_m, colour, model, frame_from_cam));
+    FrameOutputs {
+        output,
         depth: f32_image_msg(&header, &maps.depth_m),
         depth_info,
         confidence: f32_image_msg(&header, &maps.confidence),
@@ -81,5 +162,6 @@ pub fn process_job(
         selection: selection_msg(&header, maps.width(), maps.height(), &maps.selection),
         points,
         header,
-    })
+        world_from_frame,
+    }
 }

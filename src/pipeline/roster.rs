@@ -13,7 +13,8 @@ use super::outcome::{Degraded, RigEvent};
 #[derive(Debug, Clone)]
 pub(super) struct Roster {
     names: Vec<String>,
-    reference: usize,
+    /// The reference cameras (`references`): sets are formed while one of them is in the rig.
+    references: Vec<usize>,
     timeout: Option<Duration>,
     /// The cameras in the rig, in rig order.
     active: Vec<usize>,
@@ -22,11 +23,11 @@ pub(super) struct Roster {
 }
 
 impl Roster {
-    pub fn new(names: Vec<String>, reference: usize, timeout: Option<Duration>) -> Self {
+    pub fn new(names: Vec<String>, references: Vec<usize>, timeout: Option<Duration>) -> Self {
         let n = names.len();
         Self {
             names,
-            reference,
+            references,
             timeout,
             active: (0..n).collect(),
             last_seen_ns: vec![None; n],
@@ -49,9 +50,9 @@ impl Roster {
         self.active.get(stream).copied().unwrap_or(stream)
     }
 
-    /// Sets are formed: the reference and at least one other camera are in the rig.
+    /// Sets are formed: a reference and at least one other camera are in the rig.
     pub fn publishing(&self) -> bool {
-        self.active.contains(&self.reference) && self.active.len() >= 2
+        self.references.iter().any(|r| self.active.contains(r)) && self.active.len() >= 2
     }
 
     /// Names of the cameras out of the rig.
@@ -95,7 +96,7 @@ impl Roster {
             .collect();
         for (j, quiet) in silent {
             self.active.retain(|&a| a != j);
-            let then = if j == self.reference {
+            let then = if !self.references.iter().any(|r| self.active.contains(r)) {
                 Degraded::ReferenceLost
             } else if self.active.len() < 2 {
                 Degraded::TooFew
@@ -122,7 +123,7 @@ mod tests {
     #[test]
     fn silent_cameras_leave_and_rejoin() {
         let names = vec!["a".to_string(), "b".into(), "c".into()];
-        let mut r = Roster::new(names, 1, Some(Duration::from_millis(250)));
+        let mut r = Roster::new(names, vec![1], Some(Duration::from_millis(250)));
         for t in [0, 100, 200] {
             for i in 0..3 {
                 assert!(r.track(i, t * MS).is_empty());
@@ -160,7 +161,7 @@ mod tests {
 
     #[test]
     fn no_timeout_keeps_every_camera() {
-        let mut r = Roster::new(vec!["a".into(), "b".into()], 0, None);
+        let mut r = Roster::new(vec!["a".into(), "b".into()], vec![0], None);
         r.track(0, 0);
         assert!(r.track(0, 3_600_000 * MS).is_empty());
         assert!(r.publishing());

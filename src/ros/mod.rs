@@ -7,3 +7,4 @@ pub mod camera_info;
 pub mod param_value;
 pub mod sync;
 pub mod tf;
+pub mod tf_history;

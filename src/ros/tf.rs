@@ -216,46 +216,7 @@ impl TfBuffer {
     ///
     /// On error the buffer is unchanged, so the previous good transform of that child is kept.
     pub fn insert(&mut self, msg: &TransformStamped) -> Result<(), TfError> {
-        let parent = normalize_frame_id(&msg.header.frame_id);
-        let child = normalize_frame_id(&msg.child_frame_id);
-        let invalid_id = |reason: &str| TfError::InvalidFrameId {
-            parent: parent.to_string(),
-            child: child.to_string(),
-            reason: reason.to_string(),
-        };
-        if parent.is_empty() {
-            return Err(invalid_id("header.frame_id (the parent frame) is empty"));
-        }
-        if child.is_empty() {
-            return Err(invalid_id("child_frame_id is empty"));
-        }
-        if parent == child {
-            return Err(TfError::SelfParent {
-                frame: child.to_string(),
-            });
-        }
-
-        let t = msg.transform.translation;
-        let q = msg.transform.rotation;
-        let parent_from_child = RigidTransform::from_quat_translation(
-            child,
-            DQuat::from_xyzw(q.x, q.y, q.z, q.w),
-            DVec3::new(t.x, t.y, t.z),
-        )
-        .map_err(|e| {
-            let reason = match e {
-                GeometryError::InvalidPose { reason, .. } => reason,
-                other => other.to_string(),
-            };
-            TfError::InvalidTransform {
-                parent: parent.to_string(),
-                child: child.to_string(),
-                reason: format!(
-                    "{reason} (translation = [{}, {}, {}], rotation xyzw = [{}, {}, {}, {}])",
-                    t.x, t.y, t.z, q.x, q.y, q.z, q.w
-                ),
-            }
-        })?;
+        let (parent, child, parent_from_child) = validated(msg)?;
 
         // The new edge closes a cycle iff `child` is an ancestor of `parent`. The walk up from
         // `parent` never uses the edge of `child` before reaching it, so the replaced edge does
@@ -415,6 +376,52 @@ impl TfBuffer {
             format!("; known frames: {}", listed.join(", "))
         }
     }
+}
+
+/// A transform as tf2 accepts it on insertion: frame ids stripped of one leading `/`, not
+/// empty, not their own parent; a finite rotation within tf2's tolerance of unit length
+/// (normalised) and a finite translation. Returns `(parent, child, parent_from_child)`.
+pub(crate) fn validated(msg: &TransformStamped) -> Result<(&str, &str, RigidTransform), TfError> {
+    let parent = normalize_frame_id(&msg.header.frame_id);
+    let child = normalize_frame_id(&msg.child_frame_id);
+    let invalid_id = |reason: &str| TfError::InvalidFrameId {
+        parent: parent.to_string(),
+        child: child.to_string(),
+        reason: reason.to_string(),
+    };
+    if parent.is_empty() {
+        return Err(invalid_id("header.frame_id (the parent frame) is empty"));
+    }
+    if child.is_empty() {
+        return Err(invalid_id("child_frame_id is empty"));
+    }
+    if parent == child {
+        return Err(TfError::SelfParent {
+            frame: child.to_string(),
+        });
+    }
+    let t = msg.transform.translation;
+    let q = msg.transform.rotation;
+    let parent_from_child = RigidTransform::from_quat_translation(
+        child,
+        DQuat::from_xyzw(q.x, q.y, q.z, q.w),
+        DVec3::new(t.x, t.y, t.z),
+    )
+    .map_err(|e| {
+        let reason = match e {
+            GeometryError::InvalidPose { reason, .. } => reason,
+            other => other.to_string(),
+        };
+        TfError::InvalidTransform {
+            parent: parent.to_string(),
+            child: child.to_string(),
+            reason: format!(
+                "{reason} (translation = [{}, {}, {}], rotation xyzw = [{}, {}, {}, {}])",
+                t.x, t.y, t.z, q.x, q.y, q.z, q.w
+            ),
+        }
+    })?;
+    Ok((parent, child, parent_from_child))
 }
 
 #[cfg(test)]

@@ -53,6 +53,39 @@ pub trait PlanRunner {
 
     /// The per-stage times of the last run.
     fn timings_mut(&mut self) -> &mut super::StageTimings;
+
+    /// What the references of one frame set share (census words, half-size images).
+    fn memo(&mut self) -> &mut super::frame_memo::FrameMemo;
+}
+
+/// An engine's plans per reference (the reference camera's name, or "" for a virtual one):
+/// several references of one rig (`references`) each keep theirs from set to set.
+#[derive(Debug, Default)]
+pub struct PlanSets {
+    sets: Vec<(String, Plans)>,
+}
+
+/// The most references whose plans an engine keeps (the least recently used goes).
+const MAX_PLAN_SETS: usize = 32;
+
+impl PlanSets {
+    /// The plans of `rig`'s reference, most recently used last.
+    pub fn for_rig(&mut self, rig: &Rig) -> &mut Plans {
+        let key = match rig.reference {
+            Reference::Camera(i) => rig.cameras[i].name.as_str(),
+            Reference::Virtual { .. } => "",
+        };
+        let plans = match self.sets.iter().position(|(k, _)| k == key) {
+            Some(i) => self.sets.remove(i).1,
+            None => Plans::default(),
+        };
+        if self.sets.len() >= MAX_PLAN_SETS {
+            self.sets.remove(0);
+        }
+        self.sets.push((key.to_string(), plans));
+        let last = self.sets.len() - 1;
+        &mut self.sets[last].1
+    }
 }
 
 /// An engine's plans, kept while the rig and the parameters stay the same: the sweep's own,
@@ -120,7 +153,7 @@ pub fn run(
 ) -> Result<DepthMaps, SweepError> {
     if applies(rig, params) {
         super::check_images(rig, images)?;
-        match half_size(rig, images) {
+        match half_size(rig, images, engine.memo()) {
             Ok((coarse_rig, coarse_images)) => {
                 return coarse_to_fine(
                     engine,
@@ -202,7 +235,11 @@ fn half_model(model: &CameraModel) -> CameraModel {
 }
 
 /// The rig and images at half resolution (each 2x2 block averaged, per 8-bit channel).
-fn half_size(rig: &Rig, images: &[Rgba8Image]) -> Result<(Rig, Vec<Rgba8Image>), SweepError> {
+fn half_size(
+    rig: &Rig,
+    images: &[Rgba8Image],
+    memo: &mut super::frame_memo::FrameMemo,
+) -> Result<(Rig, Vec<Rgba8Image>), SweepError> {
     let cameras = rig
         .cameras
         .iter()
@@ -223,7 +260,12 @@ fn half_size(rig: &Rig, images: &[Rgba8Image]) -> Result<(Rig, Vec<Rgba8Image>),
     };
     let half_rig = Rig::new(cameras, reference)
         .map_err(|e| SweepError::InvalidParams(format!("coarse to fine: {e}")))?;
-    let half_images = images.iter().map(half_image).collect();
+    let half_images = rig
+        .cameras
+        .iter()
+        .zip(images)
+        .map(|(camera, image)| memo.half(&camera.name, image, half_image))
+        .collect();
     Ok((half_rig, half_images))
 }
 

@@ -5,10 +5,12 @@
 pub mod census;
 pub mod coarse;
 pub mod cpu;
+pub mod frame_memo;
 pub mod gpu;
 pub mod gpu_types;
 pub mod hypotheses;
 pub mod plan;
+pub mod references;
 pub mod schedule;
 pub mod stages;
 
@@ -145,6 +147,9 @@ pub struct SweepParams {
     /// Sweep at half resolution first, then each full-resolution row only over the planes
     /// its neighbourhood needs (`sweep/coarse.rs`).
     pub coarse_to_fine: bool,
+    /// Cameras each reference sweeps with, at most (0: every camera that sees its view;
+    /// `geometry::neighbours`).
+    pub max_neighbours: u32,
 }
 
 /// Errors from the engines.
@@ -171,6 +176,16 @@ pub enum SweepError {
     /// The run was stopped between passes by its [`CancelFlag`] (the node shutting down).
     #[error("the run was cancelled")]
     Cancelled,
+    /// A reference camera that no other camera of the rig sees (`references`).
+    #[error("reference camera '{reference}': no other camera sees at least 10 % of its view between {min_depth_m} and {max_depth_m} m, so it has no pair to match (point another camera at what it sees, or leave it out of references)")]
+    NoNeighbours {
+        reference: String,
+        min_depth_m: f64,
+        max_depth_m: f64,
+    },
+    /// A reference index outside the frame set's cameras.
+    #[error("reference {index} is not a camera of the set ({cameras} cameras)")]
+    NoSuchReference { index: usize, cameras: usize },
 }
 
 /// Asks a running engine to stop at its next pass boundary (the CPU engine: between planes

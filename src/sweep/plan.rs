@@ -7,8 +7,8 @@ use glam::DVec2;
 
 use super::gpu_types::*;
 use super::{
-    census, check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring,
-    SweepError, SweepParams, WindowMode,
+    check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
+    SweepParams, WindowMode,
 };
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;
@@ -403,6 +403,7 @@ impl SweepPlan {
         rig: &Rig,
         images: &[Rgba8Image],
         out: &mut Vec<u32>,
+        memo: &mut crate::sweep::frame_memo::FrameMemo,
     ) -> Result<(), SweepError> {
         check_images(rig, images)?;
         out.clear();
@@ -411,13 +412,8 @@ impl SweepPlan {
             out.extend_from_slice(&image.pixels);
         }
         if self.uses_census() {
-            for image in images {
-                census::transform(
-                    image.width as usize,
-                    image.height as usize,
-                    &image.pixels,
-                    out,
-                );
+            for (image, camera) in images.iter().zip(&rig.cameras) {
+                memo.census_into(&camera.name, image, out);
             }
         }
         Ok(())

@@ -195,6 +195,18 @@ pub struct Flushed<T> {
     pub discarded: Discarded,
 }
 
+/// What [`Synchronizer::drain`] emitted and handed back.
+#[derive(Debug, Clone, PartialEq)]
+#[must_use]
+pub struct Drained<T> {
+    /// The sets [`Synchronizer::flush`] would emit.
+    pub sets: Vec<SyncedSet<T>>,
+    pub discarded: Discarded,
+    /// Every message still buffered, as `(stream, stamp_ns, message)`, in stamp order (ties
+    /// in stream order; each stream's in the order it was pushed).
+    pub buffered: Vec<(usize, i64, T)>,
+}
+
 impl SyncStats {
     /// Counts one push's verdict (`admission`), or a flush's (`None`): the sets it emitted and
     /// what it discarded. A synchroniser's [`Synchronizer::stats`] is the sum of its pushes'.
@@ -279,6 +291,15 @@ pub trait Synchronizer<T> {
             discarded: Discarded::default(),
         }
     }
+
+    /// The streams change (a camera left or rejoined the rig): this synchroniser's input
+    /// ends, and what it holds moves on to a synchroniser over the new streams. Emits the sets
+    /// [`Synchronizer::flush`] would, then hands back every message still buffered
+    /// ([`Drained::buffered`]) and leaves the queues empty. The messages handed back left
+    /// the synchroniser without a verdict: they count in no counter (neither matched nor
+    /// dropped), so the conservation of the module docs holds with them counted as buffered.
+    /// The time rules' state is kept.
+    fn drain(&mut self) -> Drained<T>;
 
     /// [`Synchronizer::push`] with a ROS `builtin_interfaces/Time` stamp.
     fn push_stamped(

@@ -74,8 +74,10 @@ pub struct CpuTrace {
 /// The CPU plane-sweep engine. It keeps the plan of the last rig and parameters.
 #[derive(Debug)]
 pub struct CpuEngine {
-    /// The plans of the last rig and parameters (`sweep/coarse.rs`).
-    plans: super::coarse::Plans,
+    /// The plans of each reference's last rig and parameters (`sweep/coarse.rs`).
+    plans: super::coarse::PlanSets,
+    /// What the references of one frame set share (`sweep/frame_memo.rs`).
+    memo: super::frame_memo::FrameMemo,
     timings: StageTimings,
     fast_paths: bool,
     buffers: Buffers,
@@ -124,6 +126,7 @@ impl CpuEngine {
     pub fn new() -> Self {
         Self {
             plans: Default::default(),
+            memo: Default::default(),
             timings: StageTimings::default(),
             fast_paths: true,
             buffers: Buffers::default(),
@@ -161,7 +164,7 @@ impl CpuEngine {
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
         let mut plans = std::mem::take(&mut self.plans);
-        let result = super::coarse::run(self, &mut plans, rig, images, params);
+        let result = super::coarse::run(self, plans.for_rig(rig), rig, images, params);
         self.plans = plans;
         result
     }
@@ -226,11 +229,19 @@ impl CpuEngine {
         });
         let mut census = std::mem::take(&mut self.buffers.census);
         census.resize_with(if plan.uses_census() { images.len() } else { 0 }, Vec::new);
-        census.par_iter_mut().zip(images).for_each(|(words, im)| {
-            words.clear();
-            let (width, height) = (im.width as usize, im.height as usize);
-            crate::sweep::census::transform(width, height, &im.pixels, words);
-        });
+        if self.memo.is_active() {
+            // Several references of one set: each camera's words once (`frame_memo.rs`).
+            for ((words, im), camera) in census.iter_mut().zip(images).zip(&rig.cameras) {
+                words.clear();
+                self.memo.census_into(&camera.name, im, words);
+            }
+        } else {
+            census.par_iter_mut().zip(images).for_each(|(words, im)| {
+                words.clear();
+                let (width, height) = (im.width as usize, im.height as usize);
+                crate::sweep::census::transform(width, height, &im.pixels, words);
+            });
+        }
         let mut planar = std::mem::take(&mut self.buffers.planar);
         planar.resize_with(images.len(), PlanarImage::default);
         planar.truncate(images.len());
@@ -435,6 +446,10 @@ impl super::coarse::PlanRunner for CpuEngine {
 
     fn timings_mut(&mut self) -> &mut StageTimings {
         &mut self.timings
+    }
+
+    fn memo(&mut self) -> &mut super::frame_memo::FrameMemo {
+        &mut self.memo
     }
 }
 

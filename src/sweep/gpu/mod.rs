@@ -42,8 +42,10 @@ pub struct GpuEngine {
     /// The buffers of the shapes before (with the id of the plan uploaded into them), the
     /// latest last: a coarse-to-fine sweep cycles through its levels' shapes every frame set.
     spares: Vec<(Buffers, Schedule, Option<u64>)>,
-    /// The plans of the last rig and parameters (`sweep/coarse.rs`).
-    plans: super::coarse::Plans,
+    /// The plans of each reference's last rig and parameters (`sweep/coarse.rs`).
+    plans: super::coarse::PlanSets,
+    /// What the references of one frame set share (`sweep/frame_memo.rs`).
+    memo: super::frame_memo::FrameMemo,
     /// Id of the plan whose arrays are in the buffers.
     uploaded_plan: Option<u64>,
     packed: Vec<u32>,
@@ -77,6 +79,7 @@ impl GpuEngine {
             buffers: None,
             spares: Vec::new(),
             plans: Default::default(),
+            memo: Default::default(),
             uploaded_plan: None,
             packed: Vec::new(),
             timings: StageTimings::default(),
@@ -131,7 +134,7 @@ impl GpuEngine {
         let excess = self.spares.len().saturating_sub(below);
         self.spares.drain(..excess);
         let mut plans = std::mem::take(&mut self.plans);
-        let result = super::coarse::run(self, &mut plans, rig, images, params);
+        let result = super::coarse::run(self, plans.for_rig(rig), rig, images, params);
         self.plans = plans;
         result
     }
@@ -156,7 +159,7 @@ impl GpuEngine {
     ) -> Result<Vec<f32>, SweepError> {
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
-        plan.pack_images(rig, images, &mut packed)?;
+        plan.pack_images(rig, images, &mut packed, &mut self.memo)?;
         let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
             let (buffers, schedule, uploaded) =
@@ -242,5 +245,9 @@ impl super::coarse::PlanRunner for GpuEngine {
 
     fn timings_mut(&mut self) -> &mut StageTimings {
         &mut self.timings
+    }
+
+    fn memo(&mut self) -> &mut super::frame_memo::FrameMemo {
+        &mut self.memo
     }
 }

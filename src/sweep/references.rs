@@ -1,0 +1,100 @@
+//! Several references per frame set (`references`): each reference camera sweeps with its
+//! own neighbours ([`crate::geometry::neighbours`]) and its own best half-sequence split, on
+//! a rig of those cameras with itself as the reference ([`reference_rig`]). The set's work on
+//! its images (conversion before the engine, census words and half-size images in it:
+//! `frame_memo.rs`) is done once for all of them ([`crate::engine::Engine::run_references`]);
+//! each reference keeps its own plans (`coarse::PlanSets`). One reference is the same sweep:
+//! the depth of a reference is the same whether it runs alone or beside others.
+
+use crate::geometry::{neighbours::neighbours, Reference, Rig, RigCamera};
+
+use super::{DepthMaps, SweepError, SweepParams};
+
+/// The rig one reference sweeps: its neighbours and itself.
+#[derive(Debug, Clone)]
+pub struct ReferenceRig {
+    /// The reference, as an index into the set's cameras.
+    pub reference: usize,
+    /// The set's cameras in this rig, in set order (the reference among them).
+    pub cameras: Vec<usize>,
+    /// The rig itself (cameras in the order of `cameras`).
+    pub rig: Rig,
+}
+
+/// The rig of reference `reference` of the set's `cameras`: the cameras that see its view
+/// (at most `max_neighbours` of them), with it as the reference.
+pub fn reference_rig(
+    cameras: &[RigCamera],
+    reference: usize,
+    params: &SweepParams,
+) -> Result<ReferenceRig, SweepError> {
+    if reference >= cameras.len() {
+        return Err(SweepError::NoSuchReference {
+            index: reference,
+            cameras: cameras.len(),
+        });
+    }
+    let chosen = neighbours(
+        cameras,
+        reference,
+        params.min_depth_m,
+        params.max_depth_m,
+        params.max_neighbours as usize,
+    );
+    if chosen.len() < 2 {
+        return Err(SweepError::NoNeighbours {
+            reference: cameras[reference].name.clone(),
+            min_depth_m: params.min_depth_m,
+            max_depth_m: params.max_depth_m,
+        });
+    }
+    let position = chosen.iter().position(|&i| i == reference).unwrap_or(0);
+    let rig = Rig::new(
+        chosen.iter().map(|&i| cameras[i].clone()).collect(),
+        Reference::Camera(position),
+    )?;
+    Ok(ReferenceRig {
+        reference,
+        cameras: chosen,
+        rig,
+    })
+}
+
+/// One reference's depth of a frame set.
+#[derive(Debug, Clone)]
+pub struct ReferenceDepth {
+    /// The reference, as an index into the set's cameras.
+    pub reference: usize,
+    /// The set's cameras it swept with (itself included), in set order.
+    pub cameras: Vec<usize>,
+    pub maps: DepthMaps,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+
+    #[test]
+    fn a_reference_rig_holds_its_neighbours_with_itself_as_reference() {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(64, 48));
+        let rig = crate::synthetic::row_rig(5, 0.1, model, 2).expect("rig");
+        let params = SweepParams {
+            min_depth_m: 1.0,
+            max_depth_m: 8.0,
+            max_neighbours: 2,
+            ..SweepParams::default()
+        };
+        let r = reference_rig(&rig.cameras, 0, &params).expect("reference 0");
+        assert_eq!(r.cameras, vec![0, 1, 2]);
+        assert_eq!(r.rig.reference, Reference::Camera(0));
+        let r = reference_rig(&rig.cameras, 3, &params).expect("reference 3");
+        assert_eq!(r.cameras, vec![2, 3, 4]);
+        assert_eq!(r.rig.reference, Reference::Camera(1));
+        assert_eq!(r.rig.cameras[1].name, rig.cameras[3].name);
+        assert!(matches!(
+            reference_rig(&rig.cameras, 5, &params),
+            Err(SweepError::NoSuchReference { index: 5, .. })
+        ));
+    }
+}
