@@ -62,6 +62,15 @@ fn node_parameter_services() {
 }
 
 #[test]
+fn node_several_references_on_a_moving_rig() {
+    in_private_netns(
+        INNER,
+        "node_several_references_on_a_moving_rig",
+        references_on_a_moving_rig,
+    );
+}
+
+#[test]
 fn node_virtual_reference() {
     in_private_netns(INNER, "node_virtual_reference", virtual_reference);
 }
@@ -793,4 +802,132 @@ fn virtual_reference() {
         telling > 100 && near_right * 2 >= telling && near_wrong * 5 <= telling,
         "of the {telling} pixels where the pose tells, {near_right} agree with the virtual pose and {near_wrong} with cam1's"
     );
+}
+
+/// The rig's pose in "world" at `t`: along x at 0.3 m/s and forward at 0.1 m/s, turning about
+/// y at 0.1 rad/s from stamp_of(0) (tf2's interpolation is exact for it).
+fn world_from_rig(t: Time) -> RigidTransform {
+    let s = (nanos(t) - nanos(stamp_of(0))) as f64 * 1e-9;
+    RigidTransform {
+        rotation: glam::DQuat::from_rotation_y(0.1 * s),
+        translation: glam::DVec3::new(0.3 * s, 0.0, 0.1 * s),
+    }
+}
+
+/// `references:=[cam0, cam2]` with `world_frame:=world`: each reference publishes under its
+/// camera's namespace (and nothing on the single-reference names), each with its own depth
+/// of the wall; /tf (world -> rig) comes twice per set, 30 ms before and 40 ms after each
+/// set's stamp, never at it; the pose each reference's set carried (reported in
+/// /diagnostics) equals the true pose of its camera at the set's stamp within 1 mm and 0.05
+/// degrees.
+fn references_on_a_moving_rig() {
+    use sweepdepth::msgs::{Header, Quaternion, TFMessage, Transform, TransformStamped, Vector3};
+    let mut h = Harness::start(
+        wall(),
+        &[
+            "sync:=exact",
+            "references:=[cam0, cam2]",
+            "world_frame:=world",
+            "tf_timeout:=5.0",
+        ],
+    );
+    let tf_pub = h
+        .peer
+        .publisher::<TFMessage>("/tf", dds::TF_MESSAGE, &dds::reliable(100));
+    let cam0 = h.subscribe::<Image>("/cam0/depth/image", dds::IMAGE);
+    let cam2 = h.subscribe::<Image>("/cam2/depth/image", dds::IMAGE);
+    let single = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let mut diagnostics = Diagnostics::new(&mut h.peer);
+    let tf_at = |t: Time| {
+        let pose = world_from_rig(t);
+        let (p, q) = (pose.translation, pose.rotation);
+        TFMessage {
+            transforms: vec![TransformStamped {
+                header: Header {
+                    stamp: t,
+                    frame_id: "world".into(),
+                },
+                child_frame_id: "rig".into(),
+                transform: Transform {
+                    translation: Vector3 {
+                        x: p.x,
+                        y: p.y,
+                        z: p.z,
+                    },
+                    rotation: Quaternion {
+                        x: q.x,
+                        y: q.y,
+                        z: q.z,
+                        w: q.w,
+                    },
+                },
+            }],
+        }
+    };
+    let (mut got0, mut got2): (Vec<Image>, Vec<Image>) = (Vec::new(), Vec::new());
+    let feed = &h.feed;
+    let (stamp, _) = dds::feed_until(
+        "depth from both references for one set",
+        &mut h.node,
+        1,
+        |k| {
+            let t = nanos(stamp_of(k));
+            for offset in [-30_000_000, 40_000_000] {
+                tf_pub
+                    .publish(tf_at(time_of(t + offset)))
+                    .expect("publish /tf");
+            }
+            feed.publish_set(&same_stamps(k));
+        },
+        || {
+            got0.extend(dds::take_all(&cam0));
+            got2.extend(dds::take_all(&cam2));
+            got0.iter()
+                .map(|i| i.header.stamp)
+                .find(|s| got2.iter().any(|i| i.header.stamp == *s))
+        },
+    );
+    let image0 = got0.iter().find(|i| i.header.stamp == stamp).expect("cam0");
+    let image2 = got2.iter().find(|i| i.header.stamp == stamp).expect("cam2");
+    assert_eq!(image0.header.frame_id, frame(0));
+    assert_eq!(image2.header.frame_id, frame(2));
+    for image in [image0, image2] {
+        assert_eq!(image.encoding, "32FC1");
+        assert_eq!((image.width, image.height), (WIDTH, HEIGHT));
+        check_wall_depths(&dds::depth_values(image));
+    }
+    assert!(
+        dds::take_all(&single).is_empty(),
+        "with several references nothing goes to /depth/image"
+    );
+    // The poses the sets carried: each reference's frame in world at the set's stamp.
+    for i in [0, 2] {
+        let key = format!("world pose {}", frame(i));
+        let status = diagnostics.wait_until(format!("'{key}'"), &mut h.node, |s| {
+            dds::value_of(s, &key).is_some()
+        });
+        let value = dds::value_of(&status, &key).expect("the key").to_string();
+        let numbers: Vec<f64> = value
+            .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
+            .filter(|w| !w.is_empty())
+            .map(|w| {
+                w.parse()
+                    .unwrap_or_else(|e| panic!("{key}: '{w}' in '{value}': {e}"))
+            })
+            .collect();
+        assert_eq!(numbers.len(), 8, "{key}: {value}");
+        let t = time_of((numbers[0] * 1e3).round() as i64 * 1_000_000);
+        let truth = world_from_rig(t).compose(&h.feed.rig.cameras[i].cam_from_rig.inverse());
+        let got = RigidTransform {
+            rotation: glam::DQuat::from_xyzw(numbers[4], numbers[5], numbers[6], numbers[7]),
+            translation: glam::DVec3::new(numbers[1], numbers[2], numbers[3]),
+        };
+        let mm = (got.translation - truth.translation).length() * 1e3;
+        let deg = got.rotation.angle_between(truth.rotation).to_degrees();
+        eprintln!("{key}: {value}: {mm:.4} mm, {deg:.5} degrees from the truth");
+        assert!(
+            mm < 1.0 && deg < 0.05,
+            "{key}: {value}: {mm} mm, {deg} degrees off"
+        );
+    }
 }

@@ -34,12 +34,11 @@ use super::netns::KillOnDrop;
 /// working node answers in seconds even on a slow, loaded machine; the limit only bounds how
 /// long a broken one takes to fail.
 pub fn timeout() -> Duration {
-    let seconds = std::env::var("SWEEPDEPTH_TEST_TIMEOUT_S")
-        .ok()
-        .and_then(|s| s.parse::<u64>().ok())
-        .unwrap_or(300);
-    Duration::from_secs(seconds)
+    test_timeout::test_timeout()
 }
+
+#[path = "timeout.rs"]
+mod test_timeout;
 
 /// How often a waiting test looks again.
 const POLL: Duration = Duration::from_millis(5);

@@ -1,10 +1,15 @@
 //! Running `tools/rclpy_peer.py` (the real rcl stack: rclpy over rmw_fastrtps_cpp) through
 //! `tools/ros_python`, reading its `RCLPY_PEER {json}` lines.
+//!
+//! Every Python process started here runs under a limit: [`require_rclpy`] under the one limit
+//! [`test_timeout`] (`SWEEPDEPTH_TEST_TIMEOUT_S`, default 300 s), a [`Peer`] for as long as the
+//! test waits on it ([`Peer::wait_for`] takes the limit; pass [`test_timeout`]), and a `Peer` is
+//! killed when dropped, on every exit path of the test, a panic included.
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{ChildStdin, Command, Stdio};
+use std::process::{ChildStdin, Command, Output, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -12,6 +17,10 @@ use serde_json::Value;
 
 use super::netns::KillOnDrop;
 use super::python::INSTALL_HINT;
+
+#[path = "timeout.rs"]
+mod timeout;
+pub use timeout::test_timeout;
 
 pub const PREFIX: &str = "RCLPY_PEER ";
 
@@ -27,15 +36,69 @@ pub fn peer_script() -> PathBuf {
     repo().join("tools/rclpy_peer.py")
 }
 
-/// Fails (never skips) when rclpy cannot be imported through the launcher's Python.
+/// Runs `command` to its end with its stdout and stderr collected, as `Command::output` does,
+/// but kills it and panics (naming `what`) when it has not exited within `limit`.
+pub fn output_within(
+    command: &mut Command,
+    limit: Duration,
+    what: &str,
+) -> std::io::Result<Output> {
+    let mut child = command
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()?;
+    let collect = |pipe: Option<Box<dyn Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut bytes = Vec::new();
+            if let Some(mut pipe) = pipe {
+                let _ = pipe.read_to_end(&mut bytes);
+            }
+            bytes
+        })
+    };
+    let stdout = collect(
+        child
+            .stdout
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let stderr = collect(
+        child
+            .stderr
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let mut child = KillOnDrop(child);
+    let deadline = Instant::now() + limit;
+    let status = loop {
+        if let Some(status) = child.0.try_wait()? {
+            break status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{what} did not finish within {limit:?} (SWEEPDEPTH_TEST_TIMEOUT_S); killed it"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    Ok(Output {
+        status,
+        stdout: stdout.join().unwrap_or_default(),
+        stderr: stderr.join().unwrap_or_default(),
+    })
+}
+
+/// Fails (never skips) when rclpy cannot be imported through the launcher's Python (within
+/// [`test_timeout`]).
 pub fn require_rclpy() {
-    let out = Command::new(super::python::python())
-        .args([
+    let out = output_within(
+        Command::new(super::python::python()).args([
             "-c",
             "import rclpy, sensor_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg",
-        ])
-        .stdin(Stdio::null())
-        .output();
+        ]),
+        test_timeout(),
+        "importing rclpy",
+    );
     match out {
         Err(e) => panic!("this test needs Python with rclpy (ROS 2 Jazzy wheels) and cannot start it ({e}); {INSTALL_HINT}"),
         Ok(o) if !o.status.success() => panic!(
@@ -46,7 +109,7 @@ pub fn require_rclpy() {
     }
 }
 
-/// A running `rclpy_peer.py` with its result lines on a channel.
+/// A running `rclpy_peer.py` with its result lines on a channel; killed when dropped.
 pub struct Peer {
     pub name: String,
     pub child: KillOnDrop,
@@ -111,9 +174,26 @@ impl Peer {
         &mut self,
         timeout: Duration,
         what: &str,
+        want: impl FnMut(&Value) -> bool,
+        other: impl FnMut(&Value),
+    ) -> Value {
+        self.try_wait_for(timeout, what, want, other)
+            .unwrap_or_else(|| {
+                panic!(
+                    "the rclpy peer ({}) gave no {what} within {timeout:?}",
+                    self.name
+                )
+            })
+    }
+
+    /// As [`Peer::wait_for`], but `None` on timeout (it still panics when the peer exits).
+    pub fn try_wait_for(
+        &mut self,
+        timeout: Duration,
+        what: &str,
         mut want: impl FnMut(&Value) -> bool,
         mut other: impl FnMut(&Value),
-    ) -> Value {
+    ) -> Option<Value> {
         let deadline = Instant::now() + timeout;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
@@ -121,21 +201,30 @@ impl Peer {
                 .lines
                 .recv_timeout(left.min(Duration::from_millis(200)))
             {
-                Ok(v) if want(&v) => return v,
+                Ok(v) if want(&v) => return Some(v),
                 Ok(v) => other(&v),
                 Err(mpsc::RecvTimeoutError::Timeout) => {
                     if let Ok(Some(status)) = self.child.0.try_wait() {
                         panic!("the rclpy peer ({}) exited ({status}) while waiting for {what}; see its output above", self.name);
                     }
-                    assert!(
-                        Instant::now() < deadline,
-                        "the rclpy peer ({}) gave no {what} within {timeout:?}",
-                        self.name
-                    );
+                    if Instant::now() >= deadline {
+                        return None;
+                    }
                 }
                 Err(mpsc::RecvTimeoutError::Disconnected) => {
-                    let status = self.child.0.wait();
-                    panic!("the rclpy peer ({}) closed its output ({status:?}) while waiting for {what}; see its output above", self.name);
+                    // It closed its output: it is exiting. Its status, within what is left of
+                    // the limit (the peer is killed when dropped in any case).
+                    let status = loop {
+                        match self.child.0.try_wait() {
+                            Ok(Some(status)) => break format!("{status}"),
+                            Ok(None) if Instant::now() < deadline => {
+                                std::thread::sleep(Duration::from_millis(20))
+                            }
+                            Ok(None) => break "still running".to_string(),
+                            Err(e) => break format!("{e}"),
+                        }
+                    };
+                    panic!("the rclpy peer ({}) closed its output ({status}) while waiting for {what}; see its output above", self.name);
                 }
             }
         }

@@ -1,0 +1,16 @@
+//! The one limit of every wait in the tests: `SWEEPDEPTH_TEST_TIMEOUT_S`, default 300 s. A
+//! working system answers in seconds even on a slow, loaded machine; the limit only bounds how
+//! long a broken one takes to fail. Included with `#[path]` by the common files that need it
+//! (dds.rs, rclpy.rs), so that a test binary need not declare it.
+#![allow(dead_code)]
+
+use std::time::Duration;
+
+/// `SWEEPDEPTH_TEST_TIMEOUT_S` seconds, default 300 (also when it does not parse).
+pub fn test_timeout() -> Duration {
+    let seconds = std::env::var("SWEEPDEPTH_TEST_TIMEOUT_S")
+        .ok()
+        .and_then(|s| s.parse::<u64>().ok())
+        .unwrap_or(300);
+    Duration::from_secs(seconds)
+}
