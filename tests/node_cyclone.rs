@@ -95,6 +95,22 @@ fn node_interoperates_with_cyclone_dds_best_effort_images() {
     );
 }
 
+/// A moving rig whose /tf comes from the Cyclone DDS peer (its own IDL types, tf2_ros's
+/// broadcaster QoS, twice per set and never at a set's stamp): the pose the node gives the
+/// reference's set (reported in /diagnostics) is the true pose at the set's stamp within 1 mm
+/// and 0.05 degrees.
+#[test]
+fn node_poses_sets_from_cyclone_dds_tf() {
+    require_cyclonedds();
+    in_private_netns(INNER, "node_poses_sets_from_cyclone_dds_tf", || {
+        end_to_end_with(ImageQos::Reliable, true)
+    });
+}
+
+/// The rig's motion in "world" for the moving test (the peer's "world" entry).
+const VELOCITY: [f64; 3] = [0.3, 0.0, 0.1];
+const YAW_RATE: f64 = 0.1;
+
 fn run_in_private_netns(test_name: &str, qos: ImageQos) {
     require_cyclonedds();
     in_private_netns(INNER, test_name, || end_to_end(qos));
@@ -133,7 +149,7 @@ fn packed(image: &Rgba8Image, bgr: bool) -> Vec<u8> {
 }
 
 /// Renders the rig and writes `rig.json` + raw pixel files for the peer.
-fn write_rig(dir: &Path, qos: ImageQos) {
+fn write_rig(dir: &Path, qos: ImageQos, moving: bool) {
     let model = sweepdepth::geometry::CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let scene = Scene::wall_and_box(EXPECTED_DEPTH_M, None, model.intrinsics.fx_px);
@@ -157,7 +173,7 @@ fn write_rig(dir: &Path, qos: ImageQos) {
             "rotation_xyzw": [0.0, 0.0, 0.0, 1.0],
         }));
     }
-    let spec = json!({
+    let mut spec = json!({
         "domain_id": DOMAIN,
         "namespace": NAMESPACE,
         "rig_frame": "rig",
@@ -174,6 +190,9 @@ fn write_rig(dir: &Path, qos: ImageQos) {
         },
         "cameras": cameras,
     });
+    if moving {
+        spec["world"] = json!({ "frame": "world", "velocity": VELOCITY, "yaw_rate": YAW_RATE });
+    }
     std::fs::write(
         dir.join("rig.json"),
         serde_json::to_vec_pretty(&spec).unwrap(),
@@ -182,27 +201,36 @@ fn write_rig(dir: &Path, qos: ImageQos) {
 }
 
 fn end_to_end(qos: ImageQos) {
+    end_to_end_with(qos, false)
+}
+
+fn end_to_end_with(qos: ImageQos, moving: bool) {
     let dir = TempDir::new();
-    write_rig(&dir.0, qos);
+    write_rig(&dir.0, qos, moving);
     let started = Instant::now();
 
-    let mut node = NodeProcess::start(
-        DOMAIN,
-        &[
-            "-r",
-            &format!("__ns:={NAMESPACE}"),
-            "-p",
-            "cameras:=[cam0, cam1, cam2]",
-            "-p",
-            "min_depth:=1.0",
-            "-p",
-            "max_depth:=4.0",
-            "-p",
-            "num_planes:=48",
-            "-p",
-            "sync:=exact",
-        ],
-    );
+    let ns = format!("__ns:={NAMESPACE}");
+    let mut args = vec![
+        "-r",
+        &ns,
+        "-p",
+        "cameras:=[cam0, cam1, cam2]",
+        "-p",
+        "min_depth:=1.0",
+        "-p",
+        "max_depth:=4.0",
+        "-p",
+        "num_planes:=48",
+        "-p",
+        "sync:=exact",
+    ];
+    if moving {
+        args.extend(["-p", "world_frame:=world", "-p", "tf_timeout:=5.0"]);
+    }
+    let mut node = NodeProcess::start(DOMAIN, &args);
+    // The node's /diagnostics, read by a ros2-client peer (the poses of a moving rig).
+    let mut probe = moving.then(|| dds::Peer::new(DOMAIN, "sweepdepth_pose_probe"));
+    let mut diagnostics = probe.as_mut().map(dds::Diagnostics::new);
 
     let peer = Command::new(python())
         .arg("-u")
@@ -260,6 +288,9 @@ fn end_to_end(qos: ImageQos) {
     }
     let status = peer.0.wait().expect("wait for the peer");
     let _ = reader.join();
+    if let Some(diagnostics) = &mut diagnostics {
+        check_world_pose(diagnostics, &mut node);
+    }
     drop(node);
     let result: Value = serde_json::from_str(&result.unwrap()).expect("peer result JSON");
     eprintln!(
@@ -292,5 +323,45 @@ fn end_to_end(qos: ImageQos) {
     assert!(
         within * 10 >= valid * 9,
         "only {within} of {valid} valid depths are within 2 % of 2.0 m"
+    );
+}
+
+/// The world pose the node reports for cam1_optical (the reference) equals the motion the peer
+/// published, at the reported stamp.
+fn check_world_pose(diagnostics: &mut dds::Diagnostics, node: &mut NodeProcess) {
+    let key = "world pose cam1_optical";
+    let status = diagnostics.wait_until(format!("'{key}'"), node, |s| {
+        dds::value_of(s, key).is_some()
+    });
+    let value = dds::value_of(&status, key).expect("the key").to_string();
+    let numbers: Vec<f64> = value
+        .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
+        .filter(|w| !w.is_empty())
+        .map(|w| {
+            w.parse()
+                .unwrap_or_else(|e| panic!("'{w}' in '{value}': {e}"))
+        })
+        .collect();
+    assert_eq!(numbers.len(), 8, "{value}");
+    // Stamps are whole tenths of a second from 1000 s (the peer's stamp_of).
+    let s = ((numbers[0] - 1000.0) * 10.0).round() / 10.0;
+    let world_from_rig = sweepdepth::geometry::RigidTransform {
+        rotation: glam::DQuat::from_rotation_y(YAW_RATE * s),
+        translation: glam::DVec3::from_array(VELOCITY) * s,
+    };
+    // cam1 sits at the rig frame's origin of a 3-camera row centred on it.
+    let model = sweepdepth::geometry::CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let truth = world_from_rig.compose(&rig.cameras[1].cam_from_rig.inverse());
+    let got = sweepdepth::geometry::RigidTransform {
+        rotation: glam::DQuat::from_xyzw(numbers[4], numbers[5], numbers[6], numbers[7]),
+        translation: glam::DVec3::new(numbers[1], numbers[2], numbers[3]),
+    };
+    let mm = (got.translation - truth.translation).length() * 1e3;
+    let deg = got.rotation.angle_between(truth.rotation).to_degrees();
+    eprintln!("{key}: {value}: {mm:.4} mm, {deg:.5} degrees from the truth");
+    assert!(
+        mm < 1.0 && deg < 0.05,
+        "{key}: {value}: {mm} mm, {deg} degrees off"
     );
 }

@@ -275,6 +275,34 @@ def run(directory: pathlib.Path) -> None:
     tf_topic = Topic(participant, dds_topic("/tf_static"), TFMessage)
     tf_writer = DataWriter(participant, tf_topic, qos=tf_qos)
 
+    # A moving rig (rig.json "world"): /tf world -> rig (tf2_ros's broadcaster QoS: reliable,
+    # volatile, keep-last 100), twice per set, 30 ms before and 40 ms after its stamp: a pose
+    # along "velocity" (m/s) turning about y at "yaw_rate" (rad/s) from stamp_of(0).
+    world = rig.get("world")
+    dyn_writer = None
+    if world:
+        dyn_qos = qos(Policy.Reliability.Reliable(duration(seconds=1)),
+                      Policy.History.KeepLast(100),
+                      Policy.Durability.Volatile)
+        dyn_writer = DataWriter(participant, Topic(participant, dds_topic("/tf"), TFMessage),
+                                qos=dyn_qos)
+    origin = stamp_of(0)
+    origin_ns = origin.sec * 1_000_000_000 + origin.nanosec
+
+    def world_tf(t_ns: int) -> TransformStamped:
+        s = (t_ns - origin_ns) * 1e-9
+        vx, vy, vz = (float(v) for v in world["velocity"])
+        yaw = float(world["yaw_rate"]) * s
+        return TransformStamped(
+            header=Header(stamp=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000),
+                          frame_id=world["frame"]),
+            child_frame_id=rig["rig_frame"],
+            transform=Transform(
+                translation=Vector3(vx * s, vy * s, vz * s),
+                rotation=Quaternion(0.0, math.sin(yaw / 2), 0.0, math.cos(yaw / 2)),
+            ),
+        )
+
     cams = []
     for cam in rig["cameras"]:
         base = f"{ns}/{cam['name']}"
@@ -320,6 +348,10 @@ def run(directory: pathlib.Path) -> None:
         k += 1
         stamp = stamp_of(k)
         sent.add((stamp.sec, stamp.nanosec))
+        if dyn_writer is not None:
+            t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+            for offset in (-30_000_000, 40_000_000):
+                dyn_writer.write(TFMessage(transforms=[world_tf(t_ns + offset)]))
         for cam in cams:
             header = Header(stamp=stamp, frame_id=cam["frame_id"])
             cam["info_writer"].write(CameraInfo(
