@@ -4,6 +4,8 @@
 # tests/node_live_rate.rs with more sets (SETS, default 30), which plays inside its own private
 # network namespace (no DDS packet leaves the machine) and prints the share of sets answered,
 # the sets dropped for newer ones and the node's mean processing time per set.
+# Several references per set (issue 27): SWEEPDEPTH_LIVE_REFERENCES=cam1,cam4,cam7 (and
+# SWEEPDEPTH_LIVE_MAX_NEIGHBOURS=N) in the environment.
 # Usage: sh scripts/live_rate.sh [SETS]
 set -eu
 cd "$(dirname "$0")/.."

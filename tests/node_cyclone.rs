@@ -334,17 +334,9 @@ fn check_world_pose(diagnostics: &mut dds::Diagnostics, node: &mut NodeProcess) 
         dds::value_of(s, key).is_some()
     });
     let value = dds::value_of(&status, key).expect("the key").to_string();
-    let numbers: Vec<f64> = value
-        .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
-        .filter(|w| !w.is_empty())
-        .map(|w| {
-            w.parse()
-                .unwrap_or_else(|e| panic!("'{w}' in '{value}': {e}"))
-        })
-        .collect();
-    assert_eq!(numbers.len(), 8, "{value}");
+    let (seconds, got) = dds::world_pose(&status, key);
     // Stamps are whole tenths of a second from 1000 s (the peer's stamp_of).
-    let s = ((numbers[0] - 1000.0) * 10.0).round() / 10.0;
+    let s = ((seconds - 1000.0) * 10.0).round() / 10.0;
     let world_from_rig = sweepdepth::geometry::RigidTransform {
         rotation: glam::DQuat::from_rotation_y(YAW_RATE * s),
         translation: glam::DVec3::from_array(VELOCITY) * s,
@@ -353,15 +345,5 @@ fn check_world_pose(diagnostics: &mut dds::Diagnostics, node: &mut NodeProcess) 
     let model = sweepdepth::geometry::CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let truth = world_from_rig.compose(&rig.cameras[1].cam_from_rig.inverse());
-    let got = sweepdepth::geometry::RigidTransform {
-        rotation: glam::DQuat::from_xyzw(numbers[4], numbers[5], numbers[6], numbers[7]),
-        translation: glam::DVec3::new(numbers[1], numbers[2], numbers[3]),
-    };
-    let mm = (got.translation - truth.translation).length() * 1e3;
-    let deg = got.rotation.angle_between(truth.rotation).to_degrees();
-    eprintln!("{key}: {value}: {mm:.4} mm, {deg:.5} degrees from the truth");
-    assert!(
-        mm < 1.0 && deg < 0.05,
-        "{key}: {value}: {mm} mm, {deg} degrees off"
-    );
+    dds::assert_pose_near(&format!("{key}: {value}"), &got, &truth);
 }

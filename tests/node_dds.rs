@@ -907,27 +907,9 @@ fn references_on_a_moving_rig() {
             dds::value_of(s, &key).is_some()
         });
         let value = dds::value_of(&status, &key).expect("the key").to_string();
-        let numbers: Vec<f64> = value
-            .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
-            .filter(|w| !w.is_empty())
-            .map(|w| {
-                w.parse()
-                    .unwrap_or_else(|e| panic!("{key}: '{w}' in '{value}': {e}"))
-            })
-            .collect();
-        assert_eq!(numbers.len(), 8, "{key}: {value}");
-        let t = time_of((numbers[0] * 1e3).round() as i64 * 1_000_000);
+        let (seconds, got) = dds::world_pose(&status, &key);
+        let t = time_of((seconds * 1e3).round() as i64 * 1_000_000);
         let truth = world_from_rig(t).compose(&h.feed.rig.cameras[i].cam_from_rig.inverse());
-        let got = RigidTransform {
-            rotation: glam::DQuat::from_xyzw(numbers[4], numbers[5], numbers[6], numbers[7]),
-            translation: glam::DVec3::new(numbers[1], numbers[2], numbers[3]),
-        };
-        let mm = (got.translation - truth.translation).length() * 1e3;
-        let deg = got.rotation.angle_between(truth.rotation).to_degrees();
-        eprintln!("{key}: {value}: {mm:.4} mm, {deg:.5} degrees from the truth");
-        assert!(
-            mm < 1.0 && deg < 0.05,
-            "{key}: {value}: {mm} mm, {deg} degrees off"
-        );
+        dds::assert_pose_near(&format!("{key}: {value}"), &got, &truth);
     }
 }

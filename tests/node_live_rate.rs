@@ -57,6 +57,22 @@ fn played_sets() -> u32 {
         .unwrap_or(8)
 }
 
+/// Several references per set (issue 27): `SWEEPDEPTH_LIVE_REFERENCES=cam1,cam4,cam7` (cam4,
+/// the middle camera, among them: its depth is the one checked) and
+/// `SWEEPDEPTH_LIVE_MAX_NEIGHBOURS`; unset, the middle camera alone.
+fn references() -> Option<(String, Option<String>)> {
+    let list = std::env::var("SWEEPDEPTH_LIVE_REFERENCES").ok()?;
+    let names: Vec<&str> = list.split(',').map(str::trim).collect();
+    assert!(
+        names.contains(&format!("cam{REFERENCE}").as_str()),
+        "SWEEPDEPTH_LIVE_REFERENCES must hold cam{REFERENCE}: {list}"
+    );
+    let max = std::env::var("SWEEPDEPTH_LIVE_MAX_NEIGHBOURS")
+        .ok()
+        .map(|n| format!("max_neighbours:={n}"));
+    Some((format!("references:=[{}]", names.join(", ")), max))
+}
+
 fn live_rate() {
     let focal_px = synthetic::intrinsics(WIDTH, HEIGHT).fx_px;
     let scene = Scene::wall_and_box(f64::from(WALL_M), Some((f64::from(BOX_M), 0.25)), focal_px);
@@ -92,10 +108,23 @@ fn live_rate() {
         "-p",
         "output_qos_depth:=50",
     ];
+    let mut args: Vec<&str> = args.to_vec();
+    let several = references();
+    let depth_topic = match &several {
+        Some((list, max)) => {
+            args.extend(["-p", list]);
+            if let Some(max) = max {
+                args.extend(["-p", max]);
+            }
+            eprintln!("live rate with {list} {}", max.as_deref().unwrap_or(""));
+            format!("/cam{REFERENCE}/depth/image")
+        }
+        None => "/depth/image".to_string(),
+    };
     let mut node = NodeProcess::start(DOMAIN, &args);
     let mut peer = Peer::new(DOMAIN, "sweepdepth_live_player");
     let feed = RigFeed::new(&mut peer, rig, &images, &dds::reliable(10), None);
-    let depth_sub = peer.subscription::<Image>("/depth/image", dds::IMAGE, &dds::reliable(50));
+    let depth_sub = peer.subscription::<Image>(&depth_topic, dds::IMAGE, &dds::reliable(50));
     let mut diag = Diagnostics::new(&mut peer);
     let same = |k: u32| [stamp_of(k); CAMERAS];
 

@@ -39,7 +39,7 @@ pub use outcome::{
 pub use outputs::{process_job, FrameOutputs, SetOutputs};
 
 use crate::msgs::{Image, Time};
-use crate::ros::sync::{Admission, SyncError, Synchronizer};
+use crate::ros::sync::{time_to_ns, Admission, Discarded, SyncError, Synchronizer};
 
 use calibration::Calibration;
 use roster::Roster;
@@ -53,6 +53,10 @@ pub struct Pipeline<'a> {
     world: Option<WorldPoses>,
     roster: Roster,
     sync: Box<dyn Synchronizer<Image> + Send>,
+    /// While no set can be formed (the reference or the second camera silent): the images of
+    /// the cameras in the rig, the newest `queue_size` of each camera, for the synchroniser
+    /// once sets can be formed again (the camera that comes back costs no set).
+    held: Vec<(usize, Image)>,
 }
 
 impl<'a> Pipeline<'a> {
@@ -68,6 +72,7 @@ impl<'a> Pipeline<'a> {
                 config.camera_timeout,
             ),
             sync: config.synchronizer(n)?,
+            held: Vec::new(),
         })
     }
 
@@ -203,14 +208,24 @@ impl<'a> Pipeline<'a> {
         outcome
     }
 
-    fn on_image(&mut self, camera: usize, image: Image, now_ns: u64) -> Outcome {
+    /// The rig changed (`before`: the cameras in it until now): the synchroniser is rebuilt
+    /// over the cameras in it now, and what the old one held carries over, so that a camera
+    /// that leaves or comes back costs no set: the sets it only waited to prove are emitted
+    /// (over `before`), and the images it still held (with those held while no set could be
+    /// formed) are pushed again, in stamp order, into the new one, or held while no set can be
+    /// formed. The old synchroniser counted its images when they came, so only what becomes
+    /// of them now counts (into `carried`: sets, and the images dropped, such as those of a
+    /// camera that left). Below 2 cameras the old synchroniser is kept, empty.
+    fn rebuild(&mut self, before: &[usize], outcome: &mut Outcome, carried: &mut SyncVerdict) {
         let config = self.config;
-        let mut outcome = Outcome {
-            rig_events: self.roster.track(camera, now_ns),
-            ..Outcome::default()
-        };
-        // The synchroniser runs over the cameras in the rig; below 2 nothing is pushed.
-        if !outcome.rig_events.is_empty() && self.roster.active().len() >= 2 {
+        let drained = self.sync.drain();
+        carried.sets += drained.sets.len();
+        carried.discarded.messages += drained.discarded.messages;
+        carried.discarded.partial_sets += drained.discarded.partial_sets;
+        for set in drained.sets {
+            outcome.sets.push(self.calibration.job(config, before, set));
+        }
+        if self.roster.active().len() >= 2 {
             match config.synchronizer(self.roster.active().len()) {
                 Ok(sync) => self.sync = sync,
                 Err(e) => outcome.notices.push(Notice {
@@ -220,11 +235,95 @@ impl<'a> Pipeline<'a> {
                 }),
             }
         }
+        // By camera, in stamp order (each camera's images in the order they came).
+        let mut images: Vec<(usize, i64, Image)> = drained
+            .buffered
+            .into_iter()
+            .map(|(stream, t, image)| (before.get(stream).copied().unwrap_or(stream), t, image))
+            .chain(
+                self.held
+                    .drain(..)
+                    .map(|(c, image)| (c, time_to_ns(&image.header.stamp), image)),
+            )
+            .collect();
+        images.sort_by_key(|&(c, t, _)| (t, c));
+        let open =
+            self.roster.publishing() && self.sync.num_streams() == self.roster.active().len();
+        let mut dropped = 0;
+        for (camera, stamp_ns, image) in images {
+            let Some(stream) = self.roster.stream_of(camera) else {
+                dropped += 1;
+                continue;
+            };
+            if !open {
+                self.hold(camera, image);
+                continue;
+            }
+            match self.sync.push(stream, stamp_ns, image) {
+                Ok(pushed) => {
+                    if matches!(pushed.admission, Admission::Dropped(_)) {
+                        dropped += 1;
+                    }
+                    carried.sets += pushed.sets.len();
+                    carried.discarded.messages += pushed.discarded.messages;
+                    carried.discarded.partial_sets += pushed.discarded.partial_sets;
+                    for set in pushed.sets {
+                        let job = self.calibration.job(config, self.roster.active(), set);
+                        outcome.sets.push(job);
+                    }
+                }
+                Err(_) => dropped += 1,
+            }
+        }
+        if dropped > 0 {
+            carried.discarded.messages += dropped;
+            carried.discarded.partial_sets += 1;
+        }
+    }
+
+    /// Holds `image` of `camera` while no set can be formed (the camera's oldest held image
+    /// goes beyond `queue_size`).
+    fn hold(&mut self, camera: usize, image: Image) {
+        self.held.push((camera, image));
+        if self.held.iter().filter(|(c, _)| *c == camera).count() > self.config.queue_size {
+            if let Some(oldest) = self.held.iter().position(|(c, _)| *c == camera) {
+                self.held.remove(oldest);
+            }
+        }
+    }
+
+    fn on_image(&mut self, camera: usize, image: Image, now_ns: u64) -> Outcome {
+        let config = self.config;
+        let before = self.roster.active().to_vec();
+        let mut outcome = Outcome {
+            rig_events: self.roster.track(camera, now_ns),
+            ..Outcome::default()
+        };
+        // What a rebuild of the synchroniser carried over (no image of its own).
+        let mut carried = SyncVerdict {
+            camera: None,
+            stamp: Time::default(),
+            admission: None,
+            sets: 0,
+            discarded: Discarded::default(),
+        };
+        // The synchroniser runs over the cameras in the rig; below 2 nothing is pushed.
+        if !outcome.rig_events.is_empty() {
+            self.rebuild(&before, &mut outcome, &mut carried);
+        }
+        if carried.sets > 0 || carried.discarded != Discarded::default() {
+            outcome.sync = Some(carried);
+        }
         if !self.roster.publishing() {
             // Once per round of images (at the first active camera), not once per image.
             let active = self.roster.active();
             if active.first() == Some(&camera) || active.len() <= 1 {
                 outcome.sets.push(Err(self.degraded()));
+            }
+            self.hold(camera, image);
+            if outcome.sets.iter().any(Result::is_ok) {
+                // Sets of the rig before it changed.
+                self.posed(&mut outcome, now_ns, false);
             }
             return outcome;
         }
@@ -252,23 +351,28 @@ impl<'a> Pipeline<'a> {
             other => other,
         };
         let reset = matches!(admission, Admission::Reset(_));
+        // With what a rebuild carried over, if any.
         let verdict = SyncVerdict {
             camera: Some(camera),
             stamp,
             admission: Some(admission),
-            sets: pushed.sets.len(),
-            discarded: pushed.discarded,
+            sets: carried.sets + pushed.sets.len(),
+            discarded: Discarded {
+                messages: carried.discarded.messages + pushed.discarded.messages,
+                partial_sets: carried.discarded.partial_sets + pushed.discarded.partial_sets,
+            },
         };
         let future_window_s = config.time_rules.future_window_ns as f64 / 1e9;
         outcome
             .notices
             .extend(verdict.notice(&config.cameras, future_window_s));
         outcome.sync = Some(verdict);
-        outcome.sets = pushed
-            .sets
-            .into_iter()
-            .map(|set| self.calibration.job(config, self.roster.active(), set))
-            .collect();
+        outcome.sets.extend(
+            pushed
+                .sets
+                .into_iter()
+                .map(|set| self.calibration.job(config, self.roster.active(), set)),
+        );
         if reset {
             if let Some(world) = &mut self.world {
                 world.clear_dynamic();

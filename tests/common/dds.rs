@@ -521,3 +521,38 @@ pub fn counter(status: &DiagnosticStatus, key: &str) -> u64 {
         .and_then(|v| v.parse().ok())
         .unwrap_or_else(|| panic!("no counter '{key}' in {status:?}"))
 }
+
+/// The pose `/diagnostics` reports under `key` ("world pose <frame>": "<stamp> [x, y, z]
+/// [qx, qy, qz, qw]"): the stamp in seconds and the pose.
+pub fn world_pose(
+    status: &DiagnosticStatus,
+    key: &str,
+) -> (f64, sweepdepth::geometry::RigidTransform) {
+    let value = value_of(status, key).unwrap_or_else(|| panic!("no '{key}' in {status:?}"));
+    let numbers: Vec<f64> = value
+        .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
+        .filter(|w| !w.is_empty())
+        .map(|w| {
+            w.parse()
+                .unwrap_or_else(|e| panic!("{key}: '{w}' in '{value}': {e}"))
+        })
+        .collect();
+    assert_eq!(numbers.len(), 8, "{key}: {value}");
+    let pose = sweepdepth::geometry::RigidTransform {
+        rotation: glam::DQuat::from_xyzw(numbers[4], numbers[5], numbers[6], numbers[7]),
+        translation: glam::DVec3::new(numbers[1], numbers[2], numbers[3]),
+    };
+    (numbers[0], pose)
+}
+
+/// `got` within 1 mm and 0.05 degrees of `truth` (the moving-rig tests' bar).
+pub fn assert_pose_near(
+    what: &str,
+    got: &sweepdepth::geometry::RigidTransform,
+    truth: &sweepdepth::geometry::RigidTransform,
+) {
+    let mm = (got.translation - truth.translation).length() * 1e3;
+    let deg = got.rotation.angle_between(truth.rotation).to_degrees();
+    eprintln!("{what}: {mm:.4} mm, {deg:.5} degrees from the truth");
+    assert!(mm < 1.0 && deg < 0.05, "{what}: {mm} mm, {deg} degrees off");
+}

@@ -4,8 +4,8 @@ use std::collections::VecDeque;
 
 use super::time_rules::{TimeGuard, TimeJump, TimeRules};
 use super::{
-    check_index, check_streams, Admission, Flushed, Pushed, SyncError, SyncStats, SyncedSet,
-    Synchronizer, Tally,
+    check_index, check_streams, Admission, Drained, Flushed, Pushed, SyncError, SyncStats,
+    SyncedSet, Synchronizer, Tally,
 };
 
 /// The current best candidate set. Its message on stream `i` is `deques[i].front()` if that
@@ -480,6 +480,28 @@ impl<T> Synchronizer<T> for ApproximateSync<T> {
 
     fn last_reset(&self) -> Option<TimeJump> {
         self.time.last_reset
+    }
+
+    /// The pending candidate is published (as [`Synchronizer::flush`]); the rest, the queues
+    /// with what a search had set aside put back, is handed back.
+    fn drain(&mut self) -> Drained<T> {
+        let sets = self.flush_pending();
+        self.candidate = None;
+        self.recover_all();
+        self.has_dropped.iter_mut().for_each(|d| *d = false);
+        let mut buffered: Vec<(usize, i64, T)> = self
+            .deques
+            .iter_mut()
+            .enumerate()
+            .flat_map(|(i, d)| d.drain(..).map(move |(t, m)| (i, t, m)))
+            .collect();
+        // Stable: each stream's messages keep their order.
+        buffered.sort_by_key(|&(i, t, _)| (t, i));
+        Drained {
+            sets,
+            discarded: self.tally.take_step(),
+            buffered,
+        }
     }
 }
 

@@ -4,8 +4,8 @@ use std::collections::BTreeMap;
 
 use super::time_rules::{TimeGuard, TimeJump, TimeRules};
 use super::{
-    check_index, check_streams, Admission, Pushed, SyncError, SyncStats, SyncedSet, Synchronizer,
-    Tally,
+    check_index, check_streams, Admission, Discarded, Drained, Pushed, SyncError, SyncStats,
+    SyncedSet, Synchronizer, Tally,
 };
 
 /// Messages gathered for one stamp.
@@ -121,6 +121,27 @@ impl<T> Synchronizer<T> for ExactSync<T> {
 
     fn last_reset(&self) -> Option<TimeJump> {
         self.time.last_reset
+    }
+
+    /// Nothing is pending that could complete: every partial set is handed back, stamp by
+    /// stamp.
+    fn drain(&mut self) -> Drained<T> {
+        self.counts.iter_mut().for_each(|c| *c = 0);
+        let buffered = std::mem::take(&mut self.pending)
+            .into_iter()
+            .flat_map(|(t, bucket)| {
+                bucket
+                    .slots
+                    .into_iter()
+                    .enumerate()
+                    .filter_map(move |(i, slot)| slot.map(|m| (i, t, m)))
+            })
+            .collect();
+        Drained {
+            sets: Vec::new(),
+            discarded: Discarded::default(),
+            buffered,
+        }
     }
 }
 
