@@ -12,6 +12,7 @@ pub mod datasets;
 pub mod demo;
 pub mod engine;
 pub mod eval;
+pub mod fusion;
 pub mod geometry;
 pub mod gpu_context;
 pub mod image;

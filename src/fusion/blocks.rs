@@ -1,0 +1,355 @@
+//! The sparse voxel grid: blocks of 8x8x8 voxels in a hash map by block index (nvblox's
+//! `VoxelBlockLayer`, Open3D's `VoxelBlockGrid`), allocated only where a surface was seen.
+
+use std::collections::{HashMap, HashSet};
+use std::hash::{BuildHasherDefault, Hash, Hasher};
+
+use glam::DVec3;
+
+use super::FusionError;
+
+/// Voxels along each side of a block.
+pub const BLOCK_SIDE: usize = 8;
+/// Voxels in a block.
+pub const VOXELS_PER_BLOCK: usize = BLOCK_SIDE * BLOCK_SIDE * BLOCK_SIDE;
+
+/// The integer index of a block: it holds the voxels with global indices
+/// `8 * index .. 8 * index + 8` along each axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct BlockIndex(pub [i32; 3]);
+
+impl BlockIndex {
+    /// The block holding a voxel of the given global index.
+    pub fn of_voxel(voxel: [i64; 3]) -> Self {
+        let side = BLOCK_SIDE as i64;
+        Self(voxel.map(|v| v.div_euclid(side) as i32))
+    }
+
+    /// The global index of this block's voxel `(0, 0, 0)`.
+    pub fn first_voxel(&self) -> [i64; 3] {
+        self.0.map(|b| i64::from(b) * BLOCK_SIDE as i64)
+    }
+
+    /// This index moved by `offset` blocks.
+    pub fn offset(&self, offset: [i32; 3]) -> Self {
+        Self([
+            self.0[0].wrapping_add(offset[0]),
+            self.0[1].wrapping_add(offset[1]),
+            self.0[2].wrapping_add(offset[2]),
+        ])
+    }
+}
+
+impl Hash for BlockIndex {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        // One word per index (exact for |index| < 2^21, i.e. 670 km of 5 cm voxels; beyond it
+        // distinct indices may share a word, which a hash map tolerates).
+        let [x, y, z] = self.0.map(|v| u64::from(v as u32) & 0x1f_ffff);
+        state.write_u64(x | (y << 21) | (z << 42));
+    }
+}
+
+/// A fast hasher for [`BlockIndex`] keys (splitmix64's finaliser over the one word they
+/// write): the integration looks up every block a pixel's ray crosses, and SipHash's
+/// resistance to chosen keys buys nothing for grid coordinates.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct BlockHasher(u64);
+
+impl Hasher for BlockHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+
+    fn write_u64(&mut self, word: u64) {
+        self.0 = (self.0.rotate_left(5) ^ word).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    }
+
+    fn finish(&self) -> u64 {
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+}
+
+/// A hash map keyed by block index.
+pub type BlockMap<V> = HashMap<BlockIndex, V, BuildHasherDefault<BlockHasher>>;
+/// A set of block indices.
+pub type BlockSet = HashSet<BlockIndex, BuildHasherDefault<BlockHasher>>;
+
+/// One voxel: the truncated signed distance at its centre (in units of the truncation
+/// distance, [-1, 1]), its weight (observations, capped), and its colour with its own weight
+/// (colour is only averaged near the surface). 16 bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Voxel {
+    pub tsdf: f32,
+    /// Zero: never observed.
+    pub weight: f32,
+    /// Red, green, blue in 8.8 fixed point (value x 256), so that a running average over up
+    /// to [`u16::MAX`] observations keeps moving by fractions of a level.
+    colour_fixed: [u16; 3],
+    colour_weight: u16,
+}
+
+impl Voxel {
+    pub const EMPTY: Self = Self {
+        tsdf: 0.0,
+        weight: 0.0,
+        colour_fixed: [0; 3],
+        colour_weight: 0,
+    };
+
+    /// The averaged colour (black before any colour was seen).
+    pub fn colour(&self) -> [u8; 3] {
+        self.colour_fixed
+            .map(|c| ((u32::from(c) + 128) >> 8).min(255) as u8)
+    }
+
+    /// The averaged colour as f32 levels (0..=255), for interpolation.
+    pub fn colour_f32(&self) -> [f32; 3] {
+        self.colour_fixed.map(|c| f32::from(c) / 256.0)
+    }
+
+    /// How many colour observations the colour averages (capped like the weight).
+    pub fn colour_weight(&self) -> u16 {
+        self.colour_weight
+    }
+
+    /// Whether the voxel was ever observed.
+    pub fn is_observed(&self) -> bool {
+        self.weight > 0.0
+    }
+
+    /// One observation of the TSDF (already truncated to [-1, 1]) with weight `weight`: the
+    /// running average whose total weight is capped at `max_weight`.
+    pub(super) fn observe_tsdf(&mut self, tsdf: f32, weight: f32, max_weight: f32) {
+        let w = self.weight;
+        self.tsdf = (self.tsdf * w + tsdf * weight) / (w + weight);
+        self.weight = (w + weight).min(max_weight);
+    }
+
+    /// One observation of the colour with weight 1, averaged like the TSDF.
+    pub(super) fn observe_colour(&mut self, rgb: [u8; 3], max_weight: f32) {
+        let w = f32::from(self.colour_weight);
+        for (c, &o) in self.colour_fixed.iter_mut().zip(rgb.iter()) {
+            let mean = (f32::from(*c) * w + f32::from(o) * 256.0) / (w + 1.0);
+            *c = mean.round().clamp(0.0, f32::from(u16::MAX)) as u16;
+        }
+        let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
+        self.colour_weight = (w + 1.0).min(cap) as u16;
+    }
+}
+
+/// 8x8x8 voxels, x fastest, then y, then z ([`Block::voxel_offset`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    pub voxels: Box<[Voxel; VOXELS_PER_BLOCK]>,
+}
+
+impl Default for Block {
+    fn default() -> Self {
+        Self {
+            voxels: Box::new([Voxel::EMPTY; VOXELS_PER_BLOCK]),
+        }
+    }
+}
+
+impl Block {
+    /// The place of voxel `(x, y, z)` (each `0..8`) in [`Block::voxels`].
+    pub const fn voxel_offset(x: usize, y: usize, z: usize) -> usize {
+        x + BLOCK_SIDE * (y + BLOCK_SIDE * z)
+    }
+
+    pub fn voxel(&self, x: usize, y: usize, z: usize) -> &Voxel {
+        &self.voxels[Self::voxel_offset(x, y, z)]
+    }
+}
+
+/// The TSDF grid: blocks by index, the voxel size, and the blocks changed since the last
+/// meshing ([`super::Mesh::update`] takes them).
+#[derive(Debug, Clone)]
+pub struct VoxelBlockGrid {
+    voxel_size_m: f32,
+    blocks: BlockMap<Block>,
+    changed: BlockSet,
+}
+
+impl VoxelBlockGrid {
+    /// An empty grid of voxels of `voxel_size_m` metres (finite, positive).
+    pub fn new(voxel_size_m: f32) -> Result<Self, FusionError> {
+        if !voxel_size_m.is_finite() || voxel_size_m <= 0.0 {
+            return Err(FusionError::InvalidParams(format!(
+                "voxel_size_m must be finite and positive, not {voxel_size_m}"
+            )));
+        }
+        Ok(Self {
+            voxel_size_m,
+            blocks: BlockMap::default(),
+            changed: BlockSet::default(),
+        })
+    }
+
+    pub fn voxel_size_m(&self) -> f32 {
+        self.voxel_size_m
+    }
+
+    /// The side of a block in metres.
+    pub fn block_size_m(&self) -> f32 {
+        self.voxel_size_m * BLOCK_SIDE as f32
+    }
+
+    /// Number of allocated blocks.
+    pub fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.blocks.is_empty()
+    }
+
+    pub fn block(&self, index: BlockIndex) -> Option<&Block> {
+        self.blocks.get(&index)
+    }
+
+    pub fn contains(&self, index: BlockIndex) -> bool {
+        self.blocks.contains_key(&index)
+    }
+
+    /// Every block, in no particular order.
+    pub fn blocks(&self) -> impl Iterator<Item = (&BlockIndex, &Block)> {
+        self.blocks.iter()
+    }
+
+    /// The global index of the voxel whose centre is nearest to a world point.
+    pub fn voxel_index_of(&self, point_in_world: DVec3) -> [i64; 3] {
+        let scaled = point_in_world / f64::from(self.voxel_size_m);
+        [scaled.x, scaled.y, scaled.z].map(|v| v.round() as i64)
+    }
+
+    /// The centre of a voxel in the world frame.
+    pub fn voxel_centre(&self, voxel: [i64; 3]) -> DVec3 {
+        let s = f64::from(self.voxel_size_m);
+        DVec3::new(voxel[0] as f64, voxel[1] as f64, voxel[2] as f64) * s
+    }
+
+    /// The voxel of a global index, if its block is allocated.
+    pub fn voxel(&self, voxel: [i64; 3]) -> Option<&Voxel> {
+        let block_index = BlockIndex::of_voxel(voxel);
+        let block = self.blocks.get(&block_index)?;
+        let first = block_index.first_voxel();
+        let [x, y, z] = [0, 1, 2].map(|a| (voxel[a] - first[a]) as usize);
+        Some(block.voxel(x, y, z))
+    }
+
+    /// The voxel whose centre is nearest to a world point, if its block is allocated.
+    pub fn voxel_at(&self, point_in_world: DVec3) -> Option<&Voxel> {
+        self.voxel(self.voxel_index_of(point_in_world))
+    }
+
+    /// The memory the blocks hold, in bytes (voxels plus the hash map's entries; the
+    /// allocator's own overhead is not counted).
+    pub fn memory_bytes(&self) -> usize {
+        let per_block = std::mem::size_of::<[Voxel; VOXELS_PER_BLOCK]>();
+        let per_entry = std::mem::size_of::<(BlockIndex, Block)>() + 1;
+        self.blocks.len() * per_block
+            + self.blocks.capacity() * per_entry
+            + self.changed.capacity() * (std::mem::size_of::<BlockIndex>() + 1)
+    }
+
+    /// Drops every block (a later [`super::Mesh::update`] drops their meshes).
+    pub fn clear(&mut self) {
+        self.blocks.clear();
+        self.changed.clear();
+    }
+
+    /// The blocks changed since the last meshing.
+    pub fn changed_blocks(&self) -> &BlockSet {
+        &self.changed
+    }
+
+    /// Marks every block changed (the next [`super::Mesh::update`] re-meshes all).
+    pub fn mark_all_changed(&mut self) {
+        self.changed = self.blocks.keys().copied().collect();
+    }
+
+    pub(super) fn take_changed(&mut self) -> BlockSet {
+        std::mem::take(&mut self.changed)
+    }
+
+    pub(super) fn mark_changed(&mut self, index: BlockIndex) {
+        self.changed.insert(index);
+    }
+
+    pub(super) fn blocks_map(&self) -> &BlockMap<Block> {
+        &self.blocks
+    }
+
+    pub(super) fn blocks_map_mut(&mut self) -> &mut BlockMap<Block> {
+        &mut self.blocks
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn voxel_and_block_indices_round_to_the_nearest_centre_and_floor_to_blocks() {
+        let grid = VoxelBlockGrid::new(0.05).unwrap();
+        assert_eq!(
+            grid.voxel_index_of(DVec3::new(0.024, -0.026, 0.4)),
+            [0, -1, 8]
+        );
+        assert_eq!(BlockIndex::of_voxel([0, -1, 8]), BlockIndex([0, -1, 1]));
+        assert_eq!(BlockIndex::of_voxel([-8, -9, 7]), BlockIndex([-1, -2, 0]));
+        assert_eq!(BlockIndex([-1, 2, 0]).first_voxel(), [-8, 16, 0]);
+        assert!(grid.voxel_at(DVec3::ZERO).is_none());
+        assert!(VoxelBlockGrid::new(0.0).is_err());
+        assert!(VoxelBlockGrid::new(f32::NAN).is_err());
+    }
+
+    #[test]
+    fn running_averages_are_capped_and_keep_moving() {
+        let mut v = Voxel::EMPTY;
+        for _ in 0..100 {
+            v.observe_tsdf(-1.0, 1.0, 4.0);
+            v.observe_colour([200, 10, 0], 4.0);
+        }
+        assert_eq!(v.weight, 4.0);
+        assert_eq!(v.colour_weight(), 4);
+        assert!((v.tsdf + 1.0).abs() < 1e-6);
+        assert_eq!(v.colour(), [200, 10, 0]);
+        // Capped at 4: one new observation moves the mean by a fifth of the difference.
+        v.observe_tsdf(1.0, 1.0, 4.0);
+        assert!((v.tsdf - (-1.0 + 2.0 / 5.0)).abs() < 1e-6);
+        // With a cap of 64, a level-1 difference still moves the 8.8 fixed-point colour.
+        let mut c = Voxel::EMPTY;
+        for _ in 0..64 {
+            c.observe_colour([100, 100, 100], 64.0);
+        }
+        for _ in 0..200 {
+            c.observe_colour([101, 101, 101], 64.0);
+        }
+        assert_eq!(c.colour(), [101, 101, 101]);
+        assert_eq!(std::mem::size_of::<Voxel>(), 16);
+    }
+
+    #[test]
+    fn clear_drops_blocks_and_memory_counts_them() {
+        let mut grid = VoxelBlockGrid::new(0.05).unwrap();
+        for i in 0..10 {
+            grid.blocks_map_mut()
+                .insert(BlockIndex([i, 0, 0]), Block::default());
+            grid.mark_changed(BlockIndex([i, 0, 0]));
+        }
+        assert_eq!(grid.block_count(), 10);
+        assert!(grid.memory_bytes() >= 10 * 512 * 16);
+        assert!(grid.voxel([79, 7, 7]).is_some());
+        assert!(grid.voxel([80, 0, 0]).is_none());
+        grid.clear();
+        assert!(grid.is_empty());
+        assert!(grid.changed_blocks().is_empty());
+    }
+}
