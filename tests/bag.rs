@@ -940,4 +940,57 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
         "{stderr}"
     );
     assert_eq!(depths(&out).len(), 4);
+
+    // `--mesh`: the four posed depth maps fused in the world frame: the mesh lies on the wall
+    // (z = 4 m in the world) and the box's front (z = 2 m), whatever the rig's motion.
+    let mesh = dir.join("mesh.ply");
+    let out2 = dir.join("out2.mcap");
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            out2.to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+            "--mesh",
+            mesh.to_str().unwrap(),
+            "--voxel-size",
+            "0.04",
+        ]),
+        "sweepdepth bag --mesh",
+    );
+    assert!(stderr.contains("mesh: 4 depth maps fused"), "{stderr}");
+    let bytes = std::fs::read(&mesh).expect("the PLY");
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .expect("a PLY header")
+        + 11;
+    let header = String::from_utf8_lossy(&bytes[..end]).into_owned();
+    assert!(
+        header.starts_with("ply\nformat binary_little_endian 1.0\n"),
+        "{header}"
+    );
+    let vertices: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .expect("a vertex count");
+    assert!(vertices > 1000, "{vertices} vertices");
+    // x y z as f32, then r g b.
+    let zs: Vec<f32> = (0..vertices)
+        .map(|v| {
+            let o = end + v * 15 + 8;
+            f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
+        })
+        .collect();
+    let on_scene = zs
+        .iter()
+        .filter(|z| (**z - 4.0).abs() < 0.2 || (**z - 2.0).abs() < 0.1)
+        .count();
+    eprintln!("mesh: {vertices} vertices, {on_scene} within 0.2 m of the wall or 0.1 m of the box");
+    assert!(
+        on_scene * 10 >= vertices * 9,
+        "only {on_scene} of {vertices} mesh vertices lie on the wall or the box"
+    );
 }

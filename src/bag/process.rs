@@ -9,7 +9,9 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
+use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
+use crate::pipeline::fuse::Fuser;
 use crate::pipeline::{
     ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
     PipelineConfig, Skip,
@@ -56,6 +58,14 @@ pub struct BagArgs {
     /// damaged bag is reported, the rest processed, and only a bag with nothing usable fails).
     #[arg(long)]
     pub strict: bool,
+    /// Fuse every reference's depth of every set into one coloured mesh, written at the end
+    /// as a binary PLY (MeshLab, Blender): in the world frame on a moving rig (`world_frame`),
+    /// else in the rig frame (the first reference camera's optical frame, or the rig file's).
+    #[arg(long, value_name = "FILE.ply")]
+    pub mesh: Option<PathBuf>,
+    /// With --mesh: the voxel size, metres (the truncation distance is 4 voxels).
+    #[arg(long, value_name = "M", default_value_t = 0.05, requires = "mesh")]
+    pub voxel_size: f32,
 }
 
 impl BagArgs {
@@ -103,6 +113,13 @@ pub enum BagRunError {
         sets: u64,
         output: String,
     },
+    #[error("--mesh: {0}")]
+    Fusion(#[from] crate::fusion::FusionError),
+    #[error("--mesh: cannot write {path}: {source}")]
+    MeshFile {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("no frame set could be processed ({found} found{}{})", if reasons.is_empty() { "" } else { "; skipped for: " }, reasons.join(", "))]
     NothingProcessed { found: u64, reasons: Vec<String> },
 }
@@ -137,6 +154,8 @@ struct Sink<'a> {
     bar: ProgressBar,
     /// `--view`: the live view, fed every processed set.
     viewer: Option<Viewer>,
+    /// `--mesh`: every reference's depth fused into one mesh.
+    fuser: Option<Fuser>,
 }
 
 impl Sink<'_> {
@@ -181,6 +200,13 @@ impl Sink<'_> {
                 for skip in &set.skipped {
                     *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
                     warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
+                }
+                if let Some(fuser) = &mut self.fuser {
+                    for out in &set.outputs {
+                        if let Err(e) = fuser.add(out) {
+                            warn(&self.bar, &mut self.seen, &format!("--mesh: {e}"));
+                        }
+                    }
                 }
                 // (Points go into OUT only with publish_points: `write_outputs`.)
                 for out in &set.outputs {
@@ -357,6 +383,13 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         None
     };
 
+    let fuser = match &args.mesh {
+        Some(_) => Some(Fuser::new(FusionParams {
+            voxel_size_m: args.voxel_size,
+            ..FusionParams::default()
+        })?),
+        None => None,
+    };
     let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
     let mut sink = Sink {
         config: &config,
@@ -367,6 +400,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         busy: Duration::ZERO,
         bar: progress_bar(total),
         viewer,
+        fuser,
     };
     let started = Instant::now();
     let mut last_log_ns = 0u64;
@@ -449,9 +483,28 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         busy,
         bar,
         viewer,
+        fuser,
         ..
     } = sink;
     bar.finish_and_clear();
+    if let (Some(mut fuser), Some(path)) = (fuser, &args.mesh) {
+        let stats = fuser.update_mesh();
+        let mesh = fuser.mesh();
+        crate::fusion::write_ply_file(&mesh, path).map_err(|source| BagRunError::MeshFile {
+            path: path.display().to_string(),
+            source,
+        })?;
+        let (blocks, bytes) = fuser.blocks();
+        report.mesh = Some(format!(
+            "{} depth maps fused into {} ({} triangles, {} vertices; {blocks} blocks of 8^3 voxels of {} m, {:.1} MiB)",
+            fuser.integrated,
+            path.display(),
+            stats.triangles,
+            mesh.vertices.len(),
+            args.voxel_size,
+            bytes as f64 / (1 << 20) as f64
+        ));
+    }
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
@@ -481,6 +534,9 @@ fn hold_view(viewer: &Viewer) {
 pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
     let (report, viewer) = process_bag_viewing(args)?;
     eprintln!("{}", report.summary_line());
+    if let Some(mesh) = &report.mesh {
+        eprintln!("mesh: {mesh}");
+    }
     if let Some(viewer) = viewer {
         hold_view(&viewer);
     }

@@ -31,6 +31,8 @@ pub struct BagReport {
     /// goes on at the next intact chunk where the file allows.
     pub read_errors: Vec<String>,
     pub output: Option<super::WriteSummary>,
+    /// `--mesh`: what was fused and where it went.
+    pub mesh: Option<String>,
 }
 
 impl BagReport {

@@ -22,6 +22,7 @@ pub mod calibration;
 pub mod config;
 pub mod convert;
 pub mod engine_host;
+pub mod fuse;
 pub mod outcome;
 pub mod outputs;
 mod roster;

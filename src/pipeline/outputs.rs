@@ -5,9 +5,10 @@ use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_m
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
-use crate::image::Rgba8Image;
+use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
 use crate::sweep::{DepthMaps, SweepError, SweepParams};
+use std::sync::Arc;
 
 /// The messages one reference of a frame set produces, all with the same header (the
 /// reference camera's stamp; its frame_id, or the virtual camera's). Their topics:
@@ -26,6 +27,31 @@ pub struct FrameOutputs {
     /// A moving rig (`world_frame`): the pose of the header's frame in the world frame at the
     /// header's stamp (what tf2 gives a ROS user for the same stamp).
     pub world_from_frame: Option<RigidTransform>,
+    /// The pose of the header's frame in the rig frame (the frame the set's cameras are placed
+    /// in: the first reference image's frame, or the rig file's).
+    pub rig_from_frame: RigidTransform,
+    /// The camera the depth is in (its model and its pose in the header's frame: a rectified
+    /// camera is its frame rotated by R), for consumers that unproject it (fusion).
+    pub model: CameraModel,
+    pub frame_from_cam: RigidTransform,
+    /// The reference camera's image (None for a virtual reference), shared, not copied.
+    pub colour: Option<Arc<Rgba8Image>>,
+}
+
+impl FrameOutputs {
+    /// The depth in metres (the `depth` message's 32FC1 data; NaN invalid).
+    pub fn depth_m(&self) -> ImageF32 {
+        ImageF32 {
+            width: self.depth.width,
+            height: self.depth.height,
+            data: self
+                .depth
+                .data
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect(),
+        }
+    }
 }
 
 /// What one frame set gives: each reference's outputs, and the references that failed.
@@ -69,9 +95,6 @@ pub fn process_job(
         let maps = engine
             .run(&rig, &images, sweep)
             .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
-        let world_from_frame = job
-            .world_from_rig
-            .map(|w| w.compose(&cam_from_rig.inverse()));
         let outputs = messages(
             0,
             header,
@@ -81,7 +104,10 @@ pub fn process_job(
             &rig.reference_model(),
             &RigidTransform::IDENTITY,
             with_points,
-            world_from_frame,
+            Placement {
+                rig_from_frame: cam_from_rig.inverse(),
+                world_from_rig: job.world_from_rig,
+            },
         );
         return Ok(SetOutputs {
             outputs: vec![outputs],
@@ -90,6 +116,8 @@ pub fn process_job(
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
     let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+    // The images go on to the outputs (colour for points and fusion) without a copy.
+    let images: Vec<Arc<Rgba8Image>> = images.into_iter().map(Arc::new).collect();
     let mut set = SetOutputs::default();
     for (reference, result) in job.references.iter().zip(results) {
         let name = job
@@ -117,10 +145,10 @@ pub fn process_job(
             .map(|m| m.header.clone())
             .unwrap_or_default();
         let camera = &job.cameras[reference.index];
-        let world_from_frame = job.world_from_rig.map(|w| {
-            w.compose(&camera.cam_from_rig.inverse())
-                .compose(&reference.cam_from_frame)
-        });
+        let rig_from_frame = camera
+            .cam_from_rig
+            .inverse()
+            .compose(&reference.cam_from_frame);
         set.outputs.push(messages(
             reference.output,
             header,
@@ -130,10 +158,19 @@ pub fn process_job(
             &camera.model,
             &reference.cam_from_frame.inverse(),
             with_points,
-            world_from_frame,
+            Placement {
+                rig_from_frame,
+                world_from_rig: job.world_from_rig,
+            },
         ));
     }
     Ok(set)
+}
+
+/// Where a reference's header frame is: in the rig, and in the world on a moving rig.
+struct Placement {
+    rig_from_frame: RigidTransform,
+    world_from_rig: Option<RigidTransform>,
 }
 
 /// The messages of one reference's depth maps.
@@ -143,16 +180,26 @@ fn messages(
     header: Header,
     info: &CameraInfo,
     maps: &DepthMaps,
-    colour: Option<&Rgba8Image>,
+    colour: Option<&Arc<Rgba8Image>>,
     model: &CameraModel,
     frame_from_cam: &RigidTransform,
     with_points: bool,
-    world_from_frame: Option<RigidTransform>,
+    placement: Placement,
 ) -> FrameOutputs {
+    let world_from_frame = placement
+        .world_from_rig
+        .map(|w| w.compose(&placement.rig_from_frame));
     let mut depth_info = info.clone();
     depth_info.header = header.clone();
-    let points =
-        with_points.then(|| point_cloud_msg(&header, &maps.depth_m, colour, model, frame_from_cam));
+    let points = with_points.then(|| {
+        point_cloud_msg(
+            &header,
+            &maps.depth_m,
+            colour.map(|c| c.as_ref()),
+            model,
+            frame_from_cam,
+        )
+    });
     FrameOutputs {
         output,
         depth: f32_image_msg(&header, &maps.depth_m),
@@ -163,5 +210,9 @@ fn messages(
         points,
         header,
         world_from_frame,
+        rig_from_frame: placement.rig_from_frame,
+        model: *model,
+        frame_from_cam: *frame_from_cam,
+        colour: colour.cloned(),
     }
 }

@@ -530,7 +530,7 @@ pub fn world_pose(
 ) -> (f64, sweepdepth::geometry::RigidTransform) {
     let value = value_of(status, key).unwrap_or_else(|| panic!("no '{key}' in {status:?}"));
     let numbers: Vec<f64> = value
-        .split(|c: char| c == ' ' || c == '[' || c == ']' || c == ',')
+        .split([' ', '[', ']', ','])
         .filter(|w| !w.is_empty())
         .map(|w| {
             w.parse()
