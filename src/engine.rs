@@ -1,7 +1,7 @@
 //! Which engine runs the sweep: the WGSL engine on a wgpu adapter, or the CPU engine. `auto`
 //! takes a hardware GPU when wgpu offers one (an adapter that is not `DeviceType::Cpu`) and the
 //! CPU engine otherwise: on a machine without a GPU, the CPU engine is several times faster than
-//! the same shaders on Mesa's lavapipe (see README, Speed).
+//! the same shaders on Mesa's lavapipe (see docs/speed.md).
 
 use std::borrow::Cow;
 

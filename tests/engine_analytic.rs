@@ -120,7 +120,7 @@ fn fronto_parallel_plane_comes_back_at_its_depth() {
 /// smaller half's curve is less smooth than both pairs' mean where the halves differ by more
 /// than the blend of `half_min`); census distances are interpolated linearly between texels,
 /// so a cost with a census part is less smooth there and refines less ("pixel locking";
-/// README, Quality).
+/// docs/engine.md, Scoring).
 #[test]
 fn sub_pixel_refinement_lowers_the_error_between_planes() {
     use sweepdepth::sweep::Cost;

@@ -720,7 +720,8 @@ fn virtual_reference() {
             "virtual_cy:=23.5",
             // The default scoring: this virtual camera's right half has no pair (only cam3
             // is right of it), so the half-sequence scores best n of m over all pairs
-            // (README, Quality; the halves alone got 122 of 280 telling pixels here).
+            // (docs/engine.md, Virtual references; the halves alone got 122 of 280 telling pixels
+            // here).
         ],
     );
     let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);

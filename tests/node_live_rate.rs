@@ -7,7 +7,7 @@
 //! No assertion depends on how fast the machine is: the player sends at 2 Hz on its own clock,
 //! and the test waits (with the generous limit of tests/common/dds.rs) for the depth of the last
 //! set. The share of sets answered is printed, not asserted: `scripts/live_rate.sh` runs this
-//! test on a release build with more sets to measure it (README "Speed").
+//! test on a release build with more sets to measure it (docs/speed.md).
 //!
 //! SAFETY: no DDS packet may leave the machine; see tests/common/netns.rs.
 

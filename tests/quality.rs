@@ -285,7 +285,7 @@ fn shared_middlebury_sets_meet_the_quality_bar() {
 
 /// ICL-NUIM (depth ground truth, present in CI): with the defaults the more confident half of
 /// the valid pixels is off by more than 5 % less than half as often as all valid pixels (at 1 %
-/// it is not: README, Quality).
+/// it is not: docs/quality.md).
 #[test]
 fn icl_confidence_ranks_coarse_depth_errors() {
     let Some(dir) = shared_data::dataset(

@@ -29,7 +29,7 @@
 //!
 //! An image that does not arrive within the limit below fails at once, and so does a run where
 //! more than half of the RustDDS images were over 2 s (the median is then too), without waiting
-//! for the rest. The figures are printed for the README (lines starting `RCL_LATENCY`).
+//! for the rest. The figures are printed for docs/node.md (lines starting `RCL_LATENCY`).
 //!
 //! Pace: every wait (the subscriber and the Fast DDS publisher ready, discovery, the warm-up
 //! images, each measured image) is for an outcome within the one generous limit

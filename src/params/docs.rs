@@ -1,10 +1,10 @@
-//! The parameter table as documentation: the README's parameter section is
+//! The parameter table as documentation: the parameter section of docs/node.md is
 //! [`markdown_table`]'s output (a test keeps them equal).
 
 use super::spec::{param_table, ParamRange};
 
-/// The parameter table as a Markdown table (name, type, default, range, description) for the
-/// README.
+/// The parameter table as a Markdown table (name, type, default, range, description) for
+/// docs/node.md.
 pub fn markdown_table() -> String {
     fn cell(s: &str) -> String {
         s.replace('|', "\\|").replace('\n', " ")

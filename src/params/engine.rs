@@ -4,7 +4,7 @@
 //!
 //! * `SweepParams::default()` (the engine's defaults),
 //! * the engine parameters of the node's parameter table ([`super::param_table`]: declared on
-//!   the parameter services, documented in the README, live: a change applies from the next
+//!   the parameter services, documented in docs/node.md, live: a change applies from the next
 //!   frame set),
 //! * the engine options of `demo`, `eval` and `bench` ([`super::EngineOptions`]),
 //! * the range checks of every value set by either ([`super::ParamSpec::coerce`]), and
@@ -201,7 +201,7 @@ engine_params! {
     num_planes: u32 = 64, "num_planes", Long("planes"), ParamRange::ints(2, 4096),
         "Number of depth planes, uniform in inverse depth.";
     // The cost, the window and the SGM penalties were chosen together on the evaluation sets
-    // (README, Quality).
+    // (docs/quality.md, CHANGELOG.md).
     cost: Cost = Cost::AdCensus, "cost", Long("cost"), variants::<Cost>(),
         "Pair matching cost: truncated colour SSD, 5x5 census (blind to gain and offset), or their mean.";
     scoring: Scoring = Scoring::BestHalfSequence, "scoring", Long("scoring"), variants::<Scoring>(),
@@ -244,7 +244,7 @@ engine_params! {
         variants::<Optimizer>(),
         "Depth selection: local winner-take-all (the paper) or semi-global matching over a u16 cost volume.";
     // SGM penalties chosen on the evaluation sets themselves (Tsukuba, Teddy, Laundry;
-    // README, Quality).
+    // docs/quality.md, CHANGELOG.md).
     sgm_p1: f32 = 20.0, "sgm_p1", Long("sgm-p1"), ParamRange::at_least(0.0),
         "SGM penalty for a one-plane step between neighbours, score units (those of tau).";
     sgm_p2: f32 = 250.0, "sgm_p2", Long("sgm-p2"), ParamRange::at_least(0.0),

@@ -12,7 +12,7 @@
 //!   `-p` rules set them.
 //! * [`checks`]: the checks across parameters (depth range, best n of m, the rig's shape).
 //! * [`cli`]: [`EngineOptions`], the engine options of `demo`, `eval`, `bench`.
-//! * [`docs`]: the README's parameter table.
+//! * [`docs`]: the parameter table of docs/node.md.
 //!
 //! No DDS: the node serves these over its parameter services (`crate::node::params`).
 

@@ -228,7 +228,7 @@ fn check_name(name: &str) -> Result<(), ParamError> {
     })
 }
 
-/// One parameter: what the node declares on its parameter services, the README documents and
+/// One parameter: what the node declares on its parameter services, docs/node.md documents and
 /// every setter checks against.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParamSpec {

@@ -16,7 +16,7 @@ use super::plan::SweepPlan;
 use super::{DepthMaps, SweepError, SweepParams};
 
 /// Planes added on each side of the range the half-resolution depths span (a half-resolution
-/// pixel's plane is about twice as uncertain; chosen on the public sets, README, Speed).
+/// pixel's plane is about twice as uncertain; chosen on the public sets; docs/engine.md).
 pub const MARGIN_PLANES: u32 = 3;
 
 /// Half-resolution rows above and below a row's own whose depths set its range.
@@ -38,7 +38,7 @@ pub const MIN_PLANES: u32 = 48;
 /// over most planes (the bench's ring: 73 % of the planes per row with a wta pass, 24 % with
 /// SGM; 640x480x64: 53 %, or 26 % with the wta depths below confidence 0.2 left out), while the
 /// SGM pass costs a few milliseconds more. Measured on the public sets (`eval --optimizer wta`,
-/// README, Speed): Teddy 8.72 -> 8.65, Laundry 21.35 -> 21.15 % bad>1 against the filtered wta
+/// CHANGELOG.md): Teddy 8.72 -> 8.65, Laundry 21.35 -> 21.15 % bad>1 against the filtered wta
 /// pass.
 pub const COARSE_OPTIMIZER: super::Optimizer = super::Optimizer::Sgm;
 

@@ -97,7 +97,7 @@ pub enum Optimizer {
     Sgm,
 }
 
-/// Engine parameters. Their defaults (measured best on the shared data, see README), node
+/// Engine parameters. Their defaults (measured best on the shared data, see docs/quality.md), node
 /// parameter names, command-line options, ranges and descriptions are declared once, in
 /// `src/params/engine.rs`, which also implements `Default` for this struct.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

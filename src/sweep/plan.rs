@@ -175,7 +175,8 @@ impl SweepPlan {
         // The halves score only the pairs on one side of the reference. A virtual reference
         // beside the last camera of its side has no pair on that side: that half is empty and
         // the pairs that straddle the virtual camera (in neither half) would go unused, so the
-        // half-sequence scores best n of m over all pairs there (README, Quality).
+        // half-sequence scores best n of m over all pairs there (docs/engine.md, Virtual
+        // references).
         let half_empty = |side: u32| !pair_table.iter().any(|p| p[2] == side);
         let straddling = pair_table.iter().any(|p| p[2] == HALF_REFERENCE);
         let scoring = if scoring == SCORING_HALF
@@ -375,7 +376,8 @@ impl SweepPlan {
     /// Best half-sequence with per-pair aggregation: how many of its best pairs each half
     /// (left, right) scores. Each half keeps at most the better half of its pairs (rounded up)
     /// and at most `half_best_n` of them, so a half of two pairs scores its better pair: the
-    /// occlusion assumption of the halves applied once more within a half (README, Quality).
+    /// occlusion assumption of the halves applied once more within a half (docs/engine.md,
+    /// Scoring).
     /// 0 = all pairs of the half (the paper's rule, `half_best_n` 0).
     pub fn half_ranks(&self) -> [u32; 2] {
         let n = self.params.half_best_n;

@@ -38,7 +38,7 @@ fn half_decision(margin: f32, left: f32, right: f32) -> f32 {
 /// within `h` (HALF_NOISE_FLOOR) of each other (a quadratic smooth minimum, continuous in both halves): where no
 /// occlusion hits either side the score follows both halves' curves, not the one that happens to
 /// be lower at each plane, so neighbouring planes keep one shape (SGM and the sub-pixel parabola
-/// read it; README, Quality).
+/// read it; docs/engine.md, Semi-global matching).
 #[inline(always)]
 fn half_min(h: f32, left: f32, right: f32) -> f32 {
     let m = fmin(left, right);
