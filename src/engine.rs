@@ -227,7 +227,7 @@ impl Engine {
         })
     }
 
-    /// "WGSL engine on <adapter>" or "CPU engine (N threads)".
+    /// "WGSL engine on \<adapter\>" or "CPU engine (N threads)".
     pub fn label(&self) -> String {
         match self {
             Self::Gpu { gpu, .. } => format!("WGSL engine on {}", gpu.adapter_label()),

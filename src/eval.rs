@@ -21,7 +21,7 @@ pub struct EvalArgs {
     /// Dataset folders (Middlebury 2001/2003/2005/2006, ICL-NUIM frames, Middlebury multi-view).
     #[arg(required = true, num_args = 1..)]
     pub dirs: Vec<PathBuf>,
-    /// Write disparity/depth/confidence PFMs and PNGs to OUT/<dataset folder name>/.
+    /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/`.
     #[arg(long, value_name = "OUT")]
     pub save: Option<PathBuf>,
     /// Pixels evaluated (disparity ground truth): all with ground truth, or only the

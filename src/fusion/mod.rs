@@ -9,7 +9,7 @@
 //!
 //! - [`blocks`]: [`VoxelBlockGrid`]: blocks of [`Voxel`]s in a hash map by [`BlockIndex`], and
 //!   the set of blocks changed since the last meshing.
-//! - [`integrate`]: [`integrate()`]: one depth map (and optionally its colour image) into the
+//! - [`mod@integrate`]: [`integrate()`]: one depth map (and optionally its colour image) into the
 //!   grid, [`IntegrationStats`]. Observations weigh the squared cosine between the viewing
 //!   ray and the surface normal (nvblox weighs them equally), which keeps grazing views from
 //!   pushing a curved surface outwards.
@@ -50,7 +50,7 @@ pub struct FusionParams {
     /// surface, and saturates at this distance in front of it.
     pub truncation_voxels: f32,
     /// The cap on a voxel's weight (one per head-on observation, less for oblique ones: see
-    /// [`integrate`]): a running average over about this many observations at most, so that
+    /// [`integrate()`]): a running average over about this many observations at most, so that
     /// a surface that moves is followed.
     pub max_weight: f32,
     /// Depths beyond this are not integrated.

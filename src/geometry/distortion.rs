@@ -124,7 +124,7 @@ impl Distortion {
         }
     }
 
-    /// Whether the model folds over at [`Self::branch_end`] (its derivative turns negative
+    /// Whether the model folds over at `branch_end` (its derivative turns negative
     /// there), rather than merely reaching the horizon.
     pub fn fold(&self) -> Option<Fold> {
         let end = self.branch_end();

@@ -5,7 +5,7 @@
 //! `~/set_parameters_atomically` (checked and applied by [`LiveParams`]), with a
 //! `/parameter_events` message for every accepted change.
 //!
-//! [`Answers`] computes the responses (no DDS; unit-tested); [`ParamServices`] serves them on
+//! [`Answers`] computes the responses (no DDS; unit-tested); `ParamServices` serves them on
 //! ros2-client's service API.
 
 use std::sync::Arc;

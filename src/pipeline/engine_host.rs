@@ -66,7 +66,7 @@ impl EngineHost {
         lost
     }
 
-    /// "WGSL engine on <adapter>" or "CPU engine (N threads)".
+    /// "WGSL engine on \<adapter\>" or "CPU engine (N threads)".
     pub fn adapter_label(&self) -> String {
         self.engine.label()
     }

@@ -36,7 +36,7 @@
 //!   the matrix must be orthonormal with determinant +1 (within 1e-3); exactly one of
 //!   `rotation` and `rotation_matrix`; names non-empty and unique; at least one camera;
 //!   `fx`, `fy` > 0 and a non-zero image size; exact distortion coefficient counts.
-//!   All-zero distortion coefficients give [`Distortion::None`].
+//!   All-zero distortion coefficients give [`crate::geometry::Distortion::None`].
 //! - Every error names the file and, when it is about one camera, the camera (its name, or
 //!   `cameras[i]` when it has none).
 //!

@@ -1,6 +1,6 @@
 //! The work on a frame set's images that every reference of the set shares (`references`):
 //! the census words of each image and its half-size twins for coarse to fine, made once per
-//! set and camera whatever the number of references. [`crate::engine::Engine::run_references`]
+//! set and camera whatever the number of references. [`crate::engine::Sweeper::run_references`]
 //! opens the memo for a set ([`FrameMemo::begin`]) and closes it after the last reference;
 //! outside such a set (a plain `run`) nothing is kept and every run makes its own.
 //!

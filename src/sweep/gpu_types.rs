@@ -69,7 +69,7 @@ pub struct GpuCamera {
     pub row2: [f32; 4],
     pub intrinsics: [f32; 4],
     pub dist_a: [f32; 4],
-    /// plumb_bob: k3 in [0]; both models: [1] = the largest (x/z)² + (y/z)² of the monotonic
+    /// plumb_bob: k3 in \[0\]; both models: \[1\] = the largest (x/z)² + (y/z)² of the monotonic
     /// branch (points farther off axis are not seen; `f32::MAX` when the model never folds).
     pub dist_b: [f32; 4],
     /// width, height, offset of pixel (0, 0) in the image buffer, distortion model.

@@ -2,7 +2,7 @@
 //! own neighbours ([`crate::geometry::neighbours`]) and its own best half-sequence split, on
 //! a rig of those cameras with itself as the reference ([`reference_rig`]). The set's work on
 //! its images (conversion before the engine, census words and half-size images in it:
-//! `frame_memo.rs`) is done once for all of them ([`crate::engine::Engine::run_references`]);
+//! `frame_memo.rs`) is done once for all of them ([`crate::engine::Sweeper::run_references`]);
 //! each reference keeps its own plans (`coarse::PlanSets`). One reference is the same sweep:
 //! the depth of a reference is the same whether it runs alone or beside others.
 

@@ -241,7 +241,7 @@ fn resolve(
 /// Resolves a topic name as rcl does: expand it ([`expand_name`]), then apply the first remap
 /// rule whose `from`, expanded the same way, equals it (rules targeted at another node are
 /// skipped); the rule's `to` is expanded too. `node_name` and `namespace` are the node's after
-/// `__node`/`__ns` ([`RosArgs::node_identity`]).
+/// `__node`/`__ns` ([`super::RosArgs::node_identity`]).
 pub fn resolve_topic(
     name: &str,
     namespace: &str,
