@@ -15,7 +15,16 @@
 #   (Debian's Python refuses global pip installs) made from a Python 3.11, the only version the
 #   ROS wheels are built for. Pinned versions; nothing is installed when all is present.
 # Run it from the repository root.
+#
+# `sh scripts/setup.sh --demo` installs only what `sweepdepth demo` needs: on a machine without
+# a GPU the demo runs on the CPU engine and needs nothing beyond Rust, so this checks and
+# installs nothing (no Vulkan, browser, Python tools or ROS wheels: the tests' needs).
 set -eu
+
+if [ "${1:-}" = "--demo" ]; then
+    echo "setup: the demo needs nothing beyond Rust here (the CPU engine without a GPU; a GPU's own Vulkan driver when there is one)" >&2
+    exit 0
+fi
 
 have_icd() {
     for dir in /usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/share/vulkan/icd.d; do

@@ -30,8 +30,8 @@ pub struct BenchArgs {
     /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
-    /// Only these configurations (repeatable): paper, demo, 9-camera, 9-camera-3refs,
-    /// 9-camera-3refs-near4, vga, ring, ring-distorted, sxga.
+    /// Only these configurations (repeatable): paper, demo, 9-camera, 9-camera-near4,
+    /// 9-camera-3refs, 9-camera-3refs-near4, vga, ring, ring-distorted, sxga.
     #[arg(long = "config", value_name = "NAME")]
     pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
@@ -80,7 +80,7 @@ pub struct BenchConfig {
 }
 
 /// The configurations.
-pub const CONFIGS: [BenchConfig; 9] = [
+pub const CONFIGS: [BenchConfig; 10] = [
     BenchConfig {
         name: "paper",
         cameras: 4,
@@ -113,7 +113,19 @@ pub const CONFIGS: [BenchConfig; 9] = [
     },
     // The 9-camera rig with three references (cameras 1, 4 and 7: depth across the row): with
     // every camera each, and with each reference's nearest two on each side
-    // (`max_neighbours` 4). Beside "9-camera" (the middle camera alone, all 8 others).
+    // (`max_neighbours` 4). Beside "9-camera" (the middle camera alone, all 8 others) and
+    // "9-camera-near4" (the middle camera alone with its 4 nearest).
+    BenchConfig {
+        name: "9-camera-near4",
+        cameras: 9,
+        width: 450,
+        height: 375,
+        planes: 57,
+        workload: Workload::Defaults,
+        // The middle camera as a reference (`run_references`: neighbours chosen).
+        references: &[4],
+        max_neighbours: 4,
+    },
     BenchConfig {
         name: "9-camera-3refs",
         cameras: 9,

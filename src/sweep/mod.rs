@@ -148,7 +148,8 @@ pub struct SweepParams {
     /// its neighbourhood needs (`sweep/coarse.rs`).
     pub coarse_to_fine: bool,
     /// Cameras each reference sweeps with, at most (0: every camera that sees its view;
-    /// `geometry::neighbours`).
+    /// `geometry::neighbours`). Applies where references choose their cameras
+    /// (`Sweeper::run_references`: the node, `bag`); `run` sweeps the rig it is given.
     pub max_neighbours: u32,
 }
 
