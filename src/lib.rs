@@ -51,6 +51,7 @@ pub mod eval;
 pub mod fusion;
 pub mod geometry;
 pub mod gpu_context;
+pub mod handoff;
 pub mod image;
 pub mod io;
 pub mod logging;

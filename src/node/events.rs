@@ -10,7 +10,7 @@ use futures::Stream;
 
 use super::diag::Stats;
 use super::log::{lock, node_log, RateLimited};
-use super::slot::LatestSlot;
+use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::pipeline::{Input, Job, Pipeline};
 
@@ -30,7 +30,7 @@ pub(super) struct LoopState<'a> {
     /// The clock of camera dropout (receive time).
     pub started: Instant,
     pub log: RateLimited,
-    pub slot: &'a LatestSlot<Job>,
+    pub slot: &'a Handoff<Job>,
     pub stats: &'a Mutex<Stats>,
 }
 

@@ -4,9 +4,9 @@
 //! Data flow: per camera an image and a camera_info subscription (and `/tf_static` unless
 //! `rig_file` is set) feed one async loop on a `futures` executor that also drives the
 //! ros2-client spinner (`dds`). Each message goes into the pipeline (`events`); each set
-//! it makes ready goes to the GPU thread through a one-slot channel ([`slot::LatestSlot`]: the
-//! newest set replaces a pending one). The GPU thread (`worker`) owns the
-//! [`crate::pipeline::EngineHost`], runs the sweep and publishes `depth/image`,
+//! it makes ready goes to the GPU thread through a one-set hand-over
+//! ([`crate::handoff::Handoff`]: the newest set replaces a pending one). The GPU thread
+//! (`worker`) owns the [`crate::pipeline::EngineHost`], runs the sweep and publishes `depth/image`,
 //! `depth/camera_info`, `confidence/image`, `cost/image`, `selection/image` and, with
 //! `publish_points`, `points` (an organised PointCloud2 coloured from the reference image).
 //! With `foxglove_port`, the same outputs go to the live view ([`crate::viewer`]) too.
@@ -30,7 +30,6 @@ mod events;
 mod log;
 pub mod param_services;
 pub mod params;
-pub mod slot;
 mod worker;
 
 use std::sync::{Arc, Mutex};
@@ -40,7 +39,7 @@ pub use config::{NodeConfig, NodeError};
 use self::diag::Stats;
 use self::log::{lock, ROSOUT};
 use self::params::LiveParams;
-use self::slot::LatestSlot;
+use crate::handoff::Handoff;
 use crate::pipeline::Job;
 use crate::sweep::CancelFlag;
 use crate::viewer::{Viewer, ViewerConfig};
@@ -48,7 +47,7 @@ use crate::viewer::{Viewer, ViewerConfig};
 /// What the executor side (event loop, parameter callbacks, diagnostics) shares with the GPU
 /// thread.
 struct Shared<'a> {
-    slot: &'a LatestSlot<Job>,
+    slot: &'a Handoff<Job>,
     live: &'a Arc<LiveParams>,
     stats: &'a Mutex<Stats>,
     /// The adapter the engine runs on.
@@ -86,7 +85,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         None => None,
     };
     // The GPU thread starts first so that a missing adapter fails before DDS comes up.
-    let slot: Arc<LatestSlot<Job>> = Arc::new(LatestSlot::new());
+    let slot: Arc<Handoff<Job>> = Arc::new(Handoff::new());
     let live = LiveParams::new(
         pipeline.params.clone(),
         pipeline.sweep.clone(),

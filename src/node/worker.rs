@@ -1,4 +1,4 @@
-//! The GPU thread: owns the [`EngineHost`], takes the newest set from the [`LatestSlot`], runs
+//! The GPU thread: owns the [`EngineHost`], takes the newest set from the [`Handoff`], runs
 //! it with the engine parameters of the moment and publishes its outputs.
 
 use std::sync::{mpsc, Arc, Mutex};
@@ -10,8 +10,8 @@ use ros2_client::Publisher;
 use super::diag::{wall_time_now, Stats};
 use super::log::{lock, log_info, RateLimited};
 use super::params::LiveParams;
-use super::slot::LatestSlot;
 use super::NodeError;
+use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{EngineHost, FrameOutputs, HostError, Job};
 use crate::sweep::CancelFlag;
@@ -41,7 +41,7 @@ pub(super) struct GpuThread {
 pub(super) fn spawn(
     device: crate::engine::Device,
     cancel: CancelFlag,
-    slot: Arc<LatestSlot<Job>>,
+    slot: Arc<Handoff<Job>>,
     live: Arc<LiveParams>,
     stats: Arc<Mutex<Stats>>,
     viewer: Option<Viewer>,
@@ -83,7 +83,7 @@ pub(super) fn spawn(
 }
 
 fn worker_loop(
-    slot: &LatestSlot<Job>,
+    slot: &Handoff<Job>,
     live: &LiveParams,
     stats: &Mutex<Stats>,
     mut host: EngineHost,

@@ -11,8 +11,6 @@
 #[cfg(feature = "viewer")]
 mod channels;
 #[cfg(feature = "viewer")]
-mod handoff;
-#[cfg(feature = "viewer")]
 mod page;
 #[cfg(feature = "viewer")]
 mod server;

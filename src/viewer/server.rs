@@ -9,9 +9,9 @@ use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{Context, WebSocketServer, WebSocketServerHandle};
 
 use super::channels::OutputChannels;
-use super::handoff::Handoff;
 use super::page::PageServer;
 use super::{ViewerConfig, ViewerError, CLIENT_BACKLOG};
+use crate::handoff::Handoff;
 use crate::pipeline::{FrameOutputs, OutputTopics};
 
 /// One set for the viewer's thread, with the wall-clock time it was offered (ns).
@@ -42,7 +42,7 @@ struct Listener {
 impl ServerListener for Listener {
     fn on_subscribe(&self, _client: Client, _channel: ChannelView) {
         if let Some(offered) = self.latch.get() {
-            self.handoff.put(offered);
+            self.handoff.offer(offered);
         }
     }
 }
@@ -125,7 +125,7 @@ impl Viewer {
         if self.channels.has_subscribers() {
             let offered = (Arc::new(out.clone()), wall_time_ns());
             self.latch.set(offered.clone());
-            self.handoff.put(offered);
+            self.handoff.offer(offered);
         }
     }
 
@@ -136,13 +136,13 @@ impl Viewer {
         let offered = (Arc::new(out), wall_time_ns());
         self.latch.set(offered.clone());
         if self.channels.has_subscribers() {
-            self.handoff.put(offered);
+            self.handoff.offer(offered);
         }
     }
 
     /// Sets replaced before the viewer's thread took them.
     pub fn replaced(&self) -> u64 {
-        self.handoff.replaced()
+        self.handoff.dropped()
     }
 
     /// The connection string for Foxglove and Lichtblick.
