@@ -14,8 +14,11 @@
 //! The node's parameters themselves (the table, values, checks) are [`crate::params`]'s.
 //!
 //! Deliberate differences from rclcpp: a `double` parameter also takes an integer (`-p tau:=100`)
-//! and a `double[]` an integer sequence, where rclcpp reports a type error; `-p` overrides
-//! parameter files whatever their order on the command line (rcl applies them in order).
+//! and a `double[]` an integer sequence, where rclcpp reports a type error. Parameter files and
+//! `-p` merge as in rcl: in command-line order into one table of node entries (a `-p` is an
+//! entry for `/**`), applied entry by entry in the order each first appeared, so a file's
+//! section for the node wins over a `-p`, even a later one (`docs/node.md`; checked against rcl
+//! by `tests/ros_args_rcl.rs`).
 
 pub mod names;
 pub mod params_file;
