@@ -856,6 +856,14 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
     let config = PipelineConfig::from_args(&args).expect("config");
     let mut pipeline = Pipeline::new(&config).expect("pipeline");
     let (mut posed, mut skipped) = (Vec::new(), Vec::new());
+    let mut sort = |sets: Vec<Result<_, _>>| {
+        for set in sets {
+            match set {
+                Ok(job) => posed.push(job),
+                Err(skip) => skipped.push(skip),
+            }
+        }
+    };
     for m in messages(&bag) {
         let input = match m.topic.as_str() {
             "/tf_static" => Input::TfStatic(from_cdr(&m.data).unwrap()),
@@ -875,20 +883,9 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
                 }
             }
         };
-        let outcome = pipeline.push(input, m.log_time_ns);
-        for set in outcome.sets {
-            match set {
-                Ok(job) => posed.push(job),
-                Err(skip) => skipped.push(skip),
-            }
-        }
+        sort(pipeline.push(input, m.log_time_ns).sets);
     }
-    for set in pipeline.finish().sets {
-        match set {
-            Ok(job) => posed.push(job),
-            Err(skip) => skipped.push(skip),
-        }
-    }
+    sort(pipeline.finish().sets);
     let stamps: Vec<Time> = posed
         .iter()
         .map(|j| j.images[j.reference].header.stamp)

@@ -13,7 +13,7 @@ use std::collections::VecDeque;
 
 use super::config::WorldConfig;
 use super::outcome::{Job, Skip, SkipKind};
-use crate::msgs::{TFMessage, Time};
+use crate::msgs::TFMessage;
 use crate::ros::tf_history::{TfHistory, TfInsertError};
 
 /// A set waiting for its pose.
@@ -38,7 +38,12 @@ impl WorldPoses {
     pub fn add(&mut self, msg: &TFMessage, is_static: bool) -> (Vec<TfInsertError>, bool) {
         let mut cleared = false;
         if !is_static {
-            if let Some(stamp) = msg.transforms.iter().map(|t| t.header.stamp).min_by_key(ns) {
+            if let Some(stamp) = msg
+                .transforms
+                .iter()
+                .map(|t| t.header.stamp)
+                .min_by_key(|t| t.to_nanos())
+            {
                 cleared = self.tf.note_time(stamp);
             }
         }
@@ -121,8 +126,4 @@ impl WorldPoses {
     pub fn waiting(&self) -> usize {
         self.waiting.len()
     }
-}
-
-fn ns(t: &Time) -> i64 {
-    i64::from(t.sec) * 1_000_000_000 + i64::from(t.nanosec)
 }

@@ -75,14 +75,16 @@ impl PlanSets {
             Reference::Camera(i) => rig.cameras[i].name.as_str(),
             Reference::Virtual { .. } => "",
         };
-        let plans = match self.sets.iter().position(|(k, _)| k == key) {
-            Some(i) => self.sets.remove(i).1,
-            None => Plans::default(),
-        };
-        if self.sets.len() >= MAX_PLAN_SETS {
-            self.sets.remove(0);
+        match self.sets.iter().position(|(k, _)| k == key) {
+            // Most recently used last, without moving the plans or allocating the key again.
+            Some(i) => self.sets[i..].rotate_left(1),
+            None => {
+                if self.sets.len() >= MAX_PLAN_SETS {
+                    self.sets.remove(0);
+                }
+                self.sets.push((key.to_string(), Plans::default()));
+            }
         }
-        self.sets.push((key.to_string(), plans));
         let last = self.sets.len() - 1;
         &mut self.sets[last].1
     }
@@ -486,6 +488,34 @@ mod tests {
                 levels(&rig(w, h), &params(planes)) > 1
             );
         }
+    }
+
+    /// Each reference keeps its plans; the least recently used goes past MAX_PLAN_SETS.
+    #[test]
+    fn plan_sets_keep_each_reference_most_recent_last() {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(64, 48));
+        let rig = |r: usize| crate::synthetic::row_rig(3, 0.1, model, r).expect("rig");
+        let mut sets = PlanSets::default();
+        let params = SweepParams::default();
+        let plan = SweepPlan::new(&rig(0), &params).expect("plan");
+        sets.for_rig(&rig(0)).whole = Some((rig(0), params.clone(), plan));
+        sets.for_rig(&rig(1));
+        sets.for_rig(&rig(2));
+        let keys = |s: &PlanSets| s.sets.iter().map(|(k, _)| k.clone()).collect::<Vec<_>>();
+        assert_eq!(keys(&sets), ["cam0", "cam1", "cam2"]);
+        // cam0 again: its plans come back, moved last.
+        assert!(sets.for_rig(&rig(0)).whole.is_some());
+        assert_eq!(keys(&sets), ["cam1", "cam2", "cam0"]);
+        assert!(sets.for_rig(&rig(1)).whole.is_none());
+        assert_eq!(keys(&sets), ["cam2", "cam0", "cam1"]);
+        // Other references fill the cache: the least recently used goes.
+        for i in 0..MAX_PLAN_SETS {
+            let mut other = rig(1);
+            other.cameras[1].name = format!("other{i}");
+            sets.for_rig(&other);
+        }
+        assert_eq!(sets.sets.len(), MAX_PLAN_SETS);
+        assert!(!keys(&sets).contains(&"cam0".to_string()));
     }
 
     #[test]
