@@ -4,6 +4,7 @@
 //! set: `references`) and the demo's Tsukuba set, each with
 //! winner-take-all and SGM; and the peer, OpenCV StereoSGBM 3-way on two Tsukuba views with 32
 //! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it.
+//! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -18,6 +19,8 @@ use crate::image::Rgba8Image;
 use crate::params::EngineOptions;
 use crate::sweep::{Cost, Optimizer, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
+
+pub mod fusion;
 
 #[derive(Debug, clap::Args)]
 pub struct BenchArgs {
@@ -41,6 +44,18 @@ pub struct BenchArgs {
     /// adapter (gpu) or the CPU engine (cpu).
     #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
     pub device: crate::engine::Device,
+    /// Time the TSDF fusion instead (integrate and mesh one 640x480 depth map at 2 cm voxels)
+    /// beside Open3D's VoxelBlockGrid in the same run (`src/bench/fusion.rs`).
+    #[arg(long)]
+    pub fusion: bool,
+    /// Python with `open3d` for the fusion peer (default: $SWEEPDEPTH_OPEN3D_PYTHON,
+    /// target/test-venv, /tmp/o3d, then python3).
+    #[arg(long, value_name = "PY")]
+    pub open3d_python: Option<PathBuf>,
+    /// The ICL-NUIM frames for `--fusion` (default: ../shared/data's living room; without it, a
+    /// built-in synthetic pair).
+    #[arg(long, value_name = "DIR")]
+    pub fusion_data: Option<PathBuf>,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
@@ -455,6 +470,9 @@ pub fn run_peer(explicit_python: Option<&Path>, repeats: usize) -> Result<PeerRe
 }
 
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
+    if args.fusion {
+        return fusion::run(args);
+    }
     let repeats = if args.quick { 3 } else { args.repeats };
     let peer = run_peer(args.python.as_deref(), 3 * repeats);
     let peer_ms = peer.as_ref().ok().map(|p| p.ms_median);

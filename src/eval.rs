@@ -4,6 +4,7 @@
 //! dataset's evaluation units, `d = focal_baseline_eval / z`, and is compared with the ground
 //! truth on every pixel that has ground truth and lies outside the border. Depth ground truth
 //! (ICL-NUIM): relative depth errors. Datasets without ground truth (multi-view rings) only run.
+//! `eval --fusion` ([`fusion`]): the fused model's accuracy beside the depth maps' (issue 28).
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -15,15 +16,29 @@ use crate::image::ImageF32;
 use crate::io::{self, IoError};
 use crate::sweep::{DepthMaps, SweepError};
 
+pub mod fusion;
+
 /// Command-line arguments of `sweepdepth eval`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
-    /// Dataset folders (Middlebury 2001/2003/2005/2006, ICL-NUIM frames, Middlebury multi-view).
-    #[arg(required = true, num_args = 1..)]
+    /// Dataset folders (Middlebury 2001/2003/2005/2006, ICL-NUIM frames, Middlebury multi-view;
+    /// with --fusion, ICL-NUIM frames only, and none is needed).
+    #[arg(required_unless_present = "fusion", num_args = 1..)]
     pub dirs: Vec<PathBuf>,
-    /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/`.
+    /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/` (with
+    /// --fusion: each fused mesh as `OUT/<dataset>.ply`).
     #[arg(long, value_name = "OUT")]
     pub save: Option<PathBuf>,
+    /// The fused model's accuracy (issue 28) instead: a synthetic moving rig, then each folder
+    /// (ICL-NUIM frames posed as one rig, every frame a reference), fused into a TSDF, ray-cast
+    /// into every view and compared with the ground truth beside the depth maps
+    /// (`eval::fusion`).
+    #[arg(long)]
+    pub fusion: bool,
+    /// With --fusion: the voxel size in metres for every dataset (default: 0.02, chosen per
+    /// dataset in `eval::fusion`).
+    #[arg(long, value_name = "M", requires = "fusion")]
+    pub voxel_size: Option<f32>,
     /// Pixels evaluated (disparity ground truth): all with ground truth, or only the
     /// non-occluded ones (a left-right check of the evaluation pair's two ground-truth maps;
     /// Middlebury 2003/2005 only, an error for the others).
@@ -575,6 +590,9 @@ pub enum EvalRunError {
 /// `sweepdepth eval`: one engine (`--device`) for all folders; a folder that fails is reported and the
 /// others still run; the command fails at the end if any did.
 pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
+    if args.fusion {
+        return fusion::run(args);
+    }
     let mut engine = Engine::new(args.device)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "# engine: {}", engine.label())?;

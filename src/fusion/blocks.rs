@@ -135,7 +135,8 @@ impl Voxel {
         let w = f32::from(self.colour_weight);
         for (c, &o) in self.colour_fixed.iter_mut().zip(rgb.iter()) {
             let mean = (f32::from(*c) * w + f32::from(o) * 256.0) / (w + 1.0);
-            *c = mean.round().clamp(0.0, f32::from(u16::MAX)) as u16;
+            // Rounded (the mean is not negative; the cast saturates at u16::MAX).
+            *c = (mean + 0.5) as u16;
         }
         let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
         self.colour_weight = (w + 1.0).min(cap) as u16;
@@ -167,13 +168,14 @@ impl Block {
     }
 }
 
-/// The TSDF grid: blocks by index, the voxel size, and the blocks changed since the last
-/// meshing ([`super::Mesh::update`] takes them).
+/// The TSDF grid: blocks by index, the voxel size, and the blocks changed and removed since
+/// the last meshing ([`super::Mesh::update`] takes both).
 #[derive(Debug, Clone)]
 pub struct VoxelBlockGrid {
     voxel_size_m: f32,
     blocks: BlockMap<Block>,
     changed: BlockSet,
+    removed: BlockSet,
 }
 
 impl VoxelBlockGrid {
@@ -188,6 +190,7 @@ impl VoxelBlockGrid {
             voxel_size_m,
             blocks: BlockMap::default(),
             changed: BlockSet::default(),
+            removed: BlockSet::default(),
         })
     }
 
@@ -255,13 +258,56 @@ impl VoxelBlockGrid {
         let per_entry = std::mem::size_of::<(BlockIndex, Block)>() + 1;
         self.blocks.len() * per_block
             + self.blocks.capacity() * per_entry
-            + self.changed.capacity() * (std::mem::size_of::<BlockIndex>() + 1)
+            + (self.changed.capacity() + self.removed.capacity())
+                * (std::mem::size_of::<BlockIndex>() + 1)
     }
 
     /// Drops every block (a later [`super::Mesh::update`] drops their meshes).
     pub fn clear(&mut self) {
+        self.removed.extend(self.blocks.keys().copied());
         self.blocks.clear();
         self.changed.clear();
+    }
+
+    /// Keeps at most `max_blocks` blocks (0: no limit): when there are more, drops the ones
+    /// whose centres lie farthest from `centre_in_world` (the latest camera centre), for good:
+    /// what they held is forgotten, and a block seen again later starts empty. Returns how many
+    /// were dropped; they join [`Self::removed_blocks`]. O(n) in the blocks held (a selection,
+    /// not a sort), and only when over the limit.
+    pub fn drop_farthest(&mut self, max_blocks: usize, centre_in_world: DVec3) -> usize {
+        if max_blocks == 0 || self.blocks.len() <= max_blocks {
+            return 0;
+        }
+        let block_m = f64::from(self.block_size_m());
+        let half = DVec3::splat(0.5 * block_m - 0.5 * f64::from(self.voxel_size_m));
+        let mut by_distance: Vec<(f64, BlockIndex)> = self
+            .blocks
+            .keys()
+            .map(|index| {
+                let [a, b, c] = index.0.map(f64::from);
+                let centre = DVec3::new(a, b, c) * block_m + half;
+                (centre.distance_squared(centre_in_world), *index)
+            })
+            .collect();
+        // The `max_blocks` nearest first (ties broken by index, so the choice is repeatable).
+        by_distance
+            .select_nth_unstable_by(max_blocks, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let dropped = by_distance.len() - max_blocks;
+        for (_, index) in by_distance.drain(max_blocks..) {
+            self.blocks.remove(&index);
+            self.changed.remove(&index);
+            self.removed.insert(index);
+        }
+        dropped
+    }
+
+    /// The blocks dropped ([`Self::drop_farthest`], [`Self::clear`]) since the last meshing.
+    pub fn removed_blocks(&self) -> &BlockSet {
+        &self.removed
+    }
+
+    pub(super) fn take_removed(&mut self) -> BlockSet {
+        std::mem::take(&mut self.removed)
     }
 
     /// The blocks changed since the last meshing.
@@ -351,5 +397,28 @@ mod tests {
         grid.clear();
         assert!(grid.is_empty());
         assert!(grid.changed_blocks().is_empty());
+        assert_eq!(grid.removed_blocks().len(), 10);
+    }
+
+    #[test]
+    fn drop_farthest_keeps_the_nearest_blocks() {
+        let mut grid = VoxelBlockGrid::new(0.05).unwrap();
+        for i in -5..10 {
+            grid.blocks_map_mut()
+                .insert(BlockIndex([i, 0, 0]), Block::default());
+            grid.mark_changed(BlockIndex([i, 0, 0]));
+        }
+        // Nothing to drop under the limit, or without one.
+        assert_eq!(grid.drop_farthest(0, DVec3::ZERO), 0);
+        assert_eq!(grid.drop_farthest(15, DVec3::ZERO), 0);
+        // Around block 3 (x from 1.2 to 1.6 m): blocks 1..=5 are the five nearest.
+        assert_eq!(grid.drop_farthest(5, DVec3::new(1.4, 0.2, 0.2)), 10);
+        let mut kept: Vec<i32> = grid.blocks().map(|(index, _)| index.0[0]).collect();
+        kept.sort_unstable();
+        assert_eq!(kept, vec![1, 2, 3, 4, 5]);
+        assert_eq!(grid.removed_blocks().len(), 10);
+        assert!(grid.removed_blocks().iter().all(|i| !grid.contains(*i)));
+        assert!(grid.changed_blocks().iter().all(|i| grid.contains(*i)));
+        assert_eq!(grid.changed_blocks().len(), 5);
     }
 }

@@ -36,7 +36,7 @@ use super::{FusionError, FusionParams, VoxelBlockGrid};
 pub const MIN_OBSERVATION_WEIGHT: f32 = 0.01;
 
 /// What one [`integrate`] call did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct IntegrationStats {
     /// Pixels with a depth within `[min_depth_m, max_depth_m]`.
     pub pixels_valid: usize,
@@ -47,6 +47,9 @@ pub struct IntegrationStats {
     /// Blocks where at least one voxel was updated (marked changed for meshing).
     pub blocks_updated: usize,
     pub voxels_updated: usize,
+    /// Blocks dropped afterwards to keep the grid within [`FusionParams::max_blocks`]: the
+    /// farthest from this camera's centre.
+    pub blocks_dropped: usize,
 }
 
 /// Integrates one depth map (z along the optical axis in metres, invalid pixels NaN, zero or
@@ -58,6 +61,22 @@ pub fn integrate(
     grid: &mut VoxelBlockGrid,
     params: &FusionParams,
     depth: &ImageF32,
+    colour: Option<&Rgba8Image>,
+    model: &CameraModel,
+    world_from_cam: &RigidTransform,
+) -> Result<IntegrationStats, FusionError> {
+    integrate_weighted(grid, params, depth, None, colour, model, world_from_cam)
+}
+
+/// [`integrate()`] with a weight per pixel (`weights`, the depth's size): each observation's
+/// weight is multiplied by its pixel's (e.g. the inverse variance of the depth, from the
+/// engine's confidence and the reference's baselines); a pixel whose weight is not positive
+/// and finite adds no observation. `None`: every pixel 1, as [`integrate()`].
+pub fn integrate_weighted(
+    grid: &mut VoxelBlockGrid,
+    params: &FusionParams,
+    depth: &ImageF32,
+    weights: Option<&ImageF32>,
     colour: Option<&Rgba8Image>,
     model: &CameraModel,
     world_from_cam: &RigidTransform,
@@ -90,6 +109,11 @@ pub fn integrate(
             depth.data.len()
         )));
     }
+    if let Some(w) = weights {
+        if w.width != width || w.height != height || w.data.len() != pixels {
+            return Err(size_error("weight image", w.width, w.height));
+        }
+    }
     if let Some(c) = colour {
         if c.width != width || c.height != height {
             return Err(size_error("colour image", c.width, c.height));
@@ -113,9 +137,15 @@ pub fn integrate(
         rotation,
         translation: world_from_cam.translation,
     };
-    let view = View::new(grid, params, depth, colour, model, &world_from_cam);
-
-    let pixels_valid = depth.data.par_iter().filter(|&&d| view.valid(d)).count();
+    // Step 0: the valid depths and each pixel's observation weight, once per frame.
+    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam);
+    if let Some(w) = weights {
+        for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
+            let keep = w.is_finite() && w > 0.0;
+            sample.weight = if keep { sample.weight * w } else { f32::NAN };
+        }
+    }
+    let pixels_valid = view.pixels_valid;
     // Blocks already allocated that the view may update (before step 1 adds its own).
     let mut in_view: BlockSet = grid
         .blocks_map()
@@ -125,6 +155,7 @@ pub fn integrate(
         .collect::<Vec<_>>()
         .into_iter()
         .collect();
+    // Step 1: allocation.
     let band = view.band_blocks(&world_from_cam);
     let mut blocks_allocated = 0;
     let map = grid.blocks_map_mut();
@@ -139,6 +170,7 @@ pub fn integrate(
         .iter()
         .filter_map(|index| map.remove(index).map(|block| (*index, block)))
         .collect();
+    // Step 2: update, a block per task.
     let updated: Vec<usize> = work
         .par_iter_mut()
         .map(|(index, block)| view.update_block(*index, block))
@@ -161,6 +193,8 @@ pub fn integrate(
     for index in changed {
         grid.mark_changed(index);
     }
+    // Step 3: the memory bound.
+    stats.blocks_dropped = grid.drop_farthest(params.max_blocks, world_from_cam.translation);
     Ok(stats)
 }
 
@@ -190,9 +224,26 @@ impl Projector {
     }
 }
 
+/// One pixel as step 2 reads it: a voxel's four bilinear neighbours, its weight and colour
+/// in one or two cache lines.
+#[derive(Debug, Clone, Copy)]
+struct PixelSample {
+    /// The depth where valid, NaN elsewhere.
+    depth_m: f32,
+    /// The observation weight ([`View::pixel_weight`]), NaN where there is none.
+    weight: f32,
+    /// The colour ([`Rgba8Image::pack`]), 0 without a colour image.
+    rgb: u32,
+}
+
 /// One depth map with its camera, as the integration reads it.
 struct View<'a> {
     depth: &'a ImageF32,
+    /// The depth where valid (finite, within the depth limits), NaN elsewhere.
+    depth_m: Vec<f32>,
+    pixels_valid: usize,
+    /// What step 2 reads of each pixel, side by side.
+    samples: Vec<PixelSample>,
     colour: Option<&'a Rgba8Image>,
     model: CameraModel,
     projector: Projector,
@@ -204,7 +255,6 @@ struct View<'a> {
     voxel_steps_in_cam: Mat3,
     voxel_size_m: f32,
     truncation_m: f32,
-    min_depth_m: f32,
     max_depth_m: f32,
     max_weight: f32,
 }
@@ -230,8 +280,26 @@ impl<'a> View<'a> {
             },
             _ => Projector::Distorted(*model),
         };
-        Self {
+        let (min_depth_m, max_depth_m) = (params.min_depth_m, params.max_depth_m);
+        let depth_m: Vec<f32> = depth
+            .data
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&d| {
+                let valid = d.is_finite() && d > 0.0 && d >= min_depth_m && d <= max_depth_m;
+                if valid {
+                    d
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect();
+        let pixels_valid = depth_m.par_iter().filter(|d| !d.is_nan()).count();
+        let mut view = Self {
             depth,
+            depth_m,
+            pixels_valid,
+            samples: Vec::new(),
             colour,
             model: *model,
             ray_grid: matches!(projector, Projector::Distorted(_)).then(|| RayGrid::new(model)),
@@ -241,62 +309,78 @@ impl<'a> View<'a> {
             voxel_steps_in_cam: (rotation * f64::from(grid.voxel_size_m())).as_mat3(),
             voxel_size_m: grid.voxel_size_m(),
             truncation_m: params.truncation_m(),
-            min_depth_m: params.min_depth_m,
-            max_depth_m: params.max_depth_m,
+            max_depth_m,
             max_weight: params.max_weight,
-        }
+        };
+        let width = depth.width as usize;
+        view.samples = (0..depth.data.len())
+            .into_par_iter()
+            .with_min_len(width)
+            .map(|pixel| PixelSample {
+                depth_m: view.depth_m[pixel],
+                weight: view.pixel_weight(pixel % width, pixel / width),
+                rgb: colour.map_or(0, |c| c.pixels[pixel]),
+            })
+            .collect();
+        view
     }
 
-    fn valid(&self, depth_m: f32) -> bool {
-        depth_m.is_finite()
-            && depth_m > 0.0
-            && depth_m >= self.min_depth_m
-            && depth_m <= self.max_depth_m
-    }
-
-    /// Step 1: the blocks the truncation band of every valid pixel crosses.
-    fn band_blocks(&self, world_from_cam: &RigidTransform) -> BlockSet {
+    /// Step 1: the blocks the truncation band of every valid pixel crosses, sorted, each once.
+    /// Bands of rows walk their pixels' segments into a list (a block that one of the last few
+    /// segments met is not listed again), sorted and deduplicated per band, then overall.
+    fn band_blocks(&self, world_from_cam: &RigidTransform) -> Vec<BlockIndex> {
+        const ROWS_PER_TASK: usize = 8;
         let (width, height) = (self.depth.width as usize, self.depth.height as usize);
-        let rotation = world_from_cam.rotation_matrix();
         // Block coordinates: block `b` spans [b, b + 1) (voxel centres round, blocks floor).
         let inv_block = 1.0 / (f64::from(self.voxel_size_m) * BLOCK_SIDE as f64);
         let half_voxel_in_blocks = 0.5 / BLOCK_SIDE as f64;
-        let to_blocks = |point_in_cam: DVec3| -> Vec3 {
-            let world = rotation * point_in_cam + world_from_cam.translation;
-            (world * inv_block + DVec3::splat(half_voxel_in_blocks)).as_vec3()
-        };
-        let trunc = f64::from(self.truncation_m);
-        (0..height)
+        let centre =
+            (world_from_cam.translation * inv_block + DVec3::splat(half_voxel_in_blocks)).as_vec3();
+        // A ray with z = 1 in the camera frame, in blocks in the world frame.
+        let rotation = (world_from_cam.rotation_matrix() * inv_block).as_mat3();
+        let trunc = self.truncation_m;
+        let mut blocks: Vec<BlockIndex> = (0..height.div_ceil(ROWS_PER_TASK))
             .into_par_iter()
-            .fold(BlockSet::default, |mut set, row| {
-                let mut last = None;
-                for col in 0..width {
-                    let d = self.depth.data[row * width + col];
-                    if !self.valid(d) {
-                        continue;
-                    }
-                    let Some(ray) = self.ray_z1(col, row) else {
-                        continue;
-                    };
-                    let d = f64::from(d);
-                    let near = to_blocks(ray * (d - trunc).max(1e-3));
-                    let far = to_blocks(ray * (d + trunc));
-                    walk_blocks(near, far, |index| {
-                        if last != Some(index) {
-                            set.insert(index);
-                            last = Some(index);
+            .flat_map_iter(|task| {
+                let rows = task * ROWS_PER_TASK..((task + 1) * ROWS_PER_TASK).min(height);
+                let mut list = Vec::new();
+                let mut recent = [BlockIndex([i32::MIN; 3]); 8];
+                let mut next = 0;
+                for row in rows {
+                    for col in 0..width {
+                        let d = self.depth_m[row * width + col];
+                        if d.is_nan() {
+                            continue;
                         }
-                    });
+                        let ray = match self.projector {
+                            Projector::Pinhole { fx, fy, cx, cy } => {
+                                Vec3::new((col as f32 - cx) / fx, (row as f32 - cy) / fy, 1.0)
+                            }
+                            Projector::Distorted(_) => match self.ray_z1(col, row) {
+                                Some(ray) => ray.as_vec3(),
+                                None => continue,
+                            },
+                        };
+                        let ray = rotation * ray;
+                        let near = centre + ray * (d - trunc).max(1e-3);
+                        let far = centre + ray * (d + trunc);
+                        walk_blocks(near, far, |index| {
+                            if !recent.contains(&index) {
+                                list.push(index);
+                                recent[next] = index;
+                                next = (next + 1) % recent.len();
+                            }
+                        });
+                    }
                 }
-                set
+                list.sort_unstable();
+                list.dedup();
+                list
             })
-            .reduce(BlockSet::default, |mut a, b| {
-                if a.len() < b.len() {
-                    return b.into_iter().chain(a).collect();
-                }
-                a.extend(b);
-                a
-            })
+            .collect();
+        blocks.par_sort_unstable();
+        blocks.dedup();
+        blocks
     }
 
     fn ray_z1(&self, col: usize, row: usize) -> Option<DVec3> {
@@ -349,10 +433,13 @@ impl<'a> View<'a> {
         let (y_lo, y_hi) = range(p.y);
         let (w, h) = (f64::from(self.depth.width), f64::from(self.depth.height));
         let (fx, fy, cx, cy) = (f64::from(fx), f64::from(fy), f64::from(cx), f64::from(cy));
-        fx * x_hi + cx >= -0.5
-            && fx * x_lo + cx <= w - 0.5
-            && fy * y_hi + cy >= -0.5
-            && fy * y_lo + cy <= h - 0.5
+        // Either sign of the focal lengths (ICL-NUIM's fy is negative).
+        let (u_a, u_b) = (fx * x_lo + cx, fx * x_hi + cx);
+        let (v_a, v_b) = (fy * y_lo + cy, fy * y_hi + cy);
+        u_a.max(u_b) >= -0.5
+            && u_a.min(u_b) <= w - 0.5
+            && v_a.max(v_b) >= -0.5
+            && v_a.min(v_b) <= h - 0.5
     }
 
     /// The depth seen at a pixel position and the nearest pixel's offset; `None` outside the
@@ -365,14 +452,18 @@ impl<'a> View<'a> {
         }
         let nearest =
             ((v + 0.5) as usize).min(height - 1) * width + ((u + 0.5) as usize).min(width - 1);
-        let data = &self.depth.data;
-        let (u0, v0) = (u.floor(), v.floor());
-        if u0 >= 0.0 && v0 >= 0.0 && u0 + 1.0 < w && v0 + 1.0 < h {
-            let i = v0 as usize * width + u0 as usize;
-            let d = [data[i], data[i + 1], data[i + width], data[i + width + 1]];
-            if d.iter().all(|&x| self.valid(x)) {
-                let lo = d.iter().copied().fold(f32::INFINITY, f32::min);
-                let hi = d.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let data = &self.samples;
+        // The pixel up and left: `(u + 1) as usize` is floor(u) + 1 for u > -1 (a cast
+        // truncates towards zero), cheaper than `floor` on the baseline x86-64.
+        let (u1, v1) = ((u + 1.0) as usize, (v + 1.0) as usize);
+        if u1 >= 1 && v1 >= 1 && u1 < width && v1 < height {
+            let (u0, v0) = ((u1 - 1) as f32, (v1 - 1) as f32);
+            let i = (v1 - 1) * width + (u1 - 1);
+            let d = [i, i + 1, i + width, i + width + 1].map(|j| data[j].depth_m);
+            // All four valid (a NaN makes the sum NaN) and agreeing.
+            if !(d[0] + d[1] + d[2] + d[3]).is_nan() {
+                let lo = d[0].min(d[1]).min(d[2].min(d[3]));
+                let hi = d[0].max(d[1]).max(d[2].max(d[3]));
                 if hi - lo < self.truncation_m {
                     let (fu, fv) = (u - u0, v - v0);
                     let top = d[0] + (d[1] - d[0]) * fu;
@@ -381,23 +472,32 @@ impl<'a> View<'a> {
                 }
             }
         }
-        let d = data[nearest];
-        self.valid(d).then_some((d, nearest))
+        let d = data[nearest].depth_m;
+        (!d.is_nan()).then_some((d, nearest))
     }
 
-    /// The weight of one observation of the voxel at `point_in_cam` through `pixel`: the
-    /// squared cosine between the viewing ray and the surface normal there (at least
+    /// The weight of one observation through pixel `(col, row)`: the squared cosine between
+    /// the pixel's viewing ray and the surface normal there (at least
     /// [`MIN_OBSERVATION_WEIGHT`]), so that grazing views, whose projective distances are
     /// stretched and cut off unevenly on the two sides of a curved surface, count little;
-    /// `None` where the pixel has no normal (no valid neighbour along a row or column).
-    /// Distorted models weigh every observation 1.
-    fn observation_weight(&self, pixel: usize, point_in_cam: Vec3) -> Option<f32> {
-        if matches!(self.projector, Projector::Distorted(_)) {
-            return Some(1.0);
+    /// NaN where the pixel is invalid or has no normal (no valid neighbour along a row or
+    /// column). Distorted models weigh every observation 1. Made once per pixel (step 0): a
+    /// voxel takes the weight of the pixel nearest to its projection, whose ray is within half
+    /// a pixel of the voxel's.
+    fn pixel_weight(&self, col: usize, row: usize) -> f32 {
+        let pixel = row * self.depth.width as usize + col;
+        if self.depth_m[pixel].is_nan() {
+            return f32::NAN;
         }
-        let normal = self.normal_at(pixel)?;
-        let cos = normal.dot(point_in_cam).abs() / point_in_cam.length();
-        Some((cos * cos).max(MIN_OBSERVATION_WEIGHT))
+        let Projector::Pinhole { fx, fy, cx, cy } = self.projector else {
+            return 1.0;
+        };
+        let Some(normal) = self.normal_at(pixel) else {
+            return f32::NAN;
+        };
+        let ray = Vec3::new((col as f32 - cx) / fx, (row as f32 - cy) / fy, 1.0);
+        let cos = normal.dot(ray).abs() / ray.length();
+        (cos * cos).max(MIN_OBSERVATION_WEIGHT)
     }
 
     /// The unit surface normal (camera frame) at a pixel of a pinhole camera, from its
@@ -408,7 +508,7 @@ impl<'a> View<'a> {
         let width = self.depth.width as usize;
         let height = self.depth.height as usize;
         let (col, row) = (pixel % width, pixel / width);
-        let data = &self.depth.data;
+        let data = &self.depth_m;
         let d = data[pixel];
         let Projector::Pinhole { fx, fy, cx, cy } = self.projector else {
             return None;
@@ -418,7 +518,8 @@ impl<'a> View<'a> {
         };
         let near = |c: usize, r: usize| {
             let dn = data[r * width + c];
-            (self.valid(dn) && (dn - d).abs() < self.truncation_m).then(|| point(c, r, dn))
+            // NaN (invalid) fails the comparison.
+            ((dn - d).abs() < self.truncation_m).then(|| point(c, r, dn))
         };
         let centre = point(col, row, d);
         let diff = |a: Option<Vec3>, b: Option<Vec3>| match (a, b) {
@@ -469,16 +570,16 @@ impl<'a> View<'a> {
                     if sdf < -trunc {
                         continue;
                     }
-                    let Some(weight) = self.observation_weight(pixel, point_in_cam) else {
+                    let sample = &self.samples[pixel];
+                    let weight = sample.weight;
+                    if weight.is_nan() {
                         continue;
-                    };
+                    }
                     let voxel = &mut block.voxels[Block::voxel_offset(x, y, z)];
                     voxel.observe_tsdf((sdf * inv_trunc).min(1.0), weight, self.max_weight);
-                    if let Some(colour) = self.colour {
-                        if sdf.abs() < trunc {
-                            let [r, g, b, _] = Rgba8Image::unpack(colour.pixels[pixel]);
-                            voxel.observe_colour([r, g, b], self.max_weight);
-                        }
+                    if self.colour.is_some() && sdf.abs() < trunc {
+                        let [r, g, b, _] = Rgba8Image::unpack(sample.rgb);
+                        voxel.observe_colour([r, g, b], self.max_weight);
                     }
                     updated += 1;
                 }
@@ -550,9 +651,19 @@ impl RayGrid {
 /// coordinates, where block `b` spans `[b, b + 1)`): exactly `1 + sum |end - start|` blocks,
 /// each a face neighbour of the one before.
 fn walk_blocks(start: Vec3, end: Vec3, mut visit: impl FnMut(BlockIndex)) {
-    let cell_of = |p: Vec3| [p.x, p.y, p.z].map(|v| v.floor() as i32);
+    // floor(v) (a cast truncates towards zero; `floor` is a libm call on baseline x86-64).
+    let floor = |v: f32| {
+        let t = v as i32;
+        t - i32::from(t as f32 > v)
+    };
+    let cell_of = |p: Vec3| [p.x, p.y, p.z].map(floor);
     let mut cell = cell_of(start);
     let last = cell_of(end);
+    if cell == last {
+        // The common case: the segment (twice the truncation distance) within one block.
+        visit(BlockIndex(cell));
+        return;
+    }
     let dir = end - start;
     let (s, d) = ([start.x, start.y, start.z], [dir.x, dir.y, dir.z]);
     let mut t_max = [f32::INFINITY; 3];
@@ -815,6 +926,76 @@ mod tests {
         let count = |z: f32| zs.iter().filter(|v| (*v - z).abs() < 0.0125).count();
         assert!(count(2.5) > 100 && count(3.0) > 100);
         assert_eq!(count(2.5) + count(3.0), zs.len());
+    }
+
+    #[test]
+    fn a_long_trajectory_stays_within_max_blocks_and_dropped_blocks_leave_the_mesh() {
+        // A camera sliding 20 m along a wall 3 m away, 0.25 m per frame: about 100 blocks per
+        // view, 120 kept at most (the wall's 4.8 m around the camera).
+        let params = FusionParams {
+            max_blocks: 120,
+            ..FusionParams::default()
+        };
+        let model = camera(320, 240, 300.0);
+        let mut grid = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+        let mut mesh = Mesh::new();
+        let (mut dropped, mut removed) = (0, Vec::new());
+        for i in 0..80 {
+            let pose = RigidTransform {
+                translation: DVec3::new(0.25 * f64::from(i), 0.0, 0.0),
+                ..RigidTransform::IDENTITY
+            };
+            let depth = render_plane(&model, &pose, DVec3::Z, 3.0);
+            let stats = integrate(&mut grid, &params, &depth, None, &model, &pose).unwrap();
+            assert!(grid.block_count() <= params.max_blocks, "{stats:?}");
+            dropped += stats.blocks_dropped;
+            if i % 3 == 0 {
+                let before: Vec<BlockIndex> = grid.removed_blocks().iter().copied().collect();
+                let stats = mesh.update(&mut grid);
+                assert!(grid.removed_blocks().is_empty());
+                assert_eq!(stats.blocks_removed, mesh.removed().len());
+                for index in mesh.removed() {
+                    assert!(before.contains(index) && !grid.contains(*index));
+                    assert!(mesh.block(*index).is_none());
+                }
+                removed.extend_from_slice(mesh.removed());
+                // Every meshed block is still in the grid.
+                assert!(mesh.blocks().all(|(index, _)| grid.contains(*index)));
+            }
+            // What is left is near the camera: nothing beyond the farthest block a view holds.
+            let x = pose.translation.x as f32;
+            for (index, _) in grid.blocks() {
+                let bx = (index.0[0] as f32 + 0.5) * grid.block_size_m();
+                assert!(
+                    (bx - x).abs() < 4.0,
+                    "block {index:?} at x {bx}, camera at {x}"
+                );
+            }
+        }
+        assert!(dropped > 1000, "{dropped} dropped");
+        assert!(removed.len() > 100, "{} meshes removed", removed.len());
+        // The incremental mesh is the mesh of what the grid holds.
+        mesh.update(&mut grid);
+        let mut scratch = Mesh::new();
+        let full = scratch.rebuild(&grid);
+        assert_eq!(mesh.triangle_count(), full.triangles);
+        assert!(full.triangles > 1000);
+        // Unbounded: everything stays.
+        let unbounded = FusionParams {
+            max_blocks: 0,
+            ..params
+        };
+        let mut all = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+        for i in 0..20 {
+            let pose = RigidTransform {
+                translation: DVec3::new(0.5 * f64::from(i), 0.0, 0.0),
+                ..RigidTransform::IDENTITY
+            };
+            let depth = render_plane(&model, &pose, DVec3::Z, 3.0);
+            let stats = integrate(&mut all, &unbounded, &depth, None, &model, &pose).unwrap();
+            assert_eq!(stats.blocks_dropped, 0);
+        }
+        assert!(all.block_count() > 250);
     }
 
     #[test]

@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::blocks::{Block, BlockIndex, BlockMap, Voxel, BLOCK_SIDE};
+use super::blocks::{Block, BlockIndex, BlockMap, BlockSet, Voxel, BLOCK_SIDE};
 use super::tables::{CORNERS, EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
 use super::VoxelBlockGrid;
 
@@ -47,12 +47,19 @@ pub struct MeshStats {
     pub triangles: usize,
     /// Vertices in the whole mesh after the update.
     pub vertices: usize,
+    /// Meshes dropped because the grid dropped their blocks ([`Mesh::removed`]).
+    pub blocks_removed: usize,
 }
 
 /// The surface of a [`VoxelBlockGrid`], one [`BlockMesh`] per block that has one.
 #[derive(Debug, Clone, Default)]
 pub struct Mesh {
     blocks: BlockMap<BlockMesh>,
+    /// Blocks whose mesh was made again or dropped since the last [`Mesh::take_dirty`] (what
+    /// a publisher of per-block meshes sends again or deletes).
+    dirty: BlockSet,
+    /// The blocks whose meshes the last [`Mesh::update`] dropped with their grid blocks.
+    removed: Vec<BlockIndex>,
 }
 
 impl Mesh {
@@ -65,8 +72,12 @@ impl Mesh {
     /// changed set.
     pub fn update(&mut self, grid: &mut VoxelBlockGrid) -> MeshStats {
         let changed = grid.take_changed();
+        // Dropped blocks: their meshes go, and the blocks below them mesh again (their cubes
+        // reached into them).
+        let removed = grid.take_removed();
         let mut todo: Vec<BlockIndex> = changed
             .iter()
+            .chain(removed.iter())
             .flat_map(|index| {
                 (0..8).map(move |i| index.offset([-(i & 1), -((i >> 1) & 1), -((i >> 2) & 1)]))
             })
@@ -74,12 +85,30 @@ impl Mesh {
             .collect();
         todo.sort_unstable();
         todo.dedup();
-        self.blocks.retain(|index, _| grid.contains(*index));
-        self.remesh(grid, &todo)
+        self.removed.clear();
+        for index in removed {
+            // A block dropped and allocated again since is in `changed`.
+            if !grid.contains(index) && self.blocks.remove(&index).is_some() {
+                self.dirty.insert(index);
+                self.removed.push(index);
+            }
+        }
+        self.removed.sort_unstable();
+        let mut stats = self.remesh(grid, &todo);
+        stats.blocks_removed = self.removed.len();
+        stats
+    }
+
+    /// The blocks whose meshes the last [`Mesh::update`] dropped because the grid dropped them
+    /// ([`crate::fusion::FusionParams::max_blocks`], [`VoxelBlockGrid::clear`]), in index
+    /// order: a publisher of per-block meshes deletes them.
+    pub fn removed(&self) -> &[BlockIndex] {
+        &self.removed
     }
 
     /// Meshes every block from scratch (the grid's changed set is left as it is).
     pub fn rebuild(&mut self, grid: &VoxelBlockGrid) -> MeshStats {
+        self.dirty.extend(self.blocks.keys().copied());
         self.blocks.clear();
         let all: Vec<BlockIndex> = grid.blocks().map(|(index, _)| *index).collect();
         self.remesh(grid, &all)
@@ -91,6 +120,7 @@ impl Mesh {
             .map(|index| (*index, mesh_block(grid, *index)))
             .collect();
         for (index, mesh) in meshes {
+            self.dirty.insert(index);
             if mesh.is_empty() {
                 self.blocks.remove(&index);
             } else {
@@ -102,6 +132,7 @@ impl Mesh {
             blocks_with_surface: self.blocks.len(),
             triangles: self.triangle_count(),
             vertices: self.blocks.values().map(|m| m.vertices.len()).sum(),
+            blocks_removed: 0,
         }
     }
 
@@ -118,8 +149,19 @@ impl Mesh {
         self.blocks.values().map(|m| m.triangles.len()).sum()
     }
 
+    /// Forgets every block's mesh (and what was dirty: a publisher deletes everything).
     pub fn clear(&mut self) {
         self.blocks.clear();
+        self.dirty.clear();
+        self.removed.clear();
+    }
+
+    /// The blocks whose mesh was made again (possibly empty now) or dropped since the last
+    /// call, in index order.
+    pub fn take_dirty(&mut self) -> Vec<BlockIndex> {
+        let mut dirty: Vec<BlockIndex> = self.dirty.drain().collect();
+        dirty.sort_unstable();
+        dirty
     }
 
     /// All blocks' meshes in one, blocks in index order (vertices of neighbouring blocks'
