@@ -5,7 +5,8 @@
 # network namespace (no DDS packet leaves the machine) and prints the share of sets answered,
 # the sets dropped for newer ones and the node's mean processing time per set.
 # Several references per set (issue 27): SWEEPDEPTH_LIVE_REFERENCES=cam1,cam4,cam7 (and
-# SWEEPDEPTH_LIVE_MAX_NEIGHBOURS=N) in the environment.
+# SWEEPDEPTH_LIVE_MAX_NEIGHBOURS=N) in the environment; live fusion beside the engine (issue 28):
+# SWEEPDEPTH_LIVE_FUSION=<voxel size in m>, e.g. 0.02.
 # Usage: sh scripts/live_rate.sh [SETS]
 set -eu
 cd "$(dirname "$0")/.."

@@ -46,7 +46,7 @@ command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>
     packages="$packages chromium"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
-PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg'
+PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg, visualization_msgs.msg, std_srvs.srv'
 # The ROS wheels are cp311 only: the venv needs a Python 3.11.
 python311() {
     for py in python3.11 python3; do

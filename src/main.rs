@@ -29,6 +29,14 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
         args: Vec<String>,
     },
+    /// Fusion alone, as a node: depth image topics (of sweepdepth nodes on other machines, a
+    /// RealSense, ...) + /tf into one mesh: `sweepdepth fuse --ros-args -p
+    /// depth_topics:=[/a/cam0/depth/image, /b/cam4/depth/image] -p world_frame:=map`.
+    Fuse {
+        /// Everything after `fuse` (the `--ros-args ...` block), parsed as rcl does.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<String>,
+    },
     /// Process a rosbag2 bag (MCAP or sqlite3) offline through the node's pipeline.
     Bag(sweepdepth::bag::process::BagArgs),
     /// Pack a dataset folder (or images + a rig file) into a bag with a parameter file.
@@ -43,7 +51,7 @@ fn main() -> ExitCode {
         sweepdepth::process_env::quiet_vulkan_device_select(),
         sweepdepth::process_env::keep_freed_memory(),
     ];
-    if matches!(cli.command, Command::Node { .. }) {
+    if matches!(cli.command, Command::Node { .. } | Command::Fuse { .. }) {
         defaults.push(sweepdepth::process_env::default_ros_distro());
     }
     for note in defaults.into_iter().flatten() {
@@ -54,6 +62,9 @@ fn main() -> ExitCode {
         Command::Bench(args) => sweepdepth::bench::run(&args),
         Command::Demo(args) => sweepdepth::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
+        Command::Fuse { args } => {
+            sweepdepth::node::fuse_node::run(&args).map_err(anyhow::Error::from)
+        }
         Command::Bag(args) => sweepdepth::bag::process::run(&args).map_err(anyhow::Error::from),
         Command::Pack(args) => sweepdepth::bag::pack::run(&args).map_err(anyhow::Error::from),
     };

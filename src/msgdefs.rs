@@ -7,6 +7,7 @@ pub const CAMERA_INFO: &str = "sensor_msgs/msg/CameraInfo";
 pub const POINT_CLOUD2: &str = "sensor_msgs/msg/PointCloud2";
 pub const TF_MESSAGE: &str = "tf2_msgs/msg/TFMessage";
 pub const DIAGNOSTIC_ARRAY: &str = "diagnostic_msgs/msg/DiagnosticArray";
+pub const MARKER_ARRAY: &str = "visualization_msgs/msg/MarkerArray";
 
 /// The definition text of a known type, `None` for others.
 pub fn definition(msg_type: &str) -> Option<&'static str> {
@@ -17,6 +18,9 @@ pub fn definition(msg_type: &str) -> Option<&'static str> {
         TF_MESSAGE => include_str!("../msg/schemas/tf2_msgs__msg__TFMessage.msgdef"),
         DIAGNOSTIC_ARRAY => {
             include_str!("../msg/schemas/diagnostic_msgs__msg__DiagnosticArray.msgdef")
+        }
+        MARKER_ARRAY => {
+            include_str!("../msg/schemas/visualization_msgs__msg__MarkerArray.msgdef")
         }
         _ => return None,
     })

@@ -212,6 +212,105 @@ pub struct TFMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
+/// `geometry_msgs/msg/Point`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+/// `geometry_msgs/msg/Pose`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    pub position: Point,
+    pub orientation: Quaternion,
+}
+
+// ---------------------------------------------------------------------------------------------
+// visualization_msgs (Jazzy's layout: `Marker` with texture, uv_coordinates and mesh_file)
+// ---------------------------------------------------------------------------------------------
+
+/// `std_msgs/msg/ColorRGBA`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ColorRGBA {
+    pub r: f32,
+    pub g: f32,
+    pub b: f32,
+    pub a: f32,
+}
+
+/// `builtin_interfaces/msg/Duration`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Duration {
+    pub sec: i32,
+    pub nanosec: u32,
+}
+
+/// `sensor_msgs/msg/CompressedImage`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CompressedImage {
+    pub header: Header,
+    pub format: String,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/UVCoordinate`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct UVCoordinate {
+    pub u: f32,
+    pub v: f32,
+}
+
+/// `visualization_msgs/msg/MeshFile`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MeshFile {
+    pub filename: String,
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/Marker` (ROS 2 Iron and later; Humble's lacks the fields from
+/// `texture_resource` to `mesh_file`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Marker {
+    pub header: Header,
+    pub ns: String,
+    pub id: i32,
+    /// [`Marker::TRIANGLE_LIST`], ...
+    pub r#type: i32,
+    /// [`Marker::ADD`], [`Marker::DELETE`], [`Marker::DELETEALL`].
+    pub action: i32,
+    pub pose: Pose,
+    pub scale: Vector3,
+    pub color: ColorRGBA,
+    pub lifetime: Duration,
+    pub frame_locked: bool,
+    pub points: Vec<Point>,
+    pub colors: Vec<ColorRGBA>,
+    pub texture_resource: String,
+    pub texture: CompressedImage,
+    pub uv_coordinates: Vec<UVCoordinate>,
+    pub text: String,
+    pub mesh_resource: String,
+    pub mesh_file: MeshFile,
+    pub mesh_use_embedded_materials: bool,
+}
+
+impl Marker {
+    pub const TRIANGLE_LIST: i32 = 11;
+    pub const ADD: i32 = 0;
+    pub const DELETE: i32 = 2;
+    pub const DELETEALL: i32 = 3;
+}
+
+/// `visualization_msgs/msg/MarkerArray`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MarkerArray {
+    pub markers: Vec<Marker>,
+}
+
 // ---------------------------------------------------------------------------------------------
 // diagnostic_msgs
 // ---------------------------------------------------------------------------------------------

@@ -453,3 +453,71 @@ fn launch_file_builds_the_node_command() {
         parse_ros_args(&args).unwrap_or_else(|e| panic!("{level}: {e}"));
     }
 }
+
+const TWO_MACHINES: &str = "launch_configs/two_machines.params.yaml";
+
+#[test]
+fn two_machines_params_split_the_references_and_feed_the_fuse_node() {
+    // The depth node of each machine (by node name) and the fuse node, as they configure
+    // themselves from the one file (no DDS).
+    let args = |node: Option<&str>| {
+        let mut args = strings(&["--ros-args", "--params-file"]);
+        args.push(repo_path(TWO_MACHINES).display().to_string());
+        if let Some(node) = node {
+            args.push("-r".into());
+            args.push(format!("__node:={node}"));
+        }
+        args
+    };
+    let depth = |node: &str| {
+        NodeConfig::from_args(&args(Some(node)), None)
+            .unwrap_or_else(|e| panic!("{TWO_MACHINES} ({node}): {e}"))
+            .pipeline
+    };
+    let a = depth("depth_a");
+    let b = depth("depth_b");
+    let topics = |p: &sweepdepth::pipeline::PipelineConfig| -> Vec<String> {
+        p.references.iter().map(|(_, t)| t.depth.clone()).collect()
+    };
+    assert_eq!(
+        topics(&a),
+        strings(&[
+            "/cam0/depth/image",
+            "/cam1/depth/image",
+            "/cam2/depth/image"
+        ])
+    );
+    assert_eq!(
+        topics(&b),
+        strings(&[
+            "/cam3/depth/image",
+            "/cam4/depth/image",
+            "/cam5/depth/image"
+        ])
+    );
+    for p in [&a, &b] {
+        assert_eq!(p.world.as_ref().map(|w| w.frame.as_str()), Some("odom"));
+        assert!(p.fusion.is_none(), "the depth nodes do not fuse");
+    }
+    let fuse = sweepdepth::node::fuse_node::FuseConfig::from_args(&args(None), None)
+        .unwrap_or_else(|e| panic!("{TWO_MACHINES} (fuse): {e}"));
+    assert_eq!(fuse.fqn, "/sweepdepth_fuse");
+    let mut both = topics(&a);
+    both.extend(topics(&b));
+    assert_eq!(
+        fuse.depth_topics, both,
+        "the fuse node takes every reference's depth"
+    );
+    assert_eq!(fuse.info_topics[4], "/cam4/depth/camera_info");
+    assert_eq!(fuse.world_frame, "odom");
+    assert_eq!(fuse.fusion.params.voxel_size_m, 0.04);
+    assert_eq!(fuse.fusion.params.max_blocks, 50_000);
+    assert_eq!(
+        (
+            fuse.fusion.params.min_depth_m,
+            fuse.fusion.params.max_depth_m
+        ),
+        (0.5, 8.0)
+    );
+    assert_eq!(fuse.mesh_topic, "/mesh");
+}

@@ -71,6 +71,15 @@ fn node_several_references_on_a_moving_rig() {
 }
 
 #[test]
+fn node_fuses_a_moving_rig_and_saves_the_mesh() {
+    in_private_netns(
+        INNER,
+        "node_fuses_a_moving_rig_and_saves_the_mesh",
+        fuses_a_moving_rig,
+    );
+}
+
+#[test]
 fn node_virtual_reference() {
     in_private_netns(INNER, "node_virtual_reference", virtual_reference);
 }
@@ -913,4 +922,211 @@ fn references_on_a_moving_rig() {
         let truth = world_from_rig(t).compose(&h.feed.rig.cameras[i].cam_from_rig.inverse());
         dds::assert_pose_near(&format!("{key}: {value}"), &got, &truth);
     }
+}
+
+/// `sweepdepth/srv/SaveMesh` (msg/srv/SaveMesh.srv) as a client sees it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SaveMeshRequest {
+    file_path: String,
+}
+impl ros2_client::Message for SaveMeshRequest {}
+
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+struct SaveMeshResponse {
+    success: bool,
+    message: String,
+}
+impl ros2_client::Message for SaveMeshResponse {}
+
+/// `fusion:=true` on a moving rig (`world_frame:=world`, two references): the mesh's markers
+/// come on /mesh in `world`, and `~/save_mesh` writes a PLY whose vertices lie on the wall
+/// (2 m in front of the rig at the set's pose) within two voxels; a path in a folder that does
+/// not exist gives `success: false` and the reason.
+fn fuses_a_moving_rig() {
+    use sweepdepth::msgs::{
+        Header, Marker, MarkerArray, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
+    };
+    const VOXEL: f64 = 0.04;
+    let mut h = Harness::start(
+        wall(),
+        &[
+            "sync:=exact",
+            "references:=[cam0, cam2]",
+            "world_frame:=world",
+            "tf_timeout:=5.0",
+            "fusion:=true",
+            "voxel_size:=0.04",
+            "mesh_rate:=20.0",
+        ],
+    );
+    let tf_pub = h
+        .peer
+        .publisher::<TFMessage>("/tf", dds::TF_MESSAGE, &dds::reliable(100));
+    let mesh_sub = h.subscribe::<MarkerArray>("/mesh", ("visualization_msgs", "MarkerArray"));
+    let service_qos = dds::reliable(1);
+    let client: ros2_client::Client<SaveMeshRequest, SaveMeshResponse> = h
+        .peer
+        .node
+        .create_client(
+            ServiceMapping::Enhanced,
+            &Name::parse("/sweepdepth/save_mesh").unwrap(),
+            &ServiceTypeName::new("sweepdepth", "SaveMesh"),
+            service_qos.clone(),
+            service_qos,
+        )
+        .expect("save_mesh client");
+    let tf_at = |t: Time| {
+        let pose = world_from_rig(t);
+        let (p, q) = (pose.translation, pose.rotation);
+        TFMessage {
+            transforms: vec![TransformStamped {
+                header: Header {
+                    stamp: t,
+                    frame_id: "world".into(),
+                },
+                child_frame_id: "rig".into(),
+                transform: Transform {
+                    translation: Vector3 {
+                        x: p.x,
+                        y: p.y,
+                        z: p.z,
+                    },
+                    rotation: Quaternion {
+                        x: q.x,
+                        y: q.y,
+                        z: q.z,
+                        w: q.w,
+                    },
+                },
+            }],
+        }
+    };
+    // One set is enough: its markers, in world.
+    let mut markers: Vec<Marker> = Vec::new();
+    let feed = &h.feed;
+    let (stamp, _) = dds::feed_until(
+        "the mesh of one set on /mesh",
+        &mut h.node,
+        1,
+        |k| {
+            let t = nanos(stamp_of(k));
+            for offset in [-30_000_000, 40_000_000] {
+                tf_pub
+                    .publish(tf_at(time_of(t + offset)))
+                    .expect("publish /tf");
+            }
+            feed.publish_set(&same_stamps(k));
+        },
+        || {
+            for array in dds::take_all(&mesh_sub) {
+                markers.extend(array.markers);
+            }
+            markers.first().map(|m| m.header.stamp)
+        },
+    );
+    assert!(markers.iter().all(|m| m.header.frame_id == "world"
+        && m.r#type == Marker::TRIANGLE_LIST
+        && (m.action == Marker::DELETE
+            || (m.action == Marker::ADD && m.points.len() == m.colors.len()))));
+    // The wall in the rig at this set's pose: z_rig = 2 m (the row's cameras look along +z
+    // of the rig frame).
+    let rig_from_world = world_from_rig(stamp).inverse();
+    let on_wall = |p: glam::DVec3| (rig_from_world.transform_point(p).z - 2.0).abs() <= 2.0 * VOXEL;
+    let points: Vec<glam::DVec3> = markers
+        .iter()
+        .filter(|m| m.action == Marker::ADD)
+        .flat_map(|m| m.points.iter().map(|p| glam::DVec3::new(p.x, p.y, p.z)))
+        .collect();
+    let near = points.iter().filter(|p| on_wall(**p)).count();
+    eprintln!(
+        "{} of {} marker points within 2 voxels of the wall",
+        near,
+        points.len()
+    );
+    assert!(!points.is_empty() && near * 100 >= points.len() * 95);
+
+    // Saved where asked.
+    let dir = std::env::temp_dir().join(format!("sweepdepth-mesh-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("map.ply");
+    let mut call = |file_path: String| -> SaveMeshResponse {
+        let mut ids = Vec::new();
+        let mut sent = Instant::now() - std::time::Duration::from_secs(5);
+        dds::wait_for("an answer from /sweepdepth/save_mesh", &mut h.node, || {
+            // Idempotent: sent again every 5 s until an answer comes (a response can be lost
+            // while the server's writer has not matched this client's reader).
+            if sent.elapsed() >= std::time::Duration::from_secs(5) {
+                let request = SaveMeshRequest {
+                    file_path: file_path.clone(),
+                };
+                ids.push(client.send_request(request).expect("send the request"));
+                sent = Instant::now();
+            }
+            match client.receive_response() {
+                Ok(Some((rid, response))) if ids.contains(&rid) => Some(response),
+                _ => None,
+            }
+        })
+    };
+    let answer = call(path.display().to_string());
+    assert!(answer.success, "{answer:?}");
+    assert!(answer.message.contains("triangles"), "{answer:?}");
+    let ply = std::fs::read(&path).expect("the PLY file");
+    let vertices = ply_vertices(&ply);
+    let near = vertices.iter().filter(|p| on_wall(**p)).count();
+    eprintln!(
+        "{} of {} PLY vertices within 2 voxels of the wall",
+        near,
+        vertices.len()
+    );
+    assert!(!vertices.is_empty() && near * 100 >= vertices.len() * 95);
+    let refused = call(dir.join("no/such/folder/map.ply").display().to_string());
+    assert!(!refused.success, "{refused:?}");
+    assert!(refused.message.contains("no/such/folder"), "{refused:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The vertices of a binary little-endian PLY written by `sweepdepth::fusion::write_ply`
+/// (x, y, z as float first in each vertex; the vertex size read from the header's properties).
+fn ply_vertices(ply: &[u8]) -> Vec<glam::DVec3> {
+    let end = ply
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .expect("a PLY header")
+        + 11;
+    let header = String::from_utf8_lossy(&ply[..end]);
+    let mut count = 0usize;
+    let mut size = 0usize;
+    let mut in_vertex = false;
+    for line in header.lines() {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["element", "vertex", n] => {
+                count = n.parse().unwrap();
+                in_vertex = true;
+            }
+            ["element", ..] => in_vertex = false,
+            ["property", kind, _] if in_vertex => {
+                size += match *kind {
+                    "float" | "int" | "uint" => 4,
+                    "uchar" | "char" => 1,
+                    "double" => 8,
+                    "short" | "ushort" => 2,
+                    other => panic!("PLY property type {other}"),
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(header.contains("binary_little_endian"), "{header}");
+    (0..count)
+        .map(|i| {
+            let at = end + i * size;
+            let f = |k: usize| {
+                let b = &ply[at + 4 * k..at + 4 * k + 4];
+                f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            };
+            glam::DVec3::new(f(0), f(1), f(2))
+        })
+        .collect()
 }

@@ -109,6 +109,14 @@ fn live_rate() {
         "output_qos_depth:=50",
     ];
     let mut args: Vec<&str> = args.to_vec();
+    // Live fusion beside the engine (issue 28): `SWEEPDEPTH_LIVE_FUSION=<voxel size, m>`.
+    let fusion = std::env::var("SWEEPDEPTH_LIVE_FUSION")
+        .ok()
+        .map(|v| format!("voxel_size:={v}"));
+    if let Some(voxel) = &fusion {
+        args.extend(["-p", "fusion:=true", "-p", voxel]);
+        eprintln!("live rate with fusion:=true {voxel}");
+    }
     let several = references();
     let depth_topic = match &several {
         Some((list, max)) => {

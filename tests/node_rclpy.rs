@@ -89,6 +89,64 @@ fn rclpy_depth_1280x960_reliable_driver() {
     });
 }
 
+#[test]
+fn rclpy_fusion_mesh_and_clear_map() {
+    run("rclpy_fusion_mesh_and_clear_map", fusion_mesh_and_clear_map);
+}
+
+/// Live fusion seen from rcl: the mesh's markers (visualization_msgs/MarkerArray, one
+/// TRIANGLE_LIST per block) arrive at a default rclpy subscriber, lie on the wall at 2 m in
+/// the reference image's frame, and `~/clear_map` (std_srvs/Trigger) empties the map with a
+/// DELETEALL.
+fn fusion_mesh_and_clear_map() {
+    const SETS: u32 = 3;
+    let dir = TempDir::new();
+    let rig_file = write_scene(&dir.0, 160, 120, true, SETS);
+    let spec_path = dir.0.join("rig.json");
+    let mut spec: Value = serde_json::from_slice(&std::fs::read(&spec_path).unwrap()).unwrap();
+    spec["mesh"] = json!(true);
+    std::fs::write(&spec_path, serde_json::to_vec_pretty(&spec).unwrap()).unwrap();
+    let mut node = Node::start(
+        &rig_file,
+        &[
+            "input_qos_reliable:=true",
+            "fusion:=true",
+            "voxel_size:=0.04",
+            "mesh_rate:=5.0",
+        ],
+    );
+    let (sets, summary) = drive(&dir.0, &mut node, SETS);
+    assert!(
+        sets.iter().any(|s| s["received"] == true),
+        "no depth came: {summary}"
+    );
+    let mesh = &summary["mesh"];
+    eprintln!("mesh at the rclpy subscriber: {mesh}");
+    assert!(
+        mesh["blocks"].as_u64().unwrap_or(0) > 0,
+        "no mesh blocks: {mesh}"
+    );
+    assert!(mesh["triangles"].as_u64().unwrap_or(0) > 50, "{mesh}");
+    assert_eq!(mesh["colors_match"], true, "one colour per point: {mesh}");
+    assert_eq!(mesh["types"], json!([11]), "TRIANGLE_LIST markers: {mesh}");
+    assert_eq!(mesh["frames"], json!(["cam1_optical"]), "{mesh}");
+    let z = mesh["z_median"].as_f64().unwrap();
+    assert!(
+        (z - EXPECTED_DEPTH_M).abs() <= 0.08,
+        "the mesh's median z {z} m is not the wall's {EXPECTED_DEPTH_M} m within 2 voxels"
+    );
+    assert_eq!(mesh["clear_success"], true, "{mesh}");
+    assert!(
+        mesh["clear_message"]
+            .as_str()
+            .unwrap_or("")
+            .contains("cleared"),
+        "{mesh}"
+    );
+    assert!(mesh["deleteall"].as_u64().unwrap_or(0) >= 1, "{mesh}");
+    assert_eq!(mesh["blocks_after_clear"], 0, "{mesh}");
+}
+
 /// A scratch directory removed on every exit path.
 struct TempDir(PathBuf);
 

@@ -2,7 +2,9 @@
 //! Tsukuba sample (tests/fixtures/bags/tsukuba_half.mcap), Debian's Chromium headless (driven
 //! over the DevTools protocol) loads the page, the test waits for the marker the page sets when
 //! it has drawn a point cloud and a depth image (`document.body.dataset.drawn`), then a
-//! screenshot must show a non-empty 3D view and the depth image.
+//! screenshot must show a non-empty 3D view and the depth image. With `--mesh` (fusion) the page
+//! must draw the whole fused mesh, also when loaded again after the bag ended, and switch
+//! between the mesh and the points.
 //!
 //! Chromium is required: `scripts/setup.sh` installs it (package `chromium`); without it the
 //! test fails and says so. No DDS here (`bag` opens none); the servers bind 127.0.0.1. Chromium
@@ -14,10 +16,11 @@
 
 mod common;
 
-use std::io::{Read, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::netns::KillOnDrop;
@@ -181,121 +184,245 @@ fn share_not_background(
     differ as f64 / total as f64
 }
 
+/// `sweepdepth bag --view` on the Tsukuba sample (with `extra` arguments) and headless Chromium
+/// with the page loaded.
+struct Session {
+    sweepdepth: KillOnDrop,
+    _browser: KillOnDrop,
+    devtools: DevTools,
+    out_dir: PathBuf,
+    started: Instant,
+    page_url: String,
+    /// `sweepdepth`'s stderr so far (also printed).
+    stderr: Arc<Mutex<String>>,
+}
+
+impl Session {
+    fn start(name: &str, extra: &[&str]) -> Self {
+        let chromium = chromium();
+        let port = free_port_pair();
+        let out_dir = std::env::temp_dir().join(format!(
+            "sweepdepth-viewer-page-{name}-{}",
+            std::process::id()
+        ));
+        let _ = std::fs::remove_dir_all(&out_dir);
+        std::fs::create_dir_all(&out_dir).expect("temp dir");
+        let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+        let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+        let mut sweepdepth = KillOnDrop(
+            Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+                .arg("bag")
+                .arg(&bag)
+                .arg(out_dir.join("out.mcap"))
+                .arg("--params-file")
+                .arg(&params)
+                .args([
+                    "--view",
+                    "--view-rate",
+                    "max",
+                    "-p",
+                    &format!("foxglove_port:={port}"),
+                ])
+                .args(extra)
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .expect("start sweepdepth bag --view"),
+        );
+        let stderr = Arc::new(Mutex::new(String::new()));
+        if let Some(pipe) = sweepdepth.0.stderr.take() {
+            let stderr = Arc::clone(&stderr);
+            std::thread::spawn(move || {
+                for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+                    eprintln!("{line}");
+                    let mut all = stderr.lock().unwrap_or_else(|e| e.into_inner());
+                    all.push_str(&line);
+                    all.push('\n');
+                }
+            });
+        }
+        let profile = out_dir.join("chromium-profile");
+        let page_url = format!("http://127.0.0.1:{}/", port + 1);
+        let browser = KillOnDrop(
+            Command::new(&chromium)
+                .args([
+                    "--headless",
+                    "--no-sandbox",
+                    "--disable-gpu",
+                    "--enable-unsafe-swiftshader",
+                    "--disable-quic",
+                    "--no-first-run",
+                    "--disable-background-networking",
+                    "--disable-component-update",
+                    "--disable-sync",
+                    "--window-size=1280,800",
+                    "--remote-debugging-port=0",
+                ])
+                .arg(format!("--user-data-dir={}", profile.display()))
+                .arg("about:blank")
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("start chromium"),
+        );
+        let started = Instant::now();
+        let wait = |what: &str| {
+            assert!(
+                started.elapsed() < timeout(),
+                "waited {:?} for {what} in vain",
+                timeout()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        };
+        // Chromium writes its DevTools port into the profile.
+        let devtools_port: u16 = loop {
+            if let Ok(text) = std::fs::read_to_string(profile.join("DevToolsActivePort")) {
+                if let Some(port) = text.lines().next().and_then(|l| l.trim().parse().ok()) {
+                    break port;
+                }
+            }
+            wait("Chromium's DevToolsActivePort");
+        };
+        let target = loop {
+            let page = http_get_json(devtools_port, "/json/list").and_then(|list| {
+                list.as_array()?
+                    .iter()
+                    .find(|t| t["type"] == "page")
+                    .and_then(|t| t["webSocketDebuggerUrl"].as_str().map(str::to_string))
+            });
+            if let Some(url) = page {
+                break url;
+            }
+            wait("a Chromium page target");
+        };
+        let (ws, _) = tungstenite::connect(target.as_str()).expect("DevTools WebSocket");
+        let devtools = DevTools { ws, next_id: 0 };
+        // The page server is up once `bag --view` has started its viewer.
+        loop {
+            if TcpStream::connect(("127.0.0.1", port + 1)).is_ok() {
+                break;
+            }
+            if let Some(status) = sweepdepth.0.try_wait().expect("wait") {
+                panic!("sweepdepth bag --view ended ({status}) before serving the page");
+            }
+            wait("the page server");
+        }
+        let mut session = Self {
+            sweepdepth,
+            _browser: browser,
+            devtools,
+            out_dir,
+            started,
+            page_url,
+            stderr,
+        };
+        session.load();
+        session
+    }
+
+    fn load(&mut self) {
+        let url = self.page_url.clone();
+        self.devtools.call("Page.navigate", json!({"url": url}));
+    }
+
+    /// The page's state: `drawn`, `mesh` (its markers), `state` (window.sweepdepthState),
+    /// `status`, `count`.
+    fn state(&mut self) -> Value {
+        let state = self.devtools.evaluate(
+            "JSON.stringify({old: !!window.sweepdepthOldPage, drawn: document.body && document.body.dataset.drawn || '', mesh: document.body && document.body.dataset.mesh || '', state: window.sweepdepthState || null, status: (document.getElementById('status')||{}).textContent || '', count: (document.getElementById('count')||{}).textContent || ''})",
+        );
+        serde_json::from_str(state.as_str().unwrap_or("{}")).unwrap_or(Value::Null)
+    }
+
+    /// Waits (within the one limit) until `done` holds for the page's state; returns it.
+    fn wait_for(&mut self, what: &str, done: impl Fn(&Value) -> bool) -> Value {
+        loop {
+            let state = self.state();
+            if done(&state) {
+                return state;
+            }
+            if let Some(status) = self.sweepdepth.0.try_wait().expect("wait") {
+                panic!("sweepdepth bag --view ended ({status}) while the page waited for {what}; page: {state}");
+            }
+            assert!(
+                self.started.elapsed() < timeout(),
+                "the page did not show {what} within {:?}; its state: {state}",
+                timeout()
+            );
+            std::thread::sleep(Duration::from_millis(250));
+        }
+    }
+
+    /// Waits until `sweepdepth`'s stderr has a line containing `needle`; returns that line.
+    fn wait_for_stderr(&mut self, needle: &str) -> String {
+        loop {
+            let line = self
+                .stderr
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .lines()
+                .find(|l| l.contains(needle))
+                .map(str::to_string);
+            if let Some(line) = line {
+                return line;
+            }
+            if let Some(status) = self.sweepdepth.0.try_wait().expect("wait") {
+                panic!("sweepdepth bag --view ended ({status}) before printing {needle:?}");
+            }
+            assert!(
+                self.started.elapsed() < timeout(),
+                "sweepdepth did not print {needle:?} within {:?}",
+                timeout()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// A screenshot (saved at `target/<name>`) and the CSS rectangles of the 3D view and the
+    /// depth image.
+    fn screenshot(&mut self, name: &str) -> (image::RgbaImage, Value, PathBuf) {
+        // Let two more animation frames paint, then look at the pixels.
+        self.devtools
+            .evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))");
+        let rects: Value = serde_json::from_str(
+            self.devtools
+                .evaluate("JSON.stringify({cloud: document.querySelector('#cloud canvas').getBoundingClientRect(), depth: document.getElementById('depth').getBoundingClientRect(), scale: window.devicePixelRatio})")
+                .as_str()
+                .unwrap_or("{}"),
+        )
+        .expect("rects");
+        let shot = self
+            .devtools
+            .call("Page.captureScreenshot", json!({"format": "png"}));
+        let png = base64_decode(shot["data"].as_str().expect("screenshot data"));
+        let saved = root().join("target").join(name);
+        std::fs::write(&saved, &png).expect("save the screenshot");
+        let image = image::load_from_memory(&png).expect("PNG").to_rgba8();
+        (image, rects, saved)
+    }
+
+    /// `bag --view` ends cleanly on SIGTERM, its output written.
+    fn stop(mut self) {
+        Command::new("kill")
+            .args(["-TERM", &self.sweepdepth.0.id().to_string()])
+            .status()
+            .expect("kill -TERM");
+        let status = self.sweepdepth.0.wait().expect("wait for sweepdepth");
+        assert!(
+            status.success(),
+            "sweepdepth bag --view after SIGTERM: {status}"
+        );
+        assert!(self.out_dir.join("out.mcap").exists());
+        let _ = std::fs::remove_dir_all(&self.out_dir);
+    }
+}
+
+const BACKGROUND: [u8; 3] = [0x14, 0x16, 0x1a];
+
 #[test]
 fn page_draws_the_point_cloud_of_bag_view() {
-    let chromium = chromium();
-    let port = free_port_pair();
-    let out_dir =
-        std::env::temp_dir().join(format!("sweepdepth-viewer-page-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&out_dir);
-    std::fs::create_dir_all(&out_dir).expect("temp dir");
-    let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
-    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
-    let mut sweepdepth = KillOnDrop(
-        Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-            .arg("bag")
-            .arg(&bag)
-            .arg(out_dir.join("out.mcap"))
-            .arg("--params-file")
-            .arg(&params)
-            .args([
-                "--view",
-                "--view-rate",
-                "max",
-                "-p",
-                &format!("foxglove_port:={port}"),
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start sweepdepth bag --view"),
-    );
-    let profile = out_dir.join("chromium-profile");
-    let page_url = format!("http://127.0.0.1:{}/", port + 1);
-    let _browser = KillOnDrop(
-        Command::new(&chromium)
-            .args([
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--enable-unsafe-swiftshader",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--window-size=1280,800",
-                "--remote-debugging-port=0",
-            ])
-            .arg(format!("--user-data-dir={}", profile.display()))
-            .arg("about:blank")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start chromium"),
-    );
-    let started = Instant::now();
-    let wait = |what: &str| {
-        assert!(
-            started.elapsed() < timeout(),
-            "waited {:?} for {what} in vain",
-            timeout()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
-    // Chromium writes its DevTools port into the profile.
-    let devtools_port: u16 = loop {
-        if let Ok(text) = std::fs::read_to_string(profile.join("DevToolsActivePort")) {
-            if let Some(port) = text.lines().next().and_then(|l| l.trim().parse().ok()) {
-                break port;
-            }
-        }
-        wait("Chromium's DevToolsActivePort");
-    };
-    let target = loop {
-        let page = http_get_json(devtools_port, "/json/list").and_then(|list| {
-            list.as_array()?
-                .iter()
-                .find(|t| t["type"] == "page")
-                .and_then(|t| t["webSocketDebuggerUrl"].as_str().map(str::to_string))
-        });
-        if let Some(url) = page {
-            break url;
-        }
-        wait("a Chromium page target");
-    };
-    let (ws, _) = tungstenite::connect(target.as_str()).expect("DevTools WebSocket");
-    let mut devtools = DevTools { ws, next_id: 0 };
-    // The page server is up once `bag --view` has started its viewer.
-    loop {
-        if TcpStream::connect(("127.0.0.1", port + 1)).is_ok() {
-            break;
-        }
-        if let Some(status) = sweepdepth.0.try_wait().expect("wait") {
-            panic!("sweepdepth bag --view ended ({status}) before serving the page");
-        }
-        wait("the page server");
-    }
-    devtools.call("Page.navigate", json!({"url": page_url}));
-    let state = loop {
-        let state = devtools.evaluate(
-            "JSON.stringify({drawn: document.body && document.body.dataset.drawn || '', state: window.sweepdepthState || null, status: (document.getElementById('status')||{}).textContent || ''})",
-        );
-        let state: Value =
-            serde_json::from_str(state.as_str().unwrap_or("{}")).unwrap_or(Value::Null);
-        if state["drawn"] == "1" {
-            break state;
-        }
-        if let Some(status) = sweepdepth.0.try_wait().expect("wait") {
-            panic!("sweepdepth bag --view ended ({status}) while the page waited; page: {state}");
-        }
-        assert!(
-            started.elapsed() < timeout(),
-            "the page did not draw within {:?}; its state: {state}",
-            timeout()
-        );
-        std::thread::sleep(Duration::from_millis(250));
-    };
+    let mut session = Session::start("cloud", &[]);
+    let state = session.wait_for("a point cloud and a depth image", |s| s["drawn"] == "1");
     eprintln!("page state: {state}");
     assert!(
         state["state"]["points"].as_u64().unwrap_or(0) > 1000,
@@ -306,23 +433,13 @@ fn page_draws_the_point_cloud_of_bag_view() {
         "{state}"
     );
     assert_eq!(state["state"]["errors"], json!([]), "{state}");
+    // Without fusion there is no mesh: the points are shown.
+    assert_eq!(state["state"]["show"], "points", "{state}");
+    assert_eq!(state["state"]["meshBlocks"], 0, "{state}");
 
-    // Let one more animation frame paint, then look at the pixels.
-    devtools.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))");
-    let rects: Value = serde_json::from_str(
-        devtools
-            .evaluate("JSON.stringify({cloud: document.querySelector('#cloud canvas').getBoundingClientRect(), depth: document.getElementById('depth').getBoundingClientRect(), scale: window.devicePixelRatio})")
-            .as_str()
-            .unwrap_or("{}"),
-    )
-    .expect("rects");
-    let shot = devtools.call("Page.captureScreenshot", json!({"format": "png"}));
-    let png = base64_decode(shot["data"].as_str().expect("screenshot data"));
-    let saved = root().join("target/viewer-page.png");
-    std::fs::write(&saved, &png).expect("save the screenshot");
-    let image = image::load_from_memory(&png).expect("PNG").to_rgba8();
+    let (image, rects, saved) = session.screenshot("viewer-page.png");
     let scale = rects["scale"].as_f64().unwrap_or(1.0);
-    let cloud = share_not_background(&image, &rects["cloud"], scale, [0x14, 0x16, 0x1a]);
+    let cloud = share_not_background(&image, &rects["cloud"], scale, BACKGROUND);
     let depth = share_not_background(&image, &rects["depth"], scale, [0, 0, 0]);
     eprintln!(
         "screenshot {}: 3D view {:.1} % drawn, depth image {:.1} % coloured",
@@ -342,18 +459,104 @@ fn page_draws_the_point_cloud_of_bag_view() {
         depth * 100.0,
         saved.display()
     );
+    session.stop();
+}
 
-    // `bag --view` ends cleanly on SIGTERM, its output written.
-    Command::new("kill")
-        .args(["-TERM", &sweepdepth.0.id().to_string()])
-        .status()
-        .expect("kill -TERM");
-    let status = sweepdepth.0.wait().expect("wait for sweepdepth");
-    assert!(
-        status.success(),
-        "sweepdepth bag --view after SIGTERM: {status}"
+/// Issue 28: `bag --view --mesh`: the page draws the fused mesh (every triangle the bag fused,
+/// also when it is loaded again after the bag ended: the viewer sends the whole mesh to a late
+/// subscriber, then the deltas), shows it by default, and switches to the points and to both.
+#[test]
+fn page_draws_the_fused_mesh_of_bag_view() {
+    let mesh_file = std::env::temp_dir().join(format!(
+        "sweepdepth-viewer-page-mesh-{}.ply",
+        std::process::id()
+    ));
+    let mut session = Session::start("mesh", &["--mesh", mesh_file.to_str().expect("path")]);
+    // The bag's mesh, as `bag` reports it once every set is fused and offered.
+    let line = session.wait_for_stderr("depth maps fused into");
+    let triangles: u64 = line
+        .split('(')
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no triangle count in {line:?}"));
+    assert!(triangles > 10_000, "{line}");
+    let complete = |s: &Value| {
+        s["old"] == false
+            && s["drawn"] == "1"
+            && s["mesh"] == "1"
+            && s["state"]["meshTriangles"] == triangles
+    };
+    // Loaded while the bag ran or after: then loaded again, a late subscriber.
+    for load in 0..2 {
+        if load == 1 {
+            session.devtools.evaluate("window.sweepdepthOldPage = true");
+            session.load();
+            // The new page's state, not the old one's.
+            session.wait_for("the reloaded page", |s| s["old"] == false);
+        }
+        let state = session.wait_for("the whole fused mesh", complete);
+        eprintln!("page state (load {load}): {state}");
+        assert_eq!(state["state"]["errors"], json!([]), "{state}");
+        assert_eq!(state["state"]["show"], "mesh", "{state}");
+        assert!(
+            state["state"]["meshBlocks"].as_u64().unwrap_or(0) > 100,
+            "{state}"
+        );
+        assert!(
+            state["count"]
+                .as_str()
+                .unwrap_or("")
+                .contains("triangles in"),
+            "{state}"
+        );
+    }
+
+    let (image, rects, saved) = session.screenshot("viewer-page-mesh.png");
+    let scale = rects["scale"].as_f64().unwrap_or(1.0);
+    let drawn = share_not_background(&image, &rects["cloud"], scale, BACKGROUND);
+    eprintln!(
+        "screenshot {}: 3D view {:.1} % drawn (mesh)",
+        saved.display(),
+        drawn * 100.0
     );
-    assert!(out_dir.join("out.mcap").exists());
-    let _ = std::fs::remove_dir_all(&out_dir);
-    let _ = Path::new("");
+    assert!(
+        drawn > 0.1,
+        "the mesh covers only {:.2} % of the 3D view; see {}",
+        drawn * 100.0,
+        saved.display()
+    );
+
+    // The control switches to the points, then to both (the same frame here: the first
+    // reference's), each drawn.
+    for (show, count) in [("points", "points"), ("both", "triangles in")] {
+        session.devtools.evaluate(&format!(
+            "(() => {{ const s = document.getElementById('show'); s.value = '{show}'; s.dispatchEvent(new Event('change')); }})()"
+        ));
+        let state = session.wait_for(show, |s| s["state"]["show"] == show);
+        assert!(
+            state["count"].as_str().unwrap_or("").contains(count),
+            "{state}"
+        );
+        if show == "points" {
+            assert!(
+                !state["count"].as_str().unwrap_or("").contains("triangles"),
+                "{state}"
+            );
+        }
+        let (image, rects, saved) = session.screenshot(&format!("viewer-page-{show}.png"));
+        let drawn = share_not_background(&image, &rects["cloud"], scale, BACKGROUND);
+        eprintln!(
+            "screenshot {}: 3D view {:.1} % drawn",
+            saved.display(),
+            drawn * 100.0
+        );
+        assert!(
+            drawn > 0.05,
+            "{show}: the 3D view is (nearly) empty; see {}",
+            saved.display()
+        );
+    }
+    session.stop();
+    let _ = std::fs::remove_file(&mesh_file);
 }

@@ -3,7 +3,7 @@
 the concatenated form rosbag2 stores in MCAP schema records) of the message types sweepdepth
 reads and writes in bags.
 
-Generated with rosbags 0.11.9 (https://gitlab.com/ternaris/rosbags, typestore ROS2_HUMBLE):
+Generated with rosbags 0.11.9 (https://gitlab.com/ternaris/rosbags, typestores ROS2_HUMBLE, and ROS2_JAZZY for JAZZY_TYPES):
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install rosbags==0.11.9
     /tmp/venv/bin/python tools/gen_msgdefs.py
@@ -19,11 +19,17 @@ TYPES = [
     "tf2_msgs/msg/TFMessage",
     "diagnostic_msgs/msg/DiagnosticArray",
 ]
+# Types whose definition changed after Humble, written as Jazzy has them (the wire layout
+# the node speaks: visualization_msgs/Marker gained texture, uv_coordinates and mesh_file).
+JAZZY_TYPES = [
+    "visualization_msgs/msg/MarkerArray",
+]
 
 out = Path(__file__).resolve().parent.parent / "msg" / "schemas"
 out.mkdir(parents=True, exist_ok=True)
-store = get_typestore(Stores.ROS2_HUMBLE)
-for name in TYPES:
+humble = get_typestore(Stores.ROS2_HUMBLE)
+jazzy = get_typestore(Stores.ROS2_JAZZY)
+for store, name in [(humble, t) for t in TYPES] + [(jazzy, t) for t in JAZZY_TYPES]:
     text, _ = store.generate_msgdef(name, ros_version=2)
     (out / (name.replace("/", "__") + ".msgdef")).write_text(text)
     print("wrote", name)

@@ -77,6 +77,8 @@ try:
     from rcl_interfaces.srv import (DescribeParameters, GetParameters, GetParameterTypes,
                                     ListParameters, SetParameters)
     from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import Trigger
+    from visualization_msgs.msg import Marker, MarkerArray
     from rclpy.qos import qos_profile_sensor_data
     import numpy as np
 except ImportError as e:  # the Rust tests look for exit status 4
@@ -215,11 +217,29 @@ def run_drive(node: Node, directory: pathlib.Path) -> None:
                                 "message": st.message,
                                 "values": {kv.key: kv.value for kv in st.values}})
 
+    # Fusion (rig.json "mesh": true): the mesh's markers, latest per id, and DELETEALLs seen.
+    mesh_blocks: dict[int, Marker] = {}
+    mesh_events = {"arrays": 0, "deleteall": 0, "frames": set()}
+
+    def on_mesh(msg: MarkerArray) -> None:
+        mesh_events["arrays"] += 1
+        for m in msg.markers:
+            mesh_events["frames"].add(m.header.frame_id)
+            if m.action == Marker.DELETEALL:
+                mesh_events["deleteall"] += 1
+                mesh_blocks.clear()
+            elif m.action == Marker.DELETE:
+                mesh_blocks.pop(m.id, None)
+            else:
+                mesh_blocks[m.id] = m
+
     subs = [
         node.create_subscription(Image, f"{ns}/depth/image", on_depth, default_qos()),
         node.create_subscription(Log, "/rosout", on_rosout, QoSProfile(depth=1000)),
         node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, default_qos()),
     ]
+    if rig.get("mesh"):
+        subs.append(node.create_subscription(MarkerArray, f"{ns}/mesh", on_mesh, default_qos()))
 
     def spin_for(seconds: float, until=lambda: False) -> None:
         end = time.monotonic() + seconds
@@ -280,6 +300,24 @@ def run_drive(node: Node, directory: pathlib.Path) -> None:
         results.append(result)
         spin_for(period)
     spin_for(1.5, lambda: bool(diagnostics))  # /diagnostics comes once a second
+    mesh = None
+    if rig.get("mesh"):
+        # The last set's blocks come at the node's mesh_rate; then the map is cleared through
+        # ~/clear_map (std_srvs/Trigger) and its DELETEALL awaited.
+        spin_for(set_timeout, lambda: bool(mesh_blocks))
+        zs = [p.z for m in mesh_blocks.values() for p in m.points]
+        mesh = {
+            "arrays": mesh_events["arrays"], "blocks": len(mesh_blocks),
+            "triangles": sum(len(m.points) // 3 for m in mesh_blocks.values()),
+            "colors_match": all(len(m.colors) == len(m.points) for m in mesh_blocks.values()),
+            "types": sorted({int(m.type) for m in mesh_blocks.values()}),
+            "frames": sorted(mesh_events["frames"]),
+            "z_median": float(np.median(zs)) if zs else None,
+        }
+        answer = call(node, Trigger, f"{ns}/sweepdepth/clear_map", Trigger.Request())
+        spin_for(set_timeout, lambda: mesh_events["deleteall"] > 0)
+        mesh.update({"clear_success": bool(answer.success), "clear_message": answer.message,
+                     "deleteall": mesh_events["deleteall"], "blocks_after_clear": len(mesh_blocks)})
     received = [r for r in results if r["received"]]
     latencies = sorted(r["latency_ms"] for r in received)
     emit({
@@ -287,7 +325,7 @@ def run_drive(node: Node, directory: pathlib.Path) -> None:
         "latency_median_ms": latencies[len(latencies) // 2] if latencies else None,
         "latency_max_ms": latencies[-1] if latencies else None,
         "image_qos": qos_name(image_qos),
-        "rosout": rosout[-200:], "diagnostics": diagnostics[-50:],
+        "rosout": rosout[-200:], "diagnostics": diagnostics[-50:], "mesh": mesh,
     })
     del subs
 

@@ -11,16 +11,16 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use crate::pipeline::fuse::Fuser;
 use crate::pipeline::{
     ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
     PipelineConfig, Skip,
 };
+use crate::pipeline::{Fuser, FusionInput};
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
 use super::pace::{Pacer, ViewRate};
 use super::report::BagReport;
-use super::schemas::{CAMERA_INFO, IMAGE, POINT_CLOUD2, TF_MESSAGE};
+use super::schemas::{CAMERA_INFO, IMAGE, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
 use super::{writer, BagError, BagReader, BagWriter};
 
 /// `sweepdepth bag` arguments.
@@ -154,8 +154,45 @@ struct Sink<'a> {
     bar: ProgressBar,
     /// `--view`: the live view, fed every processed set.
     viewer: Option<Viewer>,
-    /// `--mesh`: every reference's depth fused into one mesh.
-    fuser: Option<Fuser>,
+    /// `fusion` or `--mesh`: every reference's depth fused into one mesh.
+    fuser: Option<BagFusion>,
+}
+
+/// The bag's fusion: the fuser, and when its markers next go into OUT.
+struct BagFusion {
+    fuser: Fuser,
+    topic: String,
+    /// `mesh_rate` as a period in log time (None: no markers).
+    period_ns: Option<u64>,
+    next_ns: u64,
+}
+
+impl BagFusion {
+    /// The changed blocks' markers into OUT when the mesh period has passed (or `last`), and
+    /// to the live view.
+    fn write_markers(
+        &mut self,
+        writer: &mut BagWriter,
+        viewer: Option<&Viewer>,
+        log_time_ns: u64,
+        last: bool,
+    ) -> Result<(), BagError> {
+        let Some(period) = self.period_ns else {
+            return Ok(());
+        };
+        if log_time_ns < self.next_ns && !last {
+            return Ok(());
+        }
+        self.next_ns = log_time_ns.saturating_add(period);
+        let markers = self.fuser.markers();
+        if !markers.markers.is_empty() {
+            writer.write_msg(&self.topic, log_time_ns, &markers)?;
+            if let Some(viewer) = viewer {
+                viewer.offer_mesh_owned(markers);
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Sink<'_> {
@@ -201,12 +238,19 @@ impl Sink<'_> {
                     *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
                     warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
                 }
-                if let Some(fuser) = &mut self.fuser {
+                if let Some(fusion) = &mut self.fuser {
+                    let world = config.world.as_ref().map(|w| w.frame.as_str());
                     for out in &set.outputs {
-                        if let Err(e) = fuser.add(out) {
-                            warn(&self.bar, &mut self.seen, &format!("--mesh: {e}"));
+                        if let Err(e) = fusion.fuser.add(&FusionInput::from_outputs(out, world)) {
+                            warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
                         }
                     }
+                    fusion.write_markers(
+                        &mut self.writer,
+                        self.viewer.as_ref(),
+                        log_time_ns,
+                        false,
+                    )?;
                 }
                 // (Points go into OUT only with publish_points: `write_outputs`.)
                 for out in &set.outputs {
@@ -365,9 +409,38 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             writer.add_topic(points, POINT_CLOUD2, None)?;
         }
     }
+    // Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with
+    // `--voxel-size`); the markers go into OUT on `mesh` at the mesh rate in log time.
+    let fusion = match (&config.fusion, &args.mesh) {
+        (Some(f), _) => Some(f.clone()),
+        (None, Some(_)) => Some(crate::pipeline::FusionConfig {
+            params: FusionParams {
+                voxel_size_m: args.voxel_size,
+                min_depth_m: config.sweep.min_depth_m as f32,
+                max_depth_m: config.sweep.max_depth_m as f32,
+                ..FusionParams::default()
+            },
+            mesh_rate_hz: 1.0,
+        }),
+        (None, None) => None,
+    };
+    if let Some(f) = &fusion {
+        if f.mesh_rate_hz > 0.0 {
+            writer.add_topic(&config.mesh_topic, MARKER_ARRAY, None)?;
+        }
+    }
 
     let viewer = if args.view {
-        let viewer = Viewer::start(&ViewerConfig::for_bag(&config.params)?, &config.outputs)?;
+        // With fusion (and markers), the mesh on its own channel.
+        let mesh_topic = fusion
+            .as_ref()
+            .filter(|f| f.mesh_rate_hz > 0.0)
+            .map(|_| config.mesh_topic.as_str());
+        let viewer = Viewer::start_with_mesh(
+            &ViewerConfig::for_bag(&config.params)?,
+            &config.outputs,
+            mesh_topic,
+        )?;
         tracing::info!(
             "live view: Foxglove/Lichtblick at {}, the page at {}",
             viewer.websocket_url(),
@@ -383,11 +456,13 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         None
     };
 
-    let fuser = match &args.mesh {
-        Some(_) => Some(Fuser::new(FusionParams {
-            voxel_size_m: args.voxel_size,
-            ..FusionParams::default()
-        })?),
+    let fuser = match &fusion {
+        Some(f) => Some(BagFusion {
+            fuser: Fuser::new(f.params)?,
+            topic: config.mesh_topic.clone(),
+            period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
+            next_ns: 0,
+        }),
         None => None,
     };
     let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
@@ -487,23 +562,37 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         ..
     } = sink;
     bar.finish_and_clear();
-    if let (Some(mut fuser), Some(path)) = (fuser, &args.mesh) {
-        let stats = fuser.update_mesh();
-        let mesh = fuser.mesh();
-        crate::fusion::write_ply_file(&mesh, path).map_err(|source| BagRunError::MeshFile {
-            path: path.display().to_string(),
-            source,
-        })?;
+    let mut writer = writer;
+    if let Some(mut fusion) = fuser {
+        fusion.write_markers(&mut writer, viewer.as_ref(), last_log_ns, true)?;
+        let fuser = &mut fusion.fuser;
         let (blocks, bytes) = fuser.blocks();
-        report.mesh = Some(format!(
-            "{} depth maps fused into {} ({} triangles, {} vertices; {blocks} blocks of 8^3 voxels of {} m, {:.1} MiB)",
-            fuser.integrated,
-            path.display(),
-            stats.triangles,
-            mesh.vertices.len(),
-            args.voxel_size,
+        let grid = format!(
+            "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
+            fuser.params().voxel_size_m,
             bytes as f64 / (1 << 20) as f64
-        ));
+        );
+        report.mesh = Some(match &args.mesh {
+            Some(path) => {
+                let saved = fuser.save(path).map_err(|source| BagRunError::MeshFile {
+                    path: path.display().to_string(),
+                    source,
+                })?;
+                format!(
+                    "{} depth maps fused into {} ({} triangles, {} vertices; {grid})",
+                    fuser.integrated,
+                    path.display(),
+                    saved.triangles,
+                    saved.vertices,
+                )
+            }
+            None => format!(
+                "{} depth maps fused ({} triangles on {}; {grid})",
+                fuser.integrated,
+                fuser.triangles(),
+                fusion.topic,
+            ),
+        });
     }
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);

@@ -14,10 +14,11 @@ use ros2_client::{
 };
 
 use super::events::{Event, EventStream, LoopState};
+use super::fusion::FusionNode;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
 use super::params::node_options;
-use super::worker::Publishers;
+use super::worker::{Outputs, Publishers};
 use super::{diag, NodeConfig, NodeError, Shared};
 use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
 use crate::pipeline::{ConfigError, Pipeline};
@@ -46,7 +47,7 @@ type SpinFuture =
 pub(super) fn run(
     config: &NodeConfig,
     shared: &Shared<'_>,
-    publishers_tx: mpsc::Sender<Vec<Publishers>>,
+    publishers_tx: mpsc::Sender<Outputs>,
     stop_worker: &mut dyn FnMut(),
 ) -> Result<(), NodeError> {
     let pipeline = &config.pipeline;
@@ -219,8 +220,25 @@ pub(super) fn run(
     let diag_pub = node
         .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos.clone()))
         .map_err(ros_err)?;
+    // Live fusion (`fusion`): its thread, `mesh` publisher and services; dropped (the thread
+    // joined) before the node.
+    let fusion = match &pipeline.fusion {
+        Some(fusion_config) => Some(FusionNode::new(
+            &mut node,
+            &pipeline.identity.fqn(),
+            fusion_config,
+            &pipeline.mesh_topic,
+            shared.viewer.cloned(),
+        )?),
+        None => None,
+    };
+    let fusion_worker = fusion.as_ref().map(FusionNode::worker);
     publishers_tx
-        .send(reference_publishers)
+        .send(Outputs {
+            references: reference_publishers,
+            fusion: fusion_worker.clone(),
+            world_frame: pipeline.world.as_ref().map(|w| w.frame.clone()),
+        })
         .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
 
     let mut streams: Vec<EventStream<'_>> = Vec::new();
@@ -272,12 +290,20 @@ pub(super) fn run(
             }
         };
         let params = param_services.serve();
-        futures::pin_mut!(events, params);
-        match futures::future::select(events, params).await {
+        let fusion_services = async {
+            match &fusion {
+                Some(fusion) => fusion.serve().await,
+                None => futures::future::pending().await,
+            }
+        };
+        futures::pin_mut!(events, params, fusion_services);
+        let services = futures::future::select(params, fusion_services);
+        match futures::future::select(events, services).await {
             futures::future::Either::Left(((), _)) => {
                 NodeError::Ros("the subscription streams ended".into())
             }
-            futures::future::Either::Right((e, _)) => e,
+            futures::future::Either::Right((futures::future::Either::Left((e, _)), _))
+            | futures::future::Either::Right((futures::future::Either::Right((e, _)), _)) => e,
         }
     };
     let stop = AtomicBool::new(false);
@@ -285,7 +311,7 @@ pub(super) fn run(
         let diag = std::thread::Builder::new()
             .name("sweepdepth-diagnostics".into())
             .spawn_scoped(scope, || {
-                diag::publish_loop(config, shared, diag_pub, &stop)
+                diag::publish_loop(config, shared, diag_pub, fusion_worker.as_deref(), &stop)
             })
             .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
         let outcome = futures::executor::block_on(async {

@@ -248,6 +248,7 @@ pub(super) fn publish_loop(
     config: &NodeConfig,
     shared: &Shared<'_>,
     publisher: Publisher<DiagnosticArray>,
+    fusion: Option<&crate::pipeline::FusionWorker>,
     stop: &AtomicBool,
 ) {
     let fqn = config.pipeline.identity.fqn();
@@ -263,7 +264,7 @@ pub(super) fn publish_loop(
         if next < now {
             next = now + Duration::from_secs(1);
         }
-        let msg = {
+        let mut msg = {
             let mut stats = lock(shared.stats);
             stats.gpu_dropped = shared.slot.dropped();
             stats.diagnostics(
@@ -274,6 +275,11 @@ pub(super) fn publish_loop(
                 wall_time_now(),
             )
         };
+        if let (Some(fusion), Some(status)) = (fusion, msg.status.first_mut()) {
+            status
+                .values
+                .extend(super::fusion::diagnostic_values(&fusion.stats()));
+        }
         if let Err(e) = publisher.publish(msg) {
             log.warn("diagnostics", || {
                 format!("publishing /diagnostics failed: {e:?}")

@@ -27,6 +27,8 @@ pub mod config;
 mod dds;
 pub mod diag;
 mod events;
+pub mod fuse_node;
+mod fusion;
 mod log;
 pub mod param_services;
 pub mod params;
@@ -52,6 +54,8 @@ struct Shared<'a> {
     stats: &'a Mutex<Stats>,
     /// The adapter the engine runs on.
     adapter: &'a str,
+    /// The live view, for fusion's mesh (the GPU thread has its own handle).
+    viewer: Option<&'a Viewer>,
 }
 
 /// Runs the node with the arguments after `node` until SIGINT/SIGTERM.
@@ -74,7 +78,13 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // The live view (`foxglove_port`), before the GPU thread, which owns it.
     let viewer = match ViewerConfig::from_params(&pipeline.params)? {
         Some(viewer_config) => {
-            let viewer = Viewer::start(&viewer_config, &pipeline.outputs)?;
+            // With fusion, the mesh's channel too (`mesh_rate` 0: no mesh updates to show).
+            let mesh_topic = pipeline
+                .fusion
+                .as_ref()
+                .filter(|f| f.mesh_rate_hz > 0.0)
+                .map(|_| pipeline.mesh_topic.as_str());
+            let viewer = Viewer::start_with_mesh(&viewer_config, &pipeline.outputs, mesh_topic)?;
             tracing::info!(
                 "live view: Foxglove/Lichtblick at {}, the page at {}",
                 viewer.websocket_url(),
@@ -95,6 +105,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     );
     let stats = Arc::new(Mutex::new(Stats::new(pipeline.cameras.len())));
     let cancel = CancelFlag::new();
+    let mesh_viewer = viewer.clone();
     let gpu = worker::spawn(
         pipeline.device(),
         cancel.clone(),
@@ -110,6 +121,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         live: &live,
         stats: &stats,
         adapter: &gpu.adapter,
+        viewer: mesh_viewer.as_ref(),
     };
     let mut handle = Some(gpu.handle);
     // On shutdown: no more sets, the pending one abandoned, the running one stopped at its

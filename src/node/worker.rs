@@ -13,7 +13,7 @@ use super::params::LiveParams;
 use super::NodeError;
 use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
-use crate::pipeline::{EngineHost, FrameOutputs, HostError, Job};
+use crate::pipeline::{EngineHost, FrameOutputs, FusionInput, FusionWorker, HostError, Job};
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
 
@@ -27,13 +27,22 @@ pub(super) struct Publishers {
     pub points: Option<Publisher<PointCloud2>>,
 }
 
+/// What the GPU thread hands its outputs to: each reference's publishers (in the
+/// configuration's order) and, with `fusion`, the fusion thread.
+pub(super) struct Outputs {
+    pub references: Vec<Publishers>,
+    pub fusion: Option<Arc<FusionWorker>>,
+    /// `world_frame` on a moving rig (fusion's map frame).
+    pub world_frame: Option<String>,
+}
+
 /// The running GPU thread.
 pub(super) struct GpuThread {
     pub handle: JoinHandle<()>,
     /// The adapter the engine runs on.
     pub adapter: String,
     /// Where the publishers go once DDS is up; the thread waits for them.
-    pub publishers: mpsc::Sender<Vec<Publishers>>,
+    pub publishers: mpsc::Sender<Outputs>,
 }
 
 /// Starts the GPU thread and waits until its engine is up (so that a missing adapter fails
@@ -47,7 +56,7 @@ pub(super) fn spawn(
     viewer: Option<Viewer>,
 ) -> Result<GpuThread, NodeError> {
     let (init_tx, init_rx) = mpsc::channel::<Result<String, HostError>>();
-    let (publishers_tx, publishers_rx) = mpsc::channel::<Vec<Publishers>>();
+    let (publishers_tx, publishers_rx) = mpsc::channel::<Outputs>();
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
         .spawn(move || {
@@ -87,9 +96,10 @@ fn worker_loop(
     live: &LiveParams,
     stats: &Mutex<Stats>,
     mut host: EngineHost,
-    publishers: &[Publishers],
+    outputs: &Outputs,
     viewer: Option<&Viewer>,
 ) {
+    let publishers = &outputs.references;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
     let wants_points = publishers.iter().any(|p| p.points.is_some());
@@ -153,6 +163,17 @@ fn worker_loop(
                         .insert(out.header.frame_id.clone(), (out.header.stamp, pose));
                 }
             }
+        }
+        // Fusion takes its copy of the depths (never waits: a fusion that falls behind drops
+        // its own oldest waiting set, counted in /diagnostics).
+        if let Some(fusion) = &outputs.fusion {
+            let world = outputs.world_frame.as_deref();
+            fusion.offer(
+                set.outputs
+                    .iter()
+                    .map(|out| FusionInput::from_outputs(out, world))
+                    .collect(),
+            );
         }
         for out in set.outputs {
             let Some(publishers) = publishers.get(out.output) else {

@@ -76,6 +76,41 @@ pub fn node_params() -> Vec<ParamSpec> {
             "With world_frame: how long a set waits for /tf to reach its stamp (seconds; receive time live, log time in bags) before it is skipped.",
         ),
         node_spec(
+            "fusion",
+            Bool(false),
+            ParamRange::Any,
+            "Fuse every reference's depth of every set into one coloured mesh (a TSDF in blocks of 8^3 voxels, beside the engine): published as visualization_msgs/MarkerArray on mesh (one TRIANGLE_LIST per block, only the blocks that changed), saved by the ~/save_mesh service, emptied by ~/clear_map. In world_frame on a moving rig, else in the frame of the first reference's image.",
+        ),
+        node_spec(
+            "voxel_size",
+            Double(0.05),
+            ParamRange::Double {
+                min: 0.001,
+                max: 10.0,
+                min_exclusive: false,
+                max_exclusive: false,
+            },
+            "Fusion: the side of a voxel, metres (truncation: 4 voxels).",
+        ),
+        node_spec(
+            "max_blocks",
+            Int(50_000),
+            ParamRange::ints(1, 100_000_000),
+            "Fusion: the most blocks of 8^3 voxels kept (8 KiB each: 50000 is about 400 MiB); beyond it the blocks farthest from the newest camera are dropped (their markers deleted).",
+        ),
+        node_spec(
+            "mesh_rate",
+            Double(1.0),
+            ParamRange::closed(0.0, 100.0),
+            "Fusion: how often the changed blocks' meshes are published on mesh, Hz (0 = never: ~/save_mesh only).",
+        ),
+        node_spec(
+            "depth_topics",
+            ParamValue::StringArray(Vec::new()),
+            ParamRange::NameList { min_len: 0 },
+            "`sweepdepth fuse` only: the depth image topics it fuses (REP 118: 32FC1 metres or 16UC1 millimetres), each with the camera_info beside it (<namespace>/camera_info, as image_transport pairs them), placed in world_frame by /tf and /tf_static at their stamps: other sweepdepth nodes (<camera>/depth/image), a RealSense, stereo_image_proc. The depth node ignores it.",
+        ),
+        node_spec(
             "device",
             s("auto"),
             ParamRange::one_of(&["auto", "gpu", "cpu"]),

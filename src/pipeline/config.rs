@@ -24,6 +24,8 @@ pub enum ConfigError {
     #[error(transparent)]
     Args(#[from] RosArgsError),
     #[error(transparent)]
+    Fusion(#[from] crate::fusion::FusionError),
+    #[error(transparent)]
     Param(#[from] ParamError),
     #[error("unexpected arguments {0:?}: `sweepdepth node` takes only `--ros-args ...`")]
     ExtraArgs(Vec<String>),
@@ -143,6 +145,15 @@ pub struct OutputTopics {
     pub points: Option<String>,
 }
 
+/// Live fusion (`fusion`): the grid's parameters, how often the mesh goes out and where.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FusionConfig {
+    /// `voxel_size`, `max_blocks`; the depth range of the sweep.
+    pub params: crate::fusion::FusionParams,
+    /// `mesh_rate` (Hz; 0: the mesh is only saved).
+    pub mesh_rate_hz: f64,
+}
+
 /// A moving rig: where its poses come from (`world_frame`, `tf_timeout`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorldConfig {
@@ -230,6 +241,10 @@ pub struct PipelineConfig {
     /// A moving rig (`world_frame`): the fixed frame, `/tf`'s resolved name, and how long a set
     /// waits for its pose (`tf_timeout`).
     pub world: Option<WorldConfig>,
+    /// Live fusion, when `fusion` is true.
+    pub fusion: Option<FusionConfig>,
+    /// The resolved name of `mesh` (fusion's markers).
+    pub mesh_topic: String,
     /// Fully qualified (remapped) image and camera_info topic names, per camera.
     pub image_topics: Vec<String>,
     /// What each camera's image topic carries, raw or rectified (`image_kinds`, else the
@@ -355,6 +370,24 @@ impl PipelineConfig {
                 tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
             })
         };
+        let fusion = if params.get_bool("fusion")? {
+            let fusion = FusionConfig {
+                params: crate::fusion::FusionParams {
+                    voxel_size_m: params.get_f64("voxel_size")? as f32,
+                    max_blocks: usize::try_from(params.get_i64("max_blocks")?)
+                        .unwrap_or(usize::MAX),
+                    min_depth_m: sweep.min_depth_m as f32,
+                    max_depth_m: sweep.max_depth_m as f32,
+                    ..crate::fusion::FusionParams::default()
+                },
+                mesh_rate_hz: params.get_f64("mesh_rate")?,
+            };
+            fusion.params.validate()?;
+            Some(fusion)
+        } else {
+            None
+        };
+        let mesh_topic = resolve("mesh")?;
         let tf_static_topic = resolve("/tf_static")?;
         let rig_path = params.get_str("rig_file")?;
         let rig_file = if rig_path.is_empty() {
@@ -403,6 +436,8 @@ impl PipelineConfig {
             reference,
             references,
             world,
+            fusion,
+            mesh_topic,
             image_topics,
             image_kinds,
             info_topics,

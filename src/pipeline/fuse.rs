@@ -1,21 +1,110 @@
-//! Every reference's depth of every set into one mesh (`bag --mesh`; the node's live fusion
-//! is the next step of issue 28): each output's depth, colour and camera, placed in the world
-//! frame on a moving rig (`world_frame`) or in the rig frame of a rig that stands still.
+//! Every reference's depth of every set into one mesh (issue 28): the node's live fusion
+//! (`fusion`, run beside the engine by [`super::fusion_worker`]), `bag --mesh` and the `fuse`
+//! node. Each depth map comes as a [`FusionInput`]: its depth, colour and camera placed in the
+//! map's frame (`world_frame` on a moving rig, else the frame of the set's first reference
+//! image); the [`Fuser`] integrates it into `src/fusion`'s grid and hands the mesh out per
+//! block as `visualization_msgs/MarkerArray` (one `TRIANGLE_LIST` marker per block, stable ids,
+//! only the blocks that changed) or as a PLY file.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+use std::sync::Arc;
 
 use super::outputs::FrameOutputs;
 use crate::fusion::{
-    integrate, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
+    integrate, BlockIndex, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
     VoxelBlockGrid,
 };
+use crate::geometry::{CameraModel, RigidTransform};
+use crate::image::{ImageF32, Rgba8Image};
+use crate::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Time, Vector3};
 
-/// The grid, its mesh and what went in.
+/// The marker namespace of the mesh's blocks.
+pub const MESH_NAMESPACE: &str = "sweepdepth_mesh";
+
+/// One depth map to fuse, placed in the map's frame.
+#[derive(Debug, Clone)]
+pub struct FusionInput {
+    pub stamp: Time,
+    /// The frame the camera is placed in: the map's frame.
+    pub frame: String,
+    /// z along the optical axis in metres, NaN (or non-finite, or not positive) invalid.
+    pub depth: ImageF32,
+    /// The colour of the depth's pixels (same size), if any.
+    pub colour: Option<Arc<Rgba8Image>>,
+    pub model: CameraModel,
+    /// The camera (ROS optical frame) in `frame`.
+    pub map_from_cam: RigidTransform,
+}
+
+impl FusionInput {
+    /// One reference's outputs: in `world_frame` on a moving rig (its world pose), else in the
+    /// frame of the set's first reference image.
+    pub fn from_outputs(out: &FrameOutputs, world_frame: Option<&str>) -> Self {
+        let (frame, map_from_frame) = match (world_frame, out.world_from_frame) {
+            (Some(world), Some(pose)) => (world.to_string(), pose),
+            _ => (out.anchor_frame.clone(), out.anchor_from_frame),
+        };
+        Self {
+            stamp: out.header.stamp,
+            frame,
+            depth: out.depth_m(),
+            colour: out.colour.clone(),
+            model: out.model,
+            map_from_cam: map_from_frame.compose(&out.frame_from_cam),
+        }
+    }
+}
+
+/// Why a depth map was not fused (counted by reason: `/diagnostics`, the bag summary).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FuseSkip {
+    #[error(
+        "depth in frame '{got}' but the map is in '{map}' (the rig's first reference changed \
+         frame, or a source publishes in another world frame; clear the map to start again)"
+    )]
+    Frame { got: String, map: String },
+    #[error(transparent)]
+    Fusion(#[from] FusionError),
+}
+
+impl FuseSkip {
+    /// A short label for counters.
+    pub fn label(&self) -> &'static str {
+        match self {
+            FuseSkip::Frame { .. } => "fusion: other frame",
+            FuseSkip::Fusion(FusionError::ImageSize { .. }) => "fusion: image size",
+            FuseSkip::Fusion(FusionError::Camera(_)) => "fusion: camera",
+            FuseSkip::Fusion(FusionError::Pose(_)) => "fusion: pose",
+            FuseSkip::Fusion(_) => "fusion: parameters",
+        }
+    }
+}
+
+/// What a saved mesh holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SavedMesh {
+    pub triangles: usize,
+    pub vertices: usize,
+}
+
+/// The grid, its mesh, the markers' ids and what went in.
 #[derive(Debug)]
 pub struct Fuser {
     params: FusionParams,
     grid: VoxelBlockGrid,
     mesh: Mesh,
+    /// The map's frame: that of the first input since the last clear.
+    frame: Option<String>,
+    /// The newest stamp integrated.
+    stamp: Time,
+    /// Each block's marker id, for as long as its marker is out.
+    ids: HashMap<BlockIndex, i32>,
+    next_id: i32,
     /// Depth maps integrated.
     pub integrated: u64,
+    /// Depth maps refused, by reason.
+    pub skipped: BTreeMap<&'static str, u64>,
 }
 
 impl Fuser {
@@ -25,23 +114,54 @@ impl Fuser {
             grid: VoxelBlockGrid::new(params.voxel_size_m)?,
             mesh: Mesh::new(),
             params,
+            frame: None,
+            stamp: Time::default(),
+            ids: HashMap::new(),
+            next_id: 0,
             integrated: 0,
+            skipped: BTreeMap::new(),
         })
     }
 
-    /// Integrates one reference's depth at its pose (the world pose on a moving rig, else the
-    /// pose in the rig frame).
-    pub fn add(&mut self, out: &FrameOutputs) -> Result<IntegrationStats, FusionError> {
-        let frame_pose = out.world_from_frame.unwrap_or(out.rig_from_frame);
-        let world_from_cam = frame_pose.compose(&out.frame_from_cam);
+    pub fn params(&self) -> &FusionParams {
+        &self.params
+    }
+
+    /// The map's frame (None before the first depth map).
+    pub fn frame(&self) -> Option<&str> {
+        self.frame.as_deref()
+    }
+
+    /// Integrates one depth map; a refused one is counted under its reason and changes nothing.
+    pub fn add(&mut self, input: &FusionInput) -> Result<IntegrationStats, FuseSkip> {
+        let result = self.try_add(input);
+        if let Err(skip) = &result {
+            *self.skipped.entry(skip.label()).or_default() += 1;
+        }
+        result
+    }
+
+    fn try_add(&mut self, input: &FusionInput) -> Result<IntegrationStats, FuseSkip> {
+        if let Some(map) = &self.frame {
+            if *map != input.frame {
+                return Err(FuseSkip::Frame {
+                    got: input.frame.clone(),
+                    map: map.clone(),
+                });
+            }
+        }
         let stats = integrate(
             &mut self.grid,
             &self.params,
-            &out.depth_m(),
-            out.colour.as_deref(),
-            &out.model,
-            &world_from_cam,
+            &input.depth,
+            input.colour.as_deref(),
+            &input.model,
+            &input.map_from_cam,
         )?;
+        if self.frame.is_none() {
+            self.frame = Some(input.frame.clone());
+        }
+        self.stamp = self.stamp.max(input.stamp);
         self.integrated += 1;
         Ok(stats)
     }
@@ -51,13 +171,261 @@ impl Fuser {
         self.mesh.update(&mut self.grid)
     }
 
-    /// The whole mesh (after [`Self::update_mesh`]).
-    pub fn mesh(&self) -> BlockMesh {
+    /// The whole mesh, up to date.
+    pub fn mesh(&mut self) -> BlockMesh {
+        self.update_mesh();
         self.mesh.collect()
+    }
+
+    /// The mesh's changes since the last call as markers (after meshing the changed blocks):
+    /// a `TRIANGLE_LIST` (`ADD`, which replaces) for each block whose surface was made again,
+    /// a `DELETE` for each block whose surface went, under [`MESH_NAMESPACE`] with one id per
+    /// block for as long as it has a surface, stamped with the newest depth's stamp, in the
+    /// map's frame. Empty when nothing changed.
+    pub fn markers(&mut self) -> MarkerArray {
+        self.update_mesh();
+        let header = Header {
+            stamp: self.stamp,
+            frame_id: self.frame.clone().unwrap_or_default(),
+        };
+        let mut markers = Vec::new();
+        for index in self.mesh.take_dirty() {
+            match self.mesh.block(index) {
+                Some(block) => {
+                    let id = *self.ids.entry(index).or_insert_with(|| {
+                        self.next_id = self.next_id.wrapping_add(1);
+                        self.next_id
+                    });
+                    markers.push(block_marker(&header, id, block));
+                }
+                None => {
+                    if let Some(id) = self.ids.remove(&index) {
+                        markers.push(Marker {
+                            header: header.clone(),
+                            ns: MESH_NAMESPACE.into(),
+                            id,
+                            r#type: Marker::TRIANGLE_LIST,
+                            action: Marker::DELETE,
+                            ..Marker::default()
+                        });
+                    }
+                }
+            }
+        }
+        MarkerArray { markers }
+    }
+
+    /// Writes the whole mesh as a binary PLY file.
+    pub fn save(&mut self, path: &Path) -> std::io::Result<SavedMesh> {
+        let mesh = self.mesh();
+        crate::fusion::write_ply_file(&mesh, path)?;
+        Ok(SavedMesh {
+            triangles: mesh.triangles.len(),
+            vertices: mesh.vertices.len(),
+        })
+    }
+
+    /// Empties the map (and forgets its frame); returns the blocks dropped and the marker that
+    /// deletes every block's marker (`DELETEALL` in [`MESH_NAMESPACE`]).
+    pub fn clear(&mut self) -> (usize, MarkerArray) {
+        let blocks = self.grid.block_count();
+        self.grid.clear();
+        self.mesh.clear();
+        self.ids.clear();
+        let marker = Marker {
+            header: Header {
+                stamp: self.stamp,
+                frame_id: self.frame.take().unwrap_or_default(),
+            },
+            ns: MESH_NAMESPACE.into(),
+            action: Marker::DELETEALL,
+            ..Marker::default()
+        };
+        (
+            blocks,
+            MarkerArray {
+                markers: vec![marker],
+            },
+        )
     }
 
     /// Blocks allocated and their memory, for reports.
     pub fn blocks(&self) -> (usize, usize) {
         (self.grid.block_count(), self.grid.memory_bytes())
+    }
+
+    /// Triangles in the mesh as last meshed.
+    pub fn triangles(&self) -> usize {
+        self.mesh.triangle_count()
+    }
+}
+
+/// One block's surface as a `TRIANGLE_LIST` marker: three points and three colours per
+/// triangle, identity pose, unit scale (RViz multiplies the points by it), opaque.
+fn block_marker(header: &Header, id: i32, block: &BlockMesh) -> Marker {
+    let corners = block.triangles.iter().flatten().map(|&i| i as usize);
+    let (points, colors): (Vec<Point>, Vec<ColorRGBA>) = corners
+        .filter_map(|i| {
+            let v = block.vertices.get(i)?;
+            let c = block.colours.get(i)?;
+            Some((
+                Point {
+                    x: f64::from(v[0]),
+                    y: f64::from(v[1]),
+                    z: f64::from(v[2]),
+                },
+                ColorRGBA {
+                    r: f32::from(c[0]) / 255.0,
+                    g: f32::from(c[1]) / 255.0,
+                    b: f32::from(c[2]) / 255.0,
+                    a: 1.0,
+                },
+            ))
+        })
+        .unzip();
+    Marker {
+        header: header.clone(),
+        ns: MESH_NAMESPACE.into(),
+        id,
+        r#type: Marker::TRIANGLE_LIST,
+        action: Marker::ADD,
+        pose: Pose::default(),
+        scale: Vector3 {
+            x: 1.0,
+            y: 1.0,
+            z: 1.0,
+        },
+        color: ColorRGBA {
+            r: 1.0,
+            g: 1.0,
+            b: 1.0,
+            a: 1.0,
+        },
+        points,
+        colors,
+        ..Marker::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::PinholeIntrinsics;
+
+    /// A 64x48 camera looking down +z at a wall 2 m away, placed at `x` in `frame`.
+    fn wall(frame: &str, x: f64, stamp: i32) -> FusionInput {
+        let model = CameraModel::pinhole(PinholeIntrinsics {
+            width_px: 64,
+            height_px: 48,
+            fx_px: 60.0,
+            fy_px: 60.0,
+            cx_px: 31.5,
+            cy_px: 23.5,
+        });
+        FusionInput {
+            stamp: Time {
+                sec: stamp,
+                nanosec: 0,
+            },
+            frame: frame.into(),
+            depth: ImageF32 {
+                width: 64,
+                height: 48,
+                data: vec![2.0; 64 * 48],
+            },
+            colour: None,
+            model,
+            map_from_cam: RigidTransform {
+                translation: glam::DVec3::new(x, 0.0, 0.0),
+                ..RigidTransform::IDENTITY
+            },
+        }
+    }
+
+    fn fuser() -> Fuser {
+        Fuser::new(FusionParams {
+            voxel_size_m: 0.05,
+            ..FusionParams::default()
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn markers_carry_each_changed_block_once_with_a_stable_id() {
+        let mut f = fuser();
+        f.add(&wall("map", 0.0, 1)).unwrap();
+        let first = f.markers();
+        assert!(!first.markers.is_empty());
+        assert!(first.markers.iter().all(|m| m.action == Marker::ADD
+            && m.r#type == Marker::TRIANGLE_LIST
+            && m.header.frame_id == "map"
+            && m.header.stamp.sec == 1
+            && !m.points.is_empty()
+            && m.points.len() % 3 == 0
+            && m.points.len() == m.colors.len()));
+        let mut ids: Vec<i32> = first.markers.iter().map(|m| m.id).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        assert_eq!(ids.len(), first.markers.len(), "one id per block");
+        // Nothing new: no markers.
+        assert!(f.markers().markers.is_empty());
+        // The same wall again: the blocks are re-meshed and keep their ids.
+        f.add(&wall("map", 0.0, 2)).unwrap();
+        let second = f.markers();
+        assert!(!second.markers.is_empty());
+        for m in &second.markers {
+            assert!(ids.binary_search(&m.id).is_ok(), "id {} is new", m.id);
+        }
+        // The markers' triangles are the mesh's.
+        let triangles: usize = first.markers.iter().map(|m| m.points.len() / 3).sum();
+        assert_eq!(triangles, f.triangles());
+    }
+
+    #[test]
+    fn another_frame_is_refused_and_counted_until_the_map_is_cleared() {
+        let mut f = fuser();
+        f.add(&wall("map", 0.0, 1)).unwrap();
+        let (blocks_before, _) = f.blocks();
+        let err = f.add(&wall("odom", 0.0, 2)).unwrap_err();
+        assert!(matches!(err, FuseSkip::Frame { .. }), "{err}");
+        assert_eq!(f.skipped.get("fusion: other frame"), Some(&1));
+        assert_eq!(f.blocks().0, blocks_before);
+        let (dropped, clear) = f.clear();
+        assert_eq!(dropped, blocks_before);
+        assert_eq!(clear.markers.len(), 1);
+        assert_eq!(clear.markers[0].action, Marker::DELETEALL);
+        assert_eq!(f.blocks().0, 0);
+        f.add(&wall("odom", 0.0, 3)).unwrap();
+        assert_eq!(f.frame(), Some("odom"));
+    }
+
+    #[test]
+    fn a_wrong_size_depth_is_refused_without_touching_the_map() {
+        let mut f = fuser();
+        let mut bad = wall("map", 0.0, 1);
+        bad.depth.width = 32;
+        bad.depth.data.truncate(32 * 48);
+        let err = f.add(&bad).unwrap_err();
+        assert_eq!(err.label(), "fusion: image size", "{err}");
+        assert_eq!(f.blocks().0, 0);
+        assert_eq!(f.frame(), None);
+    }
+
+    #[test]
+    fn the_saved_mesh_is_the_whole_mesh() {
+        let mut f = fuser();
+        f.add(&wall("map", 0.0, 1)).unwrap();
+        let dir = std::env::temp_dir().join(format!("sweepdepth-fuse-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("wall.ply");
+        let saved = f.save(&path).unwrap();
+        assert!(saved.triangles > 0);
+        let bytes = std::fs::read(&path).unwrap();
+        let text = String::from_utf8_lossy(&bytes[..300.min(bytes.len())]).to_string();
+        assert!(
+            text.contains(&format!("element face {}", saved.triangles)),
+            "{text}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

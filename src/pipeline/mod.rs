@@ -21,8 +21,10 @@
 pub mod calibration;
 pub mod config;
 pub mod convert;
+pub mod depth_in;
 pub mod engine_host;
 pub mod fuse;
+pub mod fusion_worker;
 pub mod outcome;
 pub mod outputs;
 mod roster;
@@ -30,9 +32,12 @@ mod world;
 
 pub use calibration::intrinsics_info;
 pub use config::{
-    ConfigError, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
+    ConfigError, FusionConfig, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
 };
+pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
+pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
+pub use fusion_worker::{FusionStats, FusionWorker};
 pub use outcome::{
     Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
     SyncVerdict,

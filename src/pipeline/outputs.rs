@@ -30,6 +30,10 @@ pub struct FrameOutputs {
     /// The pose of the header's frame in the rig frame (the frame the set's cameras are placed
     /// in: the first reference image's frame, or the rig file's).
     pub rig_from_frame: RigidTransform,
+    /// Where a rig that stands still is fused: the frame of the set's first reference image
+    /// (`Job::ref_frame`), named, and the header's frame in it.
+    pub anchor_frame: String,
+    pub anchor_from_frame: RigidTransform,
     /// The camera the depth is in (its model and its pose in the header's frame: a rectified
     /// camera is its frame rotated by R), for consumers that unproject it (fusion).
     pub model: CameraModel,
@@ -107,6 +111,7 @@ pub fn process_job(
             Placement {
                 rig_from_frame: cam_from_rig.inverse(),
                 world_from_rig: job.world_from_rig,
+                anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
         );
         return Ok(SetOutputs {
@@ -161,16 +166,19 @@ pub fn process_job(
             Placement {
                 rig_from_frame,
                 world_from_rig: job.world_from_rig,
+                anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
         ));
     }
     Ok(set)
 }
 
-/// Where a reference's header frame is: in the rig, and in the world on a moving rig.
-struct Placement {
+/// Where a reference's header frame is: in the rig, and in the world on a moving rig; the
+/// anchor frame (the set's first reference image's) and its pose from the rig.
+struct Placement<'a> {
     rig_from_frame: RigidTransform,
     world_from_rig: Option<RigidTransform>,
+    anchor: (&'a str, RigidTransform),
 }
 
 /// The messages of one reference's depth maps.
@@ -184,8 +192,9 @@ fn messages(
     model: &CameraModel,
     frame_from_cam: &RigidTransform,
     with_points: bool,
-    placement: Placement,
+    placement: Placement<'_>,
 ) -> FrameOutputs {
+    let (anchor_frame, anchor_from_rig) = placement.anchor;
     let world_from_frame = placement
         .world_from_rig
         .map(|w| w.compose(&placement.rig_from_frame));
@@ -211,6 +220,8 @@ fn messages(
         header,
         world_from_frame,
         rig_from_frame: placement.rig_from_frame,
+        anchor_frame: anchor_frame.to_string(),
+        anchor_from_frame: anchor_from_rig.compose(&placement.rig_from_frame),
         model: *model,
         frame_from_cam: *frame_from_cam,
         colour: colour.cloned(),

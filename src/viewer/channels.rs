@@ -39,7 +39,7 @@ pub(super) struct OutputChannels {
     points: Arc<RawChannel>,
 }
 
-fn channel(
+pub(super) fn channel(
     context: &Arc<Context>,
     topic: &str,
     msg_type: &'static str,

@@ -1,7 +1,8 @@
 //! The live view (issue 13): a Foxglove WebSocket server (the official `foxglove` SDK, its
 //! WebSocket server only) that serves one set's outputs as ROS 2 CDR with `ros2msg` schemas, as
 //! foxglove_bridge does, and a built-in page (three.js, compiled into the binary) on the next
-//! port that subscribes to it and draws the point cloud, depth and confidence.
+//! port that subscribes to it and draws the point cloud, depth and confidence, and with fusion
+//! the mesh (`visualization_msgs/MarkerArray` deltas: [`Viewer::offer_mesh`]).
 //!
 //! The engine never waits for a viewer: [`Viewer::offer`] copies the outputs into a one-set
 //! hand-over (the newest wins) only while a viewer is subscribed; a thread of its own encodes and
@@ -10,6 +11,8 @@
 
 #[cfg(feature = "viewer")]
 mod channels;
+#[cfg(feature = "viewer")]
+mod mesh;
 #[cfg(feature = "viewer")]
 mod page;
 #[cfg(feature = "viewer")]
@@ -27,6 +30,14 @@ pub const DEFAULT_PORT: u16 = 8765;
 
 /// Messages kept per viewer before the oldest is dropped (six outputs a set: two sets).
 pub const CLIENT_BACKLOG: usize = 12;
+
+/// Wall-clock time, ns since the Unix epoch (the log time of the viewer's messages).
+#[cfg(feature = "viewer")]
+fn wall_time_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
+}
 
 /// Where the viewer serves.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -108,6 +119,7 @@ pub enum ViewerError {
 /// Without the `viewer` feature: a viewer that cannot start (the node says why when
 /// `foxglove_port` is set).
 #[cfg(not(feature = "viewer"))]
+#[derive(Clone)]
 pub struct Viewer;
 
 #[cfg(not(feature = "viewer"))]
@@ -117,6 +129,18 @@ impl Viewer {
         _topics: &crate::pipeline::OutputTopics,
     ) -> Result<Self, ViewerError> {
         Err(ViewerError::NotBuilt)
+    }
+    pub fn start_with_mesh(
+        _config: &ViewerConfig,
+        _topics: &crate::pipeline::OutputTopics,
+        _mesh_topic: Option<&str>,
+    ) -> Result<Self, ViewerError> {
+        Err(ViewerError::NotBuilt)
+    }
+    pub fn offer_mesh(&self, _markers: &crate::msgs::MarkerArray) {}
+    pub fn offer_mesh_owned(&self, _markers: crate::msgs::MarkerArray) {}
+    pub fn mesh_size(&self) -> (usize, usize) {
+        (0, 0)
     }
     pub fn offer(&self, _out: &crate::pipeline::FrameOutputs) {}
     pub fn offer_owned(&self, _out: crate::pipeline::FrameOutputs) {}

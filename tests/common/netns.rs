@@ -126,3 +126,92 @@ impl Drop for KillOnDrop {
         let _ = self.0.wait();
     }
 }
+
+/// A second "host" for the distributed tests (only some test binaries use it): a network namespace of its own (nested in the
+/// test's private one, so nothing can leave the machine), joined to the test's namespace by a
+/// veth pair with private addresses (10.77.0.1 here, 10.77.0.2 there); multicast (DDS
+/// discovery) goes over the pair on both sides. Commands run there through [`Self::command`]
+/// (`nsenter`). Only inside [`in_private_netns`]; the namespace goes with the holder process
+/// when dropped.
+#[allow(dead_code)]
+pub struct SecondHost {
+    holder: KillOnDrop,
+}
+
+#[allow(dead_code)]
+impl SecondHost {
+    /// The address of the test's own namespace on the pair, and the second host's.
+    pub const HERE: &'static str = "10.77.0.1";
+    pub const THERE: &'static str = "10.77.0.2";
+
+    pub fn new(marker: &str) -> SecondHost {
+        assert!(
+            std::env::var_os(marker).is_some(),
+            "a second host only inside the test's private network namespace"
+        );
+        let holder = Command::new("unshare")
+            .args(["-n", "sleep", "100000"])
+            .spawn()
+            .expect("start the second host's namespace (unshare -n)");
+        let host = SecondHost {
+            holder: KillOnDrop(holder),
+        };
+        let pid = host.pid();
+        let own = std::fs::read_link("/proc/self/ns/net").expect("own netns");
+        let started = std::time::Instant::now();
+        while std::fs::read_link(format!("/proc/{pid}/ns/net"))
+            .ok()
+            .as_ref()
+            == Some(&own)
+            || std::fs::read_link(format!("/proc/{pid}/ns/net")).is_err()
+        {
+            assert!(
+                started.elapsed() < std::time::Duration::from_secs(60),
+                "the second host's namespace did not appear"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        let pid_s = pid.to_string();
+        let here = format!("{}/24", Self::HERE);
+        let there = format!("{}/24", Self::THERE);
+        run_ip(&[
+            "link", "add", "veth_a", "type", "veth", "peer", "name", "veth_b", "netns", &pid_s,
+        ]);
+        run_ip(&["addr", "add", &here, "dev", "veth_a"]);
+        run_ip(&["link", "set", "veth_a", "up", "multicast", "on"]);
+        run_ip(&["route", "replace", "224.0.0.0/4", "dev", "veth_a"]);
+        for args in [
+            vec!["link", "set", "lo", "up"],
+            vec!["addr", "add", there.as_str(), "dev", "veth_b"],
+            vec!["link", "set", "veth_b", "up", "multicast", "on"],
+            vec!["route", "add", "224.0.0.0/4", "dev", "veth_b"],
+        ] {
+            let status = host
+                .command("ip")
+                .args(&args)
+                .status()
+                .expect("run ip on the second host");
+            assert!(status.success(), "ip {args:?} on the second host failed");
+        }
+        host
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.holder.0.id()
+    }
+
+    /// `program` run in the second host's network namespace.
+    pub fn command(&self, program: &str) -> Command {
+        let mut command = Command::new("nsenter");
+        command
+            .args(["-t", &self.pid().to_string(), "-n", "--"])
+            .arg(program);
+        command
+    }
+}
+
+#[allow(dead_code)]
+fn run_ip(args: &[&str]) {
+    let status = Command::new("ip").args(args).status().expect("run ip");
+    assert!(status.success(), "ip {args:?} failed");
+}

@@ -1,11 +1,17 @@
 // sweepdepth live view: subscribes over the Foxglove WebSocket protocol (foxglove.sdk.v1) to
 // the node's point cloud, depth and confidence (ROS 2 CDR) and draws them with three.js.
-// When it has drawn a point cloud and a depth image it sets document.body.dataset.drawn = "1"
-// (the browser test waits for it).
+// With fusion it also subscribes to the mesh (visualization_msgs/MarkerArray deltas: one
+// TRIANGLE_LIST per block) and draws it, one THREE.Mesh per block.
+// When it has drawn a point cloud and a depth image it sets document.body.dataset.drawn = "1",
+// when it has drawn mesh blocks document.body.dataset.mesh = "1" (the browser test waits for
+// them); window.sweepdepthState counts what it drew.
 import * as THREE from 'three';
 import { OrbitControls } from './OrbitControls.js';
 
-const state = { clouds: 0, points: 0, depthFrames: 0, confidenceFrames: 0, errors: [] };
+const state = {
+  clouds: 0, points: 0, depthFrames: 0, confidenceFrames: 0, errors: [],
+  meshUpdates: 0, meshBlocks: 0, meshTriangles: 0, show: 'points', cloudFrame: '', meshFrame: '',
+};
 window.sweepdepthState = state;
 const $ = (id) => document.getElementById(id);
 
@@ -20,6 +26,8 @@ class Cdr {
   align(n) { const rel = this.pos - 4; this.pos += (n - (rel % n)) % n; }
   u8() { return this.view.getUint8(this.pos++); }
   u32() { this.align(4); const v = this.view.getUint32(this.pos, true); this.pos += 4; return v; }
+  f32() { this.align(4); const v = this.view.getFloat32(this.pos, true); this.pos += 4; return v; }
+  f64() { this.align(8); const v = this.view.getFloat64(this.pos, true); this.pos += 8; return v; }
   i32() { this.align(4); const v = this.view.getInt32(this.pos, true); this.pos += 4; return v; }
   string() {
     const n = this.u32();
@@ -51,6 +59,42 @@ function decodeCloud(buf) {
   return { header, height, width, fields, bigEndian, pointStep, rowStep, data };
 }
 
+/** sRGB to linear (three.js wants vertex colours linear). */
+const srgbToLinear = (c) => (c < 0.04045 ? c * 0.0773993808 : Math.pow(c * 0.9478672986 + 0.0521327014, 2.4));
+
+// visualization_msgs/msg/MarkerArray, Marker in Jazzy's layout (Iron and later).
+function decodeMarkerArray(buf) {
+  const r = new Cdr(buf);
+  const markers = [];
+  for (let n = r.u32(); n > 0; n--) {
+    const header = r.header();
+    const ns = r.string(), id = r.i32(), type = r.i32(), action = r.i32();
+    const pose = { x: r.f64(), y: r.f64(), z: r.f64(), qx: r.f64(), qy: r.f64(), qz: r.f64(), qw: r.f64() };
+    r.f64(); r.f64(); r.f64(); // scale
+    const color = [r.f32(), r.f32(), r.f32(), r.f32()];
+    r.i32(); r.u32(); r.u8(); // lifetime, frame_locked
+    const np = r.u32();
+    r.align(8);
+    const points = new Float32Array(3 * np);
+    for (let i = 0; i < 3 * np; i++) { points[i] = r.view.getFloat64(r.pos, true); r.pos += 8; }
+    const nc = r.u32();
+    const colors = new Float32Array(3 * nc);
+    for (let i = 0; i < nc; i++) {
+      // ColorRGBA is sRGB; three.js wants vertex colours linear.
+      for (let c = 0; c < 3; c++) colors[3 * i + c] = srgbToLinear(r.view.getFloat32(r.pos + 4 * c, true));
+      r.pos += 16;
+    }
+    r.string(); // texture_resource
+    r.header(); r.string(); r.bytesSeq(); // texture
+    for (let nu = r.u32(); nu > 0; nu--) { r.f32(); r.f32(); } // uv_coordinates
+    r.string(); r.string(); // text, mesh_resource
+    r.string(); r.bytesSeq(); // mesh_file
+    r.u8(); // mesh_use_embedded_materials
+    markers.push({ header, ns, id, type, action, pose, color, points, colors });
+  }
+  return markers;
+}
+
 /** The q-quantiles of finite values (from at most 4096 evenly spread samples). */
 function quantiles(values, qs) {
   const step = Math.max(1, Math.floor(values.length / 4096));
@@ -70,14 +114,30 @@ const scene = new THREE.Scene();
 const camera = new THREE.PerspectiveCamera(60, 1, 0.01, 1000);
 camera.position.set(0, 0, -1);
 const controls = new OrbitControls(camera, renderer.domElement);
+// The mesh is lit by a soft ambient light and a light at the eye.
+scene.add(new THREE.AmbientLight(0xffffff, 2.2));
+const headlight = new THREE.DirectionalLight(0xffffff, 1.6);
+headlight.position.set(0, 0, 1);
+headlight.target.position.set(0, 0, -1);
+camera.add(headlight, headlight.target);
+scene.add(camera);
 // ROS optical frame (x right, y down, z forward) into three.js (y up): turn about x by pi.
 const cloudFrame = new THREE.Group();
 cloudFrame.rotation.x = Math.PI;
 scene.add(cloudFrame);
 const geometry = new THREE.BufferGeometry();
 const material = new THREE.PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true });
-cloudFrame.add(new THREE.Points(geometry, material));
+const cloudPoints = new THREE.Points(geometry, material);
+cloudFrame.add(cloudPoints);
 let framed = false;
+// The mesh, in its header's frame: the reference camera's optical frame (as the points) when
+// the rig does not move, else the world frame (REP 103: z up). The page has no transforms:
+// with different frames it shows the mesh or the points, not both.
+const meshFrame = new THREE.Group();
+scene.add(meshFrame);
+const meshMaterial = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide });
+const blocks = new Map(); // `${ns}/${id}` -> THREE.Mesh
+let meshFramed = false;
 
 function resize() {
   const w = container.clientWidth, h = Math.max(300, container.clientHeight);
@@ -126,9 +186,98 @@ function showCloud(cloud) {
     controls.update();
     framed = true;
   }
-  state.points = k; state.clouds++;
-  $('count').textContent = `${k.toLocaleString()} points`;
+  state.points = k; state.clouds++; state.cloudFrame = cloud.header.frame_id;
+  updateView();
 }
+
+// ---- mesh ----
+function removeBlock(key) {
+  const mesh = blocks.get(key);
+  if (mesh) { meshFrame.remove(mesh); mesh.geometry.dispose(); blocks.delete(key); }
+}
+
+function applyMarkers(markers) {
+  for (const m of markers) {
+    const key = `${m.ns}/${m.id}`;
+    if (m.action === 3) { for (const k of [...blocks.keys()]) removeBlock(k); continue; }
+    if (m.action === 2) { removeBlock(key); continue; }
+    if (m.action !== 0 || m.type !== 11) continue; // only TRIANGLE_LISTs
+    removeBlock(key);
+    state.meshFrame = m.header.frame_id;
+    const n = Math.floor(m.points.length / 9) * 9;
+    if (n === 0) continue;
+    const g = new THREE.BufferGeometry();
+    g.setAttribute('position', new THREE.BufferAttribute(m.points.subarray(0, n), 3));
+    let colors = m.colors;
+    if (colors.length < n) { // one colour for the marker
+      colors = new Float32Array(n);
+      for (let i = 0; i < n; i += 3) for (let c = 0; c < 3; c++) colors[i + c] = srgbToLinear(m.color[c]);
+    }
+    g.setAttribute('color', new THREE.BufferAttribute(colors.subarray(0, n), 3));
+    g.computeVertexNormals();
+    g.computeBoundingSphere();
+    const mesh = new THREE.Mesh(g, meshMaterial);
+    mesh.position.set(m.pose.x, m.pose.y, m.pose.z);
+    if (m.pose.qx || m.pose.qy || m.pose.qz || m.pose.qw) mesh.quaternion.set(m.pose.qx, m.pose.qy, m.pose.qz, m.pose.qw);
+    meshFrame.add(mesh);
+    blocks.set(key, mesh);
+  }
+  let triangles = 0;
+  for (const mesh of blocks.values()) triangles += mesh.geometry.attributes.position.count / 3;
+  state.meshBlocks = blocks.size; state.meshTriangles = triangles; state.meshUpdates++;
+  updateView();
+}
+
+/** Whether the mesh and the points are in the same frame (then both can be shown). */
+function sameFrame() { return !state.cloudFrame || !state.meshFrame || state.cloudFrame === state.meshFrame; }
+
+function updateView() {
+  // The mesh's frame: the points' optical frame, else a z-up world frame.
+  meshFrame.rotation.x = sameFrame() ? Math.PI : -Math.PI / 2;
+  const select = $('show');
+  const both = select.querySelector('option[value="both"]');
+  both.disabled = !sameFrame();
+  both.title = sameFrame() ? '' : `the mesh (${state.meshFrame}) and the points (${state.cloudFrame}) are in different frames`;
+  let show = select.value;
+  if (show === 'auto') show = state.meshBlocks > 0 ? 'mesh' : 'points';
+  if (show === 'both' && !sameFrame()) show = 'mesh';
+  state.show = show;
+  cloudPoints.visible = show !== 'mesh';
+  meshFrame.visible = show !== 'points';
+  const parts = [];
+  if (cloudPoints.visible) parts.push(`${state.points.toLocaleString()} points`);
+  if (meshFrame.visible) parts.push(`${state.meshTriangles.toLocaleString()} triangles in ${state.meshBlocks.toLocaleString()} blocks`);
+  $('count').textContent = parts.join(', ');
+  if (meshFrame.visible && state.meshBlocks > 0) {
+    if (!meshFramed) frameMesh();
+    document.body.dataset.mesh = '1';
+  }
+}
+
+/** Looks at the mesh (once, unless the points framed the same frame already). */
+function frameMesh() {
+  meshFramed = true;
+  if (framed && sameFrame() && state.cloudFrame) return;
+  meshFrame.updateMatrixWorld(true);
+  const box = new THREE.Box3().setFromObject(meshFrame);
+  if (box.isEmpty()) return;
+  const centre = box.getCenter(new THREE.Vector3());
+  const size = box.getSize(new THREE.Vector3());
+  const span = Math.max(size.x, size.y, size.z, 1e-3);
+  camera.near = span / 1000; camera.far = span * 100; camera.updateProjectionMatrix();
+  if (sameFrame()) {
+    // From beside the reference camera (its origin), as for the points.
+    const d = centre.length();
+    camera.position.set(0.35 * d, 0.2 * d, 0);
+  } else {
+    camera.position.copy(centre).add(new THREE.Vector3(0.8 * span, 0.7 * span, 0.8 * span));
+  }
+  controls.target.copy(centre);
+  controls.update();
+  framed = true;
+}
+
+$('show').addEventListener('change', updateView);
 
 // ---- images ----
 function turbo(t) { // a short polynomial fit of the Turbo colour map, t in [0, 1]
@@ -203,6 +352,8 @@ function subscribe(ws, channel) {
       showFloatImage('confidence', decodeImage(p), (_s, x) => { const g = Math.max(0, Math.min(1, x)) * 255; return [g, g, g]; });
       state.confidenceFrames++;
     };
+  } else if (channel.schemaName === 'visualization_msgs/msg/MarkerArray') {
+    handle = (p) => applyMarkers(decodeMarkerArray(p));
   } else return;
   if (channel.encoding !== 'cdr') return;
   const id = nextSub++;

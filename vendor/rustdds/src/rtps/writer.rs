@@ -589,9 +589,14 @@ impl Writer {
     }
   }
 
-  /// Largest serialized payload that fits in one unfragmented DATA submessage
-  /// within the per-peer datagram budget. Fragmentation is triggered only when
-  /// the payload exceeds this, not when it exceeds [`FRAGMENT_SIZE`].
+  /// Largest serialized payload that goes in one unfragmented DATA submessage:
+  /// what fits the per-peer datagram budget, and at least [`FRAGMENT_SIZE`].
+  /// A sample no larger than one fragment goes as DATA even on a path whose
+  /// MTU is smaller (the IP layer fragments the datagram, as it does Fast DDS's
+  /// and every DATAFRAG of [`FRAGMENT_SIZE`] bytes): as a DATAFRAG its
+  /// fragment size would exceed its sample size, which RTPS forbids and this
+  /// crate's own receiver refuses (`Invalid DataFrag`), so on a 1500-byte MTU
+  /// path every sample of 1.5 to 64 KB was lost.
   fn max_unfragmented_serialized_payload(
     &self,
     target_reader_opt: Option<&RtpsReaderProxy>,
@@ -605,6 +610,7 @@ impl Writer {
     budget
       .saturating_sub(hb_reserve)
       .saturating_sub(DATA_SUBMESSAGE_OVERHEAD)
+      .max(FRAGMENT_SIZE)
   }
 
   fn num_frags_and_frag_size(&self, payload_size: usize) -> (u32, u16) {

@@ -1,0 +1,417 @@
+//! `sweepdepth fuse --ros-args ...`: fusion alone, as a node. It subscribes to `depth_topics`
+//! (REP 118 depth images, each with the `camera_info` beside it), `/tf` and `/tf_static`,
+//! places every depth image in `world_frame` at its stamp ([`DepthSources`]) and fuses it on
+//! the fusion thread ([`FusionNode`]: the mesh on `mesh` as `visualization_msgs/MarkerArray`,
+//! `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a second. It is how a rig that
+//! outgrows one machine scales: depth nodes on several hosts, each with its share of the
+//! references, one `fuse` node collecting their depth over DDS.
+//!
+//! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
+//! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
+//! `max_blocks`, `mesh_rate`, `min_depth` and `max_depth` (the depths fused). It serves no
+//! parameter services (the depth node does).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use futures::StreamExt;
+use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, QosProfile};
+
+use super::diag::wall_time_now;
+use super::fusion::{diagnostic_values, FusionNode};
+use super::log::{lock, log_info, RateLimited};
+use super::params::node_options;
+use super::NodeError;
+use crate::msgs::{
+    CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
+};
+use crate::params::{ParamError, ParamSet};
+use crate::pipeline::{ConfigError, DepthSources, FusionConfig};
+use crate::ros::args::{domain_id, parse_ros_args};
+
+/// The fuse node's default name.
+pub const DEFAULT_FUSE_NODE_NAME: &str = "sweepdepth_fuse";
+
+/// What the fuse node reads from its command line.
+#[derive(Debug, Clone)]
+pub struct FuseConfig {
+    pub fqn: String,
+    pub namespace: String,
+    pub name: String,
+    pub domain_id: u16,
+    /// Resolved depth image topics and their camera_info topics.
+    pub depth_topics: Vec<String>,
+    pub info_topics: Vec<String>,
+    pub world_frame: String,
+    pub tf_timeout: Duration,
+    pub tf_topic: String,
+    pub tf_static_topic: String,
+    pub diagnostics_topic: String,
+    pub mesh_topic: String,
+    pub fusion: FusionConfig,
+}
+
+impl FuseConfig {
+    /// From the arguments after `fuse` and the value of `ROS_DOMAIN_ID`.
+    pub fn from_args(args: &[String], domain_env: Option<&str>) -> Result<Self, NodeError> {
+        let ros = parse_ros_args(args)?;
+        if !ros.other.is_empty() {
+            return Err(ConfigError::ExtraArgs(ros.other.clone()).into());
+        }
+        let identity = ros.node_identity(DEFAULT_FUSE_NODE_NAME, "/")?;
+        let (params, notes) = ParamSet::from_ros_args(&ros, &identity)?;
+        for note in notes.iter().chain(ros.notes.iter()) {
+            tracing::info!("{note}");
+        }
+        let resolve = |name: &str| ros.resolve_topic(name, &identity);
+        let listed = params.get_string_array("depth_topics")?;
+        if listed.is_empty() {
+            return Err(NodeError::Param(ParamError::Required {
+                name: "depth_topics".into(),
+                source: Box::new(ParamError::TooFewEntries { min_len: 1, got: 0 }),
+            }));
+        }
+        let mut depth_topics = Vec::new();
+        let mut info_topics = Vec::new();
+        for topic in listed {
+            let resolved = resolve(topic)?;
+            // image_transport's rule: the camera_info beside the image.
+            let info = match resolved.rsplit_once('/') {
+                Some((ns, _)) if !ns.is_empty() => format!("{ns}/camera_info"),
+                _ => "/camera_info".to_string(),
+            };
+            depth_topics.push(resolved);
+            info_topics.push(info);
+        }
+        let world_frame = params.get_str("world_frame")?.to_string();
+        if world_frame.is_empty() {
+            return Err(NodeError::Name {
+                name: "world_frame".into(),
+                reason: "the fuse node needs world_frame: the fixed frame every depth image is placed in (e.g. map, odom)".into(),
+            });
+        }
+        let fusion = FusionConfig {
+            params: crate::fusion::FusionParams {
+                voxel_size_m: params.get_f64("voxel_size")? as f32,
+                max_blocks: usize::try_from(params.get_i64("max_blocks")?).unwrap_or(usize::MAX),
+                min_depth_m: params.get_f64("min_depth")? as f32,
+                max_depth_m: params.get_f64("max_depth")? as f32,
+                ..crate::fusion::FusionParams::default()
+            },
+            mesh_rate_hz: params.get_f64("mesh_rate")?,
+        };
+        fusion.params.validate().map_err(ConfigError::from)?;
+        Ok(Self {
+            fqn: identity.fqn(),
+            namespace: identity.namespace.clone(),
+            name: identity.name.clone(),
+            domain_id: domain_id(domain_env)?,
+            depth_topics,
+            info_topics,
+            world_frame,
+            tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
+            tf_topic: resolve("/tf")?,
+            tf_static_topic: resolve("/tf_static")?,
+            diagnostics_topic: resolve("/diagnostics")?,
+            mesh_topic: resolve("mesh")?,
+            fusion,
+        })
+    }
+}
+
+/// One subscription event of the fuse node.
+enum FuseEvent {
+    Depth(usize, Result<Image, String>),
+    Info(usize, Result<Box<CameraInfo>, String>),
+    Tf(Result<TfMessageIn, String>),
+}
+
+struct TfMessageIn {
+    msg: TFMessage,
+    is_static: bool,
+}
+
+fn ros_err(e: impl std::fmt::Debug) -> NodeError {
+    NodeError::Ros(format!("{e:?}"))
+}
+
+fn topic_name(name: &str) -> Result<Name, NodeError> {
+    Name::parse(name).map_err(|e| NodeError::Name {
+        name: name.to_string(),
+        reason: format!("{e:?}"),
+    })
+}
+
+/// Runs the fuse node until SIGINT/SIGTERM.
+pub fn run(args: &[String]) -> Result<(), NodeError> {
+    let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
+    let config = FuseConfig::from_args(args, domain_env.as_deref())?;
+    log_info(&format!(
+        "fuse node {} on domain {}: depth from {:?} in '{}'",
+        config.fqn, config.domain_id, config.depth_topics, config.world_frame
+    ));
+    let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
+        .map_err(ros_err)?;
+    let node_name =
+        NodeName::new(&config.namespace, &config.name).map_err(|e| NodeError::Name {
+            name: config.fqn.clone(),
+            reason: format!("{e:?}"),
+        })?;
+    let mut node = context
+        .new_node(node_name, node_options())
+        .map_err(ros_err)?;
+    // Depth publishers are reliable (sweepdepth, stereo_image_proc) or best effort (camera
+    // drivers): a best-effort subscription matches both.
+    let depth_qos = QosProfile::subscription_default()
+        .reliability_best_effort()
+        .history(History::KeepLast { depth: 5 });
+    let info_qos = QosProfile::subscription_default()
+        .reliability_best_effort()
+        .history(History::KeepLast { depth: 5 });
+    let tf_qos = QosProfile::subscription_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::Volatile)
+        .history(History::KeepLast { depth: 100 });
+    let tf_static_qos = QosProfile::subscription_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .durability(Durability::TransientLocal)
+        .history(History::KeepLast { depth: 1000 });
+    let mut depth_subs = Vec::new();
+    let mut info_subs = Vec::new();
+    for (depth, info) in config.depth_topics.iter().zip(&config.info_topics) {
+        let topic = node
+            .create_topic(
+                &topic_name(depth)?,
+                MessageTypeName::new("sensor_msgs", "Image"),
+                &depth_qos,
+            )
+            .map_err(ros_err)?;
+        depth_subs.push(
+            node.create_subscription::<Image>(&topic, Some(depth_qos.clone()))
+                .map_err(ros_err)?,
+        );
+        let topic = node
+            .create_topic(
+                &topic_name(info)?,
+                MessageTypeName::new("sensor_msgs", "CameraInfo"),
+                &info_qos,
+            )
+            .map_err(ros_err)?;
+        info_subs.push(
+            node.create_subscription::<CameraInfo>(&topic, Some(info_qos.clone()))
+                .map_err(ros_err)?,
+        );
+    }
+    let tf_type = || MessageTypeName::new("tf2_msgs", "TFMessage");
+    let tf_topic = node
+        .create_topic(&topic_name(&config.tf_topic)?, tf_type(), &tf_qos)
+        .map_err(ros_err)?;
+    let tf_sub = node
+        .create_subscription::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
+        .map_err(ros_err)?;
+    let tf_static_topic = node
+        .create_topic(
+            &topic_name(&config.tf_static_topic)?,
+            tf_type(),
+            &tf_static_qos,
+        )
+        .map_err(ros_err)?;
+    let tf_static_sub = node
+        .create_subscription::<TFMessage>(&tf_static_topic, Some(tf_static_qos.clone()))
+        .map_err(ros_err)?;
+    let diag_qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast { depth: 10 });
+    let diag_topic = node
+        .create_topic(
+            &topic_name(&config.diagnostics_topic)?,
+            MessageTypeName::new("diagnostic_msgs", "DiagnosticArray"),
+            &diag_qos,
+        )
+        .map_err(ros_err)?;
+    let diag_pub = node
+        .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos))
+        .map_err(ros_err)?;
+    let fusion = FusionNode::new(
+        &mut node,
+        &config.fqn,
+        &config.fusion,
+        &config.mesh_topic,
+        None,
+    )?;
+    let worker = fusion.worker();
+
+    let mut streams: Vec<std::pin::Pin<Box<dyn futures::Stream<Item = FuseEvent> + '_>>> =
+        Vec::new();
+    for (i, sub) in depth_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            FuseEvent::Depth(i, r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    for (i, sub) in info_subs.iter().enumerate() {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            FuseEvent::Info(i, r.map(|(m, _)| Box::new(m)).map_err(|e| format!("{e:?}")))
+        })));
+    }
+    for (sub, is_static) in [(&tf_sub, false), (&tf_static_sub, true)] {
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            FuseEvent::Tf(
+                r.map(|(msg, _)| TfMessageIn { msg, is_static })
+                    .map_err(|e| format!("{e:?}")),
+            )
+        })));
+    }
+    // A tick, so that depth images waiting for /tf time out even when nothing else comes.
+    let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
+    let stop = AtomicBool::new(false);
+    let mut events = futures::stream::select_all(streams);
+    let mut spin = Box::pin(node.spinner().map_err(ros_err)?.spin());
+    let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
+    if let Err(e) = ctrlc::set_handler(move || {
+        let _ = signal_tx.unbounded_send(());
+    }) {
+        tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
+    }
+    log_info(&format!("fuse node {} is up", config.fqn));
+
+    let sources = Mutex::new(DepthSources::new(
+        config.depth_topics.clone(),
+        config.world_frame.clone(),
+        config.tf_timeout,
+    ));
+    let started = Instant::now();
+    let now_ns = || u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
+    let mut log = RateLimited::default();
+    let handle = |ready: Vec<Result<crate::pipeline::FusionInput, crate::pipeline::DepthSkip>>,
+                  log: &mut RateLimited| {
+        for item in ready {
+            match item {
+                Ok(input) => {
+                    worker.offer(vec![input]);
+                }
+                Err(skip) => log.warn(skip.label(), || format!("{skip}; not fused")),
+            }
+        }
+    };
+    let event_loop = async {
+        let mut ticks = tick_rx;
+        let serve = futures::FutureExt::fuse(fusion.serve());
+        futures::pin_mut!(serve);
+        loop {
+            futures::select! {
+                event = events.next() => {
+                    let Some(event) = event else {
+                        return NodeError::Ros("the subscription streams ended".into());
+                    };
+                    let ready = {
+                        let mut s = lock(&sources);
+                        match event {
+                            FuseEvent::Depth(i, Ok(image)) => s.push_depth(i, &image, now_ns()),
+                            FuseEvent::Info(i, Ok(info)) => {
+                                s.push_info(i, *info);
+                                Vec::new()
+                            }
+                            FuseEvent::Tf(Ok(tf)) => {
+                                for e in s.push_tf(&tf.msg, tf.is_static) {
+                                    log.warn("tf", || format!("a transform was refused: {e}"));
+                                }
+                                s.poll(now_ns())
+                            }
+                            FuseEvent::Depth(_, Err(e))
+                            | FuseEvent::Info(_, Err(e))
+                            | FuseEvent::Tf(Err(e)) => {
+                                log.warn("read", || format!("a message could not be read: {e}"));
+                                Vec::new()
+                            }
+                        }
+                    };
+                    handle(ready, &mut log);
+                }
+                _ = ticks.next() => {
+                    let ready = lock(&sources).poll(now_ns());
+                    handle(ready, &mut log);
+                }
+                e = serve => return e,
+            }
+        }
+    };
+    let outcome = std::thread::scope(|scope| {
+        let diag = std::thread::Builder::new()
+            .name("sweepdepth-fuse-diagnostics".into())
+            .spawn_scoped(scope, || {
+                let mut next = Instant::now();
+                while !stop.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(100));
+                    let _ = tick_tx.unbounded_send(());
+                    if Instant::now() < next {
+                        continue;
+                    }
+                    next += Duration::from_secs(1);
+                    let stats = worker.stats();
+                    let mut values = diagnostic_values(&stats);
+                    {
+                        let s = lock(&sources);
+                        values.push(KeyValue {
+                            key: "depth images waiting for /tf".into(),
+                            value: s.waiting().to_string(),
+                        });
+                        for (reason, count) in &s.skipped {
+                            values.push(KeyValue {
+                                key: format!("skipped: {reason}"),
+                                value: count.to_string(),
+                            });
+                        }
+                    }
+                    let level = if stats.integrated > 0 {
+                        DiagnosticStatus::OK
+                    } else {
+                        DiagnosticStatus::WARN
+                    };
+                    let message = if stats.integrated > 0 {
+                        format!("{} depth maps fused", stats.integrated)
+                    } else {
+                        "no depth fused yet".into()
+                    };
+                    let msg = DiagnosticArray {
+                        header: Header {
+                            stamp: wall_time_now(),
+                            frame_id: String::new(),
+                        },
+                        status: vec![DiagnosticStatus {
+                            level,
+                            name: format!("sweepdepth fuse: {}", config.fqn),
+                            message,
+                            hardware_id: String::new(),
+                            values,
+                        }],
+                    };
+                    let _ = diag_pub.publish(msg);
+                }
+            })
+            .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
+        let outcome = futures::executor::block_on(async {
+            futures::pin_mut!(event_loop);
+            let stopped = signal_rx.next();
+            match futures::future::select(futures::future::select(&mut spin, event_loop), stopped)
+                .await
+            {
+                futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
+                    r.map_err(ros_err)
+                }
+                futures::future::Either::Left((futures::future::Either::Right((e, _)), _)) => {
+                    Err(e)
+                }
+                futures::future::Either::Right(_) => {
+                    log_info("shutting down (signal received)");
+                    Ok(())
+                }
+            }
+        });
+        stop.store(true, Ordering::Relaxed);
+        let _ = diag.join();
+        outcome
+    });
+    outcome
+}

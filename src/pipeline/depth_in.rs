@@ -1,0 +1,428 @@
+//! Depth from any source into fusion (`sweepdepth fuse`): REP 118 depth images (`32FC1`
+//! metres or `16UC1` millimetres, 0 or NaN invalid) with their `camera_info`, placed in
+//! `world_frame` at their stamps by `/tf` + `/tf_static` (tf2's rules, `ros/tf_history.rs`).
+//!
+//! Each depth image waits, in arrival order, until `/tf` reaches its stamp, for at most
+//! `tf_timeout` (the caller's clock: receive time live); an image behind a waiting one waits
+//! behind it. What cannot be fused is a [`DepthSkip`] with the reason, counted by label: no
+//! camera_info yet, a size or encoding that does not fit, a CameraInfo that describes no
+//! camera, a pose that cannot come.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::time::Duration;
+
+use super::fuse::FusionInput;
+use crate::image::ImageF32;
+use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::ros::camera_info::{camera_from_info, check_image_size, ImageKind};
+use crate::ros::tf_history::{TfHistory, TfInsertError};
+
+/// Why a depth image was not fused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DepthSkip {
+    #[error("{topic}: no camera_info received yet for this depth image")]
+    NoCameraInfo { topic: String },
+    #[error("{topic}: {reason}")]
+    Image { topic: String, reason: String },
+    #[error("{topic}: camera_info: {reason}")]
+    Camera { topic: String, reason: String },
+    #[error("{topic}: no pose of '{frame}' in '{world}' at its stamp: {reason}")]
+    NoWorldPose {
+        topic: String,
+        frame: String,
+        world: String,
+        reason: String,
+    },
+}
+
+impl DepthSkip {
+    /// A short label for counters.
+    pub fn label(&self) -> &'static str {
+        match self {
+            DepthSkip::NoCameraInfo { .. } => "no camera_info",
+            DepthSkip::Image { .. } => "bad depth image",
+            DepthSkip::Camera { .. } => "bad camera_info",
+            DepthSkip::NoWorldPose { .. } => "no world pose",
+        }
+    }
+}
+
+/// A depth image waiting for its pose.
+#[derive(Debug)]
+struct Waiting {
+    source: usize,
+    input: FusionInput,
+    /// The frame its camera is in (the image's `header.frame_id`).
+    frame: String,
+    deadline_ns: u64,
+}
+
+/// The depth sources of a `fuse` node: their latest camera_info, the transforms, and the
+/// depth images that wait for them.
+#[derive(Debug)]
+pub struct DepthSources {
+    topics: Vec<String>,
+    infos: Vec<Option<CameraInfo>>,
+    world_frame: String,
+    tf_timeout_ns: u64,
+    tf: TfHistory,
+    waiting: VecDeque<Waiting>,
+    /// Depth images refused, by reason.
+    pub skipped: BTreeMap<&'static str, u64>,
+}
+
+impl DepthSources {
+    /// `topics`: the depth image topics (for messages); poses in `world_frame`.
+    pub fn new(topics: Vec<String>, world_frame: String, tf_timeout: Duration) -> Self {
+        Self {
+            infos: vec![None; topics.len()],
+            topics,
+            world_frame,
+            tf_timeout_ns: u64::try_from(tf_timeout.as_nanos()).unwrap_or(u64::MAX),
+            tf: TfHistory::new(),
+            waiting: VecDeque::new(),
+            skipped: BTreeMap::new(),
+        }
+    }
+
+    pub fn world_frame(&self) -> &str {
+        &self.world_frame
+    }
+
+    /// Depth images waiting for `/tf`.
+    pub fn waiting(&self) -> usize {
+        self.waiting.len()
+    }
+
+    /// The latest camera_info of source `i`.
+    pub fn push_info(&mut self, i: usize, info: CameraInfo) {
+        if let Some(slot) = self.infos.get_mut(i) {
+            *slot = Some(info);
+        }
+    }
+
+    /// A `/tf` or `/tf_static` message; returns the transforms refused. A `/tf` stamp well
+    /// before the newest (a bag played again) clears the dynamic transforms first.
+    pub fn push_tf(&mut self, msg: &TFMessage, is_static: bool) -> Vec<TfInsertError> {
+        if !is_static {
+            if let Some(stamp) = msg
+                .transforms
+                .iter()
+                .map(|t| t.header.stamp)
+                .min_by_key(|t| t.to_nanos())
+            {
+                self.tf.note_time(stamp);
+            }
+        }
+        self.tf.insert_message(msg, is_static)
+    }
+
+    /// A depth image of source `i`, received at `now_ns`; returns what is now ready (this
+    /// image, or those waiting before it) or refused.
+    pub fn push_depth(
+        &mut self,
+        i: usize,
+        image: &Image,
+        now_ns: u64,
+    ) -> Vec<Result<FusionInput, DepthSkip>> {
+        let mut out = Vec::new();
+        match self.convert(i, image) {
+            Ok(input) => self.waiting.push_back(Waiting {
+                source: i,
+                frame: image.header.frame_id.clone(),
+                input,
+                deadline_ns: now_ns.saturating_add(self.tf_timeout_ns),
+            }),
+            Err(skip) => {
+                *self.skipped.entry(skip.label()).or_default() += 1;
+                out.push(Err(skip));
+            }
+        }
+        out.extend(self.poll(now_ns));
+        out
+    }
+
+    /// The waiting images whose pose has come (or that waited too long), in order.
+    pub fn poll(&mut self, now_ns: u64) -> Vec<Result<FusionInput, DepthSkip>> {
+        let mut out = Vec::new();
+        while let Some(front) = self.waiting.front() {
+            let result = self
+                .tf
+                .lookup_at(&self.world_frame, &front.frame, front.input.stamp);
+            let ready = match result {
+                Ok(world_from_frame) => Ok(world_from_frame),
+                Err(e) if e.may_resolve_by_waiting() && now_ns < front.deadline_ns => break,
+                Err(e) => Err(e.to_string()),
+            };
+            let Some(mut waiting) = self.waiting.pop_front() else {
+                break;
+            };
+            match ready {
+                Ok(world_from_frame) => {
+                    waiting.input.map_from_cam =
+                        world_from_frame.compose(&waiting.input.map_from_cam);
+                    out.push(Ok(waiting.input));
+                }
+                Err(reason) => {
+                    let skip = DepthSkip::NoWorldPose {
+                        topic: self.topic(waiting.source),
+                        frame: waiting.frame,
+                        world: self.world_frame.clone(),
+                        reason,
+                    };
+                    *self.skipped.entry(skip.label()).or_default() += 1;
+                    out.push(Err(skip));
+                }
+            }
+        }
+        out
+    }
+
+    fn topic(&self, i: usize) -> String {
+        self.topics.get(i).cloned().unwrap_or_default()
+    }
+
+    /// The image in metres with its camera (placed in its own frame: `map_from_cam` is
+    /// `frame_from_cam` until the pose comes).
+    fn convert(&self, i: usize, image: &Image) -> Result<FusionInput, DepthSkip> {
+        let topic = self.topic(i);
+        let info =
+            self.infos
+                .get(i)
+                .and_then(Option::as_ref)
+                .ok_or_else(|| DepthSkip::NoCameraInfo {
+                    topic: topic.clone(),
+                })?;
+        let kind = ImageKind::from_topic(&topic).unwrap_or(ImageKind::Raw);
+        let camera = |e: crate::geometry::GeometryError| DepthSkip::Camera {
+            topic: topic.clone(),
+            reason: e.to_string(),
+        };
+        let calibration = camera_from_info(&topic, info, kind).map_err(camera)?;
+        check_image_size(&topic, info, image.width, image.height).map_err(|e| {
+            DepthSkip::Image {
+                topic: topic.clone(),
+                reason: e.to_string(),
+            }
+        })?;
+        let depth = depth_metres(image).map_err(|reason| DepthSkip::Image {
+            topic: topic.clone(),
+            reason,
+        })?;
+        if (depth.width, depth.height)
+            != (
+                calibration.model.intrinsics.width_px,
+                calibration.model.intrinsics.height_px,
+            )
+        {
+            return Err(DepthSkip::Image {
+                topic,
+                reason: format!(
+                    "{}x{} but its camera_info describes {}x{}",
+                    depth.width,
+                    depth.height,
+                    calibration.model.intrinsics.width_px,
+                    calibration.model.intrinsics.height_px
+                ),
+            });
+        }
+        Ok(FusionInput {
+            stamp: image.header.stamp,
+            frame: self.world_frame.clone(),
+            depth,
+            colour: None,
+            model: calibration.model,
+            map_from_cam: calibration.cam_from_frame(false).inverse(),
+        })
+    }
+}
+
+/// A REP 118 depth image in metres: `32FC1` (metres; NaN, inf and 0 invalid) or `16UC1` /
+/// `mono16` (millimetres; 0 invalid), either byte order.
+pub fn depth_metres(image: &Image) -> Result<ImageF32, String> {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let bytes_per = match image.encoding.as_str() {
+        "32FC1" => 4,
+        "16UC1" | "mono16" => 2,
+        other => {
+            return Err(format!(
+                "encoding '{other}' is not a depth encoding (32FC1 metres or 16UC1 millimetres)"
+            ))
+        }
+    };
+    let row = w
+        .checked_mul(bytes_per)
+        .ok_or_else(|| "the image is too large".to_string())?;
+    let step = image.step as usize;
+    if step < row {
+        return Err(format!(
+            "step {step} is less than width x {bytes_per} = {row}"
+        ));
+    }
+    let needed = step
+        .checked_mul(h.saturating_sub(1))
+        .and_then(|n| n.checked_add(row))
+        .ok_or_else(|| "the image is too large".to_string())?;
+    if h > 0 && image.data.len() < needed {
+        return Err(format!(
+            "{} bytes of data, {needed} needed for {w}x{h} with step {step}",
+            image.data.len()
+        ));
+    }
+    let big = image.is_bigendian != 0;
+    let mut data = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let line = &image.data[y * step..y * step + row];
+        for px in line.chunks_exact(bytes_per) {
+            let metres = if bytes_per == 4 {
+                let b = [px[0], px[1], px[2], px[3]];
+                if big {
+                    f32::from_be_bytes(b)
+                } else {
+                    f32::from_le_bytes(b)
+                }
+            } else {
+                let b = [px[0], px[1]];
+                let mm = if big {
+                    u16::from_be_bytes(b)
+                } else {
+                    u16::from_le_bytes(b)
+                };
+                if mm == 0 {
+                    f32::NAN
+                } else {
+                    f32::from(mm) * 1e-3
+                }
+            };
+            data.push(if metres.is_finite() && metres > 0.0 {
+                metres
+            } else {
+                f32::NAN
+            });
+        }
+    }
+    Ok(ImageF32 {
+        width: image.width,
+        height: image.height,
+        data,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::msgs::{Header, Quaternion, Time, Transform, TransformStamped, Vector3};
+
+    fn info(w: u32, h: u32) -> CameraInfo {
+        CameraInfo {
+            header: Header {
+                stamp: Time::default(),
+                frame_id: "cam".into(),
+            },
+            width: w,
+            height: h,
+            distortion_model: "plumb_bob".into(),
+            d: vec![0.0; 5],
+            k: [50.0, 0.0, 15.5, 0.0, 50.0, 11.5, 0.0, 0.0, 1.0],
+            r: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            p: [
+                50.0, 0.0, 15.5, 0.0, 0.0, 50.0, 11.5, 0.0, 0.0, 0.0, 1.0, 0.0,
+            ],
+            ..CameraInfo::default()
+        }
+    }
+
+    fn depth_mm(w: u32, h: u32, mm: u16, sec: i32) -> Image {
+        Image {
+            header: Header {
+                stamp: Time { sec, nanosec: 0 },
+                frame_id: "cam".into(),
+            },
+            width: w,
+            height: h,
+            encoding: "16UC1".into(),
+            is_bigendian: 0,
+            step: w * 2,
+            data: (0..w * h).flat_map(|_| mm.to_le_bytes()).collect(),
+        }
+    }
+
+    fn tf(sec: i32, x: f64) -> TFMessage {
+        TFMessage {
+            transforms: vec![TransformStamped {
+                header: Header {
+                    stamp: Time { sec, nanosec: 0 },
+                    frame_id: "world".into(),
+                },
+                child_frame_id: "cam".into(),
+                transform: Transform {
+                    translation: Vector3 { x, y: 0.0, z: 0.0 },
+                    rotation: Quaternion::default(),
+                },
+            }],
+        }
+    }
+
+    const S: u64 = 1_000_000_000;
+
+    fn sources() -> DepthSources {
+        DepthSources::new(
+            vec!["/a/depth/image".into()],
+            "world".into(),
+            Duration::from_secs(1),
+        )
+    }
+
+    #[test]
+    fn millimetres_become_metres_and_zero_is_invalid() {
+        let mut image = depth_mm(4, 2, 1500, 1);
+        image.data[0] = 0;
+        image.data[1] = 0;
+        let d = depth_metres(&image).unwrap();
+        assert!(d.data[0].is_nan());
+        assert!((d.data[1] - 1.5).abs() < 1e-6);
+        image.encoding = "rgb8".into();
+        assert!(depth_metres(&image).unwrap_err().contains("rgb8"));
+        let mut short = depth_mm(4, 2, 1500, 1);
+        short.data.truncate(10);
+        assert!(depth_metres(&short).unwrap_err().contains("bytes"));
+    }
+
+    #[test]
+    fn a_depth_waits_for_its_pose_and_is_placed_at_its_stamp() {
+        let mut s = sources();
+        s.push_info(0, info(32, 24));
+        s.push_tf(&tf(1, 0.0), false);
+        // Stamp 2: /tf has only reached 1: it waits.
+        assert!(s.push_depth(0, &depth_mm(32, 24, 2000, 2), 0).is_empty());
+        assert_eq!(s.waiting(), 1);
+        s.push_tf(&tf(3, 2.0), false);
+        let out = s.poll(S / 10);
+        assert_eq!(out.len(), 1);
+        let input = out[0].as_ref().unwrap();
+        assert_eq!(input.frame, "world");
+        // Halfway between x = 0 at 1 s and x = 2 at 3 s.
+        assert!((input.map_from_cam.translation.x - 1.0).abs() < 1e-9);
+        assert!((input.depth.data[0] - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn what_cannot_be_fused_is_refused_with_its_reason() {
+        let mut s = sources();
+        // No camera_info yet.
+        let out = s.push_depth(0, &depth_mm(32, 24, 2000, 1), 0);
+        assert!(matches!(out[0], Err(DepthSkip::NoCameraInfo { .. })));
+        // A size that is not its camera_info's.
+        s.push_info(0, info(32, 24));
+        let out = s.push_depth(0, &depth_mm(16, 24, 2000, 1), 0);
+        assert_eq!(out[0].as_ref().unwrap_err().label(), "bad depth image");
+        // No /tf within tf_timeout.
+        assert!(s.push_depth(0, &depth_mm(32, 24, 2000, 5), 0).is_empty());
+        let out = s.poll(2 * S);
+        let err = out[0].as_ref().unwrap_err();
+        assert_eq!(err.label(), "no world pose", "{err}");
+        assert!(err.to_string().contains("'world'"), "{err}");
+        assert_eq!(s.skipped.get("no world pose"), Some(&1));
+        assert_eq!(s.skipped.get("no camera_info"), Some(&1));
+    }
+}
