@@ -1,7 +1,7 @@
 //! `sweepdepth fuse --ros-args ...`: fusion alone, as a node. It subscribes to `depth_topics`
 //! (REP 118 depth images, each with the `camera_info` beside it), `/tf` and `/tf_static`,
 //! places every depth image in `world_frame` at its stamp ([`DepthSources`]) and fuses it on
-//! the fusion thread ([`FusionNode`]: the mesh on `mesh` as `visualization_msgs/MarkerArray`,
+//! the fusion thread (`node::fusion`: the mesh on `mesh` as `visualization_msgs/MarkerArray`,
 //! `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a second. It is how a rig that
 //! outgrows one machine scales: depth nodes on several hosts, each with its share of the
 //! references, one `fuse` node collecting their depth over DDS.
