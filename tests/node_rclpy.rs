@@ -41,8 +41,11 @@ const NODE_FQN: &str = "/rig/sweepdepth";
 const CAMERAS: usize = 4;
 const EXPECTED_DEPTH_M: f64 = 2.0;
 const TOLERANCE: f64 = 0.02;
-/// How long the peer waits for the depth of one set before it sends the next.
-const SET_TIMEOUT_S: f64 = 180.0;
+/// How long the peer waits for the depth of one set before it sends the next: the tests' one
+/// limit (`SWEEPDEPTH_TEST_TIMEOUT_S`).
+fn set_timeout_s() -> f64 {
+    rclpy::test_timeout().as_secs_f64()
+}
 
 /// The heavy tests one at a time (each runs the engine on both cores).
 static SERIAL: Mutex<()> = Mutex::new(());
@@ -211,7 +214,7 @@ fn write_scene(dir: &Path, width: u32, height: u32, reliable: bool, sets: u32) -
         "expected_depth_m": EXPECTED_DEPTH_M,
         "tolerance": TOLERANCE,
         "sets": sets,
-        "set_timeout_s": SET_TIMEOUT_S,
+        "set_timeout_s": set_timeout_s(),
         "period_s": 0.1,
         "image_reliable": reliable,
         "cameras": cameras,
@@ -309,7 +312,8 @@ fn drive(dir: &Path, node: &mut Node, sets: u32) -> (Vec<Value>, Value) {
     let dir_arg = dir.to_string_lossy().into_owned();
     let mut peer = Peer::start("rclpy driver", DOMAIN, &["drive", &dir_arg], &[]);
     let mut results = Vec::new();
-    let deadline = Duration::from_secs(120 + (SET_TIMEOUT_S as u64 + 10) * u64::from(sets));
+    // The peer bounds each set by the one limit; the whole drive by one limit more.
+    let deadline = rclpy::test_timeout() * (sets + 1);
     let started = Instant::now();
     let summary = loop {
         if let Some(status) = node.child.0.try_wait().expect("poll the node") {
@@ -425,7 +429,7 @@ fn graph_parameters_rosout_diagnostics_sigint() {
     // The graph and the parameter services as rcl sees them.
     let mut peer = Peer::start("rclpy probe", DOMAIN, &["probe", NODE_FQN], &[]);
     let probe = peer.wait_for(
-        Duration::from_secs(180),
+        rclpy::test_timeout(),
         "the probe result",
         |v| event(v) == "probe",
         |_| {},
@@ -563,8 +567,9 @@ fn graph_parameters_rosout_diagnostics_sigint() {
             break s;
         }
         assert!(
-            sent.elapsed() < Duration::from_secs(60),
-            "the node did not stop within 60 s of SIGINT"
+            sent.elapsed() < rclpy::test_timeout(),
+            "the node did not stop within {:?} of SIGINT",
+            rclpy::test_timeout()
         );
         std::thread::sleep(Duration::from_millis(20));
     };

@@ -25,8 +25,11 @@ use sweepdepth::msgs::{Image, Time};
 use sweepdepth::synthetic::{self, Scene};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
-/// A node that takes this long to stop is stuck (the real bounds are below).
-const STOP_LIMIT: Duration = Duration::from_secs(60);
+/// A node that takes this long to stop is stuck (the real bounds are below): the tests' one
+/// limit (`SWEEPDEPTH_TEST_TIMEOUT_S`).
+fn stop_limit() -> Duration {
+    dds::timeout()
+}
 /// The promptness the node promises on a machine where one set takes less than 4 s.
 const PROMPT: Duration = Duration::from_secs(2);
 
@@ -118,11 +121,14 @@ impl NodeLog {
     /// Every remaining line, up to the end of the node's stderr (after it exited).
     fn drain(&mut self, what: &str) {
         loop {
-            match self.rx.recv_timeout(STOP_LIMIT) {
+            match self.rx.recv_timeout(stop_limit()) {
                 Ok(line) => self.lines.push(line),
                 Err(RecvTimeoutError::Disconnected) => break,
                 Err(RecvTimeoutError::Timeout) => {
-                    panic!("{what}: the node's stderr did not close within {STOP_LIMIT:?} after it exited")
+                    panic!(
+                        "{what}: the node's stderr did not close within {:?} after it exited",
+                        stop_limit()
+                    )
                 }
             }
         }
@@ -160,8 +166,9 @@ fn signal_and_wait(node: &mut NodeProcess, signal: &str) -> (ExitStatus, Duratio
             return (s, sent.elapsed());
         }
         assert!(
-            sent.elapsed() < STOP_LIMIT,
-            "SIG{signal}: the node did not stop within {STOP_LIMIT:?}"
+            sent.elapsed() < stop_limit(),
+            "SIG{signal}: the node did not stop within {:?}",
+            stop_limit()
         );
         std::thread::sleep(Duration::from_millis(5));
     }
