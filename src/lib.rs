@@ -63,6 +63,7 @@ pub mod pipeline;
 pub mod process_env;
 pub mod rig_file;
 pub mod ros;
+pub mod simd;
 pub mod sweep;
 pub mod synthetic;
 pub mod viewer;

@@ -28,6 +28,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "gpu_context",
             "logging",
             "process_env",
+            "simd",
         ],
     ),
     (

@@ -127,7 +127,7 @@ fn fusion_memory_stays_flat_on_an_endless_corridor() {
             },
         };
         fuser.add(&input).unwrap();
-        if frames % 5 == 0 {
+        if frames.is_multiple_of(5) {
             for m in fuser.markers().markers {
                 match m.action {
                     Marker::DELETE => {
@@ -156,7 +156,7 @@ fn fusion_memory_stays_flat_on_an_endless_corridor() {
             later_peak = later_peak.max(rss);
         }
         frames += 1;
-        if frames % 500 == 0 {
+        if frames.is_multiple_of(500) {
             eprintln!(
                 "{:>4.0} s: {frames} frames, {:.1} m down the corridor, {blocks} blocks, {} markers, RSS {:.1} MiB",
                 started.elapsed().as_secs_f64(),

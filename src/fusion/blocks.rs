@@ -124,6 +124,7 @@ impl Voxel {
 
     /// One observation of the TSDF (already truncated to [-1, 1]) with weight `weight`: the
     /// running average whose total weight is capped at `max_weight`.
+    #[inline(always)]
     pub(super) fn observe_tsdf(&mut self, tsdf: f32, weight: f32, max_weight: f32) {
         let w = self.weight;
         self.tsdf = (self.tsdf * w + tsdf * weight) / (w + weight);
@@ -131,6 +132,7 @@ impl Voxel {
     }
 
     /// One observation of the colour with weight 1, averaged like the TSDF.
+    #[inline(always)]
     pub(super) fn observe_colour(&mut self, rgb: [u8; 3], max_weight: f32) {
         let w = f32::from(self.colour_weight);
         for (c, &o) in self.colour_fixed.iter_mut().zip(rgb.iter()) {

@@ -5,6 +5,10 @@
 //!    optical axis) of a valid pixel's ray crosses, found by walking the ray's segment block
 //!    by block (Amanatides & Woo, 1987), so no block along it is skipped. Free space in front
 //!    of the band allocates nothing (unlike nvblox, which allocates along the whole ray).
+//!    Shortcuts (pinhole cameras): a 4x4-pixel tile whose bands' bounding box holds at most
+//!    two blocks lists both (at worst one neighbour of the band more than the walk); a
+//!    segment one or two face steps long lists its ends (and the middle block the walk would
+//!    take) without walking.
 //! 2. Update: every voxel of the blocks of step 1 and of the blocks already allocated inside
 //!    the camera's view (so that a surface that moved away is carved out) is projected into
 //!    the image; the depth there (bilinear when the four pixels around are valid and agree
@@ -28,6 +32,13 @@ use rayon::prelude::*;
 use crate::geometry::pose::unit_quaternion;
 use crate::geometry::{CameraModel, Distortion, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
+use crate::simd::vectorised_fn;
+
+mod allocate;
+mod pinhole;
+
+use allocate::RayGrid;
+use pinhole::{row_weights, update_block_pinhole, RowNeighbours};
 
 use super::blocks::{Block, BlockIndex, BlockSet, BLOCK_SIDE};
 use super::{FusionError, FusionParams, VoxelBlockGrid};
@@ -170,10 +181,17 @@ pub fn integrate_weighted(
         .iter()
         .filter_map(|index| map.remove(index).map(|block| (*index, block)))
         .collect();
+    // In index order: neighbouring blocks one after another read neighbouring pixels.
+    work.sort_unstable_by_key(|(index, _)| *index);
     // Step 2: update, a block per task.
     let updated: Vec<usize> = work
         .par_iter_mut()
-        .map(|(index, block)| view.update_block(*index, block))
+        .map(|(index, block)| match view.projector {
+            Projector::Pinhole { .. } if view.lanes_fit => {
+                update_block_pinhole(&view, *index, block)
+            }
+            _ => view.update_block(*index, block),
+        })
         .collect();
     let mut stats = IntegrationStats {
         pixels_valid,
@@ -257,6 +275,8 @@ struct View<'a> {
     truncation_m: f32,
     max_depth_m: f32,
     max_weight: f32,
+    /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it).
+    lanes_fit: bool,
 }
 
 impl<'a> View<'a> {
@@ -311,76 +331,90 @@ impl<'a> View<'a> {
             truncation_m: params.truncation_m(),
             max_depth_m,
             max_weight: params.max_weight,
+            lanes_fit: depth.width >= 2 && depth.height >= 2,
         };
         let width = depth.width as usize;
-        view.samples = (0..depth.data.len())
-            .into_par_iter()
-            .with_min_len(width)
-            .map(|pixel| PixelSample {
-                depth_m: view.depth_m[pixel],
-                weight: view.pixel_weight(pixel % width, pixel / width),
-                rgb: colour.map_or(0, |c| c.pixels[pixel]),
-            })
-            .collect();
-        view
-    }
-
-    /// Step 1: the blocks the truncation band of every valid pixel crosses, sorted, each once.
-    /// Bands of rows walk their pixels' segments into a list (a block that one of the last few
-    /// segments met is not listed again), sorted and deduplicated per band, then overall.
-    fn band_blocks(&self, world_from_cam: &RigidTransform) -> Vec<BlockIndex> {
-        const ROWS_PER_TASK: usize = 8;
-        let (width, height) = (self.depth.width as usize, self.depth.height as usize);
-        // Block coordinates: block `b` spans [b, b + 1) (voxel centres round, blocks floor).
-        let inv_block = 1.0 / (f64::from(self.voxel_size_m) * BLOCK_SIDE as f64);
-        let half_voxel_in_blocks = 0.5 / BLOCK_SIDE as f64;
-        let centre =
-            (world_from_cam.translation * inv_block + DVec3::splat(half_voxel_in_blocks)).as_vec3();
-        // A ray with z = 1 in the camera frame, in blocks in the world frame.
-        let rotation = (world_from_cam.rotation_matrix() * inv_block).as_mat3();
-        let trunc = self.truncation_m;
-        let mut blocks: Vec<BlockIndex> = (0..height.div_ceil(ROWS_PER_TASK))
-            .into_par_iter()
-            .flat_map_iter(|task| {
-                let rows = task * ROWS_PER_TASK..((task + 1) * ROWS_PER_TASK).min(height);
-                let mut list = Vec::new();
-                let mut recent = [BlockIndex([i32::MIN; 3]); 8];
-                let mut next = 0;
-                for row in rows {
-                    for col in 0..width {
-                        let d = self.depth_m[row * width + col];
-                        if d.is_nan() {
-                            continue;
-                        }
-                        let ray = match self.projector {
-                            Projector::Pinhole { fx, fy, cx, cy } => {
-                                Vec3::new((col as f32 - cx) / fx, (row as f32 - cy) / fy, 1.0)
-                            }
-                            Projector::Distorted(_) => match self.ray_z1(col, row) {
-                                Some(ray) => ray.as_vec3(),
-                                None => continue,
-                            },
-                        };
-                        let ray = rotation * ray;
-                        let near = centre + ray * (d - trunc).max(1e-3);
-                        let far = centre + ray * (d + trunc);
-                        walk_blocks(near, far, |index| {
-                            if !recent.contains(&index) {
-                                list.push(index);
-                                recent[next] = index;
-                                next = (next + 1) % recent.len();
-                            }
-                        });
-                    }
+        let Projector::Pinhole { fx, fy, cx, cy } = view.projector else {
+            view.samples = (0..depth.data.len())
+                .into_par_iter()
+                .with_min_len(width)
+                .map(|pixel| PixelSample {
+                    depth_m: view.depth_m[pixel],
+                    weight: view.pixel_weight(pixel % width, pixel / width),
+                    rgb: colour.map_or(0, |c| c.pixels[pixel]),
+                })
+                .collect();
+            return view;
+        };
+        // A pinhole camera's weights a row at a time, lane-wise ([`row_weights`]): the
+        // neighbours' depths and ray x side by side, NaN beyond the image's edges.
+        let height = depth.height as usize;
+        let ray_x = |col: usize| (col as f32 - cx) / fx;
+        let xs: Vec<f32> = (0..width).map(ray_x).collect();
+        let shifted = |from: &[f32], left: bool| -> Vec<f32> {
+            let mut v = vec![f32::NAN; width];
+            if width > 1 {
+                if left {
+                    v[1..].copy_from_slice(&from[..width - 1]);
+                } else {
+                    v[..width - 1].copy_from_slice(&from[1..]);
                 }
-                list.sort_unstable();
-                list.dedup();
-                list
-            })
-            .collect();
-        blocks.par_sort_unstable();
-        blocks.dedup();
-        blocks
+            }
+            v
+        };
+        let (xs_left, xs_right) = (shifted(&xs, true), shifted(&xs, false));
+        let nan_row = vec![f32::NAN; width];
+        let mut samples = vec![
+            PixelSample {
+                depth_m: f32::NAN,
+                weight: f32::NAN,
+                rgb: 0,
+            };
+            depth.data.len()
+        ];
+        let depth_m = &view.depth_m;
+        let trunc = view.truncation_m;
+        samples
+            .par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(row, out)| {
+                let line = |r: usize| &depth_m[r * width..(r + 1) * width];
+                let here = line(row);
+                let up = if row > 0 { line(row - 1) } else { &nan_row[..] };
+                let down = if row + 1 < height {
+                    line(row + 1)
+                } else {
+                    &nan_row[..]
+                };
+                let (left, right) = (shifted(here, true), shifted(here, false));
+                let ray_y = |r: usize| (r as f32 - cy) / fy;
+                let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
+                let mut weights = vec![0.0f32; width];
+                row_weights(
+                    RowNeighbours {
+                        here,
+                        left: &left,
+                        right: &right,
+                        up,
+                        down,
+                        xs: &xs,
+                        xs_left: &xs_left,
+                        xs_right: &xs_right,
+                        y,
+                        trunc,
+                    },
+                    &mut weights,
+                );
+                for (col, sample) in out.iter_mut().enumerate() {
+                    *sample = PixelSample {
+                        depth_m: here[col],
+                        weight: weights[col],
+                        rgb: colour.map_or(0, |c| c.pixels[row * width + col]),
+                    };
+                }
+            });
+        view.samples = samples;
+        view
     }
 
     fn ray_z1(&self, col: usize, row: usize) -> Option<DVec3> {
@@ -586,115 +620,6 @@ impl<'a> View<'a> {
             }
         }
         updated
-    }
-}
-
-/// Pixels between the points of a [`RayGrid`].
-const RAY_GRID_STEP: usize = 8;
-
-/// A distorted camera's rays at every [`RAY_GRID_STEP`]-th pixel (and the last row and
-/// column), each an exact [`CameraModel::unproject_z1`] (an iterative inverse, too slow for
-/// every pixel of every frame), interpolated bilinearly in between for step 1's allocation:
-/// the interpolation is off by a small fraction of a pixel, far inside the truncation band.
-struct RayGrid {
-    xs: Vec<usize>,
-    ys: Vec<usize>,
-    rays: Vec<Option<DVec3>>,
-}
-
-impl RayGrid {
-    fn new(model: &CameraModel) -> Self {
-        let points = |n: u32| {
-            let last = (n as usize).saturating_sub(1);
-            let mut v: Vec<usize> = (0..=last).step_by(RAY_GRID_STEP).collect();
-            if v.last() != Some(&last) {
-                v.push(last);
-            }
-            v
-        };
-        let (xs, ys) = (
-            points(model.intrinsics.width_px),
-            points(model.intrinsics.height_px),
-        );
-        let rays = ys
-            .par_iter()
-            .flat_map_iter(|&y| {
-                xs.iter()
-                    .map(move |&x| model.unproject_z1(DVec2::new(x as f64, y as f64)))
-            })
-            .collect();
-        Self { xs, ys, rays }
-    }
-
-    /// The interpolated ray; `None` where a grid point around has no ray.
-    fn ray(&self, col: usize, row: usize) -> Option<DVec3> {
-        let cell = |points: &[usize], p: usize| {
-            let i = (p / RAY_GRID_STEP).min(points.len().saturating_sub(2));
-            let (a, b) = (points[i], points[(i + 1).min(points.len() - 1)]);
-            let t = if b > a {
-                (p - a) as f64 / (b - a) as f64
-            } else {
-                0.0
-            };
-            (i, (i + 1).min(points.len() - 1), t)
-        };
-        let (i0, i1, tx) = cell(&self.xs, col);
-        let (j0, j1, ty) = cell(&self.ys, row);
-        let at = |i: usize, j: usize| self.rays[j * self.xs.len() + i];
-        let top = at(i0, j0)?.lerp(at(i1, j0)?, tx);
-        let bottom = at(i0, j1)?.lerp(at(i1, j1)?, tx);
-        Some(top.lerp(bottom, ty))
-    }
-}
-
-/// Visits every block a segment crosses, in order (Amanatides & Woo's traversal in block
-/// coordinates, where block `b` spans `[b, b + 1)`): exactly `1 + sum |end - start|` blocks,
-/// each a face neighbour of the one before.
-fn walk_blocks(start: Vec3, end: Vec3, mut visit: impl FnMut(BlockIndex)) {
-    // floor(v) (a cast truncates towards zero; `floor` is a libm call on baseline x86-64).
-    let floor = |v: f32| {
-        let t = v as i32;
-        t - i32::from(t as f32 > v)
-    };
-    let cell_of = |p: Vec3| [p.x, p.y, p.z].map(floor);
-    let mut cell = cell_of(start);
-    let last = cell_of(end);
-    if cell == last {
-        // The common case: the segment (twice the truncation distance) within one block.
-        visit(BlockIndex(cell));
-        return;
-    }
-    let dir = end - start;
-    let (s, d) = ([start.x, start.y, start.z], [dir.x, dir.y, dir.z]);
-    let mut t_max = [f32::INFINITY; 3];
-    let mut t_delta = [f32::INFINITY; 3];
-    for a in 0..3 {
-        if d[a] > 0.0 {
-            t_max[a] = (cell[a] as f32 + 1.0 - s[a]) / d[a];
-            t_delta[a] = 1.0 / d[a];
-        } else if d[a] < 0.0 {
-            t_max[a] = (s[a] - cell[a] as f32) / -d[a];
-            t_delta[a] = -1.0 / d[a];
-        }
-    }
-    visit(BlockIndex(cell));
-    let steps: i64 = (0..3)
-        .map(|a| (i64::from(last[a]) - i64::from(cell[a])).abs())
-        .sum();
-    for _ in 0..steps {
-        // The axis whose next boundary comes first, among those not yet at the end.
-        let mut axis = None;
-        for a in 0..3 {
-            if cell[a] != last[a] && axis.is_none_or(|b: usize| t_max[a] < t_max[b]) {
-                axis = Some(a);
-            }
-        }
-        let Some(a) = axis else {
-            break;
-        };
-        cell[a] += (last[a] - cell[a]).signum();
-        t_max[a] += t_delta[a];
-        visit(BlockIndex(cell));
     }
 }
 

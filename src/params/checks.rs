@@ -4,7 +4,7 @@
 
 use super::engine::apply_to_sweep;
 use super::set::ParamSet;
-use super::spec::{param_spec, validate};
+use super::table::{param_spec, validate};
 use super::ParamError;
 use crate::geometry::{CameraModel, Reference, Rig};
 use crate::ros::param_value::ParamValue;

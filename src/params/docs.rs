@@ -1,7 +1,8 @@
 //! The parameter table as documentation: the parameter section of docs/node.md is
 //! [`markdown_table`]'s output (a test keeps them equal).
 
-use super::spec::{param_table, ParamRange};
+use super::spec::ParamRange;
+use super::table::param_table;
 
 /// The parameter table as a Markdown table (name, type, default, range, description) for
 /// docs/node.md.

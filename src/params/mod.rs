@@ -6,8 +6,9 @@
 //!   checks are all made from it.
 //! * [`node`]: the node's own parameters (cameras, topics, synchronisation, QoS, rig file,
 //!   virtual reference), read-only once the node runs.
-//! * [`spec`]: what a parameter is ([`ParamSpec`], [`ParamRange`]), the checks of one value,
-//!   and the one table of all of them ([`param_table`]).
+//! * [`spec`]: what a parameter is ([`ParamSpec`], [`ParamRange`]) and the checks of one value.
+//! * [`table`]: the one table of all of them ([`param_table`]: the engine's, then the node's)
+//!   and the lookups and checks by name.
 //! * [`set`]: the current values ([`ParamSet`]) and how a command line's parameter files and
 //!   `-p` rules set them.
 //! * [`checks`]: the checks across parameters (depth range, best n of m, the rig's shape).
@@ -24,6 +25,7 @@ mod error;
 pub mod node;
 pub mod set;
 pub mod spec;
+pub mod table;
 
 pub use crate::ros::param_value::{ParamKind, ParamValue};
 pub use cli::EngineOptions;
@@ -31,4 +33,5 @@ pub use docs::markdown_table;
 pub use engine::{apply_to_sweep, engine_param, engine_params, EngineParam, Flag};
 pub use error::ParamError;
 pub use set::{ParamSet, ParamSource};
-pub use spec::{coerce, param_spec, param_table, validate, ParamRange, ParamSpec};
+pub use spec::{ParamRange, ParamSpec};
+pub use table::{coerce, param_spec, param_table, validate};

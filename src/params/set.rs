@@ -3,7 +3,8 @@
 
 use std::path::PathBuf;
 
-use super::spec::{coerce, param_index, param_spec, param_table, ParamSpec};
+use super::spec::ParamSpec;
+use super::table::{coerce, param_index, param_spec, param_table};
 use super::ParamError;
 use crate::ros::args::{node_pattern_matches, NodeIdentity, ParamArg, RosArgs};
 use crate::ros::param_value::ParamValue;

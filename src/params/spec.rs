@@ -2,8 +2,6 @@
 //! the checks of a value against it, and the one table of every parameter ([`param_table`]:
 //! the engine parameters of [`super::engine`], then the node parameters of [`super::node`]).
 
-use std::sync::LazyLock;
-
 use super::ParamError;
 use crate::ros::args::{validate_topic_name, RosArgsError};
 use crate::ros::param_value::{ParamKind, ParamValue};
@@ -279,44 +277,10 @@ impl ParamSpec {
     }
 }
 
-static PARAM_TABLE: LazyLock<Vec<ParamSpec>> = LazyLock::new(|| {
-    super::engine::engine_params()
-        .iter()
-        .map(|p| p.spec.clone())
-        .chain(super::node::node_params())
-        .collect()
-});
-
-/// Every parameter of the node, engine parameters first.
-pub fn param_table() -> &'static [ParamSpec] {
-    &PARAM_TABLE
-}
-
-/// The table entry of `name`.
-pub fn param_spec(name: &str) -> Option<&'static ParamSpec> {
-    param_table().iter().find(|p| p.name == name)
-}
-
-/// The position of `name` in [`param_table`].
-pub(crate) fn param_index(name: &str) -> Option<usize> {
-    param_table().iter().position(|p| p.name == name)
-}
-
-/// Checks `value` for parameter `name`: known name, type, range or allowed values.
-pub fn validate(name: &str, value: &ParamValue) -> Result<(), ParamError> {
-    coerce(name, value).map(|_| ())
-}
-
-/// [`validate`], returning the value as stored ([`ParamSpec::coerce`]).
-pub fn coerce(name: &str, value: &ParamValue) -> Result<ParamValue, ParamError> {
-    param_spec(name)
-        .ok_or_else(|| ParamError::Unknown(name.to_string()))?
-        .coerce(value)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::params::table::{coerce, param_table, validate};
 
     fn strings(v: &[&str]) -> Vec<String> {
         v.iter().map(|s| s.to_string()).collect()

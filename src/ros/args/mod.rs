@@ -9,6 +9,7 @@
 //!   [`resolve_service`] expand relative (`left/image_raw`), private (`~/x`) and absolute names
 //!   and apply the remap rules on the fully qualified names.
 //! * [`params_file`]: the YAML of `--params-file` (sections per node, `/**` wildcards).
+//! * [`remap`]: the types of a remap rule, read by `parse` and applied by `names`.
 //! * [`domain_id`] checks `ROS_DOMAIN_ID`.
 //!
 //! The node's parameters themselves (the table, values, checks) are [`crate::params`]'s.
@@ -23,6 +24,7 @@
 pub mod names;
 pub mod params_file;
 pub mod parse;
+pub mod remap;
 
 use std::path::PathBuf;
 

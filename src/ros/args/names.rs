@@ -2,7 +2,7 @@
 //! expansion (`~`, relative names, `{node}`/`{ns}` substitutions), remapping, and the node
 //! patterns of parameter-file sections.
 
-use super::parse::{RemapKind, RemapRule};
+use super::remap::{RemapKind, RemapRule};
 use super::RosArgsError;
 
 /// Longest fully qualified topic name rmw accepts (`RMW_TOPIC_MAX_NAME_LENGTH`).

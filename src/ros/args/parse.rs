@@ -11,31 +11,7 @@ use super::params_file::{load_params_file, ParamsFile};
 use super::RosArgsError;
 use crate::ros::param_value::ParamValue;
 
-/// What a remap rule renames.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RemapKind {
-    /// `__node:=name`.
-    NodeName,
-    /// `__ns:=/ns`.
-    Namespace,
-    /// `from:=to`: topics and services.
-    Name,
-    /// `rostopic://from:=to`.
-    Topic,
-    /// `rosservice://from:=to`.
-    Service,
-}
-
-/// One `-r [node:]from:=to` rule.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct RemapRule {
-    /// Applies only to the node of this name.
-    pub node: Option<String>,
-    pub kind: RemapKind,
-    /// As written (`__node`/`__ns` for those kinds).
-    pub from: String,
-    pub to: String,
-}
+pub use super::remap::{RemapKind, RemapRule};
 
 impl RemapRule {
     /// Parses `[node:][rostopic://|rosservice://]from:=to`, `[node:]__node:=name`,

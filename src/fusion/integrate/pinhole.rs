@@ -1,0 +1,193 @@
+//! Steps 0 and 2 of [`super::integrate_weighted`] for a pinhole camera, lane-wise (built
+//! for AVX2 + FMA by `vectorised_fn!` where the CPU has them): the observation weights of a
+//! row of pixels, and the update of a block a row of eight voxels at a time.
+
+use super::*;
+
+impl View<'_> {
+    /// Step 2 for one block of a pinhole camera, a row of eight voxels at a time: the
+    /// projections, the pixel offsets and the choice between the bilinear and the nearest
+    /// depth are lane-wise (vectorised under AVX2), only the gathers and the voxel updates
+    /// are per voxel. The same arithmetic as [`Self::update_block`], in the same order.
+    #[inline(always)]
+    pub(super) fn update_block_pinhole_lanes(&self, index: BlockIndex, block: &mut Block) -> usize {
+        const LANES: usize = BLOCK_SIDE;
+        let Projector::Pinhole { fx, fy, cx, cy } = self.projector else {
+            return self.update_block(index, block);
+        };
+        let first = index.first_voxel();
+        let origin_in_world = DVec3::new(first[0] as f64, first[1] as f64, first[2] as f64)
+            * f64::from(self.voxel_size_m);
+        let origin = (self.cam_from_world_rotation * origin_in_world
+            + self.cam_from_world_translation)
+            .as_vec3();
+        let [step_x, step_y, step_z] = [
+            self.voxel_steps_in_cam.x_axis,
+            self.voxel_steps_in_cam.y_axis,
+            self.voxel_steps_in_cam.z_axis,
+        ];
+        let (width, height) = (self.depth.width as usize, self.depth.height as usize);
+        let (w, h) = (width as f32, height as f32);
+        let samples = &self.samples[..];
+        // The last top-left corner of a bilinear 2x2 (`lanes_fit`: at least 2x2 pixels).
+        let last_corner = samples.len() - width - 2;
+        let last_pixel = samples.len() - 1;
+        let trunc = self.truncation_m;
+        let inv_trunc = 1.0 / trunc;
+        let xs: [f32; LANES] = std::array::from_fn(|x| x as f32);
+        let mut updated = 0;
+        for z in 0..BLOCK_SIDE {
+            for y in 0..BLOCK_SIDE {
+                let row = origin + step_y * y as f32 + step_z * z as f32;
+                let mut pz = [0.0f32; LANES];
+                let mut inside = [false; LANES];
+                let mut corner = [0usize; LANES];
+                let mut nearest = [0usize; LANES];
+                let mut bilinear = [false; LANES];
+                let mut fu = [0.0f32; LANES];
+                let mut fv = [0.0f32; LANES];
+                for x in 0..LANES {
+                    let (px, py) = (row.x + step_x.x * xs[x], row.y + step_x.y * xs[x]);
+                    let zc = row.z + step_x.z * xs[x];
+                    let inv_z = 1.0 / zc;
+                    let u = fx * px * inv_z + cx;
+                    let v = fy * py * inv_z + cy;
+                    // NaN fails every comparison.
+                    let ok = zc > 1e-6 && u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
+                    let (u, v) = if ok { (u, v) } else { (0.0, 0.0) };
+                    let n = ((v + 0.5) as usize).min(height - 1) * width
+                        + ((u + 0.5) as usize).min(width - 1);
+                    let (u1, v1) = ((u + 1.0) as usize, (v + 1.0) as usize);
+                    let bil = u1 >= 1 && v1 >= 1 && u1 < width && v1 < height;
+                    let (u0, v0) = (u1.max(1) - 1, v1.max(1) - 1);
+                    pz[x] = zc;
+                    inside[x] = ok;
+                    nearest[x] = n.min(last_pixel);
+                    bilinear[x] = bil;
+                    corner[x] = (v0 * width + u0).min(last_corner);
+                    fu[x] = u - u0 as f32;
+                    fv[x] = v - v0 as f32;
+                }
+                let mut d = [[0.0f32; LANES]; 4];
+                let mut dn = [0.0f32; LANES];
+                let mut weight = [0.0f32; LANES];
+                for x in 0..LANES {
+                    let i = corner[x];
+                    // From the samples alone (the nearest pixel's weight shares a cache line
+                    // with its depth, and the four corners are two lines).
+                    d[0][x] = samples[i].depth_m;
+                    d[1][x] = samples[i + 1].depth_m;
+                    d[2][x] = samples[i + width].depth_m;
+                    d[3][x] = samples[i + width + 1].depth_m;
+                    let near = &samples[nearest[x]];
+                    dn[x] = near.depth_m;
+                    weight[x] = near.weight;
+                }
+                let mut sdf = [0.0f32; LANES];
+                let mut update = [false; LANES];
+                for x in 0..LANES {
+                    let [d0, d1, d2, d3] = [d[0][x], d[1][x], d[2][x], d[3][x]];
+                    // All four valid (a NaN makes the sum NaN) and agreeing.
+                    let lo = d0.min(d1).min(d2.min(d3));
+                    let hi = d0.max(d1).max(d2.max(d3));
+                    let agree = bilinear[x] && !(d0 + d1 + d2 + d3).is_nan() && hi - lo < trunc;
+                    let top = d0 + (d1 - d0) * fu[x];
+                    let bottom = d2 + (d3 - d2) * fu[x];
+                    let seen = if agree {
+                        top + (bottom - top) * fv[x]
+                    } else {
+                        dn[x]
+                    };
+                    let s = seen - pz[x];
+                    sdf[x] = s;
+                    // A NaN depth or weight fails.
+                    update[x] = inside[x] && s >= -trunc && !weight[x].is_nan();
+                }
+                let offset = Block::voxel_offset(0, y, z);
+                for x in 0..LANES {
+                    if !update[x] {
+                        continue;
+                    }
+                    let s = sdf[x];
+                    let voxel = &mut block.voxels[offset + x];
+                    voxel.observe_tsdf((s * inv_trunc).min(1.0), weight[x], self.max_weight);
+                    if self.colour.is_some() && s.abs() < trunc {
+                        let [r, g, b, _] = Rgba8Image::unpack(samples[nearest[x]].rgb);
+                        voxel.observe_colour([r, g, b], self.max_weight);
+                    }
+                    updated += 1;
+                }
+            }
+        }
+        updated
+    }
+}
+
+/// One row of a pinhole depth map and its neighbours for [`row_weights`] (NaN beyond the
+/// image), with each column's ray x (z = 1) and the ray y of the rows above, here, below.
+#[derive(Clone, Copy)]
+pub(super) struct RowNeighbours<'a> {
+    pub(super) here: &'a [f32],
+    pub(super) left: &'a [f32],
+    pub(super) right: &'a [f32],
+    pub(super) up: &'a [f32],
+    pub(super) down: &'a [f32],
+    pub(super) xs: &'a [f32],
+    pub(super) xs_left: &'a [f32],
+    pub(super) xs_right: &'a [f32],
+    pub(super) y: [f32; 3],
+    pub(super) trunc: f32,
+}
+
+vectorised_fn! {
+/// [`View::pixel_weight`] for every pixel of a row of a pinhole camera, lane-wise: the
+/// normal from the neighbours' points (central differences, one-sided where a neighbour is
+/// invalid or across a depth jump of at least the truncation distance), the squared cosine
+/// to the pixel's ray, NaN where the pixel is invalid or a row or column has no neighbour.
+pub(super) fn row_weights(n: RowNeighbours<'_>, weights: &mut [f32]) {
+    let width = weights.len();
+    let (here, left, right, up, down) = (
+        &n.here[..width],
+        &n.left[..width],
+        &n.right[..width],
+        &n.up[..width],
+        &n.down[..width],
+    );
+    let (xs, xs_left, xs_right) = (&n.xs[..width], &n.xs_left[..width], &n.xs_right[..width]);
+    let [y_up, y, y_down] = n.y;
+    for c in 0..width {
+        let d = here[c];
+        let x = xs[c];
+        // A neighbour's point where it is near (NaN fails), the centre's elsewhere.
+        let pick = |dn: f32, xn: f32, yn: f32| {
+            if (dn - d).abs() < n.trunc {
+                Vec3::new(xn, yn, 1.0) * dn
+            } else {
+                Vec3::new(x, y, 1.0) * d
+            }
+        };
+        let near = |dn: f32| (dn - d).abs() < n.trunc;
+        let du = pick(right[c], xs_right[c], y) - pick(left[c], xs_left[c], y);
+        let dv = pick(down[c], x, y_down) - pick(up[c], x, y_up);
+        let has_both = (near(left[c]) || near(right[c])) && (near(up[c]) || near(down[c]));
+        let cross = du.cross(dv);
+        let rcp = 1.0 / cross.dot(cross).sqrt();
+        let normal = cross * rcp;
+        let ray = Vec3::new(x, y, 1.0);
+        let cos = normal.dot(ray).abs() / ray.length();
+        let ok = has_both && rcp.is_finite() && rcp > 0.0;
+        weights[c] = if ok {
+            (cos * cos).max(MIN_OBSERVATION_WEIGHT)
+        } else {
+            f32::NAN
+        };
+    }
+}
+}
+
+vectorised_fn! {
+/// [`View::update_block_pinhole_lanes`], compiled for AVX2 + FMA where the CPU has them.
+pub(super) fn update_block_pinhole(view: &View<'_>, index: BlockIndex, block: &mut Block) -> usize {
+    view.update_block_pinhole_lanes(index, block)
+}
+}
