@@ -3,6 +3,7 @@
 //! `tools/gen_msgdefs.py` into `msg/schemas/`.
 
 pub const IMAGE: &str = "sensor_msgs/msg/Image";
+pub const COMPRESSED_IMAGE: &str = "sensor_msgs/msg/CompressedImage";
 pub const CAMERA_INFO: &str = "sensor_msgs/msg/CameraInfo";
 pub const POINT_CLOUD2: &str = "sensor_msgs/msg/PointCloud2";
 pub const TF_MESSAGE: &str = "tf2_msgs/msg/TFMessage";
@@ -13,6 +14,9 @@ pub const MARKER_ARRAY: &str = "visualization_msgs/msg/MarkerArray";
 pub fn definition(msg_type: &str) -> Option<&'static str> {
     Some(match msg_type {
         IMAGE => include_str!("../msg/schemas/sensor_msgs__msg__Image.msgdef"),
+        COMPRESSED_IMAGE => {
+            include_str!("../msg/schemas/sensor_msgs__msg__CompressedImage.msgdef")
+        }
         CAMERA_INFO => include_str!("../msg/schemas/sensor_msgs__msg__CameraInfo.msgdef"),
         POINT_CLOUD2 => include_str!("../msg/schemas/sensor_msgs__msg__PointCloud2.msgdef"),
         TF_MESSAGE => include_str!("../msg/schemas/tf2_msgs__msg__TFMessage.msgdef"),
@@ -49,6 +53,9 @@ mod tests {
         assert!(definition(CAMERA_INFO)
             .unwrap()
             .contains("RegionOfInterest roi"));
+        assert!(definition(COMPRESSED_IMAGE)
+            .unwrap()
+            .starts_with("std_msgs/Header header\nstring format\nuint8[] data\n"));
         assert!(definition("foo_msgs/msg/Bar").is_none());
     }
 

@@ -93,6 +93,14 @@ fn rclpy_depth_1280x960_reliable_driver() {
 }
 
 #[test]
+fn rclpy_compressed_jpeg_png_as_image_transport() {
+    run(
+        "rclpy_compressed_jpeg_png_as_image_transport",
+        compressed_as_image_transport,
+    );
+}
+
+#[test]
 fn rclpy_fusion_mesh_and_clear_map() {
     run("rclpy_fusion_mesh_and_clear_map", fusion_mesh_and_clear_map);
 }
@@ -384,6 +392,78 @@ fn depth_run(width: u32, height: u32, reliable: bool) {
             s["k"],
             s["median_m"]
         );
+    }
+}
+
+/// The sets of one run of the wall at 320x240 by a reliable driver publishing `encoding`,
+/// raw or `compressed` (`jpeg`, `png`) as image_transport's compressed plugin does, to a node
+/// with the matching `image_transport`; every set must give depth.
+fn wall_run(encoding: &str, compressed: Option<&str>, sets: u32) -> Vec<Value> {
+    let dir = TempDir::new();
+    let rig_file = write_scene(&dir.0, 320, 240, true, sets);
+    let spec_path = dir.0.join("rig.json");
+    let mut spec: Value =
+        serde_json::from_slice(&std::fs::read(&spec_path).expect("rig.json")).expect("json");
+    spec["encoding"] = json!(encoding);
+    if let Some(codec) = compressed {
+        spec["compressed"] = json!(codec);
+    }
+    std::fs::write(&spec_path, serde_json::to_vec_pretty(&spec).unwrap()).expect("rig.json");
+    let transport = if compressed.is_some() {
+        "image_transport:=compressed"
+    } else {
+        "image_transport:=raw"
+    };
+    let mut node = Node::start(&rig_file, &["input_qos_reliable:=true", transport]);
+    let (results, _) = drive(&dir.0, &mut node, sets);
+    let received: Vec<Value> = results
+        .into_iter()
+        .filter(|s| s["received"] == true)
+        .collect();
+    assert_eq!(
+        received.len() as u32,
+        sets,
+        "{encoding} {compressed:?}: not every set gave depth"
+    );
+    received
+}
+
+/// rclpy publishing `sensor_msgs/CompressedImage` made by OpenCV's `imencode` as
+/// image_transport's compressed plugin makes it (JPEG quality 95, PNG level 3; colour through
+/// bgr8) on `<cam>/image_raw/compressed`: the node's depth of the wall equals the raw run's
+/// within JPEG's noise, for rgb8, bgr8 and mono8 sources.
+fn compressed_as_image_transport() {
+    const SETS: u32 = 2;
+    let stat = |s: &Value, key: &str| s[key].as_f64().unwrap_or(f64::NAN);
+    let raw = wall_run("rgb8", None, SETS);
+    let raw_median = stat(&raw[0], "median_m");
+    let raw_valid = stat(&raw[0], "valid");
+    for (encoding, codec) in [
+        ("rgb8", "jpeg"),
+        ("bgr8", "jpeg"),
+        ("mono8", "jpeg"),
+        ("bgr8", "png"),
+    ] {
+        for s in wall_run(encoding, Some(codec), SETS) {
+            let (median, valid, within) =
+                (stat(&s, "median_m"), stat(&s, "valid"), stat(&s, "within"));
+            eprintln!(
+                "{encoding} {codec}: median {median:.4} m (raw {raw_median:.4}), valid {valid} (raw {raw_valid}), within 2 % of the wall: {:.1} %",
+                100.0 * within / valid
+            );
+            assert!(
+                (median - raw_median).abs() <= 0.01 * raw_median,
+                "{encoding} {codec}: median {median} m, raw {raw_median} m"
+            );
+            assert!(
+                valid >= 0.9 * raw_valid,
+                "{encoding} {codec}: {valid} valid depths, raw {raw_valid}"
+            );
+            assert!(
+                within >= 0.9 * valid,
+                "{encoding} {codec}: {within} of {valid} within 2 % of the wall"
+            );
+        }
     }
 }
 

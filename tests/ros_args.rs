@@ -785,6 +785,7 @@ fn table_has_node_parameters() {
     let expect = [
         ("cameras", ParamValue::StringArray(vec![])),
         ("image_topic", ParamValue::String("image_raw".into())),
+        ("image_transport", ParamValue::String("raw".into())),
         ("image_kinds", ParamValue::StringArray(vec![])),
         ("reference_camera", ParamValue::String(String::new())),
         ("references", ParamValue::StringArray(vec![])),
@@ -805,6 +806,11 @@ fn table_has_node_parameters() {
         ("camera_timeout", ParamValue::Double(1.0)),
         ("foxglove_port", ParamValue::Int(0)),
         ("foxglove_address", ParamValue::String("127.0.0.1".into())),
+        ("fusion", ParamValue::Bool(false)),
+        ("voxel_size", ParamValue::Double(0.05)),
+        ("max_blocks", ParamValue::Int(50_000)),
+        ("mesh_rate", ParamValue::Double(1.0)),
+        ("depth_topics", ParamValue::StringArray(vec![])),
     ];
     for (name, default) in &expect {
         let spec = param_spec(name).unwrap_or_else(|| panic!("{name} missing"));

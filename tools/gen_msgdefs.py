@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_typestore
 
 TYPES = [
     "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/CompressedImage",
     "sensor_msgs/msg/CameraInfo",
     "sensor_msgs/msg/PointCloud2",
     "tf2_msgs/msg/TFMessage",

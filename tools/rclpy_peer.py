@@ -24,7 +24,10 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       depth image with that stamp (default-QoS subscriber) or `set_timeout_s`, then the camera
       period, then the next; listens to /rosout and /diagnostics meanwhile. Prints one
       {"event": "set", ...} per set (depth statistics against the expected depth, latency from
-      the node's publish time) and a final {"event": "summary", ...}.
+      the node's publish time) and a final {"event": "summary", ...}. rig.json's "encoding"
+      (rgb8, bgr8, mono8) and "compressed" (jpeg, png: sensor_msgs/CompressedImage on
+      <camera>/image_raw/compressed, made by cv2.imencode as image_transport's compressed
+      plugin makes it) choose what the drivers publish.
   probe NODE_FQN
       The graph as rcl sees it (node names and namespaces, topic names and types, endpoint QoS)
       and the node's parameter services (list, get, describe, get types, set: a valid engine
@@ -71,7 +74,7 @@ try:
     import rclpy
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import CameraInfo, Image
+    from sensor_msgs.msg import CameraInfo, CompressedImage, Image
     from builtin_interfaces.msg import Time
     from rcl_interfaces.msg import Log, Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import (DescribeParameters, GetParameters, GetParameterTypes,
@@ -169,6 +172,11 @@ def run_drive(node: Node, directory: pathlib.Path) -> None:
     sets, set_timeout = int(rig["sets"]), float(rig["set_timeout_s"])
     period = float(rig.get("period_s", 0.1))
     image_reliable = bool(rig["image_reliable"])
+    # rig.json "encoding" (rgb8, bgr8, mono8; the files are rgb8) and "compressed" (jpeg, png:
+    # image_transport's compressed plugin on <base>/image_raw/compressed, made as it makes it:
+    # colour through bgr8, cv2.imencode with JPEG quality 95 or PNG level 3).
+    encoding = rig.get("encoding", "rgb8")
+    compressed = rig.get("compressed")
     if image_reliable:
         image_qos = QoSProfile(depth=10)  # rclcpp's default / image_transport's
     else:
@@ -187,15 +195,43 @@ def run_drive(node: Node, directory: pathlib.Path) -> None:
         info.k = [float(v) for v in cam["k"]]
         info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         info.p = [float(v) for v in cam["p"]]
-        image = Image()
-        image.header.frame_id = cam["frame_id"]
-        image.width, image.height, image.encoding = w, h, "rgb8"
-        image.is_bigendian, image.step = 0, w * 3
-        image.data = raw
+        rgb = np.frombuffer(raw, dtype=np.uint8).reshape(h, w, 3)
+        if compressed:
+            import cv2
+            if encoding == "mono8":
+                pixels, target = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), "mono8"
+            else:
+                pixels, target = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), "bgr8"
+            if compressed == "jpeg":
+                done, buf = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 95])
+            else:
+                done, buf = cv2.imencode(".png", pixels, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+            if not done:
+                fail(3, f"cv2.imencode failed for {compressed}")
+            image = CompressedImage()
+            image.header.frame_id = cam["frame_id"]
+            image.format = f"{encoding}; {compressed} compressed {target}"
+            image.data = buf.tobytes()
+            image_pub = node.create_publisher(
+                CompressedImage, f"{base}/image_raw/compressed", image_qos)
+        else:
+            if encoding == "mono8":
+                pixels = (rgb.astype(np.uint32) * [77, 150, 29]).sum(axis=2) // 256
+                pixels, channels = pixels.astype(np.uint8), 1
+            elif encoding == "bgr8":
+                pixels, channels = rgb[:, :, ::-1], 3
+            else:
+                pixels, channels = rgb, 3
+            image = Image()
+            image.header.frame_id = cam["frame_id"]
+            image.width, image.height, image.encoding = w, h, encoding
+            image.is_bigendian, image.step = 0, w * channels
+            image.data = np.ascontiguousarray(pixels).tobytes()
+            image_pub = node.create_publisher(Image, f"{base}/image_raw", image_qos)
         cams.append({
             "info": info, "image": image,
             "info_pub": node.create_publisher(CameraInfo, f"{base}/camera_info", image_qos),
-            "image_pub": node.create_publisher(Image, f"{base}/image_raw", image_qos),
+            "image_pub": image_pub,
         })
 
     depths: dict[int, tuple] = {}

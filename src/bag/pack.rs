@@ -1,7 +1,8 @@
 //! `sweepdepth pack DIR OUT`: a dataset folder (any layout `eval` reads, see
 //! [`crate::datasets`]), or a folder of images plus a rig file, into a bag with
-//! `/camN/image_raw` (rgb8), `/camN/camera_info` and `/tf_static`, and a parameter file for the
-//! node next to it (`<OUT without .mcap>.params.yaml`).
+//! `/camN/image_raw` (rgb8; with `--compressed` `/camN/image_raw/compressed`, JPEG),
+//! `/camN/camera_info` and `/tf_static`, and a parameter file for the node next to it
+//! (`<OUT without .mcap>.params.yaml`).
 
 use std::path::{Path, PathBuf};
 
@@ -13,8 +14,9 @@ use crate::msgs::{
 };
 use crate::rig_file::load_rig_file;
 
-use super::schemas::{CAMERA_INFO, IMAGE, TF_MESSAGE};
+use super::schemas::{CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, TF_MESSAGE};
 use super::{ns_time, writer, BagError, BagWriter};
+use crate::pipeline::compressed::{compress, Codec};
 
 /// `sweepdepth pack` arguments.
 #[derive(Debug, Clone, clap::Args)]
@@ -47,6 +49,10 @@ pub struct PackArgs {
     /// Replace OUT (and the parameter file) if they exist.
     #[arg(long)]
     pub force: bool,
+    /// Images as recorded bags usually have them: `sensor_msgs/CompressedImage` on
+    /// `/camN/image_raw/compressed`, JPEG of quality 95 (image_transport's compressed plugin).
+    #[arg(long)]
+    pub compressed: bool,
 }
 
 /// Errors of `pack`.
@@ -60,6 +66,8 @@ pub enum PackError {
     RigFile(#[from] crate::rig_file::RigFileError),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
+    #[error("--compressed: {0}")]
+    Encode(#[from] crate::pipeline::compressed::EncodeError),
     /// Arguments or inputs that do not fit together, with the reason.
     #[error("{0}")]
     Invalid(String),
@@ -392,8 +400,13 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
     }
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
+    let (image_topic, image_type) = if args.compressed {
+        ("image_raw/compressed", COMPRESSED_IMAGE)
+    } else {
+        ("image_raw", IMAGE)
+    };
     for c in &cameras {
-        writer.add_topic(&format!("/{}/image_raw", c.name), IMAGE, None)?;
+        writer.add_topic(&format!("/{}/{image_topic}", c.name), image_type, None)?;
         writer.add_topic(&format!("/{}/camera_info", c.name), CAMERA_INFO, None)?;
     }
     writer.add_topic("/tf_static", TF_MESSAGE, None)?;
@@ -444,11 +457,14 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
                 &camera_info(&c.model, &header),
             )?;
             let frame = &c.frames[(k as usize) % c.frames.len()];
-            writer.write_msg(
-                &format!("/{}/image_raw", c.name),
-                log + 500,
-                &rgb8_image(frame, &header),
-            )?;
+            let topic = format!("/{}/{image_topic}", c.name);
+            let image = rgb8_image(frame, &header);
+            if args.compressed {
+                let jpeg = compress(&image, Codec::Jpeg, 95)?;
+                writer.write_msg(&topic, log + 500, &jpeg)?;
+            } else {
+                writer.write_msg(&topic, log + 500, &image)?;
+            }
         }
     }
     let summary = writer.finish()?;

@@ -10,17 +10,20 @@ use std::time::{Duration, Instant};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::fusion::FusionParams;
-use crate::msgs::{from_cdr, CameraInfo, Image, TFMessage};
+use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
+use crate::pipeline::{Asked, Fuser, FusionInput, Publishers};
 use crate::pipeline::{
     ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
     PipelineConfig, Skip,
 };
-use crate::pipeline::{Fuser, FusionInput};
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
 use super::pace::{Pacer, ViewRate};
+use super::reader::TopicInfo;
 use super::report::BagReport;
-use super::schemas::{CAMERA_INFO, IMAGE, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE};
+use super::schemas::{
+    CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE,
+};
 use super::{writer, BagError, BagReader, BagWriter};
 
 /// `sweepdepth bag` arguments.
@@ -120,17 +123,56 @@ pub enum BagRunError {
         path: String,
         source: std::io::Error,
     },
-    #[error("no frame set could be processed ({found} found{}{})", if reasons.is_empty() { "" } else { "; skipped for: " }, reasons.join(", "))]
-    NothingProcessed { found: u64, reasons: Vec<String> },
+    #[error("no frame set could be processed ({found} found{}{}){}", if reasons.is_empty() { "" } else { "; skipped for: " }, reasons.join(", "), why.as_ref().map_or(String::new(), |w| format!(": {w}")))]
+    NothingProcessed {
+        found: u64,
+        reasons: Vec<String>,
+        /// The first thing the sets lacked ([`crate::pipeline::Pipeline::why_no_depth`]).
+        why: Option<String>,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Route {
     Image(usize),
+    /// image_transport's `<image topic>/compressed` (`sensor_msgs/CompressedImage`).
+    Compressed(usize),
     Info(usize),
     Tf,
     /// `/tf` (a moving rig, `world_frame`).
     TfDynamic,
+}
+
+fn expected_type(r: Route) -> &'static str {
+    match r {
+        Route::Image(_) => IMAGE,
+        Route::Compressed(_) => COMPRESSED_IMAGE,
+        Route::Info(_) => CAMERA_INFO,
+        Route::Tf | Route::TfDynamic => TF_MESSAGE,
+    }
+}
+
+/// Camera `i`'s image topic in the bag and its route: `<image topic>` (raw) or
+/// `<image topic>/compressed`, the one `image_transport` names unless only the other is in
+/// the bag with its type.
+fn image_route(config: &PipelineConfig, known: &[TopicInfo], i: usize) -> (String, Route) {
+    let raw = (config.image_topics[i].clone(), Route::Image(i));
+    let compressed = (config.compressed_topics()[i].clone(), Route::Compressed(i));
+    let in_bag = |(topic, route): &(String, Route)| {
+        known
+            .iter()
+            .any(|t| &t.name == topic && t.msg_type == expected_type(*route))
+    };
+    let (first, second) = if config.compressed_inputs {
+        (compressed, raw)
+    } else {
+        (raw, compressed)
+    };
+    if !in_bag(&first) && in_bag(&second) {
+        second
+    } else {
+        first
+    }
 }
 
 /// Offline every distinct message is printed once (the first 200); the summary counts.
@@ -236,6 +278,7 @@ impl Sink<'_> {
             Ok(set) => {
                 for skip in &set.skipped {
                     *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                    self.report.last_skip = Some(skip.to_string());
                     warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
                 }
                 if let Some(fusion) = &mut self.fuser {
@@ -271,6 +314,7 @@ impl Sink<'_> {
             }
             Err(skip) => {
                 *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                self.report.last_skip = Some(skip.to_string());
                 warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
             }
         }
@@ -330,9 +374,14 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     writer::check_output(&args.output, args.force)?;
     let mut reader = BagReader::open(&args.input)?;
 
+    let known = reader.topics().to_vec();
     let mut routes: HashMap<String, Route> = HashMap::new();
+    // Per camera, the image topic read: raw or image_transport's compressed one.
+    let mut image_topics = Vec::with_capacity(config.cameras.len());
     for i in 0..config.cameras.len() {
-        routes.insert(config.image_topics[i].clone(), Route::Image(i));
+        let (topic, route) = image_route(&config, &known, i);
+        routes.insert(topic.clone(), route);
+        image_topics.push(topic);
         routes.insert(config.info_topics[i].clone(), Route::Info(i));
     }
     if config.rig_file.is_none() || config.world.is_some() {
@@ -341,15 +390,9 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     if let Some(world) = &config.world {
         routes.insert(world.tf_topic.clone(), Route::TfDynamic);
     }
-    let expected_type = |r: Route| match r {
-        Route::Image(_) => IMAGE,
-        Route::Info(_) => CAMERA_INFO,
-        Route::Tf | Route::TfDynamic => TF_MESSAGE,
-    };
     let mut report = BagReport::default();
     // Topics with a type other than the one the pipeline reads are left out, loudly.
     let mut wrong_type: HashSet<String> = HashSet::new();
-    let known = reader.topics().to_vec();
     for t in &known {
         match routes.get(&t.name) {
             Some(&r) if !t.msg_type.is_empty() && t.msg_type != expected_type(r) => {
@@ -366,15 +409,14 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         }
     }
     if !known.is_empty() {
-        let missing: Vec<&String> = config
-            .image_topics
+        let missing: Vec<&String> = image_topics
             .iter()
             .filter(|t| !known.iter().any(|k| &k.name == *t) || wrong_type.contains(*t))
             .collect();
-        if missing.len() == config.image_topics.len() {
+        if missing.len() == image_topics.len() {
             return Err(BagRunError::NoInput {
                 bag: args.input.display().to_string(),
-                wanted: config.image_topics.clone(),
+                wanted: image_topics.clone(),
                 found: known
                     .iter()
                     .map(|t| format!("{} ({})", t.name, t.msg_type))
@@ -385,7 +427,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             tracing::warn!("image topic {m} is not in the bag; sets need every camera");
         }
     }
-    let ref_topic = &config.image_topics[config.reference];
+    let ref_topic = &image_topics[config.reference];
     let total = known
         .iter()
         .find(|t| &t.name == ref_topic)
@@ -511,7 +553,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .or_default() += 1;
             continue;
         }
-        if route == Route::Image(config.reference) {
+        if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference) {
             sink.bar.inc(1);
         }
         if let Some(pacer) = &mut pacer {
@@ -534,6 +576,10 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             Route::Image(camera) => from_cdr::<Image>(&msg.data)
                 .map(|image| Input::Image { camera, image })
                 .map_err(|e| format!("cannot decode Image on {}: {e}", position())),
+            // Decoded (in parallel) when its set is complete.
+            Route::Compressed(camera) => from_cdr::<CompressedImage>(&msg.data)
+                .map(|image| Input::compressed(camera, image))
+                .map_err(|e| format!("cannot decode CompressedImage on {}: {e}", position())),
         };
         let input = match input {
             Ok(input) => input,
@@ -543,7 +589,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             }
         };
         sink.outcome(pipeline.push(input, msg.log_time_ns), msg.log_time_ns)?;
-        if matches!(route, Route::Image(_)) {
+        if matches!(route, Route::Image(_) | Route::Compressed(_)) {
             let done = sink.report.sets_processed;
             let rate = done as f64 / started.elapsed().as_secs_f64().max(1e-9);
             sink.bar
@@ -552,6 +598,22 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     }
     // The sets the synchroniser held back waiting for later messages that never came.
     sink.outcome(pipeline.finish(), last_log_ns)?;
+    // No depth at all: the first thing the sets lacked, as the live node says it.
+    if sink.report.sets_processed == 0 {
+        let asked = Asked {
+            now_ns: last_log_ns,
+            window_ns: None,
+        };
+        sink.report.no_depth = pipeline
+            .why_no_depth(asked, &|_| Publishers::Unknown)
+            .map(|why| why.message)
+            .or_else(|| {
+                sink.report
+                    .last_skip
+                    .clone()
+                    .map(|s| format!("sets are skipped: {s}"))
+            });
+    }
     let Sink {
         writer,
         mut report,
@@ -648,6 +710,7 @@ pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
         return Err(BagRunError::NothingProcessed {
             found: report.sets_found,
             reasons: report.skipped.keys().map(|k| k.to_string()).collect(),
+            why: report.no_depth.clone(),
         });
     }
     Ok(())

@@ -33,6 +33,11 @@ pub struct BagReport {
     pub output: Option<super::WriteSummary>,
     /// `--mesh`: what was fused and where it went.
     pub mesh: Option<String>,
+    /// The last skip's reason (engine skips included).
+    pub last_skip: Option<String>,
+    /// No set processed: why ([`crate::pipeline::Pipeline::why_no_depth`], the same reasons
+    /// as the live node's "no depth" line, e.g. "camera_info never recorded for cam3").
+    pub no_depth: Option<String>,
 }
 
 impl BagReport {
@@ -74,9 +79,10 @@ impl BagReport {
             let bad: u64 = self.bad_messages.values().sum();
             s += &format!(", {bad} unreadable messages");
         }
-        match self.mean_time_per_set {
-            Some(t) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
-            None => s += "; no set processed",
+        match (self.mean_time_per_set, &self.no_depth) {
+            (Some(t), _) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
+            (None, Some(why)) => s += &format!("; no set processed: {why}"),
+            (None, None) => s += "; no set processed",
         }
         if let Some(out) = &self.output {
             s += &format!(

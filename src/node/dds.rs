@@ -4,7 +4,7 @@
 //! diagnostics thread until SIGINT/SIGTERM.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{mpsc, Arc};
+use std::sync::{mpsc, Arc, Mutex};
 use std::time::Instant;
 
 use futures::StreamExt;
@@ -18,9 +18,11 @@ use super::fusion::FusionNode;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
 use super::params::node_options;
+use super::why::{Discovery, NoDepth, Requested};
 use super::worker::{Outputs, Publishers};
 use super::{diag, NodeConfig, NodeError, Shared};
-use crate::msgs::{CameraInfo, DiagnosticArray, Image, PointCloud2, TFMessage};
+use crate::msgs::{CameraInfo, CompressedImage, DiagnosticArray, Image, PointCloud2, TFMessage};
+use crate::pipeline::compressed::carry;
 use crate::pipeline::{ConfigError, Pipeline};
 
 /// A ros2-client error, as it says it.
@@ -119,19 +121,35 @@ pub(super) fn run(
     };
 
     let mut image_subs = Vec::new();
+    // `image_transport: compressed`: sensor_msgs/CompressedImage on `<image topic>/compressed`.
+    let mut compressed_subs = Vec::new();
     let mut info_subs = Vec::new();
-    for i in 0..pipeline.cameras.len() {
-        let topic = node
-            .create_topic(
-                &topic_name(&pipeline.image_topics[i])?,
-                image_type(),
-                &input_qos,
-            )
-            .map_err(ros_err)?;
-        image_subs.push(
-            node.create_subscription::<Image>(&topic, Some(input_qos.clone()))
-                .map_err(ros_err)?,
-        );
+    for (i, compressed_topic) in pipeline.compressed_topics().iter().enumerate() {
+        if pipeline.compressed_inputs {
+            let topic = node
+                .create_topic(
+                    &topic_name(compressed_topic)?,
+                    MessageTypeName::new("sensor_msgs", "CompressedImage"),
+                    &input_qos,
+                )
+                .map_err(ros_err)?;
+            compressed_subs.push(
+                node.create_subscription::<CompressedImage>(&topic, Some(input_qos.clone()))
+                    .map_err(ros_err)?,
+            );
+        } else {
+            let topic = node
+                .create_topic(
+                    &topic_name(&pipeline.image_topics[i])?,
+                    image_type(),
+                    &input_qos,
+                )
+                .map_err(ros_err)?;
+            image_subs.push(
+                node.create_subscription::<Image>(&topic, Some(input_qos.clone()))
+                    .map_err(ros_err)?,
+            );
+        }
         let topic = node
             .create_topic(
                 &topic_name(&pipeline.info_topics[i])?,
@@ -247,6 +265,12 @@ pub(super) fn run(
             Event::Image(i, r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
         })));
     }
+    for (i, sub) in compressed_subs.iter().enumerate() {
+        // Carried compressed into the pipeline, decoded when its set is complete.
+        streams.push(Box::pin(sub.async_stream().map(move |r| {
+            Event::Image(i, r.map(|(m, _)| carry(m)).map_err(|e| format!("{e:?}")))
+        })));
+    }
     for (i, sub) in info_subs.iter().enumerate() {
         streams.push(Box::pin(sub.async_stream().map(move |r| {
             Event::Info(i, r.map(|(m, _)| Box::new(m)).map_err(|e| format!("{e:?}")))
@@ -276,9 +300,49 @@ pub(super) fn run(
     }
     log_info(&format!("node {} is up", pipeline.identity.fqn()));
 
+    let started = Instant::now();
+    let pipeline_state = Mutex::new(Pipeline::new(pipeline).map_err(ConfigError::from)?);
+    // While no depth comes out, the diagnostics thread says why (the pipeline's view and DDS
+    // discovery's of the input topics, with the QoS each subscription requests).
+    let mut requested = Vec::new();
+    for i in 0..pipeline.cameras.len() {
+        requested.push(Requested {
+            topic: pipeline.input_image_topic(i),
+            reliable: config.input_reliable,
+            transient_local: false,
+            hint: "a best-effort camera driver needs input_qos_reliable:=false",
+        });
+        requested.push(Requested {
+            topic: pipeline.info_topics[i].clone(),
+            reliable: false,
+            transient_local: false,
+            hint: "",
+        });
+    }
+    if tf_sub.is_some() {
+        requested.push(Requested {
+            topic: pipeline.tf_static_topic.clone(),
+            reliable: true,
+            transient_local: true,
+            hint: "read as tf2 reads it: publish it with a static transform broadcaster",
+        });
+    }
+    if let Some(world) = &pipeline.world {
+        requested.push(Requested {
+            topic: world.tf_topic.clone(),
+            reliable: true,
+            transient_local: false,
+            hint: "read as tf2_ros's listener reads it",
+        });
+    }
+    let mut no_depth = NoDepth::new(
+        &pipeline_state,
+        started,
+        Discovery::new(context.domain_participant(), requested),
+    );
     let mut state = LoopState {
-        pipeline: Pipeline::new(pipeline).map_err(ConfigError::from)?,
-        started: Instant::now(),
+        pipeline: &pipeline_state,
+        started,
         log: RateLimited::default(),
         slot: shared.slot,
         stats: shared.stats,
@@ -311,7 +375,14 @@ pub(super) fn run(
         let diag = std::thread::Builder::new()
             .name("sweepdepth-diagnostics".into())
             .spawn_scoped(scope, || {
-                diag::publish_loop(config, shared, diag_pub, fusion_worker.as_deref(), &stop)
+                diag::publish_loop(
+                    config,
+                    shared,
+                    diag_pub,
+                    fusion_worker.as_deref(),
+                    &mut no_depth,
+                    &stop,
+                )
             })
             .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
         let outcome = futures::executor::block_on(async {

@@ -42,6 +42,10 @@ pub struct Stats {
     pub waiting_for_pose: usize,
     /// A moving rig: the latest world pose of each reference's frame, with its stamp.
     pub world_poses: std::collections::BTreeMap<String, (Time, crate::geometry::RigidTransform)>,
+    /// Why no depth comes out, while none does (`super::why`): the status message says it.
+    pub why: Option<String>,
+    /// The engine's last skip (a set that gave no depth after the pipeline).
+    pub engine_skip: Option<String>,
 }
 
 impl Stats {
@@ -59,7 +63,15 @@ impl Stats {
             skipped: Default::default(),
             waiting_for_pose: 0,
             world_poses: Default::default(),
+            why: None,
+            engine_skip: None,
         }
+    }
+
+    /// No set published in the last [`STALE_AFTER`] (or none yet).
+    pub fn stale(&self, now: Instant) -> bool {
+        self.last_published
+            .is_none_or(|t| now.saturating_duration_since(t) > STALE_AFTER)
     }
 
     fn prune(&mut self, now: Instant) {
@@ -189,13 +201,15 @@ impl Stats {
                 self.inactive_cameras.join(", ")
             },
         );
-        let stale = self
-            .last_published
-            .is_none_or(|t| now.saturating_duration_since(t) > STALE_AFTER);
-        let (level, message) = if stale {
+        let (level, message) = if self.stale(now) {
             (
                 DiagnosticStatus::WARN,
-                if self.inactive_cameras.is_empty() {
+                if let Some(why) = &self.why {
+                    format!(
+                        "no depth published in the last {} s: {why}",
+                        STALE_AFTER.as_secs()
+                    )
+                } else if self.inactive_cameras.is_empty() {
                     format!("no depth published in the last {} s", STALE_AFTER.as_secs())
                 } else {
                     format!(
@@ -249,6 +263,7 @@ pub(super) fn publish_loop(
     shared: &Shared<'_>,
     publisher: Publisher<DiagnosticArray>,
     fusion: Option<&crate::pipeline::FusionWorker>,
+    no_depth: &mut super::why::NoDepth<'_>,
     stop: &AtomicBool,
 ) {
     let fqn = config.pipeline.identity.fqn();
@@ -264,6 +279,7 @@ pub(super) fn publish_loop(
         if next < now {
             next = now + Duration::from_secs(1);
         }
+        no_depth.check(shared.stats, now);
         let mut msg = {
             let mut stats = lock(shared.stats);
             stats.gpu_dropped = shared.slot.dropped();
@@ -369,5 +385,13 @@ mod tests {
         let a = s.diagnostics("/n", &cams, "gpu", later, Time::default());
         assert_eq!(a.status[0].level, DiagnosticStatus::WARN);
         assert_eq!(value(&a, "input rate a (Hz)"), "0.00");
+        assert_eq!(a.status[0].message, "no depth published in the last 5 s");
+        // The reason, while no depth comes out.
+        s.why = Some("no image on /rig/cam2/image_raw yet".into());
+        let a = s.diagnostics("/n", &cams, "gpu", later, Time::default());
+        assert_eq!(
+            a.status[0].message,
+            "no depth published in the last 5 s: no image on /rig/cam2/image_raw yet"
+        );
     }
 }

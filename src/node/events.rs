@@ -26,7 +26,8 @@ pub(super) enum Event {
 pub(super) type EventStream<'a> = Pin<Box<dyn Stream<Item = Event> + 'a>>;
 
 pub(super) struct LoopState<'a> {
-    pub pipeline: Pipeline<'a>,
+    /// Shared with the diagnostics thread, which asks it why no depth comes out.
+    pub pipeline: &'a Mutex<Pipeline<'a>>,
     /// The clock of camera dropout (receive time).
     pub started: Instant,
     pub log: RateLimited,
@@ -46,12 +47,8 @@ impl LoopState<'_> {
             Event::Tf(Ok(msg)) => Input::TfStatic(msg),
             Event::TfDynamic(Ok(msg)) => Input::Tf(msg),
             Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
-                let camera = self
-                    .pipeline
-                    .config()
-                    .cameras
-                    .get(i)
-                    .map_or("?", String::as_str);
+                let pipeline = lock(self.pipeline);
+                let camera = pipeline.config().cameras.get(i).map_or("?", String::as_str);
                 self.log.warn(&format!("read{i}"), || {
                     format!("camera '{camera}': read error: {e}")
                 });
@@ -68,7 +65,15 @@ impl LoopState<'_> {
                 return;
             }
         };
-        let outcome = self.pipeline.push(input, now_ns);
+        let (outcome, waiting_for_pose, inactive_cameras) = {
+            let mut pipeline = lock(self.pipeline);
+            let outcome = pipeline.push(input, now_ns);
+            (
+                outcome,
+                pipeline.waiting_for_pose(),
+                pipeline.inactive_cameras(),
+            )
+        };
         for event in &outcome.rig_events {
             node_log(tracing::Level::WARN, &event.to_string());
         }
@@ -83,11 +88,11 @@ impl LoopState<'_> {
             for skip in outcome.skips() {
                 *stats.skipped.entry(skip.kind.label()).or_default() += 1;
             }
-            stats.waiting_for_pose = self.pipeline.waiting_for_pose();
+            stats.waiting_for_pose = waiting_for_pose;
             if let Some(verdict) = &outcome.sync {
                 verdict.count(&mut stats.sync);
             }
-            stats.inactive_cameras = self.pipeline.inactive_cameras();
+            stats.inactive_cameras = inactive_cameras;
         }
         for job in outcome.jobs() {
             self.offer(job);

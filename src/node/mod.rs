@@ -32,6 +32,7 @@ mod fusion;
 mod log;
 pub mod param_services;
 pub mod params;
+mod why;
 mod worker;
 
 use std::sync::{Arc, Mutex};

@@ -126,7 +126,11 @@ fn worker_loop(
                 break;
             }
             Err(skip) => {
-                *lock(stats).skipped.entry(skip.kind.label()).or_default() += 1;
+                {
+                    let mut stats = lock(stats);
+                    *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                    stats.engine_skip = Some(skip.to_string());
+                }
                 log.warn(&skip.key(), || format!("{skip}; skipping this set"));
                 continue;
             }
@@ -139,6 +143,7 @@ fn worker_loop(
             let mut stats = lock(stats);
             for skip in &set.skipped {
                 *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                stats.engine_skip = Some(skip.to_string());
             }
         }
         for skip in &set.skipped {

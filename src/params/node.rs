@@ -46,6 +46,12 @@ pub fn node_params() -> Vec<ParamSpec> {
             "Image topic under each camera namespace.",
         ),
         node_spec(
+            "image_transport",
+            s("raw"),
+            ParamRange::one_of(&["raw", "compressed"]),
+            "How the images come, as image_transport's parameter: raw (sensor_msgs/Image on `<camera>/<image_topic>`) or compressed (sensor_msgs/CompressedImage on `<camera>/<image_topic>/compressed`, JPEG or PNG as image_transport's compressed plugin publishes them; decoded when a set is complete, in parallel across cameras). `bag` reads whichever of the two the bag has for a camera, this one first.",
+        ),
+        node_spec(
             "image_kinds",
             ParamValue::StringArray(Vec::new()),
             ParamRange::each_one_of(&["raw", "rect", "auto"]),

@@ -42,6 +42,11 @@ impl Calibration {
             .collect()
     }
 
+    /// The `/tf_static` tree received so far.
+    pub fn tf(&self) -> &TfBuffer {
+        &self.tf
+    }
+
     /// The job of `set`, whose message `k` is camera `active[k]`'s, or why it cannot run.
     pub fn job(
         &self,
@@ -49,6 +54,11 @@ impl Calibration {
         active: &[usize],
         set: SyncedSet<Image>,
     ) -> Result<Job, Skip> {
+        // Compressed images decoded first (in parallel): what follows needs their sizes.
+        let set = super::compressed::decode_set(set, |k| {
+            let i = active.get(k).copied().unwrap_or(k);
+            (i, config.cameras.get(i).map_or("?", String::as_str))
+        })?;
         // Index of the reference within the set (the active cameras, in rig order).
         let reference = active
             .iter()

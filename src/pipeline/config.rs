@@ -251,6 +251,9 @@ pub struct PipelineConfig {
     /// topic's name): which part of its CameraInfo describes it.
     pub image_kinds: Vec<ImageKind>,
     pub info_topics: Vec<String>,
+    /// `image_transport: compressed`: the images come as `sensor_msgs/CompressedImage` on
+    /// [`PipelineConfig::compressed_topics`] (image_transport's `compressed` plugin).
+    pub compressed_inputs: bool,
     /// The first reference's output topics (`references[0].1`).
     pub outputs: OutputTopics,
     pub tf_static_topic: String,
@@ -267,6 +270,26 @@ pub struct PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// Per camera, its compressed image topic: `<image topic>/compressed`, as image_transport
+    /// names it (after the remapping of the image topic).
+    pub fn compressed_topics(&self) -> Vec<String> {
+        self.image_topics
+            .iter()
+            .map(|t| format!("{t}/compressed"))
+            .collect()
+    }
+
+    /// Camera `i`'s image topic as subscribed: `<image topic>/compressed` with
+    /// `image_transport: compressed`, else the image topic.
+    pub fn input_image_topic(&self, i: usize) -> String {
+        let topic = self.image_topics.get(i).cloned().unwrap_or_default();
+        if self.compressed_inputs {
+            format!("{topic}/compressed")
+        } else {
+            topic
+        }
+    }
+
     /// The `device` parameter: which engine runs the sweep (checked against its range when
     /// the parameters were read; `auto` if it were ever unreadable).
     pub fn device(&self) -> crate::engine::Device {
@@ -441,6 +464,7 @@ impl PipelineConfig {
             image_topics,
             image_kinds,
             info_topics,
+            compressed_inputs: params.get_str("image_transport")? == "compressed",
             outputs,
             tf_static_topic,
             rig_file,

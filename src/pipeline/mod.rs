@@ -19,6 +19,7 @@
 //! [`EngineHost`] ([`convert`] into the engine's images, the sweep, the output messages).
 
 pub mod calibration;
+pub mod compressed;
 pub mod config;
 pub mod convert;
 pub mod depth_in;
@@ -28,6 +29,7 @@ pub mod fusion_worker;
 pub mod outcome;
 pub mod outputs;
 mod roster;
+pub mod why;
 mod world;
 
 pub use calibration::intrinsics_info;
@@ -43,6 +45,7 @@ pub use outcome::{
     SyncVerdict,
 };
 pub use outputs::{process_job, FrameOutputs, SetOutputs};
+pub use why::{Asked, Publishers, Why, WhyKind};
 
 use crate::msgs::{Image, Time};
 use crate::ros::sync::{time_to_ns, Admission, Discarded, SyncError, Synchronizer};
@@ -63,6 +66,8 @@ pub struct Pipeline<'a> {
     /// the cameras in the rig, the newest `queue_size` of each camera, for the synchroniser
     /// once sets can be formed again (the camera that comes back costs no set).
     held: Vec<(usize, Image)>,
+    /// What came in and what it gave, for [`Pipeline::why_no_depth`].
+    seen: why::Seen,
 }
 
 impl<'a> Pipeline<'a> {
@@ -79,6 +84,7 @@ impl<'a> Pipeline<'a> {
             ),
             sync: config.synchronizer(n)?,
             held: Vec::new(),
+            seen: why::Seen::new(n),
         })
     }
 
@@ -94,6 +100,31 @@ impl<'a> Pipeline<'a> {
     /// One input message, received at `now_ns` (any monotonic clock in nanoseconds: receive
     /// time live, log time in a bag; it times camera dropout).
     pub fn push(&mut self, input: Input, now_ns: u64) -> Outcome {
+        match &input {
+            Input::Image { camera, image } => self.seen.image(*camera, image, now_ns),
+            Input::CameraInfo { camera, .. } => self.seen.info(*camera),
+            Input::TfStatic(_) => self.seen.tf_static(),
+            Input::Tf(_) => self.seen.tf(),
+        }
+        let outcome = self.push_input(input, now_ns);
+        self.seen.outcome(&outcome, now_ns);
+        outcome
+    }
+
+    /// Why no depth comes out, as of `asked` (the first thing a set is missing; None when
+    /// sets are ready for the engine): `peers` says what DDS discovery knows of an input
+    /// topic's publishers ([`Publishers::Unknown`] without DDS).
+    pub fn why_no_depth(&self, asked: Asked, peers: &dyn Fn(&str) -> Publishers) -> Option<Why> {
+        self.seen.diagnose(
+            self.config,
+            self.calibration.tf(),
+            self.waiting_for_pose(),
+            asked,
+            peers,
+        )
+    }
+
+    fn push_input(&mut self, input: Input, now_ns: u64) -> Outcome {
         let n = self.config.cameras.len();
         let out_of_range = |what: &str, camera: usize| {
             Outcome::notice(
@@ -189,6 +220,12 @@ impl<'a> Pipeline<'a> {
 
     /// End of input (the end of a bag): the sets the synchroniser still held back.
     pub fn finish(&mut self) -> Outcome {
+        let outcome = self.finish_input();
+        self.seen.outcome(&outcome, u64::MAX);
+        outcome
+    }
+
+    fn finish_input(&mut self) -> Outcome {
         if !self.roster.publishing() {
             let mut outcome = Outcome::default();
             self.posed(&mut outcome, u64::MAX, true);

@@ -86,6 +86,9 @@ pub enum SkipKind {
     RigFile,
     /// An image header the engine cannot take (encoding, size, step, data length).
     Image,
+    /// A compressed image that cannot be decoded: corrupt or truncated data, a format that
+    /// lies about the codec or the channels, a format not decoded here.
+    Decode,
     /// The cameras do not make a rig.
     Rig,
     /// The engine refused or failed.
@@ -107,6 +110,7 @@ impl SkipKind {
             SkipKind::FrameId => "frame_id",
             SkipKind::RigFile => "rig file",
             SkipKind::Image => "image",
+            SkipKind::Decode => "decode",
             SkipKind::Rig => "rig",
             SkipKind::Engine => "engine",
             SkipKind::GpuLost => "gpu lost",

@@ -227,8 +227,8 @@ pub fn fmin(a: f32, b: f32) -> f32 {
 }
 
 // The run-time dispatch to an AVX2 + FMA build of a loop, shared with `fusion/`: `crate::simd`.
-pub(crate) use crate::simd::vectorised_fn;
 pub use crate::simd::has_avx2_fma;
+pub(crate) use crate::simd::vectorised_fn;
 
 #[cfg(test)]
 mod tests {
