@@ -14,13 +14,13 @@
 mod common;
 
 use std::collections::HashMap;
-use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::dds::{self, NodeProcess, Peer, RigFeed};
+use common::mesh::{ply_vertices, SaveMesh};
 use common::netns::{in_private_netns, SecondHost};
-use ros2_client::{Name, ServiceMapping, ServiceTypeName};
+use glam::DVec3;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{
     DiagnosticArray, Header, Image, Quaternion, TFMessage, Time, Transform, TransformStamped,
@@ -92,20 +92,6 @@ fn node_args(kind: &str, args: Vec<String>) -> Vec<String> {
     all.extend(args);
     all
 }
-
-/// `sweepdepth/srv/SaveMesh` as a client sees it.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-struct SaveMeshRequest {
-    file_path: String,
-}
-impl ros2_client::Message for SaveMeshRequest {}
-
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-struct SaveMeshResponse {
-    success: bool,
-    message: String,
-}
-impl ros2_client::Message for SaveMeshResponse {}
 
 fn two_hosts() {
     let host_b = SecondHost::new(INNER);
@@ -272,7 +258,7 @@ fn two_hosts() {
         ("/fused/sweepdepth_fuse/save_mesh", &fused_ply, &mut fuse),
         ("/one/depth_one/save_mesh", &one_ply, &mut one),
     ] {
-        let answer = save_mesh(&mut peer, service, path, node);
+        let answer = SaveMesh::new(&mut peer, service).call(&path.display().to_string(), node);
         assert!(answer.success, "{service}: {answer:?}");
     }
     let fused_vertices = ply_vertices(&std::fs::read(&fused_ply).unwrap());
@@ -291,45 +277,10 @@ fn two_hosts() {
     assert!(near_one >= 0.95 && near_fused >= 0.95);
 }
 
-/// Calls `~/save_mesh`, sent again every 5 s until an answer comes (idempotent).
-fn save_mesh(
-    peer: &mut Peer,
-    service: &str,
-    path: &Path,
-    node: &mut NodeProcess,
-) -> SaveMeshResponse {
-    let qos = dds::reliable(1);
-    let client: ros2_client::Client<SaveMeshRequest, SaveMeshResponse> = peer
-        .node
-        .create_client(
-            ServiceMapping::Enhanced,
-            &Name::parse(service).unwrap(),
-            &ServiceTypeName::new("sweepdepth", "SaveMesh"),
-            qos.clone(),
-            qos,
-        )
-        .expect("save_mesh client");
-    let mut ids = Vec::new();
-    let mut sent = Instant::now() - Duration::from_secs(5);
-    dds::wait_for(format!("an answer from {service}"), node, || {
-        if sent.elapsed() >= Duration::from_secs(5) {
-            let request = SaveMeshRequest {
-                file_path: path.display().to_string(),
-            };
-            ids.push(client.send_request(request).expect("send the request"));
-            sent = Instant::now();
-        }
-        match client.receive_response() {
-            Ok(Some((rid, response))) if ids.contains(&rid) => Some(response),
-            _ => None,
-        }
-    })
-}
-
 /// The share of `points` with a point of `other` within `radius`.
-fn share_within(points: &[[f64; 3]], other: &[[f64; 3]], radius: f64) -> f64 {
-    let cell = |p: &[f64; 3]| p.map(|c| (c / radius).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<[f64; 3]>> = HashMap::new();
+fn share_within(points: &[DVec3], other: &[DVec3], radius: f64) -> f64 {
+    let cell = |p: &DVec3| p.to_array().map(|c| (c / radius).floor() as i64);
+    let mut grid: HashMap<[i64; 3], Vec<DVec3>> = HashMap::new();
     for p in other {
         grid.entry(cell(p)).or_default().push(*p);
     }
@@ -353,45 +304,4 @@ fn share_within(points: &[[f64; 3]], other: &[[f64; 3]], radius: f64) -> f64 {
         })
         .count();
     near as f64 / points.len().max(1) as f64
-}
-
-/// The vertices of a binary little-endian PLY from `sweepdepth::fusion::write_ply`.
-fn ply_vertices(ply: &[u8]) -> Vec<[f64; 3]> {
-    let end = ply
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .expect("a PLY header")
-        + 11;
-    let header = String::from_utf8_lossy(&ply[..end]);
-    let (mut count, mut size, mut in_vertex) = (0usize, 0usize, false);
-    for line in header.lines() {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        match words.as_slice() {
-            ["element", "vertex", n] => {
-                count = n.parse().unwrap();
-                in_vertex = true;
-            }
-            ["element", ..] => in_vertex = false,
-            ["property", kind, _] if in_vertex => {
-                size += match *kind {
-                    "float" | "int" | "uint" => 4,
-                    "uchar" | "char" => 1,
-                    "double" => 8,
-                    "short" | "ushort" => 2,
-                    other => panic!("PLY property type {other}"),
-                }
-            }
-            _ => {}
-        }
-    }
-    (0..count)
-        .map(|i| {
-            let at = end + i * size;
-            let f = |k: usize| {
-                let b = &ply[at + 4 * k..at + 4 * k + 4];
-                f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            };
-            [f(0), f(1), f(2)]
-        })
-        .collect()
 }

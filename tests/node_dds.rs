@@ -15,6 +15,7 @@ mod common;
 use std::time::Instant;
 
 use common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
+use common::mesh::{ply_vertices, SaveMesh};
 use common::netns::in_private_netns;
 use ros2_client::log::Log;
 use ros2_client::parameters::{Parameter, ParameterValue};
@@ -816,6 +817,35 @@ fn virtual_reference() {
 
 /// The rig's pose in "world" at `t`: along x at 0.3 m/s and forward at 0.1 m/s, turning about
 /// y at 0.1 rad/s from stamp_of(0) (tf2's interpolation is exact for it).
+/// `/tf`'s world -> rig at `t` ([`world_from_rig`]).
+fn tf_at(t: Time) -> sweepdepth::msgs::TFMessage {
+    use sweepdepth::msgs::{Header, Quaternion, TFMessage, Transform, TransformStamped, Vector3};
+    let pose = world_from_rig(t);
+    let (p, q) = (pose.translation, pose.rotation);
+    TFMessage {
+        transforms: vec![TransformStamped {
+            header: Header {
+                stamp: t,
+                frame_id: "world".into(),
+            },
+            child_frame_id: "rig".into(),
+            transform: Transform {
+                translation: Vector3 {
+                    x: p.x,
+                    y: p.y,
+                    z: p.z,
+                },
+                rotation: Quaternion {
+                    x: q.x,
+                    y: q.y,
+                    z: q.z,
+                    w: q.w,
+                },
+            },
+        }],
+    }
+}
+
 fn world_from_rig(t: Time) -> RigidTransform {
     let s = (nanos(t) - nanos(stamp_of(0))) as f64 * 1e-9;
     RigidTransform {
@@ -831,7 +861,7 @@ fn world_from_rig(t: Time) -> RigidTransform {
 /// /diagnostics) equals the true pose of its camera at the set's stamp within 1 mm and 0.05
 /// degrees.
 fn references_on_a_moving_rig() {
-    use sweepdepth::msgs::{Header, Quaternion, TFMessage, Transform, TransformStamped, Vector3};
+    use sweepdepth::msgs::TFMessage;
     let mut h = Harness::start(
         wall(),
         &[
@@ -848,32 +878,6 @@ fn references_on_a_moving_rig() {
     let cam2 = h.subscribe::<Image>("/cam2/depth/image", dds::IMAGE);
     let single = h.subscribe::<Image>("/depth/image", dds::IMAGE);
     let mut diagnostics = Diagnostics::new(&mut h.peer);
-    let tf_at = |t: Time| {
-        let pose = world_from_rig(t);
-        let (p, q) = (pose.translation, pose.rotation);
-        TFMessage {
-            transforms: vec![TransformStamped {
-                header: Header {
-                    stamp: t,
-                    frame_id: "world".into(),
-                },
-                child_frame_id: "rig".into(),
-                transform: Transform {
-                    translation: Vector3 {
-                        x: p.x,
-                        y: p.y,
-                        z: p.z,
-                    },
-                    rotation: Quaternion {
-                        x: q.x,
-                        y: q.y,
-                        z: q.z,
-                        w: q.w,
-                    },
-                },
-            }],
-        }
-    };
     let (mut got0, mut got2): (Vec<Image>, Vec<Image>) = (Vec::new(), Vec::new());
     let feed = &h.feed;
     let (stamp, _) = dds::feed_until(
@@ -924,28 +928,12 @@ fn references_on_a_moving_rig() {
     }
 }
 
-/// `sweepdepth/srv/SaveMesh` (msg/srv/SaveMesh.srv) as a client sees it.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-struct SaveMeshRequest {
-    file_path: String,
-}
-impl ros2_client::Message for SaveMeshRequest {}
-
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-struct SaveMeshResponse {
-    success: bool,
-    message: String,
-}
-impl ros2_client::Message for SaveMeshResponse {}
-
 /// `fusion:=true` on a moving rig (`world_frame:=world`, two references): the mesh's markers
 /// come on /mesh in `world`, and `~/save_mesh` writes a PLY whose vertices lie on the wall
 /// (2 m in front of the rig at the set's pose) within two voxels; a path in a folder that does
 /// not exist gives `success: false` and the reason.
 fn fuses_a_moving_rig() {
-    use sweepdepth::msgs::{
-        Header, Marker, MarkerArray, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
-    };
+    use sweepdepth::msgs::{Marker, MarkerArray, TFMessage};
     const VOXEL: f64 = 0.04;
     let mut h = Harness::start(
         wall(),
@@ -963,44 +951,7 @@ fn fuses_a_moving_rig() {
         .peer
         .publisher::<TFMessage>("/tf", dds::TF_MESSAGE, &dds::reliable(100));
     let mesh_sub = h.subscribe::<MarkerArray>("/mesh", ("visualization_msgs", "MarkerArray"));
-    let service_qos = dds::reliable(1);
-    let client: ros2_client::Client<SaveMeshRequest, SaveMeshResponse> = h
-        .peer
-        .node
-        .create_client(
-            ServiceMapping::Enhanced,
-            &Name::parse("/sweepdepth/save_mesh").unwrap(),
-            &ServiceTypeName::new("sweepdepth", "SaveMesh"),
-            service_qos.clone(),
-            service_qos,
-        )
-        .expect("save_mesh client");
-    let tf_at = |t: Time| {
-        let pose = world_from_rig(t);
-        let (p, q) = (pose.translation, pose.rotation);
-        TFMessage {
-            transforms: vec![TransformStamped {
-                header: Header {
-                    stamp: t,
-                    frame_id: "world".into(),
-                },
-                child_frame_id: "rig".into(),
-                transform: Transform {
-                    translation: Vector3 {
-                        x: p.x,
-                        y: p.y,
-                        z: p.z,
-                    },
-                    rotation: Quaternion {
-                        x: q.x,
-                        y: q.y,
-                        z: q.z,
-                        w: q.w,
-                    },
-                },
-            }],
-        }
-    };
+    let save_mesh = SaveMesh::new(&mut h.peer, "/sweepdepth/save_mesh");
     // One set is enough: its markers, in world.
     let mut markers: Vec<Marker> = Vec::new();
     let feed = &h.feed;
@@ -1049,25 +1000,7 @@ fn fuses_a_moving_rig() {
     let dir = std::env::temp_dir().join(format!("sweepdepth-mesh-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("map.ply");
-    let mut call = |file_path: String| -> SaveMeshResponse {
-        let mut ids = Vec::new();
-        let mut sent = Instant::now() - std::time::Duration::from_secs(5);
-        dds::wait_for("an answer from /sweepdepth/save_mesh", &mut h.node, || {
-            // Idempotent: sent again every 5 s until an answer comes (a response can be lost
-            // while the server's writer has not matched this client's reader).
-            if sent.elapsed() >= std::time::Duration::from_secs(5) {
-                let request = SaveMeshRequest {
-                    file_path: file_path.clone(),
-                };
-                ids.push(client.send_request(request).expect("send the request"));
-                sent = Instant::now();
-            }
-            match client.receive_response() {
-                Ok(Some((rid, response))) if ids.contains(&rid) => Some(response),
-                _ => None,
-            }
-        })
-    };
+    let mut call = |file_path: String| save_mesh.call(&file_path, &mut h.node);
     let answer = call(path.display().to_string());
     assert!(answer.success, "{answer:?}");
     assert!(answer.message.contains("triangles"), "{answer:?}");
@@ -1084,49 +1017,4 @@ fn fuses_a_moving_rig() {
     assert!(!refused.success, "{refused:?}");
     assert!(refused.message.contains("no/such/folder"), "{refused:?}");
     let _ = std::fs::remove_dir_all(&dir);
-}
-
-/// The vertices of a binary little-endian PLY written by `sweepdepth::fusion::write_ply`
-/// (x, y, z as float first in each vertex; the vertex size read from the header's properties).
-fn ply_vertices(ply: &[u8]) -> Vec<glam::DVec3> {
-    let end = ply
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .expect("a PLY header")
-        + 11;
-    let header = String::from_utf8_lossy(&ply[..end]);
-    let mut count = 0usize;
-    let mut size = 0usize;
-    let mut in_vertex = false;
-    for line in header.lines() {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        match words.as_slice() {
-            ["element", "vertex", n] => {
-                count = n.parse().unwrap();
-                in_vertex = true;
-            }
-            ["element", ..] => in_vertex = false,
-            ["property", kind, _] if in_vertex => {
-                size += match *kind {
-                    "float" | "int" | "uint" => 4,
-                    "uchar" | "char" => 1,
-                    "double" => 8,
-                    "short" | "ushort" => 2,
-                    other => panic!("PLY property type {other}"),
-                }
-            }
-            _ => {}
-        }
-    }
-    assert!(header.contains("binary_little_endian"), "{header}");
-    (0..count)
-        .map(|i| {
-            let at = end + i * size;
-            let f = |k: usize| {
-                let b = &ply[at + 4 * k..at + 4 * k + 4];
-                f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            };
-            glam::DVec3::new(f(0), f(1), f(2))
-        })
-        .collect()
 }

@@ -1,11 +1,12 @@
 //! Shared test helpers: one GPU context per test process, result comparison with images written
 //! on failure; and, as submodules, the DDS safety guard ([`netns`]), the DDS peer side of the
-//! node tests ([`dds`]), a Foxglove WebSocket client ([`foxglove`]), a bag player ([`player`]), the Python with the test tools ([`python`])
+//! node tests ([`dds`]), fusion's mesh service and PLY files ([`mesh`]), a Foxglove WebSocket client ([`foxglove`]), a bag player ([`player`]), the Python with the test tools ([`python`])
 //! and the shared datasets ([`shared_data`]). Each test binary uses a part of it.
 #![allow(dead_code)]
 
 pub mod dds;
 pub mod foxglove;
+pub mod mesh;
 pub mod netns;
 pub mod player;
 pub mod python;
