@@ -3,7 +3,6 @@
 //! event loop (on a `futures` executor that also drives the ros2-client spinner) beside the
 //! diagnostics thread until SIGINT/SIGTERM.
 
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::Instant;
 
@@ -18,6 +17,7 @@ use super::fusion::FusionNode;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
 use super::params::node_options;
+use super::shutdown;
 use super::why::{Discovery, NoDepth, Requested};
 use super::worker::{Outputs, Publishers};
 use super::{diag, NodeConfig, NodeError, Shared};
@@ -292,12 +292,7 @@ pub(super) fn run(
     // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
     // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
     // the node says it is up, so a signal sent as soon as it is up is never the default action.
-    let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
-    if let Err(e) = ctrlc::set_handler(move || {
-        let _ = signal_tx.unbounded_send(());
-    }) {
-        tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
-    }
+    let signals = shutdown::signals();
     log_info(&format!("node {} is up", pipeline.identity.fqn()));
 
     let started = Instant::now();
@@ -370,43 +365,22 @@ pub(super) fn run(
             | futures::future::Either::Right((futures::future::Either::Right((e, _)), _)) => e,
         }
     };
-    let stop = AtomicBool::new(false);
-    let outcome = std::thread::scope(|scope| {
-        let diag = std::thread::Builder::new()
-            .name("sweepdepth-diagnostics".into())
-            .spawn_scoped(scope, || {
-                diag::publish_loop(
-                    config,
-                    shared,
-                    diag_pub,
-                    fusion_worker.as_deref(),
-                    &mut no_depth,
-                    &stop,
-                )
-            })
-            .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
-        let outcome = futures::executor::block_on(async {
-            futures::pin_mut!(event_loop);
-            let stopped = signal_rx.next();
-            match futures::future::select(futures::future::select(&mut spin, event_loop), stopped)
-                .await
-            {
-                futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
-                    r.map_err(ros_err)
-                }
-                futures::future::Either::Left((futures::future::Either::Right((e, _)), _)) => {
-                    Err(e)
-                }
-                futures::future::Either::Right(_) => {
-                    log_info("shutting down (signal received)");
-                    Ok(())
-                }
-            }
-        });
-        stop.store(true, Ordering::Relaxed);
-        let _ = diag.join();
-        outcome
-    });
+    let outcome = shutdown::run_until_signal(
+        &mut spin,
+        event_loop,
+        signals,
+        "sweepdepth-diagnostics",
+        |stop| {
+            diag::publish_loop(
+                config,
+                shared,
+                diag_pub,
+                fusion_worker.as_deref(),
+                &mut no_depth,
+                stop,
+            )
+        },
+    );
     // The GPU thread (its run cancelled, its pending set abandoned) and the `/rosout` writer
     // go before the node and the participant.
     stop_worker();

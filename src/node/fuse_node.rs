@@ -11,7 +11,7 @@
 //! `max_blocks`, `mesh_rate`, `min_depth` and `max_depth` (the depths fused). It serves no
 //! parameter services (the depth node does).
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::Ordering;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -23,6 +23,7 @@ use super::diag::wall_time_now;
 use super::fusion::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
 use super::params::node_options;
+use super::shutdown;
 use super::NodeError;
 use crate::msgs::{
     CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
@@ -265,15 +266,9 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     }
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
-    let stop = AtomicBool::new(false);
     let mut events = futures::stream::select_all(streams);
     let mut spin = Box::pin(node.spinner().map_err(ros_err)?.spin());
-    let (signal_tx, mut signal_rx) = futures::channel::mpsc::unbounded::<()>();
-    if let Err(e) = ctrlc::set_handler(move || {
-        let _ = signal_tx.unbounded_send(());
-    }) {
-        tracing::warn!("no clean shutdown on SIGINT/SIGTERM: {e}");
-    }
+    let signals = shutdown::signals();
     log_info(&format!("fuse node {} is up", config.fqn));
 
     let sources = Mutex::new(DepthSources::new(
@@ -337,81 +332,62 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
             }
         }
     };
-    let outcome = std::thread::scope(|scope| {
-        let diag = std::thread::Builder::new()
-            .name("sweepdepth-fuse-diagnostics".into())
-            .spawn_scoped(scope, || {
-                let mut next = Instant::now();
-                while !stop.load(Ordering::Relaxed) {
-                    std::thread::sleep(Duration::from_millis(100));
-                    let _ = tick_tx.unbounded_send(());
-                    if Instant::now() < next {
-                        continue;
-                    }
-                    next += Duration::from_secs(1);
-                    let stats = worker.stats();
-                    let mut values = diagnostic_values(&stats);
-                    {
-                        let s = lock(&sources);
+    // The diagnostics thread also ticks the event loop, so that depth images waiting for /tf
+    // time out even when nothing else comes.
+    shutdown::run_until_signal(
+        &mut spin,
+        event_loop,
+        signals,
+        "sweepdepth-fuse-diagnostics",
+        |stop| {
+            let mut next = Instant::now();
+            while !stop.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(100));
+                let _ = tick_tx.unbounded_send(());
+                if Instant::now() < next {
+                    continue;
+                }
+                next += Duration::from_secs(1);
+                let stats = worker.stats();
+                let mut values = diagnostic_values(&stats);
+                {
+                    let s = lock(&sources);
+                    values.push(KeyValue {
+                        key: "depth images waiting for /tf".into(),
+                        value: s.waiting().to_string(),
+                    });
+                    for (reason, count) in &s.skipped {
                         values.push(KeyValue {
-                            key: "depth images waiting for /tf".into(),
-                            value: s.waiting().to_string(),
+                            key: format!("skipped: {reason}"),
+                            value: count.to_string(),
                         });
-                        for (reason, count) in &s.skipped {
-                            values.push(KeyValue {
-                                key: format!("skipped: {reason}"),
-                                value: count.to_string(),
-                            });
-                        }
                     }
-                    let level = if stats.integrated > 0 {
-                        DiagnosticStatus::OK
-                    } else {
-                        DiagnosticStatus::WARN
-                    };
-                    let message = if stats.integrated > 0 {
-                        format!("{} depth maps fused", stats.integrated)
-                    } else {
-                        "no depth fused yet".into()
-                    };
-                    let msg = DiagnosticArray {
-                        header: Header {
-                            stamp: wall_time_now(),
-                            frame_id: String::new(),
-                        },
-                        status: vec![DiagnosticStatus {
-                            level,
-                            name: format!("sweepdepth fuse: {}", config.fqn),
-                            message,
-                            hardware_id: String::new(),
-                            values,
-                        }],
-                    };
-                    let _ = diag_pub.publish(msg);
                 }
-            })
-            .map_err(|e| NodeError::Ros(format!("cannot start the diagnostics thread: {e}")))?;
-        let outcome = futures::executor::block_on(async {
-            futures::pin_mut!(event_loop);
-            let stopped = signal_rx.next();
-            match futures::future::select(futures::future::select(&mut spin, event_loop), stopped)
-                .await
-            {
-                futures::future::Either::Left((futures::future::Either::Left((r, _)), _)) => {
-                    r.map_err(ros_err)
-                }
-                futures::future::Either::Left((futures::future::Either::Right((e, _)), _)) => {
-                    Err(e)
-                }
-                futures::future::Either::Right(_) => {
-                    log_info("shutting down (signal received)");
-                    Ok(())
-                }
+                let level = if stats.integrated > 0 {
+                    DiagnosticStatus::OK
+                } else {
+                    DiagnosticStatus::WARN
+                };
+                let message = if stats.integrated > 0 {
+                    format!("{} depth maps fused", stats.integrated)
+                } else {
+                    "no depth fused yet".into()
+                };
+                let msg = DiagnosticArray {
+                    header: Header {
+                        stamp: wall_time_now(),
+                        frame_id: String::new(),
+                    },
+                    status: vec![DiagnosticStatus {
+                        level,
+                        name: format!("sweepdepth fuse: {}", config.fqn),
+                        message,
+                        hardware_id: String::new(),
+                        values,
+                    }],
+                };
+                let _ = diag_pub.publish(msg);
             }
-        });
-        stop.store(true, Ordering::Relaxed);
-        let _ = diag.join();
-        outcome
-    });
-    outcome
+        },
+    )
 }

@@ -32,6 +32,7 @@ mod fusion;
 mod log;
 pub mod param_services;
 pub mod params;
+mod shutdown;
 mod why;
 mod worker;
 
