@@ -1,6 +1,7 @@
-//! What a parameter is ([`ParamSpec`]: name, type, default, range, description, live or not),
-//! the checks of a value against it, and the one table of every parameter ([`param_table`]:
-//! the engine parameters of [`super::engine`], then the node parameters of [`super::node`]).
+//! What a parameter is ([`ParamSpec`]: name, type, default, range, description, live or not)
+//! and the checks of a value against it. The one table of every parameter (the engine
+//! parameters of [`super::engine`], then the node parameters of [`super::node`]) is
+//! [`super::table::param_table`].
 
 use super::ParamError;
 use crate::ros::args::{validate_topic_name, RosArgsError};

@@ -7,7 +7,7 @@
 //! A compressed image goes through the roster and the synchroniser as it came ([`carry`]: an
 //! [`Image`] whose `encoding` says it is carried, its bytes still compressed, no size yet), so
 //! images the synchroniser drops are never decoded. When a set is complete the calibration
-//! decodes its images ([`decode_set`]) in parallel across cameras (rayon), before anything
+//! decodes its images (`decode_set`) in parallel across cameras (rayon), before anything
 //! else looks at their sizes: on the thread that pushes inputs (the node's event loop, `bag`'s
 //! loop), never the engine's, and before the set can take another one's place in the node's
 //! queue for the engine. A set whose image cannot be decoded (corrupt or truncated data, a
