@@ -29,7 +29,6 @@
 use glam::{DMat3, DVec2, DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 
-use crate::geometry::pose::unit_quaternion;
 use crate::geometry::{CameraModel, Distortion, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::simd::vectorised_fn;
@@ -92,16 +91,7 @@ pub fn integrate_weighted(
     model: &CameraModel,
     world_from_cam: &RigidTransform,
 ) -> Result<IntegrationStats, FusionError> {
-    params.validate()?;
-    if (params.voxel_size_m - grid.voxel_size_m()).abs() > 1e-6 * grid.voxel_size_m() {
-        return Err(FusionError::VoxelSizeMismatch {
-            params_m: params.voxel_size_m,
-            grid_m: grid.voxel_size_m(),
-        });
-    }
-    model
-        .validate("fusion camera")
-        .map_err(|e| FusionError::Camera(e.to_string()))?;
+    let world_from_cam = super::check_view(grid, params, model, world_from_cam, "fusion camera")?;
     let (width, height) = (model.intrinsics.width_px, model.intrinsics.height_px);
     let size_error = |what, got_width, got_height| FusionError::ImageSize {
         what,
@@ -136,18 +126,6 @@ pub fn integrate_weighted(
             )));
         }
     }
-    let rotation = unit_quaternion(world_from_cam.rotation)
-        .map_err(|e| FusionError::Pose(format!("rotation: {e}")))?;
-    if !world_from_cam.translation.is_finite() {
-        return Err(FusionError::Pose(format!(
-            "translation {} is not finite",
-            world_from_cam.translation
-        )));
-    }
-    let world_from_cam = RigidTransform {
-        rotation,
-        translation: world_from_cam.translation,
-    };
     // Step 0: the valid depths and each pixel's observation weight, once per frame.
     let mut view = View::new(grid, params, depth, colour, model, &world_from_cam);
     if let Some(w) = weights {

@@ -138,6 +138,40 @@ impl FusionParams {
     }
 }
 
+/// The checks [`integrate()`] and [`raycast_depth`] make of a view before using it: the
+/// parameters, the grid's voxel size, the camera (`what` names it in the error) and its pose;
+/// returns the pose with its rotation normalised (tf2's tolerance).
+pub(crate) fn check_view(
+    grid: &VoxelBlockGrid,
+    params: &FusionParams,
+    model: &crate::geometry::CameraModel,
+    world_from_cam: &crate::geometry::RigidTransform,
+    what: &str,
+) -> Result<crate::geometry::RigidTransform, FusionError> {
+    params.validate()?;
+    if (params.voxel_size_m - grid.voxel_size_m()).abs() > 1e-6 * grid.voxel_size_m() {
+        return Err(FusionError::VoxelSizeMismatch {
+            params_m: params.voxel_size_m,
+            grid_m: grid.voxel_size_m(),
+        });
+    }
+    model
+        .validate(what)
+        .map_err(|e| FusionError::Camera(e.to_string()))?;
+    let rotation = crate::geometry::pose::unit_quaternion(world_from_cam.rotation)
+        .map_err(|e| FusionError::Pose(format!("rotation: {e}")))?;
+    if !world_from_cam.translation.is_finite() {
+        return Err(FusionError::Pose(format!(
+            "translation {} is not finite",
+            world_from_cam.translation
+        )));
+    }
+    Ok(crate::geometry::RigidTransform {
+        rotation,
+        translation: world_from_cam.translation,
+    })
+}
+
 /// Why a fusion step refused its input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FusionError {

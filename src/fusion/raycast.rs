@@ -14,7 +14,6 @@
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
-use crate::geometry::pose::unit_quaternion;
 use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::ImageF32;
 
@@ -36,28 +35,7 @@ pub fn raycast_depth(
     model: &CameraModel,
     world_from_cam: &RigidTransform,
 ) -> Result<ImageF32, FusionError> {
-    params.validate()?;
-    if (params.voxel_size_m - grid.voxel_size_m()).abs() > 1e-6 * grid.voxel_size_m() {
-        return Err(FusionError::VoxelSizeMismatch {
-            params_m: params.voxel_size_m,
-            grid_m: grid.voxel_size_m(),
-        });
-    }
-    model
-        .validate("ray-cast camera")
-        .map_err(|e| FusionError::Camera(e.to_string()))?;
-    let rotation = unit_quaternion(world_from_cam.rotation)
-        .map_err(|e| FusionError::Pose(format!("rotation: {e}")))?;
-    if !world_from_cam.translation.is_finite() {
-        return Err(FusionError::Pose(format!(
-            "translation {} is not finite",
-            world_from_cam.translation
-        )));
-    }
-    let world_from_cam = RigidTransform {
-        rotation,
-        translation: world_from_cam.translation,
-    };
+    let world_from_cam = super::check_view(grid, params, model, world_from_cam, "ray-cast camera")?;
     let (width, height) = (model.intrinsics.width_px, model.intrinsics.height_px);
     let caster = Caster {
         grid,
