@@ -11,6 +11,7 @@ use std::process::Command;
 use sweepdepth::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera};
 use sweepdepth::node::NodeConfig;
 use sweepdepth::params::{apply_to_sweep, ParamSet, ParamSource};
+use sweepdepth::pipeline::Output;
 use sweepdepth::rig_file::{load_rig_file, RigFile};
 use sweepdepth::ros::args::{parse_ros_args, NodeIdentity, DEFAULT_NODE_NAME};
 use sweepdepth::sweep::{Aggregation, PairSet, Scoring, SweepParams, WindowMode};
@@ -252,7 +253,7 @@ fn node_config_accepts_the_params_files() {
         ])
     );
     assert_eq!(four.info_topics[3], "/rig/cam3/camera_info");
-    assert_eq!(four.outputs.depth, "/rig/depth/image");
+    assert_eq!(four.outputs.depth(), "/rig/depth/image");
     assert_eq!(four.tf_static_topic, "/tf_static");
 
     let row = config(CAMERA_ROW, "/row");
@@ -264,17 +265,17 @@ fn node_config_accepts_the_params_files() {
     let surround = config(SURROUND, "/robot");
     let indices: Vec<usize> = surround.references.iter().map(|(i, _)| *i).collect();
     assert_eq!(indices, vec![0, 1, 2, 3, 4, 5]);
-    assert_eq!(surround.references[0].1.depth, "/robot/cam0/depth/image");
+    assert_eq!(surround.references[0].1.depth(), "/robot/cam0/depth/image");
     assert_eq!(
-        surround.references[5].1.depth_info,
-        "/robot/cam5/depth/camera_info"
+        surround.references[5].1.get(Output::DepthInfo),
+        Some("/robot/cam5/depth/camera_info")
     );
     assert_eq!(
-        surround.references[3].1.confidence,
-        "/robot/cam3/confidence/image"
+        surround.references[3].1.get(Output::Confidence),
+        Some("/robot/cam3/confidence/image")
     );
     assert_eq!(
-        surround.references[2].1.points.as_deref(),
+        surround.references[2].1.get(Output::Points),
         Some("/robot/cam2/points")
     );
     assert_eq!(surround.outputs, surround.references[0].1);
@@ -477,7 +478,10 @@ fn two_machines_params_split_the_references_and_feed_the_fuse_node() {
     let a = depth("depth_a");
     let b = depth("depth_b");
     let topics = |p: &sweepdepth::pipeline::PipelineConfig| -> Vec<String> {
-        p.references.iter().map(|(_, t)| t.depth.clone()).collect()
+        p.references
+            .iter()
+            .map(|(_, t)| t.depth().to_string())
+            .collect()
     };
     assert_eq!(
         topics(&a),

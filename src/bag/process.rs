@@ -13,17 +13,15 @@ use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
 use crate::pipeline::{Asked, Fuser, FusionInput, Publishers};
 use crate::pipeline::{
-    ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, OutputTopics, Pipeline,
-    PipelineConfig, Skip,
+    ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, Output, OutputTopics,
+    Pipeline, PipelineConfig, Skip,
 };
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
 use super::pace::{Pacer, ViewRate};
 use super::reader::TopicInfo;
 use super::report::BagReport;
-use super::schemas::{
-    CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, MARKER_ARRAY, POINT_CLOUD2, TF_MESSAGE,
-};
+use super::schemas::{CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, MARKER_ARRAY, TF_MESSAGE};
 use super::{writer, BagError, BagReader, BagWriter};
 
 /// `sweepdepth bag` arguments.
@@ -272,7 +270,7 @@ impl Sink<'_> {
         self.report.sets_found += 1;
         let t0 = Instant::now();
         // The live view always shows the point cloud.
-        let with_points = config.outputs.points.is_some() || self.viewer.is_some();
+        let with_points = config.outputs.get(Output::Points).is_some() || self.viewer.is_some();
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
             Ok(set) => {
@@ -329,13 +327,8 @@ fn write_outputs(
     log_time_ns: u64,
     out: &FrameOutputs,
 ) -> Result<(), BagError> {
-    writer.write_msg(&topics.depth, log_time_ns, &out.depth)?;
-    writer.write_msg(&topics.depth_info, log_time_ns, &out.depth_info)?;
-    writer.write_msg(&topics.confidence, log_time_ns, &out.confidence)?;
-    writer.write_msg(&topics.cost, log_time_ns, &out.cost)?;
-    writer.write_msg(&topics.selection, log_time_ns, &out.selection)?;
-    if let (Some(topic), Some(points)) = (&topics.points, &out.points) {
-        writer.write_msg(topic, log_time_ns, points)?;
+    for (topic, msg) in out.messages(topics) {
+        writer.write_msg(topic, log_time_ns, &msg)?;
     }
     Ok(())
 }
@@ -438,17 +431,8 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
     for (_, outputs) in &config.references {
-        for topic in [
-            &outputs.depth,
-            &outputs.confidence,
-            &outputs.cost,
-            &outputs.selection,
-        ] {
-            writer.add_topic(topic, IMAGE, None)?;
-        }
-        writer.add_topic(&outputs.depth_info, CAMERA_INFO, None)?;
-        if let Some(points) = &outputs.points {
-            writer.add_topic(points, POINT_CLOUD2, None)?;
+        for (spec, topic) in outputs.iter() {
+            writer.add_topic(topic, spec.msg_type.schema_name(), None)?;
         }
     }
     // Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with

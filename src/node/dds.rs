@@ -8,9 +8,7 @@ use std::time::Instant;
 
 use futures::StreamExt;
 use ros2_client::qos::{Durability, History, WhenFull};
-use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, NodeName, Publisher, QosProfile,
-};
+use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, QosProfile};
 
 use super::events::{Event, EventStream, LoopState};
 use super::fusion::FusionNode;
@@ -19,11 +17,11 @@ use super::param_services::ParamServices;
 use super::params::node_options;
 use super::shutdown;
 use super::why::{Discovery, NoDepth, Requested};
-use super::worker::{Outputs, Publishers};
+use super::worker::{OutputPublisher, Outputs, Publishers};
 use super::{diag, NodeConfig, NodeError, Shared};
-use crate::msgs::{CameraInfo, CompressedImage, DiagnosticArray, Image, PointCloud2, TFMessage};
+use crate::msgs::{CameraInfo, CompressedImage, DiagnosticArray, Image, TFMessage};
 use crate::pipeline::compressed::carry;
-use crate::pipeline::{ConfigError, Pipeline};
+use crate::pipeline::{ConfigError, MsgType, Pipeline};
 
 /// A ros2-client error, as it says it.
 fn ros_err(e: impl std::fmt::Debug) -> NodeError {
@@ -181,49 +179,39 @@ pub(super) fn run(
         None
     };
 
-    // One set of publishers per reference (`references`), in the configuration's order.
+    // One set of publishers per reference (`references`), in the configuration's order, one
+    // per published output of the list (`pipeline::OUTPUTS`).
     let mut reference_publishers = Vec::with_capacity(pipeline.references.len());
     for (_, outputs) in &pipeline.references {
-        let mut publisher = |name: &str| -> Result<Publisher<Image>, NodeError> {
-            let topic = node
-                .create_topic(&topic_name(name)?, image_type(), &output_qos)
-                .map_err(ros_err)?;
-            node.create_publisher::<Image>(&topic, Some(output_qos.clone()))
-                .map_err(ros_err)
+        let mut publishers = Publishers {
+            outputs: Vec::new(),
         };
-        let depth = publisher(&outputs.depth)?;
-        let confidence = publisher(&outputs.confidence)?;
-        let cost = publisher(&outputs.cost)?;
-        let selection = publisher(&outputs.selection)?;
-        let depth_info_topic = node
-            .create_topic(&topic_name(&outputs.depth_info)?, info_type(), &output_qos)
-            .map_err(ros_err)?;
-        let depth_info = node
-            .create_publisher::<CameraInfo>(&depth_info_topic, Some(output_qos.clone()))
-            .map_err(ros_err)?;
-        let points = if let Some(points_topic) = &outputs.points {
+        for (spec, name) in outputs.iter() {
+            let (package, type_name) = spec.msg_type.ros_name();
             let topic = node
                 .create_topic(
-                    &topic_name(points_topic)?,
-                    MessageTypeName::new("sensor_msgs", "PointCloud2"),
+                    &topic_name(name)?,
+                    MessageTypeName::new(package, type_name),
                     &output_qos,
                 )
                 .map_err(ros_err)?;
-            Some(
-                node.create_publisher::<PointCloud2>(&topic, Some(output_qos.clone()))
-                    .map_err(ros_err)?,
-            )
-        } else {
-            None
-        };
-        reference_publishers.push(Publishers {
-            points,
-            depth,
-            depth_info,
-            confidence,
-            cost,
-            selection,
-        });
+            let qos = Some(output_qos.clone());
+            let publisher = match spec.msg_type {
+                MsgType::Image => {
+                    OutputPublisher::Image(node.create_publisher(&topic, qos).map_err(ros_err)?)
+                }
+                MsgType::CameraInfo => OutputPublisher::CameraInfo(
+                    node.create_publisher(&topic, qos).map_err(ros_err)?,
+                ),
+                MsgType::PointCloud2 => OutputPublisher::PointCloud2(
+                    node.create_publisher(&topic, qos).map_err(ros_err)?,
+                ),
+            };
+            publishers
+                .outputs
+                .push((spec.output, name.to_string(), publisher));
+        }
+        reference_publishers.push(publishers);
     }
     let diag_qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)

@@ -101,9 +101,10 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let live = LiveParams::new(
         pipeline.params.clone(),
         pipeline.sweep.clone(),
-        pipeline.cameras.len(),
-        pipeline.reference,
-        pipeline.virtual_ref.is_some(),
+        crate::sweep::RigShape {
+            cameras: pipeline.cameras.len(),
+            real_reference: pipeline.virtual_ref.is_none(),
+        },
     );
     let stats = Arc::new(Mutex::new(Stats::new(pipeline.cameras.len())));
     let cancel = CancelFlag::new();

@@ -475,7 +475,14 @@ mod tests {
         .unwrap();
         let mut sweep = SweepParams::default();
         crate::params::apply_to_sweep(&set, &mut sweep).unwrap();
-        Answers::new(LiveParams::new(set, sweep, 2, 1, false))
+        Answers::new(LiveParams::new(
+            set,
+            sweep,
+            crate::sweep::RigShape {
+                cameras: 2,
+                real_reference: true,
+            },
+        ))
     }
 
     fn describe(a: &Answers, name: &str) -> raw::ParameterDescriptor {

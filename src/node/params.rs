@@ -8,10 +8,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use ros2_client::parameters::ParameterValue as RosValue;
 use ros2_client::NodeOptions;
 
-use crate::geometry::Rig;
-use crate::params::checks::{check_change, shape_rig};
+use crate::params::checks::check_change;
 use crate::params::{ParamError, ParamSet, ParamValue};
-use crate::sweep::SweepParams;
+use crate::sweep::{RigShape, SweepParams};
 
 /// Why a parameter set is refused (the parameter service answers with its message).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -67,9 +66,9 @@ pub fn from_ros(value: &RosValue) -> Result<ParamValue, UnsupportedValue> {
 pub struct LiveParams {
     params: Mutex<ParamSet>,
     sweep: Mutex<SweepParams>,
-    /// A stand-in rig with the node's number of cameras and reference, for the checks of
+    /// The rig's shape (its number of cameras, its kind of reference), for the checks of
     /// [`SweepParams::validate`] that depend on the rig's structure (not its calibration).
-    shape: Option<Rig>,
+    shape: RigShape,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -77,16 +76,8 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl LiveParams {
-    /// `cameras` cameras, the reference at index `reference` (or a virtual reference when
-    /// `virtual_reference`).
-    pub fn new(
-        params: ParamSet,
-        sweep: SweepParams,
-        cameras: usize,
-        reference: usize,
-        virtual_reference: bool,
-    ) -> Arc<Self> {
-        let shape = shape_rig(cameras, reference, virtual_reference);
+    /// A node whose rig has `shape` (its number of cameras, its kind of reference).
+    pub fn new(params: ParamSet, sweep: SweepParams, shape: RigShape) -> Arc<Self> {
         Arc::new(Self {
             params: Mutex::new(params),
             sweep: Mutex::new(sweep),
@@ -118,7 +109,7 @@ impl LiveParams {
         Ok(check_change(
             &self.params(),
             &self.sweep(),
-            self.shape.as_ref(),
+            Some(self.shape),
             name,
             &value,
         )?)
@@ -151,7 +142,7 @@ impl LiveParams {
         for (name, value) in changes {
             let before = params.get(name).cloned();
             let value = from_ros(value)?;
-            (params, sweep) = check_change(&params, &sweep, self.shape.as_ref(), name, &value)?;
+            (params, sweep) = check_change(&params, &sweep, Some(self.shape), name, &value)?;
             changed.push(params.get(name) != before.as_ref());
         }
         *current = params;
@@ -173,6 +164,13 @@ pub(super) fn node_options() -> NodeOptions {
 mod tests {
     use super::*;
 
+    fn shape(cameras: usize, real_reference: bool) -> RigShape {
+        RigShape {
+            cameras,
+            real_reference,
+        }
+    }
+
     fn live() -> Arc<LiveParams> {
         let mut set = ParamSet::defaults();
         set.set(
@@ -182,7 +180,7 @@ mod tests {
         .unwrap();
         let mut sweep = SweepParams::default();
         crate::params::apply_to_sweep(&set, &mut sweep).unwrap();
-        LiveParams::new(set, sweep, 2, 1, false)
+        LiveParams::new(set, sweep, shape(2, true))
     }
 
     #[test]
@@ -279,7 +277,7 @@ mod tests {
         }
         let mut sweep = SweepParams::default();
         crate::params::apply_to_sweep(&params, &mut sweep).unwrap();
-        LiveParams::new(params, sweep, cameras, cameras / 2, false)
+        LiveParams::new(params, sweep, shape(cameras, true))
     }
 
     #[test]
@@ -387,7 +385,7 @@ mod tests {
         set.set("pairs", &ParamValue::String("all".into())).unwrap();
         let mut sweep = SweepParams::default();
         crate::params::apply_to_sweep(&set, &mut sweep).unwrap();
-        let l = LiveParams::new(set, sweep, 3, 1, true);
+        let l = LiveParams::new(set, sweep, shape(3, false));
         let e = l
             .check("pairs", &RosValue::String("reference".into()))
             .unwrap_err()

@@ -13,18 +13,38 @@ use super::params::LiveParams;
 use super::NodeError;
 use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
-use crate::pipeline::{EngineHost, FrameOutputs, FusionInput, FusionWorker, HostError, Job};
+use crate::pipeline::{
+    EngineHost, FrameOutputs, FusionInput, FusionWorker, HostError, Job, Output, OutputMsg,
+};
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
 
-/// The publishers of one set's outputs (made once DDS is up, then handed to the thread).
+/// One output's publisher, of its message type (`pipeline::OUTPUTS`).
+pub(super) enum OutputPublisher {
+    Image(Publisher<Image>),
+    CameraInfo(Publisher<CameraInfo>),
+    PointCloud2(Publisher<PointCloud2>),
+}
+
+impl OutputPublisher {
+    fn publish(&self, msg: OutputMsg) -> Result<(), String> {
+        match (self, msg) {
+            (Self::Image(p), OutputMsg::Image(m)) => p.publish(m).map_err(|e| format!("{e:?}")),
+            (Self::CameraInfo(p), OutputMsg::CameraInfo(m)) => {
+                p.publish(*m).map_err(|e| format!("{e:?}"))
+            }
+            (Self::PointCloud2(p), OutputMsg::PointCloud2(m)) => {
+                p.publish(m).map_err(|e| format!("{e:?}"))
+            }
+            _ => Err("a message of another type than its topic's".into()),
+        }
+    }
+}
+
+/// The publishers of one reference's outputs (made once DDS is up, then handed to the
+/// thread), one per published output of the list, with its topic.
 pub(super) struct Publishers {
-    pub depth: Publisher<Image>,
-    pub depth_info: Publisher<CameraInfo>,
-    pub confidence: Publisher<Image>,
-    pub cost: Publisher<Image>,
-    pub selection: Publisher<Image>,
-    pub points: Option<Publisher<PointCloud2>>,
+    pub outputs: Vec<(Output, String, OutputPublisher)>,
 }
 
 /// What the GPU thread hands its outputs to: each reference's publishers (in the
@@ -102,7 +122,9 @@ fn worker_loop(
     let publishers = &outputs.references;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
-    let wants_points = publishers.iter().any(|p| p.points.is_some());
+    let wants_points = publishers
+        .iter()
+        .any(|p| p.outputs.iter().any(|(o, ..)| *o == Output::Points));
     while let Some(job) = slot.take() {
         let started = Instant::now();
         if let Some(image) = job.images.get(job.reference) {
@@ -199,39 +221,13 @@ fn worker_loop(
 
 /// Publishes one reference's outputs on its publishers.
 fn publish(publishers: &Publishers, out: FrameOutputs, log: &mut RateLimited) {
-    let points = match (&publishers.points, out.points) {
-        (Some(publisher), Some(cloud)) => Some(
-            publisher
-                .publish(cloud)
-                .map_err(|e| format!("points: {e:?}")),
-        ),
-        _ => None,
-    };
-    let results = [
-        publishers
-            .depth
-            .publish(out.depth)
-            .map_err(|e| format!("depth/image: {e:?}")),
-        publishers
-            .depth_info
-            .publish(out.depth_info)
-            .map_err(|e| format!("depth/camera_info: {e:?}")),
-        publishers
-            .confidence
-            .publish(out.confidence)
-            .map_err(|e| format!("confidence/image: {e:?}")),
-        publishers
-            .cost
-            .publish(out.cost)
-            .map_err(|e| format!("cost/image: {e:?}")),
-        publishers
-            .selection
-            .publish(out.selection)
-            .map_err(|e| format!("selection/image: {e:?}")),
-    ];
-    for r in results.into_iter().chain(points) {
-        if let Err(e) = r {
-            log.warn("publish", || format!("publish failed: {e}"));
+    for (output, msg) in out.into_messages() {
+        let Some((_, topic, publisher)) = publishers.outputs.iter().find(|(o, ..)| *o == output)
+        else {
+            continue;
+        };
+        if let Err(e) = publisher.publish(msg) {
+            log.warn("publish", || format!("publish failed: {topic}: {e}"));
         }
     }
 }

@@ -6,28 +6,8 @@ use super::engine::apply_to_sweep;
 use super::set::ParamSet;
 use super::table::{param_spec, validate};
 use super::ParamError;
-use crate::geometry::{CameraModel, Reference, Rig};
 use crate::ros::param_value::ParamValue;
-use crate::sweep::{PairSet, Scoring, SweepParams};
-
-/// A stand-in rig with `cameras` cameras and the node's kind of reference (camera `reference`,
-/// or a virtual camera there), for the structural checks of [`SweepParams::validate`].
-pub fn shape_rig(cameras: usize, reference: usize, virtual_reference: bool) -> Option<Rig> {
-    let model = CameraModel::pinhole(crate::synthetic::intrinsics(8, 8));
-    let rig = crate::synthetic::row_rig(cameras, 0.1, model, reference).ok()?;
-    if !virtual_reference {
-        return Some(rig);
-    }
-    let cam_from_rig = rig.ref_from_rig();
-    Rig::new(
-        rig.cameras,
-        Reference::Virtual {
-            model,
-            cam_from_rig,
-        },
-    )
-    .ok()
-}
+use crate::sweep::{PairSet, RigShape, Scoring, SweepParams};
 
 /// Camera pairs a score combines for `sweep` on a rig of `cameras` cameras (m of best n of m).
 fn pair_count(sweep: &SweepParams, cameras: usize) -> usize {
@@ -77,22 +57,19 @@ pub fn check_rig_consistency(
     Ok(())
 }
 
-/// The engine parameters of a node at start-up against its rig's shape (`shape`:
-/// [`shape_rig`]); `virtual_reference` says what the rig's reference is, for the message.
-pub fn check_start(
-    sweep: &SweepParams,
-    shape: &Rig,
-    virtual_reference: bool,
-) -> Result<(), ParamError> {
-    sweep.validate(shape).map_err(|e| ParamError::Engine {
-        context: if virtual_reference {
-            "virtual_reference: "
-        } else {
-            ""
-        },
-        message: e.to_string(),
-    })?;
-    check_rig_consistency(&SweepParams::default(), sweep, shape.cameras.len())
+/// The engine parameters of a node at start-up against its rig's shape.
+pub fn check_start(sweep: &SweepParams, shape: RigShape) -> Result<(), ParamError> {
+    sweep
+        .validate_shape(shape)
+        .map_err(|e| ParamError::Engine {
+            context: if !shape.real_reference {
+                "virtual_reference: "
+            } else {
+                ""
+            },
+            message: e.to_string(),
+        })?;
+    check_rig_consistency(&SweepParams::default(), sweep, shape.cameras)
 }
 
 /// The parameter set and engine parameters that setting `name` to `value` gives a running
@@ -103,7 +80,7 @@ pub fn check_start(
 pub fn check_change(
     current: &ParamSet,
     current_sweep: &SweepParams,
-    shape: Option<&Rig>,
+    shape: Option<RigShape>,
     name: &str,
     value: &ParamValue,
 ) -> Result<(ParamSet, SweepParams), ParamError> {
@@ -125,15 +102,15 @@ pub fn check_change(
             max: sweep.max_depth_m,
         });
     }
-    if let Some(rig) = shape {
-        sweep.validate(rig).map_err(|e| {
+    if let Some(shape) = shape {
+        sweep.validate_shape(shape).map_err(|e| {
             ParamError::Engine {
                 context: "",
                 message: e.to_string(),
             }
             .named(name)
         })?;
-        check_rig_consistency(current_sweep, &sweep, rig.cameras.len())
+        check_rig_consistency(current_sweep, &sweep, shape.cameras)
             .map_err(|e| ParamError::KeepCurrent(Box::new(e.named(name))))?;
     }
     Ok((params, sweep))

@@ -8,15 +8,16 @@ use std::time::Duration;
 
 use glam::{DQuat, DVec3};
 
+use super::output_list::OutputTopics;
 use crate::geometry::{GeometryError, PinholeIntrinsics, RigidTransform};
 use crate::msgs::Image;
-use crate::params::checks::{check_start, shape_rig};
+use crate::params::checks::check_start;
 use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
 use crate::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
 use crate::ros::camera_info::ImageKind;
 use crate::ros::sync::{ApproximateSync, ExactSync, SyncError, Synchronizer, TimeRules};
-use crate::sweep::SweepParams;
+use crate::sweep::{RigShape, SweepParams};
 
 /// Why a configuration cannot be made.
 #[derive(Debug, thiserror::Error)]
@@ -128,23 +129,6 @@ impl VirtualConfig {
     }
 }
 
-/// The fully qualified (remapped) names of the outputs of one frame set.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct OutputTopics {
-    /// `depth/image`: 32FC1, metres along the reference optical axis, NaN invalid.
-    pub depth: String,
-    /// `depth/camera_info`: the CameraInfo of the depth image.
-    pub depth_info: String,
-    /// `confidence/image`: 32FC1 in [0, 1].
-    pub confidence: String,
-    /// `cost/image`: 32FC1, the winning score.
-    pub cost: String,
-    /// `selection/image`: rgb8, the half-sequence selection (Fig. 7 colours).
-    pub selection: String,
-    /// `points`: a PointCloud2 of the valid depths, when `publish_points` is true.
-    pub points: Option<String>,
-}
-
 /// Live fusion (`fusion`): the grid's parameters, how often the mesh goes out and where.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FusionConfig {
@@ -179,14 +163,7 @@ fn output_topics(
             resolve(&format!("{}/{base}", prefix.trim_end_matches('/')))
         }
     };
-    Ok(OutputTopics {
-        depth: name("depth/image")?,
-        depth_info: name("depth/camera_info")?,
-        confidence: name("confidence/image")?,
-        cost: name("cost/image")?,
-        selection: name("selection/image")?,
-        points: if points { Some(name("points")?) } else { None },
-    })
+    Ok(OutputTopics::new(points, name)?)
 }
 
 /// Each camera's [`ImageKind`]: `image_kinds` (one entry per camera, `raw`, `rect` or `auto`),
@@ -449,9 +426,13 @@ impl PipelineConfig {
         };
         // The engine parameters against the rig's shape, before any frame arrives.
         let virtual_reference = virtual_ref.is_some();
-        if let Some(shape) = shape_rig(cameras.len(), reference, virtual_reference) {
-            check_start(&sweep, &shape, virtual_reference)?;
-        }
+        check_start(
+            &sweep,
+            RigShape {
+                cameras: cameras.len(),
+                real_reference: !virtual_reference,
+            },
+        )?;
         let config = Self {
             identity,
             sweep,
@@ -510,6 +491,7 @@ fn seconds_to_ns(seconds: f64) -> i64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pipeline::output_list::Output;
 
     fn args(v: &[&str]) -> Vec<String> {
         v.iter().map(|s| s.to_string()).collect()
@@ -536,10 +518,16 @@ mod tests {
             vec!["/rig/a/image_raw", "/other/image", "/rig/c/image_raw"]
         );
         assert_eq!(cfg.info_topics[0], "/rig/a/camera_info");
-        assert_eq!(cfg.outputs.depth, "/rig/depth/image");
-        assert_eq!(cfg.outputs.depth_info, "/rig/depth/camera_info");
-        assert_eq!(cfg.outputs.selection, "/rig/selection/image");
-        assert_eq!(cfg.outputs.points, None);
+        assert_eq!(cfg.outputs.depth(), "/rig/depth/image");
+        assert_eq!(
+            cfg.outputs.get(Output::DepthInfo),
+            Some("/rig/depth/camera_info")
+        );
+        assert_eq!(
+            cfg.outputs.get(Output::Selection),
+            Some("/rig/selection/image")
+        );
+        assert_eq!(cfg.outputs.get(Output::Points), None);
         assert_eq!(cfg.tf_static_topic, "/tf_static");
         assert_eq!(cfg.sync, SyncPolicy::Exact);
         assert_eq!(cfg.time_rules, TimeRules::default());
@@ -553,7 +541,7 @@ mod tests {
             "publish_points:=true",
         ]))
         .unwrap();
-        assert_eq!(with_points.outputs.points.as_deref(), Some("/rig/points"));
+        assert_eq!(with_points.outputs.get(Output::Points), Some("/rig/points"));
     }
 
     #[test]
@@ -616,7 +604,7 @@ mod tests {
         let one = with(&["-p", "references:=[c]"]).unwrap();
         assert_eq!(one.reference, 2);
         assert_eq!(one.references.len(), 1);
-        assert_eq!(one.outputs.depth, "/rig/depth/image");
+        assert_eq!(one.outputs.depth(), "/rig/depth/image");
         let none = with(&[]).unwrap();
         assert_eq!(none.references, vec![(1, none.outputs.clone())]);
         assert!(none.world.is_none());
@@ -629,10 +617,16 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(two.reference, 2);
-        assert_eq!(two.references[0].1.depth, "/rig/c/depth/image");
-        assert_eq!(two.references[0].1.selection, "/rig/c/selection/image");
-        assert_eq!(two.references[1].1.depth, "/left_depth");
-        assert_eq!(two.references[1].1.depth_info, "/rig/a/depth/camera_info");
+        assert_eq!(two.references[0].1.depth(), "/rig/c/depth/image");
+        assert_eq!(
+            two.references[0].1.get(Output::Selection).unwrap(),
+            "/rig/c/selection/image"
+        );
+        assert_eq!(two.references[1].1.depth(), "/left_depth");
+        assert_eq!(
+            two.references[1].1.get(Output::DepthInfo),
+            Some("/rig/a/depth/camera_info")
+        );
         // Bad lists: clear errors at start.
         let e = with(&["-p", "references:=[a, d]"]).unwrap_err();
         assert!(e.to_string().contains("'d' is not one of cameras"), "{e}");

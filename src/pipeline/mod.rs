@@ -27,6 +27,7 @@ pub mod engine_host;
 pub mod fuse;
 pub mod fusion_worker;
 pub mod outcome;
+pub mod output_list;
 pub mod outputs;
 mod roster;
 pub mod why;
@@ -34,7 +35,7 @@ mod world;
 
 pub use calibration::intrinsics_info;
 pub use config::{
-    ConfigError, FusionConfig, OutputTopics, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
+    ConfigError, FusionConfig, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
 };
 pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
@@ -44,6 +45,7 @@ pub use outcome::{
     Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
     SyncVerdict,
 };
+pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
 pub use outputs::{process_job, FrameOutputs, SetOutputs};
 pub use why::{Asked, Publishers, Why, WhyKind};
 

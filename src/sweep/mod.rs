@@ -221,11 +221,34 @@ impl CancelFlag {
     }
 }
 
+/// What [`SweepParams::validate`] needs of a rig: how many cameras it has and whether its
+/// reference is one of them (a virtual reference has no image). The node checks its parameters
+/// against this before any camera is calibrated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RigShape {
+    pub cameras: usize,
+    pub real_reference: bool,
+}
+
+impl RigShape {
+    pub fn of(rig: &Rig) -> Self {
+        Self {
+            cameras: rig.cameras.len(),
+            real_reference: rig.reference_index().is_some(),
+        }
+    }
+}
+
 impl SweepParams {
     /// Checks ranges and the combination with the rig; every engine calls this first.
+    pub fn validate(&self, rig: &Rig) -> Result<(), SweepError> {
+        self.validate_shape(RigShape::of(rig))
+    }
+
+    /// [`SweepParams::validate`] against a rig's shape.
     // `!(x > 0.0)` on purpose: it also rejects NaN.
     #[allow(clippy::neg_cmp_op_on_partial_ord)]
-    pub fn validate(&self, rig: &Rig) -> Result<(), SweepError> {
+    pub fn validate_shape(&self, shape: RigShape) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
             return bad(format!("min_depth_m must be > 0, got {}", self.min_depth_m));
@@ -316,21 +339,21 @@ impl SweepParams {
             }
         }
         let pairs = self.effective_pairs();
-        if pairs == PairSet::Reference && rig.reference_index().is_none() {
+        if pairs == PairSet::Reference && !shape.real_reference {
             return bad(format!(
                 "scoring '{:?}' with reference pairs needs a real reference camera; a virtual reference has no image (use pairs = all)",
                 self.scoring
             ));
         }
-        if rig.cameras.len() > gpu_types::MAX_RIG_CAMERAS as usize {
+        if shape.cameras > gpu_types::MAX_RIG_CAMERAS as usize {
             return bad(format!(
                 "the engine supports at most {} cameras per rig, got {}",
                 gpu_types::MAX_RIG_CAMERAS,
-                rig.cameras.len()
+                shape.cameras
             ));
         }
         if self.aggregation == Aggregation::PerPair {
-            let n = rig.cameras.len();
+            let n = shape.cameras;
             let m = match pairs {
                 PairSet::Reference => n - 1,
                 PairSet::All => n * (n - 1) / 2,
@@ -342,11 +365,11 @@ impl SweepParams {
                 ));
             }
         }
-        if pairs == PairSet::All && rig.cameras.len() > gpu_types::MAX_CAMERAS as usize {
+        if pairs == PairSet::All && shape.cameras > gpu_types::MAX_CAMERAS as usize {
             return bad(format!(
                 "all-pairs scoring supports at most {} cameras, the rig has {}",
                 gpu_types::MAX_CAMERAS,
-                rig.cameras.len()
+                shape.cameras
             ));
         }
         Ok(())

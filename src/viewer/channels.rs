@@ -8,9 +8,9 @@ use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
 use serde::Serialize;
 
 use super::ViewerError;
-use crate::msgdefs::{self, CAMERA_INFO, IMAGE, POINT_CLOUD2};
+use crate::msgdefs;
 use crate::msgs::to_cdr;
-use crate::pipeline::{FrameOutputs, OutputTopics};
+use crate::pipeline::{FrameOutputs, Output, OutputTopics, OUTPUTS};
 
 /// The message encoding of every channel (the ROS 2 wire format).
 pub const MESSAGE_ENCODING: &str = "cdr";
@@ -20,23 +20,21 @@ pub const SCHEMA_ENCODING: &str = "ros2msg";
 /// The topic of the point cloud on the viewer: `points` beside `depth/image` when the node does
 /// not publish it over DDS (the viewer always shows it).
 pub fn points_topic(topics: &OutputTopics) -> String {
-    match &topics.points {
-        Some(points) => points.clone(),
+    match topics.get(Output::Points) {
+        Some(points) => points.to_string(),
         None => {
-            let base = topics.depth.strip_suffix("depth/image").unwrap_or("/");
-            format!("{base}points")
+            let base = topics
+                .depth()
+                .strip_suffix(Output::Depth.spec().name)
+                .unwrap_or("/");
+            format!("{base}{}", Output::Points.spec().name)
         }
     }
 }
 
-/// One channel per output.
+/// One channel per output of the list (`pipeline::OUTPUTS`), the point cloud always.
 pub(super) struct OutputChannels {
-    depth: Arc<RawChannel>,
-    depth_info: Arc<RawChannel>,
-    confidence: Arc<RawChannel>,
-    cost: Arc<RawChannel>,
-    selection: Arc<RawChannel>,
-    points: Arc<RawChannel>,
+    channels: Vec<(Output, Arc<RawChannel>)>,
 }
 
 pub(super) fn channel(
@@ -84,49 +82,40 @@ fn log<T: Serialize>(channel: &RawChannel, msg: &T, log_time_ns: u64) -> Result<
 
 impl OutputChannels {
     pub(super) fn new(context: &Arc<Context>, topics: &OutputTopics) -> Result<Self, ViewerError> {
-        Ok(Self {
-            depth: channel(context, &topics.depth, IMAGE)?,
-            depth_info: channel(context, &topics.depth_info, CAMERA_INFO)?,
-            confidence: channel(context, &topics.confidence, IMAGE)?,
-            cost: channel(context, &topics.cost, IMAGE)?,
-            selection: channel(context, &topics.selection, IMAGE)?,
-            points: channel(context, &points_topic(topics), POINT_CLOUD2)?,
-        })
+        let mut channels = Vec::with_capacity(OUTPUTS.len());
+        for spec in &OUTPUTS {
+            let topic = match topics.get(spec.output) {
+                Some(topic) => topic.to_string(),
+                None if spec.output == Output::Points => points_topic(topics),
+                None => continue,
+            };
+            channels.push((
+                spec.output,
+                channel(context, &topic, spec.msg_type.schema_name())?,
+            ));
+        }
+        Ok(Self { channels })
     }
 
     /// Whether any viewer subscribed to any of the channels.
     pub(super) fn has_subscribers(&self) -> bool {
-        self.all().iter().any(|c| c.has_sinks())
-    }
-
-    fn all(&self) -> [&Arc<RawChannel>; 6] {
-        [
-            &self.depth,
-            &self.depth_info,
-            &self.confidence,
-            &self.cost,
-            &self.selection,
-            &self.points,
-        ]
+        self.channels.iter().any(|(_, c)| c.has_sinks())
     }
 
     /// Logs one set's outputs to the subscribed viewers (`log_time_ns`: wall clock, when the
     /// engine gave them). Each queue is bounded: a viewer that does not keep up loses the
     /// oldest messages, the caller never waits for it.
     pub(super) fn log(&self, out: &FrameOutputs, log_time_ns: u64) -> Result<(), ViewerError> {
-        log(&self.depth, &out.depth, log_time_ns)?;
-        log(&self.depth_info, &out.depth_info, log_time_ns)?;
-        log(&self.confidence, &out.confidence, log_time_ns)?;
-        log(&self.cost, &out.cost, log_time_ns)?;
-        log(&self.selection, &out.selection, log_time_ns)?;
-        if let Some(points) = &out.points {
-            log(&self.points, points, log_time_ns)?;
+        for (output, channel) in &self.channels {
+            if let Some(msg) = out.message(*output) {
+                log(channel, &msg, log_time_ns)?;
+            }
         }
         Ok(())
     }
 
     pub(super) fn close(&self) {
-        for channel in self.all() {
+        for (_, channel) in &self.channels {
             channel.close();
         }
     }
