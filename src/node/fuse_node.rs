@@ -16,14 +16,17 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use futures::StreamExt;
-use ros2_client::qos::{Durability, History, WhenFull};
-use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, QosProfile};
+use ros2_client::qos::History;
+use ros2_client::{Context, ContextOptions, NodeName, QosProfile, Subscription};
 
 use super::diag::wall_time_now;
 use super::fusion::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
 use super::params::node_options;
 use super::shutdown;
+use super::topics::{
+    self, diagnostics_publisher, ros_err, subscribe, CAMERA_INFO, IMAGE, TF_MESSAGE,
+};
 use super::NodeError;
 use crate::msgs::{
     CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
@@ -134,17 +137,6 @@ struct TfMessageIn {
     is_static: bool,
 }
 
-fn ros_err(e: impl std::fmt::Debug) -> NodeError {
-    NodeError::Ros(format!("{e:?}"))
-}
-
-fn topic_name(name: &str) -> Result<Name, NodeError> {
-    Name::parse(name).map_err(|e| NodeError::Name {
-        name: name.to_string(),
-        reason: format!("{e:?}"),
-    })
-}
-
 /// Runs the fuse node until SIGINT/SIGTERM.
 pub fn run(args: &[String]) -> Result<(), NodeError> {
     let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
@@ -171,70 +163,26 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let info_qos = QosProfile::subscription_default()
         .reliability_best_effort()
         .history(History::KeepLast { depth: 5 });
-    let tf_qos = QosProfile::subscription_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .durability(Durability::Volatile)
-        .history(History::KeepLast { depth: 100 });
-    let tf_static_qos = QosProfile::subscription_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .durability(Durability::TransientLocal)
-        .history(History::KeepLast { depth: 1000 });
     let mut depth_subs = Vec::new();
     let mut info_subs = Vec::new();
     for (depth, info) in config.depth_topics.iter().zip(&config.info_topics) {
-        let topic = node
-            .create_topic(
-                &topic_name(depth)?,
-                MessageTypeName::new("sensor_msgs", "Image"),
-                &depth_qos,
-            )
-            .map_err(ros_err)?;
-        depth_subs.push(
-            node.create_subscription::<Image>(&topic, Some(depth_qos.clone()))
-                .map_err(ros_err)?,
-        );
-        let topic = node
-            .create_topic(
-                &topic_name(info)?,
-                MessageTypeName::new("sensor_msgs", "CameraInfo"),
-                &info_qos,
-            )
-            .map_err(ros_err)?;
-        info_subs.push(
-            node.create_subscription::<CameraInfo>(&topic, Some(info_qos.clone()))
-                .map_err(ros_err)?,
-        );
+        depth_subs.push(subscribe::<Image>(&mut node, depth, IMAGE, &depth_qos)?);
+        info_subs.push(subscribe::<CameraInfo>(
+            &mut node,
+            info,
+            CAMERA_INFO,
+            &info_qos,
+        )?);
     }
-    let tf_type = || MessageTypeName::new("tf2_msgs", "TFMessage");
-    let tf_topic = node
-        .create_topic(&topic_name(&config.tf_topic)?, tf_type(), &tf_qos)
-        .map_err(ros_err)?;
-    let tf_sub = node
-        .create_subscription::<TFMessage>(&tf_topic, Some(tf_qos.clone()))
-        .map_err(ros_err)?;
-    let tf_static_topic = node
-        .create_topic(
-            &topic_name(&config.tf_static_topic)?,
-            tf_type(),
-            &tf_static_qos,
-        )
-        .map_err(ros_err)?;
-    let tf_static_sub = node
-        .create_subscription::<TFMessage>(&tf_static_topic, Some(tf_static_qos.clone()))
-        .map_err(ros_err)?;
-    let diag_qos = QosProfile::publisher_default()
-        .reliability_reliable(WhenFull::DEFAULT)
-        .history(History::KeepLast { depth: 10 });
-    let diag_topic = node
-        .create_topic(
-            &topic_name(&config.diagnostics_topic)?,
-            MessageTypeName::new("diagnostic_msgs", "DiagnosticArray"),
-            &diag_qos,
-        )
-        .map_err(ros_err)?;
-    let diag_pub = node
-        .create_publisher::<DiagnosticArray>(&diag_topic, Some(diag_qos))
-        .map_err(ros_err)?;
+    let tf_sub: Subscription<TFMessage> =
+        subscribe(&mut node, &config.tf_topic, TF_MESSAGE, &topics::tf_qos())?;
+    let tf_static_sub: Subscription<TFMessage> = subscribe(
+        &mut node,
+        &config.tf_static_topic,
+        TF_MESSAGE,
+        &topics::tf_static_qos(),
+    )?;
+    let diag_pub = diagnostics_publisher(&mut node, &config.diagnostics_topic)?;
     let fusion = FusionNode::new(
         &mut node,
         &config.fqn,

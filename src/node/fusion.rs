@@ -13,6 +13,7 @@ use ros2_client::{MessageTypeName, Name, Node, QosProfile, ServiceMapping, Servi
 use serde::{Deserialize, Serialize};
 
 use super::log::{log_info, RateLimited};
+use super::topics::ros_err;
 use super::NodeError;
 use crate::msgs::{KeyValue, MarkerArray};
 use crate::pipeline::{FusionConfig, FusionStats, FusionWorker};
@@ -39,10 +40,6 @@ pub struct TriggerRequest {
     pub structure_needs_at_least_one_member: u8,
 }
 impl ros2_client::Message for TriggerRequest {}
-
-fn ros_err(e: impl std::fmt::Debug) -> NodeError {
-    NodeError::Ros(format!("{e:?}"))
-}
 
 /// The fusion thread with its publisher and services.
 pub(super) struct FusionNode {

@@ -29,10 +29,12 @@ pub mod diag;
 mod events;
 pub mod fuse_node;
 mod fusion;
+mod inputs;
 mod log;
 pub mod param_services;
 pub mod params;
 mod shutdown;
+mod topics;
 mod why;
 mod worker;
 
