@@ -54,9 +54,9 @@ def installed_executable():
         from ament_index_python.packages import get_package_prefix, get_package_share_directory
         share = get_package_share_directory('sweepdepth')
         prefix = get_package_prefix('sweepdepth')
-    except (ImportError, LookupError, ValueError):
-        # No ament_index_python (no ROS environment) or no installed sweepdepth package: the
-        # source tree. (PackageNotFoundError is a KeyError.)
+    except (ImportError, LookupError, OSError, ValueError):
+        # No ament_index_python, no AMENT_PREFIX_PATH (no ROS environment: an OSError) or no
+        # installed sweepdepth package (PackageNotFoundError, a KeyError): the source tree.
         return None
     here = os.path.dirname(os.path.realpath(__file__))
     if here != os.path.join(os.path.realpath(share), 'launch_configs'):

@@ -483,4 +483,21 @@ fn installed_launch_file_starts_the_installed_executable() {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     assert_eq!(v["cmd"][0], "sweepdepth");
+    // And with ament_index_python but no ROS environment at all (no AMENT_PREFIX_PATH, where
+    // ament_index_python raises an OSError), the source tree's launch file still loads.
+    let out = run_limited(
+        Command::new(&python)
+            .arg(&stubs)
+            .arg(&source)
+            .env_remove("AMENT_PREFIX_PATH")
+            .env("PYTHONDONTWRITEBYTECODE", "1"),
+        "the source tree's launch file without a ROS environment",
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(v["cmd"][0], "sweepdepth");
 }
