@@ -9,8 +9,10 @@
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
 #   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
 #   tests/bag.rs; `opencv-python-headless`, the camera-model reference of
-#   tests/camera_conventions.rs) and the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
-#   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python):
+#   tests/camera_conventions.rs), the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
+#   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python;
+#   ament_index_python) and colcon with colcon-ros-cargo and cargo-ament-build of
+#   tools/requirements-colcon.txt (the workspace build of tests/colcon.rs):
 #   the system Python when it already has them all, else a virtual environment at target/test-venv
 #   (Debian's Python refuses global pip installs) made from a Python 3.11, the only version the
 #   ROS wheels are built for. Pinned versions; nothing is installed when all is present.
@@ -46,7 +48,7 @@ command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>
     packages="$packages chromium"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || packages="$packages python3 python3-venv"
 
-PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg, visualization_msgs.msg, std_srvs.srv'
+PY_CHECK='import cyclonedds, rosbags, mcap, cv2, rclpy, sensor_msgs.msg, std_msgs.msg, rcl_interfaces.srv, diagnostic_msgs.msg, visualization_msgs.msg, std_srvs.srv, ament_index_python, colcon_core, colcon_ros, colcon_cargo, colcon_ros_cargo'
 # The ROS wheels are cp311 only: the venv needs a Python 3.11.
 python311() {
     for py in python3.11 python3; do
@@ -57,21 +59,25 @@ python311() {
     return 1
 }
 install_python_tools() {
-    python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
-    [ -x target/test-venv/bin/python3 ] &&
+    # cargo-ament-build is a program (its wheel puts it beside the venv's python): `cargo
+    # ament-build` finds it on PATH.
+    python3 -c "$PY_CHECK" >/dev/null 2>&1 && command -v cargo-ament-build >/dev/null 2>&1 &&
+        return 0
+    [ -x target/test-venv/bin/python3 ] && [ -x target/test-venv/bin/cargo-ament-build ] &&
         target/test-venv/bin/python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
     if ! py=$(python311); then
         echo "setup: the ROS 2 wheels (tools/requirements-ros.txt) need Python 3.11 (python3.11 or a python3 of that version); none found" >&2
         return 1
     fi
-    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless; rclpy and the ROS 2 Jazzy messages) into target/test-venv ..." >&2
+    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless; rclpy and the ROS 2 Jazzy messages; colcon, colcon-ros-cargo, cargo-ament-build) into target/test-venv ..." >&2
     if [ -x target/test-venv/bin/python3 ] &&
         ! target/test-venv/bin/python3 -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
         echo "setup: target/test-venv is not Python 3.11; making it anew" >&2
         rm -rf target/test-venv
     fi
     [ -x target/test-venv/bin/python3 ] || "$py" -m venv target/test-venv
-    target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt -r tools/requirements-ros.txt
+    target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt -r tools/requirements-ros.txt \
+        -r tools/requirements-colcon.txt
 }
 
 if [ -z "$packages" ]; then

@@ -4,6 +4,8 @@
 //! set: `references`) and the demo's Tsukuba set, each with
 //! winner-take-all and SGM; and the peer, OpenCV StereoSGBM 3-way on two Tsukuba views with 32
 //! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it.
+//! After the table, what decoding a 9-camera 640x480 JPEG set costs ([`decode`]), beside each
+//! engine's 9-camera set of the same run.
 //! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`.
 
 use std::path::{Path, PathBuf};
@@ -20,6 +22,7 @@ use crate::params::EngineOptions;
 use crate::sweep::{Cost, Optimizer, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
+pub mod decode;
 pub mod fusion;
 
 #[derive(Debug, clap::Args)]
@@ -528,10 +531,15 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             "config", "engine", "size", "settings", "wta ms", "sgm ms", "wta/peer", "sgm/peer",
         );
     }
+    // Each engine's 9-camera set, for the decode line.
+    let mut nine_camera: Vec<(String, Option<f64>, Option<f64>)> = Vec::new();
     for engine in &mut engines {
         for config in &configs {
             let result = run_config(engine, config, &args.params, repeats, peer_ms)
                 .with_context(|| format!("{} on {}", config.name, engine.label()))?;
+            if result.config == "9-camera" {
+                nine_camera.push((result.engine.clone(), result.wta_ms, result.sgm_ms));
+            }
             if args.json {
                 println!("{}", serde_json::to_string(&result)?);
                 continue;
@@ -565,6 +573,47 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 }
             );
         }
+    }
+    decode_line(args.json, repeats, &nine_camera)
+}
+
+/// The decode line: a 9-camera 640x480 JPEG set decoded as the pipeline does, and its share of
+/// each engine's 9-camera set (450x375, `9-camera` above) when that ran.
+fn decode_line(
+    json: bool,
+    repeats: usize,
+    nine_camera: &[(String, Option<f64>, Option<f64>)],
+) -> anyhow::Result<()> {
+    let result = decode::run(3 * repeats).context("the decode line")?;
+    if json {
+        println!("{}", serde_json::to_string(&result)?);
+        return Ok(());
+    }
+    println!(
+        "decode: {} x {}x{} JPEG (quality {}, {} KiB per set): {:.1} ms per set in parallel \
+         across cameras ({} threads), {:.1} ms per image on one thread (median of {})",
+        result.cameras,
+        result.width,
+        result.height,
+        result.jpeg_quality,
+        result.bytes_per_set / 1024,
+        result.set_ms,
+        result.threads,
+        result.image_ms,
+        result.runs
+    );
+    for (engine, wta, sgm) in nine_camera {
+        let share = |ms: Option<f64>| {
+            ms.map_or("n/a".to_string(), |ms| {
+                format!("{:.0} %", 100.0 * result.set_ms / ms)
+            })
+        };
+        println!(
+            "decode beside the 9-camera set (450x375x57) on {}: {} of its wta, {} of its sgm time",
+            truncate(engine, 44),
+            share(*wta),
+            share(*sgm)
+        );
     }
     Ok(())
 }

@@ -80,7 +80,13 @@ const NEVER: &[(&str, &[&str])] = &[
 ];
 
 /// The only files whose production code may use `anyhow` (errors printed at the command line).
-const ANYHOW_FILES: &[&str] = &["main.rs", "demo.rs", "bench.rs", "bench/fusion.rs"];
+const ANYHOW_FILES: &[&str] = &[
+    "main.rs",
+    "demo.rs",
+    "bench.rs",
+    "bench/fusion.rs",
+    "bench/decode.rs",
+];
 
 /// Files still above the limit, each being split by other work in progress (remove the entry
 /// when its split lands).

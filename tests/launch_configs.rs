@@ -335,69 +335,7 @@ fn launch_file_compiles() {
 
 /// Stand-ins for the `launch` classes the launch file uses (the real ones need a ROS 2
 /// install): they record their arguments, so the test can check the command line built.
-const LAUNCH_STUBS: &str = r#"
-import importlib.util, json, sys, types
-
-class Sub:
-    def __init__(self, kind, *args):
-        self.kind, self.args = kind, args
-    def render(self, defaults):
-        if self.kind == 'LaunchConfiguration':
-            return defaults[self.args[0]]
-        if self.kind == 'ThisLaunchFileDir':
-            return '<dir>'
-        if self.kind == 'PathJoinSubstitution':
-            return '/'.join(render(p, defaults) for p in self.args[0])
-        raise ValueError(self.kind)
-
-def render(value, defaults):
-    if isinstance(value, str):
-        return value
-    if isinstance(value, list):
-        return ''.join(render(v, defaults) for v in value)
-    return value.render(defaults)
-
-def sub(kind):
-    return lambda *args, **kwargs: Sub(kind, *args)
-
-class Declare:
-    def __init__(self, name, default_value=None, description='', choices=None):
-        self.name, self.default_value, self.choices = name, default_value, choices
-
-class Execute:
-    def __init__(self, cmd, **kwargs):
-        self.cmd, self.kwargs = cmd, kwargs
-
-class Description:
-    def __init__(self, entities):
-        self.entities = list(entities)
-
-launch = types.ModuleType('launch')
-launch.LaunchDescription = Description
-actions = types.ModuleType('launch.actions')
-actions.DeclareLaunchArgument = Declare
-actions.ExecuteProcess = Execute
-substitutions = types.ModuleType('launch.substitutions')
-for name in ['LaunchConfiguration', 'PathJoinSubstitution', 'ThisLaunchFileDir']:
-    setattr(substitutions, name, sub(name))
-sys.modules.update({'launch': launch, 'launch.actions': actions,
-                    'launch.substitutions': substitutions})
-
-spec = importlib.util.spec_from_file_location('sweepdepth_launch', sys.argv[1])
-module = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(module)
-ld = module.generate_launch_description()
-declared = [e for e in ld.entities if isinstance(e, Declare)]
-defaults = {d.name: render(d.default_value, {}) for d in declared}
-(process,) = [e for e in ld.entities if isinstance(e, Execute)]
-print(json.dumps({
-    'defaults': defaults,
-    'log_level_choices': [d.choices for d in declared if d.name == 'log_level'][0],
-    'cmd': [render(part, defaults) for part in process.cmd],
-    'cwd': render(process.kwargs.get('cwd'), defaults),
-    'kwargs': sorted(process.kwargs),
-}))
-"#;
+const LAUNCH_STUBS: &str = include_str!("fixtures/launch_stubs.py");
 
 #[test]
 fn launch_file_builds_the_node_command() {

@@ -7,7 +7,7 @@
 //! A compressed image goes through the roster and the synchroniser as it came ([`carry`]: an
 //! [`Image`] whose `encoding` says it is carried, its bytes still compressed, no size yet), so
 //! images the synchroniser drops are never decoded. When a set is complete the calibration
-//! decodes its images (`decode_set`) in parallel across cameras (rayon), before anything
+//! decodes its images ([`decode_set`]) in parallel across cameras (rayon), before anything
 //! else looks at their sizes: on the thread that pushes inputs (the node's event loop, `bag`'s
 //! loop), never the engine's, and before the set can take another one's place in the node's
 //! queue for the engine. A set whose image cannot be decoded (corrupt or truncated data, a
@@ -241,7 +241,7 @@ pub fn decode(camera: &str, image: &Image) -> Result<Image, DecodeError> {
 /// The images of a complete set with every carried compressed image decoded, in parallel
 /// across cameras; `name(k)` is the camera (index into the configuration's cameras, and its
 /// name) of message `k`. The first image that cannot be decoded skips the set.
-pub(super) fn decode_set<'n>(
+pub fn decode_set<'n>(
     set: SyncedSet<Image>,
     name: impl Fn(usize) -> (usize, &'n str) + Sync,
 ) -> Result<SyncedSet<Image>, Skip> {
