@@ -26,6 +26,7 @@ pub mod depth_in;
 pub mod engine_host;
 pub mod fuse;
 pub mod fusion_worker;
+pub mod out_messages;
 pub mod outcome;
 pub mod output_list;
 pub mod outputs;

@@ -1,7 +1,8 @@
 //! One job through the engine ([`process_job`]) and the messages it gives ([`FrameOutputs`]),
 //! all with the reference camera's header.
 
-use super::convert::{f32_image_msg, image_to_rgba8, point_cloud_msg, selection_msg};
+use super::convert::image_to_rgba8;
+use super::out_messages::{f32_image_msg, point_cloud_msg, selection_msg};
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
