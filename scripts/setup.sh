@@ -8,11 +8,11 @@
 #   loads the built-in live-view page (no browser download: the distribution's package);
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
 #   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
-#   tests/bag.rs; `opencv-python-headless`, the camera-model reference of
-#   tests/camera_conventions.rs), the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
+#   tests/bags/bag.rs; `opencv-python-headless`, the camera-model reference of
+#   tests/formats/camera_conventions.rs), the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
 #   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python;
 #   ament_index_python) and colcon with colcon-ros-cargo and cargo-ament-build of
-#   tools/requirements-colcon.txt (the workspace build of tests/colcon.rs):
+#   tools/requirements-colcon.txt (the workspace build of tests/house/colcon.rs):
 #   the system Python when it already has them all, else a virtual environment at target/test-venv
 #   (Debian's Python refuses global pip installs) made from a Python 3.11, the only version the
 #   ROS wheels are built for. Pinned versions; nothing is installed when all is present.

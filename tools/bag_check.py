@@ -8,7 +8,7 @@
   median), for CameraInfo size and K.
 - mcap (the reference reader of the MCAP format) lists the channels, schema names and message
   encodings of every MCAP file, and counts the messages.
-Used by tests/bag.rs; exits non-zero if either reader fails.
+Used by tests/bags/bag.rs; exits non-zero if either reader fails.
 """
 import json
 import math

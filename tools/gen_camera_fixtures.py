@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Camera-model fixtures for `tests/camera_conventions.rs`, from OpenCV and image_geometry.
+"""Camera-model fixtures for `tests/formats/camera_conventions.rs`, from OpenCV and image_geometry.
 
 Writes `tests/fixtures/camera/opencv.json`:
 

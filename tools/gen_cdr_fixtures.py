@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""Generate CDR oracle fixtures for `tests/msgs_cdr.rs`.
+"""Generate CDR oracle fixtures for `tests/formats/msgs_cdr.rs`.
 
 Each message below is serialised with rosbags' pure-Python ROS 2 Humble typestore and written
 to `tests/fixtures/cdr/<name>.bin` as the full serialized payload (4-byte encapsulation header
 `00 01 00 00` + little-endian CDR body), i.e. exactly what appears on the wire and in
 rosbag2 / MCAP.  The Rust test builds the same values by hand, so any change here must be
-mirrored in `tests/msgs_cdr.rs`.
+mirrored in `tests/formats/msgs_cdr.rs`.
 
 Usage (from the crate root):
 

@@ -10,7 +10,7 @@ default) with rosbags' writer: every `sensor_msgs/msg/Image` on `<topic>` become
 first and the format written as `<encoding>; jpeg compressed bgr8`, mono8 as
 `mono8; jpeg compressed mono8`); every other message (camera_info, /tf_static) is copied as it
 is, with the same receive times. Prints one line per compressed topic. Used by
-tests/bag_compressed.rs (rosbags 0.11.9, opencv-python-headless of requirements-test.txt).
+tests/bags/bag_compressed.rs (rosbags 0.11.9, opencv-python-headless of requirements-test.txt).
 """
 import sys
 from pathlib import Path

@@ -9,7 +9,7 @@ Writes three rosbag2 directories under OUTDIR, each with every connection and me
   OUTDIR/sqlite3       storage sqlite3 (Humble's default)
   OUTDIR/sqlite3_zstd  storage sqlite3, zstd compression per message
   OUTDIR/sqlite3_zstd_file  storage sqlite3, the whole file zstd-compressed
-Used by tests/bag.rs (rosbags 0.11.9).
+Used by tests/bags/bag.rs (rosbags 0.11.9).
 """
 import sys
 from pathlib import Path

@@ -8,15 +8,15 @@
 //!
 //! The build reuses the suite's own compiled crate: `CARGO_BUILD_BUILD_DIR` (cargo's
 //! `build.build-dir`, where the intermediate artifacts live) is the target directory this test
-//! was built in, with the same profile and the same features (`--cargo-args --test colcon`), so
+//! was built in, with the same profile and the same features (`--cargo-args --test house`, this test binary), so
 //! the `cargo build` under colcon finds every unit fresh and only copies the executable out (the
 //! workspace's `build/sweepdepth` is cargo's `--target-dir`, as colcon-ros-cargo sets it). The
 //! installed executable is the suite's own, byte for byte. Not a ROS install: `ament_index_python` is the Jazzy wheel of
 //! `tools/requirements-ros.txt`; no DDS is opened (`bag` reads and writes files).
 
-#[path = "common/python.rs"]
+#[path = "../common/python.rs"]
 mod python;
-#[path = "common/timeout.rs"]
+#[path = "../common/timeout.rs"]
 mod timeout;
 
 use std::path::{Path, PathBuf};
@@ -200,12 +200,12 @@ fn build_workspace() -> Workspace {
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("AMENT_PREFIX_PATH")
         .env_remove("COLCON_PREFIX_PATH");
-    // `--test colcon`: the features as `cargo test` resolved them (dev-dependencies on, which
+    // `--test <this test binary>`: the features as `cargo test` resolved them (dev-dependencies on, which
     // changes some dependencies' features), so that every unit, the executable included, is the
     // one this test binary was built with; a plain `cargo build` would build sweepdepth's library
     // and executable again. (colcon passes `--cargo-args` on to `cargo ament-build -- ...`, that
     // to `cargo build`; a leading space keeps colcon's parser from taking them for its own.)
-    cmd.args(["--cargo-args", " --test", "colcon"]);
+    cmd.args(["--cargo-args", " --test", env!("CARGO_CRATE_NAME")]);
     if profile == "release" {
         cmd.arg(" --release");
     }

@@ -7,8 +7,7 @@
 //! and a corrupt JPEG is processed, the other topics named once and the bad set counted by its
 //! reason.
 
-#[path = "common/python.rs"]
-mod python;
+use crate::common::python;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};

@@ -872,6 +872,6 @@ fn readme_links_the_node_page_whose_parameter_section_is_the_generated_table() {
     assert_eq!(
         &page[start..end],
         table,
-        "docs/node.md's parameter table is stale: run `SWEEPDEPTH_WRITE_DOCS=1 cargo test --test ros_args readme` to regenerate it"
+        "docs/node.md's parameter table is stale: run `SWEEPDEPTH_WRITE_DOCS=1 cargo test --test formats readme` to regenerate it"
     );
 }

@@ -4,7 +4,7 @@
 //! shares the first one's frame. The kind is what the user declares (the topic's name or
 //! `image_kinds`), never guessed from D.
 
-mod common;
+use crate::common;
 
 use glam::{DQuat, DVec2, DVec3};
 use sweepdepth::geometry::{

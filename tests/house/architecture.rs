@@ -552,7 +552,7 @@ fn every_folder_and_file_has_a_place() {
     assert!(
         unplaced.is_empty(),
         "every folder and top-level file of src/ needs exactly one place in LAYERS (or ROOTS) of \
-         tests/architecture.rs: {unplaced:?}"
+         tests/house/architecture.rs: {unplaced:?}"
     );
     let stale: Vec<&str> = LAYERS
         .iter()

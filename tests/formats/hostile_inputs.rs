@@ -5,7 +5,7 @@
 
 /// A camera that leaves and comes back costs no set (issue 32, item 0), in this binary
 /// rather than one of its own.
-#[path = "rejoin/camera_rejoin.rs"]
+#[path = "../rejoin/camera_rejoin.rs"]
 mod camera_rejoin;
 
 use sweepdepth::msgs::{CameraInfo, Header, Image, RegionOfInterest, Time};

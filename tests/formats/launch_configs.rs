@@ -335,7 +335,7 @@ fn launch_file_compiles() {
 
 /// Stand-ins for the `launch` classes the launch file uses (the real ones need a ROS 2
 /// install): they record their arguments, so the test can check the command line built.
-const LAUNCH_STUBS: &str = include_str!("fixtures/launch_stubs.py");
+const LAUNCH_STUBS: &str = include_str!("../fixtures/launch_stubs.py");
 
 #[test]
 fn launch_file_builds_the_node_command() {

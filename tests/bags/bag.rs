@@ -4,7 +4,7 @@
 //! truth and read back by independent readers (Python rosbags and mcap), and bags written by an
 //! independent writer (rosbags: MCAP, sqlite3, sqlite3 with zstd per message or per file).
 
-mod common;
+use crate::common;
 
 use common::python;
 
