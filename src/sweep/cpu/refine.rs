@@ -191,3 +191,63 @@ pub fn run(
             }
         });
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+    use crate::sweep::SweepParams;
+    use crate::synthetic;
+
+    #[test]
+    fn parabola_by_hand() {
+        // Scores 2, 1, 2: the minimum at the middle; 3, 1, 2: a third of the way to `after`.
+        assert_eq!(parabola(2.0, 1.0, 2.0), 0.0);
+        assert!((parabola(3.0, 1.0, 2.0) - 1.0 / 6.0).abs() < 1e-6);
+        // No upward curvature: no offset; a steep rise on one side puts the minimum almost
+        // half a hypothesis toward the other.
+        assert_eq!(parabola(1.0, 1.0, 1.0), 0.0);
+        assert!(parabola(1.0, 0.9, 100.0) < -0.49);
+    }
+
+    /// The base surface averages a pixel's window within one surface: a step of many planes
+    /// stays a step, a ramp of less than a plane per pixel is kept, invalid pixels stay NaN.
+    #[test]
+    fn base_surface_keeps_steps_and_ramps() {
+        let model = CameraModel::pinhole(synthetic::intrinsics(12, 8));
+        let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+        let params = SweepParams {
+            num_planes: 16,
+            min_depth_m: 1.0,
+            max_depth_m: 4.0,
+            ..SweepParams::default()
+        };
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let (width, height) = (12usize, 8usize);
+        let spacing = (1.0 - 0.25) / 15.0;
+        // Left half at inverse depth 0.5, right half a ramp from 0.8 by a tenth of a plane per
+        // column; one invalid pixel.
+        let mut raw = vec![0.0f32; width * height];
+        for y in 0..height {
+            for x in 0..width {
+                let q = if x < 6 {
+                    0.5
+                } else {
+                    0.8 + 0.1 * spacing * (x - 6) as f32
+                };
+                raw[y * width + x] = 1.0 / q;
+            }
+        }
+        raw[3 * width + 2] = f32::NAN;
+        let (dq, base) = base_surface(&plan, &raw);
+        assert!((dq[0] - spacing).abs() < 1e-5, "{} vs {spacing}", dq[0]);
+        assert!(base[3 * width + 2].is_nan());
+        // Beside the step, each side keeps its own depth.
+        assert!((base[4 * width + 5] - 0.5).abs() < 1e-6);
+        let at = |x: usize| base[4 * width + x];
+        let ramp = |x: usize| 0.8 + 0.1 * spacing * (x - 6) as f32;
+        assert!((at(6) - (ramp(6) + ramp(7) + ramp(8)) / 3.0).abs() < 1e-5);
+        // Inside the ramp, the window's mean is the ramp itself.
+        assert!((at(8) - ramp(8)).abs() < 1e-5);
+    }
+}
