@@ -103,6 +103,16 @@ pub struct DisparityMetrics {
     pub bad1: f64,
     /// |d − gt| > 2, invalid estimates counted as bad.
     pub bad2: f64,
+    /// |d − gt| > 0.5, invalid estimates counted as bad (precision, issue 29).
+    pub bad05: f64,
+    /// Root mean square of d − gt over the valid estimates, in evaluation pixels (NaN when none
+    /// is valid); gross errors included.
+    pub rms: f64,
+    /// Root mean square of d − gt over the valid estimates within 2 px of the ground truth:
+    /// the sub-pixel precision of the estimates that are right (NaN when there is none).
+    pub rms_inliers: f64,
+    /// Mean of d − gt over the valid estimates (positive: too near), NaN when none is valid.
+    pub mean_signed: f64,
     /// |d − gt| > 1 among the valid estimates only (NaN when none is valid).
     pub bad1_valid: f64,
     /// Pixels with no estimate.
@@ -158,6 +168,14 @@ fn percent(count: usize, total: usize) -> f64 {
         f64::NAN
     } else {
         100.0 * count as f64 / total as f64
+    }
+}
+
+fn mean_or_nan(sum: f64, count: usize) -> f64 {
+    if count == 0 {
+        f64::NAN
+    } else {
+        sum / count as f64
     }
 }
 
@@ -220,8 +238,11 @@ pub fn disparity_metrics(
     let mut evaluated = 0usize;
     let mut bad1 = 0usize;
     let mut bad2 = 0usize;
+    let mut bad05 = 0usize;
     let mut valid = 0usize;
     let mut bad1_among_valid = 0usize;
+    let (mut sum_sq, mut sum_signed) = (0.0f64, 0.0f64);
+    let (mut inliers, mut sum_sq_inliers) = (0usize, 0.0f64);
     // (confidence, bad1) of the evaluated pixels with a valid estimate.
     let mut ranked: Vec<(f32, bool)> = Vec::new();
     for y in border_px..h.saturating_sub(border_px) {
@@ -236,11 +257,22 @@ pub fn disparity_metrics(
             if !valid_depth(z) {
                 bad1 += 1;
                 bad2 += 1;
+                bad05 += 1;
                 continue;
             }
             let d = focal_baseline_eval / f64::from(z);
-            let err = (d - f64::from(g)).abs();
+            let signed = d - f64::from(g);
+            let err = signed.abs();
             valid += 1;
+            sum_sq += signed * signed;
+            sum_signed += signed;
+            if err <= 2.0 {
+                inliers += 1;
+                sum_sq_inliers += signed * signed;
+            }
+            if err > 0.5 {
+                bad05 += 1;
+            }
             let is_bad1 = err > 1.0;
             if is_bad1 {
                 bad1 += 1;
@@ -273,6 +305,10 @@ pub fn disparity_metrics(
         evaluated_px: evaluated,
         bad1: percent(bad1, evaluated),
         bad2: percent(bad2, evaluated),
+        bad05: percent(bad05, evaluated),
+        rms: mean_or_nan(sum_sq, valid).sqrt(),
+        rms_inliers: mean_or_nan(sum_sq_inliers, inliers).sqrt(),
+        mean_signed: mean_or_nan(sum_signed, valid),
         bad1_valid: percent(bad1_among_valid, valid),
         invalid: percent(evaluated - valid, evaluated),
         confidence_ranking,
@@ -449,14 +485,18 @@ pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(
 /// The table header printed by [`run`].
 pub fn table_header() -> String {
     format!(
-        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>12} {:>8} {:>9}  {}",
+        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>7} {:>12} {:>8} {:>9}  {}",
         "dataset",
         "layout",
         "views",
         "size",
         "planes",
+        "bad>.5",
         "bad>1",
         "bad>2",
+        "rms",
+        "rms<2",
+        "signed",
         "bad>1(valid)",
         "invalid",
         "ms",
@@ -473,8 +513,16 @@ pub fn table_row(
 ) -> String {
     let (w, h) = dataset.reference_size();
     let pct = |v: f64| format!("{v:.2}%");
-    let (bad1, bad2, bad1_valid, invalid, notes) = match metrics {
+    let px = |v: f64| format!("{v:.3}");
+    let none = || "-".to_string();
+    let (precision, bad1, bad2, bad1_valid, invalid, notes) = match metrics {
         Some(Metrics::Disparity(m)) => (
+            [
+                pct(m.bad05),
+                px(m.rms),
+                px(m.rms_inliers),
+                format!("{:+.3}", m.mean_signed),
+            ],
             pct(m.bad1),
             pct(m.bad2),
             pct(m.bad1_valid),
@@ -488,6 +536,7 @@ pub fn table_row(
             },
         ),
         Some(Metrics::Depth(m)) => (
+            [none(), none(), none(), none()],
             "-".into(),
             "-".into(),
             "-".into(),
@@ -507,6 +556,7 @@ pub fn table_row(
             ),
         ),
         None => (
+            [none(), none(), none(), none()],
             "-".into(),
             "-".into(),
             "-".into(),
@@ -515,14 +565,18 @@ pub fn table_row(
         ),
     };
     format!(
-        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>12} {:>8} {:>9.1}  {}",
+        "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>7} {:>12} {:>8} {:>9.1}  {}",
         dataset.name,
         dataset.layout.name(),
         dataset.rig.cameras.len(),
         format!("{w}x{h}"),
         dataset.params.num_planes,
+        precision[0],
         bad1,
         bad2,
+        precision[1],
+        precision[2],
+        precision[3],
         bad1_valid,
         invalid,
         ms,
@@ -689,6 +743,12 @@ mod tests {
         assert!((m.bad2 - 40.0).abs() < 1e-9);
         assert!((m.bad1_valid - 50.0).abs() < 1e-9);
         assert!((m.invalid - 20.0).abs() < 1e-9);
+        // Precision: signed errors 0, +2.5, +1.5, 0 over the valid four; bad>0.5 counts the
+        // invalid one too; the inliers (within 2 px) are 0, 1.5, 0.
+        assert!((m.bad05 - 60.0).abs() < 1e-9);
+        assert!((m.rms - 2.125f64.sqrt()).abs() < 1e-6, "{m:?}");
+        assert!((m.rms_inliers - 0.75f64.sqrt()).abs() < 1e-6);
+        assert!((m.mean_signed - 1.0).abs() < 1e-6);
         let r = m.confidence_ranking.unwrap();
         // Valid: conf .9 ok, .1 bad, .2 bad, .8 ok -> top half (.9, .8) 0 %, rest 100 %.
         assert_eq!((r.bad1_confident_half, r.bad1_rest), (0.0, 100.0));

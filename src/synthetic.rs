@@ -63,15 +63,20 @@ impl TexturedQuad {
     }
 
     fn colour(&self, ab: DVec2) -> [f64; 3] {
-        let p = ab / self.feature_m;
-        let mut rgb = [0.0; 3];
-        for (c, value) in rgb.iter_mut().enumerate() {
-            let s = self.seed.wrapping_mul(3).wrapping_add(c as u32);
-            *value = 0.65 * value_noise(p, s)
-                + 0.35 * value_noise(p * 2.7 + DVec2::splat(17.0), s ^ 0x5bd1);
-        }
-        rgb
+        texture(ab, self.feature_m, self.seed)
     }
+}
+
+/// The texture at surface coordinates `ab` (metres): two octaves of value noise per channel.
+fn texture(ab: DVec2, feature_m: f64, seed: u32) -> [f64; 3] {
+    let p = ab / feature_m;
+    let mut rgb = [0.0; 3];
+    for (c, value) in rgb.iter_mut().enumerate() {
+        let s = seed.wrapping_mul(3).wrapping_add(c as u32);
+        *value =
+            0.65 * value_noise(p, s) + 0.35 * value_noise(p * 2.7 + DVec2::splat(17.0), s ^ 0x5bd1);
+    }
+    rgb
 }
 
 fn hash(x: i64, y: i64, seed: u32) -> f64 {
@@ -99,10 +104,49 @@ fn value_noise(p: DVec2, seed: u32) -> f64 {
     top + (bottom - top) * s.y
 }
 
-/// A set of quads; the nearest hit along a ray wins.
+/// A textured sphere in the world (rig) frame: the texture is laid on longitude and latitude
+/// (arc lengths in metres), its seam on the far side from a camera looking down world +z.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TexturedSphere {
+    pub centre_in_world: DVec3,
+    pub radius_m: f64,
+    /// Size of one texture feature, metres.
+    pub feature_m: f64,
+    pub seed: u32,
+}
+
+impl TexturedSphere {
+    /// Ray parameter t of the nearest hit of `origin + t dir` in front of the origin, and the
+    /// texture coordinates there.
+    fn hit(&self, origin: DVec3, dir: DVec3) -> Option<(f64, DVec2)> {
+        let oc = origin - self.centre_in_world;
+        let a = dir.length_squared();
+        let half_b = oc.dot(dir);
+        let c = oc.length_squared() - self.radius_m * self.radius_m;
+        let disc = half_b * half_b - a * c;
+        if disc < 0.0 || a < 1e-24 {
+            return None;
+        }
+        let root = disc.sqrt();
+        let t = [(-half_b - root) / a, (-half_b + root) / a]
+            .into_iter()
+            .find(|&t| t > 1e-9)?;
+        let p = (origin + dir * t - self.centre_in_world) / self.radius_m;
+        let longitude = p.x.atan2(-p.z);
+        let latitude = p.y.clamp(-1.0, 1.0).asin();
+        Some((t, DVec2::new(longitude, latitude) * self.radius_m))
+    }
+
+    fn colour(&self, ab: DVec2) -> [f64; 3] {
+        texture(ab, self.feature_m, self.seed)
+    }
+}
+
+/// A set of quads and spheres; the nearest hit along a ray wins.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Scene {
     pub quads: Vec<TexturedQuad>,
+    pub spheres: Vec<TexturedSphere>,
 }
 
 impl Scene {
@@ -128,7 +172,10 @@ impl Scene {
                 7,
             ));
         }
-        Self { quads }
+        Self {
+            quads,
+            spheres: Vec::new(),
+        }
     }
 
     /// Casts a ray in the world frame; returns (t, colour in 0..1).
@@ -138,6 +185,13 @@ impl Scene {
             if let Some((t, ab)) = quad.hit(origin, dir) {
                 if best.is_none_or(|(bt, _)| t < bt) {
                     best = Some((t, quad.colour(ab)));
+                }
+            }
+        }
+        for sphere in &self.spheres {
+            if let Some((t, ab)) = sphere.hit(origin, dir) {
+                if best.is_none_or(|(bt, _)| t < bt) {
+                    best = Some((t, sphere.colour(ab)));
                 }
             }
         }

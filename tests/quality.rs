@@ -99,8 +99,9 @@ fn sub_pixel_refinement_lowers_bad_pixels_on_tsukuba() {
     );
 }
 
-/// Bad-pixel rate computed here from a PFM and the ground truth, independently of `eval`.
-fn bad1_from_pfm(pfm: &Path, gt: &ImageF32, border: u32) -> f64 {
+/// Bad-pixel rate (off by more than `threshold` px, invalid counted as bad) computed here from
+/// a PFM and the ground truth, independently of `eval`.
+fn bad_from_pfm(pfm: &Path, gt: &ImageF32, border: u32, threshold: f32) -> f64 {
     let disparity = sweepdepth::io::read_pfm(pfm).expect("PFM reads");
     assert_eq!((disparity.width, disparity.height), (gt.width, gt.height));
     let (mut total, mut bad) = (0usize, 0usize);
@@ -112,7 +113,7 @@ fn bad1_from_pfm(pfm: &Path, gt: &ImageF32, border: u32) -> f64 {
             }
             total += 1;
             let d = disparity.get(x, y);
-            if !d.is_finite() || (d - g).abs() > 1.0 {
+            if !d.is_finite() || (d - g).abs() > threshold {
                 bad += 1;
             }
         }
@@ -153,7 +154,8 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
         "eval failed: {}\n{stdout}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let printed_bad1 = table_value(&stdout, "tsukuba", 5);
+    let printed_bad05 = table_value(&stdout, "tsukuba", 5);
+    let printed_bad1 = table_value(&stdout, "tsukuba", 6);
     let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
     let GroundTruth::Disparity {
         disparity_eval_px,
@@ -164,10 +166,16 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
         panic!("Tsukuba has disparity ground truth");
     };
     let dir = out.join("tsukuba");
-    let recomputed = bad1_from_pfm(&dir.join("disparity.pfm"), disparity_eval_px, *border_px);
+    let pfm = dir.join("disparity.pfm");
+    let recomputed = bad_from_pfm(&pfm, disparity_eval_px, *border_px, 1.0);
     assert!(
         (recomputed - printed_bad1).abs() < 0.01,
         "table says {printed_bad1} %, PFM gives {recomputed:.3} %"
+    );
+    let recomputed05 = bad_from_pfm(&pfm, disparity_eval_px, *border_px, 0.5);
+    assert!(
+        (recomputed05 - printed_bad05).abs() < 0.01,
+        "table says bad>0.5 {printed_bad05} %, PFM gives {recomputed05:.3} %"
     );
     assert!(recomputed <= 5.0, "{recomputed} %");
     // Rows bottom to top, as Middlebury's own PFMs: the first row in the file is the image's last.

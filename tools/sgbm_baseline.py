@@ -220,9 +220,19 @@ def metrics(disp, valid, gt, mask):
     err = np.abs(np.where(ev_valid, disp, 0.0) - gt)
     bad1 = ev_valid & (err > 1.0)
     bad2 = ev_valid & (err > 2.0)
+    bad05 = ev_valid & (err > 0.5)
     inval = mask & ~valid
     nv = int(ev_valid.sum())
+    # Precision (issue 29), as src/eval.rs: signed d - gt over the valid estimates; the RMS of all
+    # of them and of those within 2 px (the inliers).
+    signed = (np.where(ev_valid, disp, 0.0) - gt)[ev_valid]
+    inl = signed[np.abs(signed) <= 2.0]
+    nan = float("nan")
     return {
+        "bad05": 100.0 * (bad05.sum() + inval.sum()) / n,
+        "rms": float(np.sqrt(np.mean(signed ** 2))) if nv else nan,
+        "rms_inliers": float(np.sqrt(np.mean(inl ** 2))) if inl.size else nan,
+        "mean_signed": float(np.mean(signed)) if nv else nan,
         "n": n,
         "bad1": 100.0 * (bad1.sum() + inval.sum()) / n,
         "bad2": 100.0 * (bad2.sum() + inval.sum()) / n,
@@ -535,12 +545,13 @@ def main():
              if args.mask == "nonocc" else ""))
     print(f"data root: {root.resolve()}")
     print()
-    print("| dataset | pair | numDisparities | variant | eval px | bad>1 % | bad>2 % "
-          "| bad>1 % (valid only) | invalid % |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| dataset | pair | numDisparities | variant | eval px | bad>0.5 % | bad>1 % | bad>2 % "
+          "| bad>1 % (valid only) | invalid % | RMS px | RMS within 2 px | mean signed px |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, pair, ndisp, variant, m in rows:
-        print(f"| {name} | {pair} | {ndisp} | {variant} | {m['n']} | {m['bad1']:.2f} "
-              f"| {m['bad2']:.2f} | {m['bad1_valid']:.2f} | {m['invalid']:.2f} |")
+        print(f"| {name} | {pair} | {ndisp} | {variant} | {m['n']} | {m['bad05']:.2f} "
+              f"| {m['bad1']:.2f} | {m['bad2']:.2f} | {m['bad1_valid']:.2f} | {m['invalid']:.2f} "
+              f"| {m['rms']:.3f} | {m['rms_inliers']:.3f} | {m['mean_signed']:+.3f} |")
 
 
 if __name__ == "__main__":

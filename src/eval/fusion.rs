@@ -206,6 +206,7 @@ pub fn synthetic_scene() -> Scene {
                 5,
             ),
         ],
+        spheres: Vec::new(),
     }
 }
 

@@ -229,6 +229,8 @@ engine_params! {
         "A best score above this makes the pixel invalid.";
     subpixel: bool = true, "subpixel", Long("subpixel"), ParamRange::Any,
         "Sub-pixel (parabola) refinement of the depth.";
+    subpixel_refine: bool = false, "subpixel_refine", Long("subpixel-refine"), ParamRange::Any,
+        "With subpixel: a fine local sweep of 5 hypotheses a quarter plane apart around each pixel's depth, windows following the smoothed depth (CPU engine only).";
     median: bool = true, "median", Long("median"), ParamRange::Any,
         "3x3 median filter on the depth map.";
     min_visible_cameras: u32 = 2, "min_visible_cameras", Long("min-visible"),

@@ -193,6 +193,8 @@ fn coarse_to_fine(
     let coarse_params = SweepParams {
         num_planes: coarse_planes(params.num_planes),
         optimizer: COARSE_OPTIMIZER,
+        // Only the plane ranges are read off the coarse level: no fine sweep there.
+        subpixel_refine: false,
         ..params.clone()
     };
     let started = std::time::Instant::now();

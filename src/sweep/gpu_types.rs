@@ -38,6 +38,13 @@ pub const MAX_SGM_PLANES: u32 = 1024;
 /// SGM: the colour step of `sgm_edge` in 1/16 grey levels (integer maths on both sides).
 pub const SGM_EDGE_UNITS: f32 = 16.0;
 
+/// `GpuParams::subpixel`: no refinement; the parabola through the winner's and its
+/// neighbours' scores (winner-take-all scores or SGM's summed path costs); that parabola, then
+/// the fine local sweep around it (`subpixel_refine`, the refine stage).
+pub const SUBPIXEL_OFF: u32 = 0;
+pub const SUBPIXEL_PARABOLA: u32 = 1;
+pub const SUBPIXEL_REFINE: u32 = 2;
+
 pub const INVALID: f32 = -1.0;
 /// `HALF_NOISE_FLOOR` in common.wgsl.
 pub const HALF_NOISE_FLOOR: f32 = 25.0;
@@ -105,7 +112,7 @@ pub struct GpuParams {
     /// Window size, pixels (1 = no aggregation).
     pub window_w: u32,
     pub window_h: u32,
-    /// 0 or 1.
+    /// `SUBPIXEL_*`.
     pub subpixel: u32,
     /// 0 or 1.
     pub median: u32,

@@ -126,6 +126,9 @@ pub struct SweepParams {
     /// A best score above this is invalid.
     pub max_cost: f32,
     pub subpixel: bool,
+    /// With `subpixel`: the fine local sweep around the parabola's depth (`cpu/refine.rs`;
+    /// CPU engine only so far).
+    pub subpixel_refine: bool,
     pub median: bool,
     /// Pixels seen by fewer cameras (the reference counted) are invalid; 0 or 1 disables.
     pub min_visible_cameras: u32,

@@ -219,7 +219,11 @@ impl SweepPlan {
             aggregation,
             window_w: params.window_width,
             window_h: params.window_height,
-            subpixel: u32::from(params.subpixel),
+            subpixel: match (params.subpixel, params.subpixel_refine) {
+                (false, _) => SUBPIXEL_OFF,
+                (true, false) => SUBPIXEL_PARABOLA,
+                (true, true) => SUBPIXEL_REFINE,
+            },
             median: u32::from(params.median),
             tau: params.tau,
             max_cost: params.max_cost,

@@ -3,6 +3,7 @@
 //! runs one function per phase); [`Schedule::dispatches`] expands it into the WGSL engine's
 //! dispatches (per batch of planes, per row band of the SGM volume, per SGM direction).
 
+use super::gpu_types::SUBPIXEL_REFINE;
 use super::plan::SweepPlan;
 use super::stages::Stage;
 
@@ -38,6 +39,8 @@ pub enum Phase {
     /// Winner-take-all over the summed path costs.
     SgmSelect,
     Finalize,
+    /// The fine local sweep between planes (`subpixel_refine`; CPU engine only so far).
+    Refine,
     Median,
     Splat,
     Visibility,
@@ -151,6 +154,8 @@ impl Schedule {
                     ..Dispatch::of(Stage::SgmSelect)
                 })),
                 Phase::Finalize => dispatches.push(Dispatch::of(Stage::Finalize)),
+                // Not in a shape's schedule (`of_plan` adds it for the CPU engine).
+                Phase::Refine => {}
                 Phase::Median => dispatches.push(Dispatch::of(Stage::Median)),
                 Phase::Splat => dispatches.push(Dispatch::of(Stage::Splat)),
                 Phase::Visibility => dispatches.push(Dispatch::of(Stage::Visibility)),
@@ -165,13 +170,21 @@ impl Schedule {
 
     /// The schedule of a plan in one batch and one band (the phases are all the CPU engine
     /// reads; the WGSL engine makes its own from its shape of work on the adapter).
+    /// With `subpixel_refine`, the refine phase follows finalize (the CPU engine's stage; the
+    /// WGSL engine has no twin of it yet and refuses such plans).
     pub fn of_plan(plan: &SweepPlan) -> Self {
-        Self::new(ScheduleShape {
+        let mut schedule = Self::new(ScheduleShape {
             batches: 1,
             box_passes: plan.box_passes(),
             sgm_paths: plan.sgm_paths(),
             bands: 1,
-        })
+        });
+        if plan.params.subpixel == SUBPIXEL_REFINE {
+            if let Some(at) = schedule.phases.iter().position(|p| *p == Phase::Finalize) {
+                schedule.phases.insert(at + 1, Phase::Refine);
+            }
+        }
+        schedule
     }
 
     /// The stages in order, one entry each.

@@ -39,6 +39,9 @@ pub enum Mapping {
     },
     /// Anything else: project every pixel (`project` in common.wgsl).
     General,
+    /// The sample positions are already in `coords` (`hypothesis_coords`: a depth per pixel,
+    /// the refinement's hypotheses, `refine.rs`).
+    Given,
 }
 
 /// The rays of an undistorted reference (`ray(x, y) = (ax + bx x, ay + by y, 1)`), read off the
@@ -220,6 +223,7 @@ pub fn sample_coords(
     let (xs, ys) = (&mut xs[..width], &mut ys[..width]);
     let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
     match mapping {
+        Mapping::Given => {}
         Mapping::Projective { m0, mx, my, q, d } => {
             // The row's coefficients in f64, the pixels in f32 (as the shader's arithmetic).
             let yf = y as f64;
@@ -263,6 +267,34 @@ pub fn sample_coords(
                 ys[x] = pixel[1];
             }
         }
+    }
+}
+
+/// Where reference row `y` lands in a camera when each pixel has its own depth (ray parameter:
+/// the point is `ray * depth`, as `plane_depth` gives on a plane; NaN = no hypothesis): the
+/// general branch of `sample_coords` with `depths` for the plane's. For `Mapping::Given`.
+pub fn hypothesis_coords(
+    plan: &SweepPlan,
+    cam: &GpuCamera,
+    depths: &[f32],
+    y: usize,
+    coords: &mut [Vec<f32>; 2],
+) {
+    let width = plan.params.width as usize;
+    let [xs, ys] = coords;
+    for x in 0..width {
+        let ray = xyz(plan.rays[y * width + x]);
+        let depth = depths[y * width + x];
+        let mut pixel = [f32::NAN; 2];
+        if depth > 0.0 {
+            let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+            let p = [projected[0], projected[1]];
+            if projected[2] > 0.0 && inside(cam, p) {
+                pixel = p;
+            }
+        }
+        xs[x] = pixel[0];
+        ys[x] = pixel[1];
     }
 }
 

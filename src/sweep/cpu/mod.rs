@@ -18,6 +18,7 @@ pub mod finalize;
 pub mod median;
 pub mod occlusion;
 pub mod plane;
+pub mod refine;
 pub mod select;
 pub mod sgm;
 
@@ -222,11 +223,13 @@ impl CpuEngine {
             .collect();
         // Scattered samples (any mapping but a translation, the reference's own aside) read
         // interleaved texels.
-        let scattered = mappings.iter().any(|m| {
-            m.iter().enumerate().any(|(i, m)| {
-                i as u32 != p.reference && !matches!(m, cost::Mapping::Translation { .. })
-            })
-        });
+        let refine = p.subpixel == SUBPIXEL_REFINE && refine::supported(plan);
+        let scattered = refine
+            || mappings.iter().any(|m| {
+                m.iter().enumerate().any(|(i, m)| {
+                    i as u32 != p.reference && !matches!(m, cost::Mapping::Translation { .. })
+                })
+            });
         let mut census = std::mem::take(&mut self.buffers.census);
         census.resize_with(if plan.uses_census() { images.len() } else { 0 }, Vec::new);
         if self.memo.is_active() {
@@ -410,6 +413,19 @@ impl CpuEngine {
                 Phase::Finalize => {
                     finalize::run(plan, &state, &mut maps);
                     clock.lap("finalize");
+                }
+                Phase::Refine => {
+                    if refine {
+                        let frame = FrameImages {
+                            planar: std::mem::take(&mut self.buffers.planar),
+                            census: std::mem::take(&mut self.buffers.census),
+                        };
+                        let [raw, ..] = maps.sections_mut();
+                        refine::run(plan, &frame, &mut Vec::new(), band, raw);
+                        self.buffers.planar = frame.planar;
+                        self.buffers.census = frame.census;
+                        clock.lap("refine");
+                    }
                 }
                 Phase::Median => {
                     median::run(plan, &mut maps);

@@ -32,6 +32,9 @@ pub struct PlaneScratch {
     /// (scattered samples, `cost::sample_row`).
     census_sampled: Vec<bool>,
     census_bits: Vec<f32>,
+    /// The refinement's hypothesis (`refine.rs`): a depth (ray parameter) per reference pixel,
+    /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
+    pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
 }
 
 impl PlaneScratch {
@@ -67,6 +70,7 @@ impl PlaneScratch {
                 .collect(),
             census_sampled: vec![false; p.cameras as usize],
             census_bits: vec![0.0; width],
+            hypothesis: None,
         }
     }
 }
@@ -142,6 +146,9 @@ fn cost_row(
     });
     for (i, cam) in plan.cameras.iter().enumerate() {
         if i as u32 != reference {
+            if let Some(depths) = &s.hypothesis {
+                cost::hypothesis_coords(plan, cam, depths, y, &mut s.coords[i]);
+            }
             let census = reference_words.map(|words| (words, &mut s.census_distances[i][..]));
             s.census_sampled[i] = cost::sample_row(
                 plan,

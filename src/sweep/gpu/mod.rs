@@ -157,6 +157,12 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
+        if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
+            return Err(SweepError::InvalidParams(
+                "subpixel_refine runs on the CPU engine only (no WGSL twin yet): --device cpu"
+                    .into(),
+            ));
+        }
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
         plan.pack_images(rig, images, &mut packed, &mut self.memo)?;

@@ -1,0 +1,253 @@
+//! Continuous depth after the sweep (issue 29, `subpixel_refine`): a fine local sweep of a
+//! few hypotheses around each pixel's depth, a fraction of the plane spacing apart, costed
+//! from the images themselves with the sweep's own cost, windows and scoring (the views and
+//! half the half-sequence picks). Runs after finalize, before the median, on the raw depth.
+//!
+//! Each pixel's hypotheses sit around a *base surface*: the mean inverse depth of the
+//! window's pixels that lie within `SAME_SURFACE` planes of the pixel's own (the stepped
+//! winner-take-all or SGM surface smoothed within one surface, so a slanted or curved surface
+//! is no longer a staircase). Hypothesis j of every pixel is its base plus `(j - REACH) STEP`
+//! plane spacings in inverse depth, and a window sums its pixels' costs each at its own
+//! hypothesis j: the window follows the base surface (a slanted support where the surface is
+//! slanted) instead of a fronto-parallel plane. The best j and the parabola through it and its
+//! neighbours give the depth; a best hypothesis at either end of the range keeps the
+//! finalized depth. Twin of the WGSL stage to come (`shaders/refine.wgsl`); until then the
+//! WGSL engine refuses the parameter.
+// Loops over x index several images at once.
+#![allow(clippy::needless_range_loop)]
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use super::aggregate::Windows;
+use super::common::*;
+use super::cost::Mapping;
+use super::plane::{self, FrameImages, PlaneScratch};
+use crate::sweep::gpu_types::*;
+use crate::sweep::plan::SweepPlan;
+
+/// Hypotheses on each side of the base surface (3 measured: the same on synthetic slanted
+/// planes, Laundry's bad>0.5 23.93 -> 29.56 %: a best hypothesis 0.5 to 0.75 planes off is
+/// mostly the data cost's noise, not the surface).
+pub const REACH: usize = 2;
+/// Their spacing, in plane spacings.
+pub const STEP: f32 = 0.25;
+/// Window pixels within this many plane spacings of a pixel's inverse depth are on its
+/// surface (the base surface's mean).
+pub const SAME_SURFACE: f32 = 1.5;
+
+/// Whether the fine sweep can run on `plan`: a census cost between pairs of sampled cameras
+/// (`pairs: all`) reads the nearest words of plane k, not of a hypothesis per pixel.
+pub fn supported(plan: &SweepPlan) -> bool {
+    plan.num_planes() >= 2 && !(plan.uses_census() && plan.params.pair_mode == PAIRS_ALL)
+}
+
+/// The inverse depth of plane `k` on `ray` (`inverse_depth` of finalize).
+fn inverse_depth(plan: &SweepPlan, k: usize, ray: Vec3) -> f32 {
+    let plane = plan.planes[k];
+    dot3(xyz(plane), ray) / plane[3]
+}
+
+/// Per pixel: the plane spacing in inverse depth and the base surface's inverse depth (NaN
+/// where the raw depth is invalid).
+fn base_surface(plan: &SweepPlan, raw: &[f32]) -> (Vec<f32>, Vec<f32>) {
+    let (width, height) = (plan.params.width as usize, plan.params.height as usize);
+    let windows = Windows::of(plan);
+    let (rx, ry) = ((windows.w - 1) / 2, (windows.h - 1) / 2);
+    let spacing: Vec<f32> = (0..width * height)
+        .into_par_iter()
+        .map(|pix| {
+            let ray = xyz(plan.rays[pix]);
+            (inverse_depth(plan, 1, ray) - inverse_depth(plan, 0, ray)).abs()
+        })
+        .collect();
+    let inverse: Vec<f32> = raw
+        .iter()
+        .map(|&t| {
+            if t > 0.0 && t.is_finite() {
+                1.0 / t
+            } else {
+                f32::NAN
+            }
+        })
+        .collect();
+    let mut base = vec![f32::NAN; width * height];
+    base.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+        for x in 0..width {
+            let q = inverse[y * width + x];
+            if q.is_nan() {
+                continue;
+            }
+            let near = SAME_SURFACE * spacing[y * width + x];
+            let (mut sum, mut count) = (0.0f32, 0.0f32);
+            for yy in y.saturating_sub(ry)..(y + ry + 1).min(height) {
+                for xx in x.saturating_sub(rx)..(x + rx + 1).min(width) {
+                    let n = inverse[yy * width + xx];
+                    if (n - q).abs() <= near {
+                        sum += n;
+                        count += 1.0;
+                    }
+                }
+            }
+            row[x] = sum / count;
+        }
+    });
+    (spacing, base)
+}
+
+/// The offset (in hypotheses, -0.5..0.5) of the parabola's minimum through three scores, 0
+/// where they do not curve up.
+fn parabola(before: f32, best: f32, after: f32) -> f32 {
+    let curvature = before - 2.0 * best + after;
+    if curvature > 0.0 {
+        (0.5 * (before - after) / curvature).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    }
+}
+
+/// Refines the raw depth (`MAP_DEPTH_RAW`, ray parameter, NaN invalid) in place. `scratches`
+/// are the workers' plane scratches (made for `plan` when there are too few); `band` is the
+/// sweep's band height (a multiple of the window sums' restart rows).
+pub fn run(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    scratches: &mut Vec<PlaneScratch>,
+    band: usize,
+    raw: &mut [f32],
+) {
+    let (width, height) = (plan.params.width as usize, plan.params.height as usize);
+    let (spacing, base) = base_surface(plan, raw);
+    let count = 2 * REACH + 1;
+    let hypotheses: Vec<Arc<Vec<f32>>> = (0..count)
+        .map(|j| {
+            let offset = (j as f32 - REACH as f32) * STEP;
+            let depths = base
+                .par_iter()
+                .zip(&spacing)
+                .map(|(&q, &dq)| {
+                    let q = q + offset * dq;
+                    if q > 0.0 {
+                        1.0 / q
+                    } else {
+                        f32::NAN
+                    }
+                })
+                .collect();
+            Arc::new(depths)
+        })
+        .collect();
+    let given = vec![Mapping::Given; plan.cameras.len()];
+    let bands = height.div_ceil(band);
+    scratches.truncate(bands);
+    scratches.resize_with(bands, || PlaneScratch::new(plan));
+    raw.par_chunks_mut(band * width)
+        .zip(scratches.par_iter_mut())
+        .enumerate()
+        .for_each(|(b, (raw, scratch))| {
+            let rows = b * band..((b + 1) * band).min(height);
+            let len = rows.len() * width;
+            let mut scores = vec![0.0f32; count * len];
+            let mut sel = vec![0.0f32; len];
+            for (j, depths) in hypotheses.iter().enumerate() {
+                scratch.hypothesis = Some(Arc::clone(depths));
+                plane::sweep_plane(
+                    plan,
+                    images,
+                    &given,
+                    0,
+                    rows.clone(),
+                    scratch,
+                    &mut scores[j * len..(j + 1) * len],
+                    &mut sel,
+                );
+            }
+            scratch.hypothesis = None;
+            let first = rows.start * width;
+            for i in 0..len {
+                let (q, dq) = (base[first + i], spacing[first + i]);
+                if q.is_nan() {
+                    continue;
+                }
+                let score = |j: usize| scores[j * len + i];
+                let best = (0..count)
+                    .filter(|&j| score(j) < 0.5 * BIG)
+                    .min_by(|&a, &b| score(a).total_cmp(&score(b)));
+                let Some(j) = best.filter(|&j| j > 0 && j + 1 < count) else {
+                    continue;
+                };
+                let (before, after) = (score(j - 1), score(j + 1));
+                let fit = if before < 0.5 * BIG && after < 0.5 * BIG {
+                    parabola(before, score(j), after)
+                } else {
+                    0.0
+                };
+                let offset = j as f32 - REACH as f32 + fit;
+                let refined = q + offset * STEP * dq;
+                if refined > 0.0 {
+                    raw[i] = 1.0 / refined;
+                }
+            }
+        });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+    use crate::sweep::SweepParams;
+    use crate::synthetic;
+
+    #[test]
+    fn parabola_by_hand() {
+        // Scores 2, 1, 2: the minimum at the middle; 3, 1, 2: a third of the way to `after`.
+        assert_eq!(parabola(2.0, 1.0, 2.0), 0.0);
+        assert!((parabola(3.0, 1.0, 2.0) - 1.0 / 6.0).abs() < 1e-6);
+        // No upward curvature: no offset; a steep rise on one side puts the minimum almost
+        // half a hypothesis toward the other.
+        assert_eq!(parabola(1.0, 1.0, 1.0), 0.0);
+        assert!(parabola(1.0, 0.9, 100.0) < -0.49);
+    }
+
+    /// The base surface averages a pixel's window within one surface: a step of many planes
+    /// stays a step, a ramp of less than a plane per pixel is kept, invalid pixels stay NaN.
+    #[test]
+    fn base_surface_keeps_steps_and_ramps() {
+        let model = CameraModel::pinhole(synthetic::intrinsics(12, 8));
+        let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+        let params = SweepParams {
+            num_planes: 16,
+            min_depth_m: 1.0,
+            max_depth_m: 4.0,
+            ..SweepParams::default()
+        };
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let (width, height) = (12usize, 8usize);
+        let spacing = (1.0 - 0.25) / 15.0;
+        // Left half at inverse depth 0.5, right half a ramp from 0.8 by a tenth of a plane per
+        // column; one invalid pixel.
+        let mut raw = vec![0.0f32; width * height];
+        for y in 0..height {
+            for x in 0..width {
+                let q = if x < 6 {
+                    0.5
+                } else {
+                    0.8 + 0.1 * spacing * (x - 6) as f32
+                };
+                raw[y * width + x] = 1.0 / q;
+            }
+        }
+        raw[3 * width + 2] = f32::NAN;
+        let (dq, base) = base_surface(&plan, &raw);
+        assert!((dq[0] - spacing).abs() < 1e-5, "{} vs {spacing}", dq[0]);
+        assert!(base[3 * width + 2].is_nan());
+        // Beside the step, each side keeps its own depth.
+        assert!((base[4 * width + 5] - 0.5).abs() < 1e-6);
+        let at = |x: usize| base[4 * width + x];
+        let ramp = |x: usize| 0.8 + 0.1 * spacing * (x - 6) as f32;
+        assert!((at(6) - (ramp(6) + ramp(7) + ramp(8)) / 3.0).abs() < 1e-5);
+        // Inside the ramp, the window's mean is the ramp itself.
+        assert!((at(8) - ramp(8)).abs() < 1e-5);
+    }
+}
