@@ -34,8 +34,9 @@ use glam::{DQuat, DVec2, DVec3};
 use crate::datasets::{self, DatasetError, Layout};
 use crate::engine::{Engine, Sweeper};
 use crate::fusion::{
-    integrate_weighted, vertex_accuracy, write_ply_file, DepthAccuracy, DepthAccuracySummary,
-    FusionError, FusionParams, Mesh, VertexAccuracy, VoxelBlockGrid,
+    integrate_weighted, observation_weights, vertex_accuracy, write_ply_file, DepthAccuracy,
+    DepthAccuracySummary, FusionError, FusionParams, Mesh, VertexAccuracy, VoxelBlockGrid,
+    Weighting,
 };
 use crate::geometry::{CameraModel, GeometryError, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
@@ -439,23 +440,74 @@ pub fn icl_nuim(
 }
 
 /// How [`evaluate`] weighs the views.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ViewWeights {
-    /// Every depth map alike, as `pipeline::fuse`'s `Fuser` fuses them.
+    /// Every depth map alike.
     Equal,
     /// Each view's observations weigh its [`FusionView::baseline_m`] squared (relative to the
     /// case's largest): a depth from triangulation over a baseline `B` has a variance about
     /// proportional to `1 / B^2`, so this is the inverse-variance weight of the views (their
     /// depths, pixel positions and matching errors alike).
     Baseline,
+    /// Each pixel weighed by [`observation_weights`] (from its depth, confidence and
+    /// neighbours), times the baseline term when `baseline`.
+    Pixels {
+        weighting: Weighting,
+        baseline_power: i32,
+    },
 }
 
 impl ViewWeights {
-    pub fn label(self) -> &'static str {
+    pub fn label(self) -> String {
         match self {
-            ViewWeights::Equal => "equal weights",
-            ViewWeights::Baseline => "baseline^2 weights",
+            ViewWeights::Equal => "equal weights".into(),
+            ViewWeights::Baseline => "baseline^2 weights".into(),
+            ViewWeights::Pixels {
+                weighting,
+                baseline_power,
+            } => {
+                let mut parts = Vec::new();
+                if weighting.confidence_power != 0.0 {
+                    parts.push(format!("conf^{}", weighting.confidence_power));
+                }
+                if weighting.min_confidence > 0.0 {
+                    parts.push(format!("conf>={}", weighting.min_confidence));
+                }
+                if weighting.depth_power != 0.0 {
+                    parts.push(format!("z^-{}", weighting.depth_power));
+                }
+                if let Some(r) = weighting.edge_ratio {
+                    parts.push(format!("edges>{r}"));
+                }
+                if baseline_power != 0 {
+                    parts.push(format!("baseline^{baseline_power}"));
+                }
+                format!("{} weights", parts.join(" "))
+            }
         }
+    }
+
+    /// A recipe from `SWEEPDEPTH_FUSION_WEIGHTS`-style text: comma-separated `c<power>`,
+    /// `m<min confidence>`, `z<depth power>`, `e<edge ratio>`, `b` (baseline).
+    pub fn parse(text: &str) -> Option<Self> {
+        let mut weighting = Weighting::EQUAL;
+        let mut baseline_power = 0;
+        for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (key, value) = part.split_at(1);
+            let number = || value.parse::<f32>().ok();
+            match key {
+                "c" => weighting.confidence_power = number()?,
+                "m" => weighting.min_confidence = number()?,
+                "z" => weighting.depth_power = number()?,
+                "e" => weighting.edge_ratio = Some(number()?),
+                "b" => baseline_power = value.parse().unwrap_or(2),
+                _ => return None,
+            }
+        }
+        Some(ViewWeights::Pixels {
+            weighting,
+            baseline_power,
+        })
     }
 }
 
@@ -472,17 +524,29 @@ pub fn evaluate(
     let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
     let largest = case.views.iter().map(|v| v.baseline_m).fold(0.0, f64::max);
     for view in &case.views {
+        let baseline_term = |power: i32| {
+            if largest > 0.0 {
+                (view.baseline_m / largest).powi(power) as f32
+            } else {
+                1.0
+            }
+        };
         let weight = match weights {
             ViewWeights::Equal => None,
-            ViewWeights::Baseline if largest > 0.0 => {
-                let w = (view.baseline_m / largest).powi(2) as f32;
-                Some(ImageF32 {
-                    width: view.depth_m.width,
-                    height: view.depth_m.height,
-                    data: vec![w; view.depth_m.data.len()],
-                })
-            }
-            ViewWeights::Baseline => None,
+            ViewWeights::Baseline => Some(ImageF32 {
+                width: view.depth_m.width,
+                height: view.depth_m.height,
+                data: vec![baseline_term(2); view.depth_m.data.len()],
+            }),
+            ViewWeights::Pixels {
+                weighting,
+                baseline_power,
+            } => Some(observation_weights(
+                &view.depth_m,
+                Some(&view.confidence),
+                &weighting,
+                baseline_term(baseline_power),
+            )),
         };
         integrate_weighted(
             &mut grid,
@@ -611,9 +675,13 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
             if let Some(v) = args.voxel_size {
                 case.params.voxel_size_m = v;
             }
-            [ViewWeights::Equal, ViewWeights::Baseline]
-                .map(|weights| evaluate(&case, weights, args.save.as_deref()))
+            let mut recipes = vec![ViewWeights::Equal, ViewWeights::Baseline];
+            if let Ok(text) = std::env::var("SWEEPDEPTH_FUSION_WEIGHTS") {
+                recipes.extend(text.split(';').filter_map(ViewWeights::parse));
+            }
+            recipes
                 .into_iter()
+                .map(|weights| evaluate(&case, weights, args.save.as_deref()))
                 .collect::<Result<Vec<_>, _>>()
         });
         match result {

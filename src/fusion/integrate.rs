@@ -253,7 +253,8 @@ struct View<'a> {
     truncation_m: f32,
     max_depth_m: f32,
     max_weight: f32,
-    /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it).
+    /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it)
+    /// and fewer than 2^31 (they are i32).
     lanes_fit: bool,
 }
 
@@ -309,7 +310,9 @@ impl<'a> View<'a> {
             truncation_m: params.truncation_m(),
             max_depth_m,
             max_weight: params.max_weight,
-            lanes_fit: depth.width >= 2 && depth.height >= 2,
+            lanes_fit: depth.width >= 2
+                && depth.height >= 2
+                && depth.data.len() < i32::MAX as usize,
         };
         let width = depth.width as usize;
         let Projector::Pinhole { fx, fy, cx, cy } = view.projector else {

@@ -1,0 +1,171 @@
+//! Per-pixel observation weights for [`super::integrate_weighted`]: how much each depth
+//! pixel is trusted, from what a depth map carries (its confidence where the source has one,
+//! its depth, its neighbours), so that the fused model leans on the better depths.
+//!
+//! - **Depth**: a depth triangulated over a baseline `B` has an error that grows with `z^2 / B`
+//!   (a fixed disparity error), a variance with `z^4`; the weight falls as `(z0 / z)^p`.
+//! - **Confidence**: the engine's confidence (0 .. 1, the margin of the best cost over the
+//!   rest) raised to a power; below `min_confidence` a pixel adds nothing.
+//! - **Discontinuities**: a pixel whose depth differs from a 4-neighbour's by more than
+//!   `edge_ratio` of its depth sits on an edge, where a matcher blends foreground and
+//!   background (flying pixels): it adds nothing.
+
+use rayon::prelude::*;
+
+use crate::image::ImageF32;
+
+/// How [`observation_weights`] weighs a depth map's pixels.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Weighting {
+    /// The exponent of the confidence (0: ignored).
+    pub confidence_power: f32,
+    /// Pixels whose confidence is below this add nothing (0: none refused).
+    pub min_confidence: f32,
+    /// The exponent `p` of `(z0 / z)^p` (0: ignored), `z0` = [`Weighting::REFERENCE_DEPTH_M`].
+    pub depth_power: f32,
+    /// A pixel whose depth differs from a 4-neighbour's by more than this share of its own
+    /// depth adds nothing (`None`: no discontinuity test).
+    pub edge_ratio: Option<f32>,
+}
+
+impl Weighting {
+    /// `z0` of the depth term: a pixel at 1 m weighs its other factors.
+    pub const REFERENCE_DEPTH_M: f32 = 1.0;
+
+    /// Every valid pixel 1 (as [`super::integrate()`]).
+    pub const EQUAL: Self = Self {
+        confidence_power: 0.0,
+        min_confidence: 0.0,
+        depth_power: 0.0,
+        edge_ratio: None,
+    };
+
+    /// Whether every weight would be 1 (no image needed).
+    pub fn is_equal(&self) -> bool {
+        *self == Self::EQUAL
+    }
+}
+
+/// Each pixel's observation weight under `weighting` (the depth's size), times `scale`: NaN
+/// where the depth is invalid (not finite or not positive) or the pixel is refused. Without
+/// `confidence` the confidence terms are left out. `confidence` must have the depth's size.
+pub fn observation_weights(
+    depth: &ImageF32,
+    confidence: Option<&ImageF32>,
+    weighting: &Weighting,
+    scale: f32,
+) -> ImageF32 {
+    let width = depth.width as usize;
+    let height = depth.height as usize;
+    let d = &depth.data;
+    let confidence = confidence.filter(|c| c.data.len() == d.len());
+    let z0 = Weighting::REFERENCE_DEPTH_M;
+    let mut data = vec![f32::NAN; d.len()];
+    if width == 0 {
+        return ImageF32 {
+            width: depth.width,
+            height: depth.height,
+            data,
+        };
+    }
+    data.par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(row, out)| {
+            for (col, w) in out.iter_mut().enumerate() {
+                let i = row * width + col;
+                let z = d[i];
+                if !(z.is_finite() && z > 0.0) {
+                    continue;
+                }
+                if let Some(ratio) = weighting.edge_ratio {
+                    let limit = ratio * z;
+                    // An invalid neighbour (the image's border, a hole) is no edge.
+                    let jump = |j: usize| {
+                        let n = d[j];
+                        n.is_finite() && n > 0.0 && (n - z).abs() > limit
+                    };
+                    let edge = (col > 0 && jump(i - 1))
+                        || (col + 1 < width && jump(i + 1))
+                        || (row > 0 && jump(i - width))
+                        || (row + 1 < height && jump(i + width));
+                    if edge {
+                        continue;
+                    }
+                }
+                let mut weight = scale;
+                if let Some(c) = confidence {
+                    let c = c.data[i];
+                    if !(c.is_finite() && c >= weighting.min_confidence) {
+                        continue;
+                    }
+                    if weighting.confidence_power != 0.0 {
+                        weight *= c.max(0.0).powf(weighting.confidence_power);
+                    }
+                }
+                if weighting.depth_power != 0.0 {
+                    weight *= (z0 / z).powf(weighting.depth_power);
+                }
+                if weight.is_finite() && weight > 0.0 {
+                    *w = weight;
+                }
+            }
+        });
+    ImageF32 {
+        width: depth.width,
+        height: depth.height,
+        data,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(width: u32, data: Vec<f32>) -> ImageF32 {
+        ImageF32 {
+            width,
+            height: data.len() as u32 / width,
+            data,
+        }
+    }
+
+    #[test]
+    fn weights_fall_with_depth_and_confidence_and_edges_are_refused() {
+        let depth = image(4, vec![1.0, 1.0, 2.0, 2.0, 1.0, 1.0, 2.0, f32::NAN]);
+        let equal = observation_weights(&depth, None, &Weighting::EQUAL, 1.0);
+        assert_eq!(&equal.data[..7], &[1.0; 7]);
+        assert!(equal.data[7].is_nan());
+        let by_depth = Weighting {
+            depth_power: 2.0,
+            ..Weighting::EQUAL
+        };
+        let w = observation_weights(&depth, None, &by_depth, 2.0);
+        assert_eq!(&w.data[..3], &[2.0, 2.0, 0.5]);
+        let confidence = image(4, vec![1.0, 0.5, 0.1, 1.0, 1.0, 1.0, 1.0, 1.0]);
+        let by_confidence = Weighting {
+            confidence_power: 2.0,
+            min_confidence: 0.2,
+            ..Weighting::EQUAL
+        };
+        let w = observation_weights(&depth, Some(&confidence), &by_confidence, 1.0);
+        assert_eq!(&w.data[..2], &[1.0, 0.25]);
+        assert!(w.data[2].is_nan(), "below min_confidence");
+        // Without a confidence image the confidence terms are left out.
+        let w = observation_weights(&depth, None, &by_confidence, 1.0);
+        assert_eq!(w.data[2], 1.0);
+        // Columns 1 and 2 meet at a jump of 1 m: an edge for a ratio of 0.2, not for 2.
+        let edges = Weighting {
+            edge_ratio: Some(0.2),
+            ..Weighting::EQUAL
+        };
+        let w = observation_weights(&depth, None, &edges, 1.0);
+        let kept: Vec<bool> = w.data.iter().map(|v| !v.is_nan()).collect();
+        assert_eq!(kept, [true, false, false, true, true, false, false, false]);
+        let loose = Weighting {
+            edge_ratio: Some(2.0),
+            ..Weighting::EQUAL
+        };
+        let w = observation_weights(&depth, None, &loose, 1.0);
+        assert_eq!(w.data.iter().filter(|v| !v.is_nan()).count(), 7);
+    }
+}
