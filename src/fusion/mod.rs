@@ -49,7 +49,7 @@ pub use integrate::{integrate, integrate_weighted, IntegrationStats};
 pub use mesh::{BlockMesh, Mesh, MeshStats};
 pub use ply::{write_ply, write_ply_file};
 pub use raycast::raycast_depth;
-pub use weights::{observation_weights, Weighting};
+pub use weights::{observation_weights, rms_baseline_m, Weighting};
 
 /// Parameters of the fusion (nvblox's `ProjectiveIntegrator` parameters, and its layer's voxel
 /// size).

@@ -6,13 +6,36 @@
 //!   (a fixed disparity error), a variance with `z^4`; the weight falls as `(z0 / z)^p`.
 //! - **Confidence**: the engine's confidence (0 .. 1, the margin of the best cost over the
 //!   rest) raised to a power; below `min_confidence` a pixel adds nothing.
+//! - **Baseline**: a view's depth over a baseline `B` has a variance about proportional to
+//!   `1 / B^2`; the weight is `(B / B_max)^p`, `B_max` the largest of its set's references
+//!   ([`rms_baseline_m`]).
 //! - **Discontinuities**: a pixel whose depth differs from a 4-neighbour's by more than
 //!   `edge_ratio` of its depth sits on an edge, where a matcher blends foreground and
 //!   background (flying pixels): it adds nothing.
 
 use rayon::prelude::*;
 
+use crate::geometry::RigCamera;
 use crate::image::ImageF32;
+
+/// The root-mean-square distance from the reference camera's centre to the centres of the
+/// other cameras swept with it (`swept`, indices into `cameras`): its baseline; 0 without
+/// another camera.
+pub fn rms_baseline_m(cameras: &[RigCamera], reference: usize, swept: &[usize]) -> f64 {
+    let centre = |i: usize| cameras[i].cam_from_rig.inverse().translation;
+    if reference >= cameras.len() {
+        return 0.0;
+    }
+    let others: Vec<f64> = swept
+        .iter()
+        .filter(|&&i| i != reference && i < cameras.len())
+        .map(|&i| centre(i).distance_squared(centre(reference)))
+        .collect();
+    if others.is_empty() {
+        return 0.0;
+    }
+    (others.iter().sum::<f64>() / others.len() as f64).sqrt()
+}
 
 /// How [`observation_weights`] weighs a depth map's pixels.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -26,6 +49,9 @@ pub struct Weighting {
     /// A pixel whose depth differs from a 4-neighbour's by more than this share of its own
     /// depth adds nothing (`None`: no discontinuity test).
     pub edge_ratio: Option<f32>,
+    /// The exponent of the view's baseline ratio (its root-mean-square baseline over the
+    /// largest of its set's references; 0: ignored).
+    pub baseline_power: f32,
 }
 
 impl Weighting {
@@ -38,6 +64,23 @@ impl Weighting {
         min_confidence: 0.0,
         depth_power: 0.0,
         edge_ratio: None,
+        baseline_power: 0.0,
+    };
+
+    /// What the node, `bag` and `fuse` weigh depth maps by (chosen on ICL-NUIM and the
+    /// synthetic rig with `eval --fusion`, docs/fusion.md): the fourth power of the baseline
+    /// ratio (steeper than the inverse variance's square: the references of a set share their
+    /// images, so their errors are correlated and the widest baseline should decide), the
+    /// square of the confidence (a soft threshold: where it is alone a doubtful depth still
+    /// makes the surface), no depths at discontinuities of more than 5 % of the depth. Depth
+    /// from other sources (`sweepdepth fuse`) has neither confidence nor baseline: only the
+    /// discontinuity test (and the angle weight of every observation) applies.
+    pub const DEPTH_MAPS: Self = Self {
+        confidence_power: 2.0,
+        min_confidence: 0.0,
+        depth_power: 0.0,
+        edge_ratio: Some(0.05),
+        baseline_power: 4.0,
     };
 
     /// Whether every weight would be 1 (no image needed).
@@ -46,15 +89,22 @@ impl Weighting {
     }
 }
 
-/// Each pixel's observation weight under `weighting` (the depth's size), times `scale`: NaN
-/// where the depth is invalid (not finite or not positive) or the pixel is refused. Without
-/// `confidence` the confidence terms are left out. `confidence` must have the depth's size.
+/// Each pixel's observation weight under `weighting` (the depth's size): NaN where the depth
+/// is invalid (not finite or not positive) or the pixel is refused. Without `confidence` (or
+/// one of another size) the confidence terms are left out, without `baseline_ratio` the
+/// baseline term.
 pub fn observation_weights(
     depth: &ImageF32,
     confidence: Option<&ImageF32>,
+    baseline_ratio: Option<f32>,
     weighting: &Weighting,
-    scale: f32,
 ) -> ImageF32 {
+    let scale = match baseline_ratio {
+        Some(r) if weighting.baseline_power != 0.0 && r.is_finite() && r > 0.0 => {
+            r.powf(weighting.baseline_power)
+        }
+        _ => 1.0,
+    };
     let width = depth.width as usize;
     let height = depth.height as usize;
     let d = &depth.data;
@@ -132,14 +182,15 @@ mod tests {
     #[test]
     fn weights_fall_with_depth_and_confidence_and_edges_are_refused() {
         let depth = image(4, vec![1.0, 1.0, 2.0, 2.0, 1.0, 1.0, 2.0, f32::NAN]);
-        let equal = observation_weights(&depth, None, &Weighting::EQUAL, 1.0);
+        let equal = observation_weights(&depth, None, None, &Weighting::EQUAL);
         assert_eq!(&equal.data[..7], &[1.0; 7]);
         assert!(equal.data[7].is_nan());
         let by_depth = Weighting {
             depth_power: 2.0,
+            baseline_power: 1.0,
             ..Weighting::EQUAL
         };
-        let w = observation_weights(&depth, None, &by_depth, 2.0);
+        let w = observation_weights(&depth, None, Some(2.0), &by_depth);
         assert_eq!(&w.data[..3], &[2.0, 2.0, 0.5]);
         let confidence = image(4, vec![1.0, 0.5, 0.1, 1.0, 1.0, 1.0, 1.0, 1.0]);
         let by_confidence = Weighting {
@@ -147,25 +198,25 @@ mod tests {
             min_confidence: 0.2,
             ..Weighting::EQUAL
         };
-        let w = observation_weights(&depth, Some(&confidence), &by_confidence, 1.0);
+        let w = observation_weights(&depth, Some(&confidence), None, &by_confidence);
         assert_eq!(&w.data[..2], &[1.0, 0.25]);
         assert!(w.data[2].is_nan(), "below min_confidence");
         // Without a confidence image the confidence terms are left out.
-        let w = observation_weights(&depth, None, &by_confidence, 1.0);
+        let w = observation_weights(&depth, None, None, &by_confidence);
         assert_eq!(w.data[2], 1.0);
         // Columns 1 and 2 meet at a jump of 1 m: an edge for a ratio of 0.2, not for 2.
         let edges = Weighting {
             edge_ratio: Some(0.2),
             ..Weighting::EQUAL
         };
-        let w = observation_weights(&depth, None, &edges, 1.0);
+        let w = observation_weights(&depth, None, None, &edges);
         let kept: Vec<bool> = w.data.iter().map(|v| !v.is_nan()).collect();
         assert_eq!(kept, [true, false, false, true, true, false, false, false]);
         let loose = Weighting {
             edge_ratio: Some(2.0),
             ..Weighting::EQUAL
         };
-        let w = observation_weights(&depth, None, &loose, 1.0);
+        let w = observation_weights(&depth, None, None, &loose);
         assert_eq!(w.data.iter().filter(|v| !v.is_nan()).count(), 7);
     }
 }
