@@ -125,6 +125,8 @@ fn fusion_memory_stays_flat_on_an_endless_corridor() {
                 rotation,
                 translation: DVec3::new(x, 0.0, 0.0),
             },
+            confidence: None,
+            baseline_ratio: None,
         };
         fuser.add(&input).unwrap();
         if frames.is_multiple_of(5) {

@@ -11,19 +11,19 @@
 //!   every frame a reference, each frame's `.depth` its ground truth.
 //!
 //! [`evaluate`] fuses every view's depth map at its world pose
-//! ([`crate::fusion::integrate_weighted`]: all alike as `pipeline::fuse`'s `Fuser` does, or
-//! each view weighed by its squared baseline, [`ViewWeights`]), ray-casts the model into every
-//! view ([`crate::fusion::raycast_depth`]) and compares both with the ground truth
+//! ([`crate::fusion::integrate_weighted`], the views weighed by [`ViewWeights`]: alike, by
+//! their squared baselines, or per pixel as `pipeline::fuse`'s `Fuser` does,
+//! [`Weighting::DEPTH_MAPS`]), ray-casts the model into every view
+//! ([`crate::fusion::raycast_depth`]) and compares both with the ground truth
 //! ([`DepthAccuracy`]); for the synthetic scene, the mesh's vertices against the true surface
 //! ([`vertex_accuracy`]).
 //!
-//! Measured (2-core CPU engine): the synthetic rig meets the bar (ratio about 0.35, coverage
-//! 97 %, 97 % of the vertices within 2 voxels at 3 cm voxels); ICL-NUIM does not: its five
-//! frames lie within 7 cm of each other at 2.2 to 4.4 m, every reference is swept from the
-//! same five images, so the depth maps' errors (about 1 % of the depth) are largely shared
-//! and averaging them removes little (ratio 0.83 with equal weights, 0.76 with baseline
-//! weights, at 96 % coverage); weighing by the engine's confidence trades coverage for
-//! accuracy and does not reach 0.7 at 90 % coverage either.
+//! Measured (2-core CPU engine, 2026-11-26): the synthetic rig meets the bar with every
+//! weighting (ratio 0.35 equal, 0.46 with the node's weights; coverage 96-97 %, 98 % of the
+//! vertices within 2 voxels at 3 cm voxels). ICL-NUIM meets it with the node's weights only
+//! (0.67 at 96 % coverage; 0.83 equal, 0.76 baseline²): its five frames lie within 7 cm of
+//! each other, every reference is swept from the same five images, so the depth maps' errors
+//! are largely shared and averaging removes little; the widest baselines have to decide.
 
 use std::io::Write as _;
 use std::path::Path;
@@ -34,8 +34,9 @@ use glam::{DQuat, DVec2, DVec3};
 use crate::datasets::{self, DatasetError, Layout};
 use crate::engine::{Engine, Sweeper};
 use crate::fusion::{
-    integrate_weighted, vertex_accuracy, write_ply_file, DepthAccuracy, DepthAccuracySummary,
-    FusionError, FusionParams, Mesh, VertexAccuracy, VoxelBlockGrid,
+    integrate_weighted, observation_weights, rms_baseline_m, vertex_accuracy, write_ply_file,
+    DepthAccuracy, DepthAccuracySummary, FusionError, FusionParams, Mesh, VertexAccuracy,
+    VoxelBlockGrid, Weighting,
 };
 use crate::geometry::{CameraModel, GeometryError, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
@@ -133,21 +134,6 @@ impl FusionResult {
                 .vertices
                 .is_none_or(|v| v.fraction() >= MIN_VERTICES_WITHIN)
     }
-}
-
-/// The root mean square of the distances from camera `reference` to the others of `swept`
-/// (indices into `cameras`).
-pub fn rms_baseline_m(cameras: &[RigCamera], reference: usize, swept: &[usize]) -> f64 {
-    let centre = |i: usize| cameras[i].cam_from_rig.inverse().translation;
-    let others: Vec<f64> = swept
-        .iter()
-        .filter(|&&i| i != reference && i < cameras.len())
-        .map(|&i| centre(i).distance_squared(centre(reference)))
-        .collect();
-    if others.is_empty() {
-        return 0.0;
-    }
-    (others.iter().sum::<f64>() / others.len() as f64).sqrt()
 }
 
 /// A quad of the synthetic scene from its centre, two unit axes and half extents.
@@ -440,23 +426,65 @@ pub fn icl_nuim(
 }
 
 /// How [`evaluate`] weighs the views.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ViewWeights {
-    /// Every depth map alike, as `pipeline::fuse`'s `Fuser` fuses them.
+    /// Every depth map alike.
     Equal,
     /// Each view's observations weigh its [`FusionView::baseline_m`] squared (relative to the
     /// case's largest): a depth from triangulation over a baseline `B` has a variance about
     /// proportional to `1 / B^2`, so this is the inverse-variance weight of the views (their
     /// depths, pixel positions and matching errors alike).
     Baseline,
+    /// Each pixel weighed by [`observation_weights`] (its depth, confidence and neighbours,
+    /// its view's baseline over the case's largest): [`Weighting::DEPTH_MAPS`] is what
+    /// `pipeline::fuse`'s `Fuser` (the node, `bag`, `fuse`) uses.
+    Pixels(Weighting),
 }
 
 impl ViewWeights {
-    pub fn label(self) -> &'static str {
+    pub fn label(self) -> String {
         match self {
-            ViewWeights::Equal => "equal weights",
-            ViewWeights::Baseline => "baseline^2 weights",
+            ViewWeights::Equal => "equal weights".into(),
+            ViewWeights::Baseline => "baseline^2 weights".into(),
+            ViewWeights::Pixels(weighting) => {
+                let mut parts = Vec::new();
+                if weighting.confidence_power != 0.0 {
+                    parts.push(format!("conf^{}", weighting.confidence_power));
+                }
+                if weighting.min_confidence > 0.0 {
+                    parts.push(format!("conf>={}", weighting.min_confidence));
+                }
+                if weighting.depth_power != 0.0 {
+                    parts.push(format!("z^-{}", weighting.depth_power));
+                }
+                if let Some(r) = weighting.edge_ratio {
+                    parts.push(format!("edges>{r}"));
+                }
+                if weighting.baseline_power != 0.0 {
+                    parts.push(format!("baseline^{}", weighting.baseline_power));
+                }
+                format!("{} weights", parts.join(" "))
+            }
         }
+    }
+
+    /// A recipe from `SWEEPDEPTH_FUSION_WEIGHTS`-style text: comma-separated `c<power>`,
+    /// `m<min confidence>`, `z<depth power>`, `e<edge ratio>`, `b` (baseline).
+    pub fn parse(text: &str) -> Option<Self> {
+        let mut weighting = Weighting::EQUAL;
+        for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let (key, value) = part.split_at(1);
+            let number = || value.parse::<f32>().ok();
+            match key {
+                "c" => weighting.confidence_power = number()?,
+                "m" => weighting.min_confidence = number()?,
+                "z" => weighting.depth_power = number()?,
+                "e" => weighting.edge_ratio = Some(number()?),
+                "b" => weighting.baseline_power = value.parse().unwrap_or(2.0),
+                _ => return None,
+            }
+        }
+        Some(ViewWeights::Pixels(weighting))
     }
 }
 
@@ -473,17 +501,24 @@ pub fn evaluate(
     let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
     let largest = case.views.iter().map(|v| v.baseline_m).fold(0.0, f64::max);
     for view in &case.views {
+        let baseline_term = if largest > 0.0 {
+            (view.baseline_m / largest).powi(2) as f32
+        } else {
+            1.0
+        };
         let weight = match weights {
             ViewWeights::Equal => None,
-            ViewWeights::Baseline if largest > 0.0 => {
-                let w = (view.baseline_m / largest).powi(2) as f32;
-                Some(ImageF32 {
-                    width: view.depth_m.width,
-                    height: view.depth_m.height,
-                    data: vec![w; view.depth_m.data.len()],
-                })
-            }
-            ViewWeights::Baseline => None,
+            ViewWeights::Baseline => Some(ImageF32 {
+                width: view.depth_m.width,
+                height: view.depth_m.height,
+                data: vec![baseline_term; view.depth_m.data.len()],
+            }),
+            ViewWeights::Pixels(weighting) => Some(observation_weights(
+                &view.depth_m,
+                Some(&view.confidence),
+                (largest > 0.0).then_some((view.baseline_m / largest) as f32),
+                &weighting,
+            )),
         };
         integrate_weighted(
             &mut grid,
@@ -612,9 +647,17 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
             if let Some(v) = args.voxel_size {
                 case.params.voxel_size_m = v;
             }
-            [ViewWeights::Equal, ViewWeights::Baseline]
-                .map(|weights| evaluate(&case, weights, args.save.as_deref()))
+            let mut recipes = vec![
+                ViewWeights::Equal,
+                ViewWeights::Baseline,
+                ViewWeights::Pixels(Weighting::DEPTH_MAPS),
+            ];
+            if let Ok(text) = std::env::var("SWEEPDEPTH_FUSION_WEIGHTS") {
+                recipes.extend(text.split(';').filter_map(ViewWeights::parse));
+            }
+            recipes
                 .into_iter()
+                .map(|weights| evaluate(&case, weights, args.save.as_deref()))
                 .collect::<Result<Vec<_>, _>>()
         });
         match result {

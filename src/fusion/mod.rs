@@ -41,6 +41,7 @@ pub mod mesh;
 pub mod ply;
 pub mod raycast;
 mod tables;
+pub mod weights;
 
 pub use accuracy::{vertex_accuracy, DepthAccuracy, DepthAccuracySummary, VertexAccuracy};
 pub use blocks::{Block, BlockIndex, Voxel, VoxelBlockGrid, BLOCK_SIDE, VOXELS_PER_BLOCK};
@@ -48,6 +49,7 @@ pub use integrate::{integrate, integrate_weighted, IntegrationStats};
 pub use mesh::{BlockMesh, Mesh, MeshStats};
 pub use ply::{write_ply, write_ply_file};
 pub use raycast::raycast_depth;
+pub use weights::{observation_weights, rms_baseline_m, Weighting};
 
 /// Parameters of the fusion (nvblox's `ProjectiveIntegrator` parameters, and its layer's voxel
 /// size).

@@ -233,6 +233,10 @@ impl DepthSources {
             colour: None,
             model: calibration.model,
             map_from_cam: calibration.cam_from_frame(false).inverse(),
+            // Other sources' depth carries neither: fusion weighs it by its discontinuities
+            // and viewing angles alone.
+            confidence: None,
+            baseline_ratio: None,
         })
     }
 }

@@ -12,8 +12,8 @@ use std::sync::Arc;
 
 use super::outputs::FrameOutputs;
 use crate::fusion::{
-    integrate, BlockIndex, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
-    VoxelBlockGrid,
+    integrate_weighted, observation_weights, BlockIndex, BlockMesh, FusionError, FusionParams,
+    IntegrationStats, Mesh, MeshStats, VoxelBlockGrid, Weighting,
 };
 use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
@@ -35,6 +35,10 @@ pub struct FusionInput {
     pub model: CameraModel,
     /// The camera (ROS optical frame) in `frame`.
     pub map_from_cam: RigidTransform,
+    /// The depth's confidence (0 .. 1, same size), where the source has one (our engine).
+    pub confidence: Option<ImageF32>,
+    /// The depth's baseline over the largest of its set's references, where known.
+    pub baseline_ratio: Option<f32>,
 }
 
 impl FusionInput {
@@ -52,6 +56,8 @@ impl FusionInput {
             colour: out.colour.clone(),
             model: out.model,
             map_from_cam: map_from_frame.compose(&out.frame_from_cam),
+            confidence: out.confidence_map(),
+            baseline_ratio: out.baseline_ratio,
         }
     }
 }
@@ -92,6 +98,8 @@ pub struct SavedMesh {
 #[derive(Debug)]
 pub struct Fuser {
     params: FusionParams,
+    /// How each depth map's pixels are weighed ([`Weighting::DEPTH_MAPS`]).
+    weighting: Weighting,
     grid: VoxelBlockGrid,
     mesh: Mesh,
     /// The map's frame: that of the first input since the last clear.
@@ -114,6 +122,7 @@ impl Fuser {
             grid: VoxelBlockGrid::new(params.voxel_size_m)?,
             mesh: Mesh::new(),
             params,
+            weighting: Weighting::DEPTH_MAPS,
             frame: None,
             stamp: Time::default(),
             ids: HashMap::new(),
@@ -150,10 +159,19 @@ impl Fuser {
                 });
             }
         }
-        let stats = integrate(
+        let weights = (!self.weighting.is_equal()).then(|| {
+            observation_weights(
+                &input.depth,
+                input.confidence.as_ref(),
+                input.baseline_ratio,
+                &self.weighting,
+            )
+        });
+        let stats = integrate_weighted(
             &mut self.grid,
             &self.params,
             &input.depth,
+            weights.as_ref(),
             input.colour.as_deref(),
             &input.model,
             &input.map_from_cam,
@@ -339,6 +357,8 @@ mod tests {
                 translation: glam::DVec3::new(x, 0.0, 0.0),
                 ..RigidTransform::IDENTITY
             },
+            confidence: None,
+            baseline_ratio: None,
         }
     }
 

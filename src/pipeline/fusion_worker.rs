@@ -309,6 +309,8 @@ mod tests {
                 cy_px: 23.5,
             }),
             map_from_cam: RigidTransform::IDENTITY,
+            confidence: None,
+            baseline_ratio: None,
         }
     }
 

@@ -5,6 +5,7 @@ use super::convert::image_to_rgba8;
 use super::out_messages::{f32_image_msg, point_cloud_msg, selection_msg};
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
+use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
@@ -41,21 +42,36 @@ pub struct FrameOutputs {
     pub frame_from_cam: RigidTransform,
     /// The reference camera's image (None for a virtual reference), shared, not copied.
     pub colour: Option<Arc<Rgba8Image>>,
+    /// This reference's baseline (`fusion::rms_baseline_m`) over the largest of its set's
+    /// references, for fusion's weights (None for a virtual reference).
+    pub baseline_ratio: Option<f32>,
 }
 
 impl FrameOutputs {
     /// The depth in metres (the `depth` message's 32FC1 data; NaN invalid).
     pub fn depth_m(&self) -> ImageF32 {
-        ImageF32 {
-            width: self.depth.width,
-            height: self.depth.height,
-            data: self
-                .depth
-                .data
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect(),
-        }
+        f32_image(&self.depth)
+    }
+
+    /// The confidence (the `confidence` message's 32FC1 data), None where it is not the
+    /// depth's size.
+    pub fn confidence_map(&self) -> Option<ImageF32> {
+        let same = self.confidence.width == self.depth.width
+            && self.confidence.height == self.depth.height;
+        same.then(|| f32_image(&self.confidence))
+    }
+}
+
+/// A 32FC1 message's data.
+fn f32_image(image: &Image) -> ImageF32 {
+    ImageF32 {
+        width: image.width,
+        height: image.height,
+        data: image
+            .data
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
     }
 }
 
@@ -122,10 +138,19 @@ pub fn process_job(
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
     let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+    let baselines: Vec<f64> = results
+        .iter()
+        .map(|r| {
+            r.as_ref().map_or(0.0, |depth| {
+                rms_baseline_m(&job.cameras, depth.reference, &depth.cameras)
+            })
+        })
+        .collect();
+    let largest = baselines.iter().copied().fold(0.0, f64::max);
     // The images go on to the outputs (colour for points and fusion) without a copy.
     let images: Vec<Arc<Rgba8Image>> = images.into_iter().map(Arc::new).collect();
     let mut set = SetOutputs::default();
-    for (reference, result) in job.references.iter().zip(results) {
+    for ((reference, result), baseline) in job.references.iter().zip(results).zip(baselines) {
         let name = job
             .cameras
             .get(reference.index)
@@ -155,7 +180,7 @@ pub fn process_job(
             .cam_from_rig
             .inverse()
             .compose(&reference.cam_from_frame);
-        set.outputs.push(messages(
+        let mut outputs = messages(
             reference.output,
             header,
             &reference.info,
@@ -169,7 +194,9 @@ pub fn process_job(
                 world_from_rig: job.world_from_rig,
                 anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
-        ));
+        );
+        outputs.baseline_ratio = (largest > 0.0).then_some((baseline / largest) as f32);
+        set.outputs.push(outputs);
     }
     Ok(set)
 }
@@ -226,5 +253,6 @@ fn messages(
         model: *model,
         frame_from_cam: *frame_from_cam,
         colour: colour.cloned(),
+        baseline_ratio: None,
     }
 }

@@ -30,8 +30,11 @@ impl View<'_> {
         let (w, h) = (width as f32, height as f32);
         let samples = &self.samples[..];
         // The last top-left corner of a bilinear 2x2 (`lanes_fit`: at least 2x2 pixels).
-        let last_corner = samples.len() - width - 2;
-        let last_pixel = samples.len() - 1;
+        // In i32 (`lanes_fit`: fewer than 2^31 pixels), which AVX2 converts and multiplies
+        // eight lanes at a time (usize lanes are converted one by one).
+        let last_corner = (samples.len() - width - 2) as i32;
+        let last_pixel = (samples.len() - 1) as i32;
+        let (width_i, height_i) = (width as i32, height as i32);
         let trunc = self.truncation_m;
         let inv_trunc = 1.0 / trunc;
         let xs: [f32; LANES] = std::array::from_fn(|x| x as f32);
@@ -41,8 +44,8 @@ impl View<'_> {
                 let row = origin + step_y * y as f32 + step_z * z as f32;
                 let mut pz = [0.0f32; LANES];
                 let mut inside = [false; LANES];
-                let mut corner = [0usize; LANES];
-                let mut nearest = [0usize; LANES];
+                let mut corner = [0i32; LANES];
+                let mut nearest = [0i32; LANES];
                 let mut bilinear = [false; LANES];
                 let mut fu = [0.0f32; LANES];
                 let mut fv = [0.0f32; LANES];
@@ -55,16 +58,16 @@ impl View<'_> {
                     // NaN fails every comparison.
                     let ok = zc > 1e-6 && u >= -0.5 && v >= -0.5 && u < w - 0.5 && v < h - 0.5;
                     let (u, v) = if ok { (u, v) } else { (0.0, 0.0) };
-                    let n = ((v + 0.5) as usize).min(height - 1) * width
-                        + ((u + 0.5) as usize).min(width - 1);
-                    let (u1, v1) = ((u + 1.0) as usize, (v + 1.0) as usize);
-                    let bil = u1 >= 1 && v1 >= 1 && u1 < width && v1 < height;
+                    let n = ((v + 0.5) as i32).min(height_i - 1) * width_i
+                        + ((u + 0.5) as i32).min(width_i - 1);
+                    let (u1, v1) = ((u + 1.0) as i32, (v + 1.0) as i32);
+                    let bil = u1 >= 1 && v1 >= 1 && u1 < width_i && v1 < height_i;
                     let (u0, v0) = (u1.max(1) - 1, v1.max(1) - 1);
                     pz[x] = zc;
                     inside[x] = ok;
                     nearest[x] = n.min(last_pixel);
                     bilinear[x] = bil;
-                    corner[x] = (v0 * width + u0).min(last_corner);
+                    corner[x] = (v0 * width_i + u0).min(last_corner);
                     fu[x] = u - u0 as f32;
                     fv[x] = v - v0 as f32;
                 }
@@ -72,14 +75,15 @@ impl View<'_> {
                 let mut dn = [0.0f32; LANES];
                 let mut weight = [0.0f32; LANES];
                 for x in 0..LANES {
-                    let i = corner[x];
+                    // Not negative: u0, v0 >= 0.
+                    let i = corner[x] as usize;
                     // From the samples alone (the nearest pixel's weight shares a cache line
                     // with its depth, and the four corners are two lines).
                     d[0][x] = samples[i].depth_m;
                     d[1][x] = samples[i + 1].depth_m;
                     d[2][x] = samples[i + width].depth_m;
                     d[3][x] = samples[i + width + 1].depth_m;
-                    let near = &samples[nearest[x]];
+                    let near = &samples[nearest[x] as usize];
                     dn[x] = near.depth_m;
                     weight[x] = near.weight;
                 }
@@ -112,7 +116,7 @@ impl View<'_> {
                     let voxel = &mut block.voxels[offset + x];
                     voxel.observe_tsdf((s * inv_trunc).min(1.0), weight[x], self.max_weight);
                     if self.colour.is_some() && s.abs() < trunc {
-                        let [r, g, b, _] = Rgba8Image::unpack(samples[nearest[x]].rgb);
+                        let [r, g, b, _] = Rgba8Image::unpack(samples[nearest[x] as usize].rgb);
                         voxel.observe_colour([r, g, b], self.max_weight);
                     }
                     updated += 1;
