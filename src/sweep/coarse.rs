@@ -24,7 +24,7 @@ const NEIGHBOUR_ROWS: usize = 1;
 
 /// The smallest reference (width and height, pixels) that is swept coarse to fine; a smaller
 /// one is swept at full resolution only (it is fast anyway, and at 80x60 the 40x30
-/// half-resolution images are too coarse for 5x5 windows: `tests/engine_analytic.rs`'s
+/// half-resolution images are too coarse for 5x5 windows: `tests/engine/engine_analytic.rs`'s
 /// synthetic scenes lose most of their depth through wrong ranges).
 pub const MIN_SIZE: u32 = 160;
 

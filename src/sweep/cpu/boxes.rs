@@ -71,7 +71,7 @@ impl BoxH {
     /// Window sums of `values` (all taken as valid) into `out[..width + w - 1]`, built from
     /// doubling partial sums: for w = 9, out = s8[i] + s1[i + 8] with s8 made in three steps,
     /// instead of nine additions per anchor. (The rounding differs from the shader's
-    /// left-to-right order by float ulps, inside the tolerances of tests/gpu_vs_cpu.rs.)
+    /// left-to-right order by float ulps, inside the tolerances of tests/engine/gpu_vs_cpu.rs.)
     /// Windows of 1 and 2 columns (the paper's shiftable 2x2) are summed directly: the same
     /// floats as the doubling (one addition of two values), without its copies.
     #[inline(always)]

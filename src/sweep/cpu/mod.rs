@@ -1,7 +1,7 @@
 //! The CPU engine: the pipeline of `shaders/` in Rust, one module per shader written to read
 //! like it (`cost.rs` twins `cost.wgsl`, ...), on the same packed [`SweepPlan`], multi-threaded
 //! (rayon) and vectorised. The WGSL engine and this one agree stage by stage within the
-//! tolerances of `tests/gpu_vs_cpu.rs`.
+//! tolerances of `tests/engine/gpu_vs_cpu.rs`.
 //!
 //! Where the GPU runs one dispatch per stage over the whole image, the CPU fuses a plane's
 //! cost, window sums and scoring row by row (`plane.rs`) so the working set stays in cache. Bands

@@ -1,7 +1,7 @@
 //! The GPU pipeline and its CPU twin agree, mode by mode, on synthetic and real inputs. On a
 //! failure both depth images are written (path in the message).
 
-mod common;
+use crate::common;
 
 use sweepdepth::geometry::{CameraModel, Distortion, Rig};
 use sweepdepth::image::{ImageF32, Rgba8Image};

@@ -1,7 +1,7 @@
 //! Quality on real data with ground truth, through the engine and through the `sweepdepth eval`
 //! command, checked independently from the PFM it saves.
 
-mod common;
+use crate::common;
 
 use common::shared_data;
 

@@ -6,7 +6,7 @@
 //! at least 95 % of the mesh's vertices lie within 2 voxels of the true surface. Quality only,
 //! never timing; the engine is the CPU one unless a hardware GPU is there (`Device::Auto`).
 
-mod common;
+use crate::common;
 
 use sweepdepth::engine::{Device, Engine};
 use sweepdepth::eval::fusion::{

@@ -1,6 +1,6 @@
 //! Analytic tests of the GPU engine on synthetic scenes with exact ground truth.
 
-mod common;
+use crate::common;
 
 use glam::{DQuat, DVec2, DVec3};
 use sweepdepth::geometry::{CameraModel, Reference, Rig, RigCamera, RigidTransform};
@@ -264,7 +264,7 @@ fn occluding_foreground_makes_half_sequence_pick_the_unoccluded_side() {
 /// halves are split along the square's diagonal), a cross of five and a converging arc, the
 /// reference in the middle and at one end. On each the half-sequence's share of pixels within 2 %
 /// is at most half a point below best n of m's, and high (CPU engine: the shapes, not the
-/// engines, are what this checks; tests/gpu_vs_cpu.rs holds the engines equal).
+/// engines, are what this checks; tests/engine/gpu_vs_cpu.rs holds the engines equal).
 #[test]
 fn half_sequence_holds_on_rigs_that_are_not_a_row() {
     let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));

@@ -1,7 +1,7 @@
 //! Dataset loaders, PFM I/O and evaluation metrics, on tiny fake folders (and on the shared
 //! datasets when `../shared/data` exists, or must: tests/common/shared_data.rs). No GPU needed.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 
