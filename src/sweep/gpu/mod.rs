@@ -27,6 +27,32 @@ use shape::ShapeKey;
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
 
+/// What the WGSL engine did on the host since [`GpuEngine::take_set_counts`] was last called
+/// (`bench` takes them after every frame set): every level of a coarse-to-fine sweep, every
+/// reference of a set.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SetCounts {
+    /// Plans run (levels of coarse to fine, references).
+    pub levels: u32,
+    /// Command buffers submitted to the queue.
+    pub submissions: u32,
+    /// Buffers mapped and read back.
+    pub readbacks: u32,
+    /// Bytes of those buffers.
+    pub readback_bytes: u64,
+    /// Blocking waits for the GPU.
+    pub waits: u32,
+    /// Milliseconds spent in those waits.
+    pub wait_ms: f64,
+    /// Milliseconds spent in `Queue::submit` (lavapipe blocks there while an earlier
+    /// submission runs: a wait in all but name).
+    pub submit_ms: f64,
+    /// Milliseconds of `run` (or `run_plan`) neither waiting for the GPU nor in `submit`: the
+    /// host's share of a frame set (planning, images, census, half-size images, uploads,
+    /// recording, unpacking the maps).
+    pub host_ms: f64,
+}
+
 /// The GPU plane-sweep engine.
 pub struct GpuEngine {
     device: wgpu::Device,
@@ -51,6 +77,7 @@ pub struct GpuEngine {
     packed: Vec<u32>,
     timings: StageTimings,
     cancel: CancelFlag,
+    counts: SetCounts,
 }
 
 /// Buffers of other shapes kept at most: the levels below the full-resolution one of the
@@ -84,6 +111,7 @@ impl GpuEngine {
             packed: Vec::new(),
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
+            counts: SetCounts::default(),
         })
     }
 
@@ -111,6 +139,21 @@ impl GpuEngine {
         &self.timings
     }
 
+    /// Submissions, readbacks, waits and host time since the last call (then zero again).
+    pub fn take_set_counts(&mut self) -> SetCounts {
+        std::mem::take(&mut self.counts)
+    }
+
+    /// Runs `f`, adding its wall time less the GPU waits it made to `host_ms`.
+    fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
+        let started = Instant::now();
+        let waited_before = self.counts.wait_ms + self.counts.submit_ms;
+        let result = f(self);
+        let waited = self.counts.wait_ms + self.counts.submit_ms - waited_before;
+        self.counts.host_ms += started.elapsed().as_secs_f64() * 1e3 - waited;
+        result
+    }
+
     pub fn adapter_info(&self) -> wgpu::AdapterInfo {
         self.device.adapter_info()
     }
@@ -128,15 +171,17 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        // One shape at a time outside coarse to fine: the other levels' buffers go; with it,
-        // the buffers of every level below the current one stay.
-        let below = super::coarse::levels(rig, params) - 1;
-        let excess = self.spares.len().saturating_sub(below);
-        self.spares.drain(..excess);
-        let mut plans = std::mem::take(&mut self.plans);
-        let result = super::coarse::run(self, plans.for_rig(rig), rig, images, params);
-        self.plans = plans;
-        result
+        self.timed(|engine| {
+            // One shape at a time outside coarse to fine: the other levels' buffers go; with
+            // it, the buffers of every level below the current one stay.
+            let below = super::coarse::levels(rig, params) - 1;
+            let excess = engine.spares.len().saturating_sub(below);
+            engine.spares.drain(..excess);
+            let mut plans = std::mem::take(&mut engine.plans);
+            let result = super::coarse::run(engine, plans.for_rig(rig), rig, images, params);
+            engine.plans = plans;
+            result
+        })
     }
 
     /// Runs a prepared plan (e.g. with a custom hypothesis family).
@@ -146,8 +191,10 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        let maps = self.run_plan_raw(plan, rig, images)?;
-        Ok(plan.depth_maps(&maps))
+        self.timed(|engine| {
+            let maps = engine.run_level(plan, rig, images)?;
+            Ok(plan.depth_maps(&maps))
+        })
     }
 
     /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
@@ -157,6 +204,17 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
+        self.timed(|engine| engine.run_level(plan, rig, images))
+    }
+
+    /// One plan (one level of a frame set): upload, record, submit, read the maps back.
+    fn run_level(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<Vec<f32>, SweepError> {
+        self.counts.levels += 1;
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
         plan.pack_images(rig, images, &mut packed, &mut self.memo)?;
@@ -199,7 +257,8 @@ impl GpuEngine {
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
 
-        let mut submitter = record::Submitter::new(&self.device, &self.queue, &self.cancel);
+        let mut submitter =
+            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
         record::record(
             &mut submitter,
             buffers,
@@ -211,18 +270,9 @@ impl GpuEngine {
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
-        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&record::read_buffer(
-            &self.device,
-            &self.cancel,
-            &buffers.readback,
-        )?);
-        self.timings = match record::stage_times(
-            &self.device,
-            &self.cancel,
-            &self.queue,
-            buffers,
-            schedule,
-        )? {
+        let maps: Vec<f32> =
+            bytemuck::pod_collect_to_vec(&record::read_buffer(&mut submitter, &buffers.readback)?);
+        self.timings = match record::stage_times(&mut submitter, buffers, schedule)? {
             Some(timings) => timings,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
@@ -240,7 +290,9 @@ impl super::coarse::PlanRunner for GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        GpuEngine::run_plan(self, plan, rig, images)
+        // Inside `run`, which times the whole frame set.
+        let maps = self.run_level(plan, rig, images)?;
+        Ok(plan.depth_maps(&maps))
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

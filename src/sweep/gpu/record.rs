@@ -2,13 +2,14 @@
 //! timestamped compute pass), and reading back the maps and the per-stage GPU times.
 
 use std::sync::mpsc;
+use std::time::Instant;
 
 use super::super::schedule::{sgm_lines, Schedule, SGM_DIRECTIONS};
 use super::super::stages::{Stage, STAGES};
 use super::super::{CancelFlag, StageTimings, SweepError};
 use super::buffers::{Alignments, Buffers};
-use super::gpu_err;
 use super::pipelines::Specialisation;
+use super::{gpu_err, SetCounts};
 
 /// Workgroups of 8x8 over a w x h grid.
 fn tiles(w: u32, h: u32) -> (u32, u32, u32) {
@@ -25,16 +26,33 @@ pub(super) struct Submitter<'a> {
     pub queue: &'a wgpu::Queue,
     pub cancel: &'a CancelFlag,
     previous: Option<wgpu::SubmissionIndex>,
+    /// Submissions, readbacks and waits, added to the frame set's.
+    pub counts: &'a mut SetCounts,
 }
 
 impl<'a> Submitter<'a> {
-    pub fn new(device: &'a wgpu::Device, queue: &'a wgpu::Queue, cancel: &'a CancelFlag) -> Self {
+    pub fn new(
+        device: &'a wgpu::Device,
+        queue: &'a wgpu::Queue,
+        cancel: &'a CancelFlag,
+        counts: &'a mut SetCounts,
+    ) -> Self {
         Self {
             device,
             queue,
             cancel,
             previous: None,
+            counts,
         }
+    }
+
+    /// Waits for `index` (None: the latest submission), counted.
+    fn wait(&mut self, index: Option<wgpu::SubmissionIndex>) -> Result<(), SweepError> {
+        let started = Instant::now();
+        let result = wait(self.device, self.cancel, index);
+        self.counts.waits += 1;
+        self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
+        result
     }
 
     pub fn encoder(&self) -> wgpu::CommandEncoder {
@@ -47,9 +65,13 @@ impl<'a> Submitter<'a> {
     /// Submits `encoder`, then waits (cancellably) for the submission before it.
     pub fn submit(&mut self, encoder: wgpu::CommandEncoder) -> Result<(), SweepError> {
         self.cancel.check()?;
-        let index = self.queue.submit([encoder.finish()]);
+        let command_buffer = encoder.finish();
+        let started = Instant::now();
+        let index = self.queue.submit([command_buffer]);
+        self.counts.submissions += 1;
+        self.counts.submit_ms += started.elapsed().as_secs_f64() * 1e3;
         match self.previous.replace(index) {
-            Some(before) => wait(self.device, self.cancel, Some(before)),
+            Some(before) => self.wait(Some(before)),
             None => Ok(()),
         }
     }
@@ -172,15 +194,16 @@ pub(super) fn record(
 
 /// Maps `buffer`, waits for the GPU, and copies its bytes out.
 pub(super) fn read_buffer(
-    device: &wgpu::Device,
-    cancel: &CancelFlag,
+    submitter: &mut Submitter<'_>,
     buffer: &wgpu::Buffer,
 ) -> Result<Vec<u8>, SweepError> {
     let (sender, receiver) = mpsc::channel();
     buffer.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = sender.send(r);
     });
-    wait(device, cancel, None)?;
+    submitter.counts.readbacks += 1;
+    submitter.counts.readback_bytes += buffer.size();
+    submitter.wait(None)?;
     receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
     let data = buffer.get_mapped_range(..).map_err(gpu_err)?.to_vec();
     buffer.unmap();
@@ -190,19 +213,17 @@ pub(super) fn read_buffer(
 /// Per-stage GPU times (summed over a stage's dispatches) from the timestamps of the recorded
 /// schedule; `None` without timestamp queries.
 pub(super) fn stage_times(
-    device: &wgpu::Device,
-    cancel: &CancelFlag,
-    queue: &wgpu::Queue,
+    submitter: &mut Submitter<'_>,
     buffers: &Buffers,
     schedule: &Schedule,
 ) -> Result<Option<StageTimings>, SweepError> {
     let Some(t) = &buffers.timestamps else {
         return Ok(None);
     };
-    let raw = read_buffer(device, cancel, &t.readback)?;
+    let raw = read_buffer(submitter, &t.readback)?;
     // Copied, not cast: a Vec<u8> need not be 8-byte aligned.
     let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(&raw);
-    let period_ns = f64::from(queue.get_timestamp_period());
+    let period_ns = f64::from(submitter.queue.get_timestamp_period());
     let mut per_stage = [0.0f64; STAGES.len()];
     for (p, dispatch) in schedule.dispatches().iter().enumerate() {
         let (Some(&begin), Some(&end)) = (ticks.get(2 * p), ticks.get(2 * p + 1)) else {
