@@ -63,6 +63,9 @@ pub struct GpuEngine {
     sgm_line_per_invocation: bool,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
     sgm_band_bytes: Option<u64>,
+    /// A smaller budget than `shape::SLAB_BUDGET_BYTES` for one batch of planes (tests of the
+    /// batches).
+    slab_bytes: Option<u64>,
     /// The buffers of the last shape, and what runs on them.
     buffers: Option<(Buffers, Schedule)>,
     /// The buffers of the shapes before (with the id of the plan uploaded into them), the
@@ -103,6 +106,7 @@ impl GpuEngine {
             // GPU wants a full warp per line, the planes across its lanes.
             sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             sgm_band_bytes: None,
+            slab_bytes: None,
             buffers: None,
             spares: Vec::new(),
             plans: Default::default(),
@@ -127,6 +131,18 @@ impl GpuEngine {
     /// the result equals the run in one band.
     pub fn set_sgm_band_bytes(&mut self, max_bytes: Option<u64>) {
         self.sgm_band_bytes = max_bytes;
+    }
+
+    /// Caps the bytes of one batch of planes (cost slab and window sums) below the engine's
+    /// budget (`None`: the budget). Tests use it to run a plan in several batches; the result
+    /// equals the run in one.
+    pub fn set_slab_bytes(&mut self, max_bytes: Option<u64>) {
+        self.slab_bytes = max_bytes;
+    }
+
+    /// Batches of planes of the last level run (1 when one slab held every plane).
+    pub fn batches(&self) -> u32 {
+        self.buffers.as_ref().map_or(0, |(b, _)| b.key.batches())
     }
 
     /// Row bands of the SGM volume in the last frame set (1 when one binding held it).
@@ -158,8 +174,8 @@ impl GpuEngine {
         self.device.adapter_info()
     }
 
-    /// Stops a run between submissions (one per batch of planes, then the rest) and while it
-    /// waits for the GPU once `cancel` is set ([`SweepError::Cancelled`]).
+    /// Stops a run before each level's submission and while it waits for the GPU once
+    /// `cancel` is set ([`SweepError::Cancelled`]; the GPU finishes the level it was given).
     pub fn set_cancel(&mut self, cancel: CancelFlag) {
         self.cancel = cancel;
     }
@@ -218,7 +234,12 @@ impl GpuEngine {
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
         plan.pack_images(rig, images, &mut packed, &mut self.memo)?;
-        let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
+        let key = ShapeKey::of(
+            plan,
+            &self.device.limits(),
+            self.sgm_band_bytes,
+            self.slab_bytes,
+        )?;
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
             let (buffers, schedule, uploaded) =
                 match self.spares.iter().position(|spare| spare.0.key == key) {
@@ -257,23 +278,28 @@ impl GpuEngine {
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
 
-        let mut submitter =
-            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        record::record(
-            &mut submitter,
+        let commands = record::record(
+            &self.device,
             buffers,
             pipelines,
             &spec,
             schedule,
             self.align,
-        )?;
+        );
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
-        let maps: Vec<f32> =
-            bytemuck::pod_collect_to_vec(&record::read_buffer(&mut submitter, &buffers.readback)?);
-        self.timings = match record::stage_times(&mut submitter, buffers, schedule)? {
-            Some(timings) => timings,
+        // One submission and one wait per level: the maps and the timestamps come back
+        // together.
+        let mut submitter =
+            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
+        submitter.submit(commands)?;
+        let mut wanted = vec![&buffers.readback];
+        wanted.extend(buffers.timestamps.as_ref().map(|t| &t.readback));
+        let raw = submitter.read_back(&wanted)?;
+        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&raw[0]);
+        self.timings = match raw.get(1) {
+            Some(ticks) => record::phase_times(&self.queue, schedule, ticks)?,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
                 gpu_timestamps: false,
