@@ -1014,7 +1014,8 @@ fn several_batches_in_one_submission_equal_one_batch() {
 }
 
 /// A coarse-to-fine frame set (two levels at 320x240 with 96 planes) is one submission and
-/// one wait per level, and the level timings name the schedule's phases.
+/// one wait per level, the level below reads back its raw depths alone, and the level timings
+/// name the schedule's phases.
 #[test]
 fn coarse_to_fine_is_one_submission_per_level() {
     let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
@@ -1041,7 +1042,25 @@ fn coarse_to_fine_is_one_submission_per_level() {
             (levels, levels, levels),
             "set {set}: {counts:?}"
         );
-        assert!(counts.readbacks <= 2 * levels, "set {set}: {counts:?}");
+        // The half-resolution level brings back its raw depths alone (the full-resolution
+        // rows' plane ranges), the full-resolution one every map; each level its 2 x 7
+        // timestamps where the adapter has them.
+        let maps_bytes = (MAP_COUNT * 4 * 320 * 240 + 4 * 160 * 120) as u64;
+        let timestamps = counts.readbacks == 2 * levels;
+        let timestamp_bytes = if timestamps {
+            u64::from(levels) * 2 * 7 * 8
+        } else {
+            0
+        };
+        assert!(
+            timestamps || counts.readbacks == levels,
+            "set {set}: {counts:?}"
+        );
+        assert_eq!(
+            counts.readback_bytes,
+            maps_bytes + timestamp_bytes,
+            "set {set}"
+        );
     }
     let timings = engine.last_timings();
     if timings.gpu_timestamps {

@@ -16,6 +16,7 @@ mod shape;
 
 use std::time::Instant;
 
+use super::gpu_types::MAP_DEPTH_RAW;
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
 use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
@@ -51,6 +52,15 @@ pub struct SetCounts {
     /// host's share of a frame set (planning, images, census, half-size images, uploads,
     /// recording, unpacking the maps).
     pub host_ms: f64,
+}
+
+/// What a level reads back of the `maps` buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Readback {
+    /// Every section: the frame set's result.
+    All,
+    /// The raw depths alone: a coarse-to-fine level below the full resolution.
+    DepthRaw,
 }
 
 /// The GPU plane-sweep engine.
@@ -208,7 +218,7 @@ impl GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
-            let maps = engine.run_level(plan, rig, images)?;
+            let maps = engine.run_level(plan, rig, images, Readback::All)?;
             Ok(plan.depth_maps(&maps))
         })
     }
@@ -220,15 +230,17 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        self.timed(|engine| engine.run_level(plan, rig, images))
+        self.timed(|engine| engine.run_level(plan, rig, images, Readback::All))
     }
 
-    /// One plan (one level of a frame set): upload, record, submit, read the maps back.
+    /// One plan (one level of a frame set): upload, record, submit, read the maps back (all
+    /// of them, or the raw depths alone).
     fn run_level(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
         images: &[Rgba8Image],
+        readback: Readback,
     ) -> Result<Vec<f32>, SweepError> {
         self.counts.levels += 1;
         let started = Instant::now();
@@ -278,6 +290,14 @@ impl GpuEngine {
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
 
+        let section = plan.pixel_count() as u64 * 4;
+        let maps_bytes = match readback {
+            Readback::All => 0..buffers.maps.size(),
+            Readback::DepthRaw => {
+                let first = MAP_DEPTH_RAW as u64 * section;
+                first..first + section
+            }
+        };
         let commands = record::record(
             &self.device,
             buffers,
@@ -285,6 +305,7 @@ impl GpuEngine {
             &spec,
             schedule,
             self.align,
+            maps_bytes.clone(),
         );
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
@@ -294,12 +315,20 @@ impl GpuEngine {
         let mut submitter =
             record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
         submitter.submit(commands)?;
-        let mut wanted = vec![&buffers.readback];
-        wanted.extend(buffers.timestamps.as_ref().map(|t| &t.readback));
-        let raw = submitter.read_back(&wanted)?;
-        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&raw[0]);
-        self.timings = match raw.get(1) {
-            Some(ticks) => record::phase_times(&self.queue, schedule, ticks)?,
+        let mut wanted = vec![(&buffers.readback, maps_bytes.end - maps_bytes.start)];
+        wanted.extend(
+            buffers
+                .timestamps
+                .as_ref()
+                .map(|t| (&t.readback, t.readback.size())),
+        );
+        let mut raw = submitter.read_back(&wanted)?.into_iter();
+        let maps: Vec<f32> = bytemuck::cast_vec(
+            raw.next()
+                .ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?,
+        );
+        self.timings = match raw.next() {
+            Some(ticks) => record::phase_times(&self.queue, schedule, &ticks)?,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
                 gpu_timestamps: false,
@@ -317,8 +346,18 @@ impl super::coarse::PlanRunner for GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         // Inside `run`, which times the whole frame set.
-        let maps = self.run_level(plan, rig, images)?;
+        let maps = self.run_level(plan, rig, images, Readback::All)?;
         Ok(plan.depth_maps(&maps))
+    }
+
+    fn run_plan_for_ranges(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        let depth_raw = self.run_level(plan, rig, images, Readback::DepthRaw)?;
+        Ok(plan.depth_raw_maps(depth_raw))
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

@@ -56,17 +56,21 @@ impl<'a> Submitter<'a> {
         Ok(())
     }
 
-    /// Maps every buffer of `buffers`, waits once for the GPU, and copies their bytes out.
-    pub fn read_back(&mut self, buffers: &[&wgpu::Buffer]) -> Result<Vec<Vec<u8>>, SweepError> {
+    /// Maps the first `bytes` of every buffer of `buffers`, waits once for the GPU, and copies
+    /// them out (once: as 32-bit words, which the maps are).
+    pub fn read_back(
+        &mut self,
+        buffers: &[(&wgpu::Buffer, u64)],
+    ) -> Result<Vec<Vec<u32>>, SweepError> {
         let receivers: Vec<_> = buffers
             .iter()
-            .map(|buffer| {
+            .map(|&(buffer, bytes)| {
                 let (sender, receiver) = mpsc::channel();
-                buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+                buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
                     let _ = sender.send(r);
                 });
                 self.counts.readbacks += 1;
-                self.counts.readback_bytes += buffer.size();
+                self.counts.readback_bytes += bytes;
                 receiver
             })
             .collect();
@@ -78,9 +82,11 @@ impl<'a> Submitter<'a> {
         buffers
             .iter()
             .zip(receivers)
-            .map(|(buffer, receiver)| {
+            .map(|(&(buffer, bytes), receiver)| {
                 receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
-                let data = buffer.get_mapped_range(..).map_err(gpu_err)?.to_vec();
+                let data = bytemuck::pod_collect_to_vec(
+                    &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..],
+                );
                 buffer.unmap();
                 Ok(data)
             })
@@ -148,8 +154,8 @@ fn workgroups(
 
 /// Records every dispatch of `schedule` into one command buffer, one compute pass per phase
 /// (every batch of planes in the sweep's pass, every direction and band in SGM's; wgpu orders
-/// the dispatches of a pass), then the copies of the maps (and timestamps) to their readback
-/// buffers.
+/// the dispatches of a pass), then the copies of the maps' bytes `maps` (and the timestamps)
+/// to the start of their readback buffers.
 pub(super) fn record(
     device: &wgpu::Device,
     buffers: &Buffers,
@@ -157,6 +163,7 @@ pub(super) fn record(
     spec: &Specialisation,
     schedule: &Schedule,
     align: Alignments,
+    maps: std::ops::Range<u64>,
 ) -> wgpu::CommandBuffer {
     let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
         label: Some("sweep"),
@@ -188,8 +195,13 @@ pub(super) fn record(
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
         }
     }
-    let maps_bytes = buffers.maps.size();
-    encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_bytes);
+    encoder.copy_buffer_to_buffer(
+        &buffers.maps,
+        maps.start,
+        &buffers.readback,
+        0,
+        maps.end - maps.start,
+    );
     if let Some(t) = &buffers.timestamps {
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
         encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, t.resolve.size());
@@ -202,9 +214,9 @@ pub(super) fn record(
 pub(super) fn phase_times(
     queue: &wgpu::Queue,
     schedule: &Schedule,
-    raw: &[u8],
+    raw: &[u32],
 ) -> Result<StageTimings, SweepError> {
-    // Copied, not cast: a Vec<u8> need not be 8-byte aligned.
+    // Copied, not cast: a Vec<u32> need not be 8-byte aligned.
     let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(raw);
     let period_ns = f64::from(queue.get_timestamp_period());
     let stages = schedule
