@@ -1,13 +1,16 @@
 //! "How to run it": the wgpu engine. It takes a device and queue from its caller, makes its
 //! layouts and pipelines from the stage registry (`sweep/stages.rs`) once, and keeps its buffers
 //! across frame sets of the same shape; a new rig or new parameters re-plan, a new shape
-//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded dispatch by
-//! dispatch.
+//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded into one
+//! command buffer per level (one compute pass per phase), submitted once and read back after
+//! one wait.
 //!
-//! - `shape.rs`: the shape of work on this adapter (batches, SGM row bands; limits checked).
+//! - `shape.rs`: the shape of work on this adapter (batches sized on what the mode allocates,
+//!   SGM row bands; limits checked).
 //! - `pipelines.rs`: layouts, modules and specialised pipelines from the registry.
 //! - `buffers.rs`: the buffers of a shape, bind groups by binding name, the plan's upload.
-//! - `record.rs`: recording the schedule, readback and per-stage timestamps.
+//! - `record.rs`: recording the schedule, the submission, the readback and per-phase
+//!   timestamps.
 
 mod buffers;
 mod pipelines;
