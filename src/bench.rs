@@ -243,7 +243,27 @@ pub struct BenchResult {
     pub sgm_vs_peer: Option<f64>,
     /// Per-stage median ms of the SGM runs (GPU timestamps or the CPU clock).
     pub sgm_stage_ms: serde_json::Map<String, serde_json::Value>,
+    /// The WGSL engine's host work per frame set (None for the CPU engine).
+    pub wta_host: Option<HostWork>,
+    pub sgm_host: Option<HostWork>,
     pub runs: usize,
+}
+
+/// The WGSL engine's host side of one frame set (`sweep::gpu::SetCounts`): the median host ms
+/// (wall time less the waits for the GPU) of the timed runs, and the last run's counts.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct HostWork {
+    pub host_ms: f64,
+    /// Median ms blocked waiting for the GPU.
+    pub wait_ms: f64,
+    /// Median ms in `Queue::submit`.
+    pub submit_ms: f64,
+    /// Plans run: levels of coarse to fine times references.
+    pub levels: u32,
+    pub submissions: u32,
+    pub readbacks: u32,
+    pub readback_bytes: u64,
+    pub waits: u32,
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -314,6 +334,13 @@ fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Optio
     Ok((rig, images, None))
 }
 
+/// The median ms per frame set, the per-stage medians, and the WGSL engine's host work.
+type Timed = (
+    f64,
+    serde_json::Map<String, serde_json::Value>,
+    Option<HostWork>,
+);
+
 /// Median frame time of `repeats` timed runs after a warm-up, and the per-stage medians.
 fn time_runs(
     engine: &mut Engine,
@@ -322,7 +349,7 @@ fn time_runs(
     params: &SweepParams,
     references: &[usize],
     repeats: usize,
-) -> Result<(f64, serde_json::Map<String, serde_json::Value>), crate::sweep::SweepError> {
+) -> Result<Timed, crate::sweep::SweepError> {
     let run = |engine: &mut Engine| -> Result<(), crate::sweep::SweepError> {
         if references.is_empty() {
             engine.run(rig, images, params).map(|_| ())
@@ -336,10 +363,19 @@ fn time_runs(
     run(engine)?;
     let mut frame_ms = Vec::with_capacity(repeats);
     let mut stage_ms: Vec<(String, Vec<f64>)> = Vec::new();
+    let (mut host_ms, mut wait_ms, mut submit_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last_counts = None;
     for _ in 0..repeats.max(1) {
+        engine.take_gpu_counts();
         let started = Instant::now();
         run(engine)?;
         frame_ms.push(started.elapsed().as_secs_f64() * 1e3);
+        if let Some(counts) = engine.take_gpu_counts() {
+            host_ms.push(counts.host_ms);
+            wait_ms.push(counts.wait_ms);
+            submit_ms.push(counts.submit_ms);
+            last_counts = Some(counts);
+        }
         for (name, ms) in &engine.last_timings().stages {
             match stage_ms.iter_mut().find(|(n, _)| n == name) {
                 Some((_, v)) => v.push(*ms),
@@ -355,7 +391,17 @@ fn time_runs(
             stages.insert(name, serde_json::json!(round3(ms)));
         }
     }
-    Ok((median(frame_ms), stages))
+    let host = last_counts.map(|c| HostWork {
+        host_ms: round3(median(host_ms)),
+        wait_ms: round3(median(wait_ms)),
+        submit_ms: round3(median(submit_ms)),
+        levels: c.levels,
+        submissions: c.submissions,
+        readbacks: c.readbacks,
+        readback_bytes: c.readback_bytes,
+        waits: c.waits,
+    });
+    Ok((median(frame_ms), stages, host))
 }
 
 /// Runs one configuration on one engine: winner-take-all, then SGM.
@@ -381,17 +427,17 @@ pub fn run_config(
     let mut column = |optimizer: Optimizer| -> anyhow::Result<_> {
         let params = params_for(optimizer);
         match time_runs(engine, &rig, &images, &params, config.references, repeats) {
-            Ok((ms, stages)) => Ok((Some(round3(ms)), stages)),
+            Ok((ms, stages, host)) => Ok((Some(round3(ms)), stages, host)),
             // A volume too large for the adapter is a result, not a failure of the bench.
             Err(crate::sweep::SweepError::InvalidParams(reason)) => {
                 notes.push(format!("{optimizer:?}: {reason}"));
-                Ok((None, serde_json::Map::new()))
+                Ok((None, serde_json::Map::new(), None))
             }
             Err(other) => Err(other).with_context(|| format!("{optimizer:?} runs")),
         }
     };
-    let (wta_ms, _) = column(Optimizer::Wta)?;
-    let (sgm_ms, sgm_stage_ms) = column(Optimizer::Sgm)?;
+    let (wta_ms, _, wta_host) = column(Optimizer::Wta)?;
+    let (sgm_ms, sgm_stage_ms, sgm_host) = column(Optimizer::Sgm)?;
     let params = params_for(Optimizer::Sgm);
     let settings = format!(
         "{}, {} {}x{}, {}",
@@ -425,6 +471,8 @@ pub fn run_config(
         wta_vs_peer: ratio(wta_ms),
         sgm_vs_peer: ratio(sgm_ms),
         sgm_stage_ms,
+        wta_host,
+        sgm_host,
         runs: repeats.max(1),
     })
 }
@@ -527,8 +575,17 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         .collect();
     if !args.json {
         println!(
-            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  SGM stages (ms)",
-            "config", "engine", "size", "settings", "wta ms", "sgm ms", "wta/peer", "sgm/peer",
+            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>15} {:>9}  SGM stages (ms)",
+            "config",
+            "engine",
+            "size",
+            "settings",
+            "wta ms",
+            "sgm ms",
+            "wta/peer",
+            "sgm/peer",
+            "host ms wta/sgm",
+            "sub/read",
         );
     }
     // Each engine's 9-camera set, for the decode line.
@@ -552,8 +609,16 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 .map(|(k, v)| format!("{k} {:.1}", v.as_f64().unwrap_or(f64::NAN)))
                 .collect::<Vec<String>>()
                 .join(", ");
+            // The WGSL engine's host share, and the SGM runs' submissions and readbacks per
+            // frame set.
+            let host =
+                |h: Option<HostWork>| h.map_or("-".to_string(), |h| format!("{:.1}", h.host_ms));
+            let host_ms = format!("{}/{}", host(result.wta_host), host(result.sgm_host));
+            let per_set = result.sgm_host.map_or("-".to_string(), |h| {
+                format!("{}/{}", h.submissions, h.readbacks)
+            });
             println!(
-                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8}  {}{}",
+                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>15} {:>9}  {}{}",
                 result.config,
                 truncate(&result.engine, 44),
                 format!(
@@ -565,6 +630,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 ms(result.sgm_ms),
                 ratio(result.wta_vs_peer),
                 ratio(result.sgm_vs_peer),
+                host_ms,
+                per_set,
                 stages,
                 if result.notes.is_empty() {
                     String::new()

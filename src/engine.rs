@@ -251,6 +251,15 @@ impl Engine {
         }
     }
 
+    /// The WGSL engine's submissions, readbacks, waits and host time since the last call
+    /// (`None` for the CPU engine).
+    pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {
+        match self {
+            Self::Gpu { engine, .. } => Some(engine.take_set_counts()),
+            Self::Cpu(_) => None,
+        }
+    }
+
     /// Per-stage times of the last frame set (GPU timestamps, or the CPU clock).
     pub fn last_timings(&self) -> &StageTimings {
         match self {

@@ -51,6 +51,18 @@ pub trait PlanRunner {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError>;
 
+    /// Runs the plan of a level below the full-resolution one: its caller reads
+    /// `depth_raw_m` alone (the next level's plane ranges), so an engine may leave the other
+    /// maps empty (the WGSL engine reads back one section of its maps instead of all seven).
+    fn run_plan_for_ranges(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        self.run_plan(plan, rig, images)
+    }
+
     /// The per-stage times of the last run.
     fn timings_mut(&mut self) -> &mut super::StageTimings;
 
@@ -153,25 +165,51 @@ pub fn run(
     images: &[Rgba8Image],
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
+    run_level(engine, plans, rig, images, params, Wanted::All)
+}
+
+/// What the caller of a level reads of its maps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Wanted {
+    /// Every map: the frame set's result.
+    All,
+    /// `depth_raw_m` alone: a level below, whose depths set the plane ranges of the next.
+    DepthRaw,
+}
+
+impl Wanted {
+    fn run_plan(
+        self,
+        engine: &mut dyn PlanRunner,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        match self {
+            Wanted::All => engine.run_plan(plan, rig, images),
+            Wanted::DepthRaw => engine.run_plan_for_ranges(plan, rig, images),
+        }
+    }
+}
+
+/// [`run`], for a caller that reads `wanted` of the maps.
+fn run_level(
+    engine: &mut dyn PlanRunner,
+    plans: &mut Plans,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    params: &SweepParams,
+    wanted: Wanted,
+) -> Result<DepthMaps, SweepError> {
     if applies(rig, params) {
         super::check_images(rig, images)?;
         match half_size(rig, images, engine.memo()) {
-            Ok((coarse_rig, coarse_images)) => {
-                return coarse_to_fine(
-                    engine,
-                    plans,
-                    rig,
-                    images,
-                    params,
-                    &coarse_rig,
-                    &coarse_images,
-                )
-            }
+            Ok(half) => return coarse_to_fine(engine, plans, rig, images, params, &half, wanted),
             Err(e) => tracing::debug!("coarse to fine skipped: {e}"),
         }
     }
     let plan = cached(&mut plans.whole, rig, params)?;
-    engine.run_plan(plan, rig, images)
+    wanted.run_plan(engine, plan, rig, images)
 }
 
 /// The half-resolution sweep, then the full-resolution one with narrowed rows (the module).
@@ -181,8 +219,8 @@ fn coarse_to_fine(
     rig: &Rig,
     images: &[Rgba8Image],
     params: &SweepParams,
-    coarse_rig: &Rig,
-    coarse_images: &[Rgba8Image],
+    (coarse_rig, coarse_images): &(Rig, Vec<Rgba8Image>),
+    wanted: Wanted,
 ) -> Result<DepthMaps, SweepError> {
     let fine_params = SweepParams {
         coarse_to_fine: false,
@@ -199,7 +237,14 @@ fn coarse_to_fine(
     };
     let started = std::time::Instant::now();
     let below = plans.below.get_or_insert_with(Default::default);
-    let coarse = run(engine, below, coarse_rig, coarse_images, &coarse_params)?;
+    let coarse = run_level(
+        engine,
+        below,
+        coarse_rig,
+        coarse_images,
+        &coarse_params,
+        Wanted::DepthRaw,
+    )?;
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
     let ranges = plane_ranges(fine, &coarse.depth_raw_m);
     let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
@@ -210,7 +255,7 @@ fn coarse_to_fine(
     // Narrowed in place: the plan's arrays are neither copied nor uploaded again.
     fine.set_plane_ranges(ranges)?;
     let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
-    let maps = engine.run_plan(fine, rig, images)?;
+    let maps = wanted.run_plan(engine, fine, rig, images)?;
     // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one.
     engine
         .timings_mut()

@@ -427,6 +427,29 @@ impl SweepPlan {
 }
 
 impl SweepPlan {
+    /// `DepthMaps` with `depth_raw_m` alone (the first section of the `maps` buffer, all a
+    /// coarse-to-fine level below the full resolution is read for); the other maps empty.
+    pub fn depth_raw_maps(&self, depth_raw: Vec<f32>) -> crate::sweep::DepthMaps {
+        use crate::image::ImageF32;
+        let empty = || ImageF32 {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        };
+        crate::sweep::DepthMaps {
+            depth_m: empty(),
+            depth_raw_m: ImageF32 {
+                width: self.width,
+                height: self.height,
+                data: depth_raw,
+            },
+            confidence: empty(),
+            cost: empty(),
+            selection: Vec::new(),
+            visible_cameras: Vec::new(),
+        }
+    }
+
     /// Unpacks the `maps` buffer into the public outputs.
     pub fn depth_maps(&self, maps: &[f32]) -> crate::sweep::DepthMaps {
         use crate::image::ImageF32;

@@ -46,6 +46,22 @@ pub enum Phase {
     Visibility,
 }
 
+impl Phase {
+    /// The name of its time in `StageTimings` (both engines).
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Sweep => "sweep",
+            Phase::Sgm => "sgm",
+            Phase::SgmSelect => "sgm_select",
+            Phase::Finalize => "finalize",
+            Phase::Refine => "refine",
+            Phase::Median => "median",
+            Phase::Splat => "splat",
+            Phase::Visibility => "visibility",
+        }
+    }
+}
+
 /// One dispatch of the WGSL engine.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Dispatch {
@@ -88,6 +104,8 @@ pub struct Schedule {
     pub shape: ScheduleShape,
     phases: Vec<Phase>,
     dispatches: Vec<Dispatch>,
+    /// Where each phase's dispatches end in `dispatches`.
+    phase_ends: Vec<usize>,
 }
 
 impl Schedule {
@@ -105,6 +123,7 @@ impl Schedule {
         ]);
         let bands = shape.bands.max(1);
         let mut dispatches = Vec::new();
+        let mut phase_ends = Vec::with_capacity(phases.len());
         for phase in &phases {
             match phase {
                 Phase::Sweep => {
@@ -160,11 +179,13 @@ impl Schedule {
                 Phase::Splat => dispatches.push(Dispatch::of(Stage::Splat)),
                 Phase::Visibility => dispatches.push(Dispatch::of(Stage::Visibility)),
             }
+            phase_ends.push(dispatches.len());
         }
         Self {
             shape,
             phases,
             dispatches,
+            phase_ends,
         }
     }
 
@@ -181,7 +202,10 @@ impl Schedule {
         });
         if plan.params.subpixel == SUBPIXEL_REFINE {
             if let Some(at) = schedule.phases.iter().position(|p| *p == Phase::Finalize) {
+                // No dispatches: it ends where finalize ends.
                 schedule.phases.insert(at + 1, Phase::Refine);
+                let end = schedule.phase_ends[at];
+                schedule.phase_ends.insert(at + 1, end);
             }
         }
         schedule
@@ -195,6 +219,16 @@ impl Schedule {
     /// The WGSL engine's dispatches in order.
     pub fn dispatches(&self) -> &[Dispatch] {
         &self.dispatches
+    }
+
+    /// Each phase with its dispatches, in order (the WGSL engine records one compute pass
+    /// per phase).
+    pub fn phase_dispatches(&self) -> impl Iterator<Item = (Phase, &[Dispatch])> {
+        let starts = std::iter::once(0).chain(self.phase_ends.iter().copied());
+        self.phases
+            .iter()
+            .zip(starts.zip(self.phase_ends.iter().copied()))
+            .map(|(&phase, (start, end))| (phase, &self.dispatches[start..end]))
     }
 }
 
@@ -224,6 +258,30 @@ mod tests {
                 Visibility
             ]
         );
+    }
+
+    #[test]
+    fn every_dispatch_belongs_to_its_phase() {
+        let s = Schedule::new(shape(3, true, 8, 2));
+        let mut seen = 0;
+        for (phase, dispatches) in s.phase_dispatches() {
+            assert!(!dispatches.is_empty(), "{phase:?}");
+            for d in dispatches {
+                let expected = match d.stage {
+                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate => Phase::Sweep,
+                    Stage::Sgm => Phase::Sgm,
+                    Stage::SgmSelect => Phase::SgmSelect,
+                    Stage::Finalize => Phase::Finalize,
+                    Stage::Median => Phase::Median,
+                    Stage::Splat => Phase::Splat,
+                    Stage::Visibility => Phase::Visibility,
+                };
+                assert_eq!(phase, expected, "{d:?}");
+            }
+            seen += dispatches.len();
+        }
+        assert_eq!(seen, s.dispatches().len());
+        assert_eq!(s.phase_dispatches().count(), s.phases().len());
     }
 
     #[test]

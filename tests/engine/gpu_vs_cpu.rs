@@ -912,3 +912,171 @@ fn narrowed_plane_ranges_agree() {
         .narrow_planes(vec![[0, 99]; 72])
         .is_err());
 }
+
+/// Several batches of planes (a small slab budget forces them: one plane per batch, or five
+/// with a partial last one) give the maps of one batch bit for bit, and a level is still one
+/// submission, one wait and the maps and timestamps read back once (issue 35; before it, one
+/// submission per batch, each waiting for the one before). Winner-take-all with box passes,
+/// SGM with the paper's paired 2x2 windows, and narrowed rows (the planes a batch skips).
+#[test]
+fn several_batches_in_one_submission_equal_one_batch() {
+    let (rig, images) = synthetic_case();
+    let (crop_rig, crop_images, mut crop) = tsukuba_crop();
+    crop.num_planes = 32;
+    let paired = SweepParams {
+        optimizer: Optimizer::Sgm,
+        scoring: Scoring::BestHalfSequence,
+        window_width: 2,
+        window_height: 2,
+        window_mode: WindowMode::Shiftable,
+        num_planes: 23,
+        ..base()
+    };
+    let crop_plan = SweepPlan::new(
+        &crop_rig,
+        &SweepParams {
+            optimizer: Optimizer::Sgm,
+            ..crop
+        },
+    )
+    .expect("plan");
+    let planes = crop_plan.num_planes();
+    let ranges = (0..crop_plan.height)
+        .map(|y| {
+            if y % 20 < 10 {
+                [0, planes - 1]
+            } else {
+                [6, 17]
+            }
+        })
+        .collect();
+    let cases = [
+        (
+            "batches_wta_centred",
+            SweepPlan::new(&rig, &base()).expect("plan"),
+            &rig,
+            &images,
+        ),
+        (
+            "batches_sgm_paired",
+            SweepPlan::new(&rig, &paired).expect("plan"),
+            &rig,
+            &images,
+        ),
+        (
+            "batches_sgm_narrowed",
+            crop_plan.narrow_planes(ranges).expect("narrowed"),
+            &crop_rig,
+            &crop_images,
+        ),
+    ];
+    let gpu = common::gpu();
+    let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    for (name, plan, rig, images) in cases {
+        let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+        let whole = engine.run_plan_raw(&plan, rig, images).expect("one batch");
+        assert_eq!(engine.batches(), 1, "{name}");
+        let one = engine.take_set_counts();
+        let planes = plan.num_planes();
+        // Paired 2x2 windows allocate the cost slab alone: five planes' worth holds five.
+        let per_plane = plan.pixel_count() as u64 * 4 * plan.channels() as u64;
+        let mut budgets = vec![(Some(1), planes)];
+        if !plan.box_passes() {
+            budgets.push((Some(5 * per_plane), planes.div_ceil(5)));
+        }
+        for (budget, batches) in budgets {
+            engine.set_slab_bytes(budget);
+            let maps = engine
+                .run_plan_raw(&plan, rig, images)
+                .expect("batched run");
+            assert_eq!(engine.batches(), batches, "{name}: {budget:?} bytes");
+            let counts = engine.take_set_counts();
+            assert_eq!(
+                (counts.levels, counts.submissions, counts.waits),
+                (1, 1, 1),
+                "{name}: {batches} batches, {counts:?}"
+            );
+            // The maps, and the timestamps where the adapter has them.
+            assert_eq!(counts.readbacks, one.readbacks, "{name}");
+            assert!(counts.readbacks <= 2, "{name}: {counts:?}");
+            let differing = bits(&maps)
+                .iter()
+                .zip(bits(&whole))
+                .filter(|(a, b)| **a != *b)
+                .count();
+            assert_eq!(
+                differing, 0,
+                "{name}: {batches} batches differ from one in {differing} map values"
+            );
+        }
+        compare(name, &plan, rig, images);
+    }
+}
+
+/// A coarse-to-fine frame set (two levels at 320x240 with 96 planes) is one submission and
+/// one wait per level, the level below reads back its raw depths alone, and the level timings
+/// name the schedule's phases.
+#[test]
+fn coarse_to_fine_is_one_submission_per_level() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        ..SweepParams::default()
+    };
+    let levels = sweepdepth::sweep::coarse::levels(&rig, &params) as u32;
+    assert_eq!(levels, 2);
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    for set in 0..2 {
+        let maps = engine.run(&rig, &images, &params).expect("run");
+        assert!(maps.invalid_fraction() < 0.5, "set {set}");
+        let counts = engine.take_set_counts();
+        assert_eq!(
+            (counts.levels, counts.submissions, counts.waits),
+            (levels, levels, levels),
+            "set {set}: {counts:?}"
+        );
+        // The half-resolution level brings back its raw depths alone (the full-resolution
+        // rows' plane ranges), the full-resolution one every map; each level its 2 x 7
+        // timestamps where the adapter has them.
+        let maps_bytes = (MAP_COUNT * 4 * 320 * 240 + 4 * 160 * 120) as u64;
+        let timestamps = counts.readbacks == 2 * levels;
+        let timestamp_bytes = if timestamps {
+            u64::from(levels) * 2 * 7 * 8
+        } else {
+            0
+        };
+        assert!(
+            timestamps || counts.readbacks == levels,
+            "set {set}: {counts:?}"
+        );
+        assert_eq!(
+            counts.readback_bytes,
+            maps_bytes + timestamp_bytes,
+            "set {set}"
+        );
+    }
+    let timings = engine.last_timings();
+    if timings.gpu_timestamps {
+        let names: Vec<&str> = timings.stages.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "coarse",
+                "sweep",
+                "sgm",
+                "sgm_select",
+                "finalize",
+                "median",
+                "splat",
+                "visibility"
+            ]
+        );
+    }
+}

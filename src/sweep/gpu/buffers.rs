@@ -99,18 +99,11 @@ impl Buffers {
         let planes = storage("planes", u64::from(key.planes) * 16, none);
         let plane_ranges = storage("plane_ranges", u64::from(key.height) * 16, none);
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
-        let slices = u64::from(key.channels) * u64::from(key.batch);
-        let cost_slab = storage("cost_slab", npix * 4 * slices, none);
-        let row_sums = storage(
-            "row_sums",
-            u64::from(key.padded_width) * u64::from(key.height) * 8 * slices,
-            none,
-        );
-        let box_sums = storage(
-            "box_sums",
-            u64::from(key.padded_width) * u64::from(key.padded_height) * 8 * slices,
-            none,
-        );
+        // Without box passes (2x2 shiftable windows) the sums are never used: 16 bytes each.
+        let [cost_bytes, row_bytes, box_bytes] = key.batch_bytes();
+        let cost_slab = storage("cost_slab", cost_bytes, none);
+        let row_sums = storage("row_sums", row_bytes, none);
+        let box_sums = storage("box_sums", box_bytes, none);
         let state = storage("state", npix * 48, none);
         // The cost volume and the path sums, one buffer per row band.
         let band_bytes = |b: u32| {
@@ -222,11 +215,12 @@ impl Buffers {
             }
             bind_groups.push(per_stage);
         }
-        // Two timestamps per dispatch, when the adapter has them and a query set holds them
-        // (many row bands may not: then the engine reports its total time).
-        let count = 2 * key.schedule().dispatches().len() as u32;
-        let timestamps = (device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
-            && count <= wgpu::QUERY_SET_MAX_QUERIES)
+        // Two timestamps per phase of the schedule (one compute pass each), when the adapter
+        // has them.
+        let count = 2 * key.schedule().phases().len() as u32;
+        let timestamps = device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
             .then(|| {
                 let bytes = u64::from(count) * 8;
                 Timestamps {

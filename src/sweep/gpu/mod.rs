@@ -1,13 +1,16 @@
 //! "How to run it": the wgpu engine. It takes a device and queue from its caller, makes its
 //! layouts and pipelines from the stage registry (`sweep/stages.rs`) once, and keeps its buffers
 //! across frame sets of the same shape; a new rig or new parameters re-plan, a new shape
-//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded dispatch by
-//! dispatch.
+//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded into one
+//! command buffer per level (one compute pass per phase), submitted once and read back after
+//! one wait.
 //!
-//! - `shape.rs`: the shape of work on this adapter (batches, SGM row bands; limits checked).
+//! - `shape.rs`: the shape of work on this adapter (batches sized on what the mode allocates,
+//!   SGM row bands; limits checked).
 //! - `pipelines.rs`: layouts, modules and specialised pipelines from the registry.
 //! - `buffers.rs`: the buffers of a shape, bind groups by binding name, the plan's upload.
-//! - `record.rs`: recording the schedule, readback and per-stage timestamps.
+//! - `record.rs`: recording the schedule, the submission, the readback and per-phase
+//!   timestamps.
 
 mod buffers;
 mod pipelines;
@@ -16,6 +19,7 @@ mod shape;
 
 use std::time::Instant;
 
+use super::gpu_types::MAP_DEPTH_RAW;
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
 use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
@@ -27,6 +31,41 @@ use shape::ShapeKey;
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
 
+/// What the WGSL engine did on the host since [`GpuEngine::take_set_counts`] was last called
+/// (`bench` takes them after every frame set): every level of a coarse-to-fine sweep, every
+/// reference of a set.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SetCounts {
+    /// Plans run (levels of coarse to fine, references).
+    pub levels: u32,
+    /// Command buffers submitted to the queue.
+    pub submissions: u32,
+    /// Buffers mapped and read back.
+    pub readbacks: u32,
+    /// Bytes of those buffers.
+    pub readback_bytes: u64,
+    /// Blocking waits for the GPU.
+    pub waits: u32,
+    /// Milliseconds spent in those waits.
+    pub wait_ms: f64,
+    /// Milliseconds spent in `Queue::submit` (lavapipe blocks there while an earlier
+    /// submission runs: a wait in all but name).
+    pub submit_ms: f64,
+    /// Milliseconds of `run` (or `run_plan`) neither waiting for the GPU nor in `submit`: the
+    /// host's share of a frame set (planning, images, census, half-size images, uploads,
+    /// recording, unpacking the maps).
+    pub host_ms: f64,
+}
+
+/// What a level reads back of the `maps` buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Readback {
+    /// Every section: the frame set's result.
+    All,
+    /// The raw depths alone: a coarse-to-fine level below the full resolution.
+    DepthRaw,
+}
+
 /// The GPU plane-sweep engine.
 pub struct GpuEngine {
     device: wgpu::Device,
@@ -37,6 +76,9 @@ pub struct GpuEngine {
     sgm_line_per_invocation: bool,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
     sgm_band_bytes: Option<u64>,
+    /// A smaller budget than `shape::SLAB_BUDGET_BYTES` for one batch of planes (tests of the
+    /// batches).
+    slab_bytes: Option<u64>,
     /// The buffers of the last shape, and what runs on them.
     buffers: Option<(Buffers, Schedule)>,
     /// The buffers of the shapes before (with the id of the plan uploaded into them), the
@@ -51,6 +93,7 @@ pub struct GpuEngine {
     packed: Vec<u32>,
     timings: StageTimings,
     cancel: CancelFlag,
+    counts: SetCounts,
 }
 
 /// Buffers of other shapes kept at most: the levels below the full-resolution one of the
@@ -76,6 +119,7 @@ impl GpuEngine {
             // GPU wants a full warp per line, the planes across its lanes.
             sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
             sgm_band_bytes: None,
+            slab_bytes: None,
             buffers: None,
             spares: Vec::new(),
             plans: Default::default(),
@@ -84,6 +128,7 @@ impl GpuEngine {
             packed: Vec::new(),
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
+            counts: SetCounts::default(),
         })
     }
 
@@ -101,6 +146,18 @@ impl GpuEngine {
         self.sgm_band_bytes = max_bytes;
     }
 
+    /// Caps the bytes of one batch of planes (cost slab and window sums) below the engine's
+    /// budget (`None`: the budget). Tests use it to run a plan in several batches; the result
+    /// equals the run in one.
+    pub fn set_slab_bytes(&mut self, max_bytes: Option<u64>) {
+        self.slab_bytes = max_bytes;
+    }
+
+    /// Batches of planes of the last level run (1 when one slab held every plane).
+    pub fn batches(&self) -> u32 {
+        self.buffers.as_ref().map_or(0, |(b, _)| b.key.batches())
+    }
+
     /// Row bands of the SGM volume in the last frame set (1 when one binding held it).
     pub fn sgm_bands(&self) -> u32 {
         self.buffers.as_ref().map_or(0, |(b, _)| b.key.bands())
@@ -111,12 +168,27 @@ impl GpuEngine {
         &self.timings
     }
 
+    /// Submissions, readbacks, waits and host time since the last call (then zero again).
+    pub fn take_set_counts(&mut self) -> SetCounts {
+        std::mem::take(&mut self.counts)
+    }
+
+    /// Runs `f`, adding its wall time less the GPU waits it made to `host_ms`.
+    fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
+        let started = Instant::now();
+        let waited_before = self.counts.wait_ms + self.counts.submit_ms;
+        let result = f(self);
+        let waited = self.counts.wait_ms + self.counts.submit_ms - waited_before;
+        self.counts.host_ms += started.elapsed().as_secs_f64() * 1e3 - waited;
+        result
+    }
+
     pub fn adapter_info(&self) -> wgpu::AdapterInfo {
         self.device.adapter_info()
     }
 
-    /// Stops a run between submissions (one per batch of planes, then the rest) and while it
-    /// waits for the GPU once `cancel` is set ([`SweepError::Cancelled`]).
+    /// Stops a run before each level's submission and while it waits for the GPU once
+    /// `cancel` is set ([`SweepError::Cancelled`]; the GPU finishes the level it was given).
     pub fn set_cancel(&mut self, cancel: CancelFlag) {
         self.cancel = cancel;
     }
@@ -128,15 +200,17 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        // One shape at a time outside coarse to fine: the other levels' buffers go; with it,
-        // the buffers of every level below the current one stay.
-        let below = super::coarse::levels(rig, params) - 1;
-        let excess = self.spares.len().saturating_sub(below);
-        self.spares.drain(..excess);
-        let mut plans = std::mem::take(&mut self.plans);
-        let result = super::coarse::run(self, plans.for_rig(rig), rig, images, params);
-        self.plans = plans;
-        result
+        self.timed(|engine| {
+            // One shape at a time outside coarse to fine: the other levels' buffers go; with
+            // it, the buffers of every level below the current one stay.
+            let below = super::coarse::levels(rig, params) - 1;
+            let excess = engine.spares.len().saturating_sub(below);
+            engine.spares.drain(..excess);
+            let mut plans = std::mem::take(&mut engine.plans);
+            let result = super::coarse::run(engine, plans.for_rig(rig), rig, images, params);
+            engine.plans = plans;
+            result
+        })
     }
 
     /// Runs a prepared plan (e.g. with a custom hypothesis family).
@@ -146,8 +220,10 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        let maps = self.run_plan_raw(plan, rig, images)?;
-        Ok(plan.depth_maps(&maps))
+        self.timed(|engine| {
+            let maps = engine.run_level(plan, rig, images, Readback::All)?;
+            Ok(plan.depth_maps(&maps))
+        })
     }
 
     /// Runs a plan and returns the raw `maps` buffer (MAP_COUNT sections), for stage comparisons.
@@ -157,6 +233,19 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
+        self.timed(|engine| engine.run_level(plan, rig, images, Readback::All))
+    }
+
+    /// One plan (one level of a frame set): upload, record, submit, read the maps back (all
+    /// of them, or the raw depths alone).
+    fn run_level(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        readback: Readback,
+    ) -> Result<Vec<f32>, SweepError> {
+        self.counts.levels += 1;
         if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
             return Err(SweepError::InvalidParams(
                 "subpixel_refine runs on the CPU engine only (no WGSL twin yet): --device cpu"
@@ -166,7 +255,12 @@ impl GpuEngine {
         let started = Instant::now();
         let mut packed = std::mem::take(&mut self.packed);
         plan.pack_images(rig, images, &mut packed, &mut self.memo)?;
-        let key = ShapeKey::of(plan, &self.device.limits(), self.sgm_band_bytes)?;
+        let key = ShapeKey::of(
+            plan,
+            &self.device.limits(),
+            self.sgm_band_bytes,
+            self.slab_bytes,
+        )?;
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
             let (buffers, schedule, uploaded) =
                 match self.spares.iter().position(|spare| spare.0.key == key) {
@@ -205,31 +299,45 @@ impl GpuEngine {
             .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
         self.packed = packed;
 
-        let mut submitter = record::Submitter::new(&self.device, &self.queue, &self.cancel);
-        record::record(
-            &mut submitter,
+        let section = plan.pixel_count() as u64 * 4;
+        let maps_bytes = match readback {
+            Readback::All => 0..buffers.maps.size(),
+            Readback::DepthRaw => {
+                let first = MAP_DEPTH_RAW as u64 * section;
+                first..first + section
+            }
+        };
+        let commands = record::record(
+            &self.device,
             buffers,
             pipelines,
             &spec,
             schedule,
             self.align,
-        )?;
+            maps_bytes.clone(),
+        );
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
-        let maps: Vec<f32> = bytemuck::pod_collect_to_vec(&record::read_buffer(
-            &self.device,
-            &self.cancel,
-            &buffers.readback,
-        )?);
-        self.timings = match record::stage_times(
-            &self.device,
-            &self.cancel,
-            &self.queue,
-            buffers,
-            schedule,
-        )? {
-            Some(timings) => timings,
+        // One submission and one wait per level: the maps and the timestamps come back
+        // together.
+        let mut submitter =
+            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
+        submitter.submit(commands)?;
+        let mut wanted = vec![(&buffers.readback, maps_bytes.end - maps_bytes.start)];
+        wanted.extend(
+            buffers
+                .timestamps
+                .as_ref()
+                .map(|t| (&t.readback, t.readback.size())),
+        );
+        let mut raw = submitter.read_back(&wanted)?.into_iter();
+        let maps: Vec<f32> = bytemuck::cast_vec(
+            raw.next()
+                .ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?,
+        );
+        self.timings = match raw.next() {
+            Some(ticks) => record::phase_times(&self.queue, schedule, &ticks)?,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
                 gpu_timestamps: false,
@@ -246,7 +354,19 @@ impl super::coarse::PlanRunner for GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        GpuEngine::run_plan(self, plan, rig, images)
+        // Inside `run`, which times the whole frame set.
+        let maps = self.run_level(plan, rig, images, Readback::All)?;
+        Ok(plan.depth_maps(&maps))
+    }
+
+    fn run_plan_for_ranges(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: &[Rgba8Image],
+    ) -> Result<DepthMaps, SweepError> {
+        let depth_raw = self.run_level(plan, rig, images, Readback::DepthRaw)?;
+        Ok(plan.depth_raw_maps(depth_raw))
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

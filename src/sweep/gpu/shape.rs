@@ -10,6 +10,25 @@ use super::super::SweepError;
 /// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 
+/// Bytes per plane of the cost slab, the row sums and the box sums (the sums 0 without box
+/// passes): what `buffers.rs` allocates per plane of a batch.
+fn slice_bytes(
+    npix: u64,
+    channels: u64,
+    padded_w: u32,
+    padded_h: u32,
+    height: u32,
+    box_passes: bool,
+) -> [u64; 3] {
+    let cost = npix * 4 * channels;
+    if !box_passes {
+        return [cost, 0, 0];
+    }
+    let row = u64::from(padded_w) * u64::from(height) * 8 * channels;
+    let boxes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
+    [cost, row, boxes]
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct ShapeKey {
     pub width: u32,
@@ -65,27 +84,46 @@ impl ShapeKey {
         })
     }
 
+    /// Bytes of one batch's cost slab, row sums and box sums (the sums 0 without box passes).
+    pub fn batch_bytes(&self) -> [u64; 3] {
+        let npix = u64::from(self.width) * u64::from(self.height);
+        slice_bytes(
+            npix,
+            u64::from(self.channels),
+            self.padded_width,
+            self.padded_height,
+            self.height,
+            !self.direct_windows,
+        )
+        .map(|bytes| bytes * u64::from(self.batch))
+    }
+
     /// The shape of `plan` on a device with `limits`; `sgm_band_bytes` caps one band of the SGM
-    /// volume below the binding limit. Refuses what the adapter cannot hold, with the sizes.
+    /// volume below the binding limit, `slab_bytes` the bytes of one batch of planes below
+    /// SLAB_BUDGET_BYTES (tests force several batches with it). Refuses what the adapter
+    /// cannot hold, with the sizes.
     pub fn of(
         plan: &SweepPlan,
         limits: &wgpu::Limits,
         sgm_band_bytes: Option<u64>,
+        slab_bytes: Option<u64>,
     ) -> Result<Self, SweepError> {
         let npix = plan.pixel_count() as u64;
         let channels = plan.channels() as u64;
         let (padded_w, padded_h) = plan.padded_size();
-        let row_bytes = u64::from(padded_w) * u64::from(plan.height) * 8 * channels;
-        let box_bytes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
-        // Cost slab + row sums + box sums, per plane.
-        let per_plane = npix * 4 * channels + row_bytes + box_bytes;
+        let box_passes = plan.box_passes();
+        let [cost_bytes, row_bytes, box_bytes] =
+            slice_bytes(npix, channels, padded_w, padded_h, plan.height, box_passes);
+        // What one plane of a batch allocates: its cost slab, and its window sums only where
+        // the box passes run (2x2 shiftable windows read the slab directly).
+        let per_plane = cost_bytes + row_bytes + box_bytes;
         let max_binding = limits
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
-        let budget = SLAB_BUDGET_BYTES.min(max_binding);
-        if box_bytes > budget {
+        let budget = slab_bytes.unwrap_or(SLAB_BUDGET_BYTES).min(max_binding);
+        if box_bytes > max_binding {
             return Err(SweepError::InvalidParams(format!(
-                "reference image of {npix} pixels needs {box_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({budget})"
+                "reference image of {npix} pixels needs {box_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({max_binding})"
             )));
         }
         let maps_bytes = npix * 4 * MAP_COUNT as u64;
@@ -122,7 +160,7 @@ impl ShapeKey {
         };
         let planes = plan.num_planes();
         let max_z = limits.max_compute_workgroups_per_dimension;
-        let max_slices = (budget / box_bytes.max(1)).min(budget / per_plane.max(1)) as u32;
+        let max_slices = (budget / per_plane.max(1)).min(u64::from(u32::MAX)) as u32;
         let batch = max_slices
             .clamp(1, planes)
             .min(MAX_BATCH_PLANES)
@@ -144,5 +182,64 @@ impl ShapeKey {
             volume_words,
             band_rows,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+    use crate::sweep::{Cost, Scoring, SweepParams, WindowMode};
+
+    fn plan(width: u32, height: u32, shiftable_2x2: bool) -> SweepPlan {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(width, height));
+        let rig = crate::synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+        let mut params = SweepParams {
+            num_planes: 128,
+            cost: Cost::Tssd,
+            scoring: Scoring::BestHalfSequence,
+            ..SweepParams::default()
+        };
+        if shiftable_2x2 {
+            params.window_width = 2;
+            params.window_height = 2;
+            params.window_mode = WindowMode::Shiftable;
+        }
+        SweepPlan::new(&rig, &params).expect("plan")
+    }
+
+    /// The batch is sized on what the mode allocates: 2x2 shiftable windows (no box passes)
+    /// pay for the cost slab alone. At 1280x960 with wgpu's default limits (128 MiB bindings)
+    /// this was one plane per batch, the window sums counted though never allocated for use.
+    #[test]
+    fn batches_count_only_what_the_mode_allocates() {
+        let limits = wgpu::Limits::default();
+        let direct = ShapeKey::of(&plan(1280, 960, true), &limits, None, None).expect("shape");
+        let [cost, row, boxes] = direct.batch_bytes();
+        assert_eq!((row, boxes), (0, 0));
+        let budget = limits.max_storage_buffer_binding_size;
+        assert!(cost <= budget, "{cost} > {budget}");
+        // One more plane would not fit: the budget is used.
+        let per_plane = cost / u64::from(direct.batch);
+        assert!(cost + per_plane > budget, "batch {}", direct.batch);
+        assert!(direct.batch >= 8, "batch {}", direct.batch);
+        // Centred windows run the box passes: their sums are counted.
+        let boxed = ShapeKey::of(&plan(1280, 960, false), &limits, None, None).expect("shape");
+        let [cost, row, boxes] = boxed.batch_bytes();
+        assert!(row > 0 && boxes > 0);
+        assert!(cost + row + boxes <= budget);
+        assert!(boxed.batch < direct.batch);
+    }
+
+    #[test]
+    fn a_slab_budget_forces_batches() {
+        let limits = wgpu::Limits::default();
+        let p = plan(320, 240, true);
+        let one = ShapeKey::of(&p, &limits, None, None).expect("shape");
+        assert_eq!(one.batches(), 1);
+        let per_plane = one.batch_bytes()[0] / u64::from(one.batch);
+        let forced = ShapeKey::of(&p, &limits, None, Some(5 * per_plane)).expect("shape");
+        assert_eq!((forced.batch, forced.batches()), (5, 128u32.div_ceil(5)));
+        assert_eq!(forced.schedule().shape.batches, forced.batches());
     }
 }
