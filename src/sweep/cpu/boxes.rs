@@ -73,7 +73,8 @@ impl BoxH {
     /// instead of nine additions per anchor. (The rounding differs from the shader's
     /// left-to-right order by float ulps, inside the tolerances of tests/engine/gpu_vs_cpu.rs.)
     /// Windows of 1 and 2 columns (the paper's shiftable 2x2) are summed directly: the same
-    /// floats as the doubling (one addition of two values), without its copies.
+    /// floats as the doubling (one addition of two values), without its copies; the odd widths
+    /// 3 to 9 (the centred windows) in the doubling's tree per anchor (`direct_tree`).
     #[inline(always)]
     fn sums(&mut self, values: &[f32], out: &mut [f32]) {
         let w = self.w;
@@ -104,9 +105,18 @@ impl BoxH {
         pad[..w - 1].fill(0.0);
         pad[w - 1..w - 1 + width].copy_from_slice(values);
         pad[w - 1 + width..].fill(0.0);
+        if !direct_tree(w, pad, out) {
+            self.doubling(len, out);
+        }
+    }
+
+    /// The doubling over the padded row in `self.pad[..len]` into `out` (`sums`).
+    #[inline(always)]
+    fn doubling(&mut self, len: usize, out: &mut [f32]) {
+        let (w, padded) = (self.w, out.len());
         out.fill(0.0);
         // `level` holds s_h[i] = sum of pad[i..i + h] for i < len - h + 1.
-        self.level[..len].copy_from_slice(pad);
+        self.level[..len].copy_from_slice(&self.pad[..len]);
         let mut h = 1;
         let mut consumed = 0;
         loop {
@@ -129,6 +139,49 @@ impl BoxH {
             h *= 2;
         }
     }
+}
+
+/// The doubling's sums for the odd widths 3, 5, 7 and 9 (the centred windows) in one pass
+/// over the padded row, each anchor's additions in the doubling's tree (the same floats:
+/// s2[i] = p[i] + p[i + 1], s4[i] = s2[i] + s2[i + 2], ..., and `out` gathers the levels of
+/// w's bits from the lowest, e.g. w = 7: (p[i + 6] + s2[i + 4]) + s4[i]), without its level
+/// rows, fills and copies. False for other widths.
+#[inline(always)]
+fn direct_tree(w: usize, pad: &[f32], out: &mut [f32]) -> bool {
+    let n = out.len();
+    let p = |k: usize| &pad[k..k + n];
+    match w {
+        3 => {
+            let (p0, p1, p2) = (p(0), p(1), p(2));
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = p2[i] + (p0[i] + p1[i]);
+            }
+        }
+        5 => {
+            let (p0, p1, p2, p3, p4) = (p(0), p(1), p(2), p(3), p(4));
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = p4[i] + ((p0[i] + p1[i]) + (p2[i] + p3[i]));
+            }
+        }
+        7 => {
+            let (p0, p1, p2, p3, p4, p5, p6) = (p(0), p(1), p(2), p(3), p(4), p(5), p(6));
+            for (i, o) in out.iter_mut().enumerate() {
+                let s4 = (p0[i] + p1[i]) + (p2[i] + p3[i]);
+                *o = (p6[i] + (p4[i] + p5[i])) + s4;
+            }
+        }
+        9 => {
+            let (p0, p1, p2, p3, p4, p5, p6, p7, p8) =
+                (p(0), p(1), p(2), p(3), p(4), p(5), p(6), p(7), p(8));
+            for (i, o) in out.iter_mut().enumerate() {
+                let s4a = (p0[i] + p1[i]) + (p2[i] + p3[i]);
+                let s4b = (p4[i] + p5[i]) + (p6[i] + p7[i]);
+                *o = p8[i] + (s4a + s4b);
+            }
+        }
+        _ => return false,
+    }
+    true
 }
 
 /// The horizontal sums of the last rows of one plane, per channel (a ring of `slots` rows).
@@ -218,6 +271,24 @@ mod tests {
     /// Every window width against the plain left-to-right sum (BoxH's anchors: window i covers
     /// columns i - (w - 1) ..= i): equal floats for the direct widths 1 and 2, within float
     /// rounding for the doubling ones.
+    /// The direct tree of the odd widths gives the doubling's floats exactly.
+    #[test]
+    fn direct_tree_equals_the_doubling() {
+        let width = 53;
+        let values: Vec<f32> = (0..width)
+            .map(|i| ((i * 7919) % 101) as f32 * 0.37 + 0.01)
+            .collect();
+        for w in [3, 5, 7, 9] {
+            let mut boxes = BoxH::new(width, w);
+            let mut direct = vec![f32::NAN; width + w - 1];
+            boxes.sums(&values, &mut direct);
+            let mut doubled = vec![f32::NAN; width + w - 1];
+            boxes.doubling(width + 2 * (w - 1), &mut doubled);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&direct), bits(&doubled), "w {w}");
+        }
+    }
+
     #[test]
     fn window_sums_match_the_plain_sum() {
         let width = 37;

@@ -32,6 +32,8 @@ pub struct PlaneScratch {
     /// (scattered samples, `cost::sample_row`).
     census_sampled: Vec<bool>,
     census_bits: Vec<f32>,
+    /// Per camera: the current row's samples read in place (`Direct`), or made into `colours`.
+    rows: Vec<CameraRow>,
     /// The refinement's hypothesis (`refine.rs`): a depth (ray parameter) per reference pixel,
     /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
     pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
@@ -70,7 +72,47 @@ impl PlaneScratch {
                 .collect(),
             census_sampled: vec![false; p.cameras as usize],
             census_bits: vec![0.0; width],
+            rows: vec![CameraRow::Sampled; p.cameras as usize],
             hypothesis: None,
+        }
+    }
+}
+
+/// Where a camera's colours along the current reference row are.
+#[derive(Debug, Clone, Copy)]
+enum CameraRow {
+    /// Sampled into `PlaneScratch::colours` (NaN where not seen), or the reference's own row.
+    Sampled,
+    /// A whole-texel shift (translation with both bilinear weights 0, as the Tsukuba demo's
+    /// planes): reference columns `lo..hi` are the camera's texels from `at` on, read in place
+    /// (no copy of the row); the rest are not seen.
+    Direct { lo: usize, hi: usize, at: usize },
+}
+
+impl CameraRow {
+    /// The in-place row of a whole-texel shift, when `mapping` is one and only pairs with the
+    /// reference are costed (all-pairs census costs read the sampled colours' visibility).
+    #[inline(always)]
+    fn direct(plan: &SweepPlan, image: &PlanarImage, mapping: Mapping, y: usize) -> Option<Self> {
+        let Mapping::Translation { dx, dy } = mapping else {
+            return None;
+        };
+        if plan.params.pair_mode == PAIRS_ALL {
+            return None;
+        }
+        let width = plan.params.width as usize;
+        match cost::ShiftedSpan::of(image.width, image.height, dx, dy, y, width) {
+            None => Some(Self::Direct {
+                lo: 0,
+                hi: 0,
+                at: 0,
+            }),
+            Some(span) if span.fx == 0.0 && span.fy == 0.0 => Some(Self::Direct {
+                lo: span.x_lo,
+                hi: span.x_lo + span.count,
+                at: span.y0 * image.width + span.first,
+            }),
+            Some(_) => None,
         }
     }
 }
@@ -146,6 +188,16 @@ fn cost_row(
     });
     for (i, cam) in plan.cameras.iter().enumerate() {
         if i as u32 != reference {
+            let direct = s
+                .hypothesis
+                .is_none()
+                .then(|| CameraRow::direct(plan, &images.planar[i], mappings[i], y))
+                .flatten();
+            s.rows[i] = direct.unwrap_or(CameraRow::Sampled);
+            if direct.is_some() {
+                s.census_sampled[i] = false;
+                continue;
+            }
             if let Some(depths) = &s.hypothesis {
                 cost::hypothesis_coords(plan, cam, depths, y, &mut s.coords[i]);
             }
@@ -163,18 +215,35 @@ fn cost_row(
             );
         }
     }
-    let colours = &s.colours;
-    let row = |i: usize| -> [&[f32]; 3] {
+    let (colours, camera_rows) = (&s.colours, &s.rows);
+    // Camera i's colours of reference columns lo..hi (not seen elsewhere), from column lo.
+    let row = |i: usize| -> ([&[f32]; 3], usize, usize) {
+        let image = &images.planar[i];
         if i as u32 == reference {
-            let image = &images.planar[i];
             let at = y * image.width;
-            std::array::from_fn(|c| &image.channels[c][at..at + width])
-        } else {
-            std::array::from_fn(|c| colours[i][c].as_slice())
+            let row = std::array::from_fn(|c| &image.channels[c][at..at + width]);
+            return (row, 0, width);
+        }
+        match camera_rows[i] {
+            CameraRow::Direct { lo, hi, at } => {
+                let row = std::array::from_fn(|c| &image.channels[c][at..at + hi - lo]);
+                (row, lo, hi)
+            }
+            CameraRow::Sampled => (std::array::from_fn(|c| colours[i][c].as_slice()), 0, width),
         }
     };
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
-        cost::pair_cost_row(p.tau, row(pair[0] as usize), row(pair[1] as usize), costs);
+        let ((a, a_lo, a_hi), (b, b_lo, b_hi)) = (row(pair[0] as usize), row(pair[1] as usize));
+        // Where either is not seen, INVALID (as a NaN colour makes it in `pair_cost_row`).
+        let lo = a_lo.max(b_lo);
+        let hi = a_hi.min(b_hi).max(lo);
+        costs[..lo].fill(INVALID);
+        costs[hi..].fill(INVALID);
+        fn cut(row: [&[f32]; 3], from: std::ops::Range<usize>) -> [&[f32]; 3] {
+            row.map(|channel| &channel[from.clone()])
+        }
+        let (a, b) = (cut(a, lo - a_lo..hi - a_lo), cut(b, lo - b_lo..hi - b_lo));
+        cost::pair_cost_row(p.tau, a, b, &mut costs[lo..hi]);
     }
     if plan.uses_census() {
         census_costs(plan, images, mappings, k, y, s);
