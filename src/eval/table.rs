@@ -3,7 +3,7 @@
 use super::metrics::Metrics;
 use crate::datasets::Dataset;
 
-/// The table header printed by [`run`].
+/// The table header printed by [`super::run`].
 pub fn table_header() -> String {
     format!(
         "{:<34} {:<17} {:>5} {:>9} {:>6} {:>7} {:>7} {:>7} {:>6} {:>6} {:>7} {:>12} {:>8} {:>9}  {}",
