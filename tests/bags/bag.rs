@@ -4,20 +4,17 @@
 //! truth and read back by independent readers (Python rosbags and mcap), and bags written by an
 //! independent writer (rosbags: MCAP, sqlite3, sqlite3 with zstd per message or per file).
 
+use super::util::{messages, ok, root, scratch, sweepdepth};
 use crate::common;
 
 use common::python;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 
 use sweepdepth::bag::{BagMessage, BagReader};
 use sweepdepth::datasets::{load_dataset, GroundTruth};
 use sweepdepth::msgs::{from_cdr, Image, Time};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
 
 fn fixture() -> PathBuf {
     root().join("tests/fixtures/bags/tsukuba_half.mcap")
@@ -25,30 +22,6 @@ fn fixture() -> PathBuf {
 
 fn fixture_params() -> PathBuf {
     root().join("tests/fixtures/bags/tsukuba_half.params.yaml")
-}
-
-/// A fresh scratch directory for one test.
-fn scratch(name: &str) -> PathBuf {
-    let dir =
-        std::env::temp_dir().join(format!("sweepdepth-bagtest-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
-fn sweepdepth(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(args)
-        .env("RUST_LOG", "warn,sweepdepth=info")
-        .stdin(Stdio::null())
-        .output()
-        .expect("run sweepdepth")
-}
-
-fn ok(out: &Output, what: &str) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{what} failed: {stderr}");
-    stderr
 }
 
 fn run_bag(input: &Path, output: &Path, extra: &[&str]) -> String {
@@ -62,13 +35,6 @@ fn run_bag(input: &Path, output: &Path, extra: &[&str]) -> String {
     ];
     args.extend_from_slice(extra);
     ok(&sweepdepth(&args), "sweepdepth bag")
-}
-
-fn messages(path: &Path) -> Vec<BagMessage> {
-    BagReader::open(path)
-        .expect("open bag")
-        .map(|m| m.expect("read message"))
-        .collect()
 }
 
 /// (stamp, depth in metres) of every `/depth/image` message.

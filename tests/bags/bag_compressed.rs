@@ -7,42 +7,14 @@
 //! and a corrupt JPEG is processed, the other topics named once and the bad set counted by its
 //! reason.
 
+use super::util::{messages, ok, root, scratch, sweepdepth};
 use crate::common::python;
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::path::Path;
+use std::process::{Command, Stdio};
 
-use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
+use sweepdepth::bag::{BagMessage, BagWriter};
 use sweepdepth::msgs::{from_cdr, to_cdr, CompressedImage, Image};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "sweepdepth-bagcompressed-{}-{name}",
-        std::process::id()
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
-fn sweepdepth(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(args)
-        .env("RUST_LOG", "warn,sweepdepth=info")
-        .stdin(Stdio::null())
-        .output()
-        .expect("run sweepdepth")
-}
-
-fn ok(out: &Output, what: &str) -> String {
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "{what} failed: {stderr}");
-    stderr
-}
 
 fn run_bag(input: &Path, output: &Path) -> String {
     let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
@@ -56,13 +28,6 @@ fn run_bag(input: &Path, output: &Path) -> String {
         ]),
         "sweepdepth bag",
     )
-}
-
-fn messages(path: &Path) -> Vec<BagMessage> {
-    BagReader::open(path)
-        .expect("open bag")
-        .map(|m| m.expect("read message"))
-        .collect()
 }
 
 /// The depth (metres) of every `/depth/image` message, in order.
@@ -176,7 +141,7 @@ fn assert_within_jpeg_noise(raw: &[Vec<f32>], jpeg: &[Vec<f32>]) -> f64 {
 
 #[test]
 fn compressed_bag_written_by_the_python_tools_gives_the_raw_bags_depth() {
-    let dir = scratch("rosbags");
+    let dir = scratch("rosbags-compressed");
     let fixture = root().join("tests/fixtures/bags/tsukuba_half.mcap");
     let written = dir.join("rosbags_jpeg");
     let py = python::python();

@@ -4,29 +4,12 @@
 //! faint pattern of its own (one grey level, different for every set and camera), so that no
 //! set looks like another: a stale image or a stale output cannot pass for a fresh one.
 
-use std::path::{Path, PathBuf};
+use super::util::{messages, root, scratch};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
-use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
+use sweepdepth::bag::BagWriter;
 use sweepdepth::msgs::{from_cdr, to_cdr, CameraInfo, Image, PointCloud2, Time};
-
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("sweepdepth-faults-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("scratch dir");
-    dir
-}
-
-fn messages(path: &Path) -> Vec<BagMessage> {
-    BagReader::open(path)
-        .expect("open bag")
-        .map(|m| m.expect("message"))
-        .collect()
-}
 
 const T0_NS: u64 = 1_700_000_000_000_000_000;
 const PERIOD_NS: u64 = 100_000_000;

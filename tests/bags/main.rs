@@ -9,3 +9,4 @@ mod bag;
 mod bag_compressed;
 mod bag_faults;
 mod bag_why;
+mod util;

@@ -1,0 +1,43 @@
+//! What the bag tests share: the checkout, scratch folders, the `sweepdepth` binary, bags read.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use sweepdepth::bag::{BagMessage, BagReader};
+
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// An empty scratch folder for `name` (unique in this test binary).
+pub fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sweepdepth-bags-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("scratch dir");
+    dir
+}
+
+/// Runs the `sweepdepth` binary (the limit of its wait: the test harness's).
+pub fn sweepdepth(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args(args)
+        .env("RUST_LOG", "warn,sweepdepth=info")
+        .stdin(Stdio::null())
+        .output()
+        .expect("run sweepdepth")
+}
+
+/// The run's stderr, after asserting it succeeded.
+pub fn ok(out: &Output, what: &str) -> String {
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{what} failed: {stderr}");
+    stderr
+}
+
+/// Every message of a bag, in order.
+pub fn messages(path: &Path) -> Vec<BagMessage> {
+    BagReader::open(path)
+        .expect("open bag")
+        .map(|m| m.expect("message"))
+        .collect()
+}
