@@ -11,7 +11,7 @@ use ros2_client::parameters::ParameterValue as RosValue;
 use sweepdepth::node::params::LiveParams;
 use sweepdepth::pipeline::PipelineConfig;
 use sweepdepth::params::{apply_to_sweep, param_table, validate, ParamSet, ParamValue};
-use sweepdepth::sweep::SweepParams;
+use sweepdepth::sweep::{RigShape, SweepParams};
 
 #[derive(Debug, Arbitrary)]
 enum Value {
@@ -54,7 +54,6 @@ enum Name {
 #[derive(Debug, Arbitrary)]
 struct Input {
     cameras: u8,
-    reference: u8,
     virtual_reference: bool,
     sets: Vec<(Name, Value)>,
     /// `-p name:=text` at start-up.
@@ -89,7 +88,6 @@ fn check_consistent(live: &LiveParams) {
 
 fuzz_target!(|input: Input| {
     let cameras = 2 + usize::from(input.cameras % 5);
-    let reference = usize::from(input.reference) % cameras;
     let mut set = ParamSet::defaults();
     let names: Vec<String> = (0..cameras).map(|i| format!("cam{i}")).collect();
     set.set("cameras", &ParamValue::StringArray(names)).unwrap();
@@ -98,7 +96,11 @@ fuzz_target!(|input: Input| {
     }
     let mut sweep = SweepParams::default();
     apply_to_sweep(&set, &mut sweep).unwrap();
-    let live = LiveParams::new(set, sweep, cameras, reference, input.virtual_reference);
+    let shape = RigShape {
+        cameras,
+        real_reference: !input.virtual_reference,
+    };
+    let live = LiveParams::new(set, sweep, shape);
     for (name, value) in input.sets.iter().take(64) {
         let name = name_of(name);
         let value = value.ros();
