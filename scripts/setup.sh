@@ -13,9 +13,10 @@
 #   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python;
 #   ament_index_python) and colcon with colcon-ros-cargo and cargo-ament-build of
 #   tools/requirements-colcon.txt (the workspace build of tests/house/colcon.rs):
-#   the system Python when it already has them all, else a virtual environment at target/test-venv
-#   (Debian's Python refuses global pip installs) made from a Python 3.11, the only version the
-#   ROS wheels are built for. Pinned versions; nothing is installed when all is present.
+#   the system Python when it already has them all, else a virtual environment made from a
+#   Python 3.11, the only version the ROS wheels are built for (Debian's Python refuses global pip
+#   installs), kept in a cache outside the clone (~/.cache/sweepdepth, one per set of pins) and
+#   linked as target/test-venv. Pinned versions; nothing is installed when all is present.
 # Run it from the repository root.
 #
 # `sh scripts/setup.sh --demo` installs only what `sweepdepth demo` needs: on a machine without
@@ -58,26 +59,62 @@ python311() {
     done
     return 1
 }
+# The venv lives in a cache outside the clone, one per set of pinned requirements (a fresh clone on
+# the same machine reuses it; a changed pin makes a new one), and target/test-venv links to it.
+# SWEEPDEPTH_CACHE_DIR moves the cache (default ${XDG_CACHE_HOME:-~/.cache}/sweepdepth).
+REQUIREMENTS="tools/requirements-test.txt tools/requirements-ros.txt tools/requirements-colcon.txt"
+venv_dir() {
+    # shellcheck disable=SC2086
+    key=$(cat $REQUIREMENTS | sha256sum | cut -c1-16)
+    echo "${SWEEPDEPTH_CACHE_DIR:-${XDG_CACHE_HOME:-${HOME:-/nonexistent}/.cache}/sweepdepth}/test-venv-py311-$key"
+}
+venv_ready() {
+    [ -f "$1/.complete" ] && [ -x "$1/bin/python3" ] && [ -x "$1/bin/cargo-ament-build" ] &&
+        "$1/bin/python3" -c "$PY_CHECK" >/dev/null 2>&1
+}
+make_venv() {
+    venv=$1
+    venv_ready "$venv" && return 0
+    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless; rclpy and the ROS 2 Jazzy messages; colcon, colcon-ros-cargo, cargo-ament-build) into $venv ..." >&2
+    if [ -x "$venv/bin/python3" ] &&
+        ! "$venv/bin/python3" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+        echo "setup: $venv is not Python 3.11; making it anew" >&2
+        rm -rf "$venv"
+    fi
+    [ -x "$venv/bin/python3" ] || "$py" -m venv "$venv"
+    # shellcheck disable=SC2086
+    "$venv/bin/python3" -m pip install -q $(printf -- '-r %s ' $REQUIREMENTS) &&
+        touch "$venv/.complete"
+}
 install_python_tools() {
     # cargo-ament-build is a program (its wheel puts it beside the venv's python): `cargo
     # ament-build` finds it on PATH.
     python3 -c "$PY_CHECK" >/dev/null 2>&1 && command -v cargo-ament-build >/dev/null 2>&1 &&
         return 0
-    [ -x target/test-venv/bin/python3 ] && [ -x target/test-venv/bin/cargo-ament-build ] &&
-        target/test-venv/bin/python3 -c "$PY_CHECK" >/dev/null 2>&1 && return 0
     if ! py=$(python311); then
         echo "setup: the ROS 2 wheels (tools/requirements-ros.txt) need Python 3.11 (python3.11 or a python3 of that version); none found" >&2
         return 1
     fi
-    echo "setup: installing the Python test tools (cyclonedds, rosbags, mcap, opencv-python-headless; rclpy and the ROS 2 Jazzy messages; colcon, colcon-ros-cargo, cargo-ament-build) into target/test-venv ..." >&2
-    if [ -x target/test-venv/bin/python3 ] &&
-        ! target/test-venv/bin/python3 -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
-        echo "setup: target/test-venv is not Python 3.11; making it anew" >&2
-        rm -rf target/test-venv
+    mkdir -p target
+    venv=$(venv_dir)
+    if ! mkdir -p "$(dirname "$venv")" 2>/dev/null; then
+        echo "setup: cannot create the cache $(dirname "$venv"); the venv goes into target/test-venv" >&2
+        [ -L target/test-venv ] && rm -f target/test-venv
+        make_venv target/test-venv
+        return $?
     fi
-    [ -x target/test-venv/bin/python3 ] || "$py" -m venv target/test-venv
-    target/test-venv/bin/python3 -m pip install -q -r tools/requirements-test.txt -r tools/requirements-ros.txt \
-        -r tools/requirements-colcon.txt
+    if ! venv_ready "$venv"; then
+        # One installer at a time per cache entry (two clones set up at once wait for each other).
+        if command -v flock >/dev/null 2>&1; then
+            (flock 9 && make_venv "$venv") 9>"$venv.lock" || return 1
+        else
+            make_venv "$venv" || return 1
+        fi
+    fi
+    # A venv of the old layout (a directory in target/) gives way to the link.
+    [ -d target/test-venv ] && [ ! -L target/test-venv ] && rm -rf target/test-venv
+    ln -sfn "$venv" target/test-venv
+    echo "setup: target/test-venv -> $venv" >&2
 }
 
 if [ -z "$packages" ]; then
