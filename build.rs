@@ -11,7 +11,7 @@ mod registry {
     include!("src/sweep/stages.rs");
 }
 
-use registry::{BindingKind, StageInfo, STAGES};
+use registry::{BindingKind, StageInfo, STAGES, SUBGROUP_VARIANTS};
 
 /// Where `module` disagrees with the registry row `stage`.
 fn check_against_registry(stage: &StageInfo, module: &naga::Module) -> Vec<String> {
@@ -100,7 +100,12 @@ fn main() {
     let common =
         fs::read_to_string("shaders/common.wgsl").expect("shaders/common.wgsl is readable");
     let mut failures = Vec::new();
-    for stage in &STAGES {
+    let subgroup_stages = SUBGROUP_VARIANTS.iter().map(|(_, info)| info);
+    for (stage, capabilities) in STAGES
+        .iter()
+        .map(|s| (s, naga::valid::Capabilities::default()))
+        .chain(subgroup_stages.map(|s| (s, naga::valid::Capabilities::SUBGROUP)))
+    {
         let path = format!("shaders/{}.wgsl", stage.name);
         println!("cargo:rerun-if-changed={path}");
         let body = fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
@@ -109,10 +114,8 @@ fn main() {
         match naga::front::wgsl::parse_str(&source) {
             Err(error) => failures.push(error.emit_to_string_with_path(&source, &label)),
             Ok(module) => {
-                let mut validator = naga::valid::Validator::new(
-                    naga::valid::ValidationFlags::all(),
-                    naga::valid::Capabilities::default(),
-                );
+                let mut validator =
+                    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities);
                 if let Err(error) = validator.validate(&module) {
                     failures.push(error.emit_to_string_with_path(&source, &label));
                 }
@@ -126,20 +129,20 @@ fn main() {
         fs::write(out_dir.join(format!("{}.wgsl", stage.name)), source)
             .expect("OUT_DIR is writable");
     }
-    // The validated sources, in registry order.
-    let sources: Vec<String> = STAGES
+    // The validated sources, in registry order, then the subgroup variants'.
+    let include =
+        |name: &str| format!("include_str!(concat!(env!(\"OUT_DIR\"), \"/{name}.wgsl\"))");
+    let sources: Vec<String> = STAGES.iter().map(|s| include(s.name)).collect();
+    let variants: Vec<String> = SUBGROUP_VARIANTS
         .iter()
-        .map(|s| {
-            format!(
-                "include_str!(concat!(env!(\"OUT_DIR\"), \"/{}.wgsl\"))",
-                s.name
-            )
-        })
+        .map(|(_, s)| include(s.name))
         .collect();
     let generated = format!(
-        "/// The validated sources of the stages (registry order), `common.wgsl` prepended.\npub const SHADERS: [&str; {n}] = [{}];\n",
+        "/// The validated sources of the stages (registry order), `common.wgsl` prepended.\npub const SHADERS: [&str; {n}] = [{}];\n/// The same of `SUBGROUP_VARIANTS`.\npub const SUBGROUP_SHADERS: [&str; {m}] = [{}];\n",
         sources.join(", "),
-        n = STAGES.len()
+        variants.join(", "),
+        n = STAGES.len(),
+        m = SUBGROUP_VARIANTS.len(),
     );
     fs::write(out_dir.join("shaders.rs"), generated).expect("OUT_DIR is writable");
     if !failures.is_empty() {

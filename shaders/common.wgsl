@@ -110,6 +110,36 @@ const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in w
 // storage binding limit may hold fewer rows than the image, so the volume and the sums are
 // separate buffers of `rows` rows each, and the stages that touch them run once per band. Pixel
 // `pix` of the image is word `(pix - first_pixel) * words + j` of its band's buffers.
+// SGM (sgm.wgsl, sgm_subgroup.wgsl): the first pixel of path line `line`: rows enter through
+// the left or right edge, columns through the top or bottom; diagonals first through the
+// vertical edge (one per row), then through the horizontal one (the remaining columns).
+fn line_start(line: i32, dx: i32, dy: i32, w: i32, h: i32) -> vec2<i32> {
+    let x_edge = select(w - 1, 0, dx > 0);
+    let y_edge = select(h - 1, 0, dy > 0);
+    if (dy == 0) {
+        return vec2<i32>(x_edge, line);
+    }
+    if (dx == 0) {
+        return vec2<i32>(line, y_edge);
+    }
+    if (line < h) {
+        return vec2<i32>(x_edge, line);
+    }
+    let i = line - h + 1;
+    return vec2<i32>(select(w - 1 - i, i, dx > 0), y_edge);
+}
+
+// Largest RGB channel difference of two packed reference colours.
+fn colour_step(a: u32, b: u32) -> u32 {
+    var step = 0u;
+    for (var shift = 0u; shift < 24u; shift += 8u) {
+        let ca = (a >> shift) & 0xffu;
+        let cb = (b >> shift) & 0xffu;
+        step = max(step, max(ca, cb) - min(ca, cb));
+    }
+    return step;
+}
+
 struct Band {
     first_row: u32,
     rows: u32,

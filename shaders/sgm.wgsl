@@ -46,36 +46,6 @@ struct SgmPass {
 var<workgroup> path_costs: array<u32, 2 * MAX_SGM_PLANES>;
 var<workgroup> path_min: array<atomic<u32>, 3>;
 
-// The first pixel of path line `line`: rows enter through the left or right edge, columns
-// through the top or bottom; diagonals first through the vertical edge (one per row), then
-// through the horizontal one (the remaining columns).
-fn line_start(line: i32, dx: i32, dy: i32, w: i32, h: i32) -> vec2<i32> {
-    let x_edge = select(w - 1, 0, dx > 0);
-    let y_edge = select(h - 1, 0, dy > 0);
-    if (dy == 0) {
-        return vec2<i32>(x_edge, line);
-    }
-    if (dx == 0) {
-        return vec2<i32>(line, y_edge);
-    }
-    if (line < h) {
-        return vec2<i32>(x_edge, line);
-    }
-    let i = line - h + 1;
-    return vec2<i32>(select(w - 1 - i, i, dx > 0), y_edge);
-}
-
-// Largest RGB channel difference of two packed reference colours.
-fn colour_step(a: u32, b: u32) -> u32 {
-    var step = 0u;
-    for (var shift = 0u; shift < 24u; shift += 8u) {
-        let ca = (a >> shift) & 0xffu;
-        let cb = (b >> shift) & 0xffu;
-        step = max(step, max(ca, cb) - min(ca, cb));
-    }
-    return step;
-}
-
 // min(L(d), L(d±1) + P1, min + P2) - min over the previous pixel's costs at offset `prev`.
 fn path_term(prev: u32, d: u32, planes: u32, prev_min: u32, p1: u32, p2: u32) -> u32 {
     var best = min(path_costs[prev + d], prev_min + p2);

@@ -51,6 +51,10 @@ impl GpuContext {
         if supported.contains(wgpu::Features::TIMESTAMP_QUERY) {
             features |= wgpu::Features::TIMESTAMP_QUERY;
         }
+        // SGM in subgroups (`shaders/sgm_subgroup.wgsl`) where the adapter has them.
+        if supported.contains(wgpu::Features::SUBGROUP) {
+            features |= wgpu::Features::SUBGROUP;
+        }
         let adapter_limits = adapter.limits();
         let cap = max_storage_binding.unwrap_or(u64::MAX);
         let limits = wgpu::Limits {
@@ -76,11 +80,14 @@ impl GpuContext {
                 reason: e.to_string(),
             })?;
         tracing::info!(
-            "GPU adapter: {} ({:?}, {:?}), timestamps: {}",
+            "GPU adapter: {} ({:?}, {:?}), timestamps: {}, subgroups: {} (sizes {}-{})",
             info.name,
             info.backend,
             info.device_type,
-            features.contains(wgpu::Features::TIMESTAMP_QUERY)
+            features.contains(wgpu::Features::TIMESTAMP_QUERY),
+            features.contains(wgpu::Features::SUBGROUP),
+            info.subgroup_min_size,
+            info.subgroup_max_size
         );
         Ok(Self {
             adapter,

@@ -110,6 +110,19 @@ const fn read_write(name: &'static str) -> Binding {
 /// The 8x8 tile of reference pixels most stages run per workgroup.
 const TILE: Option<[u32; 3]> = Some([8, 8, 1]);
 
+/// The bindings of SGM's passes, shared by `sgm` and its subgroup variant (one bind group
+/// serves both layouts).
+const SGM_BINDINGS: &[Binding] = &[
+    uniform("params"),
+    dynamic("sgm_pass"),
+    uniform("cameras"),
+    read("images"),
+    read("volume"),
+    read_write("sums"),
+    read_write("line_costs"),
+    uniform("band"),
+];
+
 /// The registry, in `Stage` order.
 pub const STAGES: [StageInfo; 10] = [
     StageInfo {
@@ -239,16 +252,7 @@ pub const STAGES: [StageInfo; 10] = [
     StageInfo {
         name: "sgm",
         entry_point: "main",
-        bindings: &[
-            uniform("params"),
-            dynamic("sgm_pass"),
-            uniform("cameras"),
-            read("images"),
-            read("volume"),
-            read_write("sums"),
-            read_write("line_costs"),
-            uniform("band"),
-        ],
+        bindings: SGM_BINDINGS,
         workgroup_size: None,
         overrides: &["DISTORTED", "SGM_LANES", "LINE_PER_INVOCATION"],
     },
@@ -265,3 +269,18 @@ pub const STAGES: [StageInfo; 10] = [
         overrides: &["DISTORTED"],
     },
 ];
+
+/// Variants of a stage for adapters with `wgpu::Features::SUBGROUP`: each stands in for the
+/// stage it names (same bindings, so the stage's bind groups serve it), with its own shader
+/// file and override constants. build.rs validates them with naga's subgroup capability; the
+/// engine builds them only on a device that has the feature.
+pub const SUBGROUP_VARIANTS: [(Stage, StageInfo); 1] = [(
+    Stage::Sgm,
+    StageInfo {
+        name: "sgm_subgroup",
+        entry_point: "main",
+        bindings: SGM_BINDINGS,
+        workgroup_size: None,
+        overrides: &["SGM_LANES", "SGM_LANE_WORDS"],
+    },
+)];

@@ -6,7 +6,7 @@ use crate::common;
 use sweepdepth::geometry::{CameraModel, Distortion, Rig};
 use sweepdepth::image::{ImageF32, Rgba8Image};
 use sweepdepth::sweep::cpu::CpuEngine;
-use sweepdepth::sweep::gpu::GpuEngine;
+use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout};
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::SweepPlan;
 use sweepdepth::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
@@ -24,6 +24,23 @@ fn section(maps: &[f32], npix: usize, s: usize) -> &[f32] {
     &maps[s * npix..(s + 1) * npix]
 }
 
+/// The SGM layouts the test adapter has: all three where it has subgroup operations, which
+/// lavapipe (CI's adapter) has, so CI runs every one.
+fn sgm_layouts() -> Vec<SgmLayout> {
+    let gpu = common::gpu();
+    let engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let lavapipe = gpu.device.adapter_info().name.contains("llvmpipe");
+    assert!(
+        engine.has_subgroups() || !lavapipe,
+        "lavapipe offers subgroup operations: the GPU context should have asked for them"
+    );
+    let mut layouts = vec![SgmLayout::LinePerInvocation, SgmLayout::Workgroup];
+    if engine.has_subgroups() {
+        layouts.push(SgmLayout::Subgroup);
+    }
+    layouts
+}
+
 fn compare(name: &str, plan: &SweepPlan, rig: &Rig, images: &[Rgba8Image]) {
     compare_with(name, plan, rig, images, None);
 }
@@ -34,12 +51,14 @@ fn compare_with(
     plan: &SweepPlan,
     rig: &Rig,
     images: &[Rgba8Image],
-    sgm_line_per_invocation: Option<bool>,
+    sgm_layout: Option<SgmLayout>,
 ) {
     let gpu = common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
-    if let Some(on) = sgm_line_per_invocation {
-        engine.set_sgm_line_per_invocation(on);
+    if let Some(layout) = sgm_layout {
+        engine
+            .set_sgm_layout(layout)
+            .expect("the adapter has the layout");
     }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine::new().trace(plan, rig, images).expect("cpu run");
@@ -150,9 +169,11 @@ fn sgm_agrees_on_synthetic() {
     ];
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
-        // Both layouts of sgm.wgsl: lanes across planes (GPUs), one invocation per line (CPUs).
-        compare_with(name, &plan, &rig, &images, Some(false));
-        compare_with(name, &plan, &rig, &images, Some(true));
+        // Every layout: lanes across planes in workgroup memory or in subgroups (GPUs), one
+        // invocation per line (CPUs).
+        for layout in sgm_layouts() {
+            compare_with(name, &plan, &rig, &images, Some(layout));
+        }
     }
     // SGM changes the answer: the summed path costs are not the local scores.
     let plan = SweepPlan::new(&rig, &sgm).expect("plan");
@@ -172,7 +193,7 @@ fn sgm_agrees_on_synthetic() {
 
 /// An adapter whose storage binding limit holds fewer rows of the SGM volume than the image runs
 /// SGM in row bands, the path state carried from band to band: the maps equal the run in one
-/// band bit for bit (both layouts of the one-band run), and the CPU engine within the
+/// band bit for bit (every layout of the one-band run, subgroups included), and the CPU engine within the
 /// tolerances, for 8 and 4 paths, edge-scaled P2, paired windows, bands of 1, 5 and 7 rows.
 #[test]
 fn sgm_in_row_bands_equals_one_band() {
@@ -206,17 +227,25 @@ fn sgm_in_row_bands_equals_one_band() {
         ),
     ];
     let gpu = common::gpu();
+    let layouts = sgm_layouts();
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
         let row_bytes = u64::from(plan.width) * plan.volume_words() as u64 * 4;
         let mut whole = Vec::new();
-        for layout in [false, true] {
+        for &layout in &layouts {
             let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
-            engine.set_sgm_line_per_invocation(layout);
+            engine.set_sgm_layout(layout).expect("layout");
             whole.push(engine.run_plan_raw(&plan, &rig, &images).expect("one band"));
         }
         let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
-        assert_eq!(bits(&whole[0]), bits(&whole[1]), "{name}: the two layouts");
+        for (layout, maps) in layouts.iter().zip(&whole).skip(1) {
+            assert_eq!(
+                bits(&whole[0]),
+                bits(maps),
+                "{name}: {layout:?} vs {:?}",
+                layouts[0]
+            );
+        }
         for rows in [1u64, 5, 7] {
             let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
             // A limit that is not a multiple of a row: the band holds the whole rows that fit.
@@ -240,7 +269,13 @@ fn sgm_in_row_bands_equals_one_band() {
             );
         }
         // And the CPU engine agrees (the shared tolerances).
-        compare_with(name, &plan, &rig, &images, Some(true));
+        compare_with(
+            name,
+            &plan,
+            &rig,
+            &images,
+            Some(SgmLayout::LinePerInvocation),
+        );
     }
     // A row that does not fit the limit is refused with the sizes named.
     let plan = SweepPlan::new(&rig, &sgm).expect("plan");
@@ -561,8 +596,10 @@ fn sgm_many_planes_real_crop_agrees() {
     params.num_planes = 125;
     params.optimizer = Optimizer::Sgm;
     let plan = SweepPlan::new(&rig, &params).expect("plan");
-    compare_with("sgm_many_planes_lanes", &plan, &rig, &images, Some(false));
-    compare_with("sgm_many_planes_lines", &plan, &rig, &images, Some(true));
+    for layout in sgm_layouts() {
+        let name = format!("sgm_many_planes_{layout:?}");
+        compare_with(&name, &plan, &rig, &images, Some(layout));
+    }
 }
 
 /// A pinhole arc of converging cameras (no rectified rows): the CPU engine maps its planes by

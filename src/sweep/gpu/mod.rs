@@ -26,6 +26,7 @@ use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 use buffers::{Alignments, Buffers};
+pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use shape::ShapeKey;
 
@@ -72,8 +73,10 @@ pub struct GpuEngine {
     queue: wgpu::Queue,
     pipelines: Pipelines,
     align: Alignments,
-    /// The SGM layout: one invocation per path line, or one workgroup per line.
-    sgm_line_per_invocation: bool,
+    /// How SGM spreads a path line over the adapter.
+    sgm_layout: SgmLayout,
+    /// The adapter's smallest subgroup (the subgroup layout's workgroup).
+    subgroup_size: u32,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
     sgm_band_bytes: Option<u64>,
     /// A smaller budget than `shape::SLAB_BUDGET_BYTES` for one batch of planes (tests of the
@@ -109,15 +112,28 @@ impl GpuEngine {
     /// Builds the layouts and shader modules on the caller's device. Shader compilation errors
     /// are caught with an error scope and returned.
     pub fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, SweepError> {
+        let pipelines = Pipelines::new(device)?;
+        let info = device.adapter_info();
+        // Subgroups where the adapter has them: a line's planes across the lanes in registers,
+        // no barrier (lavapipe too: its SGM stage 313-334 ms against 500-605 ms one invocation
+        // per line and 3715 ms in workgroup memory, Tsukuba 384x288 x 32 planes, 8 paths).
+        // Without them a CPU adapter pays for every barrier with a coroutine switch per SIMD
+        // batch: there each invocation walks a whole path line; a GPU takes a workgroup per
+        // line, the planes across its lanes in workgroup memory.
+        let sgm_layout = if pipelines.has_subgroups() {
+            SgmLayout::Subgroup
+        } else if info.device_type == wgpu::DeviceType::Cpu {
+            SgmLayout::LinePerInvocation
+        } else {
+            SgmLayout::Workgroup
+        };
         Ok(Self {
             device: device.clone(),
             queue: queue.clone(),
-            pipelines: Pipelines::new(device)?,
+            pipelines,
             align: Alignments::of(device),
-            // A CPU adapter (lavapipe) pays for every barrier with a coroutine switch per SIMD
-            // batch of 8 lanes: there each invocation walks a whole path line (no barriers). A
-            // GPU wants a full warp per line, the planes across its lanes.
-            sgm_line_per_invocation: device.adapter_info().device_type == wgpu::DeviceType::Cpu,
+            sgm_layout,
+            subgroup_size: info.subgroup_min_size,
             sgm_band_bytes: None,
             slab_bytes: None,
             buffers: None,
@@ -132,11 +148,29 @@ impl GpuEngine {
         })
     }
 
-    /// Chooses the SGM layout instead of the adapter's default (tests run both on any
-    /// adapter): `true` = one invocation per path line, `false` = one workgroup per line with
-    /// the planes across its lanes. Results are identical. Row bands always use the first.
-    pub fn set_sgm_line_per_invocation(&mut self, on: bool) {
-        self.sgm_line_per_invocation = on;
+    /// Chooses the SGM layout instead of the adapter's default (tests run every layout the
+    /// adapter has). Results are identical. Row bands always use one invocation per line.
+    /// `SgmLayout::Subgroup` on an adapter without subgroup operations is an error.
+    pub fn set_sgm_layout(&mut self, layout: SgmLayout) -> Result<(), SweepError> {
+        if layout == SgmLayout::Subgroup && !self.pipelines.has_subgroups() {
+            return Err(SweepError::InvalidParams(
+                "the subgroup SGM layout needs an adapter with subgroup operations \
+                 (wgpu::Features::SUBGROUP)"
+                    .into(),
+            ));
+        }
+        self.sgm_layout = layout;
+        Ok(())
+    }
+
+    /// The SGM layout the engine uses when one band holds the volume.
+    pub fn sgm_layout(&self) -> SgmLayout {
+        self.sgm_layout
+    }
+
+    /// The adapter has subgroup operations (the subgroup SGM layout can run).
+    pub fn has_subgroups(&self) -> bool {
+        self.pipelines.has_subgroups()
     }
 
     /// Caps the bytes of one row band of the SGM cost volume below the adapter's storage binding
@@ -284,7 +318,12 @@ impl GpuEngine {
         }
         // Workgroup memory does not outlive a dispatch: bands carry the path state in the
         // per-line scratch of the line-per-invocation layout.
-        let spec = Specialisation::of(plan, self.sgm_line_per_invocation || key.bands() > 1);
+        let layout = if key.bands() > 1 {
+            SgmLayout::LinePerInvocation
+        } else {
+            self.sgm_layout
+        };
+        let spec = Specialisation::of(plan, layout, self.subgroup_size);
         let pipelines = self.pipelines.get(&self.device, &spec)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let Some((buffers, schedule)) = self.buffers.as_ref() else {

@@ -135,7 +135,7 @@ fn workgroups(
         Stage::Sgm => {
             let (dx, dy) = SGM_DIRECTIONS[dispatch.direction as usize];
             let lines = sgm_lines(dx, dy, key.width, key.height);
-            let workgroups = if spec.sgm_line_per_invocation {
+            let workgroups = if spec.sgm_line_per_invocation() {
                 lines.div_ceil(spec.sgm_lanes)
             } else {
                 lines
