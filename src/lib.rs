@@ -43,9 +43,8 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used))]
 
 pub mod bag;
-pub mod bench;
+pub mod cli;
 pub mod datasets;
-pub mod demo;
 pub mod engine;
 pub mod eval;
 pub mod fusion;

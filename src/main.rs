@@ -20,9 +20,9 @@ enum Command {
     /// Run the engine on datasets with ground truth and print bad-pixel rates.
     Eval(sweepdepth::eval::EvalArgs),
     /// Measure hypotheses per second and per-stage GPU times.
-    Bench(sweepdepth::bench::BenchArgs),
+    Bench(sweepdepth::cli::bench::BenchArgs),
     /// Run the engine on the built-in sample data and write depth images.
-    Demo(sweepdepth::demo::DemoArgs),
+    Demo(sweepdepth::cli::demo::DemoArgs),
     /// The ROS 2 node: `sweepdepth node --ros-args -p cameras:=[left, centre, right] ...`.
     Node {
         /// Everything after `node` (the `--ros-args ...` block), parsed as rcl does.
@@ -59,8 +59,8 @@ fn main() -> ExitCode {
     }
     let result = match cli.command {
         Command::Eval(args) => sweepdepth::eval::run(&args).map_err(anyhow::Error::from),
-        Command::Bench(args) => sweepdepth::bench::run(&args),
-        Command::Demo(args) => sweepdepth::demo::run(&args),
+        Command::Bench(args) => sweepdepth::cli::bench::run(&args),
+        Command::Demo(args) => sweepdepth::cli::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
         Command::Fuse { args } => {
             sweepdepth::node::fuse_node::run(&args).map_err(anyhow::Error::from)

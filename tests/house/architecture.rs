@@ -44,11 +44,11 @@ const LAYERS: &[(&str, &[&str])] = &[
         &["pipeline", "datasets"],
     ),
     ("the live view, evaluation", &["viewer", "eval"]),
+    ("front ends: the node, bags", &["node", "bag"]),
     (
-        "front ends: the node, bags, the demo",
-        &["node", "bag", "demo"],
+        "the subcommands that only print: the demo, the benchmark",
+        &["cli"],
     ),
-    ("the benchmark (it runs the demo's sample)", &["bench"]),
 ];
 
 /// The crate roots: `lib.rs` declares the modules, `main.rs` is the binary.
@@ -79,14 +79,10 @@ const NEVER: &[(&str, &[&str])] = &[
     ("geometry", &["ros", "msgs", "msgdefs"]),
 ];
 
-/// The only files whose production code may use `anyhow` (errors printed at the command line).
-const ANYHOW_FILES: &[&str] = &[
-    "main.rs",
-    "demo.rs",
-    "bench.rs",
-    "bench/fusion.rs",
-    "bench/decode.rs",
-];
+/// The only files whose production code may use `anyhow` (errors printed at the command line):
+/// the binary and the files under these folders.
+const ANYHOW_FILES: &[&str] = &["main.rs"];
+const ANYHOW_FOLDERS: &[&str] = &["cli/"];
 
 /// Files still above the limit, each being split by other work in progress (remove the entry
 /// when its split lands).
@@ -646,13 +642,15 @@ fn anyhow_only_at_the_command_line() {
     let users: Vec<String> = sources()
         .iter()
         .filter(|s| {
-            find(&s.code, b"anyhow", 0).is_some() && !ANYHOW_FILES.contains(&s.name.as_str())
+            find(&s.code, b"anyhow", 0).is_some()
+                && !ANYHOW_FILES.contains(&s.name.as_str())
+                && !ANYHOW_FOLDERS.iter().any(|f| s.name.starts_with(f))
         })
         .map(|s| format!("src/{}", s.name))
         .collect();
     assert!(
         users.is_empty(),
-        "anyhow outside {ANYHOW_FILES:?} (library code returns typed errors): {users:?}"
+        "anyhow outside {ANYHOW_FILES:?} and {ANYHOW_FOLDERS:?} (library code returns typed errors): {users:?}"
     );
 }
 

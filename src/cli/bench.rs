@@ -48,7 +48,7 @@ pub struct BenchArgs {
     #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
     pub device: crate::engine::Device,
     /// Time the TSDF fusion instead (integrate and mesh one 640x480 depth map at 2 cm voxels)
-    /// beside Open3D's VoxelBlockGrid in the same run (`src/bench/fusion.rs`).
+    /// beside Open3D's VoxelBlockGrid in the same run (`src/cli/bench/fusion.rs`).
     #[arg(long)]
     pub fusion: bool,
     /// Python with `open3d` for the fusion peer (default: $SWEEPDEPTH_OPEN3D_PYTHON,
@@ -311,7 +311,7 @@ pub fn bench_params(
 fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Option<SweepParams>)> {
     if config.workload == Workload::Demo {
         let dir = std::env::temp_dir().join(format!("sweepdepth-bench-{}", std::process::id()));
-        let input = crate::demo::extract_sample(&dir)?;
+        let input = super::demo::extract_sample(&dir)?;
         let dataset = crate::datasets::load_dataset(&input);
         let _ = std::fs::remove_dir_all(&dir);
         let dataset = dataset?;

@@ -30,27 +30,27 @@ pub struct DemoArgs {
 const SAMPLE: [(&str, &[u8]); 6] = [
     (
         "scene1.row3.col1.png",
-        include_bytes!("../data/tsukuba/scene1.row3.col1.png"),
+        include_bytes!("../../data/tsukuba/scene1.row3.col1.png"),
     ),
     (
         "scene1.row3.col2.png",
-        include_bytes!("../data/tsukuba/scene1.row3.col2.png"),
+        include_bytes!("../../data/tsukuba/scene1.row3.col2.png"),
     ),
     (
         "scene1.row3.col3.png",
-        include_bytes!("../data/tsukuba/scene1.row3.col3.png"),
+        include_bytes!("../../data/tsukuba/scene1.row3.col3.png"),
     ),
     (
         "scene1.row3.col4.png",
-        include_bytes!("../data/tsukuba/scene1.row3.col4.png"),
+        include_bytes!("../../data/tsukuba/scene1.row3.col4.png"),
     ),
     (
         "scene1.row3.col5.png",
-        include_bytes!("../data/tsukuba/scene1.row3.col5.png"),
+        include_bytes!("../../data/tsukuba/scene1.row3.col5.png"),
     ),
     (
         "truedisp.row3.col3.png",
-        include_bytes!("../data/tsukuba/truedisp.row3.col3.png"),
+        include_bytes!("../../data/tsukuba/truedisp.row3.col3.png"),
     ),
 ];
 
