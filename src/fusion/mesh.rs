@@ -212,7 +212,7 @@ impl<'a> Neighbourhood<'a> {
     }
 
     /// Voxel `(x, y, z)` with each in `0..=8`, 8 being the neighbour's first layer.
-    fn voxel(&self, x: usize, y: usize, z: usize) -> Option<&'a Voxel> {
+    fn voxel(&self, x: usize, y: usize, z: usize) -> Option<Voxel> {
         let which = (x / BLOCK_SIDE) | ((y / BLOCK_SIDE) << 1) | ((z / BLOCK_SIDE) << 2);
         let block = self.blocks[which]?;
         Some(block.voxel(x % BLOCK_SIDE, y % BLOCK_SIDE, z % BLOCK_SIDE))
@@ -246,7 +246,7 @@ fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
                     if voxel.tsdf < 0.0 {
                         case |= 1 << i;
                     }
-                    corners[i] = *voxel;
+                    corners[i] = voxel;
                 }
                 let crossed = EDGE_TABLE[case];
                 if crossed == 0 {

@@ -7,8 +7,9 @@ use super::*;
 impl View<'_> {
     /// Step 2 for one block of a pinhole camera, a row of eight voxels at a time: the
     /// projections, the pixel offsets and the choice between the bilinear and the nearest
-    /// depth are lane-wise (vectorised under AVX2), only the gathers and the voxel updates
-    /// are per voxel. The same arithmetic as [`Self::update_block`], in the same order.
+    /// depth, and the running averages on the block's field arrays ([`Block::observe_row`])
+    /// are lane-wise (vectorised under AVX2), only the gathers are per voxel. The same
+    /// arithmetic as [`Self::update_block`], in the same order.
     #[inline(always)]
     pub(super) fn update_block_pinhole_lanes(&self, index: BlockIndex, block: &mut Block) -> usize {
         const LANES: usize = BLOCK_SIDE;
@@ -38,6 +39,7 @@ impl View<'_> {
         let trunc = self.truncation_m;
         let inv_trunc = 1.0 / trunc;
         let xs: [f32; LANES] = std::array::from_fn(|x| x as f32);
+        let has_colour = self.colour.is_some();
         let mut updated = 0;
         for z in 0..BLOCK_SIDE {
             for y in 0..BLOCK_SIDE {
@@ -74,11 +76,12 @@ impl View<'_> {
                 let mut d = [[0.0f32; LANES]; 4];
                 let mut dn = [0.0f32; LANES];
                 let mut weight = [0.0f32; LANES];
+                let mut rgb = [[0.0f32; LANES]; 3];
                 for x in 0..LANES {
                     // Not negative: u0, v0 >= 0.
                     let i = corner[x] as usize;
-                    // From the samples alone (the nearest pixel's weight shares a cache line
-                    // with its depth, and the four corners are two lines).
+                    // From the samples alone (the nearest pixel's weight and colour share a
+                    // cache line with its depth, and the four corners are two lines).
                     d[0][x] = samples[i].depth_m;
                     d[1][x] = samples[i + 1].depth_m;
                     d[2][x] = samples[i + width].depth_m;
@@ -86,15 +89,24 @@ impl View<'_> {
                     let near = &samples[nearest[x] as usize];
                     dn[x] = near.depth_m;
                     weight[x] = near.weight;
+                    let [r, g, b, _] = Rgba8Image::unpack(near.rgb);
+                    rgb[0][x] = f32::from(r);
+                    rgb[1][x] = f32::from(g);
+                    rgb[2][x] = f32::from(b);
                 }
-                let mut sdf = [0.0f32; LANES];
-                let mut update = [false; LANES];
+                let mut observed = RowObservation {
+                    tsdf: [0.0; LANES],
+                    weight,
+                    update: [0; LANES],
+                    rgb,
+                    update_colour: [0; LANES],
+                };
                 for x in 0..LANES {
                     let [d0, d1, d2, d3] = [d[0][x], d[1][x], d[2][x], d[3][x]];
                     // All four valid (a NaN makes the sum NaN) and agreeing.
                     let lo = d0.min(d1).min(d2.min(d3));
                     let hi = d0.max(d1).max(d2.max(d3));
-                    let agree = bilinear[x] && !(d0 + d1 + d2 + d3).is_nan() && hi - lo < trunc;
+                    let agree = bilinear[x] & !(d0 + d1 + d2 + d3).is_nan() & (hi - lo < trunc);
                     let top = d0 + (d1 - d0) * fu[x];
                     let bottom = d2 + (d3 - d2) * fu[x];
                     let seen = if agree {
@@ -103,24 +115,14 @@ impl View<'_> {
                         dn[x]
                     };
                     let s = seen - pz[x];
-                    sdf[x] = s;
-                    // A NaN depth or weight fails.
-                    update[x] = inside[x] && s >= -trunc && !weight[x].is_nan();
+                    // A NaN depth or weight fails (`&`, not `&&`: no branches).
+                    let update = inside[x] & (s >= -trunc) & !weight[x].is_nan();
+                    let update_colour = update & has_colour & (s.abs() < trunc);
+                    observed.tsdf[x] = (s * inv_trunc).min(1.0);
+                    observed.update[x] = u32::from(update).wrapping_neg();
+                    observed.update_colour[x] = u16::from(update_colour).wrapping_neg();
                 }
-                let offset = Block::voxel_offset(0, y, z);
-                for x in 0..LANES {
-                    if !update[x] {
-                        continue;
-                    }
-                    let s = sdf[x];
-                    let voxel = &mut block.voxels[offset + x];
-                    voxel.observe_tsdf((s * inv_trunc).min(1.0), weight[x], self.max_weight);
-                    if self.colour.is_some() && s.abs() < trunc {
-                        let [r, g, b, _] = Rgba8Image::unpack(samples[nearest[x] as usize].rgb);
-                        voxel.observe_colour([r, g, b], self.max_weight);
-                    }
-                    updated += 1;
-                }
+                updated += block.observe_row(y, z, &observed, self.max_weight);
             }
         }
         updated
