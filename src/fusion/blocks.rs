@@ -256,6 +256,13 @@ impl Block {
         }
     }
 
+    /// The TSDF and the weight of the row of voxels `(0..8, y, z)`.
+    #[inline(always)]
+    pub(super) fn tsdf_and_weight_row(&self, y: usize, z: usize) -> (&Row<f32>, &Row<f32>) {
+        let row = y + BLOCK_SIDE * z;
+        (&self.voxels.tsdf[row], &self.voxels.weight[row])
+    }
+
     /// Writes the voxel at [`Block::voxel_offset`] `offset`.
     #[inline(always)]
     pub(super) fn set_voxel_at_offset(&mut self, offset: usize, voxel: Voxel) {

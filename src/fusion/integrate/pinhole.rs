@@ -30,6 +30,7 @@ impl View<'_> {
         let (width, height) = (self.depth.width as usize, self.depth.height as usize);
         let (w, h) = (width as f32, height as f32);
         let samples = &self.samples[..];
+        let depth_m = &self.depth_m[..];
         // The last top-left corner of a bilinear 2x2 (`lanes_fit`: at least 2x2 pixels).
         // In i32 (`lanes_fit`: fewer than 2^31 pixels), which AVX2 converts and multiplies
         // eight lanes at a time (usize lanes are converted one by one).
@@ -76,29 +77,29 @@ impl View<'_> {
                 let mut d = [[0.0f32; LANES]; 4];
                 let mut dn = [0.0f32; LANES];
                 let mut weight = [0.0f32; LANES];
-                let mut rgb = [[0.0f32; LANES]; 3];
+                let mut rgb = [0u32; LANES];
                 for x in 0..LANES {
-                    // Not negative: u0, v0 >= 0.
+                    // The four corners from the dense depths (two cache lines), one bounds
+                    // check for the four (not negative: u0, v0 >= 0).
                     let i = corner[x] as usize;
-                    // From the samples alone (the nearest pixel's weight and colour share a
-                    // cache line with its depth, and the four corners are two lines).
-                    d[0][x] = samples[i].depth_m;
-                    d[1][x] = samples[i + 1].depth_m;
-                    d[2][x] = samples[i + width].depth_m;
-                    d[3][x] = samples[i + width + 1].depth_m;
+                    let quad = &depth_m[i..i + width + 2];
+                    d[0][x] = quad[0];
+                    d[1][x] = quad[1];
+                    d[2][x] = quad[width];
+                    d[3][x] = quad[width + 1];
+                    // The nearest pixel's depth, weight and colour share a cache line.
                     let near = &samples[nearest[x] as usize];
                     dn[x] = near.depth_m;
                     weight[x] = near.weight;
-                    let [r, g, b, _] = Rgba8Image::unpack(near.rgb);
-                    rgb[0][x] = f32::from(r);
-                    rgb[1][x] = f32::from(g);
-                    rgb[2][x] = f32::from(b);
+                    rgb[x] = near.rgb;
                 }
+                // Unpacked lane-wise ([`Rgba8Image::pack`]: red in the low byte).
+                let level = |shift: u32| rgb.map(|p| ((p >> shift) & 0xff) as f32);
                 let mut observed = RowObservation {
                     tsdf: [0.0; LANES],
                     weight,
                     update: [0; LANES],
-                    rgb,
+                    rgb: [level(0), level(8), level(16)],
                     update_colour: [0; LANES],
                 };
                 for x in 0..LANES {
