@@ -81,7 +81,8 @@ pub type BlockSet = HashSet<BlockIndex, BuildHasherDefault<BlockHasher>>;
 
 /// One voxel: the truncated signed distance at its centre (in units of the truncation
 /// distance, [-1, 1]), its weight (observations, capped), and its colour with its own weight
-/// (colour is only averaged near the surface). 16 bytes.
+/// (colour is only averaged near the surface). 16 bytes; a [`Block`] keeps each field in an
+/// array of its own and hands voxels out by value.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Voxel {
     pub tsdf: f32,
@@ -126,47 +127,201 @@ impl Voxel {
     /// running average whose total weight is capped at `max_weight`.
     #[inline(always)]
     pub(super) fn observe_tsdf(&mut self, tsdf: f32, weight: f32, max_weight: f32) {
-        let w = self.weight;
-        self.tsdf = (self.tsdf * w + tsdf * weight) / (w + weight);
-        self.weight = (w + weight).min(max_weight);
+        (self.tsdf, self.weight) = running_tsdf(self.tsdf, self.weight, tsdf, weight, max_weight);
     }
 
     /// One observation of the colour with weight 1, averaged like the TSDF.
     #[inline(always)]
     pub(super) fn observe_colour(&mut self, rgb: [u8; 3], max_weight: f32) {
-        let w = f32::from(self.colour_weight);
-        for (c, &o) in self.colour_fixed.iter_mut().zip(rgb.iter()) {
-            let mean = (f32::from(*c) * w + f32::from(o) * 256.0) / (w + 1.0);
-            // Rounded (the mean is not negative; the cast saturates at u16::MAX).
-            *c = (mean + 0.5) as u16;
-        }
-        let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
-        self.colour_weight = (w + 1.0).min(cap) as u16;
+        let rgb = rgb.map(f32::from);
+        let (colour, weight) =
+            running_colour(self.colour_fixed, self.colour_weight, rgb, max_weight);
+        self.colour_fixed = colour;
+        self.colour_weight = weight;
     }
 }
 
-/// 8x8x8 voxels, x fastest, then y, then z ([`Block::voxel_offset`]).
+/// The TSDF's running average: `(tsdf, weight)` after one observation `observed` of weight
+/// `observed_weight`, the total weight capped at `max_weight`.
+#[inline(always)]
+fn running_tsdf(
+    tsdf: f32,
+    weight: f32,
+    observed: f32,
+    observed_weight: f32,
+    max_weight: f32,
+) -> (f32, f32) {
+    let total = weight + observed_weight;
+    (
+        (tsdf * weight + observed * observed_weight) / total,
+        total.min(max_weight),
+    )
+}
+
+/// The colour's running average (8.8 fixed point, rounded): the colour and its count after
+/// one observation `rgb` (levels 0..=255 as f32) of weight 1, the count capped at `max_weight`
+/// (and `u16::MAX`). One reciprocal for the three channels.
+#[inline(always)]
+fn running_colour(colour: [u16; 3], count: u16, rgb: [f32; 3], max_weight: f32) -> ([u16; 3], u16) {
+    let w = f32::from(count);
+    let rcp = 1.0 / (w + 1.0);
+    // Rounded (the mean is not negative; the cast saturates at u16::MAX).
+    let mean = |c: u16, o: f32| ((f32::from(c) * w + o * 256.0) * rcp + 0.5) as u16;
+    let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
+    (
+        [
+            mean(colour[0], rgb[0]),
+            mean(colour[1], rgb[1]),
+            mean(colour[2], rgb[2]),
+        ],
+        (w + 1.0).min(cap) as u16,
+    )
+}
+
+/// A row of [`BLOCK_SIDE`] voxels along x.
+type Row<T> = [T; BLOCK_SIDE];
+/// Rows in a block.
+const ROWS: usize = BLOCK_SIDE * BLOCK_SIDE;
+
+/// What step 2 of the integration observed along one row of a block
+/// ([`Block::observe_row`]), lane per voxel.
+pub(super) struct RowObservation {
+    /// The truncated TSDF observed, in units of the truncation distance.
+    pub tsdf: Row<f32>,
+    pub weight: Row<f32>,
+    /// Which voxels take the TSDF observation: all bits set, or none.
+    pub update: Row<u32>,
+    /// The colour observed (levels 0..=255).
+    pub rgb: [Row<f32>; 3],
+    /// Which voxels take the colour observation (a subset of `update`): all bits or none.
+    pub update_colour: Row<u16>,
+}
+
+/// The voxels of a block, one array per field (structure of arrays), a row of 8 along x at
+/// a time, so that the integration updates a row lane-wise.
+#[derive(Debug, Clone, PartialEq)]
+struct Voxels {
+    tsdf: [Row<f32>; ROWS],
+    weight: [Row<f32>; ROWS],
+    colour: [[Row<u16>; ROWS]; 3],
+    colour_weight: [Row<u16>; ROWS],
+}
+
+/// 8x8x8 voxels, x fastest, then y, then z ([`Block::voxel_offset`]), stored field by
+/// field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Block {
-    pub voxels: Box<[Voxel; VOXELS_PER_BLOCK]>,
+    voxels: Box<Voxels>,
 }
 
 impl Default for Block {
     fn default() -> Self {
         Self {
-            voxels: Box::new([Voxel::EMPTY; VOXELS_PER_BLOCK]),
+            voxels: Box::new(Voxels {
+                tsdf: [[0.0; BLOCK_SIDE]; ROWS],
+                weight: [[0.0; BLOCK_SIDE]; ROWS],
+                colour: [[[0; BLOCK_SIDE]; ROWS]; 3],
+                colour_weight: [[0; BLOCK_SIDE]; ROWS],
+            }),
         }
     }
 }
 
 impl Block {
-    /// The place of voxel `(x, y, z)` (each `0..8`) in [`Block::voxels`].
+    /// The place of voxel `(x, y, z)` (each `0..8`) in the block.
     pub const fn voxel_offset(x: usize, y: usize, z: usize) -> usize {
         x + BLOCK_SIDE * (y + BLOCK_SIDE * z)
     }
 
-    pub fn voxel(&self, x: usize, y: usize, z: usize) -> &Voxel {
-        &self.voxels[Self::voxel_offset(x, y, z)]
+    /// Voxel `(x, y, z)` (each `0..8`).
+    #[inline(always)]
+    pub fn voxel(&self, x: usize, y: usize, z: usize) -> Voxel {
+        self.voxel_at_offset(Self::voxel_offset(x, y, z))
+    }
+
+    /// The voxel at [`Block::voxel_offset`] `offset`.
+    #[inline(always)]
+    pub fn voxel_at_offset(&self, offset: usize) -> Voxel {
+        let (row, x) = (offset / BLOCK_SIDE, offset % BLOCK_SIDE);
+        let v = &self.voxels;
+        Voxel {
+            tsdf: v.tsdf[row][x],
+            weight: v.weight[row][x],
+            colour_fixed: [
+                v.colour[0][row][x],
+                v.colour[1][row][x],
+                v.colour[2][row][x],
+            ],
+            colour_weight: v.colour_weight[row][x],
+        }
+    }
+
+    /// The TSDF and the weight of the row of voxels `(0..8, y, z)`.
+    #[inline(always)]
+    pub(super) fn tsdf_and_weight_row(&self, y: usize, z: usize) -> (&Row<f32>, &Row<f32>) {
+        let row = y + BLOCK_SIDE * z;
+        (&self.voxels.tsdf[row], &self.voxels.weight[row])
+    }
+
+    /// Writes the voxel at [`Block::voxel_offset`] `offset`.
+    #[inline(always)]
+    pub(super) fn set_voxel_at_offset(&mut self, offset: usize, voxel: Voxel) {
+        let (row, x) = (offset / BLOCK_SIDE, offset % BLOCK_SIDE);
+        let v = &mut self.voxels;
+        v.tsdf[row][x] = voxel.tsdf;
+        v.weight[row][x] = voxel.weight;
+        for (c, value) in voxel.colour_fixed.into_iter().enumerate() {
+            v.colour[c][row][x] = value;
+        }
+        v.colour_weight[row][x] = voxel.colour_weight;
+    }
+
+    /// One observation of a row of voxels `(0..8, y, z)`, lane-wise: the running averages of
+    /// [`Voxel::observe_tsdf`] and [`Voxel::observe_colour`] (the same arithmetic) made for
+    /// every lane and kept where `observed.update` (and `observed.update_colour`) say, by
+    /// bit masks rather than branches, so that the compiler vectorises them; returns how
+    /// many voxels took the TSDF observation.
+    #[inline(always)]
+    pub(super) fn observe_row(
+        &mut self,
+        y: usize,
+        z: usize,
+        observed: &RowObservation,
+        max_weight: f32,
+    ) -> usize {
+        let row = y + BLOCK_SIDE * z;
+        let v = &mut *self.voxels;
+        let (tsdf, weight) = (&mut v.tsdf[row], &mut v.weight[row]);
+        let keep = |new: f32, old: f32, mask: u32| {
+            f32::from_bits((new.to_bits() & mask) | (old.to_bits() & !mask))
+        };
+        for x in 0..BLOCK_SIDE {
+            let (t, w) = running_tsdf(
+                tsdf[x],
+                weight[x],
+                observed.tsdf[x],
+                observed.weight[x],
+                max_weight,
+            );
+            let mask = observed.update[x];
+            tsdf[x] = keep(t, tsdf[x], mask);
+            weight[x] = keep(w, weight[x], mask);
+        }
+        if observed.update_colour.iter().any(|m| *m != 0) {
+            let [r, g, b] = &mut v.colour;
+            let (r, g, b) = (&mut r[row], &mut g[row], &mut b[row]);
+            let count = &mut v.colour_weight[row];
+            for x in 0..BLOCK_SIDE {
+                let rgb = [observed.rgb[0][x], observed.rgb[1][x], observed.rgb[2][x]];
+                let (c, n) = running_colour([r[x], g[x], b[x]], count[x], rgb, max_weight);
+                let mask = observed.update_colour[x];
+                r[x] = (c[0] & mask) | (r[x] & !mask);
+                g[x] = (c[1] & mask) | (g[x] & !mask);
+                b[x] = (c[2] & mask) | (b[x] & !mask);
+                count[x] = (n & mask) | (count[x] & !mask);
+            }
+        }
+        observed.update.iter().map(|m| (m & 1) as usize).sum()
     }
 }
 
@@ -240,7 +395,7 @@ impl VoxelBlockGrid {
     }
 
     /// The voxel of a global index, if its block is allocated.
-    pub fn voxel(&self, voxel: [i64; 3]) -> Option<&Voxel> {
+    pub fn voxel(&self, voxel: [i64; 3]) -> Option<Voxel> {
         let block_index = BlockIndex::of_voxel(voxel);
         let block = self.blocks.get(&block_index)?;
         let first = block_index.first_voxel();
@@ -249,14 +404,14 @@ impl VoxelBlockGrid {
     }
 
     /// The voxel whose centre is nearest to a world point, if its block is allocated.
-    pub fn voxel_at(&self, point_in_world: DVec3) -> Option<&Voxel> {
+    pub fn voxel_at(&self, point_in_world: DVec3) -> Option<Voxel> {
         self.voxel(self.voxel_index_of(point_in_world))
     }
 
     /// The memory the blocks hold, in bytes (voxels plus the hash map's entries; the
     /// allocator's own overhead is not counted).
     pub fn memory_bytes(&self) -> usize {
-        let per_block = std::mem::size_of::<[Voxel; VOXELS_PER_BLOCK]>();
+        let per_block = std::mem::size_of::<Voxels>();
         let per_entry = std::mem::size_of::<(BlockIndex, Block)>() + 1;
         self.blocks.len() * per_block
             + self.blocks.capacity() * per_entry

@@ -41,7 +41,7 @@ mod pinhole;
 use allocate::RayGrid;
 use pinhole::{row_weights, update_block_pinhole, RowNeighbours};
 
-use super::blocks::{Block, BlockIndex, BlockSet, BLOCK_SIDE};
+use super::blocks::{Block, BlockIndex, BlockSet, RowObservation, BLOCK_SIDE};
 use super::{FusionError, FusionParams, VoxelBlockGrid};
 
 /// The least weight of one observation (a view at 84 degrees to the surface or more).
@@ -592,12 +592,14 @@ impl<'a> View<'a> {
                     if weight.is_nan() {
                         continue;
                     }
-                    let voxel = &mut block.voxels[Block::voxel_offset(x, y, z)];
+                    let offset = Block::voxel_offset(x, y, z);
+                    let mut voxel = block.voxel_at_offset(offset);
                     voxel.observe_tsdf((sdf * inv_trunc).min(1.0), weight, self.max_weight);
                     if self.colour.is_some() && sdf.abs() < trunc {
                         let [r, g, b, _] = Rgba8Image::unpack(sample.rgb);
                         voxel.observe_colour([r, g, b], self.max_weight);
                     }
+                    block.set_voxel_at_offset(offset, voxel);
                     updated += 1;
                 }
             }

@@ -212,12 +212,48 @@ impl<'a> Neighbourhood<'a> {
     }
 
     /// Voxel `(x, y, z)` with each in `0..=8`, 8 being the neighbour's first layer.
-    fn voxel(&self, x: usize, y: usize, z: usize) -> Option<&'a Voxel> {
+    fn voxel(&self, x: usize, y: usize, z: usize) -> Option<Voxel> {
         let which = (x / BLOCK_SIDE) | ((y / BLOCK_SIDE) << 1) | ((z / BLOCK_SIDE) << 2);
         let block = self.blocks[which]?;
         Some(block.voxel(x % BLOCK_SIDE, y % BLOCK_SIDE, z % BLOCK_SIDE))
     }
+
+    /// The TSDF of the 9x9x9 voxels a block's cubes read (x fastest, [`SIDE`] per axis), NaN
+    /// where the voxel's block is missing or the voxel was never observed (an observed
+    /// voxel's TSDF is never NaN: the integration averages finite values only): what the
+    /// cubes' corners are tested on, a row of the block's field arrays at a time.
+    fn observed_tsdf(&self) -> Vec<f32> {
+        let mut out = vec![f32::NAN; SIDE * SIDE * SIDE];
+        for (i, line) in out.chunks_exact_mut(SIDE).enumerate() {
+            let (y, z) = (i % SIDE, i / SIDE);
+            let which = ((y / BLOCK_SIDE) << 1) | ((z / BLOCK_SIDE) << 2);
+            let (by, bz) = (y % BLOCK_SIDE, z % BLOCK_SIDE);
+            if let Some(block) = self.blocks[which] {
+                let (tsdf, weight) = block.tsdf_and_weight_row(by, bz);
+                for x in 0..BLOCK_SIDE {
+                    line[x] = if weight[x] > 0.0 { tsdf[x] } else { f32::NAN };
+                }
+            }
+            if let Some(block) = self.blocks[which | 1] {
+                let (tsdf, weight) = block.tsdf_and_weight_row(by, bz);
+                line[BLOCK_SIDE] = if weight[0] > 0.0 { tsdf[0] } else { f32::NAN };
+            }
+        }
+        out
+    }
 }
+
+/// [`CORNERS`] as offsets into [`Neighbourhood::observed_tsdf`].
+const CORNER_OFFSETS: [usize; 8] = {
+    let mut offsets = [0; 8];
+    let mut i = 0;
+    while i < 8 {
+        let [x, y, z] = CORNERS[i];
+        offsets[i] = x + SIDE * (y + SIDE * z);
+        i += 1;
+    }
+    offsets
+};
 
 /// Marching cubes over one block's cubes.
 fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
@@ -230,28 +266,26 @@ fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
     let mut edge_vertex = vec![u32::MAX; SIDE * SIDE * SIDE * 3];
     let first = index.first_voxel();
     let s = grid.voxel_size_m();
+    let observed = around.observed_tsdf();
     for z in 0..BLOCK_SIDE {
         for y in 0..BLOCK_SIDE {
-            'cube: for x in 0..BLOCK_SIDE {
-                let mut corners = [Voxel::EMPTY; 8];
-                let mut case = 0usize;
-                for (i, offset) in CORNERS.iter().enumerate() {
-                    let Some(voxel) = around.voxel(x + offset[0], y + offset[1], z + offset[2])
-                    else {
-                        continue 'cube;
-                    };
-                    if !voxel.is_observed() {
-                        continue 'cube;
-                    }
-                    if voxel.tsdf < 0.0 {
-                        case |= 1 << i;
-                    }
-                    corners[i] = *voxel;
+            for x in 0..BLOCK_SIDE {
+                // A cube with a corner missing or never observed (NaN) makes nothing.
+                let base = x + SIDE * (y + SIDE * z);
+                let tsdf = CORNER_OFFSETS.map(|o| observed[base + o]);
+                if tsdf.iter().any(|t| t.is_nan()) {
+                    continue;
                 }
+                let case = (0..8).fold(0usize, |case, i| case | (usize::from(tsdf[i] < 0.0) << i));
                 let crossed = EDGE_TABLE[case];
                 if crossed == 0 {
                     continue;
                 }
+                // The corners' voxels (colour and all), only for cubes that make triangles.
+                let corner = |i: usize| {
+                    let [dx, dy, dz] = CORNERS[i];
+                    around.voxel(x + dx, y + dy, z + dz).unwrap_or(Voxel::EMPTY)
+                };
                 let mut cube_vertices = [0u32; 12];
                 for (edge, pair) in EDGE_CORNERS.iter().enumerate() {
                     if crossed & (1 << edge) == 0 {
@@ -269,7 +303,7 @@ fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
                     let key = (((z + o[2]) * SIDE + (y + o[1])) * SIDE + (x + o[0])) * 3 + axis;
                     if edge_vertex[key] == u32::MAX {
                         edge_vertex[key] = mesh.vertices.len() as u32;
-                        let (v_lo, v_hi) = (&corners[lo], &corners[hi]);
+                        let (v_lo, v_hi) = (corner(lo), corner(hi));
                         let t = (v_lo.tsdf / (v_lo.tsdf - v_hi.tsdf)).clamp(0.0, 1.0);
                         let mut p = [0.0f32; 3];
                         for k in 0..3 {

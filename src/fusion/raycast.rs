@@ -93,7 +93,7 @@ impl<'a> Lookup<'a> {
         }
     }
 
-    fn voxel(&mut self, voxel: [i64; 3]) -> Option<&'a Voxel> {
+    fn voxel(&mut self, voxel: [i64; 3]) -> Option<Voxel> {
         let index = BlockIndex::of_voxel(voxel);
         let block = self.block(index)?;
         let first = index.first_voxel();

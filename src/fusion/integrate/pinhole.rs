@@ -7,8 +7,9 @@ use super::*;
 impl View<'_> {
     /// Step 2 for one block of a pinhole camera, a row of eight voxels at a time: the
     /// projections, the pixel offsets and the choice between the bilinear and the nearest
-    /// depth are lane-wise (vectorised under AVX2), only the gathers and the voxel updates
-    /// are per voxel. The same arithmetic as [`Self::update_block`], in the same order.
+    /// depth, and the running averages on the block's field arrays ([`Block::observe_row`])
+    /// are lane-wise (vectorised under AVX2), only the gathers are per voxel. The same
+    /// arithmetic as [`Self::update_block`], in the same order.
     #[inline(always)]
     pub(super) fn update_block_pinhole_lanes(&self, index: BlockIndex, block: &mut Block) -> usize {
         const LANES: usize = BLOCK_SIDE;
@@ -29,6 +30,7 @@ impl View<'_> {
         let (width, height) = (self.depth.width as usize, self.depth.height as usize);
         let (w, h) = (width as f32, height as f32);
         let samples = &self.samples[..];
+        let depth_m = &self.depth_m[..];
         // The last top-left corner of a bilinear 2x2 (`lanes_fit`: at least 2x2 pixels).
         // In i32 (`lanes_fit`: fewer than 2^31 pixels), which AVX2 converts and multiplies
         // eight lanes at a time (usize lanes are converted one by one).
@@ -38,6 +40,7 @@ impl View<'_> {
         let trunc = self.truncation_m;
         let inv_trunc = 1.0 / trunc;
         let xs: [f32; LANES] = std::array::from_fn(|x| x as f32);
+        let has_colour = self.colour.is_some();
         let mut updated = 0;
         for z in 0..BLOCK_SIDE {
             for y in 0..BLOCK_SIDE {
@@ -74,27 +77,37 @@ impl View<'_> {
                 let mut d = [[0.0f32; LANES]; 4];
                 let mut dn = [0.0f32; LANES];
                 let mut weight = [0.0f32; LANES];
+                let mut rgb = [0u32; LANES];
                 for x in 0..LANES {
-                    // Not negative: u0, v0 >= 0.
+                    // The four corners from the dense depths (two cache lines), one bounds
+                    // check for the four (not negative: u0, v0 >= 0).
                     let i = corner[x] as usize;
-                    // From the samples alone (the nearest pixel's weight shares a cache line
-                    // with its depth, and the four corners are two lines).
-                    d[0][x] = samples[i].depth_m;
-                    d[1][x] = samples[i + 1].depth_m;
-                    d[2][x] = samples[i + width].depth_m;
-                    d[3][x] = samples[i + width + 1].depth_m;
+                    let quad = &depth_m[i..i + width + 2];
+                    d[0][x] = quad[0];
+                    d[1][x] = quad[1];
+                    d[2][x] = quad[width];
+                    d[3][x] = quad[width + 1];
+                    // The nearest pixel's depth, weight and colour share a cache line.
                     let near = &samples[nearest[x] as usize];
                     dn[x] = near.depth_m;
                     weight[x] = near.weight;
+                    rgb[x] = near.rgb;
                 }
-                let mut sdf = [0.0f32; LANES];
-                let mut update = [false; LANES];
+                // Unpacked lane-wise ([`Rgba8Image::pack`]: red in the low byte).
+                let level = |shift: u32| rgb.map(|p| ((p >> shift) & 0xff) as f32);
+                let mut observed = RowObservation {
+                    tsdf: [0.0; LANES],
+                    weight,
+                    update: [0; LANES],
+                    rgb: [level(0), level(8), level(16)],
+                    update_colour: [0; LANES],
+                };
                 for x in 0..LANES {
                     let [d0, d1, d2, d3] = [d[0][x], d[1][x], d[2][x], d[3][x]];
                     // All four valid (a NaN makes the sum NaN) and agreeing.
                     let lo = d0.min(d1).min(d2.min(d3));
                     let hi = d0.max(d1).max(d2.max(d3));
-                    let agree = bilinear[x] && !(d0 + d1 + d2 + d3).is_nan() && hi - lo < trunc;
+                    let agree = bilinear[x] & !(d0 + d1 + d2 + d3).is_nan() & (hi - lo < trunc);
                     let top = d0 + (d1 - d0) * fu[x];
                     let bottom = d2 + (d3 - d2) * fu[x];
                     let seen = if agree {
@@ -103,24 +116,14 @@ impl View<'_> {
                         dn[x]
                     };
                     let s = seen - pz[x];
-                    sdf[x] = s;
-                    // A NaN depth or weight fails.
-                    update[x] = inside[x] && s >= -trunc && !weight[x].is_nan();
+                    // A NaN depth or weight fails (`&`, not `&&`: no branches).
+                    let update = inside[x] & (s >= -trunc) & !weight[x].is_nan();
+                    let update_colour = update & has_colour & (s.abs() < trunc);
+                    observed.tsdf[x] = (s * inv_trunc).min(1.0);
+                    observed.update[x] = u32::from(update).wrapping_neg();
+                    observed.update_colour[x] = u16::from(update_colour).wrapping_neg();
                 }
-                let offset = Block::voxel_offset(0, y, z);
-                for x in 0..LANES {
-                    if !update[x] {
-                        continue;
-                    }
-                    let s = sdf[x];
-                    let voxel = &mut block.voxels[offset + x];
-                    voxel.observe_tsdf((s * inv_trunc).min(1.0), weight[x], self.max_weight);
-                    if self.colour.is_some() && s.abs() < trunc {
-                        let [r, g, b, _] = Rgba8Image::unpack(samples[nearest[x] as usize].rgb);
-                        voxel.observe_colour([r, g, b], self.max_weight);
-                    }
-                    updated += 1;
-                }
+                updated += block.observe_row(y, z, &observed, self.max_weight);
             }
         }
         updated
