@@ -232,22 +232,36 @@ pub fn sample_coords(
             let (q0, qx, d) = ((q[0] + yf * q[2]) as f32, q[1] as f32, d as f32);
             let distorted = cam.size[3] != DIST_NONE;
             let [fx, fy, cx, cy] = cam.intrinsics;
-            for x in 0..width {
-                let xf = x as f32;
-                let nr = q0 + xf * qx;
-                let depth = d / nr;
-                let m: [f32; 3] = std::array::from_fn(|i| base[i] + xf * step[i]);
-                let seen = nr.abs() >= 1e-12 && depth > 0.0 && depth * m[2] > 1e-6;
-                let n = [m[0] / m[2], m[1] / m[2]];
-                let pixel = if distorted {
-                    lens(cam, n).unwrap_or([f32::NAN; 2])
-                } else {
-                    [fx * n[0] + cx, fy * n[1] + cy]
-                };
-                // NaN fails every comparison: not inside.
-                let inside = pixel[0] >= 0.0 && pixel[1] >= 0.0 && pixel[0] <= w && pixel[1] <= h;
-                xs[x] = if seen && inside { pixel[0] } else { f32::NAN };
-                ys[x] = pixel[1];
+            // One loop per lens: without distortion it vectorises (the x as i32, whose
+            // conversion to f32 has a vector instruction; the same floats as from usize).
+            let pixels = xs.iter_mut().zip(ys.iter_mut()).zip(0i32..);
+            if distorted {
+                for ((xo, yo), x) in pixels {
+                    let xf = x as f32;
+                    let nr = q0 + xf * qx;
+                    let depth = d / nr;
+                    let m: [f32; 3] = std::array::from_fn(|i| base[i] + xf * step[i]);
+                    let seen = nr.abs() >= 1e-12 && depth > 0.0 && depth * m[2] > 1e-6;
+                    let pixel = lens(cam, [m[0] / m[2], m[1] / m[2]]).unwrap_or([f32::NAN; 2]);
+                    // NaN fails every comparison: not inside.
+                    let inside =
+                        pixel[0] >= 0.0 && pixel[1] >= 0.0 && pixel[0] <= w && pixel[1] <= h;
+                    *xo = if seen && inside { pixel[0] } else { f32::NAN };
+                    *yo = pixel[1];
+                }
+            } else {
+                for ((xo, yo), x) in pixels {
+                    let xf = x as f32;
+                    let nr = q0 + xf * qx;
+                    let depth = d / nr;
+                    let m: [f32; 3] = std::array::from_fn(|i| base[i] + xf * step[i]);
+                    let seen = (nr.abs() >= 1e-12) & (depth > 0.0) & (depth * m[2] > 1e-6);
+                    let pixel = [fx * (m[0] / m[2]) + cx, fy * (m[1] / m[2]) + cy];
+                    let inside =
+                        (pixel[0] >= 0.0) & (pixel[1] >= 0.0) & (pixel[0] <= w) & (pixel[1] <= h);
+                    *xo = if seen & inside { pixel[0] } else { f32::NAN };
+                    *yo = pixel[1];
+                }
             }
         }
         _ => {
@@ -324,39 +338,120 @@ pub fn sample_row(
     }
     sample_coords(plan, cam, mapping, k, y, coords);
     let [xs, ys] = coords;
-    let Some((reference, distances)) = census else {
-        for x in 0..width {
-            let colour = if xs[x].is_nan() {
-                [f32::NAN; 3]
-            } else {
-                image.sample_bilinear([xs[x], ys[x]])
-            };
-            for c in 0..3 {
-                out[c][x] = colour[c];
-            }
-        }
-        return false;
-    };
-    let (reference, distances) = (&reference[..width], &mut distances[..width]);
-    let ones = |a: u32, b: u32| (a ^ b).count_ones() as f32;
+    gather_row(image, &xs[..width], &ys[..width], out, census)
+}
+
+/// Samples per chunk of `gather_row`: its texel indices and weights are made for a chunk at a
+/// time in a loop that vectorises (on the stack), then read by the gather loop.
+const GATHER_CHUNK: usize = 64;
+
+/// The bilinear colours at `xs`, `ys` (NaN in `xs`: not seen; else a position that `inside`
+/// accepted) into `out`, and with `census` (the reference row's words, the distances out) the
+/// census distances of the samples from the same texel loads: the arithmetic of
+/// `PlanarImage::sample_with_words` and `Bilinear::at`, their indices and weights made a chunk
+/// at a time in a vectorised loop (the scalar float-to-index conversions and clamps were half
+/// the gather's instructions on the ring).
+#[inline(always)]
+fn gather_row(
+    image: &PlanarImage,
+    xs: &[f32],
+    ys: &[f32],
+    out: &mut ColourRow,
+    census: Option<(&[u32], &mut [f32])>,
+) -> bool {
+    let width = xs.len();
+    let ys = &ys[..width];
+    let [out_r, out_g, out_b] = out;
+    let (out_r, out_g, out_b) = (
+        &mut out_r[..width],
+        &mut out_g[..width],
+        &mut out_b[..width],
+    );
+    let (iw, ih) = (image.width as u32, image.height as u32);
+    let t = image.texels.as_slice();
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-    for x in 0..width {
-        if xs[x].is_nan() {
-            for c in 0..3 {
-                out[c][x] = f32::NAN;
+    let lerp3 = |a: [f32; 4], c: [f32; 4], f: f32| -> [f32; 3] {
+        std::array::from_fn(|i| a[i] + (c[i] - a[i]) * f)
+    };
+    let mut census =
+        census.map(|(reference, distances)| (&reference[..width], &mut distances[..width]));
+    let sampled = census.is_some();
+    let mut start = 0;
+    while start < width {
+        let n = GATHER_CHUNK.min(width - start);
+        let (cx, cy) = (&xs[start..start + n], &ys[start..start + n]);
+        // Texel 00's index, the offsets to texels 10 and 01 (0 at the image's last column or
+        // row, as `Bilinear::at` clamps), the weights; 0 for samples not seen (never read).
+        let mut base = [0u32; GATHER_CHUNK];
+        let mut right = [0u32; GATHER_CHUNK];
+        let mut down = [0u32; GATHER_CHUNK];
+        let mut wx = [0f32; GATHER_CHUNK];
+        let mut wy = [0f32; GATHER_CHUNK];
+        for j in 0..n {
+            let (px, py) = (cx[j], cy[j]);
+            let seen = !px.is_nan();
+            let (bx, by) = (px.floor(), py.floor());
+            let (x0, y0) = if seen {
+                (bx as i32 as u32, by as i32 as u32)
+            } else {
+                (0, 0)
+            };
+            base[j] = y0.wrapping_mul(iw).wrapping_add(x0);
+            right[j] = (x0 + 1).min(iw - 1).wrapping_sub(x0);
+            down[j] = (y0 + 1).min(ih - 1).wrapping_sub(y0).wrapping_mul(iw);
+            wx[j] = px - bx;
+            wy[j] = py - by;
+        }
+        let index = |j: usize| {
+            let i00 = base[j] as usize;
+            let (r, d) = (right[j] as usize, down[j] as usize);
+            (i00, i00 + r, i00 + d, i00 + d + r)
+        };
+        match census.as_mut() {
+            None => {
+                for j in 0..n {
+                    let x = start + j;
+                    if cx[j].is_nan() {
+                        out_r[x] = f32::NAN;
+                        out_g[x] = f32::NAN;
+                        out_b[x] = f32::NAN;
+                        continue;
+                    }
+                    let (i00, i10, i01, i11) = index(j);
+                    let (t00, t10, t01, t11) = (t[i00], t[i10], t[i01], t[i11]);
+                    let (top, bottom) = (lerp3(t00, t10, wx[j]), lerp3(t01, t11, wx[j]));
+                    out_r[x] = lerp(top[0], bottom[0], wy[j]);
+                    out_g[x] = lerp(top[1], bottom[1], wy[j]);
+                    out_b[x] = lerp(top[2], bottom[2], wy[j]);
+                }
             }
-            continue;
+            Some((reference, distances)) => {
+                let ones = |a: f32, b: u32| (a.to_bits() ^ b).count_ones() as f32;
+                for j in 0..n {
+                    let x = start + j;
+                    if cx[j].is_nan() {
+                        out_r[x] = f32::NAN;
+                        out_g[x] = f32::NAN;
+                        out_b[x] = f32::NAN;
+                        continue;
+                    }
+                    let (i00, i10, i01, i11) = index(j);
+                    let (t00, t10, t01, t11) = (t[i00], t[i10], t[i01], t[i11]);
+                    let (fx, fy) = (wx[j], wy[j]);
+                    let (top, bottom) = (lerp3(t00, t10, fx), lerp3(t01, t11, fx));
+                    out_r[x] = lerp(top[0], bottom[0], fy);
+                    out_g[x] = lerp(top[1], bottom[1], fy);
+                    out_b[x] = lerp(top[2], bottom[2], fy);
+                    let r = reference[x];
+                    let top = lerp(ones(t00[3], r), ones(t10[3], r), fx);
+                    let bottom = lerp(ones(t01[3], r), ones(t11[3], r), fx);
+                    distances[x] = lerp(top, bottom, fy);
+                }
+            }
         }
-        let (colour, [w00, w10, w01, w11], [fx, fy]) = image.sample_with_words([xs[x], ys[x]]);
-        for c in 0..3 {
-            out[c][x] = colour[c];
-        }
-        let r = reference[x];
-        let top = lerp(ones(w00, r), ones(w10, r), fx);
-        let bottom = lerp(ones(w01, r), ones(w11, r), fx);
-        distances[x] = lerp(top, bottom, fy);
+        start += n;
     }
-    true
+    sampled
 }
 
 /// Where reference row `y` lands in a camera image of `cw` x `ch` texels that sees it shifted by
