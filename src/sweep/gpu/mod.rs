@@ -234,8 +234,8 @@ impl GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
-            let maps = engine.run_level(plan, rig, LevelImages::given(images), Readback::All)?;
-            Ok(plan.depth_maps(&maps))
+            let images = LevelImages::given(images);
+            engine.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
         })
     }
 
@@ -246,7 +246,10 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        self.timed(|engine| engine.run_level(plan, rig, LevelImages::given(images), Readback::All))
+        self.timed(|engine| {
+            let images = LevelImages::given(images);
+            engine.run_level(plan, rig, images, Readback::All, <[f32]>::to_vec)
+        })
     }
 
     /// The words of the last level's `images` buffer (every camera's pixels, then the census
@@ -293,14 +296,15 @@ impl GpuEngine {
     }
 
     /// One plan (one level of a frame set): upload, record, submit, read the maps back (all
-    /// of them, or the raw depths alone).
-    fn run_level(
+    /// of them, or the raw depths alone) and `unpack` them straight out of the mapped range.
+    fn run_level<T>(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
         images: LevelImages<'_>,
         readback: Readback,
-    ) -> Result<Vec<f32>, SweepError> {
+        unpack: impl FnOnce(&[f32]) -> T,
+    ) -> Result<T, SweepError> {
         self.counts.levels += 1;
         if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
             return Err(SweepError::InvalidParams(
@@ -450,12 +454,25 @@ impl GpuEngine {
                 .as_ref()
                 .map(|t| (&t.readback, t.readback.size())),
         );
-        let mut raw = submitter.read_back(&wanted)?.into_iter();
-        let maps: Vec<f32> = bytemuck::cast_vec(
-            raw.next()
-                .ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?,
-        );
-        self.timings = match raw.next() {
+        // The maps unpacked straight out of the mapped range (copied once).
+        let mut unpack = Some(unpack);
+        let mut maps = None;
+        let mut ticks: Option<Vec<u32>> = None;
+        submitter.read_back_with(&wanted, |i, bytes| {
+            if i == 0 {
+                if let Some(unpack) = unpack.take() {
+                    maps = Some(match bytemuck::try_cast_slice::<u8, f32>(bytes) {
+                        Ok(floats) => unpack(floats),
+                        Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(bytes)),
+                    });
+                }
+            } else {
+                ticks = Some(bytemuck::pod_collect_to_vec(bytes));
+            }
+            Ok(())
+        })?;
+        let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
+        self.timings = match ticks {
             Some(ticks) => record::phase_times(&self.queue, schedule, &ticks)?,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
@@ -474,8 +491,7 @@ impl super::coarse::PlanRunner for GpuEngine {
         images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
         // Inside `run`, which times the whole frame set.
-        let maps = self.run_level(plan, rig, images, Readback::All)?;
-        Ok(plan.depth_maps(&maps))
+        self.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
     }
 
     fn run_plan_for_ranges(
@@ -484,8 +500,9 @@ impl super::coarse::PlanRunner for GpuEngine {
         rig: &Rig,
         images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
-        let depth_raw = self.run_level(plan, rig, images, Readback::DepthRaw)?;
-        Ok(plan.depth_raw_maps(depth_raw))
+        self.run_level(plan, rig, images, Readback::DepthRaw, |m| {
+            plan.depth_raw_maps(m.to_vec())
+        })
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

@@ -88,6 +88,22 @@ impl<'a> Submitter<'a> {
         &mut self,
         buffers: &[(&wgpu::Buffer, u64)],
     ) -> Result<Vec<Vec<u32>>, SweepError> {
+        let mut out = Vec::with_capacity(buffers.len());
+        self.read_back_with(buffers, |_, bytes| {
+            out.push(bytemuck::pod_collect_to_vec(bytes));
+            Ok(())
+        })?;
+        Ok(out)
+    }
+
+    /// Maps the first `bytes` of every buffer of `buffers`, waits once for the GPU, and hands
+    /// each mapped range to `read` (with its index) before unmapping it: a caller that unpacks
+    /// the bytes copies them once.
+    pub fn read_back_with(
+        &mut self,
+        buffers: &[(&wgpu::Buffer, u64)],
+        mut read: impl FnMut(usize, &[u8]) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
         let receivers: Vec<_> = buffers
             .iter()
             .map(|&(buffer, bytes)| {
@@ -105,18 +121,13 @@ impl<'a> Submitter<'a> {
         self.counts.waits += 1;
         self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
         waited?;
-        buffers
-            .iter()
-            .zip(receivers)
-            .map(|(&(buffer, bytes), receiver)| {
-                receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
-                let data = bytemuck::pod_collect_to_vec(
-                    &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..],
-                );
-                buffer.unmap();
-                Ok(data)
-            })
-            .collect()
+        for (i, (&(buffer, bytes), receiver)) in buffers.iter().zip(receivers).enumerate() {
+            receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
+            let result = read(i, &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..]);
+            buffer.unmap();
+            result?;
+        }
+        Ok(())
     }
 }
 
