@@ -12,6 +12,9 @@
 use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
 use crate::image::{ImageF32, Rgba8Image};
 
+use std::cell::OnceCell;
+
+use super::frame_memo::FrameMemo;
 use super::plan::SweepPlan;
 use super::{DepthMaps, SweepError, SweepParams};
 
@@ -42,13 +45,78 @@ pub const MIN_PLANES: u32 = 48;
 /// pass.
 pub const COARSE_OPTIMIZER: super::Optimizer = super::Optimizer::Sgm;
 
+/// The images of one level of a frame set: the caller's, halved `halvings` times (each 2x2
+/// block averaged per 8-bit channel, [`half_image`]). The half-size images are made where the
+/// engine wants them: the WGSL engine in a compute stage from the caller's images
+/// (`shaders/half.wgsl`), the CPU engine on the host ([`LevelImages::on_host`], once per
+/// level and frame set).
+#[derive(Debug, Clone, Copy)]
+pub struct LevelImages<'a> {
+    full: &'a [Rgba8Image],
+    halvings: usize,
+    /// The levels made on the host so far (level h at h - 1).
+    host: &'a [OnceCell<Vec<Rgba8Image>>],
+}
+
+impl<'a> LevelImages<'a> {
+    /// The caller's images themselves.
+    pub fn given(images: &'a [Rgba8Image]) -> Self {
+        Self {
+            full: images,
+            halvings: 0,
+            host: &[],
+        }
+    }
+
+    /// The caller's (full-resolution) images.
+    pub fn full(&self) -> &'a [Rgba8Image] {
+        self.full
+    }
+
+    /// How many times the level halves the caller's images.
+    pub fn halvings(&self) -> usize {
+        self.halvings
+    }
+
+    /// The level below: half the size again.
+    fn halved(self) -> Self {
+        Self {
+            halvings: self.halvings + 1,
+            ..self
+        }
+    }
+
+    /// The level's images on the host (the CPU engine; the cameras' names in `rig` key the
+    /// frame set's memo): made level by level on first use.
+    pub fn on_host(&self, rig: &Rig, memo: &mut FrameMemo) -> Result<&'a [Rgba8Image], SweepError> {
+        let mut images = self.full;
+        for level in 0..self.halvings {
+            let cell = self.host.get(level).ok_or_else(|| {
+                SweepError::InvalidParams(format!(
+                    "internal: no room for half-size level {}",
+                    level + 1
+                ))
+            })?;
+            let finer = images;
+            images = cell.get_or_init(|| {
+                rig.cameras
+                    .iter()
+                    .zip(finer)
+                    .map(|(camera, image)| memo.half(&camera.name, image, half_image))
+                    .collect()
+            });
+        }
+        Ok(images)
+    }
+}
+
 /// Runs a plan on an engine (both engines implement it).
 pub trait PlanRunner {
     fn run_plan(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError>;
 
     /// Runs the plan of a level below the full-resolution one: its caller reads
@@ -58,7 +126,7 @@ pub trait PlanRunner {
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
         self.run_plan(plan, rig, images)
     }
@@ -165,6 +233,14 @@ pub fn run(
     images: &[Rgba8Image],
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
+    // The half-size levels the CPU engine makes on the host (the WGSL engine on the GPU).
+    let host: Vec<OnceCell<Vec<Rgba8Image>>> =
+        (1..levels(rig, params)).map(|_| OnceCell::new()).collect();
+    let images = LevelImages {
+        full: images,
+        halvings: 0,
+        host: &host,
+    };
     run_level(engine, plans, rig, images, params, Wanted::All)
 }
 
@@ -183,7 +259,7 @@ impl Wanted {
         engine: &mut dyn PlanRunner,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
         match self {
             Wanted::All => engine.run_plan(plan, rig, images),
@@ -197,13 +273,15 @@ fn run_level(
     engine: &mut dyn PlanRunner,
     plans: &mut Plans,
     rig: &Rig,
-    images: &[Rgba8Image],
+    images: LevelImages<'_>,
     params: &SweepParams,
     wanted: Wanted,
 ) -> Result<DepthMaps, SweepError> {
-    if applies(rig, params) {
-        super::check_images(rig, images)?;
-        match half_size(rig, images, engine.memo()) {
+    if images.halvings == 0 {
+        super::check_images(rig, images.full)?;
+    }
+    if applies(rig, params) && images.halvings < images.host.len() {
+        match half_rig(rig) {
             Ok(half) => return coarse_to_fine(engine, plans, rig, images, params, &half, wanted),
             Err(e) => tracing::debug!("coarse to fine skipped: {e}"),
         }
@@ -217,9 +295,9 @@ fn coarse_to_fine(
     engine: &mut dyn PlanRunner,
     plans: &mut Plans,
     rig: &Rig,
-    images: &[Rgba8Image],
+    images: LevelImages<'_>,
     params: &SweepParams,
-    (coarse_rig, coarse_images): &(Rig, Vec<Rgba8Image>),
+    coarse_rig: &Rig,
     wanted: Wanted,
 ) -> Result<DepthMaps, SweepError> {
     let fine_params = SweepParams {
@@ -241,7 +319,7 @@ fn coarse_to_fine(
         engine,
         below,
         coarse_rig,
-        coarse_images,
+        images.halved(),
         &coarse_params,
         Wanted::DepthRaw,
     )?;
@@ -283,12 +361,8 @@ fn half_model(model: &CameraModel) -> CameraModel {
     half
 }
 
-/// The rig and images at half resolution (each 2x2 block averaged, per 8-bit channel).
-fn half_size(
-    rig: &Rig,
-    images: &[Rgba8Image],
-    memo: &mut super::frame_memo::FrameMemo,
-) -> Result<(Rig, Vec<Rgba8Image>), SweepError> {
+/// The rig at half resolution (its images: [`half_image`] of the rig's).
+fn half_rig(rig: &Rig) -> Result<Rig, SweepError> {
     let cameras = rig
         .cameras
         .iter()
@@ -307,18 +381,13 @@ fn half_size(
             cam_from_rig: *cam_from_rig,
         },
     };
-    let half_rig = Rig::new(cameras, reference)
-        .map_err(|e| SweepError::InvalidParams(format!("coarse to fine: {e}")))?;
-    let half_images = rig
-        .cameras
-        .iter()
-        .zip(images)
-        .map(|(camera, image)| memo.half(&camera.name, image, half_image))
-        .collect();
-    Ok((half_rig, half_images))
+    Rig::new(cameras, reference)
+        .map_err(|e| SweepError::InvalidParams(format!("coarse to fine: {e}")))
 }
 
-fn half_image(image: &Rgba8Image) -> Rgba8Image {
+/// An image at half size: each 2x2 block averaged per 8-bit channel, (sum + 2) / 4 in integers
+/// (an odd last row or column dropped). The WGSL twin is `shaders/half.wgsl`.
+pub fn half_image(image: &Rgba8Image) -> Rgba8Image {
     let (w, h) = (image.width / 2, image.height / 2);
     let src = |x: u32, y: u32| image.pixels[(y * image.width + x) as usize];
     let mut pixels = Vec::with_capacity((w * h) as usize);

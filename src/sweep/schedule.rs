@@ -275,6 +275,7 @@ mod tests {
                     Stage::Median => Phase::Median,
                     Stage::Splat => Phase::Splat,
                     Stage::Visibility => Phase::Visibility,
+                    Stage::Census | Stage::Half => unreachable!("not in a schedule: {d:?}"),
                 };
                 assert_eq!(phase, expected, "{d:?}");
             }

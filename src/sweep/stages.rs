@@ -53,10 +53,12 @@ pub enum Stage {
     Visibility,
     Sgm,
     SgmSelect,
+    Census,
+    Half,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 10] = [
+    pub const ALL: [Stage; 12] = [
         Stage::Cost,
         Stage::BoxH,
         Stage::BoxV,
@@ -67,6 +69,8 @@ impl Stage {
         Stage::Visibility,
         Stage::Sgm,
         Stage::SgmSelect,
+        Stage::Census,
+        Stage::Half,
     ];
 
     /// This stage's row of the registry.
@@ -124,7 +128,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 10] = [
+pub const STAGES: [StageInfo; 12] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -267,6 +271,21 @@ pub const STAGES: [StageInfo; 10] = [
         ],
         workgroup_size: TILE,
         overrides: &["DISTORTED"],
+    },
+    StageInfo {
+        name: "census",
+        entry_point: "main",
+        bindings: &[uniform("params"), uniform("cameras"), read_write("images")],
+        workgroup_size: TILE,
+        overrides: &[],
+    },
+    // Binds the engine's image pyramid (`gpu/pyramid.rs`), not a shape's buffers.
+    StageInfo {
+        name: "half",
+        entry_point: "main",
+        bindings: &[uniform("halving"), read("finer"), read_write("coarser")],
+        workgroup_size: TILE,
+        overrides: &[],
     },
 ];
 

@@ -1117,3 +1117,130 @@ fn coarse_to_fine_is_one_submission_per_level() {
         );
     }
 }
+
+/// Pseudo-random RGBA pixels (every byte value, so both roundings of (sum + 2) / 4 and every
+/// grey comparison of the census occur), deterministic per seed.
+fn noise_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
+    let mut state = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    rig.cameras
+        .iter()
+        .map(|camera| {
+            let k = camera.model.intrinsics;
+            let pixels = (0..k.width_px * k.height_px)
+                .map(|_| {
+                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                    // Flat patches now and then: equal greys (no bit) occur too.
+                    if state >> 28 == 0 {
+                        0x8080_8080
+                    } else {
+                        state ^ (state >> 15)
+                    }
+                })
+                .collect();
+            Rgba8Image {
+                width: k.width_px,
+                height: k.height_px,
+                pixels,
+            }
+        })
+        .collect()
+}
+
+/// The census stage (`shaders/census.wgsl`) writes, after every camera's pixels in `images`,
+/// the words `sweep/census.rs` makes on the host, bit for bit: odd sizes, borders, cameras of
+/// two sizes.
+#[test]
+fn census_on_the_gpu_equals_the_cpu_twin() {
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    for (width, height) in [(37u32, 29u32), (64, 48), (3, 2)] {
+        let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
+        let mut rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        // A second size in the rig: each camera's words at its own offset.
+        let small = CameraModel::pinhole(synthetic::intrinsics(width.div_ceil(2), height));
+        rig.cameras[2].model = small;
+        let images = noise_images(&rig, width);
+        for cost in [Cost::Census, Cost::AdCensus] {
+            let params = SweepParams {
+                cost,
+                num_planes: 4,
+                ..base()
+            };
+            let plan = SweepPlan::new(&rig, &params).expect("plan");
+            engine.run_plan_raw(&plan, &rig, &images).expect("gpu run");
+            let words = engine.device_images().expect("images read back");
+            let mut expected: Vec<u32> = images.iter().flat_map(|i| i.pixels.clone()).collect();
+            assert_eq!(expected.len(), plan.total_camera_pixels);
+            for image in &images {
+                sweepdepth::sweep::census::transform(
+                    image.width as usize,
+                    image.height as usize,
+                    &image.pixels,
+                    &mut expected,
+                );
+            }
+            assert_eq!(plan.params.census_offset as usize, plan.total_camera_pixels);
+            let differ = words.iter().zip(&expected).filter(|(a, b)| a != b).count();
+            assert_eq!(
+                (words.len(), differ),
+                (expected.len(), 0),
+                "{width}x{height} {cost:?}"
+            );
+        }
+    }
+}
+
+/// The half stage (`shaders/half.wgsl`) makes every level of a three-level coarse-to-fine set
+/// on the GPU, bit for bit the host's `coarse::half_image` (odd widths and heights on the way
+/// down), and the set's levels run one submission each.
+#[test]
+fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(642, 330));
+    let mut rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    // A camera of another (odd) size: 643x331 -> 321x165 -> 160x82.
+    rig.cameras[2].model = CameraModel::pinhole(synthetic::intrinsics(643, 331));
+    let images = noise_images(&rig, 7);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        cost: Cost::Census,
+        optimizer: Optimizer::Wta,
+        ..SweepParams::default()
+    };
+    let levels = sweepdepth::sweep::coarse::levels(&rig, &params);
+    assert_eq!(levels, 3);
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    engine.run(&rig, &images, &params).expect("run");
+    let counts = engine.take_set_counts();
+    assert_eq!(
+        (counts.levels, counts.submissions, counts.waits),
+        (3, 3, 3),
+        "{counts:?}"
+    );
+    let mut expected = images.clone();
+    for level in 0..levels {
+        let words = engine.device_image_level(level).expect("level read back");
+        let packed: Vec<u32> = expected.iter().flat_map(|i| i.pixels.clone()).collect();
+        let differ = words.iter().zip(&packed).filter(|(a, b)| a != b).count();
+        assert_eq!((words.len(), differ), (packed.len(), 0), "level {level}");
+        expected = expected
+            .iter()
+            .map(sweepdepth::sweep::coarse::half_image)
+            .collect();
+    }
+    // The full-resolution level's `images` buffer: the caller's pixels, then their census.
+    let words = engine.device_images().expect("images read back");
+    let mut packed: Vec<u32> = images.iter().flat_map(|i| i.pixels.clone()).collect();
+    for image in &images {
+        sweepdepth::sweep::census::transform(
+            image.width as usize,
+            image.height as usize,
+            &image.pixels,
+            &mut packed,
+        );
+    }
+    assert!(words == packed, "the full-resolution images and census");
+}

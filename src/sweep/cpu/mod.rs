@@ -393,8 +393,10 @@ impl super::coarse::PlanRunner for CpuEngine {
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: super::coarse::LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
+        // The half-size images on the host, once per level and frame set.
+        let images = images.on_host(rig, &mut self.memo)?;
         CpuEngine::run_plan(self, plan, rig, images)
     }
 

@@ -94,7 +94,12 @@ impl Buffers {
             "cameras",
             u64::from(MAX_RIG_CAMERAS) * std::mem::size_of::<GpuCamera>() as u64,
         );
-        let images = storage("images", key.image_words as u64 * 4, none);
+        // COPY_SRC: tests read the census words back (`GpuEngine::device_images`).
+        let images = storage(
+            "images",
+            key.image_words as u64 * 4,
+            wgpu::BufferUsages::COPY_SRC,
+        );
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
         let plane_ranges = storage("plane_ranges", u64::from(key.height) * 16, none);
@@ -185,6 +190,11 @@ impl Buffers {
         };
         let mut bind_groups = Vec::with_capacity(STAGES.len());
         for (stage, layout) in STAGES.iter().zip(layouts) {
+            if stage.name == Stage::Half.name() {
+                // Binds the image pyramid's levels (`pyramid.rs`), not this shape's buffers.
+                bind_groups.push(Vec::new());
+                continue;
+            }
             let banded = stage.bindings.iter().any(|b| per_band(b.name));
             let groups = if banded { key.bands() } else { 1 };
             let mut per_stage = Vec::with_capacity(groups as usize);

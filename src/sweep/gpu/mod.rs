@@ -9,25 +9,31 @@
 //!   SGM row bands; limits checked).
 //! - `pipelines.rs`: layouts, modules and specialised pipelines from the registry.
 //! - `buffers.rs`: the buffers of a shape, bind groups by binding name, the plan's upload.
-//! - `record.rs`: recording the schedule, the submission, the readback and per-phase
-//!   timestamps.
+//! - `pyramid.rs`: the frame set's images on the device (uploaded once, halved there for the
+//!   levels of coarse to fine, copied into a level's `images` buffer).
+//! - `record.rs`: recording the census, the schedule, the submission, the readback and
+//!   per-phase timestamps.
 
 mod buffers;
 mod pipelines;
+mod pyramid;
 mod record;
 mod shape;
 
 use std::time::Instant;
 
+use super::coarse::LevelImages;
 use super::gpu_types::MAP_DEPTH_RAW;
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
+use super::stages::Stage;
 use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 use buffers::{Alignments, Buffers};
 pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
+use pyramid::Pyramid;
 use shape::ShapeKey;
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
@@ -93,7 +99,11 @@ pub struct GpuEngine {
     memo: super::frame_memo::FrameMemo,
     /// Id of the plan whose arrays are in the buffers.
     uploaded_plan: Option<u64>,
-    packed: Vec<u32>,
+    /// The frame set's images on the device, level by level (coarse to fine).
+    pyramid: Option<Pyramid>,
+    /// The deepest level of `pyramid` made for the current `run` (None: nothing uploaded yet;
+    /// each `run`, `run_plan` and `run_plan_raw` starts afresh).
+    pyramid_filled: Option<usize>,
     timings: StageTimings,
     cancel: CancelFlag,
     counts: SetCounts,
@@ -141,7 +151,8 @@ impl GpuEngine {
             plans: Default::default(),
             memo: Default::default(),
             uploaded_plan: None,
-            packed: Vec::new(),
+            pyramid: None,
+            pyramid_filled: None,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
@@ -208,8 +219,10 @@ impl GpuEngine {
     }
 
     /// Runs `f`, adding its wall time less the GPU waits it made to `host_ms`.
+    /// Each call is a frame set of its own: the image pyramid is filled again.
     fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
         let started = Instant::now();
+        self.pyramid_filled = None;
         let waited_before = self.counts.wait_ms + self.counts.submit_ms;
         let result = f(self);
         let waited = self.counts.wait_ms + self.counts.submit_ms - waited_before;
@@ -255,8 +268,8 @@ impl GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
-            let maps = engine.run_level(plan, rig, images, Readback::All)?;
-            Ok(plan.depth_maps(&maps))
+            let images = LevelImages::given(images);
+            engine.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
         })
     }
 
@@ -267,18 +280,65 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        self.timed(|engine| engine.run_level(plan, rig, images, Readback::All))
+        self.timed(|engine| {
+            let images = LevelImages::given(images);
+            engine.run_level(plan, rig, images, Readback::All, <[f32]>::to_vec)
+        })
+    }
+
+    /// The words of the last level's `images` buffer (every camera's pixels, then the census
+    /// words with a census cost), read back (tests compare them with the CPU twins).
+    pub fn device_images(&mut self) -> Result<Vec<u32>, SweepError> {
+        let Some((buffers, _)) = self.buffers.as_ref() else {
+            return Err(SweepError::Gpu("no level has run".into()));
+        };
+        let words = buffers.key.image_words as u64;
+        self.read_buffer(&buffers.images, words * 4)
+    }
+
+    /// The words of level `level` of the image pyramid (every camera's pixels at that level;
+    /// 0 = the caller's images) as the last coarse-to-fine `run` made it (tests compare them
+    /// with `coarse::half_image`).
+    pub fn device_image_level(&mut self, level: usize) -> Result<Vec<u32>, SweepError> {
+        let Some((buffer, bytes)) = self.pyramid.as_ref().and_then(|p| p.level_buffer(level))
+        else {
+            return Err(SweepError::Gpu(format!("no image level {level}")));
+        };
+        self.read_buffer(buffer, bytes)
+    }
+
+    /// Copies the first `bytes` of `buffer` to a fresh readback buffer and reads it back.
+    fn read_buffer(&self, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<u32>, SweepError> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("debug readback"),
+            size: bytes.max(4),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+        let mut counts = SetCounts::default();
+        let mut submitter =
+            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut counts);
+        submitter.submit(encoder.finish())?;
+        let mut words = submitter.read_back(&[(&staging, bytes)])?;
+        words
+            .pop()
+            .ok_or_else(|| SweepError::Gpu("internal: nothing read back".into()))
     }
 
     /// One plan (one level of a frame set): upload, record, submit, read the maps back (all
-    /// of them, or the raw depths alone).
-    fn run_level(
+    /// of them, or the raw depths alone) and `unpack` them straight out of the mapped range.
+    fn run_level<T>(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
         readback: Readback,
-    ) -> Result<Vec<f32>, SweepError> {
+        unpack: impl FnOnce(&[f32]) -> T,
+    ) -> Result<T, SweepError> {
         self.counts.levels += 1;
         if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
             return Err(SweepError::InvalidParams(
@@ -287,8 +347,32 @@ impl GpuEngine {
             ));
         }
         let started = Instant::now();
-        let mut packed = std::mem::take(&mut self.packed);
-        plan.pack_images(rig, images, &mut packed, &mut self.memo)?;
+        // The level's images: the caller's, written straight into the `images` buffer, or a
+        // level of the pyramid (the set's first level uploads the caller's images and makes
+        // every half-size level below on the GPU; the others copy theirs).
+        let halvings = images.halvings();
+        let fill = halvings > 0 && self.pyramid_filled.is_none_or(|d| d < halvings);
+        if fill {
+            let full = images.full();
+            if !self
+                .pyramid
+                .as_ref()
+                .is_some_and(|p| p.fits(full, halvings))
+            {
+                self.pyramid = None;
+                self.pyramid = Some(Pyramid::new(
+                    &self.device,
+                    &self.queue,
+                    &self.pipelines.layouts[Stage::Half as usize],
+                    full,
+                    halvings,
+                )?);
+            }
+        }
+        let from_pyramid = halvings > 0 || self.pyramid_filled.is_some();
+        if !from_pyramid {
+            super::check_images(rig, images.full())?;
+        }
         let key = ShapeKey::of(
             plan,
             &self.device.limits(),
@@ -334,9 +418,27 @@ impl GpuEngine {
             self.uploaded_plan = Some(plan.id);
         }
         buffers.upload_plane_ranges(&self.queue, plan);
-        self.queue
-            .write_buffer(&buffers.images, 0, bytemuck::cast_slice(&packed));
-        self.packed = packed;
+        let pyramid = match (from_pyramid, self.pyramid.as_ref()) {
+            (false, _) => {
+                // Each image from its own pixels, at its camera's offset: no packing.
+                for (image, camera) in images.full().iter().zip(&plan.cameras) {
+                    self.queue.write_buffer(
+                        &buffers.images,
+                        u64::from(camera.size[2]) * 4,
+                        bytemuck::cast_slice(&image.pixels),
+                    );
+                }
+                None
+            }
+            (true, Some(pyramid)) => {
+                if fill {
+                    pyramid.upload(&self.queue, images.full());
+                    self.pyramid_filled = Some(halvings);
+                }
+                Some(pyramid)
+            }
+            (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
+        };
 
         let section = plan.pixel_count() as u64 * 4;
         let maps_bytes = match readback {
@@ -354,7 +456,28 @@ impl GpuEngine {
             schedule,
             self.align,
             maps_bytes.clone(),
-        );
+            |encoder| {
+                if let Some(pyramid) = pyramid {
+                    if fill {
+                        pyramid.record_halvings(
+                            encoder,
+                            &pipelines[Stage::Half as usize],
+                            halvings,
+                        );
+                    }
+                    pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
+                }
+                if plan.uses_census() {
+                    record::record_census(
+                        encoder,
+                        buffers,
+                        &pipelines[Stage::Census as usize],
+                        plan,
+                    );
+                }
+                Ok(())
+            },
+        )?;
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
@@ -370,12 +493,25 @@ impl GpuEngine {
                 .as_ref()
                 .map(|t| (&t.readback, t.readback.size())),
         );
-        let mut raw = submitter.read_back(&wanted)?.into_iter();
-        let maps: Vec<f32> = bytemuck::cast_vec(
-            raw.next()
-                .ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?,
-        );
-        self.timings = match raw.next() {
+        // The maps unpacked straight out of the mapped range (copied once).
+        let mut unpack = Some(unpack);
+        let mut maps = None;
+        let mut ticks: Option<Vec<u32>> = None;
+        submitter.read_back_with(&wanted, |i, bytes| {
+            if i == 0 {
+                if let Some(unpack) = unpack.take() {
+                    maps = Some(match bytemuck::try_cast_slice::<u8, f32>(bytes) {
+                        Ok(floats) => unpack(floats),
+                        Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(bytes)),
+                    });
+                }
+            } else {
+                ticks = Some(bytemuck::pod_collect_to_vec(bytes));
+            }
+            Ok(())
+        })?;
+        let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
+        self.timings = match ticks {
             Some(ticks) => record::phase_times(&self.queue, schedule, &ticks)?,
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
@@ -391,21 +527,21 @@ impl super::coarse::PlanRunner for GpuEngine {
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
         // Inside `run`, which times the whole frame set.
-        let maps = self.run_level(plan, rig, images, Readback::All)?;
-        Ok(plan.depth_maps(&maps))
+        self.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
     }
 
     fn run_plan_for_ranges(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
-        let depth_raw = self.run_level(plan, rig, images, Readback::DepthRaw)?;
-        Ok(plan.depth_raw_maps(depth_raw))
+        self.run_level(plan, rig, images, Readback::DepthRaw, |m| {
+            plan.depth_raw_maps(m.to_vec())
+        })
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

@@ -6,6 +6,7 @@
 use std::sync::mpsc;
 use std::time::Instant;
 
+use super::super::plan::SweepPlan;
 use super::super::schedule::{sgm_lines, Dispatch, Schedule, SGM_DIRECTIONS};
 use super::super::stages::Stage;
 use super::super::{CancelFlag, StageTimings, SweepError};
@@ -16,6 +17,31 @@ use super::{gpu_err, SetCounts};
 /// Workgroups of 8x8 over a w x h grid.
 fn tiles(w: u32, h: u32) -> (u32, u32, u32) {
     (w.div_ceil(8), h.div_ceil(8), 1)
+}
+
+/// [`tiles`], for the image stages (`pyramid.rs`).
+pub(super) fn tiles_of(w: u32, h: u32) -> (u32, u32, u32) {
+    tiles(w, h)
+}
+
+/// Records the census words of every camera's image (a census cost): one dispatch over the
+/// widest and tallest image, the cameras in z (`shaders/census.wgsl`).
+pub(super) fn record_census(
+    encoder: &mut wgpu::CommandEncoder,
+    buffers: &Buffers,
+    census: &wgpu::ComputePipeline,
+    plan: &SweepPlan,
+) {
+    let widest = plan.cameras.iter().map(|c| c.size[0]).max().unwrap_or(0);
+    let tallest = plan.cameras.iter().map(|c| c.size[1]).max().unwrap_or(0);
+    let (x, y, _) = tiles(widest, tallest);
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some("census"),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(census);
+    pass.set_bind_group(0, buffers.bind_group(Stage::Census, 0), &[]);
+    pass.dispatch_workgroups(x, y, plan.params.cameras);
 }
 
 /// How often a wait for the GPU looks at the cancel flag.
@@ -62,6 +88,22 @@ impl<'a> Submitter<'a> {
         &mut self,
         buffers: &[(&wgpu::Buffer, u64)],
     ) -> Result<Vec<Vec<u32>>, SweepError> {
+        let mut out = Vec::with_capacity(buffers.len());
+        self.read_back_with(buffers, |_, bytes| {
+            out.push(bytemuck::pod_collect_to_vec(bytes));
+            Ok(())
+        })?;
+        Ok(out)
+    }
+
+    /// Maps the first `bytes` of every buffer of `buffers`, waits once for the GPU, and hands
+    /// each mapped range to `read` (with its index) before unmapping it: a caller that unpacks
+    /// the bytes copies them once.
+    pub fn read_back_with(
+        &mut self,
+        buffers: &[(&wgpu::Buffer, u64)],
+        mut read: impl FnMut(usize, &[u8]) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
         let receivers: Vec<_> = buffers
             .iter()
             .map(|&(buffer, bytes)| {
@@ -79,18 +121,13 @@ impl<'a> Submitter<'a> {
         self.counts.waits += 1;
         self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
         waited?;
-        buffers
-            .iter()
-            .zip(receivers)
-            .map(|(&(buffer, bytes), receiver)| {
-                receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
-                let data = bytemuck::pod_collect_to_vec(
-                    &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..],
-                );
-                buffer.unmap();
-                Ok(data)
-            })
-            .collect()
+        for (i, (&(buffer, bytes), receiver)) in buffers.iter().zip(receivers).enumerate() {
+            receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
+            let result = read(i, &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..]);
+            buffer.unmap();
+            result?;
+        }
+        Ok(())
     }
 }
 
@@ -149,13 +186,16 @@ fn workgroups(
         Stage::Finalize | Stage::Median | Stage::Splat | Stage::Visibility => {
             (None, tiles(key.width, key.height))
         }
+        // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.
+        Stage::Census | Stage::Half => (None, (0, 0, 0)),
     }
 }
 
-/// Records every dispatch of `schedule` into one command buffer, one compute pass per phase
-/// (every batch of planes in the sweep's pass, every direction and band in SGM's; wgpu orders
-/// the dispatches of a pass), then the copies of the maps' bytes `maps` (and the timestamps)
-/// to the start of their readback buffers.
+/// Records the level's images (`images`: the half-size images, the copy into the `images`
+/// buffer, the census words), then every dispatch of `schedule` into one command buffer, one
+/// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
+/// in SGM's; wgpu orders the dispatches of a pass), then the copies of the maps' bytes `maps`
+/// (and the timestamps) to the start of their readback buffers.
 pub(super) fn record(
     device: &wgpu::Device,
     buffers: &Buffers,
@@ -164,10 +204,12 @@ pub(super) fn record(
     schedule: &Schedule,
     align: Alignments,
     maps: std::ops::Range<u64>,
-) -> wgpu::CommandBuffer {
+    images: impl FnOnce(&mut wgpu::CommandEncoder) -> Result<(), SweepError>,
+) -> Result<wgpu::CommandBuffer, SweepError> {
     let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
         label: Some("sweep"),
     });
+    images(&mut encoder)?;
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
     for (p, (phase, dispatches)) in schedule.phase_dispatches().enumerate() {
         let p = p as u32;
@@ -206,7 +248,7 @@ pub(super) fn record(
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
         encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, t.resolve.size());
     }
-    encoder.finish()
+    Ok(encoder.finish())
 }
 
 /// Per-phase GPU times from the timestamps read back (`raw`), in the names the CPU engine's

@@ -1,0 +1,234 @@
+//! The frame set's images on the device: the caller's images written once into level 0 (each
+//! straight from its pixels: no packing on the host), the half-size levels of coarse to fine
+//! made from the level above by the `half` stage (`shaders/half.wgsl`, one compute pass in the
+//! command buffer of the set's first level), and a level's pixels copied into its shape's
+//! `images` buffer, where the `census` stage adds the census words (`shaders/census.wgsl`).
+//! Every level packs its cameras in rig order, as the plan's `size.z` offsets do.
+
+use super::super::gpu_types::MAX_RIG_CAMERAS;
+use super::super::plan::SweepPlan;
+use super::super::SweepError;
+use super::record::tiles_of;
+use crate::image::Rgba8Image;
+
+/// WGSL `Halving` (`shaders/half.wgsl`): the camera count, then per camera the finer level's
+/// width and height, its word of pixel (0, 0) and the coarser level's.
+const HALVING_BYTES: u64 = 16 + 16 * MAX_RIG_CAMERAS as u64;
+
+/// One level: each camera's size and word of pixel (0, 0), and the buffer holding them.
+struct Level {
+    sizes: Vec<[u32; 2]>,
+    offsets: Vec<u32>,
+    buffer: wgpu::Buffer,
+    /// How this level is made from the one above (None for level 0): its `half` bind group
+    /// and workgroups.
+    made: Option<(wgpu::BindGroup, (u32, u32, u32))>,
+}
+
+impl Level {
+    fn words(&self) -> u64 {
+        self.sizes
+            .iter()
+            .map(|[w, h]| u64::from(*w) * u64::from(*h))
+            .sum()
+    }
+}
+
+/// The levels of one rig's image sizes, 0 (full resolution) to `depth`.
+pub(super) struct Pyramid {
+    levels: Vec<Level>,
+    /// The uniform blocks of the halvings (kept alive with their bind groups).
+    _halvings: Vec<wgpu::Buffer>,
+}
+
+/// Each camera's word of pixel (0, 0), the cameras packed in order.
+fn offsets(sizes: &[[u32; 2]]) -> Vec<u32> {
+    sizes
+        .iter()
+        .scan(0u32, |next, [w, h]| {
+            let at = *next;
+            *next += w * h;
+            Some(at)
+        })
+        .collect()
+}
+
+impl Pyramid {
+    /// Levels 0 to `depth` for images of the sizes of `images`.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        half_layout: &wgpu::BindGroupLayout,
+        images: &[Rgba8Image],
+        depth: usize,
+    ) -> Result<Self, SweepError> {
+        if images.len() > MAX_RIG_CAMERAS as usize {
+            return Err(SweepError::InvalidParams(format!(
+                "{} cameras: the WGSL engine takes at most {MAX_RIG_CAMERAS}",
+                images.len()
+            )));
+        }
+        let buffer = |words: u64| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("image pyramid"),
+                size: (words * 4).max(16),
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_DST
+                    | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            })
+        };
+        let mut sizes: Vec<[u32; 2]> = images.iter().map(|i| [i.width, i.height]).collect();
+        let mut levels: Vec<Level> = Vec::with_capacity(depth + 1);
+        let mut halvings = Vec::with_capacity(depth);
+        let first_offsets = offsets(&sizes);
+        let first_words = sizes
+            .iter()
+            .map(|[w, h]| u64::from(*w) * u64::from(*h))
+            .sum();
+        levels.push(Level {
+            sizes: sizes.clone(),
+            offsets: first_offsets,
+            buffer: buffer(first_words),
+            made: None,
+        });
+        for _ in 0..depth {
+            let finer = levels
+                .last()
+                .ok_or_else(|| SweepError::Gpu("internal: no level".into()))?;
+            sizes = sizes.iter().map(|[w, h]| [w / 2, h / 2]).collect();
+            let coarse_offsets = offsets(&sizes);
+            let mut block = vec![0u32; (HALVING_BYTES / 4) as usize];
+            block[0] = images.len() as u32;
+            for (c, (([w, h], at), coarse_at)) in finer
+                .sizes
+                .iter()
+                .zip(&finer.offsets)
+                .zip(&coarse_offsets)
+                .enumerate()
+            {
+                block[4 + 4 * c..8 + 4 * c].copy_from_slice(&[*w, *h, *at, *coarse_at]);
+            }
+            let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("halving"),
+                size: HALVING_BYTES,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            queue.write_buffer(&uniform, 0, bytemuck::cast_slice(&block));
+            let words: u64 = sizes
+                .iter()
+                .map(|[w, h]| u64::from(*w) * u64::from(*h))
+                .sum();
+            let coarser = buffer(words);
+            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("half"),
+                layout: half_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: finer.buffer.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: coarser.as_entire_binding(),
+                    },
+                ],
+            });
+            let widest = sizes.iter().map(|s| s[0]).max().unwrap_or(0);
+            let tallest = sizes.iter().map(|s| s[1]).max().unwrap_or(0);
+            let (x, y, _) = tiles_of(widest, tallest);
+            levels.push(Level {
+                offsets: coarse_offsets,
+                sizes: sizes.clone(),
+                buffer: coarser,
+                made: Some((group, (x, y, images.len() as u32))),
+            });
+            halvings.push(uniform);
+        }
+        Ok(Self {
+            levels,
+            _halvings: halvings,
+        })
+    }
+
+    /// Whether the pyramid holds levels 0 to `depth` of images of these sizes.
+    pub fn fits(&self, images: &[Rgba8Image], depth: usize) -> bool {
+        self.levels.len() > depth
+            && self.levels[0].sizes.len() == images.len()
+            && self.levels[0]
+                .sizes
+                .iter()
+                .zip(images)
+                .all(|([w, h], i)| *w == i.width && *h == i.height)
+    }
+
+    /// Level `level`'s buffer and the bytes of its pixels.
+    pub fn level_buffer(&self, level: usize) -> Option<(&wgpu::Buffer, u64)> {
+        self.levels.get(level).map(|l| (&l.buffer, l.words() * 4))
+    }
+
+    /// Writes the caller's images into level 0, each from its own pixels.
+    pub fn upload(&self, queue: &wgpu::Queue, images: &[Rgba8Image]) {
+        let level = &self.levels[0];
+        for (image, at) in images.iter().zip(&level.offsets) {
+            queue.write_buffer(
+                &level.buffer,
+                u64::from(*at) * 4,
+                bytemuck::cast_slice(&image.pixels),
+            );
+        }
+    }
+
+    /// Records levels 1 to `depth`, each from the one above, in one compute pass.
+    pub fn record_halvings(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        half: &wgpu::ComputePipeline,
+        depth: usize,
+    ) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("half"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(half);
+        for level in self.levels.iter().take(depth + 1) {
+            if let Some((group, (x, y, z))) = &level.made {
+                pass.set_bind_group(0, group, &[]);
+                pass.dispatch_workgroups(*x, *y, *z);
+            }
+        }
+    }
+
+    /// Records the copy of level `level`'s pixels to the start of `images` (a shape's buffer,
+    /// whose plan packs the cameras as the level does: checked).
+    pub fn record_copy(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        level: usize,
+        plan: &SweepPlan,
+        images: &wgpu::Buffer,
+    ) -> Result<(), SweepError> {
+        let level = self
+            .levels
+            .get(level)
+            .ok_or_else(|| SweepError::Gpu("internal: no such image level".into()))?;
+        let same = level.sizes.len() == plan.cameras.len()
+            && plan
+                .cameras
+                .iter()
+                .zip(level.sizes.iter().zip(&level.offsets))
+                .all(|(c, ([w, h], at))| c.size[0] == *w && c.size[1] == *h && c.size[2] == *at);
+        if !same {
+            return Err(SweepError::Gpu(
+                "internal: a level's images are not packed as its plan's cameras".into(),
+            ));
+        }
+        encoder.copy_buffer_to_buffer(&level.buffer, 0, images, 0, level.words() * 4);
+        Ok(())
+    }
+}
