@@ -196,6 +196,7 @@ fn workgroups(
 /// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
 /// in SGM's; wgpu orders the dispatches of a pass), then the copies of the maps' bytes `maps`
 /// (and the timestamps) to the start of their readback buffers.
+#[allow(clippy::too_many_arguments)] // one call site (gpu/mod.rs), each argument a different piece of the level
 pub(super) fn record(
     device: &wgpu::Device,
     buffers: &Buffers,
