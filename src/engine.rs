@@ -184,13 +184,50 @@ fn gpu_device_nodes() -> bool {
     render || std::path::Path::new("/dev/nvidiactl").exists() || cfg!(not(target_os = "linux"))
 }
 
-/// A hardware adapter, if wgpu offers one (not a CPU adapter such as lavapipe).
+/// A hardware adapter, if wgpu offers one (not a CPU adapter such as lavapipe). A machine
+/// with a GPU's device node but no hardware adapter (a headless server without the vendor's
+/// Vulkan driver) runs the CPU engine and says so loudly: that is a slow engine by mistake.
 fn hardware_gpu() -> Option<GpuContext> {
-    if !gpu_device_nodes() && std::env::var_os("WGPU_ADAPTER_NAME").is_none() {
+    let nodes = gpu_device_nodes();
+    if !nodes && std::env::var_os("WGPU_ADAPTER_NAME").is_none() {
         return None;
     }
-    let gpu = GpuContext::new().ok()?;
-    (gpu.adapter.get_info().device_type != wgpu::DeviceType::Cpu).then_some(gpu)
+    let found = GpuContext::new().map(|gpu| {
+        let info = gpu.adapter.get_info();
+        (gpu, info.device_type == wgpu::DeviceType::Cpu, info.name)
+    });
+    let probe = match &found {
+        Ok((_, cpu_adapter, name)) => Ok((*cpu_adapter, name.as_str())),
+        Err(e) => Err(e.to_string()),
+    };
+    if let Some(warning) = auto_fallback_warning(nodes, probe) {
+        tracing::warn!("{warning}");
+    }
+    match found {
+        Ok((gpu, false, _)) => Some(gpu),
+        _ => None,
+    }
+}
+
+/// What `device: auto` says when it falls back to the CPU engine although the machine shows a
+/// GPU (`nodes`: a DRM render node or NVIDIA's device node): `probe` is wgpu's adapter (whether
+/// it is a CPU adapter, its name) or why there was none. `None`: nothing to say (a hardware
+/// adapter, or no GPU to expect).
+fn auto_fallback_warning(nodes: bool, probe: Result<(bool, &str), String>) -> Option<String> {
+    if !nodes {
+        return None;
+    }
+    let found = match probe {
+        Ok((false, _)) => return None,
+        Ok((true, name)) => format!("only the CPU adapter \"{name}\""),
+        Err(reason) => format!("no adapter ({reason})"),
+    };
+    Some(format!(
+        "device auto: this machine has a GPU device node (/dev/dri/renderD* or /dev/nvidiactl) \
+         but wgpu found {found}: running the CPU engine. Install the GPU's Vulkan driver \
+         (NVIDIA: the libnvidia-gl / nvidia-vulkan-icd package matching the kernel driver; \
+         AMD/Intel: mesa-vulkan-drivers) or set device gpu to fail instead"
+    ))
 }
 
 /// The engine a command runs: the WGSL engine with its device, or the CPU engine.
@@ -307,6 +344,26 @@ mod tests {
         assert_eq!("cpu".parse::<Device>().ok(), Some(Device::Cpu));
         assert_eq!("gpu".parse::<Device>().ok(), Some(Device::Gpu));
         assert!("tpu".parse::<Device>().is_err());
+    }
+
+    #[test]
+    fn auto_says_loudly_when_a_gpu_machine_falls_back_to_the_cpu_engine() {
+        // A hardware adapter, or no GPU to expect: nothing to say.
+        assert_eq!(
+            auto_fallback_warning(true, Ok((false, "NVIDIA H100"))),
+            None
+        );
+        assert_eq!(auto_fallback_warning(false, Ok((true, "llvmpipe"))), None);
+        assert_eq!(auto_fallback_warning(false, Err("none".into())), None);
+        // A device node but only lavapipe, or no adapter at all: a warning naming what wgpu
+        // found and what to install.
+        let lavapipe = auto_fallback_warning(true, Ok((true, "llvmpipe (LLVM 15)"))).unwrap();
+        assert!(lavapipe.contains("llvmpipe (LLVM 15)") && lavapipe.contains("Vulkan driver"));
+        let none = auto_fallback_warning(true, Err("no Vulkan ICD".into())).unwrap();
+        assert!(
+            none.contains("no Vulkan ICD") && none.contains("CPU engine"),
+            "{none}"
+        );
     }
 
     #[test]
