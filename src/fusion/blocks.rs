@@ -309,20 +309,57 @@ impl Block {
         }
         if observed.update_colour.iter().any(|m| *m != 0) {
             let [r, g, b] = &mut v.colour;
-            let (r, g, b) = (&mut r[row], &mut g[row], &mut b[row]);
-            let count = &mut v.colour_weight[row];
-            for x in 0..BLOCK_SIDE {
-                let rgb = [observed.rgb[0][x], observed.rgb[1][x], observed.rgb[2][x]];
-                let (c, n) = running_colour([r[x], g[x], b[x]], count[x], rgb, max_weight);
-                let mask = observed.update_colour[x];
-                r[x] = (c[0] & mask) | (r[x] & !mask);
-                g[x] = (c[1] & mask) | (g[x] & !mask);
-                b[x] = (c[2] & mask) | (b[x] & !mask);
-                count[x] = (n & mask) | (count[x] & !mask);
-            }
+            observe_colour_row(
+                [&mut r[row], &mut g[row], &mut b[row]],
+                &mut v.colour_weight[row],
+                observed,
+                max_weight,
+            );
         }
         observed.update.iter().map(|m| (m & 1) as usize).sum()
     }
+}
+
+crate::simd::vectorised_fn! {
+/// The colour half of [`Block::observe_row`]: [`running_colour`] lane-wise on a row, where
+/// `observed.update_colour` is set. A function of its own (not inlined into the voxel
+/// update) so that the compiler vectorises it.
+#[inline(never)]
+fn observe_colour_row(
+    colour: [&mut Row<u16>; 3],
+    count: &mut Row<u16>,
+    observed: &RowObservation,
+    max_weight: f32,
+) {
+    // `t as u16` for 0 <= t < 2^16 without the saturating cast (which stays scalar): the
+    // floor by adding and taking away 2^23 (rounds to nearest, one less where that rounded
+    // up), then the integer from the low mantissa bits of floor + 2^23. The same values.
+    const MAGIC: f32 = 8_388_608.0;
+    let to_u16 = |t: f32| {
+        let near = (t + MAGIC) - MAGIC;
+        let floor = near - if near > t { 1.0 } else { 0.0 };
+        ((floor + MAGIC).to_bits() & 0xffff) as u16
+    };
+    let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
+    let mut w = [0.0f32; BLOCK_SIDE];
+    let mut rcp = [0.0f32; BLOCK_SIDE];
+    for x in 0..BLOCK_SIDE {
+        w[x] = f32::from(count[x]);
+        rcp[x] = 1.0 / (w[x] + 1.0);
+    }
+    let mask = &observed.update_colour;
+    for (c, o) in colour.into_iter().zip(&observed.rgb) {
+        for x in 0..BLOCK_SIDE {
+            // [`running_colour`]'s mean (at most 255 * 256 + 0.5).
+            let mean = to_u16((f32::from(c[x]) * w[x] + o[x] * 256.0) * rcp[x] + 0.5);
+            c[x] = (mean & mask[x]) | (c[x] & !mask[x]);
+        }
+    }
+    for x in 0..BLOCK_SIDE {
+        let n = to_u16((w[x] + 1.0).min(cap));
+        count[x] = (n & mask[x]) | (count[x] & !mask[x]);
+    }
+}
 }
 
 /// The TSDF grid: blocks by index, the voxel size, and the blocks changed and removed since
