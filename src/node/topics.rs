@@ -3,6 +3,7 @@
 //! subscription or publisher in one call, and the depth node's outputs from the list of
 //! outputs (`pipeline::OUTPUTS`).
 
+use ros2_client::dds::rustdds::Topic;
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{MessageTypeName, Name, Node, Publisher, QosProfile, Subscription};
 use serde::Serialize;
@@ -33,6 +34,21 @@ pub(super) const COMPRESSED_IMAGE: TypeName = ("sensor_msgs", "CompressedImage")
 pub(super) const CAMERA_INFO: TypeName = ("sensor_msgs", "CameraInfo");
 pub(super) const TF_MESSAGE: TypeName = ("tf2_msgs", "TFMessage");
 
+/// The topic `name` of type `type_name` (what a subscription or a publisher is made on).
+fn topic(
+    node: &mut Node,
+    name: &str,
+    type_name: TypeName,
+    qos: &QosProfile,
+) -> Result<Topic, NodeError> {
+    node.create_topic(
+        &topic_name(name)?,
+        MessageTypeName::new(type_name.0, type_name.1),
+        qos,
+    )
+    .map_err(ros_err)
+}
+
 /// A subscription of type `type_name` on the topic `name`.
 pub(super) fn subscribe<M: 'static>(
     node: &mut Node,
@@ -40,13 +56,7 @@ pub(super) fn subscribe<M: 'static>(
     type_name: TypeName,
     qos: &QosProfile,
 ) -> Result<Subscription<M>, NodeError> {
-    let topic = node
-        .create_topic(
-            &topic_name(name)?,
-            MessageTypeName::new(type_name.0, type_name.1),
-            qos,
-        )
-        .map_err(ros_err)?;
+    let topic = topic(node, name, type_name, qos)?;
     node.create_subscription(&topic, Some(qos.clone()))
         .map_err(ros_err)
 }
@@ -58,13 +68,7 @@ pub(super) fn advertise<M: Serialize>(
     type_name: TypeName,
     qos: &QosProfile,
 ) -> Result<Publisher<M>, NodeError> {
-    let topic = node
-        .create_topic(
-            &topic_name(name)?,
-            MessageTypeName::new(type_name.0, type_name.1),
-            qos,
-        )
-        .map_err(ros_err)?;
+    let topic = topic(node, name, type_name, qos)?;
     node.create_publisher(&topic, Some(qos.clone()))
         .map_err(ros_err)
 }

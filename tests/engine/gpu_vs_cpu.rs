@@ -133,20 +133,13 @@ fn base() -> SweepParams {
     }
 }
 
-/// The SGM stages (volume write, path passes, selection over the sums) on a small synthetic
-/// volume: 8 and 4 paths, an odd plane count (a half-empty last word), edge-scaled P2, and
-/// the paper's paired 2x2 windows writing the volume two pixels per invocation.
-#[test]
-fn sgm_agrees_on_synthetic() {
-    let (rig, images) = synthetic_case();
-    let sgm = SweepParams {
-        optimizer: Optimizer::Sgm,
-        ..base()
-    };
-    let cases: Vec<(&str, SweepParams)> = vec![
-        ("sgm_8_paths", sgm.clone()),
+/// The SGM cases both SGM tests run (names prefixed): 8 and 4 paths, an odd plane count (a
+/// half-empty last word), edge-scaled P2, the paper's paired 2x2 windows.
+fn sgm_cases(prefix: &str, sgm: &SweepParams) -> Vec<(String, SweepParams)> {
+    vec![
+        (format!("{prefix}_8_paths"), sgm.clone()),
         (
-            "sgm_4_paths_odd_planes_edge",
+            format!("{prefix}_4_paths_odd_planes_edge"),
             SweepParams {
                 sgm_paths: 4,
                 num_planes: 23,
@@ -155,7 +148,7 @@ fn sgm_agrees_on_synthetic() {
             },
         ),
         (
-            "sgm_half_shiftable_2x2",
+            format!("{prefix}_8_paths_edge_paired_2x2"),
             SweepParams {
                 scoring: Scoring::BestHalfSequence,
                 window_width: 2,
@@ -166,13 +159,26 @@ fn sgm_agrees_on_synthetic() {
                 ..sgm.clone()
             },
         ),
-    ];
+    ]
+}
+
+/// The SGM stages (volume write, path passes, selection over the sums) on a small synthetic
+/// volume: 8 and 4 paths, an odd plane count (a half-empty last word), edge-scaled P2, and
+/// the paper's paired 2x2 windows writing the volume two pixels per invocation.
+#[test]
+fn sgm_agrees_on_synthetic() {
+    let (rig, images) = synthetic_case();
+    let sgm = SweepParams {
+        optimizer: Optimizer::Sgm,
+        ..base()
+    };
+    let cases = sgm_cases("sgm", &sgm);
     for (name, params) in cases {
         let plan = SweepPlan::new(&rig, &params).expect("plan");
         // Every layout: lanes across planes in workgroup memory or in subgroups (GPUs), one
         // invocation per line (CPUs).
         for layout in sgm_layouts() {
-            compare_with(name, &plan, &rig, &images, Some(layout));
+            compare_with(&name, &plan, &rig, &images, Some(layout));
         }
     }
     // SGM changes the answer: the summed path costs are not the local scores.
@@ -193,8 +199,8 @@ fn sgm_agrees_on_synthetic() {
 
 /// An adapter whose storage binding limit holds fewer rows of the SGM volume than the image runs
 /// SGM in row bands, the path state carried from band to band: the maps equal the run in one
-/// band bit for bit (every layout of the one-band run, subgroups included), and the CPU engine within the
-/// tolerances, for 8 and 4 paths, edge-scaled P2, paired windows, bands of 1, 5 and 7 rows.
+/// band bit for bit (every layout of the one-band run, subgroups included), and the CPU engine
+/// within the tolerances, for 8 and 4 paths, edge-scaled P2, paired windows, bands of 1, 5 and 7 rows.
 #[test]
 fn sgm_in_row_bands_equals_one_band() {
     let (rig, images) = synthetic_case();
@@ -202,30 +208,7 @@ fn sgm_in_row_bands_equals_one_band() {
         optimizer: Optimizer::Sgm,
         ..base()
     };
-    let cases: Vec<(&str, SweepParams)> = vec![
-        ("bands_8_paths", sgm.clone()),
-        (
-            "bands_4_paths_odd_planes_edge",
-            SweepParams {
-                sgm_paths: 4,
-                num_planes: 23,
-                sgm_edge: 8.0,
-                ..sgm.clone()
-            },
-        ),
-        (
-            "bands_8_paths_edge_paired",
-            SweepParams {
-                scoring: Scoring::BestHalfSequence,
-                window_width: 2,
-                window_height: 2,
-                window_mode: WindowMode::Shiftable,
-                sgm_p2: 60.0,
-                sgm_edge: 20.0,
-                ..sgm.clone()
-            },
-        ),
-    ];
+    let cases = sgm_cases("bands", &sgm);
     let gpu = common::gpu();
     let layouts = sgm_layouts();
     for (name, params) in cases {
@@ -270,7 +253,7 @@ fn sgm_in_row_bands_equals_one_band() {
         }
         // And the CPU engine agrees (the shared tolerances).
         compare_with(
-            name,
+            &name,
             &plan,
             &rig,
             &images,

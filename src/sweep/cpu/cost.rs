@@ -268,20 +268,26 @@ pub fn sample_coords(
             let plane = plan.planes[k];
             for x in 0..width {
                 let ray = xyz(plan.rays[y * width + x]);
-                let depth = plane_depth(plane, ray);
-                let mut pixel = [f32::NAN; 2];
-                if depth > 0.0 {
-                    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
-                    let p = [projected[0], projected[1]];
-                    if projected[2] > 0.0 && inside(cam, p) {
-                        pixel = p;
-                    }
-                }
+                let pixel = ray_pixel(cam, ray, plane_depth(plane, ray));
                 xs[x] = pixel[0];
                 ys[x] = pixel[1];
             }
         }
     }
+}
+
+/// Where the point `ray * depth` lands in camera `cam` (NaN: no depth, behind the camera or
+/// outside its image).
+#[inline(always)]
+fn ray_pixel(cam: &GpuCamera, ray: [f32; 3], depth: f32) -> [f32; 2] {
+    if depth > 0.0 {
+        let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
+        let p = [projected[0], projected[1]];
+        if projected[2] > 0.0 && inside(cam, p) {
+            return p;
+        }
+    }
+    [f32::NAN; 2]
 }
 
 /// Where reference row `y` lands in a camera when each pixel has its own depth (ray parameter:
@@ -298,15 +304,7 @@ pub fn hypothesis_coords(
     let [xs, ys] = coords;
     for x in 0..width {
         let ray = xyz(plan.rays[y * width + x]);
-        let depth = depths[y * width + x];
-        let mut pixel = [f32::NAN; 2];
-        if depth > 0.0 {
-            let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
-            let p = [projected[0], projected[1]];
-            if projected[2] > 0.0 && inside(cam, p) {
-                pixel = p;
-            }
-        }
+        let pixel = ray_pixel(cam, ray, depths[y * width + x]);
         xs[x] = pixel[0];
         ys[x] = pixel[1];
     }
