@@ -54,8 +54,13 @@ pub(super) struct Buffers {
 pub(super) struct Timestamps {
     pub query_set: wgpu::QuerySet,
     pub resolve: wgpu::Buffer,
-    pub readback: wgpu::Buffer,
     pub count: u32,
+}
+
+/// Where a level's timestamps go in the `readback` buffer: right after the `maps_bytes` of maps
+/// read back, at the next multiple of 8 (one readback, one mapping per level).
+pub(super) fn timestamps_offset(maps_bytes: u64) -> u64 {
+    maps_bytes.div_ceil(8) * 8
 }
 
 /// A binding that depends on the row band.
@@ -142,12 +147,6 @@ impl Buffers {
             wgpu::BufferUsages::COPY_SRC,
         );
         let zbuffer = storage("zbuffer", key.camera_pixels as u64 * 4, none);
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: maps.size(),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         // One element of an array bound at a (dynamic or fixed) offset.
         fn element(buffer: &wgpu::Buffer, offset: u64, size: usize) -> wgpu::BindingResource<'_> {
             wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -245,15 +244,17 @@ impl Buffers {
                         usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
                         mapped_at_creation: false,
                     }),
-                    readback: device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some("timestamp readback"),
-                        size: bytes,
-                        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                        mapped_at_creation: false,
-                    }),
                     count,
                 }
             });
+        // The maps a level reads back, then its timestamps: one buffer, mapped once.
+        let timestamp_bytes = timestamps.as_ref().map_or(0, |t| u64::from(t.count) * 8);
+        let readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: timestamps_offset(maps.size()) + timestamp_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         Ok(Self {
             key,
             params,

@@ -481,32 +481,36 @@ impl GpuEngine {
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
-        // One submission and one wait per level: the maps and the timestamps come back
-        // together.
+        // One submission, one wait and one readback per level: the maps, then the timestamps,
+        // in one buffer.
         let mut submitter =
             record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
         submitter.submit(commands)?;
-        let mut wanted = vec![(&buffers.readback, maps_bytes.end - maps_bytes.start)];
-        wanted.extend(
-            buffers
-                .timestamps
-                .as_ref()
-                .map(|t| (&t.readback, t.readback.size())),
-        );
+        let maps_len = maps_bytes.end - maps_bytes.start;
+        let ticks_at = buffers::timestamps_offset(maps_len);
+        let ticks_len = buffers
+            .timestamps
+            .as_ref()
+            .map_or(0, |t| u64::from(t.count) * 8);
+        let wanted = if ticks_len > 0 {
+            ticks_at + ticks_len
+        } else {
+            maps_len
+        };
         // The maps unpacked straight out of the mapped range (copied once).
         let mut unpack = Some(unpack);
         let mut maps = None;
         let mut ticks: Option<Vec<u32>> = None;
-        submitter.read_back_with(&wanted, |i, bytes| {
-            if i == 0 {
-                if let Some(unpack) = unpack.take() {
-                    maps = Some(match bytemuck::try_cast_slice::<u8, f32>(bytes) {
-                        Ok(floats) => unpack(floats),
-                        Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(bytes)),
-                    });
-                }
-            } else {
-                ticks = Some(bytemuck::pod_collect_to_vec(bytes));
+        submitter.read_back_with(&[(&buffers.readback, wanted)], |_, bytes| {
+            let map_bytes = &bytes[..maps_len as usize];
+            if let Some(unpack) = unpack.take() {
+                maps = Some(match bytemuck::try_cast_slice::<u8, f32>(map_bytes) {
+                    Ok(floats) => unpack(floats),
+                    Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(map_bytes)),
+                });
+            }
+            if ticks_len > 0 {
+                ticks = Some(bytemuck::pod_collect_to_vec(&bytes[ticks_at as usize..]));
             }
             Ok(())
         })?;

@@ -1,7 +1,7 @@
 //! Recording a level of a frame set: the schedule's dispatches into one command buffer, one
 //! compute pass per phase of the schedule (timestamped at its start and end), the copies of the
-//! maps and the timestamps to their readback buffers; one submission, then one wait that
-//! brings both back.
+//! maps and the timestamps into one readback buffer; one submission, then one wait and one
+//! mapping that bring both back.
 
 use std::sync::mpsc;
 use std::time::Instant;
@@ -195,7 +195,8 @@ fn workgroups(
 /// buffer, the census words), then every dispatch of `schedule` into one command buffer, one
 /// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
 /// in SGM's; wgpu orders the dispatches of a pass), then the copies of the maps' bytes `maps`
-/// (and the timestamps) to the start of their readback buffers.
+/// to the start of the readback buffer, the timestamps after them
+/// ([`super::buffers::timestamps_offset`]).
 #[allow(clippy::too_many_arguments)] // one call site (gpu/mod.rs), each argument a different piece of the level
 pub(super) fn record(
     device: &wgpu::Device,
@@ -247,7 +248,8 @@ pub(super) fn record(
     );
     if let Some(t) = &buffers.timestamps {
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
-        encoder.copy_buffer_to_buffer(&t.resolve, 0, &t.readback, 0, t.resolve.size());
+        let offset = super::buffers::timestamps_offset(maps.end - maps.start);
+        encoder.copy_buffer_to_buffer(&t.resolve, 0, &buffers.readback, offset, t.resolve.size());
     }
     Ok(encoder.finish())
 }
