@@ -36,9 +36,10 @@ impl GpuContext {
     }
 
     async fn create(max_storage_binding: Option<u64>) -> Result<Self, GpuContextError> {
-        // The primary backends (Vulkan, Metal, DX12) unless WGPU_BACKEND names others: the GL
-        // backend's EGL probe logs errors on machines without a GL driver ("eglInitialize
-        // DRI2: failed to load driver") and has nothing the engine needs.
+        // The primary backends (Vulkan, Metal, DX12), the only ones built (Cargo.toml: wgpu
+        // without `gles`); WGPU_BACKEND can narrow them. The GL backend's EGL probe logged
+        // errors on machines without a GL driver ("eglInitialize DRI2: failed to load driver")
+        // and had nothing the engine needs.
         let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle();
         descriptor.backends = wgpu::Backends::PRIMARY;
         let instance = wgpu::Instance::new(descriptor.with_env());
