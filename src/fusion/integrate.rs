@@ -255,8 +255,8 @@ struct View<'a> {
     truncation_m: f32,
     max_depth_m: f32,
     max_weight: f32,
-    /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it)
-    /// and fewer than 2^31 (they are i32).
+    /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it),
+    /// fewer than 2^31 (they are i32) and sides below 2^22 (`pinhole::floor_small`).
     lanes_fit: bool,
 }
 
@@ -314,6 +314,8 @@ impl<'a> View<'a> {
             max_weight: params.max_weight,
             lanes_fit: depth.width >= 2
                 && depth.height >= 2
+                && depth.width < 1 << 22
+                && depth.height < 1 << 22
                 && depth.data.len() < i32::MAX as usize,
         };
         let width = depth.width as usize;
