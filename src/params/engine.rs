@@ -233,6 +233,16 @@ engine_params! {
         "With subpixel: a fine local sweep of 5 hypotheses a quarter plane apart around each pixel's depth, windows following the smoothed depth (CPU engine only).";
     median: bool = true, "median", Long("median"), ParamRange::Any,
         "3x3 median filter on the depth map.";
+    // Issue 29: measured on the evaluation sets (docs/quality.md).
+    joint_median_radius: u32 = 4, "joint_median_radius", Long("joint-median-radius"),
+        ParamRange::ints(0, 15),
+        "Colour-weighted median of the depth after the sweep, guided by the reference image (puts fattened depth edges back on the colour edges, fills invalid pixels): window radius, pixels; 0 = off.";
+    joint_median_colour: f32 = 20.0, "joint_median_colour", Long("joint-median-colour"),
+        ParamRange::above(0.0),
+        "Colour-weighted median: the L1 RGB difference (0..765) at which a neighbour's weight falls to 1/e.";
+    joint_median_fill: bool = true, "joint_median_fill", Long("joint-median-fill"),
+        ParamRange::Any,
+        "Colour-weighted median: invalid pixels take their window's median where they have valid neighbours of their own colour (false: they stay invalid).";
     min_visible_cameras: u32 = 2, "min_visible_cameras", Long("min-visible"),
         ParamRange::ints(0, i64::from(MAX_RIG_CAMERAS)),
         "Pixels seen by fewer cameras (the reference counted) are invalid; 0 or 1 disables.";

@@ -15,6 +15,7 @@ use crate::image::{ImageF32, Rgba8Image};
 use std::cell::OnceCell;
 
 use super::frame_memo::FrameMemo;
+use super::joint_median::{Bins, JointMedian};
 use super::plan::SweepPlan;
 use super::{DepthMaps, SweepError, SweepParams};
 
@@ -236,12 +237,29 @@ pub fn run(
     // The half-size levels the CPU engine makes on the host (the WGSL engine on the GPU).
     let host: Vec<OnceCell<Vec<Rgba8Image>>> =
         (1..levels(rig, params)).map(|_| OnceCell::new()).collect();
-    let images = LevelImages {
+    let levels = LevelImages {
         full: images,
         halvings: 0,
         host: &host,
     };
-    run_level(engine, plans, rig, images, params, Wanted::All)
+    let mut maps = run_level(engine, plans, rig, levels, params, Wanted::All)?;
+    // The host post-step of both engines (issue 29), guided by the reference's own image (a
+    // virtual reference has none).
+    let filter = JointMedian::of_params(params);
+    if let (Reference::Camera(r), Some(bins), true) =
+        (&rig.reference, Bins::of_params(params), filter.radius > 0)
+    {
+        if let Some(guide) = images.get(*r) {
+            let started = std::time::Instant::now();
+            filter.apply(&mut maps.depth_m, guide, &bins);
+            let ms = started.elapsed().as_secs_f64() * 1e3;
+            engine
+                .timings_mut()
+                .stages
+                .push(("joint_median".to_string(), ms));
+        }
+    }
+    Ok(maps)
 }
 
 /// What the caller of a level reads of its maps.

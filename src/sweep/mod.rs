@@ -9,6 +9,7 @@ pub mod frame_memo;
 pub mod gpu;
 pub mod gpu_types;
 pub mod hypotheses;
+pub mod joint_median;
 pub mod plan;
 pub mod references;
 pub mod schedule;
@@ -130,6 +131,12 @@ pub struct SweepParams {
     /// CPU engine only so far).
     pub subpixel_refine: bool,
     pub median: bool,
+    /// Radius of the colour-weighted median after the sweep (`joint_median.rs`); 0 = off.
+    pub joint_median_radius: u32,
+    /// Its colour scale: the L1 RGB difference at which a neighbour's weight is 1/e.
+    pub joint_median_colour: f32,
+    /// Whether it fills invalid pixels (from neighbours of their own colour).
+    pub joint_median_fill: bool,
     /// Pixels seen by fewer cameras (the reference counted) are invalid; 0 or 1 disables.
     pub min_visible_cameras: u32,
     /// Relative depth tolerance of the occlusion z-test.

@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 27);
+    assert_eq!(fields.len(), 30);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -724,6 +724,9 @@ fn defaults_match_sweep_params() {
         subpixel: false,
         subpixel_refine: true,
         median: false,
+        joint_median_radius: 9,
+        joint_median_colour: 3.0,
+        joint_median_fill: false,
         min_visible_cameras: 7,
         occlusion_tolerance: 0.5,
         half_margin: 0.5,
@@ -818,8 +821,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 27 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 27 + expect.len() + 9);
+    // 30 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 30 + expect.len() + 9);
 }
 
 #[test]
