@@ -4,13 +4,13 @@
 #   and Mesa's lavapipe (a software Vulkan driver that runs the compute shaders on the CPU);
 # - `ip` (iproute2) and `unshare` (util-linux), with which the DDS tests move themselves into a
 #   private network namespace so that no DDS traffic leaves the machine;
-# - Debian's Chromium (package `chromium`), the headless browser in which tests/viewer_page.rs
+# - Debian's Chromium (package `chromium`), the headless browser in which tests/live/viewer_page.rs
 #   loads the built-in live-view page (no browser download: the distribution's package);
 # - Python 3 with the test tools of tools/requirements-test.txt (`cyclonedds`, the independent DDS
-#   peer of tests/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
+#   peer of tests/node/node_cyclone.rs; `rosbags` and `mcap`, the independent bag reader/writer of
 #   tests/bags/bag.rs; `opencv-python-headless`, the camera-model reference of
 #   tests/formats/camera_conventions.rs), the real ROS 2 Jazzy stack of tools/requirements-ros.txt (rclpy over
-#   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node_rclpy.rs, run through tools/ros_python;
+#   rcl + rmw_fastrtps_cpp, the rcl peer of tests/node/node_rclpy.rs, run through tools/ros_python;
 #   ament_index_python) and colcon with colcon-ros-cargo and cargo-ament-build of
 #   tools/requirements-colcon.txt (the workspace build of tests/house/colcon.rs):
 #   the system Python when it already has them all, else a virtual environment made from a

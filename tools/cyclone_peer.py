@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Interoperability peer for `tests/node_cyclone.rs`: a fake ROS 2 camera driver on Eclipse
+"""Interoperability peer for `tests/node/node_cyclone.rs`: a fake ROS 2 camera driver on Eclipse
 Cyclone DDS (the `cyclonedds` Python package, which bundles libddsc), independent of
 ros2-client / RustDDS.
 

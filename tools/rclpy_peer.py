@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The real ROS 2 stack as a test peer of `sweepdepth node`: rclpy 7.1.6 over rcl 9.2.8 and
 rmw_fastrtps_cpp / Fast DDS 2.14.5 (the PyPI wheels of tools/requirements-ros.txt). Run it through
-`tools/ros_python` (environment) inside a private network namespace (tests/node_rclpy.rs does).
+`tools/ros_python` (environment) inside a private network namespace (tests/node/node_rclpy.rs does).
 
 Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on stderr):
 

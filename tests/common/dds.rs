@@ -34,11 +34,8 @@ use super::netns::KillOnDrop;
 /// working node answers in seconds even on a slow, loaded machine; the limit only bounds how
 /// long a broken one takes to fail.
 pub fn timeout() -> Duration {
-    test_timeout::test_timeout()
+    super::timeout::test_timeout()
 }
-
-#[path = "timeout.rs"]
-mod test_timeout;
 
 /// How often a waiting test looks again.
 const POLL: Duration = Duration::from_millis(5);

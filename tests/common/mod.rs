@@ -1,6 +1,6 @@
 //! Shared test helpers: one GPU context per test process, result comparison with images written
 //! on failure; and, as submodules, the DDS safety guard ([`netns`]), the DDS peer side of the
-//! node tests ([`dds`]), fusion's mesh service and PLY files ([`mesh`]), a Foxglove WebSocket client ([`foxglove`]), a bag player ([`player`]), the Python with the test tools ([`python`])
+//! node tests ([`dds`]), fusion's mesh service and PLY files ([`mesh`]), a Foxglove WebSocket client ([`foxglove`]), a bag player ([`player`]), the Python with the test tools ([`python`]), the rclpy peers ([`rclpy`])
 //! and the shared datasets ([`shared_data`]). Each test binary uses a part of it.
 #![allow(dead_code)]
 
@@ -10,7 +10,9 @@ pub mod mesh;
 pub mod netns;
 pub mod player;
 pub mod python;
+pub mod rclpy;
 pub mod shared_data;
+pub mod timeout;
 
 use std::path::PathBuf;
 use std::sync::OnceLock;

@@ -12,6 +12,7 @@
 
 use std::path::PathBuf;
 use std::process::{Child, Command};
+use std::sync::{PoisonError, RwLock};
 
 /// The environment variable naming the file the inner run writes when the body has finished.
 pub const DONE_FILE: &str = "SWEEPDEPTH_TEST_NETNS_DONE_FILE";
@@ -38,8 +39,27 @@ fn is_root() -> bool {
 
 /// Runs `body` only inside a private network namespace marked by the environment variable
 /// `marker`; from anywhere else re-executes the test `test_name` (which must be the name of the
-/// calling test) inside a new one and checks that exactly that test's body ran to its end.
+/// calling test as libtest names it: in a test binary of several files, `file::test`) inside a
+/// new one and checks that exactly that test's body ran to its end.
 pub fn in_private_netns(marker: &str, test_name: &str, body: impl FnOnce()) {
+    let _shared = ALONE.read().unwrap_or_else(PoisonError::into_inner);
+    run_in_private_netns(marker, test_name, body);
+}
+
+/// [`in_private_netns`] with no other DDS test of this binary running beside it: for a test
+/// whose assertion compares times taken in one run (a delivery bound, a stop judged against one
+/// set's time), which ran alone when it was a binary of its own. The others wait (and this one
+/// waits for those running); only tests that go through these two functions are held.
+pub fn in_private_netns_alone(marker: &str, test_name: &str, body: impl FnOnce()) {
+    let _alone = ALONE.write().unwrap_or_else(PoisonError::into_inner);
+    run_in_private_netns(marker, test_name, body);
+}
+
+/// Held shared by every DDS test's run in this process, exclusively by the ones that run alone.
+/// Inside the namespace the run is one test, so it holds nothing back there.
+static ALONE: RwLock<()> = RwLock::new(());
+
+fn run_in_private_netns(marker: &str, test_name: &str, body: impl FnOnce()) {
     // libtest names the thread of a test after it (the main thread with one test thread).
     if let Some(thread) = std::thread::current().name() {
         assert!(

@@ -18,9 +18,7 @@ use serde_json::Value;
 use super::netns::KillOnDrop;
 use super::python::INSTALL_HINT;
 
-#[path = "timeout.rs"]
-mod timeout;
-pub use timeout::test_timeout;
+pub use super::timeout::test_timeout;
 
 pub const PREFIX: &str = "RCLPY_PEER ";
 

@@ -1,7 +1,7 @@
 //! The one limit of every wait in the tests: `SWEEPDEPTH_TEST_TIMEOUT_S`, default 300 s. A
 //! working system answers in seconds even on a slow, loaded machine; the limit only bounds how
-//! long a broken one takes to fail. Included with `#[path]` by the common files that need it
-//! (dds.rs, rclpy.rs), so that a test binary need not declare it.
+//! long a broken one takes to fail. A module of common (dds.rs and rclpy.rs use it); included
+//! alone with `#[path]` where a test binary takes only a few common files (house/colcon.rs).
 #![allow(dead_code)]
 
 use std::time::Duration;

@@ -482,7 +482,7 @@ fn virtual_reference_with_an_empty_half_scores_all_pairs() {
     use sweepdepth::sweep::gpu_types::{SCORING_BEST_N, SCORING_HALF};
     let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
     let row = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
-    // tests/node_dds.rs's virtual camera and scene.
+    // tests/node/node_dds.rs's virtual camera and scene.
     let virtual_model = CameraModel::pinhole(sweepdepth::geometry::PinholeIntrinsics {
         width_px: 64,
         height_px: 48,
@@ -690,7 +690,7 @@ fn bad_input_is_an_error_not_a_panic() {
 
 /// A cancel flag stops both engines: once set, a run returns `Cancelled` at its first pass
 /// boundary instead of depth; with a fresh flag the same engine runs again. (A flag set in the
-/// middle of a long run: tests/node_shutdown.rs, through the node.)
+/// middle of a long run: tests/node/node_shutdown.rs, through the node.)
 #[test]
 fn cancel_flag_stops_both_engines() {
     let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));

@@ -3,11 +3,6 @@
 //! do not fit the rig at start-up. Each is refused with a reason naming the camera or the
 //! parameter, and the pipeline keeps working.
 
-/// A camera that leaves and comes back costs no set (issue 32, item 0), in this binary
-/// rather than one of its own.
-#[path = "../rejoin/camera_rejoin.rs"]
-mod camera_rejoin;
-
 use sweepdepth::msgs::{CameraInfo, Header, Image, RegionOfInterest, Time};
 use sweepdepth::pipeline::{
     ConfigError, Input, Job, NoticeKind, Outcome, Pipeline, PipelineConfig, Skip, SkipKind,

@@ -544,7 +544,7 @@ fn precedence_file_order_then_command_line() {
     );
     let second =
         TempYaml::new("sweepdepth:\n  ros__parameters:\n    num_planes: 20\n    tau: 2.0\n");
-    // As rcl merges them (checked against rcl itself in tests/ros_args_rcl.rs): every -p lives
+    // As rcl merges them (checked against rcl itself in tests/node/ros_args_rcl.rs): every -p lives
     // under `/**`, so a file's section for the node, a later entry of the merged table, wins
     // over -p, even a later one.
     let p = params_for(

@@ -19,7 +19,7 @@
 //! `-p` merge as in rcl: in command-line order into one table of node entries (a `-p` is an
 //! entry for `/**`), applied entry by entry in the order each first appeared, so a file's
 //! section for the node wins over a `-p`, even a later one (`docs/node.md`; checked against rcl
-//! by `tests/ros_args_rcl.rs`).
+//! by `tests/node/ros_args_rcl.rs`).
 
 pub mod names;
 pub mod params_file;

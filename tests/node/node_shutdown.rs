@@ -11,15 +11,13 @@
 //!
 //! SAFETY: DDS only inside the private network namespace of tests/common/netns.rs.
 
-mod common;
-
 use std::io::{BufRead, BufReader};
 use std::process::{Command, ExitStatus, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use common::dds::{self, NodeProcess, Peer, RigFeed};
-use common::netns;
+use crate::common::dds::{self, NodeProcess, Peer, RigFeed};
+use crate::common::netns;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{Image, Time};
 use sweepdepth::synthetic::{self, Scene};
@@ -35,18 +33,28 @@ const PROMPT: Duration = Duration::from_secs(2);
 
 #[test]
 fn node_stops_cleanly_on_sigint_and_sigterm() {
-    netns::in_private_netns(INNER, "node_stops_cleanly_on_sigint_and_sigterm", || {
-        // The WGSL engine (Vulkan: lavapipe here) and the default device, both headless.
-        stop_idle("INT", &["-p", "device:=gpu"]);
-        stop_idle("TERM", &[]);
-    });
+    netns::in_private_netns(
+        INNER,
+        "node_shutdown::node_stops_cleanly_on_sigint_and_sigterm",
+        || {
+            // The WGSL engine (Vulkan: lavapipe here) and the default device, both headless.
+            stop_idle("INT", &["-p", "device:=gpu"]);
+            stop_idle("TERM", &[]);
+        },
+    );
 }
 
+/// Alone in the binary: the stop is judged against one set's time in the same run, which another
+/// test's load beside it could change between the two.
 #[test]
 fn node_stops_promptly_with_a_set_in_flight() {
-    netns::in_private_netns(INNER, "node_stops_promptly_with_a_set_in_flight", || {
-        stop_in_flight();
-    });
+    netns::in_private_netns_alone(
+        INNER,
+        "node_shutdown::node_stops_promptly_with_a_set_in_flight",
+        || {
+            stop_in_flight();
+        },
+    );
 }
 
 /// The node's stderr, line by line, as it comes, echoed to the test's stderr.

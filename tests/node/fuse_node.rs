@@ -11,15 +11,13 @@
 //! the fused surface does not depend on which sets each node got to: both meshes are saved
 //! through `~/save_mesh` and compared vertex by vertex.
 
-mod common;
-
 use std::collections::HashMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::dds::{self, NodeProcess, Peer, RigFeed};
-use common::mesh::{ply_vertices, SaveMesh};
-use common::netns::{in_private_netns, SecondHost};
+use crate::common::dds::{self, NodeProcess, Peer, RigFeed};
+use crate::common::mesh::{ply_vertices, SaveMesh};
+use crate::common::netns::{in_private_netns, SecondHost};
 use glam::DVec3;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{
@@ -39,7 +37,7 @@ const VOXEL: f64 = 0.04;
 fn fuse_node_on_two_hosts_equals_one_process() {
     in_private_netns(
         INNER,
-        "fuse_node_on_two_hosts_equals_one_process",
+        "fuse_node::fuse_node_on_two_hosts_equals_one_process",
         two_hosts,
     );
 }

@@ -5,7 +5,7 @@
 //! with default QoS and default socket buffers; it also reads the graph, calls the parameter
 //! services and listens to /rosout and /diagnostics. Extrinsics come from a rig file: tf2_msgs is
 //! not published as a wheel, so rclpy cannot speak /tf_static here (the Cyclone peer of
-//! tests/node_cyclone.rs does).
+//! tests/node/node_cyclone.rs does).
 //!
 //! Pacing: the peer sends the next frame set only after the depth of the previous one arrived
 //! (or a generous timeout), so no test depends on how fast the engine or the machine is.
@@ -14,21 +14,14 @@
 //! private network namespace with only loopback (tests/common/netns.rs); the launcher refuses to
 //! start outside one.
 
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/python.rs"]
-mod python;
-#[path = "common/rclpy.rs"]
-mod rclpy;
-
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use netns::{in_private_netns, KillOnDrop};
-use rclpy::{event, require_rclpy, Peer};
+use crate::common::netns::{in_private_netns, KillOnDrop};
+use crate::common::rclpy::{self, event, require_rclpy, Peer};
 use serde_json::{json, Value};
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::image::Rgba8Image;
@@ -59,35 +52,36 @@ fn run(test_name: &str, body: impl FnOnce()) {
 #[test]
 fn rclpy_graph_parameters_rosout_diagnostics_sigint() {
     run(
-        "rclpy_graph_parameters_rosout_diagnostics_sigint",
+        "node_rclpy::rclpy_graph_parameters_rosout_diagnostics_sigint",
         graph_parameters_rosout_diagnostics_sigint,
     );
 }
 
 #[test]
 fn rclpy_depth_640x480_best_effort_driver() {
-    run("rclpy_depth_640x480_best_effort_driver", || {
+    run("node_rclpy::rclpy_depth_640x480_best_effort_driver", || {
         depth_run(640, 480, false)
     });
 }
 
 #[test]
 fn rclpy_depth_640x480_reliable_driver() {
-    run("rclpy_depth_640x480_reliable_driver", || {
+    run("node_rclpy::rclpy_depth_640x480_reliable_driver", || {
         depth_run(640, 480, true)
     });
 }
 
 #[test]
 fn rclpy_depth_1280x960_best_effort_driver() {
-    run("rclpy_depth_1280x960_best_effort_driver", || {
-        depth_run(1280, 960, false)
-    });
+    run(
+        "node_rclpy::rclpy_depth_1280x960_best_effort_driver",
+        || depth_run(1280, 960, false),
+    );
 }
 
 #[test]
 fn rclpy_depth_1280x960_reliable_driver() {
-    run("rclpy_depth_1280x960_reliable_driver", || {
+    run("node_rclpy::rclpy_depth_1280x960_reliable_driver", || {
         depth_run(1280, 960, true)
     });
 }
@@ -95,14 +89,17 @@ fn rclpy_depth_1280x960_reliable_driver() {
 #[test]
 fn rclpy_compressed_jpeg_png_as_image_transport() {
     run(
-        "rclpy_compressed_jpeg_png_as_image_transport",
+        "node_rclpy::rclpy_compressed_jpeg_png_as_image_transport",
         compressed_as_image_transport,
     );
 }
 
 #[test]
 fn rclpy_fusion_mesh_and_clear_map() {
-    run("rclpy_fusion_mesh_and_clear_map", fusion_mesh_and_clear_map);
+    run(
+        "node_rclpy::rclpy_fusion_mesh_and_clear_map",
+        fusion_mesh_and_clear_map,
+    );
 }
 
 /// Live fusion seen from rcl: the mesh's markers (visualization_msgs/MarkerArray, one

@@ -14,11 +14,9 @@
 //! and a multicast route on `lo`, and fails with a clear message if that is impossible. The peer
 //! checks the interfaces again and Cyclone is pinned to `lo` through `CYCLONEDDS_URI`.
 
-mod common;
-
-use common::dds::{self, NodeProcess};
-use common::netns::{in_private_netns, KillOnDrop};
-use common::python::{python, INSTALL_HINT};
+use crate::common::dds::{self, NodeProcess};
+use crate::common::netns::{in_private_netns, KillOnDrop};
+use crate::common::python::{python, INSTALL_HINT};
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -82,7 +80,7 @@ enum ImageQos {
 #[test]
 fn node_interoperates_with_cyclone_dds_reliable_images() {
     run_in_private_netns(
-        "node_interoperates_with_cyclone_dds_reliable_images",
+        "node_cyclone::node_interoperates_with_cyclone_dds_reliable_images",
         ImageQos::Reliable,
     );
 }
@@ -90,7 +88,7 @@ fn node_interoperates_with_cyclone_dds_reliable_images() {
 #[test]
 fn node_interoperates_with_cyclone_dds_best_effort_images() {
     run_in_private_netns(
-        "node_interoperates_with_cyclone_dds_best_effort_images",
+        "node_cyclone::node_interoperates_with_cyclone_dds_best_effort_images",
         ImageQos::BestEffort,
     );
 }
@@ -102,9 +100,11 @@ fn node_interoperates_with_cyclone_dds_best_effort_images() {
 #[test]
 fn node_poses_sets_from_cyclone_dds_tf() {
     require_cyclonedds();
-    in_private_netns(INNER, "node_poses_sets_from_cyclone_dds_tf", || {
-        end_to_end_with(ImageQos::Reliable, true)
-    });
+    in_private_netns(
+        INNER,
+        "node_cyclone::node_poses_sets_from_cyclone_dds_tf",
+        || end_to_end_with(ImageQos::Reliable, true),
+    );
 }
 
 /// The rig's motion in "world" for the moving test (the peer's "world" entry).

@@ -7,18 +7,12 @@
 //! SAFETY: rclpy's Node opens DDS: only inside the private network namespace of
 //! tests/common/netns.rs.
 
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/python.rs"]
-mod python;
-#[path = "common/rclpy.rs"]
-mod rclpy;
-
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
-use netns::in_private_netns;
+use crate::common::netns::in_private_netns;
+use crate::common::rclpy;
 use serde_json::{json, Value};
 use sweepdepth::params::{ParamSet, ParamSource, ParamValue};
 use sweepdepth::ros::args::parse_ros_args;
@@ -27,7 +21,7 @@ const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
 
 #[test]
 fn ros_args_resolve_as_rcl_does() {
-    in_private_netns(INNER, "ros_args_resolve_as_rcl_does", compare);
+    in_private_netns(INNER, "ros_args_rcl::ros_args_resolve_as_rcl_does", compare);
 }
 
 fn fixture() -> Value {

@@ -12,14 +12,12 @@
 //! its image as a future stamp), so no outcome depends on how fast the machine is.
 //! SAFETY: DDS only inside the private network namespace of tests/common/netns.rs.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use common::dds::{self, Diagnostics, NodeProcess, Peer};
-use common::netns;
-use common::player::Player;
+use crate::common::dds::{self, Diagnostics, NodeProcess, Peer};
+use crate::common::netns;
+use crate::common::player::Player;
 use sweepdepth::bag::{BagMessage, BagReader, BagWriter};
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage, Time};
 
@@ -374,7 +372,11 @@ fn hostile_bag_through_sweepdepth_bag() {
 
 #[test]
 fn hostile_bag_played_live_into_the_node() {
-    netns::in_private_netns(INNER, "hostile_bag_played_live_into_the_node", live);
+    netns::in_private_netns(
+        INNER,
+        "hostile::hostile_bag_played_live_into_the_node",
+        live,
+    );
 }
 
 fn live() {

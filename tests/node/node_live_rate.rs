@@ -11,12 +11,10 @@
 //!
 //! SAFETY: no DDS packet may leave the machine; see tests/common/netns.rs.
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
-use common::netns::in_private_netns;
+use crate::common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
+use crate::common::netns::in_private_netns;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::image::ImageF32;
 use sweepdepth::msgs::{DiagnosticStatus, Image, Time};
@@ -38,7 +36,11 @@ const BOX_M: f32 = 1.2;
 
 #[test]
 fn node_live_9_cameras_at_2_hz() {
-    in_private_netns(INNER, "node_live_9_cameras_at_2_hz", live_rate);
+    in_private_netns(
+        INNER,
+        "node_live_rate::node_live_9_cameras_at_2_hz",
+        live_rate,
+    );
 }
 
 fn stamp_of(k: u32) -> Time {

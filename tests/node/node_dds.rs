@@ -10,13 +10,11 @@
 //! `unshare -n` (`unshare -rn` when not root) with loopback up and a multicast route on `lo`,
 //! and fails with a clear message if that is impossible.
 
-mod common;
-
 use std::time::Instant;
 
-use common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
-use common::mesh::{ply_vertices, SaveMesh};
-use common::netns::in_private_netns;
+use crate::common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
+use crate::common::mesh::{ply_vertices, SaveMesh};
+use crate::common::netns::in_private_netns;
 use ros2_client::log::Log;
 use ros2_client::parameters::{Parameter, ParameterValue};
 use ros2_client::rcl_interfaces::{SetParametersRequest, SetParametersResponse};
@@ -35,38 +33,42 @@ const CAMERAS: usize = 4;
 
 #[test]
 fn node_publishes_depth_over_dds() {
-    in_private_netns(INNER, "node_publishes_depth_over_dds", end_to_end);
+    in_private_netns(INNER, "node_dds::node_publishes_depth_over_dds", end_to_end);
 }
 
 #[test]
 fn node_approximate_sync_with_jittered_stamps() {
     in_private_netns(
         INNER,
-        "node_approximate_sync_with_jittered_stamps",
+        "node_dds::node_approximate_sync_with_jittered_stamps",
         approximate_sync_jitter,
     );
 }
 
 #[test]
 fn node_publishes_points() {
-    in_private_netns(INNER, "node_publishes_points", points_cloud);
+    in_private_netns(INNER, "node_dds::node_publishes_points", points_cloud);
 }
 
 #[test]
 fn node_publishes_diagnostics() {
-    in_private_netns(INNER, "node_publishes_diagnostics", diagnostics);
+    in_private_netns(INNER, "node_dds::node_publishes_diagnostics", diagnostics);
 }
 
 #[test]
 fn node_parameter_services() {
-    in_private_netns(INNER, "node_parameter_services", parameter_services);
+    in_private_netns(
+        INNER,
+        "node_dds::node_parameter_services",
+        parameter_services,
+    );
 }
 
 #[test]
 fn node_several_references_on_a_moving_rig() {
     in_private_netns(
         INNER,
-        "node_several_references_on_a_moving_rig",
+        "node_dds::node_several_references_on_a_moving_rig",
         references_on_a_moving_rig,
     );
 }
@@ -75,14 +77,14 @@ fn node_several_references_on_a_moving_rig() {
 fn node_fuses_a_moving_rig_and_saves_the_mesh() {
     in_private_netns(
         INNER,
-        "node_fuses_a_moving_rig_and_saves_the_mesh",
+        "node_dds::node_fuses_a_moving_rig_and_saves_the_mesh",
         fuses_a_moving_rig,
     );
 }
 
 #[test]
 fn node_virtual_reference() {
-    in_private_netns(INNER, "node_virtual_reference", virtual_reference);
+    in_private_netns(INNER, "node_dds::node_virtual_reference", virtual_reference);
 }
 
 fn stamp_of(k: u32) -> Time {

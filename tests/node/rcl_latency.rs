@@ -35,20 +35,13 @@
 //! images, each measured image) is for an outcome within the one generous limit
 //! `SWEEPDEPTH_TEST_TIMEOUT_S` (default 300 s), which only bounds how long a broken run takes to
 //! fail; the Python peers are killed on every exit path (tests/common/rclpy.rs). The two sizes
-//! run one at a time (a lock both tests take), so that they do not compete for the cores.
+//! run alone in the test binary (`in_private_netns_alone`: neither beside the other nor beside
+//! any other DDS test), so that they do not compete for the cores.
 
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/python.rs"]
-mod python;
-#[path = "common/rclpy.rs"]
-mod rclpy;
-
-use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
 
-use netns::in_private_netns;
-use rclpy::{event, require_rclpy, test_timeout, Peer};
+use crate::common::netns::in_private_netns_alone;
+use crate::common::rclpy::{event, require_rclpy, test_timeout, Peer};
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{
     Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions, QosProfile,
@@ -69,29 +62,24 @@ const RATIO: f64 = 5.0;
 /// ... or at most this floor.
 const FLOOR_MS: f64 = 1000.0;
 
-/// Taken by both tests (in the process `cargo test` runs, around the whole run in its network
-/// namespace), so that the two sizes run one at a time.
-fn one_at_a_time() -> MutexGuard<'static, ()> {
-    static LOCK: Mutex<()> = Mutex::new(());
-    LOCK.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
 #[test]
 fn repair_latency_640x480_as_fast_dds() {
-    let _one = one_at_a_time();
     require_rclpy();
-    in_private_netns(INNER, "repair_latency_640x480_as_fast_dds", || {
-        latency_run(640, 480)
-    });
+    in_private_netns_alone(
+        INNER,
+        "rcl_latency::repair_latency_640x480_as_fast_dds",
+        || latency_run(640, 480),
+    );
 }
 
 #[test]
 fn repair_latency_1280x960_as_fast_dds() {
-    let _one = one_at_a_time();
     require_rclpy();
-    in_private_netns(INNER, "repair_latency_1280x960_as_fast_dds", || {
-        latency_run(1280, 960)
-    });
+    in_private_netns_alone(
+        INNER,
+        "rcl_latency::repair_latency_1280x960_as_fast_dds",
+        || latency_run(1280, 960),
+    );
 }
 
 fn median(v: &[f64]) -> f64 {

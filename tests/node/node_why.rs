@@ -10,15 +10,13 @@
 //! SAFETY: no DDS packet may leave the machine: every test runs inside a private network
 //! namespace with only loopback (tests/common/netns.rs).
 
-mod common;
-
 use std::io::BufRead;
 use std::process::Stdio;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use common::dds::{self, frame, Diagnostics, NodeProcess, Peer};
-use common::netns::in_private_netns;
+use crate::common::dds::{self, frame, Diagnostics, NodeProcess, Peer};
+use crate::common::netns::in_private_netns;
 use ros2_client::{Publisher, QosProfile};
 use sweepdepth::geometry::{CameraModel, Rig};
 use sweepdepth::msgs::{
@@ -34,43 +32,55 @@ const CAMERAS: usize = 4;
 
 #[test]
 fn why_no_publisher() {
-    in_private_netns(INNER, "why_no_publisher", no_publisher);
+    in_private_netns(INNER, "node_why::why_no_publisher", no_publisher);
 }
 
 #[test]
 fn why_incompatible_qos() {
-    in_private_netns(INNER, "why_incompatible_qos", incompatible_qos);
+    in_private_netns(INNER, "node_why::why_incompatible_qos", incompatible_qos);
 }
 
 #[test]
 fn why_camera_info_missing() {
-    in_private_netns(INNER, "why_camera_info_missing", camera_info_missing);
+    in_private_netns(
+        INNER,
+        "node_why::why_camera_info_missing",
+        camera_info_missing,
+    );
 }
 
 #[test]
 fn why_tf_static_link_missing() {
-    in_private_netns(INNER, "why_tf_static_link_missing", tf_static_link_missing);
+    in_private_netns(
+        INNER,
+        "node_why::why_tf_static_link_missing",
+        tf_static_link_missing,
+    );
 }
 
 #[test]
 fn why_stamps_offset_beyond_sync_max_interval() {
     in_private_netns(
         INNER,
-        "why_stamps_offset_beyond_sync_max_interval",
+        "node_why::why_stamps_offset_beyond_sync_max_interval",
         stamps_offset,
     );
 }
 
 #[test]
 fn why_exact_sync_with_unequal_stamps() {
-    in_private_netns(INNER, "why_exact_sync_with_unequal_stamps", exact_unequal);
+    in_private_netns(
+        INNER,
+        "node_why::why_exact_sync_with_unequal_stamps",
+        exact_unequal,
+    );
 }
 
 #[test]
 fn why_silent_while_depth_flows() {
     in_private_netns(
         INNER,
-        "why_silent_while_depth_flows",
+        "node_why::why_silent_while_depth_flows",
         silent_while_depth_flows,
     );
 }

@@ -14,8 +14,6 @@
 // The live view is the cargo feature `viewer` (on by default).
 #![cfg(feature = "viewer")]
 
-mod common;
-
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::PathBuf;
@@ -23,7 +21,7 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use common::netns::KillOnDrop;
+use crate::common::netns::KillOnDrop;
 use serde_json::{json, Value};
 
 fn root() -> PathBuf {
@@ -31,7 +29,7 @@ fn root() -> PathBuf {
 }
 
 fn timeout() -> Duration {
-    common::dds::timeout()
+    crate::common::dds::timeout()
 }
 
 fn chromium() -> PathBuf {

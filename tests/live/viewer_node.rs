@@ -10,15 +10,13 @@
 // The live view is the cargo feature `viewer` (on by default).
 #![cfg(feature = "viewer")]
 
-mod common;
-
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
-use common::dds::{self, frame, NodeProcess, Peer, RigFeed};
-use common::foxglove::Client;
-use common::netns::in_private_netns;
+use crate::common::dds::{self, frame, NodeProcess, Peer, RigFeed};
+use crate::common::foxglove::Client;
+use crate::common::netns::in_private_netns;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{from_cdr, Image, PointCloud2, Time};
 use sweepdepth::synthetic::{self, Scene};
@@ -41,19 +39,27 @@ const VIEWER_TOPICS: [&str; 6] = [
 
 #[test]
 fn viewer_serves_what_dds_publishes() {
-    in_private_netns(INNER, "viewer_serves_what_dds_publishes", same_as_dds);
+    in_private_netns(
+        INNER,
+        "viewer_node::viewer_serves_what_dds_publishes",
+        same_as_dds,
+    );
 }
 
 #[test]
 fn viewer_is_off_without_foxglove_port() {
-    in_private_netns(INNER, "viewer_is_off_without_foxglove_port", off_by_default);
+    in_private_netns(
+        INNER,
+        "viewer_node::viewer_is_off_without_foxglove_port",
+        off_by_default,
+    );
 }
 
 #[test]
 fn viewer_that_reads_nothing_does_not_slow_the_node() {
     in_private_netns(
         INNER,
-        "viewer_that_reads_nothing_does_not_slow_the_node",
+        "viewer_node::viewer_that_reads_nothing_does_not_slow_the_node",
         stuck_viewer,
     );
 }

@@ -13,12 +13,10 @@
 //!    third by 10 % at most. Short runs check memory too, on a shorter scale.
 //!    Prints one line per sample and a summary (RSS first / last / max, inputs, outputs).
 
-mod common;
-
 use std::time::{Duration, Instant};
 
-use common::dds::{self, Diagnostics, NodeProcess, Peer, RigFeed};
-use common::netns;
+use crate::common::dds::{self, Diagnostics, NodeProcess, Peer, RigFeed};
+use crate::common::netns;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::msgs::{Image, Time};
 use sweepdepth::synthetic::{self, Scene};
@@ -33,7 +31,7 @@ const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
 #[test]
 #[ignore = "a 10-minute benchmark: scripts/soak.sh"]
 fn soak() {
-    netns::in_private_netns(INNER, "soak", run);
+    netns::in_private_netns(INNER, "soak::soak", run);
 }
 
 /// The resident memory of process `pid` in KiB; panics when it cannot be read (a soak that

@@ -10,15 +10,13 @@
 //!
 //! SAFETY: DDS only inside the private network namespace of tests/common/netns.rs.
 
-mod common;
-
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
-use common::dds::{self, NodeProcess, Peer};
-use common::netns::in_private_netns;
-use common::player::Player;
+use crate::common::dds::{self, NodeProcess, Peer};
+use crate::common::netns::in_private_netns;
+use crate::common::player::Player;
 use sweepdepth::bag::{BagMessage, BagReader};
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, Time};
 
@@ -49,7 +47,7 @@ fn stamp_of(m: &BagMessage) -> Option<Time> {
 fn bag_played_live_gives_the_offline_depth() {
     in_private_netns(
         INNER,
-        "bag_played_live_gives_the_offline_depth",
+        "bag_live::bag_played_live_gives_the_offline_depth",
         live_vs_offline,
     );
 }
