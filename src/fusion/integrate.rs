@@ -6,7 +6,8 @@
 //!    by block (Amanatides & Woo, 1987), so no block along it is skipped. Free space in front
 //!    of the band allocates nothing (unlike nvblox, which allocates along the whole ray).
 //!    Shortcuts (pinhole cameras): a 4x4-pixel tile whose bands' bounding box holds at most
-//!    two blocks lists both (at worst one neighbour of the band more than the walk); a
+//!    four blocks lists them (`TILE_BOX_BLOCKS`: a few neighbours of the band more than the
+//!    walk; on ICL-NUIM 1.3 % more blocks); a
 //!    segment one or two face steps long lists its ends (and the middle block the walk would
 //!    take) without walking; the per-pixel segments are those of every other row and column
 //!    (`ALLOCATION_STRIDE`: neighbours' bands cross the same blocks; on ICL-NUIM 1502 of the
@@ -129,7 +130,8 @@ pub fn integrate_weighted(
         }
     }
     // Step 0: the valid depths and each pixel's observation weight, once per frame.
-    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam);
+    let scratch = std::mem::take(grid.scratch_mut());
+    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam, scratch);
     if let Some(w) = weights {
         for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
             let keep = w.is_finite() && w > 0.0;
@@ -191,9 +193,105 @@ pub fn integrate_weighted(
     for index in changed {
         grid.mark_changed(index);
     }
+    *grid.scratch_mut() = view.into_scratch();
     // Step 3: the memory bound.
     stats.blocks_dropped = grid.drop_farthest(params.max_blocks, world_from_cam.translation);
     Ok(stats)
+}
+
+/// What [`pinhole_samples`] reads and writes.
+struct PinholeSamples<'a, V: Fn(&mut [f32], &[f32]) -> usize + Sync> {
+    depth: &'a ImageF32,
+    colour: Option<&'a Rgba8Image>,
+    fx: f32,
+    fy: f32,
+    cx: f32,
+    cy: f32,
+    trunc: f32,
+    /// Writes a row's valid depths (NaN elsewhere), returns how many are valid.
+    validate: &'a V,
+    depth_m: &'a mut [f32],
+    samples: &'a mut [PixelSample],
+}
+
+/// Step 0 for a pinhole camera, one pass over the rows (one parallel pass: on a 2-core
+/// machine each pass costs a wake-up of the pool): a row's valid depths into `depth_m`, its
+/// pixels' weights a row at a time, lane-wise ([`row_weights`]: the neighbours' depths and
+/// ray x side by side, NaN beyond the image's edges, the rows above and below validated again
+/// locally) and its samples. Returns the number of valid pixels.
+fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<'_, V>) -> usize {
+    let (width, height) = (p.depth.width as usize, p.depth.height as usize);
+    let (fx, fy, cx, cy, trunc) = (p.fx, p.fy, p.cx, p.cy, p.trunc);
+    let xs: Vec<f32> = (0..width).map(|col| (col as f32 - cx) / fx).collect();
+    // `to` holds `from` shifted by one column (left: to[i] = from[i - 1]), NaN at the edge.
+    let shift_into = |to: &mut [f32], from: &[f32], left: bool| {
+        to.fill(f32::NAN);
+        if width > 1 {
+            if left {
+                to[1..].copy_from_slice(&from[..width - 1]);
+            } else {
+                to[..width - 1].copy_from_slice(&from[1..]);
+            }
+        }
+    };
+    let (mut xs_left, mut xs_right) = (vec![0.0; width], vec![0.0; width]);
+    shift_into(&mut xs_left, &xs, true);
+    shift_into(&mut xs_right, &xs, false);
+    let input = |r: usize| &p.depth.data[r * width..(r + 1) * width];
+    let validate = p.validate;
+    let colour = p.colour;
+    p.depth_m
+        .par_chunks_mut(width)
+        .zip(p.samples.par_chunks_mut(width))
+        .enumerate()
+        .map_init(
+            || vec![vec![0.0f32; width]; 5],
+            |rows, (row, (here, out))| {
+                let valid = validate(here, input(row));
+                let [up, down, left, right, weights] = &mut rows[..] else {
+                    unreachable!("five row buffers");
+                };
+                if row > 0 {
+                    validate(up, input(row - 1));
+                } else {
+                    up.fill(f32::NAN);
+                }
+                if row + 1 < height {
+                    validate(down, input(row + 1));
+                } else {
+                    down.fill(f32::NAN);
+                }
+                shift_into(left, here, true);
+                shift_into(right, here, false);
+                let ray_y = |r: usize| (r as f32 - cy) / fy;
+                let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
+                row_weights(
+                    RowNeighbours {
+                        here,
+                        left,
+                        right,
+                        up,
+                        down,
+                        xs: &xs,
+                        xs_left: &xs_left,
+                        xs_right: &xs_right,
+                        y,
+                        trunc,
+                    },
+                    weights,
+                );
+                let colours = colour.map(|c| &c.pixels[row * width..(row + 1) * width]);
+                for (col, sample) in out.iter_mut().enumerate() {
+                    *sample = PixelSample {
+                        depth_m: here[col],
+                        weight: weights[col],
+                        rgb: colours.map_or(0, |c| c[col]),
+                    };
+                }
+                valid
+            },
+        )
+        .sum()
 }
 
 /// Camera frame to pixel.
@@ -225,13 +323,28 @@ impl Projector {
 /// One pixel as step 2 reads it: a voxel's four bilinear neighbours, its weight and colour
 /// in one or two cache lines.
 #[derive(Debug, Clone, Copy)]
-struct PixelSample {
+pub(super) struct PixelSample {
     /// The depth where valid, NaN elsewhere.
     depth_m: f32,
     /// The observation weight ([`View::pixel_weight`]), NaN where there is none.
     weight: f32,
     /// The colour ([`Rgba8Image::pack`]), 0 without a colour image.
     rgb: u32,
+}
+
+/// The per-pixel buffers of [`View`], kept by the grid from one frame to the next: a fresh
+/// 640x480 frame's 4.9 MB would be new pages to fault in every time (on this project's
+/// 2-core VMs 0.3-0.5 ms of the validity pass alone).
+#[derive(Default, Clone)]
+pub(super) struct IntegrationScratch {
+    depth_m: Vec<f32>,
+    samples: Vec<PixelSample>,
+}
+
+impl std::fmt::Debug for IntegrationScratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "IntegrationScratch({} pixels)", self.samples.capacity())
+    }
 }
 
 /// One depth map with its camera, as the integration reads it.
@@ -268,6 +381,7 @@ impl<'a> View<'a> {
         colour: Option<&'a Rgba8Image>,
         model: &CameraModel,
         world_from_cam: &RigidTransform,
+        scratch: IntegrationScratch,
     ) -> Self {
         let cam_from_world = world_from_cam.inverse();
         let rotation = cam_from_world.rotation_matrix();
@@ -282,20 +396,56 @@ impl<'a> View<'a> {
             _ => Projector::Distorted(*model),
         };
         let (min_depth_m, max_depth_m) = (params.min_depth_m, params.max_depth_m);
-        let depth_m: Vec<f32> = depth
-            .data
-            .par_iter()
-            .with_min_len(4096)
-            .map(|&d| {
-                let valid = d.is_finite() && d > 0.0 && d >= min_depth_m && d <= max_depth_m;
-                if valid {
-                    d
-                } else {
-                    f32::NAN
-                }
-            })
-            .collect();
-        let pixels_valid = depth_m.par_iter().filter(|d| !d.is_nan()).count();
+        let trunc = params.truncation_m();
+        // The buffers of the last frame (no fresh pages, no initialisation: every element is
+        // written below).
+        let IntegrationScratch {
+            mut depth_m,
+            mut samples,
+        } = scratch;
+        let pixels = depth.data.len();
+        let width = depth.width as usize;
+        depth_m.resize(pixels, f32::NAN);
+        samples.resize(
+            pixels,
+            PixelSample {
+                depth_m: f32::NAN,
+                weight: f32::NAN,
+                rgb: 0,
+            },
+        );
+        // The depth where valid, NaN elsewhere; the number of valid pixels.
+        let validate = |out: &mut [f32], input: &[f32]| -> usize {
+            let mut valid_here = 0;
+            for (o, &d) in out.iter_mut().zip(input) {
+                // `&`, not `&&`: no branches, so the loop is lane-wise.
+                let valid = d.is_finite() & (d > 0.0) & (d >= min_depth_m) & (d <= max_depth_m);
+                valid_here += usize::from(valid);
+                *o = if valid { d } else { f32::NAN };
+            }
+            valid_here
+        };
+        let pixels_valid = match projector {
+            // One pass over the rows: each row's valid depths and its pixels' samples (its
+            // neighbour rows validated again locally).
+            Projector::Pinhole { fx, fy, cx, cy } => pinhole_samples(PinholeSamples {
+                depth,
+                colour,
+                fx,
+                fy,
+                cx,
+                cy,
+                trunc,
+                validate: &validate,
+                depth_m: &mut depth_m,
+                samples: &mut samples,
+            }),
+            Projector::Distorted(_) => depth_m
+                .par_chunks_mut(4096)
+                .zip(depth.data.par_chunks(4096))
+                .map(|(out, input)| validate(out, input))
+                .sum(),
+        };
         let mut view = Self {
             depth,
             depth_m,
@@ -309,7 +459,7 @@ impl<'a> View<'a> {
             cam_from_world_translation: cam_from_world.translation,
             voxel_steps_in_cam: (rotation * f64::from(grid.voxel_size_m())).as_mat3(),
             voxel_size_m: grid.voxel_size_m(),
-            truncation_m: params.truncation_m(),
+            truncation_m: trunc,
             max_depth_m,
             max_weight: params.max_weight,
             lanes_fit: depth.width >= 2
@@ -318,88 +468,31 @@ impl<'a> View<'a> {
                 && depth.height < 1 << 22
                 && depth.data.len() < i32::MAX as usize,
         };
-        let width = depth.width as usize;
-        let Projector::Pinhole { fx, fy, cx, cy } = view.projector else {
-            view.samples = (0..depth.data.len())
-                .into_par_iter()
-                .with_min_len(width)
-                .map(|pixel| PixelSample {
-                    depth_m: view.depth_m[pixel],
-                    weight: view.pixel_weight(pixel % width, pixel / width),
-                    rgb: colour.map_or(0, |c| c.pixels[pixel]),
-                })
-                .collect();
-            return view;
-        };
-        // A pinhole camera's weights a row at a time, lane-wise ([`row_weights`]): the
-        // neighbours' depths and ray x side by side, NaN beyond the image's edges.
-        let height = depth.height as usize;
-        let ray_x = |col: usize| (col as f32 - cx) / fx;
-        let xs: Vec<f32> = (0..width).map(ray_x).collect();
-        let shifted = |from: &[f32], left: bool| -> Vec<f32> {
-            let mut v = vec![f32::NAN; width];
-            if width > 1 {
-                if left {
-                    v[1..].copy_from_slice(&from[..width - 1]);
-                } else {
-                    v[..width - 1].copy_from_slice(&from[1..]);
-                }
-            }
-            v
-        };
-        let (xs_left, xs_right) = (shifted(&xs, true), shifted(&xs, false));
-        let nan_row = vec![f32::NAN; width];
-        let mut samples = vec![
-            PixelSample {
-                depth_m: f32::NAN,
-                weight: f32::NAN,
-                rgb: 0,
-            };
-            depth.data.len()
-        ];
-        let depth_m = &view.depth_m;
-        let trunc = view.truncation_m;
-        samples
-            .par_chunks_mut(width)
-            .enumerate()
-            .for_each(|(row, out)| {
-                let line = |r: usize| &depth_m[r * width..(r + 1) * width];
-                let here = line(row);
-                let up = if row > 0 { line(row - 1) } else { &nan_row[..] };
-                let down = if row + 1 < height {
-                    line(row + 1)
-                } else {
-                    &nan_row[..]
-                };
-                let (left, right) = (shifted(here, true), shifted(here, false));
-                let ray_y = |r: usize| (r as f32 - cy) / fy;
-                let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
-                let mut weights = vec![0.0f32; width];
-                row_weights(
-                    RowNeighbours {
-                        here,
-                        left: &left,
-                        right: &right,
-                        up,
-                        down,
-                        xs: &xs,
-                        xs_left: &xs_left,
-                        xs_right: &xs_right,
-                        y,
-                        trunc,
-                    },
-                    &mut weights,
-                );
-                for (col, sample) in out.iter_mut().enumerate() {
-                    *sample = PixelSample {
-                        depth_m: here[col],
-                        weight: weights[col],
-                        rgb: colour.map_or(0, |c| c.pixels[row * width + col]),
-                    };
-                }
-            });
+        if let Projector::Distorted(_) = view.projector {
+            samples
+                .par_chunks_mut(width)
+                .enumerate()
+                .for_each(|(row, out)| {
+                    for (col, sample) in out.iter_mut().enumerate() {
+                        let pixel = row * width + col;
+                        *sample = PixelSample {
+                            depth_m: view.depth_m[pixel],
+                            weight: view.pixel_weight(col, row),
+                            rgb: colour.map_or(0, |c| c.pixels[pixel]),
+                        };
+                    }
+                });
+        }
         view.samples = samples;
         view
+    }
+
+    /// Hands the per-pixel buffers back for the next frame.
+    fn into_scratch(self) -> IntegrationScratch {
+        IntegrationScratch {
+            depth_m: self.depth_m,
+            samples: self.samples,
+        }
     }
 
     fn ray_z1(&self, col: usize, row: usize) -> Option<DVec3> {
