@@ -279,10 +279,25 @@ fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
     // The vertex made on each edge, by (lower corner, axis); u16::MAX: none yet. u16: a
     // block has at most 3 * 9^3 edges, so vertices; half the table to fill per block (26 KiB
     // in u32, more than the rest of a block's meshing writes).
+    let observed = around.observed_tsdf();
+    // No observed voxel inside (TSDF < 0) or none outside: no cube is crossed (a block in
+    // free space or behind the surface ends here).
+    let (inside, outside) = observed
+        .iter()
+        .fold((false, false), |(inside, outside), t| {
+            (inside | (*t < 0.0), outside | (*t >= 0.0))
+        });
+    if !(inside && outside) {
+        return mesh;
+    }
+    // A block the surface crosses makes tens to a few hundred vertices: room for a typical
+    // one up front rather than a dozen reallocations.
+    mesh.vertices.reserve(96);
+    mesh.colours.reserve(96);
+    mesh.triangles.reserve(192);
     let mut edge_vertex = vec![u16::MAX; SIDE * SIDE * SIDE * 3];
     let first = index.first_voxel();
     let s = grid.voxel_size_m();
-    let observed = around.observed_tsdf();
     for z in 0..BLOCK_SIDE {
         for y in 0..BLOCK_SIDE {
             for x in 0..BLOCK_SIDE {
