@@ -214,11 +214,11 @@ struct PinholeSamples<'a, V: Fn(&mut [f32], &[f32]) -> usize + Sync> {
     samples: &'a mut [PixelSample],
 }
 
-/// Step 0 for a pinhole camera, one pass over the rows (one parallel pass: on a 2-core
-/// machine each pass costs a wake-up of the pool): a row's valid depths into `depth_m`, its
-/// pixels' weights a row at a time, lane-wise ([`row_weights`]: the neighbours' depths and
-/// ray x side by side, NaN beyond the image's edges, the rows above and below validated again
-/// locally) and its samples. Returns the number of valid pixels.
+/// Step 0 for a pinhole camera in one parallel pass over bands of rows: the rows' valid
+/// depths into `depth_m`, their pixels' weights a row at a time, lane-wise ([`row_weights`]:
+/// the neighbours' depths and ray x side by side, NaN beyond the image's edges, the rows just
+/// above and below a band validated again locally) and their samples. Returns the number of
+/// valid pixels.
 fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<'_, V>) -> usize {
     let (width, height) = (p.depth.width as usize, p.depth.height as usize);
     let (fx, fy, cx, cy, trunc) = (p.fx, p.fy, p.cx, p.cy, p.trunc);
@@ -240,53 +240,73 @@ fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<
     let input = |r: usize| &p.depth.data[r * width..(r + 1) * width];
     let validate = p.validate;
     let colour = p.colour;
+    // Bands of rows: a band's own rows validated once into `depth_m`, the rows just above
+    // and below it again locally.
+    const BAND: usize = 8;
     p.depth_m
-        .par_chunks_mut(width)
-        .zip(p.samples.par_chunks_mut(width))
+        .par_chunks_mut(width * BAND)
+        .zip(p.samples.par_chunks_mut(width * BAND))
         .enumerate()
         .map_init(
             || vec![vec![0.0f32; width]; 5],
-            |rows, (row, (here, out))| {
-                let valid = validate(here, input(row));
-                let [up, down, left, right, weights] = &mut rows[..] else {
+            |rows, (band, (band_depths, band_out))| {
+                let first_row = band * BAND;
+                let band_rows = band_depths.len() / width;
+                let [above, below, left, right, weights] = &mut rows[..] else {
                     unreachable!("five row buffers");
                 };
-                if row > 0 {
-                    validate(up, input(row - 1));
-                } else {
-                    up.fill(f32::NAN);
+                let mut valid = 0;
+                for (r, here) in band_depths.chunks_exact_mut(width).enumerate() {
+                    valid += validate(here, input(first_row + r));
                 }
-                if row + 1 < height {
-                    validate(down, input(row + 1));
+                if first_row > 0 {
+                    validate(above, input(first_row - 1));
                 } else {
-                    down.fill(f32::NAN);
+                    above.fill(f32::NAN);
                 }
-                shift_into(left, here, true);
-                shift_into(right, here, false);
-                let ray_y = |r: usize| (r as f32 - cy) / fy;
-                let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
-                row_weights(
-                    RowNeighbours {
-                        here,
-                        left,
-                        right,
-                        up,
-                        down,
-                        xs: &xs,
-                        xs_left: &xs_left,
-                        xs_right: &xs_right,
-                        y,
-                        trunc,
-                    },
-                    weights,
-                );
-                let colours = colour.map(|c| &c.pixels[row * width..(row + 1) * width]);
-                for (col, sample) in out.iter_mut().enumerate() {
-                    *sample = PixelSample {
-                        depth_m: here[col],
-                        weight: weights[col],
-                        rgb: colours.map_or(0, |c| c[col]),
+                if first_row + band_rows < height {
+                    validate(below, input(first_row + band_rows));
+                } else {
+                    below.fill(f32::NAN);
+                }
+                let band_depths = &*band_depths;
+                let line = |r: usize| &band_depths[r * width..(r + 1) * width];
+                for (r, out) in band_out.chunks_exact_mut(width).enumerate() {
+                    let row = first_row + r;
+                    let here = line(r);
+                    let up = if r > 0 { line(r - 1) } else { &above[..] };
+                    let down = if r + 1 < band_rows {
+                        line(r + 1)
+                    } else {
+                        &below[..]
                     };
+                    shift_into(left, here, true);
+                    shift_into(right, here, false);
+                    let ray_y = |r: usize| (r as f32 - cy) / fy;
+                    let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
+                    row_weights(
+                        RowNeighbours {
+                            here,
+                            left,
+                            right,
+                            up,
+                            down,
+                            xs: &xs,
+                            xs_left: &xs_left,
+                            xs_right: &xs_right,
+                            y,
+                            trunc,
+                        },
+                        weights,
+                    );
+                    let colours = colour.map(|c| &c.pixels[row * width..(row + 1) * width]);
+                    for (col, sample) in out.iter_mut().enumerate() {
+                        *sample = PixelSample {
+                            depth_m: here[col],
+                            weight: weights[col],
+                            rgb: colours.map_or(0, |c| c[col]),
+                        };
+                    }
                 }
                 valid
             },
