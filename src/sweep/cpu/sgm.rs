@@ -30,11 +30,22 @@ pub fn stride(planes: usize) -> usize {
 /// half-sequence's smooth minimum goes below zero), as u16 levels.
 #[inline(always)]
 pub fn volume_level(levels_per_unit: f32, score: f32) -> u16 {
-    if score >= 0.5 * BIG {
-        return SGM_COST_MAX as u16;
-    }
+    // Branch-free, so a row of scores vectorises (as a scalar loop it was 36 M of the
+    // demo's ~470 M sweep instructions). `raised` is never NaN (`max` drops it), so the rounded level is
+    // at least 0.5 (or +inf) and clamping it to SGM_COST_MAX before the conversion to i32 gives
+    // the shader's `min(u32(..), SGM_COST_MAX)` exactly.
     let raised = (score + SGM_VOLUME_OFFSET).max(0.0);
-    ((raised * levels_per_unit + 0.5).floor() as u32).min(SGM_COST_MAX) as u16
+    let level = (raised * levels_per_unit + 0.5)
+        .floor()
+        .min(SGM_COST_MAX as f32);
+    // The whole number 0..=SGM_COST_MAX as an integer without `as` (a saturating conversion
+    // the compiler does one lane at a time): added to 2^23 it is the float's mantissa.
+    let level = ((level + 8_388_608.0).to_bits() - 0x4b00_0000) as u16;
+    if score >= 0.5 * BIG {
+        SGM_COST_MAX as u16
+    } else {
+        level
+    }
 }
 
 /// Twin of `colour_step`: the largest RGB channel difference of two packed colours.
@@ -47,10 +58,11 @@ fn colour_step(a: u32, b: u32) -> u32 {
 /// One path step for one pixel over all its planes (`line_term` of sgm.wgsl):
 /// `L = cost + min(prev, prev -+ 1 + P1, prev_min + P2) - prev_min`, or `L = cost` at the
 /// start of a path (`START`); `L` goes into `out` (one PAD lane on each side, as `prev`) and is
-/// written (`FIRST`) or added into `sum`. Returns the minimum of `L`.
+/// written (`FIRST`) or added into `sum`. Returns the minimum of `L`. `N` lanes per pixel when
+/// known at compile time ([`step_fixed`]), else 0 and as many as `cost` has.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn step<const START: bool, const FIRST: bool>(
+fn step<const N: usize, const START: bool, const FIRST: bool>(
     cost: &[u16],
     prev: &[u16],
     prev_min: u16,
@@ -59,6 +71,9 @@ fn step<const START: bool, const FIRST: bool>(
     out: &mut [u16],
     sum: &mut [u16],
 ) -> u16 {
+    if N > 0 {
+        return step_fixed::<N, START, FIRST>(cost, prev, prev_min, p1, p2, out, sum);
+    }
     let n = cost.len();
     let (out, sum) = (&mut out[1..=n], &mut sum[..n]);
     let (minus, mid, plus) = (&prev[..n], &prev[1..=n], &prev[2..n + 2]);
@@ -92,10 +107,57 @@ fn step<const START: bool, const FIRST: bool>(
     lowest.iter().fold(u16::MAX, |a, &b| a.min(b))
 }
 
+/// [`step`] for `N` lanes known at compile time (a multiple of LANES): `L` is made in a local
+/// array from the loads alone, then stored, so the compiler keeps it in registers and needs no
+/// run-time checks of `out` and `sum` against the loaded slices (with the lane count read at run
+/// time the demo's path steps took ~1000 instructions per pixel and pass, their minimum going
+/// through the stack).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn step_fixed<const N: usize, const START: bool, const FIRST: bool>(
+    cost: &[u16],
+    prev: &[u16],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [u16],
+    sum: &mut [u16],
+) -> u16 {
+    let (cost, prev, out, sum) = (&cost[..N], &prev[..N + 2], &mut out[1..=N], &mut sum[..N]);
+    let jump = prev_min.saturating_add(p2);
+    let mut l = [0u16; N];
+    for i in 0..N {
+        l[i] = if START {
+            cost[i]
+        } else {
+            let best = prev[i + 1]
+                .min(prev[i].saturating_add(p1))
+                .min(prev[i + 2].saturating_add(p1))
+                .min(jump);
+            cost[i].saturating_add(best - prev_min)
+        };
+    }
+    out.copy_from_slice(&l);
+    for i in 0..N {
+        sum[i] = if FIRST {
+            l[i]
+        } else {
+            sum[i].wrapping_add(l[i])
+        };
+    }
+    let mut lowest = [u16::MAX; LANES];
+    for i in 0..N {
+        lowest[i % LANES] = lowest[i % LANES].min(l[i]);
+    }
+    let half: [u16; 8] = std::array::from_fn(|i| lowest[i].min(lowest[i + 8]));
+    let quarter: [u16; 4] = std::array::from_fn(|i| half[i].min(half[i + 4]));
+    quarter[0].min(quarter[2]).min(quarter[1].min(quarter[3]))
+}
+
 /// `step` with its two switches as run-time values.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn step_dyn(
+fn step_dyn<const N: usize>(
     start: bool,
     first: bool,
     cost: &[u16],
@@ -107,10 +169,10 @@ fn step_dyn(
     sum: &mut [u16],
 ) -> u16 {
     match (start, first) {
-        (true, true) => step::<true, true>(cost, prev, prev_min, p1, p2, out, sum),
-        (true, false) => step::<true, false>(cost, prev, prev_min, p1, p2, out, sum),
-        (false, true) => step::<false, true>(cost, prev, prev_min, p1, p2, out, sum),
-        (false, false) => step::<false, false>(cost, prev, prev_min, p1, p2, out, sum),
+        (true, true) => step::<N, true, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (true, false) => step::<N, true, false>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, true) => step::<N, false, true>(cost, prev, prev_min, p1, p2, out, sum),
+        (false, false) => step::<N, false, false>(cost, prev, prev_min, p1, p2, out, sum),
     }
 }
 
@@ -128,75 +190,104 @@ vectorised_fn! {
 /// reverse), summing the path costs of its directions into `sums` (written, not added). Stops
 /// between rows once `cancel` is set (the sums are then incomplete; the caller checks).
 fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16], cancel: &CancelFlag) {
-    let p = &plan.params;
-    let (w, h) = (p.width as usize, p.height as usize);
-    let n = stride(p.planes as usize);
-    let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
-    // Path costs with a PAD lane on each side: the previous and current row of the vertical
-    // and (8 paths) the two diagonal directions, and the last two pixels of the horizontal one.
-    let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
-    let row_buffer = || vec![PAD; w * (n + 2)];
-    let mut prev_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
-    let mut cur_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
-    let mut prev_mins = vec![vec![0u16; w]; row_dirs];
-    let mut cur_mins = vec![vec![0u16; w]; row_dirs];
-    let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
-    let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
-    // P2 for every colour step (0..255): the shader's integer division, done once.
-    let penalties: Vec<u16> = (0..256u32)
-        .map(|step| penalty2(p1, p2, edge, step))
-        .collect();
-    let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
-    let p1 = p1 as u16;
-    for walk_y in 0..h {
-        if cancel.is_cancelled() {
-            return;
-        }
-        let y = if forward { walk_y } else { h - 1 - walk_y };
-        let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
-        let mut h_min = 0u16;
-        for walk_x in 0..w {
-            let x = if forward { walk_x } else { w - 1 - walk_x };
-            let pix = y * w + x;
-            let cost = &volume[pix * n..(pix + 1) * n];
-            let here = colour(pix);
-            let sum = &mut sums[pix * n..(pix + 1) * n];
-            // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
-            let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
-            let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
-
-            // Horizontal: the previous pixel of this row; it writes the sums.
-            let [a, b] = &mut horizontal;
-            let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
-            let start = walk_x == 0;
-            let pen = if start { 0 } else { penalty(here, y * w + behind) };
-            h_min = step_dyn(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
-
-            // Vertical and diagonals: the previous row at x, behind and ahead.
-            for dir in 0..row_dirs {
-                let px = match dir {
-                    0 => x,
-                    1 => behind,
-                    _ => ahead,
-                };
-                let start = walk_y == 0 || px >= w;
-                let (prev, prev_min, pen) = if start {
-                    (&prev_rows[dir][..n + 2], 0, 0)
-                } else {
-                    (
-                        &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)],
-                        prev_mins[dir][px],
-                        penalty(here, prev_y * w + px),
-                    )
-                };
-                let out = &mut cur_rows[dir][x * (n + 2)..(x + 1) * (n + 2)];
-                cur_mins[dir][x] = step_dyn(start, false, cost, prev, prev_min, p1, pen, out, sum);
-            }
-        }
-        std::mem::swap(&mut prev_rows, &mut cur_rows);
-        std::mem::swap(&mut prev_mins, &mut cur_mins);
+    // The common lane counts known at compile time (the demo's 32 planes: 32; `step_fixed`).
+    match stride(plan.params.planes as usize) {
+        16 => pass_lanes::<16>(plan, reference_colours, volume, forward, sums, cancel),
+        32 => pass_lanes::<32>(plan, reference_colours, volume, forward, sums, cancel),
+        48 => pass_lanes::<48>(plan, reference_colours, volume, forward, sums, cancel),
+        64 => pass_lanes::<64>(plan, reference_colours, volume, forward, sums, cancel),
+        96 => pass_lanes::<96>(plan, reference_colours, volume, forward, sums, cancel),
+        128 => pass_lanes::<128>(plan, reference_colours, volume, forward, sums, cancel),
+        _ => pass_lanes::<0>(plan, reference_colours, volume, forward, sums, cancel),
     }
 }
+}
+
+/// The body of [`pass`] for `N` lanes per pixel (0: any number).
+#[inline(always)]
+fn pass_lanes<const N: usize>(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: bool,
+    sums: &mut [u16],
+    cancel: &CancelFlag,
+) {
+    {
+        let p = &plan.params;
+        let (w, h) = (p.width as usize, p.height as usize);
+        let n = if N == 0 { stride(p.planes as usize) } else { N };
+        let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
+        // Path costs with a PAD lane on each side: the previous and current row of the vertical
+        // and (8 paths) the two diagonal directions, and the last two pixels of the horizontal one.
+        let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
+        let row_buffer = || vec![PAD; w * (n + 2)];
+        let mut prev_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
+        let mut cur_rows: Vec<Vec<u16>> = (0..row_dirs).map(|_| row_buffer()).collect();
+        let mut prev_mins = vec![vec![0u16; w]; row_dirs];
+        let mut cur_mins = vec![vec![0u16; w]; row_dirs];
+        let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
+        let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
+        // P2 for every colour step (0..255): the shader's integer division, done once.
+        let penalties: Vec<u16> = (0..256u32)
+            .map(|step| penalty2(p1, p2, edge, step))
+            .collect();
+        let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
+        let p1 = p1 as u16;
+        for walk_y in 0..h {
+            if cancel.is_cancelled() {
+                return;
+            }
+            let y = if forward { walk_y } else { h - 1 - walk_y };
+            let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
+            let mut h_min = 0u16;
+            for walk_x in 0..w {
+                let x = if forward { walk_x } else { w - 1 - walk_x };
+                let pix = y * w + x;
+                let cost = &volume[pix * n..(pix + 1) * n];
+                let here = colour(pix);
+                let sum = &mut sums[pix * n..(pix + 1) * n];
+                // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
+                let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
+                let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
+
+                // Horizontal: the previous pixel of this row; it writes the sums.
+                let [a, b] = &mut horizontal;
+                let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
+                let start = walk_x == 0;
+                let pen = if start {
+                    0
+                } else {
+                    penalty(here, y * w + behind)
+                };
+                h_min = step_dyn::<N>(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
+
+                // Vertical and diagonals: the previous row at x, behind and ahead.
+                for dir in 0..row_dirs {
+                    let px = match dir {
+                        0 => x,
+                        1 => behind,
+                        _ => ahead,
+                    };
+                    let start = walk_y == 0 || px >= w;
+                    let (prev, prev_min, pen) = if start {
+                        (&prev_rows[dir][..n + 2], 0, 0)
+                    } else {
+                        (
+                            &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)],
+                            prev_mins[dir][px],
+                            penalty(here, prev_y * w + px),
+                        )
+                    };
+                    let out = &mut cur_rows[dir][x * (n + 2)..(x + 1) * (n + 2)];
+                    cur_mins[dir][x] =
+                        step_dyn::<N>(start, false, cost, prev, prev_min, p1, pen, out, sum);
+                }
+            }
+            std::mem::swap(&mut prev_rows, &mut cur_rows);
+            std::mem::swap(&mut prev_mins, &mut cur_mins);
+        }
+    }
 }
 
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
