@@ -227,25 +227,38 @@ fn pass_lanes<const N: usize>(
         let mut prev_mins = vec![vec![0u16; w]; row_dirs];
         let mut cur_mins = vec![vec![0u16; w]; row_dirs];
         let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
-        let colour = |pix: usize| if edge > 0 { reference_colours[pix] } else { 0 };
         // P2 for every colour step (0..255): the shader's integer division, done once.
         let penalties: Vec<u16> = (0..256u32)
             .map(|step| penalty2(p1, p2, edge, step))
             .collect();
-        let penalty = |here: u32, pix: usize| penalties[colour_step(here, colour(pix)) as usize];
         let p1 = p1 as u16;
+        // Each pixel's P2 towards its predecessor in every direction, a row at a time (x order):
+        // horizontal, vertical, diagonal behind, diagonal ahead. Without `sgm_edge` all are P2.
+        let mut pens: [Vec<u16>; 4] = std::array::from_fn(|_| vec![penalties[0]; w]);
         for walk_y in 0..h {
             if cancel.is_cancelled() {
                 return;
             }
             let y = if forward { walk_y } else { h - 1 - walk_y };
             let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
+            if edge > 0 && w > 0 {
+                let prev_y = (prev_y < h).then_some(prev_y);
+                edge_penalties_row(
+                    &penalties,
+                    reference_colours,
+                    w,
+                    y,
+                    prev_y,
+                    forward,
+                    &mut pens,
+                );
+            }
+            let [pen_h, pen_v, pen_b, pen_a] = &pens;
             let mut h_min = 0u16;
             for walk_x in 0..w {
                 let x = if forward { walk_x } else { w - 1 - walk_x };
                 let pix = y * w + x;
                 let cost = &volume[pix * n..(pix + 1) * n];
-                let here = colour(pix);
                 let sum = &mut sums[pix * n..(pix + 1) * n];
                 // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
                 let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
@@ -255,11 +268,7 @@ fn pass_lanes<const N: usize>(
                 let [a, b] = &mut horizontal;
                 let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
                 let start = walk_x == 0;
-                let pen = if start {
-                    0
-                } else {
-                    penalty(here, y * w + behind)
-                };
+                let pen = if start { 0 } else { pen_h[x] };
                 h_min = step_dyn::<N>(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
 
                 // Vertical and diagonals: the previous row at x, behind and ahead.
@@ -276,7 +285,11 @@ fn pass_lanes<const N: usize>(
                         (
                             &prev_rows[dir][px * (n + 2)..(px + 1) * (n + 2)],
                             prev_mins[dir][px],
-                            penalty(here, prev_y * w + px),
+                            match dir {
+                                0 => pen_v[x],
+                                1 => pen_b[x],
+                                _ => pen_a[x],
+                            },
                         )
                     };
                     let out = &mut cur_rows[dir][x * (n + 2)..(x + 1) * (n + 2)];
@@ -287,6 +300,68 @@ fn pass_lanes<const N: usize>(
             std::mem::swap(&mut prev_rows, &mut cur_rows);
             std::mem::swap(&mut prev_mins, &mut cur_mins);
         }
+    }
+}
+
+/// P2 of every pixel of row `y` towards its predecessor in each direction (`penalty2` of the
+/// colour step, looked up in `penalties`), in x order, for a pass walking `forward` or back:
+/// `pens` = [horizontal (x -+ 1), vertical (x on `prev_y`), diagonal behind (x -+ 1 on
+/// `prev_y`), diagonal ahead (x +- 1 on `prev_y`)]; `prev_y` None on the first row. Entries
+/// whose predecessor is outside the image keep their last value (never read: a path starts
+/// there). The colour steps of a row vectorise; the per-pixel lookups were a third of a pass.
+#[inline(always)]
+fn edge_penalties_row(
+    penalties: &[u16],
+    colours: &[u32],
+    w: usize,
+    y: usize,
+    prev_y: Option<usize>,
+    forward: bool,
+    pens: &mut [Vec<u16>; 4],
+) {
+    let lookup = |here: &[u32], there: &[u32], out: &mut [u16]| {
+        let mut steps = [0u32; 64];
+        for ((here, there), out) in here
+            .chunks(64)
+            .zip(there.chunks(64))
+            .zip(out.chunks_mut(64))
+        {
+            let n = out.len();
+            for ((s, &a), &b) in steps[..n].iter_mut().zip(here).zip(there) {
+                *s = colour_step(a, b);
+            }
+            for (o, &s) in out.iter_mut().zip(&steps[..n]) {
+                *o = penalties[s as usize];
+            }
+        }
+    };
+    let cur = &colours[y * w..(y + 1) * w];
+    let [pen_h, pen_v, pen_b, pen_a] = pens;
+    // Behind = x - 1 walking forward, x + 1 back; ahead the other way.
+    let (lo, hi) = (1..w, 0..w - 1);
+    let (behind_x, behind_from) = if forward {
+        (lo.clone(), hi.clone())
+    } else {
+        (hi.clone(), lo.clone())
+    };
+    lookup(
+        &cur[behind_x.clone()],
+        &cur[behind_from.clone()],
+        &mut pen_h[behind_x.clone()],
+    );
+    if let Some(prev_y) = prev_y {
+        let prev = &colours[prev_y * w..(prev_y + 1) * w];
+        lookup(cur, prev, pen_v);
+        lookup(
+            &cur[behind_x.clone()],
+            &prev[behind_from.clone()],
+            &mut pen_b[behind_x.clone()],
+        );
+        lookup(
+            &cur[behind_from.clone()],
+            &prev[behind_x.clone()],
+            &mut pen_a[behind_from],
+        );
     }
 }
 
