@@ -31,7 +31,7 @@ pub fn stride(planes: usize) -> usize {
 #[inline(always)]
 pub fn volume_level(levels_per_unit: f32, score: f32) -> u16 {
     // Branch-free, so a row of scores vectorises (as a scalar loop it was 36 M of the
-    // demo's ~470 M sweep instructions). `raised` is never NaN (`max` drops it), so the rounded level is
+    // demo set's ~500 M sweep instructions). `raised` is never NaN (`max` drops it), so the rounded level is
     // at least 0.5 (or +inf) and clamping it to SGM_COST_MAX before the conversion to i32 gives
     // the shader's `min(u32(..), SGM_COST_MAX)` exactly.
     let raised = (score + SGM_VOLUME_OFFSET).max(0.0);
