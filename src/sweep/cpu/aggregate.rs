@@ -364,6 +364,10 @@ impl RowScorer {
     #[inline(always)]
     fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
         let p = &plan.params;
+        if p.scoring == SCORING_HALF && self.left_best.len() == 1 && self.right_best.len() == 1 {
+            self.score_halves_best_one(plan, set, offset);
+            return;
+        }
         let halves = p.scoring == SCORING_HALF || p.scoring == SCORING_BEST_N;
         // Half-sequence scoring reads only the halves' sums: the all-pairs sum is not made.
         let all_pairs = p.scoring != SCORING_HALF;
@@ -439,6 +443,50 @@ impl RowScorer {
                 *score = mean_or_big(s, n);
                 *sel = SEL_NONE;
             }
+        }
+    }
+}
+
+impl RowScorer {
+    /// `score_pairs` for the half-sequence whose halves each score their best pair (the
+    /// defaults with two pairs a side: `half_ranks` [1, 1]), the same floats with a third of
+    /// the row passes: each pair's window mean goes straight into its half's minimum (the
+    /// one-rank bubble), and each half's score is that minimum through `best_mean` and
+    /// `mean_or_big` (`(0 + best) / 1`, or BIG when the half saw nothing); the halves' sums of
+    /// every pair (which `best_mean` overwrites) are not made.
+    #[inline(always)]
+    fn score_halves_best_one(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
+        let p = &plan.params;
+        let w = self.span;
+        let [_, _, left, _, right, _] = &mut self.acc;
+        let (left, right) = (&mut left[..w], &mut right[..w]);
+        left.fill(BIG);
+        right.fill(BIG);
+        for (pair, info) in plan.pairs.iter().enumerate().take(p.channels as usize) {
+            let best = match info[2] {
+                HALF_LEFT => &mut *left,
+                HALF_RIGHT => &mut *right,
+                _ => continue,
+            };
+            let at = (pair * 2 + set) * self.padded + offset;
+            let (sums, counts) = (&self.sums[at..at + w], &self.counts[at..at + w]);
+            for ((b, &s), &n) in best.iter_mut().zip(sums).zip(counts) {
+                *b = fmin(*b, mean_or_big(s, n));
+            }
+        }
+        let margin = p.half_margin;
+        let h = HALF_NOISE_FLOOR;
+        let one = |b: f32| if b < BIG { (0.0 + b) / 1.0 } else { BIG };
+        let (score, sel) = (&mut self.lane_score[..w], &mut self.lane_sel[..w]);
+        for (((score, sel), &l), &r) in score
+            .iter_mut()
+            .zip(sel.iter_mut())
+            .zip(&*left)
+            .zip(&*right)
+        {
+            let (l, r) = (one(l), one(r));
+            *score = half_min(h, l, r);
+            *sel = half_decision(margin, l, r);
         }
     }
 }

@@ -140,7 +140,7 @@ fn sweep_band(
             score.fill(BIG);
             sel.fill(f32::from(crate::sweep::selection::INVALID));
         }
-        select_plane(k as f32, score, sel, st);
+        select_plane(k as f32, score, sel, st, vol.is_some());
         if let Some(vol) = vol.as_deref_mut() {
             // Levels of a group of planes are gathered plane by plane, then written
             // pixel by pixel (each pixel's group of lanes at once: the band's volume
@@ -229,9 +229,13 @@ const LEVEL_GROUP: usize = sgm::LANES;
 
 common::vectorised_fn! {
 /// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
-/// where the CPU has it, as every hot loop here).
-fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>) {
-    st.update(k, scores, sels);
+/// where the CPU has it, as every hot loop here); with SGM only the fields it reads.
+fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>, sgm: bool) {
+    if sgm {
+        st.update_best(k, scores, sels);
+    } else {
+        st.update(k, scores, sels);
+    }
 }
 }
 
@@ -255,6 +259,23 @@ fn write_level_group(
     count: usize,
     vol: &mut [u16],
 ) {
+    if count == LEVEL_GROUP {
+        // A whole group: each pixel's LEVEL_GROUP lanes gathered from the planes' rows into
+        // one array and stored at once (the lane-by-lane loop below was a scalar load and
+        // store per level, 61 M instructions of a demo set and its warm-up).
+        let mut rows: [&[u16]; LEVEL_GROUP] = [&[]; LEVEL_GROUP];
+        for (g, row) in rows.iter_mut().enumerate() {
+            *row = &levels[g * len..(g + 1) * len];
+        }
+        for (i, lanes) in vol.chunks_exact_mut(stride).take(len).enumerate() {
+            let mut group = [0u16; LEVEL_GROUP];
+            for (level, row) in group.iter_mut().zip(&rows) {
+                *level = row[i];
+            }
+            lanes[first..first + LEVEL_GROUP].copy_from_slice(&group);
+        }
+        return;
+    }
     for (i, lanes) in vol.chunks_exact_mut(stride).take(len).enumerate() {
         for (g, lane) in lanes[first..first + count].iter_mut().enumerate() {
             *lane = levels[g * len + i];
