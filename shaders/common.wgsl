@@ -242,6 +242,11 @@ fn plane_depth(plane: vec4<f32>, ray: vec3<f32>) -> f32 {
 }
 
 // Sections of the `maps` buffer, each one reference image of f32 (counts and codes stored as f32).
+// Coarse to fine on the device (plane_spans.wgsl, plane_ranges.wgsl; src/sweep/coarse.rs).
+const MARGIN_PLANES: u32 = 3u;     // planes added on each side of a row's span
+const NEIGHBOUR_ROWS: u32 = 1u;    // half-resolution rows either side of a row's own
+const NO_SPAN: u32 = 0xffffffffu;  // a half-resolution row with no depth
+
 const MAP_DEPTH_RAW: u32 = 0u;     // after selection (+ sub-pixel)
 const MAP_DEPTH_MEDIAN: u32 = 1u;  // after the 3x3 median
 const MAP_DEPTH: u32 = 2u;         // after the occlusion check: the output

@@ -24,7 +24,7 @@ use super::{DepthMaps, SweepError, SweepParams};
 pub const MARGIN_PLANES: u32 = 3;
 
 /// Half-resolution rows above and below a row's own whose depths set its range.
-const NEIGHBOUR_ROWS: usize = 1;
+pub const NEIGHBOUR_ROWS: u32 = 1;
 
 /// The smallest reference (width and height, pixels) that is swept coarse to fine; a smaller
 /// one is swept at full resolution only (it is fast anyway, and at 80x60 the 40x30
@@ -111,6 +111,16 @@ impl<'a> LevelImages<'a> {
     }
 }
 
+/// The depths of a level below the full-resolution one, which set the plane ranges of the next.
+pub enum LevelDepth {
+    /// Read back: the host makes the next level's ranges ([`plane_ranges`]; the CPU engine).
+    Host(DepthMaps),
+    /// Kept on the device, which makes the next level's ranges itself (the WGSL engine records
+    /// the level into the frame set's command buffer, and the next `run_plan` narrows its rows
+    /// from it there: `shaders/plane_spans.wgsl`, `shaders/plane_ranges.wgsl`).
+    Device,
+}
+
 /// Runs a plan on an engine (both engines implement it).
 pub trait PlanRunner {
     fn run_plan(
@@ -121,15 +131,16 @@ pub trait PlanRunner {
     ) -> Result<DepthMaps, SweepError>;
 
     /// Runs the plan of a level below the full-resolution one: its caller reads
-    /// `depth_raw_m` alone (the next level's plane ranges), so an engine may leave the other
-    /// maps empty (the WGSL engine reads back one section of its maps instead of all seven).
+    /// `depth_raw_m` alone (the next level's plane ranges), or nothing where the engine keeps
+    /// the depths and makes the next level's ranges on the device ([`LevelDepth::Device`]: the
+    /// `run_plan` that follows is that next level).
     fn run_plan_for_ranges(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
         images: LevelImages<'_>,
-    ) -> Result<DepthMaps, SweepError> {
-        self.run_plan(plan, rig, images)
+    ) -> Result<LevelDepth, SweepError> {
+        self.run_plan(plan, rig, images).map(LevelDepth::Host)
     }
 
     /// The per-stage times of the last run.
@@ -242,7 +253,12 @@ pub fn run(
         halvings: 0,
         host: &host,
     };
-    let mut maps = run_level(engine, plans, rig, levels, params, Wanted::All)?;
+    let LevelDepth::Host(mut maps) = run_level(engine, plans, rig, levels, params, Wanted::All)?
+    else {
+        return Err(SweepError::InvalidParams(
+            "internal: a frame set's maps left on the device".into(),
+        ));
+    };
     // The host post-step of both engines (issue 29), guided by the reference's own image (a
     // virtual reference has none).
     let filter = JointMedian::of_params(params);
@@ -278,9 +294,9 @@ impl Wanted {
         plan: &SweepPlan,
         rig: &Rig,
         images: LevelImages<'_>,
-    ) -> Result<DepthMaps, SweepError> {
+    ) -> Result<LevelDepth, SweepError> {
         match self {
-            Wanted::All => engine.run_plan(plan, rig, images),
+            Wanted::All => engine.run_plan(plan, rig, images).map(LevelDepth::Host),
             Wanted::DepthRaw => engine.run_plan_for_ranges(plan, rig, images),
         }
     }
@@ -294,7 +310,7 @@ fn run_level(
     images: LevelImages<'_>,
     params: &SweepParams,
     wanted: Wanted,
-) -> Result<DepthMaps, SweepError> {
+) -> Result<LevelDepth, SweepError> {
     if images.halvings == 0 {
         super::check_images(rig, images.full)?;
     }
@@ -308,6 +324,24 @@ fn run_level(
     wanted.run_plan(engine, plan, rig, images)
 }
 
+/// The rig and parameters of the level below a coarse-to-fine sweep of `rig` with `params`:
+/// the rig at half resolution, every other plane, always SGM ([`COARSE_OPTIMIZER`]), coarse to
+/// fine again where it applies.
+pub fn coarse_level(rig: &Rig, params: &SweepParams) -> Result<(Rig, SweepParams), SweepError> {
+    Ok((half_rig(rig)?, coarse_params(params)))
+}
+
+/// The parameters of the level below (see [`coarse_level`]).
+fn coarse_params(params: &SweepParams) -> SweepParams {
+    SweepParams {
+        num_planes: coarse_planes(params.num_planes),
+        optimizer: COARSE_OPTIMIZER,
+        // Only the plane ranges are read off the coarse level: no fine sweep there.
+        subpixel_refine: false,
+        ..params.clone()
+    }
+}
+
 /// The half-resolution sweep, then the full-resolution one with narrowed rows (the module).
 fn coarse_to_fine(
     engine: &mut dyn PlanRunner,
@@ -317,20 +351,14 @@ fn coarse_to_fine(
     params: &SweepParams,
     coarse_rig: &Rig,
     wanted: Wanted,
-) -> Result<DepthMaps, SweepError> {
+) -> Result<LevelDepth, SweepError> {
     let fine_params = SweepParams {
         coarse_to_fine: false,
         ..params.clone()
     };
     // The half-resolution level keeps `coarse_to_fine`: it runs coarse to fine again where it
     // applies.
-    let coarse_params = SweepParams {
-        num_planes: coarse_planes(params.num_planes),
-        optimizer: COARSE_OPTIMIZER,
-        // Only the plane ranges are read off the coarse level: no fine sweep there.
-        subpixel_refine: false,
-        ..params.clone()
-    };
+    let coarse_params = coarse_params(params);
     let started = std::time::Instant::now();
     let below = plans.below.get_or_insert_with(Default::default);
     let coarse = run_level(
@@ -342,21 +370,31 @@ fn coarse_to_fine(
         Wanted::DepthRaw,
     )?;
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
-    let ranges = plane_ranges(fine, &coarse.depth_raw_m);
-    let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
-    tracing::debug!(
-        "coarse to fine: rows sweep {:.0} % of the planes on average",
-        100.0 * swept as f64 / (ranges.len() as f64 * f64::from(fine.num_planes()))
-    );
-    // Narrowed in place: the plan's arrays are neither copied nor uploaded again.
-    fine.set_plane_ranges(ranges)?;
+    // The engine that keeps the coarse depths on the device narrows the rows there.
+    let on_host = match coarse {
+        LevelDepth::Host(coarse) => {
+            let ranges = plane_ranges(fine, &coarse.depth_raw_m);
+            let swept: u64 = ranges.iter().map(|r| u64::from(r[1] - r[0] + 1)).sum();
+            tracing::debug!(
+                "coarse to fine: rows sweep {:.0} % of the planes on average",
+                100.0 * swept as f64 / (ranges.len() as f64 * f64::from(fine.num_planes()))
+            );
+            // Narrowed in place: the plan's arrays are neither copied nor uploaded again.
+            fine.set_plane_ranges(ranges)?;
+            true
+        }
+        LevelDepth::Device => false,
+    };
     let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
     let maps = wanted.run_plan(engine, fine, rig, images)?;
-    // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one.
-    engine
-        .timings_mut()
-        .stages
-        .insert(0, ("coarse".to_string(), coarse_ms));
+    // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one
+    // (the WGSL engine times its levels below as one `coarse` stage itself).
+    if on_host {
+        engine
+            .timings_mut()
+            .stages
+            .insert(0, ("coarse".to_string(), coarse_ms));
+    }
     Ok(maps)
 }
 
@@ -463,7 +501,8 @@ pub fn plane_ranges(plan: &SweepPlan, coarse: &ImageF32) -> Vec<[u32; 2]> {
     (0..height)
         .map(|y| {
             let cy = (y / 2).min(ch - 1);
-            let rows = cy.saturating_sub(NEIGHBOUR_ROWS)..=(cy + NEIGHBOUR_ROWS).min(ch - 1);
+            let near = NEIGHBOUR_ROWS as usize;
+            let rows = cy.saturating_sub(near)..=(cy + near).min(ch - 1);
             let span = row_spans[rows]
                 .iter()
                 .flatten()

@@ -234,6 +234,8 @@ mod tests {
             ("MAP_VISIBLE", MAP_VISIBLE as u32),
             ("SGM_COST_MAX", SGM_COST_MAX),
             ("MAX_SGM_PLANES", MAX_SGM_PLANES),
+            ("MARGIN_PLANES", crate::sweep::coarse::MARGIN_PLANES),
+            ("NEIGHBOUR_ROWS", crate::sweep::coarse::NEIGHBOUR_ROWS),
         ] {
             let needle = format!("const {name}: u32 = {value}u;");
             assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");

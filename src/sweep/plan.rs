@@ -26,6 +26,10 @@ pub struct SweepPlan {
     pub pairs: Vec<[u32; 4]>,
     /// The z = 1 ray of every reference pixel, in the reference frame (undistorted).
     pub rays: Vec<[f32; 4]>,
+    /// The reference camera model `rays` were made from (they depend on it alone): the WGSL
+    /// engine uploads them again only when it changes (several references of one rig share
+    /// buffers and, with equal intrinsics, their rays).
+    pub ray_model: crate::geometry::CameraModel,
     /// Per reference row, the planes it sweeps (first, last; inclusive): a plane outside a
     /// row's range scores BIG on that row (no hypothesis), and the CPU engine skips a plane
     /// that no row of a band needs. Every plane for every row unless narrowed
@@ -277,6 +281,7 @@ impl SweepPlan {
             planes,
             pairs: pair_table,
             rays,
+            ray_model: ref_model,
             total_camera_pixels: offset as usize,
             plane_ranges: vec![[0, last_plane]; height as usize],
             width,

@@ -275,7 +275,9 @@ mod tests {
                     Stage::Median => Phase::Median,
                     Stage::Splat => Phase::Splat,
                     Stage::Visibility => Phase::Visibility,
-                    Stage::Census | Stage::Half => unreachable!("not in a schedule: {d:?}"),
+                    Stage::Census | Stage::Half | Stage::PlaneSpans | Stage::PlaneRanges => {
+                        unreachable!("not in a schedule: {d:?}")
+                    }
                 };
                 assert_eq!(phase, expected, "{d:?}");
             }

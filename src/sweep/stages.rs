@@ -55,10 +55,12 @@ pub enum Stage {
     SgmSelect,
     Census,
     Half,
+    PlaneSpans,
+    PlaneRanges,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 12] = [
+    pub const ALL: [Stage; 14] = [
         Stage::Cost,
         Stage::BoxH,
         Stage::BoxV,
@@ -71,6 +73,8 @@ impl Stage {
         Stage::SgmSelect,
         Stage::Census,
         Stage::Half,
+        Stage::PlaneSpans,
+        Stage::PlaneRanges,
     ];
 
     /// This stage's row of the registry.
@@ -128,7 +132,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 12] = [
+pub const STAGES: [StageInfo; 14] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -285,6 +289,28 @@ pub const STAGES: [StageInfo; 12] = [
         entry_point: "main",
         bindings: &[uniform("halving"), read("finer"), read_write("coarser")],
         workgroup_size: TILE,
+        overrides: &[],
+    },
+    // Coarse to fine on the device: the plane ranges of a level from the raw depth of the
+    // level below (`coarse_depth`), in the level's command buffer before its sweep.
+    StageInfo {
+        name: "plane_spans",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            read("rays"),
+            read("planes"),
+            read("coarse_depth"),
+            read_write("spans"),
+        ],
+        workgroup_size: Some([64, 1, 1]),
+        overrides: &[],
+    },
+    StageInfo {
+        name: "plane_ranges",
+        entry_point: "main",
+        bindings: &[uniform("params"), read("spans"), read_write("plane_ranges")],
+        workgroup_size: Some([64, 1, 1]),
         overrides: &[],
     },
 ];

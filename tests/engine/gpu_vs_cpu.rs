@@ -1033,11 +1033,12 @@ fn several_batches_in_one_submission_equal_one_batch() {
     }
 }
 
-/// A coarse-to-fine frame set (two levels at 320x240 with 96 planes) is one submission and
-/// one wait per level, the level below reads back its raw depths alone, and the level timings
-/// name the schedule's phases.
+/// A coarse-to-fine frame set (two levels at 320x240 with 96 planes) is one submission, one
+/// wait and one readback (the plane ranges between the levels made on the device), the
+/// readback holds the full-resolution maps and every level's timestamps, and the timings name
+/// the levels below as `coarse`, then the schedule's phases.
 #[test]
-fn coarse_to_fine_is_one_submission_per_level() {
+fn coarse_to_fine_is_one_submission_per_set() {
     let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
@@ -1058,15 +1059,18 @@ fn coarse_to_fine_is_one_submission_per_level() {
         assert!(maps.invalid_fraction() < 0.5, "set {set}");
         let counts = engine.take_set_counts();
         assert_eq!(
-            (counts.levels, counts.submissions, counts.waits),
-            (levels, levels, levels),
+            (
+                counts.levels,
+                counts.submissions,
+                counts.waits,
+                counts.readbacks
+            ),
+            (levels, 1, 1, 1),
             "set {set}: {counts:?}"
         );
-        // One readback per level: the half-resolution level brings back its raw depths alone
-        // (the full-resolution rows' plane ranges), the full-resolution one every map; each
-        // level its 2 x 7 timestamps after them where the adapter has them.
-        assert_eq!(counts.readbacks, levels, "set {set}: {counts:?}");
-        let maps_bytes = (MAP_COUNT * 4 * 320 * 240 + 4 * 160 * 120) as u64;
+        // The full-resolution level's maps alone (the level below stays on the device), then
+        // each level's 2 x 7 timestamps where the adapter has them.
+        let maps_bytes = (MAP_COUNT * 4 * 320 * 240) as u64;
         let timestamp_bytes = if engine.last_timings().gpu_timestamps {
             u64::from(levels) * 2 * 7 * 8
         } else {
@@ -1093,6 +1097,71 @@ fn coarse_to_fine_is_one_submission_per_level() {
                 "splat",
                 "visibility"
             ]
+        );
+    }
+}
+
+/// The plane ranges the device makes between the levels of a coarse-to-fine sweep
+/// (`plane_spans.wgsl`, `plane_ranges.wgsl`) are those the host makes from the level below's
+/// raw depths (`coarse::plane_ranges`, `SweepPlan::shader_plane_ranges`), row for row: three
+/// levels (400x320 with 96 planes), the level below run alone for its depths, SGM and WTA,
+/// centred 5x5 and shiftable 2x2 windows.
+#[test]
+fn plane_ranges_on_the_device_equal_the_host_twin() {
+    use sweepdepth::sweep::coarse;
+    let model = CameraModel::pinhole(synthetic::intrinsics(400, 320));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let centred = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        ..SweepParams::default()
+    };
+    let shiftable = SweepParams {
+        optimizer: Optimizer::Wta,
+        cost: Cost::Tssd,
+        window_width: 2,
+        window_height: 2,
+        window_mode: WindowMode::Shiftable,
+        ..centred.clone()
+    };
+    let gpu = common::gpu();
+    for (name, params) in [("centred_sgm", centred), ("shiftable_wta", shiftable)] {
+        assert_eq!(coarse::levels(&rig, &params), 3, "{name}");
+        let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+        engine.run(&rig, &images, &params).expect("run");
+        let device = engine.device_plane_ranges().expect("ranges read back");
+        // The level below on its own (itself coarse to fine): its raw depths.
+        let (coarse_rig, coarse_params) = coarse::coarse_level(&rig, &params).expect("level");
+        let half: Vec<Rgba8Image> = images.iter().map(coarse::half_image).collect();
+        let mut below = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+        let depths = below
+            .run(&coarse_rig, &half, &coarse_params)
+            .expect("level below");
+        let fine_params = SweepParams {
+            coarse_to_fine: false,
+            ..params.clone()
+        };
+        let mut fine = SweepPlan::new(&rig, &fine_params).expect("plan");
+        let ranges = coarse::plane_ranges(&fine, &depths.depth_raw_m);
+        let narrowed = ranges.iter().filter(|r| r[1] - r[0] + 1 < 96).count();
+        assert!(narrowed > 200, "{name}: {narrowed} rows narrowed");
+        fine.set_plane_ranges(ranges).expect("ranges");
+        let expected = fine.shader_plane_ranges();
+        assert_eq!(device.len(), expected.len(), "{name}");
+        let differ: Vec<usize> = (0..expected.len())
+            .filter(|&y| device[y] != expected[y])
+            .collect();
+        assert!(
+            differ.is_empty(),
+            "{name}: {} rows differ, first {:?}: device {:?}, host {:?}",
+            differ.len(),
+            differ.first(),
+            differ.first().map(|&y| device[y]),
+            differ.first().map(|&y| expected[y])
         );
     }
 }
@@ -1195,8 +1264,13 @@ fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
     engine.run(&rig, &images, &params).expect("run");
     let counts = engine.take_set_counts();
     assert_eq!(
-        (counts.levels, counts.submissions, counts.waits),
-        (3, 3, 3),
+        (
+            counts.levels,
+            counts.submissions,
+            counts.waits,
+            counts.readbacks
+        ),
+        (3, 1, 1, 1),
         "{counts:?}"
     );
     let mut expected = images.clone();

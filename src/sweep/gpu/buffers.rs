@@ -38,13 +38,18 @@ pub(super) struct Buffers {
     pub images: wgpu::Buffer,
     rays: wgpu::Buffer,
     planes: wgpu::Buffer,
-    plane_ranges: wgpu::Buffer,
+    pub plane_ranges: wgpu::Buffer,
+    /// The raw depth of the level below (coarse to fine on the device: `plane_spans.wgsl`),
+    /// half the width and height.
+    pub coarse_depth: wgpu::Buffer,
     pairs: wgpu::Buffer,
     sgm_passes: wgpu::Buffer,
     bands: wgpu::Buffer,
     pub maps: wgpu::Buffer,
     pub zbuffer: wgpu::Buffer,
     pub readback: wgpu::Buffer,
+    /// The reference model whose rays are in `rays` (`SweepPlan::ray_model`).
+    rays_of: std::cell::Cell<Option<crate::geometry::CameraModel>>,
     /// Per stage (registry order), one bind group per row band of the SGM volume for the
     /// stages that bind it, else one.
     bind_groups: Vec<Vec<wgpu::BindGroup>>,
@@ -57,11 +62,17 @@ pub(super) struct Timestamps {
     pub count: u32,
 }
 
-/// Where a level's timestamps go in the `readback` buffer: right after the `maps_bytes` of maps
-/// read back, at the next multiple of 8 (one readback, one mapping per level).
+/// Where a frame set's timestamps go in the `readback` buffer of its last level: right after
+/// the `maps_bytes` of maps read back, at the next multiple of 8 (one readback, one mapping
+/// per frame set).
 pub(super) fn timestamps_offset(maps_bytes: u64) -> u64 {
     maps_bytes.div_ceil(8) * 8
 }
+
+/// Room in a `readback` buffer for the timestamps of the levels below it in a coarse-to-fine
+/// frame set (read back with the last level's): 8 levels of 8 phases, 2 timestamps each (the
+/// deepest sweep has 7 levels below its last: `coarse::levels` is at most 8).
+const LOWER_LEVEL_TIMESTAMP_BYTES: u64 = 8 * 8 * 2 * 8;
 
 /// A binding that depends on the row band.
 fn per_band(name: &str) -> bool {
@@ -107,7 +118,18 @@ impl Buffers {
         );
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
-        let plane_ranges = storage("plane_ranges", u64::from(key.height) * 16, none);
+        // COPY_SRC: tests read the device's ranges back (`GpuEngine::device_plane_ranges`).
+        let plane_ranges = storage(
+            "plane_ranges",
+            u64::from(key.height) * 16,
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        let coarse_depth = storage(
+            "coarse depth",
+            u64::from(key.width / 2) * u64::from(key.height / 2) * 4,
+            none,
+        );
+        let spans = storage("plane spans", u64::from(key.height / 2) * 8, none);
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
         // Without box passes (2x2 shiftable windows) the sums are never used: 16 bytes each.
         let [cost_bytes, row_bytes, box_bytes] = key.batch_bytes();
@@ -174,6 +196,8 @@ impl Buffers {
                 "rays" => whole(&rays),
                 "planes" => whole(&planes),
                 "plane_ranges" => whole(&plane_ranges),
+                "coarse_depth" => whole(&coarse_depth),
+                "spans" => whole(&spans),
                 "pairs" => whole(&pairs),
                 "cost_slab" => whole(&cost_slab),
                 "row_sums" => whole(&row_sums),
@@ -247,8 +271,10 @@ impl Buffers {
                     count,
                 }
             });
-        // The maps a level reads back, then its timestamps: one buffer, mapped once.
-        let timestamp_bytes = timestamps.as_ref().map_or(0, |t| u64::from(t.count) * 8);
+        // The maps a frame set reads back, then its levels' timestamps: one buffer, mapped once.
+        let timestamp_bytes = timestamps
+            .as_ref()
+            .map_or(0, |t| u64::from(t.count) * 8 + LOWER_LEVEL_TIMESTAMP_BYTES);
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size: timestamps_offset(maps.size()) + timestamp_bytes,
@@ -264,12 +290,14 @@ impl Buffers {
             rays,
             planes,
             plane_ranges,
+            coarse_depth,
             pairs,
             sgm_passes,
             bands,
             maps,
             zbuffer,
             readback,
+            rays_of: std::cell::Cell::new(None),
             bind_groups,
             timestamps,
         })
@@ -294,7 +322,12 @@ impl Buffers {
         queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&plan.params));
         queue.write_buffer(&self.cameras, 0, bytemuck::cast_slice(&plan.cameras));
         queue.write_buffer(&self.planes, 0, bytemuck::cast_slice(&plan.planes));
-        queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
+        // The rays depend on the reference model alone: several references of one rig with
+        // equal intrinsics share them (2.7 MB at 450x375, per reference and set before).
+        if self.rays_of.get() != Some(plan.ray_model) {
+            queue.write_buffer(&self.rays, 0, bytemuck::cast_slice(&plan.rays));
+            self.rays_of.set(Some(plan.ray_model));
+        }
         // Only per-pair aggregation reads the pair table, and it has at most MAX_PAIRS pairs.
         let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];
         queue.write_buffer(&self.pairs, 0, bytemuck::cast_slice(pairs));

@@ -1,9 +1,10 @@
 //! "How to run it": the wgpu engine. It takes a device and queue from its caller, makes its
 //! layouts and pipelines from the stage registry (`sweep/stages.rs`) once, and keeps its buffers
 //! across frame sets of the same shape; a new rig or new parameters re-plan, a new shape
-//! re-allocates. What runs for a plan is the [`Schedule`] of its shape, recorded into one
-//! command buffer per level (one compute pass per phase), submitted once and read back after
-//! one wait.
+//! re-allocates. What runs for a plan is the [`Schedule`] of its shape; a frame set's levels
+//! (coarse to fine, each level's plane ranges made on the device from the level below) are
+//! recorded into one command buffer (one compute pass per phase), submitted once and read back
+//! after one wait.
 //!
 //! - `shape.rs`: the shape of work on this adapter (batches sized on what the mode allocates,
 //!   SGM row bands; limits checked).
@@ -22,7 +23,7 @@ mod shape;
 
 use std::time::Instant;
 
-use super::coarse::LevelImages;
+use super::coarse::{LevelDepth, LevelImages};
 use super::gpu_types::MAP_DEPTH_RAW;
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
@@ -64,13 +65,24 @@ pub struct SetCounts {
     pub host_ms: f64,
 }
 
-/// What a level reads back of the `maps` buffer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Readback {
-    /// Every section: the frame set's result.
-    All,
-    /// The raw depths alone: a coarse-to-fine level below the full resolution.
-    DepthRaw,
+/// A level recorded into the frame set's command buffer.
+struct Recorded {
+    /// Its `maps` buffer and the bytes of its raw depths there (the plane ranges of the level
+    /// after it are made from them on the device).
+    maps: wgpu::Buffer,
+    depth_raw: std::ops::Range<u64>,
+    /// Its resolved timestamps and their count (None where the adapter has none).
+    timestamps: Option<(wgpu::Buffer, u32)>,
+    schedule: Schedule,
+}
+
+/// The frame set being recorded: every level of a coarse-to-fine sweep goes into one command
+/// buffer, each level's plane ranges made on the device from the raw depths of the level
+/// before it, submitted once with the last level and read back after one wait.
+struct OpenSet {
+    encoder: wgpu::CommandEncoder,
+    levels: Vec<Recorded>,
+    started: Instant,
 }
 
 /// The GPU plane-sweep engine.
@@ -104,6 +116,8 @@ pub struct GpuEngine {
     /// The deepest level of `pyramid` made for the current `run` (None: nothing uploaded yet;
     /// each `run`, `run_plan` and `run_plan_raw` starts afresh).
     pyramid_filled: Option<usize>,
+    /// The levels of the current frame set recorded so far (None between frame sets).
+    open: Option<OpenSet>,
     timings: StageTimings,
     cancel: CancelFlag,
     counts: SetCounts,
@@ -153,6 +167,7 @@ impl GpuEngine {
             uploaded_plan: None,
             pyramid: None,
             pyramid_filled: None,
+            open: None,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
@@ -223,6 +238,7 @@ impl GpuEngine {
     fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
         let started = Instant::now();
         self.pyramid_filled = None;
+        self.open = None;
         let waited_before = self.counts.wait_ms + self.counts.submit_ms;
         let result = f(self);
         let waited = self.counts.wait_ms + self.counts.submit_ms - waited_before;
@@ -268,8 +284,8 @@ impl GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
-            let images = LevelImages::given(images);
-            engine.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
+            engine.record_level(plan, rig, LevelImages::given(images), false)?;
+            engine.finish_set(|m| plan.depth_maps(m))
         })
     }
 
@@ -281,8 +297,8 @@ impl GpuEngine {
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
         self.timed(|engine| {
-            let images = LevelImages::given(images);
-            engine.run_level(plan, rig, images, Readback::All, <[f32]>::to_vec)
+            engine.record_level(plan, rig, LevelImages::given(images), false)?;
+            engine.finish_set(<[f32]>::to_vec)
         })
     }
 
@@ -294,6 +310,21 @@ impl GpuEngine {
         };
         let words = buffers.key.image_words as u64;
         self.read_buffer(&buffers.images, words * 4)
+    }
+
+    /// The `plane_ranges` buffer of the last level run (per row: its own first and last plane,
+    /// then those of the rows within a window height; `SweepPlan::shader_plane_ranges`), read
+    /// back: in a coarse-to-fine `run`, made on the device from the level below (tests compare
+    /// them with `coarse::plane_ranges`).
+    pub fn device_plane_ranges(&mut self) -> Result<Vec<[u32; 4]>, SweepError> {
+        let Some((buffers, _)) = self.buffers.as_ref() else {
+            return Err(SweepError::Gpu("no level has run".into()));
+        };
+        let words = self.read_buffer(&buffers.plane_ranges, u64::from(buffers.key.height) * 16)?;
+        Ok(words
+            .chunks_exact(4)
+            .map(|r| [r[0], r[1], r[2], r[3]])
+            .collect())
     }
 
     /// The words of level `level` of the image pyramid (every camera's pixels at that level;
@@ -329,16 +360,17 @@ impl GpuEngine {
             .ok_or_else(|| SweepError::Gpu("internal: nothing read back".into()))
     }
 
-    /// One plan (one level of a frame set): upload, record, submit, read the maps back (all
-    /// of them, or the raw depths alone) and `unpack` them straight out of the mapped range.
-    fn run_level<T>(
+    /// Records one plan (one level of a frame set) into the frame set's command buffer: its
+    /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
+    /// on the device; otherwise the plan's own ranges are uploaded), its images and its
+    /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
+    fn record_level(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
         images: LevelImages<'_>,
-        readback: Readback,
-        unpack: impl FnOnce(&[f32]) -> T,
-    ) -> Result<T, SweepError> {
+        narrowed: bool,
+    ) -> Result<(), SweepError> {
         self.counts.levels += 1;
         if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
             return Err(SweepError::InvalidParams(
@@ -346,7 +378,6 @@ impl GpuEngine {
                     .into(),
             ));
         }
-        let started = Instant::now();
         // The level's images: the caller's, written straight into the `images` buffer, or a
         // level of the pyramid (the set's first level uploads the caller's images and makes
         // every half-size level below on the GPU; the others copy theirs).
@@ -417,8 +448,32 @@ impl GpuEngine {
             buffers.upload_plan(&self.queue, self.align, plan);
             self.uploaded_plan = Some(plan.id);
         }
-        buffers.upload_plane_ranges(&self.queue, plan);
-        let pyramid = match (from_pyramid, self.pyramid.as_ref()) {
+        let open = self.open.get_or_insert_with(|| OpenSet {
+            encoder: self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("frame set"),
+                }),
+            levels: Vec::new(),
+            started: Instant::now(),
+        });
+        let encoder = &mut open.encoder;
+        match (narrowed, open.levels.last()) {
+            (false, _) => buffers.upload_plane_ranges(&self.queue, plan),
+            (true, Some(below)) => record::record_plane_ranges(
+                encoder,
+                buffers,
+                pipelines,
+                &below.maps,
+                below.depth_raw.clone(),
+            )?,
+            (true, None) => {
+                return Err(SweepError::Gpu(
+                    "internal: a narrowed level with no level below".into(),
+                ))
+            }
+        }
+        match (from_pyramid, self.pyramid.as_ref()) {
             (false, _) => {
                 // Each image from its own pixels, at its camera's offset: no packing.
                 for (image, camera) in images.full().iter().zip(&plan.cameras) {
@@ -428,76 +483,77 @@ impl GpuEngine {
                         bytemuck::cast_slice(&image.pixels),
                     );
                 }
-                None
             }
             (true, Some(pyramid)) => {
                 if fill {
                     pyramid.upload(&self.queue, images.full());
                     self.pyramid_filled = Some(halvings);
+                    pyramid.record_halvings(encoder, &pipelines[Stage::Half as usize], halvings);
                 }
-                Some(pyramid)
+                pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
             }
             (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
-        };
-
-        let section = plan.pixel_count() as u64 * 4;
-        let maps_bytes = match readback {
-            Readback::All => 0..buffers.maps.size(),
-            Readback::DepthRaw => {
-                let first = MAP_DEPTH_RAW as u64 * section;
-                first..first + section
-            }
-        };
-        let commands = record::record(
-            &self.device,
-            buffers,
-            pipelines,
-            &spec,
-            schedule,
-            self.align,
-            maps_bytes.clone(),
-            |encoder| {
-                if let Some(pyramid) = pyramid {
-                    if fill {
-                        pyramid.record_halvings(
-                            encoder,
-                            &pipelines[Stage::Half as usize],
-                            halvings,
-                        );
-                    }
-                    pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
-                }
-                if plan.uses_census() {
-                    record::record_census(
-                        encoder,
-                        buffers,
-                        &pipelines[Stage::Census as usize],
-                        plan,
-                    );
-                }
-                Ok(())
-            },
-        )?;
+        }
+        if plan.uses_census() {
+            record::record_census(encoder, buffers, &pipelines[Stage::Census as usize], plan);
+        }
+        record::record_sweep(encoder, buffers, pipelines, &spec, schedule, self.align);
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }
-        // One submission, one wait and one readback per level: the maps, then the timestamps,
-        // in one buffer.
+        let section = plan.pixel_count() as u64 * 4;
+        let first = MAP_DEPTH_RAW as u64 * section;
+        open.levels.push(Recorded {
+            maps: buffers.maps.clone(),
+            depth_raw: first..first + section,
+            timestamps: buffers
+                .timestamps
+                .as_ref()
+                .map(|t| (t.resolve.clone(), t.count)),
+            schedule: schedule.clone(),
+        });
+        Ok(())
+    }
+
+    /// Submits the frame set recorded so far (one submission), waits once and reads back
+    /// once: the last level's maps, `unpack`ed straight out of the mapped range, and every
+    /// level's timestamps (the levels below the last as one `coarse` stage).
+    fn finish_set<T>(&mut self, unpack: impl FnOnce(&[f32]) -> T) -> Result<T, SweepError> {
+        let Some(OpenSet {
+            mut encoder,
+            levels,
+            started,
+        }) = self.open.take()
+        else {
+            return Err(SweepError::Gpu("internal: no level recorded".into()));
+        };
+        let Some((buffers, _)) = self.buffers.as_ref() else {
+            return Err(SweepError::Gpu("internal: no buffers".into()));
+        };
+        let maps_len = buffers.maps.size();
+        encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_len);
+        let ticks_at = buffers::timestamps_offset(maps_len);
+        let mut wanted = ticks_at;
+        for (resolve, count) in levels.iter().filter_map(|l| l.timestamps.as_ref()) {
+            let bytes = u64::from(*count) * 8;
+            if wanted + bytes > buffers.readback.size() {
+                return Err(SweepError::Gpu(format!(
+                    "internal: no room for the timestamps of {} levels",
+                    levels.len()
+                )));
+            }
+            encoder.copy_buffer_to_buffer(resolve, 0, &buffers.readback, wanted, bytes);
+            wanted += bytes;
+        }
+        let has_ticks = wanted > ticks_at;
+        if !has_ticks {
+            wanted = maps_len;
+        }
+        // One submission, one wait and one readback per frame set: the maps, then the
+        // timestamps, in one buffer.
         let mut submitter =
             record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        submitter.submit(commands)?;
-        let maps_len = maps_bytes.end - maps_bytes.start;
-        let ticks_at = buffers::timestamps_offset(maps_len);
-        let ticks_len = buffers
-            .timestamps
-            .as_ref()
-            .map_or(0, |t| u64::from(t.count) * 8);
-        let wanted = if ticks_len > 0 {
-            ticks_at + ticks_len
-        } else {
-            maps_len
-        };
-        // The maps unpacked straight out of the mapped range (copied once).
+        submitter.submit(encoder.finish())?;
         let mut unpack = Some(unpack);
         let mut maps = None;
         let mut ticks: Option<Vec<u32>> = None;
@@ -509,14 +565,37 @@ impl GpuEngine {
                     Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(map_bytes)),
                 });
             }
-            if ticks_len > 0 {
+            if has_ticks {
                 ticks = Some(bytemuck::pod_collect_to_vec(&bytes[ticks_at as usize..]));
             }
             Ok(())
         })?;
         let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
         self.timings = match ticks {
-            Some(ticks) => record::phase_times(&self.queue, schedule, &ticks)?,
+            Some(ticks) => {
+                // Each level's timestamps in turn; the levels below the last as one stage.
+                let mut at = 0;
+                let mut coarse_ms = 0.0;
+                let mut last = StageTimings::default();
+                for (i, level) in levels.iter().enumerate() {
+                    // Two u32 words per timestamp.
+                    let words = level.timestamps.as_ref().map_or(0, |t| 2 * t.1 as usize);
+                    let own = ticks
+                        .get(at..at + words)
+                        .ok_or_else(|| SweepError::Gpu("internal: timestamps missing".into()))?;
+                    at += words;
+                    let times = record::phase_times(&self.queue, &level.schedule, own)?;
+                    if i + 1 == levels.len() {
+                        last = times;
+                    } else {
+                        coarse_ms += times.stages.iter().map(|(_, ms)| ms).sum::<f64>();
+                    }
+                }
+                if levels.len() > 1 {
+                    last.stages.insert(0, ("coarse".to_string(), coarse_ms));
+                }
+                last
+            }
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
                 gpu_timestamps: false,
@@ -533,8 +612,11 @@ impl super::coarse::PlanRunner for GpuEngine {
         rig: &Rig,
         images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
-        // Inside `run`, which times the whole frame set.
-        self.run_level(plan, rig, images, Readback::All, |m| plan.depth_maps(m))
+        // Inside `run`, which times the whole frame set. A level recorded before this one in
+        // the set is the level below it (`run_plan_for_ranges`): this one is narrowed from it.
+        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
+        self.record_level(plan, rig, images, narrowed)?;
+        self.finish_set(|m| plan.depth_maps(m))
     }
 
     fn run_plan_for_ranges(
@@ -542,10 +624,12 @@ impl super::coarse::PlanRunner for GpuEngine {
         plan: &SweepPlan,
         rig: &Rig,
         images: LevelImages<'_>,
-    ) -> Result<DepthMaps, SweepError> {
-        self.run_level(plan, rig, images, Readback::DepthRaw, |m| {
-            plan.depth_raw_maps(m.to_vec())
-        })
+    ) -> Result<LevelDepth, SweepError> {
+        // Recorded, not submitted: the next level's plane ranges are made from its raw depths
+        // on the device, in the same command buffer.
+        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
+        self.record_level(plan, rig, images, narrowed)?;
+        Ok(LevelDepth::Device)
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {

@@ -1,7 +1,8 @@
-//! Recording a level of a frame set: the schedule's dispatches into one command buffer, one
-//! compute pass per phase of the schedule (timestamped at its start and end), the copies of the
-//! maps and the timestamps into one readback buffer; one submission, then one wait and one
-//! mapping that bring both back.
+//! Recording a frame set: every level's plane ranges (from the level below, on the device),
+//! images and schedule into one command buffer, one compute pass per phase of the schedule
+//! (timestamped at its start and end), then the copies of the last level's maps and every
+//! level's timestamps into one readback buffer; one submission, then one wait and one mapping
+//! that bring both back.
 
 use std::sync::mpsc;
 use std::time::Instant;
@@ -187,31 +188,56 @@ fn workgroups(
             (None, tiles(key.width, key.height))
         }
         // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.
-        Stage::Census | Stage::Half => (None, (0, 0, 0)),
+        Stage::Census | Stage::Half | Stage::PlaneSpans | Stage::PlaneRanges => (None, (0, 0, 0)),
     }
 }
 
-/// Records the level's images (`images`: the half-size images, the copy into the `images`
-/// buffer, the census words), then every dispatch of `schedule` into one command buffer, one
+/// Records a level's plane ranges on the device (coarse to fine): the raw depths of the level
+/// below (`depth_raw`: their bytes in its `maps` buffer, half the width and height of this
+/// level) copied into `coarse_depth`, then each half-resolution row's span of planes
+/// (`plane_spans.wgsl`) and each row's range and window hull (`plane_ranges.wgsl`) into the
+/// `plane_ranges` buffer the sweep reads.
+pub(super) fn record_plane_ranges(
+    encoder: &mut wgpu::CommandEncoder,
+    buffers: &Buffers,
+    pipelines: &[wgpu::ComputePipeline],
+    below_maps: &wgpu::Buffer,
+    depth_raw: std::ops::Range<u64>,
+) -> Result<(), SweepError> {
+    let key = buffers.key;
+    let bytes = depth_raw.end - depth_raw.start;
+    if bytes != u64::from(key.width / 2) * u64::from(key.height / 2) * 4 {
+        return Err(SweepError::Gpu(format!(
+            "internal: the level below has {bytes} bytes of depth for a {}x{} level",
+            key.width, key.height
+        )));
+    }
+    encoder.copy_buffer_to_buffer(below_maps, depth_raw.start, &buffers.coarse_depth, 0, bytes);
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some("plane ranges"),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(&pipelines[Stage::PlaneSpans as usize]);
+    pass.set_bind_group(0, buffers.bind_group(Stage::PlaneSpans, 0), &[]);
+    pass.dispatch_workgroups(key.height / 2, 1, 1);
+    pass.set_pipeline(&pipelines[Stage::PlaneRanges as usize]);
+    pass.set_bind_group(0, buffers.bind_group(Stage::PlaneRanges, 0), &[]);
+    pass.dispatch_workgroups(key.height.div_ceil(64), 1, 1);
+    Ok(())
+}
+
+/// Records every dispatch of `schedule` (after the level's images and plane ranges), one
 /// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
-/// in SGM's; wgpu orders the dispatches of a pass), then the copies of the maps' bytes `maps`
-/// to the start of the readback buffer, the timestamps after them
-/// ([`super::buffers::timestamps_offset`]).
-#[allow(clippy::too_many_arguments)] // one call site (gpu/mod.rs), each argument a different piece of the level
-pub(super) fn record(
-    device: &wgpu::Device,
+/// in SGM's; wgpu orders the dispatches of a pass), each timestamped at its start and end,
+/// and resolves the level's timestamps into its `resolve` buffer.
+pub(super) fn record_sweep(
+    encoder: &mut wgpu::CommandEncoder,
     buffers: &Buffers,
     pipelines: &[wgpu::ComputePipeline],
     spec: &Specialisation,
     schedule: &Schedule,
     align: Alignments,
-    maps: std::ops::Range<u64>,
-    images: impl FnOnce(&mut wgpu::CommandEncoder) -> Result<(), SweepError>,
-) -> Result<wgpu::CommandBuffer, SweepError> {
-    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-        label: Some("sweep"),
-    });
-    images(&mut encoder)?;
+) {
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
     for (p, (phase, dispatches)) in schedule.phase_dispatches().enumerate() {
         let p = p as u32;
@@ -239,19 +265,9 @@ pub(super) fn record(
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
         }
     }
-    encoder.copy_buffer_to_buffer(
-        &buffers.maps,
-        maps.start,
-        &buffers.readback,
-        0,
-        maps.end - maps.start,
-    );
     if let Some(t) = &buffers.timestamps {
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
-        let offset = super::buffers::timestamps_offset(maps.end - maps.start);
-        encoder.copy_buffer_to_buffer(&t.resolve, 0, &buffers.readback, offset, t.resolve.size());
     }
-    Ok(encoder.finish())
 }
 
 /// Per-phase GPU times from the timestamps read back (`raw`), in the names the CPU engine's
