@@ -203,8 +203,29 @@ pub fn integrate_weighted(
     Ok(stats)
 }
 
+/// The depths a frame integrates: finite, positive and within `[min_m, max_m]`.
+#[derive(Clone, Copy)]
+struct DepthLimits {
+    min_m: f32,
+    max_m: f32,
+}
+
+impl DepthLimits {
+    /// Writes `input`'s valid depths into `out` (NaN elsewhere); returns how many are valid.
+    fn validate(self, out: &mut [f32], input: &[f32]) -> usize {
+        let mut valid_here = 0;
+        for (o, &d) in out.iter_mut().zip(input) {
+            // `&`, not `&&`: no branches, so the loop is lane-wise.
+            let valid = d.is_finite() & (d > 0.0) & (d >= self.min_m) & (d <= self.max_m);
+            valid_here += usize::from(valid);
+            *o = if valid { d } else { f32::NAN };
+        }
+        valid_here
+    }
+}
+
 /// What [`pinhole_samples`] reads and writes.
-struct PinholeSamples<'a, V: Fn(&mut [f32], &[f32]) -> usize + Sync> {
+struct PinholeSamples<'a> {
     depth: &'a ImageF32,
     colour: Option<&'a Rgba8Image>,
     fx: f32,
@@ -212,8 +233,7 @@ struct PinholeSamples<'a, V: Fn(&mut [f32], &[f32]) -> usize + Sync> {
     cx: f32,
     cy: f32,
     trunc: f32,
-    /// Writes a row's valid depths (NaN elsewhere), returns how many are valid.
-    validate: &'a V,
+    limits: DepthLimits,
     depth_m: &'a mut [f32],
     samples: &'a mut [PixelSample],
 }
@@ -223,7 +243,7 @@ struct PinholeSamples<'a, V: Fn(&mut [f32], &[f32]) -> usize + Sync> {
 /// the neighbours' depths and ray x side by side, NaN beyond the image's edges, the rows just
 /// above and below a band validated again locally) and their samples. Returns the number of
 /// valid pixels.
-fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<'_, V>) -> usize {
+fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
     let (width, height) = (p.depth.width as usize, p.depth.height as usize);
     let (fx, fy, cx, cy, trunc) = (p.fx, p.fy, p.cx, p.cy, p.trunc);
     let xs: Vec<f32> = (0..width).map(|col| (col as f32 - cx) / fx).collect();
@@ -242,7 +262,7 @@ fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<
     shift_into(&mut xs_left, &xs, true);
     shift_into(&mut xs_right, &xs, false);
     let input = |r: usize| &p.depth.data[r * width..(r + 1) * width];
-    let validate = p.validate;
+    let validate = |out: &mut [f32], input: &[f32]| p.limits.validate(out, input);
     let colour = p.colour;
     // Bands of rows: a band's own rows validated once into `depth_m`, the rows just above
     // and below it again locally.
@@ -252,13 +272,13 @@ fn pinhole_samples<V: Fn(&mut [f32], &[f32]) -> usize + Sync>(p: PinholeSamples<
         .zip(p.samples.par_chunks_mut(width * BAND))
         .enumerate()
         .map_init(
-            || vec![vec![0.0f32; width]; 5],
-            |rows, (band, (band_depths, band_out))| {
+            || {
+                let row = || vec![0.0f32; width];
+                (row(), row(), row(), row(), row())
+            },
+            |(above, below, left, right, weights), (band, (band_depths, band_out))| {
                 let first_row = band * BAND;
                 let band_rows = band_depths.len() / width;
-                let [above, below, left, right, weights] = &mut rows[..] else {
-                    unreachable!("five row buffers");
-                };
                 let mut valid = 0;
                 for (r, here) in band_depths.chunks_exact_mut(width).enumerate() {
                     valid += validate(here, input(first_row + r));
@@ -439,19 +459,12 @@ impl<'a> View<'a> {
             },
         );
         // The depth where valid, NaN elsewhere; the number of valid pixels.
-        let validate = |out: &mut [f32], input: &[f32]| -> usize {
-            let mut valid_here = 0;
-            for (o, &d) in out.iter_mut().zip(input) {
-                // `&`, not `&&`: no branches, so the loop is lane-wise.
-                let valid = d.is_finite() & (d > 0.0) & (d >= min_depth_m) & (d <= max_depth_m);
-                valid_here += usize::from(valid);
-                *o = if valid { d } else { f32::NAN };
-            }
-            valid_here
+        let limits = DepthLimits {
+            min_m: min_depth_m,
+            max_m: max_depth_m,
         };
         let pixels_valid = match projector {
-            // One pass over the rows: each row's valid depths and its pixels' samples (its
-            // neighbour rows validated again locally).
+            // One pass over bands of rows: the rows' valid depths and their pixels' samples.
             Projector::Pinhole { fx, fy, cx, cy } => pinhole_samples(PinholeSamples {
                 depth,
                 colour,
@@ -460,14 +473,14 @@ impl<'a> View<'a> {
                 cx,
                 cy,
                 trunc,
-                validate: &validate,
+                limits,
                 depth_m: &mut depth_m,
                 samples: &mut samples,
             }),
             Projector::Distorted(_) => depth_m
                 .par_chunks_mut(4096)
                 .zip(depth.data.par_chunks(4096))
-                .map(|(out, input)| validate(out, input))
+                .map(|(out, input)| limits.validate(out, input))
                 .sum(),
         };
         let mut view = Self {
