@@ -213,15 +213,23 @@ struct DepthLimits {
 impl DepthLimits {
     /// Writes `input`'s valid depths into `out` (NaN elsewhere); returns how many are valid.
     fn validate(self, out: &mut [f32], input: &[f32]) -> usize {
-        let mut valid_here = 0;
-        for (o, &d) in out.iter_mut().zip(input) {
-            // `&`, not `&&`: no branches, so the loop is lane-wise.
-            let valid = d.is_finite() & (d > 0.0) & (d >= self.min_m) & (d <= self.max_m);
-            valid_here += usize::from(valid);
-            *o = if valid { d } else { f32::NAN };
-        }
-        valid_here
+        validate_depths(self, out, input)
     }
+}
+
+crate::simd::vectorised_fn! {
+/// [`DepthLimits::validate`], lane-wise (AVX2 where the CPU has it): counted in 32-bit lanes
+/// (a `usize` count kept the loop scalar: ~10 instructions a pixel).
+fn validate_depths(limits: DepthLimits, out: &mut [f32], input: &[f32]) -> usize {
+    let mut valid_here = 0u32;
+    for (o, &d) in out.iter_mut().zip(input) {
+        // `&`, not `&&`: no branches, so the loop is lane-wise.
+        let valid = (d.abs() < f32::INFINITY) & (d > 0.0) & (d >= limits.min_m) & (d <= limits.max_m);
+        valid_here += u32::from(valid);
+        *o = if valid { d } else { f32::NAN };
+    }
+    valid_here as usize
+}
 }
 
 /// What [`pinhole_samples`] reads and writes.
@@ -324,18 +332,41 @@ fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
                         weights,
                     );
                     let colours = colour.map(|c| &c.pixels[row * width..(row + 1) * width]);
-                    for (col, sample) in out.iter_mut().enumerate() {
-                        *sample = PixelSample {
-                            depth_m: here[col],
-                            weight: weights[col],
-                            rgb: colours.map_or(0, |c| c[col]),
-                        };
-                    }
+                    fill_samples(out, here, weights, colours);
                 }
                 valid
             },
         )
         .sum()
+}
+
+crate::simd::vectorised_fn! {
+/// A row's [`PixelSample`]s from its depths, weights and colours (0 without).
+fn fill_samples(out: &mut [PixelSample], depths: &[f32], weights: &[f32], colours: Option<&[u32]>) {
+    let n = out.len().min(depths.len()).min(weights.len());
+    let (out, depths, weights) = (&mut out[..n], &depths[..n], &weights[..n]);
+    match colours {
+        Some(colours) => {
+            let colours = &colours[..n];
+            for i in 0..n {
+                out[i] = PixelSample {
+                    depth_m: depths[i],
+                    weight: weights[i],
+                    rgb: colours[i],
+                };
+            }
+        }
+        None => {
+            for i in 0..n {
+                out[i] = PixelSample {
+                    depth_m: depths[i],
+                    weight: weights[i],
+                    rgb: 0,
+                };
+            }
+        }
+    }
+}
 }
 
 /// Camera frame to pixel.
