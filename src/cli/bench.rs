@@ -553,7 +553,11 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     if args.device != Device::Cpu {
         match Engine::new(Device::Gpu) {
-            Ok(engine) => engines.push(engine),
+            Ok(mut engine) => {
+                // As the node runs it: the maps its outputs publish (issue 35).
+                engine.set_diagnostic_maps(false);
+                engines.push(engine)
+            }
             Err(e) if args.device == Device::Auto => {
                 println!("WGSL engine: not timed ({e})");
             }

@@ -457,6 +457,12 @@ impl SweepPlan {
 
     /// Unpacks the `maps` buffer into the public outputs.
     pub fn depth_maps(&self, maps: &[f32]) -> crate::sweep::DepthMaps {
+        self.unpack_maps(maps, true)
+    }
+
+    /// Unpacks the `maps` buffer into the public outputs; without `diagnostics`, the maps that
+    /// no output publishes (`depth_raw_m`, `visible_cameras`) are left empty (0 x 0).
+    pub fn unpack_maps(&self, maps: &[f32], diagnostics: bool) -> crate::sweep::DepthMaps {
         use crate::image::ImageF32;
         let npix = self.pixel_count();
         let section = |s: usize| ImageF32 {
@@ -464,18 +470,28 @@ impl SweepPlan {
             height: self.height,
             data: maps[s * npix..(s + 1) * npix].to_vec(),
         };
+        let bytes = |s: usize, nan: u8| bytes_of_floats(&maps[s * npix..(s + 1) * npix], nan);
         crate::sweep::DepthMaps {
             depth_m: section(MAP_DEPTH),
-            depth_raw_m: section(MAP_DEPTH_RAW),
+            depth_raw_m: if diagnostics {
+                section(MAP_DEPTH_RAW)
+            } else {
+                ImageF32 {
+                    width: 0,
+                    height: 0,
+                    data: Vec::new(),
+                }
+            },
             confidence: section(MAP_CONFIDENCE),
             cost: section(MAP_COST),
             // `v as u8`.
-            selection: bytes_of_floats(&maps[MAP_SELECTION * npix..(MAP_SELECTION + 1) * npix], 0),
+            selection: bytes(MAP_SELECTION, 0),
             // `v.min(255.0) as u8`: `v as u8`, but a NaN 255.
-            visible_cameras: bytes_of_floats(
-                &maps[MAP_VISIBLE * npix..(MAP_VISIBLE + 1) * npix],
-                255,
-            ),
+            visible_cameras: if diagnostics {
+                bytes(MAP_VISIBLE, 255)
+            } else {
+                Vec::new()
+            },
         }
     }
 }

@@ -1151,6 +1151,35 @@ fn uploads_reuse_one_staging_buffer() {
     }
 }
 
+/// Without the diagnostic maps (the node's, `bag`'s and `bench`'s engine), a frame set's
+/// published maps are the same, and the raw depth and the visible cameras come back empty.
+#[test]
+fn diagnostic_maps_left_out_change_nothing_else() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 24,
+        ..SweepParams::default()
+    };
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let all = engine.run(&rig, &images, &params).expect("run");
+    engine.set_diagnostic_maps(false);
+    let published = engine.run(&rig, &images, &params).expect("run");
+    let bits = |image: &ImageF32| image.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&published.depth_m), bits(&all.depth_m));
+    assert_eq!(bits(&published.confidence), bits(&all.confidence));
+    assert_eq!(bits(&published.cost), bits(&all.cost));
+    assert_eq!(published.selection, all.selection);
+    assert_eq!(all.depth_raw_m.data.len(), 160 * 120);
+    assert_eq!(all.visible_cameras.len(), 160 * 120);
+    assert!(published.depth_raw_m.data.is_empty() && published.visible_cameras.is_empty());
+}
+
 /// The plane ranges the device makes between the levels of a coarse-to-fine sweep
 /// (`plane_spans.wgsl`, `plane_ranges.wgsl`) are those the host makes from the level below's
 /// raw depths (`coarse::plane_ranges`, `SweepPlan::shader_plane_ranges`), row for row: three

@@ -125,6 +125,8 @@ pub struct GpuEngine {
     open: Option<OpenSet>,
     /// The staging buffer of the uploads, kept from set to set.
     uploads: upload::Uploads,
+    /// Whether `run` unpacks the maps no output publishes (`depth_raw_m`, `visible_cameras`).
+    diagnostics: bool,
     timings: StageTimings,
     cancel: CancelFlag,
     counts: SetCounts,
@@ -176,6 +178,7 @@ impl GpuEngine {
             pyramid_filled: None,
             open: None,
             uploads: upload::Uploads::new(),
+            diagnostics: true,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
@@ -229,6 +232,14 @@ impl GpuEngine {
     /// Row bands of the SGM volume in the last frame set (1 when one binding held it).
     pub fn sgm_bands(&self) -> u32 {
         self.buffers.as_ref().map_or(0, |(b, _)| b.key.bands())
+    }
+
+    /// Whether `run` and `run_plan` unpack the diagnostic maps that no output publishes
+    /// (`DepthMaps::depth_raw_m`, `visible_cameras`; on by default). Off, they come back empty
+    /// and each frame set's host time is two maps' unpacking shorter (the node and `bag` turn
+    /// them off).
+    pub fn set_diagnostic_maps(&mut self, on: bool) {
+        self.diagnostics = on;
     }
 
     /// Per-stage times of the last frame set.
@@ -297,7 +308,8 @@ impl GpuEngine {
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
-            engine.finish_set(|m| plan.depth_maps(m))
+            let diagnostics = engine.diagnostics;
+            engine.finish_set(|m| plan.unpack_maps(m, diagnostics))
         })
     }
 
@@ -649,7 +661,8 @@ impl super::coarse::PlanRunner for GpuEngine {
         // the set is the level below it (`run_plan_for_ranges`): this one is narrowed from it.
         let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
         self.record_level(plan, rig, images, narrowed)?;
-        self.finish_set(|m| plan.depth_maps(m))
+        let diagnostics = self.diagnostics;
+        self.finish_set(|m| plan.unpack_maps(m, diagnostics))
     }
 
     fn run_plan_for_ranges(
