@@ -14,6 +14,8 @@
 //!   levels of coarse to fine, copied into a level's `images` buffer).
 //! - `record.rs`: recording the census, the schedule, the submission, the readback and
 //!   per-phase timestamps.
+//! - `upload.rs`: the set's uploads (images, plane ranges) through one staging buffer kept from
+//!   set to set, mapped again right after each submission.
 
 mod buffers;
 mod pipelines;
