@@ -288,6 +288,15 @@ impl Engine {
         }
     }
 
+    /// Whether the WGSL engine unpacks the diagnostic maps no output publishes
+    /// (`DepthMaps::depth_raw_m`, `visible_cameras`; on by default; off, they come back
+    /// empty). The CPU engine always has them.
+    pub fn set_diagnostic_maps(&mut self, on: bool) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_diagnostic_maps(on);
+        }
+    }
+
     /// The WGSL engine's submissions, readbacks, waits and host time since the last call
     /// (`None` for the CPU engine).
     pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {

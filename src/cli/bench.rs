@@ -264,6 +264,8 @@ pub struct HostWork {
     pub readbacks: u32,
     pub readback_bytes: u64,
     pub waits: u32,
+    /// Staging buffers made for uploads (0 once the engine's own is made).
+    pub staging_buffers: u32,
 }
 
 fn median(mut values: Vec<f64>) -> f64 {
@@ -400,6 +402,7 @@ fn time_runs(
         readbacks: c.readbacks,
         readback_bytes: c.readback_bytes,
         waits: c.waits,
+        staging_buffers: c.staging_buffers,
     });
     Ok((median(frame_ms), stages, host))
 }
@@ -550,7 +553,11 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     if args.device != Device::Cpu {
         match Engine::new(Device::Gpu) {
-            Ok(engine) => engines.push(engine),
+            Ok(mut engine) => {
+                // As the node runs it: the maps its outputs publish (issue 35).
+                engine.set_diagnostic_maps(false);
+                engines.push(engine)
+            }
             Err(e) if args.device == Device::Auto => {
                 println!("WGSL engine: not timed ({e})");
             }

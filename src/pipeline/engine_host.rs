@@ -32,7 +32,9 @@ pub struct EngineHost {
 impl EngineHost {
     /// The engine for `device` (parameter `device`; `auto`: a hardware GPU, else the CPU engine).
     pub fn new(device: Device) -> Result<Self, HostError> {
-        let engine = Engine::new(device)?;
+        let mut engine = Engine::new(device)?;
+        // The outputs publish neither the raw depth nor the visible cameras.
+        engine.set_diagnostic_maps(false);
         let lost = Self::watch(&engine);
         Ok(Self {
             engine,
@@ -124,6 +126,7 @@ impl EngineHost {
             })?;
         self.lost = Self::watch(&engine);
         engine.set_cancel(self.cancel.clone());
+        engine.set_diagnostic_maps(false);
         self.engine = engine;
         self.recreated += 1;
         tracing::info!("engine recreated: {}", self.engine.label());

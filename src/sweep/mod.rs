@@ -437,7 +437,8 @@ pub mod selection {
 pub struct DepthMaps {
     /// z along the reference optical axis, metres, NaN where invalid (REP 118).
     pub depth_m: ImageF32,
-    /// Depth before the median and the occlusion check (diagnostics).
+    /// Depth before the median and the occlusion check (diagnostics; 0 x 0 where the WGSL
+    /// engine was told to leave the diagnostic maps out: `Engine::set_diagnostic_maps`).
     pub depth_raw_m: ImageF32,
     /// In [0, 1]; 0 where invalid.
     pub confidence: ImageF32,
@@ -445,7 +446,8 @@ pub struct DepthMaps {
     pub cost: ImageF32,
     /// [`selection`] codes.
     pub selection: Vec<u8>,
-    /// Cameras that see each pixel after the occlusion check, the reference counted.
+    /// Cameras that see each pixel after the occlusion check, the reference counted
+    /// (diagnostics; empty where the WGSL engine leaves the diagnostic maps out).
     pub visible_cameras: Vec<u8>,
 }
 

@@ -1101,6 +1101,85 @@ fn coarse_to_fine_is_one_submission_per_set() {
     }
 }
 
+/// The uploads (the caller's images, a level's plane ranges) go through one staging buffer
+/// kept from set to set (issue 35): the first set makes it, no later set makes any (wgpu's
+/// `Queue::write_buffer` made one per image and set), and each set sees its own images: a set
+/// of other images in between does not change the maps of the same images run again, one
+/// level or coarse to fine.
+#[test]
+fn uploads_reuse_one_staging_buffer() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let near = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let far = Scene::wall_and_box(4.0, Some((2.4, 0.3)), model.intrinsics.fx_px);
+    let (near, far) = (
+        synthetic::render_rig(&near, &rig),
+        synthetic::render_rig(&far, &rig),
+    );
+    let bits = |maps: &sweepdepth::sweep::DepthMaps| {
+        maps.depth_m
+            .data
+            .iter()
+            .chain(&maps.confidence.data)
+            .map(|v| v.to_bits())
+            .collect::<Vec<u32>>()
+    };
+    let gpu = common::gpu();
+    for (name, planes) in [("one level", 24), ("coarse to fine", 96)] {
+        let params = SweepParams {
+            min_depth_m: 1.0,
+            max_depth_m: 5.0,
+            num_planes: planes,
+            coarse_to_fine: true,
+            ..SweepParams::default()
+        };
+        let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+        let mut results = Vec::new();
+        for (set, images) in [&near, &far, &near, &far].into_iter().enumerate() {
+            let maps = engine.run(&rig, images, &params).expect("run");
+            let counts = engine.take_set_counts();
+            assert_eq!(
+                counts.staging_buffers,
+                u32::from(set == 0),
+                "{name}, set {set}: {counts:?}"
+            );
+            results.push(bits(&maps));
+        }
+        assert_ne!(results[0], results[1], "{name}: other images, other maps");
+        assert_eq!(results[0], results[2], "{name}: the near images again");
+        assert_eq!(results[1], results[3], "{name}: the far images again");
+    }
+}
+
+/// Without the diagnostic maps (the node's, `bag`'s and `bench`'s engine), a frame set's
+/// published maps are the same, and the raw depth and the visible cameras come back empty.
+#[test]
+fn diagnostic_maps_left_out_change_nothing_else() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 24,
+        ..SweepParams::default()
+    };
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let all = engine.run(&rig, &images, &params).expect("run");
+    engine.set_diagnostic_maps(false);
+    let published = engine.run(&rig, &images, &params).expect("run");
+    let bits = |image: &ImageF32| image.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&published.depth_m), bits(&all.depth_m));
+    assert_eq!(bits(&published.confidence), bits(&all.confidence));
+    assert_eq!(bits(&published.cost), bits(&all.cost));
+    assert_eq!(published.selection, all.selection);
+    assert_eq!(all.depth_raw_m.data.len(), 160 * 120);
+    assert_eq!(all.visible_cameras.len(), 160 * 120);
+    assert!(published.depth_raw_m.data.is_empty() && published.visible_cameras.is_empty());
+}
+
 /// The plane ranges the device makes between the levels of a coarse-to-fine sweep
 /// (`plane_spans.wgsl`, `plane_ranges.wgsl`) are those the host makes from the level below's
 /// raw depths (`coarse::plane_ranges`, `SweepPlan::shader_plane_ranges`), row for row: three

@@ -309,12 +309,6 @@ impl Buffers {
         &groups[(band as usize).min(groups.len() - 1)]
     }
 
-    /// Writes the plan's plane ranges (every run: they are not part of the plan's id).
-    pub fn upload_plane_ranges(&self, queue: &wgpu::Queue, plan: &SweepPlan) {
-        let ranges = plan.shader_plane_ranges();
-        queue.write_buffer(&self.plane_ranges, 0, bytemuck::cast_slice(&ranges));
-    }
-
     /// Writes the plan's arrays: parameters, cameras, planes, rays, pairs, batches of planes,
     /// SGM directions and row bands.
     pub fn upload_plan(&self, queue: &wgpu::Queue, align: Alignments, plan: &SweepPlan) {

@@ -14,12 +14,15 @@
 //!   levels of coarse to fine, copied into a level's `images` buffer).
 //! - `record.rs`: recording the census, the schedule, the submission, the readback and
 //!   per-phase timestamps.
+//! - `upload.rs`: the set's uploads (images, plane ranges) through one staging buffer kept from
+//!   set to set, mapped again right after each submission.
 
 mod buffers;
 mod pipelines;
 mod pyramid;
 mod record;
 mod shape;
+mod upload;
 
 use std::time::Instant;
 
@@ -59,6 +62,10 @@ pub struct SetCounts {
     /// Milliseconds spent in `Queue::submit` (lavapipe blocks there while an earlier
     /// submission runs: a wait in all but name).
     pub submit_ms: f64,
+    /// Staging buffers made for the uploads (images, plane ranges): the engine's own, kept
+    /// from set to set (so 0 once it is made), and one per write it could not take
+    /// (`Queue::write_buffer` makes one per call).
+    pub staging_buffers: u32,
     /// Milliseconds of `run` (or `run_plan`) neither waiting for the GPU nor in `submit`: the
     /// host's share of a frame set (planning, images, census, half-size images, uploads,
     /// recording, unpacking the maps).
@@ -118,6 +125,10 @@ pub struct GpuEngine {
     pyramid_filled: Option<usize>,
     /// The levels of the current frame set recorded so far (None between frame sets).
     open: Option<OpenSet>,
+    /// The staging buffer of the uploads, kept from set to set.
+    uploads: upload::Uploads,
+    /// Whether `run` unpacks the maps no output publishes (`depth_raw_m`, `visible_cameras`).
+    diagnostics: bool,
     timings: StageTimings,
     cancel: CancelFlag,
     counts: SetCounts,
@@ -168,6 +179,8 @@ impl GpuEngine {
             pyramid: None,
             pyramid_filled: None,
             open: None,
+            uploads: upload::Uploads::new(),
+            diagnostics: true,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
@@ -223,6 +236,14 @@ impl GpuEngine {
         self.buffers.as_ref().map_or(0, |(b, _)| b.key.bands())
     }
 
+    /// Whether `run` and `run_plan` unpack the diagnostic maps that no output publishes
+    /// (`DepthMaps::depth_raw_m`, `visible_cameras`; on by default). Off, they come back empty
+    /// and each frame set's host time is two maps' unpacking shorter (the node and `bag` turn
+    /// them off).
+    pub fn set_diagnostic_maps(&mut self, on: bool) {
+        self.diagnostics = on;
+    }
+
     /// Per-stage times of the last frame set.
     pub fn last_timings(&self) -> &StageTimings {
         &self.timings
@@ -238,11 +259,15 @@ impl GpuEngine {
     fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
         let started = Instant::now();
         self.pyramid_filled = None;
-        self.open = None;
+        if self.open.take().is_some() {
+            self.uploads.abandoned();
+        }
         let waited_before = self.counts.wait_ms + self.counts.submit_ms;
+        let made_before = self.uploads.made();
         let result = f(self);
         let waited = self.counts.wait_ms + self.counts.submit_ms - waited_before;
         self.counts.host_ms += started.elapsed().as_secs_f64() * 1e3 - waited;
+        self.counts.staging_buffers += (self.uploads.made() - made_before) as u32;
         result
     }
 
@@ -285,7 +310,8 @@ impl GpuEngine {
     ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
-            engine.finish_set(|m| plan.depth_maps(m))
+            let diagnostics = engine.diagnostics;
+            engine.finish_set(|m| plan.unpack_maps(m, diagnostics))
         })
     }
 
@@ -458,8 +484,37 @@ impl GpuEngine {
             started: Instant::now(),
         });
         let encoder = &mut open.encoder;
+        // The uploads first, through the staging buffer: the plan's own plane ranges (not
+        // narrowed on the device), the caller's images, each from its own pixels at its
+        // camera's offset (no packing), into the `images` buffer or the pyramid's first level.
+        let ranges = (!narrowed).then(|| plan.shader_plane_ranges());
+        let mut parts: Vec<upload::Part<'_>> = Vec::with_capacity(plan.cameras.len() + 1);
+        if let Some(ranges) = &ranges {
+            parts.push(upload::Part {
+                target: &buffers.plane_ranges,
+                offset: 0,
+                data: bytemuck::cast_slice(ranges),
+            });
+        }
+        match (from_pyramid, self.pyramid.as_ref()) {
+            (false, _) => {
+                for (image, camera) in images.full().iter().zip(&plan.cameras) {
+                    parts.push(upload::Part {
+                        target: &buffers.images,
+                        offset: u64::from(camera.size[2]) * 4,
+                        data: bytemuck::cast_slice(&image.pixels),
+                    });
+                }
+            }
+            (true, Some(pyramid)) if fill => parts.extend(pyramid.uploads(images.full())),
+            (true, Some(_)) => {}
+            (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
+        }
+        self.uploads
+            .write(&self.device, &self.queue, encoder, &parts);
+        drop(parts);
         match (narrowed, open.levels.last()) {
-            (false, _) => buffers.upload_plane_ranges(&self.queue, plan),
+            (false, _) => {}
             (true, Some(below)) => record::record_plane_ranges(
                 encoder,
                 buffers,
@@ -473,26 +528,12 @@ impl GpuEngine {
                 ))
             }
         }
-        match (from_pyramid, self.pyramid.as_ref()) {
-            (false, _) => {
-                // Each image from its own pixels, at its camera's offset: no packing.
-                for (image, camera) in images.full().iter().zip(&plan.cameras) {
-                    self.queue.write_buffer(
-                        &buffers.images,
-                        u64::from(camera.size[2]) * 4,
-                        bytemuck::cast_slice(&image.pixels),
-                    );
-                }
+        if let (true, Some(pyramid)) = (from_pyramid, self.pyramid.as_ref()) {
+            if fill {
+                self.pyramid_filled = Some(halvings);
+                pyramid.record_halvings(encoder, &pipelines[Stage::Half as usize], halvings);
             }
-            (true, Some(pyramid)) => {
-                if fill {
-                    pyramid.upload(&self.queue, images.full());
-                    self.pyramid_filled = Some(halvings);
-                    pyramid.record_halvings(encoder, &pipelines[Stage::Half as usize], halvings);
-                }
-                pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
-            }
-            (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
+            pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
         }
         if plan.uses_census() {
             record::record_census(encoder, buffers, &pipelines[Stage::Census as usize], plan);
@@ -527,6 +568,10 @@ impl GpuEngine {
         else {
             return Err(SweepError::Gpu("internal: no level recorded".into()));
         };
+        // Every upload of the set is written: the staging buffer is unmapped for its copies,
+        // and mapped again for the next set right after the submission (ready when this set's
+        // wait ends).
+        self.uploads.submitting();
         let Some((buffers, _)) = self.buffers.as_ref() else {
             return Err(SweepError::Gpu("internal: no buffers".into()));
         };
@@ -553,7 +598,9 @@ impl GpuEngine {
         // timestamps, in one buffer.
         let mut submitter =
             record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        submitter.submit(encoder.finish())?;
+        let submitted = submitter.submit(encoder.finish());
+        self.uploads.submitted();
+        submitted?;
         let mut unpack = Some(unpack);
         let mut maps = None;
         let mut ticks: Option<Vec<u32>> = None;
@@ -616,7 +663,8 @@ impl super::coarse::PlanRunner for GpuEngine {
         // the set is the level below it (`run_plan_for_ranges`): this one is narrowed from it.
         let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
         self.record_level(plan, rig, images, narrowed)?;
-        self.finish_set(|m| plan.depth_maps(m))
+        let diagnostics = self.diagnostics;
+        self.finish_set(|m| plan.unpack_maps(m, diagnostics))
     }
 
     fn run_plan_for_ranges(

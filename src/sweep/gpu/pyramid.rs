@@ -9,6 +9,7 @@ use super::super::gpu_types::MAX_RIG_CAMERAS;
 use super::super::plan::SweepPlan;
 use super::super::SweepError;
 use super::record::tiles_of;
+use super::upload::Part;
 use crate::image::Rgba8Image;
 
 /// WGSL `Halving` (`shaders/half.wgsl`): the camera count, then per camera the finer level's
@@ -172,16 +173,14 @@ impl Pyramid {
         self.levels.get(level).map(|l| (&l.buffer, l.words() * 4))
     }
 
-    /// Writes the caller's images into level 0, each from its own pixels.
-    pub fn upload(&self, queue: &wgpu::Queue, images: &[Rgba8Image]) {
+    /// The writes of the caller's images into level 0, each from its own pixels.
+    pub fn uploads<'a>(&'a self, images: &'a [Rgba8Image]) -> impl Iterator<Item = Part<'a>> + 'a {
         let level = &self.levels[0];
-        for (image, at) in images.iter().zip(&level.offsets) {
-            queue.write_buffer(
-                &level.buffer,
-                u64::from(*at) * 4,
-                bytemuck::cast_slice(&image.pixels),
-            );
-        }
+        images.iter().zip(&level.offsets).map(|(image, at)| Part {
+            target: &level.buffer,
+            offset: u64::from(*at) * 4,
+            data: bytemuck::cast_slice(&image.pixels),
+        })
     }
 
     /// Records levels 1 to `depth`, each from the one above, in one compute pass.
