@@ -19,6 +19,8 @@ mod buffers;
 mod pipelines;
 mod pyramid;
 mod record;
+#[cfg(test)]
+mod shader_check;
 mod shape;
 
 use std::time::Instant;
