@@ -1,8 +1,9 @@
 // The stage registry: one table naming every WGSL stage (shader file, entry point, bindings by
-// name and kind, workgroup size, override constants). build.rs `include!`s this file and checks
-// each shader against its row with naga (a binding renamed or retyped, an override the engine
-// would set but the shader lacks, a workgroup size changed fails `cargo build` with the stage's
-// name); the WGSL engine makes its layouts, pipelines and bind groups from it by name.
+// name and kind, workgroup size, override constants). build.rs `include!`s this file to combine
+// each shader with common.wgsl; a test (src/sweep/gpu/shader_check.rs) checks each shader
+// against its row with naga (a binding renamed or retyped, an override the engine would set but
+// the shader lacks, a workgroup size changed fails `cargo test` with the stage's name); the WGSL
+// engine makes its layouts, pipelines and bind groups from it by name.
 // (Plain `//` comments: build.rs includes this file as items.)
 
 /// The kind of one binding (all in group 0, numbered in table order).
@@ -317,7 +318,7 @@ pub const STAGES: [StageInfo; 14] = [
 
 /// Variants of a stage for adapters with `wgpu::Features::SUBGROUP`: each stands in for the
 /// stage it names (same bindings, so the stage's bind groups serve it), with its own shader
-/// file and override constants. build.rs validates them with naga's subgroup capability; the
+/// file and override constants. the shader check validates them with naga's subgroup capability; the
 /// engine builds them only on a device that has the feature.
 pub const SUBGROUP_VARIANTS: [(Stage, StageInfo); 1] = [(
     Stage::Sgm,

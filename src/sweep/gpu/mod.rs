@@ -21,6 +21,8 @@ mod buffers;
 mod pipelines;
 mod pyramid;
 mod record;
+#[cfg(test)]
+mod shader_check;
 mod shape;
 mod upload;
 
