@@ -1,6 +1,20 @@
 //! Run-time dispatch to an AVX2 + FMA build of a hot loop (`vectorised_fn!`), used by the CPU
 //! engine (`sweep/cpu/`) and fusion (`fusion/integrate.rs`). Imports nothing of the crate.
 
+/// `floor(t)` as an integer for `0 <= t < 2^22`, in float and integer lane operations that
+/// vectorise: rounded to an integer by adding and taking away 2^23, less one where that
+/// rounded up, then the integer read from the low mantissa bits of the floor plus 2^23. The
+/// saturating `as` casts, which must also handle NaN and values out of range, compile into
+/// scalar conversions with compares and branches per lane. Used by fusion's voxel update and
+/// colour average and by the WGSL engine's map unpacking.
+#[inline(always)]
+pub fn floor_small(t: f32) -> i32 {
+    const MAGIC: f32 = 8_388_608.0;
+    let near = (t + MAGIC) - MAGIC;
+    let floor = near - if near > t { 1.0 } else { 0.0 };
+    (floor + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32
+}
+
 /// Whether the CPU has AVX2 and FMA (cached by std).
 #[inline(always)]
 pub fn has_avx2_fma() -> bool {

@@ -331,15 +331,8 @@ fn observe_colour_row(
     observed: &RowObservation,
     max_weight: f32,
 ) {
-    // `t as u16` for 0 <= t < 2^16 without the saturating cast (which stays scalar): the
-    // floor by adding and taking away 2^23 (rounds to nearest, one less where that rounded
-    // up), then the integer from the low mantissa bits of floor + 2^23. The same values.
-    const MAGIC: f32 = 8_388_608.0;
-    let to_u16 = |t: f32| {
-        let near = (t + MAGIC) - MAGIC;
-        let floor = near - if near > t { 1.0 } else { 0.0 };
-        ((floor + MAGIC).to_bits() & 0xffff) as u16
-    };
+    // `t as u16` for 0 <= t < 2^16 without the saturating cast (which stays scalar).
+    let to_u16 = |t: f32| crate::simd::floor_small(t) as u16;
     let cap = max_weight.clamp(1.0, f32::from(u16::MAX));
     let mut w = [0.0f32; BLOCK_SIDE];
     let mut rcp = [0.0f32; BLOCK_SIDE];

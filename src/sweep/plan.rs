@@ -502,15 +502,10 @@ impl SweepPlan {
 /// (checked over all 2^32 bit patterns once; the test checks the edge cases).
 #[inline(always)]
 fn float_to_u8(v: f32) -> u8 {
-    // 2^23: adding it leaves a float in [0, 2^23) rounded to an integer in the low mantissa
-    // bits.
-    const SHIFT: f32 = 8_388_608.0;
     // A NaN fails both comparisons: 0.
     let clamped = if v > 0.0 { v } else { 0.0 };
     let clamped = if clamped < 255.0 { clamped } else { 255.0 };
-    let rounded = (clamped + SHIFT) - SHIFT;
-    let truncated = rounded - if rounded > clamped { 1.0 } else { 0.0 };
-    ((truncated + SHIFT).to_bits() & 0xff) as u8
+    crate::simd::floor_small(clamped) as u8
 }
 
 crate::simd::vectorised_fn! {
