@@ -244,6 +244,9 @@ struct PinholeSamples<'a> {
     limits: DepthLimits,
     depth_m: &'a mut [f32],
     samples: &'a mut [PixelSample],
+    /// The greatest valid depth of each [`DEPTH_TILE`]-square tile (row by row; -inf where
+    /// none is valid).
+    tile_max: &'a mut [f32],
 }
 
 /// Step 0 for a pinhole camera in one parallel pass over bands of rows: the rows' valid
@@ -273,23 +276,31 @@ fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
     let validate = |out: &mut [f32], input: &[f32]| p.limits.validate(out, input);
     let colour = p.colour;
     // Bands of rows: a band's own rows validated once into `depth_m`, the rows just above
-    // and below it again locally.
-    const BAND: usize = 8;
+    // and below it again locally; a band is a row of depth tiles.
+    const BAND: usize = DEPTH_TILE;
+    let tiles_x = width.div_ceil(DEPTH_TILE);
     p.depth_m
         .par_chunks_mut(width * BAND)
         .zip(p.samples.par_chunks_mut(width * BAND))
+        .zip(p.tile_max.par_chunks_mut(tiles_x))
         .enumerate()
         .map_init(
             || {
                 let row = || vec![0.0f32; width];
-                (row(), row(), row(), row(), row())
+                (row(), row(), row(), row(), row(), row())
             },
-            |(above, below, left, right, weights), (band, (band_depths, band_out))| {
+            |(above, below, left, right, weights, column_max),
+             (band, ((band_depths, band_out), tile_max))| {
                 let first_row = band * BAND;
                 let band_rows = band_depths.len() / width;
                 let mut valid = 0;
+                column_max.fill(f32::NEG_INFINITY);
                 for (r, here) in band_depths.chunks_exact_mut(width).enumerate() {
                     valid += validate(here, input(first_row + r));
+                    column_maxima(column_max, here);
+                }
+                for (tile, columns) in tile_max.iter_mut().zip(column_max.chunks(DEPTH_TILE)) {
+                    *tile = columns.iter().fold(f32::NEG_INFINITY, |m, &d| m.max(d));
                 }
                 if first_row > 0 {
                     validate(above, input(first_row - 1));
@@ -339,6 +350,20 @@ fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
         )
         .sum()
 }
+
+crate::simd::vectorised_fn! {
+/// `maxima[i] = max(maxima[i], depths[i])` where `depths[i]` is valid (NaN is not), lane-wise.
+fn column_maxima(maxima: &mut [f32], depths: &[f32]) {
+    for (m, &d) in maxima.iter_mut().zip(depths) {
+        *m = if d > *m { d } else { *m };
+    }
+}
+}
+
+/// The side in pixels of the square tiles whose greatest depth step 0 keeps for step 2
+/// (`View::tile_max`): a block of voxels whose nearest row lies more than the truncation
+/// distance behind every depth its projection can read is passed over row by row.
+pub(super) const DEPTH_TILE: usize = 8;
 
 crate::simd::vectorised_fn! {
 /// A row's [`PixelSample`]s from its depths, weights and colours (0 without).
@@ -414,6 +439,7 @@ pub(super) struct PixelSample {
 pub(super) struct IntegrationScratch {
     depth_m: Vec<f32>,
     samples: Vec<PixelSample>,
+    tile_max: Vec<f32>,
 }
 
 impl std::fmt::Debug for IntegrationScratch {
@@ -430,6 +456,10 @@ struct View<'a> {
     pixels_valid: usize,
     /// What step 2 reads of each pixel, side by side.
     samples: Vec<PixelSample>,
+    /// A pinhole camera's greatest valid depth per [`DEPTH_TILE`]-square tile (row by row,
+    /// `width.div_ceil(DEPTH_TILE)` a row; -inf where none is valid); empty for a distorted
+    /// camera.
+    tile_max: Vec<f32>,
     colour: Option<&'a Rgba8Image>,
     model: CameraModel,
     projector: Projector,
@@ -477,6 +507,7 @@ impl<'a> View<'a> {
         let IntegrationScratch {
             mut depth_m,
             mut samples,
+            mut tile_max,
         } = scratch;
         let pixels = depth.data.len();
         let width = depth.width as usize;
@@ -494,9 +525,13 @@ impl<'a> View<'a> {
             min_m: min_depth_m,
             max_m: max_depth_m,
         };
+        tile_max.clear();
         let pixels_valid = match projector {
             // One pass over bands of rows: the rows' valid depths and their pixels' samples.
-            Projector::Pinhole { fx, fy, cx, cy } => pinhole_samples(PinholeSamples {
+            Projector::Pinhole { fx, fy, cx, cy } => {
+                let tiles = width.div_ceil(DEPTH_TILE) * (pixels / width.max(1)).div_ceil(DEPTH_TILE);
+                tile_max.resize(tiles, f32::NEG_INFINITY);
+                pinhole_samples(PinholeSamples {
                 depth,
                 colour,
                 fx,
@@ -507,7 +542,9 @@ impl<'a> View<'a> {
                 limits,
                 depth_m: &mut depth_m,
                 samples: &mut samples,
-            }),
+                tile_max: &mut tile_max,
+            })
+            }
             Projector::Distorted(_) => depth_m
                 .par_chunks_mut(4096)
                 .zip(depth.data.par_chunks(4096))
@@ -519,6 +556,7 @@ impl<'a> View<'a> {
             depth_m,
             pixels_valid,
             samples: Vec::new(),
+            tile_max,
             colour,
             model: *model,
             ray_grid: matches!(projector, Projector::Distorted(_)).then(|| RayGrid::new(model)),
@@ -560,6 +598,7 @@ impl<'a> View<'a> {
         IntegrationScratch {
             depth_m: self.depth_m,
             samples: self.samples,
+            tile_max: self.tile_max,
         }
     }
 

@@ -42,10 +42,24 @@ impl View<'_> {
         let inv_trunc = 1.0 / trunc;
         let xs: [f32; LANES] = std::array::from_fn(|x| x as f32);
         let has_colour = self.colour.is_some();
+        // A row whose nearest voxel lies more than the truncation distance behind every depth
+        // the block can read takes no observation (`s >= -trunc` fails in every lane); the
+        // margin covers the rounding of the bilinear depth and of `s` (far below it).
+        let last_x = xs[LANES - 1];
+        // The block's eight corner voxels.
+        let corners: [Vec3; 8] = std::array::from_fn(|c| {
+            let at = |bit: usize, step: Vec3| if c & bit != 0 { step * last_x } else { Vec3::ZERO };
+            origin + at(1, step_x) + at(2, step_y) + at(4, step_z)
+        });
+        let behind = self.depth_bound(corners, [fx, fy, cx, cy]) + trunc + ROW_SKIP_MARGIN_M;
         let mut updated = 0;
         for z in 0..BLOCK_SIDE {
             for y in 0..BLOCK_SIDE {
                 let row = origin + step_y * y as f32 + step_z * z as f32;
+                // The lanes' z are `row.z + step_x.z * x`, monotonic in x (rounding is).
+                if row.z.min(row.z + step_x.z * last_x) > behind {
+                    continue;
+                }
                 let mut pz = [0.0f32; LANES];
                 let mut inside = [false; LANES];
                 let mut corner = [0i32; LANES];
@@ -131,6 +145,54 @@ impl View<'_> {
             }
         }
         updated
+    }
+}
+
+/// What [`View::update_block_pinhole_lanes`] adds to the truncation distance before it passes
+/// over a row of voxels behind every depth its block can read (metres): far above the rounding
+/// of a bilinear depth and of the projective distance.
+const ROW_SKIP_MARGIN_M: f32 = 1e-3;
+
+impl View<'_> {
+    /// The greatest valid depth that step 2 can read for any voxel within the hull of
+    /// `points` (camera frame; a block's corner voxels): the maximum of the depth tiles under
+    /// the hull's projection (the hull of the points' projections, one pixel wider on each
+    /// side for the bilinear neighbours and rounding, clamped into the image); -inf where no
+    /// depth there is valid, +inf where a point is not in front of the camera.
+    #[inline(always)]
+    fn depth_bound<const N: usize>(&self, points: [Vec3; N], [fx, fy, cx, cy]: [f32; 4]) -> f32 {
+        let (width, height) = (self.depth.width as usize, self.depth.height as usize);
+        let tiles_x = width.div_ceil(DEPTH_TILE);
+        if self.tile_max.len() != tiles_x * height.div_ceil(DEPTH_TILE) {
+            return f32::INFINITY;
+        }
+        let (mut u_lo, mut u_hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        let (mut v_lo, mut v_hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for p in points {
+            if p.z.is_nan() || p.z <= 1e-3 {
+                return f32::INFINITY;
+            }
+            let (u, v) = (fx * p.x / p.z + cx, fy * p.y / p.z + cy);
+            (u_lo, u_hi) = (u_lo.min(u), u_hi.max(u));
+            (v_lo, v_hi) = (v_lo.min(v), v_hi.max(v));
+        }
+        // The tiles of the pixel columns (rows) a voxel projecting within [lo, hi] reads: the
+        // nearest and the bilinear 2x2 lie within [floor(lo), floor(hi) + 1]; one more each
+        // side; clamped into the image (a box beyond its edge takes the edge's tiles). The
+        // casts floor: the values are within [0, n - 1].
+        let span = |lo: f32, hi: f32, n: usize| {
+            let last = (n - 1) as f32;
+            let tile = |p: f32| p.clamp(0.0, last) as usize / DEPTH_TILE;
+            (tile(lo - 1.0), tile(hi + 2.0))
+        };
+        let ((tx0, tx1), (ty0, ty1)) = (span(u_lo, u_hi, width), span(v_lo, v_hi, height));
+        let mut bound = f32::NEG_INFINITY;
+        for ty in ty0..=ty1 {
+            for &m in &self.tile_max[ty * tiles_x + tx0..=ty * tiles_x + tx1] {
+                bound = bound.max(m);
+            }
+        }
+        bound
     }
 }
 
