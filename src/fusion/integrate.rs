@@ -152,17 +152,18 @@ pub fn integrate_weighted(
     let band = view.band_blocks(&world_from_cam);
     let map = grid.blocks_map_mut();
     // The new blocks made on the pool's threads: a block's zeroed voxels are 6 KiB of fresh
-    // pages to fault in, a first frame's ~1500 of them 9 MB (`band` is sorted and
-    // deduplicated).
-    let new: Vec<BlockIndex> = band
-        .iter()
-        .filter(|index| !map.contains_key(*index))
-        .copied()
-        .collect();
+    // pages to fault in, a first frame's ~1500 of them 9 MB (`band` may list a block more
+    // than once: `in_view` keeps one of each).
+    let mut new = Vec::new();
+    for index in band {
+        if in_view.insert(index) && !map.contains_key(&index) {
+            new.push(index);
+        }
+    }
+    new.sort_unstable();
     let made: Vec<Block> = new.par_iter().map(|_| Block::default()).collect();
     let blocks_allocated = new.len();
     map.extend(new.into_iter().zip(made));
-    in_view.extend(band);
     let mut work: Vec<(BlockIndex, Block)> = in_view
         .iter()
         .filter_map(|index| map.remove(index).map(|block| (*index, block)))
