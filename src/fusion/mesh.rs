@@ -222,8 +222,9 @@ impl<'a> Neighbourhood<'a> {
     /// where the voxel's block is missing or the voxel was never observed (an observed
     /// voxel's TSDF is never NaN: the integration averages finite values only): what the
     /// cubes' corners are tested on, a row of the block's field arrays at a time.
-    fn observed_tsdf(&self) -> Vec<f32> {
-        let mut out = vec![f32::NAN; SIDE * SIDE * SIDE];
+    #[inline(always)]
+    fn observed_tsdf(&self) -> [f32; SIDE * SIDE * SIDE] {
+        let mut out = [f32::NAN; SIDE * SIDE * SIDE];
         for (i, line) in out.chunks_exact_mut(SIDE).enumerate() {
             let (y, z) = (i % SIDE, i / SIDE);
             let which = ((y / BLOCK_SIDE) << 1) | ((z / BLOCK_SIDE) << 2);
@@ -269,8 +270,36 @@ fn round_level(x: f32) -> f32 {
     }
 }
 
-/// Marching cubes over one block's cubes.
+/// The marching-cubes case of each of the eight cubes along x of a row (`base`: the offset of
+/// the first cube's lowest corner in [`Neighbourhood::observed_tsdf`]), lane-wise: bit `i`
+/// set where corner `i` is inside (TSDF < 0); 0 (no triangles) where a corner is NaN.
+#[inline(always)]
+fn row_cases(observed: &[f32; SIDE * SIDE * SIDE], base: usize) -> [u32; BLOCK_SIDE] {
+    let mut case = [0u32; BLOCK_SIDE];
+    let mut missing = [false; BLOCK_SIDE];
+    for (i, &o) in CORNER_OFFSETS.iter().enumerate() {
+        let corners = &observed[base + o..base + o + BLOCK_SIDE];
+        for x in 0..BLOCK_SIDE {
+            case[x] |= u32::from(corners[x] < 0.0) << i;
+            missing[x] |= corners[x].is_nan();
+        }
+    }
+    for x in 0..BLOCK_SIDE {
+        case[x] = if missing[x] { 0 } else { case[x] };
+    }
+    case
+}
+
+crate::simd::vectorised_fn! {
+/// Marching cubes over one block's cubes (AVX2 where the CPU has it: the cases of a row of
+/// cubes are found lane-wise).
 fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
+    mesh_block_body(grid, index)
+}
+}
+
+#[inline(always)]
+fn mesh_block_body(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
     let around = Neighbourhood::new(grid, index);
     let mut mesh = BlockMesh::default();
     if around.blocks[0].is_none() {
@@ -295,19 +324,18 @@ fn mesh_block(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
     mesh.vertices.reserve(96);
     mesh.colours.reserve(96);
     mesh.triangles.reserve(192);
-    let mut edge_vertex = vec![u16::MAX; SIDE * SIDE * SIDE * 3];
+    let mut edge_vertex = [u16::MAX; SIDE * SIDE * SIDE * 3];
     let first = index.first_voxel();
     let s = grid.voxel_size_m();
     for z in 0..BLOCK_SIDE {
         for y in 0..BLOCK_SIDE {
+            // A cube with a corner missing or never observed (NaN) makes nothing (case 0).
+            let cases = row_cases(&observed, SIDE * (y + SIDE * z));
+            if cases.iter().all(|&c| c == 0 || c == 255) {
+                continue;
+            }
             for x in 0..BLOCK_SIDE {
-                // A cube with a corner missing or never observed (NaN) makes nothing.
-                let base = x + SIDE * (y + SIDE * z);
-                let tsdf = CORNER_OFFSETS.map(|o| observed[base + o]);
-                if tsdf.iter().any(|t| t.is_nan()) {
-                    continue;
-                }
-                let case = (0..8).fold(0usize, |case, i| case | (usize::from(tsdf[i] < 0.0) << i));
+                let case = cases[x] as usize;
                 let crossed = EDGE_TABLE[case];
                 if crossed == 0 {
                     continue;
