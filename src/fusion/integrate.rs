@@ -7,7 +7,8 @@
 //!    of the band allocates nothing (unlike nvblox, which allocates along the whole ray).
 //!    Shortcuts (pinhole cameras): a 4x4-pixel tile whose bands' bounding box holds at most
 //!    four blocks lists them (`TILE_BOX_BLOCKS`: a few neighbours of the band more than the
-//!    walk; on ICL-NUIM 1.3 % more blocks); a
+//!    walk; on ICL-NUIM 1.3 % more blocks; the boxes of a row of tiles are made lane-wise,
+//!    `allocate::tile_boxes`); a
 //!    segment one or two face steps long lists its ends (and the middle block the walk would
 //!    take) without walking; the per-pixel segments are those of every other row and column
 //!    (`ALLOCATION_STRIDE`: neighbours' bands cross the same blocks; on ICL-NUIM 1502 of the
@@ -19,7 +20,10 @@
 //!    distance `sdf = depth - z_voxel`; voxels more than `trunc` behind the surface are left
 //!    alone, the others take `clamp(sdf / trunc, -1, 1)` into a running average whose weight
 //!    is capped at `max_weight`; near the surface (`|sdf| < trunc`) the colour of the nearest
-//!    pixel is averaged the same way, one count per observation.
+//!    pixel is averaged the same way, one count per observation. A pinhole camera's update
+//!    passes over the rows of a block that lie more than `trunc` behind every depth the
+//!    block's projection can read (a depth maximum per 8x8-pixel tile, made in step 0): the
+//!    same voxels are updated.
 //!
 //! One departure from nvblox's constant weight: an observation weighs the squared cosine
 //! between the viewing ray and the surface normal at its pixel (from the depth map's
@@ -818,6 +822,55 @@ mod tests {
     use super::*;
     use crate::fusion::test_scenes::{camera, red_left_blue_right, render_plane};
     use crate::fusion::Mesh;
+
+    /// The pinhole lane path of step 2 (rows of eight voxels, rows behind every depth their
+    /// block can read passed over) updates every block exactly as the per-voxel path does: a
+    /// sphere before a slanted wall, integrated from one oblique pose, then a second pose's
+    /// update of every block in view by both paths on copies of the blocks.
+    #[test]
+    fn the_lane_path_equals_the_per_voxel_path() {
+        use crate::fusion::test_scenes::{look_at, render_sphere};
+        let params = FusionParams {
+            voxel_size_m: 0.02,
+            ..FusionParams::default()
+        };
+        let model = camera(320, 240, 280.0);
+        let scene = |pose: &RigidTransform| {
+            let sphere = render_sphere(&model, pose, DVec3::new(0.1, 0.0, 1.8), 0.35);
+            let mut depth =
+                render_plane(&model, pose, DVec3::new(0.3, 0.1, 1.0).normalize(), 2.4);
+            for (d, s) in depth.data.iter_mut().zip(&sphere.data) {
+                if s.is_finite() && (!d.is_finite() || s < d) {
+                    *d = *s;
+                }
+            }
+            depth
+        };
+        let up = DVec3::new(0.1, -1.0, 0.2);
+        let target = DVec3::new(0.0, 0.0, 2.0);
+        let first = look_at(DVec3::new(0.7, -0.4, -0.2), target, up);
+        let second = look_at(DVec3::new(-0.3, 0.2, 0.1), target, up);
+        let colour = red_left_blue_right(320, 240);
+        let mut grid = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+        integrate(&mut grid, &params, &scene(&first), Some(&colour), &model, &first).unwrap();
+        let depth = scene(&second);
+        let scratch = std::mem::take(grid.scratch_mut());
+        let view = View::new(&grid, &params, &depth, Some(&colour), &model, &second, scratch);
+        assert!(view.lanes_fit);
+        let (mut blocks, mut voxels) = (0, 0);
+        for (index, block) in grid.blocks() {
+            if !view.block_in_view(*index) {
+                continue;
+            }
+            let (mut lanes, mut each) = (block.clone(), block.clone());
+            let updated = update_block_pinhole(&view, *index, &mut lanes);
+            assert_eq!(updated, view.update_block(*index, &mut each), "{index:?}");
+            assert!(lanes == each, "block {index:?} differs");
+            blocks += 1;
+            voxels += updated;
+        }
+        assert!(blocks > 300 && voxels > 50_000, "{blocks} blocks, {voxels} voxels");
+    }
 
     fn wall(z_m: f64) -> (CameraModel, ImageF32) {
         let model = camera(320, 240, 300.0);
