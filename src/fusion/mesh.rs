@@ -334,8 +334,8 @@ fn mesh_block_body(grid: &VoxelBlockGrid, index: BlockIndex) -> BlockMesh {
             if cases.iter().all(|&c| c == 0 || c == 255) {
                 continue;
             }
-            for x in 0..BLOCK_SIDE {
-                let case = cases[x] as usize;
+            for (x, &case) in cases.iter().enumerate() {
+                let case = case as usize;
                 let crossed = EDGE_TABLE[case];
                 if crossed == 0 {
                     continue;
