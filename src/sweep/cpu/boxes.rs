@@ -42,22 +42,40 @@ impl BoxH {
     pub fn run(&mut self, costs: &[f32], sums: &mut [f32], counts: &mut [f32]) {
         let width = costs.len();
         let padded = width + self.w - 1;
-        // Every cost valid? (No early exit: the whole-row and of the tests vectorises.)
-        let mut all_valid = true;
-        for &c in costs {
-            all_valid &= c >= 0.0;
+        // The valid costs' column span lo..hi (a pair's costs are invalid outside the columns
+        // both cameras see), and whether every cost inside it is valid. (No early exit inside
+        // the span: the and of the tests vectorises.)
+        let lo = costs.iter().position(|&c| c >= 0.0).unwrap_or(width);
+        let hi = costs.iter().rposition(|&c| c >= 0.0).map_or(lo, |j| j + 1);
+        let mut span_valid = true;
+        for &c in &costs[lo..hi] {
+            span_valid &= c >= 0.0;
         }
-        if all_valid {
+        if span_valid && lo == 0 && hi == width {
             counts[..padded].copy_from_slice(&self.full_counts[..padded]);
             self.sums(costs, sums);
             return;
         }
-        let (mut valid, mut masked) = (
-            std::mem::take(&mut self.valid),
-            std::mem::take(&mut self.masked),
-        );
-        valid.resize(width, 0.0);
+        let mut masked = std::mem::take(&mut self.masked);
         masked.resize(width, 0.0);
+        if span_valid {
+            // One span of valid costs: each window's count is its overlap with the span, a
+            // whole number, so the same float as the sum of the 0/1 mask in any order.
+            let (w, lo, hi) = (self.w as i32, lo as i32, hi as i32);
+            for (i, n) in counts[..padded].iter_mut().enumerate() {
+                let i = i as i32;
+                let overlap = (i + 1).min(hi) - (i + 1 - w).max(lo);
+                *n = overlap.max(0) as f32;
+            }
+            masked[..lo as usize].fill(0.0);
+            masked[lo as usize..hi as usize].copy_from_slice(&costs[lo as usize..hi as usize]);
+            masked[hi as usize..].fill(0.0);
+            self.sums(&masked, sums);
+            self.masked = masked;
+            return;
+        }
+        let mut valid = std::mem::take(&mut self.valid);
+        valid.resize(width, 0.0);
         for ((v, m), &c) in valid.iter_mut().zip(masked.iter_mut()).zip(costs) {
             let ok = c >= 0.0;
             *v = if ok { 1.0 } else { 0.0 };
@@ -286,6 +304,57 @@ mod tests {
             boxes.doubling(width + 2 * (w - 1), &mut doubled);
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&direct), bits(&doubled), "w {w}");
+        }
+    }
+
+    /// `run`'s counts and sums of a row valid over one column span (counts from the span) are
+    /// the floats of the summed 0/1 mask and masked costs; also empty, full and holed rows.
+    #[test]
+    fn span_counts_equal_the_summed_mask() {
+        let width = 41;
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for w in 1..=9 {
+            for (lo, hi, hole) in [
+                (0, 0, None),
+                (0, width, None),
+                (0, 30, None),
+                (7, width, None),
+                (5, 33, None),
+                (20, 21, None),
+                (5, 33, Some(17)),
+            ] {
+                let costs: Vec<f32> = (0..width)
+                    .map(|i| {
+                        if i < lo || i >= hi || Some(i) == hole {
+                            if i % 2 == 0 {
+                                -1.0
+                            } else {
+                                f32::NAN
+                            }
+                        } else {
+                            ((i * 7919) % 101) as f32 * 0.37 + 0.01
+                        }
+                    })
+                    .collect();
+                let mut boxes = BoxH::new(width, w);
+                let (mut sums, mut counts) =
+                    (vec![f32::NAN; width + w - 1], vec![f32::NAN; width + w - 1]);
+                boxes.run(&costs, &mut sums, &mut counts);
+                let valid: Vec<f32> = costs
+                    .iter()
+                    .map(|&c| if c >= 0.0 { 1.0 } else { 0.0 })
+                    .collect();
+                let masked: Vec<f32> = costs
+                    .iter()
+                    .map(|&c| if c >= 0.0 { c } else { 0.0 })
+                    .collect();
+                let (mut want_sums, mut want_counts) =
+                    (vec![f32::NAN; width + w - 1], vec![f32::NAN; width + w - 1]);
+                boxes.sums(&valid, &mut want_counts);
+                boxes.sums(&masked, &mut want_sums);
+                assert_eq!(bits(&counts), bits(&want_counts), "w {w}, span {lo}..{hi}");
+                assert_eq!(bits(&sums), bits(&want_sums), "w {w}, span {lo}..{hi}");
+            }
         }
     }
 
