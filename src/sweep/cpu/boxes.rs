@@ -38,8 +38,15 @@ impl BoxH {
     /// Horizontal sums of one row of costs for every padded anchor: index i is the window whose
     /// first column is i - (w - 1) (box_h.wgsl); invalid costs (< 0) add nothing, as the shader
     /// skips them, and `counts` holds how many valid costs each window has.
+    /// Returns the valid span `lo..hi` when every cost inside it is valid (then `counts` is a
+    /// function of the span alone), `None` otherwise.
     #[inline(always)]
-    pub fn run(&mut self, costs: &[f32], sums: &mut [f32], counts: &mut [f32]) {
+    pub fn run(
+        &mut self,
+        costs: &[f32],
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) -> Option<(usize, usize)> {
         let width = costs.len();
         let padded = width + self.w - 1;
         // The valid costs' column span lo..hi (a pair's costs are invalid outside the columns
@@ -54,7 +61,7 @@ impl BoxH {
         if span_valid && lo == 0 && hi == width {
             counts[..padded].copy_from_slice(&self.full_counts[..padded]);
             self.sums(costs, sums);
-            return;
+            return Some((lo, hi));
         }
         let mut masked = std::mem::take(&mut self.masked);
         masked.resize(width, 0.0);
@@ -72,7 +79,7 @@ impl BoxH {
             masked[hi as usize..].fill(0.0);
             self.sums(&masked, sums);
             self.masked = masked;
-            return;
+            return Some((lo as usize, hi as usize));
         }
         let mut valid = std::mem::take(&mut self.valid);
         valid.resize(width, 0.0);
@@ -84,6 +91,7 @@ impl BoxH {
         self.sums(&valid, counts);
         self.sums(&masked, sums);
         (self.valid, self.masked) = (valid, masked);
+        None
     }
 
     /// Window sums of `values` (all taken as valid) into `out[..width + w - 1]`, built from
@@ -208,6 +216,9 @@ pub struct RowRing {
     slots: usize,
     /// channel x slot x (sums, counts) x padded.
     data: Vec<f32>,
+    /// channel x slot: the row's valid column span when its counts are a function of it
+    /// (`BoxH::run`), so two rows with the same span have the same counts.
+    spans: Vec<Option<(usize, usize)>>,
 }
 
 impl RowRing {
@@ -216,6 +227,7 @@ impl RowRing {
             padded,
             slots,
             data: vec![0.0; channels * slots * 2 * padded],
+            spans: vec![None; channels * slots],
         }
     }
 
@@ -229,6 +241,45 @@ impl RowRing {
     pub fn row_mut(&mut self, channel: usize, row: usize) -> (&mut [f32], &mut [f32]) {
         let at = self.at(channel, row);
         self.data[at..at + 2 * self.padded].split_at_mut(self.padded)
+    }
+
+    /// Records the valid span of `row` of `channel` (what `BoxH::run` returned for it).
+    #[inline(always)]
+    pub fn set_span(&mut self, channel: usize, row: usize, span: Option<(usize, usize)>) {
+        self.spans[channel * self.slots + row % self.slots] = span;
+    }
+
+    /// The window sliding down by one row: subtracts row `left` and adds row `entered` (each
+    /// when inside the image) into (sums, counts), in that order. Where both rows have the
+    /// same valid span their count rows are equal whole numbers, so the counts are left as
+    /// they are (the same floats as subtracting and adding them).
+    #[inline(always)]
+    pub fn slide(
+        &self,
+        channel: usize,
+        left: Option<usize>,
+        entered: Option<usize>,
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) {
+        if let (Some(left), Some(entered)) = (left, entered) {
+            let span = |row: usize| self.spans[channel * self.slots + row % self.slots];
+            if span(left).is_some() && span(left) == span(entered) {
+                for (row, sign) in [(left, -1.0f32), (entered, 1.0)] {
+                    let at = self.at(channel, row);
+                    for (s, &a) in sums.iter_mut().zip(&self.data[at..at + self.padded]) {
+                        *s += sign * a;
+                    }
+                }
+                return;
+            }
+        }
+        if let Some(left) = left {
+            self.add_row(channel, left, -1.0, sums, counts);
+        }
+        if let Some(entered) = entered {
+            self.add_row(channel, entered, 1.0, sums, counts);
+        }
     }
 
     /// Vertical sums (box_v.wgsl) of rows `first..end` of `channel` into (sums, counts), added
@@ -355,6 +406,42 @@ mod tests {
                 assert_eq!(bits(&counts), bits(&want_counts), "w {w}, span {lo}..{hi}");
                 assert_eq!(bits(&sums), bits(&want_sums), "w {w}, span {lo}..{hi}");
             }
+        }
+    }
+
+    /// `slide` gives the floats of subtracting and adding the two rows with `add_row`, whether
+    /// their spans match (counts left as they are) or not.
+    #[test]
+    fn slide_equals_add_row() {
+        let (width, w) = (29, 5);
+        let mut boxes = BoxH::new(width, w);
+        let mut ring = RowRing::new(1, 4, width + w - 1);
+        let spans = [(3, 25), (3, 25), (0, 29), (4, 25)];
+        for (row, &(lo, hi)) in spans.iter().enumerate() {
+            let costs: Vec<f32> = (0..width)
+                .map(|i| {
+                    if i < lo || i >= hi {
+                        -1.0
+                    } else {
+                        ((i * 31 + row * 17) % 23) as f32 * 0.61 + 0.03
+                    }
+                })
+                .collect();
+            let (sums, counts) = ring.row_mut(0, row);
+            let span = boxes.run(&costs, sums, counts);
+            assert_eq!(span, Some((lo, hi)));
+            ring.set_span(0, row, span);
+        }
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (left, entered) in [(0, 1), (1, 2), (1, 3), (2, 3)] {
+            let start: Vec<f32> = (0..width + w - 1).map(|i| i as f32 * 1.7 + 9.0).collect();
+            let (mut sums, mut counts) = (start.clone(), vec![5.0; width + w - 1]);
+            ring.slide(0, Some(left), Some(entered), &mut sums, &mut counts);
+            let (mut want_sums, mut want_counts) = (start, vec![5.0; width + w - 1]);
+            ring.add_row(0, left, -1.0, &mut want_sums, &mut want_counts);
+            ring.add_row(0, entered, 1.0, &mut want_sums, &mut want_counts);
+            assert_eq!(bits(&sums), bits(&want_sums), "{left} -> {entered}");
+            assert_eq!(bits(&counts), bits(&want_counts), "{left} -> {entered}");
         }
     }
 
