@@ -215,13 +215,9 @@ impl RowScorer {
                 let sums = &mut self.sums[at..at + padded];
                 let counts = &mut self.counts[at..at + padded];
                 if slide {
-                    let (left, entered) = (ay - 1, ay + h - 1);
-                    if left >= 0 && (left as usize) < height {
-                        ring.add_row(ch, left as usize, -1.0, sums, counts);
-                    }
-                    if entered >= 0 && (entered as usize) < height {
-                        ring.add_row(ch, entered as usize, 1.0, sums, counts);
-                    }
+                    let inside =
+                        |row: isize| (row >= 0 && (row as usize) < height).then_some(row as usize);
+                    ring.slide(ch, inside(ay - 1), inside(ay + h - 1), sums, counts);
                 } else {
                     ring.box_v(ch, rows(ay), rows(ay + h), sums, counts);
                 }
@@ -296,13 +292,9 @@ impl RowScorer {
             let sums = &mut self.sums[at..at + padded];
             let counts = &mut self.counts[at..at + padded];
             if slide {
-                let (left, entered) = (top - 1, top + h - 1);
-                if left >= 0 && (left as usize) < height {
-                    ring.add_row(ch, left as usize, -1.0, sums, counts);
-                }
-                if entered >= 0 && (entered as usize) < height {
-                    ring.add_row(ch, entered as usize, 1.0, sums, counts);
-                }
+                let inside =
+                    |row: isize| (row >= 0 && (row as usize) < height).then_some(row as usize);
+                ring.slide(ch, inside(top - 1), inside(top + h - 1), sums, counts);
             } else {
                 ring.box_v(ch, rows(top), rows(top + h), sums, counts);
             }

@@ -38,26 +38,51 @@ impl BoxH {
     /// Horizontal sums of one row of costs for every padded anchor: index i is the window whose
     /// first column is i - (w - 1) (box_h.wgsl); invalid costs (< 0) add nothing, as the shader
     /// skips them, and `counts` holds how many valid costs each window has.
+    /// Returns the valid span `lo..hi` when every cost inside it is valid (then `counts` is a
+    /// function of the span alone), `None` otherwise.
     #[inline(always)]
-    pub fn run(&mut self, costs: &[f32], sums: &mut [f32], counts: &mut [f32]) {
+    pub fn run(
+        &mut self,
+        costs: &[f32],
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) -> Option<(usize, usize)> {
         let width = costs.len();
         let padded = width + self.w - 1;
-        // Every cost valid? (No early exit: the whole-row and of the tests vectorises.)
-        let mut all_valid = true;
-        for &c in costs {
-            all_valid &= c >= 0.0;
+        // The valid costs' column span lo..hi (a pair's costs are invalid outside the columns
+        // both cameras see), and whether every cost inside it is valid. (No early exit inside
+        // the span: the and of the tests vectorises.)
+        let lo = costs.iter().position(|&c| c >= 0.0).unwrap_or(width);
+        let hi = costs.iter().rposition(|&c| c >= 0.0).map_or(lo, |j| j + 1);
+        let mut span_valid = true;
+        for &c in &costs[lo..hi] {
+            span_valid &= c >= 0.0;
         }
-        if all_valid {
+        if span_valid && lo == 0 && hi == width {
             counts[..padded].copy_from_slice(&self.full_counts[..padded]);
             self.sums(costs, sums);
-            return;
+            return Some((lo, hi));
         }
-        let (mut valid, mut masked) = (
-            std::mem::take(&mut self.valid),
-            std::mem::take(&mut self.masked),
-        );
-        valid.resize(width, 0.0);
+        let mut masked = std::mem::take(&mut self.masked);
         masked.resize(width, 0.0);
+        if span_valid {
+            // One span of valid costs: each window's count is its overlap with the span, a
+            // whole number, so the same float as the sum of the 0/1 mask in any order.
+            let (w, lo, hi) = (self.w as i32, lo as i32, hi as i32);
+            for (i, n) in counts[..padded].iter_mut().enumerate() {
+                let i = i as i32;
+                let overlap = (i + 1).min(hi) - (i + 1 - w).max(lo);
+                *n = overlap.max(0) as f32;
+            }
+            masked[..lo as usize].fill(0.0);
+            masked[lo as usize..hi as usize].copy_from_slice(&costs[lo as usize..hi as usize]);
+            masked[hi as usize..].fill(0.0);
+            self.sums(&masked, sums);
+            self.masked = masked;
+            return Some((lo as usize, hi as usize));
+        }
+        let mut valid = std::mem::take(&mut self.valid);
+        valid.resize(width, 0.0);
         for ((v, m), &c) in valid.iter_mut().zip(masked.iter_mut()).zip(costs) {
             let ok = c >= 0.0;
             *v = if ok { 1.0 } else { 0.0 };
@@ -66,6 +91,7 @@ impl BoxH {
         self.sums(&valid, counts);
         self.sums(&masked, sums);
         (self.valid, self.masked) = (valid, masked);
+        None
     }
 
     /// Window sums of `values` (all taken as valid) into `out[..width + w - 1]`, built from
@@ -190,6 +216,9 @@ pub struct RowRing {
     slots: usize,
     /// channel x slot x (sums, counts) x padded.
     data: Vec<f32>,
+    /// channel x slot: the row's valid column span when its counts are a function of it
+    /// (`BoxH::run`), so two rows with the same span have the same counts.
+    spans: Vec<Option<(usize, usize)>>,
 }
 
 impl RowRing {
@@ -198,6 +227,7 @@ impl RowRing {
             padded,
             slots,
             data: vec![0.0; channels * slots * 2 * padded],
+            spans: vec![None; channels * slots],
         }
     }
 
@@ -211,6 +241,45 @@ impl RowRing {
     pub fn row_mut(&mut self, channel: usize, row: usize) -> (&mut [f32], &mut [f32]) {
         let at = self.at(channel, row);
         self.data[at..at + 2 * self.padded].split_at_mut(self.padded)
+    }
+
+    /// Records the valid span of `row` of `channel` (what `BoxH::run` returned for it).
+    #[inline(always)]
+    pub fn set_span(&mut self, channel: usize, row: usize, span: Option<(usize, usize)>) {
+        self.spans[channel * self.slots + row % self.slots] = span;
+    }
+
+    /// The window sliding down by one row: subtracts row `left` and adds row `entered` (each
+    /// when inside the image) into (sums, counts), in that order. Where both rows have the
+    /// same valid span their count rows are equal whole numbers, so the counts are left as
+    /// they are (the same floats as subtracting and adding them).
+    #[inline(always)]
+    pub fn slide(
+        &self,
+        channel: usize,
+        left: Option<usize>,
+        entered: Option<usize>,
+        sums: &mut [f32],
+        counts: &mut [f32],
+    ) {
+        if let (Some(left), Some(entered)) = (left, entered) {
+            let span = |row: usize| self.spans[channel * self.slots + row % self.slots];
+            if span(left).is_some() && span(left) == span(entered) {
+                for (row, sign) in [(left, -1.0f32), (entered, 1.0)] {
+                    let at = self.at(channel, row);
+                    for (s, &a) in sums.iter_mut().zip(&self.data[at..at + self.padded]) {
+                        *s += sign * a;
+                    }
+                }
+                return;
+            }
+        }
+        if let Some(left) = left {
+            self.add_row(channel, left, -1.0, sums, counts);
+        }
+        if let Some(entered) = entered {
+            self.add_row(channel, entered, 1.0, sums, counts);
+        }
     }
 
     /// Vertical sums (box_v.wgsl) of rows `first..end` of `channel` into (sums, counts), added
@@ -286,6 +355,93 @@ mod tests {
             boxes.doubling(width + 2 * (w - 1), &mut doubled);
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&direct), bits(&doubled), "w {w}");
+        }
+    }
+
+    /// `run`'s counts and sums of a row valid over one column span (counts from the span) are
+    /// the floats of the summed 0/1 mask and masked costs; also empty, full and holed rows.
+    #[test]
+    fn span_counts_equal_the_summed_mask() {
+        let width = 41;
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for w in 1..=9 {
+            for (lo, hi, hole) in [
+                (0, 0, None),
+                (0, width, None),
+                (0, 30, None),
+                (7, width, None),
+                (5, 33, None),
+                (20, 21, None),
+                (5, 33, Some(17)),
+            ] {
+                let costs: Vec<f32> = (0..width)
+                    .map(|i| {
+                        if i < lo || i >= hi || Some(i) == hole {
+                            if i % 2 == 0 {
+                                -1.0
+                            } else {
+                                f32::NAN
+                            }
+                        } else {
+                            ((i * 7919) % 101) as f32 * 0.37 + 0.01
+                        }
+                    })
+                    .collect();
+                let mut boxes = BoxH::new(width, w);
+                let (mut sums, mut counts) =
+                    (vec![f32::NAN; width + w - 1], vec![f32::NAN; width + w - 1]);
+                boxes.run(&costs, &mut sums, &mut counts);
+                let valid: Vec<f32> = costs
+                    .iter()
+                    .map(|&c| if c >= 0.0 { 1.0 } else { 0.0 })
+                    .collect();
+                let masked: Vec<f32> = costs
+                    .iter()
+                    .map(|&c| if c >= 0.0 { c } else { 0.0 })
+                    .collect();
+                let (mut want_sums, mut want_counts) =
+                    (vec![f32::NAN; width + w - 1], vec![f32::NAN; width + w - 1]);
+                boxes.sums(&valid, &mut want_counts);
+                boxes.sums(&masked, &mut want_sums);
+                assert_eq!(bits(&counts), bits(&want_counts), "w {w}, span {lo}..{hi}");
+                assert_eq!(bits(&sums), bits(&want_sums), "w {w}, span {lo}..{hi}");
+            }
+        }
+    }
+
+    /// `slide` gives the floats of subtracting and adding the two rows with `add_row`, whether
+    /// their spans match (counts left as they are) or not.
+    #[test]
+    fn slide_equals_add_row() {
+        let (width, w) = (29, 5);
+        let mut boxes = BoxH::new(width, w);
+        let mut ring = RowRing::new(1, 4, width + w - 1);
+        let spans = [(3, 25), (3, 25), (0, 29), (4, 25)];
+        for (row, &(lo, hi)) in spans.iter().enumerate() {
+            let costs: Vec<f32> = (0..width)
+                .map(|i| {
+                    if i < lo || i >= hi {
+                        -1.0
+                    } else {
+                        ((i * 31 + row * 17) % 23) as f32 * 0.61 + 0.03
+                    }
+                })
+                .collect();
+            let (sums, counts) = ring.row_mut(0, row);
+            let span = boxes.run(&costs, sums, counts);
+            assert_eq!(span, Some((lo, hi)));
+            ring.set_span(0, row, span);
+        }
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (left, entered) in [(0, 1), (1, 2), (1, 3), (2, 3)] {
+            let start: Vec<f32> = (0..width + w - 1).map(|i| i as f32 * 1.7 + 9.0).collect();
+            let (mut sums, mut counts) = (start.clone(), vec![5.0; width + w - 1]);
+            ring.slide(0, Some(left), Some(entered), &mut sums, &mut counts);
+            let (mut want_sums, mut want_counts) = (start, vec![5.0; width + w - 1]);
+            ring.add_row(0, left, -1.0, &mut want_sums, &mut want_counts);
+            ring.add_row(0, entered, 1.0, &mut want_sums, &mut want_counts);
+            assert_eq!(bits(&sums), bits(&want_sums), "{left} -> {entered}");
+            assert_eq!(bits(&counts), bits(&want_counts), "{left} -> {entered}");
         }
     }
 

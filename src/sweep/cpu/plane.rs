@@ -256,7 +256,8 @@ fn cost_row(
     };
     for (ch, costs) in rows.iter().enumerate() {
         let (sums, counts) = s.ring.row_mut(ch, y);
-        s.box_h.run(costs, sums, counts);
+        let span = s.box_h.run(costs, sums, counts);
+        s.ring.set_span(ch, y, span);
     }
 }
 
