@@ -534,21 +534,22 @@ impl<'a> View<'a> {
         let pixels_valid = match projector {
             // One pass over bands of rows: the rows' valid depths and their pixels' samples.
             Projector::Pinhole { fx, fy, cx, cy } => {
-                let tiles = width.div_ceil(DEPTH_TILE) * (pixels / width.max(1)).div_ceil(DEPTH_TILE);
+                let tiles =
+                    width.div_ceil(DEPTH_TILE) * (pixels / width.max(1)).div_ceil(DEPTH_TILE);
                 tile_max.resize(tiles, f32::NEG_INFINITY);
                 pinhole_samples(PinholeSamples {
-                depth,
-                colour,
-                fx,
-                fy,
-                cx,
-                cy,
-                trunc,
-                limits,
-                depth_m: &mut depth_m,
-                samples: &mut samples,
-                tile_max: &mut tile_max,
-            })
+                    depth,
+                    colour,
+                    fx,
+                    fy,
+                    cx,
+                    cy,
+                    trunc,
+                    limits,
+                    depth_m: &mut depth_m,
+                    samples: &mut samples,
+                    tile_max: &mut tile_max,
+                })
             }
             Projector::Distorted(_) => depth_m
                 .par_chunks_mut(4096)
@@ -837,8 +838,7 @@ mod tests {
         let model = camera(320, 240, 280.0);
         let scene = |pose: &RigidTransform| {
             let sphere = render_sphere(&model, pose, DVec3::new(0.1, 0.0, 1.8), 0.35);
-            let mut depth =
-                render_plane(&model, pose, DVec3::new(0.3, 0.1, 1.0).normalize(), 2.4);
+            let mut depth = render_plane(&model, pose, DVec3::new(0.3, 0.1, 1.0).normalize(), 2.4);
             for (d, s) in depth.data.iter_mut().zip(&sphere.data) {
                 if s.is_finite() && (!d.is_finite() || s < d) {
                     *d = *s;
@@ -852,10 +852,26 @@ mod tests {
         let second = look_at(DVec3::new(-0.3, 0.2, 0.1), target, up);
         let colour = red_left_blue_right(320, 240);
         let mut grid = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
-        integrate(&mut grid, &params, &scene(&first), Some(&colour), &model, &first).unwrap();
+        integrate(
+            &mut grid,
+            &params,
+            &scene(&first),
+            Some(&colour),
+            &model,
+            &first,
+        )
+        .unwrap();
         let depth = scene(&second);
         let scratch = std::mem::take(grid.scratch_mut());
-        let view = View::new(&grid, &params, &depth, Some(&colour), &model, &second, scratch);
+        let view = View::new(
+            &grid,
+            &params,
+            &depth,
+            Some(&colour),
+            &model,
+            &second,
+            scratch,
+        );
         assert!(view.lanes_fit);
         let (mut blocks, mut voxels) = (0, 0);
         for (index, block) in grid.blocks() {
@@ -869,7 +885,10 @@ mod tests {
             blocks += 1;
             voxels += updated;
         }
-        assert!(blocks > 300 && voxels > 50_000, "{blocks} blocks, {voxels} voxels");
+        assert!(
+            blocks > 300 && voxels > 50_000,
+            "{blocks} blocks, {voxels} voxels"
+        );
     }
 
     fn wall(z_m: f64) -> (CameraModel, ImageF32) {

@@ -41,7 +41,8 @@ impl View<'_> {
                 let mut recent = [BlockIndex([i32::MIN; 3]); RECENT_SLOTS];
                 let mut visit = |index: BlockIndex| {
                     let [x, y, z] = index.0.map(|c| c as u32);
-                    let slot = (x.wrapping_mul(0x9E37_79B1) ^ y.wrapping_mul(0x85EB_CA77)
+                    let slot = (x.wrapping_mul(0x9E37_79B1)
+                        ^ y.wrapping_mul(0x85EB_CA77)
                         ^ z.wrapping_mul(0xC2B2_AE3D))
                         >> (32 - RECENT_BITS);
                     let slot = &mut recent[slot as usize];

@@ -48,7 +48,13 @@ impl View<'_> {
         let last_x = xs[LANES - 1];
         // The block's eight corner voxels.
         let corners: [Vec3; 8] = std::array::from_fn(|c| {
-            let at = |bit: usize, step: Vec3| if c & bit != 0 { step * last_x } else { Vec3::ZERO };
+            let at = |bit: usize, step: Vec3| {
+                if c & bit != 0 {
+                    step * last_x
+                } else {
+                    Vec3::ZERO
+                }
+            };
             origin + at(1, step_x) + at(2, step_y) + at(4, step_z)
         });
         let behind = self.depth_bound(corners, [fx, fy, cx, cy]) + trunc + ROW_SKIP_MARGIN_M;
