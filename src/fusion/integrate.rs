@@ -292,9 +292,11 @@ fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
         .map_init(
             || {
                 let row = || vec![0.0f32; width];
-                (row(), row(), row(), row(), row(), row())
+                // A row with one NaN beyond each end: its left neighbours are
+                // `padded[..width]`, its right ones `padded[2..]`.
+                (row(), row(), vec![f32::NAN; width + 2], row(), row())
             },
-            |(above, below, left, right, weights, column_max),
+            |(above, below, padded, weights, column_max),
              (band, ((band_depths, band_out), tile_max))| {
                 let first_row = band * BAND;
                 let band_rows = band_depths.len() / width;
@@ -328,8 +330,8 @@ fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
                     } else {
                         &below[..]
                     };
-                    shift_into(left, here, true);
-                    shift_into(right, here, false);
+                    padded[1..=width].copy_from_slice(here);
+                    let (left, right) = (&padded[..width], &padded[2..]);
                     let ray_y = |r: usize| (r as f32 - cy) / fy;
                     let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
                     row_weights(

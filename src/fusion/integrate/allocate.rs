@@ -153,7 +153,7 @@ impl View<'_> {
 }
 
 /// Slots of the hash of recently listed blocks in [`View::band_blocks`] (`2^RECENT_BITS`).
-const RECENT_BITS: u32 = 6;
+const RECENT_BITS: u32 = 8;
 const RECENT_SLOTS: usize = 1 << RECENT_BITS;
 
 /// The side of a pinhole camera's allocation tiles in pixels.
