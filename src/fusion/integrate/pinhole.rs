@@ -270,3 +270,167 @@ pub(super) fn update_block_pinhole(view: &View<'_>, index: BlockIndex, block: &m
     view.update_block_pinhole_lanes(index, block)
 }
 }
+
+/// What [`pinhole_samples`] reads and writes.
+pub(super) struct PinholeSamples<'a> {
+    pub(super) depth: &'a ImageF32,
+    pub(super) colour: Option<&'a Rgba8Image>,
+    pub(super) fx: f32,
+    pub(super) fy: f32,
+    pub(super) cx: f32,
+    pub(super) cy: f32,
+    pub(super) trunc: f32,
+    pub(super) limits: DepthLimits,
+    pub(super) depth_m: &'a mut [f32],
+    pub(super) samples: &'a mut [PixelSample],
+    /// The greatest valid depth of each [`DEPTH_TILE`]-square tile (row by row; -inf where
+    /// none is valid).
+    pub(super) tile_max: &'a mut [f32],
+}
+
+/// Step 0 for a pinhole camera in one parallel pass over bands of rows: the rows' valid
+/// depths into `depth_m`, their pixels' weights a row at a time, lane-wise ([`row_weights`]:
+/// the neighbours' depths and ray x side by side, NaN beyond the image's edges, the rows just
+/// above and below a band validated again locally) and their samples. Returns the number of
+/// valid pixels.
+pub(super) fn pinhole_samples(p: PinholeSamples<'_>) -> usize {
+    let (width, height) = (p.depth.width as usize, p.depth.height as usize);
+    let (fx, fy, cx, cy, trunc) = (p.fx, p.fy, p.cx, p.cy, p.trunc);
+    let xs: Vec<f32> = (0..width).map(|col| (col as f32 - cx) / fx).collect();
+    // `to` holds `from` shifted by one column (left: to[i] = from[i - 1]), NaN at the edge.
+    let shift_into = |to: &mut [f32], from: &[f32], left: bool| {
+        to.fill(f32::NAN);
+        if width > 1 {
+            if left {
+                to[1..].copy_from_slice(&from[..width - 1]);
+            } else {
+                to[..width - 1].copy_from_slice(&from[1..]);
+            }
+        }
+    };
+    let (mut xs_left, mut xs_right) = (vec![0.0; width], vec![0.0; width]);
+    shift_into(&mut xs_left, &xs, true);
+    shift_into(&mut xs_right, &xs, false);
+    let input = |r: usize| &p.depth.data[r * width..(r + 1) * width];
+    let validate = |out: &mut [f32], input: &[f32]| p.limits.validate(out, input);
+    let colour = p.colour;
+    // Bands of rows: a band's own rows validated once into `depth_m`, the rows just above
+    // and below it again locally; a band is a row of depth tiles.
+    const BAND: usize = DEPTH_TILE;
+    let tiles_x = width.div_ceil(DEPTH_TILE);
+    p.depth_m
+        .par_chunks_mut(width * BAND)
+        .zip(p.samples.par_chunks_mut(width * BAND))
+        .zip(p.tile_max.par_chunks_mut(tiles_x))
+        .enumerate()
+        .map_init(
+            || {
+                let row = || vec![0.0f32; width];
+                // A row with one NaN beyond each end: its left neighbours are
+                // `padded[..width]`, its right ones `padded[2..]`.
+                (row(), row(), vec![f32::NAN; width + 2], row(), row())
+            },
+            |(above, below, padded, weights, column_max),
+             (band, ((band_depths, band_out), tile_max))| {
+                let first_row = band * BAND;
+                let band_rows = band_depths.len() / width;
+                let mut valid = 0;
+                column_max.fill(f32::NEG_INFINITY);
+                for (r, here) in band_depths.chunks_exact_mut(width).enumerate() {
+                    valid += validate(here, input(first_row + r));
+                    column_maxima(column_max, here);
+                }
+                for (tile, columns) in tile_max.iter_mut().zip(column_max.chunks(DEPTH_TILE)) {
+                    *tile = columns.iter().fold(f32::NEG_INFINITY, |m, &d| m.max(d));
+                }
+                if first_row > 0 {
+                    validate(above, input(first_row - 1));
+                } else {
+                    above.fill(f32::NAN);
+                }
+                if first_row + band_rows < height {
+                    validate(below, input(first_row + band_rows));
+                } else {
+                    below.fill(f32::NAN);
+                }
+                let band_depths = &*band_depths;
+                let line = |r: usize| &band_depths[r * width..(r + 1) * width];
+                for (r, out) in band_out.chunks_exact_mut(width).enumerate() {
+                    let row = first_row + r;
+                    let here = line(r);
+                    let up = if r > 0 { line(r - 1) } else { &above[..] };
+                    let down = if r + 1 < band_rows {
+                        line(r + 1)
+                    } else {
+                        &below[..]
+                    };
+                    padded[1..=width].copy_from_slice(here);
+                    let (left, right) = (&padded[..width], &padded[2..]);
+                    let ray_y = |r: usize| (r as f32 - cy) / fy;
+                    let y = [ray_y(row.max(1) - 1), ray_y(row), ray_y(row + 1)];
+                    row_weights(
+                        RowNeighbours {
+                            here,
+                            left,
+                            right,
+                            up,
+                            down,
+                            xs: &xs,
+                            xs_left: &xs_left,
+                            xs_right: &xs_right,
+                            y,
+                            trunc,
+                        },
+                        weights,
+                    );
+                    let colours = colour.map(|c| &c.pixels[row * width..(row + 1) * width]);
+                    fill_samples(out, here, weights, colours);
+                }
+                valid
+            },
+        )
+        .sum()
+}
+
+crate::simd::vectorised_fn! {
+/// `maxima[i] = max(maxima[i], depths[i])` where `depths[i]` is valid (NaN is not), lane-wise.
+fn column_maxima(maxima: &mut [f32], depths: &[f32]) {
+    for (m, &d) in maxima.iter_mut().zip(depths) {
+        *m = if d > *m { d } else { *m };
+    }
+}
+}
+
+/// The side in pixels of the square tiles whose greatest depth step 0 keeps for step 2
+/// (`View::tile_max`): a block of voxels whose nearest row lies more than the truncation
+/// distance behind every depth its projection can read is passed over row by row.
+pub(super) const DEPTH_TILE: usize = 8;
+
+crate::simd::vectorised_fn! {
+/// A row's [`PixelSample`]s from its depths, weights and colours (0 without).
+fn fill_samples(out: &mut [PixelSample], depths: &[f32], weights: &[f32], colours: Option<&[u32]>) {
+    let n = out.len().min(depths.len()).min(weights.len());
+    let (out, depths, weights) = (&mut out[..n], &depths[..n], &weights[..n]);
+    match colours {
+        Some(colours) => {
+            let colours = &colours[..n];
+            for i in 0..n {
+                out[i] = PixelSample {
+                    depth_m: depths[i],
+                    weight: weights[i],
+                    rgb: colours[i],
+                };
+            }
+        }
+        None => {
+            for i in 0..n {
+                out[i] = PixelSample {
+                    depth_m: depths[i],
+                    weight: weights[i],
+                    rgb: 0,
+                };
+            }
+        }
+    }
+}
+}
