@@ -668,22 +668,13 @@ mod tests {
     /// update of every block in view by both paths on copies of the blocks.
     #[test]
     fn the_lane_path_equals_the_per_voxel_path() {
-        use crate::fusion::test_scenes::{look_at, render_sphere};
+        use crate::fusion::test_scenes::{look_at, sphere_before_slanted_wall};
         let params = FusionParams {
             voxel_size_m: 0.02,
             ..FusionParams::default()
         };
         let model = camera(320, 240, 280.0);
-        let scene = |pose: &RigidTransform| {
-            let sphere = render_sphere(&model, pose, DVec3::new(0.1, 0.0, 1.8), 0.35);
-            let mut depth = render_plane(&model, pose, DVec3::new(0.3, 0.1, 1.0).normalize(), 2.4);
-            for (d, s) in depth.data.iter_mut().zip(&sphere.data) {
-                if s.is_finite() && (!d.is_finite() || s < d) {
-                    *d = *s;
-                }
-            }
-            depth
-        };
+        let scene = |pose: &RigidTransform| sphere_before_slanted_wall(&model, pose);
         let up = DVec3::new(0.1, -1.0, 0.2);
         let target = DVec3::new(0.0, 0.0, 2.0);
         let first = look_at(DVec3::new(0.7, -0.4, -0.2), target, up);

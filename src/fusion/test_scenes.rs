@@ -86,6 +86,23 @@ pub fn render_plane(
     })
 }
 
+/// A sphere (0.35 m radius at (0.1, 0, 1.8)) before a slanted wall (normal (0.3, 0.1, 1),
+/// 2.4 m from the origin): the nearer of the two at each pixel.
+pub fn sphere_before_slanted_wall(
+    model: &CameraModel,
+    world_from_cam: &RigidTransform,
+) -> ImageF32 {
+    let sphere = render_sphere(model, world_from_cam, DVec3::new(0.1, 0.0, 1.8), 0.35);
+    let normal = DVec3::new(0.3, 0.1, 1.0).normalize();
+    let mut depth = render_plane(model, world_from_cam, normal, 2.4);
+    for (d, s) in depth.data.iter_mut().zip(&sphere.data) {
+        if s.is_finite() && (!d.is_finite() || s < d) {
+            *d = *s;
+        }
+    }
+    depth
+}
+
 /// A colour image: red on the left half, blue on the right.
 pub fn red_left_blue_right(width: u32, height: u32) -> Rgba8Image {
     let pixels = (0..width * height)

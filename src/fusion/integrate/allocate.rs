@@ -544,7 +544,7 @@ mod tests {
 
     use super::*;
     use crate::fusion::blocks::BlockSet;
-    use crate::fusion::test_scenes::{camera, look_at, render_plane, render_sphere};
+    use crate::fusion::test_scenes::{camera, look_at, sphere_before_slanted_wall};
     use crate::fusion::{integrate, FusionParams, VoxelBlockGrid};
 
     /// Step 1's shortcuts (tile boxes made lane-wise, every other pixel walked) against the
@@ -563,14 +563,7 @@ mod tests {
             DVec3::new(0.0, 0.0, 2.0),
             DVec3::new(0.1, -1.0, 0.2),
         );
-        let sphere = render_sphere(&model, &pose, DVec3::new(0.1, 0.0, 1.8), 0.35);
-        let wall = render_plane(&model, &pose, DVec3::new(0.3, 0.1, 1.0).normalize(), 2.4);
-        let mut depth = wall.clone();
-        for (d, s) in depth.data.iter_mut().zip(&sphere.data) {
-            if s.is_finite() && (!d.is_finite() || s < d) {
-                *d = *s;
-            }
-        }
+        let depth = sphere_before_slanted_wall(&model, &pose);
         let mut grid = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
         let stats = integrate(&mut grid, &params, &depth, None, &model, &pose).unwrap();
         assert!(stats.pixels_valid > 300 * 200, "{stats:?}");
