@@ -35,6 +35,17 @@ pub enum Distortion {
 /// pathological input.
 const MAX_ITERATIONS: usize = 100;
 
+/// How many models' branch ends [`Distortion::branch_end`] keeps per thread (a rig's cameras).
+const BRANCH_END_CACHE: usize = 16;
+
+/// A model (its kind and radial coefficients' bits) and its branch end.
+type BranchEnd = ([u64; 5], f64);
+
+thread_local! {
+    static BRANCH_ENDS: std::cell::RefCell<Vec<BranchEnd>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
 impl Distortion {
     pub fn is_none(&self) -> bool {
         matches!(self, Distortion::None)
@@ -113,7 +124,36 @@ impl Distortion {
     /// Where the monotonic branch of [`Self::radial`] ends, in the model's own variable
     /// (undistorted radius for plumb_bob, angle off axis for equidistant, at most pi/2 there):
     /// the first zero of its derivative, or infinity (plumb_bob) / pi/2 (equidistant).
+    ///
+    /// The root search takes up to 20 000 polynomial evaluations (all of them when the model
+    /// never folds), and [`super::CameraModel::project`] and [`Self::undistort`] need the end
+    /// for every point: the ends of the last [`BRANCH_END_CACHE`] models are kept per thread
+    /// (the same value, looked up by the coefficients' bits).
     fn branch_end(&self) -> f64 {
+        let key = match *self {
+            Distortion::None => return f64::INFINITY,
+            Distortion::PlumbBob { k1, k2, k3, .. } => {
+                [1, k1.to_bits(), k2.to_bits(), k3.to_bits(), 0]
+            }
+            Distortion::Equidistant { k1, k2, k3, k4 } => {
+                [2, k1.to_bits(), k2.to_bits(), k3.to_bits(), k4.to_bits()]
+            }
+        };
+        BRANCH_ENDS.with(|ends| {
+            let mut ends = ends.borrow_mut();
+            if let Some(&(_, end)) = ends.iter().find(|(k, _)| *k == key) {
+                return end;
+            }
+            let end = self.branch_end_uncached();
+            if ends.len() == BRANCH_END_CACHE {
+                ends.pop();
+            }
+            ends.insert(0, (key, end));
+            end
+        })
+    }
+
+    fn branch_end_uncached(&self) -> f64 {
         let first_zero = first_positive_root(&self.radial_derivative_coefficients());
         match self {
             Distortion::Equidistant { .. } => {
@@ -465,6 +505,34 @@ mod tests {
         );
         let back = d.undistort(target).unwrap();
         assert!((back - p).length() < 1e-12);
+    }
+
+    #[test]
+    fn branch_ends_kept_per_thread_are_those_of_the_model() {
+        // More models than the cache holds, pairs differing in one radial coefficient only,
+        // looked up twice in turn: every lookup gives the model's own end.
+        let mut models = Vec::new();
+        for i in 0..12 {
+            let a = -0.05 * i as f64;
+            models.push(plumb_bob(a, 0.0, 0.001, 0.0, 0.0));
+            models.push(plumb_bob(a, 0.0, 0.001, 0.0, 0.01));
+            models.push(plumb_bob(a, 0.02, 0.001, 0.0, 0.0));
+            models.push(fisheye(a, 0.0, 0.0, 0.0));
+            models.push(fisheye(a, 0.0, 0.0, -0.01));
+        }
+        assert!(models.len() > BRANCH_END_CACHE);
+        for _ in 0..2 {
+            for d in &models {
+                let (cached, fresh) = (d.branch_end(), d.branch_end_uncached());
+                assert!(
+                    cached == fresh || (cached.is_nan() && fresh.is_nan()),
+                    "{d:?}: {cached} kept, {fresh} computed"
+                );
+            }
+        }
+        // The pairs do differ (else the test could not tell a key that leaves a coefficient out).
+        assert_ne!(models[5].branch_end(), models[6].branch_end());
+        assert_ne!(models[8].branch_end(), models[9].branch_end());
     }
 
     #[test]
