@@ -73,11 +73,20 @@ pub fn point_cloud_msg(
         count: 1,
     };
     let mut data = Vec::with_capacity(depth.data.len() * POINT_STEP as usize);
+    // The model's rays, shared from set to set (a distorted model's are a Newton solve each);
+    // without distortion, or for a depth image of another size than the model's, each pixel is
+    // unprojected here.
+    let (mw, mh) = (model.intrinsics.width_px, model.intrinsics.height_px);
+    let shared = !model.distortion.is_none() && mw == width && mh == height;
+    let grid = shared.then(|| model.pixel_rays());
     for (i, &z) in depth.data.iter().enumerate() {
         let u = (i % width.max(1) as usize) as f64;
         let v = (i / width.max(1) as usize) as f64;
         let ray = (z.is_finite() && z > 0.0)
-            .then(|| model.unproject_z1(DVec2::new(u, v)))
+            .then(|| match &grid {
+                Some(rays) => rays.get(i).copied().flatten(),
+                None => model.unproject_z1(DVec2::new(u, v)),
+            })
             .flatten();
         let [x, y, z] = match ray {
             Some(ray) if *frame_from_cam == RigidTransform::IDENTITY => {
