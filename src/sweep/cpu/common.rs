@@ -41,15 +41,8 @@ pub fn lens(cam: &GpuCamera, normalised: Vec2) -> Option<Vec2> {
     if cam.size[3] != DIST_NONE && n[0] * n[0] + n[1] * n[1] > cam.dist_b[1] {
         return None;
     }
-    let [k1, k2, p1, p2] = cam.dist_a;
     if cam.size[3] == DIST_PLUMB_BOB {
-        let r2 = n[0] * n[0] + n[1] * n[1];
-        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * cam.dist_b[0]));
-        let xy = n[0] * n[1];
-        n = [
-            n[0] * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * n[0] * n[0]),
-            n[1] * radial + p1 * (r2 + 2.0 * n[1] * n[1]) + 2.0 * p2 * xy,
-        ];
+        n = plumb_bob(cam, n);
     } else if cam.size[3] == DIST_EQUIDISTANT {
         let r = (n[0] * n[0] + n[1] * n[1]).sqrt();
         if r > 1e-12 {
@@ -64,6 +57,19 @@ pub fn lens(cam: &GpuCamera, normalised: Vec2) -> Option<Vec2> {
         cam.intrinsics[0] * n[0] + cam.intrinsics[2],
         cam.intrinsics[1] * n[1] + cam.intrinsics[3],
     ])
+}
+
+/// The plumb-bob model of `lens` (camera `cam`'s coefficients) on a point of the z = 1 plane.
+#[inline(always)]
+pub fn plumb_bob(cam: &GpuCamera, n: Vec2) -> Vec2 {
+    let [k1, k2, p1, p2] = cam.dist_a;
+    let r2 = n[0] * n[0] + n[1] * n[1];
+    let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * cam.dist_b[0]));
+    let xy = n[0] * n[1];
+    [
+        n[0] * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * n[0] * n[0]),
+        n[1] * radial + p1 * (r2 + 2.0 * n[1] * n[1]) + 2.0 * p2 * xy,
+    ]
 }
 
 #[inline(always)]
@@ -91,12 +97,13 @@ pub struct PlanarImage {
     pub height: usize,
     /// R, G, B planes, row-major.
     pub channels: [Vec<f32>; 3],
-    /// The same values as [R, G, B, census word] per texel, row-major (the word's bits in the
-    /// fourth lane, `f32::from_bits`: no arithmetic ever reads that lane; 0 without census
-    /// words), so one load brings a scattered sample's colour and its census word
-    /// (`cost::sample_row`; the bits, not a conversion to f32 and back: 11 % of the ring's
-    /// time).
-    pub texels: Vec<[f32; 4]>,
+    /// Per texel, row-major: its colour's bytes [R, G, B, 0] (little-endian in the first
+    /// `u32`: `f32::from(byte)` is the channel's value, as `v / 255 * 255 == v` in f32 for every
+    /// byte, `texel_bytes_are_the_channel_values`) and its census word (0 without census
+    /// words), so one 8-byte load brings a scattered sample's colour and census word
+    /// (`gather.rs`; 8 bytes rather than four f32 lanes: half the cache lines of the ring's
+    /// gathers).
+    pub texels: Vec<[u32; 2]>,
 }
 
 impl PlanarImage {
@@ -134,14 +141,12 @@ impl PlanarImage {
         if !with_texels {
             return;
         }
-        let [r, g, b] = &self.channels;
-        let rgb = r.iter().zip(g).zip(b);
+        let rgb = pixels.iter().map(|&p| p & 0x00ff_ffff);
         match words {
-            Some(words) => self.texels.extend(
-                rgb.zip(words)
-                    .map(|(((&r, &g), &b), &word)| [r, g, b, f32::from_bits(word)]),
-            ),
-            None => self.texels.extend(rgb.map(|((&r, &g), &b)| [r, g, b, 0.0])),
+            Some(words) => self
+                .texels
+                .extend(rgb.zip(words).map(|(colour, &word)| [colour, word])),
+            None => self.texels.extend(rgb.map(|colour| [colour, 0])),
         }
     }
 
@@ -162,19 +167,12 @@ impl PlanarImage {
     }
 
     /// [`Self::sample_bilinear`], and the census words of the four texels around the sample
-    /// (00, 10, 01, 11) with the sample's weights (fx, fy), from the same four loads.
+    /// (00, 10, 01, 11) with the sample's weights (fx, fy): the scalar form of `gather.rs`.
     #[inline(always)]
     pub fn sample_with_words(&self, pixel: Vec2) -> (Vec3, [u32; 4], [f32; 2]) {
         let b = Bilinear::at(self.width, self.height, pixel);
-        let t = &self.texels;
-        let (t00, t10, t01, t11) = (t[b.i00], t[b.i10], t[b.i01], t[b.i11]);
-        // The arithmetic of `Bilinear::mix` on the three colour channels at once.
-        let lerp = |a: [f32; 4], c: [f32; 4], f: f32| -> [f32; 3] {
-            std::array::from_fn(|i| a[i] + (c[i] - a[i]) * f)
-        };
-        let (top, bottom) = (lerp(t00, t10, b.fx), lerp(t01, t11, b.fx));
-        let colour = std::array::from_fn(|i| top[i] + (bottom[i] - top[i]) * b.fy);
-        let words = [t00[3], t10[3], t01[3], t11[3]].map(f32::to_bits);
+        let colour = std::array::from_fn(|c| b.mix(|i| self.channels[c][i]));
+        let words = [b.i00, b.i10, b.i01, b.i11].map(|i| self.texels[i][1]);
         (colour, words, [b.fx, b.fy])
     }
 }
@@ -238,6 +236,27 @@ mod tests {
     use crate::sweep::plan::SweepPlan;
     use crate::sweep::SweepParams;
     use glam::DVec3;
+
+    /// The texels' colour bytes are the channels' values (`PlanarImage::texels`; the gather
+    /// reads the bytes, the rows the channels): `v / 255 * 255` is `v` in f32 for every byte.
+    #[test]
+    fn texel_bytes_are_the_channel_values() {
+        let pixels: Vec<u32> = (0..=255u32)
+            .map(|v| v | (255 - v) << 8 | (v * 7 % 256) << 16 | (v * 13 % 256) << 24)
+            .collect();
+        let image = PlanarImage::from_packed(256, 1, &pixels);
+        for (i, texel) in image.texels.iter().enumerate() {
+            for c in 0..3 {
+                let byte = (texel[0] >> (8 * c)) & 0xff;
+                assert_eq!(
+                    f32::from(byte as u8).to_bits(),
+                    image.channels[c][i].to_bits(),
+                    "texel {i} channel {c}"
+                );
+            }
+            assert_eq!(texel[0] >> 24, 0);
+        }
+    }
 
     /// The plan packs the end of each camera's monotonic branch, and the projection (here the
     /// CPU twin of the shader's) does not see points past it, which the model would fold back

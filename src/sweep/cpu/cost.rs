@@ -264,15 +264,69 @@ pub fn sample_coords(
                 }
             }
         }
-        _ => {
+        Mapping::General | Mapping::Translation { .. } => {
             let plane = plan.planes[k];
-            for x in 0..width {
-                let ray = xyz(plan.rays[y * width + x]);
-                let pixel = ray_pixel(cam, ray, plane_depth(plane, ray));
-                xs[x] = pixel[0];
-                ys[x] = pixel[1];
+            let rays = &plan.rays[y * width..(y + 1) * width];
+            // The pinhole and plumb-bob lenses in a loop that vectorises (`general_row`); the
+            // equidistant one (an arctangent per pixel) as `project` does it.
+            match cam.size[3] {
+                DIST_NONE => general_row(cam, plane, rays, xs, ys, |n| n),
+                DIST_PLUMB_BOB => general_row(cam, plane, rays, xs, ys, |n| plumb_bob(cam, n)),
+                _ => {
+                    for x in 0..width {
+                        let ray = xyz(rays[x]);
+                        let pixel = ray_pixel(cam, ray, plane_depth(plane, ray));
+                        xs[x] = pixel[0];
+                        ys[x] = pixel[1];
+                    }
+                }
             }
         }
+    }
+}
+
+/// `ray_pixel(cam, ray, plane_depth(plane, ray))` for every ray of a row, with `distort` the
+/// camera's lens model (`lens` less its fold test and intrinsics): every step for every pixel
+/// and the result selected, so the loop vectorises (the same floats where seen; NaN in both
+/// coordinates elsewhere, as `ray_pixel`).
+#[inline(always)]
+fn general_row(
+    cam: &GpuCamera,
+    plane: [f32; 4],
+    rays: &[[f32; 4]],
+    xs: &mut [f32],
+    ys: &mut [f32],
+    distort: impl Fn(Vec2) -> Vec2,
+) {
+    let fold = cam.dist_b[1];
+    let distorted = cam.size[3] != DIST_NONE;
+    let [fx, fy, cx, cy] = cam.intrinsics;
+    let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
+    let (row0, row1, row2) = (cam.row0, cam.row1, cam.row2);
+    let normal = xyz(plane);
+    for ((xo, yo), ray) in xs.iter_mut().zip(ys.iter_mut()).zip(rays) {
+        let ray = xyz(*ray);
+        // `plane_depth`, then `project` of the point `ray * depth`.
+        let denom = dot3(normal, ray);
+        let depth = if denom.abs() < 1e-12 {
+            -1.0
+        } else {
+            plane[3] / denom
+        };
+        let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
+        let p = [
+            dot3(xyz(row0), point) + row0[3],
+            dot3(xyz(row1), point) + row1[3],
+            dot3(xyz(row2), point) + row2[3],
+        ];
+        let n = [p[0] / p[2], p[1] / p[2]];
+        let past_fold = distorted & (n[0] * n[0] + n[1] * n[1] > fold);
+        let d = distort(n);
+        let pixel = [fx * d[0] + cx, fy * d[1] + cy];
+        let inside = (pixel[0] >= 0.0) & (pixel[1] >= 0.0) & (pixel[0] <= w) & (pixel[1] <= h);
+        let seen = (depth > 0.0) & (p[2] > 1e-6) & !past_fold & inside;
+        *xo = if seen { pixel[0] } else { f32::NAN };
+        *yo = if seen { pixel[1] } else { f32::NAN };
     }
 }
 
@@ -336,120 +390,7 @@ pub fn sample_row(
     }
     sample_coords(plan, cam, mapping, k, y, coords);
     let [xs, ys] = coords;
-    gather_row(image, &xs[..width], &ys[..width], out, census)
-}
-
-/// Samples per chunk of `gather_row`: its texel indices and weights are made for a chunk at a
-/// time in a loop that vectorises (on the stack), then read by the gather loop.
-const GATHER_CHUNK: usize = 64;
-
-/// The bilinear colours at `xs`, `ys` (NaN in `xs`: not seen; else a position that `inside`
-/// accepted) into `out`, and with `census` (the reference row's words, the distances out) the
-/// census distances of the samples from the same texel loads: the arithmetic of
-/// `PlanarImage::sample_with_words` and `Bilinear::at`, their indices and weights made a chunk
-/// at a time in a vectorised loop (the scalar float-to-index conversions and clamps were half
-/// the gather's instructions on the ring).
-#[inline(always)]
-fn gather_row(
-    image: &PlanarImage,
-    xs: &[f32],
-    ys: &[f32],
-    out: &mut ColourRow,
-    census: Option<(&[u32], &mut [f32])>,
-) -> bool {
-    let width = xs.len();
-    let ys = &ys[..width];
-    let [out_r, out_g, out_b] = out;
-    let (out_r, out_g, out_b) = (
-        &mut out_r[..width],
-        &mut out_g[..width],
-        &mut out_b[..width],
-    );
-    let (iw, ih) = (image.width as u32, image.height as u32);
-    let t = image.texels.as_slice();
-    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-    let lerp3 = |a: [f32; 4], c: [f32; 4], f: f32| -> [f32; 3] {
-        std::array::from_fn(|i| a[i] + (c[i] - a[i]) * f)
-    };
-    let mut census =
-        census.map(|(reference, distances)| (&reference[..width], &mut distances[..width]));
-    let sampled = census.is_some();
-    let mut start = 0;
-    while start < width {
-        let n = GATHER_CHUNK.min(width - start);
-        let (cx, cy) = (&xs[start..start + n], &ys[start..start + n]);
-        // Texel 00's index, the offsets to texels 10 and 01 (0 at the image's last column or
-        // row, as `Bilinear::at` clamps), the weights; 0 for samples not seen (never read).
-        let mut base = [0u32; GATHER_CHUNK];
-        let mut right = [0u32; GATHER_CHUNK];
-        let mut down = [0u32; GATHER_CHUNK];
-        let mut wx = [0f32; GATHER_CHUNK];
-        let mut wy = [0f32; GATHER_CHUNK];
-        for j in 0..n {
-            let (px, py) = (cx[j], cy[j]);
-            let seen = !px.is_nan();
-            let (bx, by) = (px.floor(), py.floor());
-            let (x0, y0) = if seen {
-                (bx as i32 as u32, by as i32 as u32)
-            } else {
-                (0, 0)
-            };
-            base[j] = y0.wrapping_mul(iw).wrapping_add(x0);
-            right[j] = (x0 + 1).min(iw - 1).wrapping_sub(x0);
-            down[j] = (y0 + 1).min(ih - 1).wrapping_sub(y0).wrapping_mul(iw);
-            wx[j] = px - bx;
-            wy[j] = py - by;
-        }
-        let index = |j: usize| {
-            let i00 = base[j] as usize;
-            let (r, d) = (right[j] as usize, down[j] as usize);
-            (i00, i00 + r, i00 + d, i00 + d + r)
-        };
-        match census.as_mut() {
-            None => {
-                for j in 0..n {
-                    let x = start + j;
-                    if cx[j].is_nan() {
-                        out_r[x] = f32::NAN;
-                        out_g[x] = f32::NAN;
-                        out_b[x] = f32::NAN;
-                        continue;
-                    }
-                    let (i00, i10, i01, i11) = index(j);
-                    let (t00, t10, t01, t11) = (t[i00], t[i10], t[i01], t[i11]);
-                    let (top, bottom) = (lerp3(t00, t10, wx[j]), lerp3(t01, t11, wx[j]));
-                    out_r[x] = lerp(top[0], bottom[0], wy[j]);
-                    out_g[x] = lerp(top[1], bottom[1], wy[j]);
-                    out_b[x] = lerp(top[2], bottom[2], wy[j]);
-                }
-            }
-            Some((reference, distances)) => {
-                let ones = |a: f32, b: u32| (a.to_bits() ^ b).count_ones() as f32;
-                for j in 0..n {
-                    let x = start + j;
-                    if cx[j].is_nan() {
-                        out_r[x] = f32::NAN;
-                        out_g[x] = f32::NAN;
-                        out_b[x] = f32::NAN;
-                        continue;
-                    }
-                    let (i00, i10, i01, i11) = index(j);
-                    let (t00, t10, t01, t11) = (t[i00], t[i10], t[i01], t[i11]);
-                    let (fx, fy) = (wx[j], wy[j]);
-                    let (top, bottom) = (lerp3(t00, t10, fx), lerp3(t01, t11, fx));
-                    out_r[x] = lerp(top[0], bottom[0], fy);
-                    out_g[x] = lerp(top[1], bottom[1], fy);
-                    out_b[x] = lerp(top[2], bottom[2], fy);
-                    let r = reference[x];
-                    let top = lerp(ones(t00[3], r), ones(t10[3], r), fx);
-                    let bottom = lerp(ones(t01[3], r), ones(t11[3], r), fx);
-                    distances[x] = lerp(top, bottom, fy);
-                }
-            }
-        }
-        start += n;
-    }
-    sampled
+    super::gather::gather_row(image, &xs[..width], &ys[..width], out, census)
 }
 
 /// Where reference row `y` lands in a camera image of `cw` x `ch` texels that sees it shifted by
@@ -669,6 +610,99 @@ pub fn scored_channels(
     } else {
         for x in 0..n {
             channels[0][x] = mean_or_invalid(acc.sum[x], acc.count[x]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics};
+    use crate::sweep::SweepParams;
+
+    /// The General mapping's row loop (`general_row`: pinhole and plumb-bob lenses, every step
+    /// computed and selected) against `ray_pixel` per pixel, bit for bit, NaN where not seen:
+    /// a barrel lens and cameras converging steeply (points past the fold, which the model
+    /// would fold back into the image, and points outside it), planes behind the reference and through its centre.
+    /// Whether the point of `ray` on `plane` is in front of `cam`, past its lens's fold, and
+    /// the model would put it inside the image (what the fold test keeps out).
+    fn folds_inside(cam: &GpuCamera, plane: [f32; 4], ray: Vec3) -> bool {
+        let depth = plane_depth(plane, ray);
+        let point = ray.map(|v| v * depth);
+        let p = [cam.row0, cam.row1, cam.row2].map(|row| dot3(xyz(row), point) + row[3]);
+        let n = [p[0] / p[2], p[1] / p[2]];
+        let d = plumb_bob(cam, n);
+        let [fx, fy, cx, cy] = cam.intrinsics;
+        depth > 0.0
+            && p[2] > 1e-6
+            && n[0] * n[0] + n[1] * n[1] > cam.dist_b[1]
+            && inside(cam, [fx * d[0] + cx, fy * d[1] + cy])
+    }
+
+    #[test]
+    fn general_row_is_ray_pixel_bit_for_bit() {
+        let intrinsics = PinholeIntrinsics {
+            width_px: 48,
+            height_px: 36,
+            fx_px: 80.0,
+            fy_px: 84.0,
+            cx_px: 23.5,
+            cy_px: 17.25,
+        };
+        let barrel = Distortion::PlumbBob {
+            k1: -0.3,
+            k2: 0.0,
+            p1: 0.001,
+            p2: -0.002,
+            k3: 0.0,
+        };
+        for distortion in [barrel, Distortion::None] {
+            let model = CameraModel {
+                intrinsics,
+                distortion,
+            };
+            let rig = crate::synthetic::arc_rig(3, 0.6, 2.0, model, 1).unwrap();
+            let mut plan = SweepPlan::new(&rig, &SweepParams::default()).unwrap();
+            // Through the centre, slanted, behind, and near enough for the side cameras to see
+            // points 60 degrees off their axes (past the fold).
+            plan.planes.extend([
+                [0.0, 1.0, 0.0, 0.0],
+                [0.0, 0.6, 0.8, 1.5],
+                [0.0, 0.0, 1.0, -1.0],
+                [0.0, 0.0, 1.0, 0.15],
+                [0.0, 0.0, 1.0, 0.2],
+                [0.0, 0.0, 1.0, 0.3],
+            ]);
+            let width = plan.params.width as usize;
+            let mut coords = [vec![0.0; width], vec![0.0; width]];
+            let (mut seen, mut unseen, mut folded_inside) = (0, 0, 0);
+            for k in 0..plan.planes.len() {
+                for cam in &plan.cameras {
+                    for y in 0..plan.params.height as usize {
+                        sample_coords(&plan, cam, Mapping::General, k, y, &mut coords);
+                        for x in 0..width {
+                            let ray = xyz(plan.rays[y * width + x]);
+                            let want = ray_pixel(cam, ray, plane_depth(plan.planes[k], ray));
+                            let got = [coords[0][x], coords[1][x]];
+                            assert_eq!(
+                                got.map(f32::to_bits),
+                                want.map(f32::to_bits),
+                                "plane {k} row {y} column {x}: {got:?} {want:?}"
+                            );
+                            folded_inside += usize::from(folds_inside(cam, plan.planes[k], ray));
+                            if want[0].is_nan() {
+                                unseen += 1;
+                            } else {
+                                seen += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            assert!(seen > 1000 && unseen > 1000, "{seen} seen, {unseen} not");
+            if !distortion.is_none() {
+                assert!(folded_inside > 0, "no point folded back into the image");
+            }
         }
     }
 }

@@ -16,6 +16,7 @@ pub mod census;
 pub mod common;
 pub mod cost;
 pub mod finalize;
+mod gather;
 pub mod median;
 pub mod occlusion;
 pub mod plane;
