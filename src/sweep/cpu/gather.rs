@@ -19,6 +19,16 @@ const GATHER_CHUNK: usize = 64;
 /// sample `j` (`PlanarImage::texels`: colour bytes, census word).
 type ChunkTexels = [[[u32; 2]; GATHER_CHUNK]; 4];
 
+/// `v as u32` for a whole number `0 <= v < 2^23` (a seen sample's floor: at most the camera
+/// image's last column or row): the integer is the low mantissa bits of `v + 2^23`. Lane
+/// operations that vectorise; the saturating `as` casts, which must handle NaN and values out
+/// of range, compile into scalar conversions with compares per lane.
+#[inline(always)]
+fn whole(v: f32) -> u32 {
+    const MAGIC: f32 = 8_388_608.0;
+    (v + MAGIC).to_bits().wrapping_sub(MAGIC.to_bits())
+}
+
 /// The bilinear colours at `xs`, `ys` (NaN in `xs`: not seen; else a position that `inside`
 /// accepted) into `out` (NaN where not seen), and with `census` (the reference row's words,
 /// the distances out) the census distances of the samples (not written where not seen).
@@ -62,7 +72,7 @@ pub fn gather_row(
             let seen = !px.is_nan();
             let (bx, by) = (px.floor(), py.floor());
             let (x0, y0) = if seen {
-                (bx as i32 as u32, by as i32 as u32)
+                (whole(bx), whole(by))
             } else {
                 (0, 0)
             };
