@@ -15,9 +15,11 @@ use super::cost::ColourRow;
 /// Samples per chunk: indices, weights and texels on the stack.
 const GATHER_CHUNK: usize = 64;
 
-/// The four texels (00, 10, 01, 11) of a chunk's samples: `texels[k][j]` is texel `k` of
-/// sample `j` (`PlanarImage::texels`: colour bytes, census word).
-type ChunkTexels = [[[u32; 2]; GATHER_CHUNK]; 4];
+/// One half of the four texels (00, 10, 01, 11) of a chunk's samples: `half[k][j]` is the
+/// colour bytes (or the census word) of texel `k` of sample `j` (`PlanarImage::texels`), in
+/// arrays of their own so that the vectorised loops read them with no gaps (a loop reading
+/// one lane of pairs ends in a scalar iteration or eight).
+type ChunkTexels = [[u32; GATHER_CHUNK]; 4];
 
 /// `v as u32` for a whole number `0 <= v < 2^23` (a seen sample's floor: at most the camera
 /// image's last column or row): the integer is the low mantissa bits of `v + 2^23`. Lane
@@ -54,7 +56,8 @@ pub fn gather_row(
     let mut census =
         census.map(|(reference, distances)| (&reference[..width], &mut distances[..width]));
     let sampled = census.is_some();
-    let mut texels: ChunkTexels = [[[0; 2]; GATHER_CHUNK]; 4];
+    let mut colours: ChunkTexels = [[0; GATHER_CHUNK]; 4];
+    let mut words: ChunkTexels = [[0; GATHER_CHUNK]; 4];
     let mut start = 0;
     while start < width {
         let n = GATHER_CHUNK.min(width - start);
@@ -71,11 +74,7 @@ pub fn gather_row(
             let (px, py) = (cx[j], cy[j]);
             let seen = !px.is_nan();
             let (bx, by) = (px.floor(), py.floor());
-            let (x0, y0) = if seen {
-                (whole(bx), whole(by))
-            } else {
-                (0, 0)
-            };
+            let (x0, y0) = if seen { (whole(bx), whole(by)) } else { (0, 0) };
             base[j] = y0.wrapping_mul(iw).wrapping_add(x0);
             right[j] = (x0 + 1).min(iw - 1).wrapping_sub(x0);
             down[j] = (y0 + 1).min(ih - 1).wrapping_sub(y0).wrapping_mul(iw);
@@ -86,19 +85,19 @@ pub fn gather_row(
         for j in 0..n {
             let i00 = base[j] as usize;
             let (r, d) = (right[j] as usize, down[j] as usize);
-            texels[0][j] = t[i00];
-            texels[1][j] = t[i00 + r];
-            texels[2][j] = t[i00 + d];
-            texels[3][j] = t[i00 + d + r];
+            let texels = [t[i00], t[i00 + r], t[i00 + d], t[i00 + d + r]];
+            for k in 0..4 {
+                [colours[k][j], words[k][j]] = texels[k];
+            }
         }
         let at = start..start + n;
         let (wx, wy) = (&wx[..n], &wy[..n]);
-        mix_chunk(&texels, cx, wx, wy, &mut out_r[at.clone()], 0);
-        mix_chunk(&texels, cx, wx, wy, &mut out_g[at.clone()], 8);
-        mix_chunk(&texels, cx, wx, wy, &mut out_b[at.clone()], 16);
+        mix_chunk(&colours, cx, wx, wy, &mut out_r[at.clone()], 0);
+        mix_chunk(&colours, cx, wx, wy, &mut out_g[at.clone()], 8);
+        mix_chunk(&colours, cx, wx, wy, &mut out_b[at.clone()], 16);
         if let Some((reference, distances)) = census.as_mut() {
             let (reference, distances) = (&reference[at.clone()], &mut distances[at]);
-            distance_chunk(&texels, reference, cx, wx, wy, distances);
+            distance_chunk(&words, reference, cx, wx, wy, distances);
         }
         start += n;
     }
@@ -110,7 +109,7 @@ pub fn gather_row(
 /// sample is not seen (NaN in `cx`).
 #[inline(always)]
 fn mix_chunk(
-    texels: &ChunkTexels,
+    colours: &ChunkTexels,
     cx: &[f32],
     wx: &[f32],
     wy: &[f32],
@@ -119,10 +118,10 @@ fn mix_chunk(
 ) {
     let n = out.len();
     let (cx, wx, wy) = (&cx[..n], &wx[..n], &wy[..n]);
-    let [t00, t10, t01, t11] = texels;
+    let [t00, t10, t01, t11] = colours;
     let (t00, t10, t01, t11) = (&t00[..n], &t10[..n], &t01[..n], &t11[..n]);
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
-    let channel = |texel: [u32; 2]| ((texel[0] >> shift) & 0xff) as i32 as f32;
+    let channel = |colour: u32| ((colour >> shift) & 0xff) as i32 as f32;
     for j in 0..n {
         let top = lerp(channel(t00[j]), channel(t10[j]), wx[j]);
         let bottom = lerp(channel(t01[j]), channel(t11[j]), wx[j]);
@@ -136,7 +135,7 @@ fn mix_chunk(
 /// value.
 #[inline(always)]
 fn distance_chunk(
-    texels: &ChunkTexels,
+    words: &ChunkTexels,
     reference: &[u32],
     cx: &[f32],
     wx: &[f32],
@@ -145,12 +144,12 @@ fn distance_chunk(
 ) {
     let n = distances.len();
     let (reference, cx, wx, wy) = (&reference[..n], &cx[..n], &wx[..n], &wy[..n]);
-    let [t00, t10, t01, t11] = texels;
+    let [t00, t10, t01, t11] = words;
     let (t00, t10, t01, t11) = (&t00[..n], &t10[..n], &t01[..n], &t11[..n]);
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
     for j in 0..n {
         let r = reference[j];
-        let ones = |texel: [u32; 2]| (texel[1] ^ r).count_ones() as f32;
+        let ones = |word: u32| (word ^ r).count_ones() as f32;
         let top = lerp(ones(t00[j]), ones(t10[j]), wx[j]);
         let bottom = lerp(ones(t01[j]), ones(t11[j]), wx[j]);
         let d = lerp(top, bottom, wy[j]);
