@@ -239,8 +239,14 @@ fn validate_depths(limits: DepthLimits, out: &mut [f32], input: &[f32]) -> usize
 
 /// Camera frame to pixel.
 enum Projector {
-    Pinhole { fx: f32, fy: f32, cx: f32, cy: f32 },
-    Distorted(CameraModel),
+    Pinhole {
+        fx: f32,
+        fy: f32,
+        cx: f32,
+        cy: f32,
+    },
+    /// The model and its largest undistorted radius (`CameraModel::project_within`).
+    Distorted(CameraModel, f64),
 }
 
 impl Projector {
@@ -256,8 +262,8 @@ impl Projector {
                     fy * point_in_cam.y * inv_z + cy,
                 ))
             }
-            Projector::Distorted(model) => model
-                .project(point_in_cam.as_dvec3())
+            Projector::Distorted(model, max_radius) => model
+                .project_within(point_in_cam.as_dvec3(), *max_radius)
                 .map(|p| (p.x as f32, p.y as f32)),
         }
     }
@@ -341,7 +347,7 @@ impl<'a> View<'a> {
                 cx: k.cx_px as f32,
                 cy: k.cy_px as f32,
             },
-            _ => Projector::Distorted(*model),
+            _ => Projector::Distorted(*model, model.distortion.max_undistorted_radius()),
         };
         let (min_depth_m, max_depth_m) = (params.min_depth_m, params.max_depth_m);
         let trunc = params.truncation_m();
@@ -389,7 +395,7 @@ impl<'a> View<'a> {
                     tile_max: &mut tile_max,
                 })
             }
-            Projector::Distorted(_) => depth_m
+            Projector::Distorted(..) => depth_m
                 .par_chunks_mut(4096)
                 .zip(depth.data.par_chunks(4096))
                 .map(|(out, input)| limits.validate(out, input))
@@ -403,7 +409,7 @@ impl<'a> View<'a> {
             tile_max,
             colour,
             model: *model,
-            ray_grid: matches!(projector, Projector::Distorted(_)).then(|| RayGrid::new(model)),
+            ray_grid: matches!(projector, Projector::Distorted(..)).then(|| RayGrid::new(model)),
             projector,
             cam_from_world_rotation: rotation,
             cam_from_world_translation: cam_from_world.translation,
@@ -418,7 +424,7 @@ impl<'a> View<'a> {
                 && depth.height < 1 << 22
                 && depth.data.len() < i32::MAX as usize,
         };
-        if let Projector::Distorted(_) = view.projector {
+        if let Projector::Distorted(..) = view.projector {
             samples
                 .par_chunks_mut(width)
                 .enumerate()
@@ -449,10 +455,10 @@ impl<'a> View<'a> {
     fn ray_z1(&self, col: usize, row: usize) -> Option<DVec3> {
         let pixel = DVec2::new(col as f64, row as f64);
         match (&self.projector, &self.ray_grid) {
-            (Projector::Distorted(_), Some(grid)) => grid
+            (Projector::Distorted(..), Some(grid)) => grid
                 .ray(col, row)
                 .or_else(|| self.model.unproject_z1(pixel)),
-            (Projector::Distorted(model), None) => model.unproject_z1(pixel),
+            (Projector::Distorted(model, _), None) => model.unproject_z1(pixel),
             (Projector::Pinhole { .. }, _) => Some(self.model.intrinsics.unproject_z1(pixel)),
         }
     }

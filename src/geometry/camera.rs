@@ -101,6 +101,17 @@ impl CameraModel {
     /// `fisheye::projectPoints`); `None` if it is not in front, or lies past the distortion
     /// model's fold (where the model would wrongly bring it back into the image).
     pub fn project(&self, point_in_cam: DVec3) -> Option<DVec2> {
+        self.project_within(point_in_cam, self.distortion.max_undistorted_radius())
+    }
+
+    /// [`Self::project`] with the model's [`Distortion::max_undistorted_radius`] given, for a
+    /// caller that projects many points (the radius is a search, kept per thread: a lookup per
+    /// call otherwise).
+    pub fn project_within(
+        &self,
+        point_in_cam: DVec3,
+        max_undistorted_radius: f64,
+    ) -> Option<DVec2> {
         // (NaN fails the test too.)
         if point_in_cam.z.is_nan() || point_in_cam.z <= 1e-9 {
             return None;
@@ -110,7 +121,7 @@ impl CameraModel {
             point_in_cam.y / point_in_cam.z,
         );
         let r = normalised.length();
-        if r.is_nan() || r > self.distortion.max_undistorted_radius() {
+        if r.is_nan() || r > max_undistorted_radius {
             return None;
         }
         let d = self.distortion.distort(normalised);

@@ -24,7 +24,7 @@ impl View<'_> {
             Projector::Pinhole { fx, cx, .. } => {
                 Some((0..width).map(|col| (col as f32 - cx) / fx).collect())
             }
-            Projector::Distorted(_) => None,
+            Projector::Distorted(..) => None,
         };
         // A pinhole camera's tiles: per tile column, the ray's x part of each world axis at
         // the tile's first and last pixel column, least and greatest (`TileRays`).
@@ -135,7 +135,7 @@ impl View<'_> {
                             Projector::Pinhole { fx, fy, cx, cy } => {
                                 Vec3::new((col as f32 - cx) / fx, (row as f32 - cy) / fy, 1.0)
                             }
-                            Projector::Distorted(_) => match self.ray_z1(col, row) {
+                            Projector::Distorted(..) => match self.ray_z1(col, row) {
                                 Some(ray) => ray.as_vec3(),
                                 None => continue,
                             },
