@@ -72,7 +72,7 @@ impl PinholeIntrinsics {
         Ok(())
     }
 }
-/// How many distorted models' pixel rays [`CameraModel::pixel_rays`] keeps: a reference at its
+/// How many distorted models' pixel rays [`CameraModel::distorted_pixel_rays`] keeps: a reference at its
 /// coarse-to-fine levels (32 bytes a pixel: 9.8 MB for 640x480).
 pub const RAY_GRIDS: usize = 4;
 
@@ -193,35 +193,34 @@ impl CameraModel {
             && pixel.y <= f64::from(k.height_px) - 0.5
     }
 
-    /// The ray of every pixel ([`Self::unproject_z1`], row-major), shared: a distorted model's
-    /// unprojection is a Newton solve per pixel (~0.3 ms per thousand pixels), and the point
+    /// The ray of every pixel of a distorted model ([`Self::unproject_z1`], row-major), shared:
+    /// its unprojection is a Newton solve per pixel (~0.3 ms per thousand pixels), and the point
     /// cloud of every set and the plan of every pose of a moving rig need all of them again, so
-    /// the grids of the last [`RAY_GRIDS`] distorted models are kept (the same values). A
-    /// model without distortion gets a fresh grid (its unprojection is a multiply-add).
-    pub fn pixel_rays(&self) -> Arc<Vec<Option<DVec3>>> {
-        let make = || {
-            let (w, h) = (self.intrinsics.width_px, self.intrinsics.height_px);
-            let rays = (0..h)
-                .flat_map(|y| (0..w).map(move |x| (x, y)))
-                .map(|(x, y)| self.unproject_z1(DVec2::new(f64::from(x), f64::from(y))))
-                .collect();
-            Arc::new(rays)
-        };
+    /// the grids of the last [`RAY_GRIDS`] distorted models are kept (the same values). `None`
+    /// for a model without distortion: its unprojection is a multiply-add, cheaper than a grid,
+    /// so the caller unprojects its pixels itself.
+    pub fn distorted_pixel_rays(&self) -> Option<Arc<Vec<Option<DVec3>>>> {
         if self.distortion.is_none() {
-            return make();
+            return None;
         }
         let mut grids = RAY_GRID_CACHE
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         if let Some((_, rays)) = grids.iter().find(|(m, _)| m == self) {
-            return Arc::clone(rays);
+            return Some(Arc::clone(rays));
         }
-        let rays = make();
+        let (w, h) = (self.intrinsics.width_px, self.intrinsics.height_px);
+        let rays: Arc<Vec<Option<DVec3>>> = Arc::new(
+            (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| self.unproject_z1(DVec2::new(f64::from(x), f64::from(y))))
+                .collect(),
+        );
         if grids.len() == RAY_GRIDS {
             grids.pop();
         }
         grids.insert(0, (*self, Arc::clone(&rays)));
-        rays
+        Some(rays)
     }
 }
 
@@ -290,7 +289,7 @@ mod tests {
     }
 
     #[test]
-    fn pixel_rays_are_the_unprojections_and_kept_per_model() {
+    fn distorted_pixel_rays_are_the_unprojections_and_kept_per_model() {
         let model = |k1: f64| CameraModel {
             intrinsics: PinholeIntrinsics {
                 width_px: 40,
@@ -314,7 +313,7 @@ mod tests {
             .collect();
         for _ in 0..2 {
             for m in &models {
-                let rays = m.pixel_rays();
+                let rays = m.distorted_pixel_rays().expect("a distorted model's grid");
                 assert_eq!(rays.len(), 40 * 30);
                 for (i, ray) in rays.iter().enumerate() {
                     let pixel = DVec2::new((i % 40) as f64, (i / 40) as f64);
@@ -324,7 +323,12 @@ mod tests {
         }
         // The same model gives the kept grid, not a new one.
         let m = &models[models.len() - 1];
-        assert!(Arc::ptr_eq(&m.pixel_rays(), &m.pixel_rays()));
-        assert_ne!(models[0].pixel_rays()[0], models[1].pixel_rays()[0]);
+        let grid = || m.distorted_pixel_rays().expect("grid");
+        assert!(Arc::ptr_eq(&grid(), &grid()));
+        let first = |m: &CameraModel| m.distorted_pixel_rays().expect("grid")[0];
+        assert_ne!(first(&models[0]), first(&models[1]));
+        // Without distortion the caller unprojects (no grid).
+        let pinhole = CameraModel::pinhole(models[0].intrinsics);
+        assert!(pinhole.distorted_pixel_rays().is_none());
     }
 }

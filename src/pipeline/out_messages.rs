@@ -77,8 +77,9 @@ pub fn point_cloud_msg(
     // without distortion, or for a depth image of another size than the model's, each pixel is
     // unprojected here.
     let (mw, mh) = (model.intrinsics.width_px, model.intrinsics.height_px);
-    let shared = !model.distortion.is_none() && mw == width && mh == height;
-    let grid = shared.then(|| model.pixel_rays());
+    let grid = (mw == width && mh == height)
+        .then(|| model.distorted_pixel_rays())
+        .flatten();
     for (i, &z) in depth.data.iter().enumerate() {
         let u = (i % width.max(1) as usize) as f64;
         let v = (i / width.max(1) as usize) as f64;

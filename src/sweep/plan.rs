@@ -3,6 +3,7 @@
 //! numbers the GPU does.
 
 use bytemuck::Zeroable;
+use glam::DVec2;
 
 use super::gpu_types::*;
 use super::{
@@ -135,11 +136,17 @@ impl SweepPlan {
         // A pixel without a ray (a fisheye's beyond 90 degrees) gets the zero ray: no plane is
         // in front along it, so it stays invalid in every stage. (The model's rays are shared:
         // a moving rig makes a plan per pose.)
-        let rays: Vec<[f32; 4]> = ref_model
-            .pixel_rays()
-            .iter()
-            .map(|ray| ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]))
-            .collect();
+        let grid = ref_model.distorted_pixel_rays();
+        let mut rays = Vec::with_capacity(width as usize * height as usize);
+        for y in 0..height {
+            for x in 0..width {
+                let ray = match &grid {
+                    Some(grid) => grid.get(rays.len()).copied().flatten(),
+                    None => ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y))),
+                };
+                rays.push(ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]));
+            }
+        }
 
         let scoring = match params.scoring {
             Scoring::Sssd | Scoring::AllPairs => SCORING_SSSD,
