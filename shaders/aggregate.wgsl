@@ -41,13 +41,13 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 @group(0) @binding(6) var<storage, read_write> volume: array<u32>;
 // The rows this dispatch covers (the whole image unless the volume is split into bands).
 @group(0) @binding(7) var<uniform> band: Band;
-// Per reference row (SweepPlan::shader_plane_ranges): xy the planes it sweeps; outside them a
-// plane scores BIG (coarse to fine).
+// Per reference row and tile (SweepPlan::shader_plane_ranges): xy the planes its pixels sweep;
+// outside them a plane scores BIG (coarse to fine).
 @group(0) @binding(8) var<storage, read> plane_ranges: array<vec4<u32>>;
 
-// Whether row `y` sweeps plane `k`.
-fn sweeps(y: u32, k: u32) -> bool {
-    let range = plane_ranges[y].xy;
+// Whether pixel (x, y) sweeps plane `k`.
+fn sweeps(x: u32, y: u32, k: u32) -> bool {
+    let range = plane_ranges[range_index(params.width, x, y)].xy;
     return k >= range.x && k <= range.y;
 }
 
@@ -480,7 +480,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         for (var z = 0u; z < batch.plane_count; z++) {
             let k = f32(batch.first_plane + z);
             var best = array<vec2<f32>, 2>(no_hypothesis(), no_hypothesis());
-            if (sweeps(y, batch.first_plane + z)) {
+            // x and x + 1 share a tile (RANGE_TILE is even).
+            if (sweeps(x, y, batch.first_plane + z)) {
                 best = score_plane_paired(z, i32(x), i32(y));
             }
             a = select_plane(a, k, best[0]);
@@ -506,7 +507,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var low = 0u;
     for (var z = 0u; z < batch.plane_count; z++) {
         var best = no_hypothesis();
-        if (sweeps(y, batch.first_plane + z)) {
+        if (sweeps(gid.x, y, batch.first_plane + z)) {
             best = score_plane(z, i32(gid.x), i32(y));
         }
         st = select_plane(st, f32(batch.first_plane + z), best);

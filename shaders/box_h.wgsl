@@ -9,8 +9,10 @@ override CHANNELS: u32 = 1u;      // = params.channels
 @group(0) @binding(1) var<uniform> batch: Batch;
 @group(0) @binding(2) var<storage, read> cost_slab: array<f32>;
 @group(0) @binding(3) var<storage, read_write> row_sums: array<vec2<f32>>;
-// Per reference row (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes it sweeps,
-// zw the planes the rows within a window height of it sweep; only the zw planes are summed.
+// Per reference row and tile (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes
+// its pixels sweep, zw the planes the pixels whose windows reach it sweep; an anchor sums only
+// the zw planes of its first column's tile (the pixels that read it lie within window_w - 1
+// columns of that column).
 @group(0) @binding(4) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 @compute @workgroup_size(8, 8, 1)
@@ -26,7 +28,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     // The columns of the window that lie inside the image.
     let x_first = max(ax, 0);
     let x_end = min(ax + i32(WINDOW_W), i32(width));
-    let needed = plane_ranges[gid.y].zw;
+    let needed = plane_ranges[range_index(width, u32(x_first), gid.y)].zw;
     for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
         let k = batch.first_plane + zc / CHANNELS;
         if (k < needed.x || k > needed.y) {

@@ -244,8 +244,17 @@ fn plane_depth(plane: vec4<f32>, ray: vec3<f32>) -> f32 {
 // Sections of the `maps` buffer, each one reference image of f32 (counts and codes stored as f32).
 // Coarse to fine on the device (plane_spans.wgsl, plane_ranges.wgsl; src/sweep/coarse.rs).
 const MARGIN_PLANES: u32 = 3u;     // planes added on each side of a row's span
-const NEIGHBOUR_ROWS: u32 = 1u;    // half-resolution rows either side of a row's own
+const TILE_MARGIN_PLANES: u32 = 7u; // planes added on each side of a tile's span
+const NEIGHBOUR_ROWS: u32 = 2u;    // half-resolution rows either side of a row's own
 const NO_SPAN: u32 = 0xffffffffu;  // a half-resolution row with no depth
+const NEIGHBOUR_COLS: u32 = 8u;    // half-resolution columns either side of a tile's own
+const RANGE_TILE: u32 = 16u;       // columns per tile of the plane ranges (plan.rs RANGE_TILE)
+
+// Index of pixel (x, y)'s tile in the `plane_ranges` buffer of a reference `width` wide
+// (row-major tiles of RANGE_TILE columns: SweepPlan::plane_ranges).
+fn range_index(width: u32, x: u32, y: u32) -> u32 {
+    return y * ((width + RANGE_TILE - 1u) / RANGE_TILE) + x / RANGE_TILE;
+}
 
 const MAP_DEPTH_RAW: u32 = 0u;     // after selection (+ sub-pixel)
 const MAP_DEPTH_MEDIAN: u32 = 1u;  // after the 3x3 median

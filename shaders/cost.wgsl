@@ -14,10 +14,10 @@ override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggr
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> rays: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> cost_slab: array<f32>;
-// Per reference row (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes it sweeps,
-// zw the planes the rows within a window height of it sweep. A row costs only the zw planes;
-// the slab texels it skips are read only by windows of rows that do not sweep that plane,
-// which aggregate.wgsl does not score.
+// Per reference row and tile (SweepPlan::shader_plane_ranges; coarse to fine): xy the planes
+// its pixels sweep, zw the planes the pixels whose windows reach it sweep. A pixel costs only
+// its tile's zw planes; the slab texels it skips are read only by windows of pixels that do
+// not sweep that plane, which aggregate.wgsl does not score.
 @group(0) @binding(6) var<storage, read> plane_ranges: array<vec4<u32>>;
 
 // The four texels around a sample that `inside` accepted (row-major indices in the camera's
@@ -324,7 +324,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             ref_word = census_word(cameras[ref_index], gid.y * cameras[ref_index].size.x + gid.x);
         }
     }
-    let needed = plane_ranges[gid.y].zw;
+    let needed = plane_ranges[range_index(params.width, gid.x, gid.y)].zw;
     if (AGGREGATION == AGG_PER_PAIR && PAIRS == PAIRS_REFERENCE) {
         // Camera-outer order: each camera's parameters are loaded once for all planes.
         let npix = params.pixel_count;

@@ -16,15 +16,24 @@ use std::cell::OnceCell;
 
 use super::frame_memo::FrameMemo;
 use super::joint_median::{Bins, JointMedian};
-use super::plan::SweepPlan;
+use super::plan::{range_tiles, SweepPlan, RANGE_TILE};
 use super::{DepthMaps, SweepError, SweepParams};
 
-/// Planes added on each side of the range the half-resolution depths span (a half-resolution
-/// pixel's plane is about twice as uncertain; chosen on the public sets; docs/engine.md).
+/// Planes added on each side of the span of the half-resolution depths of a row and its
+/// neighbours (a half-resolution pixel's plane is about twice as uncertain; chosen on the
+/// public sets; docs/engine.md). A tile's range lies within its row's.
 pub const MARGIN_PLANES: u32 = 3;
 
+/// Planes added on each side of the span of a tile's half-resolution depths: more than a row's,
+/// as a tile's few depths may all miss a thin structure or hold a patch of wrong ones (chosen
+/// on the public sets with NEIGHBOUR_COLS: docs/speed.md, "Plane ranges per tile").
+pub const TILE_MARGIN_PLANES: u32 = 7;
+
 /// Half-resolution rows above and below a row's own whose depths set its range.
-pub const NEIGHBOUR_ROWS: u32 = 1;
+pub const NEIGHBOUR_ROWS: u32 = 2;
+
+/// Half-resolution columns left and right of a range tile's own whose depths set its range.
+pub const NEIGHBOUR_COLS: u32 = 8;
 
 /// The smallest reference (width and height, pixels) that is swept coarse to fine; a smaller
 /// one is swept at full resolution only (it is fast anyway, and at 80x60 the 40x30
@@ -470,51 +479,85 @@ pub fn half_image(image: &Rgba8Image) -> Rgba8Image {
     }
 }
 
-/// Each full-resolution row's planes: those of the half-resolution depths of its own and the
-/// neighbouring half-resolution rows (the plane nearest each depth in inverse depth along the
-/// full-resolution ray), widened by MARGIN_PLANES; every plane where those rows hold no depth.
+/// Each full-resolution (row, tile)'s planes (the layout of `SweepPlan::plane_ranges`): the
+/// planes of the half-resolution depths (the plane nearest each depth in inverse depth along
+/// the full-resolution ray) of its own and the neighbouring half-resolution rows
+/// (NEIGHBOUR_ROWS), in the tile's half-resolution columns and NEIGHBOUR_COLS more each side,
+/// widened by TILE_MARGIN_PLANES, within those of the whole rows widened by MARGIN_PLANES; the
+/// rows' where the tile's pixels hold no depth, every plane where the rows hold none.
 pub fn plane_ranges(plan: &SweepPlan, coarse: &ImageF32) -> Vec<[u32; 2]> {
     let planes = plan.num_planes();
     let (width, height) = (plan.width as usize, plan.height as usize);
     let (cw, ch) = (coarse.width as usize, coarse.height as usize);
-    let all = vec![[0, planes - 1]; height];
+    let tiles = range_tiles(plan.width) as usize;
+    let all = vec![[0, planes - 1]; height * tiles];
     if cw == 0 || ch == 0 {
         return all;
     }
-    // The span of planes of each half-resolution row (None: no depth there).
-    let row_spans: Vec<Option<[u32; 2]>> = (0..ch)
-        .map(|cy| {
+    let join = |acc: Option<[u32; 2]>, s: [u32; 2]| {
+        Some(acc.map_or(s, |a| [a[0].min(s[0]), a[1].max(s[1])]))
+    };
+    // The span of planes of each half-resolution row's part under each tile (None: no depth
+    // there), from the plane of each half-resolution pixel.
+    let half_tile = RANGE_TILE as usize / 2;
+    let near_cols = NEIGHBOUR_COLS as usize;
+    let tile_spans: Vec<Option<[u32; 2]>> = (0..ch)
+        .flat_map(|cy| {
             let y = (2 * cy).min(height - 1);
-            let mut span: Option<[u32; 2]> = None;
-            for cx in 0..cw {
-                let depth = coarse.data[cy * cw + cx];
-                if !(depth.is_finite() && depth > 0.0) {
-                    continue;
-                }
-                let x = (2 * cx).min(width - 1);
-                let k = nearest_plane(plan, y * width + x, depth);
-                span = Some(span.map_or([k, k], |[lo, hi]| [lo.min(k), hi.max(k)]));
-            }
-            span
+            let ks: Vec<Option<u32>> = (0..cw)
+                .map(|cx| {
+                    let depth = coarse.data[cy * cw + cx];
+                    let x = (2 * cx).min(width - 1);
+                    (depth.is_finite() && depth > 0.0)
+                        .then(|| nearest_plane(plan, y * width + x, depth))
+                })
+                .collect();
+            (0..tiles).map(move |t| {
+                let first = (t * half_tile).saturating_sub(near_cols);
+                let end = ((t + 1) * half_tile + near_cols).min(cw);
+                ks[first.min(end)..end]
+                    .iter()
+                    .flatten()
+                    .fold(None, |acc, &k| join(acc, [k, k]))
+            })
         })
         .collect();
-    (0..height)
-        .map(|y| {
-            let cy = (y / 2).min(ch - 1);
-            let near = NEIGHBOUR_ROWS as usize;
-            let rows = cy.saturating_sub(near)..=(cy + near).min(ch - 1);
-            let span = row_spans[rows]
+    let near = NEIGHBOUR_ROWS as usize;
+    // The span of each whole half-resolution row (every column lies in some tile's part).
+    let row_spans: Vec<Option<[u32; 2]>> = (0..ch)
+        .map(|cy| {
+            tile_spans[cy * tiles..(cy + 1) * tiles]
                 .iter()
                 .flatten()
-                .fold(None, |acc: Option<[u32; 2]>, s| {
-                    Some(acc.map_or(*s, |a| [a[0].min(s[0]), a[1].max(s[1])]))
-                });
+                .copied()
+                .fold(None, join)
+        })
+        .collect();
+    (0..height * tiles)
+        .map(|i| {
+            let (y, t) = (i / tiles, i % tiles);
+            let cy = (y / 2).min(ch - 1);
+            let rows = cy.saturating_sub(near)..=(cy + near).min(ch - 1);
+            let span = rows
+                .clone()
+                .filter_map(|r| tile_spans[r * tiles + t])
+                .fold(None, join);
+            let row = rows
+                .filter_map(|r| row_spans[r])
+                .fold(None, join)
+                .map(|[lo, hi]| {
+                    [
+                        lo.saturating_sub(MARGIN_PLANES),
+                        (hi + MARGIN_PLANES).min(planes - 1),
+                    ]
+                })
+                .unwrap_or([0, planes - 1]);
             match span {
                 Some([lo, hi]) => [
-                    lo.saturating_sub(MARGIN_PLANES),
-                    (hi + MARGIN_PLANES).min(planes - 1),
+                    lo.saturating_sub(TILE_MARGIN_PLANES).max(row[0]),
+                    (hi + TILE_MARGIN_PLANES).min(planes - 1).min(row[1]),
                 ],
-                None => [0, planes - 1],
+                None => row,
             }
         })
         .collect()
@@ -599,31 +642,57 @@ mod tests {
                 .expect("planes");
             assert_eq!(nearest_plane(&plan, 100, depth), scan, "depth {depth}");
         }
-        // Half-resolution depths: 2 m on rows 0..12, NaN on 12..18, 4 m below.
+        // Half-resolution depths: 2 m on rows 0..12 (7 m in their columns 24..32), NaN on
+        // 12..18, 4 m below.
         let coarse = ImageF32 {
             width: 32,
             height: 24,
             data: (0..24 * 32)
-                .map(|i| match i / 32 {
-                    0..12 => 2.0,
-                    12..18 => f32::NAN,
+                .map(|i| match (i / 32, i % 32) {
+                    (0..12, 24..) => 7.0,
+                    (0..12, _) => 2.0,
+                    (12..18, _) => f32::NAN,
                     _ => 4.0,
                 })
                 .collect(),
         };
         let ranges = plane_ranges(&plan, &coarse);
-        assert_eq!(ranges.len(), 48);
+        // 64 columns: four tiles of 16 per row.
+        let tiles = 4;
+        assert_eq!(ranges.len(), 48 * tiles);
+        let at = |y: usize, t: usize| ranges[y * tiles + t];
         let k2 = nearest_plane(&plan, 0, 2.0);
         let k4 = nearest_plane(&plan, 0, 4.0);
-        assert!(k4 < k2, "farther is a lower plane here: {k4} vs {k2}");
-        assert_eq!(ranges[0], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
-        // Row 22 (half-row 11) sees half-rows 10..=12: 2 m and nothing.
-        assert_eq!(ranges[22], [k2 - MARGIN_PLANES, k2 + MARGIN_PLANES]);
-        // Rows 26..=29 (half-rows 13, 14) see no depth at all: every plane.
-        assert_eq!(ranges[27], [0, 63]);
-        // Row 35 (half-row 17) sees half-rows 16..=18: 4 m.
-        assert_eq!(ranges[35], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
-        assert_eq!(ranges[47], [k4 - MARGIN_PLANES, k4 + MARGIN_PLANES]);
+        let k7 = nearest_plane(&plan, 60, 7.0);
+        assert!(
+            k7 < k4 && k4 < k2,
+            "farther is a lower plane here: {k7}, {k4}, {k2}"
+        );
+        let margin = |lo: u32, hi: u32| [lo.saturating_sub(MARGIN_PLANES), hi + MARGIN_PLANES];
+        // A tile's span widened by TILE_MARGIN_PLANES within its rows' range.
+        let within = |row: [u32; 2], lo: u32, hi: u32| {
+            [
+                lo.saturating_sub(TILE_MARGIN_PLANES).max(row[0]),
+                (hi + TILE_MARGIN_PLANES).min(row[1]),
+            ]
+        };
+        // Row 0 (half-rows 0..=2) holds both depths: tiles 0 and 1 (half-resolution columns
+        // 0..16 and 0..24) see 2 m alone, tile 2 (8..32) and tile 3 (16..32) both.
+        let row = margin(k7, k2);
+        assert_eq!(at(0, 0), within(row, k2, k2));
+        assert_ne!(at(0, 0), row, "a tile narrower than its row");
+        assert_eq!(at(0, 1), within(row, k2, k2));
+        assert_eq!(at(0, 2), row);
+        assert_eq!(at(0, 3), row);
+        // Row 22 (half-row 11) sees half-rows 9..=13: 2 m and 7 m, and nothing.
+        assert_eq!(at(22, 0), within(row, k2, k2));
+        // Rows 28 and 29 (half-row 14) see no depth at all (half-rows 12..=16): every plane.
+        for t in 0..tiles {
+            assert_eq!(at(29, t), [0, 63]);
+        }
+        // Row 35 (half-row 17) sees half-rows 15..=19: 4 m.
+        assert_eq!(at(35, 3), margin(k4, k4));
+        assert_eq!(at(47, 0), margin(k4, k4));
     }
 
     #[test]

@@ -236,6 +236,12 @@ mod tests {
             ("MAX_SGM_PLANES", MAX_SGM_PLANES),
             ("MARGIN_PLANES", crate::sweep::coarse::MARGIN_PLANES),
             ("NEIGHBOUR_ROWS", crate::sweep::coarse::NEIGHBOUR_ROWS),
+            (
+                "TILE_MARGIN_PLANES",
+                crate::sweep::coarse::TILE_MARGIN_PLANES,
+            ),
+            ("NEIGHBOUR_COLS", crate::sweep::coarse::NEIGHBOUR_COLS),
+            ("RANGE_TILE", crate::sweep::plan::RANGE_TILE),
         ] {
             let needle = format!("const {name}: u32 = {value}u;");
             assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");

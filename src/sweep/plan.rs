@@ -13,6 +13,15 @@ use super::{
 use crate::geometry::{Distortion, Rig};
 use crate::image::Rgba8Image;
 
+/// Columns per tile of the plane ranges (coarse to fine narrows each row's planes per tile of
+/// this many columns: docs/speed.md, "How much plane ranges per tile would save").
+pub const RANGE_TILE: u32 = 16;
+
+/// Tiles of plane ranges across a reference `width` pixels wide.
+pub fn range_tiles(width: u32) -> u32 {
+    width.div_ceil(RANGE_TILE)
+}
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct SweepPlan {
     /// Unique per constructed plan; engines re-upload the arrays when it changes. Build a new
@@ -30,11 +39,17 @@ pub struct SweepPlan {
     /// engine uploads them again only when it changes (several references of one rig share
     /// buffers and, with equal intrinsics, their rays).
     pub ray_model: crate::geometry::CameraModel,
-    /// Per reference row, the planes it sweeps (first, last; inclusive): a plane outside a
-    /// row's range scores BIG on that row (no hypothesis), and the CPU engine skips a plane
-    /// that no row of a band needs. Every plane for every row unless narrowed
-    /// ([`SweepPlan::set_plane_ranges`], coarse to fine).
+    /// Per reference row and tile of [`RANGE_TILE`] columns (row-major: index
+    /// `y * range_tiles(width) + x / RANGE_TILE`), the planes its pixels sweep (first, last;
+    /// inclusive): a plane outside a pixel's range scores BIG there (no hypothesis), and the
+    /// engines make no costs that no pixel's windows read. Every plane everywhere unless
+    /// narrowed ([`SweepPlan::set_plane_ranges`], coarse to fine).
     pub plane_ranges: Vec<[u32; 2]>,
+    /// The ranges as the shaders read them ([`SweepPlan::shader_plane_ranges`]), made when
+    /// the ranges are set.
+    tile_ranges: Vec<[u32; 4]>,
+    /// Whether some tile sweeps fewer than every plane.
+    narrowed: bool,
     /// Total pixels of all camera images (image buffer and z-buffer length).
     pub total_camera_pixels: usize,
     pub width: u32,
@@ -279,6 +294,7 @@ impl SweepPlan {
             gpu_params.sgm_unit_per_level = 1.0 / (params.sgm_paths as f32 * levels_per_unit);
         }
         let last_plane = planes.len() as u32 - 1;
+        let tiles = (range_tiles(width) * height) as usize;
         Ok(Self {
             id: next_plan_id(),
             params: gpu_params,
@@ -288,39 +304,50 @@ impl SweepPlan {
             rays,
             ray_model: ref_model,
             total_camera_pixels: offset as usize,
-            plane_ranges: vec![[0, last_plane]; height as usize],
+            plane_ranges: vec![[0, last_plane]; tiles],
+            tile_ranges: vec![[0, last_plane, 0, last_plane]; tiles],
+            narrowed: false,
             width,
             height,
         })
     }
 
-    /// Narrows each row to `ranges[y]` (first, last plane, inclusive). The ranges are not part
-    /// of the plan's id: the engines read them on every run (a coarse-to-fine sweep sets new
-    /// ones on the same plan every frame set).
+    /// Narrows each (row, tile) to its range in `ranges` (first, last plane, inclusive; the
+    /// layout of [`SweepPlan::plane_ranges`]). The ranges are not part of the plan's id: the
+    /// engines read them on every run (a coarse-to-fine sweep sets new ones on the same plan
+    /// every frame set).
     pub fn set_plane_ranges(&mut self, ranges: Vec<[u32; 2]>) -> Result<(), SweepError> {
         let planes = self.num_planes();
-        if ranges.len() != self.height as usize {
+        let tiles = range_tiles(self.width) as usize;
+        if ranges.len() != self.height as usize * tiles {
             return Err(SweepError::InvalidParams(format!(
-                "plane ranges for {} rows; the reference has {}",
+                "{} plane ranges; a {}x{} reference has {} (rows x tiles of {RANGE_TILE} columns)",
                 ranges.len(),
-                self.height
+                self.width,
+                self.height,
+                self.height as usize * tiles
             )));
         }
-        if let Some((y, r)) = ranges
+        if let Some((i, r)) = ranges
             .iter()
             .enumerate()
             .find(|(_, r)| r[0] > r[1] || r[1] >= planes)
         {
             return Err(SweepError::InvalidParams(format!(
-                "row {y}: plane range {}..={} is not within 0..{planes}",
-                r[0], r[1]
+                "row {}, tile {}: plane range {}..={} is not within 0..{planes}",
+                i / tiles,
+                i % tiles,
+                r[0],
+                r[1]
             )));
         }
+        self.tile_ranges = tile_hulls(&ranges, tiles, &self.params);
+        self.narrowed = ranges.iter().any(|r| *r != [0, planes - 1]);
         self.plane_ranges = ranges;
         Ok(())
     }
 
-    /// A copy of the plan (a new id) with each row sweeping only `ranges[y]`.
+    /// A copy of the plan (a new id) sweeping only `ranges` ([`SweepPlan::set_plane_ranges`]).
     pub fn narrow_planes(&self, ranges: Vec<[u32; 2]>) -> Result<Self, SweepError> {
         let mut narrowed = self.clone();
         narrowed.id = next_plan_id();
@@ -328,29 +355,69 @@ impl SweepPlan {
         Ok(narrowed)
     }
 
-    /// The ranges as the shaders read them, per row: its own range (aggregate.wgsl, box_v.wgsl)
-    /// and the hull of the ranges of the rows within a window height of it, the planes whose
-    /// costs and row sums it must have (cost.wgsl, box_h.wgsl; window_h - 1 rows either way
-    /// covers centred and shiftable windows).
-    pub fn shader_plane_ranges(&self) -> Vec<[u32; 4]> {
-        let reach = self.params.window_h.saturating_sub(1) as usize;
-        let rows = self.plane_ranges.len();
-        (0..rows)
-            .map(|y| {
-                let near = &self.plane_ranges[y.saturating_sub(reach)..(y + reach + 1).min(rows)];
-                let lo = near.iter().map(|r| r[0]).min().unwrap_or(0);
-                let hi = near.iter().map(|r| r[1]).max().unwrap_or(0);
-                let own = self.plane_ranges[y];
-                [own[0], own[1], lo, hi]
-            })
-            .collect()
+    /// The ranges as the shaders read them, per (row, tile) in the layout of
+    /// [`SweepPlan::plane_ranges`]: its own range (aggregate.wgsl, box_v.wgsl) and the hull of
+    /// the ranges of the tiles whose pixels' windows reach its pixels, the planes whose costs
+    /// and row sums it must have (cost.wgsl, box_h.wgsl; window_h - 1 rows and window_w - 1
+    /// columns either way cover centred and shiftable windows).
+    pub fn shader_plane_ranges(&self) -> &[[u32; 4]] {
+        &self.tile_ranges
     }
 
-    /// Whether row `y` sweeps plane `k`.
+    /// Whether some tile sweeps fewer than every plane (coarse to fine).
+    pub fn narrowed(&self) -> bool {
+        self.narrowed
+    }
+
+    /// Whether some pixel of row `y` sweeps plane `k`.
     pub fn sweeps(&self, y: usize, k: u32) -> bool {
+        let tiles = range_tiles(self.width) as usize;
         self.plane_ranges
-            .get(y)
-            .is_none_or(|r| r[0] <= k && k <= r[1])
+            .get(y * tiles..(y + 1) * tiles)
+            .is_none_or(|row| row.iter().any(|r| r[0] <= k && k <= r[1]))
+    }
+
+    /// The column spans of row `y` whose costs on plane `k` some pixel's windows read (the
+    /// tiles whose window hull holds `k`, neighbours merged), into `spans`.
+    pub fn cost_spans(&self, y: usize, k: u32, spans: &mut Vec<std::ops::Range<usize>>) {
+        spans.clear();
+        let tiles = range_tiles(self.width) as usize;
+        let (tile, width) = (RANGE_TILE as usize, self.width as usize);
+        let row = self.tile_ranges.get(y * tiles..(y + 1) * tiles);
+        let Some(row) = row.filter(|_| self.narrowed) else {
+            spans.push(0..width);
+            return;
+        };
+        for (t, r) in row.iter().enumerate() {
+            if r[2] <= k && k <= r[3] {
+                let (lo, hi) = (t * tile, ((t + 1) * tile).min(width));
+                match spans.last_mut() {
+                    Some(last) if last.end == lo => last.end = hi,
+                    _ => spans.push(lo..hi),
+                }
+            }
+        }
+    }
+
+    /// The column spans of row `y` whose pixels do not sweep plane `k` (they score BIG on it),
+    /// into `spans`.
+    pub fn idle_spans(&self, y: usize, k: u32, spans: &mut Vec<std::ops::Range<usize>>) {
+        spans.clear();
+        let tiles = range_tiles(self.width) as usize;
+        let (tile, width) = (RANGE_TILE as usize, self.width as usize);
+        let row = self.plane_ranges.get(y * tiles..(y + 1) * tiles);
+        let Some(row) = row.filter(|_| self.narrowed) else {
+            return;
+        };
+        for (t, r) in row.iter().enumerate() {
+            if !(r[0] <= k && k <= r[1]) {
+                let (lo, hi) = (t * tile, ((t + 1) * tile).min(width));
+                match spans.last_mut() {
+                    Some(last) if last.end == lo => last.end = hi,
+                    _ => spans.push(lo..hi),
+                }
+            }
+        }
     }
 
     pub fn pixel_count(&self) -> usize {
@@ -548,6 +615,40 @@ fn bytes_of_floats(values: &[f32], nan: u8) -> Vec<u8> {
     out
 }
 
+/// Per (row, tile) of `ranges` (`tiles` per row): its own range and the hull of the ranges of
+/// the rows within window_h - 1 of it and the tiles holding a column within window_w - 1 of
+/// its columns (`SweepPlan::shader_plane_ranges`; twin: shaders/plane_ranges.wgsl). The hull
+/// across tiles first, then across rows (min and max: the order does not matter).
+fn tile_hulls(ranges: &[[u32; 2]], tiles: usize, params: &GpuParams) -> Vec<[u32; 4]> {
+    let reach_y = params.window_h.saturating_sub(1) as usize;
+    let reach_x = params.window_w.saturating_sub(1) as usize;
+    let (tile, width) = (RANGE_TILE as usize, params.width as usize);
+    let rows = ranges.len() / tiles.max(1);
+    let hull = |it: &mut dyn Iterator<Item = [u32; 2]>| {
+        it.fold([u32::MAX, 0], |a, r| [a[0].min(r[0]), a[1].max(r[1])])
+    };
+    let across: Vec<[u32; 2]> = (0..rows * tiles)
+        .map(|i| {
+            let (y, t) = (i / tiles, i % tiles);
+            let first = (t * tile).saturating_sub(reach_x) / tile;
+            let last = (((t + 1) * tile).min(width).saturating_sub(1) + reach_x) / tile;
+            hull(
+                &mut ranges[y * tiles + first..=y * tiles + last.min(tiles - 1)]
+                    .iter()
+                    .copied(),
+            )
+        })
+        .collect();
+    (0..rows * tiles)
+        .map(|i| {
+            let (y, t) = (i / tiles, i % tiles);
+            let near = y.saturating_sub(reach_y)..(y + reach_y + 1).min(rows);
+            let [lo, hi] = hull(&mut near.map(|r| across[r * tiles + t]));
+            [ranges[i][0], ranges[i][1], lo, hi]
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod float_to_u8_tests {
     #[test]
@@ -585,5 +686,89 @@ mod float_to_u8_tests {
         assert_eq!(each, expected);
         let visible: Vec<u8> = values.iter().map(|&v| v.min(255.0) as u8).collect();
         assert_eq!(super::bytes_of_floats(&values, 255), visible);
+    }
+}
+
+#[cfg(test)]
+mod range_tile_tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+
+    /// Per tile ranges on a reference 70 pixels wide (a partial last tile): every pixel that a
+    /// sweeping pixel's windows reach has its cost made on that plane (`cost_spans`), the
+    /// pixels outside their tile's range are exactly the idle ones (`idle_spans`), and the
+    /// shaders' hull holds the tile's own range; centred 5x5 and shiftable 2x2 windows.
+    #[test]
+    fn cost_spans_cover_every_window_of_a_sweeping_pixel() {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(70, 24));
+        let rig = crate::synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let shiftable = SweepParams {
+            window_mode: WindowMode::Shiftable,
+            window_width: 2,
+            window_height: 2,
+            ..SweepParams::default()
+        };
+        for params in [SweepParams::default(), shiftable] {
+            let mut plan = SweepPlan::new(&rig, &params).expect("plan");
+            let planes = plan.num_planes();
+            let tiles = range_tiles(plan.width) as usize;
+            assert_eq!(tiles, 5);
+            let (width, height) = (70usize, 24usize);
+            // Not narrowed: every column of every row.
+            let mut spans = Vec::new();
+            plan.cost_spans(3, 7, &mut spans);
+            assert_eq!(spans, vec![0..width]);
+            let ranges: Vec<[u32; 2]> = (0..height * tiles)
+                .map(|i| {
+                    let (y, t) = (i / tiles, i % tiles);
+                    let lo = ((y * 7 + t * 13) % 20) as u32;
+                    [lo, (lo + (t as u32 % 3) * 4).min(planes - 1)]
+                })
+                .collect();
+            plan.set_plane_ranges(ranges.clone()).expect("ranges");
+            assert!(plan.narrowed());
+            let (rw, rh) = (
+                params.window_width as usize - 1,
+                params.window_height as usize - 1,
+            );
+            let own = |x: usize, y: usize| ranges[y * tiles + x / RANGE_TILE as usize];
+            let (mut needed_total, mut made_total) = (0, 0);
+            for k in 0..planes {
+                for y in 0..height {
+                    plan.cost_spans(y, k, &mut spans);
+                    let made = |x: usize| spans.iter().any(|s| s.contains(&x));
+                    let mut idle = Vec::new();
+                    plan.idle_spans(y, k, &mut idle);
+                    for x in 0..width {
+                        let r = own(x, y);
+                        let sweeps = r[0] <= k && k <= r[1];
+                        assert_eq!(
+                            idle.iter().any(|s| s.contains(&x)),
+                            !sweeps,
+                            "({x}, {y}) {k}"
+                        );
+                        let needed = (y.saturating_sub(rh)..(y + rh + 1).min(height)).any(|v| {
+                            (x.saturating_sub(rw)..(x + rw + 1).min(width)).any(|u| {
+                                let r = own(u, v);
+                                r[0] <= k && k <= r[1]
+                            })
+                        });
+                        assert!(!needed || made(x), "({x}, {y}) plane {k} needed, not made");
+                        needed_total += usize::from(needed);
+                        made_total += usize::from(made(x));
+                    }
+                }
+            }
+            // Not every plane everywhere (the spans skip something).
+            assert!(
+                made_total < (planes as usize) * width * height,
+                "{made_total}"
+            );
+            assert!(needed_total > 0);
+            for (hull, r) in plan.shader_plane_ranges().iter().zip(&ranges) {
+                assert_eq!([hull[0], hull[1]], *r);
+                assert!(hull[2] <= r[0] && hull[3] >= r[1]);
+            }
+        }
     }
 }

@@ -311,7 +311,7 @@ pub const STAGES: [StageInfo; 14] = [
         name: "plane_ranges",
         entry_point: "main",
         bindings: &[uniform("params"), read("spans"), read_write("plane_ranges")],
-        workgroup_size: Some([64, 1, 1]),
+        workgroup_size: TILE,
         overrides: &[],
     },
 ];

@@ -8,7 +8,7 @@ use sweepdepth::image::{ImageF32, Rgba8Image};
 use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout};
 use sweepdepth::sweep::gpu_types::*;
-use sweepdepth::sweep::plan::SweepPlan;
+use sweepdepth::sweep::plan::{range_tiles, SweepPlan, RANGE_TILE};
 use sweepdepth::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
 use sweepdepth::synthetic::{self, Scene};
 
@@ -882,13 +882,18 @@ fn narrowed_plane_ranges_agree() {
         )
         .expect("plan");
         let planes = plan.num_planes();
-        // Row bands of different ranges, some rows with every plane, one with a single plane.
-        let ranges: Vec<[u32; 2]> = (0..plan.height)
-            .map(|y| match (y / 9) % 4 {
-                0 => [0, planes - 1],
-                1 => [4, 20],
-                2 => [10, 10],
-                _ => [12 + y % 5, planes - 1],
+        // Bands of rows and tiles of different ranges, some with every plane, one with a
+        // single plane.
+        let tiles = range_tiles(plan.width) as usize;
+        let ranges: Vec<[u32; 2]> = (0..plan.height as usize * tiles)
+            .map(|i| {
+                let (y, t) = (i / tiles, i % tiles);
+                match (y / 9 + t) % 4 {
+                    0 => [0, planes - 1],
+                    1 => [4, 20],
+                    2 => [10, 10],
+                    _ => [12 + (y % 5) as u32, planes - 1],
+                }
             })
             .collect();
         let narrowed = plan.narrow_planes(ranges.clone()).expect("narrowed plan");
@@ -906,8 +911,9 @@ fn narrowed_plane_ranges_agree() {
             p[3] / (p[0] * ray[0] + p[1] * ray[1] + p[2])
         };
         let mut checked = 0;
-        for (y, range) in ranges.iter().enumerate() {
+        for y in 0..narrowed.height as usize {
             for x in 0..narrowed.width as usize {
+                let range = ranges[y * tiles + x / RANGE_TILE as usize];
                 let d = maps.depth_raw_m.data[y * narrowed.width as usize + x];
                 if d.is_finite() {
                     let (near, far) = (
@@ -961,9 +967,10 @@ fn several_batches_in_one_submission_equal_one_batch() {
     )
     .expect("plan");
     let planes = crop_plan.num_planes();
-    let ranges = (0..crop_plan.height)
-        .map(|y| {
-            if y % 20 < 10 {
+    let tiles = range_tiles(crop_plan.width);
+    let ranges = (0..crop_plan.height * tiles)
+        .map(|i| {
+            if (i / tiles) % 20 < 10 || (i % tiles).is_multiple_of(3) {
                 [0, planes - 1]
             } else {
                 [6, 17]
@@ -1182,7 +1189,7 @@ fn diagnostic_maps_left_out_change_nothing_else() {
 
 /// The plane ranges the device makes between the levels of a coarse-to-fine sweep
 /// (`plane_spans.wgsl`, `plane_ranges.wgsl`) are those the host makes from the level below's
-/// raw depths (`coarse::plane_ranges`, `SweepPlan::shader_plane_ranges`), row for row: three
+/// raw depths (`coarse::plane_ranges`, `SweepPlan::shader_plane_ranges`), tile for tile: three
 /// levels (400x320 with 96 planes), the level below run alone for its depths, SGM and WTA,
 /// centred 5x5 and shiftable 2x2 windows.
 #[test]
@@ -1227,7 +1234,11 @@ fn plane_ranges_on_the_device_equal_the_host_twin() {
         let mut fine = SweepPlan::new(&rig, &fine_params).expect("plan");
         let ranges = coarse::plane_ranges(&fine, &depths.depth_raw_m);
         let narrowed = ranges.iter().filter(|r| r[1] - r[0] + 1 < 96).count();
-        assert!(narrowed > 200, "{name}: {narrowed} rows narrowed");
+        assert!(
+            narrowed > ranges.len() / 2,
+            "{name}: {narrowed} of {} tiles narrowed",
+            ranges.len()
+        );
         fine.set_plane_ranges(ranges).expect("ranges");
         let expected = fine.shader_plane_ranges();
         assert_eq!(device.len(), expected.len(), "{name}");
@@ -1236,7 +1247,7 @@ fn plane_ranges_on_the_device_equal_the_host_twin() {
             .collect();
         assert!(
             differ.is_empty(),
-            "{name}: {} rows differ, first {:?}: device {:?}, host {:?}",
+            "{name}: {} tiles differ, first {:?}: device {:?}, host {:?}",
             differ.len(),
             differ.first(),
             differ.first().map(|&y| device[y]),

@@ -111,8 +111,9 @@ fn sweep_band(
         let (score, sel) = (&mut scratch.score[..len], &mut scratch.sel[..len]);
         // Coarse to fine: a plane is costed only from the first to the last row of the
         // band that sweeps it (from the window sums' restart row at or above the first,
-        // so the floats are those of the whole band); the rows that do not sweep it
-        // score BIG on it (`plan.plane_ranges`).
+        // so the floats are those of the whole band), and in each row only in the columns
+        // whose costs a sweeping pixel's windows read (`SweepPlan::cost_spans`); the pixels
+        // that do not sweep it score BIG on it (`plan.plane_ranges`, per tile).
         let sweeping = |y: usize| plan.sweeps(y, k as u32);
         if let Some(first) = rows.clone().find(|&y| sweeping(y)) {
             let last = rows.clone().rev().find(|&y| sweeping(y)).unwrap_or(first);
@@ -130,10 +131,11 @@ fn sweep_band(
                 &mut sel[span],
             );
             for (i, y) in rows.clone().enumerate() {
-                if !sweeping(y) {
-                    score[i * width..(i + 1) * width].fill(BIG);
-                    sel[i * width..(i + 1) * width]
-                        .fill(f32::from(crate::sweep::selection::INVALID));
+                plan.idle_spans(y, k as u32, &mut scratch.idle);
+                for span in &scratch.idle {
+                    let at = i * width + span.start..i * width + span.end;
+                    score[at.clone()].fill(BIG);
+                    sel[at].fill(f32::from(crate::sweep::selection::INVALID));
                 }
             }
         } else {
@@ -197,6 +199,8 @@ pub(super) struct BandScratch {
     sel: Vec<f32>,
     /// SGM volume levels of up to LEVEL_GROUP planes, plane-major.
     levels: Vec<u16>,
+    /// A row's column spans that do not sweep the current plane (`SweepPlan::idle_spans`).
+    idle: Vec<std::ops::Range<usize>>,
 }
 
 impl BandScratch {
@@ -207,6 +211,7 @@ impl BandScratch {
             score: vec![0.0; pixels],
             sel: vec![0.0; pixels],
             levels: vec![0; levels],
+            idle: Vec::new(),
         }
     }
 

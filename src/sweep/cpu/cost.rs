@@ -204,8 +204,8 @@ pub fn colour_row(width: usize) -> ColourRow {
     [vec![0.0; width], vec![0.0; width], vec![0.0; width]]
 }
 
-/// Where reference row `y` lands in a camera on plane `k`: the pixel of every column in
-/// `coords` (x, y; x NaN where the camera does not see it: behind, past the distortion's
+/// Where reference row `y` lands in a camera on plane `k`: the pixel of every column of `cols`
+/// in `coords` (x, y; x NaN where the camera does not see it: behind, past the distortion's
 /// fold, or outside its image). Twin of the projection and `inside` of cost.wgsl, for the
 /// mappings that are not translations.
 #[allow(clippy::too_many_arguments)]
@@ -216,11 +216,12 @@ pub fn sample_coords(
     mapping: Mapping,
     k: usize,
     y: usize,
+    cols: std::ops::Range<usize>,
     coords: &mut [Vec<f32>; 2],
 ) {
     let width = plan.params.width as usize;
     let [xs, ys] = coords;
-    let (xs, ys) = (&mut xs[..width], &mut ys[..width]);
+    let (xs, ys) = (&mut xs[cols.clone()], &mut ys[cols.clone()]);
     let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
     match mapping {
         Mapping::Given => {}
@@ -234,7 +235,7 @@ pub fn sample_coords(
             let [fx, fy, cx, cy] = cam.intrinsics;
             // One loop per lens: without distortion it vectorises (the x as i32, whose
             // conversion to f32 has a vector instruction; the same floats as from usize).
-            let pixels = xs.iter_mut().zip(ys.iter_mut()).zip(0i32..);
+            let pixels = xs.iter_mut().zip(ys.iter_mut()).zip(cols.start as i32..);
             if distorted {
                 for ((xo, yo), x) in pixels {
                     let xf = x as f32;
@@ -266,18 +267,16 @@ pub fn sample_coords(
         }
         Mapping::General | Mapping::Translation { .. } => {
             let plane = plan.planes[k];
-            let rays = &plan.rays[y * width..(y + 1) * width];
+            let rays = &plan.rays[y * width + cols.start..y * width + cols.end];
             // The pinhole and plumb-bob lenses in a loop that vectorises (`general_row`); the
             // equidistant one (an arctangent per pixel) as `project` does it.
             match cam.size[3] {
                 DIST_NONE => general_row(cam, plane, rays, xs, ys, |n| n),
                 DIST_PLUMB_BOB => general_row(cam, plane, rays, xs, ys, |n| plumb_bob(cam, n)),
                 _ => {
-                    for x in 0..width {
-                        let ray = xyz(rays[x]);
-                        let pixel = ray_pixel(cam, ray, plane_depth(plane, ray));
-                        xs[x] = pixel[0];
-                        ys[x] = pixel[1];
+                    for ((xo, yo), ray) in xs.iter_mut().zip(ys.iter_mut()).zip(rays) {
+                        let ray = xyz(*ray);
+                        [*xo, *yo] = ray_pixel(cam, ray, plane_depth(plane, ray));
                     }
                 }
             }
@@ -365,7 +364,8 @@ pub fn hypothesis_coords(
 }
 
 /// Camera `cam`'s colours along reference row `y` on plane `k` (twin of the projection,
-/// `inside` and `sample_bilinear` of cost.wgsl). Mappings other than translations leave the
+/// `inside` and `sample_bilinear` of cost.wgsl), in the columns of `spans` (NaN, not seen,
+/// elsewhere; translations fill the whole row). Mappings other than translations leave the
 /// sample positions in `coords` (`sample_coords`) for the census costs, and, given the
 /// reference row's census words (`census`: the words, the distances out), make the census
 /// distances of the samples too (`census::distance_row`'s arithmetic), from the same texel
@@ -379,18 +379,35 @@ pub fn sample_row(
     mapping: Mapping,
     k: usize,
     y: usize,
+    spans: &[std::ops::Range<usize>],
     coords: &mut [Vec<f32>; 2],
     out: &mut ColourRow,
-    census: Option<(&[u32], &mut [f32])>,
+    mut census: Option<(&[u32], &mut [f32])>,
 ) -> bool {
     let width = plan.params.width as usize;
     if let Mapping::Translation { dx, dy } = mapping {
         sample_row_shifted(image, dx, dy, y, width, out);
         return false;
     }
-    sample_coords(plan, cam, mapping, k, y, coords);
-    let [xs, ys] = coords;
-    super::gather::gather_row(image, &xs[..width], &ys[..width], out, census)
+    if !matches!(spans, [whole] if *whole == (0..width)) {
+        out[0][..width].fill(f32::NAN);
+    }
+    for span in spans {
+        let span = span.clone();
+        sample_coords(plan, cam, mapping, k, y, span.clone(), coords);
+        let [xs, ys] = &*coords;
+        let [r, g, b] = out;
+        let colours = [
+            &mut r[span.clone()],
+            &mut g[span.clone()],
+            &mut b[span.clone()],
+        ];
+        let census = census
+            .as_mut()
+            .map(|(words, distances)| (&words[span.clone()], &mut distances[span.clone()]));
+        super::gather::gather_row(image, &xs[span.clone()], &ys[span], colours, census);
+    }
+    census.is_some()
 }
 
 /// Where reference row `y` lands in a camera image of `cw` x `ch` texels that sees it shifted by
@@ -522,7 +539,8 @@ impl ScoreAcc {
         }
     }
 
-    fn clear(&mut self) {
+    /// Zeros (and BIG in `best`) in the columns `cols`.
+    fn clear(&mut self, cols: std::ops::Range<usize>) {
         for v in [
             &mut self.sum,
             &mut self.count,
@@ -531,30 +549,35 @@ impl ScoreAcc {
             &mut self.right_sum,
             &mut self.right_count,
         ] {
-            v.fill(0.0);
+            v[cols.clone()].fill(0.0);
         }
         for b in &mut self.best {
-            b.fill(BIG);
+            b[cols.clone()].fill(BIG);
         }
     }
 }
 
 /// The scored channels of one row (not per-pair aggregation) from the pair costs, as
-/// `score_plane` of cost.wgsl: SSSD, best n, or the half means (and their min when scored).
+/// `score_plane` of cost.wgsl: SSSD, best n, or the half means (and their min when scored), in
+/// the columns `cols` (INVALID elsewhere).
 #[inline(always)]
 pub fn scored_channels(
     plan: &SweepPlan,
     pair_costs: &[Vec<f32>],
+    cols: std::ops::Range<usize>,
     acc: &mut ScoreAcc,
     channels: &mut [Vec<f32>],
 ) {
     let p = &plan.params;
-    let n = channels[0].len();
-    acc.clear();
+    for channel in channels.iter_mut() {
+        channel[..cols.start].fill(INVALID);
+        channel[cols.end..].fill(INVALID);
+    }
+    acc.clear(cols.clone());
     let best_n = p.scoring == SCORING_BEST_N;
     for (pair, costs) in plan.pairs.iter().zip(pair_costs) {
         let half = pair[2];
-        for x in 0..n {
+        for x in cols.clone() {
             let c = costs[x];
             let seen = c >= 0.0;
             let (v, one) = if seen { (c, 1.0) } else { (0.0, 0.0) };
@@ -570,7 +593,7 @@ pub fn scored_channels(
         }
         if best_n {
             // Bubble each visible cost through the sorted list (the n smallest are exact).
-            for x in 0..n {
+            for x in cols.clone() {
                 let c = costs[x];
                 let mut v = if c >= 0.0 { c } else { BIG };
                 for b in acc.best.iter_mut() {
@@ -583,7 +606,7 @@ pub fn scored_channels(
     }
     let mean_or_invalid = |s: f32, c: f32| if c > 0.0 { s / c } else { INVALID };
     if p.scoring == SCORING_HALF {
-        for x in 0..n {
+        for x in cols.clone() {
             let left = mean_or_invalid(acc.left_sum[x], acc.left_count[x]);
             let right = mean_or_invalid(acc.right_sum[x], acc.right_count[x]);
             channels[0][x] = left;
@@ -597,7 +620,7 @@ pub fn scored_channels(
             }
         }
     } else if best_n {
-        for x in 0..n {
+        for x in cols.clone() {
             let (mut s, mut k) = (0.0f32, 0.0f32);
             for b in &acc.best {
                 if b[x] < BIG {
@@ -608,7 +631,7 @@ pub fn scored_channels(
             channels[0][x] = mean_or_invalid(s, k);
         }
     } else {
-        for x in 0..n {
+        for x in cols.clone() {
             channels[0][x] = mean_or_invalid(acc.sum[x], acc.count[x]);
         }
     }
@@ -679,7 +702,7 @@ mod tests {
             for k in 0..plan.planes.len() {
                 for cam in &plan.cameras {
                     for y in 0..plan.params.height as usize {
-                        sample_coords(&plan, cam, Mapping::General, k, y, &mut coords);
+                        sample_coords(&plan, cam, Mapping::General, k, y, 0..width, &mut coords);
                         for x in 0..width {
                             let ray = xyz(plan.rays[y * width + x]);
                             let want = ray_pixel(cam, ray, plane_depth(plan.planes[k], ray));

@@ -10,7 +10,6 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::common::PlanarImage;
-use super::cost::ColourRow;
 
 /// Samples per chunk: indices, weights and texels on the stack.
 const GATHER_CHUNK: usize = 64;
@@ -40,7 +39,7 @@ pub fn gather_row(
     image: &PlanarImage,
     xs: &[f32],
     ys: &[f32],
-    out: &mut ColourRow,
+    out: [&mut [f32]; 3],
     census: Option<(&[u32], &mut [f32])>,
 ) -> bool {
     let width = xs.len();
@@ -220,12 +219,13 @@ mod tests {
                 &image,
                 &xs,
                 &ys,
-                &mut out,
+                out.each_mut().map(|c| c.as_mut_slice()),
                 Some((&reference, &mut distances)),
             );
             assert!(sampled);
             let mut colours_only = [vec![0.0; width], vec![0.0; width], vec![0.0; width]];
-            assert!(!gather_row(&image, &xs, &ys, &mut colours_only, None));
+            let colours = colours_only.each_mut().map(|c| c.as_mut_slice());
+            assert!(!gather_row(&image, &xs, &ys, colours, None));
             for x in 0..width {
                 let (colour, want_distance) = if xs[x].is_nan() {
                     ([f32::NAN; 3], sentinel)

@@ -34,6 +34,8 @@ pub struct PlaneScratch {
     census_bits: Vec<f32>,
     /// Per camera: the current row's samples read in place (`Direct`), or made into `colours`.
     rows: Vec<CameraRow>,
+    /// The current row's columns whose costs are read (`SweepPlan::cost_spans`).
+    spans: Vec<std::ops::Range<usize>>,
     /// The refinement's hypothesis (`refine.rs`): a depth (ray parameter) per reference pixel,
     /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
     pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
@@ -73,6 +75,7 @@ impl PlaneScratch {
             census_sampled: vec![false; p.cameras as usize],
             census_bits: vec![0.0; width],
             rows: vec![CameraRow::Sampled; p.cameras as usize],
+            spans: Vec::new(),
             hypothesis: None,
         }
     }
@@ -186,6 +189,30 @@ fn cost_row(
         let at = y * width;
         &images.census[reference as usize][at..at + width]
     });
+    // Coarse to fine: only the columns whose costs some sweeping pixel's windows read are
+    // sampled (the others are not seen: INVALID costs, which no sweeping pixel reads).
+    if s.hypothesis.is_none() {
+        plan.cost_spans(y, k as u32, &mut s.spans);
+    } else {
+        s.spans.clear();
+        s.spans.push(0..width);
+    }
+    // The columns from the first span's to the last's: the pair costs and channels are made
+    // there alone (INVALID elsewhere).
+    let hull = match (s.spans.first(), s.spans.last()) {
+        (Some(first), Some(last)) => first.start..last.end,
+        _ => {
+            // No column of the row is read on this plane: its window sums are those of a row
+            // of INVALID costs (what `BoxH::run` makes of one: zeros, the span at the end).
+            for ch in 0..cost_rows(plan) {
+                let (sums, counts) = s.ring.row_mut(ch, y);
+                sums.fill(0.0);
+                counts.fill(0.0);
+                s.ring.set_span(ch, y, Some((width, width)));
+            }
+            return;
+        }
+    };
     for (i, cam) in plan.cameras.iter().enumerate() {
         if i as u32 != reference {
             let direct = s
@@ -209,6 +236,7 @@ fn cost_row(
                 mappings[i],
                 k,
                 y,
+                &s.spans,
                 &mut s.coords[i],
                 &mut s.colours[i],
                 census,
@@ -234,9 +262,14 @@ fn cost_row(
     };
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
         let ((a, a_lo, a_hi), (b, b_lo, b_hi)) = (row(pair[0] as usize), row(pair[1] as usize));
-        // Where either is not seen, INVALID (as a NaN colour makes it in `pair_cost_row`).
-        let lo = a_lo.max(b_lo);
-        let hi = a_hi.min(b_hi).max(lo);
+        // Where either is not seen, INVALID (as a NaN colour makes it in `pair_cost_row`), and
+        // outside the columns whose costs are read.
+        let lo = a_lo.max(b_lo).max(hull.start);
+        let hi = a_hi.min(b_hi).min(hull.end);
+        if lo >= hi {
+            costs.fill(INVALID);
+            continue;
+        }
         costs[..lo].fill(INVALID);
         costs[hi..].fill(INVALID);
         fn cut(row: [&[f32]; 3], from: std::ops::Range<usize>) -> [&[f32]; 3] {
@@ -246,12 +279,13 @@ fn cost_row(
         cost::pair_cost_row(p.tau, a, b, &mut costs[lo..hi]);
     }
     if plan.uses_census() {
-        census_costs(plan, images, mappings, k, y, s);
+        census_costs(plan, images, mappings, k, y, hull.clone(), s);
     }
     let rows: &[Vec<f32>] = if p.aggregation == AGG_PER_PAIR {
         &s.pair_costs
     } else {
-        cost::scored_channels(plan, &s.pair_costs, &mut s.score_acc, &mut s.channel_rows);
+        let (acc, channels) = (&mut s.score_acc, &mut s.channel_rows);
+        cost::scored_channels(plan, &s.pair_costs, hull, acc, channels);
         &s.channel_rows
     };
     for (ch, costs) in rows.iter().enumerate() {
@@ -261,8 +295,8 @@ fn cost_row(
     }
 }
 
-/// Census costs (`cost = census | ad_census`) of row `y` on plane `k`: the pair TSSDs in
-/// `s.pair_costs` become the plan's cost (`reference_pair_cost` and the all-pairs loop of
+/// Census costs (`cost = census | ad_census`) of row `y` on plane `k` in the columns `hull`:
+/// the pair TSSDs in `s.pair_costs` become the plan's cost (`reference_pair_cost` and the all-pairs loop of
 /// cost.wgsl).
 #[inline(always)]
 fn census_costs(
@@ -271,6 +305,7 @@ fn census_costs(
     mappings: &[Mapping],
     k: usize,
     y: usize,
+    hull: std::ops::Range<usize>,
     s: &mut PlaneScratch,
 ) {
     let p = &plan.params;
@@ -326,6 +361,16 @@ fn census_costs(
             );
             &s.census_bits
         };
-        census::mix_row(plan, bits, costs);
+        census::mix_row(plan, &bits[hull.clone()], &mut costs[hull.clone()]);
+    }
+}
+
+/// Rows of costs the window sums are made of: one per pair (`AGG_PER_PAIR`), else one per
+/// channel of the scoring.
+fn cost_rows(plan: &SweepPlan) -> usize {
+    if plan.params.aggregation == AGG_PER_PAIR {
+        plan.pairs.len()
+    } else {
+        plan.params.channels as usize
     }
 }

@@ -119,9 +119,10 @@ impl Buffers {
         let rays = storage("rays", npix * 16, none);
         let planes = storage("planes", u64::from(key.planes) * 16, none);
         // COPY_SRC: tests read the device's ranges back (`GpuEngine::device_plane_ranges`).
+        let tiles = u64::from(crate::sweep::plan::range_tiles(key.width));
         let plane_ranges = storage(
             "plane_ranges",
-            u64::from(key.height) * 16,
+            u64::from(key.height) * tiles * 16,
             wgpu::BufferUsages::COPY_SRC,
         );
         let coarse_depth = storage(
@@ -129,7 +130,12 @@ impl Buffers {
             u64::from(key.width / 2) * u64::from(key.height / 2) * 4,
             none,
         );
-        let spans = storage("plane spans", u64::from(key.height / 2) * 8, none);
+        // Per half-resolution row: its tiles' spans, then (after all of them) its own.
+        let spans = storage(
+            "plane spans",
+            u64::from(key.height / 2) * (tiles + 1) * 8,
+            none,
+        );
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
         // Without box passes (2x2 shiftable windows) the sums are never used: 16 bytes each.
         let [cost_bytes, row_bytes, box_bytes] = key.batch_bytes();

@@ -340,15 +340,17 @@ impl GpuEngine {
         self.read_buffer(&buffers.images, words * 4)
     }
 
-    /// The `plane_ranges` buffer of the last level run (per row: its own first and last plane,
-    /// then those of the rows within a window height; `SweepPlan::shader_plane_ranges`), read
+    /// The `plane_ranges` buffer of the last level run (per row and tile: its own first and
+    /// last plane, then the window hull's; `SweepPlan::shader_plane_ranges`), read
     /// back: in a coarse-to-fine `run`, made on the device from the level below (tests compare
     /// them with `coarse::plane_ranges`).
     pub fn device_plane_ranges(&mut self) -> Result<Vec<[u32; 4]>, SweepError> {
         let Some((buffers, _)) = self.buffers.as_ref() else {
             return Err(SweepError::Gpu("no level has run".into()));
         };
-        let words = self.read_buffer(&buffers.plane_ranges, u64::from(buffers.key.height) * 16)?;
+        let tiles = u64::from(crate::sweep::plan::range_tiles(buffers.key.width));
+        let bytes = u64::from(buffers.key.height) * tiles * 16;
+        let words = self.read_buffer(&buffers.plane_ranges, bytes)?;
         Ok(words
             .chunks_exact(4)
             .map(|r| [r[0], r[1], r[2], r[3]])

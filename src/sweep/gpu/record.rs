@@ -195,8 +195,8 @@ fn workgroups(
 /// Records a level's plane ranges on the device (coarse to fine): the raw depths of the level
 /// below (`depth_raw`: their bytes in its `maps` buffer, half the width and height of this
 /// level) copied into `coarse_depth`, then each half-resolution row's span of planes
-/// (`plane_spans.wgsl`) and each row's range and window hull (`plane_ranges.wgsl`) into the
-/// `plane_ranges` buffer the sweep reads.
+/// under each tile (`plane_spans.wgsl`) and each (row, tile)'s range and window hull
+/// (`plane_ranges.wgsl`) into the `plane_ranges` buffer the sweep reads.
 pub(super) fn record_plane_ranges(
     encoder: &mut wgpu::CommandEncoder,
     buffers: &Buffers,
@@ -219,10 +219,11 @@ pub(super) fn record_plane_ranges(
     });
     pass.set_pipeline(&pipelines[Stage::PlaneSpans as usize]);
     pass.set_bind_group(0, buffers.bind_group(Stage::PlaneSpans, 0), &[]);
+    let tiles = crate::sweep::plan::range_tiles(key.width);
     pass.dispatch_workgroups(key.height / 2, 1, 1);
     pass.set_pipeline(&pipelines[Stage::PlaneRanges as usize]);
     pass.set_bind_group(0, buffers.bind_group(Stage::PlaneRanges, 0), &[]);
-    pass.dispatch_workgroups(key.height.div_ceil(64), 1, 1);
+    pass.dispatch_workgroups(tiles.div_ceil(8), key.height.div_ceil(8), 1);
     Ok(())
 }
 
