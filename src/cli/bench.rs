@@ -3,7 +3,10 @@
 //! 640x480x64, 1280x960x128, a 9-camera 450x375x57 rig (one reference, and three references per
 //! set: `references`) and the demo's Tsukuba set, each with
 //! winner-take-all and SGM; and the peer, OpenCV StereoSGBM 3-way on two Tsukuba views with 32
-//! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it.
+//! disparities (`tools/sgbm_baseline.py --time`), with every configuration's ratio to it: the
+//! peer is timed again after each configuration, and a ratio divides by the mean of the peer's
+//! times just before and after it (`peer ms`), so load that moves during a long bench moves
+//! both sides alike.
 //! After the table, what decoding a 9-camera 640x480 JPEG set costs ([`decode`]), beside each
 //! engine's 9-camera set of the same run.
 //! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`.
@@ -238,9 +241,14 @@ pub struct BenchResult {
     pub sgm_hypotheses_per_s: Option<f64>,
     /// Why a column is empty (e.g. a volume larger than the adapter allows).
     pub notes: Vec<String>,
-    /// Ratios to the peer's median time (None without the peer).
+    /// Ratios to the peer's time beside this configuration (`peer_ms`; None without the
+    /// peer).
     pub wta_vs_peer: Option<f64>,
     pub sgm_vs_peer: Option<f64>,
+    /// The peer's median ms timed just before and just after this configuration, averaged:
+    /// the ratios' denominator, so a machine whose load moves during the bench (shared
+    /// machines: 2x within minutes) moves both sides of a ratio alike.
+    pub peer_ms: Option<f64>,
     /// Per-stage median ms of the SGM runs (GPU timestamps or the CPU clock).
     pub sgm_stage_ms: serde_json::Map<String, serde_json::Value>,
     /// The WGSL engine's host work per frame set (None for the CPU engine).
@@ -415,6 +423,7 @@ pub fn run_config(
     repeats: usize,
     peer_ms: Option<f64>,
 ) -> anyhow::Result<BenchResult> {
+    let peer_ms = peer_ms.map(round3);
     let (rig, images, base) = workload(config)?;
     let params_for = |optimizer| match &base {
         Some(base) => {
@@ -473,6 +482,7 @@ pub fn run_config(
         notes,
         wta_vs_peer: ratio(wta_ms),
         sgm_vs_peer: ratio(sgm_ms),
+        peer_ms,
         sgm_stage_ms,
         wta_host,
         sgm_host,
@@ -529,7 +539,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     }
     let repeats = if args.quick { 3 } else { args.repeats };
     let peer = run_peer(args.python.as_deref(), 3 * repeats);
-    let peer_ms = peer.as_ref().ok().map(|p| p.ms_median);
+    // The peer is timed again after every configuration; each ratio divides by the mean of the
+    // peer's times just before and just after it.
+    let mut peer_before = peer.as_ref().ok().map(|p| p.ms_median);
     match (&peer, args.json) {
         (Ok(p), true) => println!("{}", serde_json::to_string(p)?),
         (Err(reason), true) => println!("{}", serde_json::json!({ "peer_missing": reason })),
@@ -582,7 +594,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         .collect();
     if !args.json {
         println!(
-            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>15} {:>9}  SGM stages (ms)",
+            "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  SGM stages (ms)",
             "config",
             "engine",
             "size",
@@ -591,6 +603,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             "sgm ms",
             "wta/peer",
             "sgm/peer",
+            "peer ms",
             "host ms wta/sgm",
             "sub/read",
         );
@@ -599,8 +612,19 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut nine_camera: Vec<(String, Option<f64>, Option<f64>)> = Vec::new();
     for engine in &mut engines {
         for config in &configs {
-            let result = run_config(engine, config, &args.params, repeats, peer_ms)
+            let mut result = run_config(engine, config, &args.params, repeats, None)
                 .with_context(|| format!("{} on {}", config.name, engine.label()))?;
+            if let Some(before) = peer_before {
+                // A peer that fails now (it ran at the start) leaves the first time alone.
+                let after =
+                    run_peer(args.python.as_deref(), 3 * repeats).map_or(before, |p| p.ms_median);
+                let beside = round3(0.5 * (before + after));
+                let ratio = |ms: Option<f64>| ms.map(|ms| round3(ms / beside));
+                result.wta_vs_peer = ratio(result.wta_ms);
+                result.sgm_vs_peer = ratio(result.sgm_ms);
+                result.peer_ms = Some(beside);
+                peer_before = Some(after);
+            }
             if result.config == "9-camera" {
                 nine_camera.push((result.engine.clone(), result.wta_ms, result.sgm_ms));
             }
@@ -625,7 +649,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 format!("{}/{}", h.submissions, h.readbacks)
             });
             println!(
-                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>15} {:>9}  {}{}",
+                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  {}{}",
                 result.config,
                 truncate(&result.engine, 44),
                 format!(
@@ -637,6 +661,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 ms(result.sgm_ms),
                 ratio(result.wta_vs_peer),
                 ratio(result.sgm_vs_peer),
+                result
+                    .peer_ms
+                    .map_or("-".to_string(), |v| format!("{v:.2}")),
                 host_ms,
                 per_set,
                 stages,
