@@ -415,15 +415,14 @@ fn time_runs(
     Ok((median(frame_ms), stages, host))
 }
 
-/// Runs one configuration on one engine: winner-take-all, then SGM.
+/// Runs one configuration on one engine: winner-take-all, then SGM (the ratios to the peer
+/// are left to the caller, which times the peer beside it).
 pub fn run_config(
     engine: &mut Engine,
     config: &BenchConfig,
     overrides: &EngineOptions,
     repeats: usize,
-    peer_ms: Option<f64>,
 ) -> anyhow::Result<BenchResult> {
-    let peer_ms = peer_ms.map(round3);
     let (rig, images, base) = workload(config)?;
     let params_for = |optimizer| match &base {
         Some(base) => {
@@ -466,7 +465,6 @@ pub fn run_config(
             .unwrap_or("?"),
     );
     let per_s = |ms: Option<f64>| ms.map(|ms| (hypotheses / (ms / 1e3)).round());
-    let ratio = |ms: Option<f64>| Some(round3(ms? / peer_ms?));
     Ok(BenchResult {
         config: config.name,
         engine: engine.label(),
@@ -480,9 +478,9 @@ pub fn run_config(
         sgm_ms,
         sgm_hypotheses_per_s: per_s(sgm_ms),
         notes,
-        wta_vs_peer: ratio(wta_ms),
-        sgm_vs_peer: ratio(sgm_ms),
-        peer_ms,
+        wta_vs_peer: None,
+        sgm_vs_peer: None,
+        peer_ms: None,
         sgm_stage_ms,
         wta_host,
         sgm_host,
@@ -612,7 +610,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut nine_camera: Vec<(String, Option<f64>, Option<f64>)> = Vec::new();
     for engine in &mut engines {
         for config in &configs {
-            let mut result = run_config(engine, config, &args.params, repeats, None)
+            let mut result = run_config(engine, config, &args.params, repeats)
                 .with_context(|| format!("{} on {}", config.name, engine.label()))?;
             if let Some(before) = peer_before {
                 // A peer that fails now (it ran at the start) leaves the first time alone.

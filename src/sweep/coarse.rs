@@ -501,25 +501,24 @@ pub fn plane_ranges(plan: &SweepPlan, coarse: &ImageF32) -> Vec<[u32; 2]> {
     // there), from the plane of each half-resolution pixel.
     let half_tile = RANGE_TILE as usize / 2;
     let near_cols = NEIGHBOUR_COLS as usize;
-    let tile_spans: Vec<Option<[u32; 2]>> = (0..ch)
-        .flat_map(|cy| {
-            let y = (2 * cy).min(height - 1);
-            let ks: Vec<Option<u32>> = (0..cw)
-                .map(|cx| {
-                    let depth = coarse.data[cy * cw + cx];
-                    let x = (2 * cx).min(width - 1);
-                    (depth.is_finite() && depth > 0.0)
-                        .then(|| nearest_plane(plan, y * width + x, depth))
-                })
-                .collect();
-            (0..tiles).map(move |t| {
-                let first = (t * half_tile).saturating_sub(near_cols);
-                let end = ((t + 1) * half_tile + near_cols).min(cw);
-                ks[first.min(end)..end]
-                    .iter()
-                    .flatten()
-                    .fold(None, |acc, &k| join(acc, [k, k]))
-            })
+    // Each half-resolution pixel's plane (None: no depth there).
+    let ks: Vec<Option<u32>> = (0..ch * cw)
+        .map(|i| {
+            let (cy, cx) = (i / cw, i % cw);
+            let depth = coarse.data.get(i).copied().unwrap_or(f32::NAN);
+            let pix = (2 * cy).min(height - 1) * width + (2 * cx).min(width - 1);
+            (depth.is_finite() && depth > 0.0).then(|| nearest_plane(plan, pix, depth))
+        })
+        .collect();
+    let tile_spans: Vec<Option<[u32; 2]>> = (0..ch * tiles)
+        .map(|i| {
+            let (cy, t) = (i / tiles, i % tiles);
+            let first = (t * half_tile).saturating_sub(near_cols);
+            let end = ((t + 1) * half_tile + near_cols).min(cw);
+            ks[cy * cw + first.min(end)..cy * cw + end]
+                .iter()
+                .flatten()
+                .fold(None, |acc, &k| join(acc, [k, k]))
         })
         .collect();
     let near = NEIGHBOUR_ROWS as usize;

@@ -380,37 +380,35 @@ impl SweepPlan {
     /// The column spans of row `y` whose costs on plane `k` some pixel's windows read (the
     /// tiles whose window hull holds `k`, neighbours merged), into `spans`.
     pub fn cost_spans(&self, y: usize, k: u32, spans: &mut Vec<std::ops::Range<usize>>) {
-        spans.clear();
-        let tiles = range_tiles(self.width) as usize;
-        let (tile, width) = (RANGE_TILE as usize, self.width as usize);
-        let row = self.tile_ranges.get(y * tiles..(y + 1) * tiles);
-        let Some(row) = row.filter(|_| self.narrowed) else {
-            spans.push(0..width);
-            return;
-        };
-        for (t, r) in row.iter().enumerate() {
-            if r[2] <= k && k <= r[3] {
-                let (lo, hi) = (t * tile, ((t + 1) * tile).min(width));
-                match spans.last_mut() {
-                    Some(last) if last.end == lo => last.end = hi,
-                    _ => spans.push(lo..hi),
-                }
-            }
+        if !self.tile_spans(y, |r| r[2] <= k && k <= r[3], spans) {
+            spans.push(0..self.width as usize);
         }
     }
 
     /// The column spans of row `y` whose pixels do not sweep plane `k` (they score BIG on it),
     /// into `spans`.
     pub fn idle_spans(&self, y: usize, k: u32, spans: &mut Vec<std::ops::Range<usize>>) {
+        self.tile_spans(y, |r| !(r[0] <= k && k <= r[1]), spans);
+    }
+
+    /// The columns of the tiles of row `y` whose shader ranges ([`SweepPlan::shader_plane_ranges`])
+    /// `keep` accepts, neighbours merged, into `spans` (cleared first). False, with no span,
+    /// when the plan is not narrowed (or has no row `y`).
+    fn tile_spans(
+        &self,
+        y: usize,
+        keep: impl Fn(&[u32; 4]) -> bool,
+        spans: &mut Vec<std::ops::Range<usize>>,
+    ) -> bool {
         spans.clear();
         let tiles = range_tiles(self.width) as usize;
         let (tile, width) = (RANGE_TILE as usize, self.width as usize);
-        let row = self.plane_ranges.get(y * tiles..(y + 1) * tiles);
+        let row = self.tile_ranges.get(y * tiles..(y + 1) * tiles);
         let Some(row) = row.filter(|_| self.narrowed) else {
-            return;
+            return false;
         };
         for (t, r) in row.iter().enumerate() {
-            if !(r[0] <= k && k <= r[1]) {
+            if keep(r) {
                 let (lo, hi) = (t * tile, ((t + 1) * tile).min(width));
                 match spans.last_mut() {
                     Some(last) if last.end == lo => last.end = hi,
@@ -418,6 +416,7 @@ impl SweepPlan {
                 }
             }
         }
+        true
     }
 
     pub fn pixel_count(&self) -> usize {
