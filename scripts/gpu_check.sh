@@ -10,8 +10,11 @@
 #   cargo build --release
 #   echo /.gl/ >> .git/info/exclude; mkdir -p .gl /tmp/amd64/partial
 #   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
-#   apt-get $o update; (cd .gl && apt-get $o download libvulkan1)
-# then run it with `carry: [".gl", "target/release/sweepdepth"]` and the command
+#   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
+#   cargo test --no-run --test engine; strip -o .gl/engine-tests target/debug/deps/engine-<hash>
+# (NVIDIA's Vulkan driver, libGLX_nvidia, needs libglvnd: with the loader alone it answers
+# "Could not get 'vkCreateInstance'" and wgpu finds no adapter). Then run it with
+# `carry: [".gl", "target/release/sweepdepth"]` and the command
 #   sh scripts/gpu_check.sh
 # (the device tool's README: the loader's .deb unpacked into / and ldconfig; the NVIDIA ICD
 # named by VK_DRIVER_FILES when the loader finds none).
@@ -38,30 +41,43 @@ step() {
     say "-- $name: exit $status after $(($(date +%s) - start)) s"
 }
 
-if [ -d .gl ] && ! ldconfig -p 2>/dev/null | grep -q libvulkan; then
+if [ -d .gl ] && ls .gl/*.deb >/dev/null 2>&1; then
     for f in .gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
 fi
-if [ -z "${VK_DRIVER_FILES:-}" ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
-    export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+if [ -z "${VK_DRIVER_FILES:-}" ]; then
+    for icd in /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json \
+        /etc/vulkan/icd.d/nvidia_icd.json $(find / -xdev -name 'nvidia_icd*.json' 2>/dev/null | head -1); do
+        [ -f "$icd" ] && export VK_DRIVER_FILES="$icd" && break
+    done
 fi
 if [ ! -x "$bin" ]; then
     say "no sweepdepth binary at $bin: build it with cargo build --release and carry it"
     exit 1
 fi
 
-say "gpu_check: $(date -u +%Y-%m-%dT%H:%M:%SZ), $(uname -m), $(nproc) cores"
+say "gpu_check: $(date -u +%Y-%m-%dT%H:%M:%SZ), $(uname -m), $(nproc) cores, VK_DRIVER_FILES=${VK_DRIVER_FILES:-unset}, loader: $(ldconfig -p | grep -c libvulkan)"
 command -v nvidia-smi >/dev/null 2>&1 &&
     step nvidia-smi 30 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
 # The adapter wgpu picks, and the WGSL engine working at all, on the paper's configuration.
 step adapter 120 "$bin" bench --device gpu --config paper --repeats 1
+# The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe):
+# carried as a stripped test binary, `.gl/engine-tests` (strip target/debug/deps/engine-*).
+if [ -x .gl/engine-tests ]; then
+    export SWEEPDEPTH_GPU_TEST_STATS=1
+    step gpu-tests 150 .gl/engine-tests gpu_vs_cpu --test-threads 4
+fi
 if [ -n "${GPU_CHECK_QUICK:-}" ]; then
     step bench 600 "$bin" bench --quick
 else
-    step bench 330 "$bin" bench --repeats 5
+    # The WGSL engine on every configuration first (the figures the README needs), then both
+    # engines beside the peer.
+    step bench-gpu 150 "$bin" bench --device gpu --repeats 5
 fi
-step demo-gpu 60 "$bin" demo --device gpu --out "$out/demo-gpu"
-step demo-cpu 60 "$bin" demo --device cpu --out "$out/demo-cpu"
-step eval-gpu 60 "$bin" eval --device gpu data/tsukuba
-step eval-cpu 60 "$bin" eval --device cpu data/tsukuba
+step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
+step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu
+step eval-gpu 40 "$bin" eval --device gpu data/tsukuba
+step eval-cpu 40 "$bin" eval --device cpu data/tsukuba
+# Both engines beside the SGBM peer (cv2 from the machine's python3), last: it may run out of time.
+[ -z "${GPU_CHECK_QUICK:-}" ] && step bench 170 "$bin" bench --repeats 3 --python python3
 say "gpu_check: done; the report is $report"

@@ -249,6 +249,8 @@ pub struct BenchResult {
     /// the ratios' denominator, so a machine whose load moves during the bench (shared
     /// machines: 2x within minutes) moves both sides of a ratio alike.
     pub peer_ms: Option<f64>,
+    /// Per-stage median ms of the winner-take-all runs (`--json` only).
+    pub wta_stage_ms: serde_json::Map<String, serde_json::Value>,
     /// Per-stage median ms of the SGM runs (GPU timestamps or the CPU clock).
     pub sgm_stage_ms: serde_json::Map<String, serde_json::Value>,
     /// The WGSL engine's host work per frame set (None for the CPU engine).
@@ -351,6 +353,9 @@ type Timed = (
     Option<HostWork>,
 );
 
+/// How long the WGSL engine runs untimed before a configuration's timed runs.
+const GPU_WARM_UP: std::time::Duration = std::time::Duration::from_millis(400);
+
 /// Median frame time of `repeats` timed runs after a warm-up, and the per-stage medians.
 fn time_runs(
     engine: &mut Engine,
@@ -370,7 +375,22 @@ fn time_runs(
                 .try_for_each(|r| r.map(|_| ()))
         }
     };
+    let first = Instant::now();
     run(engine)?;
+    let first = first.elapsed();
+    // A hardware GPU idles down between configurations (the peer runs on the CPU): stage
+    // times moved 2-4x between runs on an H200 (docs/speed.md "The first GPU figures"). The
+    // WGSL engine warms up for GPU_WARM_UP (at most 100 sets) before the timed runs, where a
+    // set is short enough for that to matter (not on lavapipe, seconds per set). It did not
+    // remove the spread (one build: sxga wta 18.3 and 41.1 ms in two runs); report ranges.
+    if engine.take_gpu_counts().is_some() && first * 4 < GPU_WARM_UP {
+        let warm_from = Instant::now();
+        let mut sets = 0;
+        while warm_from.elapsed() < GPU_WARM_UP && sets < 100 {
+            run(engine)?;
+            sets += 1;
+        }
+    }
     let mut frame_ms = Vec::with_capacity(repeats);
     let mut stage_ms: Vec<(String, Vec<f64>)> = Vec::new();
     let (mut host_ms, mut wait_ms, mut submit_ms) = (Vec::new(), Vec::new(), Vec::new());
@@ -447,7 +467,7 @@ pub fn run_config(
             Err(other) => Err(other).with_context(|| format!("{optimizer:?} runs")),
         }
     };
-    let (wta_ms, _, wta_host) = column(Optimizer::Wta)?;
+    let (wta_ms, wta_stage_ms, wta_host) = column(Optimizer::Wta)?;
     let (sgm_ms, sgm_stage_ms, sgm_host) = column(Optimizer::Sgm)?;
     let params = params_for(Optimizer::Sgm);
     let settings = format!(
@@ -481,6 +501,7 @@ pub fn run_config(
         wta_vs_peer: None,
         sgm_vs_peer: None,
         peer_ms: None,
+        wta_stage_ms,
         sgm_stage_ms,
         wta_host,
         sgm_host,
@@ -635,6 +656,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             let stages = result
                 .sgm_stage_ms
                 .iter()
+                // The coarse levels' own stages (`coarse/sweep`, ...) only in the JSON.
+                .filter(|(k, _)| !k.contains('/'))
                 .map(|(k, v)| format!("{k} {:.1}", v.as_f64().unwrap_or(f64::NAN)))
                 .collect::<Vec<String>>()
                 .join(", ");

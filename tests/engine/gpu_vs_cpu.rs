@@ -16,9 +16,42 @@ use sweepdepth::synthetic::{self, Scene};
 /// few pixels, so at most 1 % of pixels may disagree in validity or by more than 1e-3. The CPU
 /// engine adds its own roundings, inside the same tolerances: window sums that slide down the
 /// rows (re-summed every 16 rows), and, on rectified rigs, one shift per camera and plane
-/// instead of the shader's per-pixel f32 projection (within 1e-4 px of it).
+/// instead of the shader's per-pixel f32 projection (within 1e-4 px of it). That holds on CPU
+/// adapters (lavapipe: the host's arithmetic, maps equal to the last bit almost everywhere).
 const REL_TOL: f32 = 1e-3;
 const MAX_DISAGREE: f64 = 0.01;
+
+/// On a hardware GPU the shader's arithmetic is not the host's (fused multiply-adds, division
+/// to 2.5 ULP): a sample moves a little, a score by a few thousandths, and where two planes
+/// score within that of each other the other wins. Measured on an NVIDIA H200 (driver
+/// 580.159.04, 2026-11-27, every case of this file; docs/speed.md "The first GPU figures"),
+/// the worst case per map: depths beyond 1e-3 relative on up to 35 % of pixels (sub-pixel
+/// offsets of SGM sums one level apart), beyond 1e-2 on 3.4 %, beyond 5e-2 on 2.7 %, beyond
+/// 0.2 on 1.0 %; scores (cost, confidence) beyond 5e-2 on 6.5 %, beyond 0.2 on 2.1 %; the
+/// discrete maps (selection, visible) other on 2.5 %. So a hardware adapter is held to these
+/// shares (about 1.5x the worst seen). That catches a wrong plane, camera or window (most
+/// pixels), not a subtle one: a 10 % error in the vertical bilinear weight passes it (and
+/// fails lavapipe's exact check, which CI runs).
+const HARDWARE_DEPTH: [(f32, f64); 3] = [(1e-2, 0.05), (5e-2, 0.04), (0.2, 0.015)];
+const HARDWARE_SCORE: [(f32, f64); 2] = [(5e-2, 0.10), (0.2, 0.035)];
+const HARDWARE_DISCRETE: [(f32, f64); 1] = [(0.2, 0.04)];
+
+/// The (relative tolerance, largest share of pixels beyond it) checks of map `label` on the
+/// test adapter.
+fn tolerances(label: &str) -> Vec<(f32, f64)> {
+    // SWEEPDEPTH_GPU_TEST_EXACT holds a hardware GPU to the exact tolerances;
+    // SWEEPDEPTH_GPU_TEST_HARDWARE holds lavapipe to the hardware ones (mutation checks).
+    let cpu_adapter = common::gpu().adapter.get_info().device_type == wgpu::DeviceType::Cpu
+        && std::env::var_os("SWEEPDEPTH_GPU_TEST_HARDWARE").is_none();
+    if cpu_adapter || std::env::var_os("SWEEPDEPTH_GPU_TEST_EXACT").is_some() {
+        return vec![(REL_TOL, MAX_DISAGREE)];
+    }
+    match label {
+        "cost" | "confidence" => HARDWARE_SCORE.to_vec(),
+        "selection" | "visible" => HARDWARE_DISCRETE.to_vec(),
+        _ => HARDWARE_DEPTH.to_vec(),
+    }
+}
 
 fn section(maps: &[f32], npix: usize, s: usize) -> &[f32] {
     &maps[s * npix..(s + 1) * npix]
@@ -63,6 +96,7 @@ fn compare_with(
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine::new().trace(plan, rig, images).expect("cpu run");
     let npix = plan.pixel_count();
+    let mut failed = Vec::new();
     for (s, label) in [
         (MAP_DEPTH_RAW, "depth_raw"),
         (MAP_DEPTH_MEDIAN, "depth_median"),
@@ -73,19 +107,39 @@ fn compare_with(
         (MAP_VISIBLE, "visible"),
     ] {
         let (g, c) = (section(&gpu_maps, npix, s), section(&cpu.maps, npix, s));
-        let disagree = g
-            .iter()
-            .zip(c)
-            .filter(|(a, b)| {
-                if a.is_nan() || b.is_nan() {
-                    a.is_nan() != b.is_nan()
-                } else {
-                    (*a - *b).abs() > REL_TOL * a.abs().max(b.abs()).max(1.0)
-                }
-            })
-            .count();
-        let fraction = disagree as f64 / npix as f64;
-        if fraction > MAX_DISAGREE {
+        let beyond = |tol: f32| {
+            g.iter()
+                .zip(c)
+                .filter(|(a, b)| {
+                    if a.is_nan() || b.is_nan() {
+                        a.is_nan() != b.is_nan()
+                    } else {
+                        (*a - *b).abs() > tol * a.abs().max(b.abs()).max(1.0)
+                    }
+                })
+                .count() as f64
+                / npix as f64
+        };
+        let fraction = beyond(REL_TOL);
+        let over: Vec<String> = tolerances(label)
+            .into_iter()
+            .filter(|&(tol, share)| beyond(tol) > share)
+            .map(|(tol, share)| format!("beyond {tol} on more than {:.1} %", share * 100.0))
+            .collect();
+        // How far apart, for a real adapter's report (`scripts/gpu_check.sh` sets
+        // SWEEPDEPTH_GPU_TEST_STATS): the share beyond looser tolerances.
+        let spread = format!(
+            "{name}: {label}: beyond 1e-3 {:.2} %, 1e-2 {:.2} %, 5e-2 {:.2} %, 0.2 {:.2} %",
+            fraction * 100.0,
+            beyond(1e-2) * 100.0,
+            beyond(5e-2) * 100.0,
+            beyond(0.2) * 100.0
+        );
+        if std::env::var_os("SWEEPDEPTH_GPU_TEST_STATS").is_some() {
+            eprintln!("{spread}");
+        }
+        if !over.is_empty() {
+            failed.push(format!("{spread} ({})", over.join(", ")));
             let dir = common::failure_dir(&format!("gpu_vs_cpu_{name}"));
             let image = |d: &[f32]| ImageF32 {
                 width: plan.width,
@@ -94,14 +148,14 @@ fn compare_with(
             };
             common::save_depth_png(&image(g), &dir.join(format!("{label}_gpu.png")));
             common::save_depth_png(&image(c), &dir.join(format!("{label}_cpu.png")));
-            panic!(
-                "{name}: {label} differs on {:.2} % of pixels (> {:.0} %); images in {}",
-                fraction * 100.0,
-                MAX_DISAGREE * 100.0,
-                dir.display()
-            );
         }
     }
+    assert!(
+        failed.is_empty(),
+        "{name}: maps differ beyond their tolerances (images in {}):\n{}",
+        common::failure_dir(&format!("gpu_vs_cpu_{name}")).display(),
+        failed.join("\n")
+    );
     // A real comparison: the maps are not empty.
     let valid = section(&cpu.maps, npix, MAP_DEPTH)
         .iter()
@@ -1102,7 +1156,14 @@ fn coarse_to_fine_is_one_submission_per_set() {
                 "finalize",
                 "median",
                 "splat",
-                "visibility"
+                "visibility",
+                "coarse/sweep",
+                "coarse/sgm",
+                "coarse/sgm_select",
+                "coarse/finalize",
+                "coarse/median",
+                "coarse/splat",
+                "coarse/visibility"
             ]
         );
     }

@@ -627,6 +627,8 @@ impl GpuEngine {
                 // Each level's timestamps in turn; the levels below the last as one stage.
                 let mut at = 0;
                 let mut coarse_ms = 0.0;
+                // The levels below the last stage by stage too (`coarse/<stage>`: bench's JSON).
+                let mut coarse_stages: Vec<(String, f64)> = Vec::new();
                 let mut last = StageTimings::default();
                 for (i, level) in levels.iter().enumerate() {
                     // Two u32 words per timestamp.
@@ -640,10 +642,18 @@ impl GpuEngine {
                         last = times;
                     } else {
                         coarse_ms += times.stages.iter().map(|(_, ms)| ms).sum::<f64>();
+                        for (name, ms) in times.stages {
+                            let name = format!("coarse/{name}");
+                            match coarse_stages.iter_mut().find(|(n, _)| *n == name) {
+                                Some((_, total)) => *total += ms,
+                                None => coarse_stages.push((name, ms)),
+                            }
+                        }
                     }
                 }
                 if levels.len() > 1 {
                     last.stages.insert(0, ("coarse".to_string(), coarse_ms));
+                    last.stages.extend(coarse_stages);
                 }
                 last
             }
