@@ -22,13 +22,20 @@ const MAX_LANE_WORDS: u32 = MAX_SGM_PLANES / 8u;
 struct SgmPass {
     direction: vec4<i32>,   // dx, dy, path lines, index of the direction (0 = the first pass: write, not add)
 }
+// `direction.w` of the pass that walks directions 1 .. paths - 1 in one dispatch (the first
+// pass, direction 0, writes the sums before it): `direction.x` is the paths, `direction.z` the
+// lines of those directions together, and each workgroup's line picks its direction. The walk
+// of a line is latency-bound (one pixel after the other), so the directions run side by side,
+// adding into the sums atomically (integer adds: the sums are the sequential passes' bit for
+// bit, whatever the order).
+const SGM_REST: i32 = -1;
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> sgm_pass: SgmPass;
 @group(0) @binding(2) var<uniform> cameras: array<Camera, MAX_RIG_CAMERAS>;
 @group(0) @binding(3) var<storage, read> images: array<u32>;
 @group(0) @binding(4) var<storage, read> volume: array<u32>;
-@group(0) @binding(5) var<storage, read_write> sums: array<u32>;
+@group(0) @binding(5) var<storage, read_write> sums: array<atomic<u32>>;
 // Unused here (sgm.wgsl's line-per-invocation scratch): the bindings are sgm.wgsl's, so both
 // layouts share one bind group.
 @group(0) @binding(6) var<storage, read_write> line_costs: array<u32>;
@@ -52,16 +59,46 @@ fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(subgroup_invocation_id) lane: u32,
 ) {
-    let line = i32(wid.x);
+    var line = i32(wid.x);
     // Uniform over the workgroup: every lane leaves together (the shuffles below need all).
     if (line >= sgm_pass.direction.z) {
         return;
     }
     let w = i32(params.width);
     let h = i32(params.height);
-    let dx = sgm_pass.direction.x;
-    let dy = sgm_pass.direction.y;
-    let first_pass = sgm_pass.direction.w == 0;
+    var dx = sgm_pass.direction.x;
+    var dy = sgm_pass.direction.y;
+    var first_pass = sgm_pass.direction.w == 0;
+    let together = sgm_pass.direction.w == SGM_REST;
+    if (together) {
+        // schedule.rs's SGM_DIRECTIONS; the lines of direction r as `sgm_lines` counts them.
+        var directions = array<vec2<i32>, 8>(
+            vec2<i32>(1, 0), vec2<i32>(-1, 0), vec2<i32>(0, 1), vec2<i32>(0, -1),
+            vec2<i32>(1, 1), vec2<i32>(-1, -1), vec2<i32>(1, -1), vec2<i32>(-1, 1),
+        );
+        let paths = min(u32(sgm_pass.direction.x), 8u);
+        var r = 1u;
+        loop {
+            if (r >= paths) {
+                return;
+            }
+            let d = directions[r];
+            var lines = w + h - 1;
+            if (d.y == 0) {
+                lines = h;
+            } else if (d.x == 0) {
+                lines = w;
+            }
+            if (line < lines) {
+                dx = d.x;
+                dy = d.y;
+                break;
+            }
+            line -= lines;
+            r += 1u;
+        }
+        first_pass = false;
+    }
     let planes = params.planes;
     let words = (planes + 1u) / 2u;
     let p1 = params.sgm_p1;
@@ -130,9 +167,12 @@ fn main(
                 prev1[i] = l1;
                 let packed = l0 | (l1 << 16u);
                 if (first_pass) {
-                    sums[at] = packed;
+                    atomicStore(&sums[at], packed);
+                } else if (together) {
+                    atomicAdd(&sums[at], packed);
                 } else {
-                    sums[at] = sums[at] + packed;
+                    // One direction at a time: a plain load and store (no read-modify-write).
+                    atomicStore(&sums[at], atomicLoad(&sums[at]) + packed);
                 }
             }
         }

@@ -147,6 +147,10 @@ pub struct GpuParams {
     pub census_offset: u32,
 }
 
+/// `direction.w` of the SGM pass that walks directions 1 .. paths - 1 in one dispatch
+/// (`SGM_REST` in `sgm_subgroup.wgsl`).
+pub const SGM_REST: i32 = -1;
+
 /// WGSL `SgmPass`: one direction of the semi-global optimiser.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]

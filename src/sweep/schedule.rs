@@ -19,6 +19,20 @@ pub const SGM_DIRECTIONS: [(i32, i32); 8] = [
     (-1, 1),
 ];
 
+/// The element of the WGSL engine's `sgm_passes` array after the directions' own: the pass that
+/// walks directions 1 .. paths - 1 in one dispatch (`SGM_REST` in `sgm_subgroup.wgsl`).
+pub const SGM_REST_PASS: usize = SGM_DIRECTIONS.len();
+
+/// Path lines of directions 1 .. `paths` - 1 together (the `SGM_REST_PASS` dispatch).
+pub fn sgm_rest_lines(paths: u32, width: u32, height: u32) -> u32 {
+    SGM_DIRECTIONS
+        .iter()
+        .take(paths as usize)
+        .skip(1)
+        .map(|&(dx, dy)| sgm_lines(dx, dy, width, height))
+        .sum()
+}
+
 /// Path lines of direction (dx, dy) over a width x height image.
 pub fn sgm_lines(dx: i32, dy: i32, width: u32, height: u32) -> u32 {
     match (dx, dy) {
@@ -285,6 +299,20 @@ mod tests {
         }
         assert_eq!(seen, s.dispatches().len());
         assert_eq!(s.phase_dispatches().count(), s.phases().len());
+    }
+
+    #[test]
+    fn the_rest_pass_walks_the_lines_of_every_direction_after_the_first() {
+        // 8 paths over 40x30: 30 rows, 40 columns, 30 rows... each diagonal w + h - 1 lines.
+        let each: Vec<u32> = SGM_DIRECTIONS
+            .iter()
+            .map(|&(dx, dy)| sgm_lines(dx, dy, 40, 30))
+            .collect();
+        assert_eq!(each, [30, 30, 40, 40, 69, 69, 69, 69]);
+        assert_eq!(sgm_rest_lines(8, 40, 30), 30 + 40 + 40 + 4 * 69);
+        assert_eq!(sgm_rest_lines(4, 40, 30), 30 + 40 + 40);
+        assert_eq!(sgm_rest_lines(1, 40, 30), 0);
+        assert_eq!(SGM_REST_PASS, 8);
     }
 
     #[test]

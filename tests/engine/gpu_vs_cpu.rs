@@ -92,6 +92,9 @@ fn compare_with(
         engine
             .set_sgm_layout(layout)
             .expect("the adapter has the layout");
+        // The subgroup layout as a GPU runs it: the directions after the first side by side
+        // (the adapter's default, one after the other on lavapipe, runs with `None`).
+        engine.set_sgm_directions_together(layout == SgmLayout::Subgroup);
     }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine::new().trace(plan, rig, images).expect("cpu run");

@@ -3,7 +3,7 @@
 
 use super::super::gpu_types::*;
 use super::super::plan::SweepPlan;
-use super::super::schedule::{sgm_lines, SGM_DIRECTIONS};
+use super::super::schedule::{sgm_lines, sgm_rest_lines, SGM_DIRECTIONS, SGM_REST_PASS};
 use super::super::stages::{Stage, STAGES};
 use super::super::SweepError;
 use super::shape::ShapeKey;
@@ -167,7 +167,8 @@ impl Buffers {
             },
             none,
         );
-        let sgm_passes = uniform("sgm passes", SGM_DIRECTIONS.len() as u64 * align.pass);
+        // Each direction's pass, then the pass of directions 1 .. paths - 1 together.
+        let sgm_passes = uniform("sgm passes", (SGM_REST_PASS as u64 + 1) * align.pass);
         let bands = uniform("sgm bands", u64::from(key.bands()) * align.pass);
         let maps = storage(
             "maps",
@@ -366,6 +367,19 @@ impl Buffers {
             let at = (r as u64 * align.pass) as usize;
             passes[at..at + std::mem::size_of::<GpuSgmPass>()]
                 .copy_from_slice(bytemuck::bytes_of(&pass));
+        }
+        if key.sgm_paths > 1 {
+            let rest = GpuSgmPass {
+                direction: [
+                    key.sgm_paths as i32,
+                    0,
+                    sgm_rest_lines(key.sgm_paths, key.width, key.height) as i32,
+                    SGM_REST,
+                ],
+            };
+            let at = (SGM_REST_PASS as u64 * align.pass) as usize;
+            passes[at..at + std::mem::size_of::<GpuSgmPass>()]
+                .copy_from_slice(bytemuck::bytes_of(&rest));
         }
         queue.write_buffer(&self.sgm_passes, 0, &passes);
         let mut bands = vec![0u8; self.bands.size() as usize];

@@ -102,6 +102,8 @@ pub struct GpuEngine {
     align: Alignments,
     /// How SGM spreads a path line over the adapter.
     sgm_layout: SgmLayout,
+    /// SGM's directions after the first in one dispatch (subgroup layout, one band).
+    sgm_together: bool,
     /// The adapter's smallest subgroup (the subgroup layout's workgroup).
     subgroup_size: u32,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
@@ -170,6 +172,10 @@ impl GpuEngine {
             pipelines,
             align: Alignments::of(device),
             sgm_layout,
+            // A GPU walks SGM's other directions side by side (record.rs, `sgm_together`); a CPU
+            // adapter has no idle lanes to fill (lavapipe's SGM stage: 63-71 ms one direction
+            // after the other, 99-119 ms side by side, the demo; docs/speed.md).
+            sgm_together: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
             sgm_band_bytes: None,
             slab_bytes: None,
@@ -202,6 +208,12 @@ impl GpuEngine {
         }
         self.sgm_layout = layout;
         Ok(())
+    }
+
+    /// With the subgroup layout, walks SGM's directions after the first in one dispatch (the
+    /// default on GPUs) or one dispatch per direction (CPU adapters). Results are identical.
+    pub fn set_sgm_directions_together(&mut self, together: bool) {
+        self.sgm_together = together;
     }
 
     /// The SGM layout the engine uses when one band holds the volume.
@@ -542,7 +554,10 @@ impl GpuEngine {
         if plan.uses_census() {
             record::record_census(encoder, buffers, &pipelines[Stage::Census as usize], plan);
         }
-        record::record_sweep(encoder, buffers, pipelines, &spec, schedule, self.align);
+        let together = self.sgm_together;
+        record::record_sweep(
+            encoder, buffers, pipelines, &spec, schedule, self.align, together,
+        );
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }

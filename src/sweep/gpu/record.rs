@@ -8,11 +8,13 @@ use std::sync::mpsc;
 use std::time::Instant;
 
 use super::super::plan::SweepPlan;
-use super::super::schedule::{sgm_lines, Dispatch, Schedule, SGM_DIRECTIONS};
+use super::super::schedule::{
+    sgm_lines, sgm_rest_lines, Dispatch, Schedule, SGM_DIRECTIONS, SGM_REST_PASS,
+};
 use super::super::stages::Stage;
 use super::super::{CancelFlag, StageTimings, SweepError};
 use super::buffers::{Alignments, Buffers};
-use super::pipelines::Specialisation;
+use super::pipelines::{SgmLayout, Specialisation};
 use super::{gpu_err, SetCounts};
 
 /// Workgroups of 8x8 over a w x h grid.
@@ -148,12 +150,24 @@ fn wait(device: &wgpu::Device, cancel: &CancelFlag) -> Result<(), SweepError> {
     }
 }
 
+/// SGM in subgroups over one band walks direction 0 (which writes the sums), then every other
+/// direction in one dispatch (the schedule's dispatch of direction 1 stands for them all; those
+/// of directions 2.. are not recorded): a line's walk is one pixel after the other, so eight
+/// dispatches one after the other left the GPU mostly idle (the H200: the coarse levels' SGM,
+/// a quarter of the pixels, took half the fine level's time). Other layouts and banded runs
+/// keep one dispatch per direction (line per invocation adds without atomics; bands pass each
+/// line's state from band to band in order), and so do CPU adapters (`allowed` false).
+fn sgm_together(spec: &Specialisation, buffers: &Buffers, allowed: bool) -> bool {
+    allowed && spec.sgm_layout == SgmLayout::Subgroup && buffers.key.bands() == 1
+}
+
 /// The workgroups of one dispatch and the dynamic offset of its uniform element.
 fn workgroups(
     dispatch: &Dispatch,
     buffers: &Buffers,
     spec: &Specialisation,
     align: Alignments,
+    together: bool,
 ) -> (Option<u64>, (u32, u32, u32)) {
     let key = buffers.key;
     let band_rows = key.band(dispatch.band).rows;
@@ -170,6 +184,10 @@ fn workgroups(
             };
             (batch, tiles(width, band_rows))
         }
+        Stage::Sgm if dispatch.direction == 1 && together => (
+            Some(SGM_REST_PASS as u64 * align.pass),
+            (sgm_rest_lines(key.sgm_paths, key.width, key.height), 1, 1),
+        ),
         Stage::Sgm => {
             let (dx, dy) = SGM_DIRECTIONS[dispatch.direction as usize];
             let lines = sgm_lines(dx, dy, key.width, key.height);
@@ -238,7 +256,9 @@ pub(super) fn record_sweep(
     spec: &Specialisation,
     schedule: &Schedule,
     align: Alignments,
+    sgm_directions_together: bool,
 ) {
+    let together = sgm_together(spec, buffers, sgm_directions_together);
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
     for (p, (phase, dispatches)) in schedule.phase_dispatches().enumerate() {
         let p = p as u32;
@@ -256,7 +276,10 @@ pub(super) fn record_sweep(
             timestamp_writes,
         });
         for dispatch in dispatches {
-            let (offset, groups) = workgroups(dispatch, buffers, spec, align);
+            if dispatch.stage == Stage::Sgm && dispatch.direction > 1 && together {
+                continue;
+            }
+            let (offset, groups) = workgroups(dispatch, buffers, spec, align, together);
             pass.set_pipeline(&pipelines[dispatch.stage as usize]);
             let group = buffers.bind_group(dispatch.stage, dispatch.band);
             match offset {
