@@ -534,14 +534,37 @@ impl SweepPlan {
     /// Unpacks the `maps` buffer into the public outputs; without `diagnostics`, the maps that
     /// no output publishes (`depth_raw_m`, `visible_cameras`) are left empty (0 x 0).
     pub fn unpack_maps(&self, maps: &[f32], diagnostics: bool) -> crate::sweep::DepthMaps {
+        self.unpack_map_sections(maps, 0, diagnostics)
+    }
+
+    /// The sections of `maps` that [`Self::unpack_maps`] reads (`diagnostics` or not): the
+    /// WGSL engine reads back only these (the median filter's input and, without diagnostics,
+    /// the raw depth and the visible cameras stay on the device).
+    pub fn unpacked_sections(diagnostics: bool) -> std::ops::Range<usize> {
+        if diagnostics {
+            MAP_DEPTH_RAW..MAP_COUNT
+        } else {
+            MAP_DEPTH..MAP_VISIBLE
+        }
+    }
+
+    /// [`Self::unpack_maps`] of `maps` that begin at section `first` (a readback of
+    /// [`Self::unpacked_sections`]).
+    pub fn unpack_map_sections(
+        &self,
+        maps: &[f32],
+        first: usize,
+        diagnostics: bool,
+    ) -> crate::sweep::DepthMaps {
         use crate::image::ImageF32;
         let npix = self.pixel_count();
+        let of = |s: usize| &maps[(s - first) * npix..(s - first + 1) * npix];
         let section = |s: usize| ImageF32 {
             width: self.width,
             height: self.height,
-            data: maps[s * npix..(s + 1) * npix].to_vec(),
+            data: of(s).to_vec(),
         };
-        let bytes = |s: usize, nan: u8| bytes_of_floats(&maps[s * npix..(s + 1) * npix], nan);
+        let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan);
         crate::sweep::DepthMaps {
             depth_m: section(MAP_DEPTH),
             depth_raw_m: if diagnostics {

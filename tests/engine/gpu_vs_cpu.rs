@@ -1239,8 +1239,14 @@ fn diagnostic_maps_left_out_change_nothing_else() {
     let gpu = common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
     let all = engine.run(&rig, &images, &params).expect("run");
+    let all_bytes = engine.take_set_counts().readback_bytes;
     engine.set_diagnostic_maps(false);
     let published = engine.run(&rig, &images, &params).expect("run");
+    // Only the sections unpacked come back (depth, confidence, cost, selection: 4 of the 7
+    // that come back with the diagnostics), besides the timestamps.
+    let published_bytes = engine.take_set_counts().readback_bytes;
+    let section = 160 * 120 * 4;
+    assert_eq!(all_bytes - published_bytes, 3 * section, "readback bytes");
     let bits = |image: &ImageF32| image.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
     assert_eq!(bits(&published.depth_m), bits(&all.depth_m));
     assert_eq!(bits(&published.confidence), bits(&all.confidence));

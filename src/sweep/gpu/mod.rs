@@ -29,7 +29,7 @@ mod upload;
 use std::time::Instant;
 
 use super::coarse::{LevelDepth, LevelImages};
-use super::gpu_types::MAP_DEPTH_RAW;
+use super::gpu_types::{MAP_COUNT, MAP_DEPTH_RAW};
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
 use super::stages::Stage;
@@ -325,7 +325,11 @@ impl GpuEngine {
         self.timed(|engine| {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
             let diagnostics = engine.diagnostics;
-            engine.finish_set(|m| plan.unpack_maps(m, diagnostics))
+            let sections = SweepPlan::unpacked_sections(diagnostics);
+            let first = sections.start;
+            engine.finish_set(sections, |m| {
+                plan.unpack_map_sections(m, first, diagnostics)
+            })
         })
     }
 
@@ -338,7 +342,7 @@ impl GpuEngine {
     ) -> Result<Vec<f32>, SweepError> {
         self.timed(|engine| {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
-            engine.finish_set(<[f32]>::to_vec)
+            engine.finish_set(0..MAP_COUNT, <[f32]>::to_vec)
         })
     }
 
@@ -578,7 +582,11 @@ impl GpuEngine {
     /// Submits the frame set recorded so far (one submission), waits once and reads back
     /// once: the last level's maps, `unpack`ed straight out of the mapped range, and every
     /// level's timestamps (the levels below the last as one `coarse` stage).
-    fn finish_set<T>(&mut self, unpack: impl FnOnce(&[f32]) -> T) -> Result<T, SweepError> {
+    fn finish_set<T>(
+        &mut self,
+        sections: std::ops::Range<usize>,
+        unpack: impl FnOnce(&[f32]) -> T,
+    ) -> Result<T, SweepError> {
         let Some(OpenSet {
             mut encoder,
             levels,
@@ -594,8 +602,11 @@ impl GpuEngine {
         let Some((buffers, _)) = self.buffers.as_ref() else {
             return Err(SweepError::Gpu("internal: no buffers".into()));
         };
-        let maps_len = buffers.maps.size();
-        encoder.copy_buffer_to_buffer(&buffers.maps, 0, &buffers.readback, 0, maps_len);
+        // Only the sections the caller unpacks (`SweepPlan::unpacked_sections`).
+        let section_bytes = buffers.maps.size() / MAP_COUNT as u64;
+        let first = section_bytes * sections.start.min(MAP_COUNT) as u64;
+        let maps_len = section_bytes * sections.end.min(MAP_COUNT) as u64 - first;
+        encoder.copy_buffer_to_buffer(&buffers.maps, first, &buffers.readback, 0, maps_len);
         let ticks_at = buffers::timestamps_offset(maps_len);
         let mut wanted = ticks_at;
         for (resolve, count) in levels.iter().filter_map(|l| l.timestamps.as_ref()) {
@@ -693,7 +704,11 @@ impl super::coarse::PlanRunner for GpuEngine {
         let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
         self.record_level(plan, rig, images, narrowed)?;
         let diagnostics = self.diagnostics;
-        self.finish_set(|m| plan.unpack_maps(m, diagnostics))
+        let sections = SweepPlan::unpacked_sections(diagnostics);
+        let first = sections.start;
+        self.finish_set(sections, |m| {
+            plan.unpack_map_sections(m, first, diagnostics)
+        })
     }
 
     fn run_plan_for_ranges(
