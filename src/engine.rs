@@ -225,8 +225,10 @@ fn auto_fallback_warning(nodes: bool, probe: Result<(bool, &str), String>) -> Op
     Some(format!(
         "device auto: this machine has a GPU device node (/dev/dri/renderD* or /dev/nvidiactl) \
          but wgpu found {found}: running the CPU engine. Install the GPU's Vulkan driver \
-         (NVIDIA: the libnvidia-gl / nvidia-vulkan-icd package matching the kernel driver; \
-         AMD/Intel: mesa-vulkan-drivers) or set device gpu to fail instead"
+         (NVIDIA: the libnvidia-gl / nvidia-vulkan-icd package matching the kernel driver, \
+         and libglvnd0, which its libGLX_nvidia.so.0 needs: without it the Vulkan loader \
+         cannot get vkCreateInstance from it (VK_LOADER_DEBUG=driver shows it); AMD/Intel: \
+         mesa-vulkan-drivers) or set device gpu to fail instead"
     ))
 }
 
@@ -368,6 +370,8 @@ mod tests {
         // found and what to install.
         let lavapipe = auto_fallback_warning(true, Ok((true, "llvmpipe (LLVM 15)"))).unwrap();
         assert!(lavapipe.contains("llvmpipe (LLVM 15)") && lavapipe.contains("Vulkan driver"));
+        // What an H200 machine without libglvnd needed (2026-11-27).
+        assert!(lavapipe.contains("libglvnd0"), "{lavapipe}");
         let none = auto_fallback_warning(true, Err("no Vulkan ICD".into())).unwrap();
         assert!(
             none.contains("no Vulkan ICD") && none.contains("CPU engine"),
