@@ -56,13 +56,24 @@ fn no_hypothesis() -> vec2<f32> {
     return vec2<f32>(BIG, f32(SEL_INVALID));
 }
 
-// Writes the level of plane `plane`'s score at pixel `pix`: an even plane starts its word
-// (the odd one fills the high half next), an odd plane that opens a batch keeps the low half.
-fn store_level(pix: u32, plane: u32, score: f32, low: u32, first_in_batch: bool) -> u32 {
+// Writes the level of plane `plane`'s score at pixel `pix`, each word once: an even plane's
+// level waits in a register (returned) for the odd plane after it, which writes the word; an
+// even plane that ends its batch writes its half alone (the high half 0, or filled by the next
+// batch's first plane), and an odd plane that opens a batch keeps the low half written there.
+fn store_level(
+    pix: u32,
+    plane: u32,
+    score: f32,
+    low: u32,
+    first_in_batch: bool,
+    last_in_batch: bool,
+) -> u32 {
     let level = volume_level(score);
     let word = (pix - band.first_pixel) * ((params.planes + 1u) / 2u) + plane / 2u;
     if ((plane & 1u) == 0u) {
-        volume[word] = level;
+        if (last_in_batch) {
+            volume[word] = level;
+        }
         return level;
     }
     if (first_in_batch) {
@@ -487,9 +498,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             a = select_plane(a, k, best[0]);
             b = select_plane(b, k, best[1]);
             if (VOLUME) {
-                low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u);
+                let last = z + 1u == batch.plane_count;
+                low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u, last);
                 if (has_b) {
-                    low_b = store_level(pix + 1u, batch.first_plane + z, best[1].x, low_b, z == 0u);
+                    low_b = store_level(pix + 1u, batch.first_plane + z, best[1].x, low_b, z == 0u, last);
                 }
             }
         }
@@ -512,7 +524,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         st = select_plane(st, f32(batch.first_plane + z), best);
         if (VOLUME) {
-            low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u);
+            let last = z + 1u == batch.plane_count;
+            low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u, last);
         }
     }
     store_state(pix, st);
