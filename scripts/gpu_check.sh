@@ -73,6 +73,9 @@ else
     # The WGSL engine on every configuration first (the figures the README needs), then both
     # engines beside the peer.
     step bench-gpu 150 "$bin" bench --device gpu --repeats 5
+    # The same as JSON beside the report: every stage, the coarse levels' own
+    # (`coarse/sgm`, ...), the WTA columns' and the host counts.
+    step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""
 fi
 step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
 step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu
