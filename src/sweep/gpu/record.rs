@@ -47,6 +47,20 @@ pub(super) fn record_census(
     pass.dispatch_workgroups(x, y, plan.params.cameras);
 }
 
+/// One device poll or queue submission at a time in this process. wgpu-core 30.0.1 can panic
+/// when two threads poll (or one polls while another submits) on one device at once ("If the
+/// queue is empty, the current submission index ... should be at least the wait submission
+/// index", gfx-rs/wgpu#9958, fixed later): the tests share one device across threads, and a
+/// CI run met it once. The lock is held for one poll of at most CANCEL_POLL.
+static DEVICE_POLL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// [`DEVICE_POLL`], also after a thread panicked holding it (it guards no data).
+pub(super) fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
+    DEVICE_POLL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// How often a wait for the GPU looks at the cancel flag.
 const CANCEL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
@@ -79,7 +93,10 @@ impl<'a> Submitter<'a> {
     pub fn submit(&mut self, commands: wgpu::CommandBuffer) -> Result<(), SweepError> {
         self.cancel.check()?;
         let started = Instant::now();
-        self.queue.submit([commands]);
+        {
+            let _poll = device_poll_lock();
+            self.queue.submit([commands]);
+        }
         self.counts.submissions += 1;
         self.counts.submit_ms += started.elapsed().as_secs_f64() * 1e3;
         Ok(())
@@ -137,10 +154,14 @@ impl<'a> Submitter<'a> {
 /// Waits for the latest submission, looking at the cancel flag every [`CANCEL_POLL`].
 fn wait(device: &wgpu::Device, cancel: &CancelFlag) -> Result<(), SweepError> {
     loop {
-        match device.poll(wgpu::PollType::Wait {
-            submission_index: None,
-            timeout: Some(CANCEL_POLL),
-        }) {
+        let polled = {
+            let _poll = device_poll_lock();
+            device.poll(wgpu::PollType::Wait {
+                submission_index: None,
+                timeout: Some(CANCEL_POLL),
+            })
+        };
+        match polled {
             Ok(_) => return Ok(()),
             Err(wgpu::PollError::Timeout) => cancel.check()?,
             // A submission that failed (a lost device, a validation error) has no index to

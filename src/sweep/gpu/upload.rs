@@ -128,7 +128,10 @@ impl Uploads {
                 Err(mpsc::TryRecvError::Empty) => {
                     // Its submission is done once the set's wait ended; the callback comes
                     // with the next poll.
-                    let _ = device.poll(wgpu::PollType::Poll);
+                    let _ = {
+                        let _poll = super::record::device_poll_lock();
+                        device.poll(wgpu::PollType::Poll)
+                    };
                     receiver.try_recv()
                 }
                 answer => answer,
