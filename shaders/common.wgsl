@@ -79,7 +79,7 @@ struct Params {
     // Windows and post-processing switches.
     window_w: u32,                // 1 = no aggregation
     window_h: u32,
-    subpixel: u32,                // 0 or 1
+    subpixel: u32,                // 0 off, else the fit (+ 1: refine after it; + 4: a V, not a parabola)
     median: u32,                  // 0 or 1
     // Thresholds.
     tau: f32,
@@ -103,6 +103,9 @@ struct Params {
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as
 // u16 levels, two planes per u32 word (even plane in the low half), pixel-major.
+// Params.subpixel's flag: the sub-pixel fit is a V, not a parabola (SUBPIXEL_V_FIT).
+const SUBPIXEL_V_FIT: u32 = 4u;
+
 const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau (raised by SGM_VOLUME_OFFSET), and of a hypothesis with no valid pair
 const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
 

@@ -1,4 +1,4 @@
-// Stage 5b: winner -> depth (sub-pixel parabola in inverse depth), max_cost invalidation, confidence.
+// Stage 5b: winner -> depth (sub-pixel parabola or V in inverse depth), max_cost invalidation, confidence.
 // One invocation per reference pixel. CPU twin: src/sweep/cpu/finalize.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -40,7 +40,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (params.subpixel != 0u && k > 0u && k + 1u < n_planes && s0.z < 0.5 * BIG && s0.w < 0.5 * BIG) {
         let curvature = s0.z - 2.0 * best + s0.w;
         if (curvature > 0.0) {
-            let offset = clamp(0.5 * (s0.z - s0.w) / curvature, -0.5, 0.5);
+            // The parabola's second difference, or the V's slope (subpixel_v_fit: its steeper
+            // side's rise); CPU twin `subpixel_offset`.
+            var denominator = curvature;
+            if ((params.subpixel & SUBPIXEL_V_FIT) != 0u) {
+                denominator = max(s0.z, s0.w) - best;
+            }
+            let offset = clamp(0.5 * (s0.z - s0.w) / denominator, -0.5, 0.5);
             if (offset > 0.0) {
                 q += offset * (inverse_depth(k + 1u, ray) - q);
             } else {

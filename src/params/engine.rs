@@ -228,7 +228,9 @@ engine_params! {
     max_cost: f32 = 100.0, "max_cost", Long("max-cost"), ParamRange::above(0.0),
         "A best score above this makes the pixel invalid.";
     subpixel: bool = true, "subpixel", Long("subpixel"), ParamRange::Any,
-        "Sub-pixel (parabola) refinement of the depth.";
+        "Sub-pixel depth between the planes (a parabola through the winner's and its neighbours' scores).";
+    subpixel_v_fit: bool = false, "subpixel_v_fit", Long("subpixel-v-fit"), ParamRange::Any,
+        "With subpixel: a V (equiangular line) instead of the parabola; exact for SGM's piecewise linear path costs, fewer layers in one depth map, but fused models come out slightly worse (docs/quality.md).";
     subpixel_refine: bool = false, "subpixel_refine", Long("subpixel-refine"), ParamRange::Any,
         "With subpixel: a fine local sweep of 5 hypotheses a quarter plane apart around each pixel's depth, windows following the smoothed depth (CPU engine only).";
     median: bool = true, "median", Long("median"), ParamRange::Any,

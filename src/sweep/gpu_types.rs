@@ -38,12 +38,16 @@ pub const MAX_SGM_PLANES: u32 = 1024;
 /// SGM: the colour step of `sgm_edge` in 1/16 grey levels (integer maths on both sides).
 pub const SGM_EDGE_UNITS: f32 = 16.0;
 
-/// `GpuParams::subpixel`: no refinement; the parabola through the winner's and its
-/// neighbours' scores (winner-take-all scores or SGM's summed path costs); that parabola, then
-/// the fine local sweep around it (`subpixel_refine`, the refine stage).
+/// `GpuParams::subpixel`, its low two bits: no refinement; the fit through the winner's and its
+/// neighbours' scores (`cpu::finalize::subpixel_offset`); that fit, then the fine local sweep
+/// around it (`subpixel_refine`, the refine stage). [`SUBPIXEL_MODE`] masks them.
 pub const SUBPIXEL_OFF: u32 = 0;
 pub const SUBPIXEL_PARABOLA: u32 = 1;
 pub const SUBPIXEL_REFINE: u32 = 2;
+pub const SUBPIXEL_MODE: u32 = 3;
+/// `GpuParams::subpixel`'s flag: the fit is a V (equiangular line), not a parabola
+/// (`subpixel_v_fit`).
+pub const SUBPIXEL_V_FIT: u32 = 4;
 
 pub const INVALID: f32 = -1.0;
 /// `HALF_NOISE_FLOOR` in common.wgsl.
@@ -237,6 +241,7 @@ mod tests {
             ("MAX_BATCH_PLANES", MAX_BATCH_PLANES),
             ("MAP_VISIBLE", MAP_VISIBLE as u32),
             ("SGM_COST_MAX", SGM_COST_MAX),
+            ("SUBPIXEL_V_FIT", SUBPIXEL_V_FIT),
             ("MAX_SGM_PLANES", MAX_SGM_PLANES),
             ("MARGIN_PLANES", crate::sweep::coarse::MARGIN_PLANES),
             ("NEIGHBOUR_ROWS", crate::sweep::coarse::NEIGHBOUR_ROWS),

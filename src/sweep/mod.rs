@@ -127,6 +127,9 @@ pub struct SweepParams {
     /// A best score above this is invalid.
     pub max_cost: f32,
     pub subpixel: bool,
+    /// With `subpixel`: the V (equiangular line) through the three scores instead of the
+    /// parabola (`cpu::finalize::subpixel_offset`; issue 29, docs/quality.md).
+    pub subpixel_v_fit: bool,
     /// With `subpixel`: the fine local sweep around the parabola's depth (`cpu/refine.rs`;
     /// CPU engine only so far).
     pub subpixel_refine: bool,

@@ -247,6 +247,10 @@ impl SweepPlan {
                 (false, _) => SUBPIXEL_OFF,
                 (true, false) => SUBPIXEL_PARABOLA,
                 (true, true) => SUBPIXEL_REFINE,
+            } | if params.subpixel && params.subpixel_v_fit {
+                SUBPIXEL_V_FIT
+            } else {
+                0
             },
             median: u32::from(params.median),
             tau: params.tau,

@@ -3,7 +3,7 @@
 //! runs one function per phase); [`Schedule::dispatches`] expands it into the WGSL engine's
 //! dispatches (per batch of planes, per row band of the SGM volume, per SGM direction).
 
-use super::gpu_types::SUBPIXEL_REFINE;
+use super::gpu_types::{SUBPIXEL_MODE, SUBPIXEL_REFINE};
 use super::plan::SweepPlan;
 use super::stages::Stage;
 
@@ -214,7 +214,7 @@ impl Schedule {
             sgm_paths: plan.sgm_paths(),
             bands: 1,
         });
-        if plan.params.subpixel == SUBPIXEL_REFINE {
+        if plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE {
             if let Some(at) = schedule.phases.iter().position(|p| *p == Phase::Finalize) {
                 // No dispatches: it ends where finalize ends.
                 schedule.phases.insert(at + 1, Phase::Refine);

@@ -952,6 +952,10 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
         subpixel_refine: true,
         ..p.clone()
     };
+    let v_fit = SweepParams {
+        subpixel_v_fit: true,
+        ..p.clone()
+    };
     for (name, scene, keep) in precision_scenes() {
         let images = synthetic::render_rig(&scene, &rig);
         let truth = synthetic::reference_depth(&scene, &rig);
@@ -963,6 +967,8 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
                 "cpu refined",
                 cpu.run(&rig, &images, &refined).expect("cpu sweep"),
             ),
+            ("cpu v", cpu.run(&rig, &images, &v_fit).expect("cpu sweep")),
+            ("gpu v", gpu.run(&rig, &images, &v_fit).expect("gpu sweep")),
         ] {
             let m = precision(&maps.depth_m, &truth, &keep, spacing);
             eprintln!(
@@ -979,18 +985,27 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
             );
             rms.push(m.rms_spacings);
         }
-        let [cpu_rms, gpu_rms, refined_rms] = rms[..] else {
+        let [cpu_rms, gpu_rms, refined_rms, v_rms, gpu_v_rms] = rms[..] else {
             unreachable!()
         };
-        // Measured (2026-11-26): 60 degrees 0.171 -> 0.103, 70 degrees 0.239 -> 0.127, sphere
-        // 0.201 -> 0.105 plane spacings; the engines agree to the third decimal.
-        assert!(
-            (cpu_rms - gpu_rms).abs() < 0.01,
-            "{name}: cpu {cpu_rms} vs gpu {gpu_rms}"
-        );
+        // Measured (2026-11-27): 60 degrees 0.171, refined 0.103, V fit 0.130; 70 degrees
+        // 0.239, 0.127, 0.203; sphere 0.201, 0.105, 0.183 plane spacings; the engines agree to
+        // the third decimal.
+        for (what, cpu_figure, gpu_figure) in
+            [("parabola", cpu_rms, gpu_rms), ("V fit", v_rms, gpu_v_rms)]
+        {
+            assert!(
+                (cpu_figure - gpu_figure).abs() < 0.01,
+                "{name}, {what}: cpu {cpu_figure} vs gpu {gpu_figure}"
+            );
+        }
         assert!(
             cpu_rms < 0.26,
             "{name}: {cpu_rms:.3} plane spacings without refinement"
+        );
+        assert!(
+            v_rms < 0.93 * cpu_rms && v_rms < 0.22,
+            "{name}: V fit {v_rms:.3} vs the parabola's {cpu_rms:.3} plane spacings"
         );
         assert!(
             refined_rms < 0.65 * cpu_rms && refined_rms < 0.14,

@@ -1,4 +1,5 @@
-//! Twin of `shaders/finalize.wgsl`: winner -> depth (sub-pixel parabola in inverse depth),
+//! Twin of `shaders/finalize.wgsl`: winner -> depth (sub-pixel parabola or V in inverse depth,
+//! [`subpixel_offset`]),
 //! `max_cost` invalidation, confidence. Rows in parallel.
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -11,6 +12,28 @@ use super::Maps;
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 
+/// The winner's sub-plane offset (-0.5..0.5 planes toward `after`) from its score `best` and
+/// its neighbours' `before` and `after`, None where they do not bracket a minimum: the parabola
+/// through the three, or (`v_fit`) the symmetric V (Shimizu and Okutomi's equiangular line
+/// fit). SGM's summed path costs are piecewise linear around the winner (each path pays P1 per
+/// plane it moves): the V is exact for them where the parabola pulls the offset toward the
+/// plane (a V's true 0.25 reads 0.17), the layers of a depth map's point cloud. Issue 29,
+/// docs/quality.md.
+#[inline(always)]
+pub fn subpixel_offset(before: f32, best: f32, after: f32, v_fit: bool) -> Option<f32> {
+    let curvature = before - 2.0 * best + after;
+    if !(curvature > 0.0) {
+        return None;
+    }
+    // The V's slope is its steeper side's rise; the parabola's, the second difference.
+    let denominator = if v_fit {
+        before.max(after) - best
+    } else {
+        curvature
+    };
+    Some((0.5 * (before - after) / denominator).clamp(-0.5, 0.5))
+}
+
 fn inverse_depth(plan: &SweepPlan, k: u32, ray: Vec3) -> f32 {
     let plane = plan.planes[k as usize];
     dot3(xyz(plane), ray) / plane[3]
@@ -21,6 +44,7 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
     let width = params.width as usize;
     let n_planes = params.planes;
     let max_cost = params.max_cost;
+    let v_fit = params.subpixel & SUBPIXEL_V_FIT != 0;
     let [raw, _, _, confidence, cost, selection, _] = maps.sections_mut();
     raw.par_chunks_mut(width)
         .zip(confidence.par_chunks_mut(width))
@@ -48,9 +72,7 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
                     && before < 0.5 * BIG
                     && after < 0.5 * BIG
                 {
-                    let curvature = before - 2.0 * best + after;
-                    if curvature > 0.0 {
-                        let offset = (0.5 * (before - after) / curvature).clamp(-0.5, 0.5);
+                    if let Some(offset) = subpixel_offset(before, best, after, v_fit) {
                         if offset > 0.0 {
                             q += offset * (inverse_depth(plan, k + 1, ray) - q);
                         } else {
@@ -69,4 +91,46 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
                 selection[x] = st.selection[pix];
             }
         });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::subpixel_offset;
+
+    #[test]
+    fn the_v_is_exact_for_a_v_and_the_parabola_for_a_parabola() {
+        for true_offset in [-0.45f32, -0.3, -0.1, 0.0, 0.05, 0.25, 0.4] {
+            // |x - t| and (x - t)^2 sampled at the planes -1, 0, 1.
+            let v = |x: f32| (x - true_offset).abs();
+            let p = |x: f32| (x - true_offset) * (x - true_offset);
+            let from_v = subpixel_offset(v(-1.0), v(0.0), v(1.0), true).expect("a minimum");
+            let from_p = subpixel_offset(p(-1.0), p(0.0), p(1.0), false).expect("a minimum");
+            assert!(
+                (from_v - true_offset).abs() < 1e-6,
+                "{from_v} vs {true_offset}"
+            );
+            assert!(
+                (from_p - true_offset).abs() < 1e-6,
+                "{from_p} vs {true_offset}"
+            );
+            // The parabola through a V pulls toward the plane: what the V fit is for.
+            let pulled = subpixel_offset(v(-1.0), v(0.0), v(1.0), false).expect("a minimum");
+            if (0.01..=0.4).contains(&true_offset.abs()) {
+                assert!(
+                    pulled.abs() < 0.9 * true_offset.abs(),
+                    "{pulled} vs {true_offset}"
+                );
+            }
+        }
+        // By hand: before 3, best 1, after 2: the V's slope is 2, offset 0.5 * 1 / 2.
+        assert_eq!(subpixel_offset(3.0, 1.0, 2.0, true), Some(0.25));
+        assert_eq!(subpixel_offset(3.0, 1.0, 2.0, false), Some(1.0 / 6.0));
+        // No minimum bracketed: flat, or falling.
+        assert_eq!(subpixel_offset(1.0, 1.0, 1.0, true), None);
+        assert_eq!(subpixel_offset(3.0, 2.0, 1.0, true), None);
+        // A neighbour below the winner (never for SGM's winner, which is its pixel's
+        // minimum): clamped to half a plane.
+        assert_eq!(subpixel_offset(0.5, 1.0, 3.0, true), Some(-0.5));
+        assert_eq!(subpixel_offset(0.5, 1.0, 3.0, false), Some(-0.5));
+    }
 }

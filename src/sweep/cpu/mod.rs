@@ -224,7 +224,8 @@ impl CpuEngine {
             .collect();
         // Scattered samples (any mapping but a translation, the reference's own aside) read
         // interleaved texels.
-        let refine = plan.params.subpixel == SUBPIXEL_REFINE && refine::supported(plan);
+        let refine =
+            plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE && refine::supported(plan);
         let scattered = refine
             || mappings.iter().any(|m| {
                 m.iter().enumerate().any(|(i, m)| {

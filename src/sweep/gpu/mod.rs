@@ -418,7 +418,9 @@ impl GpuEngine {
         narrowed: bool,
     ) -> Result<(), SweepError> {
         self.counts.levels += 1;
-        if plan.params.subpixel == super::gpu_types::SUBPIXEL_REFINE {
+        if plan.params.subpixel & super::gpu_types::SUBPIXEL_MODE
+            == super::gpu_types::SUBPIXEL_REFINE
+        {
             return Err(SweepError::InvalidParams(
                 "subpixel_refine runs on the CPU engine only (no WGSL twin yet): --device cpu"
                     .into(),
