@@ -1030,3 +1030,88 @@ fn subpixel_refine_is_refused_by_the_wgsl_engine() {
         other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
     }
 }
+
+/// The issue 29 complaint of a matte ball whose centre comes out too far, reproduced with exact
+/// geometry: a sphere with large, soft texture features (0.4 m) before a wall, the precision
+/// rig above. SGM pays P1 for every plane a path crosses, so on a curved surface it shortens
+/// the staircase: the ball's front (nearest 1.6 m) comes out too far and the ring around it
+/// too near, flattened. Measured 2026-11-27 (CPU engine, mean signed inverse-depth error in
+/// plane spacings, front / ring): SGM with P1 5 / 10 / 20 (default) / 40: -0.10 / -0.14 /
+/// -0.19 / -0.27 at the front, +0.03 to +0.05 on the ring; winner-take-all -0.03 / +0.02; with
+/// the fine texture of the precision test (0.035 m) SGM -0.14 / +0.18, winner-take-all -0.10 /
+/// +0.13 (the fronto-parallel window's share). docs/quality.md. The bound keeps it from growing
+/// unnoticed; the issue's fix would take it toward winner-take-all's.
+#[test]
+fn a_softly_textured_ball_is_flattened_by_sgm_within_a_bound() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
+    let p = SweepParams {
+        joint_median_radius: 0,
+        ..params(1.0, 4.0, 22)
+    };
+    let spacing = (1.0 / p.min_depth_m - 1.0 / p.max_depth_m) / f64::from(p.num_planes - 1);
+    let ball = synthetic::TexturedSphere {
+        centre_in_world: DVec3::new(0.0, 0.0, 2.2),
+        radius_m: 0.6,
+        feature_m: 0.4,
+        seed: 9,
+    };
+    let scene = Scene {
+        quads: Scene::wall_and_box(3.6, None, 140.0).quads,
+        spheres: vec![ball],
+    };
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    // Mean signed error (positive: too near) over the valid pixels within 2 spacings whose true
+    // depth lies in `range`.
+    let bias = |depth: &ImageF32, range: std::ops::Range<f32>| {
+        let (mut n, mut sum) = (0usize, 0.0f64);
+        for (&t, &z) in truth.data.iter().zip(&depth.data) {
+            if !range.contains(&t) || !(z.is_finite() && z > 0.0) {
+                continue;
+            }
+            let e = (1.0 / f64::from(z) - 1.0 / f64::from(t)) / spacing;
+            if e.abs() <= 2.0 {
+                n += 1;
+                sum += e;
+            }
+        }
+        assert!(n > 1000, "{n} pixels of the ball in {range:?}");
+        sum / n as f64
+    };
+    let mut cpu = CpuEngine::new();
+    let sgm = cpu.run(&rig, &images, &p).expect("sgm sweep");
+    let wta = cpu
+        .run(
+            &rig,
+            &images,
+            &SweepParams {
+                optimizer: Optimizer::Wta,
+                ..p.clone()
+            },
+        )
+        .expect("wta sweep");
+    let (front, ring) = (1.5f32..1.75, 1.75f32..2.0);
+    let [sgm_front, sgm_ring, wta_front, wta_ring] = [
+        bias(&sgm.depth_m, front.clone()),
+        bias(&sgm.depth_m, ring.clone()),
+        bias(&wta.depth_m, front),
+        bias(&wta.depth_m, ring),
+    ];
+    eprintln!(
+        "soft ball, mean signed error in plane spacings: sgm front {sgm_front:+.3} ring \
+         {sgm_ring:+.3}, wta front {wta_front:+.3} ring {wta_ring:+.3}"
+    );
+    // Flattened: the front too far, more so than without SGM's smoothness ...
+    assert!(sgm_front < wta_front, "{sgm_front} vs {wta_front}");
+    // ... but within a bound (0.19 measured).
+    assert!(sgm_front > -0.25, "sgm front {sgm_front:.3} plane spacings");
+    assert!(
+        sgm_ring.abs() < 0.15,
+        "sgm ring {sgm_ring:.3} plane spacings"
+    );
+    assert!(
+        wta_front.abs() < 0.1,
+        "wta front {wta_front:.3} plane spacings"
+    );
+}
