@@ -1067,7 +1067,7 @@ fn a_softly_textured_ball_is_flattened_by_sgm_within_a_bound() {
     let bias = |depth: &ImageF32, range: std::ops::Range<f32>| {
         let (mut n, mut sum) = (0usize, 0.0f64);
         for (&t, &z) in truth.data.iter().zip(&depth.data) {
-            if !range.contains(&t) || !(z.is_finite() && z > 0.0) {
+            if !(range.contains(&t) && z.is_finite() && z > 0.0) {
                 continue;
             }
             let e = (1.0 / f64::from(z) - 1.0 / f64::from(t)) / spacing;
