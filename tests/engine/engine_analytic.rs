@@ -933,19 +933,25 @@ fn precision_scenes() -> Vec<(&'static str, Scene, std::ops::Range<f32>)> {
     ]
 }
 
-#[test]
-fn slanted_planes_and_a_sphere_come_back_between_planes() {
+/// The rig, parameters and plane spacing (in inverse depth) of the precision tests: 160x120,
+/// five cameras 0.1 m apart in a row, 22 planes from 1 to 4 m, half a pixel apart between
+/// neighbouring cameras, as on the Middlebury sets. The sweep's own precision: without the
+/// colour-weighted median after it (which takes a pixel off its window's median plane to that
+/// plane's mean, 0.171 -> 0.181 spacings on the 60-degree plane, 2026-11-26; docs/quality.md).
+fn precision_rig() -> (Rig, SweepParams, f64) {
     let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    // Planes half a pixel apart between neighbouring cameras, as on the Middlebury sets.
     let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
-    // The sweep's own precision: without the colour-weighted median after it (which takes
-    // a pixel off its window's median plane to that plane's mean, 0.171 -> 0.181 spacings on
-    // the 60-degree plane, 2026-11-26; docs/quality.md).
     let p = SweepParams {
         joint_median_radius: 0,
         ..params(1.0, 4.0, 22)
     };
     let spacing = (1.0 / p.min_depth_m - 1.0 / p.max_depth_m) / f64::from(p.num_planes - 1);
+    (rig, p, spacing)
+}
+
+#[test]
+fn slanted_planes_and_a_sphere_come_back_between_planes() {
+    let (rig, p, spacing) = precision_rig();
     let mut gpu = engine();
     let mut cpu = CpuEngine::new();
     let refined = SweepParams {
@@ -1043,13 +1049,7 @@ fn subpixel_refine_is_refused_by_the_wgsl_engine() {
 /// unnoticed; the fix would take it toward winner-take-all's.
 #[test]
 fn a_softly_textured_ball_is_flattened_by_sgm_within_a_bound() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
-    let p = SweepParams {
-        joint_median_radius: 0,
-        ..params(1.0, 4.0, 22)
-    };
-    let spacing = (1.0 / p.min_depth_m - 1.0 / p.max_depth_m) / f64::from(p.num_planes - 1);
+    let (rig, p, spacing) = precision_rig();
     let ball = synthetic::TexturedSphere {
         centre_in_world: DVec3::new(0.0, 0.0, 2.2),
         radius_m: 0.6,
