@@ -994,8 +994,8 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
         let [cpu_rms, gpu_rms, refined_rms, v_rms, gpu_v_rms] = rms[..] else {
             unreachable!()
         };
-        // Measured (2026-11-27): 60 degrees 0.171, refined 0.103, V fit 0.130; 70 degrees
-        // 0.239, 0.127, 0.203; sphere 0.201, 0.105, 0.183 plane spacings; the engines agree to
+        // Measured (2026-11-27): 60 degrees 0.171, refined 0.068, V fit 0.130; 70 degrees
+        // 0.239, 0.114, 0.203; sphere 0.201, 0.084, 0.183 plane spacings; the engines agree to
         // the third decimal.
         for (what, cpu_figure, gpu_figure) in
             [("parabola", cpu_rms, gpu_rms), ("V fit", v_rms, gpu_v_rms)]
@@ -1013,8 +1013,12 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
             v_rms < 0.93 * cpu_rms && v_rms < 0.22,
             "{name}: V fit {v_rms:.3} vs the parabola's {cpu_rms:.3} plane spacings"
         );
+        // The fine sweep with the reference smoothed to each sample's phase
+        // (`refine::matched_reference`; without it 0.103 / 0.127 / 0.105, 0.53-0.60x the
+        // parabola's): issue 29's bar, 0.1 plane spacings, on the 60-degree plane and the sphere.
+        let bar = if name.contains("70") { 0.125 } else { 0.1 };
         assert!(
-            refined_rms < 0.65 * cpu_rms && refined_rms < 0.14,
+            refined_rms < 0.5 * cpu_rms && refined_rms < bar,
             "{name}: refined {refined_rms:.3} vs {cpu_rms:.3} plane spacings"
         );
     }

@@ -39,6 +39,9 @@ pub struct PlaneScratch {
     /// The refinement's hypothesis (`refine.rs`): a depth (ray parameter) per reference pixel,
     /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
     pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
+    /// With a hypothesis: the reference's row smoothed as the current camera's samples are
+    /// (`refine::matched_reference`).
+    matched: ColourRow,
 }
 
 impl PlaneScratch {
@@ -77,6 +80,7 @@ impl PlaneScratch {
             rows: vec![CameraRow::Sampled; p.cameras as usize],
             spans: Vec::new(),
             hypothesis: None,
+            matched: cost::colour_row(width),
         }
     }
 }
@@ -261,7 +265,25 @@ fn cost_row(
         }
     };
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
-        let ((a, a_lo, a_hi), (b, b_lo, b_hi)) = (row(pair[0] as usize), row(pair[1] as usize));
+        let ((mut a, a_lo, a_hi), (mut b, b_lo, b_hi)) =
+            (row(pair[0] as usize), row(pair[1] as usize));
+        // The fine sweep's hypotheses sample between texels: the reference is smoothed as
+        // much as each camera's samples are (`refine::matched_reference`).
+        let other = match *pair {
+            [a, b, ..] if a == reference => Some(b),
+            [a, b, ..] if b == reference => Some(a),
+            _ => None,
+        };
+        if let (Some(other), Some(_)) = (other, &s.hypothesis) {
+            let image = &images.planar[reference as usize];
+            super::refine::matched_reference(image, y, &s.coords[other as usize], &mut s.matched);
+            let matched: [&[f32]; 3] = std::array::from_fn(|c| s.matched[c].as_slice());
+            if pair[0] == reference {
+                a = matched;
+            } else {
+                b = matched;
+            }
+        }
         // Where either is not seen, INVALID (as a NaN colour makes it in `pair_cost_row`), and
         // outside the columns whose costs are read.
         let lo = a_lo.max(b_lo).max(hull.start);

@@ -11,7 +11,9 @@
 //! hypothesis j: the window follows the base surface (a slanted support where the surface is
 //! slanted) instead of a fronto-parallel plane. The best j and the parabola through it and its
 //! neighbours give the depth; a best hypothesis at either end of the range keeps the
-//! finalized depth. Twin of the WGSL stage to come (`shaders/refine.wgsl`); until then the
+//! finalized depth. Each camera's samples are compared with the reference smoothed as much as
+//! their bilinear phase smooths them (`matched_reference`), so that hypotheses between texels
+//! are not favoured. Twin of the WGSL stage to come (`shaders/refine.wgsl`); until then the
 //! WGSL engine refuses the parameter.
 // Loops over x index several images at once.
 #![allow(clippy::needless_range_loop)]
@@ -36,6 +38,46 @@ pub const STEP: f32 = 0.25;
 /// Window pixels within this many plane spacings of a pixel's inverse depth are on its
 /// surface (the base surface's mean).
 pub const SAME_SURFACE: f32 = 1.5;
+
+/// How much the reference row is smoothed to match a sample's bilinear phase
+/// ([`matched_reference`]): the [v, 1 - 2v, v] kernel with v = `PHASE_SMOOTHING` f (1 - f) for
+/// a sample at fraction f of a texel (0.5 and 1 measured too: 60-degree plane refined 0.068 /
+/// 0.071, sphere 0.084 / 0.085, with 0.75 in between; docs/quality.md).
+pub const PHASE_SMOOTHING: f32 = 0.75;
+
+/// The reference's row `y` as a camera's bilinear samples see it (`out`, R, G, B): a sample at
+/// texel fractions (fx, fy) is the camera's image smoothed by the interpolation, so the
+/// reference's sharp texels are smoothed as much, along x by [vx, 1 - 2 vx, vx] (vx =
+/// `PHASE_SMOOTHING` fx (1 - fx)) and along y alike. Without it the hypotheses between texels
+/// score lower (smoother, less noisy samples) and the fine sweep's parabola leans toward them
+/// (docs/quality.md, "Why the steps stay"). `coords` are the samples' positions (NaN: not seen,
+/// left sharp); edge texels repeat.
+pub fn matched_reference(
+    image: &PlanarImage,
+    y: usize,
+    coords: &[Vec<f32>; 2],
+    out: &mut [Vec<f32>; 3],
+) {
+    let (w, h) = (image.width, image.height);
+    let [xs, ys] = coords;
+    let (up, down) = (y.saturating_sub(1) * w, (y + 1).min(h - 1) * w);
+    let at = y * w;
+    for (channel, o) in image.channels.iter().zip(out.iter_mut()) {
+        let row = &channel[at..at + w];
+        for x in 0..w {
+            let (u, v) = (xs[x], ys[x]);
+            let (fx, fy) = if u.is_finite() && v.is_finite() {
+                (u - u.floor(), v - v.floor())
+            } else {
+                (0.0, 0.0)
+            };
+            let centre = row[x];
+            let across = row[x.saturating_sub(1)] + row[(x + 1).min(w - 1)] - 2.0 * centre;
+            let along = channel[up + x] + channel[down + x] - 2.0 * centre;
+            o[x] = centre + PHASE_SMOOTHING * (fx * (1.0 - fx) * across + fy * (1.0 - fy) * along);
+        }
+    }
+}
 
 /// Whether the fine sweep can run on `plan`: a census cost between pairs of sampled cameras
 /// (`pairs: all`) reads the nearest words of plane k, not of a hypothesis per pixel.
@@ -208,6 +250,46 @@ mod tests {
         // half a hypothesis toward the other.
         assert_eq!(parabola(1.0, 1.0, 1.0), 0.0);
         assert!(parabola(1.0, 0.9, 100.0) < -0.49);
+    }
+
+    /// The matched reference by hand: a sample on a texel leaves the reference sharp; half
+    /// way between texels along x smooths it by [3/16, 5/8, 3/16] along the row (v = 0.75 /
+    /// 4), and a quarter of the way down by v = 0.75 * 3 / 16 across rows; unseen samples
+    /// leave it sharp; edge texels repeat.
+    #[test]
+    fn matched_reference_by_hand() {
+        let (w, h) = (5usize, 3usize);
+        let mut spike = vec![0.0f32; w * h];
+        spike[w + 2] = 16.0;
+        let image = PlanarImage {
+            width: w,
+            height: h,
+            channels: [spike.clone(), spike.clone(), vec![1.0; w * h]],
+            texels: Vec::new(),
+        };
+        let mut out = [vec![0.0; w], vec![0.0; w], vec![0.0; w]];
+        let coords = |xs: [f32; 5], ys: [f32; 5]| [xs.to_vec(), ys.to_vec()];
+        matched_reference(
+            &image,
+            1,
+            &coords([0.0, 1.0, 2.0, 3.0, 4.0], [1.0; 5]),
+            &mut out,
+        );
+        assert_eq!(out[0], vec![0.0, 0.0, 16.0, 0.0, 0.0]);
+        matched_reference(
+            &image,
+            1,
+            &coords([0.5, 1.5, 2.5, 3.5, f32::NAN], [1.0; 5]),
+            &mut out,
+        );
+        assert_eq!(out[0], vec![0.0, 3.0, 10.0, 3.0, 0.0]);
+        assert_eq!(out[2], vec![1.0; 5], "a flat channel stays flat");
+        matched_reference(&image, 1, &coords([2.0; 5], [1.25; 5]), &mut out);
+        // Along y: 16 - 2 * 16 * 0.75 * 3 / 16.
+        assert_eq!(out[1][2], 16.0 - 4.5);
+        // Row 0 (the edge repeats): the spike below is reached once.
+        matched_reference(&image, 0, &coords([2.0; 5], [0.25; 5]), &mut out);
+        assert_eq!(out[0][2], 16.0 * 0.75 * 3.0 / 16.0);
     }
 
     /// The base surface averages a pixel's window within one surface: a step of many planes
