@@ -45,8 +45,11 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 // outside them a plane scores BIG (coarse to fine).
 @group(0) @binding(8) var<storage, read> plane_ranges: array<vec4<u32>>;
 
-// Whether pixel (x, y) sweeps plane `k`.
+// Whether pixel (x, y) sweeps plane `k` (every pixel sweeps every hypothesis of the fine sweep).
 fn sweeps(x: u32, y: u32, k: u32) -> bool {
+    if (batch.refine != 0u) {
+        return true;
+    }
     let range = plane_ranges[range_index(params.width, x, y)].xy;
     return k >= range.x && k <= range.y;
 }
@@ -497,7 +500,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             }
             a = select_plane(a, k, best[0]);
             b = select_plane(b, k, best[1]);
-            if (VOLUME) {
+            // The fine sweep writes no cost volume (SGM has run).
+            if (VOLUME && batch.refine == 0u) {
                 let last = z + 1u == batch.plane_count;
                 low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u, last);
                 if (has_b) {
@@ -523,7 +527,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             best = score_plane(z, i32(gid.x), i32(y));
         }
         st = select_plane(st, f32(batch.first_plane + z), best);
-        if (VOLUME) {
+        if (VOLUME && batch.refine == 0u) {
             let last = z + 1u == batch.plane_count;
             low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u, last);
         }

@@ -31,7 +31,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let needed = plane_ranges[range_index(width, u32(x_first), gid.y)].zw;
     for (var zc = 0u; zc < batch.plane_count * CHANNELS; zc++) {
         let k = batch.first_plane + zc / CHANNELS;
-        if (k < needed.x || k > needed.y) {
+        // Every hypothesis of the fine sweep is summed.
+        if (batch.refine == 0u && (k < needed.x || k > needed.y)) {
             continue;
         }
         let row = zc * npix + gid.y * width;

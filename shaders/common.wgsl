@@ -178,8 +178,30 @@ struct Batch {
     first_plane: u32,
     plane_count: u32,
     is_first: u32,
-    _pad: u32,
+    // Non-zero: a batch of the fine sweep (`subpixel_refine`): hypothesis k = first_plane + z of
+    // each pixel lies in its own `hypotheses` entry, not on a plane, and no plane range applies.
+    refine: u32,
     planes: array<vec4<f32>, MAX_BATCH_PLANES>,
+}
+
+// The fine sweep (`subpixel_refine`; CPU twin src/sweep/cpu/refine.rs: REACH, STEP,
+// SAME_SURFACE, PHASE_SMOOTHING): hypotheses on each side of a pixel's base surface, their
+// spacing in plane spacings, the window's band of one surface, the reference's smoothing to a
+// sample's bilinear phase.
+const REFINE_REACH: u32 = 2u;
+const REFINE_STEP: f32 = 0.25;
+const REFINE_SAME_SURFACE: f32 = 1.5;
+const PHASE_SMOOTHING: f32 = 0.75;
+
+// Ray parameter of hypothesis k of a fine-sweep pixel whose base surface is (inverse depth,
+// plane spacing) `base` (NaN: no hypothesis); CPU twin: the hypotheses of `refine::run`.
+fn refine_depth(base: vec2<f32>, k: u32) -> f32 {
+    let offset = (f32(k) - f32(REFINE_REACH)) * REFINE_STEP;
+    let q = base.x + offset * base.y;
+    if (q > 0.0) {
+        return 1.0 / q;
+    }
+    return nan();
 }
 
 // Projects a point in the reference frame into camera `cam`; returns pixel (xy) and depth in

@@ -19,6 +19,36 @@ override CHANNELS: u32 = 1u;      // = params.channels (pairs m in per-pair aggr
 // its tile's zw planes; the slab texels it skips are read only by windows of pixels that do
 // not sweep that plane, which aggregate.wgsl does not score.
 @group(0) @binding(6) var<storage, read> plane_ranges: array<vec4<u32>>;
+// The fine sweep's base surface per pixel (inverse depth, plane spacing; refine_base.wgsl),
+// read in its batches (`batch.refine`) only.
+@group(0) @binding(7) var<storage, read> hypotheses: array<vec2<f32>>;
+
+// Ray parameter of hypothesis z of the batch at pixel `pix`: on the batch's plane, or in the
+// fine sweep around the pixel's base surface.
+fn hypothesis_depth(z: u32, ray: vec3<f32>, pix: u32) -> f32 {
+    if (batch.refine != 0u) {
+        return refine_depth(hypotheses[pix], batch.first_plane + z);
+    }
+    return plane_depth(batch.planes[z], ray);
+}
+
+// Whether plane k is costed at a pixel whose tile needs planes `needed` (every hypothesis of
+// the fine sweep is).
+fn costed(k: u32, needed: vec2<u32>) -> bool {
+    return batch.refine != 0u || (k >= needed.x && k <= needed.y);
+}
+
+// The reference's colour as a camera's bilinear sample at `pixel` sees it, in the fine sweep
+// (CPU twin `refine::matched_reference`): smoothed along x by [v, 1 - 2v, v], v =
+// PHASE_SMOOTHING fx (1 - fx), and along y alike; `across` and `along` are the reference's
+// second differences at the pixel (edge texels repeated).
+fn matched_colour(ref_colour: vec3<f32>, across: vec3<f32>, along: vec3<f32>, pixel: vec2<f32>) -> vec3<f32> {
+    if (batch.refine == 0u) {
+        return ref_colour;
+    }
+    let f = pixel - floor(pixel);
+    return ref_colour + PHASE_SMOOTHING * (f.x * (1.0 - f.x) * across + f.y * (1.0 - f.y) * along);
+}
 
 // The four texels around a sample that `inside` accepted (row-major indices in the camera's
 // image) and its weights (CPU twin: `Bilinear` in cpu/common.rs).
@@ -187,11 +217,11 @@ fn pair_half(a: u32, b: u32) -> u32 {
 }
 
 // Scores plane `z` of the batch for pixel `pixel`; `ref_colour` is the reference texel.
-fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>, ref_word: u32) {
+fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: vec3<f32>, ref_word: u32, across: vec3<f32>, along: vec3<f32>) {
     let npix = params.pixel_count;
     let channels = CHANNELS;
     let slot = (z * channels) * npix + pix;
-    let depth = plane_depth(batch.planes[z], ray);
+    let depth = hypothesis_depth(z, ray, pix);
     if (!(depth > 0.0)) {
         for (var ch = 0u; ch < channels; ch++) {
             cost_slab[slot + ch * npix] = INVALID;
@@ -216,12 +246,14 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
             if (per_pair) {
                 var cost = INVALID;
                 if (visible) {
-                    cost = reference_pair_cost(ref_colour, ref_word, cam, projected.xy);
+                    let matched = matched_colour(ref_colour, across, along, projected.xy);
+                    cost = reference_pair_cost(matched, ref_word, cam, projected.xy);
                 }
                 cost_slab[slot + p * npix] = cost;
                 p += 1u;
             } else if (visible) {
-                acc = add_pair(acc, reference_pair_cost(ref_colour, ref_word, cam, projected.xy), cam.info.x);
+                let matched = matched_colour(ref_colour, across, along, projected.xy);
+                acc = add_pair(acc, reference_pair_cost(matched, ref_word, cam, projected.xy), cam.info.x);
             }
         }
         if (per_pair) {
@@ -259,7 +291,16 @@ fn score_plane(pixel: vec2<u32>, pix: u32, z: u32, ray: vec3<f32>, ref_colour: v
                 let both = visible[i] && visible[j];
                 var cost = INVALID;
                 if (both) {
-                    cost = tssd(colours[i], colours[j]);
+                    // Pairs with the reference compare the sample with the reference as the
+                    // sample's phase smooths it (the fine sweep).
+                    var a = colours[i];
+                    var b = colours[j];
+                    if (i == ref_index) {
+                        a = matched_colour(ref_colour, across, along, samples[j]);
+                    } else if (j == ref_index) {
+                        b = matched_colour(ref_colour, across, along, samples[i]);
+                    }
+                    cost = tssd(a, b);
                     if (census) {
                         var bits = 0.0;
                         if (i == ref_index) {
@@ -318,8 +359,22 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let ref_index = params.reference;
     var ref_colour = vec3<f32>(0.0);
     var ref_word = 0u;
+    // The reference's second differences along and across rows (the fine sweep's matched
+    // reference).
+    var across = vec3<f32>(0.0);
+    var along = vec3<f32>(0.0);
     if (ref_index != NO_CAMERA) {
-        ref_colour = texel(cameras[ref_index], gid.x, gid.y);
+        let ref_cam = cameras[ref_index];
+        ref_colour = texel(ref_cam, gid.x, gid.y);
+        if (batch.refine != 0u) {
+            let last = ref_cam.size.xy - vec2<u32>(1u);
+            let left = texel(ref_cam, max(gid.x, 1u) - 1u, gid.y);
+            let right = texel(ref_cam, min(gid.x + 1u, last.x), gid.y);
+            let up = texel(ref_cam, gid.x, max(gid.y, 1u) - 1u);
+            let down = texel(ref_cam, gid.x, min(gid.y + 1u, last.y));
+            across = left + right - 2.0 * ref_colour;
+            along = up + down - 2.0 * ref_colour;
+        }
         if (params.cost != COST_TSSD) {
             ref_word = census_word(cameras[ref_index], gid.y * cameras[ref_index].size.x + gid.x);
         }
@@ -340,15 +395,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let offset = vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w);
             for (var z = 0u; z < batch.plane_count; z++) {
                 let k = batch.first_plane + z;
-                if (k < needed.x || k > needed.y) {
+                if (!costed(k, needed)) {
                     continue;
                 }
-                let depth = plane_depth(batch.planes[z], ray);
+                let depth = hypothesis_depth(z, ray, pix);
                 var cost = INVALID;
                 if (depth > 0.0) {
                     let projected = project_in_cam(cam, ray_in_cam * depth + offset);
                     if (projected.z > 0.0 && inside(cam, projected.xy)) {
-                        cost = reference_pair_cost(ref_colour, ref_word, cam, projected.xy);
+                        let matched = matched_colour(ref_colour, across, along, projected.xy);
+                        cost = reference_pair_cost(matched, ref_word, cam, projected.xy);
                     }
                 }
                 cost_slab[(z * CHANNELS + p) * npix + pix] = cost;
@@ -359,8 +415,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     for (var z = 0u; z < batch.plane_count; z++) {
         let k = batch.first_plane + z;
-        if (k >= needed.x && k <= needed.y) {
-            score_plane(gid.xy, pix, z, ray, ref_colour, ref_word);
+        if (costed(k, needed)) {
+            score_plane(gid.xy, pix, z, ray, ref_colour, ref_word, across, along);
         }
     }
 }

@@ -185,7 +185,8 @@ pub struct GpuBatch {
     pub first_plane: u32,
     pub plane_count: u32,
     pub is_first: u32,
-    pub _pad: u32,
+    /// Non-zero: a batch of the fine sweep's hypotheses (`subpixel_refine`).
+    pub refine: u32,
     pub planes: [[f32; 4]; MAX_BATCH_PLANES as usize],
 }
 

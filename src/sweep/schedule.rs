@@ -42,6 +42,12 @@ pub fn sgm_lines(dx: i32, dy: i32, width: u32, height: u32) -> u32 {
     }
 }
 
+/// Whether `plan` runs the fine sweep (`subpixel_refine`, where `cpu::refine::supported`).
+pub fn refines(plan: &SweepPlan) -> bool {
+    plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE
+        && super::cpu::refine::supported(plan)
+}
+
 /// One step of a frame set, in order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
@@ -53,7 +59,8 @@ pub enum Phase {
     /// Winner-take-all over the summed path costs.
     SgmSelect,
     Finalize,
-    /// The fine local sweep between planes (`subpixel_refine`; CPU engine only so far).
+    /// The fine local sweep between planes (`subpixel_refine`): its base surface, its
+    /// hypotheses through the sweep's cost, box and aggregate stages, its result.
     Refine,
     Median,
     Splat,
@@ -110,6 +117,33 @@ pub struct ScheduleShape {
     pub sgm_paths: u32,
     /// Row bands of the SGM volume (1 when one binding holds it).
     pub bands: u32,
+    /// Batches of the fine sweep's hypotheses (`subpixel_refine`; 0 without it): batch
+    /// `batches + b` of the `batches` uniform array.
+    pub refine_batches: u32,
+}
+
+/// The dispatches of the sweep's batches `batches` (of the `batches` uniform array): cost, the
+/// box passes, aggregate once per row band of the volume (which bands the sweep writes; the
+/// fine sweep's batches read the bands' rows alike).
+fn sweep_batches(
+    shape: &ScheduleShape,
+    batches: std::ops::Range<u32>,
+    dispatches: &mut Vec<Dispatch>,
+) {
+    for batch in batches {
+        let at = |stage| Dispatch {
+            batch,
+            ..Dispatch::of(stage)
+        };
+        dispatches.push(at(Stage::Cost));
+        if shape.box_passes {
+            dispatches.extend([at(Stage::BoxH), at(Stage::BoxV)]);
+        }
+        dispatches.extend((0..shape.bands.max(1)).map(|band| Dispatch {
+            band,
+            ..at(Stage::Aggregate)
+        }));
+    }
 }
 
 /// The phases and dispatches of one frame set.
@@ -129,8 +163,11 @@ impl Schedule {
         if sgm {
             phases.extend([Phase::Sgm, Phase::SgmSelect]);
         }
+        phases.push(Phase::Finalize);
+        if shape.refine_batches > 0 {
+            phases.push(Phase::Refine);
+        }
         phases.extend([
-            Phase::Finalize,
             Phase::Median,
             Phase::Splat,
             Phase::Visibility,
@@ -141,21 +178,7 @@ impl Schedule {
         for phase in &phases {
             match phase {
                 Phase::Sweep => {
-                    for batch in 0..shape.batches {
-                        let at = |stage| Dispatch {
-                            batch,
-                            ..Dispatch::of(stage)
-                        };
-                        dispatches.push(at(Stage::Cost));
-                        if shape.box_passes {
-                            dispatches.extend([at(Stage::BoxH), at(Stage::BoxV)]);
-                        }
-                        // Once per band of the volume it writes.
-                        dispatches.extend((0..bands).map(|band| Dispatch {
-                            band,
-                            ..at(Stage::Aggregate)
-                        }));
-                    }
+                    sweep_batches(&shape, 0..shape.batches, &mut dispatches);
                 }
                 Phase::Sgm => {
                     // The directions going down (and the horizontal ones, among them the first,
@@ -187,8 +210,12 @@ impl Schedule {
                     ..Dispatch::of(Stage::SgmSelect)
                 })),
                 Phase::Finalize => dispatches.push(Dispatch::of(Stage::Finalize)),
-                // Not in a shape's schedule (`of_plan` adds it for the CPU engine).
-                Phase::Refine => {}
+                Phase::Refine => {
+                    dispatches.push(Dispatch::of(Stage::RefineBase));
+                    let first = shape.batches;
+                    sweep_batches(&shape, first..first + shape.refine_batches, &mut dispatches);
+                    dispatches.push(Dispatch::of(Stage::RefineSelect));
+                }
                 Phase::Median => dispatches.push(Dispatch::of(Stage::Median)),
                 Phase::Splat => dispatches.push(Dispatch::of(Stage::Splat)),
                 Phase::Visibility => dispatches.push(Dispatch::of(Stage::Visibility)),
@@ -204,25 +231,16 @@ impl Schedule {
     }
 
     /// The schedule of a plan in one batch and one band (the phases are all the CPU engine
-    /// reads; the WGSL engine makes its own from its shape of work on the adapter).
-    /// With `subpixel_refine`, the refine phase follows finalize (the CPU engine's stage; the
-    /// WGSL engine has no twin of it yet and refuses such plans).
+    /// reads; the WGSL engine makes its own from its shape of work on the adapter). With
+    /// `subpixel_refine`, the refine phase follows finalize.
     pub fn of_plan(plan: &SweepPlan) -> Self {
-        let mut schedule = Self::new(ScheduleShape {
+        Self::new(ScheduleShape {
             batches: 1,
             box_passes: plan.box_passes(),
             sgm_paths: plan.sgm_paths(),
             bands: 1,
-        });
-        if plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE {
-            if let Some(at) = schedule.phases.iter().position(|p| *p == Phase::Finalize) {
-                // No dispatches: it ends where finalize ends.
-                schedule.phases.insert(at + 1, Phase::Refine);
-                let end = schedule.phase_ends[at];
-                schedule.phase_ends.insert(at + 1, end);
-            }
-        }
-        schedule
+            refine_batches: u32::from(refines(plan)),
+        })
     }
 
     /// The stages in order, one entry each.
@@ -256,6 +274,7 @@ mod tests {
             box_passes,
             sgm_paths,
             bands,
+            refine_batches: 0,
         }
     }
 
@@ -276,13 +295,23 @@ mod tests {
 
     #[test]
     fn every_dispatch_belongs_to_its_phase() {
-        let s = Schedule::new(shape(3, true, 8, 2));
+        let s = Schedule::new(ScheduleShape {
+            refine_batches: 2,
+            ..shape(3, true, 8, 2)
+        });
+        assert!(s.phases().contains(&Phase::Refine));
         let mut seen = 0;
         for (phase, dispatches) in s.phase_dispatches() {
             assert!(!dispatches.is_empty(), "{phase:?}");
             for d in dispatches {
                 let expected = match d.stage {
-                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate => Phase::Sweep,
+                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate
+                        if d.batch < s.shape.batches =>
+                    {
+                        Phase::Sweep
+                    }
+                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate => Phase::Refine,
+                    Stage::RefineBase | Stage::RefineSelect => Phase::Refine,
                     Stage::Sgm => Phase::Sgm,
                     Stage::SgmSelect => Phase::SgmSelect,
                     Stage::Finalize => Phase::Finalize,

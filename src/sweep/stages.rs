@@ -58,10 +58,12 @@ pub enum Stage {
     Half,
     PlaneSpans,
     PlaneRanges,
+    RefineBase,
+    RefineSelect,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 14] = [
+    pub const ALL: [Stage; 16] = [
         Stage::Cost,
         Stage::BoxH,
         Stage::BoxV,
@@ -76,6 +78,8 @@ impl Stage {
         Stage::Half,
         Stage::PlaneSpans,
         Stage::PlaneRanges,
+        Stage::RefineBase,
+        Stage::RefineSelect,
     ];
 
     /// This stage's row of the registry.
@@ -133,7 +137,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 14] = [
+pub const STAGES: [StageInfo; 16] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -145,6 +149,7 @@ pub const STAGES: [StageInfo; 14] = [
             read("rays"),
             read_write("cost_slab"),
             read("plane_ranges"),
+            read("hypotheses"),
         ],
         workgroup_size: TILE,
         overrides: &[
@@ -311,6 +316,33 @@ pub const STAGES: [StageInfo; 14] = [
         name: "plane_ranges",
         entry_point: "main",
         bindings: &[uniform("params"), read("spans"), read_write("plane_ranges")],
+        workgroup_size: TILE,
+        overrides: &[],
+    },
+    // The fine sweep (`subpixel_refine`): its base surface before its batches (which run the
+    // sweep's cost, box and aggregate stages with `Batch::refine`), its result after them.
+    StageInfo {
+        name: "refine_base",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            read("rays"),
+            read("planes"),
+            read("maps"),
+            read_write("hypotheses"),
+        ],
+        workgroup_size: TILE,
+        overrides: &[],
+    },
+    StageInfo {
+        name: "refine_select",
+        entry_point: "main",
+        bindings: &[
+            uniform("params"),
+            read("state"),
+            read("hypotheses"),
+            read_write("maps"),
+        ],
         workgroup_size: TILE,
         overrides: &[],
     },

@@ -973,6 +973,10 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
                 "cpu refined",
                 cpu.run(&rig, &images, &refined).expect("cpu sweep"),
             ),
+            (
+                "gpu refined",
+                gpu.run(&rig, &images, &refined).expect("gpu sweep"),
+            ),
             ("cpu v", cpu.run(&rig, &images, &v_fit).expect("cpu sweep")),
             ("gpu v", gpu.run(&rig, &images, &v_fit).expect("gpu sweep")),
         ] {
@@ -991,15 +995,17 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
             );
             rms.push(m.rms_spacings);
         }
-        let [cpu_rms, gpu_rms, refined_rms, v_rms, gpu_v_rms] = rms[..] else {
+        let [cpu_rms, gpu_rms, refined_rms, gpu_refined_rms, v_rms, gpu_v_rms] = rms[..] else {
             unreachable!()
         };
         // Measured (2026-11-27): 60 degrees 0.171, refined 0.068, V fit 0.130; 70 degrees
         // 0.239, 0.114, 0.203; sphere 0.201, 0.084, 0.183 plane spacings; the engines agree to
         // the third decimal.
-        for (what, cpu_figure, gpu_figure) in
-            [("parabola", cpu_rms, gpu_rms), ("V fit", v_rms, gpu_v_rms)]
-        {
+        for (what, cpu_figure, gpu_figure) in [
+            ("parabola", cpu_rms, gpu_rms),
+            ("V fit", v_rms, gpu_v_rms),
+            ("refined", refined_rms, gpu_refined_rms),
+        ] {
             assert!(
                 (cpu_figure - gpu_figure).abs() < 0.01,
                 "{name}, {what}: cpu {cpu_figure} vs gpu {gpu_figure}"

@@ -224,8 +224,7 @@ impl CpuEngine {
             .collect();
         // Scattered samples (any mapping but a translation, the reference's own aside) read
         // interleaved texels.
-        let refine =
-            plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE && refine::supported(plan);
+        let refine = crate::sweep::schedule::refines(plan);
         let scattered = refine
             || mappings.iter().any(|m| {
                 m.iter().enumerate().any(|(i, m)| {

@@ -105,7 +105,10 @@ impl Buffers {
         };
         let none = wgpu::BufferUsages::empty();
         let params = uniform("params", std::mem::size_of::<GpuParams>() as u64);
-        let batches = uniform("batches", u64::from(key.batches()) * align.batch);
+        let batches = uniform(
+            "batches",
+            u64::from(key.batches() + key.refine_batches) * align.batch,
+        );
         let cameras = uniform(
             "cameras",
             u64::from(MAX_RIG_CAMERAS) * std::mem::size_of::<GpuCamera>() as u64,
@@ -143,6 +146,12 @@ impl Buffers {
         let row_sums = storage("row_sums", row_bytes, none);
         let box_sums = storage("box_sums", box_bytes, none);
         let state = storage("state", npix * 48, none);
+        // The fine sweep's base surface (`refine_base.wgsl`), only where it runs.
+        let hypotheses = storage(
+            "refine hypotheses",
+            if key.refine_batches > 0 { npix * 8 } else { 0 },
+            none,
+        );
         // The cost volume and the path sums, one buffer per row band.
         let band_bytes = |b: u32| {
             u64::from(key.band(b).rows) * u64::from(key.width) * u64::from(key.volume_words) * 4
@@ -210,6 +219,7 @@ impl Buffers {
                 "row_sums" => whole(&row_sums),
                 "box_sums" => whole(&box_sums),
                 "state" => whole(&state),
+                "hypotheses" => whole(&hypotheses),
                 "volume" => whole(volumes.get(band as usize)?),
                 "sums" => whole(sums.get(band as usize)?),
                 "line_costs" => whole(&line_costs),
@@ -340,12 +350,28 @@ impl Buffers {
                 first_plane: first,
                 plane_count: count,
                 is_first: u32::from(b == 0),
-                _pad: 0,
+                refine: 0,
                 planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
             };
             batch.planes[..count as usize]
                 .copy_from_slice(&plan.planes[first as usize..(first + count) as usize]);
             let at = (u64::from(b) * align.batch) as usize;
+            batches[at..at + std::mem::size_of::<GpuBatch>()]
+                .copy_from_slice(bytemuck::bytes_of(&batch));
+        }
+        // The fine sweep's batches after the sweep's: its hypotheses 0 .. 2 REACH, the planes
+        // unused (each pixel's own hypotheses are in `hypotheses`).
+        for b in 0..key.refine_batches {
+            let first = b * key.batch;
+            let total = super::shape::REFINE_HYPOTHESES;
+            let batch = GpuBatch {
+                first_plane: first,
+                plane_count: key.batch.min(total - first),
+                is_first: u32::from(b == 0),
+                refine: 1,
+                planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
+            };
+            let at = (u64::from(key.batches() + b) * align.batch) as usize;
             batches[at..at + std::mem::size_of::<GpuBatch>()]
                 .copy_from_slice(bytemuck::bytes_of(&batch));
         }

@@ -418,14 +418,6 @@ impl GpuEngine {
         narrowed: bool,
     ) -> Result<(), SweepError> {
         self.counts.levels += 1;
-        if plan.params.subpixel & super::gpu_types::SUBPIXEL_MODE
-            == super::gpu_types::SUBPIXEL_REFINE
-        {
-            return Err(SweepError::InvalidParams(
-                "subpixel_refine runs on the CPU engine only (no WGSL twin yet): --device cpu"
-                    .into(),
-            ));
-        }
         // The level's images: the caller's, written straight into the `images` buffer, or a
         // level of the pyramid (the set's first level uploads the caller's images and makes
         // every half-size level below on the GPU; the others copy theirs).

@@ -223,7 +223,12 @@ fn workgroups(
             )
         }
         Stage::SgmSelect => (None, tiles(key.width, band_rows)),
-        Stage::Finalize | Stage::Median | Stage::Splat | Stage::Visibility => {
+        Stage::Finalize
+        | Stage::Median
+        | Stage::Splat
+        | Stage::Visibility
+        | Stage::RefineBase
+        | Stage::RefineSelect => {
             (None, tiles(key.width, key.height))
         }
         // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.

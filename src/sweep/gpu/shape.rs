@@ -10,6 +10,9 @@ use super::super::SweepError;
 /// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 
+/// Hypotheses of the fine sweep per pixel (`subpixel_refine`).
+pub(super) const REFINE_HYPOTHESES: u32 = 2 * super::super::cpu::refine::REACH as u32 + 1;
+
 /// Bytes per plane of the cost slab, the row sums and the box sums (the sums 0 without box
 /// passes): what `buffers.rs` allocates per plane of a batch.
 fn slice_bytes(
@@ -52,6 +55,8 @@ pub(super) struct ShapeKey {
     /// Rows per band of the cost volume and the path sums (the height when one binding holds
     /// them; fewer when the adapter's storage binding limit does not).
     pub band_rows: u32,
+    /// Batches of the fine sweep's hypotheses (`subpixel_refine`; 0 without it).
+    pub refine_batches: u32,
 }
 
 impl ShapeKey {
@@ -81,6 +86,7 @@ impl ShapeKey {
             box_passes: !self.direct_windows,
             sgm_paths: self.sgm_paths,
             bands: self.bands(),
+            refine_batches: self.refine_batches,
         })
     }
 
@@ -181,6 +187,11 @@ impl ShapeKey {
             sgm_paths,
             volume_words,
             band_rows,
+            refine_batches: if super::super::schedule::refines(plan) {
+                REFINE_HYPOTHESES.div_ceil(batch)
+            } else {
+                0
+            },
         })
     }
 }
