@@ -252,6 +252,7 @@ mod tests {
             ),
             ("NEIGHBOUR_COLS", crate::sweep::coarse::NEIGHBOUR_COLS),
             ("RANGE_TILE", crate::sweep::plan::RANGE_TILE),
+            ("REFINE_REACH", crate::sweep::cpu::refine::REACH as u32),
         ] {
             let needle = format!("const {name}: u32 = {value}u;");
             assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");
@@ -259,6 +260,15 @@ mod tests {
         for (name, value) in [
             ("HALF_NOISE_FLOOR", HALF_NOISE_FLOOR),
             ("SGM_VOLUME_OFFSET", SGM_VOLUME_OFFSET),
+            ("REFINE_STEP", crate::sweep::cpu::refine::STEP),
+            (
+                "REFINE_SAME_SURFACE",
+                crate::sweep::cpu::refine::SAME_SURFACE,
+            ),
+            (
+                "PHASE_SMOOTHING",
+                crate::sweep::cpu::refine::PHASE_SMOOTHING,
+            ),
         ] {
             let needle = format!("const {name}: f32 = {value:?};");
             assert!(common.contains(&needle), "common.wgsl lacks `{needle}`");

@@ -44,8 +44,7 @@ pub fn sgm_lines(dx: i32, dy: i32, width: u32, height: u32) -> u32 {
 
 /// Whether `plan` runs the fine sweep (`subpixel_refine`, where `cpu::refine::supported`).
 pub fn refines(plan: &SweepPlan) -> bool {
-    plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE
-        && super::cpu::refine::supported(plan)
+    plan.params.subpixel & SUBPIXEL_MODE == SUBPIXEL_REFINE && super::cpu::refine::supported(plan)
 }
 
 /// One step of a frame set, in order.
@@ -167,11 +166,7 @@ impl Schedule {
         if shape.refine_batches > 0 {
             phases.push(Phase::Refine);
         }
-        phases.extend([
-            Phase::Median,
-            Phase::Splat,
-            Phase::Visibility,
-        ]);
+        phases.extend([Phase::Median, Phase::Splat, Phase::Visibility]);
         let bands = shape.bands.max(1);
         let mut dispatches = Vec::new();
         let mut phase_ends = Vec::with_capacity(phases.len());
@@ -291,6 +286,47 @@ mod tests {
                 Visibility
             ]
         );
+    }
+
+    /// The fine sweep follows finalize: its base surface, its batches (numbered after the
+    /// sweep's, every band's aggregate), its result; the median reads what it wrote.
+    #[test]
+    fn the_fine_sweep_runs_between_finalize_and_the_median() {
+        let s = Schedule::new(ScheduleShape {
+            refine_batches: 2,
+            ..shape(3, true, 0, 2)
+        });
+        let phases = s.phases();
+        let at = |p: Phase| phases.iter().position(|&q| q == p).expect("phase");
+        assert_eq!(at(Phase::Refine), at(Phase::Finalize) + 1);
+        assert_eq!(at(Phase::Median), at(Phase::Refine) + 1);
+        let (_, refine) = s
+            .phase_dispatches()
+            .find(|(p, _)| *p == Phase::Refine)
+            .expect("refine");
+        let stages: Vec<(Stage, u32, u32)> =
+            refine.iter().map(|d| (d.stage, d.batch, d.band)).collect();
+        use Stage::*;
+        assert_eq!(
+            stages,
+            [
+                (RefineBase, 0, 0),
+                (Cost, 3, 0),
+                (BoxH, 3, 0),
+                (BoxV, 3, 0),
+                (Aggregate, 3, 0),
+                (Aggregate, 3, 1),
+                (Cost, 4, 0),
+                (BoxH, 4, 0),
+                (BoxV, 4, 0),
+                (Aggregate, 4, 0),
+                (Aggregate, 4, 1),
+                (RefineSelect, 0, 0),
+            ]
+        );
+        assert!(!Schedule::new(shape(3, true, 0, 2))
+            .phases()
+            .contains(&Phase::Refine));
     }
 
     #[test]

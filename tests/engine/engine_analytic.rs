@@ -1030,23 +1030,6 @@ fn slanted_planes_and_a_sphere_come_back_between_planes() {
     }
 }
 
-/// The WGSL engine has no twin of the refine stage yet: it refuses the parameter instead of
-/// silently leaving it out.
-#[test]
-fn subpixel_refine_is_refused_by_the_wgsl_engine() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(32, 24));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let images = synthetic::render_rig(&Scene::wall_and_box(2.0, None, 28.0), &rig);
-    let p = SweepParams {
-        subpixel_refine: true,
-        ..params(1.0, 4.0, 16)
-    };
-    match engine().run(&rig, &images, &p) {
-        Err(SweepError::InvalidParams(message)) => assert!(message.contains("subpixel_refine")),
-        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
-    }
-}
-
 /// The issue 29 complaint of a matte ball whose centre comes out too far, reproduced with exact
 /// geometry: a sphere with large, soft texture features (0.4 m) before a wall, the precision
 /// rig above. SGM pays P1 for every plane a path crosses, so on a curved surface it shortens

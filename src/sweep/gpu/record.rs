@@ -228,9 +228,7 @@ fn workgroups(
         | Stage::Splat
         | Stage::Visibility
         | Stage::RefineBase
-        | Stage::RefineSelect => {
-            (None, tiles(key.width, key.height))
-        }
+        | Stage::RefineSelect => (None, tiles(key.width, key.height)),
         // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.
         Stage::Census | Stage::Half | Stage::PlaneSpans | Stage::PlaneRanges => (None, (0, 0, 0)),
     }
