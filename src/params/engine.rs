@@ -232,7 +232,7 @@ engine_params! {
     subpixel_v_fit: bool = false, "subpixel_v_fit", Long("subpixel-v-fit"), ParamRange::Any,
         "With subpixel: a V (equiangular line) instead of the parabola; exact for SGM's piecewise linear path costs, fewer layers in one depth map, but fused models come out slightly worse (docs/quality.md).";
     subpixel_refine: bool = false, "subpixel_refine", Long("subpixel-refine"), ParamRange::Any,
-        "With subpixel: a fine local sweep of 5 hypotheses a quarter plane apart around each pixel's depth, windows following the smoothed depth (CPU engine only).";
+        "With subpixel: a fine local sweep of 5 hypotheses a quarter plane apart around each pixel's depth, windows following the smoothed depth (both engines).";
     median: bool = true, "median", Long("median"), ParamRange::Any,
         "3x3 median filter on the depth map.";
     // Issue 29: measured on the evaluation sets (docs/quality.md).

@@ -130,8 +130,9 @@ pub struct SweepParams {
     /// With `subpixel`: the V (equiangular line) through the three scores instead of the
     /// parabola (`cpu::finalize::subpixel_offset`; issue 29, docs/quality.md).
     pub subpixel_v_fit: bool,
-    /// With `subpixel`: the fine local sweep around the parabola's depth (`cpu/refine.rs`;
-    /// CPU engine only so far).
+    /// With `subpixel`: the fine local sweep around the parabola's depth (`cpu/refine.rs`, its
+    /// WGSL twin the `refine_base` and `refine_select` stages around refine batches of the
+    /// sweep's stages).
     pub subpixel_refine: bool,
     pub median: bool,
     /// Radius of the colour-weighted median after the sweep (`joint_median.rs`); 0 = off.

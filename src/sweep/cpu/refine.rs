@@ -13,8 +13,10 @@
 //! neighbours give the depth; a best hypothesis at either end of the range keeps the
 //! finalized depth. Each camera's samples are compared with the reference smoothed as much as
 //! their bilinear phase smooths them (`matched_reference`), so that hypotheses between texels
-//! are not favoured. Twin of the WGSL stage to come (`shaders/refine.wgsl`); until then the
-//! WGSL engine refuses the parameter.
+//! are not favoured. WGSL twin: `shaders/refine_base.wgsl` (the base
+//! surface), the sweep's cost, box and aggregate stages in refine batches (`Batch::refine`:
+//! hypotheses per pixel, the matched reference in cost.wgsl, no plane ranges, no volume), then
+//! `shaders/refine_select.wgsl` (this file's last loop).
 // Loops over x index several images at once.
 #![allow(clippy::needless_range_loop)]
 
