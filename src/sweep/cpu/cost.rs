@@ -297,21 +297,39 @@ fn general_row(
     ys: &mut [f32],
     distort: impl Fn(Vec2) -> Vec2,
 ) {
+    let normal = xyz(plane);
+    // `plane_depth`.
+    let depth = |_: usize, ray: [f32; 3]| {
+        let denom = dot3(normal, ray);
+        if denom.abs() < 1e-12 {
+            -1.0
+        } else {
+            plane[3] / denom
+        }
+    };
+    projected_row(cam, rays, xs, ys, distort, depth);
+}
+
+/// `ray_pixel(cam, ray, depth(x, ray))` for every ray `x` of a row (the body of
+/// `general_row`, whose depths lie on a plane; the fine sweep's are given per pixel).
+#[inline(always)]
+fn projected_row(
+    cam: &GpuCamera,
+    rays: &[[f32; 4]],
+    xs: &mut [f32],
+    ys: &mut [f32],
+    distort: impl Fn(Vec2) -> Vec2,
+    depth_of: impl Fn(usize, [f32; 3]) -> f32,
+) {
     let fold = cam.dist_b[1];
     let distorted = cam.size[3] != DIST_NONE;
     let [fx, fy, cx, cy] = cam.intrinsics;
     let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
     let (row0, row1, row2) = (cam.row0, cam.row1, cam.row2);
-    let normal = xyz(plane);
-    for ((xo, yo), ray) in xs.iter_mut().zip(ys.iter_mut()).zip(rays) {
+    for (x, ((xo, yo), ray)) in xs.iter_mut().zip(ys.iter_mut()).zip(rays).enumerate() {
         let ray = xyz(*ray);
-        // `plane_depth`, then `project` of the point `ray * depth`.
-        let denom = dot3(normal, ray);
-        let depth = if denom.abs() < 1e-12 {
-            -1.0
-        } else {
-            plane[3] / denom
-        };
+        // The depth, then `project` of the point `ray * depth`.
+        let depth = depth_of(x, ray);
         let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
         let p = [
             dot3(xyz(row0), point) + row0[3],
@@ -346,6 +364,7 @@ fn ray_pixel(cam: &GpuCamera, ray: [f32; 3], depth: f32) -> [f32; 2] {
 /// Where reference row `y` lands in a camera when each pixel has its own depth (ray parameter:
 /// the point is `ray * depth`, as `plane_depth` gives on a plane; NaN = no hypothesis): the
 /// general branch of `sample_coords` with `depths` for the plane's. For `Mapping::Given`.
+#[inline(always)]
 pub fn hypothesis_coords(
     plan: &SweepPlan,
     cam: &GpuCamera,
@@ -355,11 +374,19 @@ pub fn hypothesis_coords(
 ) {
     let width = plan.params.width as usize;
     let [xs, ys] = coords;
-    for x in 0..width {
-        let ray = xyz(plan.rays[y * width + x]);
-        let pixel = ray_pixel(cam, ray, depths[y * width + x]);
-        xs[x] = pixel[0];
-        ys[x] = pixel[1];
+    let (xs, ys) = (&mut xs[..width], &mut ys[..width]);
+    let rays = &plan.rays[y * width..(y + 1) * width];
+    let depths = &depths[y * width..(y + 1) * width];
+    let given = |x: usize, _: [f32; 3]| depths[x];
+    // The pinhole and plumb-bob lenses in a loop that vectorises, as `general_row`.
+    match cam.size[3] {
+        DIST_NONE => projected_row(cam, rays, xs, ys, |n| n, given),
+        DIST_PLUMB_BOB => projected_row(cam, rays, xs, ys, |n| plumb_bob(cam, n), given),
+        _ => {
+            for x in 0..width {
+                [xs[x], ys[x]] = ray_pixel(cam, xyz(rays[x]), depths[x]);
+            }
+        }
     }
 }
 
@@ -663,7 +690,7 @@ mod tests {
     }
 
     #[test]
-    fn general_row_is_ray_pixel_bit_for_bit() {
+    fn general_row_and_hypothesis_coords_are_ray_pixel_bit_for_bit() {
         let intrinsics = PinholeIntrinsics {
             width_px: 48,
             height_px: 36,
@@ -699,9 +726,28 @@ mod tests {
             let width = plan.params.width as usize;
             let mut coords = [vec![0.0; width], vec![0.0; width]];
             let (mut seen, mut unseen, mut folded_inside) = (0, 0, 0);
+            let mut given = [vec![0.0; width], vec![0.0; width]];
             for k in 0..plan.planes.len() {
+                // The fine sweep's per-pixel depths: the plane's, every seventh missing.
+                let depths: Vec<f32> = (0..plan.rays.len())
+                    .map(|i| match i % 7 {
+                        3 => f32::NAN,
+                        _ => plane_depth(plan.planes[k], xyz(plan.rays[i])),
+                    })
+                    .collect();
                 for cam in &plan.cameras {
                     for y in 0..plan.params.height as usize {
+                        hypothesis_coords(&plan, cam, &depths, y, &mut given);
+                        for x in 0..width {
+                            let ray = xyz(plan.rays[y * width + x]);
+                            let want = ray_pixel(cam, ray, depths[y * width + x]);
+                            let got = [given[0][x], given[1][x]];
+                            assert_eq!(
+                                got.map(f32::to_bits),
+                                want.map(f32::to_bits),
+                                "given depths, plane {k} row {y} column {x}"
+                            );
+                        }
                         sample_coords(&plan, cam, Mapping::General, k, y, 0..width, &mut coords);
                         for x in 0..width {
                             let ray = xyz(plan.rays[y * width + x]);

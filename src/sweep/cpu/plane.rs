@@ -40,8 +40,9 @@ pub struct PlaneScratch {
     /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
     pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
     /// With a hypothesis: the reference's row smoothed as the current camera's samples are
-    /// (`refine::matched_reference`).
+    /// (`refine::MatchedReference`), and its second differences.
     matched: ColourRow,
+    reference_differences: super::refine::MatchedReference,
 }
 
 impl PlaneScratch {
@@ -81,6 +82,7 @@ impl PlaneScratch {
             spans: Vec::new(),
             hypothesis: None,
             matched: cost::colour_row(width),
+            reference_differences: super::refine::MatchedReference::new(width),
         }
     }
 }
@@ -264,11 +266,15 @@ fn cost_row(
             CameraRow::Sampled => (std::array::from_fn(|c| colours[i][c].as_slice()), 0, width),
         }
     };
+    if s.hypothesis.is_some() && reference != NO_CAMERA {
+        let image = &images.planar[reference as usize];
+        s.reference_differences.differences(image, y);
+    }
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
         let ((mut a, a_lo, a_hi), (mut b, b_lo, b_hi)) =
             (row(pair[0] as usize), row(pair[1] as usize));
         // The fine sweep's hypotheses sample between texels: the reference is smoothed as
-        // much as each camera's samples are (`refine::matched_reference`).
+        // much as each camera's samples are (`refine::MatchedReference`).
         let other = match *pair {
             [a, b, ..] if a == reference => Some(b),
             [a, b, ..] if b == reference => Some(a),
@@ -276,7 +282,9 @@ fn cost_row(
         };
         if let (Some(other), Some(_)) = (other, &s.hypothesis) {
             let image = &images.planar[reference as usize];
-            super::refine::matched_reference(image, y, &s.coords[other as usize], &mut s.matched);
+            let coords = &s.coords[other as usize];
+            s.reference_differences
+                .matched(image, y, coords, &mut s.matched);
             let matched: [&[f32]; 3] = std::array::from_fn(|c| s.matched[c].as_slice());
             if pair[0] == reference {
                 a = matched;

@@ -12,7 +12,7 @@
 //! slanted) instead of a fronto-parallel plane. The best j and the parabola through it and its
 //! neighbours give the depth; a best hypothesis at either end of the range keeps the
 //! finalized depth. Each camera's samples are compared with the reference smoothed as much as
-//! their bilinear phase smooths them (`matched_reference`), so that hypotheses between texels
+//! their bilinear phase smooths them (`MatchedReference`), so that hypotheses between texels
 //! are not favoured. WGSL twin: `shaders/refine_base.wgsl` (the base
 //! surface), the sweep's cost, box and aggregate stages in refine batches (`Batch::refine`:
 //! hypotheses per pixel, the matched reference in cost.wgsl, no plane ranges, no volume), then
@@ -42,41 +42,80 @@ pub const STEP: f32 = 0.25;
 pub const SAME_SURFACE: f32 = 1.5;
 
 /// How much the reference row is smoothed to match a sample's bilinear phase
-/// ([`matched_reference`]): the [v, 1 - 2v, v] kernel with v = `PHASE_SMOOTHING` f (1 - f) for
+/// ([`MatchedReference`]): the [v, 1 - 2v, v] kernel with v = `PHASE_SMOOTHING` f (1 - f) for
 /// a sample at fraction f of a texel (0.5 and 1 measured too: 60-degree plane refined 0.068 /
 /// 0.071, sphere 0.084 / 0.085, with 0.75 in between; docs/quality.md).
 pub const PHASE_SMOOTHING: f32 = 0.75;
 
-/// The reference's row `y` as a camera's bilinear samples see it (`out`, R, G, B): a sample at
-/// texel fractions (fx, fy) is the camera's image smoothed by the interpolation, so the
-/// reference's sharp texels are smoothed as much, along x by [vx, 1 - 2 vx, vx] (vx =
-/// `PHASE_SMOOTHING` fx (1 - fx)) and along y alike. Without it the hypotheses between texels
-/// score lower (smoother, less noisy samples) and the fine sweep's parabola leans toward them
-/// (docs/quality.md, "Why the steps stay"). `coords` are the samples' positions (NaN: not seen,
-/// left sharp); edge texels repeat.
-pub fn matched_reference(
-    image: &PlanarImage,
-    y: usize,
-    coords: &[Vec<f32>; 2],
-    out: &mut [Vec<f32>; 3],
-) {
-    let (w, h) = (image.width, image.height);
-    let [xs, ys] = coords;
-    let (up, down) = (y.saturating_sub(1) * w, (y + 1).min(h - 1) * w);
-    let at = y * w;
-    for (channel, o) in image.channels.iter().zip(out.iter_mut()) {
-        let row = &channel[at..at + w];
-        for x in 0..w {
-            let (u, v) = (xs[x], ys[x]);
-            let (fx, fy) = if u.is_finite() && v.is_finite() {
-                (u - u.floor(), v - v.floor())
-            } else {
-                (0.0, 0.0)
-            };
-            let centre = row[x];
-            let across = row[x.saturating_sub(1)] + row[(x + 1).min(w - 1)] - 2.0 * centre;
-            let along = channel[up + x] + channel[down + x] - 2.0 * centre;
-            o[x] = centre + PHASE_SMOOTHING * (fx * (1.0 - fx) * across + fy * (1.0 - fy) * along);
+/// The reference's row `y` as a camera's bilinear samples see it: a sample at texel
+/// fractions (fx, fy) is the camera's image smoothed by the interpolation, so the reference's
+/// sharp texels are smoothed as much, along x by [vx, 1 - 2 vx, vx] (vx = `PHASE_SMOOTHING` fx
+/// (1 - fx)) and along y alike. Without it the hypotheses between texels score lower
+/// (smoother, less noisy samples) and the fine sweep's parabola leans toward them
+/// (docs/quality.md, "Why the steps stay"). [`Self::differences`] once per row, then
+/// [`Self::matched`] per camera.
+pub struct MatchedReference {
+    /// The row's second differences across (along x) and along (y) the rows, per channel
+    /// (edge texels repeat).
+    across: [Vec<f32>; 3],
+    along: [Vec<f32>; 3],
+}
+
+impl MatchedReference {
+    pub fn new(width: usize) -> Self {
+        let row = || [vec![0.0; width], vec![0.0; width], vec![0.0; width]];
+        Self {
+            across: row(),
+            along: row(),
+        }
+    }
+
+    /// The second differences of the reference's row `y`.
+    #[inline(always)]
+    pub fn differences(&mut self, image: &PlanarImage, y: usize) {
+        let (w, h) = (image.width, image.height);
+        let (up, down) = (y.saturating_sub(1) * w, (y + 1).min(h - 1) * w);
+        let at = y * w;
+        for (c, channel) in image.channels.iter().enumerate() {
+            let (across, along) = (&mut self.across[c][..w], &mut self.along[c][..w]);
+            let row = &channel[at..at + w];
+            let (above, below) = (&channel[up..up + w], &channel[down..down + w]);
+            for x in 0..w {
+                let centre = row[x];
+                across[x] = row[x.saturating_sub(1)] + row[(x + 1).min(w - 1)] - 2.0 * centre;
+                along[x] = above[x] + below[x] - 2.0 * centre;
+            }
+        }
+    }
+
+    /// The reference's row `y` (whose [`Self::differences`] were made) as the samples at
+    /// `coords` (NaN: not seen, left sharp) see it, into `out` (R, G, B).
+    #[inline(always)]
+    pub fn matched(
+        &self,
+        image: &PlanarImage,
+        y: usize,
+        coords: &[Vec<f32>; 2],
+        out: &mut [Vec<f32>; 3],
+    ) {
+        let w = image.width;
+        let (xs, ys) = (&coords[0][..w], &coords[1][..w]);
+        let at = y * w;
+        for (c, o) in out.iter_mut().enumerate() {
+            let row = &image.channels[c][at..at + w];
+            let (across, along, o) = (&self.across[c][..w], &self.along[c][..w], &mut o[..w]);
+            for x in 0..w {
+                let (u, v) = (xs[x], ys[x]);
+                // Branch-free (the loop vectorises): NaN coordinates weigh nothing.
+                let seen = u.is_finite() & v.is_finite();
+                let (fx, fy) = if seen {
+                    (u - u.floor(), v - v.floor())
+                } else {
+                    (0.0, 0.0)
+                };
+                o[x] = row[x]
+                    + PHASE_SMOOTHING * (fx * (1.0 - fx) * across[x] + fy * (1.0 - fy) * along[x]);
+            }
         }
     }
 }
@@ -271,6 +310,12 @@ mod tests {
         };
         let mut out = [vec![0.0; w], vec![0.0; w], vec![0.0; w]];
         let coords = |xs: [f32; 5], ys: [f32; 5]| [xs.to_vec(), ys.to_vec()];
+        let mut reference = MatchedReference::new(w);
+        let mut matched_reference =
+            |image: &PlanarImage, y, coords: &[Vec<f32>; 2], out: &mut _| {
+                reference.differences(image, y);
+                reference.matched(image, y, coords, out);
+            };
         matched_reference(
             &image,
             1,
