@@ -79,6 +79,9 @@ else
 fi
 step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
 step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu
+# The fine sweep (`subpixel_refine`) on the WGSL engine: its cost on a real GPU (lavapipe: the
+# demo 1072 -> 1228 ms) and its results against the CPU engine's (bad>1 4.65 % on both).
+step demo-gpu-refine 40 "$bin" demo --device gpu --subpixel-refine true --out /tmp/gpu-check-demo-refine
 step eval-gpu 40 "$bin" eval --device gpu data/tsukuba
 step eval-cpu 40 "$bin" eval --device cpu data/tsukuba
 # Both engines beside the SGBM peer (cv2 from the machine's python3), last: it may run out of time.
