@@ -1541,6 +1541,17 @@ fn the_fine_sweep_agrees_in_every_shape() {
             .filter(|(a, b)| **a != *b)
             .count();
         assert_eq!(differing, 0, "{name}: batches differ in {differing} values");
+        engine.set_slab_bytes(None);
+        if plan.sgm_paths() > 0 {
+            // The SGM volume in row bands of 5 rows: the refine batches' aggregate runs per
+            // band too.
+            let row_bytes = u64::from(plan.width) * plan.volume_words() as u64 * 4;
+            engine.set_sgm_band_bytes(Some(5 * row_bytes));
+            let banded = engine.run_plan_raw(&plan, rig, images).expect("banded");
+            assert!(engine.sgm_bands() > 1, "{name}: one band");
+            assert!(bits(&banded) == bits(&whole), "{name}: bands differ");
+            engine.set_sgm_band_bytes(None);
+        }
         // Without the refinement, the raw depth is the planes' parabola.
         let plain = SweepPlan::new(
             rig,
@@ -1550,7 +1561,6 @@ fn the_fine_sweep_agrees_in_every_shape() {
             },
         )
         .expect("plan");
-        engine.set_slab_bytes(None);
         let before = engine.run_plan_raw(&plain, rig, images).expect("plain");
         let npix = plan.pixel_count();
         let moved = section(&whole, npix, MAP_DEPTH_RAW)
