@@ -320,6 +320,22 @@ impl SweepParams {
                 self.half_best_n
             ));
         }
+        if self.subpixel_refine && !self.subpixel {
+            return bad(
+                "subpixel_refine refines the sub-pixel depth: it needs subpixel true".into(),
+            );
+        }
+        if self.subpixel_refine && self.cost != Cost::Tssd && self.effective_pairs() == PairSet::All
+        {
+            return bad(format!(
+                "subpixel_refine costs each pixel at its own depth, which the census cost between two sampled cameras (pairs all{}) cannot: use pairs reference or cost tssd",
+                if self.scoring == Scoring::AllPairs {
+                    ", which scoring all_pairs implies"
+                } else {
+                    ""
+                }
+            ));
+        }
         if self.optimizer == Optimizer::Sgm {
             if self.sgm_paths != 4 && self.sgm_paths != 8 {
                 return bad(format!("sgm_paths must be 4 or 8, got {}", self.sgm_paths));

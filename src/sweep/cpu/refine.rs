@@ -339,6 +339,53 @@ mod tests {
         assert_eq!(out[0][2], 16.0 * 0.75 * 3.0 / 16.0);
     }
 
+    /// What the fine sweep cannot do is refused up front, with the reason: without the
+    /// sub-pixel step it refines, and with census costs between two sampled cameras (which
+    /// read the nearest words of a plane, not of a per-pixel depth).
+    #[test]
+    fn what_the_fine_sweep_cannot_do_is_refused() {
+        use crate::sweep::{Cost, PairSet, Scoring, SweepError};
+        let model = CameraModel::pinhole(synthetic::intrinsics(12, 8));
+        let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let refined = SweepParams {
+            subpixel_refine: true,
+            ..SweepParams::default()
+        };
+        assert!(refined.validate(&rig).is_ok());
+        let refused = |p: SweepParams, needle: &str| match p.validate(&rig) {
+            Err(SweepError::InvalidParams(m)) => assert!(m.contains(needle), "{m}"),
+            other => panic!("expected a refusal, got {other:?}"),
+        };
+        refused(
+            SweepParams {
+                subpixel: false,
+                ..refined.clone()
+            },
+            "needs subpixel true",
+        );
+        refused(
+            SweepParams {
+                pairs: PairSet::All,
+                ..refined.clone()
+            },
+            "pairs reference or cost tssd",
+        );
+        refused(
+            SweepParams {
+                scoring: Scoring::AllPairs,
+                cost: Cost::Census,
+                ..refined.clone()
+            },
+            "scoring all_pairs implies",
+        );
+        let tssd = SweepParams {
+            pairs: PairSet::All,
+            cost: Cost::Tssd,
+            ..refined
+        };
+        assert!(tssd.validate(&rig).is_ok());
+    }
+
     /// The base surface averages a pixel's window within one surface: a step of many planes
     /// stays a step, a ramp of less than a plane per pixel is kept, invalid pixels stay NaN.
     #[test]
