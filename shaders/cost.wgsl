@@ -39,7 +39,7 @@ fn costed(k: u32, needed: vec2<u32>) -> bool {
 }
 
 // The reference's colour as a camera's bilinear sample at `pixel` sees it, in the fine sweep
-// (CPU twin `refine::matched_reference`): smoothed along x by [v, 1 - 2v, v], v =
+// (CPU twin `refine::MatchedReference`): smoothed along x by [v, 1 - 2v, v], v =
 // PHASE_SMOOTHING fx (1 - fx), and along y alike; `across` and `along` are the reference's
 // second differences at the pixel (edge texels repeated).
 fn matched_colour(ref_colour: vec3<f32>, across: vec3<f32>, along: vec3<f32>, pixel: vec2<f32>) -> vec3<f32> {

@@ -343,35 +343,26 @@ impl Buffers {
         let pairs = &plan.pairs[..plan.pairs.len().min(MAX_PAIRS as usize)];
         queue.write_buffer(&self.pairs, 0, bytemuck::cast_slice(pairs));
         let mut batches = vec![0u8; self.batches.size() as usize];
-        for b in 0..key.batches() {
+        // The sweep's batches of planes, then the fine sweep's batches of its hypotheses 0 ..
+        // 2 REACH (numbered after the sweep's; their planes unused: each pixel's own
+        // hypotheses are in `hypotheses`).
+        let sweep = (0..key.batches()).map(|b| (b, key.planes, 0));
+        let fine = (0..key.refine_batches).map(|b| (b, super::shape::REFINE_HYPOTHESES, 1));
+        for (slot, (b, total, refine)) in sweep.chain(fine).enumerate() {
             let first = b * key.batch;
-            let count = key.batch.min(key.planes - first);
+            let count = key.batch.min(total - first);
             let mut batch = GpuBatch {
                 first_plane: first,
                 plane_count: count,
                 is_first: u32::from(b == 0),
-                refine: 0,
+                refine,
                 planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
             };
-            batch.planes[..count as usize]
-                .copy_from_slice(&plan.planes[first as usize..(first + count) as usize]);
-            let at = (u64::from(b) * align.batch) as usize;
-            batches[at..at + std::mem::size_of::<GpuBatch>()]
-                .copy_from_slice(bytemuck::bytes_of(&batch));
-        }
-        // The fine sweep's batches after the sweep's: its hypotheses 0 .. 2 REACH, the planes
-        // unused (each pixel's own hypotheses are in `hypotheses`).
-        for b in 0..key.refine_batches {
-            let first = b * key.batch;
-            let total = super::shape::REFINE_HYPOTHESES;
-            let batch = GpuBatch {
-                first_plane: first,
-                plane_count: key.batch.min(total - first),
-                is_first: u32::from(b == 0),
-                refine: 1,
-                planes: [[0.0; 4]; MAX_BATCH_PLANES as usize],
-            };
-            let at = (u64::from(key.batches() + b) * align.batch) as usize;
+            if refine == 0 {
+                batch.planes[..count as usize]
+                    .copy_from_slice(&plan.planes[first as usize..(first + count) as usize]);
+            }
+            let at = slot * align.batch as usize;
             batches[at..at + std::mem::size_of::<GpuBatch>()]
                 .copy_from_slice(bytemuck::bytes_of(&batch));
         }
