@@ -42,6 +42,11 @@ pub enum Mapping {
     /// The sample positions are already in `coords` (`hypothesis_coords`: a depth per pixel,
     /// the refinement's hypotheses, `refine.rs`).
     Given,
+    /// As `Given`, on a rectified pair (`refine::row_mapping`): the point of reference pixel
+    /// (x, y) at inverse depth q (1 / the ray parameter) lands on `(x + x0 + per_q q, y + dy)`,
+    /// the same camera row for every depth, so a sample reads two texels, not four
+    /// (`gather::gather_row_along`).
+    GivenRow { x0: f32, per_q: f32, dy: i32 },
 }
 
 /// The rays of an undistorted reference (`ray(x, y) = (ax + bx x, ay + by y, 1)`), read off the
@@ -224,7 +229,7 @@ pub fn sample_coords(
     let (xs, ys) = (&mut xs[cols.clone()], &mut ys[cols.clone()]);
     let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
     match mapping {
-        Mapping::Given => {}
+        Mapping::Given | Mapping::GivenRow { .. } => {}
         Mapping::Projective { m0, mx, my, q, d } => {
             // The row's coefficients in f64, the pixels in f32 (as the shader's arithmetic).
             let yf = y as f64;
@@ -368,6 +373,7 @@ fn ray_pixel(cam: &GpuCamera, ray: [f32; 3], depth: f32) -> [f32; 2] {
 pub fn hypothesis_coords(
     plan: &SweepPlan,
     cam: &GpuCamera,
+    mapping: Mapping,
     depths: &[f32],
     y: usize,
     coords: &mut [Vec<f32>; 2],
@@ -375,6 +381,19 @@ pub fn hypothesis_coords(
     let width = plan.params.width as usize;
     let [xs, ys] = coords;
     let (xs, ys) = (&mut xs[..width], &mut ys[..width]);
+    if let Mapping::GivenRow { x0, per_q, dy } = mapping {
+        let v = y as i32 + dy;
+        let row_inside = v >= 0 && v < cam.size[1] as i32;
+        let w = cam.size[0] as f32 - 1.0;
+        let depths = &depths[y * width..(y + 1) * width];
+        for (x, (xo, &depth)) in xs.iter_mut().zip(depths).enumerate() {
+            let u = (x as i32 as f32 + x0) + per_q * (1.0 / depth);
+            let seen = row_inside & (depth > 0.0) & (u >= 0.0) & (u <= w);
+            *xo = if seen { u } else { f32::NAN };
+        }
+        ys.fill(v as f32);
+        return;
+    }
     let rays = &plan.rays[y * width..(y + 1) * width];
     let depths = &depths[y * width..(y + 1) * width];
     let given = |x: usize, _: [f32; 3]| depths[x];
@@ -432,7 +451,17 @@ pub fn sample_row(
         let census = census
             .as_mut()
             .map(|(words, distances)| (&words[span.clone()], &mut distances[span.clone()]));
-        super::gather::gather_row(image, &xs[span.clone()], &ys[span], colours, census);
+        match mapping {
+            Mapping::GivenRow { dy, .. } => {
+                // `hypothesis_coords` left the whole row unseen when camera row y + dy is
+                // outside the image.
+                let y0 = (y as i32 + dy).clamp(0, image.height as i32 - 1) as usize;
+                super::gather::gather_row_along(image, &xs[span], y0, colours, census);
+            }
+            _ => {
+                super::gather::gather_row(image, &xs[span.clone()], &ys[span], colours, census);
+            }
+        }
     }
     census.is_some()
 }
@@ -737,7 +766,7 @@ mod tests {
                     .collect();
                 for cam in &plan.cameras {
                     for y in 0..plan.params.height as usize {
-                        hypothesis_coords(&plan, cam, &depths, y, &mut given);
+                        hypothesis_coords(&plan, cam, Mapping::Given, &depths, y, &mut given);
                         for x in 0..width {
                             let ray = xyz(plan.rays[y * width + x]);
                             let want = ray_pixel(cam, ray, depths[y * width + x]);

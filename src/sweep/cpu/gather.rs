@@ -103,6 +103,81 @@ pub fn gather_row(
     sampled
 }
 
+/// [`gather_row`] for samples that all lie on camera row `y0` (`ys` all `y0`: the fine
+/// sweep's hypotheses on a rectified pair, `Mapping::GivenRow`): the same floats, from two
+/// texels per sample instead of four (with the vertical weight 0 the bilinear mix of
+/// `Bilinear::mix` is its top row's: `top + (bottom - top) 0` is `top`).
+#[inline(always)]
+pub fn gather_row_along(
+    image: &PlanarImage,
+    xs: &[f32],
+    y0: usize,
+    out: [&mut [f32]; 3],
+    census: Option<(&[u32], &mut [f32])>,
+) -> bool {
+    let width = xs.len();
+    let [out_r, out_g, out_b] = out;
+    let (out_r, out_g, out_b) = (
+        &mut out_r[..width],
+        &mut out_g[..width],
+        &mut out_b[..width],
+    );
+    let iw = image.width as u32;
+    let row = &image.texels[y0 * image.width..(y0 + 1) * image.width];
+    let mut census =
+        census.map(|(reference, distances)| (&reference[..width], &mut distances[..width]));
+    let sampled = census.is_some();
+    let mut colours: [[u32; GATHER_CHUNK]; 2] = [[0; GATHER_CHUNK]; 2];
+    let mut words: [[u32; GATHER_CHUNK]; 2] = [[0; GATHER_CHUNK]; 2];
+    let mut start = 0;
+    while start < width {
+        let n = GATHER_CHUNK.min(width - start);
+        let cx = &xs[start..start + n];
+        let mut base = [0u32; GATHER_CHUNK];
+        let mut right = [0u32; GATHER_CHUNK];
+        let mut wx = [0f32; GATHER_CHUNK];
+        for j in 0..n {
+            let px = cx[j];
+            let bx = px.floor();
+            let x0 = if px.is_nan() { 0 } else { whole(bx) };
+            base[j] = x0;
+            right[j] = (x0 + 1).min(iw - 1);
+            wx[j] = px - bx;
+        }
+        for j in 0..n {
+            [colours[0][j], words[0][j]] = row[base[j] as usize];
+            [colours[1][j], words[1][j]] = row[right[j] as usize];
+        }
+        let at = start..start + n;
+        let wx = &wx[..n];
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        for (out, shift) in [
+            (&mut out_r[at.clone()], 0),
+            (&mut out_g[at.clone()], 8),
+            (&mut out_b[at.clone()], 16),
+        ] {
+            let channel = |colour: u32| ((colour >> shift) & 0xff) as i32 as f32;
+            let (t0, t1) = (&colours[0][..n], &colours[1][..n]);
+            for j in 0..n {
+                let v = lerp(channel(t0[j]), channel(t1[j]), wx[j]);
+                out[j] = if cx[j].is_nan() { f32::NAN } else { v };
+            }
+        }
+        if let Some((reference, distances)) = census.as_mut() {
+            let (reference, distances) = (&reference[at.clone()], &mut distances[at]);
+            let (t0, t1) = (&words[0][..n], &words[1][..n]);
+            for j in 0..n {
+                let r = reference[j];
+                let ones = |word: u32| (word ^ r).count_ones() as f32;
+                let d = lerp(ones(t0[j]), ones(t1[j]), wx[j]);
+                distances[j] = if cx[j].is_nan() { distances[j] } else { d };
+            }
+        }
+        start += n;
+    }
+    sampled
+}
+
 /// One colour channel of a chunk's samples (the byte at `shift` of the texels' colours, as
 /// f32: the channel's value): `Bilinear::mix` of their four texels' values, NaN where the
 /// sample is not seen (NaN in `cx`).
@@ -176,6 +251,45 @@ mod tests {
         /// In [0, 1).
         fn unit(&mut self) -> f32 {
             (self.next() >> 8) as f32 / (1 << 24) as f32
+        }
+    }
+
+    /// The gather along one row is the general gather of samples on that row, bit for bit
+    /// (colours and census distances; the last column clamped; samples not seen).
+    #[test]
+    fn gather_row_along_is_gather_row_on_one_row() {
+        let (w, h) = (37, 5);
+        let mut rng = Rng(0x1234_5679);
+        let pixels: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
+        let words: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
+        let mut image = PlanarImage::default();
+        image.fill_from_packed(w, h, &pixels, true, Some(&words));
+        let last_x = (w - 1) as f32;
+        for (y0, width) in [(0, 1), (2, 63), (4, 64), (3, 150)] {
+            let xs: Vec<f32> = (0..width)
+                .map(|i| match i % 5 {
+                    0 => f32::NAN,
+                    1 => last_x,
+                    2 => (rng.next() % w as u32) as f32,
+                    _ => rng.unit() * last_x,
+                })
+                .collect();
+            let ys = vec![y0 as f32; width];
+            let reference: Vec<u32> = (0..width).map(|_| rng.next()).collect();
+            let run = |along: bool| {
+                let mut out = [vec![0.0; width], vec![0.0; width], vec![0.0; width]];
+                let mut distances = vec![-7.25f32; width];
+                let colours = out.each_mut().map(|c| c.as_mut_slice());
+                let census = Some((reference.as_slice(), distances.as_mut_slice()));
+                if along {
+                    gather_row_along(&image, &xs, y0, colours, census);
+                } else {
+                    gather_row(&image, &xs, &ys, colours, census);
+                }
+                let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                (out.map(|c| bits(&c)), bits(&distances))
+            };
+            assert_eq!(run(true), run(false), "row {y0}, width {width}");
         }
     }
 

@@ -363,7 +363,7 @@ impl CpuEngine {
                             census: std::mem::take(&mut self.buffers.census),
                         };
                         let [raw, ..] = maps.sections_mut();
-                        refine::run(plan, &frame, &mut Vec::new(), band, raw);
+                        refine::run(plan, &frame, &mut Vec::new(), band, self.fast_paths, raw);
                         self.buffers.planar = frame.planar;
                         self.buffers.census = frame.census;
                         clock.lap("refine");

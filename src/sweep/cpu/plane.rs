@@ -232,7 +232,7 @@ fn cost_row(
                 continue;
             }
             if let Some(depths) = &s.hypothesis {
-                cost::hypothesis_coords(plan, cam, depths, y, &mut s.coords[i]);
+                cost::hypothesis_coords(plan, cam, mappings[i], depths, y, &mut s.coords[i]);
             }
             let census = reference_words.map(|words| (words, &mut s.census_distances[i][..]));
             s.census_sampled[i] = cost::sample_row(

@@ -26,7 +26,7 @@ use rayon::prelude::*;
 
 use super::aggregate::Windows;
 use super::common::*;
-use super::cost::Mapping;
+use super::cost::{self, Mapping};
 use super::plane::{self, FrameImages, PlaneScratch};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -132,6 +132,60 @@ fn inverse_depth(plan: &SweepPlan, k: usize, ray: Vec3) -> f32 {
     dot3(xyz(plane), ray) / plane[3]
 }
 
+/// Camera `i`'s mapping of the hypotheses: `Mapping::GivenRow` where the camera sees the
+/// reference's rows as rows on every plane (a rectified pair: the sweep's mappings of the first
+/// and last planes are translations by the same whole number of rows, and the row formula
+/// agrees with the projection on a grid of pixels and depths to 1e-3 px), `Mapping::Given`
+/// (each sample projected) elsewhere and with `fast` off.
+pub fn row_mapping(plan: &SweepPlan, i: usize, fast: bool) -> Mapping {
+    let last = plan.num_planes() as usize - 1;
+    let (first_maps, last_maps) = (
+        cost::mappings(plan, 0, true),
+        cost::mappings(plan, last, true),
+    );
+    let (Mapping::Translation { dx: dx0, dy }, Mapping::Translation { dx: dx1, dy: dy1 }) =
+        (first_maps[i], last_maps[i])
+    else {
+        return Mapping::Given;
+    };
+    if !fast || dy != dy1 || dy != dy.round() || dx0 == dx1 {
+        return Mapping::Given;
+    }
+    let (width, height) = (plan.params.width as usize, plan.params.height as usize);
+    let ray = |x: usize, y: usize| xyz(plan.rays[y * width + x]);
+    let (q0, q1) = (
+        f64::from(inverse_depth(plan, 0, ray(0, 0))),
+        f64::from(inverse_depth(plan, last, ray(0, 0))),
+    );
+    if q0 == q1 {
+        return Mapping::Given;
+    }
+    let per_q = (dx1 - dx0) / (q1 - q0);
+    let (x0, per_q) = ((dx0 - per_q * q0) as f32, per_q as f32);
+    let cam = &plan.cameras[i];
+    let grid = [0, 1, 2].map(|t| (t * (width - 1) / 2, t * (height - 1) / 2));
+    for (gx, _) in grid {
+        for (_, gy) in grid {
+            let r = ray(gx, gy);
+            for k in [0, last / 2, last] {
+                let q = inverse_depth(plan, k, r);
+                let p = project(cam, [r[0] / q, r[1] / q, r[2] / q]);
+                let u = (gx as f32 + x0) + per_q * q;
+                let v = gy as f64 + dy;
+                let seen = p[2] > 0.0 && inside(cam, [p[0], p[1]]);
+                if seen && ((p[0] - u).abs() > 1e-3 || (f64::from(p[1]) - v).abs() > 1e-3) {
+                    return Mapping::Given;
+                }
+            }
+        }
+    }
+    Mapping::GivenRow {
+        x0,
+        per_q,
+        dy: dy as i32,
+    }
+}
+
 /// Per pixel: the plane spacing in inverse depth and the base surface's inverse depth (NaN
 /// where the raw depth is invalid).
 fn base_surface(plan: &SweepPlan, raw: &[f32]) -> (Vec<f32>, Vec<f32>) {
@@ -156,27 +210,82 @@ fn base_surface(plan: &SweepPlan, raw: &[f32]) -> (Vec<f32>, Vec<f32>) {
         })
         .collect();
     let mut base = vec![f32::NAN; width * height];
-    base.par_chunks_mut(width).enumerate().for_each(|(y, row)| {
+    base.par_chunks_mut(width).enumerate().for_each_init(
+        || {
+            (
+                vec![0.0f32; width],
+                vec![0.0f32; width],
+                vec![0.0f32; width],
+            )
+        },
+        |(sum, count, near), (y, row)| {
+            let rows = y.saturating_sub(ry)..(y + ry + 1).min(height);
+            let at = y * width;
+            base_row(
+                &inverse,
+                &spacing[at..at + width],
+                width,
+                rows,
+                y,
+                rx,
+                sum,
+                count,
+                near,
+                row,
+            );
+        },
+    );
+    (spacing, base)
+}
+
+vectorised_fn! {
+    /// Row `y` of the base surface: per pixel, the mean of the window's inverse depths (rows
+    /// `rows`, columns within `rx`) that lie within `SAME_SURFACE` plane spacings of its own;
+    /// NaN where its own is. The window's offsets outside, the pixels inside, so that the loop
+    /// vectorises; each pixel's sums in the window's row-major order (the same floats as one
+    /// pixel at a time: a value not on the surface adds +0).
+    #[allow(clippy::too_many_arguments)]
+    fn base_row(
+        inverse: &[f32],
+        spacing: &[f32],
+        width: usize,
+        rows: std::ops::Range<usize>,
+        y: usize,
+        rx: usize,
+        sum: &mut [f32],
+        count: &mut [f32],
+        near: &mut [f32],
+        out: &mut [f32],
+    ) {
+        let q = &inverse[y * width..(y + 1) * width];
+        let (sum, count, near, out) =
+            (&mut sum[..width], &mut count[..width], &mut near[..width], &mut out[..width]);
+        sum.fill(0.0);
+        count.fill(0.0);
         for x in 0..width {
-            let q = inverse[y * width + x];
-            if q.is_nan() {
-                continue;
-            }
-            let near = SAME_SURFACE * spacing[y * width + x];
-            let (mut sum, mut count) = (0.0f32, 0.0f32);
-            for yy in y.saturating_sub(ry)..(y + ry + 1).min(height) {
-                for xx in x.saturating_sub(rx)..(x + rx + 1).min(width) {
-                    let n = inverse[yy * width + xx];
-                    if (n - q).abs() <= near {
-                        sum += n;
-                        count += 1.0;
-                    }
+            near[x] = SAME_SURFACE * spacing[x];
+        }
+        for yy in rows {
+            let src = &inverse[yy * width..(yy + 1) * width];
+            for dx in -(rx as isize)..=rx as isize {
+                // Columns x whose neighbour x + dx is inside the row.
+                let lo = (-dx).max(0) as usize;
+                let hi = (width as isize - dx).min(width as isize).max(lo as isize) as usize;
+                let from = (lo as isize + dx) as usize;
+                let n = &src[from..from + (hi - lo)];
+                let (q, near) = (&q[lo..hi], &near[lo..hi]);
+                let (s, c) = (&mut sum[lo..hi], &mut count[lo..hi]);
+                for j in 0..n.len() {
+                    let on = (n[j] - q[j]).abs() <= near[j];
+                    s[j] += if on { n[j] } else { 0.0 };
+                    c[j] += if on { 1.0 } else { 0.0 };
                 }
             }
-            row[x] = sum / count;
         }
-    });
-    (spacing, base)
+        for x in 0..width {
+            out[x] = if q[x].is_nan() { f32::NAN } else { sum[x] / count[x] };
+        }
+    }
 }
 
 /// The offset (in hypotheses, -0.5..0.5) of the parabola's minimum through three scores, 0
@@ -198,6 +307,7 @@ pub fn run(
     images: &FrameImages,
     scratches: &mut Vec<PlaneScratch>,
     band: usize,
+    fast: bool,
     raw: &mut [f32],
 ) {
     let (width, height) = (plan.params.width as usize, plan.params.height as usize);
@@ -221,7 +331,9 @@ pub fn run(
             Arc::new(depths)
         })
         .collect();
-    let given = vec![Mapping::Given; plan.cameras.len()];
+    let given: Vec<Mapping> = (0..plan.cameras.len())
+        .map(|i| row_mapping(plan, i, fast))
+        .collect();
     let bands = height.div_ceil(band);
     scratches.truncate(bands);
     scratches.resize_with(bands, || PlaneScratch::new(plan));
@@ -384,6 +496,127 @@ mod tests {
             ..refined
         };
         assert!(tssd.validate(&rig).is_ok());
+    }
+
+    /// The vectorised base surface is the window mean of one pixel at a time, bit for bit:
+    /// every row (the image's first and last rows and columns clip the window), surfaces
+    /// within and beyond `SAME_SURFACE` of each other, invalid pixels.
+    #[test]
+    fn base_row_is_the_scalar_window_mean_bit_for_bit() {
+        let (width, height, rx, ry) = (23usize, 9usize, 2usize, 1usize);
+        let mut state = 0x2545_f491u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            (state >> 8) as f32 / (1 << 24) as f32
+        };
+        let inverse: Vec<f32> = (0..width * height)
+            .map(|i| if i % 11 == 3 { f32::NAN } else { 0.2 + next() })
+            .collect();
+        let spacing: Vec<f32> = (0..width * height).map(|_| 0.05 + 0.2 * next()).collect();
+        let (mut sum, mut count, mut near) = (vec![0.0; width], vec![0.0; width], vec![0.0; width]);
+        for y in 0..height {
+            let mut row = vec![0.0f32; width];
+            let rows = y.saturating_sub(ry)..(y + ry + 1).min(height);
+            let at = y * width;
+            let spacing = &spacing[at..at + width];
+            base_row(
+                &inverse, spacing, width, rows, y, rx, &mut sum, &mut count, &mut near, &mut row,
+            );
+            for x in 0..width {
+                let q = inverse[at + x];
+                let want = if q.is_nan() {
+                    f32::NAN
+                } else {
+                    let near = SAME_SURFACE * spacing[x];
+                    let (mut s, mut c) = (0.0f32, 0.0f32);
+                    for yy in y.saturating_sub(ry)..(y + ry + 1).min(height) {
+                        for xx in x.saturating_sub(rx)..(x + rx + 1).min(width) {
+                            let n = inverse[yy * width + xx];
+                            if (n - q).abs() <= near {
+                                s += n;
+                                c += 1.0;
+                            }
+                        }
+                    }
+                    s / c
+                };
+                assert_eq!(row[x].to_bits(), want.to_bits(), "pixel {x}, {y}");
+            }
+        }
+    }
+
+    /// On a rectified row of cameras every hypothesis of a reference row lands on one camera
+    /// row (`Mapping::GivenRow`), where the projection of each sample puts it to 1e-3 px, and
+    /// samples outside the camera are not seen in both (the row formula also keeps the first
+    /// and last rows' samples that the f32 projection puts a hair outside); converging cameras, and the fast paths
+    /// turned off, project each sample (`Mapping::Given`).
+    #[test]
+    fn hypotheses_on_a_rectified_pair_stay_on_one_row() {
+        let (width, height) = (40usize, 12usize);
+        let model = CameraModel::pinhole(synthetic::intrinsics(width as u32, height as u32));
+        let params = SweepParams {
+            num_planes: 16,
+            min_depth_m: 1.0,
+            max_depth_m: 4.0,
+            subpixel_refine: true,
+            ..SweepParams::default()
+        };
+        let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let depths: Vec<f32> = (0..width * height)
+            .map(|i| match i % 17 {
+                0 => f32::NAN,
+                1 => -1.0,
+                // Near enough that the outer columns leave the other cameras.
+                2 => 0.3,
+                _ => 1.0 + 3.0 * (i % 29) as f32 / 28.0,
+            })
+            .collect();
+        for i in [0usize, 2] {
+            let row = row_mapping(&plan, i, true);
+            assert!(
+                matches!(row, Mapping::GivenRow { dy: 0, .. }),
+                "camera {i}: {row:?}"
+            );
+            assert_eq!(row_mapping(&plan, i, false), Mapping::Given);
+            let cam = &plan.cameras[i];
+            let mut unseen = 0;
+            for y in 0..height {
+                let mut fast = [vec![0.0; width], vec![0.0; width]];
+                let mut projected = [vec![0.0; width], vec![0.0; width]];
+                cost::hypothesis_coords(&plan, cam, row, &depths, y, &mut fast);
+                cost::hypothesis_coords(&plan, cam, Mapping::Given, &depths, y, &mut projected);
+                for x in 0..width {
+                    let (u, p) = (fast[0][x], projected[0][x]);
+                    if p.is_nan() {
+                        // The projection in f32 puts some samples of the first and last rows
+                        // a hair outside the image (-1e-7 px): the row formula keeps them.
+                        let edge_row = y == 0 || y == height - 1;
+                        assert!(
+                            u.is_nan() || edge_row,
+                            "camera {i} pixel {x}, {y}: {u} not NaN"
+                        );
+                        unseen += usize::from(u.is_nan());
+                        continue;
+                    }
+                    assert!(
+                        (u - p).abs() < 1e-3,
+                        "camera {i} pixel {x}, {y}: {u} vs {p}"
+                    );
+                    assert_eq!(fast[1][x], y as f32);
+                    assert!((projected[1][x] - y as f32).abs() < 1e-3);
+                }
+            }
+            assert!(
+                unseen > 3 * height,
+                "camera {i}: only {unseen} samples unseen"
+            );
+        }
+        let arc = synthetic::arc_rig(3, 0.2, 2.0, model, 1).expect("arc");
+        let plan = SweepPlan::new(&arc, &params).expect("plan");
+        assert_eq!(row_mapping(&plan, 0, true), Mapping::Given);
     }
 
     /// The base surface averages a pixel's window within one surface: a step of many planes
