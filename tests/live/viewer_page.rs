@@ -16,7 +16,7 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -197,6 +197,13 @@ struct Session {
 
 impl Session {
     fn start(name: &str, extra: &[&str]) -> Self {
+        let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+        let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+        Self::start_bag(name, &bag, &params, "", extra)
+    }
+
+    /// `bag --view` on `bag` with `params`, the page loaded with `query` (`?view=above`, or "").
+    fn start_bag(name: &str, bag: &Path, params: &Path, query: &str, extra: &[&str]) -> Self {
         let chromium = chromium();
         let port = free_port_pair();
         let out_dir = std::env::temp_dir().join(format!(
@@ -205,15 +212,13 @@ impl Session {
         ));
         let _ = std::fs::remove_dir_all(&out_dir);
         std::fs::create_dir_all(&out_dir).expect("temp dir");
-        let bag = root().join("tests/fixtures/bags/tsukuba_half.mcap");
-        let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
         let mut sweepdepth = KillOnDrop(
             Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
                 .arg("bag")
-                .arg(&bag)
+                .arg(bag)
                 .arg(out_dir.join("out.mcap"))
                 .arg("--params-file")
-                .arg(&params)
+                .arg(params)
                 .args([
                     "--view",
                     "--view-rate",
@@ -240,7 +245,7 @@ impl Session {
             });
         }
         let profile = out_dir.join("chromium-profile");
-        let page_url = format!("http://127.0.0.1:{}/", port + 1);
+        let page_url = format!("http://127.0.0.1:{}/{query}", port + 1);
         let browser = KillOnDrop(
             Command::new(&chromium)
                 .args([
@@ -557,4 +562,51 @@ fn page_draws_the_fused_mesh_of_bag_view() {
     }
     session.stop();
     let _ = std::fs::remove_file(&mesh_file);
+}
+
+/// Issue 29: the Tsukuba sample at full size (384x288, one frame set packed from `data/tsukuba`)
+/// in the page, seen from above (`?view=above`), with the defaults and with `subpixel_refine`:
+/// the README's screenshots (`docs/viewer-steps-before.png`, `docs/viewer-steps-after.png`).
+/// A documentation generator, not run by default: `SWEEPDEPTH_WRITE_DOCS=1 cargo test --release
+/// --test live docs_the_steps -- --ignored` (without the variable the screenshots stay in
+/// `target/`).
+#[test]
+#[ignore = "writes the README's screenshots"]
+fn docs_the_steps_from_above_before_and_after_the_fine_sweep() {
+    let dir = std::env::temp_dir().join(format!("sweepdepth-steps-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let bag = dir.join("tsukuba.mcap");
+    let status = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .arg("pack")
+        .arg(root().join("data/tsukuba"))
+        .arg(&bag)
+        .args(["--frames", "1", "--force"])
+        .status()
+        .expect("sweepdepth pack");
+    assert!(status.success(), "sweepdepth pack: {status}");
+    let params = dir.join("tsukuba.params.yaml");
+    for (name, refine) in [("before", "false"), ("after", "true")] {
+        let refine = format!("subpixel_refine:={refine}");
+        let mut session =
+            Session::start_bag(name, &bag, &params, "?view=above", &["-p", refine.as_str()]);
+        let state = session.wait_for("a point cloud and a depth image", |s| s["drawn"] == "1");
+        assert!(
+            state["state"]["points"].as_u64().unwrap_or(0) > 50_000,
+            "{state}"
+        );
+        let file = format!("viewer-steps-{name}.png");
+        let (image, rects, saved) = session.screenshot(&file);
+        let scale = rects["scale"].as_f64().unwrap_or(1.0);
+        let cloud = share_not_background(&image, &rects["cloud"], scale, BACKGROUND);
+        assert!(
+            cloud > 0.05,
+            "the 3D view is (nearly) empty; see {}",
+            saved.display()
+        );
+        if std::env::var_os("SWEEPDEPTH_WRITE_DOCS").is_some() {
+            std::fs::copy(&saved, root().join("docs").join(&file)).expect("copy to docs/");
+        }
+        session.stop();
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

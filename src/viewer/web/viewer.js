@@ -179,9 +179,14 @@ function showCloud(cloud) {
     const span = Math.max(ax[2] - ax[0], ay[2] - ay[0], az[2], 1e-3);
     camera.near = span / 1000; camera.far = span * 100; camera.updateProjectionMatrix();
     // From beside the reference camera (a quarter of the distance to the right and up), so
-    // the depth shows at once; orbit from there.
+    // the depth shows at once; orbit from there. `?view=above`: from above the cloud, looking
+    // down at it (the depth runs up the screen: steps between planes show as stripes).
     const d = centre.length();
-    camera.position.set(0.35 * d, 0.2 * d, 0);
+    if (new URLSearchParams(location.search).get('view') === 'above') {
+      camera.position.set(centre.x, centre.y + 0.75 * d, centre.z + 0.4 * d);
+    } else {
+      camera.position.set(0.35 * d, 0.2 * d, 0);
+    }
     controls.target.copy(centre);
     controls.update();
     framed = true;
