@@ -254,6 +254,8 @@ impl CpuEngine {
         self.cancel.check()?;
 
         // The rest of the plan's schedule (the sweep above is its first phase).
+        // The fine sweep's mappings of its hypotheses, from the sweep's own.
+        let refine = refine.then(|| refine::row_mappings(plan, &mappings));
         let result = self.run_phases(plan, images, &volume, &mut state, band, refine, &mut clock);
         self.timings = clock.timings();
         self.buffers.volume = volume;
@@ -310,7 +312,7 @@ impl CpuEngine {
         volume: &[u16],
         state: &mut WtaState,
         band: usize,
-        refine: bool,
+        refine: Option<Vec<cost::Mapping>>,
         clock: &mut StageClock,
     ) -> Result<(), SweepError> {
         let p = &plan.params;
@@ -357,13 +359,13 @@ impl CpuEngine {
                     clock.lap("finalize");
                 }
                 Phase::Refine => {
-                    if refine {
+                    if let Some(hypotheses) = &refine {
                         let frame = FrameImages {
                             planar: std::mem::take(&mut self.buffers.planar),
                             census: std::mem::take(&mut self.buffers.census),
                         };
                         let [raw, ..] = maps.sections_mut();
-                        refine::run(plan, &frame, &mut Vec::new(), band, self.fast_paths, raw);
+                        refine::run(plan, &frame, &mut Vec::new(), band, hypotheses, raw);
                         self.buffers.planar = frame.planar;
                         self.buffers.census = frame.census;
                         clock.lap("refine");

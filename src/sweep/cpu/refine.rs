@@ -26,7 +26,7 @@ use rayon::prelude::*;
 
 use super::aggregate::Windows;
 use super::common::*;
-use super::cost::{self, Mapping};
+use super::cost::Mapping;
 use super::plane::{self, FrameImages, PlaneScratch};
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -132,23 +132,31 @@ fn inverse_depth(plan: &SweepPlan, k: usize, ray: Vec3) -> f32 {
     dot3(xyz(plane), ray) / plane[3]
 }
 
-/// Camera `i`'s mapping of the hypotheses: `Mapping::GivenRow` where the camera sees the
-/// reference's rows as rows on every plane (a rectified pair: the sweep's mappings of the first
-/// and last planes are translations by the same whole number of rows, and the row formula
-/// agrees with the projection on a grid of pixels and depths to 1e-3 px), `Mapping::Given`
-/// (each sample projected) elsewhere and with `fast` off.
-pub fn row_mapping(plan: &SweepPlan, i: usize, fast: bool) -> Mapping {
+/// Each camera's mapping of the hypotheses, from the sweep's mappings of every plane
+/// (`cost::mappings`, in plane order): `Mapping::GivenRow` where the camera sees the reference's
+/// rows as rows on every plane (a rectified pair: the mappings of the first and last planes are
+/// translations by the same whole number of rows, and the row formula agrees with the
+/// projection on a grid of pixels and depths to 1e-3 px), `Mapping::Given` (each sample
+/// projected) elsewhere, and everywhere when the sweep's fast paths are off (no translations).
+pub fn row_mappings(plan: &SweepPlan, planes: &[Vec<Mapping>]) -> Vec<Mapping> {
+    match (planes.first(), planes.last()) {
+        (Some(first), Some(last)) => (0..plan.cameras.len())
+            .map(|i| row_mapping(plan, i, first[i], last[i]))
+            .collect(),
+        _ => vec![Mapping::Given; plan.cameras.len()],
+    }
+}
+
+/// Camera `i`'s mapping of the hypotheses given its mappings of the first and last planes
+/// ([`row_mappings`]).
+fn row_mapping(plan: &SweepPlan, i: usize, first: Mapping, last_plane: Mapping) -> Mapping {
     let last = plan.num_planes() as usize - 1;
-    let (first_maps, last_maps) = (
-        cost::mappings(plan, 0, true),
-        cost::mappings(plan, last, true),
-    );
     let (Mapping::Translation { dx: dx0, dy }, Mapping::Translation { dx: dx1, dy: dy1 }) =
-        (first_maps[i], last_maps[i])
+        (first, last_plane)
     else {
         return Mapping::Given;
     };
-    if !fast || dy != dy1 || dy != dy.round() || dx0 == dx1 {
+    if dy != dy1 || dy != dy.round() || dx0 == dx1 {
         return Mapping::Given;
     }
     let (width, height) = (plan.params.width as usize, plan.params.height as usize);
@@ -301,13 +309,14 @@ fn parabola(before: f32, best: f32, after: f32) -> f32 {
 
 /// Refines the raw depth (`MAP_DEPTH_RAW`, ray parameter, NaN invalid) in place. `scratches`
 /// are the workers' plane scratches (made for `plan` when there are too few); `band` is the
-/// sweep's band height (a multiple of the window sums' restart rows).
+/// sweep's band height (a multiple of the window sums' restart rows); `mappings` each camera's
+/// mapping of the hypotheses ([`row_mappings`]).
 pub fn run(
     plan: &SweepPlan,
     images: &FrameImages,
     scratches: &mut Vec<PlaneScratch>,
     band: usize,
-    fast: bool,
+    mappings: &[Mapping],
     raw: &mut [f32],
 ) {
     let (width, height) = (plan.params.width as usize, plan.params.height as usize);
@@ -331,9 +340,6 @@ pub fn run(
             Arc::new(depths)
         })
         .collect();
-    let given: Vec<Mapping> = (0..plan.cameras.len())
-        .map(|i| row_mapping(plan, i, fast))
-        .collect();
     let bands = height.div_ceil(band);
     scratches.truncate(bands);
     scratches.resize_with(bands, || PlaneScratch::new(plan));
@@ -350,7 +356,7 @@ pub fn run(
                 plane::sweep_plane(
                     plan,
                     images,
-                    &given,
+                    mappings,
                     0,
                     rows.clone(),
                     scratch,
@@ -391,6 +397,7 @@ pub fn run(
 mod tests {
     use super::*;
     use crate::geometry::CameraModel;
+    use crate::sweep::cpu::cost;
     use crate::sweep::SweepParams;
     use crate::synthetic;
 
@@ -574,13 +581,23 @@ mod tests {
                 _ => 1.0 + 3.0 * (i % 29) as f32 / 28.0,
             })
             .collect();
+        // The sweep's mappings of every plane, with its fast paths on and off.
+        let sweep = |plan: &SweepPlan, fast: bool| -> Vec<Vec<Mapping>> {
+            (0..plan.num_planes() as usize)
+                .map(|k| cost::mappings(plan, k, fast))
+                .collect()
+        };
+        let (rows, unmapped) = (
+            row_mappings(&plan, &sweep(&plan, true)),
+            row_mappings(&plan, &sweep(&plan, false)),
+        );
         for i in [0usize, 2] {
-            let row = row_mapping(&plan, i, true);
+            let row = rows[i];
             assert!(
                 matches!(row, Mapping::GivenRow { dy: 0, .. }),
                 "camera {i}: {row:?}"
             );
-            assert_eq!(row_mapping(&plan, i, false), Mapping::Given);
+            assert_eq!(unmapped[i], Mapping::Given);
             let cam = &plan.cameras[i];
             let mut unseen = 0;
             for y in 0..height {
@@ -616,7 +633,7 @@ mod tests {
         }
         let arc = synthetic::arc_rig(3, 0.2, 2.0, model, 1).expect("arc");
         let plan = SweepPlan::new(&arc, &params).expect("plan");
-        assert_eq!(row_mapping(&plan, 0, true), Mapping::Given);
+        assert_eq!(row_mappings(&plan, &sweep(&plan, true))[0], Mapping::Given);
     }
 
     /// The base surface averages a pixel's window within one surface: a step of many planes
