@@ -126,6 +126,39 @@ impl CameraRow {
     }
 }
 
+impl PlaneScratch {
+    /// The fine sweep (`refine.rs`): makes the reference's second differences
+    /// (`refine::MatchedReference`) of the rows a band's hypotheses cost (`rows` with the
+    /// windows' reach above and below), once for all of its hypotheses.
+    pub fn cover_reference(
+        &mut self,
+        plan: &SweepPlan,
+        images: &FrameImages,
+        mappings: &[Mapping],
+        rows: std::ops::Range<usize>,
+    ) {
+        let reference = plan.params.reference;
+        if reference == NO_CAMERA {
+            return;
+        }
+        let (up, down) = Windows::of(plan).reach();
+        let rows = rows.start.saturating_sub(up)..rows.end + down;
+        let along = sampled_between_rows(plan, mappings);
+        self.reference_differences
+            .cover(&images.planar[reference as usize], rows, along);
+    }
+}
+
+/// Whether some camera other than the reference samples the hypotheses between rows (any
+/// mapping but `Mapping::GivenRow`, whose samples lie on whole rows).
+fn sampled_between_rows(plan: &SweepPlan, mappings: &[Mapping]) -> bool {
+    let reference = plan.params.reference as usize;
+    mappings
+        .iter()
+        .enumerate()
+        .any(|(i, m)| i != reference && !matches!(m, Mapping::GivenRow { .. }))
+}
+
 /// The camera images of a frame set as the CPU stages read them.
 pub struct FrameImages {
     /// Planar colours per rig camera.
@@ -267,8 +300,13 @@ fn cost_row(
         }
     };
     if s.hypothesis.is_some() && reference != NO_CAMERA {
+        // The fine sweep covers its band's rows once for all hypotheses
+        // (`PlaneScratch::cover_reference`); any other row is made here.
         let image = &images.planar[reference as usize];
-        s.reference_differences.differences(image, y);
+        let along = sampled_between_rows(plan, mappings);
+        if !s.reference_differences.covers(image.width, y, along) {
+            s.reference_differences.cover(image, y..y + 1, along);
+        }
     }
     for (pair, costs) in plan.pairs.iter().zip(s.pair_costs.iter_mut()) {
         let ((mut a, a_lo, a_hi), (mut b, b_lo, b_hi)) =
@@ -283,8 +321,9 @@ fn cost_row(
         if let (Some(other), Some(_)) = (other, &s.hypothesis) {
             let image = &images.planar[reference as usize];
             let coords = &s.coords[other as usize];
+            let along = !matches!(mappings[other as usize], Mapping::GivenRow { .. });
             s.reference_differences
-                .matched(image, y, coords, &mut s.matched);
+                .matched(image, y, coords, along, &mut s.matched);
             let matched: [&[f32]; 3] = std::array::from_fn(|c| s.matched[c].as_slice());
             if pair[0] == reference {
                 a = matched;

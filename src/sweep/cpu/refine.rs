@@ -52,58 +52,116 @@ pub const PHASE_SMOOTHING: f32 = 0.75;
 /// sharp texels are smoothed as much, along x by [vx, 1 - 2 vx, vx] (vx = `PHASE_SMOOTHING` fx
 /// (1 - fx)) and along y alike. Without it the hypotheses between texels score lower
 /// (smoother, less noisy samples) and the fine sweep's parabola leans toward them
-/// (docs/quality.md, "Why the steps stay"). [`Self::differences`] once per row, then
-/// [`Self::matched`] per camera.
+/// (docs/quality.md, "Why the steps stay"). [`Self::cover`] the rows (once per band of the
+/// fine sweep: the differences are the same for every hypothesis), then [`Self::matched`] per
+/// camera and row.
 pub struct MatchedReference {
-    /// The row's second differences across (along x) and along (y) the rows, per channel
-    /// (edge texels repeat).
+    width: usize,
+    /// The rows whose differences are kept: `first..first + rows`.
+    first: usize,
+    rows: usize,
+    /// Whether the differences along the rows were made (samples with whole row coordinates,
+    /// `Mapping::GivenRow`, smooth nothing along y).
+    with_along: bool,
+    /// The rows' second differences across (along x) and along (y) the rows, per channel
+    /// (edge texels repeat), row-major from row `first`.
     across: [Vec<f32>; 3],
     along: [Vec<f32>; 3],
 }
 
 impl MatchedReference {
     pub fn new(width: usize) -> Self {
-        let row = || [vec![0.0; width], vec![0.0; width], vec![0.0; width]];
         Self {
-            across: row(),
-            along: row(),
+            width,
+            first: 0,
+            rows: 0,
+            with_along: false,
+            across: Default::default(),
+            along: Default::default(),
         }
     }
 
-    /// The second differences of the reference's row `y`.
-    #[inline(always)]
-    pub fn differences(&mut self, image: &PlanarImage, y: usize) {
+    /// Whether row `y`'s differences are kept (along the rows too, when `along`). They are
+    /// the image's that [`Self::cover`] was last given: the fine sweep covers each band's rows
+    /// afresh for each frame set.
+    pub fn covers(&self, width: usize, y: usize, along: bool) -> bool {
+        self.width == width
+            && (self.first..self.first + self.rows).contains(&y)
+            && (self.with_along || !along)
+    }
+
+    /// Makes the second differences of the reference's `rows` (clamped to the image), along
+    /// the rows too when `along` (some camera samples between rows).
+    pub fn cover(&mut self, image: &PlanarImage, rows: std::ops::Range<usize>, along: bool) {
+        let rows = rows.start..rows.end.min(image.height);
         let (w, h) = (image.width, image.height);
-        let (up, down) = (y.saturating_sub(1) * w, (y + 1).min(h - 1) * w);
-        let at = y * w;
-        for (c, channel) in image.channels.iter().enumerate() {
-            let (across, along) = (&mut self.across[c][..w], &mut self.along[c][..w]);
-            let row = &channel[at..at + w];
-            let (above, below) = (&channel[up..up + w], &channel[down..down + w]);
-            for x in 0..w {
-                let centre = row[x];
-                across[x] = row[x.saturating_sub(1)] + row[(x + 1).min(w - 1)] - 2.0 * centre;
-                along[x] = above[x] + below[x] - 2.0 * centre;
+        (self.width, self.first, self.rows, self.with_along) = (w, rows.start, rows.len(), along);
+        for c in 0..3 {
+            self.across[c].resize(rows.len() * w, 0.0);
+            self.along[c].resize(if along { rows.len() * w } else { 0 }, 0.0);
+        }
+        for (r, y) in rows.enumerate() {
+            let (up, down) = (y.saturating_sub(1) * w, (y + 1).min(h - 1) * w);
+            let at = y * w;
+            for (c, channel) in image.channels.iter().enumerate() {
+                let row = &channel[at..at + w];
+                let across = &mut self.across[c][r * w..(r + 1) * w];
+                // (left + right) - 2 centre, the edge texels repeated; the inner columns in
+                // a loop that vectorises.
+                let edge =
+                    |x: usize| row[x.saturating_sub(1)] + row[(x + 1).min(w - 1)] - 2.0 * row[x];
+                across[0] = edge(0);
+                across[w - 1] = edge(w - 1);
+                if w > 2 {
+                    let inner = across[1..w - 1].iter_mut().zip(&row[1..w - 1]);
+                    for ((o, &centre), (&left, &right)) in
+                        inner.zip(row[..w - 2].iter().zip(&row[2..]))
+                    {
+                        *o = left + right - 2.0 * centre;
+                    }
+                }
+                if along {
+                    let (above, below) = (&channel[up..up + w], &channel[down..down + w]);
+                    let along = &mut self.along[c][r * w..(r + 1) * w];
+                    for (((o, &centre), &a), &b) in along.iter_mut().zip(row).zip(above).zip(below)
+                    {
+                        *o = a + b - 2.0 * centre;
+                    }
+                }
             }
         }
     }
 
-    /// The reference's row `y` (whose [`Self::differences`] were made) as the samples at
-    /// `coords` (NaN: not seen, left sharp) see it, into `out` (R, G, B).
+    /// The reference's row `y` (whose differences are covered: [`Self::cover`]) as the samples
+    /// at `coords` (NaN: not seen, left sharp) see it, into `out` (R, G, B). `along`: whether
+    /// the samples' row coordinates may be fractional (false for `Mapping::GivenRow`, whose
+    /// vertical weight is 0: the same floats without the term along y).
     #[inline(always)]
     pub fn matched(
         &self,
         image: &PlanarImage,
         y: usize,
         coords: &[Vec<f32>; 2],
+        along: bool,
         out: &mut [Vec<f32>; 3],
     ) {
         let w = image.width;
         let (xs, ys) = (&coords[0][..w], &coords[1][..w]);
         let at = y * w;
+        let kept = (y - self.first) * w;
         for (c, o) in out.iter_mut().enumerate() {
             let row = &image.channels[c][at..at + w];
-            let (across, along, o) = (&self.across[c][..w], &self.along[c][..w], &mut o[..w]);
+            let (across, o) = (&self.across[c][kept..kept + w], &mut o[..w]);
+            if !along {
+                for x in 0..w {
+                    let u = xs[x];
+                    // Branch-free (the loop vectorises): NaN coordinates weigh nothing.
+                    let fx = if u.is_finite() { u - u.floor() } else { 0.0 };
+                    o[x] = row[x] + PHASE_SMOOTHING * (fx * (1.0 - fx) * across[x]);
+                }
+                continue;
+            }
+            let along = &self.along[c][kept..kept + w];
             for x in 0..w {
                 let (u, v) = (xs[x], ys[x]);
                 // Branch-free (the loop vectorises): NaN coordinates weigh nothing.
@@ -351,6 +409,7 @@ pub fn run(
             let len = rows.len() * width;
             let mut scores = vec![0.0f32; count * len];
             let mut sel = vec![0.0f32; len];
+            scratch.cover_reference(plan, images, mappings, rows.clone());
             for (j, depths) in hypotheses.iter().enumerate() {
                 scratch.hypothesis = Some(Arc::clone(depths));
                 plane::sweep_plane(
@@ -432,8 +491,8 @@ mod tests {
         let mut reference = MatchedReference::new(w);
         let mut matched_reference =
             |image: &PlanarImage, y, coords: &[Vec<f32>; 2], out: &mut _| {
-                reference.differences(image, y);
-                reference.matched(image, y, coords, out);
+                reference.cover(image, y..y + 1, true);
+                reference.matched(image, y, coords, true, out);
             };
         matched_reference(
             &image,
@@ -456,6 +515,56 @@ mod tests {
         // Row 0 (the edge repeats): the spike below is reached once.
         matched_reference(&image, 0, &coords([2.0; 5], [0.25; 5]), &mut out);
         assert_eq!(out[0][2], 16.0 * 0.75 * 3.0 / 16.0);
+    }
+
+    /// The differences covered for a band at once are each row's own, and samples on whole
+    /// rows (`Mapping::GivenRow`) give the same floats without the term along y, bit for bit.
+    #[test]
+    fn a_band_covered_at_once_matches_row_by_row() {
+        let (w, h) = (37usize, 9usize);
+        let noise = |seed: usize| -> Vec<f32> {
+            (0..w * h)
+                .map(|i| ((i * 7919 + seed * 104_729) % 255) as f32)
+                .collect()
+        };
+        let image = PlanarImage {
+            width: w,
+            height: h,
+            channels: [noise(1), noise(2), noise(3)],
+            texels: Vec::new(),
+        };
+        let xs: Vec<f32> = (0..w)
+            .map(|x| {
+                if x % 11 == 5 {
+                    f32::NAN
+                } else {
+                    x as f32 * 0.93 + 0.37
+                }
+            })
+            .collect();
+        let (mut band, mut single) = (MatchedReference::new(w), MatchedReference::new(w));
+        band.cover(&image, 2..7, true);
+        let mut out = [vec![0.0; w], vec![0.0; w], vec![0.0; w]];
+        let mut expected = out.clone();
+        for y in 2..7 {
+            assert!(band.covers(w, y, true) && band.covers(w, y, false));
+            let coords = [xs.clone(), vec![y as f32 + 0.3; w]];
+            band.matched(&image, y, &coords, true, &mut out);
+            single.cover(&image, y..y + 1, true);
+            single.matched(&image, y, &coords, true, &mut expected);
+            assert_eq!(out, expected, "row {y}");
+            let whole = [xs.clone(), vec![y as f32; w]];
+            band.matched(&image, y, &whole, false, &mut out);
+            single.matched(&image, y, &whole, true, &mut expected);
+            let bits = |v: &[Vec<f32>; 3]| -> Vec<u32> {
+                v.iter().flatten().map(|f| f.to_bits()).collect()
+            };
+            assert_eq!(bits(&out), bits(&expected), "row {y} on whole rows");
+        }
+        assert!(!band.covers(w, 7, false) && !band.covers(w, 1, false));
+        let mut across_only = MatchedReference::new(w);
+        across_only.cover(&image, 0..h, false);
+        assert!(across_only.covers(w, 4, false) && !across_only.covers(w, 4, true));
     }
 
     /// What the fine sweep cannot do is refused up front, with the reason: without the
