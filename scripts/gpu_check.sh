@@ -59,6 +59,9 @@ fi
 say "gpu_check: $(date -u +%Y-%m-%dT%H:%M:%SZ), $(uname -m), $(nproc) cores, VK_DRIVER_FILES=${VK_DRIVER_FILES:-unset}, loader: $(ldconfig -p | grep -c libvulkan)"
 command -v nvidia-smi >/dev/null 2>&1 &&
     step nvidia-smi 30 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+# GPU_CHECK_PART=quality: only the quality and fine-sweep steps below (a second call, after a
+# full check in the same session).
+if [ "${GPU_CHECK_PART:-}" != quality ]; then
 # The adapter wgpu picks, and the WGSL engine working at all, on the paper's configuration.
 step adapter 120 "$bin" bench --device gpu --config paper --repeats 1
 # The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe):
@@ -86,4 +89,21 @@ step eval-gpu 40 "$bin" eval --device gpu data/tsukuba
 step eval-cpu 40 "$bin" eval --device cpu data/tsukuba
 # Both engines beside the SGBM peer (cv2 from the machine's python3), last: it may run out of time.
 [ -z "${GPU_CHECK_QUICK:-}" ] && step bench 170 "$bin" bench --repeats 3 --python python3
+fi
+# The public sets on both engines, with and without the fine sweep, when they are carried:
+# GPU_CHECK_DATA names a folder of dataset folders (copies of ../shared/data/* in a carried,
+# git-ignored folder; the device tool carries 64 MiB in all).
+if [ -n "${GPU_CHECK_DATA:-}" ] && [ -d "$GPU_CHECK_DATA" ]; then
+    step eval-data-gpu 150 "$bin" eval --device gpu "$GPU_CHECK_DATA"/*
+    step eval-data-gpu-refine 150 "$bin" eval --device gpu --subpixel-refine true "$GPU_CHECK_DATA"/*
+    step eval-data-cpu 150 "$bin" eval --device cpu "$GPU_CHECK_DATA"/*
+fi
+# The fine sweep's cost on the WGSL engine (issue 29's bar: the demo's time grows by at most
+# 25 %), defaults and refined alternated twice in one call.
+if [ "${GPU_CHECK_PART:-}" = quality ]; then
+    for round in 1 2; do
+        step "bench-defaults-$round" 60 "$bin" bench --device gpu --config demo --config ring --repeats 9
+        step "bench-refined-$round" 60 "$bin" bench --device gpu --config demo --config ring --repeats 9 --subpixel-refine true
+    done
+fi
 say "gpu_check: done; the report is $report"
