@@ -847,6 +847,48 @@ fn cpu_bands_of_rows_give_the_same_floats() {
     }
 }
 
+/// SGM's wide layout (`sweep::cpu::sgm_wide`: the row directions split into column chunks,
+/// the horizontal ones row by row in parallel; what a machine of many threads runs on long
+/// rows) gives every map of the two-pass layout bit for bit, with 4 and 8 paths, on one and
+/// five threads.
+#[test]
+fn cpu_wide_sgm_gives_the_two_passes_maps() {
+    use sweepdepth::sweep::cpu::sgm_wide;
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 32;
+    for paths in [8, 4] {
+        params.sgm_paths = paths;
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let run = |threads: usize, wide: bool| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            sgm_wide::force(Some(wide));
+            let maps = pool.install(|| {
+                CpuEngine::new()
+                    .run_plan_raw(&plan, &rig, &images)
+                    .expect("cpu run")
+            });
+            sgm_wide::force(None);
+            maps
+        };
+        let two = run(5, false);
+        for threads in [1, 5] {
+            let wide = run(threads, true);
+            let differing = two
+                .iter()
+                .zip(&wide)
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert_eq!(
+                differing, 0,
+                "{paths} paths, {threads} threads: the wide layout changed {differing} floats"
+            );
+        }
+    }
+}
+
 /// The CPU engine keeps its buffers across frame sets (maps, z-buffer, winner-take-all state,
 /// band scratch, images): a run after runs of other shapes, optimizers and thread counts gives
 /// the same floats as a fresh engine's run.

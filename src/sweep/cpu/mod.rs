@@ -23,6 +23,7 @@ pub mod plane;
 pub mod refine;
 pub mod select;
 pub mod sgm;
+pub mod sgm_wide;
 
 use std::time::Instant;
 

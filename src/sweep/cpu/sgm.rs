@@ -157,7 +157,7 @@ fn step_fixed<const N: usize, const START: bool, const FIRST: bool>(
 /// `step` with its two switches as run-time values.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn step_dyn<const N: usize>(
+pub(super) fn step_dyn<const N: usize>(
     start: bool,
     first: bool,
     cost: &[u16],
@@ -178,7 +178,7 @@ fn step_dyn<const N: usize>(
 
 /// The per-pixel penalties of one path step: P2 lowered at colour edges (`sgm_edge`).
 #[inline(always)]
-fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
+pub(super) fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
     if edge == 0 {
         return p2 as u16;
     }
@@ -310,7 +310,7 @@ fn pass_lanes<const N: usize>(
 /// whose predecessor is outside the image keep their last value (never read: a path starts
 /// there). The colour steps of a row vectorise; the per-pixel lookups were a third of a pass.
 #[inline(always)]
-fn edge_penalties_row(
+pub(super) fn edge_penalties_row(
     penalties: &[u16],
     colours: &[u32],
     w: usize,
@@ -365,10 +365,28 @@ fn edge_penalties_row(
     }
 }
 
-/// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
-/// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
-/// `Err(Cancelled)` when `cancel` stopped it between rows.
+/// The path costs of every direction summed into `forward` and `backward` (resized to the
+/// volume; [`select`] adds the two): in the wide layout where it [`super::sgm_wide::applies`]
+/// (many threads, long rows), else in two passes on two threads. `Err(Cancelled)` when
+/// `cancel` stopped it between rows.
 pub fn run(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+    cancel: &CancelFlag,
+) -> Result<(), SweepError> {
+    if super::sgm_wide::applies(plan) {
+        super::sgm_wide::run(plan, reference_colours, volume, forward, backward, cancel)
+    } else {
+        run_two_passes(plan, reference_colours, volume, forward, backward, cancel)
+    }
+}
+
+/// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
+/// backward ones' into `backward`.
+pub fn run_two_passes(
     plan: &SweepPlan,
     reference_colours: &[u32],
     volume: &[u16],
