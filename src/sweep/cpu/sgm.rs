@@ -367,7 +367,7 @@ pub(super) fn edge_penalties_row(
 
 /// The path costs of every direction summed into `forward` and `backward` (resized to the
 /// volume; [`select`] adds the two): in the wide layout where it [`super::sgm_wide::applies`]
-/// (many threads, long rows), else in two passes on two threads. `Err(Cancelled)` when
+/// (4 threads or more), else in two passes on two threads. `Err(Cancelled)` when
 /// `cancel` stopped it between rows.
 pub fn run(
     plan: &SweepPlan,

@@ -9,11 +9,10 @@
 //! backward sums together are bit for bit the two-pass layout's (`tests` below, and the
 //! engine suites through [`applies`] forced on).
 //!
-//! Used where the machine has at least [`MIN_THREADS`] threads and a row holds at least
-//! [`MIN_ROW_LANES`] path costs (below that a row's chunk is too little work for the fork and
-//! join per row): a 16-core machine's SGM stage took 1.4-1.7x the 2-core machine's with two
-//! passes on two threads (`bench --device cpu`: ring 219 ms against 128 ms), the largest stage
-//! of a set there.
+//! Used where the machine has at least [`MIN_THREADS`] threads: a 16-core machine's SGM stage
+//! took 1.4-1.7x the 2-core machine's with two passes on two threads (`bench --device cpu`:
+//! ring 219 ms against 128 ms), the largest stage of a set there. On 2 threads the two passes
+//! are as parallel and read the volume once less.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -27,9 +26,6 @@ use super::sgm::{edge_penalties_row, penalty2, step_dyn, stride, PAD};
 
 /// The fewest threads with which the wide layout is used.
 pub const MIN_THREADS: usize = 4;
-/// The fewest path costs per row (width x lanes) with which the wide layout is used (the
-/// demo's 384 x 32 stays in two passes; 9 cameras' 450 x 64 and the ring's 640 x 96 do not).
-pub const MIN_ROW_LANES: usize = 16 * 1024;
 
 /// Forces the layout for tests and benches: 0 as the machine decides, 1 always wide, 2 never.
 static FORCE: AtomicU8 = AtomicU8::new(0);
@@ -52,11 +48,7 @@ pub fn applies(plan: &SweepPlan) -> bool {
     match FORCE.load(Ordering::Relaxed) {
         1 => true,
         2 => false,
-        _ => {
-            let p = &plan.params;
-            rayon::current_num_threads() >= MIN_THREADS
-                && p.width as usize * stride(p.planes as usize) >= MIN_ROW_LANES
-        }
+        _ => plan.params.width > 0 && rayon::current_num_threads() >= MIN_THREADS,
     }
 }
 
@@ -80,9 +72,11 @@ pub fn run(
     cancel.check()
 }
 
-/// Columns per chunk of a row: about four chunks per thread, at least 16.
+/// Columns per chunk of a row: one chunk per thread, at least 16 columns (on 16 cores four
+/// chunks per thread, or at least 64 columns, measured the same or slower: ring 182-189 against
+/// 176-180 ms per set; docs/speed.md).
 fn chunk_columns(width: usize) -> usize {
-    width.div_ceil(4 * rayon::current_num_threads()).max(16)
+    width.div_ceil(rayon::current_num_threads()).max(16)
 }
 
 /// The directions along columns and diagonals of one walk (`forward`: top to bottom), their
