@@ -125,29 +125,32 @@ fn step_fixed<const N: usize, const START: bool, const FIRST: bool>(
 ) -> u16 {
     let (cost, prev, out, sum) = (&cost[..N], &prev[..N + 2], &mut out[1..=N], &mut sum[..N]);
     let jump = prev_min.saturating_add(p2);
-    // A vector of LANES at a time: over all N at once the compiler vectorised 32 lanes but
-    // not 96 (the ring's planes: the path step and its minimum one lane at a time).
+    let mut l = [0u16; N];
+    for i in 0..N {
+        l[i] = if START {
+            cost[i]
+        } else {
+            let best = prev[i + 1]
+                .min(prev[i].saturating_add(p1))
+                .min(prev[i + 2].saturating_add(p1))
+                .min(jump);
+            cost[i].saturating_add(best - prev_min)
+        };
+    }
+    out.copy_from_slice(&l);
+    for i in 0..N {
+        sum[i] = if FIRST {
+            l[i]
+        } else {
+            sum[i].wrapping_add(l[i])
+        };
+    }
+    // The minimum a vector of LANES at a time (`lowest[i % LANES]` over all N lanes compiled
+    // into one lane at a time above 32 lanes: the ring's 96 planes).
     let mut lowest = [u16::MAX; LANES];
-    for c in 0..N / LANES {
-        let at = c * LANES;
-        let mut l = [0u16; LANES];
+    for chunk in l.chunks_exact(LANES) {
         for i in 0..LANES {
-            let k = at + i;
-            l[i] = if START {
-                cost[k]
-            } else {
-                let best = prev[k + 1]
-                    .min(prev[k].saturating_add(p1))
-                    .min(prev[k + 2].saturating_add(p1))
-                    .min(jump);
-                cost[k].saturating_add(best - prev_min)
-            };
-        }
-        out[at..at + LANES].copy_from_slice(&l);
-        for i in 0..LANES {
-            let s = &mut sum[at + i];
-            *s = if FIRST { l[i] } else { s.wrapping_add(l[i]) };
-            lowest[i] = lowest[i].min(l[i]);
+            lowest[i] = lowest[i].min(chunk[i]);
         }
     }
     let half: [u16; 8] = std::array::from_fn(|i| lowest[i].min(lowest[i + 8]));
