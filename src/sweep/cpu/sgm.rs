@@ -182,11 +182,18 @@ pub(super) fn step_dyn<const N: usize>(
 
 /// The per-pixel penalties of one path step: P2 lowered at colour edges (`sgm_edge`).
 #[inline(always)]
-pub(super) fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
+fn penalty2(p1: u32, p2: u32, edge: u32, step: u32) -> u16 {
     if edge == 0 {
         return p2 as u16;
     }
     p1.max(p2 * edge / (edge + 16 * step)) as u16
+}
+
+/// P2 for every colour step (0..255): the shader's integer division, done once per pass.
+pub(super) fn penalty_table(p1: u32, p2: u32, edge: u32) -> Vec<u16> {
+    (0..256u32)
+        .map(|step| penalty2(p1, p2, edge, step))
+        .collect()
 }
 
 vectorised_fn! {
@@ -231,10 +238,7 @@ fn pass_lanes<const N: usize>(
         let mut prev_mins = vec![vec![0u16; w]; row_dirs];
         let mut cur_mins = vec![vec![0u16; w]; row_dirs];
         let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
-        // P2 for every colour step (0..255): the shader's integer division, done once.
-        let penalties: Vec<u16> = (0..256u32)
-            .map(|step| penalty2(p1, p2, edge, step))
-            .collect();
+        let penalties = penalty_table(p1, p2, edge);
         let p1 = p1 as u16;
         // Each pixel's P2 towards its predecessor in every direction, a row at a time (x order):
         // horizontal, vertical, diagonal behind, diagonal ahead. Without `sgm_edge` all are P2.

@@ -12,7 +12,8 @@
 //! Used where the machine has at least [`MIN_THREADS`] threads: a 16-core machine's SGM stage
 //! took 1.4-1.7x the 2-core machine's with two passes on two threads (`bench --device cpu`:
 //! ring 219 ms against 128 ms), the largest stage of a set there. On 2 threads the two passes
-//! are as parallel and read the volume once less.
+//! keep both threads busy already, and the wide layout reads the volume three times (the two
+//! row walks and the horizontal pass) where they read it twice (not measured on 2 threads).
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -22,7 +23,7 @@ use crate::sweep::plan::SweepPlan;
 use crate::sweep::{CancelFlag, SweepError};
 
 use super::common::vectorised_fn;
-use super::sgm::{edge_penalties_row, penalty2, step_dyn, stride, PAD};
+use super::sgm::{edge_penalties_row, penalty_table, step_dyn, stride, PAD};
 
 /// The fewest threads with which the wide layout is used.
 pub const MIN_THREADS: usize = 4;
@@ -94,7 +95,7 @@ fn rows_pass(
     let n = stride(p.planes as usize);
     let dirs = if p.sgm_paths == 8 { 3 } else { 1 };
     let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
-    let penalties: Vec<u16> = (0..256u32).map(|s| penalty2(p1, p2, edge, s)).collect();
+    let penalties = penalty_table(p1, p2, edge);
     // Path costs of the previous and current row, [x][direction][PAD, lanes, PAD], and their
     // minima [x][direction].
     let mut prev = vec![PAD; w * dirs * (n + 2)];
@@ -229,7 +230,7 @@ fn horizontal(
     if w == 0 || h == 0 {
         return;
     }
-    let penalties: Vec<u16> = (0..256u32).map(|s| penalty2(p1, p2, edge, s)).collect();
+    let penalties = penalty_table(p1, p2, edge);
     sums.par_chunks_mut(w * n).enumerate().for_each_init(
         || {
             let pens: [Vec<u16>; 4] = std::array::from_fn(|_| vec![penalties[0]; w]);
