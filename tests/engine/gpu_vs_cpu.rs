@@ -889,6 +889,64 @@ fn cpu_wide_sgm_gives_the_two_passes_maps() {
     }
 }
 
+/// The CPU engine's builds (`simd::vectorised_fn!`: AVX-512 where the CPU has it, AVX2 + FMA,
+/// portable) give the same floats: rectified rows (whole-texel shifts), converging pinhole
+/// views (homographies), distorted lenses (per-pixel projection), and the fine sweep. On a CPU
+/// without AVX-512 the first two runs are both AVX2; the portable one always differs in build.
+#[test]
+fn cpu_builds_give_the_same_maps() {
+    use sweepdepth::simd::{cap, Tier};
+    let (tsukuba_rig, tsukuba_images, mut tsukuba) = tsukuba_crop();
+    tsukuba.num_planes = 32;
+    let refined = SweepParams {
+        subpixel_refine: true,
+        ..tsukuba.clone()
+    };
+    let (arc_rig, arc_images) = pinhole_arc_case();
+    let distorted_model = CameraModel {
+        intrinsics: synthetic::intrinsics(48, 36),
+        distortion: synthetic::plumb_bob_barrel(),
+    };
+    let distorted_rig = synthetic::arc_rig(4, 0.05, 2.0, distorted_model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
+    let distorted_images = synthetic::render_rig(&scene, &distorted_rig);
+    let arc = SweepParams {
+        cost: Cost::AdCensus,
+        ..base()
+    };
+    let cases = [
+        ("tsukuba", &tsukuba_rig, &tsukuba_images, tsukuba),
+        ("tsukuba refined", &tsukuba_rig, &tsukuba_images, refined),
+        ("pinhole arc", &arc_rig, &arc_images, arc.clone()),
+        ("distorted arc", &distorted_rig, &distorted_images, arc),
+    ];
+    for (name, rig, images, params) in cases {
+        let plan = SweepPlan::new(rig, &params).expect("plan");
+        let run = |tier: Option<Tier>| {
+            cap(tier);
+            let maps = CpuEngine::new()
+                .run_plan_raw(&plan, rig, images)
+                .expect("cpu run");
+            cap(None);
+            maps
+        };
+        let widest = run(None);
+        for tier in [Tier::Avx2, Tier::Portable] {
+            let capped = run(Some(tier));
+            assert_eq!(widest.len(), capped.len());
+            let differing = widest
+                .iter()
+                .zip(&capped)
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert_eq!(
+                differing, 0,
+                "{name}: the {tier:?} build changed {differing} floats"
+            );
+        }
+    }
+}
+
 /// The CPU engine keeps its buffers across frame sets (maps, z-buffer, winner-take-all state,
 /// band scratch, images): a run after runs of other shapes, optimizers and thread counts gives
 /// the same floats as a fresh engine's run.

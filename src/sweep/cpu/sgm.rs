@@ -196,7 +196,7 @@ pub(super) fn penalty_table(p1: u32, p2: u32, edge: u32) -> Vec<u16> {
         .collect()
 }
 
-vectorised_fn! {
+vectorised_fn! { avx2:
 /// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
 /// reverse), summing the path costs of its directions into `sums` (written, not added). Stops
 /// between rows once `cancel` is set (the sums are then incomplete; the caller checks).

@@ -153,7 +153,7 @@ struct Row<'a> {
     pens: &'a [Vec<u16>; 4],
 }
 
-vectorised_fn! {
+vectorised_fn! { avx2:
 /// The columns `x0..` of one row (as many as `mins` holds): each direction's path step from
 /// the previous row (at x, behind and ahead), into `cur` and `mins`, written (the vertical)
 /// or added (the diagonals) into `sums`.
@@ -251,7 +251,7 @@ fn horizontal(
     );
 }
 
-vectorised_fn! {
+vectorised_fn! { avx2:
 /// One row's horizontal path walking `forward` (left to right) or back, added into `sums`.
 fn horizontal_row(n: usize, p1: u16, forward: bool, costs: &[u16], pen_h: &[u16], line: &mut [Vec<u16>; 2], sums: &mut [u16]) {
     match n {
