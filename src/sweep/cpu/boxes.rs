@@ -52,8 +52,8 @@ impl BoxH {
         // The valid costs' column span lo..hi (a pair's costs are invalid outside the columns
         // both cameras see), and whether every cost inside it is valid. (No early exit inside
         // the span: the and of the tests vectorises.)
-        let lo = costs.iter().position(|&c| c >= 0.0).unwrap_or(width);
-        let hi = costs.iter().rposition(|&c| c >= 0.0).map_or(lo, |j| j + 1);
+        let lo = first_valid(costs);
+        let hi = last_valid_end(costs).max(lo);
         let mut span_valid = true;
         for &c in &costs[lo..hi] {
             span_valid &= c >= 0.0;
@@ -74,12 +74,25 @@ impl BoxH {
                 let overlap = (i + 1).min(hi) - (i + 1 - w).max(lo);
                 *n = overlap.max(0) as f32;
             }
-            masked[..lo as usize].fill(0.0);
-            masked[lo as usize..hi as usize].copy_from_slice(&costs[lo as usize..hi as usize]);
-            masked[hi as usize..].fill(0.0);
-            self.sums(&masked, sums);
+            let (lo, hi) = (lo as usize, hi as usize);
+            if self.w > 2 {
+                // The span straight into the padded row (the zeros around it are the masked
+                // costs), without the masked row.
+                let w = self.w;
+                let len = width + 2 * (w - 1);
+                let pad = &mut self.pad[..len];
+                pad[..w - 1 + lo].fill(0.0);
+                pad[w - 1 + lo..w - 1 + hi].copy_from_slice(&costs[lo..hi]);
+                pad[w - 1 + hi..].fill(0.0);
+                self.sum_pad(width, sums);
+            } else {
+                masked[..lo].fill(0.0);
+                masked[lo..hi].copy_from_slice(&costs[lo..hi]);
+                masked[hi..].fill(0.0);
+                self.sums(&masked, sums);
+            }
             self.masked = masked;
-            return Some((lo as usize, hi as usize));
+            return Some((lo, hi));
         }
         let mut valid = std::mem::take(&mut self.valid);
         valid.resize(width, 0.0);
@@ -131,7 +144,17 @@ impl BoxH {
         pad[..w - 1].fill(0.0);
         pad[w - 1..w - 1 + width].copy_from_slice(values);
         pad[w - 1 + width..].fill(0.0);
-        if !direct_tree(w, pad, out) {
+        self.sum_pad(width, out);
+    }
+
+    /// The window sums of the padded row in `self.pad` (a row of `width` values with `w - 1`
+    /// zeros each side, w > 2) into `out[..width + w - 1]`.
+    #[inline(always)]
+    fn sum_pad(&mut self, width: usize, out: &mut [f32]) {
+        let w = self.w;
+        let len = width + 2 * (w - 1);
+        let out = &mut out[..width + w - 1];
+        if !direct_tree(w, &self.pad[..len], out) {
             self.doubling(len, out);
         }
     }
@@ -165,6 +188,51 @@ impl BoxH {
             h *= 2;
         }
     }
+}
+
+/// Lanes a validity scan tests at a time (one AVX-512 vector of f32).
+const SCAN: usize = 16;
+
+/// The first index of `costs` whose cost is valid (>= 0), or its length: SCAN lanes at a time
+/// (the rows of a shifted camera start with tens of invalid costs), then the lane.
+#[inline(always)]
+fn first_valid(costs: &[f32]) -> usize {
+    let mut start = 0;
+    for chunk in costs.chunks_exact(SCAN) {
+        let mut any = false;
+        for &c in chunk {
+            any |= c >= 0.0;
+        }
+        if any {
+            break;
+        }
+        start += SCAN;
+    }
+    costs[start..]
+        .iter()
+        .position(|&c| c >= 0.0)
+        .map_or(costs.len(), |i| start + i)
+}
+
+/// One past the last index of `costs` whose cost is valid, or 0: as [`first_valid`] from the
+/// end.
+#[inline(always)]
+fn last_valid_end(costs: &[f32]) -> usize {
+    let mut end = costs.len();
+    for chunk in costs.rchunks_exact(SCAN) {
+        let mut any = false;
+        for &c in chunk {
+            any |= c >= 0.0;
+        }
+        if any {
+            break;
+        }
+        end -= SCAN;
+    }
+    costs[..end]
+        .iter()
+        .rposition(|&c| c >= 0.0)
+        .map_or(0, |j| j + 1)
 }
 
 /// The doubling's sums for the odd widths 3, 5, 7 and 9 (the centred windows) in one pass
@@ -265,11 +333,16 @@ impl RowRing {
         if let (Some(left), Some(entered)) = (left, entered) {
             let span = |row: usize| self.spans[channel * self.slots + row % self.slots];
             if span(left).is_some() && span(left) == span(entered) {
-                for (row, sign) in [(left, -1.0f32), (entered, 1.0)] {
-                    let at = self.at(channel, row);
-                    for (s, &a) in sums.iter_mut().zip(&self.data[at..at + self.padded]) {
-                        *s += sign * a;
-                    }
+                // Both rows in one pass: the row that left taken away, then the row that
+                // entered added (the floats of one pass each).
+                let (l, e) = (self.at(channel, left), self.at(channel, entered));
+                let (l, e) = (
+                    &self.data[l..l + self.padded],
+                    &self.data[e..e + self.padded],
+                );
+                let sums = &mut sums[..self.padded];
+                for ((s, &a), &b) in sums.iter_mut().zip(l).zip(e) {
+                    *s = (*s - a) + b;
                 }
                 return;
             }
@@ -340,6 +413,31 @@ mod tests {
     /// Every window width against the plain left-to-right sum (BoxH's anchors: window i covers
     /// columns i - (w - 1) ..= i): equal floats for the direct widths 1 and 2, within float
     /// rounding for the doubling ones.
+    /// The validity scans a vector at a time find what `position` and `rposition` find, on
+    /// rows of every length with valid costs anywhere.
+    #[test]
+    fn the_scans_find_the_first_and_last_valid_cost() {
+        for len in [0, 1, 15, 16, 17, 40, 384] {
+            let mut patterns: Vec<Vec<f32>> = vec![vec![-1.0; len], vec![0.0; len]];
+            for at in [0, 1, 15, 16, 17, 33, 200, 383] {
+                if at < len {
+                    let mut one = vec![-1.0; len];
+                    one[at] = 0.5;
+                    patterns.push(one);
+                    let mut hole = vec![1.0; len];
+                    hole[at] = f32::NAN;
+                    patterns.push(hole);
+                }
+            }
+            for costs in &patterns {
+                let lo = costs.iter().position(|&c| c >= 0.0).unwrap_or(len);
+                let hi = costs.iter().rposition(|&c| c >= 0.0).map_or(0, |j| j + 1);
+                assert_eq!(first_valid(costs), lo, "{costs:?}");
+                assert_eq!(last_valid_end(costs), hi, "{costs:?}");
+            }
+        }
+    }
+
     /// The direct tree of the odd widths gives the doubling's floats exactly.
     #[test]
     fn direct_tree_equals_the_doubling() {
