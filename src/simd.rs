@@ -94,7 +94,7 @@ macro_rules! vectorised_fn {
     (avx2: $(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
         $crate::simd::vectorised_fn!(@tiers false; $(#[$meta])* $vis fn $name($($arg: $ty),*) $(-> $ret)? $body);
     };
-    (@tiers $wide:literal; $(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
+    (@tiers $wide:tt; $(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
         $(#[$meta])*
         $vis fn $name($($arg: $ty),*) $(-> $ret)? {
             #[inline(always)]
@@ -104,17 +104,10 @@ macro_rules! vectorised_fn {
             #[cfg(target_arch = "x86_64")]
             #[allow(unsafe_code)]
             {
-                #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx512vpopcntdq,avx2,fma")]
-                fn avx512($($arg: $ty),*) $(-> $ret)? {
-                    body($($arg),*)
-                }
+                $crate::simd::vectorised_fn!(@avx512 $wide; ($($arg: $ty),*) $(-> $ret)?);
                 #[target_feature(enable = "avx2,fma")]
                 fn avx2($($arg: $ty),*) $(-> $ret)? {
                     body($($arg),*)
-                }
-                if $wide && $crate::simd::has_avx512() {
-                    // SAFETY: the CPU has these AVX-512 subsets, AVX2 and FMA, checked just above.
-                    return unsafe { avx512($($arg),*) };
                 }
                 if $crate::simd::has_avx2_fma() {
                     // SAFETY: the CPU has AVX2 and FMA, checked just above.
@@ -124,6 +117,18 @@ macro_rules! vectorised_fn {
             body($($arg),*)
         }
     };
+    // The AVX-512 build of `body` and its call, inside the function's dispatch (or nothing).
+    (@avx512 true; ($($arg:ident: $ty:ty),*) $(-> $ret:ty)?) => {
+        #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx512vpopcntdq,avx2,fma")]
+        fn avx512($($arg: $ty),*) $(-> $ret)? {
+            body($($arg),*)
+        }
+        if $crate::simd::has_avx512() {
+            // SAFETY: the CPU has these AVX-512 subsets, AVX2 and FMA, checked just above.
+            return unsafe { avx512($($arg),*) };
+        }
+    };
+    (@avx512 false; ($($arg:ident: $ty:ty),*) $(-> $ret:ty)?) => {};
     ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
         $crate::simd::vectorised_fn!(@tiers true; $(#[$meta])* $vis fn $name($($arg: $ty),*) $(-> $ret)? $body);
     };

@@ -579,13 +579,7 @@ fn odd_width_shiftable_2x2_agrees() {
 
 #[test]
 fn distorted_arc_agrees() {
-    let model = CameraModel {
-        intrinsics: synthetic::intrinsics(48, 36),
-        distortion: synthetic::plumb_bob_barrel(),
-    };
-    let rig = synthetic::arc_rig(4, 0.05, 2.0, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
-    let images = synthetic::render_rig(&scene, &rig);
+    let (rig, images) = distorted_arc_case();
     let plan = SweepPlan::new(&rig, &base()).expect("plan");
     compare("distorted_arc", &plan, &rig, &images);
 }
@@ -645,9 +639,19 @@ fn sgm_many_planes_real_crop_agrees() {
 /// A pinhole arc of converging cameras (no rectified rows): the CPU engine maps its planes by
 /// row-linear homographies.
 fn pinhole_arc_case() -> (Rig, Vec<Rgba8Image>) {
+    arc_case(Distortion::None)
+}
+
+/// The same arc with a barrel lens on every camera: the CPU engine projects every pixel.
+fn distorted_arc_case() -> (Rig, Vec<Rgba8Image>) {
+    arc_case(synthetic::plumb_bob_barrel())
+}
+
+/// Four 48x36 cameras on an arc seeing a wall and a box, with the lens `distortion`.
+fn arc_case(distortion: Distortion) -> (Rig, Vec<Rgba8Image>) {
     let model = CameraModel {
         intrinsics: synthetic::intrinsics(48, 36),
-        distortion: Distortion::None,
+        distortion,
     };
     let rig = synthetic::arc_rig(4, 0.05, 2.0, model, 1).expect("rig");
     let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
@@ -903,13 +907,7 @@ fn cpu_builds_give_the_same_maps() {
         ..tsukuba.clone()
     };
     let (arc_rig, arc_images) = pinhole_arc_case();
-    let distorted_model = CameraModel {
-        intrinsics: synthetic::intrinsics(48, 36),
-        distortion: synthetic::plumb_bob_barrel(),
-    };
-    let distorted_rig = synthetic::arc_rig(4, 0.05, 2.0, distorted_model, 1).expect("rig");
-    let scene = Scene::wall_and_box(2.0, Some((1.3, 0.2)), 42.0);
-    let distorted_images = synthetic::render_rig(&scene, &distorted_rig);
+    let (distorted_rig, distorted_images) = distorted_arc_case();
     let arc = SweepParams {
         cost: Cost::AdCensus,
         ..base()

@@ -193,21 +193,22 @@ impl BoxH {
 /// Lanes a validity scan tests at a time (one AVX-512 vector of f32).
 const SCAN: usize = 16;
 
+/// Whether some cost of `chunk` is valid (>= 0): the or of every lane's test, no early exit,
+/// so it vectorises.
+#[inline(always)]
+fn any_valid(chunk: &[f32]) -> bool {
+    chunk.iter().fold(false, |any, &c| any | (c >= 0.0))
+}
+
 /// The first index of `costs` whose cost is valid (>= 0), or its length: SCAN lanes at a time
 /// (the rows of a shifted camera start with tens of invalid costs), then the lane.
 #[inline(always)]
 fn first_valid(costs: &[f32]) -> usize {
-    let mut start = 0;
-    for chunk in costs.chunks_exact(SCAN) {
-        let mut any = false;
-        for &c in chunk {
-            any |= c >= 0.0;
-        }
-        if any {
-            break;
-        }
-        start += SCAN;
-    }
+    let start = costs
+        .chunks_exact(SCAN)
+        .take_while(|c| !any_valid(c))
+        .count()
+        * SCAN;
     costs[start..]
         .iter()
         .position(|&c| c >= 0.0)
@@ -218,17 +219,12 @@ fn first_valid(costs: &[f32]) -> usize {
 /// end.
 #[inline(always)]
 fn last_valid_end(costs: &[f32]) -> usize {
-    let mut end = costs.len();
-    for chunk in costs.rchunks_exact(SCAN) {
-        let mut any = false;
-        for &c in chunk {
-            any |= c >= 0.0;
-        }
-        if any {
-            break;
-        }
-        end -= SCAN;
-    }
+    let end = costs.len()
+        - costs
+            .rchunks_exact(SCAN)
+            .take_while(|c| !any_valid(c))
+            .count()
+            * SCAN;
     costs[..end]
         .iter()
         .rposition(|&c| c >= 0.0)

@@ -59,6 +59,30 @@ pub fn lens(cam: &GpuCamera, normalised: Vec2) -> Option<Vec2> {
     ])
 }
 
+/// `project` without its branches, for row loops that vectorise (the pinhole and plumb-bob
+/// lenses; `distort` is `lens` less its fold test and intrinsics): the pixel, the depth in the
+/// camera and whether `project` would have projected the point (in front, z > 1e-6, and not
+/// past the distortion's fold). Every step is made for every point; where the last is false
+/// the first two are not `project`'s and must not be used. The same floats where it is true.
+#[inline(always)]
+pub fn project_unbranched(
+    cam: &GpuCamera,
+    point: Vec3,
+    distort: impl Fn(Vec2) -> Vec2,
+) -> (Vec2, f32, bool) {
+    let p = [
+        dot3(xyz(cam.row0), point) + cam.row0[3],
+        dot3(xyz(cam.row1), point) + cam.row1[3],
+        dot3(xyz(cam.row2), point) + cam.row2[3],
+    ];
+    let n = [p[0] / p[2], p[1] / p[2]];
+    let past_fold = (cam.size[3] != DIST_NONE) & (n[0] * n[0] + n[1] * n[1] > cam.dist_b[1]);
+    let d = distort(n);
+    let [fx, fy, cx, cy] = cam.intrinsics;
+    let pixel = [fx * d[0] + cx, fy * d[1] + cy];
+    (pixel, p[2], (p[2] > 1e-6) & !past_fold)
+}
+
 /// The plumb-bob model of `lens` (camera `cam`'s coefficients) on a point of the z = 1 plane.
 #[inline(always)]
 pub fn plumb_bob(cam: &GpuCamera, n: Vec2) -> Vec2 {
@@ -227,6 +251,41 @@ pub fn fmin(a: f32, b: f32) -> f32 {
 // The run-time dispatch to an AVX2 + FMA build of a loop, shared with `fusion/`: `crate::simd`.
 pub use crate::simd::has_avx2_fma;
 pub(crate) use crate::simd::vectorised_fn;
+
+/// A small rig for the tests of the projection loops: three 48x36 cameras converging steeply
+/// on an arc (the side ones see points far off their axes, past a barrel lens's fold), with
+/// each lens in turn: a barrel (plumb-bob) and none. Its plan has the default parameters.
+#[cfg(test)]
+pub(crate) fn converging_test_plans() -> Vec<crate::sweep::plan::SweepPlan> {
+    use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics};
+    let intrinsics = PinholeIntrinsics {
+        width_px: 48,
+        height_px: 36,
+        fx_px: 80.0,
+        fy_px: 84.0,
+        cx_px: 23.5,
+        cy_px: 17.25,
+    };
+    let barrel = Distortion::PlumbBob {
+        k1: -0.3,
+        k2: 0.0,
+        p1: 0.001,
+        p2: -0.002,
+        k3: 0.0,
+    };
+    [barrel, Distortion::None]
+        .into_iter()
+        .map(|distortion| {
+            let model = CameraModel {
+                intrinsics,
+                distortion,
+            };
+            let rig = crate::synthetic::arc_rig(3, 0.6, 2.0, model, 1).expect("rig");
+            let params = crate::sweep::SweepParams::default();
+            crate::sweep::plan::SweepPlan::new(&rig, &params).expect("plan")
+        })
+        .collect()
+}
 
 #[cfg(test)]
 mod tests {

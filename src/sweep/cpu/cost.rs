@@ -326,27 +326,15 @@ fn projected_row(
     distort: impl Fn(Vec2) -> Vec2,
     depth_of: impl Fn(usize, [f32; 3]) -> f32,
 ) {
-    let fold = cam.dist_b[1];
-    let distorted = cam.size[3] != DIST_NONE;
-    let [fx, fy, cx, cy] = cam.intrinsics;
     let (w, h) = (cam.size[0] as f32 - 1.0, cam.size[1] as f32 - 1.0);
-    let (row0, row1, row2) = (cam.row0, cam.row1, cam.row2);
     for (x, ((xo, yo), ray)) in xs.iter_mut().zip(ys.iter_mut()).zip(rays).enumerate() {
         let ray = xyz(*ray);
         // The depth, then `project` of the point `ray * depth`.
         let depth = depth_of(x, ray);
         let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
-        let p = [
-            dot3(xyz(row0), point) + row0[3],
-            dot3(xyz(row1), point) + row1[3],
-            dot3(xyz(row2), point) + row2[3],
-        ];
-        let n = [p[0] / p[2], p[1] / p[2]];
-        let past_fold = distorted & (n[0] * n[0] + n[1] * n[1] > fold);
-        let d = distort(n);
-        let pixel = [fx * d[0] + cx, fy * d[1] + cy];
+        let (pixel, _, projected) = project_unbranched(cam, point, &distort);
         let inside = (pixel[0] >= 0.0) & (pixel[1] >= 0.0) & (pixel[0] <= w) & (pixel[1] <= h);
-        let seen = (depth > 0.0) & (p[2] > 1e-6) & !past_fold & inside;
+        let seen = (depth > 0.0) & projected & inside;
         *xo = if seen { pixel[0] } else { f32::NAN };
         *yo = if seen { pixel[1] } else { f32::NAN };
     }
@@ -696,8 +684,6 @@ pub fn scored_channels(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics};
-    use crate::sweep::SweepParams;
 
     /// The General mapping's row loop (`general_row`: pinhole and plumb-bob lenses, every step
     /// computed and selected) against `ray_pixel` per pixel, bit for bit, NaN where not seen:
@@ -720,28 +706,7 @@ mod tests {
 
     #[test]
     fn general_row_and_hypothesis_coords_are_ray_pixel_bit_for_bit() {
-        let intrinsics = PinholeIntrinsics {
-            width_px: 48,
-            height_px: 36,
-            fx_px: 80.0,
-            fy_px: 84.0,
-            cx_px: 23.5,
-            cy_px: 17.25,
-        };
-        let barrel = Distortion::PlumbBob {
-            k1: -0.3,
-            k2: 0.0,
-            p1: 0.001,
-            p2: -0.002,
-            k3: 0.0,
-        };
-        for distortion in [barrel, Distortion::None] {
-            let model = CameraModel {
-                intrinsics,
-                distortion,
-            };
-            let rig = crate::synthetic::arc_rig(3, 0.6, 2.0, model, 1).unwrap();
-            let mut plan = SweepPlan::new(&rig, &SweepParams::default()).unwrap();
+        for mut plan in converging_test_plans() {
             // Through the centre, slanted, behind, and near enough for the side cameras to see
             // points 60 degrees off their axes (past the fold).
             plan.planes.extend([
@@ -798,7 +763,7 @@ mod tests {
                 }
             }
             assert!(seen > 1000 && unseen > 1000, "{seen} seen, {unseen} not");
-            if !distortion.is_none() {
+            if plan.cameras.iter().any(|cam| cam.size[3] != DIST_NONE) {
                 assert!(folded_inside > 0, "no point folded back into the image");
             }
         }

@@ -83,12 +83,8 @@ fn project_row(
             let rows = rays.iter().zip(depths).zip(index).zip(z);
             for (((&ray, &depth), index), z) in rows {
                 let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
-                let texel = [(projected[0] + 0.5).floor(), (projected[1] + 0.5).floor()];
-                let seen = !depth.is_nan() && projected[2] > 0.0 && inside(cam, texel);
-                let at = cam.size[2]
-                    .wrapping_add((texel[1] as u32).wrapping_mul(cam.size[0]))
-                    .wrapping_add(texel[0] as u32);
-                *index = if seen { at } else { NONE };
+                let seen = projected[2] > 0.0;
+                *index = nearest_texel(cam, [projected[0], projected[1]], depth, seen);
                 *z = projected[2];
             }
         }
@@ -108,28 +104,28 @@ fn lens_row(
     z: &mut [f32],
     distort: impl Fn(Vec2) -> Vec2,
 ) {
-    let [fx, fy, cx, cy] = cam.intrinsics;
-    let (fold, distorted) = (cam.dist_b[1], cam.size[3] != DIST_NONE);
     let rows = rays.iter().zip(depths).zip(index).zip(z);
     for (((&ray, &depth), index), z) in rows {
         let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
-        let p = [
-            dot3(xyz(cam.row0), point) + cam.row0[3],
-            dot3(xyz(cam.row1), point) + cam.row1[3],
-            dot3(xyz(cam.row2), point) + cam.row2[3],
-        ];
-        let n = [p[0] / p[2], p[1] / p[2]];
-        let past_fold = distorted & (n[0] * n[0] + n[1] * n[1] > fold);
-        let projected = (p[2] > 1e-6) & !past_fold;
-        let d = distort(n);
-        let pixel = [fx * d[0] + cx, fy * d[1] + cy];
-        let texel = [(pixel[0] + 0.5).floor(), (pixel[1] + 0.5).floor()];
-        let seen = !depth.is_nan() && projected && inside(cam, texel);
-        let at = cam.size[2]
-            .wrapping_add((texel[1] as u32).wrapping_mul(cam.size[0]))
-            .wrapping_add(texel[0] as u32);
-        *index = if seen { at } else { NONE };
-        *z = if projected { p[2] } else { -1.0 };
+        let (pixel, camera_z, projected) = project_unbranched(cam, point, &distort);
+        *index = nearest_texel(cam, pixel, depth, projected);
+        *z = if projected { camera_z } else { -1.0 };
+    }
+}
+
+/// The image-buffer index of the texel nearest to `pixel` in camera `cam`, or NONE when the
+/// point was not `projected`, the depth is NaN or the texel is outside the image.
+#[inline(always)]
+fn nearest_texel(cam: &GpuCamera, pixel: Vec2, depth: f32, projected: bool) -> u32 {
+    let texel = [(pixel[0] + 0.5).floor(), (pixel[1] + 0.5).floor()];
+    let seen = !depth.is_nan() && projected && inside(cam, texel);
+    let at = cam.size[2]
+        .wrapping_add((texel[1] as u32).wrapping_mul(cam.size[0]))
+        .wrapping_add(texel[0] as u32);
+    if seen {
+        at
+    } else {
+        NONE
     }
 }
 
@@ -251,37 +247,15 @@ fn visibility_row(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics};
-    use crate::sweep::SweepParams;
 
     /// The branch-free rows (pinhole, plumb-bob) give `project`'s texel for every pixel (seen,
     /// outside, behind the camera, past the fold, no depth) and its camera depth for every seen
     /// one, bit for bit.
     #[test]
     fn lens_rows_are_project_bit_for_bit() {
-        let intrinsics = PinholeIntrinsics {
-            width_px: 48,
-            height_px: 36,
-            fx_px: 80.0,
-            fy_px: 84.0,
-            cx_px: 23.5,
-            cy_px: 17.25,
-        };
-        let barrel = Distortion::PlumbBob {
-            k1: -0.3,
-            k2: 0.0,
-            p1: 0.001,
-            p2: -0.002,
-            k3: 0.0,
-        };
-        for distortion in [barrel, Distortion::None] {
-            let model = CameraModel {
-                intrinsics,
-                distortion,
-            };
-            let rig = crate::synthetic::arc_rig(3, 0.6, 2.0, model, 1).unwrap();
-            let plan = SweepPlan::new(&rig, &SweepParams::default()).unwrap();
+        for plan in converging_test_plans() {
             let n = plan.rays.len();
+            let distorted = plan.cameras.iter().any(|cam| cam.size[3] != DIST_NONE);
             // Far, near (side cameras see points far off their axes: past the fold), behind,
             // and missing depths.
             let depths: Vec<f32> = (0..n)
@@ -302,34 +276,28 @@ mod tests {
                 let (mut index, mut z) = (vec![0; n], vec![0.0; n]);
                 project_row(cam, &plan.rays, &depths, &mut index, &mut z);
                 for (i, (&ray, &depth)) in plan.rays.iter().zip(&depths).enumerate() {
-                    let projected = project(cam, [ray[0] * depth, ray[1] * depth, ray[2] * depth]);
-                    let texel = [(projected[0] + 0.5).floor(), (projected[1] + 0.5).floor()];
-                    let ok = !depth.is_nan() && projected[2] > 0.0 && inside(cam, texel);
-                    let at = cam.size[2]
-                        .wrapping_add((texel[1] as u32).wrapping_mul(cam.size[0]))
-                        .wrapping_add(texel[0] as u32);
-                    let expected = if ok { at } else { NONE };
+                    let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
+                    let projected = project(cam, point);
+                    let ok = projected[2] > 0.0;
+                    let expected = nearest_texel(cam, [projected[0], projected[1]], depth, ok);
                     assert_eq!(index[i], expected, "camera {c} pixel {i} depth {depth}");
                     // The depth is read only where the texel is (`visibility_row`).
-                    if ok {
+                    if expected != NONE {
                         assert_eq!(
                             z[i].to_bits(),
                             projected[2].to_bits(),
                             "camera {c} pixel {i}"
                         );
+                        seen += 1;
                     }
-                    seen += usize::from(ok);
-                    let point = [ray[0] * depth, ray[1] * depth, ray[2] * depth];
                     let p =
                         [cam.row0, cam.row1, cam.row2].map(|row| dot3(xyz(row), point) + row[3]);
                     let n2 = (p[0] / p[2]).powi(2) + (p[1] / p[2]).powi(2);
-                    folded += usize::from(
-                        distortion != Distortion::None && p[2] > 1e-6 && n2 > cam.dist_b[1],
-                    );
+                    folded += usize::from(distorted && p[2] > 1e-6 && n2 > cam.dist_b[1]);
                 }
             }
-            assert!(seen > n / 10, "{distortion:?}: {seen} seen");
-            if distortion != Distortion::None {
+            assert!(seen > n / 10, "{seen} seen");
+            if distorted {
                 assert!(folded > 0, "no pixel past the fold");
             }
         }
