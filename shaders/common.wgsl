@@ -99,6 +99,10 @@ struct Params {
     sgm_unit_per_level: f32,      // 1 / (paths x levels per unit): score units per summed level
     cost: u32,                    // COST_*
     census_offset: u32,           // word of camera 0's census in `images` (camera c: + size.z)
+    uniqueness: f32,              // local (pre-SGM) confidence below which a pixel is invalid
+    colour_in_alpha: u32,         // 1: images prefiltered, the cost's colour is the alpha byte
+    pad1: u32,
+    pad2: u32,
 }
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as
@@ -316,6 +320,15 @@ struct Wta {
     s0: vec4<f32>,
     s1: vec4<f32>,
     s2: vec4<f32>,
+}
+
+// How clearly a winner `best` beats the best `rival` away from its neighbouring planes, 0..1
+// (1 without a rival). CPU twin: select.rs `confidence`.
+fn confidence(best: f32, rival: f32) -> f32 {
+    if (rival < 0.5 * BIG) {
+        return clamp((rival - best) / (rival + 1.0), 0.0, 1.0);
+    }
+    return 1.0;
 }
 
 fn select_plane(st: Wta, k: f32, best: vec2<f32>) -> Wta {

@@ -69,7 +69,12 @@ fn bilinear_at(cam: Camera, pixel: vec2<f32>) -> Bilinear {
     return Bilinear(y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1, pixel - base);
 }
 fn texel_at(cam: Camera, i: u32) -> vec3<f32> {
-    return unpack4x8unorm(images[cam.size.z + i]).rgb * 255.0;
+    let texel = unpack4x8unorm(images[cam.size.z + i]);
+    if (params.colour_in_alpha != 0u) {
+        // Prefiltered images (sweep/prefilter.rs): the colour term compares the alpha byte.
+        return vec3<f32>(texel.a * 255.0);
+    }
+    return texel.rgb * 255.0;
 }
 fn texel(cam: Camera, x: u32, y: u32) -> vec3<f32> {
     return texel_at(cam, y * cam.size.x + x);

@@ -55,13 +55,23 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     // Confidence: how clearly the winner beats the best rival away from its neighbours.
-    let second = s1.x;
-    var confidence = 1.0;
-    if (second < 0.5 * BIG) {
-        confidence = clamp((second - best) / (second + 1.0), 0.0, 1.0);
+    let conf = confidence(best, s1.x);
+    // Uniqueness on the matching costs themselves (sgm_select.wgsl keeps the local winner's
+    // in s2.y): SGM's sums make one of several equally good depths win along every path.
+    var local = conf;
+    if (params.sgm_paths > 0u) {
+        local = s2.y;
+    }
+    if (local < params.uniqueness) {
+        // Ambiguous: a rival away from the winner nearly as good (CPU twin: finalize.rs).
+        maps[MAP_DEPTH_RAW * npix + pix] = nan();
+        maps[MAP_CONFIDENCE * npix + pix] = conf;
+        maps[MAP_COST * npix + pix] = best;
+        maps[MAP_SELECTION * npix + pix] = f32(SEL_INVALID);
+        return;
     }
     maps[MAP_DEPTH_RAW * npix + pix] = 1.0 / q;
-    maps[MAP_CONFIDENCE * npix + pix] = confidence;
+    maps[MAP_CONFIDENCE * npix + pix] = conf;
     maps[MAP_COST * npix + pix] = best;
     maps[MAP_SELECTION * npix + pix] = s2.x;
 }

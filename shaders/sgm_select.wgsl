@@ -28,7 +28,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let planes = params.planes;
     let words = (planes + 1u) / 2u;
     let unit = params.sgm_unit_per_level;
-    var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, 0.0, 0.0, 0.0));
+    // The local winner's confidence, before SGM's takes its place (`uniqueness`, finalize).
+    let local_confidence = confidence(local.x, state[3u * pix + 1u].x);
+    var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, local_confidence, 0.0, 0.0));
     for (var j = 0u; j < words; j++) {
         let word = sums[local_pix * words + j];
         let d = 2u * j;

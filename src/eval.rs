@@ -17,13 +17,14 @@ use crate::sweep::{DepthMaps, SweepError};
 
 pub mod fusion;
 mod metrics;
+pub mod peer;
 mod table;
 
 pub use metrics::{
     depth_metrics, depth_metrics_ranked, depth_to_disparity, disparity_metrics, metrics_for,
     ConfidenceRanking, DepthConfidenceRanking, DepthMetrics, DisparityMetrics, Metrics,
 };
-pub use table::{table_header, table_row};
+pub use table::{table_header, table_row, table_row_as};
 
 /// Command-line arguments of `sweepdepth eval`.
 #[derive(Debug, Clone, clap::Args)]
@@ -55,8 +56,27 @@ pub struct EvalArgs {
     /// (auto); the WGSL engine on the wgpu adapter, lavapipe included (gpu); the CPU engine.
     #[arg(long, value_enum, default_value_t = crate::engine::Device::Auto)]
     pub device: crate::engine::Device,
+    /// The right view of a Middlebury 2014 / ETH3D pair (default im1.png; the 2014 sets'
+    /// im1E.png and im1L.png: the same view under another exposure or lighting).
+    #[arg(long, value_name = "FILE")]
+    pub right_view: Option<String>,
+    /// A peer run on the same pair in the same run, scored alike, printed as a row of its
+    /// own under the dataset's (`sgbm`: OpenCV StereoSGBM 3-way through
+    /// tools/sgbm_baseline.py; rectified pairs, the middlebury2014 layout).
+    #[arg(long, value_enum)]
+    pub peer: Option<EvalPeer>,
+    /// Python with OpenCV for `--peer sgbm` (default: target/test-venv, then python3).
+    #[arg(long, value_name = "PY")]
+    pub python: Option<PathBuf>,
     #[command(flatten)]
     pub params: crate::params::EngineOptions,
+}
+
+/// A peer `eval` runs beside the engine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum EvalPeer {
+    /// OpenCV StereoSGBM, 3-way mode.
+    Sgbm,
 }
 
 /// Which pixels with ground truth are evaluated.
@@ -93,6 +113,8 @@ pub enum EvalError {
     NoNonoccMask(String),
     #[error("no pixel has ground truth{0}")]
     NoGroundTruthPixels(String),
+    #[error("the peer: {0}")]
+    Peer(String),
     #[error("{path}: cannot create folder: {source}")]
     CreateDir {
         path: PathBuf,
@@ -176,7 +198,11 @@ fn eval_one(
 ) -> Result<String, EvalError> {
     let started = Instant::now();
     eprintln!("{progress} loading {}", dir.display());
-    let mut dataset = datasets::load_dataset(dir)?;
+    let options = datasets::LoadOptions {
+        right_view: args.right_view.clone(),
+        ..Default::default()
+    };
+    let mut dataset = datasets::load_dataset_with(dir, &options)?;
     args.params.apply(&mut dataset.params);
     if args.mask == EvalMask::Nonocc {
         restrict_to_nonocc(&mut dataset)?;
@@ -203,12 +229,23 @@ fn eval_one(
         save_outputs(&dir, &dataset, &maps)?;
         eprintln!("{progress} wrote {}", dir.display());
     }
-    Ok(table_row(
-        &dataset,
-        metrics.as_ref(),
-        maps.invalid_fraction(),
-        ms,
-    ))
+    let mut rows = table_row(&dataset, metrics.as_ref(), maps.invalid_fraction(), ms);
+    if args.peer == Some(EvalPeer::Sgbm) {
+        let python = peer::cv2_python(args.python.as_deref())
+            .ok_or(EvalError::Peer(peer::PeerError::NoPython.to_string()))?;
+        let right = args.right_view.as_deref().unwrap_or("im1.png");
+        let row = peer::sgbm_row(&python, dir, right, &dataset, &std::env::temp_dir())
+            .map_err(|e| EvalError::Peer(e.to_string()))?;
+        rows.push('\n');
+        rows.push_str(&table_row_as(
+            &format!("  sgbm-3way {}", dataset.name),
+            &dataset,
+            Some(&row.metrics),
+            row.invalid,
+            row.ms,
+        ));
+    }
+    Ok(rows)
 }
 
 /// Why `sweepdepth eval` failed as a whole (a folder that fails is reported, and counted in

@@ -20,6 +20,19 @@ pub struct TexturedQuad {
     /// Size of one texture feature, metres.
     pub feature_m: f64,
     pub seed: u32,
+    /// What is painted on it.
+    pub pattern: Pattern,
+}
+
+/// The paint of a [`TexturedQuad`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pattern {
+    /// Value noise, features `feature_m` wide (matches at one depth only).
+    #[default]
+    Noise,
+    /// A checkerboard of squares `feature_m` wide (smooth: sin x sin): a repeating pattern,
+    /// which matches equally well one period off.
+    Checkerboard,
 }
 
 impl TexturedQuad {
@@ -38,6 +51,7 @@ impl TexturedQuad {
             half_extent_m,
             feature_m,
             seed,
+            pattern: Pattern::Noise,
         }
     }
 
@@ -63,7 +77,16 @@ impl TexturedQuad {
     }
 
     fn colour(&self, ab: DVec2) -> [f64; 3] {
-        texture(ab, self.feature_m, self.seed)
+        match self.pattern {
+            Pattern::Noise => texture(ab, self.feature_m, self.seed),
+            Pattern::Checkerboard => {
+                // sin x sin: dark and light squares of `feature_m`, band-limited, so that every
+                // view samples it alike (a hard-edged board aliases differently in each view,
+                // which makes one false period match better than the truth).
+                let p = ab * (std::f64::consts::PI / self.feature_m);
+                [0.5 + 0.4 * p.x.sin() * p.y.sin(); 3]
+            }
+        }
     }
 }
 

@@ -7,6 +7,7 @@ Run (from anywhere):
     python3 tools/sgbm_baseline.py [DATA_ROOT] [--mode HH|SGBM|3WAY|HH4] [--pad-left]
     python3 tools/sgbm_baseline.py [DATA_ROOT] --icl [--check-pfm DEPTH_PFM]
     python3 tools/sgbm_baseline.py --time [--repeats N] [--json]
+    python3 tools/sgbm_baseline.py --pair LEFT RIGHT --num-disp N --out DISP.pfm [--mode 3WAY]
 
 --time is the speed peer of `sweepdepth bench`: StereoSGBM in MODE_SGBM_3WAY
 (OpenCV's fastest full SGBM) on Tsukuba scene1.row3.col3 / col4 (the repo's
@@ -431,18 +432,62 @@ TIME_NUM_DISPARITIES = 32
 REPO_TSUKUBA = Path(__file__).resolve().parent.parent / "data" / "tsukuba"
 
 
+def synthetic_pair(width, height, num_disp):
+    """A textured pair of the given size (mono8 as a ROS stereo camera sends, as BGR for SGBM):
+    smooth noise, the right view shifted by a quarter of the disparity range."""
+    rng = np.random.default_rng(7)
+    noise = rng.random((height // 4 + 2, width // 4 + 2)).astype(np.float32)
+    texture = cv2.resize(noise, (width + num_disp, height + 8), interpolation=cv2.INTER_CUBIC)
+    grey = np.clip(texture * 255.0, 0, 255).astype(np.uint8)
+    shift = max(1, num_disp // 4)
+    left = cv2.cvtColor(np.ascontiguousarray(grey[:height, shift:shift + width]), cv2.COLOR_GRAY2BGR)
+    right = cv2.cvtColor(np.ascontiguousarray(grey[:height, :width]), cv2.COLOR_GRAY2BGR)
+    return left, right
+
+
+def rectification_maps(width, height):
+    """image_geometry's StereoCameraModel path for a raw pair: plumb_bob intrinsics (the mild
+    barrel `sweepdepth bench` renders with), 10 cm baseline, cv2.stereoRectify then
+    cv2.initUndistortRectifyMap per camera (made once per calibration, as a driver does)."""
+    f = 0.8 * width
+    k = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]], np.float64)
+    d = np.array([-0.12, 0.02, 0.0, 0.0, 0.0])
+    r = cv2.Rodrigues(np.array([0.0, 0.01, 0.0]))[0]
+    t = np.array([[-0.1], [0.0], [0.0]])
+    r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(k, d, k, d, (width, height), r, t, alpha=0)
+    return [cv2.initUndistortRectifyMap(k, d, ri, pi, (width, height), cv2.CV_16SC2)
+            for ri, pi in ((r1, p1), (r2, p2))]
+
+
 def main_time(args):
     import json
     import time
 
-    left = imread(REPO_TSUKUBA / "scene1.row3.col3.png", cv2.IMREAD_COLOR)
-    right = imread(REPO_TSUKUBA / "scene1.row3.col4.png", cv2.IMREAD_COLOR)
+    if args.size:
+        width, height = args.size
+        num_disp = max(16, -(-args.num_disp // 16) * 16)
+        left, right = synthetic_pair(width, height, num_disp)
+        pair = f"synthetic {'raw plumb_bob (remap + SGBM)' if args.rectify else 'rectified'} pair"
+    else:
+        left = imread(REPO_TSUKUBA / "scene1.row3.col3.png", cv2.IMREAD_COLOR)
+        right = imread(REPO_TSUKUBA / "scene1.row3.col4.png", cv2.IMREAD_COLOR)
+        num_disp = TIME_NUM_DISPARITIES
+        pair = "Tsukuba scene1.row3.col3 / col4"
+    maps = rectification_maps(left.shape[1], left.shape[0]) if args.rectify else None
     mode = cv2.STEREO_SGBM_MODE_SGBM_3WAY
-    run_sgbm(left, right, TIME_NUM_DISPARITIES, mode)
+
+    def one():
+        l, r = left, right
+        if maps is not None:
+            l = cv2.remap(l, maps[0][0], maps[0][1], cv2.INTER_LINEAR)
+            r = cv2.remap(r, maps[1][0], maps[1][1], cv2.INTER_LINEAR)
+        run_sgbm(l, r, num_disp, mode)
+
+    one()
     times_ms = []
     for _ in range(max(1, args.repeats)):
         started = time.perf_counter()
-        run_sgbm(left, right, TIME_NUM_DISPARITIES, mode)
+        one()
         times_ms.append((time.perf_counter() - started) * 1e3)
     times_ms.sort()
     n = len(times_ms)
@@ -451,10 +496,10 @@ def main_time(args):
         "peer": "OpenCV StereoSGBM MODE_SGBM_3WAY",
         "opencv": cv2.__version__,
         "threads": cv2.getNumThreads(),
-        "pair": "Tsukuba scene1.row3.col3 / col4",
+        "pair": pair,
         "width": int(left.shape[1]),
         "height": int(left.shape[0]),
-        "num_disparities": TIME_NUM_DISPARITIES,
+        "num_disparities": num_disp,
         "runs": n,
         "ms_median": round(median, 3),
         "ms_min": round(times_ms[0], 3),
@@ -463,8 +508,34 @@ def main_time(args):
         print(json.dumps(result))
     else:
         print(f"{result['peer']} (OpenCV {result['opencv']}, {result['threads']} threads) on "
-              f"{result['pair']} {result['width']}x{result['height']}, {TIME_NUM_DISPARITIES} "
+              f"{result['pair']} {result['width']}x{result['height']}, {num_disp} "
               f"disparities: median {median:.2f} ms over {n} runs (min {times_ms[0]:.2f} ms)")
+
+
+def write_pfm(path, disp):
+    """Single-channel little-endian PFM, rows bottom first (NaN stays NaN)."""
+    h, w = disp.shape
+    with open(path, "wb") as f:
+        f.write(f"Pf\n{w} {h}\n-1.0\n".encode())
+        f.write(np.ascontiguousarray(np.flipud(disp).astype("<f4")).tobytes())
+
+
+def main_pair(args):
+    """The peer of `sweepdepth eval --peer sgbm`: SGBM on one rectified pair, its disparity
+    (px, NaN invalid) into a PFM, and the time of the compute call."""
+    import json
+    import time
+
+    left_path, right_path = args.pair
+    left = imread(left_path, cv2.IMREAD_COLOR)
+    right = imread(right_path, cv2.IMREAD_COLOR)
+    num_disp = max(16, -(-args.num_disp // 16) * 16)
+    started = time.perf_counter()
+    disp, _ = run_sgbm(left, right, num_disp, MODES[args.mode])
+    ms = (time.perf_counter() - started) * 1e3
+    write_pfm(args.out, disp.astype(np.float32))
+    print(json.dumps({"mode": args.mode, "num_disparities": num_disp, "ms": round(ms, 3),
+                      "opencv": cv2.__version__}))
 
 
 def main():
@@ -492,8 +563,26 @@ def main():
     ap.add_argument("--time", action="store_true",
                     help="speed peer: time SGBM 3-way on the repo's Tsukuba pair, 32 disparities")
     ap.add_argument("--repeats", type=int, default=21, help="with --time: timed runs")
+    ap.add_argument("--size", type=int, nargs=2, metavar=("W", "H"),
+                    help="with --time: a synthetic pair of this size instead of Tsukuba "
+                         "(--num-disp disparities)")
+    ap.add_argument("--rectify", action="store_true",
+                    help="with --time --size: a raw plumb_bob pair, each view remapped "
+                         "(cv2.remap with image_geometry's rectification maps) before SGBM")
     ap.add_argument("--json", action="store_true", help="with --time: one JSON object")
+    ap.add_argument("--pair", nargs=2, metavar=("LEFT", "RIGHT"),
+                    help="one rectified pair: SGBM's disparity into --out (PFM, px, NaN "
+                         "invalid), a JSON line with its time on stdout (`sweepdepth eval "
+                         "--peer sgbm`)")
+    ap.add_argument("--num-disp", type=int, default=64,
+                    help="with --pair: disparities searched (rounded up to a multiple of 16)")
+    ap.add_argument("--out", help="with --pair: the disparity PFM to write")
     args = ap.parse_args()
+    if args.pair:
+        if not args.out:
+            sys.exit("error: --pair needs --out")
+        main_pair(args)
+        return
     if args.time:
         main_time(args)
         return

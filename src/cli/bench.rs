@@ -22,7 +22,7 @@ use crate::engine::{Device, Engine, Sweeper};
 use crate::geometry::{CameraModel, Rig};
 use crate::image::Rgba8Image;
 use crate::params::EngineOptions;
-use crate::sweep::{Cost, Optimizer, Scoring, SweepParams, WindowMode};
+use crate::sweep::{Cost, Optimizer, Prefilter, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
 pub mod decode;
@@ -40,7 +40,8 @@ pub struct BenchArgs {
     #[arg(long)]
     pub quick: bool,
     /// Only these configurations (repeatable): paper, demo, 9-camera, 9-camera-near4,
-    /// 9-camera-3refs, 9-camera-3refs-near4, vga, ring, ring-distorted, sxga.
+    /// 9-camera-3refs, 9-camera-3refs-near4, vga, ring, ring-distorted, sxga, stereo-rect,
+    /// stereo-raw.
     #[arg(long = "config", value_name = "NAME")]
     pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
@@ -82,6 +83,21 @@ pub enum Workload {
     /// whose images are not rectified) with the engine defaults; `distorted`: every camera
     /// with a mild plumb-bob barrel, as a driver's raw images.
     Ring { distorted: bool },
+    /// Two cameras side by side (the stereo camera most ROS users have) with the engine
+    /// defaults: rectified, or (`distorted`) raw images with a plumb-bob barrel and a slight
+    /// toe-in, as a driver's `image_raw`.
+    Pair { distorted: bool },
+}
+
+/// What a configuration's time is divided by, measured just before and after it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PeerKind {
+    /// OpenCV StereoSGBM 3-way on two Tsukuba views, 32 disparities.
+    Tsukuba,
+    /// What a ROS user runs on a stereo camera of the configuration's size: StereoSGBM 3-way
+    /// with the configuration's planes as disparities, after (`rectify`) image_geometry's
+    /// rectification of both raw views (cv2.remap with maps made once).
+    Pair { rectify: bool },
 }
 
 /// One benchmark configuration.
@@ -98,10 +114,11 @@ pub struct BenchConfig {
     pub references: &'static [usize],
     /// `max_neighbours` (0: every camera that sees the reference's view).
     pub max_neighbours: u32,
+    pub peer: PeerKind,
 }
 
 /// The issue's configurations.
-pub const CONFIGS: [BenchConfig; 10] = [
+pub const CONFIGS: [BenchConfig; 12] = [
     BenchConfig {
         name: "paper",
         cameras: 4,
@@ -111,6 +128,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Paper,
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "demo",
@@ -121,6 +139,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Demo,
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "9-camera",
@@ -131,6 +150,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Defaults,
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     // The 9-camera rig with three references (cameras 1, 4 and 7: depth across the row): with
     // every camera each, and with each reference's nearest two on each side
@@ -146,6 +166,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         // The middle camera as a reference (`run_references`: neighbours chosen).
         references: &[4],
         max_neighbours: 4,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "9-camera-3refs",
@@ -156,6 +177,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Defaults,
         references: &[1, 4, 7],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "9-camera-3refs-near4",
@@ -166,6 +188,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Defaults,
         references: &[1, 4, 7],
         max_neighbours: 4,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "vga",
@@ -176,6 +199,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Paper,
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "ring",
@@ -186,6 +210,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Ring { distorted: false },
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "ring-distorted",
@@ -196,6 +221,7 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Ring { distorted: true },
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
     BenchConfig {
         name: "sxga",
@@ -206,6 +232,31 @@ pub const CONFIGS: [BenchConfig; 10] = [
         workload: Workload::Paper,
         references: &[],
         max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
+    },
+    // Issue 52: a stereo camera, rectified (an ETH3D pair's size) and raw (a 752x480 global
+    // shutter camera with plumb_bob lenses), each beside rectification + SGBM at its size.
+    BenchConfig {
+        name: "stereo-rect",
+        cameras: 2,
+        width: 940,
+        height: 490,
+        planes: 32,
+        workload: Workload::Pair { distorted: false },
+        references: &[],
+        max_neighbours: 0,
+        peer: PeerKind::Pair { rectify: false },
+    },
+    BenchConfig {
+        name: "stereo-raw",
+        cameras: 2,
+        width: 752,
+        height: 480,
+        planes: 96,
+        workload: Workload::Pair { distorted: true },
+        references: &[],
+        max_neighbours: 0,
+        peer: PeerKind::Pair { rectify: true },
     },
 ];
 
@@ -306,6 +357,8 @@ pub fn bench_params(
         ..SweepParams::default()
     };
     if config.workload == Workload::Paper {
+        // The paper's colour SSD on the images as they are.
+        params.prefilter = Prefilter::None;
         params.cost = Cost::Tssd;
         params.scoring = Scoring::BestHalfSequence;
         params.window_width = 2;
@@ -338,6 +391,15 @@ fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Optio
             }
             // 6 degrees apart around a point 4 m ahead: 0.4 m between neighbours.
             synthetic::arc_rig(config.cameras, 0.105, 4.0, model, reference)?
+        }
+        Workload::Pair { distorted } => {
+            if distorted {
+                model.distortion = synthetic::plumb_bob_barrel();
+                // A slight toe-in: the views are near-rectified, not rectified.
+                synthetic::arc_rig(2, 0.1 / 4.0, 4.0, model, 0)?
+            } else {
+                synthetic::row_rig(2, 0.1, model, 0)?
+            }
         }
         _ => synthetic::row_rig(config.cameras, 0.1, model, reference)?,
     };
@@ -509,36 +571,43 @@ pub fn run_config(
     })
 }
 
-/// A Python that can import cv2: `--python`, the repo's test venv, then `python3`.
-fn peer_python(explicit: Option<&Path>) -> Option<PathBuf> {
-    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let candidates: Vec<PathBuf> = match explicit {
-        Some(p) => vec![p.to_path_buf()],
-        None => vec![
-            repo.join("target/test-venv/bin/python"),
-            PathBuf::from("python3"),
-        ],
-    };
-    candidates.into_iter().find(|python| {
-        Command::new(python)
-            .args(["-c", "import cv2"])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    })
-}
-
 /// Times the peer, or says why it is missing.
 pub fn run_peer(explicit_python: Option<&Path>, repeats: usize) -> Result<PeerResult, String> {
+    run_peer_for(explicit_python, repeats, None)
+}
+
+/// Times the peer of `config` (None: the Tsukuba peer), or says why it is missing.
+pub fn run_peer_for(
+    explicit_python: Option<&Path>,
+    repeats: usize,
+    config: Option<&BenchConfig>,
+) -> Result<PeerResult, String> {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/sgbm_baseline.py");
-    let python = peer_python(explicit_python).ok_or_else(|| {
+    let python = crate::eval::peer::cv2_python(explicit_python).ok_or_else(|| {
         "no Python with OpenCV (cv2) found: `pip install opencv-python-headless` into \
          target/test-venv or the system python3, or pass --python"
             .to_string()
     })?;
-    let output = Command::new(&python)
+    let mut command = Command::new(&python);
+    command
         .arg(&script)
-        .args(["--time", "--json", "--repeats", &repeats.max(5).to_string()])
+        .args(["--time", "--json", "--repeats", &repeats.max(5).to_string()]);
+    if let Some(BenchConfig {
+        width,
+        height,
+        planes,
+        peer: PeerKind::Pair { rectify },
+        ..
+    }) = config
+    {
+        command
+            .args(["--size", &width.to_string(), &height.to_string()])
+            .args(["--num-disp", &planes.to_string()]);
+        if *rectify {
+            command.arg("--rectify");
+        }
+    }
+    let output = command
         .output()
         .map_err(|e| format!("running {}: {e}", python.display()))?;
     if !output.status.success() {
@@ -633,7 +702,35 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         for config in &configs {
             let mut result = run_config(engine, config, &args.params, repeats)
                 .with_context(|| format!("{} on {}", config.name, engine.label()))?;
-            if let Some(before) = peer_before {
+            if config.peer != PeerKind::Tsukuba {
+                // Its own peer, just before (timed here, after the engine: the same machine
+                // state within seconds) and after.
+                let times: Vec<f64> = (0..2)
+                    .filter_map(|_| {
+                        run_peer_for(args.python.as_deref(), repeats, Some(config))
+                            .ok()
+                            .map(|p| p.ms_median)
+                    })
+                    .collect();
+                if !times.is_empty() {
+                    let beside = round3(times.iter().sum::<f64>() / times.len() as f64);
+                    let ratio = |ms: Option<f64>| ms.map(|ms| round3(ms / beside));
+                    result.wta_vs_peer = ratio(result.wta_ms);
+                    result.sgm_vs_peer = ratio(result.sgm_ms);
+                    result.peer_ms = Some(beside);
+                    result.notes.push(format!(
+                        "peer: StereoSGBM 3-way {}x{} {} disparities{}",
+                        config.width,
+                        config.height,
+                        config.planes.div_ceil(16) * 16,
+                        if config.peer == (PeerKind::Pair { rectify: true }) {
+                            " after cv2.remap of both views"
+                        } else {
+                            ""
+                        }
+                    ));
+                }
+            } else if let Some(before) = peer_before {
                 // A peer that fails now (it ran at the start) leaves the first time alone.
                 let after =
                     run_peer(args.python.as_deref(), 3 * repeats).map_or(before, |p| p.ms_median);

@@ -18,6 +18,7 @@
 
 pub mod icl_nuim;
 pub mod middlebury;
+pub mod middlebury2014;
 pub mod ring;
 
 use std::collections::BTreeMap;
@@ -35,6 +36,7 @@ pub use ring::{parse_par_file, parse_readme_bounding_box, select_ring_views, Par
 
 use icl_nuim::{icl_frames, load_icl};
 use middlebury::{load_middlebury, middlebury2001_files};
+use middlebury2014::{is_middlebury2014, load_middlebury2014};
 use ring::load_ring;
 
 /// Baseline between adjacent views of the synthetic Middlebury calibration, metres.
@@ -55,6 +57,9 @@ pub enum Layout {
     Middlebury2003,
     /// `viewN.<ext>` views + `dispN.<ext>` (ThirdSize: value / 3 = disparity over 4 view steps).
     Middlebury2005,
+    /// A rectified pair with its calibration: `im0.png` + `im1.png` + `calib.txt` +
+    /// `disp0GT.pfm` / `disp0.pfm` (Middlebury 2014, ETH3D two-view).
+    Middlebury2014,
     /// POV-Ray frames `<stem>_NNNN.png` + `.depth` (ray distance, m) + `.txt` (camera).
     IclNuim,
     /// Middlebury multi-view stereo: `<name>_par.txt` (K, R, t per image) + images.
@@ -62,10 +67,11 @@ pub enum Layout {
 }
 
 impl Layout {
-    pub const ALL: [Layout; 5] = [
+    pub const ALL: [Layout; 6] = [
         Layout::Middlebury2001,
         Layout::Middlebury2003,
         Layout::Middlebury2005,
+        Layout::Middlebury2014,
         Layout::IclNuim,
         Layout::MiddleburyMultiView,
     ];
@@ -75,6 +81,7 @@ impl Layout {
             Layout::Middlebury2001 => "middlebury2001",
             Layout::Middlebury2003 => "middlebury2003",
             Layout::Middlebury2005 => "middlebury2005",
+            Layout::Middlebury2014 => "middlebury2014",
             Layout::IclNuim => "icl-nuim",
             Layout::MiddleburyMultiView => "middlebury-mview",
         }
@@ -86,6 +93,9 @@ impl Layout {
             Layout::Middlebury2001 => "<prefix>.colN.ppm|png + truedisp.<...>.colR.pgm|png",
             Layout::Middlebury2003 => "imN.ppm|png + dispN.pgm|png",
             Layout::Middlebury2005 => "viewN.png + dispN.png (2005/2006)",
+            Layout::Middlebury2014 => {
+                "im0.png + im1.png + calib.txt + disp0GT.pfm|disp0.pfm (2014, ETH3D)"
+            }
             Layout::IclNuim => "<name>_NNNN.png + <name>_NNNN.depth + <name>_NNNN.txt",
             Layout::MiddleburyMultiView => "<name>_par.txt + the images it lists",
         }
@@ -161,6 +171,9 @@ pub struct LoadOptions {
     /// Reference view by file name or file stem (multi-view rings and ICL-NUIM only; the
     /// Middlebury stereo sets take the view that has ground truth).
     pub reference: Option<String>,
+    /// The right view of a Middlebury 2014 / ETH3D pair (default `im1.png`; the 2014 sets'
+    /// `im1E.png` and `im1L.png` are the same view under another exposure or lighting).
+    pub right_view: Option<String>,
 }
 
 /// Errors loading a dataset; every message names the folder or file.
@@ -236,7 +249,10 @@ pub fn load_dataset_with(dir: &Path, options: &LoadOptions) -> Result<Dataset, D
     if options.reference.is_some()
         && matches!(
             layout,
-            Layout::Middlebury2001 | Layout::Middlebury2003 | Layout::Middlebury2005
+            Layout::Middlebury2001
+                | Layout::Middlebury2003
+                | Layout::Middlebury2005
+                | Layout::Middlebury2014
         )
     {
         return Err(DatasetError::Invalid {
@@ -250,6 +266,7 @@ pub fn load_dataset_with(dir: &Path, options: &LoadOptions) -> Result<Dataset, D
         Layout::Middlebury2001 | Layout::Middlebury2003 | Layout::Middlebury2005 => {
             load_middlebury(dir, &names, layout)
         }
+        Layout::Middlebury2014 => load_middlebury2014(dir, &names, options.right_view.as_deref()),
         Layout::IclNuim => load_icl(dir, &names, options),
         Layout::MiddleburyMultiView => load_ring(dir, &names, options),
     }
@@ -262,7 +279,8 @@ pub fn detect_layout(dir: &Path) -> Result<Layout, DatasetError> {
 }
 
 /// The layout a list of file names follows, if any. Checked in this order: multi-view ring
-/// (`*_par.txt`), ICL-NUIM, Middlebury 2001, 2005/2006 (`viewN`), 2003 (`imN`).
+/// (`*_par.txt`), ICL-NUIM, Middlebury 2014 (`calib.txt`), 2001, 2005/2006 (`viewN`), 2003
+/// (`imN`).
 pub fn detect_layout_from_names(names: &[String]) -> Option<Layout> {
     if names.iter().any(|n| n.ends_with("_par.txt")) {
         return Some(Layout::MiddleburyMultiView);
@@ -270,6 +288,9 @@ pub fn detect_layout_from_names(names: &[String]) -> Option<Layout> {
     let icl = icl_frames(names);
     if icl.len() >= 2 && icl.values().any(|(_, f)| f.has_depth) {
         return Some(Layout::IclNuim);
+    }
+    if is_middlebury2014(names) {
+        return Some(Layout::Middlebury2014);
     }
     let (groups, _) = middlebury2001_files(names);
     if !groups.is_empty() {
@@ -393,6 +414,10 @@ mod tests {
         assert_eq!(
             detect_layout_from_names(&names(&["im0.ppm", "im1.png", "disp1.pgm"])),
             Some(Layout::Middlebury2003)
+        );
+        assert_eq!(
+            detect_layout_from_names(&names(&["calib.txt", "im0.png", "im1.png", "disp0GT.pfm"])),
+            Some(Layout::Middlebury2014)
         );
         assert_eq!(
             detect_layout_from_names(&names(&["view0.png", "view1.png", "disp1.png"])),

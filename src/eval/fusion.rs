@@ -146,6 +146,7 @@ fn quad(origin: DVec3, u_axis: DVec3, v_axis: DVec3, half: DVec2, seed: u32) -> 
         half_extent_m: Some(half),
         feature_m: 0.027,
         seed,
+        pattern: Default::default(),
     }
 }
 

@@ -32,6 +32,17 @@ pub fn table_row(
     invalid_all: f64,
     ms: f64,
 ) -> String {
+    table_row_as(&dataset.name, dataset, metrics, invalid_all, ms)
+}
+
+/// One table row under another name (the peer's, beside the dataset's own).
+pub fn table_row_as(
+    name: &str,
+    dataset: &Dataset,
+    metrics: Option<&Metrics>,
+    invalid_all: f64,
+    ms: f64,
+) -> String {
     let (w, h) = dataset.reference_size();
     let pct = |v: f64| format!("{v:.2}%");
     let px = |v: f64| format!("{v:.3}");
@@ -103,4 +114,5 @@ pub fn table_row(
         ms,
         notes
     )
+    .replacen(&format!("{:<34}", dataset.name), &format!("{name:<34}"), 1)
 }

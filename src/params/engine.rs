@@ -20,7 +20,9 @@ use super::spec::{ParamRange, ParamSpec};
 use super::ParamError;
 use crate::ros::param_value::{ParamKind, ParamValue};
 use crate::sweep::gpu_types::{MAX_BEST_N, MAX_HALF_BEST_N, MAX_RIG_CAMERAS};
-use crate::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
+use crate::sweep::{
+    Aggregation, Cost, Optimizer, PairSet, Prefilter, Scoring, SweepParams, WindowMode,
+};
 
 /// The command-line option of an engine parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -140,7 +142,15 @@ macro_rules! enum_field {
     )*};
 }
 
-enum_field!(Cost, Scoring, PairSet, Aggregation, WindowMode, Optimizer);
+enum_field!(
+    Cost,
+    Scoring,
+    PairSet,
+    Aggregation,
+    WindowMode,
+    Optimizer,
+    Prefilter
+);
 
 /// The serde (snake_case) name of an enum variant.
 fn variant_name<T: serde::Serialize + std::fmt::Debug>(v: &T) -> String {
@@ -272,6 +282,13 @@ engine_params! {
     max_neighbours: u32 = 0, "max_neighbours", Long("max-neighbours"),
         ParamRange::ints(0, i64::from(MAX_RIG_CAMERAS)),
         "Cameras each reference sweeps with, at most: the nearest that see its view, alternately from each half of the rig; 0 = every camera that sees at least 10 % of its view (cameras that see less are always left out).";
+    // Issue 52: chosen on real-camera pairs and the lab sets together (docs/quality.md).
+    prefilter: Prefilter = Prefilter::Auto, "prefilter", Long("prefilter"),
+        variants::<Prefilter>(),
+        "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures), or gradient for a pair of cameras and none for more (auto).";
+    uniqueness: f32 = 0.0, "uniqueness", Long("uniqueness"),
+        ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
+        "Pixels whose winner on the matching costs (before SGM) does not beat the best rival away from its neighbouring planes by this share ((rival - best) / (rival + 1)) are invalid: a repeated pattern gives no depth instead of wrong depth (0.1 removes most of a checkerboard, but also 2-4x more pixels of weakly textured surfaces, docs/engine.md); 0 = none.";
 }
 
 static ENGINE_PARAMS: LazyLock<Vec<EngineParam>> = LazyLock::new(declarations);

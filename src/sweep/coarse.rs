@@ -254,11 +254,24 @@ pub fn run(
     images: &[Rgba8Image],
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
+    // The matching images (issue 52): prefiltered for real cameras, on the host for both
+    // engines; the joint median below keeps the caller's.
+    let prefiltered;
+    let mut prefilter_ms = None;
+    let matching = if params.prefilter.applies(rig.cameras.len()) {
+        super::check_images(rig, images)?;
+        let started = std::time::Instant::now();
+        prefiltered = super::prefilter::gradient_all(images);
+        prefilter_ms = Some(started.elapsed().as_secs_f64() * 1e3);
+        &prefiltered[..]
+    } else {
+        images
+    };
     // The half-size levels the CPU engine makes on the host (the WGSL engine on the GPU).
     let host: Vec<OnceCell<Vec<Rgba8Image>>> =
         (1..levels(rig, params)).map(|_| OnceCell::new()).collect();
     let levels = LevelImages {
-        full: images,
+        full: matching,
         halvings: 0,
         host: &host,
     };
@@ -268,6 +281,12 @@ pub fn run(
             "internal: a frame set's maps left on the device".into(),
         ));
     };
+    if let Some(ms) = prefilter_ms {
+        engine
+            .timings_mut()
+            .stages
+            .insert(0, ("prefilter".to_string(), ms));
+    }
     // The host post-step of both engines (issue 29), guided by the reference's own image (a
     // virtual reference has none).
     let filter = JointMedian::of_params(params);

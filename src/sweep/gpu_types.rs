@@ -149,6 +149,14 @@ pub struct GpuParams {
     /// Word of the first camera's census in the `images` buffer (after every camera's pixels;
     /// camera `c`'s census starts at `census_offset + size.z`). 0 with `COST_TSSD`.
     pub census_offset: u32,
+    /// Pixels whose local winner's confidence ((rival - best) / (rival + 1) on the matching
+    /// costs, before SGM) is below this are invalid.
+    pub uniqueness: f32,
+    /// 1: the images are prefiltered (`prefilter.rs`): the cost's colour term compares their
+    /// alpha byte (in all three channels); 0: the RGB.
+    pub colour_in_alpha: u32,
+    pub pad1: u32,
+    pub pad2: u32,
 }
 
 /// `direction.w` of the SGM pass that walks directions 1 .. paths - 1 in one dispatch
@@ -197,7 +205,7 @@ mod tests {
     #[test]
     fn layouts_match_wgsl() {
         assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
-        assert_eq!(std::mem::size_of::<GpuParams>(), 128);
+        assert_eq!(std::mem::size_of::<GpuParams>(), 144);
         assert_eq!(std::mem::size_of::<GpuSgmPass>(), 16);
         assert_eq!(std::mem::size_of::<GpuBand>(), 16);
         assert_eq!(

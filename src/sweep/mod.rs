@@ -11,6 +11,7 @@ pub mod gpu_types;
 pub mod hypotheses;
 pub mod joint_median;
 pub mod plan;
+pub mod prefilter;
 pub mod references;
 pub mod schedule;
 pub mod stages;
@@ -39,6 +40,31 @@ pub enum Scoring {
 }
 
 /// The matching cost of one camera pair at one hypothesis (`tau` sets the scale of all three).
+/// What the colour term of the cost compares (issue 52, `prefilter.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Prefilter {
+    /// `gradient` for a pair of cameras (a stereo camera: no third view to outvote a pair
+    /// that radiometry breaks), `none` for more.
+    Auto,
+    /// The camera images as they are (lab sets: equal exposures, clean images).
+    None,
+    /// Each image's horizontal derivative (OpenCV StereoSGBM's prefilter): blind to offsets,
+    /// exposure and vignetting between cameras; census and SGM's edges still see the raw grey.
+    Gradient,
+}
+
+impl Prefilter {
+    /// Whether a rig of `cameras` cameras sweeps prefiltered images.
+    pub fn applies(self, cameras: usize) -> bool {
+        match self {
+            Prefilter::Auto => cameras == 2,
+            Prefilter::None => false,
+            Prefilter::Gradient => true,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Cost {
@@ -165,6 +191,12 @@ pub struct SweepParams {
     /// `geometry::neighbours`). Applies where references choose their cameras
     /// (`Sweeper::run_references`: the node, `bag`); `run` sweeps the rig it is given.
     pub max_neighbours: u32,
+    /// What the colour term of the cost compares (`prefilter.rs`).
+    pub prefilter: Prefilter,
+    /// Pixels whose winner on the matching costs (with SGM: before it) does not beat the best
+    /// rival away from its neighbouring planes by this share, `(rival - best) / (rival + 1)`,
+    /// are invalid (`finalize`); 0 = none.
+    pub uniqueness: f32,
 }
 
 /// Errors from the engines.

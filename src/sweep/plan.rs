@@ -270,6 +270,8 @@ impl SweepPlan {
                 Cost::AdCensus => COST_AD_CENSUS,
             },
             census_offset: if params.cost == Cost::Tssd { 0 } else { offset },
+            uniqueness: params.uniqueness,
+            colour_in_alpha: u32::from(params.prefilter.applies(rig.cameras.len())),
             ..GpuParams::zeroed()
         };
         if params.optimizer == Optimizer::Sgm {

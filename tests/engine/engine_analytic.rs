@@ -72,8 +72,10 @@ fn census_cost_is_blind_to_gain_and_offset_between_cameras() {
     }
     let truth = synthetic::reference_depth(&scene, &rig);
     let within = |cost: Cost| {
+        // On the images as they are: the colour SSD of the raw colours, as the test says.
         let p = SweepParams {
             cost,
+            prefilter: sweepdepth::sweep::Prefilter::None,
             ..params(1.0, 4.0, 48)
         };
         let maps = engine().run(&rig, &images, &p).expect("sweep");
@@ -624,6 +626,7 @@ fn tilted_plane_family_recovers_a_floor() {
         half_extent_m: None,
         feature_m: 0.02,
         seed: 3,
+        pattern: Default::default(),
     };
     let scene = Scene {
         quads: vec![floor],
@@ -895,6 +898,7 @@ fn precision_scenes() -> Vec<(&'static str, Scene, std::ops::Range<f32>)> {
             half_extent_m: None,
             feature_m: 0.035,
             seed: 5,
+            pattern: Default::default(),
         }
     };
     let ball = synthetic::TexturedSphere {

@@ -13,3 +13,4 @@ mod fusion_accuracy;
 mod fusion_soak;
 mod gpu_vs_cpu;
 mod quality;
+mod real_cameras;

@@ -738,6 +738,8 @@ fn defaults_match_sweep_params() {
         sgm_edge: 9.0,
         coarse_to_fine: false,
         max_neighbours: 3,
+        prefilter: sweepdepth::sweep::Prefilter::None,
+        uniqueness: 0.5,
     };
     apply_to_sweep(&ParamSet::defaults(), &mut p).unwrap();
     assert_eq!(p, SweepParams::default());

@@ -142,7 +142,9 @@ fn sweep_band(
             score.fill(BIG);
             sel.fill(f32::from(crate::sweep::selection::INVALID));
         }
-        select_plane(k as f32, score, sel, st, vol.is_some());
+        // With SGM only the winner is needed, unless `uniqueness` reads the local rival too.
+        let best_only = vol.is_some() && plan.params.uniqueness <= 0.0;
+        select_plane(k as f32, score, sel, st, best_only);
         if let Some(vol) = vol.as_deref_mut() {
             // Levels of a group of planes are gathered plane by plane, then written
             // pixel by pixel (each pixel's group of lanes at once: the band's volume
@@ -234,9 +236,10 @@ const LEVEL_GROUP: usize = sgm::LANES;
 
 common::vectorised_fn! {
 /// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
-/// where the CPU has it, as every hot loop here); with SGM only the fields it reads.
-fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>, sgm: bool) {
-    if sgm {
+/// where the CPU has it, as every hot loop here); `best_only` (SGM without `uniqueness`) only
+/// the fields SGM reads.
+fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>, best_only: bool) {
+    if best_only {
         st.update_best(k, scores, sels);
     } else {
         st.update(k, scores, sels);

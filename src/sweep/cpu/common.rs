@@ -134,7 +134,7 @@ impl PlanarImage {
     /// Unpacks `pixels` (RGBA8 in a `u32`, red in the low byte) as `unpack4x8unorm(..) * 255`.
     pub fn from_packed(width: usize, height: usize, pixels: &[u32]) -> Self {
         let mut image = Self::default();
-        image.fill_from_packed(width, height, pixels, true, None);
+        image.fill_from_packed(width, height, pixels, false, true, None);
         image
     }
 
@@ -147,25 +147,35 @@ impl PlanarImage {
         width: usize,
         height: usize,
         pixels: &[u32],
+        colour_in_alpha: bool,
         with_texels: bool,
         words: Option<&[u32]>,
     ) {
         self.width = width;
         self.height = height;
+        // The colour the cost compares (`texel_at` in cost.wgsl): the RGB, or for prefiltered
+        // images (`sweep/prefilter.rs`) the alpha byte in all three.
+        let colour = |p: u32| {
+            if colour_in_alpha {
+                (p >> 24) * 0x0001_0101
+            } else {
+                p & 0x00ff_ffff
+            }
+        };
         for (c, channel) in self.channels.iter_mut().enumerate() {
             let shift = 8 * c as u32;
             channel.clear();
             channel.extend(
                 pixels
                     .iter()
-                    .map(|&p| f32::from(((p >> shift) & 0xff) as u8) / 255.0 * 255.0),
+                    .map(|&p| f32::from(((colour(p) >> shift) & 0xff) as u8) / 255.0 * 255.0),
             );
         }
         self.texels.clear();
         if !with_texels {
             return;
         }
-        let rgb = pixels.iter().map(|&p| p & 0x00ff_ffff);
+        let rgb = pixels.iter().map(|&p| colour(p));
         match words {
             Some(words) => self
                 .texels

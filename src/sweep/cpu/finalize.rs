@@ -80,10 +80,22 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
                         }
                     }
                 }
-                let second = st.rival[pix];
-                let mut conf = 1.0;
-                if second < 0.5 * BIG {
-                    conf = ((second - best) / (second + 1.0)).clamp(0.0, 1.0);
+                let conf = super::select::confidence(best, st.rival[pix]);
+                // Uniqueness on the matching costs themselves: SGM's sums make one of several
+                // equally good depths (a repeated pattern) win clearly along every path.
+                let local = if params.sgm_paths > 0 {
+                    st.local_confidence[pix]
+                } else {
+                    conf
+                };
+                if local < params.uniqueness {
+                    // Ambiguous: a rival away from the winner nearly as good (a repeated
+                    // pattern, a textureless surface).
+                    raw[x] = f32::NAN;
+                    confidence[x] = conf;
+                    cost[x] = best;
+                    selection[x] = 3.0;
+                    continue;
                 }
                 raw[x] = 1.0 / q;
                 confidence[x] = conf;

@@ -263,7 +263,7 @@ mod tests {
         let pixels: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
         let words: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
         let mut image = PlanarImage::default();
-        image.fill_from_packed(w, h, &pixels, true, Some(&words));
+        image.fill_from_packed(w, h, &pixels, false, true, Some(&words));
         let last_x = (w - 1) as f32;
         for (y0, width) in [(0, 1), (2, 63), (4, 64), (3, 150)] {
             let xs: Vec<f32> = (0..width)
@@ -305,7 +305,7 @@ mod tests {
         let pixels: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
         let words: Vec<u32> = (0..w * h).map(|_| rng.next()).collect();
         let mut image = PlanarImage::default();
-        image.fill_from_packed(w, h, &pixels, true, Some(&words));
+        image.fill_from_packed(w, h, &pixels, false, true, Some(&words));
         let (last_x, last_y) = ((w - 1) as f32, (h - 1) as f32);
         for width in [1, 63, 64, 150, 200] {
             let mut xs = Vec::with_capacity(width);

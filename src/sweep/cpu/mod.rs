@@ -181,7 +181,8 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        self.execute(plan, rig, images)?;
+        let images = super::prefilter::for_plan(plan, images);
+        self.execute(plan, rig, &images)?;
         Ok(plan.depth_maps(&self.buffers.maps))
     }
 
@@ -192,7 +193,8 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        self.execute(plan, rig, images)?;
+        let images = super::prefilter::for_plan(plan, images);
+        self.execute(plan, rig, &images)?;
         Ok(self.buffers.maps.clone())
     }
 
@@ -203,7 +205,8 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<CpuTrace, SweepError> {
-        self.execute(plan, rig, images)?;
+        let images = super::prefilter::for_plan(plan, images);
+        self.execute(plan, rig, &images)?;
         Ok(CpuTrace {
             maps: self.buffers.maps.clone(),
             zbuffer: self.buffers.zbuffer.clone(),
@@ -233,7 +236,8 @@ impl CpuEngine {
                         && !matches!(m, cost::Mapping::Translation { .. })
                 })
             });
-        let frame = self.frame_images(rig, images, plan.uses_census(), scattered);
+        let colour_in_alpha = plan.params.colour_in_alpha != 0;
+        let frame = self.frame_images(rig, images, plan.uses_census(), colour_in_alpha, scattered);
         clock.lap("images");
 
         // The sweep: bands of rows in parallel, every plane (`bands.rs`).
@@ -271,6 +275,7 @@ impl CpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
         uses_census: bool,
+        colour_in_alpha: bool,
         scattered: bool,
     ) -> FrameImages {
         let mut census = std::mem::take(&mut self.buffers.census);
@@ -298,7 +303,14 @@ impl CpuEngine {
             .for_each(|(i, (planar, im))| {
                 let (width, height) = (im.width as usize, im.height as usize);
                 let words = census.get(i).map(Vec::as_slice);
-                planar.fill_from_packed(width, height, &im.pixels, scattered, words)
+                planar.fill_from_packed(
+                    width,
+                    height,
+                    &im.pixels,
+                    colour_in_alpha,
+                    scattered,
+                    words,
+                )
             });
         FrameImages { planar, census }
     }

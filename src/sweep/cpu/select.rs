@@ -26,6 +26,19 @@ pub struct WtaState {
     pub last: Vec<f32>,
     /// Half-sequence selection at the best plane (s2.x).
     pub selection: Vec<f32>,
+    /// With SGM: the confidence of the local winner, before SGM (s2.y; [`confidence`]).
+    pub local_confidence: Vec<f32>,
+}
+
+/// How clearly a winner `best` beats the best `rival` away from its neighbouring planes:
+/// `(rival - best) / (rival + 1)` in 0..1, 1 without a rival (`confidence` in finalize.wgsl).
+#[inline(always)]
+pub fn confidence(best: f32, rival: f32) -> f32 {
+    if rival < 0.5 * BIG {
+        ((rival - best) / (rival + 1.0)).clamp(0.0, 1.0)
+    } else {
+        1.0
+    }
 }
 
 impl WtaState {
@@ -41,6 +54,7 @@ impl WtaState {
             min_to_second_last: v(BIG),
             last: v(BIG),
             selection: v(3.0),
+            local_confidence: v(1.0),
         }
     }
 
@@ -59,6 +73,7 @@ impl WtaState {
         fill(&mut self.min_to_second_last, BIG);
         fill(&mut self.last, BIG);
         fill(&mut self.selection, 3.0);
+        fill(&mut self.local_confidence, 1.0);
     }
 
     /// The pixels `range` of every field, to be updated by one worker.
@@ -73,6 +88,7 @@ impl WtaState {
             min_to_second_last: &mut self.min_to_second_last[start..end],
             last: &mut self.last[start..end],
             selection: &mut self.selection[start..end],
+            local_confidence: &mut self.local_confidence[start..end],
         }
     }
 
@@ -102,6 +118,7 @@ pub struct WtaChunk<'a> {
     pub min_to_second_last: &'a mut [f32],
     pub last: &'a mut [f32],
     pub selection: &'a mut [f32],
+    pub local_confidence: &'a mut [f32],
 }
 
 impl<'a> WtaChunk<'a> {
@@ -115,6 +132,7 @@ impl<'a> WtaChunk<'a> {
         let (a6, b6) = self.min_to_second_last.split_at_mut(mid);
         let (a7, b7) = self.last.split_at_mut(mid);
         let (a8, b8) = self.selection.split_at_mut(mid);
+        let (a9, b9) = self.local_confidence.split_at_mut(mid);
         (
             WtaChunk {
                 best: a0,
@@ -126,6 +144,7 @@ impl<'a> WtaChunk<'a> {
                 min_to_second_last: a6,
                 last: a7,
                 selection: a8,
+                local_confidence: a9,
             },
             WtaChunk {
                 best: b0,
@@ -137,6 +156,7 @@ impl<'a> WtaChunk<'a> {
                 min_to_second_last: b6,
                 last: b7,
                 selection: b8,
+                local_confidence: b9,
             },
         )
     }

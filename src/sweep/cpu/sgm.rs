@@ -480,6 +480,10 @@ fn select_chunk(
     backward: &[u16],
     st: &mut WtaChunk<'_>,
 ) {
+    // The local winner's confidence, before SGM's takes its place (`uniqueness`).
+    for i in 0..st.best.len() {
+        st.local_confidence[i] = super::select::confidence(st.best[i], st.rival[i]);
+    }
     // Summed levels back to score units, less the offset every volume level carries.
     let score = |v: u16| f32::from(v) * unit - SGM_VOLUME_OFFSET;
     if n == 32 && planes <= 32 {

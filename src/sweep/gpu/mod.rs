@@ -322,8 +322,9 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
+        let images = super::prefilter::for_plan(plan, images);
         self.timed(|engine| {
-            engine.record_level(plan, rig, LevelImages::given(images), false)?;
+            engine.record_level(plan, rig, LevelImages::given(&images), false)?;
             let diagnostics = engine.diagnostics;
             let sections = SweepPlan::unpacked_sections(diagnostics);
             let first = sections.start;
@@ -340,8 +341,9 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
+        let images = super::prefilter::for_plan(plan, images);
         self.timed(|engine| {
-            engine.record_level(plan, rig, LevelImages::given(images), false)?;
+            engine.record_level(plan, rig, LevelImages::given(&images), false)?;
             engine.finish_set(0..MAP_COUNT, <[f32]>::to_vec)
         })
     }

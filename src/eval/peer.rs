@@ -1,0 +1,148 @@
+//! The peer beside `eval` on a rectified pair: OpenCV StereoSGBM (3-way, the settings of
+//! `tools/sgbm_baseline.py`, which runs it), scored with the same metrics in the same run, so
+//! a table row of ours always has SGBM's beside it.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use super::metrics::{disparity_metrics, Metrics};
+use super::EvalError;
+use crate::datasets::{Dataset, GroundTruth, Layout};
+use crate::image::ImageF32;
+use crate::io;
+
+/// A Python that can import cv2: `explicit`, the repo's test venv, then `python3`.
+pub fn cv2_python(explicit: Option<&Path>) -> Option<PathBuf> {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let candidates: Vec<PathBuf> = match explicit {
+        Some(p) => vec![p.to_path_buf()],
+        None => vec![
+            repo.join("target/test-venv/bin/python"),
+            PathBuf::from("python3"),
+        ],
+    };
+    candidates.into_iter().find(|python| {
+        Command::new(python)
+            .args(["-c", "import cv2"])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false)
+    })
+}
+
+/// Why the peer gave no row.
+#[derive(Debug, thiserror::Error)]
+pub enum PeerError {
+    #[error("the SGBM peer runs on rectified pairs (middlebury2014 layout), not {0}")]
+    NotAPair(Layout),
+    #[error("no Python with OpenCV (cv2) found: run scripts/setup.sh, `pip install opencv-python-headless`, or pass --python")]
+    NoPython,
+    #[error("{0}")]
+    Run(String),
+    #[error(transparent)]
+    Metrics(#[from] EvalError),
+}
+
+/// SGBM's result on a dataset: its metrics and the time of its compute call.
+#[derive(Debug, Clone)]
+pub struct PeerRow {
+    pub metrics: Metrics,
+    pub invalid: f64,
+    pub ms: f64,
+}
+
+/// Runs SGBM 3-way on the dataset's pair (`dir`: the folder it was loaded from; `right`: the
+/// right view's file name) and scores it against the dataset's ground truth.
+pub fn sgbm_row(
+    python: &Path,
+    dir: &Path,
+    right: &str,
+    dataset: &Dataset,
+    scratch: &Path,
+) -> Result<PeerRow, PeerError> {
+    let GroundTruth::Disparity {
+        disparity_eval_px,
+        focal_baseline_eval,
+        border_px,
+    } = &dataset.ground_truth
+    else {
+        return Err(PeerError::NotAPair(dataset.layout));
+    };
+    if dataset.layout != Layout::Middlebury2014 || dataset.rig.cameras.len() != 2 {
+        return Err(PeerError::NotAPair(dataset.layout));
+    }
+    let left = dataset.rig.cameras[0].model.intrinsics;
+    let right_k = dataset.rig.cameras[1].model.intrinsics;
+    // Evaluation units are d + doffs (`middlebury2014`); doffs = cx1 - cx0.
+    let doffs = right_k.cx_px - left.cx_px;
+    let max_disparity = *focal_baseline_eval / dataset.params.min_depth_m - doffs;
+    let num_disp = (max_disparity.ceil() as i64).max(16);
+    let out = scratch.join(format!("sgbm-{}.pfm", std::process::id()));
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/sgbm_baseline.py");
+    let output = Command::new(python)
+        .arg(&script)
+        .arg("--pair")
+        .arg(dir.join("im0.png"))
+        .arg(dir.join(right))
+        .args([
+            "--num-disp",
+            &num_disp.to_string(),
+            "--mode",
+            "3WAY",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .map_err(|e| PeerError::Run(format!("running {}: {e}", python.display())))?;
+    if !output.status.success() {
+        return Err(PeerError::Run(format!(
+            "{} --pair failed: {}",
+            script.display(),
+            String::from_utf8_lossy(&output.stderr).trim()
+        )));
+    }
+    let ms = serde_json::from_slice::<serde_json::Value>(&output.stdout)
+        .ok()
+        .and_then(|v| v.get("ms").and_then(|m| m.as_f64()))
+        .unwrap_or(f64::NAN);
+    let disparity = io::read_pfm(&out).map_err(|e| PeerError::Run(e.to_string()))?;
+    let _ = std::fs::remove_file(&out);
+    // SGBM's disparity as the depth the metrics expect.
+    let depth_m = ImageF32 {
+        width: disparity.width,
+        height: disparity.height,
+        data: disparity
+            .data
+            .iter()
+            .map(|&d| {
+                let d = f64::from(d) + doffs;
+                if d.is_finite() && d > 0.0 {
+                    (*focal_baseline_eval / d) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect(),
+    };
+    let ones = ImageF32 {
+        width: depth_m.width,
+        height: depth_m.height,
+        data: vec![1.0; depth_m.data.len()],
+    };
+    let mut metrics = disparity_metrics(
+        &depth_m,
+        &ones,
+        disparity_eval_px,
+        *focal_baseline_eval,
+        *border_px,
+    )?;
+    // SGBM gives no confidence to rank by.
+    metrics.confidence_ranking = None;
+    let invalid = depth_m.data.iter().filter(|z| !z.is_finite()).count() as f64
+        / depth_m.data.len().max(1) as f64;
+    Ok(PeerRow {
+        metrics: Metrics::Disparity(metrics),
+        invalid,
+        ms,
+    })
+}
