@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 31);
+    assert_eq!(fields.len(), 33);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -824,8 +824,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 31 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 31 + expect.len() + 9);
+    // 33 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 33 + expect.len() + 9);
 }
 
 #[test]
