@@ -457,6 +457,14 @@ pub fn select(plan: &SweepPlan, forward: &[u16], backward: &[u16], state: &mut W
     let n = stride(planes);
     let unit = plan.params.sgm_unit_per_level;
     let chunk = 1024;
+    // The local winner's confidence, before SGM's takes its place: only `uniqueness` reads it.
+    if plan.params.uniqueness > 0.0 {
+        state
+            .local_confidence
+            .par_iter_mut()
+            .zip(state.best.par_iter().zip(&state.rival))
+            .for_each(|(c, (&best, &rival))| *c = super::select::confidence(best, rival));
+    }
     state
         .chunks_mut(chunk)
         .into_par_iter()
@@ -480,10 +488,6 @@ fn select_chunk(
     backward: &[u16],
     st: &mut WtaChunk<'_>,
 ) {
-    // The local winner's confidence, before SGM's takes its place (`uniqueness`).
-    for i in 0..st.best.len() {
-        st.local_confidence[i] = super::select::confidence(st.best[i], st.rival[i]);
-    }
     // Summed levels back to score units, less the offset every volume level carries.
     let score = |v: u16| f32::from(v) * unit - SGM_VOLUME_OFFSET;
     if n == 32 && planes <= 32 {
