@@ -77,6 +77,26 @@ pub trait Sweeper {
     /// The per-stage times of the last run.
     fn timings_mut(&mut self) -> &mut StageTimings;
 
+    /// The depth of `rig`'s reference from the views chosen for it: a camera reference sweeps
+    /// with its neighbours (`geometry::neighbours`: at most `max_neighbours`, the best for
+    /// depth), as each of several references does in [`Sweeper::run_references`]; a virtual
+    /// reference with every camera ([`Sweeper::run`]).
+    fn run_views(
+        &mut self,
+        rig: &Rig,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        match rig.reference_index() {
+            Some(reference) => self
+                .run_references(&rig.cameras, images, &[reference], params)
+                .pop()
+                .unwrap_or(Err(SweepError::Cancelled))
+                .map(|depth| depth.maps),
+            None => self.run(rig, images, params),
+        }
+    }
+
     /// The depth of each of `references` (indices into the set's `cameras`, one image each
     /// in `images`), each swept with its own neighbours (`sweep/references.rs`); the census
     /// words and half-size images of the set are made once for all of them. One result per

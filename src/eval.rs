@@ -147,7 +147,7 @@ pub fn evaluate(
     engine: &mut impl Sweeper,
     dataset: &Dataset,
 ) -> Result<(DepthMaps, Option<Metrics>), EvalError> {
-    let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    let maps = engine.run_views(&dataset.rig, &dataset.images, &dataset.params)?;
     let metrics = metrics_for(dataset, &maps)?;
     Ok((maps, metrics))
 }
@@ -220,7 +220,7 @@ fn eval_one(
         started.elapsed().as_secs_f64() * 1e3
     );
     let run_started = Instant::now();
-    let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    let maps = engine.run_views(&dataset.rig, &dataset.images, &dataset.params)?;
     let ms = run_started.elapsed().as_secs_f64() * 1e3;
     eprintln!("{progress} engine ran in {ms:.0} ms");
     let metrics = metrics_for(&dataset, &maps)?;

@@ -343,6 +343,40 @@ pub fn arc_rig(
     Rig::new(cameras, Reference::Camera(reference))
 }
 
+/// `n` cameras on a spherical cap of half-angle `cap_rad` around the point `distance_m` ahead
+/// of camera 0 (at the cap's pole), each looking at it: a capture dome's cameras over a scene.
+/// The others lie on a golden-angle spiral, evenly over the cap.
+pub fn dome_rig(
+    n: usize,
+    cap_rad: f64,
+    distance_m: f64,
+    model: CameraModel,
+    reference: usize,
+) -> Result<Rig, GeometryError> {
+    let target = DVec3::new(0.0, 0.0, distance_m);
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let cameras = (0..n)
+        .map(|i| {
+            let polar = cap_rad * (i as f64 / (n.max(2) - 1) as f64).sqrt();
+            let azimuth = i as f64 * golden;
+            // Tilt by `polar` about the axis at `azimuth` in the x-y plane: "up" stays up.
+            let rotation = DQuat::from_rotation_z(azimuth)
+                * DQuat::from_rotation_y(polar)
+                * DQuat::from_rotation_z(-azimuth);
+            let rig_from_cam = RigidTransform {
+                rotation,
+                translation: target + rotation * DVec3::new(0.0, 0.0, -distance_m),
+            };
+            RigCamera {
+                name: format!("cam{i}"),
+                model,
+                cam_from_rig: rig_from_cam.inverse(),
+            }
+        })
+        .collect();
+    Rig::new(cameras, Reference::Camera(reference))
+}
+
 /// Renders every camera of the rig.
 pub fn render_rig(scene: &Scene, rig: &Rig) -> Vec<Rgba8Image> {
     rig.cameras.iter().map(|c| scene.render(c)).collect()

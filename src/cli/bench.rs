@@ -212,6 +212,7 @@ fn workload(config: &BenchConfig) -> anyhow::Result<(Rig, Vec<Rgba8Image>, Optio
                 synthetic::row_rig(2, 0.1, model, 0)?
             }
         }
+        Workload::Dome => synthetic::dome_rig(config.cameras, 35f64.to_radians(), 4.0, model, 0)?,
         _ => synthetic::row_rig(config.cameras, 0.1, model, reference)?,
     };
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
@@ -240,7 +241,7 @@ fn time_runs(
 ) -> Result<Timed, crate::sweep::SweepError> {
     let run = |engine: &mut Engine| -> Result<(), crate::sweep::SweepError> {
         if references.is_empty() {
-            engine.run(rig, images, params).map(|_| ())
+            engine.run_views(rig, images, params).map(|_| ())
         } else {
             engine
                 .run_references(&rig.cameras, images, references, params)

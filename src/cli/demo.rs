@@ -79,9 +79,9 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     );
     // The first run builds the pipelines (GPU) and the plan; time the second, as a live node
     // would see it.
-    engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    engine.run_views(&dataset.rig, &dataset.images, &dataset.params)?;
     let started = Instant::now();
-    let maps = engine.run(&dataset.rig, &dataset.images, &dataset.params)?;
+    let maps = engine.run_views(&dataset.rig, &dataset.images, &dataset.params)?;
     let ms = started.elapsed().as_secs_f64() * 1e3;
     let metrics = eval::metrics_for(&dataset, &maps)?;
     let out = args.out.join("tsukuba");

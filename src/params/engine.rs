@@ -281,7 +281,7 @@ engine_params! {
         "From 48 planes: sweep at half resolution (every other plane; itself coarse to fine from 96 planes) first, then each row only over the planes its neighbourhood found there, plus 3 on each side.";
     max_neighbours: u32 = 0, "max_neighbours", Long("max-neighbours"),
         ParamRange::ints(0, i64::from(MAX_RIG_CAMERAS)),
-        "Cameras each reference sweeps with, at most: the nearest that see its view, alternately from each half of the rig; 0 = every camera that sees at least 10 % of its view (cameras that see less are always left out).";
+        "Views (cameras besides itself) each reference sweeps with, at most: of the cameras that see at least 10 % of its view, the best for depth (triangulation angles near 5 degrees and overlap, alternately from each half of the rig, a spread of directions); 0 = 8. At most 16 with per-pair aggregation.";
     // Issue 52: chosen on real-camera pairs and the lab sets together (docs/quality.md).
     prefilter: Prefilter = Prefilter::Auto, "prefilter", Long("prefilter"),
         variants::<Prefilter>(),

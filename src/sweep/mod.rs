@@ -124,6 +124,11 @@ pub enum Optimizer {
     Sgm,
 }
 
+/// The views (cameras besides itself) a reference sweeps with when `max_neighbours` is 0: more
+/// cameras than this are chosen among (`geometry::neighbours`). On a dense 21-frame
+/// trajectory the 8 best views beat every fifth frame and all frames (docs/engine.md).
+pub const AUTO_NEIGHBOURS: usize = 8;
+
 /// Engine parameters. Their defaults (measured best on the shared data, see docs/quality.md), node
 /// parameter names, command-line options, ranges and descriptions are declared once, in
 /// `src/params/engine.rs`, which also implements `Default` for this struct.
@@ -187,9 +192,10 @@ pub struct SweepParams {
     /// Sweep at half resolution first, then each full-resolution row only over the planes
     /// its neighbourhood needs (`sweep/coarse.rs`).
     pub coarse_to_fine: bool,
-    /// Cameras each reference sweeps with, at most (0: every camera that sees its view;
-    /// `geometry::neighbours`). Applies where references choose their cameras
-    /// (`Sweeper::run_references`: the node, `bag`); `run` sweeps the rig it is given.
+    /// Cameras each reference sweeps with besides itself, at most (0: [`AUTO_NEIGHBOURS`]),
+    /// chosen by `geometry::neighbours`. Applies where references choose their cameras
+    /// (`Sweeper::run_references` and `run_views`: the node, `bag`, `eval`, `bench`); `run`
+    /// sweeps the rig it is given.
     pub max_neighbours: u32,
     /// What the colour term of the cost compares (`prefilter.rs`).
     pub prefilter: Prefilter,
@@ -414,6 +420,16 @@ impl SweepParams {
                 shape.cameras
             ));
         }
+        if self.max_neighbours as usize > self.max_views() {
+            return bad(format!(
+                "max_neighbours {} is more views than one reference can sweep with under {:?} aggregation with {:?} pairs: at most {} (0 takes the {} best)",
+                self.max_neighbours,
+                self.aggregation,
+                pairs,
+                self.max_views(),
+                AUTO_NEIGHBOURS.min(self.max_views())
+            ));
+        }
         if self.aggregation == Aggregation::PerPair {
             let n = shape.cameras;
             let m = match pairs {
@@ -446,6 +462,36 @@ impl SweepParams {
     }
 
     /// `AllPairs` always scores all pairs; the others follow `pairs`.
+    /// The most views besides itself one reference can sweep with under these parameters:
+    /// per-pair aggregation holds at most [`gpu_types::MAX_PAIRS`] pairs, all-pairs scoring
+    /// at most [`gpu_types::MAX_CAMERAS`] cameras.
+    pub fn max_views(&self) -> usize {
+        let max_pairs = gpu_types::MAX_PAIRS as usize;
+        match (self.aggregation, self.effective_pairs()) {
+            (Aggregation::PerPair, PairSet::Reference) => max_pairs,
+            // c cameras make c (c - 1) / 2 pairs.
+            (Aggregation::PerPair, PairSet::All) => {
+                (2..)
+                    .take_while(|c| c * (c - 1) / 2 <= max_pairs)
+                    .last()
+                    .unwrap_or(2)
+                    - 1
+            }
+            (_, PairSet::All) => gpu_types::MAX_CAMERAS as usize - 1,
+            (_, PairSet::Reference) => gpu_types::MAX_RIG_CAMERAS as usize - 1,
+        }
+    }
+
+    /// How many views besides itself each reference takes (`geometry::neighbours` chooses
+    /// them): `max_neighbours`, or [`AUTO_NEIGHBOURS`] for 0, at most [`Self::max_views`].
+    pub fn neighbour_count(&self) -> usize {
+        let wanted = match self.max_neighbours {
+            0 => AUTO_NEIGHBOURS,
+            n => n as usize,
+        };
+        wanted.min(self.max_views())
+    }
+
     pub fn effective_pairs(&self) -> PairSet {
         if self.scoring == Scoring::AllPairs {
             PairSet::All

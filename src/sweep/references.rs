@@ -22,7 +22,8 @@ pub struct ReferenceRig {
 }
 
 /// The rig of reference `reference` of the set's `cameras`: the cameras that see its view
-/// (at most `max_neighbours` of them), with it as the reference.
+/// (at most [`SweepParams::neighbour_count`] of them, the best for depth), with it as the
+/// reference.
 pub fn reference_rig(
     cameras: &[RigCamera],
     reference: usize,
@@ -39,7 +40,7 @@ pub fn reference_rig(
         reference,
         params.min_depth_m,
         params.max_depth_m,
-        params.max_neighbours as usize,
+        params.neighbour_count(),
     );
     if chosen.len() < 2 {
         return Err(SweepError::NoNeighbours {
@@ -85,11 +86,12 @@ mod tests {
             max_neighbours: 2,
             ..SweepParams::default()
         };
+        // 1-8 m, 0.1 m apart: 0.2 m (up to 11 degrees) scores best, then 0.3 m, 0.1 m, 0.4 m.
         let r = reference_rig(&rig.cameras, 0, &params).expect("reference 0");
-        assert_eq!(r.cameras, vec![0, 1, 2]);
+        assert_eq!(r.cameras, vec![0, 2, 3]);
         assert_eq!(r.rig.reference, Reference::Camera(0));
         let r = reference_rig(&rig.cameras, 3, &params).expect("reference 3");
-        assert_eq!(r.cameras, vec![2, 3, 4]);
+        assert_eq!(r.cameras, vec![1, 3, 4]);
         assert_eq!(r.rig.reference, Reference::Camera(1));
         assert_eq!(r.rig.cameras[1].name, rig.cameras[3].name);
         assert!(matches!(

@@ -12,5 +12,6 @@ mod engine_analytic;
 mod fusion_accuracy;
 mod fusion_soak;
 mod gpu_vs_cpu;
+mod many_cameras;
 mod quality;
 mod real_cameras;

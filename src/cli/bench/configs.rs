@@ -19,6 +19,10 @@ pub enum Workload {
     /// defaults: rectified, or (`distorted`) raw images with a plumb-bob barrel and a slight
     /// toe-in, as a driver's `image_raw`.
     Pair { distorted: bool },
+    /// A capture dome: cameras on a 35-degree spherical cap around a point 4 m ahead of the
+    /// reference (at the cap's pole), all looking at it, with the engine defaults; the
+    /// reference sweeps with the views chosen for it (`geometry::neighbours`).
+    Dome,
 }
 
 /// What a configuration's time is divided by, measured just before and after it.
@@ -50,7 +54,7 @@ pub struct BenchConfig {
 }
 
 /// The issue's configurations.
-pub const CONFIGS: [BenchConfig; 12] = [
+pub const CONFIGS: [BenchConfig; 14] = [
     BenchConfig {
         name: "paper",
         cameras: 4,
@@ -86,7 +90,8 @@ pub const CONFIGS: [BenchConfig; 12] = [
     },
     // The 9-camera rig with three references (cameras 1, 4 and 7: depth across the row): with
     // every camera each, and with each reference's nearest two on each side
-    // (`max_neighbours` 4). Beside "9-camera" (the middle camera alone, all 8 others) and
+    // (`max_neighbours` 4: the 4 best views by triangulation angle, two on each side; the
+    // name is from when they were the nearest). Beside "9-camera" (the middle camera alone, all 8 others) and
     // "9-camera-near4" (the middle camera alone with its 4 nearest).
     BenchConfig {
         name: "9-camera-near4",
@@ -189,5 +194,30 @@ pub const CONFIGS: [BenchConfig; 12] = [
         references: &[],
         max_neighbours: 0,
         peer: PeerKind::Pair { rectify: true },
+    },
+    // Issue 53: a dome of 32 cameras (the reference takes 8 views, `max_neighbours` 0) beside
+    // one of 8 on the same cap (all 7 others): the time per reference follows the views used,
+    // not the cameras in the rig.
+    BenchConfig {
+        name: "dome-8",
+        cameras: 8,
+        width: 640,
+        height: 480,
+        planes: 64,
+        workload: Workload::Dome,
+        references: &[],
+        max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
+    },
+    BenchConfig {
+        name: "dome-32",
+        cameras: 32,
+        width: 640,
+        height: 480,
+        planes: 64,
+        workload: Workload::Dome,
+        references: &[],
+        max_neighbours: 0,
+        peer: PeerKind::Tsukuba,
     },
 ];
