@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-300}
-targets=${FUZZ_TARGETS:-cdr_image cdr_camera_info cdr_tf sync params bag_reader}
+targets=${FUZZ_TARGETS:-cdr_image cdr_camera_info cdr_tf tf_history compressed sync params bag_reader}
 export RUSTC_BOOTSTRAP=1
 
 if ! command -v c++ >/dev/null 2>&1; then
@@ -37,6 +37,8 @@ seed() {
 seed cdr_image tests/fixtures/cdr/image.bin
 seed cdr_camera_info tests/fixtures/cdr/camera_info.bin
 seed cdr_tf tests/fixtures/cdr/tf_message.bin tests/fixtures/cdr/transform_stamped.bin
+seed tf_history tests/fixtures/cdr/tf_message.bin tests/fixtures/cdr/transform_stamped.bin
+seed compressed tests/fixtures/fuzz/seeds/compressed_jpeg.bin tests/fixtures/fuzz/seeds/compressed_png.bin
 seed sync
 seed params
 mkdir -p fuzz/corpus/bag_reader

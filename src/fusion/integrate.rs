@@ -726,6 +726,93 @@ mod tests {
         );
     }
 
+    /// Fusion's vectorised builds (`simd::vectorised_fn!`: allocation, the voxel update, the
+    /// mesher's sign scan) give the same grid and mesh as the portable one, as the sweep's do
+    /// (`tests/engine/gpu_vs_cpu.rs`): three views of a sphere before a slanted wall, one
+    /// through a distorted lens, with colour and per-pixel weights, integrated and meshed with
+    /// the builds capped at each tier in turn; every voxel and every vertex compared bit for
+    /// bit.
+    #[test]
+    fn fusion_builds_give_the_same_grid_and_mesh() {
+        use crate::fusion::test_scenes::{look_at, sphere_before_slanted_wall};
+        use crate::simd::{cap, Tier};
+        let params = FusionParams {
+            voxel_size_m: 0.02,
+            ..FusionParams::default()
+        };
+        let pinhole = camera(320, 240, 280.0);
+        let mut distorted = pinhole;
+        distorted.distortion = Distortion::PlumbBob {
+            k1: -0.1,
+            k2: 0.01,
+            p1: 0.0,
+            p2: 0.0,
+            k3: 0.0,
+        };
+        let up = DVec3::new(0.1, -1.0, 0.2);
+        let target = DVec3::new(0.0, 0.0, 2.0);
+        let views = [
+            (pinhole, look_at(DVec3::new(0.7, -0.4, -0.2), target, up)),
+            (pinhole, look_at(DVec3::new(-0.3, 0.2, 0.1), target, up)),
+            (distorted, look_at(DVec3::new(0.2, 0.5, -0.3), target, up)),
+        ];
+        let colour = red_left_blue_right(320, 240);
+        let run = |tier: Option<Tier>| {
+            cap(tier);
+            let mut grid = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+            for (i, (model, pose)) in views.iter().enumerate() {
+                let depth = sphere_before_slanted_wall(model, pose);
+                // Weights that vary across the image (and a band of invalid ones).
+                let weights = ImageF32 {
+                    width: depth.width,
+                    height: depth.height,
+                    data: (0..depth.data.len())
+                        .map(|p| match (p + 37 * i) % 97 {
+                            0 => f32::NAN,
+                            k => 0.25 + k as f32 / 50.0,
+                        })
+                        .collect(),
+                };
+                integrate_weighted(
+                    &mut grid,
+                    &params,
+                    &depth,
+                    Some(&weights),
+                    Some(&colour),
+                    model,
+                    pose,
+                )
+                .unwrap();
+            }
+            let mut mesh = Mesh::new();
+            mesh.update(&mut grid);
+            cap(None);
+            let mut blocks: Vec<(BlockIndex, Block)> =
+                grid.blocks().map(|(i, b)| (*i, b.clone())).collect();
+            blocks.sort_unstable_by_key(|(i, _)| *i);
+            (blocks, mesh.collect())
+        };
+        let (widest_blocks, widest_mesh) = run(None);
+        assert!(widest_blocks.len() > 300, "{} blocks", widest_blocks.len());
+        assert!(widest_mesh.vertices.len() > 10_000);
+        for tier in [Tier::Avx2, Tier::Portable] {
+            let (blocks, mesh) = run(Some(tier));
+            assert_eq!(blocks.len(), widest_blocks.len(), "{tier:?}: blocks");
+            let differing = blocks
+                .iter()
+                .zip(&widest_blocks)
+                .filter(|(a, b)| a.0 != b.0 || a.1 != b.1)
+                .count();
+            assert_eq!(differing, 0, "{tier:?}: {differing} blocks differ");
+            let bits = |m: &crate::fusion::mesh::BlockMesh| -> Vec<u32> {
+                m.vertices.iter().flatten().map(|c| c.to_bits()).collect()
+            };
+            assert_eq!(bits(&mesh), bits(&widest_mesh), "{tier:?}: vertices");
+            assert_eq!(mesh.triangles, widest_mesh.triangles, "{tier:?}: triangles");
+            assert_eq!(mesh.colours, widest_mesh.colours, "{tier:?}: colours");
+        }
+    }
+
     fn wall(z_m: f64) -> (CameraModel, ImageF32) {
         let model = camera(320, 240, 300.0);
         let depth = render_plane(&model, &RigidTransform::IDENTITY, DVec3::Z, z_m);

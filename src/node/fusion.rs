@@ -200,8 +200,14 @@ pub fn diagnostic_values(stats: &FusionStats) -> Vec<KeyValue> {
         key: key.into(),
         value,
     };
-    let mut values = vec![
-        kv("fusion depth maps", stats.integrated.to_string()),
+    let mut values = vec![kv("fusion depth maps", stats.integrated.to_string())];
+    for (source, n) in &stats.integrated_by_source {
+        values.push(kv(
+            &format!("fusion depth maps from {source}"),
+            n.to_string(),
+        ));
+    }
+    values.extend([
         kv(
             "fusion sets dropped (fusion behind)",
             stats.dropped_sets.to_string(),
@@ -224,7 +230,7 @@ pub fn diagnostic_values(stats: &FusionStats) -> Vec<KeyValue> {
             "fusion last mesh ms",
             format!("{:.1}", stats.last_meshing.as_secs_f64() * 1e3),
         ),
-    ];
+    ]);
     for (reason, count) in &stats.skipped {
         values.push(kv(&format!("skipped: {reason}"), count.to_string()));
     }

@@ -138,6 +138,13 @@ pub enum DecodeError {
         says: String,
         is: String,
     },
+    #[error("camera '{camera}': the {codec}'s header says {width}x{height} pixels, more than the {MAX_DECODED_MEGAPIXELS} megapixels this node decodes (refused before decoding)")]
+    TooLarge {
+        camera: String,
+        codec: &'static str,
+        width: u32,
+        height: u32,
+    },
     #[error("camera '{camera}': corrupt or truncated {codec} ({len} bytes, format '{format}'): {reason}")]
     Corrupt {
         camera: String,
@@ -148,9 +155,14 @@ pub enum DecodeError {
     },
 }
 
+/// The most pixels a compressed image may decode to, in megapixels (2^20 pixels): a few bytes
+/// of JPEG can claim 16384 x 16384 (256 MP, 800 MB of RGB); the largest machine-vision
+/// sensors are about 150 MP.
+pub const MAX_DECODED_MEGAPIXELS: u64 = 200;
+
 /// Decodes a carried compressed image ([`carry`]) into an `rgb8` (colour) or `mono8` (grey)
-/// [`Image`] with the same header. Sizes above [`MAX_IMAGE_SIDE`] are refused before the
-/// pixels are allocated; a JPEG must end with its end-of-image marker (a truncated one is
+/// [`Image`] with the same header. A header that claims more than [`MAX_IMAGE_SIDE`] per side
+/// or [`MAX_DECODED_MEGAPIXELS`] in all is refused before the pixels are allocated; a JPEG must end with its end-of-image marker (a truncated one is
 /// refused, not shown half grey).
 pub fn decode(camera: &str, image: &Image) -> Result<Image, DecodeError> {
     let format = image
@@ -197,13 +209,24 @@ pub fn decode(camera: &str, image: &Image) -> Result<Image, DecodeError> {
             return Err(corrupt("no end-of-image marker (truncated)".into()));
         }
     }
-    let mut reader = image::ImageReader::with_format(
-        Cursor::new(data.as_slice()),
-        match parsed.codec {
-            Codec::Jpeg => image::ImageFormat::Jpeg,
-            Codec::Png => image::ImageFormat::Png,
-        },
-    );
+    let image_format = match parsed.codec {
+        Codec::Jpeg => image::ImageFormat::Jpeg,
+        Codec::Png => image::ImageFormat::Png,
+    };
+    // The header alone first: the size it claims, before anything is allocated for it.
+    let (width, height) =
+        image::ImageReader::with_format(Cursor::new(data.as_slice()), image_format)
+            .into_dimensions()
+            .map_err(|e| corrupt(e.to_string()))?;
+    if u64::from(width) * u64::from(height) > MAX_DECODED_MEGAPIXELS << 20 {
+        return Err(DecodeError::TooLarge {
+            camera: camera.to_string(),
+            codec: parsed.codec.name(),
+            width,
+            height,
+        });
+    }
+    let mut reader = image::ImageReader::with_format(Cursor::new(data.as_slice()), image_format);
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE);
     limits.max_image_height = Some(MAX_IMAGE_SIDE);

@@ -134,6 +134,38 @@ fn corrupt_and_truncated_data_are_refused() {
     }
 }
 
+/// A JPEG whose frame header claims 16384 x 16384 (a few hundred bytes that would decode to
+/// 800 MB of RGB) is refused from its header, naming the size, before any pixel is decoded.
+#[test]
+fn a_jpeg_claiming_a_huge_size_is_refused_before_decoding() {
+    let good = carried("rgb8", Codec::Jpeg);
+    // The baseline frame header (SOF0, FF C0): length (2), precision (1), height (2), width (2).
+    let sof = good
+        .data
+        .windows(2)
+        .position(|w| w == [0xFF, 0xC0])
+        .expect("a baseline JPEG");
+    let claim = |width: u16, height: u16| {
+        let mut huge = good.clone();
+        huge.data[sof + 5..sof + 7].copy_from_slice(&height.to_be_bytes());
+        huge.data[sof + 7..sof + 9].copy_from_slice(&width.to_be_bytes());
+        huge
+    };
+    let e = decode_err(&claim(16384, 16384));
+    assert!(
+        matches!(
+            e,
+            DecodeError::TooLarge {
+                width: 16384,
+                height: 16384,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert!(e.to_string().contains("16384x16384 pixels"), "{e}");
+}
+
 #[test]
 fn a_format_that_lies_is_refused() {
     let mut png_said_jpeg = carried("rgb8", Codec::Png);

@@ -237,6 +237,7 @@ impl DepthSources {
             // and viewing angles alone.
             confidence: None,
             baseline_ratio: None,
+            source: topic,
         })
     }
 }

@@ -39,6 +39,9 @@ pub struct FusionInput {
     pub confidence: Option<ImageF32>,
     /// The depth's baseline over the largest of its set's references, where known.
     pub baseline_ratio: Option<f32>,
+    /// Where the depth map came from (the reference camera's frame, or the `fuse` node's
+    /// depth topic), for the per-source counts in `/diagnostics`.
+    pub source: String,
 }
 
 impl FusionInput {
@@ -58,6 +61,7 @@ impl FusionInput {
             map_from_cam: map_from_frame.compose(&out.frame_from_cam),
             confidence: out.confidence_map(),
             baseline_ratio: out.baseline_ratio,
+            source: out.header.frame_id.clone(),
         }
     }
 }
@@ -111,6 +115,8 @@ pub struct Fuser {
     next_id: i32,
     /// Depth maps integrated.
     pub integrated: u64,
+    /// Depth maps integrated, by [`FusionInput::source`].
+    pub integrated_by_source: BTreeMap<String, u64>,
     /// Depth maps refused, by reason.
     pub skipped: BTreeMap<&'static str, u64>,
 }
@@ -128,6 +134,7 @@ impl Fuser {
             ids: HashMap::new(),
             next_id: 0,
             integrated: 0,
+            integrated_by_source: BTreeMap::new(),
             skipped: BTreeMap::new(),
         })
     }
@@ -181,6 +188,10 @@ impl Fuser {
         }
         self.stamp = self.stamp.max(input.stamp);
         self.integrated += 1;
+        *self
+            .integrated_by_source
+            .entry(input.source.clone())
+            .or_default() += 1;
         Ok(stats)
     }
 
@@ -359,6 +370,7 @@ mod tests {
             },
             confidence: None,
             baseline_ratio: None,
+            source: "cam0_optical".into(),
         }
     }
 

@@ -26,6 +26,8 @@ pub const PENDING_SETS: usize = 2;
 pub struct FusionStats {
     /// Depth maps integrated.
     pub integrated: u64,
+    /// Depth maps integrated, by source (reference frame or depth topic).
+    pub integrated_by_source: BTreeMap<String, u64>,
     /// Sets dropped before fusion because it was behind.
     pub dropped_sets: u64,
     /// Depth maps refused, by reason.
@@ -270,6 +272,7 @@ fn run(
 /// The fuser's counts into the shared stats.
 fn record(stats: &mut FusionStats, fuser: &Fuser) {
     stats.integrated = fuser.integrated;
+    stats.integrated_by_source = fuser.integrated_by_source.clone();
     stats.skipped = fuser.skipped.clone();
     let (blocks, bytes) = fuser.blocks();
     stats.blocks = blocks;
@@ -311,6 +314,7 @@ mod tests {
             map_from_cam: RigidTransform::IDENTITY,
             confidence: None,
             baseline_ratio: None,
+            source: "cam0_optical".into(),
         }
     }
 

@@ -30,6 +30,44 @@ fn run_bag(input: &Path, output: &Path) -> String {
     )
 }
 
+/// `bag --mesh` on `input`: the mesh's mean vertex colour (R, G, B).
+fn mesh_mean_colour(input: &Path, output: &Path, mesh: &Path) -> [f64; 3] {
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    ok(
+        &sweepdepth(&[
+            "bag",
+            input.to_str().unwrap(),
+            output.to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+            "--mesh",
+            mesh.to_str().unwrap(),
+        ]),
+        "sweepdepth bag --mesh",
+    );
+    let bytes = std::fs::read(mesh).expect("the PLY");
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .expect("a PLY header")
+        + 11;
+    let header = String::from_utf8_lossy(&bytes[..end]).into_owned();
+    let vertices: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .expect("a vertex count");
+    assert!(vertices > 1000, "{vertices} vertices");
+    // x y z as f32, then r g b as u8.
+    let mut sum = [0.0f64; 3];
+    for v in 0..vertices {
+        for (c, total) in sum.iter_mut().enumerate() {
+            *total += f64::from(bytes[end + v * 15 + 12 + c]);
+        }
+    }
+    sum.map(|total| total / vertices as f64)
+}
+
 /// The depth (metres) of every `/depth/image` message, in order.
 fn depths(path: &Path) -> Vec<Vec<f32>> {
     messages(path)
@@ -184,6 +222,20 @@ fn compressed_bag_written_by_the_python_tools_gives_the_raw_bags_depth() {
         "rosbags + OpenCV JPEG: worst set {:.2} % off by > 5 %",
         worst * 100.0
     );
+    // Colour, which depth does not see: OpenCV's JPEGs are of BGR arrays ("bgr8"); the fused
+    // mesh's colours from them are those from the raw images. Tsukuba is redder than blue
+    // (the images' mean R - B is 19 levels), so red and blue swapped anywhere between the JPEG and
+    // the mesh would turn the difference round (the mesh's own mean is R - B = 8 levels).
+    let raw = mesh_mean_colour(&fixture, &dir.join("raw_mesh_out"), &dir.join("raw.ply"));
+    let jpeg = mesh_mean_colour(&written, &dir.join("jpeg_mesh_out"), &dir.join("jpeg.ply"));
+    eprintln!("mesh mean colour: raw images {raw:.1?}, OpenCV JPEGs {jpeg:.1?}");
+    assert!(raw[0] - raw[2] > 5.0, "raw mesh colour {raw:.1?}");
+    for c in 0..3 {
+        assert!(
+            (raw[c] - jpeg[c]).abs() < 2.5,
+            "channel {c}: mesh from the raw images {raw:.1?}, from OpenCV's JPEGs {jpeg:.1?}"
+        );
+    }
 }
 
 #[test]

@@ -411,19 +411,41 @@ impl RigFeed {
     pub fn publish_set(&self, stamps: &[Time]) {
         assert_eq!(stamps.len(), self.images.len(), "one stamp per camera");
         for (i, stamp) in stamps.iter().enumerate() {
-            let header = Header {
-                stamp: *stamp,
-                frame_id: frame(i),
-            };
-            self.info_pubs[i]
-                .publish(camera_info(&header, &self.rig.cameras[i].model))
-                .unwrap_or_else(|e| panic!("publish cam{i}/camera_info: {e:?}"));
-            let mut image = self.images[i].clone();
-            image.header = header;
-            self.image_pubs[i]
-                .publish(image)
-                .unwrap_or_else(|e| panic!("publish cam{i}/image_raw: {e:?}"));
+            self.publish_camera(i, *stamp);
         }
+    }
+
+    /// Publishes one set without camera `missing` (its driver has stopped).
+    pub fn publish_set_without(&self, stamps: &[Time], missing: usize) {
+        assert_eq!(stamps.len(), self.images.len(), "one stamp per camera");
+        for (i, stamp) in stamps.iter().enumerate() {
+            if i != missing {
+                self.publish_camera(i, *stamp);
+            }
+        }
+    }
+
+    /// Camera `i`'s driver restarts: its image and camera_info publishers are dropped (their
+    /// writers leave) and made anew on `peer` with `qos` (new writers; the camera_info is sent
+    /// again with the next set, as a driver does when it starts).
+    pub fn restart_camera(&mut self, peer: &mut Peer, i: usize, qos: &QosProfile) {
+        self.image_pubs[i] = peer.publisher(&format!("/cam{i}/image_raw"), IMAGE, qos);
+        self.info_pubs[i] = peer.publisher(&format!("/cam{i}/camera_info"), CAMERA_INFO, qos);
+    }
+
+    fn publish_camera(&self, i: usize, stamp: Time) {
+        let header = Header {
+            stamp,
+            frame_id: frame(i),
+        };
+        self.info_pubs[i]
+            .publish(camera_info(&header, &self.rig.cameras[i].model))
+            .unwrap_or_else(|e| panic!("publish cam{i}/camera_info: {e:?}"));
+        let mut image = self.images[i].clone();
+        image.header = header;
+        self.image_pubs[i]
+            .publish(image)
+            .unwrap_or_else(|e| panic!("publish cam{i}/image_raw: {e:?}"));
     }
 }
 

@@ -127,6 +127,7 @@ fn fusion_memory_stays_flat_on_an_endless_corridor() {
             },
             confidence: None,
             baseline_ratio: None,
+            source: "corridor".into(),
         };
         fuser.add(&input).unwrap();
         if frames.is_multiple_of(5) {

@@ -501,3 +501,148 @@ fn installed_launch_file_starts_the_installed_executable() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
     assert_eq!(v["cmd"][0], "sweepdepth");
 }
+
+/// The `pip install` and `colcon build` lines of docs/colcon.md's "Build" block, as a user
+/// copies them (comments dropped).
+fn documented_commands() -> (Vec<String>, String) {
+    let page = std::fs::read_to_string(root().join("docs/colcon.md")).expect("docs/colcon.md");
+    let build = page
+        .split("\n## Build\n")
+        .nth(1)
+        .expect("docs/colcon.md has a Build section");
+    let block = build
+        .split("```sh\n")
+        .nth(1)
+        .and_then(|b| b.split("```").next())
+        .expect("the Build section has a sh code block");
+    let line = |start: &str| {
+        block
+            .lines()
+            .map(|l| l.split('#').next().unwrap_or("").trim())
+            .find(|l| l.starts_with(start))
+            .unwrap_or_else(|| panic!("docs/colcon.md's Build block has no `{start}` line"))
+            .to_string()
+    };
+    let pip: Vec<String> = line("pip install")
+        .split_whitespace()
+        .skip(2)
+        .filter(|w| !w.starts_with('-'))
+        .map(str::to_string)
+        .collect();
+    (pip, line("colcon build"))
+}
+
+/// What docs/colcon.md tells a user to install and type holds: every package its `pip
+/// install` names is pinned in tools/requirements-colcon.txt (which the test venv installs, so
+/// the tools the tests run are the documented ones), and every option of its `colcon build`
+/// line is one that `colcon build --help` of those tools offers (`--packages-select` comes
+/// from colcon-package-selection: without it colcon stops with "unrecognized arguments").
+#[test]
+fn the_documented_colcon_commands_are_the_tested_tools() {
+    check_tools();
+    let (pip, colcon_line) = documented_commands();
+    let pinned: Vec<String> = std::fs::read_to_string(root().join("tools/requirements-colcon.txt"))
+        .expect("tools/requirements-colcon.txt")
+        .lines()
+        .filter_map(|l| l.split("==").next())
+        .map(|name| name.trim().to_lowercase().replace('_', "-"))
+        .collect();
+    assert!(!pip.is_empty(), "no package on the documented pip line");
+    for package in &pip {
+        assert!(
+            pinned.contains(&package.to_lowercase().replace('_', "-")),
+            "docs/colcon.md installs {package}, which tools/requirements-colcon.txt does not pin"
+        );
+    }
+    let help = Command::new("colcon")
+        .args(["build", "--help"])
+        .env("PATH", tools_path())
+        .output()
+        .expect("colcon runs");
+    let help = String::from_utf8_lossy(&help.stdout).into_owned();
+    // colcon's own options: the words outside quotes (`--cargo-args " --release"` passes
+    // the quoted one on to cargo).
+    let unquoted: String = colcon_line
+        .split('"')
+        .step_by(2)
+        .collect::<Vec<_>>()
+        .join(" ");
+    let options: Vec<&str> = unquoted
+        .split_whitespace()
+        .filter(|w| w.starts_with("--"))
+        .collect();
+    assert!(options.contains(&"--cargo-args"), "{colcon_line}");
+    let offered: Vec<&str> = help
+        .split(|c: char| c.is_whitespace() || matches!(c, '[' | ']' | ','))
+        .collect();
+    for option in options {
+        assert!(
+            offered.contains(&option),
+            "docs/colcon.md's `{colcon_line}` uses {option}, which `colcon build --help` of the \
+             pinned tools does not offer"
+        );
+    }
+}
+
+/// The documented `colcon build` line itself, verbatim, in a fresh workspace: a release build
+/// from scratch (nothing reused: minutes), then the installed executable runs. CI runs it
+/// (`SWEEPDEPTH_COLCON_FROM_SCRATCH=1`, set by .ci/run); elsewhere it says it was skipped,
+/// because the other colcon tests cover the package with the suite's own build in seconds.
+/// A from-scratch build has no time limit: cargo ends, and how long it takes is the
+/// machine's speed, not an outcome.
+#[test]
+fn the_documented_colcon_build_from_scratch() {
+    if std::env::var_os("SWEEPDEPTH_COLCON_FROM_SCRATCH").is_none() {
+        eprintln!(
+            "skipped: the documented release build from scratch runs with \
+             SWEEPDEPTH_COLCON_FROM_SCRATCH=1 (CI sets it)"
+        );
+        return;
+    }
+    check_tools();
+    let (_, colcon_line) = documented_commands();
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("colcon-from-scratch");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("src")).expect("scratch workspace");
+    std::os::unix::fs::symlink(root(), dir.join("src/sweepdepth")).expect("symlink the package");
+    let started = Instant::now();
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(&colcon_line)
+        .current_dir(&dir)
+        .env("PATH", tools_path())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_BUILD_DIR")
+        .env_remove("AMENT_PREFIX_PATH")
+        .env_remove("COLCON_PREFIX_PATH")
+        .stdin(Stdio::null())
+        .output()
+        .expect("sh runs");
+    if !out.status.success() {
+        let log =
+            std::fs::read_to_string(dir.join("log/latest_build/sweepdepth/stdout_stderr.log"))
+                .unwrap_or_default();
+        panic!(
+            "`{colcon_line}` failed ({}):\n{}\n{}\nthe package's build log:\n{log}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    eprintln!(
+        "`{colcon_line}` from scratch: {:.0} s",
+        started.elapsed().as_secs_f64()
+    );
+    let exe = dir.join("install/sweepdepth/lib/sweepdepth/sweepdepth");
+    let help = run_limited(
+        Command::new(&exe).arg("--help"),
+        "the installed sweepdepth --help",
+    );
+    assert!(
+        help.status.success(),
+        "{}",
+        String::from_utf8_lossy(&help.stderr)
+    );
+    assert!(String::from_utf8_lossy(&help.stdout).contains("node"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -237,7 +237,16 @@ fn two_hosts() {
         from_a += dds::take_all(&depth_a).len();
         from_b += dds::take_all(&depth_b).len();
         arrays.extend(dds::take_all(&diag));
-        if from_a >= 2 && from_b >= 2 && fused("fuse", &arrays) >= 4 && fused("/one/", &arrays) >= 4
+        let both_sources = arrays.iter().flat_map(|a| &a.status).any(|s| {
+            s.name.contains("fuse")
+                && dds::value_of(s, "fusion depth maps from /a/cam0/depth/image").is_some()
+                && dds::value_of(s, "fusion depth maps from /b/cam2/depth/image").is_some()
+        });
+        if from_a >= 2
+            && from_b >= 2
+            && both_sources
+            && fused("fuse", &arrays) >= 4
+            && fused("/one/", &arrays) >= 4
         {
             break;
         }
@@ -246,6 +255,28 @@ fn two_hosts() {
         "after {k} sets: depth from host a {from_a}, from host b {from_b}, fused by the fuse node {}, by the one-process node {}",
         fused("fuse", &arrays),
         fused("/one/", &arrays)
+    );
+    // The fuse node counts the maps it fused per source: both hosts' depth is in its map
+    // (host A alone would make 4 maps as well).
+    let per_source = |topic: &str| -> u64 {
+        arrays
+            .iter()
+            .flat_map(|a| &a.status)
+            .filter(|s| s.name.contains("fuse"))
+            .filter_map(|s| dds::value_of(s, &format!("fusion depth maps from {topic}")))
+            .filter_map(|v| v.parse::<u64>().ok())
+            .max()
+            .unwrap_or(0)
+    };
+    let (maps_a, maps_b) = (
+        per_source("/a/cam0/depth/image"),
+        per_source("/b/cam2/depth/image"),
+    );
+    eprintln!("fuse node: {maps_a} maps from host a, {maps_b} from host b");
+    assert!(
+        maps_a >= 1 && maps_b >= 1,
+        "the fuse node fused {maps_a} maps from host a's /a/cam0/depth/image and {maps_b} from \
+         host b's /b/cam2/depth/image; both must be in its map"
     );
 
     let dir = std::env::temp_dir().join(format!("sweepdepth-fuse-{}", std::process::id()));

@@ -83,6 +83,15 @@ fn node_fuses_a_moving_rig_and_saves_the_mesh() {
 }
 
 #[test]
+fn node_camera_driver_restart() {
+    in_private_netns(
+        INNER,
+        "node_dds::node_camera_driver_restart",
+        camera_driver_restart,
+    );
+}
+
+#[test]
 fn node_virtual_reference() {
     in_private_netns(INNER, "node_dds::node_virtual_reference", virtual_reference);
 }
@@ -109,6 +118,44 @@ fn time_of(ns: i64) -> Time {
 /// The wall at 2 m alone (the pose of a camera along the row changes nothing but the texture).
 fn wall() -> Scene {
     Scene::wall_and_box(2.0, None, synthetic::intrinsics(WIDTH, HEIGHT).fx_px)
+}
+
+/// A wall turned about the vertical (z = 2 m + 0.5 x in the rig frame): cameras 0.2 m apart
+/// (cam0 and cam2) see it 5-7 % apart in depth at every pixel, so one reference's depth map
+/// published under another's name does not pass for it.
+fn slanted_wall() -> Scene {
+    let focal = synthetic::intrinsics(WIDTH, HEIGHT).fx_px;
+    let mut wall = synthetic::TexturedQuad::fronto_parallel(
+        2.0,
+        glam::DVec2::ZERO,
+        None,
+        2.5 * 2.0 / focal,
+        1,
+    );
+    wall.u_axis = glam::DVec3::new(1.0, 0.0, 0.5).normalize();
+    Scene {
+        quads: vec![wall],
+        spheres: Vec::new(),
+    }
+}
+
+/// Depth `depth` against `truth` (one value per pixel): asserts that at least half are valid
+/// and returns the median relative error of the valid ones.
+fn median_error_against(what: &str, depth: &[f32], truth: &[f32]) -> f32 {
+    let mut errors: Vec<f32> = depth
+        .iter()
+        .zip(truth)
+        .filter(|(d, t)| d.is_finite() && t.is_finite())
+        .map(|(d, t)| ((d - t) / t).abs())
+        .collect();
+    assert!(
+        errors.len() * 2 >= depth.len(),
+        "{what}: only {} of {} depths are valid",
+        errors.len(),
+        depth.len()
+    );
+    errors.sort_by(f32::total_cmp);
+    errors[errors.len() / 2]
 }
 
 /// The wall at 2 m with a square box 40 cm wide at 1.2 m in front of cam1 (the reference):
@@ -848,24 +895,103 @@ fn tf_at(t: Time) -> sweepdepth::msgs::TFMessage {
     }
 }
 
+/// The rig's pose in `world`: from about 1 m and 30 degrees off the identity (a node that
+/// ignored /tf would put its depth and mesh there), moving along x and forward and turning
+/// about y at constant rates (tf2's interpolation is exact for it).
 fn world_from_rig(t: Time) -> RigidTransform {
     let s = (nanos(t) - nanos(stamp_of(0))) as f64 * 1e-9;
     RigidTransform {
-        rotation: glam::DQuat::from_rotation_y(0.1 * s),
-        translation: glam::DVec3::new(0.3 * s, 0.0, 0.1 * s),
+        rotation: glam::DQuat::from_rotation_y(0.52 + 0.1 * s),
+        translation: glam::DVec3::new(0.8 + 0.3 * s, 0.2, -0.5 + 0.1 * s),
     }
+}
+
+/// A camera driver restarts over DDS (`camera_timeout:=1.0`): cam3's publishers stop; after
+/// the timeout the node logs that it leaves the rig (on /rosout), /diagnostics names it out of
+/// the rig and depth goes on without it; then cam3 comes back as new writers (camera_info
+/// sent again), the node logs that it is back (4 of 4 cameras), /diagnostics says no camera
+/// is out, and depth of sets after the restart comes with every camera.
+fn camera_driver_restart() {
+    let mut h = Harness::start(wall(), &["sync:=exact", "camera_timeout:=1.0"]);
+    let depth = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let rosout = h
+        .peer
+        .subscription::<Log>("/rosout", dds::LOG, &dds::reliable(100));
+    let mut diagnostics = Diagnostics::new(&mut h.peer);
+    let mut lines: Vec<String> = Vec::new();
+    let read_log = |lines: &mut Vec<String>| {
+        lines.extend(dds::take_all(&rosout).into_iter().map(|l| l.msg));
+    };
+    // Depth with all four.
+    let (_, last) = h.feed_until("the first depth image", 1, same_stamps, || {
+        dds::take_all(&depth).pop()
+    });
+    // cam3's driver stops: sets without it until the node says it left and depth flows again.
+    let feed = &h.feed;
+    let (_, last) = dds::feed_until(
+        "cam3 out of the rig and depth without it",
+        &mut h.node,
+        last + 1,
+        |k| feed.publish_set_without(&same_stamps(k), 3),
+        || {
+            read_log(&mut lines);
+            let left = lines.iter().any(|l| {
+                l.contains("camera 'cam3' has sent nothing for") && l.contains("leaves the rig")
+            });
+            (left && !dds::take_all(&depth).is_empty()).then_some(())
+        },
+    );
+    let status = diagnostics.wait_until("cam3 out of the rig in /diagnostics", &mut h.node, |s| {
+        dds::value_of(s, "cameras out of the rig") == Some("cam3")
+    });
+    assert!(
+        status
+            .message
+            .starts_with("degraded rig: publishing depth without cam3"),
+        "{status:?}"
+    );
+    // The driver starts again: new writers, camera_info again, every camera in each set.
+    h.feed.restart_camera(&mut h.peer, 3, &dds::reliable(10));
+    let restarted = last + 1;
+    let feed = &h.feed;
+    let (stamp, _) = dds::feed_until(
+        "cam3 back and depth of a set after the restart",
+        &mut h.node,
+        restarted,
+        |k| feed.publish_set(&same_stamps(k)),
+        || {
+            read_log(&mut lines);
+            let back = lines.iter().any(|l| {
+                l.contains("camera 'cam3' is sending again and is back in the rig (4 of 4 cameras)")
+            });
+            let after = dds::take_all(&depth)
+                .into_iter()
+                .map(|i| i.header.stamp)
+                .rfind(|s| nanos(*s) >= nanos(stamp_of(restarted)));
+            after.filter(|_| back)
+        },
+    );
+    let status = diagnostics.wait_until("no camera out of the rig", &mut h.node, |s| {
+        dds::value_of(s, "cameras out of the rig") == Some("none")
+            && s.message == "publishing depth"
+    });
+    eprintln!(
+        "cam3 left and came back; depth at {}.{:09}; /diagnostics: {}",
+        stamp.sec, stamp.nanosec, status.message
+    );
 }
 
 /// `references:=[cam0, cam2]` with `world_frame:=world`: each reference publishes under its
 /// camera's namespace (and nothing on the single-reference names), each with its own depth
-/// of the wall; /tf (world -> rig) comes twice per set, 30 ms before and 40 ms after each
+/// of a slanted wall (each map's median error against its own camera's true depth, pixel by
+/// pixel; the other's true depth differs by 5 % everywhere, so swapped or shared maps fail); /tf (world -> rig) comes twice per set, 30 ms before and 40 ms after each
 /// set's stamp, never at it; the pose each reference's set carried (reported in
 /// /diagnostics) equals the true pose of its camera at the set's stamp within 1 mm and 0.05
 /// degrees.
 fn references_on_a_moving_rig() {
     use sweepdepth::msgs::TFMessage;
     let mut h = Harness::start(
-        wall(),
+        slanted_wall(),
         &[
             "sync:=exact",
             "references:=[cam0, cam2]",
@@ -907,10 +1033,43 @@ fn references_on_a_moving_rig() {
     let image2 = got2.iter().find(|i| i.header.stamp == stamp).expect("cam2");
     assert_eq!(image0.header.frame_id, frame(0));
     assert_eq!(image2.header.frame_id, frame(2));
-    for image in [image0, image2] {
+    let truth = |i: usize| {
+        let camera = &h.feed.rig.cameras[i];
+        h.scene.depth(&camera.model, &camera.cam_from_rig).data
+    };
+    let (truth0, truth2) = (truth(0), truth(2));
+    let apart = truth0
+        .iter()
+        .zip(&truth2)
+        .filter(|(a, b)| ((*a - *b) / *a).abs() > 0.04)
+        .count();
+    assert!(
+        apart * 10 >= truth0.len() * 9,
+        "the two references' true depths differ by > 4 % at {apart} of {} pixels",
+        truth0.len()
+    );
+    for (name, image, own, other) in [
+        ("cam0", image0, &truth0, &truth2),
+        ("cam2", image2, &truth2, &truth0),
+    ] {
         assert_eq!(image.encoding, "32FC1");
         assert_eq!((image.width, image.height), (WIDTH, HEIGHT));
-        check_wall_depths(&dds::depth_values(image));
+        let depth = dds::depth_values(image);
+        let mine = median_error_against(name, &depth, own);
+        let theirs = median_error_against(name, &depth, other);
+        eprintln!(
+            "{name}: median error {:.2} % against its own true depth, {:.2} % against the other \
+             reference's",
+            100.0 * mine,
+            100.0 * theirs
+        );
+        assert!(
+            mine < 0.025 && theirs > 0.035,
+            "{name}: median error {:.2} % against its own true depth (want < 2.5 %), {:.2} % \
+             against the other reference's (want > 3.5 %)",
+            100.0 * mine,
+            100.0 * theirs
+        );
     }
     assert!(
         dds::take_all(&single).is_empty(),

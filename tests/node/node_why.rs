@@ -77,6 +77,24 @@ fn why_exact_sync_with_unequal_stamps() {
 }
 
 #[test]
+fn why_moving_rig_without_tf() {
+    in_private_netns(
+        INNER,
+        "node_why::why_moving_rig_without_tf",
+        moving_rig_without_tf,
+    );
+}
+
+#[test]
+fn why_moving_rig_whose_tf_never_comes_skips_sets() {
+    in_private_netns(
+        INNER,
+        "node_why::why_moving_rig_whose_tf_never_comes_skips_sets",
+        moving_rig_tf_timeout,
+    );
+}
+
+#[test]
 fn why_silent_while_depth_flows() {
     in_private_netns(
         INNER,
@@ -361,6 +379,57 @@ fn tf_static_link_missing() {
         &mut diag,
         Some(&feed),
         &["no transform from 'cam1_optical' to 'cam3_optical' in /tf_static (camera 'cam3')"],
+    );
+}
+
+/// A moving rig (`world_frame:=world`) with nobody publishing /tf: the sets wait for their
+/// world pose (`tf_timeout` 60 s, the most: none is skipped yet), and the node says so, naming
+/// /tf.
+fn moving_rig_without_tf() {
+    let mut node = Node::start(&["world_frame:=world", "tf_timeout:=60.0"]);
+    let mut peer = Peer::new(DOMAIN, "sweepdepth_why_peer");
+    let mut diag = Diagnostics::new(&mut peer);
+    let feed = Feed::new(&mut peer, &dds::reliable(10), &[0, 1, 2, 3], &[0, 1, 2, 3]);
+    wait_for_why(
+        &mut node,
+        &mut diag,
+        Some(&feed),
+        &[
+            " set(s) wait for their pose in world_frame 'world': no publisher on /tf: check the \
+             namespace, the remaps and ROS_DOMAIN_ID",
+        ],
+    );
+}
+
+/// A moving rig whose /tf never reaches the sets (none published, `tf_timeout:=0.2`): each
+/// set is skipped after the timeout with the reason, which the node gives as why no depth
+/// comes out, and /diagnostics counts them under "skipped: no world pose".
+fn moving_rig_tf_timeout() {
+    let mut node = Node::start(&["world_frame:=world", "tf_timeout:=0.2"]);
+    let mut peer = Peer::new(DOMAIN, "sweepdepth_why_peer");
+    let mut diag = Diagnostics::new(&mut peer);
+    let feed = Feed::new(&mut peer, &dds::reliable(10), &[0, 1, 2, 3], &[0, 1, 2, 3]);
+    wait_for_why(
+        &mut node,
+        &mut diag,
+        Some(&feed),
+        &[
+            "sets are skipped: ",
+            "no pose of 'cam1_optical' in world_frame 'world' at the set's stamp",
+        ],
+    );
+    let status = diag.wait_until(
+        "a count of sets skipped without a world pose",
+        &mut node.process,
+        |s| {
+            dds::value_of(s, "skipped: no world pose")
+                .and_then(|v| v.parse::<u64>().ok())
+                .is_some_and(|n| n > 0)
+        },
+    );
+    eprintln!(
+        "skipped: no world pose = {:?}",
+        dds::value_of(&status, "skipped: no world pose")
     );
 }
 
