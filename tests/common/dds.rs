@@ -415,6 +415,25 @@ impl RigFeed {
         }
     }
 
+    /// Publishes one set of images rendered for it (`images[i]` for camera `i`, stamped
+    /// `stamps[i]`), with the camera infos: a rig that moves through a scene.
+    pub fn publish_rendered_set(&self, stamps: &[Time], images: &[Rgba8Image]) {
+        assert_eq!(stamps.len(), self.images.len(), "one stamp per camera");
+        assert_eq!(images.len(), self.images.len(), "one image per camera");
+        for (i, (stamp, rendered)) in stamps.iter().zip(images).enumerate() {
+            let header = Header {
+                stamp: *stamp,
+                frame_id: frame(i),
+            };
+            self.info_pubs[i]
+                .publish(camera_info(&header, &self.rig.cameras[i].model))
+                .unwrap_or_else(|e| panic!("publish cam{i}/camera_info: {e:?}"));
+            self.image_pubs[i]
+                .publish(image_msg(&header, rendered, false))
+                .unwrap_or_else(|e| panic!("publish cam{i}/image_raw: {e:?}"));
+        }
+    }
+
     /// Publishes one set without camera `missing` (its driver has stopped).
     pub fn publish_set_without(&self, stamps: &[Time], missing: usize) {
         assert_eq!(stamps.len(), self.images.len(), "one stamp per camera");

@@ -1,25 +1,29 @@
-//! `sweepdepth fuse` across two "hosts": the depth of a rig split over two machines, fused by
-//! one `fuse` node over DDS, equals the fusion of one node that computes every reference.
+//! `sweepdepth fuse` across two "hosts": the depth of a moving rig split over two machines,
+//! fused by one `fuse` node over DDS, lies on the true scene, as the fusion of one node that
+//! computes every reference does.
 //!
 //! Host A is the test's private network namespace; host B a namespace of its own joined to it
 //! by a veth pair with private addresses (`SecondHost`): DDS discovery and data cross the pair,
 //! nothing leaves the machine. On A: the camera drivers (the test's peer, a synthetic row of 4
-//! cameras looking at a wall and a box, `/tf_static` world -> rig -> cameras), depth node `a`
-//! (reference cam0, its depth remapped to `/a/cam0/depth/...`), the `fuse` node (namespace
-//! `/fused`) and depth node `one` (references cam0 and cam2, `fusion:=true`: the one-process
-//! run). On B: depth node `b` (reference cam2, `/b/cam2/depth/...`). The rig stands still, so
-//! the fused surface does not depend on which sets each node got to: both meshes are saved
-//! through `~/save_mesh` and compared vertex by vertex.
+//! cameras moving past a wall and a box that stand still in `world`, each set rendered at the
+//! rig's pose; `/tf_static` rig -> cameras, `/tf` world -> rig around each set's stamp, the
+//! first pose 1 m up and a quarter turn from the identity), depth node `a` (reference cam0,
+//! its depth remapped to `/a/cam0/depth/...`), the `fuse` node (namespace `/fused`) and depth
+//! node `one` (references cam0 and cam2, `fusion:=true`: the one-process run). On B: depth
+//! node `b` (reference cam2, `/b/cam2/depth/...`). The fuse node must count maps from both
+//! hosts in `/diagnostics`, and both meshes, saved through `~/save_mesh`, must lie on the
+//! true scene in `world` (95 % of the vertices within 2 voxels): a node that ignored /tf, or
+//! fused one host only, fails.
 
-use std::collections::HashMap;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use crate::common::dds::{self, NodeProcess, Peer, RigFeed};
 use crate::common::mesh::{ply_vertices, SaveMesh};
 use crate::common::netns::{in_private_netns, SecondHost};
-use glam::DVec3;
+use glam::{DQuat, DVec3};
 use sweepdepth::geometry::CameraModel;
+use sweepdepth::geometry::RigidTransform;
 use sweepdepth::msgs::{
     DiagnosticArray, Header, Image, Quaternion, TFMessage, Time, Transform, TransformStamped,
     Vector3,
@@ -34,10 +38,10 @@ const CAMERAS: usize = 4;
 const VOXEL: f64 = 0.04;
 
 #[test]
-fn fuse_node_on_two_hosts_equals_one_process() {
+fn fuse_node_on_two_hosts_fuses_a_moving_rig() {
     in_private_netns(
         INNER,
-        "fuse_node::fuse_node_on_two_hosts_equals_one_process",
+        "fuse_node::fuse_node_on_two_hosts_fuses_a_moving_rig",
         two_hosts,
     );
 }
@@ -114,6 +118,8 @@ fn two_hosts() {
                 "-p",
                 "world_frame:=world",
                 "-p",
+                "tf_timeout:=5.0",
+                "-p",
                 "voxel_size:=0.04",
                 "-p",
                 "min_depth:=1.0",
@@ -139,6 +145,8 @@ fn two_hosts() {
             "-p",
             "world_frame:=world",
             "-p",
+            "tf_timeout:=5.0",
+            "-p",
             "fusion:=true",
             "-p",
             "voxel_size:=0.04",
@@ -161,37 +169,41 @@ fn two_hosts() {
 
     let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
     let rig = synthetic::row_rig(CAMERAS, 0.1, model, 1).expect("rig");
+    // The scene stands still in `world`, placed where the rig's first pose sees it as the
+    // row's own frame would.
     let scene = Scene::wall_and_box(2.0, Some((1.2, 0.3)), model.intrinsics.fx_px);
+    let world_from_scene = world_from_rig(seconds(0));
     let images = synthetic::render_rig(&scene, &rig);
     let mut peer = Peer::new(DOMAIN, "sweepdepth_fuse_test_peer");
-    let feed = RigFeed::new(&mut peer, rig, &images, &dds::reliable(10), None);
-    // world -> rig, static: the rig stands 1 m up and turned a quarter about z in the world.
-    let world_pub = peer.publisher::<TFMessage>("/tf_static", dds::TF_MESSAGE, &dds::latched(10));
-    let half = std::f64::consts::FRAC_PI_4;
-    world_pub
-        .publish(TFMessage {
-            transforms: vec![TransformStamped {
-                header: Header {
-                    stamp: Time::default(),
-                    frame_id: "world".into(),
-                },
-                child_frame_id: "rig".into(),
-                transform: Transform {
-                    translation: Vector3 {
-                        x: 0.5,
-                        y: -0.2,
-                        z: 1.0,
-                    },
-                    rotation: Quaternion {
-                        x: 0.0,
-                        y: 0.0,
-                        z: half.sin(),
-                        w: half.cos(),
-                    },
-                },
-            }],
-        })
-        .expect("publish world -> rig");
+    let feed = RigFeed::new(&mut peer, rig.clone(), &images, &dds::reliable(10), None);
+    let tf_pub = peer.publisher::<TFMessage>("/tf", dds::TF_MESSAGE, &dds::reliable(100));
+    // Set k at its stamp: /tf 50 ms before and after it (tf2 interpolates; the motion is
+    // linear and about one axis, so exactly), then the images rendered at the rig's pose.
+    let publish_set = |k: u32| {
+        let t = seconds(k);
+        for dt in [-0.05, 0.05] {
+            let pose = world_from_rig(t + dt);
+            tf_pub
+                .publish(TFMessage {
+                    transforms: vec![stamped("world", "rig", time(t + dt), &pose)],
+                })
+                .expect("publish world -> rig");
+        }
+        let scene_from_rig = world_from_scene.inverse().compose(&world_from_rig(t));
+        let rendered: Vec<_> = rig
+            .cameras
+            .iter()
+            .map(|c| {
+                let camera = sweepdepth::geometry::RigCamera {
+                    name: c.name.clone(),
+                    model: c.model,
+                    cam_from_rig: c.cam_from_rig.compose(&scene_from_rig.inverse()),
+                };
+                scene.render(&camera)
+            })
+            .collect();
+        feed.publish_rendered_set(&[time(t); CAMERAS], &rendered);
+    };
     let depth_a = peer.subscription::<Image>("/a/cam0/depth/image", dds::IMAGE, &dds::reliable(10));
     let depth_b = peer.subscription::<Image>("/b/cam2/depth/image", dds::IMAGE, &dds::reliable(10));
     let diag = peer.subscription::<DiagnosticArray>(
@@ -227,11 +239,7 @@ fn two_hosts() {
             fused("fuse", &arrays),
             fused("/one/", &arrays)
         );
-        let stamp = Time {
-            sec: 1000 + (k / 10) as i32,
-            nanosec: (k % 10) * 100_000_000,
-        };
-        feed.publish_set(&[stamp; CAMERAS]);
+        publish_set(k);
         k += 1;
         std::thread::sleep(Duration::from_millis(200));
         from_a += dds::take_all(&depth_a).len();
@@ -294,43 +302,78 @@ fn two_hosts() {
     let one_vertices = ply_vertices(&std::fs::read(&one_ply).unwrap());
     let _ = std::fs::remove_dir_all(&dir);
     assert!(fused_vertices.len() > 100 && one_vertices.len() > 100);
-    let near_one = share_within(&fused_vertices, &one_vertices, VOXEL);
-    let near_fused = share_within(&one_vertices, &fused_vertices, VOXEL);
-    eprintln!(
-        "fuse node: {} vertices, {:.1} % within a voxel of the one-process mesh; one process: {} vertices, {:.1} % within a voxel of the fuse node's",
-        fused_vertices.len(),
-        near_one * 100.0,
-        one_vertices.len(),
-        near_fused * 100.0
-    );
-    assert!(near_one >= 0.95 && near_fused >= 0.95);
+    // Every mesh against the true scene in `world`.
+    for (name, vertices) in [
+        ("fuse node", &fused_vertices),
+        ("one process", &one_vertices),
+    ] {
+        let on_scene = vertices
+            .iter()
+            .filter(|p| {
+                let in_scene = world_from_scene.inverse().transform_point(**p);
+                sweepdepth::eval::fusion::scene_distance_m(&scene, in_scene) <= 2.0 * VOXEL
+            })
+            .count();
+        eprintln!(
+            "{name}: {on_scene} of {} vertices within 2 voxels of the true scene",
+            vertices.len()
+        );
+        assert!(
+            on_scene * 100 >= vertices.len() * 95,
+            "{name}: only {on_scene} of {} mesh vertices lie within 2 voxels of the true scene",
+            vertices.len()
+        );
+    }
 }
 
-/// The share of `points` with a point of `other` within `radius`.
-fn share_within(points: &[DVec3], other: &[DVec3], radius: f64) -> f64 {
-    let cell = |p: &DVec3| p.to_array().map(|c| (c / radius).floor() as i64);
-    let mut grid: HashMap<[i64; 3], Vec<DVec3>> = HashMap::new();
-    for p in other {
-        grid.entry(cell(p)).or_default().push(*p);
+/// Seconds of set `k` (10 sets a second from 1000 s).
+fn seconds(k: u32) -> f64 {
+    1000.0 + f64::from(k) * 0.1
+}
+
+fn time(t: f64) -> Time {
+    let ns = (t * 1e9).round() as i64;
+    Time {
+        sec: ns.div_euclid(1_000_000_000) as i32,
+        nanosec: ns.rem_euclid(1_000_000_000) as u32,
     }
-    let near = points
-        .iter()
-        .filter(|p| {
-            let c = cell(p);
-            (-1..=1).any(|dx| {
-                (-1..=1).any(|dy| {
-                    (-1..=1).any(|dz| {
-                        grid.get(&[c[0] + dx, c[1] + dy, c[2] + dz])
-                            .is_some_and(|v| {
-                                v.iter().any(|q| {
-                                    let d: f64 = (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f64>();
-                                    d.sqrt() <= radius
-                                })
-                            })
-                    })
-                })
-            })
-        })
-        .count();
-    near as f64 / points.len().max(1) as f64
+}
+
+/// The rig in `world` at `t` s: 1 m up, a quarter turn about z and 0.5 m aside at 1000 s, then
+/// moving 0.2 m/s along the row and turning 0.05 rad/s about its vertical (the sets of a few
+/// seconds that the test needs see the wall and the box).
+fn world_from_rig(t: f64) -> RigidTransform {
+    let s = t - 1000.0;
+    let start = RigidTransform {
+        rotation: DQuat::from_rotation_z(std::f64::consts::FRAC_PI_2),
+        translation: DVec3::new(0.5, -0.2, 1.0),
+    };
+    start.compose(&RigidTransform {
+        rotation: DQuat::from_rotation_y(0.05 * s),
+        translation: DVec3::new(0.2 * s, 0.0, 0.0),
+    })
+}
+
+fn stamped(parent: &str, child: &str, stamp: Time, pose: &RigidTransform) -> TransformStamped {
+    let (t, q) = (pose.translation, pose.rotation);
+    TransformStamped {
+        header: Header {
+            stamp,
+            frame_id: parent.into(),
+        },
+        child_frame_id: child.into(),
+        transform: Transform {
+            translation: Vector3 {
+                x: t.x,
+                y: t.y,
+                z: t.z,
+            },
+            rotation: Quaternion {
+                x: q.x,
+                y: q.y,
+                z: q.z,
+                w: q.w,
+            },
+        },
+    }
 }
