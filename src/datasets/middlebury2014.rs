@@ -14,7 +14,7 @@ use glam::DVec3;
 
 use super::{folder_name, Dataset, DatasetError, GroundTruth, Layout, MAX_MIDDLEBURY_PLANES};
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
-use crate::image::ImageF32;
+use crate::image::{ImageF32, Rgba8Image};
 use crate::io;
 use crate::sweep::SweepParams;
 
@@ -183,6 +183,62 @@ pub(super) fn load_middlebury2014(
             reason: format!("no right view {right_name}"),
         });
     }
+    let (images, rig) = pair(dir, &calib, &calib_path, right_name)?;
+
+    let (gt, disparity_eval_px, nonocc_mask) = ground_truth(dir, names, &calib)?;
+    let focal_baseline = calib.cam0[0] * calib.baseline_m;
+    let ground_truth = GroundTruth::Disparity {
+        disparity_eval_px,
+        focal_baseline_eval: focal_baseline,
+        border_px: 0,
+    };
+
+    // One plane per pixel of disparity over the calibration's range (sub-pixel depth between
+    // them), at most MAX_MIDDLEBURY_PLANES.
+    let gt_range = gt.data.iter().filter(|d| d.is_finite() && **d > 0.0).fold(
+        None,
+        |r: Option<(f64, f64)>, &d| {
+            let d = f64::from(d);
+            Some(r.map_or((d, d), |(lo, hi)| (lo.min(d), hi.max(d))))
+        },
+    );
+    let (lo, hi) = calib.disparity_range(gt_range);
+    let num_planes = ((hi - lo).ceil() as u32 + 1).clamp(2, MAX_MIDDLEBURY_PLANES);
+    let params = SweepParams {
+        min_depth_m: focal_baseline / (hi + calib.doffs).max(1e-3),
+        max_depth_m: focal_baseline / (lo + calib.doffs).max(1e-3),
+        num_planes,
+        ..SweepParams::default()
+    };
+    let ordered = params.min_depth_m < params.max_depth_m;
+    if !ordered {
+        return Err(DatasetError::Invalid {
+            path: calib_path,
+            reason: format!(
+                "the disparity range {lo}..{hi} px with doffs {} gives no depth range",
+                calib.doffs
+            ),
+        });
+    }
+    Ok(Dataset {
+        name: folder_name(dir),
+        layout,
+        rig,
+        images,
+        ground_truth,
+        nonocc_mask,
+        params,
+    })
+}
+
+/// The two views (`im0.png` and `right_name`) at calib.txt's size, and their rig: `im0` the
+/// reference, the right camera `baseline` along +x.
+fn pair(
+    dir: &Path,
+    calib: &StereoCalib,
+    calib_path: &Path,
+    right_name: &str,
+) -> Result<(Vec<Rgba8Image>, Rig), DatasetError> {
     let mut images = Vec::with_capacity(2);
     for name in ["im0.png", right_name] {
         let path = dir.join(name);
@@ -223,10 +279,21 @@ pub(super) fn load_middlebury2014(
         Reference::Camera(0),
     )
     .map_err(|source| DatasetError::Geometry {
-        path: calib_path.clone(),
+        path: calib_path.to_path_buf(),
         source,
     })?;
 
+    Ok((images, rig))
+}
+
+/// The left view's ground-truth disparity (as read), in evaluation units `d + doffs` (NaN
+/// where unknown), and the non-occluded mask when the set has `mask0nocc.png`.
+fn ground_truth(
+    dir: &Path,
+    names: &[String],
+    calib: &StereoCalib,
+) -> Result<(ImageF32, ImageF32, Option<Vec<bool>>), DatasetError> {
+    let layout = Layout::Middlebury2014;
     // Ground truth: disparity d (px) of the left view; depth f B / (d + doffs). In evaluation
     // units d + doffs, so that an estimated depth z maps to f B / z.
     let gt_name = ["disp0GT.pfm", "disp0.pfm"]
@@ -282,49 +349,7 @@ pub(super) fn load_middlebury2014(
     } else {
         None
     };
-    let focal_baseline = calib.cam0[0] * calib.baseline_m;
-    let ground_truth = GroundTruth::Disparity {
-        disparity_eval_px,
-        focal_baseline_eval: focal_baseline,
-        border_px: 0,
-    };
-
-    // One plane per pixel of disparity over the calibration's range (sub-pixel depth between
-    // them), at most MAX_MIDDLEBURY_PLANES.
-    let gt_range = gt.data.iter().filter(|d| d.is_finite() && **d > 0.0).fold(
-        None,
-        |r: Option<(f64, f64)>, &d| {
-            let d = f64::from(d);
-            Some(r.map_or((d, d), |(lo, hi)| (lo.min(d), hi.max(d))))
-        },
-    );
-    let (lo, hi) = calib.disparity_range(gt_range);
-    let num_planes = ((hi - lo).ceil() as u32 + 1).clamp(2, MAX_MIDDLEBURY_PLANES);
-    let params = SweepParams {
-        min_depth_m: focal_baseline / (hi + calib.doffs).max(1e-3),
-        max_depth_m: focal_baseline / (lo + calib.doffs).max(1e-3),
-        num_planes,
-        ..SweepParams::default()
-    };
-    let ordered = params.min_depth_m < params.max_depth_m;
-    if !ordered {
-        return Err(DatasetError::Invalid {
-            path: calib_path,
-            reason: format!(
-                "the disparity range {lo}..{hi} px with doffs {} gives no depth range",
-                calib.doffs
-            ),
-        });
-    }
-    Ok(Dataset {
-        name: folder_name(dir),
-        layout,
-        rig,
-        images,
-        ground_truth,
-        nonocc_mask,
-        params,
-    })
+    Ok((gt, disparity_eval_px, nonocc_mask))
 }
 
 #[cfg(test)]

@@ -374,38 +374,7 @@ impl SweepParams {
                 }
             ));
         }
-        if self.optimizer == Optimizer::Sgm {
-            if self.sgm_paths != 4 && self.sgm_paths != 8 {
-                return bad(format!("sgm_paths must be 4 or 8, got {}", self.sgm_paths));
-            }
-            if !(self.sgm_p1 >= 0.0 && self.sgm_p2 >= self.sgm_p1) {
-                return bad(format!(
-                    "SGM penalties need 0 <= sgm_p1 <= sgm_p2, got {} and {}",
-                    self.sgm_p1, self.sgm_p2
-                ));
-            }
-            // The path costs are summed in 16 bits: paths x (largest cost + P2) must fit.
-            let max_p2 = self.max_sgm_p2();
-            if self.sgm_p2 > max_p2 {
-                return bad(format!(
-                    "sgm_p2 ({}) is too large for {} paths: the summed path costs are 16-bit, which allows P2 <= {max_p2:.2} with tau = {} (P2 <= {} x tau)",
-                    self.sgm_p2,
-                    self.sgm_paths,
-                    self.tau,
-                    (self.max_sgm_p2() / self.tau)
-                ));
-            }
-            if !(self.sgm_edge >= 0.0) {
-                return bad(format!("sgm_edge must be >= 0, got {}", self.sgm_edge));
-            }
-            if self.num_planes > gpu_types::MAX_SGM_PLANES {
-                return bad(format!(
-                    "optimizer sgm supports at most {} planes, got {}",
-                    gpu_types::MAX_SGM_PLANES,
-                    self.num_planes
-                ));
-            }
-        }
+        self.validate_sgm()?;
         let pairs = self.effective_pairs();
         if pairs == PairSet::Reference && !shape.real_reference {
             return bad(format!(
@@ -438,8 +407,9 @@ impl SweepParams {
             };
             if m > gpu_types::MAX_PAIRS as usize {
                 return bad(format!(
-                    "per-pair aggregation supports at most {} pairs; {n} cameras with {pairs:?} pairs make {m} (use aggregation = scored)",
-                    gpu_types::MAX_PAIRS
+                    "per-pair aggregation supports at most {} pairs; {n} cameras with {pairs:?} pairs make {m} (let each reference choose its views: `Sweeper::run_views` or `run_references` with max_neighbours <= {}; or aggregation = scored)",
+                    gpu_types::MAX_PAIRS,
+                    self.max_views()
                 ));
             }
         }
@@ -448,6 +418,47 @@ impl SweepParams {
                 "all-pairs scoring supports at most {} cameras, the rig has {}",
                 gpu_types::MAX_CAMERAS,
                 shape.cameras
+            ));
+        }
+        Ok(())
+    }
+
+    /// The SGM parameters, when the optimizer is SGM ([`SweepParams::validate_shape`]).
+    // `!(x >= 0.0)` on purpose: it also rejects NaN.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    fn validate_sgm(&self) -> Result<(), SweepError> {
+        let bad = |m: String| Err(SweepError::InvalidParams(m));
+        if self.optimizer != Optimizer::Sgm {
+            return Ok(());
+        }
+        if self.sgm_paths != 4 && self.sgm_paths != 8 {
+            return bad(format!("sgm_paths must be 4 or 8, got {}", self.sgm_paths));
+        }
+        if !(self.sgm_p1 >= 0.0 && self.sgm_p2 >= self.sgm_p1) {
+            return bad(format!(
+                "SGM penalties need 0 <= sgm_p1 <= sgm_p2, got {} and {}",
+                self.sgm_p1, self.sgm_p2
+            ));
+        }
+        // The path costs are summed in 16 bits: paths x (largest cost + P2) must fit.
+        let max_p2 = self.max_sgm_p2();
+        if self.sgm_p2 > max_p2 {
+            return bad(format!(
+                "sgm_p2 ({}) is too large for {} paths: the summed path costs are 16-bit, which allows P2 <= {max_p2:.2} with tau = {} (P2 <= {} x tau)",
+                self.sgm_p2,
+                self.sgm_paths,
+                self.tau,
+                (self.max_sgm_p2() / self.tau)
+            ));
+        }
+        if !(self.sgm_edge >= 0.0) {
+            return bad(format!("sgm_edge must be >= 0, got {}", self.sgm_edge));
+        }
+        if self.num_planes > gpu_types::MAX_SGM_PLANES {
+            return bad(format!(
+                "optimizer sgm supports at most {} planes, got {}",
+                gpu_types::MAX_SGM_PLANES,
+                self.num_planes
             ));
         }
         Ok(())
