@@ -254,7 +254,10 @@ fn auto_fallback_warning(nodes: bool, probe: Result<(bool, &str), String>) -> Op
 
 /// The engine a command runs: the WGSL engine with its device, or the CPU engine.
 // One engine per process: the size of the CPU variant does not matter.
-#[allow(clippy::large_enum_variant)]
+#[expect(
+    clippy::large_enum_variant,
+    reason = "one engine per process: the size of the CPU variant does not matter"
+)]
 pub enum Engine {
     Gpu {
         gpu: Box<GpuContext>,

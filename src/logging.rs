@@ -70,7 +70,13 @@ mod tests {
     use super::*;
 
     /// Call sites are told apart by address: each has a byte, so two are never one.
-    struct Site(#[allow(dead_code)] u8);
+    struct Site(
+        #[expect(
+            dead_code,
+            reason = "call sites are told apart by address: the byte only gives each one"
+        )]
+        u8,
+    );
     impl tracing::callsite::Callsite for Site {
         fn set_interest(&self, _: tracing::subscriber::Interest) {}
         fn metadata(&self) -> &tracing::Metadata<'_> {

@@ -54,7 +54,7 @@ pub fn keep_freed_memory() -> Option<String> {
         const MMAP_THRESHOLD: libc::c_int = 32 << 20;
         const TRIM_THRESHOLD: libc::c_int = 1 << 30;
         // SAFETY: mallopt only sets malloc's tunables; called before any thread starts.
-        #[allow(unsafe_code)]
+        #[expect(unsafe_code, reason = "the one unsafe call, with its SAFETY comment")]
         let ok = unsafe {
             libc::mallopt(libc::M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
                 && libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1

@@ -102,7 +102,7 @@ macro_rules! vectorised_fn {
             // One of the crate's two unsafe blocks (the other: process_env's mallopt):
             // calling the AVX-512 or AVX2 + FMA build of the body.
             #[cfg(target_arch = "x86_64")]
-            #[allow(unsafe_code)]
+            #[allow(unsafe_code, reason = "the call of a build whose CPU features were checked just before")]
             {
                 $crate::simd::vectorised_fn!(@avx512 $wide; ($($arg: $ty),*) $(-> $ret)?);
                 #[target_feature(enable = "avx2,fma")]

@@ -344,7 +344,10 @@ pub fn nonocc_mask(left: &ImageF32, right: &ImageF32) -> Vec<bool> {
 
 /// Middlebury 2001: views `<prefix>.colN.<ext>` grouped by prefix, and ground truth
 /// `truedisp.<mid>.colR.<ext>` as (mid, R, name).
-#[allow(clippy::type_complexity)]
+#[expect(
+    clippy::type_complexity,
+    reason = "the (prefix, column, name) lists are read once, right below"
+)]
 pub(super) fn middlebury2001_files(
     names: &[String],
 ) -> (

@@ -43,10 +43,16 @@ struct RawKalibrCamera {
     #[serde(default, rename = "T_cam_imu")]
     t_cam_imu: Option<Vec<Vec<f64>>>,
     #[serde(default)]
-    #[allow(dead_code)]
+    #[expect(
+        dead_code,
+        reason = "Kalibr writes it; read so that the file parses, not used"
+    )]
     cam_overlaps: Option<Vec<i64>>,
     #[serde(default)]
-    #[allow(dead_code)]
+    #[expect(
+        dead_code,
+        reason = "Kalibr writes it; read so that the file parses, not used"
+    )]
     timeshift_cam_imu: Option<f64>,
 }
 

@@ -14,7 +14,10 @@ use crate::geometry::{CameraModel, Distortion, PinholeIntrinsics, RigidTransform
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-#[allow(dead_code)] // only parsed for its error messages
+#[expect(
+    dead_code,
+    reason = "only parsed for its error messages (deny_unknown_fields)"
+)]
 struct RawRigFile {
     #[serde(default)]
     rig_frame: Option<String>,

@@ -299,7 +299,10 @@ impl SweepParams {
 
     /// [`SweepParams::validate`] against a rig's shape.
     // `!(x > 0.0)` on purpose: it also rejects NaN.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    #[expect(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "`!(a > b)` on purpose: it is also true for NaN, as the shaders' tests are"
+    )]
     pub fn validate_shape(&self, shape: RigShape) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
@@ -425,7 +428,10 @@ impl SweepParams {
 
     /// The SGM parameters, when the optimizer is SGM ([`SweepParams::validate_shape`]).
     // `!(x >= 0.0)` on purpose: it also rejects NaN.
-    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    #[expect(
+        clippy::neg_cmp_op_on_partial_ord,
+        reason = "`!(a > b)` on purpose: it is also true for NaN, as the shaders' tests are"
+    )]
     fn validate_sgm(&self) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         if self.optimizer != Optimizer::Sgm {

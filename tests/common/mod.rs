@@ -2,7 +2,10 @@
 //! on failure; and, as submodules, the DDS safety guard ([`netns`]), the DDS peer side of the
 //! node tests ([`dds`]), fusion's mesh service and PLY files ([`mesh`]), a Foxglove WebSocket client ([`foxglove`]), a bag player ([`player`]), the Python with the test tools ([`python`]), the rclpy peers ([`rclpy`])
 //! and the shared datasets ([`shared_data`]). Each test binary uses a part of it.
-#![allow(dead_code)]
+#![allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 
 pub mod dds;
 pub mod foxglove;

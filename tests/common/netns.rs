@@ -153,12 +153,18 @@ impl Drop for KillOnDrop {
 /// discovery) goes over the pair on both sides. Commands run there through [`Self::command`]
 /// (`nsenter`). Only inside [`in_private_netns`]; the namespace goes with the holder process
 /// when dropped.
-#[allow(dead_code)]
+#[allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 pub struct SecondHost {
     holder: KillOnDrop,
 }
 
-#[allow(dead_code)]
+#[allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 impl SecondHost {
     /// The address of the test's own namespace on the pair, and the second host's.
     pub const HERE: &'static str = "10.77.0.1";
@@ -230,7 +236,10 @@ impl SecondHost {
     }
 }
 
-#[allow(dead_code)]
+#[allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 fn run_ip(args: &[&str]) {
     let status = Command::new("ip").args(args).status().expect("run ip");
     assert!(status.success(), "ip {args:?} failed");

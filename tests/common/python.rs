@@ -1,7 +1,10 @@
 //! The Python that has the test tools of `tools/requirements-test.txt` (cyclonedds, rosbags,
 //! mcap, cv2): `SWEEPDEPTH_PYTHON`, else the virtual environment `scripts/setup.sh` makes when the
 //! system Python lacks them (`target/test-venv`), else `python3`.
-#![allow(dead_code)]
+#![allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 
 use std::path::Path;
 

@@ -5,7 +5,10 @@
 //! [`test_timeout`] (`SWEEPDEPTH_TEST_TIMEOUT_S`, default 300 s), a [`Peer`] for as long as the
 //! test waits on it ([`Peer::wait_for`] takes the limit; pass [`test_timeout`]), and a `Peer` is
 //! killed when dropped, on every exit path of the test, a panic included.
-#![allow(dead_code)]
+#![allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};

@@ -2,7 +2,10 @@
 //! working system answers in seconds even on a slow, loaded machine; the limit only bounds how
 //! long a broken one takes to fail. A module of common (dds.rs and rclpy.rs use it); included
 //! alone with `#[path]` where a test binary takes only a few common files (house/colcon.rs).
-#![allow(dead_code)]
+#![allow(
+    dead_code,
+    reason = "a module shared by several test binaries: each uses a part of it"
+)]
 
 use std::time::Duration;
 

@@ -88,7 +88,10 @@ pub(super) fn sweep(
 /// One band of rows (`rows`, its winner-take-all state `st`, its pixels' SGM lanes `vol`):
 /// every plane in the shader's order, each costed from the first to the last row of the band
 /// that sweeps it, scored, selected and written as volume levels while in cache.
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 fn sweep_band(
     plan: &SweepPlan,
     frame: &FrameImages,

@@ -1,10 +1,6 @@
 //! Twin of the census half of `shaders/cost.wgsl` (`census_distance`, `census_nearest`,
 //! `mixed_cost`), one reference row at a time. The words themselves are made once per frame set
 //! by `sweep/census.rs` for both engines.
-// The `!(x > 0.0)` style tests mirror the shaders and are NaN-safe on purpose.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-// Loops over x index several rows at once, as the shader indexes its buffers.
-#![allow(clippy::needless_range_loop)]
 
 use super::common::*;
 use super::cost::{Mapping, ShiftedSpan};
@@ -53,7 +49,10 @@ fn along_row(row: &[u32], refs: &[u32], fx: f32, dst: &mut [f32]) {
 /// around the camera's sample, interpolated bilinearly. Only visible samples (`visible[x]` not
 /// NaN: the camera's red channel from `cost::sample_row`) are written; mappings other than
 /// translations read the samples' positions that `sample_row` left in `coords`.
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 #[inline(always)]
 pub fn distance_row(
     plan: &SweepPlan,
@@ -119,7 +118,10 @@ pub fn distance_row(
 
 /// `census_nearest` along a row: the word of the texel nearest to each visible sample (at the
 /// positions in `coords` for mappings other than translations, as `distance_row`).
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 #[inline(always)]
 pub fn nearest_row(
     plan: &SweepPlan,

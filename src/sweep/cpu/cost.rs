@@ -11,9 +11,10 @@
 //! one gather loop reads the colours (and `census.rs` reuses the positions). A distorted
 //! reference projects each pixel as the shader does (`General`).
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
-// Loops over x index several rows at once, as the shader indexes its buffers.
-#![allow(clippy::needless_range_loop)]
+#![expect(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "`!(a > b)` on purpose: it is also true for NaN, as the shaders' tests are"
+)]
 
 use super::common::*;
 use crate::sweep::gpu_types::*;
@@ -213,7 +214,6 @@ pub fn colour_row(width: usize) -> ColourRow {
 /// in `coords` (x, y; x NaN where the camera does not see it: behind, past the distortion's
 /// fold, or outside its image). Twin of the projection and `inside` of cost.wgsl, for the
 /// mappings that are not translations.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn sample_coords(
     plan: &SweepPlan,
@@ -404,7 +404,10 @@ pub fn hypothesis_coords(
 /// reference row's census words (`census`: the words, the distances out), make the census
 /// distances of the samples too (`census::distance_row`'s arithmetic), from the same texel
 /// loads (`PlanarImage::sample_with_words`). Returns whether they did.
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 #[inline(always)]
 pub fn sample_row(
     plan: &SweepPlan,
@@ -705,6 +708,10 @@ mod tests {
     }
 
     #[test]
+    #[expect(
+        clippy::needless_range_loop,
+        reason = "x indexes the rays, the depths and both coordinate rows at once"
+    )]
     fn general_row_and_hypothesis_coords_are_ray_pixel_bit_for_bit() {
         for mut plan in converging_test_plans() {
             // Through the centre, slanted, behind, and near enough for the side cameras to see

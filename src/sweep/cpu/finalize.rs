@@ -2,7 +2,10 @@
 //! [`subpixel_offset`]),
 //! `max_cost` invalidation, confidence. Rows in parallel.
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
+#![expect(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "`!(a > b)` on purpose: it is also true for NaN, as the shaders' tests are"
+)]
 
 use rayon::prelude::*;
 

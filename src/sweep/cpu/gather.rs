@@ -6,8 +6,6 @@
 //! census distances of the whole chunk (vectorise: eight samples at a time, the popcounts of
 //! eight XORs per instruction sequence). Same floats as `PlanarImage::sample_with_words`
 //! (the tests below compare with it).
-// Loops over j index several chunk arrays at once.
-#![allow(clippy::needless_range_loop)]
 
 use super::common::PlanarImage;
 

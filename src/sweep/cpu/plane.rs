@@ -172,7 +172,7 @@ vectorised_fn! {
 /// selection code of every pixel of the band into `score` and `sel` (row-major from the band's
 /// first row; the `best` argument of `select_plane`). The costs of the rows the band's windows
 /// reach above and below it are made too (a band's halo).
-#[allow(clippy::too_many_arguments)]
+#[expect(clippy::too_many_arguments, reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them")]
 pub fn sweep_plane(
     plan: &SweepPlan,
     images: &FrameImages,

@@ -17,8 +17,6 @@
 //! surface), the sweep's cost, box and aggregate stages in refine batches (`Batch::refine`:
 //! hypotheses per pixel, the matched reference in cost.wgsl, no plane ranges, no volume), then
 //! `shaders/refine_select.wgsl` (this file's last loop).
-// Loops over x index several images at once.
-#![allow(clippy::needless_range_loop)]
 
 use std::sync::Arc;
 
@@ -310,7 +308,7 @@ vectorised_fn! {
     /// NaN where its own is. The window's offsets outside, the pixels inside, so that the loop
     /// vectorises; each pixel's sums in the window's row-major order (the same floats as one
     /// pixel at a time: a value not on the surface adds +0).
-    #[allow(clippy::too_many_arguments)]
+    #[expect(clippy::too_many_arguments, reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them")]
     fn base_row(
         inverse: &[f32],
         spacing: &[f32],

@@ -6,7 +6,10 @@
 //! costs, and the two passes run on two threads. The planes of a pixel are u16 lanes; the
 //! integer arithmetic is the shader's, so the summed path costs are exactly equal.
 // The `!(x < BIG)` test mirrors the shader and is NaN-safe on purpose.
-#![allow(clippy::neg_cmp_op_on_partial_ord)]
+#![expect(
+    clippy::neg_cmp_op_on_partial_ord,
+    reason = "`!(a > b)` on purpose: it is also true for NaN, as the shaders' tests are"
+)]
 
 use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
@@ -61,7 +64,6 @@ fn colour_step(a: u32, b: u32) -> u32 {
 /// written (`FIRST`) or added into `sum`. Returns the minimum of `L`. `N` lanes per pixel when
 /// known at compile time ([`step_fixed`]), else 0 and as many as `cost` has.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 fn step<const N: usize, const START: bool, const FIRST: bool>(
     cost: &[u16],
     prev: &[u16],
@@ -113,7 +115,6 @@ fn step<const N: usize, const START: bool, const FIRST: bool>(
 /// time the demo's path steps took ~1000 instructions per pixel and pass, their minimum going
 /// through the stack).
 #[inline(always)]
-#[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 fn step_fixed<const N: usize, const START: bool, const FIRST: bool>(
     cost: &[u16],
     prev: &[u16],
@@ -160,7 +161,10 @@ fn step_fixed<const N: usize, const START: bool, const FIRST: bool>(
 
 /// `step` with its two switches as run-time values.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 pub(super) fn step_dyn<const N: usize>(
     start: bool,
     first: bool,
