@@ -95,6 +95,15 @@ fn why_moving_rig_whose_tf_never_comes_skips_sets() {
 }
 
 #[test]
+fn why_moving_rig_whose_tf_names_another_world() {
+    in_private_netns(
+        INNER,
+        "node_why::why_moving_rig_whose_tf_names_another_world",
+        moving_rig_tf_misnamed,
+    );
+}
+
+#[test]
 fn why_silent_while_depth_flows() {
     in_private_netns(
         INNER,
@@ -181,6 +190,8 @@ struct Feed {
     _tf_pub: Publisher<TFMessage>,
     /// Per camera, added to its stamps.
     offsets_ns: [i64; CAMERAS],
+    /// `/tf` sent with each set, at its stamp: (publisher, parent frame) of `parent -> rig`.
+    tf: Option<(Publisher<TFMessage>, String)>,
 }
 
 impl Feed {
@@ -245,11 +256,34 @@ impl Feed {
             info_pubs,
             _tf_pub: tf_pub,
             offsets_ns: [0; CAMERAS],
+            tf: None,
         }
+    }
+
+    /// Also `/tf` `parent -> rig` (identity) at each set's stamp, on `peer`.
+    fn with_tf(mut self, peer: &mut Peer, parent: &str) -> Feed {
+        let publisher = peer.publisher::<TFMessage>("/tf", dds::TF_MESSAGE, &dds::reliable(100));
+        self.tf = Some((publisher, parent.to_string()));
+        self
     }
 
     /// Publishes set `k`: each camera's camera_info (where it has one) and image.
     fn publish(&self, k: u32) {
+        if let Some((publisher, parent)) = &self.tf {
+            let _ = publisher.publish(TFMessage {
+                transforms: vec![TransformStamped {
+                    header: Header {
+                        stamp: time_of(stamp_ns(k)),
+                        frame_id: parent.clone(),
+                    },
+                    child_frame_id: "rig".into(),
+                    transform: Transform {
+                        translation: Vector3::default(),
+                        rotation: Quaternion::default(),
+                    },
+                }],
+            });
+        }
         for i in 0..CAMERAS {
             let header = Header {
                 stamp: time_of(stamp_ns(k) + self.offsets_ns[i]),
@@ -430,6 +464,27 @@ fn moving_rig_tf_timeout() {
     eprintln!(
         "skipped: no world pose = {:?}",
         dds::value_of(&status, "skipped: no world pose")
+    );
+}
+
+/// A moving rig whose /tf names another world (`odom -> rig` while `world_frame:=world`):
+/// /tf arrives at every set's stamp, but no pose in 'world' can come of it; each set is
+/// skipped after `tf_timeout` and the reason says that 'world' is not in the tree.
+fn moving_rig_tf_misnamed() {
+    let mut node = Node::start(&["world_frame:=world", "tf_timeout:=0.2"]);
+    let mut peer = Peer::new(DOMAIN, "sweepdepth_why_peer");
+    let mut diag = Diagnostics::new(&mut peer);
+    let feed = Feed::new(&mut peer, &dds::reliable(10), &[0, 1, 2, 3], &[0, 1, 2, 3])
+        .with_tf(&mut peer, "odom");
+    wait_for_why(
+        &mut node,
+        &mut diag,
+        Some(&feed),
+        &[
+            "sets are skipped: ",
+            "no pose of 'cam1_optical' in world_frame 'world'",
+            "'world' is not in the tree",
+        ],
     );
 }
 
