@@ -12,7 +12,7 @@ use super::{
     GroundTruth, Layout, MAX_MIDDLEBURY_PLANES, MIDDLEBURY_BASELINE_M,
 };
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
-use crate::image::ImageF32;
+use crate::image::{ImageF32, Rgba8Image};
 use crate::io::{self};
 use crate::sweep::SweepParams;
 
@@ -72,65 +72,7 @@ pub(super) fn load_middlebury(
 ) -> Result<Dataset, DatasetError> {
     // view number -> image file; ground-truth view number -> GT file.
     let (views, truth): (BTreeMap<u32, String>, BTreeMap<u32, String>) = match layout {
-        Layout::Middlebury2001 => {
-            let (groups, truth) = middlebury2001_files(names);
-            if truth.is_empty() {
-                return Err(DatasetError::MissingGroundTruth {
-                    dir: dir.to_path_buf(),
-                    layout,
-                    reason: "no truedisp.<...>.colR.pgm|png file".into(),
-                });
-            }
-            // Views whose prefix ends with the ground truth's middle part (row3 of truedisp.row3.col3).
-            let matching: Vec<(&String, &BTreeMap<u32, String>)> = groups
-                .iter()
-                .filter(|(prefix, _)| {
-                    truth.iter().any(|(mid, _, _)| {
-                        mid.is_empty()
-                            || prefix.as_str() == mid
-                            || prefix.ends_with(&format!(".{mid}"))
-                    })
-                })
-                .collect();
-            let (prefix, views) = match matching.as_slice() {
-                [one] => *one,
-                [] => {
-                    return Err(DatasetError::MissingReference {
-                        dir: dir.to_path_buf(),
-                        layout,
-                        reason: format!(
-                            "no view sequence matches the ground truth file(s) {}",
-                            truth
-                                .iter()
-                                .map(|t| t.2.as_str())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
-                    })
-                }
-                many => {
-                    return Err(DatasetError::Ambiguous {
-                        dir: dir.to_path_buf(),
-                        layout,
-                        reason: format!(
-                            "several view sequences match the ground truth: {}",
-                            many.iter()
-                                .map(|(p, _)| p.as_str())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ),
-                    })
-                }
-            };
-            let truth = truth
-                .iter()
-                .filter(|(mid, _, _)| {
-                    mid.is_empty() || prefix == mid || prefix.ends_with(&format!(".{mid}"))
-                })
-                .map(|(_, n, name)| (*n, name.clone()))
-                .collect();
-            (views.clone(), truth)
-        }
+        Layout::Middlebury2001 => middlebury2001_views(dir, names)?,
         Layout::Middlebury2003 => (numbered_images(names, "im"), numbered_images(names, "disp")),
         _ => (
             numbered_images(names, "view"),
@@ -159,37 +101,7 @@ pub(super) fn load_middlebury(
     };
     let truth_path = dir.join(truth_name);
 
-    let mut images = Vec::with_capacity(views.len());
-    let mut view_numbers = Vec::with_capacity(views.len());
-    let mut first: Option<(PathBuf, u32, u32)> = None;
-    for (&n, name) in &views {
-        let path = dir.join(name);
-        let image = io::load_rgba8(&path)?;
-        match &first {
-            None => first = Some((path.clone(), image.width, image.height)),
-            Some((first_path, w, h)) => {
-                if (image.width, image.height) != (*w, *h) {
-                    return Err(DatasetError::SizeMismatch {
-                        path,
-                        got_w: image.width,
-                        got_h: image.height,
-                        want_w: *w,
-                        want_h: *h,
-                        what: format!("the size of {}", first_path.display()),
-                    });
-                }
-            }
-        }
-        images.push(image);
-        view_numbers.push(n);
-    }
-    let Some((_, width, height)) = first else {
-        return Err(DatasetError::MissingReference {
-            dir: dir.to_path_buf(),
-            layout,
-            reason: "no views".into(),
-        });
-    };
+    let (images, view_numbers, width, height) = load_views(dir, &views, layout)?;
     let Some(reference) = view_numbers.iter().position(|&n| n == reference_view) else {
         return Err(DatasetError::MissingReference {
             dir: dir.to_path_buf(),
@@ -294,6 +206,114 @@ pub(super) fn load_middlebury(
         nonocc_mask,
         params,
     })
+}
+
+/// Middlebury 2001: the view sequence whose prefix matches the ground truth's middle part
+/// (row3 of `truedisp.row3.col3`), as view number -> image file and view number -> GT file.
+#[expect(
+    clippy::type_complexity,
+    reason = "the two maps load_middlebury reads, as the other layouts make them"
+)]
+fn middlebury2001_views(
+    dir: &Path,
+    names: &[String],
+) -> Result<(BTreeMap<u32, String>, BTreeMap<u32, String>), DatasetError> {
+    let layout = Layout::Middlebury2001;
+    let (groups, truth) = middlebury2001_files(names);
+    if truth.is_empty() {
+        return Err(DatasetError::MissingGroundTruth {
+            dir: dir.to_path_buf(),
+            layout,
+            reason: "no truedisp.<...>.colR.pgm|png file".into(),
+        });
+    }
+    // Views whose prefix ends with the ground truth's middle part (row3 of truedisp.row3.col3).
+    let matching: Vec<(&String, &BTreeMap<u32, String>)> = groups
+        .iter()
+        .filter(|(prefix, _)| {
+            truth.iter().any(|(mid, _, _)| {
+                mid.is_empty() || prefix.as_str() == mid || prefix.ends_with(&format!(".{mid}"))
+            })
+        })
+        .collect();
+    let (prefix, views) = match matching.as_slice() {
+        [one] => *one,
+        [] => {
+            return Err(DatasetError::MissingReference {
+                dir: dir.to_path_buf(),
+                layout,
+                reason: format!(
+                    "no view sequence matches the ground truth file(s) {}",
+                    truth
+                        .iter()
+                        .map(|t| t.2.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+        }
+        many => {
+            return Err(DatasetError::Ambiguous {
+                dir: dir.to_path_buf(),
+                layout,
+                reason: format!(
+                    "several view sequences match the ground truth: {}",
+                    many.iter()
+                        .map(|(p, _)| p.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+        }
+    };
+    let truth = truth
+        .iter()
+        .filter(|(mid, _, _)| {
+            mid.is_empty() || prefix == mid || prefix.ends_with(&format!(".{mid}"))
+        })
+        .map(|(_, n, name)| (*n, name.clone()))
+        .collect();
+    Ok((views.clone(), truth))
+}
+
+/// The views' images in view order, their numbers, and their one size (all must share it).
+fn load_views(
+    dir: &Path,
+    views: &BTreeMap<u32, String>,
+    layout: Layout,
+) -> Result<(Vec<Rgba8Image>, Vec<u32>, u32, u32), DatasetError> {
+    let mut images = Vec::with_capacity(views.len());
+    let mut view_numbers = Vec::with_capacity(views.len());
+    let mut first: Option<(PathBuf, u32, u32)> = None;
+    for (&n, name) in views {
+        let path = dir.join(name);
+        let image = io::load_rgba8(&path)?;
+        match &first {
+            None => first = Some((path.clone(), image.width, image.height)),
+            Some((first_path, w, h)) => {
+                if (image.width, image.height) != (*w, *h) {
+                    return Err(DatasetError::SizeMismatch {
+                        path,
+                        got_w: image.width,
+                        got_h: image.height,
+                        want_w: *w,
+                        want_h: *h,
+                        what: format!("the size of {}", first_path.display()),
+                    });
+                }
+            }
+        }
+        images.push(image);
+        view_numbers.push(n);
+    }
+    let Some((_, width, height)) = first else {
+        return Err(DatasetError::MissingReference {
+            dir: dir.to_path_buf(),
+            layout,
+            reason: "no views".into(),
+        });
+    };
+    Ok((images, view_numbers, width, height))
 }
 
 /// A Middlebury ground-truth map in evaluation units (value / divisor; 0 = unknown = NaN).

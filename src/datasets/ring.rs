@@ -10,6 +10,7 @@ use super::{
     RING_NEIGHBOURS,
 };
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::image::Rgba8Image;
 use crate::io::{self, IoError};
 use crate::sweep::SweepParams;
 
@@ -273,44 +274,7 @@ pub(super) fn load_ring(
             });
         }
         let image = io::load_rgba8(&image_path)?;
-        let k = view.k;
-        let k33 = k.z_axis.z;
-        let invalid = |reason: String| DatasetError::Invalid {
-            path: par_path.clone(),
-            reason: format!("{}: {reason}", view.image),
-        };
-        if k33.abs() < 1e-12 || k.x_axis.z.abs() > 1e-9 || k.y_axis.z.abs() > 1e-9 {
-            return Err(invalid(format!(
-                "K's last row must be (0 0 k33) with k33 != 0, K = {k:?}"
-            )));
-        }
-        let k = k * (1.0 / k33);
-        // glam is column-major: k.y_axis.x is k12 (skew), k.x_axis.y is k21.
-        if k.y_axis.x.abs() > 1e-6 * k.x_axis.x.abs().max(1.0) || k.x_axis.y.abs() > 1e-9 {
-            return Err(invalid("K has a skew term; not supported".into()));
-        }
-        let intrinsics = PinholeIntrinsics {
-            width_px: image.width,
-            height_px: image.height,
-            fx_px: k.x_axis.x,
-            fy_px: k.y_axis.y,
-            cx_px: k.z_axis.x,
-            cy_px: k.z_axis.y,
-        };
-        let cam_from_world = RigidTransform::from_matrix_translation(&view.image, view.r, view.t)
-            .map_err(|source| DatasetError::Geometry {
-            path: par_path.clone(),
-            source,
-        })?;
-        cameras.push(RigCamera {
-            name: view
-                .image
-                .rsplit_once('.')
-                .map_or(view.image.as_str(), |(s, _)| s)
-                .to_string(),
-            model: CameraModel::pinhole(intrinsics),
-            cam_from_rig: cam_from_world,
-        });
+        cameras.push(view_camera(view, &image, &par_path)?);
         images.push(image);
     }
     let rig = Rig::new(cameras, Reference::Camera(0)).map_err(|source| DatasetError::Geometry {
@@ -318,8 +282,80 @@ pub(super) fn load_ring(
         source,
     })?;
 
-    // Depth range: the README's bounding box seen from the reference, else around the point
-    // nearest all optical axes.
+    let (min_depth_m, max_depth_m) = depth_range(dir, names, &views, &rig, &par_path)?;
+    let params = SweepParams {
+        min_depth_m,
+        max_depth_m,
+        num_planes: CALIBRATED_NUM_PLANES,
+        ..SweepParams::default()
+    };
+    Ok(Dataset {
+        name: folder_name(dir),
+        layout,
+        rig,
+        images,
+        ground_truth: GroundTruth::None,
+        nonocc_mask: None,
+        params,
+    })
+}
+
+/// The camera of one view of a `_par.txt` (K with no skew and a last row (0 0 k33), the pose
+/// from R and t), sized as its image.
+fn view_camera(
+    view: &ParView,
+    image: &Rgba8Image,
+    par_path: &Path,
+) -> Result<RigCamera, DatasetError> {
+    let k = view.k;
+    let k33 = k.z_axis.z;
+    let invalid = |reason: String| DatasetError::Invalid {
+        path: par_path.to_path_buf(),
+        reason: format!("{}: {reason}", view.image),
+    };
+    if k33.abs() < 1e-12 || k.x_axis.z.abs() > 1e-9 || k.y_axis.z.abs() > 1e-9 {
+        return Err(invalid(format!(
+            "K's last row must be (0 0 k33) with k33 != 0, K = {k:?}"
+        )));
+    }
+    let k = k * (1.0 / k33);
+    // glam is column-major: k.y_axis.x is k12 (skew), k.x_axis.y is k21.
+    if k.y_axis.x.abs() > 1e-6 * k.x_axis.x.abs().max(1.0) || k.x_axis.y.abs() > 1e-9 {
+        return Err(invalid("K has a skew term; not supported".into()));
+    }
+    let intrinsics = PinholeIntrinsics {
+        width_px: image.width,
+        height_px: image.height,
+        fx_px: k.x_axis.x,
+        fy_px: k.y_axis.y,
+        cx_px: k.z_axis.x,
+        cy_px: k.z_axis.y,
+    };
+    let cam_from_world = RigidTransform::from_matrix_translation(&view.image, view.r, view.t)
+        .map_err(|source| DatasetError::Geometry {
+            path: par_path.to_path_buf(),
+            source,
+        })?;
+    Ok(RigCamera {
+        name: view
+            .image
+            .rsplit_once('.')
+            .map_or(view.image.as_str(), |(s, _)| s)
+            .to_string(),
+        model: CameraModel::pinhole(intrinsics),
+        cam_from_rig: cam_from_world,
+    })
+}
+
+/// The depth range swept: the README's bounding box seen from the reference (camera 0 of
+/// `rig`), else around the point nearest all optical axes.
+fn depth_range(
+    dir: &Path,
+    names: &[String],
+    views: &[ParView],
+    rig: &Rig,
+    par_path: &Path,
+) -> Result<(f64, f64), DatasetError> {
     let ref_from_world = rig.cameras[0].cam_from_rig;
     let readme_box = names
         .iter()
@@ -341,34 +377,19 @@ pub(super) fn load_ring(
         }
         (zmin > 0.0 && zmax > zmin).then_some((zmin * 0.9, zmax * 1.1))
     });
-    let (min_depth_m, max_depth_m) = match from_box {
-        Some(range) => range,
+    match from_box {
+        Some(range) => Ok(range),
         None => {
-            let z = nearest_point_to_axes(&views)
+            let z = nearest_point_to_axes(views)
                 .map(|p| ref_from_world.transform_point(p).z)
                 .filter(|z| *z > 0.0 && z.is_finite())
                 .ok_or_else(|| DatasetError::Invalid {
-                    path: par_path.clone(),
+                    path: par_path.to_path_buf(),
                     reason: "no README bounding box and the optical axes do not meet in front of the reference: cannot choose a depth range".into(),
                 })?;
-            (0.5 * z, 1.5 * z)
+            Ok((0.5 * z, 1.5 * z))
         }
-    };
-    let params = SweepParams {
-        min_depth_m,
-        max_depth_m,
-        num_planes: CALIBRATED_NUM_PLANES,
-        ..SweepParams::default()
-    };
-    Ok(Dataset {
-        name: folder_name(dir),
-        layout,
-        rig,
-        images,
-        ground_truth: GroundTruth::None,
-        nonocc_mask: None,
-        params,
-    })
+    }
 }
 
 #[cfg(test)]
