@@ -42,7 +42,7 @@ pub const SAME_SURFACE: f32 = 1.5;
 /// How much the reference row is smoothed to match a sample's bilinear phase
 /// ([`MatchedReference`]): the [v, 1 - 2v, v] kernel with v = `PHASE_SMOOTHING` f (1 - f) for
 /// a sample at fraction f of a texel (0.5 and 1 measured too: 60-degree plane refined 0.068 /
-/// 0.071, sphere 0.084 / 0.085, with 0.75 in between; docs/quality.md).
+/// 0.071, sphere 0.084 / 0.085, with 0.75 in between; docs/notes/quality-history.md).
 pub const PHASE_SMOOTHING: f32 = 0.75;
 
 /// The reference's row `y` as a camera's bilinear samples see it: a sample at texel

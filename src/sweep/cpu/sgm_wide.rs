@@ -74,8 +74,8 @@ pub fn run(
 }
 
 /// Columns per chunk of a row: one chunk per thread, at least 16 columns (on 16 cores four
-/// chunks per thread, or at least 64 columns, measured the same or slower: ring 182-189 against
-/// 176-180 ms per set; docs/speed.md).
+/// chunks per thread, or at least 64 columns, measured the same or slower on the ring;
+/// docs/notes/speed-history.md).
 fn chunk_columns(width: usize) -> usize {
     width.div_ceil(rayon::current_num_threads()).max(16)
 }

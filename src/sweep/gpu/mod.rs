@@ -173,8 +173,8 @@ impl GpuEngine {
             align: Alignments::of(device),
             sgm_layout,
             // A GPU walks SGM's other directions side by side (record.rs, `sgm_together`); a CPU
-            // adapter has no idle lanes to fill (lavapipe's SGM stage: 63-71 ms one direction
-            // after the other, 99-119 ms side by side, the demo; docs/speed.md).
+            // adapter has no idle lanes to fill (on lavapipe side by side was about 1.6x slower
+            // on the demo; docs/notes/speed-history.md).
             sgm_together: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
             sgm_band_bytes: None,
