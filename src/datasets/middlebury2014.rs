@@ -150,6 +150,21 @@ impl StereoCalib {
     /// them; else the ground truth's own range (`gt`: its smallest and largest finite value)
     /// with that margin where `ndisp` is no bound (ETH3D writes the image width); else
     /// `0.5..ndisp`.
+    /// An image of the pair (`path`, `width` x `height`) against calib.txt's size.
+    fn check_size(&self, path: &Path, width: u32, height: u32) -> Result<(), DatasetError> {
+        if (width, height) == (self.width, self.height) {
+            return Ok(());
+        }
+        Err(DatasetError::SizeMismatch {
+            path: path.to_path_buf(),
+            got_w: width,
+            got_h: height,
+            want_w: self.width,
+            want_h: self.height,
+            what: "calib.txt's width and height".into(),
+        })
+    }
+
     pub fn disparity_range(&self, gt: Option<(f64, f64)>) -> (f64, f64) {
         match (self.vmin, self.vmax, gt) {
             (Some(lo), Some(hi), _) if hi > lo => ((lo - 2.0).max(0.5), hi + 2.0),
@@ -243,16 +258,7 @@ fn pair(
     for name in ["im0.png", right_name] {
         let path = dir.join(name);
         let image = io::load_rgba8(&path)?;
-        if (image.width, image.height) != (calib.width, calib.height) {
-            return Err(DatasetError::SizeMismatch {
-                path,
-                got_w: image.width,
-                got_h: image.height,
-                want_w: calib.width,
-                want_h: calib.height,
-                what: "calib.txt's width and height".into(),
-            });
-        }
+        calib.check_size(&path, image.width, image.height)?;
         images.push(image);
     }
     let camera = |name: &str, m: [f64; 4], x_m: f64| RigCamera {
@@ -306,16 +312,7 @@ fn ground_truth(
         })?;
     let gt_path = dir.join(gt_name);
     let gt = io::read_pfm(&gt_path)?;
-    if (gt.width, gt.height) != (calib.width, calib.height) {
-        return Err(DatasetError::SizeMismatch {
-            path: gt_path,
-            got_w: gt.width,
-            got_h: gt.height,
-            want_w: calib.width,
-            want_h: calib.height,
-            what: "calib.txt's width and height".into(),
-        });
-    }
+    calib.check_size(&gt_path, gt.width, gt.height)?;
     let doffs = calib.doffs as f32;
     let disparity_eval_px = ImageF32 {
         width: gt.width,
@@ -335,16 +332,7 @@ fn ground_truth(
     let nonocc_mask = if names.iter().any(|n| n == "mask0nocc.png") {
         let mask_path = dir.join("mask0nocc.png");
         let mask = io::load_gray_u8(&mask_path)?;
-        if mask.dimensions() != (calib.width, calib.height) {
-            return Err(DatasetError::SizeMismatch {
-                path: mask_path,
-                got_w: mask.width(),
-                got_h: mask.height(),
-                want_w: calib.width,
-                want_h: calib.height,
-                what: "calib.txt's width and height".into(),
-            });
-        }
+        calib.check_size(&mask_path, mask.width(), mask.height())?;
         Some(mask.as_raw().iter().map(|&v| v == 255).collect())
     } else {
         None

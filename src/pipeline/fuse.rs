@@ -188,10 +188,12 @@ impl Fuser {
         }
         self.stamp = self.stamp.max(input.stamp);
         self.integrated += 1;
-        *self
-            .integrated_by_source
-            .entry(input.source.clone())
-            .or_default() += 1;
+        match self.integrated_by_source.get_mut(&input.source) {
+            Some(count) => *count += 1,
+            None => {
+                self.integrated_by_source.insert(input.source.clone(), 1);
+            }
+        }
         Ok(stats)
     }
 

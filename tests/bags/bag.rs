@@ -926,30 +926,16 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
     );
     assert!(stderr.contains("mesh: 4 depth maps fused"), "{stderr}");
     let bytes = std::fs::read(&mesh).expect("the PLY");
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .expect("a PLY header")
-        + 11;
-    let header = String::from_utf8_lossy(&bytes[..end]).into_owned();
     assert!(
-        header.starts_with("ply\nformat binary_little_endian 1.0\n"),
-        "{header}"
+        bytes.starts_with(b"ply\nformat binary_little_endian 1.0\n"),
+        "not a binary little-endian PLY"
     );
-    let vertices: usize = header
-        .lines()
-        .find_map(|l| l.strip_prefix("element vertex "))
-        .and_then(|n| n.trim().parse().ok())
-        .expect("a vertex count");
-    assert!(vertices > 1000, "{vertices} vertices");
-    // x y z as f32, then r g b.
-    let coordinate = |v: usize, k: usize| {
-        let o = end + v * 15 + 4 * k;
-        f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
-    };
-    let points: Vec<[f32; 3]> = (0..vertices)
-        .map(|v| [coordinate(v, 0), coordinate(v, 1), coordinate(v, 2)])
+    let points: Vec<[f32; 3]> = crate::common::mesh::ply_vertices(&bytes)
+        .iter()
+        .map(|p| p.as_vec3().to_array())
         .collect();
+    let vertices = points.len();
+    assert!(vertices > 1000, "{vertices} vertices");
     let accuracy = sweepdepth::fusion::vertex_accuracy(
         &points,
         0.05,

@@ -45,27 +45,15 @@ fn mesh_mean_colour(input: &Path, output: &Path, mesh: &Path) -> [f64; 3] {
         ]),
         "sweepdepth bag --mesh",
     );
-    let bytes = std::fs::read(mesh).expect("the PLY");
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .expect("a PLY header")
-        + 11;
-    let header = String::from_utf8_lossy(&bytes[..end]).into_owned();
-    let vertices: usize = header
-        .lines()
-        .find_map(|l| l.strip_prefix("element vertex "))
-        .and_then(|n| n.trim().parse().ok())
-        .expect("a vertex count");
-    assert!(vertices > 1000, "{vertices} vertices");
-    // x y z as f32, then r g b as u8.
+    let colours = crate::common::mesh::ply_colours(&std::fs::read(mesh).expect("the PLY"));
+    assert!(colours.len() > 1000, "{} vertices", colours.len());
     let mut sum = [0.0f64; 3];
-    for v in 0..vertices {
-        for (c, total) in sum.iter_mut().enumerate() {
-            *total += f64::from(bytes[end + v * 15 + 12 + c]);
+    for colour in &colours {
+        for (total, &c) in sum.iter_mut().zip(colour) {
+            *total += f64::from(c);
         }
     }
-    sum.map(|total| total / vertices as f64)
+    sum.map(|total| total / colours.len() as f64)
 }
 
 /// The depth (metres) of every `/depth/image` message, in order.

@@ -71,9 +71,10 @@ impl SaveMesh {
     }
 }
 
-/// The vertices of a binary little-endian PLY written by `sweepdepth::fusion::write_ply` (x, y,
-/// z as float first in each vertex; the vertex size read from the header's properties).
-pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
+/// The vertex element of a binary little-endian PLY written by `sweepdepth::fusion::write_ply`:
+/// where the vertices start, how many there are, the size of one, and each property's name and
+/// byte offset in it (read from the header).
+fn ply_vertex_layout(ply: &[u8]) -> (usize, usize, usize, Vec<(String, usize)>) {
     let end = ply
         .windows(11)
         .position(|w| w == b"end_header\n")
@@ -82,6 +83,7 @@ pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
     let header = String::from_utf8_lossy(&ply[..end]);
     assert!(header.contains("binary_little_endian"), "{header}");
     let (mut count, mut size, mut in_vertex) = (0usize, 0usize, false);
+    let mut offsets = Vec::new();
     for line in header.lines() {
         let words: Vec<&str> = line.split_whitespace().collect();
         match words.as_slice() {
@@ -90,7 +92,8 @@ pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
                 in_vertex = true;
             }
             ["element", ..] => in_vertex = false,
-            ["property", kind, _] if in_vertex => {
+            ["property", kind, name] if in_vertex => {
+                offsets.push((name.to_string(), size));
                 size += match *kind {
                     "float" | "int" | "uint" => 4,
                     "uchar" | "char" => 1,
@@ -102,6 +105,13 @@ pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
             _ => {}
         }
     }
+    (end, count, size, offsets)
+}
+
+/// The vertices of a binary little-endian PLY written by `sweepdepth::fusion::write_ply` (x, y,
+/// z as float first in each vertex; the vertex size read from the header's properties).
+pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
+    let (end, count, size, _) = ply_vertex_layout(ply);
     (0..count)
         .map(|i| {
             let at = end + i * size;
@@ -110,6 +120,25 @@ pub fn ply_vertices(ply: &[u8]) -> Vec<DVec3> {
                 f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
             };
             DVec3::new(f(0), f(1), f(2))
+        })
+        .collect()
+}
+
+/// The vertex colours (red, green, blue as uchar properties) of such a PLY.
+pub fn ply_colours(ply: &[u8]) -> Vec<[u8; 3]> {
+    let (end, count, size, offsets) = ply_vertex_layout(ply);
+    let offset = |name: &str| {
+        offsets
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, o)| *o)
+            .unwrap_or_else(|| panic!("no vertex property {name}"))
+    };
+    let (r, g, b) = (offset("red"), offset("green"), offset("blue"));
+    (0..count)
+        .map(|i| {
+            let at = end + i * size;
+            [ply[at + r], ply[at + g], ply[at + b]]
         })
         .collect()
 }

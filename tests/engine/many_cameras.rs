@@ -33,6 +33,16 @@ fn errors(depth: &ImageF32, truth: &ImageF32) -> (f64, f64) {
     (sum / valid as f64, within as f64 / total as f64)
 }
 
+/// The defaults over 1-8 m with 64 planes.
+fn params() -> SweepParams {
+    SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 8.0,
+        num_planes: 64,
+        ..SweepParams::default()
+    }
+}
+
 /// The frames `keep` of `rig` (the reference among them), with their images.
 fn subset(rig: &Rig, images: &[Rgba8Image], keep: &[usize]) -> (Rig, Vec<Rgba8Image>) {
     let reference = rig.reference_index().expect("a camera reference");
@@ -54,12 +64,7 @@ fn a_dense_trajectory_with_every_frame_is_no_worse_than_every_fifth() {
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
     let truth = synthetic::reference_depth(&scene, &rig);
-    let p = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 8.0,
-        num_planes: 64,
-        ..SweepParams::default()
-    };
+    let p = params();
     let mut engine = Engine::Cpu(CpuEngine::new());
     // Every frame, the defaults: no limit on the number of cameras.
     let all = engine
@@ -97,12 +102,7 @@ fn a_32_camera_dome_runs_with_the_defaults() {
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
     let truth = synthetic::reference_depth(&scene, &rig);
-    let p = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 8.0,
-        num_planes: 64,
-        ..SweepParams::default()
-    };
+    let p = params();
     let mut engine = Engine::Cpu(CpuEngine::new());
     let chosen = engine
         .run_references(&rig.cameras, &images, &[0], &p)
