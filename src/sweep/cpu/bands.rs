@@ -107,6 +107,12 @@ fn sweep_band(
     let stride = sgm::stride(planes);
     let levels_per_unit = plan.params.sgm_levels_per_unit;
     let len = rows.len() * width;
+    // With SGM only the winner is needed, unless `uniqueness` reads the local rival too.
+    let best_only = vol.is_some() && plan.params.uniqueness <= 0.0;
+    // The level of a pixel that does not sweep a plane (it scores BIG there).
+    let idle_level = sgm::volume_level(levels_per_unit, BIG);
+    // Whether some pixel of the band sweeps a plane of the current group of volume levels.
+    let mut group_swept = false;
     for (k, plane_mappings) in mappings.iter().enumerate() {
         if cancel.is_cancelled() {
             return;
@@ -116,9 +122,10 @@ fn sweep_band(
         // band that sweeps it (from the window sums' restart row at or above the first,
         // so the floats are those of the whole band), and in each row only in the columns
         // whose costs a sweeping pixel's windows read (`SweepPlan::cost_spans`); the pixels
-        // that do not sweep it score BIG on it (`plan.plane_ranges`, per tile).
+        // that do not sweep it score BIG on it (`plan.plane_ranges`, per tile). `swept`: the
+        // band's pixels that may score less than BIG.
         let sweeping = |y: usize| plan.sweeps(y, k as u32);
-        if let Some(first) = rows.clone().find(|&y| sweeping(y)) {
+        let swept = rows.clone().find(|&y| sweeping(y)).map(|first| {
             let last = rows.clone().rev().find(|&y| sweeping(y)).unwrap_or(first);
             let step = aggregate::RESTART_ROWS;
             let lo = rows.start + (first - rows.start) / step * step;
@@ -131,34 +138,63 @@ fn sweep_band(
                 lo..last + 1,
                 &mut scratch.plane,
                 &mut score[span.clone()],
-                &mut sel[span],
+                &mut sel[span.clone()],
             );
-            for (i, y) in rows.clone().enumerate() {
+            for y in lo..last + 1 {
+                let i = y - rows.start;
                 plan.idle_spans(y, k as u32, &mut scratch.idle);
-                for span in &scratch.idle {
-                    let at = i * width + span.start..i * width + span.end;
+                for idle in &scratch.idle {
+                    let at = i * width + idle.start..i * width + idle.end;
                     score[at.clone()].fill(BIG);
                     sel[at].fill(f32::from(crate::sweep::selection::INVALID));
                 }
             }
+            span
+        });
+        let swept = swept.unwrap_or(0..0);
+        if best_only {
+            // A BIG score never wins (`update_best` keeps a strictly better one), so the
+            // pixels outside `swept` keep their state: the same floats as selecting them all.
+            let mut st = st.sub(swept.start, swept.end);
+            select_plane(
+                k as f32,
+                &score[swept.clone()],
+                &sel[swept.clone()],
+                &mut st,
+                true,
+            );
         } else {
-            score.fill(BIG);
-            sel.fill(f32::from(crate::sweep::selection::INVALID));
+            let invalid = f32::from(crate::sweep::selection::INVALID);
+            for outside in [0..swept.start, swept.end..len] {
+                score[outside.clone()].fill(BIG);
+                sel[outside].fill(invalid);
+            }
+            select_plane(k as f32, score, sel, st, false);
         }
-        // With SGM only the winner is needed, unless `uniqueness` reads the local rival too.
-        let best_only = vol.is_some() && plan.params.uniqueness <= 0.0;
-        select_plane(k as f32, score, sel, st, best_only);
         if let Some(vol) = vol.as_deref_mut() {
             // Levels of a group of planes are gathered plane by plane, then written
             // pixel by pixel (each pixel's group of lanes at once: the band's volume
             // is far larger than the cache, so a lane at a time would pull every
-            // pixel's lanes in once per plane).
+            // pixel's lanes in once per plane). A group no pixel of the band sweeps is
+            // written as the idle level straight away.
             let g = k % LEVEL_GROUP;
             let levels = &mut scratch.levels[g * len..(g + 1) * len];
-            volume_levels(levels_per_unit, score, levels);
+            levels[..swept.start].fill(idle_level);
+            volume_levels(
+                levels_per_unit,
+                &score[swept.clone()],
+                &mut levels[swept.clone()],
+            );
+            levels[swept.end..].fill(idle_level);
+            group_swept |= !swept.is_empty();
             if g + 1 == LEVEL_GROUP || k + 1 == planes {
                 let first = k - g;
-                write_level_group(&scratch.levels, len, stride, first, g + 1, vol);
+                if group_swept {
+                    write_level_group(&scratch.levels, len, stride, first, g + 1, vol);
+                } else {
+                    fill_level_group(idle_level, len, stride, first, g + 1, vol);
+                }
+                group_swept = false;
             }
         }
     }
@@ -291,6 +327,16 @@ fn write_level_group(
         for (g, lane) in lanes[first..first + count].iter_mut().enumerate() {
             *lane = levels[g * len + i];
         }
+    }
+}
+}
+
+common::vectorised_fn! {
+/// Lanes `first..first + count` of each of the first `len` pixels' `stride` lanes of `vol` set
+/// to `level` (a group of planes no pixel of the band sweeps).
+fn fill_level_group(level: u16, len: usize, stride: usize, first: usize, count: usize, vol: &mut [u16]) {
+    for lanes in vol.chunks_exact_mut(stride).take(len) {
+        lanes[first..first + count].fill(level);
     }
 }
 }

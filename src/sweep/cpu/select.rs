@@ -161,6 +161,22 @@ impl<'a> WtaChunk<'a> {
         )
     }
 
+    /// The pixels `start..end` of the chunk, reborrowed.
+    pub fn sub(&mut self, start: usize, end: usize) -> WtaChunk<'_> {
+        WtaChunk {
+            best: &mut self.best[start..end],
+            best_plane: &mut self.best_plane[start..end],
+            before: &mut self.before[start..end],
+            after: &mut self.after[start..end],
+            rival: &mut self.rival[start..end],
+            min_to_last: &mut self.min_to_last[start..end],
+            min_to_second_last: &mut self.min_to_second_last[start..end],
+            last: &mut self.last[start..end],
+            selection: &mut self.selection[start..end],
+            local_confidence: &mut self.local_confidence[start..end],
+        }
+    }
+
     /// `select_plane` for plane `k` on every pixel of the chunk: `cost[i]` and `sel[i]` are
     /// pixel i's aggregated score and selection code. Branch-free, so it vectorises.
     #[inline(always)]
