@@ -99,10 +99,10 @@ struct Params {
     sgm_unit_per_level: f32,      // 1 / (paths x levels per unit): score units per summed level
     cost: u32,                    // COST_*
     census_offset: u32,           // word of camera 0's census in `images` (camera c: + size.z)
-    uniqueness: f32,              // local (pre-SGM) confidence below which a pixel is invalid
+    uniqueness: f32,              // with SGM: uniqueness on the matching costs below which a pixel is invalid
     colour_in_alpha: u32,         // 1: images prefiltered, the cost's colour is the alpha byte
-    pad1: u32,
-    pad2: u32,
+    ambiguity: f32,               // with SGM: uniqueness below which the confidence is scaled down
+    uniqueness_radius: u32,       // with SGM: planes either side of the winner that are no rival
 }
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as

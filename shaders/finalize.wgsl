@@ -55,12 +55,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
     }
     // Confidence: how clearly the winner beats the best rival away from its neighbours.
-    let conf = confidence(best, s1.x);
-    // Uniqueness on the matching costs themselves (sgm_select.wgsl keeps the local winner's
-    // in s2.y): SGM's sums make one of several equally good depths win along every path.
-    var local = conf;
+    let sgm_conf = confidence(best, s1.x);
+    // Uniqueness on the matching costs themselves (sgm_select.wgsl keeps it in s2.y): SGM's
+    // sums make one of several equally good depths win along every path.
+    var local = sgm_conf;
+    var conf = sgm_conf;
     if (params.sgm_paths > 0u) {
         local = s2.y;
+        if (params.ambiguity > 0.0) {
+            conf = sgm_conf * min(local / params.ambiguity, 1.0);
+        }
     }
     if (local < params.uniqueness) {
         // Ambiguous: a rival away from the winner nearly as good (CPU twin: finalize.rs).

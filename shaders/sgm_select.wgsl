@@ -3,13 +3,53 @@
 // winner-take-all of aggregate.wgsl fills (winner, its neighbours for the sub-pixel parabola,
 // the best rival away from them for the confidence), so finalize.wgsl reads either. Pixels
 // with no valid hypothesis stay invalid, and the half-sequence selection of the local winner is
-// kept. One invocation per reference pixel. CPU twin: src/sweep/cpu/sgm.rs (`select`).
+// kept; where `uniqueness` or `ambiguity` reads it, the winner's uniqueness on the matching costs
+// of the volume (in s2.y). One invocation per reference pixel. CPU twin: src/sweep/cpu/sgm.rs
+// (`select`, `uniqueness_on_costs`).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> sums: array<u32>;
 @group(0) @binding(2) var<storage, read_write> state: array<vec4<f32>>;
 // The rows of this dispatch; `sums` holds only theirs.
 @group(0) @binding(3) var<uniform> band: Band;
+// The matching costs of this band's rows, as SGM read them.
+@group(0) @binding(4) var<storage, read> volume: array<u32>;
+
+// A volume level back to score units (CPU twin: `level_score`).
+fn level_score(level: u32) -> f32 {
+    return f32(level) / params.sgm_levels_per_unit - SGM_VOLUME_OFFSET;
+}
+
+// How clearly plane `best` is the best match on the matching costs of pixel `local_pix` of the
+// band: its cost against the lowest more than `uniqueness_radius` planes away (a repeated
+// pattern matches as well one period away; SGM's paths make one of them win clearly).
+fn uniqueness_on_costs(local_pix: u32, best: u32) -> f32 {
+    let planes = params.planes;
+    let words = (planes + 1u) / 2u;
+    let radius = max(params.uniqueness_radius, 1u);
+    var rival = 0xffffu;
+    var best_level = 0xffffu;
+    for (var j = 0u; j < words; j++) {
+        let word = volume[local_pix * words + j];
+        for (var h = 0u; h < 2u; h++) {
+            let d = 2u * j + h;
+            let level = (word >> (16u * h)) & 0xffffu;
+            if (d >= planes) {
+                break;
+            }
+            if (d == best) {
+                best_level = level;
+            }
+            if (d + radius < best || d > best + radius) {
+                rival = min(rival, level);
+            }
+        }
+    }
+    if (rival == 0xffffu) {
+        return 1.0;
+    }
+    return confidence(level_score(best_level), level_score(rival));
+}
 
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -28,9 +68,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let planes = params.planes;
     let words = (planes + 1u) / 2u;
     let unit = params.sgm_unit_per_level;
-    // The local winner's confidence, before SGM's takes its place (`uniqueness`, finalize).
-    let local_confidence = confidence(local.x, state[3u * pix + 1u].x);
-    var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, local_confidence, 0.0, 0.0));
+    var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, 1.0, 0.0, 0.0));
     for (var j = 0u; j < words; j++) {
         let word = sums[local_pix * words + j];
         let d = 2u * j;
@@ -39,6 +77,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (d + 1u < planes) {
             st = select_plane(st, f32(d + 1u), vec2<f32>(f32(word >> 16u) * unit - SGM_VOLUME_OFFSET, selection));
         }
+    }
+    if (params.uniqueness > 0.0 || params.ambiguity > 0.0) {
+        st.s2.y = uniqueness_on_costs(local_pix, u32(st.s0.y));
     }
     state[3u * pix] = st.s0;
     state[3u * pix + 1u] = st.s1;

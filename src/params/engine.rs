@@ -288,7 +288,10 @@ engine_params! {
         "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures), or gradient for a pair of cameras and none for more (auto).";
     uniqueness: f32 = 0.0, "uniqueness", Long("uniqueness"),
         ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
-        "Pixels whose winner on the matching costs (before SGM) does not beat the best rival away from its neighbouring planes by this share ((rival - best) / (rival + 1)) are invalid: a repeated pattern gives no depth instead of wrong depth (0.1 removes most of a checkerboard, but also 2-4x more pixels of weakly textured surfaces, docs/engine.md); 0 = none.";
+        "Pixels whose winner does not beat its best rival on the matching costs by this share are invalid ((rival - best) / (rival + 1); with SGM: SGM's winner against the best plane more than 1.5 px of shift away): a repeated pattern gives no depth instead of wrong depth, but weakly textured surfaces lose pixels too (docs/engine.md); 0 = none.";
+    ambiguity: f32 = 0.15, "ambiguity", Long("ambiguity"),
+        ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
+        "With SGM: the confidence of a pixel whose winner beats its best rival on the matching costs (as uniqueness measures it) by less than this share is scaled by share / ambiguity: a repeated pattern or a blank surface gives depth with low confidence, not confident wrong depth; 0 = SGM's confidence alone.";
 }
 
 static ENGINE_PARAMS: LazyLock<Vec<EngineParam>> = LazyLock::new(declarations);

@@ -364,8 +364,10 @@ fn coarse_params(params: &SweepParams) -> SweepParams {
     SweepParams {
         num_planes: coarse_planes(params.num_planes),
         optimizer: COARSE_OPTIMIZER,
-        // Only the plane ranges are read off the coarse level: no fine sweep there.
+        // Only the plane ranges are read off the coarse level: no fine sweep there, and no
+        // confidence.
         subpixel_refine: false,
+        ambiguity: 0.0,
         ..params.clone()
     }
 }

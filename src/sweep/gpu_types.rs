@@ -149,15 +149,24 @@ pub struct GpuParams {
     /// Word of the first camera's census in the `images` buffer (after every camera's pixels;
     /// camera `c`'s census starts at `census_offset + size.z`). 0 with `COST_TSSD`.
     pub census_offset: u32,
-    /// Pixels whose local winner's confidence ((rival - best) / (rival + 1) on the matching
-    /// costs, before SGM) is below this are invalid.
+    /// With SGM: pixels whose winner is not unique on the matching costs (`(rival - best) /
+    /// (rival + 1)`, the rival the best plane more than `uniqueness_radius` planes away) by
+    /// this share are invalid.
     pub uniqueness: f32,
     /// 1: the images are prefiltered (`prefilter.rs`): the cost's colour term compares their
     /// alpha byte (in all three channels); 0: the RGB.
     pub colour_in_alpha: u32,
-    pub pad1: u32,
-    pub pad2: u32,
+    /// With SGM: below this uniqueness on the matching costs, the confidence is scaled by
+    /// `uniqueness / ambiguity` (0: SGM's confidence as it is).
+    pub ambiguity: f32,
+    /// With SGM: planes either side of the winner that are not its rivals on the matching
+    /// costs (about [`UNIQUENESS_RADIUS_PX`] of shift in the widest view), at least 1.
+    pub uniqueness_radius: u32,
 }
+
+/// How far (pixels of shift in the widest view) a rival on the matching costs lies from the
+/// winner at least: nearer planes are the same match, sampled between texels.
+pub const UNIQUENESS_RADIUS_PX: f64 = 1.5;
 
 /// `direction.w` of the SGM pass that walks directions 1 .. paths - 1 in one dispatch
 /// (`SGM_REST` in `sgm_subgroup.wgsl`).

@@ -199,10 +199,15 @@ pub struct SweepParams {
     pub max_neighbours: u32,
     /// What the colour term of the cost compares (`prefilter.rs`).
     pub prefilter: Prefilter,
-    /// Pixels whose winner on the matching costs (with SGM: before it) does not beat the best
-    /// rival away from its neighbouring planes by this share, `(rival - best) / (rival + 1)`,
-    /// are invalid (`finalize`); 0 = none.
+    /// Pixels whose winner is not unique on the matching costs by this share are invalid
+    /// (`finalize`; 0 = none). With SGM: SGM's winner against the best plane more than
+    /// [`gpu_types::UNIQUENESS_RADIUS_PX`] of shift away, `(rival - best) / (rival + 1)` on the
+    /// matching costs; with winner-take-all: its own confidence.
     pub uniqueness: f32,
+    /// With SGM: the confidence of a pixel whose winner is unique on the matching costs by less
+    /// than this share (as `uniqueness` measures it) is scaled by `share / ambiguity`, so that a
+    /// repeated pattern's or a blank surface's depth is not confident; 0 = SGM's own.
+    pub ambiguity: f32,
 }
 
 /// Errors from the engines.

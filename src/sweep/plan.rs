@@ -62,6 +62,36 @@ fn next_plan_id() -> u64 {
     NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
+/// Planes either side of a winner that are not its rivals on the matching costs
+/// ([`GpuParams::uniqueness_radius`]): [`UNIQUENESS_RADIUS_PX`] of shift in the view that shifts
+/// most per plane, measured along the reference's central ray over the depth range (planes
+/// even in inverse depth shift evenly), at least 1.
+fn uniqueness_radius(rig: &Rig, params: &SweepParams, planes: usize) -> u32 {
+    let model = rig.reference_model();
+    let k = model.intrinsics;
+    let Some(ray) = model.unproject_z1(DVec2::new(k.cx_px, k.cy_px)) else {
+        return 1;
+    };
+    let steps = planes.saturating_sub(1).max(1) as f64;
+    let per_plane = (0..rig.cameras.len())
+        .filter(|&i| rig.reference_index() != Some(i))
+        .filter_map(|i| {
+            let cam_from_ref = rig.cam_from_ref(i);
+            let project = |depth: f64| {
+                let model = &rig.cameras[i].model;
+                model.project(cam_from_ref.transform_point(ray * depth))
+            };
+            let (near, far) = (project(params.min_depth_m), project(params.max_depth_m));
+            Some(near?.distance(far?) / steps)
+        })
+        .fold(0.0f64, f64::max);
+    if per_plane > 0.0 {
+        ((UNIQUENESS_RADIUS_PX / per_plane).ceil() as u32).clamp(1, planes as u32)
+    } else {
+        1
+    }
+}
+
 impl SweepPlan {
     /// Plans a sweep with the default hypotheses of `params` (uniform inverse depth).
     pub fn new(rig: &Rig, params: &SweepParams) -> Result<Self, SweepError> {
@@ -271,6 +301,8 @@ impl SweepPlan {
             },
             census_offset: if params.cost == Cost::Tssd { 0 } else { offset },
             uniqueness: params.uniqueness,
+            ambiguity: params.ambiguity,
+            uniqueness_radius: uniqueness_radius(rig, params, planes.len()),
             colour_in_alpha: u32::from(params.prefilter.applies(rig.cameras.len())),
             ..GpuParams::zeroed()
         };
@@ -798,5 +830,31 @@ mod range_tile_tests {
                 assert!(hull[2] <= r[0] && hull[3] >= r[1]);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod uniqueness_radius_tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+    use crate::synthetic;
+
+    /// A pair 30 cm apart, f = 139 px, 1-6 m over 64 planes: 41.7 - 6.9 px of disparity, 0.55 px
+    /// per plane, so 1.5 px is 3 planes; over 8 planes (5 px per plane) the radius is 1.
+    #[test]
+    fn the_radius_is_one_and_a_half_pixels_of_shift() {
+        let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+        let rig = synthetic::row_rig(2, 0.3, model, 0).expect("rig");
+        let params = |planes| SweepParams {
+            min_depth_m: 1.0,
+            max_depth_m: 6.0,
+            num_planes: planes,
+            ..SweepParams::default()
+        };
+        assert_eq!(uniqueness_radius(&rig, &params(64), 64), 3);
+        assert_eq!(uniqueness_radius(&rig, &params(8), 8), 1);
+        // The plan carries it to both engines.
+        let plan = SweepPlan::new(&rig, &params(64)).expect("plan");
+        assert_eq!(plan.params.uniqueness_radius, 3);
     }
 }

@@ -278,6 +278,7 @@ pub const STAGES: [StageInfo; 16] = [
             read("sums"),
             read_write("state"),
             uniform("band"),
+            read("volume"),
         ],
         workgroup_size: TILE,
         overrides: &["DISTORTED"],

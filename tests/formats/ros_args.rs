@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 33);
+    assert_eq!(fields.len(), 34);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -740,6 +740,7 @@ fn defaults_match_sweep_params() {
         max_neighbours: 3,
         prefilter: sweepdepth::sweep::Prefilter::None,
         uniqueness: 0.5,
+        ambiguity: 0.4,
     };
     apply_to_sweep(&ParamSet::defaults(), &mut p).unwrap();
     assert_eq!(p, SweepParams::default());
@@ -824,8 +825,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 33 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 33 + expect.len() + 9);
+    // 34 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 34 + expect.len() + 9);
 }
 
 #[test]

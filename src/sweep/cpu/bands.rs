@@ -107,8 +107,8 @@ fn sweep_band(
     let stride = sgm::stride(planes);
     let levels_per_unit = plan.params.sgm_levels_per_unit;
     let len = rows.len() * width;
-    // With SGM only the winner is needed, unless `uniqueness` reads the local rival too.
-    let best_only = vol.is_some() && plan.params.uniqueness <= 0.0;
+    // With SGM only the winner is needed (its uniqueness is read off the volume later).
+    let best_only = vol.is_some();
     // The level of a pixel that does not sweep a plane (it scores BIG there).
     let idle_level = sgm::volume_level(levels_per_unit, BIG);
     // Whether some pixel of the band sweeps a plane of the current group of volume levels.

@@ -83,13 +83,18 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
                         }
                     }
                 }
-                let conf = super::select::confidence(best, st.rival[pix]);
-                // Uniqueness on the matching costs themselves: SGM's sums make one of several
-                // equally good depths (a repeated pattern) win clearly along every path.
+                let sgm_conf = super::select::confidence(best, st.rival[pix]);
+                // Uniqueness on the matching costs themselves (`sgm::select`): SGM's sums make
+                // one of several equally good depths win clearly along every path.
                 let local = if params.sgm_paths > 0 {
                     st.local_confidence[pix]
                 } else {
-                    conf
+                    sgm_conf
+                };
+                let conf = if params.sgm_paths > 0 && params.ambiguity > 0.0 {
+                    sgm_conf * (local / params.ambiguity).min(1.0)
+                } else {
+                    sgm_conf
                 };
                 if local < params.uniqueness {
                     // Ambiguous: a rival away from the winner nearly as good (a repeated

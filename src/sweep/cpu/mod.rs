@@ -367,7 +367,7 @@ impl CpuEngine {
                 }
                 Phase::SgmSelect => {
                     let buffers = &self.buffers;
-                    sgm::select(plan, &buffers.forward, &buffers.backward, state);
+                    sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
                     clock.lap("sgm_select");
                 }
                 Phase::Finalize => {

@@ -454,32 +454,100 @@ fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
 /// Twin of `sgm_select.wgsl`: winner-take-all over the summed path costs (score units) into
 /// the selection state, for every pixel the local winner-take-all found valid. The streaming
 /// selection's result written directly: the first minimum, its two neighbours, and the
-/// smallest sum away from them (`u16` sums map to scores strictly monotonically).
-pub fn select(plan: &SweepPlan, forward: &[u16], backward: &[u16], state: &mut WtaState) {
+/// smallest sum away from them (`u16` sums map to scores strictly monotonically). Where
+/// `uniqueness` or `ambiguity` reads it, the winner's uniqueness on the matching costs of
+/// `volume` too ([`uniqueness_on_costs`]).
+pub fn select(
+    plan: &SweepPlan,
+    volume: &[u16],
+    forward: &[u16],
+    backward: &[u16],
+    state: &mut WtaState,
+) {
     use rayon::prelude::*;
     let planes = plan.num_planes() as usize;
     let n = stride(planes);
-    let unit = plan.params.sgm_unit_per_level;
+    let p = &plan.params;
+    let unit = p.sgm_unit_per_level;
     let chunk = 1024;
-    // The local winner's confidence, before SGM's takes its place: only `uniqueness` reads it.
-    if plan.params.uniqueness > 0.0 {
-        state
-            .local_confidence
-            .par_iter_mut()
-            .zip(state.best.par_iter().zip(&state.rival))
-            .for_each(|(c, (&best, &rival))| *c = super::select::confidence(best, rival));
-    }
+    let unique = (p.uniqueness > 0.0 || p.ambiguity > 0.0).then_some(Uniqueness {
+        radius: p.uniqueness_radius.max(1) as usize,
+        levels_per_unit: p.sgm_levels_per_unit,
+    });
     state
         .chunks_mut(chunk)
         .into_par_iter()
         .zip(
             forward
                 .par_chunks(chunk * n)
-                .zip(backward.par_chunks(chunk * n)),
+                .zip(backward.par_chunks(chunk * n))
+                .zip(volume.par_chunks(chunk * n)),
         )
-        .for_each(|(mut st, (forward, backward))| {
-            select_chunk(planes, n, unit, forward, backward, &mut st)
+        .for_each(|(mut st, ((forward, backward), volume))| {
+            select_chunk(planes, n, unit, forward, backward, &mut st);
+            if let Some(unique) = unique {
+                uniqueness_chunk(planes, n, unique, volume, &mut st);
+            }
         });
+}
+
+/// How [`uniqueness_on_costs`] reads a pixel's volume levels.
+#[derive(Debug, Clone, Copy)]
+struct Uniqueness {
+    /// Planes either side of the winner that are not its rivals.
+    radius: usize,
+    /// Volume levels per score unit.
+    levels_per_unit: f32,
+}
+
+/// A volume level back to score units (twin of `level_score` in sgm_select.wgsl).
+#[inline(always)]
+fn level_score(level: u16, levels_per_unit: f32) -> f32 {
+    f32::from(level) / levels_per_unit - SGM_VOLUME_OFFSET
+}
+
+/// How clearly SGM's winner `best` is the best match on the matching costs themselves (the
+/// pixel's volume `levels`): [`super::select::confidence`] of its cost against the lowest
+/// cost more than `radius` planes away. A repeated pattern matches as well one period away
+/// (SGM's paths make one of them win clearly); a blank surface matches about as well
+/// anywhere. 1 when no plane lies that far.
+#[inline(always)]
+pub fn uniqueness_on_costs(
+    levels: &[u16],
+    best: usize,
+    radius: usize,
+    levels_per_unit: f32,
+) -> f32 {
+    // Planes 0..best - radius and best + radius + 1.. (two minimum reductions that vectorise).
+    let lowest = |v: &[u16]| v.iter().copied().fold(u16::MAX, u16::min);
+    let below = &levels[..best.saturating_sub(radius)];
+    let above = levels.get(best + radius + 1..).unwrap_or(&[]);
+    let rival = lowest(below).min(lowest(above));
+    if rival == u16::MAX {
+        return 1.0;
+    }
+    super::select::confidence(
+        level_score(levels[best], levels_per_unit),
+        level_score(rival, levels_per_unit),
+    )
+}
+
+vectorised_fn! {
+/// The uniqueness on the matching costs of each valid pixel of a run, into `local_confidence`.
+fn uniqueness_chunk(planes: usize, n: usize, unique: Uniqueness, volume: &[u16], st: &mut WtaChunk<'_>) {
+    for i in 0..st.best.len() {
+        if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
+            continue;
+        }
+        let levels = &volume[i * n..i * n + planes];
+        st.local_confidence[i] = uniqueness_on_costs(
+            levels,
+            st.best_plane[i] as usize,
+            unique.radius,
+            unique.levels_per_unit,
+        );
+    }
+}
 }
 
 vectorised_fn! {
@@ -574,6 +642,29 @@ mod tests {
     use crate::sweep::{Optimizer, SweepParams};
     use crate::synthetic;
 
+    /// The rival on the matching costs lies more than `radius` planes from SGM's winner: a
+    /// repeated pattern's second minimum is one, the winner's own slope is not.
+    #[test]
+    fn uniqueness_on_costs_looks_past_the_radius() {
+        let per_unit = 1.0;
+        let score = |level: u16| f32::from(level) - SGM_VOLUME_OFFSET;
+        // Two minima 4 planes apart (a period), the winner's neighbours close to it.
+        let levels = [300, 200, 112, 114, 300, 300, 113, 300];
+        // Radius 1: the period's other minimum (plane 6) rivals plane 2.
+        let rival_close = uniqueness_on_costs(&levels, 2, 1, per_unit);
+        let expected = ((score(113) - score(112)) / (score(113) + 1.0)).clamp(0.0, 1.0);
+        assert_eq!(rival_close, expected);
+        assert!(rival_close < 0.01, "{rival_close}");
+        // Radius 4: nothing below, plane 7 (300) above: the winner is unique.
+        let alone = uniqueness_on_costs(&levels, 2, 4, per_unit);
+        assert_eq!(alone, (score(300) - score(112)) / (score(300) + 1.0));
+        assert!(alone > 0.5, "{alone}");
+        // Nothing beyond the radius either side: 1.
+        assert_eq!(uniqueness_on_costs(&levels, 2, 8, per_unit), 1.0);
+        // A winner worse than its rival (SGM overruled the matching costs): 0.
+        assert_eq!(uniqueness_on_costs(&levels, 6, 2, per_unit), 0.0);
+    }
+
     /// A 2x1 image with 3 planes, P1 = 10, P2 = 30 levels, 4 paths (the vertical ones are
     /// one pixel long, so they add each pixel's own cost).
     fn plan() -> SweepPlan {
@@ -640,7 +731,7 @@ mod tests {
         let mut state = WtaState::new(2);
         state.best.fill(0.0);
         state.best_plane.fill(2.0);
-        select(&plan, &forward, &backward, &mut state);
+        select(&plan, &costs, &forward, &backward, &mut state);
         // Pixel 1 moves to plane 0; its neighbour is plane 1, and plane 2 is the rival (in
         // score units, less the volume's offset).
         assert_eq!(state.best_plane, [0.0, 0.0]);
