@@ -34,9 +34,8 @@ use glam::{DQuat, DVec2, DVec3};
 use crate::datasets::{self, DatasetError, Layout};
 use crate::engine::{Engine, Sweeper};
 use crate::fusion::{
-    integrate_weighted, observation_weights, rms_baseline_m, vertex_accuracy, write_ply_file,
-    DepthAccuracy, DepthAccuracySummary, FusionError, FusionParams, Mesh, VertexAccuracy,
-    VoxelBlockGrid, Weighting,
+    rms_baseline_m, vertex_accuracy, write_ply_file, DepthAccuracy, DepthAccuracySummary,
+    DepthView, FusionError, FusionParams, Mapper, VertexAccuracy, Weighting,
 };
 use crate::geometry::{CameraModel, GeometryError, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
@@ -499,42 +498,42 @@ pub fn evaluate(
 ) -> Result<FusionResult, FusionEvalError> {
     let started = Instant::now();
     let params = &case.params;
-    let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
+    let weighting = match weights {
+        ViewWeights::Pixels(weighting) => weighting,
+        ViewWeights::Equal | ViewWeights::Baseline => Weighting::EQUAL,
+    };
+    let mut mapper = Mapper::new(*params, weighting)?;
     let largest = case.views.iter().map(|v| v.baseline_m).fold(0.0, f64::max);
     for view in &case.views {
-        let baseline_term = if largest > 0.0 {
-            (view.baseline_m / largest).powi(2) as f32
-        } else {
-            1.0
+        let depth = DepthView {
+            depth: &view.depth_m,
+            confidence: Some(&view.confidence),
+            baseline_ratio: (largest > 0.0).then_some((view.baseline_m / largest) as f32),
+            colour: Some(&view.colour),
+            model: &view.model,
+            map_from_cam: &view.world_from_cam,
         };
-        let weight = match weights {
-            ViewWeights::Equal => None,
-            ViewWeights::Baseline => Some(ImageF32 {
+        if weights == ViewWeights::Baseline {
+            // The view's weight alone: its baseline squared, relative to the largest.
+            let baseline_term = if largest > 0.0 {
+                (view.baseline_m / largest).powi(2) as f32
+            } else {
+                1.0
+            };
+            let weight = ImageF32 {
                 width: view.depth_m.width,
                 height: view.depth_m.height,
                 data: vec![baseline_term; view.depth_m.data.len()],
-            }),
-            ViewWeights::Pixels(weighting) => Some(observation_weights(
-                &view.depth_m,
-                Some(&view.confidence),
-                (largest > 0.0).then_some((view.baseline_m / largest) as f32),
-                &weighting,
-            )),
-        };
-        integrate_weighted(
-            &mut grid,
-            params,
-            &view.depth_m,
-            weight.as_ref(),
-            Some(&view.colour),
-            &view.model,
-            &view.world_from_cam,
-        )?;
+            };
+            mapper.integrate_weighted(&depth, Some(&weight))?;
+        } else {
+            mapper.integrate(&depth)?;
+        }
     }
     let mut accuracy = DepthAccuracy::new();
     for view in &case.views {
         accuracy.add_fused_view(
-            &grid,
+            mapper.grid(),
             params,
             &view.model,
             &view.world_from_cam,
@@ -542,9 +541,7 @@ pub fn evaluate(
             &view.depth_m,
         )?;
     }
-    let mut mesh = Mesh::new();
-    mesh.update(&mut grid);
-    let collected = mesh.collect();
+    let collected = mapper.collect_mesh();
     let vertices = case.scene.as_ref().map(|scene| {
         vertex_accuracy(
             &collected.vertices,

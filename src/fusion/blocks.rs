@@ -363,8 +363,6 @@ pub struct VoxelBlockGrid {
     blocks: BlockMap<Block>,
     changed: BlockSet,
     removed: BlockSet,
-    /// The integration's per-pixel buffers, reused from frame to frame.
-    scratch: super::integrate::IntegrationScratch,
 }
 
 impl VoxelBlockGrid {
@@ -380,12 +378,7 @@ impl VoxelBlockGrid {
             blocks: BlockMap::default(),
             changed: BlockSet::default(),
             removed: BlockSet::default(),
-            scratch: Default::default(),
         })
-    }
-
-    pub(super) fn scratch_mut(&mut self) -> &mut super::integrate::IntegrationScratch {
-        &mut self.scratch
     }
 
     pub fn voxel_size_m(&self) -> f32 {

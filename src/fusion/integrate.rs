@@ -88,9 +88,39 @@ pub fn integrate(
 /// [`integrate()`] with a weight per pixel (`weights`, the depth's size): each observation's
 /// weight is multiplied by its pixel's (e.g. the inverse variance of the depth, from the
 /// engine's confidence and the reference's baselines); a pixel whose weight is not positive
-/// and finite adds no observation. `None`: every pixel 1, as [`integrate()`].
+/// and finite adds no observation. `None`: every pixel 1, as [`integrate()`]. Its per-pixel
+/// buffers are made for the call; [`super::Mapper`] keeps its own from one depth map to the
+/// next.
 pub fn integrate_weighted(
     grid: &mut VoxelBlockGrid,
+    params: &FusionParams,
+    depth: &ImageF32,
+    weights: Option<&ImageF32>,
+    colour: Option<&Rgba8Image>,
+    model: &CameraModel,
+    world_from_cam: &RigidTransform,
+) -> Result<IntegrationStats, FusionError> {
+    let mut scratch = IntegrationScratch::default();
+    integrate_into(
+        grid,
+        &mut scratch,
+        params,
+        depth,
+        weights,
+        colour,
+        model,
+        world_from_cam,
+    )
+}
+
+/// [`integrate_weighted`] with the per-pixel buffers `scratch` (kept by the caller).
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the depth map, its weights, colour, camera and pose are each an input of their own, as in integrate_weighted; Mapper gathers them in a DepthView"
+)]
+pub(super) fn integrate_into(
+    grid: &mut VoxelBlockGrid,
+    scratch: &mut IntegrationScratch,
     params: &FusionParams,
     depth: &ImageF32,
     weights: Option<&ImageF32>,
@@ -134,8 +164,8 @@ pub fn integrate_weighted(
         }
     }
     // Step 0: the valid depths and each pixel's observation weight, once per frame.
-    let scratch = std::mem::take(grid.scratch_mut());
-    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam, scratch);
+    let taken = std::mem::take(scratch);
+    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam, taken);
     if let Some(w) = weights {
         for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
             let keep = w.is_finite() && w > 0.0;
@@ -202,7 +232,7 @@ pub fn integrate_weighted(
     for index in changed {
         grid.mark_changed(index);
     }
-    *grid.scratch_mut() = view.into_scratch();
+    *scratch = view.into_scratch();
     // Step 3: the memory bound.
     stats.blocks_dropped = grid.drop_farthest(params.max_blocks, world_from_cam.translation);
     Ok(stats)
@@ -281,7 +311,7 @@ pub(super) struct PixelSample {
     rgb: u32,
 }
 
-/// The per-pixel buffers of [`View`], kept by the grid from one frame to the next: a fresh
+/// The per-pixel buffers of [`View`], kept by [`super::Mapper`] from one frame to the next: a fresh
 /// 640x480 frame's 4.9 MB would be new pages to fault in every time (on this project's
 /// 2-core VMs 0.3-0.5 ms of the validity pass alone).
 #[derive(Default, Clone)]
@@ -697,7 +727,7 @@ mod tests {
         )
         .unwrap();
         let depth = scene(&second);
-        let scratch = std::mem::take(grid.scratch_mut());
+        let scratch = IntegrationScratch::default();
         let view = View::new(
             &grid,
             &params,

@@ -37,6 +37,7 @@
 pub mod accuracy;
 pub mod blocks;
 pub mod integrate;
+pub mod mapper;
 pub mod mesh;
 pub mod ply;
 pub mod raycast;
@@ -46,6 +47,7 @@ pub mod weights;
 pub use accuracy::{vertex_accuracy, DepthAccuracy, DepthAccuracySummary, VertexAccuracy};
 pub use blocks::{Block, BlockIndex, Voxel, VoxelBlockGrid, BLOCK_SIDE, VOXELS_PER_BLOCK};
 pub use integrate::{integrate, integrate_weighted, IntegrationStats};
+pub use mapper::{DepthView, Mapper};
 pub use mesh::{BlockMesh, Mesh, MeshStats};
 pub use ply::{write_ply, write_ply_file};
 pub use raycast::raycast_depth;

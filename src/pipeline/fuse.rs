@@ -2,7 +2,7 @@
 //! (`fusion`, run beside the engine by [`super::fusion_worker`]), `bag --mesh` and the `fuse`
 //! node. Each depth map comes as a [`FusionInput`]: its depth, colour and camera placed in the
 //! map's frame (`world_frame` on a moving rig, else the frame of the set's first reference
-//! image); the [`Fuser`] integrates it into `src/fusion`'s grid and hands the mesh out per
+//! image); the [`Fuser`] integrates it into `src/fusion`'s [`Mapper`] and hands the mesh out per
 //! block as `visualization_msgs/MarkerArray` (one `TRIANGLE_LIST` marker per block, stable ids,
 //! only the blocks that changed) or as a PLY file.
 
@@ -12,8 +12,8 @@ use std::sync::Arc;
 
 use super::outputs::FrameOutputs;
 use crate::fusion::{
-    integrate_weighted, observation_weights, BlockIndex, BlockMesh, FusionError, FusionParams,
-    IntegrationStats, Mesh, MeshStats, VoxelBlockGrid, Weighting,
+    BlockIndex, BlockMesh, DepthView, FusionError, FusionParams, IntegrationStats, Mapper,
+    MeshStats, Weighting,
 };
 use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
@@ -98,14 +98,11 @@ pub struct SavedMesh {
     pub vertices: usize,
 }
 
-/// The grid, its mesh, the markers' ids and what went in.
+/// The map (its depth maps' pixels weighed by [`Weighting::DEPTH_MAPS`]), the markers' ids
+/// and what went in.
 #[derive(Debug)]
 pub struct Fuser {
-    params: FusionParams,
-    /// How each depth map's pixels are weighed ([`Weighting::DEPTH_MAPS`]).
-    weighting: Weighting,
-    grid: VoxelBlockGrid,
-    mesh: Mesh,
+    mapper: Mapper,
     /// The map's frame: that of the first input since the last clear.
     frame: Option<String>,
     /// The newest stamp integrated.
@@ -123,12 +120,8 @@ pub struct Fuser {
 
 impl Fuser {
     pub fn new(params: FusionParams) -> Result<Self, FusionError> {
-        params.validate()?;
         Ok(Self {
-            grid: VoxelBlockGrid::new(params.voxel_size_m)?,
-            mesh: Mesh::new(),
-            params,
-            weighting: Weighting::DEPTH_MAPS,
+            mapper: Mapper::new(params, Weighting::DEPTH_MAPS)?,
             frame: None,
             stamp: Time::default(),
             ids: HashMap::new(),
@@ -140,7 +133,7 @@ impl Fuser {
     }
 
     pub fn params(&self) -> &FusionParams {
-        &self.params
+        self.mapper.params()
     }
 
     /// The map's frame (None before the first depth map).
@@ -166,23 +159,14 @@ impl Fuser {
                 });
             }
         }
-        let weights = (!self.weighting.is_equal()).then(|| {
-            observation_weights(
-                &input.depth,
-                input.confidence.as_ref(),
-                input.baseline_ratio,
-                &self.weighting,
-            )
-        });
-        let stats = integrate_weighted(
-            &mut self.grid,
-            &self.params,
-            &input.depth,
-            weights.as_ref(),
-            input.colour.as_deref(),
-            &input.model,
-            &input.map_from_cam,
-        )?;
+        let stats = self.mapper.integrate(&DepthView {
+            depth: &input.depth,
+            confidence: input.confidence.as_ref(),
+            baseline_ratio: input.baseline_ratio,
+            colour: input.colour.as_deref(),
+            model: &input.model,
+            map_from_cam: &input.map_from_cam,
+        })?;
         if self.frame.is_none() {
             self.frame = Some(input.frame.clone());
         }
@@ -199,13 +183,12 @@ impl Fuser {
 
     /// Meshes the blocks that changed since the last call.
     pub fn update_mesh(&mut self) -> MeshStats {
-        self.mesh.update(&mut self.grid)
+        self.mapper.update_mesh()
     }
 
     /// The whole mesh, up to date.
     pub fn mesh(&mut self) -> BlockMesh {
-        self.update_mesh();
-        self.mesh.collect()
+        self.mapper.collect_mesh()
     }
 
     /// The mesh's changes since the last call as markers (after meshing the changed blocks):
@@ -220,8 +203,8 @@ impl Fuser {
             frame_id: self.frame.clone().unwrap_or_default(),
         };
         let mut markers = Vec::new();
-        for index in self.mesh.take_dirty() {
-            match self.mesh.block(index) {
+        for index in self.mapper.mesh_mut().take_dirty() {
+            match self.mapper.mesh().block(index) {
                 Some(block) => {
                     let id = *self.ids.entry(index).or_insert_with(|| {
                         self.next_id = self.next_id.wrapping_add(1);
@@ -259,9 +242,7 @@ impl Fuser {
     /// Empties the map (and forgets its frame); returns the blocks dropped and the marker that
     /// deletes every block's marker (`DELETEALL` in [`MESH_NAMESPACE`]).
     pub fn clear(&mut self) -> (usize, MarkerArray) {
-        let blocks = self.grid.block_count();
-        self.grid.clear();
-        self.mesh.clear();
+        let blocks = self.mapper.clear();
         self.ids.clear();
         let marker = Marker {
             header: Header {
@@ -282,12 +263,13 @@ impl Fuser {
 
     /// Blocks allocated and their memory, for reports.
     pub fn blocks(&self) -> (usize, usize) {
-        (self.grid.block_count(), self.grid.memory_bytes())
+        let grid = self.mapper.grid();
+        (grid.block_count(), grid.memory_bytes())
     }
 
     /// Triangles in the mesh as last meshed.
     pub fn triangles(&self) -> usize {
-        self.mesh.triangle_count()
+        self.mapper.mesh().triangle_count()
     }
 }
 

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{median, round3, BenchArgs};
 use crate::datasets::icl_nuim::{parse_povray_camera, povray_camera_model, read_icl_depth};
-use crate::fusion::{integrate, FusionParams, IntegrationStats, Mesh, VoxelBlockGrid};
+use crate::fusion::{DepthView, FusionParams, IntegrationStats, Mapper, Weighting};
 use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::synthetic::{self, Scene};
@@ -44,7 +44,7 @@ pub struct Frame {
 }
 
 /// The bench's input: where it came from, the camera, two frames.
-pub struct FusionInput {
+pub struct FusionBenchInput {
     pub source: String,
     pub model: CameraModel,
     pub frames: [Frame; 2],
@@ -109,7 +109,7 @@ pub fn bench_params() -> FusionParams {
 }
 
 /// The ICL-NUIM pair from `folder` if it is there, else the synthetic pair.
-pub fn load_input(data: Option<&Path>) -> anyhow::Result<FusionInput> {
+pub fn load_input(data: Option<&Path>) -> anyhow::Result<FusionBenchInput> {
     let folder = match data {
         Some(dir) => dir.to_path_buf(),
         None => Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -132,7 +132,7 @@ pub fn load_input(data: Option<&Path>) -> anyhow::Result<FusionInput> {
     load_synthetic()
 }
 
-fn load_icl(folder: &Path) -> anyhow::Result<FusionInput> {
+fn load_icl(folder: &Path) -> anyhow::Result<FusionBenchInput> {
     let mut frames = Vec::new();
     let mut first_model = None;
     for stem in ICL_FRAMES {
@@ -155,7 +155,7 @@ fn load_icl(folder: &Path) -> anyhow::Result<FusionInput> {
     let frames: [Frame; 2] = frames
         .try_into()
         .map_err(|_| anyhow::anyhow!("two frames expected"))?;
-    Ok(FusionInput {
+    Ok(FusionBenchInput {
         source: format!(
             "ICL-NUIM living room traj2 {} then {} ({})",
             ICL_FRAMES[0], ICL_FRAMES[1], ICL_FOLDER
@@ -188,7 +188,7 @@ fn flip_rows<T: Copy>(data: &[T], width: usize) -> Vec<T> {
     data.chunks_exact(width).rev().flatten().copied().collect()
 }
 
-fn load_synthetic() -> anyhow::Result<FusionInput> {
+fn load_synthetic() -> anyhow::Result<FusionBenchInput> {
     let model = CameraModel::pinhole(synthetic::intrinsics(640, 480));
     let rig = synthetic::arc_rig(2, 0.105, 4.0, model, 0)?;
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
@@ -204,7 +204,7 @@ fn load_synthetic() -> anyhow::Result<FusionInput> {
     let frames: [Frame; 2] = frames
         .try_into()
         .map_err(|_| anyhow::anyhow!("two frames expected"))?;
-    Ok(FusionInput {
+    Ok(FusionBenchInput {
         source: "synthetic (built in): a textured wall at 4 m and a box at 2 m, two converging \
                  cameras 0.4 m apart (no ../shared/data ICL-NUIM frames found)"
             .to_string(),
@@ -215,50 +215,50 @@ fn load_synthetic() -> anyhow::Result<FusionInput> {
 
 /// Times our integration and meshing on `input`.
 pub fn time_ours(
-    input: &FusionInput,
+    input: &FusionBenchInput,
     params: &FusionParams,
     repeats: usize,
 ) -> anyhow::Result<FusionBenchResult> {
     let [a, b] = &input.frames;
     let model = &input.model;
-    let run = |grid: &mut VoxelBlockGrid, frame: &Frame| {
-        integrate(
-            grid,
-            params,
-            &frame.depth,
-            Some(&frame.colour),
+    let run = |mapper: &mut Mapper, frame: &Frame| {
+        mapper.integrate(&DepthView {
+            depth: &frame.depth,
+            confidence: None,
+            baseline_ratio: None,
+            colour: Some(&frame.colour),
             model,
-            &frame.world_from_cam,
-        )
+            map_from_cam: &frame.world_from_cam,
+        })
     };
+    let new_map = || Mapper::new(*params, Weighting::EQUAL);
     // The steady state's starting point: frame 0 integrated and meshed.
-    let mut base = VoxelBlockGrid::new(params.voxel_size_m)?;
+    let mut base = new_map()?;
     let first = run(&mut base, a)?;
-    let mut base_mesh = Mesh::new();
-    base_mesh.update(&mut base);
+    base.update_mesh();
 
     let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut last = None;
     for i in 0..=repeats.max(1) {
-        let mut empty = VoxelBlockGrid::new(params.voxel_size_m)?;
+        let mut empty = new_map()?;
         let started = Instant::now();
         run(&mut empty, a)?;
         let first_elapsed = started.elapsed();
         drop(empty);
 
-        let mut grid = base.clone();
-        let mut mesh = base_mesh.clone();
+        let mut mapper = base.clone();
         let started = Instant::now();
-        let steady = run(&mut grid, b)?;
+        let steady = run(&mut mapper, b)?;
         let steady_elapsed = started.elapsed();
         let started = Instant::now();
-        let stats = mesh.update(&mut grid);
+        let stats = mapper.update_mesh();
         let mesh_elapsed = started.elapsed();
         if i > 0 {
             first_ms.push(first_elapsed.as_secs_f64() * 1e3);
             steady_ms.push(steady_elapsed.as_secs_f64() * 1e3);
             mesh_ms.push(mesh_elapsed.as_secs_f64() * 1e3);
         }
+        let grid = mapper.grid();
         last = Some((
             steady,
             stats.blocks_meshed,
@@ -344,7 +344,11 @@ fn write_npy(path: &Path, dtype: &str, shape: &[usize], bytes: &[u8]) -> anyhow:
 }
 
 /// Writes the input for the peer into `dir`.
-fn write_peer_input(dir: &Path, input: &FusionInput, params: &FusionParams) -> anyhow::Result<()> {
+fn write_peer_input(
+    dir: &Path,
+    input: &FusionBenchInput,
+    params: &FusionParams,
+) -> anyhow::Result<()> {
     let k = &input.model.intrinsics;
     let (w, h) = (k.width_px as usize, k.height_px as usize);
     let mut frames = Vec::new();
@@ -396,7 +400,7 @@ fn write_peer_input(dir: &Path, input: &FusionInput, params: &FusionParams) -> a
 /// Times Open3D on `input`, or says why it could not.
 pub fn run_open3d(
     explicit_python: Option<&Path>,
-    input: &FusionInput,
+    input: &FusionBenchInput,
     params: &FusionParams,
     repeats: usize,
 ) -> Result<Open3dResult, String> {

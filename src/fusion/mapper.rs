@@ -1,0 +1,167 @@
+//! The map, as nvblox's `Mapper`: the block TSDF grid, how depth maps are weighed, the
+//! integration's per-pixel buffers (kept from one depth map to the next) and the mesh of the
+//! surface. One sequence for everything that fuses depth: the node's and `bag`'s fusion thread
+//! (`pipeline/fuse.rs`), `eval --fusion` and `bench --fusion`.
+
+use super::integrate::{integrate_into, IntegrationScratch};
+use super::{
+    observation_weights, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
+    VoxelBlockGrid, Weighting,
+};
+use crate::geometry::{CameraModel, RigidTransform};
+use crate::image::{ImageF32, Rgba8Image};
+
+/// One depth map to fuse: its camera and pose in the map's frame, and what weighs its pixels.
+#[derive(Debug, Clone, Copy)]
+pub struct DepthView<'a> {
+    /// z along the optical axis, metres, NaN invalid (REP 118).
+    pub depth: &'a ImageF32,
+    /// The engine's confidence per pixel (None: depth from elsewhere).
+    pub confidence: Option<&'a ImageF32>,
+    /// Its reference's baseline over the largest of its set's (None: not known).
+    pub baseline_ratio: Option<f32>,
+    /// The reference image, for the voxels' colour.
+    pub colour: Option<&'a Rgba8Image>,
+    pub model: &'a CameraModel,
+    pub map_from_cam: &'a RigidTransform,
+}
+
+/// The grid, its weighing, the integration's buffers and the mesh ([`Mapper::integrate`],
+/// [`Mapper::update_mesh`], [`Mapper::clear`]).
+#[derive(Debug, Clone)]
+pub struct Mapper {
+    params: FusionParams,
+    weighting: Weighting,
+    grid: VoxelBlockGrid,
+    scratch: IntegrationScratch,
+    mesh: Mesh,
+}
+
+impl Mapper {
+    /// An empty map of `params` (checked), each depth map's pixels weighed by `weighting`.
+    pub fn new(params: FusionParams, weighting: Weighting) -> Result<Self, FusionError> {
+        params.validate()?;
+        Ok(Self {
+            grid: VoxelBlockGrid::new(params.voxel_size_m)?,
+            params,
+            weighting,
+            scratch: IntegrationScratch::default(),
+            mesh: Mesh::new(),
+        })
+    }
+
+    pub fn params(&self) -> &FusionParams {
+        &self.params
+    }
+
+    pub fn grid(&self) -> &VoxelBlockGrid {
+        &self.grid
+    }
+
+    /// Integrates one depth map, its pixels weighed by the map's [`Weighting`]
+    /// ([`observation_weights`]; none with [`Weighting::EQUAL`]).
+    pub fn integrate(&mut self, view: &DepthView<'_>) -> Result<IntegrationStats, FusionError> {
+        let weights = (!self.weighting.is_equal()).then(|| {
+            observation_weights(
+                view.depth,
+                view.confidence,
+                view.baseline_ratio,
+                &self.weighting,
+            )
+        });
+        self.integrate_weighted(view, weights.as_ref())
+    }
+
+    /// Integrates one depth map with its pixels' weights given (None: alike), whatever the
+    /// map's [`Weighting`].
+    pub fn integrate_weighted(
+        &mut self,
+        view: &DepthView<'_>,
+        weights: Option<&ImageF32>,
+    ) -> Result<IntegrationStats, FusionError> {
+        integrate_into(
+            &mut self.grid,
+            &mut self.scratch,
+            &self.params,
+            view.depth,
+            weights,
+            view.colour,
+            view.model,
+            view.map_from_cam,
+        )
+    }
+
+    /// Meshes the blocks that changed since the last call.
+    pub fn update_mesh(&mut self) -> MeshStats {
+        self.mesh.update(&mut self.grid)
+    }
+
+    /// The mesh as last updated, per block ([`Mesh::take_dirty`] names the blocks whose
+    /// surface changed since the last look).
+    pub fn mesh(&self) -> &Mesh {
+        &self.mesh
+    }
+
+    pub fn mesh_mut(&mut self) -> &mut Mesh {
+        &mut self.mesh
+    }
+
+    /// The whole mesh, up to date, as one list of vertices and triangles.
+    pub fn collect_mesh(&mut self) -> BlockMesh {
+        self.update_mesh();
+        self.mesh.collect()
+    }
+
+    /// Empties the map and its mesh; returns the blocks dropped.
+    pub fn clear(&mut self) -> usize {
+        let blocks = self.grid.block_count();
+        self.grid.clear();
+        self.mesh.clear();
+        blocks
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fusion::test_scenes;
+
+    /// The mapper's sequence is the free functions' (the same voxels), its weighing applies,
+    /// and a cleared map takes depth again.
+    #[test]
+    fn the_mapper_integrates_weighs_meshes_and_clears() {
+        let model = test_scenes::camera(64, 48, 50.0);
+        let params = FusionParams {
+            voxel_size_m: 0.05,
+            ..FusionParams::default()
+        };
+        let pose = RigidTransform::IDENTITY;
+        let depth = test_scenes::sphere_before_slanted_wall(&model, &pose);
+        let view = DepthView {
+            depth: &depth,
+            confidence: None,
+            baseline_ratio: None,
+            colour: None,
+            model: &model,
+            map_from_cam: &pose,
+        };
+        let mut mapper = Mapper::new(params, Weighting::EQUAL).expect("params");
+        let stats = mapper.integrate(&view).expect("integrates");
+        assert!(stats.blocks_updated > 0);
+        let mut grid = VoxelBlockGrid::new(params.voxel_size_m).expect("grid");
+        super::super::integrate(&mut grid, &params, &depth, None, &model, &pose).expect("free");
+        assert_eq!(grid.block_count(), mapper.grid().block_count());
+        for (index, block) in grid.blocks() {
+            let mine = mapper.grid().block(*index).expect("the same blocks");
+            for offset in 0..crate::fusion::VOXELS_PER_BLOCK {
+                assert_eq!(block.voxel_at_offset(offset), mine.voxel_at_offset(offset));
+            }
+        }
+        let meshed = mapper.update_mesh();
+        assert!(meshed.blocks_meshed > 0 && mapper.mesh().triangle_count() > 0);
+        assert_eq!(mapper.clear(), grid.block_count());
+        assert!(mapper.grid().is_empty() && mapper.mesh().triangle_count() == 0);
+        mapper.integrate(&view).expect("integrates again");
+        assert_eq!(mapper.grid().block_count(), grid.block_count());
+    }
+}
