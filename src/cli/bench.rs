@@ -560,52 +560,56 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 println!("{}", serde_json::to_string(&result)?);
                 continue;
             }
-            let ms = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.1}"));
-            let ratio = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}x"));
-            let stages = result
-                .sgm_stage_ms
-                .iter()
-                // The coarse levels' own stages (`coarse/sweep`, ...) only in the JSON.
-                .filter(|(k, _)| !k.contains('/'))
-                .map(|(k, v)| format!("{k} {:.1}", v.as_f64().unwrap_or(f64::NAN)))
-                .collect::<Vec<String>>()
-                .join(", ");
-            // The WGSL engine's host share, and the SGM runs' submissions and readbacks per
-            // frame set.
-            let host =
-                |h: Option<HostWork>| h.map_or("-".to_string(), |h| format!("{:.1}", h.host_ms));
-            let host_ms = format!("{}/{}", host(result.wta_host), host(result.sgm_host));
-            let per_set = result.sgm_host.map_or("-".to_string(), |h| {
-                format!("{}/{}", h.submissions, h.readbacks)
-            });
-            println!(
-                "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  {}{}",
-                result.config,
-                truncate(&result.engine, 44),
-                format!(
-                    "{}x{}x{}x{}",
-                    result.cameras, result.width, result.height, result.planes
-                ),
-                truncate(&result.settings, 30),
-                ms(result.wta_ms),
-                ms(result.sgm_ms),
-                ratio(result.wta_vs_peer),
-                ratio(result.sgm_vs_peer),
-                result
-                    .peer_ms
-                    .map_or("-".to_string(), |v| format!("{v:.2}")),
-                host_ms,
-                per_set,
-                stages,
-                if result.notes.is_empty() {
-                    String::new()
-                } else {
-                    format!(" [{}]", result.notes.join("; "))
-                }
-            );
+            print_row(&result);
         }
     }
     decode_line(args.json, repeats, &nine_camera)
+}
+
+/// One configuration's row of the text table.
+fn print_row(result: &BenchResult) {
+    let ms = |v: Option<f64>| v.map_or("n/a".to_string(), |v| format!("{v:.1}"));
+    let ratio = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}x"));
+    let stages = result
+        .sgm_stage_ms
+        .iter()
+        // The coarse levels' own stages (`coarse/sweep`, ...) only in the JSON.
+        .filter(|(k, _)| !k.contains('/'))
+        .map(|(k, v)| format!("{k} {:.1}", v.as_f64().unwrap_or(f64::NAN)))
+        .collect::<Vec<String>>()
+        .join(", ");
+    // The WGSL engine's host share, and the SGM runs' submissions and readbacks per
+    // frame set.
+    let host = |h: Option<HostWork>| h.map_or("-".to_string(), |h| format!("{:.1}", h.host_ms));
+    let host_ms = format!("{}/{}", host(result.wta_host), host(result.sgm_host));
+    let per_set = result.sgm_host.map_or("-".to_string(), |h| {
+        format!("{}/{}", h.submissions, h.readbacks)
+    });
+    println!(
+        "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  {}{}",
+        result.config,
+        truncate(&result.engine, 44),
+        format!(
+            "{}x{}x{}x{}",
+            result.cameras, result.width, result.height, result.planes
+        ),
+        truncate(&result.settings, 30),
+        ms(result.wta_ms),
+        ms(result.sgm_ms),
+        ratio(result.wta_vs_peer),
+        ratio(result.sgm_vs_peer),
+        result
+            .peer_ms
+            .map_or("-".to_string(), |v| format!("{v:.2}")),
+        host_ms,
+        per_set,
+        stages,
+        if result.notes.is_empty() {
+            String::new()
+        } else {
+            format!(" [{}]", result.notes.join("; "))
+        }
+    );
 }
 
 /// The decode line: a 9-camera 640x480 JPEG set decoded as the pipeline does, and its share of

@@ -28,7 +28,18 @@ fn s(v: &str) -> ParamValue {
 
 /// The node parameters, in the order of the docs.
 pub fn node_params() -> Vec<ParamSpec> {
-    use ParamValue::{Bool, Double, Int};
+    [
+        input_params(),
+        world_params(),
+        sync_params(),
+        output_params(),
+        virtual_params(),
+    ]
+    .concat()
+}
+
+/// The cameras, their images and the references.
+fn input_params() -> Vec<ParamSpec> {
     vec![
         ParamSpec {
             required: true,
@@ -69,6 +80,13 @@ pub fn node_params() -> Vec<ParamSpec> {
             ParamRange::NameList { min_len: 0 },
             "Cameras to estimate depth for, each with its own neighbours (the cameras that see its view, at most max_neighbours) and its own half-sequence split; every set gives each of them depth, confidence, cost, selection (and points). Empty = reference_camera alone, on the topics depth/image, ...; with several, each publishes under its own camera namespace: <camera>/depth/image, <camera>/depth/camera_info, <camera>/confidence/image, <camera>/cost/image, <camera>/selection/image, <camera>/points. Not with virtual_reference.",
         ),
+    ]
+}
+
+/// A moving rig and fusion.
+fn world_params() -> Vec<ParamSpec> {
+    use ParamValue::{Bool, Double, Int};
+    vec![
         node_spec(
             "world_frame",
             s(""),
@@ -116,6 +134,13 @@ pub fn node_params() -> Vec<ParamSpec> {
             ParamRange::NameList { min_len: 0 },
             "`sweepdepth fuse` only: the depth image topics it fuses (REP 118: 32FC1 metres or 16UC1 millimetres), each with the camera_info beside it (<namespace>/camera_info, as image_transport pairs them), placed in world_frame by /tf and /tf_static at their stamps: other sweepdepth nodes (<camera>/depth/image), a RealSense, stereo_image_proc. The depth node ignores it.",
         ),
+    ]
+}
+
+/// The engine device and the synchroniser.
+fn sync_params() -> Vec<ParamSpec> {
+    use ParamValue::{Double, Int};
+    vec![
         node_spec(
             "device",
             s("auto"),
@@ -169,6 +194,13 @@ pub fn node_params() -> Vec<ParamSpec> {
             },
             "A camera whose stamps go back by more than this many seconds (a bag played in a loop) resets the synchroniser; less is a late image, dropped.",
         ),
+    ]
+}
+
+/// Rig file, outputs, QoS and the live view.
+fn output_params() -> Vec<ParamSpec> {
+    use ParamValue::{Bool, Int};
+    vec![
         node_spec(
             "rig_file",
             s(""),
@@ -211,6 +243,13 @@ pub fn node_params() -> Vec<ParamSpec> {
             ParamRange::Any,
             "Live view: address the Foxglove server and the page bind (0.0.0.0 = every interface).",
         ),
+    ]
+}
+
+/// The virtual reference camera.
+fn virtual_params() -> Vec<ParamSpec> {
+    use ParamValue::{Bool, Double, Int};
+    vec![
         node_spec(
             "virtual_reference",
             Bool(false),

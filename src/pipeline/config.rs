@@ -149,6 +149,113 @@ pub struct WorldConfig {
     pub tf_timeout: Duration,
 }
 
+/// The virtual reference camera, when `virtual_reference` is set (its pairs default to all).
+fn virtual_config(
+    params: &mut ParamSet,
+    notes: &mut Vec<String>,
+) -> Result<Option<VirtualConfig>, ConfigError> {
+    Ok(if params.get_bool("virtual_reference")? {
+        // check_node rejected an explicit pairs:=reference; the default becomes all.
+        if params.get_str("pairs")? != "all" {
+            params.set("pairs", &ParamValue::String("all".into()))?;
+            notes.push(
+                "virtual_reference: pairs set to 'all' (a virtual camera has no image of its own)"
+                    .into(),
+            );
+        }
+        let v = VirtualConfig::from_params(params)?;
+        if v.frame_id.is_empty() && v.ref_from_virtual != RigidTransform::IDENTITY {
+            notes.push("virtual_reference: virtual_frame_id is empty, so the outputs carry the reference camera's frame_id although the virtual camera is at virtual_pose in it".into());
+        }
+        Some(v)
+    } else {
+        None
+    })
+}
+
+/// Each reference camera (index in `cameras`) with its output topics: the one of `listed` (or
+/// the `reference` camera) under the node's own names, or each of several under its name.
+fn reference_outputs(
+    listed: &[String],
+    cameras: &[String],
+    reference: usize,
+    publish_points: bool,
+    resolve: &dyn Fn(&str) -> Result<String, RosArgsError>,
+) -> Result<Vec<(usize, OutputTopics)>, ConfigError> {
+    let mut references = Vec::new();
+    if listed.len() <= 1 {
+        let index = match listed.first() {
+            Some(name) => cameras.iter().position(|c| c == name).ok_or_else(|| {
+                ConfigError::UnknownReference {
+                    reference: name.clone(),
+                    cameras: cameras.to_vec(),
+                }
+            })?,
+            None => reference,
+        };
+        references.push((index, output_topics("", publish_points, &resolve)?));
+    } else {
+        // (The parameter's range refused repeated names.)
+        for name in listed {
+            let index = cameras.iter().position(|c| c == name).ok_or_else(|| {
+                ConfigError::UnknownReference {
+                    reference: name.clone(),
+                    cameras: cameras.to_vec(),
+                }
+            })?;
+            references.push((index, output_topics(name, publish_points, &resolve)?));
+        }
+    }
+    Ok(references)
+}
+
+/// Fusion's settings, when `fusion` is set (checked; its depth range is the sweep's).
+fn fusion_config(
+    params: &ParamSet,
+    sweep: &SweepParams,
+) -> Result<Option<FusionConfig>, ConfigError> {
+    Ok(if params.get_bool("fusion")? {
+        let fusion = FusionConfig {
+            params: crate::fusion::FusionParams {
+                voxel_size_m: params.get_f64("voxel_size")? as f32,
+                max_blocks: usize::try_from(params.get_i64("max_blocks")?).unwrap_or(usize::MAX),
+                min_depth_m: sweep.min_depth_m as f32,
+                max_depth_m: sweep.max_depth_m as f32,
+                ..crate::fusion::FusionParams::default()
+            },
+            mesh_rate_hz: params.get_f64("mesh_rate")?,
+        };
+        fusion.params.validate()?;
+        Some(fusion)
+    } else {
+        None
+    })
+}
+
+/// The rig file of `rig_file`, when set: loaded, and holding every camera.
+fn rig_file(
+    params: &ParamSet,
+    cameras: &[String],
+    notes: &mut Vec<String>,
+) -> Result<Option<RigFile>, ConfigError> {
+    let rig_path = params.get_str("rig_file")?;
+    Ok(if rig_path.is_empty() {
+        None
+    } else {
+        let file = load_rig_file(rig_path)?;
+        for camera in cameras {
+            if file.camera_for(camera).is_none() {
+                return Err(ConfigError::RigFileCamera {
+                    path: rig_path.to_string(),
+                    camera: camera.clone(),
+                });
+            }
+        }
+        notes.extend(file.notes.iter().cloned());
+        Some(file)
+    })
+}
+
 /// The output topics of a reference whose outputs live under `prefix` ("" for the node's
 /// own names), resolved by `resolve`.
 fn output_topics(
@@ -293,20 +400,7 @@ impl PipelineConfig {
         let (mut params, mut notes) = ParamSet::from_ros_args(ros, &identity)?;
         notes.extend(ros.notes.iter().cloned());
         params.check_node()?;
-        let virtual_ref = if params.get_bool("virtual_reference")? {
-            // check_node rejected an explicit pairs:=reference; the default becomes all.
-            if params.get_str("pairs")? != "all" {
-                params.set("pairs", &ParamValue::String("all".into()))?;
-                notes.push("virtual_reference: pairs set to 'all' (a virtual camera has no image of its own)".into());
-            }
-            let v = VirtualConfig::from_params(&params)?;
-            if v.frame_id.is_empty() && v.ref_from_virtual != RigidTransform::IDENTITY {
-                notes.push("virtual_reference: virtual_frame_id is empty, so the outputs carry the reference camera's frame_id although the virtual camera is at virtual_pose in it".into());
-            }
-            Some(v)
-        } else {
-            None
-        };
+        let virtual_ref = virtual_config(&mut params, &mut notes)?;
         let mut sweep = SweepParams::default();
         apply_to_sweep(&params, &mut sweep)?;
         let cameras = params.get_string_array("cameras")?.to_vec();
@@ -334,30 +428,7 @@ impl PipelineConfig {
         if !listed.is_empty() && virtual_ref.is_some() {
             return Err(ConfigError::ReferencesWithVirtual);
         }
-        let mut references = Vec::new();
-        if listed.len() <= 1 {
-            let index = match listed.first() {
-                Some(name) => cameras.iter().position(|c| c == name).ok_or_else(|| {
-                    ConfigError::UnknownReference {
-                        reference: name.clone(),
-                        cameras: cameras.clone(),
-                    }
-                })?,
-                None => reference,
-            };
-            references.push((index, output_topics("", publish_points, &resolve)?));
-        } else {
-            // (The parameter's range refused repeated names.)
-            for name in &listed {
-                let index = cameras.iter().position(|c| c == name).ok_or_else(|| {
-                    ConfigError::UnknownReference {
-                        reference: name.clone(),
-                        cameras: cameras.clone(),
-                    }
-                })?;
-                references.push((index, output_topics(name, publish_points, &resolve)?));
-            }
-        }
+        let references = reference_outputs(&listed, &cameras, reference, publish_points, &resolve)?;
         let reference = references[0].0;
         let outputs = references[0].1.clone();
         let world_frame = params.get_str("world_frame")?.to_string();
@@ -370,41 +441,10 @@ impl PipelineConfig {
                 tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
             })
         };
-        let fusion = if params.get_bool("fusion")? {
-            let fusion = FusionConfig {
-                params: crate::fusion::FusionParams {
-                    voxel_size_m: params.get_f64("voxel_size")? as f32,
-                    max_blocks: usize::try_from(params.get_i64("max_blocks")?)
-                        .unwrap_or(usize::MAX),
-                    min_depth_m: sweep.min_depth_m as f32,
-                    max_depth_m: sweep.max_depth_m as f32,
-                    ..crate::fusion::FusionParams::default()
-                },
-                mesh_rate_hz: params.get_f64("mesh_rate")?,
-            };
-            fusion.params.validate()?;
-            Some(fusion)
-        } else {
-            None
-        };
+        let fusion = fusion_config(&params, &sweep)?;
         let mesh_topic = resolve("mesh")?;
         let tf_static_topic = resolve("/tf_static")?;
-        let rig_path = params.get_str("rig_file")?;
-        let rig_file = if rig_path.is_empty() {
-            None
-        } else {
-            let file = load_rig_file(rig_path)?;
-            for camera in &cameras {
-                if file.camera_for(camera).is_none() {
-                    return Err(ConfigError::RigFileCamera {
-                        path: rig_path.to_string(),
-                        camera: camera.clone(),
-                    });
-                }
-            }
-            notes.extend(file.notes.iter().cloned());
-            Some(file)
-        };
+        let rig_file = rig_file(&params, &cameras, &mut notes)?;
         let sync = match params.get_str("sync")? {
             "exact" => SyncPolicy::Exact,
             _ => SyncPolicy::Approximate {

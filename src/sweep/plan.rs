@@ -10,7 +10,7 @@ use super::{
     check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
     SweepParams, WindowMode,
 };
-use crate::geometry::{Distortion, Rig};
+use crate::geometry::{CameraModel, Distortion, Rig};
 use crate::image::Rgba8Image;
 
 /// Columns per tile of the plane ranges (coarse to fine narrows each row's planes per tile of
@@ -62,6 +62,163 @@ fn next_plan_id() -> u64 {
     NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
+/// Each camera of `rig` as the shaders read it (its pose relative to the reference,
+/// intrinsics, distortion, half of the rig, where its pixels start in the images buffer), and
+/// the pixels of every camera together.
+fn gpu_cameras(rig: &Rig) -> Result<(Vec<GpuCamera>, u32), SweepError> {
+    let split = rig.half_sequence_split();
+    let reference = rig.reference_index();
+    let mut offset = 0u32;
+    let mut cameras = Vec::with_capacity(rig.cameras.len());
+    for (i, camera) in rig.cameras.iter().enumerate() {
+        let cam_from_ref = rig.cam_from_ref(i);
+        let r = cam_from_ref.rotation_matrix();
+        let t = cam_from_ref.translation;
+        let k = &camera.model.intrinsics;
+        // The end of the model's monotonic branch, as (x/z)² + (y/z)² (f32::MAX: none).
+        let branch_r2 = {
+            let r = camera.model.distortion.max_undistorted_radius();
+            if r.is_finite() {
+                (r * r) as f32
+            } else {
+                f32::MAX
+            }
+        };
+        let (model, dist_a, dist_b) = match camera.model.distortion {
+            Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
+            Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
+                DIST_PLUMB_BOB,
+                [k1 as f32, k2 as f32, p1 as f32, p2 as f32],
+                [k3 as f32, branch_r2, 0.0, 0.0],
+            ),
+            Distortion::Equidistant { k1, k2, k3, k4 } => (
+                DIST_EQUIDISTANT,
+                [k1 as f32, k2 as f32, k3 as f32, k4 as f32],
+                [0.0, branch_r2, 0.0, 0.0],
+            ),
+        };
+        let half = match split[i] {
+            None => HALF_REFERENCE,
+            Some(false) => HALF_LEFT,
+            Some(true) => HALF_RIGHT,
+        };
+        let row = |j: usize, tj: f64| {
+            [
+                r.row(j).x as f32,
+                r.row(j).y as f32,
+                r.row(j).z as f32,
+                tj as f32,
+            ]
+        };
+        cameras.push(GpuCamera {
+            row0: row(0, t.x),
+            row1: row(1, t.y),
+            row2: row(2, t.z),
+            intrinsics: [
+                k.fx_px as f32,
+                k.fy_px as f32,
+                k.cx_px as f32,
+                k.cy_px as f32,
+            ],
+            dist_a,
+            dist_b,
+            size: [k.width_px, k.height_px, offset, model],
+            info: [half, u32::from(Some(i) == reference), 0, 0],
+        });
+        offset = offset
+            .checked_add(k.width_px * k.height_px)
+            .ok_or_else(|| SweepError::InvalidParams("camera images too large".into()))?;
+    }
+    Ok((cameras, offset))
+}
+
+/// The reference's ray through each pixel centre, z = 1 (padded to four floats).
+fn reference_rays(ref_model: &CameraModel) -> Vec<[f32; 4]> {
+    let (width, height) = (
+        ref_model.intrinsics.width_px,
+        ref_model.intrinsics.height_px,
+    );
+    // A pixel without a ray (a fisheye's beyond 90 degrees) gets the zero ray: no plane is
+    // in front along it, so it stays invalid in every stage. (The model's rays are shared:
+    // a moving rig makes a plan per pose.)
+    let grid = ref_model.distorted_pixel_rays();
+    let mut rays = Vec::with_capacity(width as usize * height as usize);
+    for y in 0..height {
+        for x in 0..width {
+            let ray = match &grid {
+                Some(grid) => grid.get(rays.len()).copied().flatten(),
+                None => ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y))),
+            };
+            rays.push(ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]));
+        }
+    }
+    rays
+}
+
+/// The camera pairs whose costs are made (`pairs`: those of the reference, or all), each
+/// with the half of the rig it belongs to (`[a, b, half, 0]`).
+fn pair_table(cameras: &[GpuCamera], reference: Option<usize>, pairs: u32) -> Vec<[u32; 4]> {
+    let halves: Vec<u32> = cameras.iter().map(|c| c.info[0]).collect();
+    let pair_half = |a: u32, b: u32| {
+        if a == HALF_REFERENCE {
+            b
+        } else if b == HALF_REFERENCE || a == b {
+            a
+        } else {
+            HALF_REFERENCE
+        }
+    };
+    let mut pair_table = Vec::new();
+    let n = cameras.len() as u32;
+    if pairs == PAIRS_REFERENCE {
+        let r = reference.map_or(NO_CAMERA, |i| i as u32);
+        for i in (0..n).filter(|&i| i != r) {
+            pair_table.push([r, i, halves[i as usize], 0]);
+        }
+    } else {
+        for i in 0..n {
+            for j in i + 1..n {
+                pair_table.push([i, j, pair_half(halves[i as usize], halves[j as usize]), 0]);
+            }
+        }
+    }
+    pair_table
+}
+
+/// SGM's parameters in the units the shaders read (volume levels); at most
+/// [`MAX_SGM_PLANES`] `planes`. A virtual reference (no `has_image`) keeps P2 constant.
+fn set_sgm_params(
+    gpu_params: &mut GpuParams,
+    params: &SweepParams,
+    has_image: bool,
+    planes: usize,
+) -> Result<(), SweepError> {
+    if planes > MAX_SGM_PLANES as usize {
+        return Err(SweepError::InvalidParams(format!(
+            "optimizer sgm supports at most {MAX_SGM_PLANES} planes; the hypothesis generator gave {}",
+            planes
+        )));
+    }
+    // Scores run from -SGM_VOLUME_OFFSET (the half-sequence's smooth minimum) to tau.
+    let levels_per_unit = SGM_COST_MAX as f32 / (params.tau + SGM_VOLUME_OFFSET);
+    let level = |v: f32| (v * levels_per_unit + 0.5).floor() as u32;
+    let p1 = level(params.sgm_p1);
+    let p2 = level(params.sgm_p2).max(p1);
+    // Virtual references have no image: P2 stays constant.
+    let edge = if has_image {
+        (params.sgm_edge * SGM_EDGE_UNITS + 0.5).floor() as u32
+    } else {
+        0
+    };
+    gpu_params.sgm_paths = params.sgm_paths;
+    gpu_params.sgm_p1 = p1;
+    gpu_params.sgm_p2 = p2;
+    gpu_params.sgm_edge = edge;
+    gpu_params.sgm_levels_per_unit = levels_per_unit;
+    gpu_params.sgm_unit_per_level = 1.0 / (params.sgm_paths as f32 * levels_per_unit);
+    Ok(())
+}
+
 /// Planes either side of a winner that are not its rivals on the matching costs
 /// ([`GpuParams::uniqueness_radius`]): [`UNIQUENESS_RADIUS_PX`] of shift in the view that shifts
 /// most per plane, measured along the reference's central ray over the depth range (planes
@@ -111,87 +268,13 @@ impl SweepPlan {
                 planes.len()
             )));
         }
-        let split = rig.half_sequence_split();
         let reference = rig.reference_index();
-        let mut offset = 0u32;
-        let mut cameras = Vec::with_capacity(rig.cameras.len());
-        for (i, camera) in rig.cameras.iter().enumerate() {
-            let cam_from_ref = rig.cam_from_ref(i);
-            let r = cam_from_ref.rotation_matrix();
-            let t = cam_from_ref.translation;
-            let k = &camera.model.intrinsics;
-            // The end of the model's monotonic branch, as (x/z)² + (y/z)² (f32::MAX: none).
-            let branch_r2 = {
-                let r = camera.model.distortion.max_undistorted_radius();
-                if r.is_finite() {
-                    (r * r) as f32
-                } else {
-                    f32::MAX
-                }
-            };
-            let (model, dist_a, dist_b) = match camera.model.distortion {
-                Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
-                Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
-                    DIST_PLUMB_BOB,
-                    [k1 as f32, k2 as f32, p1 as f32, p2 as f32],
-                    [k3 as f32, branch_r2, 0.0, 0.0],
-                ),
-                Distortion::Equidistant { k1, k2, k3, k4 } => (
-                    DIST_EQUIDISTANT,
-                    [k1 as f32, k2 as f32, k3 as f32, k4 as f32],
-                    [0.0, branch_r2, 0.0, 0.0],
-                ),
-            };
-            let half = match split[i] {
-                None => HALF_REFERENCE,
-                Some(false) => HALF_LEFT,
-                Some(true) => HALF_RIGHT,
-            };
-            let row = |j: usize, tj: f64| {
-                [
-                    r.row(j).x as f32,
-                    r.row(j).y as f32,
-                    r.row(j).z as f32,
-                    tj as f32,
-                ]
-            };
-            cameras.push(GpuCamera {
-                row0: row(0, t.x),
-                row1: row(1, t.y),
-                row2: row(2, t.z),
-                intrinsics: [
-                    k.fx_px as f32,
-                    k.fy_px as f32,
-                    k.cx_px as f32,
-                    k.cy_px as f32,
-                ],
-                dist_a,
-                dist_b,
-                size: [k.width_px, k.height_px, offset, model],
-                info: [half, u32::from(Some(i) == reference), 0, 0],
-            });
-            offset = offset
-                .checked_add(k.width_px * k.height_px)
-                .ok_or_else(|| SweepError::InvalidParams("camera images too large".into()))?;
-        }
+        let (cameras, offset) = gpu_cameras(rig)?;
 
         let ref_model = rig.reference_model();
         let width = ref_model.intrinsics.width_px;
         let height = ref_model.intrinsics.height_px;
-        // A pixel without a ray (a fisheye's beyond 90 degrees) gets the zero ray: no plane is
-        // in front along it, so it stays invalid in every stage. (The model's rays are shared:
-        // a moving rig makes a plan per pose.)
-        let grid = ref_model.distorted_pixel_rays();
-        let mut rays = Vec::with_capacity(width as usize * height as usize);
-        for y in 0..height {
-            for x in 0..width {
-                let ray = match &grid {
-                    Some(grid) => grid.get(rays.len()).copied().flatten(),
-                    None => ref_model.unproject_z1(DVec2::new(f64::from(x), f64::from(y))),
-                };
-                rays.push(ray.map_or([0.0; 4], |r| [r.x as f32, r.y as f32, 1.0, 0.0]));
-            }
-        }
+        let rays = reference_rays(&ref_model);
 
         let scoring = match params.scoring {
             Scoring::Sssd | Scoring::AllPairs => SCORING_SSSD,
@@ -202,30 +285,7 @@ impl SweepPlan {
             PairSet::Reference => PAIRS_REFERENCE,
             PairSet::All => PAIRS_ALL,
         };
-        let halves: Vec<u32> = cameras.iter().map(|c| c.info[0]).collect();
-        let pair_half = |a: u32, b: u32| {
-            if a == HALF_REFERENCE {
-                b
-            } else if b == HALF_REFERENCE || a == b {
-                a
-            } else {
-                HALF_REFERENCE
-            }
-        };
-        let mut pair_table = Vec::new();
-        let n = cameras.len() as u32;
-        if pairs == PAIRS_REFERENCE {
-            let r = reference.map_or(NO_CAMERA, |i| i as u32);
-            for i in (0..n).filter(|&i| i != r) {
-                pair_table.push([r, i, halves[i as usize], 0]);
-            }
-        } else {
-            for i in 0..n {
-                for j in i + 1..n {
-                    pair_table.push([i, j, pair_half(halves[i as usize], halves[j as usize]), 0]);
-                }
-            }
-        }
+        let pair_table = pair_table(&cameras, reference, pairs);
         // The halves score only the pairs on one side of the reference. A virtual reference
         // beside the last camera of its side has no pair on that side: that half is empty and
         // the pairs that straddle the virtual camera (in neither half) would go unused, so the
@@ -307,29 +367,7 @@ impl SweepPlan {
             ..GpuParams::zeroed()
         };
         if params.optimizer == Optimizer::Sgm {
-            if planes.len() > MAX_SGM_PLANES as usize {
-                return Err(SweepError::InvalidParams(format!(
-                    "optimizer sgm supports at most {MAX_SGM_PLANES} planes; the hypothesis generator gave {}",
-                    planes.len()
-                )));
-            }
-            // Scores run from -SGM_VOLUME_OFFSET (the half-sequence's smooth minimum) to tau.
-            let levels_per_unit = SGM_COST_MAX as f32 / (params.tau + SGM_VOLUME_OFFSET);
-            let level = |v: f32| (v * levels_per_unit + 0.5).floor() as u32;
-            let p1 = level(params.sgm_p1);
-            let p2 = level(params.sgm_p2).max(p1);
-            // Virtual references have no image: P2 stays constant.
-            let edge = if reference.is_some() {
-                (params.sgm_edge * SGM_EDGE_UNITS + 0.5).floor() as u32
-            } else {
-                0
-            };
-            gpu_params.sgm_paths = params.sgm_paths;
-            gpu_params.sgm_p1 = p1;
-            gpu_params.sgm_p2 = p2;
-            gpu_params.sgm_edge = edge;
-            gpu_params.sgm_levels_per_unit = levels_per_unit;
-            gpu_params.sgm_unit_per_level = 1.0 / (params.sgm_paths as f32 * levels_per_unit);
+            set_sgm_params(&mut gpu_params, params, reference.is_some(), planes.len())?;
         }
         let last_plane = planes.len() as u32 - 1;
         let tiles = (range_tiles(width) * height) as usize;

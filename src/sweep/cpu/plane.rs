@@ -252,36 +252,7 @@ fn cost_row(
             return;
         }
     };
-    for (i, cam) in plan.cameras.iter().enumerate() {
-        if i as u32 != reference {
-            let direct = s
-                .hypothesis
-                .is_none()
-                .then(|| CameraRow::direct(plan, &images.planar[i], mappings[i], y))
-                .flatten();
-            s.rows[i] = direct.unwrap_or(CameraRow::Sampled);
-            if direct.is_some() {
-                s.census_sampled[i] = false;
-                continue;
-            }
-            if let Some(depths) = &s.hypothesis {
-                cost::hypothesis_coords(plan, cam, mappings[i], depths, y, &mut s.coords[i]);
-            }
-            let census = reference_words.map(|words| (words, &mut s.census_distances[i][..]));
-            s.census_sampled[i] = cost::sample_row(
-                plan,
-                &images.planar[i],
-                cam,
-                mappings[i],
-                k,
-                y,
-                &s.spans,
-                &mut s.coords[i],
-                &mut s.colours[i],
-                census,
-            );
-        }
-    }
+    sample_cameras(plan, images, mappings, k, y, reference_words, s);
     let (colours, camera_rows) = (&s.colours, &s.rows);
     // Camera i's colours of reference columns lo..hi (not seen elsewhere), from column lo.
     let row = |i: usize| -> ([&[f32]; 3], usize, usize) {
@@ -361,6 +332,52 @@ fn cost_row(
         let (sums, counts) = s.ring.row_mut(ch, y);
         let span = s.box_h.run(costs, sums, counts);
         s.ring.set_span(ch, y, span);
+    }
+}
+
+/// Every camera's colours along reference row `y` on plane `k` (not the reference's own):
+/// read in place where the row maps onto a row of the camera's image (`CameraRow::direct`),
+/// else sampled in `s.spans`, with their census distances to the reference's `words`.
+#[inline(always)]
+fn sample_cameras(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    mappings: &[Mapping],
+    k: usize,
+    y: usize,
+    reference_words: Option<&[u32]>,
+    s: &mut PlaneScratch,
+) {
+    let reference = plan.params.reference;
+    for (i, cam) in plan.cameras.iter().enumerate() {
+        if i as u32 != reference {
+            let direct = s
+                .hypothesis
+                .is_none()
+                .then(|| CameraRow::direct(plan, &images.planar[i], mappings[i], y))
+                .flatten();
+            s.rows[i] = direct.unwrap_or(CameraRow::Sampled);
+            if direct.is_some() {
+                s.census_sampled[i] = false;
+                continue;
+            }
+            if let Some(depths) = &s.hypothesis {
+                cost::hypothesis_coords(plan, cam, mappings[i], depths, y, &mut s.coords[i]);
+            }
+            let census = reference_words.map(|words| (words, &mut s.census_distances[i][..]));
+            s.census_sampled[i] = cost::sample_row(
+                plan,
+                &images.planar[i],
+                cam,
+                mappings[i],
+                k,
+                y,
+                &s.spans,
+                &mut s.coords[i],
+                &mut s.colours[i],
+                census,
+            );
+        }
     }
 }
 
