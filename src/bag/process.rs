@@ -368,58 +368,9 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let mut reader = BagReader::open(&args.input)?;
 
     let known = reader.topics().to_vec();
-    let mut routes: HashMap<String, Route> = HashMap::new();
-    // Per camera, the image topic read: raw or image_transport's compressed one.
-    let mut image_topics = Vec::with_capacity(config.cameras.len());
-    for i in 0..config.cameras.len() {
-        let (topic, route) = image_route(&config, &known, i);
-        routes.insert(topic.clone(), route);
-        image_topics.push(topic);
-        routes.insert(config.info_topics[i].clone(), Route::Info(i));
-    }
-    if config.rig_file.is_none() || config.world.is_some() {
-        routes.insert(config.tf_static_topic.clone(), Route::Tf);
-    }
-    if let Some(world) = &config.world {
-        routes.insert(world.tf_topic.clone(), Route::TfDynamic);
-    }
+    let (routes, image_topics) = routes(&config, &known);
     let mut report = BagReport::default();
-    // Topics with a type other than the one the pipeline reads are left out, loudly.
-    let mut wrong_type: HashSet<String> = HashSet::new();
-    for t in &known {
-        match routes.get(&t.name) {
-            Some(&r) if !t.msg_type.is_empty() && t.msg_type != expected_type(r) => {
-                tracing::error!(
-                    "topic {} has type {} in the bag, but the node reads {} there; its messages are ignored",
-                    t.name,
-                    t.msg_type,
-                    expected_type(r)
-                );
-                wrong_type.insert(t.name.clone());
-            }
-            Some(_) => {}
-            None => report.ignored_topics.push(t.name.clone()),
-        }
-    }
-    if !known.is_empty() {
-        let missing: Vec<&String> = image_topics
-            .iter()
-            .filter(|t| !known.iter().any(|k| &k.name == *t) || wrong_type.contains(*t))
-            .collect();
-        if missing.len() == image_topics.len() {
-            return Err(BagRunError::NoInput {
-                bag: args.input.display().to_string(),
-                wanted: image_topics.clone(),
-                found: known
-                    .iter()
-                    .map(|t| format!("{} ({})", t.name, t.msg_type))
-                    .collect(),
-            });
-        }
-        for m in missing {
-            tracing::warn!("image topic {m} is not in the bag; sets need every camera");
-        }
-    }
+    let wrong_type = check_topics(args, &known, &routes, &image_topics, &mut report)?;
     let ref_topic = &image_topics[config.reference];
     let total = known
         .iter()
@@ -435,21 +386,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             writer.add_topic(topic, spec.msg_type.schema_name(), None)?;
         }
     }
-    // Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with
-    // `--voxel-size`); the markers go into OUT on `mesh` at the mesh rate in log time.
-    let fusion = match (&config.fusion, &args.mesh) {
-        (Some(f), _) => Some(f.clone()),
-        (None, Some(_)) => Some(crate::pipeline::FusionConfig {
-            params: FusionParams {
-                voxel_size_m: args.voxel_size,
-                min_depth_m: config.sweep.min_depth_m as f32,
-                max_depth_m: config.sweep.max_depth_m as f32,
-                ..FusionParams::default()
-            },
-            mesh_rate_hz: 1.0,
-        }),
-        (None, None) => None,
-    };
+    let fusion = bag_fusion(&config, args);
     if let Some(f) = &fusion {
         if f.mesh_rate_hz > 0.0 {
             writer.add_topic(&config.mesh_topic, MARKER_ARRAY, None)?;
@@ -457,22 +394,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     }
 
     let viewer = if args.view {
-        // With fusion (and markers), the mesh on its own channel.
-        let mesh_topic = fusion
-            .as_ref()
-            .filter(|f| f.mesh_rate_hz > 0.0)
-            .map(|_| config.mesh_topic.as_str());
-        let viewer = Viewer::start_with_mesh(
-            &ViewerConfig::for_bag(&config.params)?,
-            &config.outputs,
-            mesh_topic,
-        )?;
-        tracing::info!(
-            "live view: Foxglove/Lichtblick at {}, the page at {}",
-            viewer.websocket_url(),
-            viewer.page_url()
-        );
-        Some(viewer)
+        Some(start_viewer(&config, fusion.as_ref())?)
     } else {
         None
     };
@@ -543,28 +465,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         if let Some(pacer) = &mut pacer {
             pacer.wait(msg.log_time_ns);
         }
-        let position = || format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
-        let input = match route {
-            Route::Info(camera) => from_cdr::<CameraInfo>(&msg.data)
-                .map(|info| Input::CameraInfo {
-                    camera,
-                    info: Box::new(info),
-                })
-                .map_err(|e| format!("cannot decode CameraInfo on {}: {e}", position())),
-            Route::Tf => from_cdr::<TFMessage>(&msg.data)
-                .map(Input::TfStatic)
-                .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
-            Route::TfDynamic => from_cdr::<TFMessage>(&msg.data)
-                .map(Input::Tf)
-                .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
-            Route::Image(camera) => from_cdr::<Image>(&msg.data)
-                .map(|image| Input::Image { camera, image })
-                .map_err(|e| format!("cannot decode Image on {}: {e}", position())),
-            // Decoded (in parallel) when its set is complete.
-            Route::Compressed(camera) => from_cdr::<CompressedImage>(&msg.data)
-                .map(|image| Input::compressed(camera, image))
-                .map_err(|e| format!("cannot decode CompressedImage on {}: {e}", position())),
-        };
+        let input = decode_input(route, &msg);
         let input = match input {
             Ok(input) => input,
             Err(message) => {
@@ -584,19 +485,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     sink.outcome(pipeline.finish(), last_log_ns)?;
     // No depth at all: the first thing the sets lacked, as the live node says it.
     if sink.report.sets_processed == 0 {
-        let asked = Asked {
-            now_ns: last_log_ns,
-            window_ns: None,
-        };
-        sink.report.no_depth = pipeline
-            .why_no_depth(asked, &|_| Publishers::Unknown)
-            .map(|why| why.message)
-            .or_else(|| {
-                sink.report
-                    .last_skip
-                    .clone()
-                    .map(|s| format!("sets are skipped: {s}"))
-            });
+        sink.report.no_depth = no_depth(&pipeline, last_log_ns, sink.report.last_skip.as_deref());
     }
     let Sink {
         writer,
@@ -611,40 +500,201 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let mut writer = writer;
     if let Some(mut fusion) = fuser {
         fusion.write_markers(&mut writer, viewer.as_ref(), last_log_ns, true)?;
-        let fuser = &mut fusion.fuser;
-        let (blocks, bytes) = fuser.blocks();
-        let grid = format!(
-            "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
-            fuser.params().voxel_size_m,
-            bytes as f64 / (1 << 20) as f64
-        );
-        report.mesh = Some(match &args.mesh {
-            Some(path) => {
-                let saved = fuser.save(path).map_err(|source| BagRunError::MeshFile {
-                    path: path.display().to_string(),
-                    source,
-                })?;
-                format!(
-                    "{} depth maps fused into {} ({} triangles, {} vertices; {grid})",
-                    fuser.integrated,
-                    path.display(),
-                    saved.triangles,
-                    saved.vertices,
-                )
-            }
-            None => format!(
-                "{} depth maps fused ({} triangles on {}; {grid})",
-                fuser.integrated,
-                fuser.triangles(),
-                fusion.topic,
-            ),
-        });
+        report.mesh = Some(mesh_summary(&mut fusion, args.mesh.as_deref())?);
     }
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
     report.output = Some(writer.finish()?);
     Ok((report, viewer))
+}
+
+/// Which of the bag's topics go where (every camera's image topic, raw or compressed, its
+/// camera_info, `/tf_static` and `/tf` as the configuration reads them), and each camera's image
+/// topic.
+fn routes(config: &PipelineConfig, known: &[TopicInfo]) -> (HashMap<String, Route>, Vec<String>) {
+    let mut routes: HashMap<String, Route> = HashMap::new();
+    // Per camera, the image topic read: raw or image_transport's compressed one.
+    let mut image_topics = Vec::with_capacity(config.cameras.len());
+    for i in 0..config.cameras.len() {
+        let (topic, route) = image_route(config, known, i);
+        routes.insert(topic.clone(), route);
+        image_topics.push(topic);
+        routes.insert(config.info_topics[i].clone(), Route::Info(i));
+    }
+    if config.rig_file.is_none() || config.world.is_some() {
+        routes.insert(config.tf_static_topic.clone(), Route::Tf);
+    }
+    if let Some(world) = &config.world {
+        routes.insert(world.tf_topic.clone(), Route::TfDynamic);
+    }
+    (routes, image_topics)
+}
+
+/// The topics of the bag against `routes`: those of another type than the pipeline reads
+/// (returned; their messages are left out, loudly), those it does not read (in `report`), and
+/// an error when no camera's image topic is there at all.
+fn check_topics(
+    args: &BagArgs,
+    known: &[TopicInfo],
+    routes: &HashMap<String, Route>,
+    image_topics: &[String],
+    report: &mut BagReport,
+) -> Result<HashSet<String>, BagRunError> {
+    // Topics with a type other than the one the pipeline reads are left out, loudly.
+    let mut wrong_type: HashSet<String> = HashSet::new();
+    for t in known {
+        match routes.get(&t.name) {
+            Some(&r) if !t.msg_type.is_empty() && t.msg_type != expected_type(r) => {
+                tracing::error!(
+                "topic {} has type {} in the bag, but the node reads {} there; its messages are ignored",
+                t.name,
+                t.msg_type,
+                expected_type(r)
+            );
+                wrong_type.insert(t.name.clone());
+            }
+            Some(_) => {}
+            None => report.ignored_topics.push(t.name.clone()),
+        }
+    }
+    if !known.is_empty() {
+        let missing: Vec<&String> = image_topics
+            .iter()
+            .filter(|t| !known.iter().any(|k| &k.name == *t) || wrong_type.contains(*t))
+            .collect();
+        if missing.len() == image_topics.len() {
+            return Err(BagRunError::NoInput {
+                bag: args.input.display().to_string(),
+                wanted: image_topics.to_vec(),
+                found: known
+                    .iter()
+                    .map(|t| format!("{} ({})", t.name, t.msg_type))
+                    .collect(),
+            });
+        }
+        for m in missing {
+            tracing::warn!("image topic {m} is not in the bag; sets need every camera");
+        }
+    }
+    Ok(wrong_type)
+}
+
+/// Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with
+/// `--voxel-size`); the markers go into OUT on `mesh` at the mesh rate in log time.
+fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline::FusionConfig> {
+    match (&config.fusion, &args.mesh) {
+        (Some(f), _) => Some(f.clone()),
+        (None, Some(_)) => Some(crate::pipeline::FusionConfig {
+            params: FusionParams {
+                voxel_size_m: args.voxel_size,
+                min_depth_m: config.sweep.min_depth_m as f32,
+                max_depth_m: config.sweep.max_depth_m as f32,
+                ..FusionParams::default()
+            },
+            mesh_rate_hz: 1.0,
+        }),
+        (None, None) => None,
+    }
+}
+
+/// A bag message on a topic routed to `route`, as the pipeline's input (or why it does not
+/// decode).
+fn decode_input(route: Route, msg: &super::reader::BagMessage) -> Result<Input, String> {
+    let position = || format!("{} at log time {} ns", msg.topic, msg.log_time_ns);
+    match route {
+        Route::Info(camera) => from_cdr::<CameraInfo>(&msg.data)
+            .map(|info| Input::CameraInfo {
+                camera,
+                info: Box::new(info),
+            })
+            .map_err(|e| format!("cannot decode CameraInfo on {}: {e}", position())),
+        Route::Tf => from_cdr::<TFMessage>(&msg.data)
+            .map(Input::TfStatic)
+            .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
+        Route::TfDynamic => from_cdr::<TFMessage>(&msg.data)
+            .map(Input::Tf)
+            .map_err(|e| format!("cannot decode TFMessage on {}: {e}", position())),
+        Route::Image(camera) => from_cdr::<Image>(&msg.data)
+            .map(|image| Input::Image { camera, image })
+            .map_err(|e| format!("cannot decode Image on {}: {e}", position())),
+        // Decoded (in parallel) when its set is complete.
+        Route::Compressed(camera) => from_cdr::<CompressedImage>(&msg.data)
+            .map(|image| Input::compressed(camera, image))
+            .map_err(|e| format!("cannot decode CompressedImage on {}: {e}", position())),
+    }
+}
+
+/// What fusion made of the bag: the PLY written to `mesh_path` (or the markers' topic) and the
+/// grid.
+fn mesh_summary(
+    fusion: &mut BagFusion,
+    mesh_path: Option<&std::path::Path>,
+) -> Result<String, BagRunError> {
+    let fuser = &mut fusion.fuser;
+    let (blocks, bytes) = fuser.blocks();
+    let grid = format!(
+        "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
+        fuser.params().voxel_size_m,
+        bytes as f64 / (1 << 20) as f64
+    );
+    Ok(match mesh_path {
+        Some(path) => {
+            let saved = fuser.save(path).map_err(|source| BagRunError::MeshFile {
+                path: path.display().to_string(),
+                source,
+            })?;
+            format!(
+                "{} depth maps fused into {} ({} triangles, {} vertices; {grid})",
+                fuser.integrated,
+                path.display(),
+                saved.triangles,
+                saved.vertices,
+            )
+        }
+        None => format!(
+            "{} depth maps fused ({} triangles on {}; {grid})",
+            fuser.integrated,
+            fuser.triangles(),
+            fusion.topic,
+        ),
+    })
+}
+
+/// `--view`: the live view of the bag's outputs (and, with fusion's markers, the mesh on its
+/// own channel).
+fn start_viewer(
+    config: &PipelineConfig,
+    fusion: Option<&crate::pipeline::FusionConfig>,
+) -> Result<Viewer, BagRunError> {
+    // With fusion (and markers), the mesh on its own channel.
+    let mesh_topic = fusion
+        .filter(|f| f.mesh_rate_hz > 0.0)
+        .map(|_| config.mesh_topic.as_str());
+    let viewer = Viewer::start_with_mesh(
+        &ViewerConfig::for_bag(&config.params)?,
+        &config.outputs,
+        mesh_topic,
+    )?;
+    tracing::info!(
+        "live view: Foxglove/Lichtblick at {}, the page at {}",
+        viewer.websocket_url(),
+        viewer.page_url()
+    );
+    Ok(viewer)
+}
+
+/// Why a bag gave no depth: the first thing its sets lacked (as the live node says it), else
+/// the last skip.
+fn no_depth(pipeline: &Pipeline, last_log_ns: u64, last_skip: Option<&str>) -> Option<String> {
+    let asked = Asked {
+        now_ns: last_log_ns,
+        window_ns: None,
+    };
+    pipeline
+        .why_no_depth(asked, &|_| Publishers::Unknown)
+        .map(|why| why.message)
+        .or_else(|| last_skip.map(|s| format!("sets are skipped: {s}")))
 }
 
 /// `--view` after the bag: the last set stays on view until Ctrl-C (or SIGTERM).
