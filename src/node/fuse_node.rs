@@ -32,7 +32,7 @@ use crate::msgs::{
     CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
 };
 use crate::params::{ParamError, ParamSet};
-use crate::pipeline::{ConfigError, DepthSources, FusionConfig};
+use crate::pipeline::{ConfigError, DepthSources, FusionConfig, FusionStats};
 use crate::ros::args::{domain_id, parse_ros_args};
 
 /// The fuse node's default name.
@@ -135,6 +135,72 @@ enum FuseEvent {
 struct TfMessageIn {
     msg: TFMessage,
     is_static: bool,
+}
+
+/// The fuse node's `/diagnostics`: fusion's counts, the depth images waiting for /tf and the
+/// skips by reason; WARN until a depth map was fused.
+fn fuse_diagnostics(stats: &FusionStats, sources: &DepthSources, fqn: &str) -> DiagnosticArray {
+    let mut values = diagnostic_values(stats);
+    values.push(KeyValue {
+        key: "depth images waiting for /tf".into(),
+        value: sources.waiting().to_string(),
+    });
+    for (reason, count) in &sources.skipped {
+        values.push(KeyValue {
+            key: format!("skipped: {reason}"),
+            value: count.to_string(),
+        });
+    }
+    let level = if stats.integrated > 0 {
+        DiagnosticStatus::OK
+    } else {
+        DiagnosticStatus::WARN
+    };
+    let message = if stats.integrated > 0 {
+        format!("{} depth maps fused", stats.integrated)
+    } else {
+        "no depth fused yet".into()
+    };
+    DiagnosticArray {
+        header: Header {
+            stamp: wall_time_now(),
+            frame_id: String::new(),
+        },
+        status: vec![DiagnosticStatus {
+            level,
+            name: format!("sweepdepth fuse: {fqn}"),
+            message,
+            hardware_id: String::new(),
+            values,
+        }],
+    }
+}
+
+/// One subscription event into the depth sources: the depth maps it makes ready to fuse (a
+/// depth image whose pose is known, or those a /tf message released), or their skips.
+fn take_event(
+    s: &mut DepthSources,
+    event: FuseEvent,
+    now_ns: u64,
+    log: &mut RateLimited,
+) -> Vec<Result<crate::pipeline::FusionInput, crate::pipeline::DepthSkip>> {
+    match event {
+        FuseEvent::Depth(i, Ok(image)) => s.push_depth(i, &image, now_ns),
+        FuseEvent::Info(i, Ok(info)) => {
+            s.push_info(i, *info);
+            Vec::new()
+        }
+        FuseEvent::Tf(Ok(tf)) => {
+            for e in s.push_tf(&tf.msg, tf.is_static) {
+                log.warn("tf", || format!("a transform was refused: {e}"));
+            }
+            s.poll(now_ns)
+        }
+        FuseEvent::Depth(_, Err(e)) | FuseEvent::Info(_, Err(e)) | FuseEvent::Tf(Err(e)) => {
+            log.warn("read", || format!("a message could not be read: {e}"));
+            Vec::new()
+        }
+    }
 }
 
 /// Runs the fuse node until SIGINT/SIGTERM.
@@ -248,28 +314,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                     let Some(event) = event else {
                         return NodeError::Ros("the subscription streams ended".into());
                     };
-                    let ready = {
-                        let mut s = lock(&sources);
-                        match event {
-                            FuseEvent::Depth(i, Ok(image)) => s.push_depth(i, &image, now_ns()),
-                            FuseEvent::Info(i, Ok(info)) => {
-                                s.push_info(i, *info);
-                                Vec::new()
-                            }
-                            FuseEvent::Tf(Ok(tf)) => {
-                                for e in s.push_tf(&tf.msg, tf.is_static) {
-                                    log.warn("tf", || format!("a transform was refused: {e}"));
-                                }
-                                s.poll(now_ns())
-                            }
-                            FuseEvent::Depth(_, Err(e))
-                            | FuseEvent::Info(_, Err(e))
-                            | FuseEvent::Tf(Err(e)) => {
-                                log.warn("read", || format!("a message could not be read: {e}"));
-                                Vec::new()
-                            }
-                        }
-                    };
+                    let ready = take_event(&mut lock(&sources), event, now_ns(), &mut log);
                     handle(ready, &mut log);
                 }
                 _ = ticks.next() => {
@@ -296,44 +341,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                     continue;
                 }
                 next += Duration::from_secs(1);
-                let stats = worker.stats();
-                let mut values = diagnostic_values(&stats);
-                {
-                    let s = lock(&sources);
-                    values.push(KeyValue {
-                        key: "depth images waiting for /tf".into(),
-                        value: s.waiting().to_string(),
-                    });
-                    for (reason, count) in &s.skipped {
-                        values.push(KeyValue {
-                            key: format!("skipped: {reason}"),
-                            value: count.to_string(),
-                        });
-                    }
-                }
-                let level = if stats.integrated > 0 {
-                    DiagnosticStatus::OK
-                } else {
-                    DiagnosticStatus::WARN
-                };
-                let message = if stats.integrated > 0 {
-                    format!("{} depth maps fused", stats.integrated)
-                } else {
-                    "no depth fused yet".into()
-                };
-                let msg = DiagnosticArray {
-                    header: Header {
-                        stamp: wall_time_now(),
-                        frame_id: String::new(),
-                    },
-                    status: vec![DiagnosticStatus {
-                        level,
-                        name: format!("sweepdepth fuse: {}", config.fqn),
-                        message,
-                        hardware_id: String::new(),
-                        values,
-                    }],
-                };
+                let msg = fuse_diagnostics(&worker.stats(), &lock(&sources), &config.fqn);
                 let _ = diag_pub.publish(msg);
             }
         },
