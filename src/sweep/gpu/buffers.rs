@@ -79,6 +79,131 @@ fn per_band(name: &str) -> bool {
     matches!(name, "volume" | "sums" | "band")
 }
 
+/// The maps a frame set reads back, then its levels' timestamps: one buffer, mapped once.
+fn make_readback(
+    device: &wgpu::Device,
+    maps_size: u64,
+    timestamps: Option<&Timestamps>,
+) -> wgpu::Buffer {
+    let timestamp_bytes =
+        timestamps.map_or(0, |t| u64::from(t.count) * 8 + LOWER_LEVEL_TIMESTAMP_BYTES);
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: timestamps_offset(maps_size) + timestamp_bytes,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// Each stage's bind groups (one per row band where it binds a band's buffers), its bindings
+/// found by name through `resource`.
+fn make_bind_groups<'a>(
+    device: &wgpu::Device,
+    layouts: &[wgpu::BindGroupLayout],
+    key: ShapeKey,
+    resource: &dyn Fn(&str, u32) -> Option<wgpu::BindingResource<'a>>,
+) -> Result<Vec<Vec<wgpu::BindGroup>>, SweepError> {
+    let mut bind_groups = Vec::with_capacity(STAGES.len());
+    for (stage, layout) in STAGES.iter().zip(layouts) {
+        if stage.name == Stage::Half.name() {
+            // Binds the image pyramid's levels (`pyramid.rs`), not this shape's buffers.
+            bind_groups.push(Vec::new());
+            continue;
+        }
+        let banded = stage.bindings.iter().any(|b| per_band(b.name));
+        let groups = if banded { key.bands() } else { 1 };
+        let mut per_stage = Vec::with_capacity(groups as usize);
+        for band in 0..groups {
+            let entries = stage
+                .bindings
+                .iter()
+                .enumerate()
+                .map(|(number, binding)| {
+                    resource(binding.name, band)
+                        .map(|resource| wgpu::BindGroupEntry {
+                            binding: number as u32,
+                            resource,
+                        })
+                        .ok_or_else(|| {
+                            SweepError::Gpu(format!(
+                                "internal: no buffer for binding `{}` of stage {}",
+                                binding.name, stage.name
+                            ))
+                        })
+                })
+                .collect::<Result<Vec<_>, SweepError>>()?;
+            per_stage.push(device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(stage.name),
+                layout,
+                entries: &entries,
+            }));
+        }
+        bind_groups.push(per_stage);
+    }
+    Ok(bind_groups)
+}
+
+/// Two timestamps per phase of the schedule (one compute pass each), when the adapter has
+/// them.
+fn make_timestamps(device: &wgpu::Device, key: ShapeKey) -> Option<Timestamps> {
+    let count = 2 * key.schedule().phases().len() as u32;
+    device
+        .features()
+        .contains(wgpu::Features::TIMESTAMP_QUERY)
+        .then(|| {
+            let bytes = u64::from(count) * 8;
+            Timestamps {
+                query_set: device.create_query_set(&wgpu::QuerySetDescriptor {
+                    label: Some("stage timestamps"),
+                    ty: wgpu::QueryType::Timestamp,
+                    count,
+                }),
+                resolve: device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("timestamp resolve"),
+                    size: bytes,
+                    usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                    mapped_at_creation: false,
+                }),
+                count,
+            }
+        })
+}
+
+/// SGM's buffers: the cost volume and the path sums, one buffer each per row band, and per
+/// direction and line two rows of path costs and the minimum of the previous one (one
+/// invocation per line on CPU adapters and in bands).
+fn sgm_buffers(
+    storage: &dyn Fn(&str, u64, wgpu::BufferUsages) -> wgpu::Buffer,
+    key: ShapeKey,
+) -> (Vec<wgpu::Buffer>, Vec<wgpu::Buffer>, wgpu::Buffer) {
+    let none = wgpu::BufferUsages::empty();
+    // The cost volume and the path sums, one buffer per row band.
+    let band_bytes = |b: u32| {
+        u64::from(key.band(b).rows) * u64::from(key.width) * u64::from(key.volume_words) * 4
+    };
+    let volumes: Vec<wgpu::Buffer> = (0..key.bands())
+        .map(|b| storage("sgm volume", band_bytes(b), none))
+        .collect();
+    let sums: Vec<wgpu::Buffer> = (0..key.bands())
+        .map(|b| storage("sgm sums", band_bytes(b), none))
+        .collect();
+    // Per direction and line: two rows of path costs and the minimum of the previous one
+    // (one invocation per line on CPU adapters and in bands).
+    let line_costs = storage(
+        "sgm line costs",
+        if key.sgm_paths > 0 {
+            u64::from(key.sgm_paths)
+                * u64::from(key.width + key.height)
+                * (u64::from(key.volume_words) * 4 + 1)
+                * 4
+        } else {
+            0
+        },
+        none,
+    );
+    (volumes, sums, line_costs)
+}
+
 impl Buffers {
     pub fn new(
         device: &wgpu::Device,
@@ -152,30 +277,7 @@ impl Buffers {
             if key.refine_batches > 0 { npix * 8 } else { 0 },
             none,
         );
-        // The cost volume and the path sums, one buffer per row band.
-        let band_bytes = |b: u32| {
-            u64::from(key.band(b).rows) * u64::from(key.width) * u64::from(key.volume_words) * 4
-        };
-        let volumes: Vec<wgpu::Buffer> = (0..key.bands())
-            .map(|b| storage("sgm volume", band_bytes(b), none))
-            .collect();
-        let sums: Vec<wgpu::Buffer> = (0..key.bands())
-            .map(|b| storage("sgm sums", band_bytes(b), none))
-            .collect();
-        // Per direction and line: two rows of path costs and the minimum of the previous one
-        // (one invocation per line on CPU adapters and in bands).
-        let line_costs = storage(
-            "sgm line costs",
-            if key.sgm_paths > 0 {
-                u64::from(key.sgm_paths)
-                    * u64::from(key.width + key.height)
-                    * (u64::from(key.volume_words) * 4 + 1)
-                    * 4
-            } else {
-                0
-            },
-            none,
-        );
+        let (volumes, sums, line_costs) = sgm_buffers(&storage, key);
         // Each direction's pass, then the pass of directions 1 .. paths - 1 together.
         let sgm_passes = uniform("sgm passes", (SGM_REST_PASS as u64 + 1) * align.pass);
         let bands = uniform("sgm bands", u64::from(key.bands()) * align.pass);
@@ -228,76 +330,9 @@ impl Buffers {
                 _ => return None,
             })
         };
-        let mut bind_groups = Vec::with_capacity(STAGES.len());
-        for (stage, layout) in STAGES.iter().zip(layouts) {
-            if stage.name == Stage::Half.name() {
-                // Binds the image pyramid's levels (`pyramid.rs`), not this shape's buffers.
-                bind_groups.push(Vec::new());
-                continue;
-            }
-            let banded = stage.bindings.iter().any(|b| per_band(b.name));
-            let groups = if banded { key.bands() } else { 1 };
-            let mut per_stage = Vec::with_capacity(groups as usize);
-            for band in 0..groups {
-                let entries = stage
-                    .bindings
-                    .iter()
-                    .enumerate()
-                    .map(|(number, binding)| {
-                        resource(binding.name, band)
-                            .map(|resource| wgpu::BindGroupEntry {
-                                binding: number as u32,
-                                resource,
-                            })
-                            .ok_or_else(|| {
-                                SweepError::Gpu(format!(
-                                    "internal: no buffer for binding `{}` of stage {}",
-                                    binding.name, stage.name
-                                ))
-                            })
-                    })
-                    .collect::<Result<Vec<_>, SweepError>>()?;
-                per_stage.push(device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some(stage.name),
-                    layout,
-                    entries: &entries,
-                }));
-            }
-            bind_groups.push(per_stage);
-        }
-        // Two timestamps per phase of the schedule (one compute pass each), when the adapter
-        // has them.
-        let count = 2 * key.schedule().phases().len() as u32;
-        let timestamps = device
-            .features()
-            .contains(wgpu::Features::TIMESTAMP_QUERY)
-            .then(|| {
-                let bytes = u64::from(count) * 8;
-                Timestamps {
-                    query_set: device.create_query_set(&wgpu::QuerySetDescriptor {
-                        label: Some("stage timestamps"),
-                        ty: wgpu::QueryType::Timestamp,
-                        count,
-                    }),
-                    resolve: device.create_buffer(&wgpu::BufferDescriptor {
-                        label: Some("timestamp resolve"),
-                        size: bytes,
-                        usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                        mapped_at_creation: false,
-                    }),
-                    count,
-                }
-            });
-        // The maps a frame set reads back, then its levels' timestamps: one buffer, mapped once.
-        let timestamp_bytes = timestamps
-            .as_ref()
-            .map_or(0, |t| u64::from(t.count) * 8 + LOWER_LEVEL_TIMESTAMP_BYTES);
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: timestamps_offset(maps.size()) + timestamp_bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let bind_groups = make_bind_groups(device, layouts, key, &resource)?;
+        let timestamps = make_timestamps(device, key);
+        let readback = make_readback(device, maps.size(), timestamps.as_ref());
         Ok(Self {
             key,
             params,
