@@ -2,7 +2,8 @@
 //! of `src/` has its place in one of the layers below and imports only from layers under its
 //! own (so there is no import cycle either); the named rules on top (`pipeline/` never imports
 //! `node/` or `bag/`, the engine, fusion and geometry know nothing of ROS, ...); `anyhow` only
-//! at the command line; no source file of more than 800 lines outside its tests.
+//! at the command line; no source file of more than 800 lines outside its tests, and no
+//! function of more than 150.
 //!
 //! A module's imports are the `crate::<module>` paths of its production code (and `super::`
 //! paths that climb to the crate root, and `crate::{a, b}` groups): every line of every file
@@ -666,6 +667,70 @@ fn no_source_file_is_over_the_limit_outside_its_tests() {
     assert!(
         over.is_empty(),
         "files over {MAX_LINES} lines (tests excepted): {over:?}"
+    );
+}
+
+/// The longest a function of production code may be, in lines from `fn` to its closing brace
+/// (issue 55: a function people edit should fit on a screen or two).
+const MAX_FUNCTION_LINES: usize = 150;
+
+/// Each function of `code` (production code, test items blanked): its name, first line and
+/// length in lines, from `fn` through its closing brace (declarations without a body skipped).
+fn functions(code: &[u8]) -> Vec<(String, usize, usize)> {
+    let mut found = Vec::new();
+    let mut at = 0;
+    while let Some(start) = find(code, b"fn ", at) {
+        at = start + 3;
+        if start > 0 && is_ident(code[start - 1]) {
+            continue;
+        }
+        let Some((name, after)) = ident_at(code, start + 3) else {
+            continue;
+        };
+        let end = item_end(code, after);
+        if code[..end].last() != Some(&b'}') {
+            continue;
+        }
+        let line = code[..start].iter().filter(|&&b| b == b'\n').count() + 1;
+        let lines = code[start..end].iter().filter(|&&b| b == b'\n').count() + 1;
+        found.push((name, line, lines));
+    }
+    found
+}
+
+#[test]
+fn no_function_is_over_the_limit_outside_tests() {
+    let mut over = Vec::new();
+    let mut longest = (String::new(), 0);
+    for s in sources() {
+        for (name, line, lines) in functions(&s.code) {
+            if lines > longest.1 {
+                longest = (format!("src/{}:{line} {name}", s.name), lines);
+            }
+            if lines > MAX_FUNCTION_LINES {
+                over.push(format!("src/{}:{line} {name}: {lines} lines", s.name));
+            }
+        }
+    }
+    assert!(
+        over.is_empty(),
+        "functions over {MAX_FUNCTION_LINES} lines (tests excepted): {over:?}"
+    );
+    // The reader finds the long ones: the longest is close to the limit, not a one-liner.
+    assert!(longest.1 > 100, "the longest function found: {longest:?}");
+}
+
+/// The function reader counts a body from `fn` to its brace, and skips declarations and names
+/// that merely end in `fn`.
+#[test]
+fn the_function_reader_measures_bodies() {
+    let code = blank_comments_and_literals(
+        "fn one() {\n    let x = 1;\n}\ntrait T {\n    fn decl(&self);\n}\nfn two(a: fn(u8) -> u8) -> u8 {\n    a(1)\n}\nmacro_rules! myfn { () => {} }\n",
+    );
+    let found = functions(&code);
+    assert_eq!(
+        found,
+        vec![("one".to_string(), 1, 3), ("two".to_string(), 7, 3)]
     );
 }
 

@@ -408,50 +408,9 @@ impl GpuEngine {
             .ok_or_else(|| SweepError::Gpu("internal: nothing read back".into()))
     }
 
-    /// Records one plan (one level of a frame set) into the frame set's command buffer: its
-    /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
-    /// on the device; otherwise the plan's own ranges are uploaded), its images and its
-    /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
-    fn record_level(
-        &mut self,
-        plan: &SweepPlan,
-        rig: &Rig,
-        images: LevelImages<'_>,
-        narrowed: bool,
-    ) -> Result<(), SweepError> {
-        self.counts.levels += 1;
-        // The level's images: the caller's, written straight into the `images` buffer, or a
-        // level of the pyramid (the set's first level uploads the caller's images and makes
-        // every half-size level below on the GPU; the others copy theirs).
-        let halvings = images.halvings();
-        let fill = halvings > 0 && self.pyramid_filled.is_none_or(|d| d < halvings);
-        if fill {
-            let full = images.full();
-            if !self
-                .pyramid
-                .as_ref()
-                .is_some_and(|p| p.fits(full, halvings))
-            {
-                self.pyramid = None;
-                self.pyramid = Some(Pyramid::new(
-                    &self.device,
-                    &self.queue,
-                    &self.pipelines.layouts[Stage::Half as usize],
-                    full,
-                    halvings,
-                )?);
-            }
-        }
-        let from_pyramid = halvings > 0 || self.pyramid_filled.is_some();
-        if !from_pyramid {
-            super::check_images(rig, images.full())?;
-        }
-        let key = ShapeKey::of(
-            plan,
-            &self.device.limits(),
-            self.sgm_band_bytes,
-            self.slab_bytes,
-        )?;
+    /// Makes the buffers of shape `key` the current ones: kept, taken from the spares, or made;
+    /// the replaced ones become a spare.
+    fn use_buffers(&mut self, key: ShapeKey) -> Result<(), SweepError> {
         if self.buffers.as_ref().map(|(b, _)| b.key) != Some(key) {
             let (buffers, schedule, uploaded) =
                 match self.spares.iter().position(|spare| spare.0.key == key) {
@@ -473,6 +432,60 @@ impl GpuEngine {
             }
             self.uploaded_plan = uploaded;
         }
+        Ok(())
+    }
+
+    /// An image pyramid that holds `full` and `halvings` levels below it (made anew when the
+    /// one there does not).
+    fn fit_pyramid(&mut self, full: &[Rgba8Image], halvings: usize) -> Result<(), SweepError> {
+        if !self
+            .pyramid
+            .as_ref()
+            .is_some_and(|p| p.fits(full, halvings))
+        {
+            self.pyramid = None;
+            self.pyramid = Some(Pyramid::new(
+                &self.device,
+                &self.queue,
+                &self.pipelines.layouts[Stage::Half as usize],
+                full,
+                halvings,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// Records one plan (one level of a frame set) into the frame set's command buffer: its
+    /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
+    /// on the device; otherwise the plan's own ranges are uploaded), its images and its
+    /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
+    fn record_level(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: LevelImages<'_>,
+        narrowed: bool,
+    ) -> Result<(), SweepError> {
+        self.counts.levels += 1;
+        // The level's images: the caller's, written straight into the `images` buffer, or a
+        // level of the pyramid (the set's first level uploads the caller's images and makes
+        // every half-size level below on the GPU; the others copy theirs).
+        let halvings = images.halvings();
+        let fill = halvings > 0 && self.pyramid_filled.is_none_or(|d| d < halvings);
+        if fill {
+            self.fit_pyramid(images.full(), halvings)?;
+        }
+        let from_pyramid = halvings > 0 || self.pyramid_filled.is_some();
+        if !from_pyramid {
+            super::check_images(rig, images.full())?;
+        }
+        let key = ShapeKey::of(
+            plan,
+            &self.device.limits(),
+            self.sgm_band_bytes,
+            self.slab_bytes,
+        )?;
+        self.use_buffers(key)?;
         // Workgroup memory does not outlive a dispatch: bands carry the path state in the
         // per-line scratch of the line-per-invocation layout.
         let layout = if key.bands() > 1 {
