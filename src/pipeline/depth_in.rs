@@ -8,14 +8,15 @@
 //! camera_info yet, a size or encoding that does not fit, a CameraInfo that describes no
 //! camera, a pose that cannot come.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::time::Duration;
 
 use super::fuse::FusionInput;
+use super::pose_queue::{PoseQueue, Posed};
 use crate::image::ImageF32;
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::ros::camera_info::{camera_from_info, check_image_size, ImageKind};
-use crate::ros::tf_history::{TfHistory, TfInsertError};
+use crate::ros::tf_history::TfInsertError;
 
 /// Why a depth image was not fused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -47,16 +48,6 @@ impl DepthSkip {
     }
 }
 
-/// A depth image waiting for its pose.
-#[derive(Debug)]
-struct Waiting {
-    source: usize,
-    input: FusionInput,
-    /// The frame its camera is in (the image's `header.frame_id`).
-    frame: String,
-    deadline_ns: u64,
-}
-
 /// The depth sources of a `fuse` node: their latest camera_info, the transforms, and the
 /// depth images that wait for them.
 #[derive(Debug)]
@@ -65,8 +56,9 @@ pub struct DepthSources {
     infos: Vec<Option<CameraInfo>>,
     world_frame: String,
     tf_timeout_ns: u64,
-    tf: TfHistory,
-    waiting: VecDeque<Waiting>,
+    /// The transforms, and each depth image (with its source) waiting for the pose of its
+    /// frame (the image's `header.frame_id`).
+    queue: PoseQueue<(usize, FusionInput)>,
     /// Depth images refused, by reason.
     pub skipped: BTreeMap<&'static str, u64>,
 }
@@ -79,8 +71,7 @@ impl DepthSources {
             topics,
             world_frame,
             tf_timeout_ns: u64::try_from(tf_timeout.as_nanos()).unwrap_or(u64::MAX),
-            tf: TfHistory::new(),
-            waiting: VecDeque::new(),
+            queue: PoseQueue::default(),
             skipped: BTreeMap::new(),
         }
     }
@@ -91,7 +82,7 @@ impl DepthSources {
 
     /// Depth images waiting for `/tf`.
     pub fn waiting(&self) -> usize {
-        self.waiting.len()
+        self.queue.waiting()
     }
 
     /// The latest camera_info of source `i`.
@@ -104,17 +95,7 @@ impl DepthSources {
     /// A `/tf` or `/tf_static` message; returns the transforms refused. A `/tf` stamp well
     /// before the newest (a bag played again) clears the dynamic transforms first.
     pub fn push_tf(&mut self, msg: &TFMessage, is_static: bool) -> Vec<TfInsertError> {
-        if !is_static {
-            if let Some(stamp) = msg
-                .transforms
-                .iter()
-                .map(|t| t.header.stamp)
-                .min_by_key(|t| t.to_nanos())
-            {
-                self.tf.note_time(stamp);
-            }
-        }
-        self.tf.insert_message(msg, is_static)
+        self.queue.add_tf(msg, is_static).0
     }
 
     /// A depth image of source `i`, received at `now_ns`; returns what is now ready (this
@@ -127,12 +108,15 @@ impl DepthSources {
     ) -> Vec<Result<FusionInput, DepthSkip>> {
         let mut out = Vec::new();
         match self.convert(i, image) {
-            Ok(input) => self.waiting.push_back(Waiting {
-                source: i,
-                frame: image.header.frame_id.clone(),
-                input,
-                deadline_ns: now_ns.saturating_add(self.tf_timeout_ns),
-            }),
+            Ok(input) => {
+                let stamp = input.stamp;
+                self.queue.push(
+                    (i, input),
+                    image.header.frame_id.clone(),
+                    stamp,
+                    now_ns.saturating_add(self.tf_timeout_ns),
+                );
+            }
             Err(skip) => {
                 *self.skipped.entry(skip.label()).or_default() += 1;
                 out.push(Err(skip));
@@ -144,31 +128,25 @@ impl DepthSources {
 
     /// The waiting images whose pose has come (or that waited too long), in order.
     pub fn poll(&mut self, now_ns: u64) -> Vec<Result<FusionInput, DepthSkip>> {
-        let mut out = Vec::new();
-        while let Some(front) = self.waiting.front() {
-            let result = self
-                .tf
-                .lookup_at(&self.world_frame, &front.frame, front.input.stamp);
-            let ready = match result {
-                Ok(world_from_frame) => Ok(world_from_frame),
-                Err(e) if e.may_resolve_by_waiting() && now_ns < front.deadline_ns => break,
-                Err(e) => Err(e.to_string()),
-            };
-            let Some(mut waiting) = self.waiting.pop_front() else {
-                break;
-            };
-            match ready {
-                Ok(world_from_frame) => {
-                    waiting.input.map_from_cam =
-                        world_from_frame.compose(&waiting.input.map_from_cam);
-                    out.push(Ok(waiting.input));
+        let done = self.queue.ready(&self.world_frame, now_ns, false);
+        let mut out = Vec::with_capacity(done.len());
+        for posed in done {
+            match posed {
+                Posed::Ready((_, mut input), world_from_frame) => {
+                    input.map_from_cam = world_from_frame.compose(&input.map_from_cam);
+                    out.push(Ok(input));
                 }
-                Err(reason) => {
+                Posed::Failed {
+                    item: (source, _),
+                    frame,
+                    error,
+                    ..
+                } => {
                     let skip = DepthSkip::NoWorldPose {
-                        topic: self.topic(waiting.source),
-                        frame: waiting.frame,
+                        topic: self.topic(source),
+                        frame,
                         world: self.world_frame.clone(),
-                        reason,
+                        reason: error.to_string(),
                     };
                     *self.skipped.entry(skip.label()).or_default() += 1;
                     out.push(Err(skip));

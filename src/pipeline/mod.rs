@@ -30,6 +30,7 @@ pub mod out_messages;
 pub mod outcome;
 pub mod output_list;
 pub mod outputs;
+mod pose_queue;
 mod roster;
 pub mod why;
 mod world;
