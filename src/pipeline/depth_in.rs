@@ -294,7 +294,7 @@ pub fn depth_metres(image: &Image) -> Result<ImageF32, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::msgs::{Header, Quaternion, Time, Transform, TransformStamped, Vector3};
+    use crate::msgs::{Header, Time};
 
     fn info(w: u32, h: u32) -> CameraInfo {
         CameraInfo {
@@ -330,21 +330,7 @@ mod tests {
         }
     }
 
-    fn tf(sec: i32, x: f64) -> TFMessage {
-        TFMessage {
-            transforms: vec![TransformStamped {
-                header: Header {
-                    stamp: Time { sec, nanosec: 0 },
-                    frame_id: "world".into(),
-                },
-                child_frame_id: "cam".into(),
-                transform: Transform {
-                    translation: Vector3 { x, y: 0.0, z: 0.0 },
-                    rotation: Quaternion::default(),
-                },
-            }],
-        }
-    }
+    use crate::pipeline::pose_queue::tests::tf;
 
     const S: u64 = 1_000_000_000;
 
