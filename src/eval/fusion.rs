@@ -435,7 +435,7 @@ pub enum ViewWeights {
     /// proportional to `1 / B^2`, so this is the inverse-variance weight of the views (their
     /// depths, pixel positions and matching errors alike).
     Baseline,
-    /// Each pixel weighed by [`observation_weights`] (its depth, confidence and neighbours,
+    /// Each pixel weighed by [`observation_weights`](crate::fusion::observation_weights) (its depth, confidence and neighbours,
     /// its view's baseline over the case's largest): [`Weighting::DEPTH_MAPS`] is what
     /// `pipeline::fuse`'s `Fuser` (the node, `bag`, `fuse`) uses.
     Pixels(Weighting),

@@ -7,7 +7,7 @@
 //! of `repeats` runs after a warm-up, at 2 cm voxels with colour:
 //! - `integrate first`: frame 0 into an empty grid;
 //! - `integrate steady`: frame 1 into a grid that holds frame 0 (already meshed): the live case;
-//! - `mesh`: [`Mesh::update`] of the blocks that frame 1 changed.
+//! - `mesh`: [`Mapper::update_mesh`](crate::fusion::Mapper::update_mesh) of the blocks that frame 1 changed.
 //!
 //! The peer, `tools/open3d_fusion_peer.py`, runs the same two integrations
 //! (`compute_unique_block_coordinates` + `integrate`, block resolutions 8 and 16) on the same
