@@ -399,6 +399,12 @@ fn coarse_to_fine(
         &coarse_params,
         Wanted::DepthRaw,
     )?;
+    tracing::debug!(
+        "coarse to fine: the level below ({}x{}) took {:?}",
+        coarse_rig.reference_model().intrinsics.width_px,
+        coarse_rig.reference_model().intrinsics.height_px,
+        engine.timings_mut().stages
+    );
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
     // The engine that keeps the coarse depths on the device narrows the rows there.
     let on_host = match coarse {

@@ -85,9 +85,19 @@ pub struct CpuEngine {
     memo: super::frame_memo::FrameMemo,
     timings: StageTimings,
     fast_paths: bool,
+    /// The buffers of the plan size that ran last (`buffers_size`: its width and height).
     buffers: Buffers,
+    buffers_size: (u32, u32),
+    /// The buffers of the other sizes run recently (the levels of coarse to fine), most recent
+    /// last: each level keeps its own, so no set allocates and faults in its cost volume and
+    /// path sums again (a raw pair's full-resolution volume is 69 MB, the sums twice that).
+    parked: Vec<((u32, u32), Buffers)>,
     cancel: CancelFlag,
 }
+
+/// Sizes whose buffers [`CpuEngine`] keeps beside the current one (the coarse-to-fine levels of
+/// a rig; a rig of another size takes the oldest's place).
+const PARKED_SIZES: usize = 4;
 
 /// The buffers of a run, kept across frame sets: fresh ones cost a page fault per 4 KiB on
 /// first touch (2-3 ms of the paper configuration's ~15 ms, `perf`), and freeing them
@@ -135,6 +145,8 @@ impl CpuEngine {
             timings: StageTimings::default(),
             fast_paths: true,
             buffers: Buffers::default(),
+            buffers_size: (0, 0),
+            parked: Vec::new(),
             cancel: CancelFlag::new(),
         }
     }
@@ -221,6 +233,7 @@ impl CpuEngine {
         images: &[Rgba8Image],
     ) -> Result<(), SweepError> {
         check_images(rig, images)?;
+        self.buffers_for((plan.params.width, plan.params.height));
         let mut clock = StageClock::new();
         let planes = plan.num_planes() as usize;
         let mappings: Vec<Vec<cost::Mapping>> = (0..planes)
@@ -270,6 +283,23 @@ impl CpuEngine {
 
     /// Each image's census words (when the cost uses them) and planar channels, into the
     /// buffers of the last set.
+    /// Makes `self.buffers` those of plans of `size` (parking the current ones).
+    fn buffers_for(&mut self, size: (u32, u32)) {
+        if size == self.buffers_size {
+            return;
+        }
+        let found = self.parked.iter().position(|(s, _)| *s == size);
+        let buffers = found.map_or_else(Buffers::default, |i| self.parked.remove(i).1);
+        let current = std::mem::replace(&mut self.buffers, buffers);
+        if self.buffers_size != (0, 0) {
+            self.parked.push((self.buffers_size, current));
+        }
+        if self.parked.len() > PARKED_SIZES {
+            self.parked.remove(0);
+        }
+        self.buffers_size = size;
+    }
+
     fn frame_images(
         &mut self,
         rig: &Rig,
