@@ -352,7 +352,13 @@ impl CpuEngine {
                         &images[p.reference as usize].pixels
                     };
                     let buffers = &mut self.buffers;
-                    if let Err(e) = sgm::run(
+                    // The wide layout where it applies (4 threads or more), else two passes.
+                    let sums = if sgm_wide::applies(plan) {
+                        sgm_wide::run
+                    } else {
+                        sgm::run_two_passes
+                    };
+                    if let Err(e) = sums(
                         plan,
                         colours,
                         volume,
