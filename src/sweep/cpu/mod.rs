@@ -17,6 +17,7 @@ pub mod common;
 pub mod cost;
 pub mod finalize;
 mod gather;
+pub mod matched;
 pub mod median;
 pub mod occlusion;
 pub mod plane;
