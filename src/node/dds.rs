@@ -1,16 +1,20 @@
 //! The node on DDS: the context and the node (with its parameter services), its subscriptions
-//! (`inputs.rs`) and output publishers (`topics.rs`), then the event loop (on a `futures` executor that also drives the ros2-client spinner) beside the
-//! diagnostics thread until SIGINT/SIGTERM.
+//! (`inputs.rs`) and output publishers (`topics.rs`), then the event loop (on a `futures`
+//! executor that also drives the ros2-client spinner) beside the diagnostics thread until
+//! SIGINT/SIGTERM. The diagnostics thread publishes `/diagnostics` from the statistics
+//! (`diag.rs`), why no depth comes out (`why.rs`) and fusion's lines (`fusion.rs`).
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use futures::StreamExt;
 use ros2_client::qos::{History, WhenFull};
-use ros2_client::{Context, ContextOptions, NodeName, QosProfile};
+use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
+use super::diag::wall_time_now;
 use super::events::LoopState;
-use super::fusion::FusionNode;
+use super::fusion::{diagnostic_values, FusionNode};
 use super::inputs::Inputs;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
@@ -19,7 +23,8 @@ use super::shutdown;
 use super::topics::{diagnostics_publisher, output_publishers, ros_err};
 use super::why::{Discovery, NoDepth};
 use super::worker::Outputs;
-use super::{diag, NodeConfig, NodeError, Shared};
+use super::{NodeConfig, NodeError, Shared};
+use crate::msgs::DiagnosticArray;
 use crate::pipeline::{ConfigError, Pipeline};
 
 /// The spinner's future, kept until the node is dropped: the node's `Drop` tells the spinner to
@@ -148,7 +153,7 @@ pub(super) fn run(
         signals,
         "sweepdepth-diagnostics",
         |stop| {
-            diag::publish_loop(
+            publish_loop(
                 config,
                 shared,
                 diag_pub,
@@ -163,4 +168,49 @@ pub(super) fn run(
     stop_worker();
     *lock(&ROSOUT) = None;
     outcome
+}
+
+/// Publishes `/diagnostics` once a second until `stop` is set.
+fn publish_loop(
+    config: &NodeConfig,
+    shared: &Shared<'_>,
+    publisher: Publisher<DiagnosticArray>,
+    fusion: Option<&crate::pipeline::FusionWorker>,
+    no_depth: &mut NoDepth<'_>,
+    stop: &AtomicBool,
+) {
+    let fqn = config.pipeline.identity.fqn();
+    let mut next = Instant::now() + Duration::from_secs(1);
+    let mut log = RateLimited::default();
+    while !stop.load(Ordering::Relaxed) {
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep((next - now).min(Duration::from_millis(100)));
+            continue;
+        }
+        next += Duration::from_secs(1);
+        if next < now {
+            next = now + Duration::from_secs(1);
+        }
+        no_depth.check(shared.stats, now);
+        let mut msg = {
+            let mut stats = lock(shared.stats);
+            stats.gpu_dropped = shared.slot.dropped();
+            stats.diagnostics(
+                &fqn,
+                &config.pipeline.cameras,
+                shared.adapter,
+                now,
+                wall_time_now(),
+            )
+        };
+        if let (Some(fusion), Some(status)) = (fusion, msg.status.first_mut()) {
+            status.values.extend(diagnostic_values(&fusion.stats()));
+        }
+        if let Err(e) = publisher.publish(msg) {
+            log.warn("diagnostics", || {
+                format!("publishing /diagnostics failed: {e:?}")
+            });
+        }
+    }
 }

@@ -1,15 +1,11 @@
 //! Run-time statistics of the node ([`Stats`]: input rates, the synchroniser's verdicts
 //! counted, GPU drops, processing time, latency), the `/diagnostics` message built from them
-//! (unit-tested), and the thread that publishes it once a second.
+//! (unit-tested). The thread that publishes it once a second is `dds.rs`'s: it adds why no depth
+//! comes out (`why.rs`) and fusion's lines, which build on these statistics.
 
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use ros2_client::Publisher;
-
-use super::log::{lock, RateLimited};
-use super::{NodeConfig, Shared};
 use crate::msgs::{DiagnosticArray, DiagnosticStatus, Header, KeyValue, Time};
 use crate::ros::sync::SyncStats;
 
@@ -254,53 +250,6 @@ pub fn wall_time_now() -> Time {
     Time {
         sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
         nanosec: d.subsec_nanos(),
-    }
-}
-
-/// Publishes `/diagnostics` once a second until `stop` is set.
-pub(super) fn publish_loop(
-    config: &NodeConfig,
-    shared: &Shared<'_>,
-    publisher: Publisher<DiagnosticArray>,
-    fusion: Option<&crate::pipeline::FusionWorker>,
-    no_depth: &mut super::why::NoDepth<'_>,
-    stop: &AtomicBool,
-) {
-    let fqn = config.pipeline.identity.fqn();
-    let mut next = Instant::now() + Duration::from_secs(1);
-    let mut log = RateLimited::default();
-    while !stop.load(Ordering::Relaxed) {
-        let now = Instant::now();
-        if now < next {
-            std::thread::sleep((next - now).min(Duration::from_millis(100)));
-            continue;
-        }
-        next += Duration::from_secs(1);
-        if next < now {
-            next = now + Duration::from_secs(1);
-        }
-        no_depth.check(shared.stats, now);
-        let mut msg = {
-            let mut stats = lock(shared.stats);
-            stats.gpu_dropped = shared.slot.dropped();
-            stats.diagnostics(
-                &fqn,
-                &config.pipeline.cameras,
-                shared.adapter,
-                now,
-                wall_time_now(),
-            )
-        };
-        if let (Some(fusion), Some(status)) = (fusion, msg.status.first_mut()) {
-            status
-                .values
-                .extend(super::fusion::diagnostic_values(&fusion.stats()));
-        }
-        if let Err(e) = publisher.publish(msg) {
-            log.warn("diagnostics", || {
-                format!("publishing /diagnostics failed: {e:?}")
-            });
-        }
     }
 }
 

@@ -2,8 +2,7 @@
 //! (best n of m, `min_visible_cameras`, the engine's own [`SweepParams::validate`]) and the
 //! depth range, at start-up and for every change of a running node ([`check_change`]).
 
-use super::engine::apply_to_sweep;
-use super::set::ParamSet;
+use super::set::{apply_to_sweep, ParamSet};
 use super::table::{param_spec, validate};
 use super::ParamError;
 use crate::ros::param_value::ParamValue;

@@ -8,14 +8,14 @@
 //!   frame set),
 //! * the engine options of `demo`, `eval` and `bench` ([`super::EngineOptions`]),
 //! * the range checks of every value set by either ([`super::ParamSpec::coerce`]), and
-//! * the copy of a parameter set into [`SweepParams`] ([`apply_to_sweep`]).
+//! * the copy of a parameter set into [`SweepParams`] ([`super::apply_to_sweep`], beside the
+//!   set in `set.rs`: the set is made from the table this list is part of).
 //!
 //! The checks across parameters and against the rig's shape stay with the engine
 //! ([`SweepParams::validate`]) and [`super::checks`].
 
 use std::sync::LazyLock;
 
-use super::set::ParamSet;
 use super::spec::{ParamRange, ParamSpec};
 use super::ParamError;
 use crate::ros::param_value::{ParamKind, ParamValue};
@@ -304,18 +304,6 @@ pub fn engine_params() -> &'static [EngineParam] {
 /// The declaration of the engine parameter `name`.
 pub fn engine_param(name: &str) -> Option<&'static EngineParam> {
     engine_params().iter().find(|p| p.spec.name == name)
-}
-
-/// Copies the engine parameters of `set` into `params`. Each value was range-checked when
-/// set; the checks across parameters are [`SweepParams::validate`]'s.
-pub fn apply_to_sweep(set: &ParamSet, params: &mut SweepParams) -> Result<(), ParamError> {
-    for p in engine_params() {
-        let value = set
-            .get(p.spec.name)
-            .ok_or_else(|| ParamError::Unknown(p.spec.name.to_string()))?;
-        (p.set)(params, value)?;
-    }
-    Ok(())
 }
 
 #[cfg(test)]

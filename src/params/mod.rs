@@ -9,8 +9,8 @@
 //! * [`spec`]: what a parameter is ([`ParamSpec`], [`ParamRange`]) and the checks of one value.
 //! * [`table`]: the one table of all of them ([`param_table`]: the engine's, then the node's)
 //!   and the lookups and checks by name.
-//! * [`set`]: the current values ([`ParamSet`]) and how a command line's parameter files and
-//!   `-p` rules set them.
+//! * [`set`]: the current values ([`ParamSet`]), how a command line's parameter files and
+//!   `-p` rules set them, and their copy into the engine's parameters ([`apply_to_sweep`]).
 //! * [`checks`]: the checks across parameters (depth range, best n of m, the rig's shape).
 //! * [`cli`]: [`EngineOptions`], the engine options of `demo`, `eval`, `bench`.
 //! * [`docs`]: the parameter table of docs/node.md.
@@ -30,8 +30,8 @@ pub mod table;
 pub use crate::ros::param_value::{ParamKind, ParamValue};
 pub use cli::EngineOptions;
 pub use docs::markdown_table;
-pub use engine::{apply_to_sweep, engine_param, engine_params, EngineParam, Flag};
+pub use engine::{engine_param, engine_params, EngineParam, Flag};
 pub use error::ParamError;
-pub use set::{ParamSet, ParamSource};
+pub use set::{apply_to_sweep, ParamSet, ParamSource};
 pub use spec::{ParamRange, ParamSpec};
 pub use table::{coerce, param_spec, param_table, validate};

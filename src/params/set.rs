@@ -1,13 +1,16 @@
-//! The current value of every parameter ([`ParamSet`]), where it came from, and how a
-//! command line's parameter files and `-p` rules set it for one node.
+//! The current value of every parameter ([`ParamSet`]), where it came from, how a command
+//! line's parameter files and `-p` rules set it for one node, and how the engine's values go
+//! into [`SweepParams`] ([`apply_to_sweep`]).
 
 use std::path::PathBuf;
 
+use super::engine::engine_params;
 use super::spec::ParamSpec;
 use super::table::{coerce, param_index, param_spec, param_table};
 use super::ParamError;
 use crate::ros::args::{node_pattern_matches, NodeIdentity, ParamArg, RosArgs};
 use crate::ros::param_value::ParamValue;
+use crate::sweep::SweepParams;
 
 /// Parameters every rclcpp node has, or that tools set for all nodes: accepted from parameter
 /// files and ignored with a note.
@@ -341,4 +344,16 @@ fn ignored_standard(name: &str) -> Option<String> {
     } else {
         None
     }
+}
+
+/// Copies the engine parameters of `set` into `params`. Each value was range-checked when
+/// set; the checks across parameters are [`SweepParams::validate`]'s.
+pub fn apply_to_sweep(set: &ParamSet, params: &mut SweepParams) -> Result<(), ParamError> {
+    for p in engine_params() {
+        let value = set
+            .get(p.spec.name)
+            .ok_or_else(|| ParamError::Unknown(p.spec.name.to_string()))?;
+        (p.set)(params, value)?;
+    }
+    Ok(())
 }

@@ -1,4 +1,6 @@
-//! A tf2-style buffer of transforms for `/tf_static` (and `/tf`, without time interpolation).
+//! A tf2-style buffer of static transforms for `/tf_static` (and `/tf`, without time
+//! interpolation): a view of the crate's one transform tree, [`TfHistory`], whose every edge is
+//! static.
 //!
 //! Semantics follow tf2:
 //! - A `TransformStamped` with `header.frame_id = parent` and `child_frame_id = child` is the
@@ -15,7 +17,7 @@
 //!   message, however `/tf_static` spelt the frame.
 //! - A rotation is accepted as tf2 accepts it, `|x² + y² + z² + w² - 1| < 0.01`, and then
 //!   normalised ([`crate::geometry::pose::unit_quaternion`]); tf2 refuses NaN, and we refuse
-//!   infinite values too.
+//!   infinite values too ([`super::tf_checks`]).
 //! - Only the latest transform of each child is kept (no history, no interpolation): the last
 //!   accepted insertion wins, whatever its stamp.
 //!
@@ -23,131 +25,17 @@
 //! target_from_source.transform_point(point_in_source)`), chaining through the lowest common
 //! ancestor of the two frames.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::fmt;
-
-use glam::{DQuat, DVec3};
-
-use crate::geometry::{GeometryError, RigidTransform};
+use crate::geometry::RigidTransform;
 use crate::msgs::{TFMessage, Time, TransformStamped};
 
-/// How many known frames an "is not in the tree" message lists at most.
-const MAX_LISTED_FRAMES: usize = 20;
+pub use super::tf_checks::{normalize_frame_id, validate_lookup_frame_id, TfError};
+use super::tf_history::{TfHistory, TfInsertError, TfLookupError};
 
-/// Errors of [`TfBuffer`]. None is fatal: a rejected insertion leaves the buffer unchanged.
-#[derive(Debug, Clone, PartialEq)]
-pub enum TfError {
-    /// `header.frame_id` or `child_frame_id` is empty (after stripping a leading `/`).
-    InvalidFrameId {
-        parent: String,
-        child: String,
-        reason: String,
-    },
-    /// `header.frame_id == child_frame_id`.
-    SelfParent { frame: String },
-    /// NaN / infinite translation or rotation, or a quaternion tf2 would not accept
-    /// (`|x² + y² + z² + w² - 1| >= 0.01`).
-    InvalidTransform {
-        parent: String,
-        child: String,
-        reason: String,
-    },
-    /// `child` is already an ancestor of `parent`. `path` is the existing chain from `child`
-    /// down to `parent` (each frame the parent of the next).
-    Cycle {
-        parent: String,
-        child: String,
-        path: Vec<String>,
-    },
-    /// A frame id given to [`TfBuffer::lookup`] that tf2 refuses: empty, or starting with `/`.
-    InvalidLookupFrame {
-        /// "target" or "source".
-        argument: &'static str,
-        frame: String,
-        reason: String,
-    },
-    /// No transform `target_from_source` can be formed (unknown frame, different trees).
-    NotConnected {
-        target: String,
-        source: String,
-        reason: String,
-    },
-}
-
-impl fmt::Display for TfError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            TfError::InvalidFrameId {
-                parent,
-                child,
-                reason,
-            }
-            | TfError::InvalidTransform {
-                parent,
-                child,
-                reason,
-            } => write!(f, "rejected transform '{parent}' -> '{child}': {reason}"),
-            TfError::SelfParent { frame } => write!(
-                f,
-                "rejected transform '{frame}' -> '{frame}': a frame cannot be its own parent"
-            ),
-            TfError::Cycle {
-                parent,
-                child,
-                path,
-            } => write!(
-                f,
-                "rejected transform '{parent}' -> '{child}': it would create a cycle \
-                 ('{child}' is already an ancestor of '{parent}': {})",
-                path.join(" -> ")
-            ),
-            TfError::InvalidLookupFrame {
-                argument,
-                frame,
-                reason,
-            } => write!(f, "invalid {argument} frame id \"{frame}\": {reason}"),
-            TfError::NotConnected {
-                target,
-                source,
-                reason,
-            } => write!(f, "no transform from '{source}' to '{target}': {reason}"),
-        }
-    }
-}
-
-impl std::error::Error for TfError {}
-
-/// Strips one leading `/` from a frame id, as tf2 does on insertion (`stripSlash`:
-/// `"/base_link"` -> `"base_link"`, `"//a"` -> `"/a"`).
-pub fn normalize_frame_id(frame_id: &str) -> &str {
-    frame_id.strip_prefix('/').unwrap_or(frame_id)
-}
-
-/// tf2's check of a frame id passed to a lookup (`BufferCore::validateFrameId`): not empty and
-/// not starting with `/`; the reasons are tf2's words.
-pub fn validate_lookup_frame_id(frame_id: &str) -> Result<(), &'static str> {
-    if frame_id.is_empty() {
-        Err("in tf2 frame_ids cannot be empty")
-    } else if frame_id.starts_with('/') {
-        Err("in tf2 frame_ids cannot start with a '/'")
-    } else {
-        Ok(())
-    }
-}
-
-/// The stored edge of one child frame.
-#[derive(Debug, Clone, PartialEq)]
-struct Edge {
-    parent: String,
-    parent_from_child: RigidTransform,
-    stamp: Time,
-}
-
-/// A tree (forest) of the latest transform of every child frame.
+/// A tree (forest) of the latest transform of every child frame: a [`TfHistory`] into which
+/// every transform goes as a static one.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct TfBuffer {
-    /// Child frame -> its edge to its parent.
-    edges: BTreeMap<String, Edge>,
+    tree: TfHistory,
 }
 
 impl TfBuffer {
@@ -157,97 +45,61 @@ impl TfBuffer {
 
     /// Number of stored transforms (one per child frame).
     pub fn len(&self) -> usize {
-        self.edges.len()
+        self.tree.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.edges.is_empty()
+        self.tree.is_empty()
     }
 
     /// Removes every transform.
     pub fn clear(&mut self) {
-        self.edges.clear();
+        self.tree.clear();
     }
 
     /// All frames in the tree (children and parents, roots included), sorted.
     pub fn frames(&self) -> Vec<&str> {
-        let set: BTreeSet<&str> = self
-            .edges
-            .iter()
-            .flat_map(|(child, edge)| [child.as_str(), edge.parent.as_str()])
-            .collect();
-        set.into_iter().collect()
+        self.tree.frames()
     }
 
     /// Whether `frame` appears in the tree, as a child or as a parent.
     pub fn contains(&self, frame: &str) -> bool {
-        self.edges.contains_key(frame) || self.edges.values().any(|e| e.parent == frame)
+        self.tree.contains(frame)
     }
 
     /// The parent of `frame`, or `None` for a root or an unknown frame.
     pub fn parent_of(&self, frame: &str) -> Option<&str> {
-        self.edges.get(frame).map(|e| e.parent.as_str())
+        self.tree.parent_of(frame)
     }
 
     /// The stamp of the stored transform of child `frame`.
     pub fn stamp_of(&self, frame: &str) -> Option<Time> {
-        self.edges.get(frame).map(|e| e.stamp)
+        self.tree.latest_of(frame).map(|(stamp, _)| stamp)
     }
 
     /// The stored `parent_from_child` of child `frame`.
     pub fn parent_from_child(&self, frame: &str) -> Option<&RigidTransform> {
-        self.edges.get(frame).map(|e| &e.parent_from_child)
+        self.tree.latest_of(frame).map(|(_, transform)| transform)
     }
 
     /// The root of the tree `frame` belongs to (the frame itself for a root or unknown frame).
     pub fn root_of<'a>(&'a self, frame: &'a str) -> &'a str {
-        let mut current = frame;
-        // The forest has no cycles (insert guarantees it); the bound is only a safeguard.
-        for _ in 0..=self.edges.len() {
-            match self.edges.get(current) {
-                Some(edge) => current = &edge.parent,
-                None => break,
-            }
-        }
-        current
+        self.tree.root_of(frame)
     }
 
     /// Inserts (or replaces) the transform of `msg.child_frame_id` in `msg.header.frame_id`.
     ///
     /// On error the buffer is unchanged, so the previous good transform of that child is kept.
     pub fn insert(&mut self, msg: &TransformStamped) -> Result<(), TfError> {
-        let (parent, child, parent_from_child) = validated(msg)?;
-
-        // The new edge closes a cycle iff `child` is an ancestor of `parent`. The walk up from
-        // `parent` never uses the edge of `child` before reaching it, so the replaced edge does
-        // not matter.
-        let mut up = vec![parent.to_string()];
-        let mut current = parent;
-        while let Some(edge) = self.edges.get(current) {
-            current = &edge.parent;
-            up.push(current.to_string());
-            if current == child {
-                up.reverse();
-                return Err(TfError::Cycle {
-                    parent: parent.to_string(),
-                    child: child.to_string(),
-                    path: up,
-                });
-            }
-            if up.len() > self.edges.len() + 1 {
-                break; // safeguard; cannot happen in a forest
-            }
-        }
-
-        self.edges.insert(
-            child.to_string(),
-            Edge {
-                parent: parent.to_string(),
-                parent_from_child,
-                stamp: msg.header.stamp,
+        self.tree.insert(msg, true).map_err(|e| match e {
+            TfInsertError::Rejected(e) => e,
+            // Only a dynamic transform can be too old; kept for completeness.
+            other @ TfInsertError::TooOld { .. } => TfError::InvalidTransform {
+                parent: msg.header.frame_id.clone(),
+                child: msg.child_frame_id.clone(),
+                reason: other.to_string(),
             },
-        );
-        Ok(())
+        })
     }
 
     /// Inserts every transform of a `/tf` or `/tf_static` message, in order; returns the errors
@@ -270,164 +122,53 @@ impl TfBuffer {
         target_frame: &str,
         source_frame: &str,
     ) -> Result<RigidTransform, TfError> {
-        let (target, source) = (target_frame, source_frame);
-        // As tf2: equal frame ids are the identity before any check (tf2 even for empty ids;
-        // we refuse those below).
-        if target == source && !target.is_empty() {
-            return Ok(RigidTransform::IDENTITY);
-        }
-        for (argument, frame) in [("target", target), ("source", source)] {
-            validate_lookup_frame_id(frame).map_err(|reason| TfError::InvalidLookupFrame {
+        // Static edges answer any time.
+        let found =
+            self.tree
+                .lookup_waiting_for(target_frame, source_frame, Time::default(), "/tf_static");
+        found.map_err(|e| match e {
+            TfLookupError::InvalidFrame {
                 argument,
-                frame: frame.to_string(),
-                reason: reason.to_string(),
-            })?;
-        }
-        let not_connected = |reason: String| TfError::NotConnected {
-            target: target.to_string(),
-            source: source.to_string(),
-            reason,
-        };
-
-        match (self.contains(target), self.contains(source)) {
-            (true, true) => {}
-            (false, false) => {
-                return Err(not_connected(format!(
-                    "neither '{source}' nor '{target}' is in the tree (waiting for /tf_static){}",
-                    self.known_frames_suffix()
-                )))
-            }
-            (true, false) => {
-                return Err(not_connected(format!(
-                    "'{source}' is not in the tree (waiting for /tf_static){}",
-                    self.known_frames_suffix()
-                )))
-            }
-            (false, true) => {
-                return Err(not_connected(format!(
-                    "'{target}' is not in the tree (waiting for /tf_static){}",
-                    self.known_frames_suffix()
-                )))
-            }
-        }
-
-        let source_chain = self.chain_to_root(source);
-        let target_chain = self.chain_to_root(target);
-        let source_index: HashMap<&str, usize> = source_chain
-            .iter()
-            .enumerate()
-            .map(|(i, (frame, _))| (*frame, i))
-            .collect();
-        for (frame, ancestor_from_target) in &target_chain {
-            if let Some(&i) = source_index.get(frame) {
-                let ancestor_from_source = &source_chain[i].1;
-                let target_from_source =
-                    ancestor_from_target.inverse().compose(ancestor_from_source);
-                // Each transform is finite, but huge translations can overflow when chained.
-                if !(target_from_source.translation.is_finite()
-                    && target_from_source.rotation.is_finite())
-                {
-                    return Err(TfError::InvalidTransform {
-                        parent: target.to_string(),
-                        child: source.to_string(),
-                        reason: "the chained transform is not finite (translations too large)"
-                            .into(),
-                    });
-                }
-                return Ok(target_from_source);
-            }
-        }
-        let root = |chain: &[(&'_ str, RigidTransform)]| {
-            chain.last().map(|(f, _)| f.to_string()).unwrap_or_default()
-        };
-        Err(not_connected(format!(
-            "'{source}' and '{target}' are in different trees (roots '{}' and '{}')",
-            root(&source_chain),
-            root(&target_chain)
-        )))
+                frame,
+                reason,
+            } => TfError::InvalidLookupFrame {
+                argument,
+                frame,
+                reason,
+            },
+            TfLookupError::NotConnected {
+                target_frame,
+                source_frame,
+                reason,
+            } => TfError::NotConnected {
+                target: target_frame,
+                source: source_frame,
+                reason,
+            },
+            // Each transform is finite, but huge translations can overflow when chained.
+            TfLookupError::NonFinite {
+                target_frame,
+                source_frame,
+            } => TfError::InvalidTransform {
+                parent: target_frame,
+                child: source_frame,
+                reason: "the chained transform is not finite (translations too large)".into(),
+            },
+            // Only dynamic edges miss a time; kept for completeness.
+            other => TfError::NotConnected {
+                target: target_frame.to_string(),
+                source: source_frame.to_string(),
+                reason: other.to_string(),
+            },
+        })
     }
-
-    /// `frame` and its ancestors up to the root, each with `ancestor_from_frame`.
-    fn chain_to_root<'a>(&'a self, frame: &'a str) -> Vec<(&'a str, RigidTransform)> {
-        let mut chain = vec![(frame, RigidTransform::IDENTITY)];
-        let mut current = frame;
-        let mut current_from_frame = RigidTransform::IDENTITY;
-        while let Some(edge) = self.edges.get(current) {
-            current_from_frame = edge.parent_from_child.compose(&current_from_frame);
-            current = &edge.parent;
-            chain.push((current, current_from_frame));
-            if chain.len() > self.edges.len() + 1 {
-                break; // safeguard; cannot happen in a forest
-            }
-        }
-        chain
-    }
-
-    fn known_frames_suffix(&self) -> String {
-        let frames = self.frames();
-        if frames.is_empty() {
-            return "; no transform received yet".to_string();
-        }
-        let listed: Vec<&str> = frames.iter().copied().take(MAX_LISTED_FRAMES).collect();
-        let more = frames.len().saturating_sub(MAX_LISTED_FRAMES);
-        if more > 0 {
-            format!("; known frames: {} and {more} more", listed.join(", "))
-        } else {
-            format!("; known frames: {}", listed.join(", "))
-        }
-    }
-}
-
-/// A transform as tf2 accepts it on insertion: frame ids stripped of one leading `/`, not
-/// empty, not their own parent; a finite rotation within tf2's tolerance of unit length
-/// (normalised) and a finite translation. Returns `(parent, child, parent_from_child)`.
-pub(crate) fn validated(msg: &TransformStamped) -> Result<(&str, &str, RigidTransform), TfError> {
-    let parent = normalize_frame_id(&msg.header.frame_id);
-    let child = normalize_frame_id(&msg.child_frame_id);
-    let invalid_id = |reason: &str| TfError::InvalidFrameId {
-        parent: parent.to_string(),
-        child: child.to_string(),
-        reason: reason.to_string(),
-    };
-    if parent.is_empty() {
-        return Err(invalid_id("header.frame_id (the parent frame) is empty"));
-    }
-    if child.is_empty() {
-        return Err(invalid_id("child_frame_id is empty"));
-    }
-    if parent == child {
-        return Err(TfError::SelfParent {
-            frame: child.to_string(),
-        });
-    }
-    let t = msg.transform.translation;
-    let q = msg.transform.rotation;
-    let parent_from_child = RigidTransform::from_quat_translation(
-        child,
-        DQuat::from_xyzw(q.x, q.y, q.z, q.w),
-        DVec3::new(t.x, t.y, t.z),
-    )
-    .map_err(|e| {
-        let reason = match e {
-            GeometryError::InvalidPose { reason, .. } => reason,
-            other => other.to_string(),
-        };
-        TfError::InvalidTransform {
-            parent: parent.to_string(),
-            child: child.to_string(),
-            reason: format!(
-                "{reason} (translation = [{}, {}, {}], rotation xyzw = [{}, {}, {}, {}])",
-                t.x, t.y, t.z, q.x, q.y, q.z, q.w
-            ),
-        }
-    })?;
-    Ok((parent, child, parent_from_child))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::msgs::{Header, Quaternion, Transform, Vector3};
+    use glam::{DQuat, DVec3};
 
     /// The standard camera_link -> camera_optical rotation (rpy = -pi/2, 0, -pi/2).
     const OPTICAL: [f64; 4] = [-0.5, 0.5, -0.5, 0.5];

@@ -1,13 +1,12 @@
-//! A tf2-style buffer with time history (`/tf` and `/tf_static`), for rigs that move.
-//!
-//! [`super::tf::TfBuffer`] keeps only the latest transform of each child frame, which is all a
-//! rigid rig needs. When the rig moves (a `world_frame` pose published on `/tf`), a camera frame
-//! must be placed at the *image's* stamp: [`TfHistory`] keeps, per child frame, a short history
-//! of stamped transforms and interpolates in it, as tf2's `BufferCore` / `TimeCache` do.
+//! The transform tree: a tf2-style buffer with time history (`/tf` and `/tf_static`), the one
+//! tree of the crate. [`super::tf::TfBuffer`], all a rigid rig needs, is a view of it whose
+//! every edge is static. When the rig moves (a `world_frame` pose published on `/tf`), a camera
+//! frame must be placed at the *image's* stamp: [`TfHistory`] keeps, per child frame, a short
+//! history of stamped transforms and interpolates in it, as tf2's `BufferCore` / `TimeCache` do.
 //!
 //! Semantics follow tf2 (`buffer_core.cpp`, `cache.cpp`, `static_cache.cpp`):
 //! - A `TransformStamped` with `header.frame_id = parent` and `child_frame_id = child` is
-//!   `parent_from_child`, as in [`super::tf`].
+//!   `parent_from_child`: a point expressed in the child frame maps into the parent frame by it.
 //! - Two kinds of edges. A **static** edge (`/tf_static`, `is_static = true`) is valid at any
 //!   time; the last accepted insertion wins whatever its stamp (tf2's `StaticCache`). A
 //!   **dynamic** edge (`/tf`) is a history of stamped transforms, sorted by stamp; an insertion
@@ -26,11 +25,11 @@
 //!   changes starts a new history (the old one is dropped), so the tree is the same at every
 //!   time. An insertion that would close a cycle is refused ([`TfError::Cycle`]); tf2 accepts it
 //!   and fails later lookups, but a refused edge keeps every other lookup working.
-//! - Frame ids and transforms are checked as [`super::tf::TfBuffer::insert`] checks them (same
-//!   [`TfError`] variants and messages): one leading `/` is stripped on insertion (tf2's
-//!   `stripSlash`), an empty id or a self-parent is refused, a quaternion is accepted when
-//!   `|x² + y² + z² + w² - 1| < 0.01` and then normalised, NaN / infinite values are refused.
-//!   A frame id *looked up* must pass [`validate_lookup_frame_id`] (tf2's `validateFrameId`).
+//! - Frame ids and transforms are checked by tf2's rules ([`super::tf_checks`], refusals as
+//!   [`TfError`]): one leading `/` is stripped on insertion (tf2's `stripSlash`), an empty id
+//!   or a self-parent is refused, a quaternion is accepted when `|x² + y² + z² + w² - 1| <
+//!   0.01` and then normalised, NaN / infinite values are refused. A frame id *looked up* must
+//!   pass [`validate_lookup_frame_id`] (tf2's `validateFrameId`).
 //! - [`TfHistory::lookup_at`] returns `target_from_source` at a time, chaining through the
 //!   lowest common ancestor. For each dynamic edge of the chain: an exact stamp returns that
 //!   entry; between two entries, linear interpolation of the translation and slerp of the
@@ -48,14 +47,14 @@
 //!   [`TfHistory::note_time`] detects such a jump from the clock times it is given.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
-use std::fmt;
 use std::time::Duration;
 
 use glam::{DQuat, DVec3};
 
+use super::tf_checks::{validate_lookup_frame_id, validated, TfError};
+pub use super::tf_checks::{TfInsertError, TfLookupError};
 use crate::geometry::RigidTransform;
 use crate::msgs::{TFMessage, Time, TransformStamped};
-use crate::ros::tf::{validate_lookup_frame_id, validated, TfError};
 
 /// tf2's default cache time (`tf2::BUFFER_CORE_DEFAULT_CACHE_TIME`, 10 s).
 pub const DEFAULT_CACHE_TIME: Duration = Duration::from_secs(10);
@@ -66,140 +65,11 @@ pub const DEFAULT_MAX_ENTRIES: usize = 10_000;
 /// How far the clock may step back before [`TfHistory::note_time`] calls it a jump (1 s).
 pub const TIME_JUMP_TOLERANCE: Duration = Duration::from_secs(1);
 
-/// How many known frames an "is not in the tree" message lists at most (as in `tf.rs`).
+/// How many known frames an "is not in the tree" message lists at most.
 const MAX_LISTED_FRAMES: usize = 20;
 
-/// Why a transform was not inserted into a [`TfHistory`]. The history is then unchanged.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum TfInsertError {
-    /// Refused as [`super::tf::TfBuffer::insert`] refuses it (bad frame id, self-parent, bad
-    /// rotation or translation), or because it would close a cycle.
-    #[error(transparent)]
-    Rejected(#[from] TfError),
-    /// A dynamic transform older than the cache time before the newest stamp of its edge
-    /// (tf2's `TF_OLD_DATA`: "ignoring data from the past").
-    #[error(
-        "ignoring transform '{parent}' -> '{child}' stamped {} s: older than the {} s cache \
-         before the newest stamp {} s of '{child}' (tf2's TF_OLD_DATA)",
-        secs(.stamp),
-        .cache_time.as_secs_f64(),
-        secs(.newest)
-    )]
-    TooOld {
-        parent: String,
-        child: String,
-        stamp: Time,
-        newest: Time,
-        cache_time: Duration,
-    },
-}
-
-/// Why [`TfHistory::lookup_at`] gave no transform.
-///
-/// (The frames are `target_frame` / `source_frame`, not `target` / `source`: `thiserror` would
-/// take a field named `source` for the underlying error.)
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum TfLookupError {
-    /// A frame id tf2 refuses in a lookup: empty, or starting with `/`.
-    #[error("invalid {argument} frame id \"{frame}\": {reason}")]
-    InvalidFrame {
-        /// "target" or "source".
-        argument: &'static str,
-        frame: String,
-        reason: String,
-    },
-    /// Unknown frame, or the two frames are in different trees. `reason` lists the known
-    /// frames or names the two roots.
-    #[error("no transform from '{source_frame}' to '{target_frame}': {reason}")]
-    NotConnected {
-        target_frame: String,
-        source_frame: String,
-        reason: String,
-    },
-    /// `requested` is after the newest entry of the dynamic edge `parent -> child`: the
-    /// transform may still arrive, waiting may help.
-    #[error(
-        "no transform from '{source_frame}' to '{target_frame}': lookup would require \
-         extrapolation into the future: requested {} s, newest {} s for frame \
-         '{parent}' -> '{child}'",
-        secs(.requested),
-        secs(.newest)
-    )]
-    ExtrapolationFuture {
-        target_frame: String,
-        source_frame: String,
-        parent: String,
-        child: String,
-        requested: Time,
-        newest: Time,
-    },
-    /// `requested` is before the oldest entry of the dynamic edge `parent -> child` (older than
-    /// the cache holds, or before the first transform arrived): waiting will not help.
-    #[error(
-        "no transform from '{source_frame}' to '{target_frame}': lookup would require \
-         extrapolation into the past: requested {} s, oldest {} s for frame \
-         '{parent}' -> '{child}'",
-        secs(.requested),
-        secs(.oldest)
-    )]
-    ExtrapolationPast {
-        target_frame: String,
-        source_frame: String,
-        parent: String,
-        child: String,
-        requested: Time,
-        oldest: Time,
-    },
-    /// Every stored transform is finite, but their chain is not (huge translations).
-    #[error(
-        "no transform from '{source_frame}' to '{target_frame}': the chained transform is not \
-         finite (translations too large)"
-    )]
-    NonFinite {
-        target_frame: String,
-        source_frame: String,
-    },
-}
-
-impl TfLookupError {
-    /// Whether the lookup asked for a time after the newest transform of an edge: the
-    /// transform may still arrive on `/tf`, so retrying later may succeed.
-    pub fn is_future(&self) -> bool {
-        matches!(self, TfLookupError::ExtrapolationFuture { .. })
-    }
-
-    /// Whether waiting may help at all: [`Self::is_future`], or a frame not (yet) connected
-    /// (its first transform may not have arrived). Past extrapolation, invalid frame ids and
-    /// non-finite chains do not fix themselves.
-    pub fn may_resolve_by_waiting(&self) -> bool {
-        matches!(
-            self,
-            TfLookupError::ExtrapolationFuture { .. } | TfLookupError::NotConnected { .. }
-        )
-    }
-}
-
-/// A [`Time`] shown as seconds, exactly (`12.5`, `1700000000.000000001`, `-0.5`).
-struct Secs(Time);
-
-fn secs(time: &Time) -> Secs {
-    Secs(*time)
-}
-
-impl fmt::Display for Secs {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let nanos = self.0.to_nanos();
-        let sign = if nanos < 0 { "-" } else { "" };
-        let abs = nanos.unsigned_abs();
-        let (whole, frac) = (abs / 1_000_000_000, abs % 1_000_000_000);
-        if frac == 0 {
-            write!(f, "{sign}{whole}")
-        } else {
-            let digits = format!("{frac:09}");
-            write!(f, "{sign}{whole}.{}", digits.trim_end_matches('0'))
-        }
-    }
-}
+/// What a frame not in the tree waits for, as [`TfLookupError::NotConnected`] says it.
+const TF_TOPICS: &str = "/tf or /tf_static";
 
 /// One stamped transform, stamp in nanoseconds ([`Time::to_nanos`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -385,6 +255,23 @@ impl TfHistory {
         self.edges.get(frame).map(|e| e.parent.as_str())
     }
 
+    /// The root of the tree `frame` belongs to (the frame itself for a root or unknown frame).
+    pub fn root_of<'a>(&'a self, frame: &'a str) -> &'a str {
+        self.edges_to_root(frame)
+            .last()
+            .map_or(frame, |(_, edge)| edge.parent.as_str())
+    }
+
+    /// The latest transform stored for child `frame`, with its stamp: its static one, or the
+    /// newest of its dynamic history (`None` for a root or an unknown frame).
+    pub(super) fn latest_of(&self, frame: &str) -> Option<(Time, &RigidTransform)> {
+        let entry = match &self.edges.get(frame)?.history {
+            History::Static(entry) => entry,
+            History::Dynamic(entries) => entries.back()?,
+        };
+        Some((Time::from_nanos(entry.stamp), &entry.parent_from_child))
+    }
+
     /// Whether child `frame` has a static edge (`None` for a root or an unknown frame).
     pub fn is_static(&self, frame: &str) -> Option<bool> {
         self.edges
@@ -421,6 +308,11 @@ impl TfHistory {
             .filter_map(Edge::newest_stamp)
             .max()
             .map(Time::from_nanos)
+    }
+
+    /// Drops every edge, static and dynamic (the clock time noted so far stays).
+    pub fn clear(&mut self) {
+        self.edges.clear();
     }
 
     /// Drops every dynamic edge (and its history); the static edges stay. Frames known only
@@ -551,10 +443,22 @@ impl TfHistory {
         source_frame: &str,
         time: Time,
     ) -> Result<RigidTransform, TfLookupError> {
+        self.lookup_waiting_for(target_frame, source_frame, time, TF_TOPICS)
+    }
+
+    /// [`Self::lookup_at`], whose "not in the tree" reason names `topics` as what the tree
+    /// waits for (the static view: `/tf_static` only).
+    pub(super) fn lookup_waiting_for(
+        &self,
+        target_frame: &str,
+        source_frame: &str,
+        time: Time,
+        topics: &str,
+    ) -> Result<RigidTransform, TfLookupError> {
         if target_frame == source_frame && !target_frame.is_empty() {
             return Ok(RigidTransform::IDENTITY);
         }
-        let (source_edges, target_edges) = self.chain(target_frame, source_frame)?;
+        let (source_edges, target_edges) = self.chain(target_frame, source_frame, topics)?;
         let time = if time == Time::default() {
             common_time(&source_edges, &target_edges)
         } else {
@@ -621,7 +525,7 @@ impl TfHistory {
         if target_frame == source_frame && !target_frame.is_empty() {
             return Ok(Time::default());
         }
-        let (source_edges, target_edges) = self.chain(target_frame, source_frame)?;
+        let (source_edges, target_edges) = self.chain(target_frame, source_frame, TF_TOPICS)?;
         let common = common_time(&source_edges, &target_edges);
         Ok(if common == i64::MAX {
             Time::default()
@@ -654,11 +558,13 @@ impl TfHistory {
         Ok(())
     }
 
-    /// The edges from `source` and from `target` up to their lowest common ancestor.
+    /// The edges from `source` and from `target` up to their lowest common ancestor; a frame
+    /// not in the tree is waited for on `topics`.
     fn chain<'a>(
         &'a self,
         target_frame: &str,
         source_frame: &str,
+        topics: &str,
     ) -> Result<(ChainEdges<'a>, ChainEdges<'a>), TfLookupError> {
         let (target, source) = (target_frame, source_frame);
         for (argument, frame) in [("target", target), ("source", source)] {
@@ -681,7 +587,7 @@ impl TfHistory {
         };
         if let Some(missing) = missing {
             return Err(not_connected(format!(
-                "{missing} (waiting for /tf or /tf_static){}",
+                "{missing} (waiting for {topics}){}",
                 self.known_frames_suffix()
             )));
         }
@@ -1513,16 +1419,5 @@ mod tests {
         ));
         assert_eq!(h.frames(), vec!["base", "imu", "odom"]);
         assert_eq!(h.is_static("imu"), Some(false));
-    }
-
-    #[test]
-    fn seconds_are_shown_exactly() {
-        assert_eq!(Secs(t(12 * SEC + 500_000_000)).to_string(), "12.5");
-        assert_eq!(
-            Secs(t(1_700_000_000 * SEC + 1)).to_string(),
-            "1700000000.000000001"
-        );
-        assert_eq!(Secs(t(-SEC / 2)).to_string(), "-0.5");
-        assert_eq!(Secs(t(0)).to_string(), "0");
     }
 }

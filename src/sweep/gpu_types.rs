@@ -284,7 +284,7 @@ mod tests {
             ),
             (
                 "PHASE_SMOOTHING",
-                crate::sweep::cpu::refine::PHASE_SMOOTHING,
+                crate::sweep::cpu::matched::PHASE_SMOOTHING,
             ),
         ] {
             let needle = format!("const {name}: f32 = {value:?};");

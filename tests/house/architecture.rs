@@ -473,6 +473,125 @@ impl Source {
         }
         found
     }
+
+    /// Its module below the crate root: `[node, diag]` for `node/diag.rs`, `[node]` for
+    /// `node/mod.rs`, none for the crate roots.
+    fn module_path(&self) -> Vec<String> {
+        let stem = self.name.trim_end_matches(".rs");
+        if ROOTS.contains(&stem) {
+            return Vec::new();
+        }
+        let mut parts: Vec<String> = stem.split('/').map(String::from).collect();
+        if parts.last().is_some_and(|p| p == "mod") {
+            parts.pop();
+        }
+        parts
+    }
+
+    /// The crate paths its production code names, each from the crate root and with the line
+    /// that names it: `crate::a::b::C`, `super::` chains (climbing from this file's module
+    /// through any inline modules around the path) and `self::` paths, groups expanded
+    /// (`super::{a::X, b}` gives `[.., a, X]` and `[.., b]`). Paths that stay inside the file
+    /// (`super::` out of an inline module only, `self::` in one) are left out.
+    fn full_paths(&self) -> Vec<(Vec<String>, usize)> {
+        let code = &self.code;
+        let own = self.module_path();
+        let mut found = Vec::new();
+        for prefix in [&b"crate::"[..], b"super::", b"self::"] {
+            let mut from = 0;
+            while let Some(at) = find(code, prefix, from) {
+                from = at + prefix.len();
+                if (at > 0 && is_ident(code[at - 1])) || (at >= 2 && &code[at - 2..at] == b"::") {
+                    continue;
+                }
+                let inline = self.depth_at(at) - own.len();
+                let base = match prefix {
+                    b"crate::" => Vec::new(),
+                    b"self::" if inline == 0 => own.clone(),
+                    b"self::" => continue,
+                    _ => {
+                        let mut climbs = 1;
+                        while code[from..].starts_with(b"super::") {
+                            climbs += 1;
+                            from += prefix.len();
+                        }
+                        if climbs <= inline || climbs - inline > own.len() {
+                            continue;
+                        }
+                        own[..own.len() - (climbs - inline)].to_vec()
+                    }
+                };
+                for path in paths_at(code, from) {
+                    let mut full = base.clone();
+                    full.extend(path);
+                    found.push((full, self.line_of(at)));
+                }
+            }
+        }
+        found
+    }
+}
+
+/// The paths that start at `at`, each as its segments: `a::b::C` gives `[a, b, C]`, a group
+/// `{a::x, b::{c, self}, d::*}` gives `[a, x]`, `[b, c]`, `[b]` and `[d]`. A path ends at
+/// anything but `::` and a name (a call's parenthesis, `::<` generics, `as`); a macro
+/// (`name!`) is no path.
+fn paths_at(code: &[u8], at: usize) -> Vec<Vec<String>> {
+    fn skip_space(code: &[u8], mut j: usize) -> usize {
+        while code.get(j).is_some_and(|b| b.is_ascii_whitespace()) {
+            j += 1;
+        }
+        j
+    }
+    /// Reads one path (or group) after `prefix`, from `j`; returns where it ends.
+    fn read(code: &[u8], j: usize, prefix: &[String], out: &mut Vec<Vec<String>>) -> usize {
+        let j = skip_space(code, j);
+        match code.get(j) {
+            Some(b'{') => {
+                let mut k = j + 1;
+                loop {
+                    k = skip_space(code, k);
+                    match code.get(k) {
+                        None => return k,
+                        Some(b'}') => return k + 1,
+                        Some(b',') => k += 1,
+                        Some(_) => {
+                            let end = read(code, k, prefix, out);
+                            // Past anything the reader does not know (`as name`).
+                            k = end.max(k + 1);
+                            while code.get(k).is_some_and(|&b| !matches!(b, b',' | b'}')) {
+                                k += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            Some(b'*') => {
+                out.push(prefix.to_vec());
+                j + 1
+            }
+            _ => match ident_at(code, j) {
+                Some((_, end)) if code.get(end) == Some(&b'!') => end,
+                Some((name, end)) => {
+                    let mut path = prefix.to_vec();
+                    if name != "self" {
+                        path.push(name);
+                    }
+                    let after = skip_space(code, end);
+                    if code[after..].starts_with(b"::") && code.get(after + 2) != Some(&b'<') {
+                        read(code, after + 2, &path, out)
+                    } else {
+                        out.push(path);
+                        end
+                    }
+                }
+                None => j,
+            },
+        }
+    }
+    let mut out = Vec::new();
+    read(code, at, &[], &mut out);
+    out
 }
 
 /// Every source file of `src/` but those declared `#[cfg(test)] mod x;` (and their folders).
@@ -511,6 +630,78 @@ fn graph_of(sources: &[Source]) -> Graph {
 
 fn graph() -> Graph {
     graph_of(&sources())
+}
+
+/// File -> the files it imports -> where, each file named `src/node/diag.rs`: a path names the
+/// file of its longest leading part that is a module of the crate (`super::why::NoDepth` in
+/// `node/diag.rs` names `src/node/why.rs`, `super::NodeError` names `src/node/mod.rs`, also
+/// where `node/mod.rs` only re-exports the item). A file's paths into itself and into the
+/// modules it declares (a folder's `mod.rs` using its own files) are no edges: a parent holds
+/// its children by declaring them, and the cycles that count are among siblings and cousins.
+fn file_graph_of(sources: &[Source]) -> Graph {
+    let files: BTreeMap<Vec<String>, String> = sources
+        .iter()
+        .filter(|s| s.name != "main.rs")
+        .map(|s| (s.module_path(), format!("src/{}", s.name)))
+        .collect();
+    let mut graph = Graph::new();
+    for s in sources {
+        let own = s.module_path();
+        let deps = graph.entry(format!("src/{}", s.name)).or_default();
+        for (path, line) in s.full_paths() {
+            let Some(n) = (0..=path.len())
+                .rev()
+                .find(|&n| files.contains_key(&path[..n]))
+            else {
+                continue;
+            };
+            if path[..n].starts_with(&own) {
+                continue;
+            }
+            deps.entry(files[&path[..n]].clone())
+                .or_default()
+                .push(format!("src/{}:{line}", s.name));
+        }
+    }
+    graph
+}
+
+/// The cycles a depth-first search of `graph` closes, each as `a -> b (a:12) -> a (b:3)`: one
+/// cycle per edge back onto the search's stack, so every knot of the graph shows at least once.
+fn cycles_of(graph: &Graph) -> Vec<String> {
+    fn visit(
+        m: &str,
+        graph: &Graph,
+        stack: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+        found: &mut Vec<String>,
+    ) {
+        if done.contains(m) {
+            return;
+        }
+        if let Some(at) = stack.iter().position(|s| s == m) {
+            let mut cycle = stack[at..].to_vec();
+            cycle.push(m.to_string());
+            let mut text = cycle[0].clone();
+            for pair in cycle.windows(2) {
+                let place = &graph[&pair[0]][&pair[1]][0];
+                text.push_str(&format!(" -> {} ({place})", pair[1]));
+            }
+            found.push(text);
+            return;
+        }
+        stack.push(m.to_string());
+        for d in graph.get(m).into_iter().flat_map(|deps| deps.keys()) {
+            visit(d, graph, stack, done, found);
+        }
+        stack.pop();
+        done.insert(m.to_string());
+    }
+    let (mut done, mut found) = (BTreeSet::new(), Vec::new());
+    for m in graph.keys() {
+        visit(m, graph, &mut Vec::new(), &mut done, &mut found);
+    }
+    found
 }
 
 fn layer_of(module: &str) -> Option<usize> {
@@ -636,6 +827,23 @@ fn no_import_cycle_between_modules() {
     for m in graph.keys() {
         visit(m, &graph, &mut Vec::new(), &mut done);
     }
+}
+
+/// Issue 55: the files of one folder import each other one way too (a shared item lives in the
+/// file lower in the order, or in a small file of its own), so that each can be read after the
+/// ones it uses.
+#[test]
+fn no_import_cycle_inside_a_folder() {
+    let graph = file_graph_of(&sources());
+    // The reader sees `use super::x` between siblings and paths from the crate root.
+    let dds = &graph["src/node/dds.rs"];
+    assert!(dds.contains_key("src/node/events.rs") && dds.contains_key("src/node/mod.rs"));
+    let cycles = cycles_of(&graph);
+    assert!(
+        cycles.is_empty(),
+        "import cycles between source files:\n{}",
+        cycles.join("\n")
+    );
 }
 
 #[test]
@@ -787,4 +995,63 @@ mod inner {
     assert_eq!(s.test_files, ["node/events/test_support"]);
     // 30 lines of text, 10 of them in test items (a blank line among them).
     assert_eq!(s.production_lines, 30 - 10);
+}
+
+/// The file-level reader: full paths from `crate::`, `super::` chains (out of inline modules
+/// too) and `self::`, groups expanded, macros and paths inside the file left out; and a cycle
+/// among sibling files is found and named, while a folder's `mod.rs` using its own files is not.
+#[test]
+fn the_file_reader_follows_full_paths() {
+    let text = r####"
+use super::why::{NoDepth, Reason as Why};
+use super::{log::{lock, RateLimited}, NodeConfig};
+use crate::params::{self, engine::apply};
+use self::inner::Hidden;
+fn f() { super::fusion::values(); crate::vectorised_fn!(); super::worker::Pool::<u8>::new(); }
+mod inner {
+    use super::super::topics::ros_err;
+    use super::Local;
+}
+"####;
+    let s = Source::parse("node/diag.rs".to_string(), text);
+    let mut found: Vec<(String, usize)> = s
+        .full_paths()
+        .into_iter()
+        .map(|(p, l)| (p.join("::"), l))
+        .collect();
+    found.sort();
+    let expected = [
+        ("node::diag::inner::Hidden", 5),
+        ("node::fusion::values", 6),
+        ("node::log::RateLimited", 3),
+        ("node::log::lock", 3),
+        ("node::topics::ros_err", 8),
+        ("node::why::NoDepth", 2),
+        ("node::why::Reason", 2),
+        ("node::worker::Pool", 6),
+        ("node::NodeConfig", 3),
+        ("params", 4),
+        ("params::engine::apply", 4),
+    ];
+    let expected: Vec<(String, usize)> =
+        expected.iter().map(|(p, l)| (p.to_string(), *l)).collect();
+    let mut expected = expected;
+    expected.sort();
+    assert_eq!(found, expected);
+
+    let files = [
+        ("node/mod.rs", "use self::a::X;\nuse self::b::Y;\n"),
+        ("node/a.rs", "use super::b::Y;\nuse super::NodeError;\n"),
+        ("node/b.rs", "fn g() { crate::node::a::f(); }\n"),
+    ];
+    let sources: Vec<Source> = files
+        .iter()
+        .map(|(name, text)| Source::parse(name.to_string(), text))
+        .collect();
+    let graph = file_graph_of(&sources);
+    assert!(graph["src/node/mod.rs"].is_empty());
+    assert_eq!(
+        cycles_of(&graph),
+        ["src/node/a.rs -> src/node/b.rs (src/node/a.rs:1) -> src/node/a.rs (src/node/b.rs:1)"]
+    );
 }

@@ -17,6 +17,7 @@ pub mod common;
 pub mod cost;
 pub mod finalize;
 mod gather;
+pub mod matched;
 pub mod median;
 pub mod occlusion;
 pub mod plane;
@@ -382,7 +383,13 @@ impl CpuEngine {
                         &images[p.reference as usize].pixels
                     };
                     let buffers = &mut self.buffers;
-                    if let Err(e) = sgm::run(
+                    // The wide layout where it applies (4 threads or more), else two passes.
+                    let sums = if sgm_wide::applies(plan) {
+                        sgm_wide::run
+                    } else {
+                        sgm::run_two_passes
+                    };
+                    if let Err(e) = sums(
                         plan,
                         colours,
                         volume,

@@ -40,9 +40,9 @@ pub struct PlaneScratch {
     /// swept instead of plane `k` with `Mapping::Given`; `None` for the planes.
     pub hypothesis: Option<std::sync::Arc<Vec<f32>>>,
     /// With a hypothesis: the reference's row smoothed as the current camera's samples are
-    /// (`refine::MatchedReference`), and its second differences.
+    /// (`matched::MatchedReference`), and its second differences.
     matched: ColourRow,
-    reference_differences: super::refine::MatchedReference,
+    reference_differences: super::matched::MatchedReference,
 }
 
 impl PlaneScratch {
@@ -82,7 +82,7 @@ impl PlaneScratch {
             spans: Vec::new(),
             hypothesis: None,
             matched: cost::colour_row(width),
-            reference_differences: super::refine::MatchedReference::new(width),
+            reference_differences: super::matched::MatchedReference::new(width),
         }
     }
 }

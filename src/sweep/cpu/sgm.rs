@@ -377,27 +377,10 @@ pub(super) fn edge_penalties_row(
     }
 }
 
-/// The path costs of every direction summed into `forward` and `backward` (resized to the
-/// volume; [`select`] adds the two): in the wide layout where it [`super::sgm_wide::applies`]
-/// (4 threads or more), else in two passes on two threads. `Err(Cancelled)` when
-/// `cancel` stopped it between rows.
-pub fn run(
-    plan: &SweepPlan,
-    reference_colours: &[u32],
-    volume: &[u16],
-    forward: &mut Vec<u16>,
-    backward: &mut Vec<u16>,
-    cancel: &CancelFlag,
-) -> Result<(), SweepError> {
-    if super::sgm_wide::applies(plan) {
-        super::sgm_wide::run(plan, reference_colours, volume, forward, backward, cancel)
-    } else {
-        run_two_passes(plan, reference_colours, volume, forward, backward, cancel)
-    }
-}
-
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
-/// backward ones' into `backward`.
+/// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
+/// `Err(Cancelled)` when `cancel` stopped it between rows. The engine uses the wide layout
+/// instead where it [`super::sgm_wide::applies`] (4 threads or more).
 pub fn run_two_passes(
     plan: &SweepPlan,
     reference_colours: &[u32],
@@ -719,7 +702,7 @@ mod tests {
         pass(&plan, &[0, 0], &costs, false, &mut sums, &CancelFlag::new());
         assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
         let (mut forward, mut backward) = (Vec::new(), Vec::new());
-        run(
+        run_two_passes(
             &plan,
             &[0, 0],
             &costs,

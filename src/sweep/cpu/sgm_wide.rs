@@ -1,5 +1,6 @@
-//! SGM's passes on many threads: the same path costs and sums as [`super::sgm::run`]'s two
-//! passes (each on one thread, whatever the machine has), laid out so that every thread works.
+//! SGM's passes on many threads: the same path costs and sums as the two passes of
+//! [`super::sgm::run_two_passes`] (each on one thread, whatever the machine has), laid out so
+//! that every thread works.
 //! A path direction that runs along the columns or diagonals needs only the previous row, so
 //! each row's pixels are independent: the top-to-bottom directions (vertical and both
 //! diagonals) and the bottom-to-top ones run side by side as before, each row split into
@@ -53,7 +54,7 @@ pub fn applies(plan: &SweepPlan) -> bool {
     }
 }
 
-/// The wide layout of [`super::sgm::run`]: the same `forward + backward` sums.
+/// The wide layout of [`super::sgm::run_two_passes`]: the same `forward + backward` sums.
 pub fn run(
     plan: &SweepPlan,
     colours: &[u32],
