@@ -399,12 +399,19 @@ fn coarse_to_fine(
         &coarse_params,
         Wanted::DepthRaw,
     )?;
-    tracing::debug!(
-        "coarse to fine: the level below ({}x{}) took {:?}",
-        coarse_rig.reference_model().intrinsics.width_px,
-        coarse_rig.reference_model().intrinsics.height_px,
-        engine.timings_mut().stages
-    );
+    // The levels below stage by stage (`coarse/<stage>`, summed over the levels, as the WGSL
+    // engine times them: bench's JSON).
+    let mut coarse_stages: Vec<(String, f64)> = Vec::new();
+    for (name, ms) in &engine.timings_mut().stages {
+        if name == "coarse" {
+            continue;
+        }
+        let name = format!("coarse/{}", name.strip_prefix("coarse/").unwrap_or(name));
+        match coarse_stages.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, total)) => *total += ms,
+            None => coarse_stages.push((name, *ms)),
+        }
+    }
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
     // The engine that keeps the coarse depths on the device narrows the rows there.
     let on_host = match coarse {
@@ -424,12 +431,12 @@ fn coarse_to_fine(
     let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
     let maps = wanted.run_plan(engine, fine, rig, images)?;
     // The fine pass's stages, after the whole half-resolution pass (and the ranges) as one
-    // (the WGSL engine times its levels below as one `coarse` stage itself).
+    // and each of their stages as `coarse/<stage>` (the WGSL engine times its levels below so
+    // itself).
     if on_host {
-        engine
-            .timings_mut()
-            .stages
-            .insert(0, ("coarse".to_string(), coarse_ms));
+        let stages = &mut engine.timings_mut().stages;
+        stages.insert(0, ("coarse".to_string(), coarse_ms));
+        stages.extend(coarse_stages);
     }
     Ok(maps)
 }

@@ -93,6 +93,9 @@ pub struct CpuEngine {
     /// last: each level keeps its own, so no set allocates and faults in its cost volume and
     /// path sums again (a raw pair's full-resolution volume is 69 MB, the sums twice that).
     parked: Vec<((u32, u32), Buffers)>,
+    /// The plan running is a level below whose raw depth alone is read (phases after
+    /// `finalize` skipped).
+    depth_raw_only: bool,
     cancel: CancelFlag,
 }
 
@@ -148,6 +151,7 @@ impl CpuEngine {
             buffers: Buffers::default(),
             buffers_size: (0, 0),
             parked: Vec::new(),
+            depth_raw_only: false,
             cancel: CancelFlag::new(),
         }
     }
@@ -370,6 +374,11 @@ impl CpuEngine {
         zbuffer.resize(plan.total_camera_pixels, 0);
         let mut result = Ok(());
         for phase in Schedule::of_plan(plan).phases() {
+            if self.depth_raw_only
+                && matches!(phase, Phase::Median | Phase::Splat | Phase::Visibility)
+            {
+                continue;
+            }
             if let Err(e) = cancel.check() {
                 result = Err(e);
                 break;
@@ -454,6 +463,26 @@ impl super::coarse::PlanRunner for CpuEngine {
         // The half-size images on the host, once per level and frame set.
         let images = images.on_host(rig, &mut self.memo)?;
         CpuEngine::run_plan(self, plan, rig, images)
+    }
+
+    /// A level below: its caller reads `depth_raw_m` alone, so the phases after `finalize`
+    /// (the median, the occlusion splat and the visibility test, which write other maps) are
+    /// not run.
+    fn run_plan_for_ranges(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: super::coarse::LevelImages<'_>,
+    ) -> Result<super::coarse::LevelDepth, SweepError> {
+        let images = images.on_host(rig, &mut self.memo)?;
+        let images = super::prefilter::for_plan(plan, images);
+        self.depth_raw_only = true;
+        let result = self.execute(plan, rig, &images);
+        self.depth_raw_only = false;
+        result?;
+        Ok(super::coarse::LevelDepth::Host(
+            plan.depth_maps(&self.buffers.maps),
+        ))
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {
