@@ -1009,6 +1009,36 @@ fn cpu_buffers_kept_across_sets_change_nothing() {
     }
 }
 
+/// The SGM volume kept across sets: a plan with fewer planes of the same lane stride (30, then
+/// 20 of 32 lanes) after another reads PAD in its padding lanes, not the last plan's levels.
+#[test]
+fn cpu_volume_kept_across_fewer_planes_changes_nothing() {
+    let (rig, images, params) = tsukuba_crop();
+    let with = |planes: u32| SweepParams {
+        num_planes: planes,
+        optimizer: Optimizer::Sgm,
+        ..params.clone()
+    };
+    let fewer = SweepPlan::new(&rig, &with(20)).expect("plan");
+    let fresh = CpuEngine::new()
+        .run_plan_raw(&fewer, &rig, &images)
+        .expect("fresh run");
+    let mut engine = CpuEngine::new();
+    let more = SweepPlan::new(&rig, &with(30)).expect("plan");
+    engine
+        .run_plan_raw(&more, &rig, &images)
+        .expect("30 planes");
+    let kept = engine
+        .run_plan_raw(&fewer, &rig, &images)
+        .expect("20 planes");
+    let differing = kept
+        .iter()
+        .zip(&fresh)
+        .filter(|(a, b)| a.to_bits() != b.to_bits())
+        .count();
+    assert_eq!(differing, 0, "{differing} of {} floats differ", fresh.len());
+}
+
 /// Coarse to fine: rows that sweep only some planes (`SweepPlan::narrow_planes`) score BIG
 /// elsewhere, in both engines alike (the CPU engine skips the planes no row of a band needs),
 /// with the winner-take-all and with SGM.

@@ -109,6 +109,9 @@ const PARKED_SIZES: usize = 4;
 #[derive(Default)]
 struct Buffers {
     volume: Vec<u16>,
+    /// The planes whose lanes `volume` holds: its padding lanes are PAD only for these (a plan
+    /// with fewer planes of the same lane stride would read the last plan's levels there).
+    volume_planes: usize,
     forward: Vec<u16>,
     backward: Vec<u16>,
     /// The `maps` buffer of the last run (MAP_COUNT sections).
@@ -260,6 +263,11 @@ impl CpuEngine {
 
         // The sweep: bands of rows in parallel, every plane (`bands.rs`).
         let mut volume = std::mem::take(&mut self.buffers.volume);
+        if self.buffers.volume_planes != planes {
+            // Made anew (every lane PAD) by the sweep.
+            volume.clear();
+            self.buffers.volume_planes = planes;
+        }
         let mut scratches = std::mem::take(&mut self.buffers.bands);
         let (mut state, band) = bands::sweep(
             plan,
