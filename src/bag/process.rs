@@ -270,7 +270,7 @@ impl Sink<'_> {
         self.report.sets_found += 1;
         let t0 = Instant::now();
         // The live view always shows the point cloud.
-        let with_points = config.outputs.get(Output::Points).is_some() || self.viewer.is_some();
+        let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
             Ok(set) => {
@@ -371,7 +371,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let (routes, image_topics) = routes(&config, &known);
     let mut report = BagReport::default();
     let wrong_type = check_topics(args, &known, &routes, &image_topics, &mut report)?;
-    let ref_topic = &image_topics[config.reference];
+    let ref_topic = &image_topics[config.reference()];
     let total = known
         .iter()
         .find(|t| &t.name == ref_topic)
@@ -459,7 +459,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .or_default() += 1;
             continue;
         }
-        if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference) {
+        if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference()) {
             sink.bar.inc(1);
         }
         if let Some(pacer) = &mut pacer {
@@ -673,7 +673,7 @@ fn start_viewer(
         .map(|_| config.mesh_topic.as_str());
     let viewer = Viewer::start_with_mesh(
         &ViewerConfig::for_bag(&config.params)?,
-        &config.outputs,
+        config.outputs(),
         mesh_topic,
     )?;
     tracing::info!(

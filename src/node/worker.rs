@@ -127,7 +127,7 @@ fn worker_loop(
         .any(|p| p.outputs.iter().any(|(o, ..)| *o == Output::Points));
     while let Some(job) = slot.take() {
         let started = Instant::now();
-        if let Some(image) = job.images.get(job.reference) {
+        if let Some(image) = job.images.get(job.anchor()) {
             let stamp = image.header.stamp;
             tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
         }

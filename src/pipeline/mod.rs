@@ -45,7 +45,7 @@ pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fusion_worker::{FusionStats, FusionWorker};
 pub use outcome::{
     Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
-    SyncVerdict,
+    SyncVerdict, VirtualCamera,
 };
 pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
 pub use outputs::{process_job, FrameOutputs, SetOutputs};

@@ -100,16 +100,20 @@ pub fn process_job(
                 .map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))?,
         );
     }
-    if let Some((model, cam_from_rig, frame_id)) = &job.virtual_ref {
+    let first_virtual = job
+        .references
+        .first()
+        .and_then(|r| Some((r, r.virtual_camera.as_ref()?)));
+    if let Some((first, virtual_camera)) = first_virtual {
         let mut header: Header = job
             .images
-            .get(job.reference)
+            .get(first.index)
             .map(|m| m.header.clone())
             .unwrap_or_default();
-        header.frame_id = frame_id.clone();
+        header.frame_id = virtual_camera.frame_id.clone();
         let reference = Reference::Virtual {
-            model: *model,
-            cam_from_rig: *cam_from_rig,
+            model: virtual_camera.model,
+            cam_from_rig: virtual_camera.cam_from_rig,
         };
         let rig = Rig::new(job.cameras.clone(), reference)
             .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
@@ -117,16 +121,17 @@ pub fn process_job(
             .run(&rig, &images, sweep)
             .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
         let outputs = messages(
-            0,
+            first.output,
             header,
-            &job.ref_info,
+            &first.info,
             &maps,
             None,
             &rig.reference_model(),
+            // A virtual camera's points are in its own frame.
             &RigidTransform::IDENTITY,
             with_points,
             Placement {
-                rig_from_frame: cam_from_rig.inverse(),
+                rig_from_frame: virtual_camera.cam_from_rig.inverse(),
                 world_from_rig: job.world_from_rig,
                 anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
