@@ -13,7 +13,7 @@ use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
 use crate::pipeline::{Asked, Fuser, FusionInput, Publishers};
 use crate::pipeline::{
-    ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, Output, OutputTopics,
+    ConfigError, EngineHost, FrameMessages, HostError, Input, Job, Outcome, Output, OutputTopics,
     Pipeline, PipelineConfig, Skip,
 };
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
@@ -282,7 +282,8 @@ impl Sink<'_> {
                 if let Some(fusion) = &mut self.fuser {
                     let world = config.world.as_ref().map(|w| w.frame.as_str());
                     for out in &set.outputs {
-                        if let Err(e) = fusion.fuser.add(&FusionInput::from_outputs(out, world)) {
+                        let input = FusionInput::from_maps(out.maps.clone(), world);
+                        if let Err(e) = fusion.fuser.add(&input) {
                             warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
                         }
                     }
@@ -296,7 +297,7 @@ impl Sink<'_> {
                 // (Points go into OUT only with publish_points: `write_outputs`.)
                 for out in &set.outputs {
                     if let Some((_, topics)) = config.references.get(out.output) {
-                        write_outputs(&mut self.writer, topics, log_time_ns, out)?;
+                        write_outputs(&mut self.writer, topics, log_time_ns, &out.messages)?;
                     }
                 }
                 self.busy += t0.elapsed();
@@ -307,7 +308,7 @@ impl Sink<'_> {
                 // The live view shows the first reference's outputs.
                 if let (Some(viewer), Some(first)) = (&self.viewer, set.outputs.into_iter().next())
                 {
-                    viewer.offer_owned(first);
+                    viewer.offer_owned(first.messages);
                 }
             }
             Err(skip) => {
@@ -325,9 +326,9 @@ fn write_outputs(
     writer: &mut BagWriter,
     topics: &OutputTopics,
     log_time_ns: u64,
-    out: &FrameOutputs,
+    messages: &FrameMessages,
 ) -> Result<(), BagError> {
-    for (topic, msg) in out.messages(topics) {
+    for (topic, msg) in messages.with_topics(topics) {
         writer.write_msg(topic, log_time_ns, &msg)?;
     }
     Ok(())

@@ -48,7 +48,7 @@ pub use outcome::{
     SyncVerdict, VirtualCamera,
 };
 pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
-pub use outputs::{process_job, FrameOutputs, SetOutputs};
+pub use outputs::{process_job, FrameMaps, FrameMessages, FrameOutputs, SetOutputs};
 pub use why::{Asked, Publishers, Why, WhyKind};
 
 use crate::msgs::{Image, Time};

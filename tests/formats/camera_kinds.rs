@@ -437,6 +437,7 @@ fn rectified_images_give_the_right_depth() {
         width: WIDTH,
         height: HEIGHT,
         data: out
+            .messages
             .depth
             .data
             .chunks_exact(4)
@@ -452,7 +453,7 @@ fn rectified_images_give_the_right_depth() {
     );
     // The points are in the reference image's frame (its physical optical frame): the
     // rectified camera's points rotated back by R.
-    let points = out.points.expect("points");
+    let points = out.messages.points.expect("points");
     let (u, v) = (32usize, 24usize);
     let at = (v * WIDTH as usize + u) * 16;
     let xyz: Vec<f64> = (0..3)
