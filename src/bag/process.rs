@@ -238,11 +238,7 @@ impl BagFusion {
 impl Sink<'_> {
     /// A message that could not be decoded: counted per topic, reported once per topic.
     fn bad_message(&mut self, topic: &str, message: &str) {
-        *self
-            .report
-            .bad_messages
-            .entry(topic.to_string())
-            .or_default() += 1;
+        self.report.bad_messages.add(topic.to_string());
         warn(&self.bar, &mut self.seen, message);
     }
 
@@ -275,7 +271,7 @@ impl Sink<'_> {
         match result {
             Ok(set) => {
                 for skip in &set.skipped {
-                    *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                    self.report.skipped.add(skip.kind.label());
                     self.report.last_skip = Some(skip.to_string());
                     warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
                 }
@@ -312,7 +308,7 @@ impl Sink<'_> {
                 }
             }
             Err(skip) => {
-                *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                self.report.skipped.add(skip.kind.label());
                 self.report.last_skip = Some(skip.to_string());
                 warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
             }
@@ -453,11 +449,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             continue;
         };
         if wrong_type.contains(&msg.topic) {
-            *sink
-                .report
-                .bad_messages
-                .entry(msg.topic.clone())
-                .or_default() += 1;
+            sink.report.bad_messages.add(msg.topic.clone());
             continue;
         }
         if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference()) {

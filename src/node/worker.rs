@@ -151,7 +151,7 @@ fn worker_loop(
             Err(skip) => {
                 {
                     let mut stats = lock(stats);
-                    *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                    stats.skipped.add(skip.kind.label());
                     stats.engine_skip = Some(skip.to_string());
                 }
                 log.warn(&skip.key(), || format!("{skip}; skipping this set"));
@@ -165,7 +165,7 @@ fn worker_loop(
         if !set.skipped.is_empty() {
             let mut stats = lock(stats);
             for skip in &set.skipped {
-                *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                stats.skipped.add(skip.kind.label());
                 stats.engine_skip = Some(skip.to_string());
             }
         }

@@ -10,6 +10,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 use std::sync::Arc;
 
+use super::counts::SkipCounts;
 use super::outputs::FrameMaps;
 use crate::fusion::{
     BlockIndex, BlockMesh, DepthView, FusionError, FusionParams, IntegrationStats, Mapper,
@@ -116,7 +117,7 @@ pub struct Fuser {
     /// Depth maps integrated, by [`FusionInput::source`].
     pub integrated_by_source: BTreeMap<String, u64>,
     /// Depth maps refused, by reason.
-    pub skipped: BTreeMap<&'static str, u64>,
+    pub skipped: SkipCounts,
 }
 
 impl Fuser {
@@ -129,7 +130,7 @@ impl Fuser {
             next_id: 0,
             integrated: 0,
             integrated_by_source: BTreeMap::new(),
-            skipped: BTreeMap::new(),
+            skipped: SkipCounts::default(),
         })
     }
 
@@ -146,7 +147,7 @@ impl Fuser {
     pub fn add(&mut self, input: &FusionInput) -> Result<IntegrationStats, FuseSkip> {
         let result = self.try_add(input);
         if let Err(skip) = &result {
-            *self.skipped.entry(skip.label()).or_default() += 1;
+            self.skipped.add(skip.label());
         }
         result
     }
@@ -405,7 +406,7 @@ mod tests {
         let (blocks_before, _) = f.blocks();
         let err = f.add(&wall("odom", 0.0, 2)).unwrap_err();
         assert!(matches!(err, FuseSkip::Frame { .. }), "{err}");
-        assert_eq!(f.skipped.get("fusion: other frame"), Some(&1));
+        assert_eq!(f.skipped.get("fusion: other frame"), 1);
         assert_eq!(f.blocks().0, blocks_before);
         let (dropped, clear) = f.clear();
         assert_eq!(dropped, blocks_before);

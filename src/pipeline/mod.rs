@@ -22,6 +22,7 @@ pub mod calibration;
 pub mod compressed;
 pub mod config;
 pub mod convert;
+mod counts;
 pub mod depth_in;
 pub mod engine_host;
 pub mod fuse;
@@ -39,6 +40,7 @@ pub use calibration::intrinsics_info;
 pub use config::{
     ConfigError, FusionConfig, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
 };
+pub use counts::{Counts, SkipCounts};
 pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
 pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
