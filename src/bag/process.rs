@@ -13,7 +13,7 @@ use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
 use crate::pipeline::{Asked, Fuser, FusionInput, Publishers};
 use crate::pipeline::{
-    ConfigError, EngineHost, FrameOutputs, HostError, Input, Job, Outcome, Output, OutputTopics,
+    ConfigError, EngineHost, FrameMessages, HostError, Input, Job, Outcome, Output, OutputTopics,
     Pipeline, PipelineConfig, Skip,
 };
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
@@ -238,11 +238,7 @@ impl BagFusion {
 impl Sink<'_> {
     /// A message that could not be decoded: counted per topic, reported once per topic.
     fn bad_message(&mut self, topic: &str, message: &str) {
-        *self
-            .report
-            .bad_messages
-            .entry(topic.to_string())
-            .or_default() += 1;
+        self.report.bad_messages.add(topic.to_string());
         warn(&self.bar, &mut self.seen, message);
     }
 
@@ -270,19 +266,20 @@ impl Sink<'_> {
         self.report.sets_found += 1;
         let t0 = Instant::now();
         // The live view always shows the point cloud.
-        let with_points = config.outputs.get(Output::Points).is_some() || self.viewer.is_some();
+        let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
         match result {
             Ok(set) => {
                 for skip in &set.skipped {
-                    *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                    self.report.skipped.add(skip.kind.label());
                     self.report.last_skip = Some(skip.to_string());
                     warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
                 }
                 if let Some(fusion) = &mut self.fuser {
                     let world = config.world.as_ref().map(|w| w.frame.as_str());
                     for out in &set.outputs {
-                        if let Err(e) = fusion.fuser.add(&FusionInput::from_outputs(out, world)) {
+                        let input = FusionInput::from_maps(out.maps.clone(), world);
+                        if let Err(e) = fusion.fuser.add(&input) {
                             warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
                         }
                     }
@@ -296,7 +293,7 @@ impl Sink<'_> {
                 // (Points go into OUT only with publish_points: `write_outputs`.)
                 for out in &set.outputs {
                     if let Some((_, topics)) = config.references.get(out.output) {
-                        write_outputs(&mut self.writer, topics, log_time_ns, out)?;
+                        write_outputs(&mut self.writer, topics, log_time_ns, &out.messages)?;
                     }
                 }
                 self.busy += t0.elapsed();
@@ -307,11 +304,11 @@ impl Sink<'_> {
                 // The live view shows the first reference's outputs.
                 if let (Some(viewer), Some(first)) = (&self.viewer, set.outputs.into_iter().next())
                 {
-                    viewer.offer_owned(first);
+                    viewer.offer_owned(first.messages);
                 }
             }
             Err(skip) => {
-                *self.report.skipped.entry(skip.kind.label()).or_default() += 1;
+                self.report.skipped.add(skip.kind.label());
                 self.report.last_skip = Some(skip.to_string());
                 warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
             }
@@ -325,9 +322,9 @@ fn write_outputs(
     writer: &mut BagWriter,
     topics: &OutputTopics,
     log_time_ns: u64,
-    out: &FrameOutputs,
+    messages: &FrameMessages,
 ) -> Result<(), BagError> {
-    for (topic, msg) in out.messages(topics) {
+    for (topic, msg) in messages.with_topics(topics) {
         writer.write_msg(topic, log_time_ns, &msg)?;
     }
     Ok(())
@@ -371,7 +368,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let (routes, image_topics) = routes(&config, &known);
     let mut report = BagReport::default();
     let wrong_type = check_topics(args, &known, &routes, &image_topics, &mut report)?;
-    let ref_topic = &image_topics[config.reference];
+    let ref_topic = &image_topics[config.reference()];
     let total = known
         .iter()
         .find(|t| &t.name == ref_topic)
@@ -452,14 +449,10 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             continue;
         };
         if wrong_type.contains(&msg.topic) {
-            *sink
-                .report
-                .bad_messages
-                .entry(msg.topic.clone())
-                .or_default() += 1;
+            sink.report.bad_messages.add(msg.topic.clone());
             continue;
         }
-        if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference) {
+        if matches!(route, Route::Image(c) | Route::Compressed(c) if c == config.reference()) {
             sink.bar.inc(1);
         }
         if let Some(pacer) = &mut pacer {
@@ -673,7 +666,7 @@ fn start_viewer(
         .map(|_| config.mesh_topic.as_str());
     let viewer = Viewer::start_with_mesh(
         &ViewerConfig::for_bag(&config.params)?,
-        &config.outputs,
+        config.outputs(),
         mesh_topic,
     )?;
     tracing::info!(

@@ -1,9 +1,8 @@
 //! What a `sweepdepth bag` run did ([`BagReport`]) and its one-line summary.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
-use crate::pipeline::NoticeKind;
+use crate::pipeline::{Counts, NoticeKind, SkipCounts};
 use crate::ros::sync::SyncStats;
 
 /// What a bag run did.
@@ -17,9 +16,9 @@ pub struct BagReport {
     /// Depth maps written: one per reference of each processed set (`references`).
     pub depth_maps: u64,
     /// Sets not processed, by reason ([`crate::pipeline::SkipKind::label`]).
-    pub skipped: BTreeMap<&'static str, u64>,
+    pub skipped: SkipCounts,
     /// Messages that could not be decoded or had the wrong type, by topic.
-    pub bad_messages: BTreeMap<String, u64>,
+    pub bad_messages: Counts<String>,
     /// The synchroniser's verdicts, counted: partial sets it abandoned (a camera's image
     /// missing), images its time rules dropped (duplicate, late, future stamps), its resets
     /// (time going backwards).
@@ -43,7 +42,7 @@ pub struct BagReport {
 impl BagReport {
     /// The one-line summary printed at the end.
     pub fn summary_line(&self) -> String {
-        let skipped: u64 = self.skipped.values().sum();
+        let skipped = self.skipped.total();
         let mut s = format!(
             "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
             self.sets_found, self.sets_processed, self.sync.incomplete, skipped
@@ -76,7 +75,7 @@ impl BagReport {
             s += &format!(", {} read errors (damaged bag)", self.read_errors.len());
         }
         if !self.bad_messages.is_empty() {
-            let bad: u64 = self.bad_messages.values().sum();
+            let bad = self.bad_messages.total();
             s += &format!(", {bad} unreadable messages");
         }
         match (self.mean_time_per_set, &self.no_depth) {

@@ -92,7 +92,7 @@ mod tests {
         .unwrap();
         assert_eq!(cfg.domain_id, 7);
         assert_eq!(cfg.diagnostics_topic, "/diagnostics");
-        assert_eq!(cfg.pipeline.outputs.depth(), "/rig/depth/image");
+        assert_eq!(cfg.pipeline.outputs().depth(), "/rig/depth/image");
         assert_eq!(
             (cfg.input_reliable, cfg.input_depth, cfg.output_depth),
             (false, 7, 1)

@@ -33,7 +33,7 @@ pub struct Stats {
     pub inactive_cameras: Vec<String>,
     /// Sets (or, with several references, one reference of a set) that gave no depth, by
     /// reason ([`crate::pipeline::SkipKind::label`]).
-    pub skipped: std::collections::BTreeMap<&'static str, u64>,
+    pub skipped: crate::pipeline::SkipCounts,
     /// Sets waiting for their pose in `world_frame`.
     pub waiting_for_pose: usize,
     /// A moving rig: the latest world pose of each reference's frame, with its stamp.

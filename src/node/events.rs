@@ -86,7 +86,7 @@ impl LoopState<'_> {
         {
             let mut stats = lock(self.stats);
             for skip in outcome.skips() {
-                *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                stats.skipped.add(skip.kind.label());
             }
             stats.waiting_for_pose = waiting_for_pose;
             if let Some(verdict) = &outcome.sync {

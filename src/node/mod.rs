@@ -75,7 +75,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         pipeline.identity.fqn(),
         config.domain_id,
         pipeline.cameras.join(", "),
-        pipeline.cameras[pipeline.reference],
+        pipeline.cameras[pipeline.reference()],
         pipeline.image_topics
     );
 
@@ -88,7 +88,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                 .as_ref()
                 .filter(|f| f.mesh_rate_hz > 0.0)
                 .map(|_| pipeline.mesh_topic.as_str());
-            let viewer = Viewer::start_with_mesh(&viewer_config, &pipeline.outputs, mesh_topic)?;
+            let viewer = Viewer::start_with_mesh(&viewer_config, pipeline.outputs(), mesh_topic)?;
             tracing::info!(
                 "live view: Foxglove/Lichtblick at {}, the page at {}",
                 viewer.websocket_url(),

@@ -14,7 +14,8 @@ use super::NodeError;
 use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{
-    EngineHost, FrameOutputs, FusionInput, FusionWorker, HostError, Job, Output, OutputMsg,
+    EngineHost, FrameMaps, FrameMessages, FusionInput, FusionWorker, HostError, Job, Output,
+    OutputMsg,
 };
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
@@ -127,7 +128,7 @@ fn worker_loop(
         .any(|p| p.outputs.iter().any(|(o, ..)| *o == Output::Points));
     while let Some(job) = slot.take() {
         let started = Instant::now();
-        if let Some(image) = job.images.get(job.reference) {
+        if let Some(image) = job.images.get(job.anchor()) {
             let stamp = image.header.stamp;
             tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
         }
@@ -150,7 +151,7 @@ fn worker_loop(
             Err(skip) => {
                 {
                     let mut stats = lock(stats);
-                    *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                    stats.skipped.add(skip.kind.label());
                     stats.engine_skip = Some(skip.to_string());
                 }
                 log.warn(&skip.key(), || format!("{skip}; skipping this set"));
@@ -164,7 +165,7 @@ fn worker_loop(
         if !set.skipped.is_empty() {
             let mut stats = lock(stats);
             for skip in &set.skipped {
-                *stats.skipped.entry(skip.kind.label()).or_default() += 1;
+                stats.skipped.add(skip.kind.label());
                 stats.engine_skip = Some(skip.to_string());
             }
         }
@@ -173,40 +174,45 @@ fn worker_loop(
                 format!("{skip}; no depth for it in this set")
             });
         }
-        let Some(stamp) = set.outputs.first().map(|o| o.header.stamp) else {
+        let Some(stamp) = set.outputs.first().map(|o| o.maps.header.stamp) else {
             continue;
         };
         // A copy for the live view (only while a viewer is subscribed; never waits for it):
         // the first reference's outputs.
         if let (Some(viewer), Some(first)) = (viewer, set.outputs.first()) {
-            viewer.offer(first);
+            viewer.offer(&first.messages);
         }
         {
             let mut stats = lock(stats);
             for out in &set.outputs {
-                if let Some(pose) = out.world_from_frame {
+                if let Some(pose) = out.maps.world_from_frame {
+                    let header = &out.maps.header;
                     stats
                         .world_poses
-                        .insert(out.header.frame_id.clone(), (out.header.stamp, pose));
+                        .insert(header.frame_id.clone(), (header.stamp, pose));
                 }
             }
         }
-        // Fusion takes its copy of the depths (never waits: a fusion that falls behind drops
-        // its own oldest waiting set, counted in /diagnostics).
+        let (maps, messages): (Vec<FrameMaps>, Vec<(usize, FrameMessages)>) = set
+            .outputs
+            .into_iter()
+            .map(|out| (out.maps, (out.output, out.messages)))
+            .unzip();
+        // Fusion takes the depths as floats, moved (never waits: a fusion that falls behind
+        // drops its own oldest waiting set, counted in /diagnostics).
         if let Some(fusion) = &outputs.fusion {
             let world = outputs.world_frame.as_deref();
             fusion.offer(
-                set.outputs
-                    .iter()
-                    .map(|out| FusionInput::from_outputs(out, world))
+                maps.into_iter()
+                    .map(|m| FusionInput::from_maps(m, world))
                     .collect(),
             );
         }
-        for out in set.outputs {
-            let Some(publishers) = publishers.get(out.output) else {
+        for (output, messages) in messages {
+            let Some(publishers) = publishers.get(output) else {
                 continue;
             };
-            publish(publishers, out, &mut log);
+            publish(publishers, messages, &mut log);
         }
         lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         published += 1;
@@ -219,9 +225,9 @@ fn worker_loop(
     }
 }
 
-/// Publishes one reference's outputs on its publishers.
-fn publish(publishers: &Publishers, out: FrameOutputs, log: &mut RateLimited) {
-    for (output, msg) in out.into_messages() {
+/// Publishes one reference's messages on its publishers.
+fn publish(publishers: &Publishers, messages: FrameMessages, log: &mut RateLimited) {
+    for (output, msg) in messages.into_list() {
         let Some((_, topic, publisher)) = publishers.outputs.iter().find(|(o, ..)| *o == output)
         else {
             continue;

@@ -3,9 +3,9 @@
 //! rig file's intrinsics), its pose (from `/tf_static`, or the rig file), the virtual
 //! reference camera, and the image headers checked before the set goes anywhere.
 
-use super::config::PipelineConfig;
+use super::config::{PipelineConfig, VirtualConfig};
 use super::convert::check_image;
-use super::outcome::{Job, JobReference, Skip, SkipKind};
+use super::outcome::{Job, JobReference, Skip, SkipKind, VirtualCamera};
 use crate::geometry::{CameraModel, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::ros::camera_info::{camera_from_info, check_image_size, CameraCalibration, ImageKind};
@@ -59,21 +59,21 @@ impl Calibration {
             let i = active.get(k).copied().unwrap_or(k);
             (i, config.cameras.get(i).map_or("?", String::as_str))
         })?;
-        // Index of the reference within the set (the active cameras, in rig order).
-        let reference = active
+        // The image whose frame anchors the rig (`Job::anchor`): the first reference's, within
+        // the set (the active cameras, in rig order).
+        let anchor = active
             .iter()
-            .position(|&a| a == config.reference)
+            .position(|&a| a == config.reference())
             .unwrap_or(0);
         let ref_frame = set
             .messages
-            .get(reference)
+            .get(anchor)
             .map(|m| m.header.frame_id.clone())
             .unwrap_or_default();
         let mut cameras = Vec::with_capacity(set.messages.len());
         let mut cams_from_frame = Vec::with_capacity(set.messages.len());
-        // The reference camera's image frame, in the rig, and its camera in that frame.
+        // The anchor's image frame, in the rig.
         let mut ref_frame_from_rig = RigidTransform::IDENTITY;
-        let mut ref_cam_from_frame = RigidTransform::IDENTITY;
         for (k, image) in set.messages.iter().enumerate() {
             let i = active.get(k).copied().unwrap_or(k);
             // A rectified image's camera is its frame rotated by R, moved by P's translation
@@ -86,9 +86,8 @@ impl Calibration {
                     .enumerate()
                     .any(|(other, m)| other != k && m.header.frame_id == image.header.frame_id);
             let placed = self.camera(config, i, image, &ref_frame, frame_shared)?;
-            if k == reference {
+            if k == anchor {
                 ref_frame_from_rig = placed.frame_from_rig;
-                ref_cam_from_frame = placed.cam_from_frame;
             }
             cameras.push(placed.camera);
             cams_from_frame.push(placed.cam_from_frame);
@@ -100,48 +99,7 @@ impl Calibration {
             check_image(&config.cameras[i], image)
                 .map_err(|e| Skip::new(SkipKind::Image, Some(i), e.to_string()))?;
         }
-        let mut virtual_ref = None;
-        let ref_info = if let Some(v) = &config.virtual_ref {
-            let intrinsics = v.intrinsics(&cameras[reference].model.intrinsics);
-            // The virtual camera is placed relative to the reference's frame (tf, or
-            // virtual_pose), not to its rectified camera.
-            let ref_from_rig = ref_frame_from_rig;
-            let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
-                self.tf.lookup(&v.frame_id, &ref_frame).map_err(|e| {
-                    let frame = &v.frame_id;
-                    tf_skip(
-                        &e,
-                        None,
-                        format!(
-                            "the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id)"
-                        ),
-                    )
-                })?
-            } else {
-                v.ref_from_virtual.inverse()
-            };
-            let frame_id = if v.frame_id.is_empty() {
-                ref_frame.clone()
-            } else {
-                v.frame_id.clone()
-            };
-            virtual_ref = Some((
-                CameraModel::pinhole(intrinsics),
-                virtual_from_ref.compose(&ref_from_rig),
-                frame_id,
-            ));
-            intrinsics_info(&intrinsics)
-        } else {
-            match &self.infos[config.reference] {
-                Some(info) => info.clone(),
-                None => intrinsics_info(&cameras[reference].model.intrinsics),
-            }
-        };
-        // A virtual camera's points are in its own frame.
-        if virtual_ref.is_some() {
-            ref_cam_from_frame = RigidTransform::IDENTITY;
-        }
-        // Every configured reference in the set, the first as above.
+        // Every configured reference in the set (the first may be a virtual camera).
         let mut references = Vec::with_capacity(config.references.len());
         let mut absent_references = Vec::new();
         for (output, &(camera, _)) in config.references.iter().enumerate() {
@@ -149,34 +107,77 @@ impl Calibration {
                 absent_references.push(config.cameras[camera].clone());
                 continue;
             };
-            let (info, cam_from_frame) = if output == 0 {
-                (ref_info.clone(), ref_cam_from_frame)
-            } else {
-                let info = match &self.infos[camera] {
-                    Some(info) => info.clone(),
-                    None => intrinsics_info(&cameras[index].model.intrinsics),
-                };
-                (info, cams_from_frame[index])
+            let reference = match (&config.virtual_ref, output) {
+                (Some(v), 0) => {
+                    let anchor = (ref_frame.as_str(), ref_frame_from_rig);
+                    self.virtual_reference(config, v, &cameras[index], index, anchor)?
+                }
+                _ => JobReference {
+                    index,
+                    output,
+                    info: match &self.infos[camera] {
+                        Some(info) => info.clone(),
+                        None => intrinsics_info(&cameras[index].model.intrinsics),
+                    },
+                    cam_from_frame: cams_from_frame[index],
+                    virtual_camera: None,
+                },
             };
-            references.push(JobReference {
-                index,
-                output,
-                info,
-                cam_from_frame,
-            });
+            references.push(reference);
         }
         Ok(Job {
             images: set.messages,
             cameras,
-            reference,
-            virtual_ref,
-            ref_info,
-            ref_cam_from_frame,
             references,
             absent_references,
             ref_frame,
             ref_frame_from_rig,
             world_from_rig: None,
+        })
+    }
+
+    /// The virtual camera `v` as the first reference, standing in for the reference camera
+    /// (`camera`, image `index` of the set); `anchor`: that camera's frame and its pose in the
+    /// rig. The virtual camera is placed relative to that frame (tf, or virtual_pose), not to
+    /// its rectified camera; its points are in its own frame.
+    fn virtual_reference(
+        &self,
+        config: &PipelineConfig,
+        v: &VirtualConfig,
+        camera: &RigCamera,
+        index: usize,
+        (ref_frame, ref_frame_from_rig): (&str, RigidTransform),
+    ) -> Result<JobReference, Skip> {
+        let intrinsics = v.intrinsics(&camera.model.intrinsics);
+        let virtual_from_ref = if !v.frame_id.is_empty() && config.rig_file.is_none() {
+            self.tf.lookup(&v.frame_id, ref_frame).map_err(|e| {
+                let frame = &v.frame_id;
+                tf_skip(
+                    &e,
+                    None,
+                    format!(
+                        "the transform from '{ref_frame}' (reference camera) to '{frame}' (virtual_frame_id)"
+                    ),
+                )
+            })?
+        } else {
+            v.ref_from_virtual.inverse()
+        };
+        let frame_id = if v.frame_id.is_empty() {
+            ref_frame.to_string()
+        } else {
+            v.frame_id.clone()
+        };
+        Ok(JobReference {
+            index,
+            output: 0,
+            info: intrinsics_info(&intrinsics),
+            cam_from_frame: RigidTransform::IDENTITY,
+            virtual_camera: Some(VirtualCamera {
+                model: CameraModel::pinhole(intrinsics),
+                cam_from_rig: virtual_from_ref.compose(&ref_frame_from_rig),
+                frame_id,
+            }),
         })
     }
 

@@ -315,11 +315,9 @@ pub struct PipelineConfig {
     pub params: ParamSet,
     pub sweep: SweepParams,
     pub cameras: Vec<String>,
-    /// Index of the (first) reference camera in `cameras`: `references[0]`.
-    pub reference: usize,
-    /// Every reference camera (`references`; `[reference]` when the parameter is empty), as
-    /// indices into `cameras`, each with its output topics: with one reference those of the
-    /// node (`depth/image`, ...), with several under its camera's namespace
+    /// Every reference camera (`references`; the one of `reference` when that list is empty),
+    /// never empty, as indices into `cameras`, each with its output topics: with one reference
+    /// those of the node (`depth/image`, ...), with several under its camera's namespace
     /// (`<camera>/depth/image`, ...).
     pub references: Vec<(usize, OutputTopics)>,
     /// A moving rig (`world_frame`): the fixed frame, `/tf`'s resolved name, and how long a set
@@ -338,8 +336,6 @@ pub struct PipelineConfig {
     /// `image_transport: compressed`: the images come as `sensor_msgs/CompressedImage` on
     /// [`PipelineConfig::compressed_topics`] (image_transport's `compressed` plugin).
     pub compressed_inputs: bool,
-    /// The first reference's output topics (`references[0].1`).
-    pub outputs: OutputTopics,
     pub tf_static_topic: String,
     pub rig_file: Option<RigFile>,
     pub sync: SyncPolicy,
@@ -354,6 +350,17 @@ pub struct PipelineConfig {
 }
 
 impl PipelineConfig {
+    /// Index of the first reference camera in `cameras` (`references[0]`): the one whose
+    /// frame anchors the rig, and the one a virtual camera stands in for.
+    pub fn reference(&self) -> usize {
+        self.references[0].0
+    }
+
+    /// The first reference's output topics (`references[0]`): with one reference, the node's.
+    pub fn outputs(&self) -> &OutputTopics {
+        &self.references[0].1
+    }
+
     /// Per camera, its compressed image topic: `<image topic>/compressed`, as image_transport
     /// names it (after the remapping of the image topic).
     pub fn compressed_topics(&self) -> Vec<String> {
@@ -429,8 +436,6 @@ impl PipelineConfig {
             return Err(ConfigError::ReferencesWithVirtual);
         }
         let references = reference_outputs(&listed, &cameras, reference, publish_points, &resolve)?;
-        let reference = references[0].0;
-        let outputs = references[0].1.clone();
         let world_frame = params.get_str("world_frame")?.to_string();
         let world = if world_frame.is_empty() {
             None
@@ -477,7 +482,6 @@ impl PipelineConfig {
             identity,
             sweep,
             cameras,
-            reference,
             references,
             world,
             fusion,
@@ -486,7 +490,6 @@ impl PipelineConfig {
             image_kinds,
             info_topics,
             compressed_inputs: params.get_str("image_transport")? == "compressed",
-            outputs,
             tf_static_topic,
             rig_file,
             sync,
@@ -552,22 +555,22 @@ mod tests {
         ]))
         .unwrap();
         assert_eq!(cfg.identity.name, "sweepdepth");
-        assert_eq!(cfg.reference, 1);
+        assert_eq!(cfg.reference(), 1);
         assert_eq!(
             cfg.image_topics,
             vec!["/rig/a/image_raw", "/other/image", "/rig/c/image_raw"]
         );
         assert_eq!(cfg.info_topics[0], "/rig/a/camera_info");
-        assert_eq!(cfg.outputs.depth(), "/rig/depth/image");
+        assert_eq!(cfg.outputs().depth(), "/rig/depth/image");
         assert_eq!(
-            cfg.outputs.get(Output::DepthInfo),
+            cfg.outputs().get(Output::DepthInfo),
             Some("/rig/depth/camera_info")
         );
         assert_eq!(
-            cfg.outputs.get(Output::Selection),
+            cfg.outputs().get(Output::Selection),
             Some("/rig/selection/image")
         );
-        assert_eq!(cfg.outputs.get(Output::Points), None);
+        assert_eq!(cfg.outputs().get(Output::Points), None);
         assert_eq!(cfg.tf_static_topic, "/tf_static");
         assert_eq!(cfg.sync, SyncPolicy::Exact);
         assert_eq!(cfg.time_rules, TimeRules::default());
@@ -581,7 +584,10 @@ mod tests {
             "publish_points:=true",
         ]))
         .unwrap();
-        assert_eq!(with_points.outputs.get(Output::Points), Some("/rig/points"));
+        assert_eq!(
+            with_points.outputs().get(Output::Points),
+            Some("/rig/points")
+        );
     }
 
     #[test]
@@ -642,11 +648,11 @@ mod tests {
         };
         // One reference (or none listed): the node's own topic names, as always.
         let one = with(&["-p", "references:=[c]"]).unwrap();
-        assert_eq!(one.reference, 2);
+        assert_eq!(one.reference(), 2);
         assert_eq!(one.references.len(), 1);
-        assert_eq!(one.outputs.depth(), "/rig/depth/image");
+        assert_eq!(one.outputs().depth(), "/rig/depth/image");
         let none = with(&[]).unwrap();
-        assert_eq!(none.references, vec![(1, none.outputs.clone())]);
+        assert_eq!(none.references, vec![(1, none.outputs().clone())]);
         assert!(none.world.is_none());
         // Several: each under its camera's namespace, remaps apply as to any topic.
         let two = with(&[
@@ -656,7 +662,7 @@ mod tests {
             "/rig/a/depth/image:=/left_depth",
         ])
         .unwrap();
-        assert_eq!(two.reference, 2);
+        assert_eq!(two.reference(), 2);
         assert_eq!(two.references[0].1.depth(), "/rig/c/depth/image");
         assert_eq!(
             two.references[0].1.get(Output::Selection).unwrap(),

@@ -8,9 +8,9 @@
 //! camera_info yet, a size or encoding that does not fit, a CameraInfo that describes no
 //! camera, a pose that cannot come.
 
-use std::collections::BTreeMap;
 use std::time::Duration;
 
+use super::counts::SkipCounts;
 use super::fuse::FusionInput;
 use super::pose_queue::{PoseQueue, Posed};
 use crate::image::ImageF32;
@@ -60,7 +60,7 @@ pub struct DepthSources {
     /// frame (the image's `header.frame_id`).
     queue: PoseQueue<(usize, FusionInput)>,
     /// Depth images refused, by reason.
-    pub skipped: BTreeMap<&'static str, u64>,
+    pub skipped: SkipCounts,
 }
 
 impl DepthSources {
@@ -72,7 +72,7 @@ impl DepthSources {
             world_frame,
             tf_timeout_ns: u64::try_from(tf_timeout.as_nanos()).unwrap_or(u64::MAX),
             queue: PoseQueue::default(),
-            skipped: BTreeMap::new(),
+            skipped: SkipCounts::default(),
         }
     }
 
@@ -118,7 +118,7 @@ impl DepthSources {
                 );
             }
             Err(skip) => {
-                *self.skipped.entry(skip.label()).or_default() += 1;
+                self.skipped.add(skip.label());
                 out.push(Err(skip));
             }
         }
@@ -148,7 +148,7 @@ impl DepthSources {
                         world: self.world_frame.clone(),
                         reason: error.to_string(),
                     };
-                    *self.skipped.entry(skip.label()).or_default() += 1;
+                    self.skipped.add(skip.label());
                     out.push(Err(skip));
                 }
             }
@@ -391,7 +391,7 @@ mod tests {
         let err = out[0].as_ref().unwrap_err();
         assert_eq!(err.label(), "no world pose", "{err}");
         assert!(err.to_string().contains("'world'"), "{err}");
-        assert_eq!(s.skipped.get("no world pose"), Some(&1));
-        assert_eq!(s.skipped.get("no camera_info"), Some(&1));
+        assert_eq!(s.skipped.get("no world pose"), 1);
+        assert_eq!(s.skipped.get("no camera_info"), 1);
     }
 }

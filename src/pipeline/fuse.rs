@@ -10,7 +10,8 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 use std::sync::Arc;
 
-use super::outputs::FrameOutputs;
+use super::counts::SkipCounts;
+use super::outputs::FrameMaps;
 use crate::fusion::{
     BlockIndex, BlockMesh, DepthView, FusionError, FusionParams, IntegrationStats, Mapper,
     MeshStats, Weighting,
@@ -45,23 +46,24 @@ pub struct FusionInput {
 }
 
 impl FusionInput {
-    /// One reference's outputs: in `world_frame` on a moving rig (its world pose), else in the
-    /// frame of the set's first reference image.
-    pub fn from_outputs(out: &FrameOutputs, world_frame: Option<&str>) -> Self {
-        let (frame, map_from_frame) = match (world_frame, out.world_from_frame) {
+    /// One reference's maps (moved, not copied): in `world_frame` on a moving rig (its world
+    /// pose), else in the frame of the set's first reference image.
+    pub fn from_maps(maps: FrameMaps, world_frame: Option<&str>) -> Self {
+        let (frame, map_from_frame) = match (world_frame, maps.world_from_frame) {
             (Some(world), Some(pose)) => (world.to_string(), pose),
-            _ => (out.anchor_frame.clone(), out.anchor_from_frame),
+            _ => (maps.anchor_frame.clone(), maps.anchor_from_frame),
         };
+        let with_confidence = maps.confidence_map().is_some();
         Self {
-            stamp: out.header.stamp,
+            stamp: maps.header.stamp,
             frame,
-            depth: out.depth_m(),
-            colour: out.colour.clone(),
-            model: out.model,
-            map_from_cam: map_from_frame.compose(&out.frame_from_cam),
-            confidence: out.confidence_map(),
-            baseline_ratio: out.baseline_ratio,
-            source: out.header.frame_id.clone(),
+            depth: maps.depth_m,
+            colour: maps.colour,
+            model: maps.model,
+            map_from_cam: map_from_frame.compose(&maps.frame_from_cam),
+            confidence: with_confidence.then_some(maps.confidence),
+            baseline_ratio: maps.baseline_ratio,
+            source: maps.header.frame_id,
         }
     }
 }
@@ -115,7 +117,7 @@ pub struct Fuser {
     /// Depth maps integrated, by [`FusionInput::source`].
     pub integrated_by_source: BTreeMap<String, u64>,
     /// Depth maps refused, by reason.
-    pub skipped: BTreeMap<&'static str, u64>,
+    pub skipped: SkipCounts,
 }
 
 impl Fuser {
@@ -128,7 +130,7 @@ impl Fuser {
             next_id: 0,
             integrated: 0,
             integrated_by_source: BTreeMap::new(),
-            skipped: BTreeMap::new(),
+            skipped: SkipCounts::default(),
         })
     }
 
@@ -145,7 +147,7 @@ impl Fuser {
     pub fn add(&mut self, input: &FusionInput) -> Result<IntegrationStats, FuseSkip> {
         let result = self.try_add(input);
         if let Err(skip) = &result {
-            *self.skipped.entry(skip.label()).or_default() += 1;
+            self.skipped.add(skip.label());
         }
         result
     }
@@ -404,7 +406,7 @@ mod tests {
         let (blocks_before, _) = f.blocks();
         let err = f.add(&wall("odom", 0.0, 2)).unwrap_err();
         assert!(matches!(err, FuseSkip::Frame { .. }), "{err}");
-        assert_eq!(f.skipped.get("fusion: other frame"), Some(&1));
+        assert_eq!(f.skipped.get("fusion: other frame"), 1);
         assert_eq!(f.blocks().0, blocks_before);
         let (dropped, clear) = f.clear();
         assert_eq!(dropped, blocks_before);

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 
 use futures::channel::oneshot;
 
+use super::counts::SkipCounts;
 use super::fuse::{Fuser, FusionInput, SavedMesh};
 use crate::fusion::{FusionError, FusionParams};
 use crate::msgs::MarkerArray;
@@ -31,7 +32,7 @@ pub struct FusionStats {
     /// Sets dropped before fusion because it was behind.
     pub dropped_sets: u64,
     /// Depth maps refused, by reason.
-    pub skipped: BTreeMap<&'static str, u64>,
+    pub skipped: SkipCounts,
     pub blocks: usize,
     pub memory_bytes: usize,
     /// Triangles in the mesh as last meshed.

@@ -22,6 +22,7 @@ pub mod calibration;
 pub mod compressed;
 pub mod config;
 pub mod convert;
+mod counts;
 pub mod depth_in;
 pub mod engine_host;
 pub mod fuse;
@@ -39,16 +40,17 @@ pub use calibration::intrinsics_info;
 pub use config::{
     ConfigError, FusionConfig, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
 };
+pub use counts::{Counts, SkipCounts};
 pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
 pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fusion_worker::{FusionStats, FusionWorker};
 pub use outcome::{
     Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
-    SyncVerdict,
+    SyncVerdict, VirtualCamera,
 };
 pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
-pub use outputs::{process_job, FrameOutputs, SetOutputs};
+pub use outputs::{process_job, FrameMaps, FrameMessages, FrameOutputs, SetOutputs};
 pub use why::{Asked, Publishers, Why, WhyKind};
 
 use crate::msgs::{Image, Time};

@@ -31,18 +31,8 @@ pub struct Job {
     /// The images, one per camera in the rig (the cameras of `cameras`), headers checked.
     pub images: Vec<Image>,
     pub cameras: Vec<RigCamera>,
-    /// Index of the reference camera in `cameras`.
-    pub reference: usize,
-    /// The virtual reference camera and the outputs' frame_id, when configured.
-    pub virtual_ref: Option<(CameraModel, RigidTransform, String)>,
-    /// The CameraInfo of the outputs (the reference camera's, or the virtual one's).
-    pub ref_info: CameraInfo,
-    /// The reference camera (the one its model describes: rotated by R for a rectified image)
-    /// in the frame its image's `header.frame_id` names; the points are published in that
-    /// frame. Identity for a raw image and for a virtual reference.
-    pub ref_cam_from_frame: RigidTransform,
-    /// Every reference of the set that is in the rig (`references`; the first is `reference`
-    /// above, or the virtual camera), in the order of the configuration.
+    /// Every reference of the set that is in the rig (`references`; one entry with one
+    /// reference, a virtual camera included), in the order of the configuration.
     pub references: Vec<JobReference>,
     /// The names of the configured references out of the rig in this set (no depth for them).
     pub absent_references: Vec<String>,
@@ -64,8 +54,34 @@ pub struct JobReference {
     pub output: usize,
     /// The CameraInfo of its outputs.
     pub info: CameraInfo,
-    /// Its camera in the frame its image's `header.frame_id` names (as `ref_cam_from_frame`).
+    /// Its camera (the one its model describes: rotated by R for a rectified image) in the
+    /// frame its image's `header.frame_id` names; the points are published in that frame.
+    /// Identity for a raw image and for a virtual camera.
     pub cam_from_frame: RigidTransform,
+    /// The virtual camera that stands in for this reference (`virtual_reference`): the depth
+    /// is for it, and `index` names the real camera whose image header its outputs carry.
+    pub virtual_camera: Option<VirtualCamera>,
+}
+
+/// The virtual reference camera of a [`JobReference`]: its model, its pose in the rig and
+/// the frame_id of its outputs.
+#[derive(Debug, Clone)]
+pub struct VirtualCamera {
+    pub model: CameraModel,
+    pub cam_from_rig: RigidTransform,
+    pub frame_id: String,
+}
+
+impl Job {
+    /// Index into `images` of the image whose frame anchors the rig (`ref_frame`) and whose
+    /// header stamps the set: the first configured reference's, or the first image when
+    /// that reference is out of the rig.
+    pub fn anchor(&self) -> usize {
+        self.references
+            .first()
+            .filter(|r| r.output == 0)
+            .map_or(0, |r| r.index)
+    }
 }
 
 /// Why a set was not processed.

@@ -1,13 +1,13 @@
 //! The outputs of one reference, listed once ([`OUTPUTS`]): each output's topic name (under the
 //! node's namespace, or `<camera>/` with several references), its message type and whether it
 //! is always published. The node's publishers, the bag writer's topics, the live view's
-//! channels and [`OutputTopics`] are all made from this list, and [`FrameOutputs::messages`] /
-//! [`FrameOutputs::into_messages`] give a set's messages in the same order; adding an output is
-//! one line here plus the field that carries its message.
+//! channels and [`OutputTopics`] are all made from this list, and
+//! [`FrameMessages::with_topics`] / [`FrameMessages::into_list`] give a set's messages in the
+//! same order; adding an output is one line here plus the field that carries its message.
 
 use serde::Serialize;
 
-use super::FrameOutputs;
+use super::FrameMessages;
 use crate::msgdefs;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 
@@ -171,7 +171,7 @@ impl OutputTopics {
     }
 }
 
-/// One output's message, borrowed from a [`FrameOutputs`]; serialises as the message itself.
+/// One output's message, borrowed from a [`FrameMessages`]; serialises as the message itself.
 #[derive(Debug, Clone, Copy, Serialize)]
 #[serde(untagged)]
 pub enum OutputRef<'a> {
@@ -188,9 +188,9 @@ pub enum OutputMsg {
     PointCloud2(PointCloud2),
 }
 
-impl FrameOutputs {
+impl FrameMessages {
     /// The message of `output`, if this set has one.
-    pub fn message(&self, output: Output) -> Option<OutputRef<'_>> {
+    pub fn get(&self, output: Output) -> Option<OutputRef<'_>> {
         Some(match output {
             Output::Depth => OutputRef::Image(&self.depth),
             Output::DepthInfo => OutputRef::CameraInfo(&self.depth_info),
@@ -202,17 +202,17 @@ impl FrameOutputs {
     }
 
     /// The set's messages for `topics`, in the list's order, each with its topic.
-    pub fn messages<'a>(
+    pub fn with_topics<'a>(
         &'a self,
         topics: &'a OutputTopics,
     ) -> impl Iterator<Item = (&'a str, OutputRef<'a>)> {
         topics
             .iter()
-            .filter_map(|(spec, topic)| Some((topic, self.message(spec.output)?)))
+            .filter_map(|(spec, topic)| Some((topic, self.get(spec.output)?)))
     }
 
     /// The messages, moved out (for publishers), in the list's order.
-    pub fn into_messages(self) -> Vec<(Output, OutputMsg)> {
+    pub fn into_list(self) -> Vec<(Output, OutputMsg)> {
         let mut out = Vec::with_capacity(OUTPUTS.len());
         out.push((Output::Depth, OutputMsg::Image(self.depth)));
         out.push((

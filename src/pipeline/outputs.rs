@@ -1,5 +1,6 @@
-//! One job through the engine ([`process_job`]) and the messages it gives ([`FrameOutputs`]),
-//! all with the reference camera's header.
+//! One job through the engine ([`process_job`]) and what it gives per reference
+//! ([`FrameOutputs`]): the maps as floats, and the messages, all with the reference camera's
+//! header.
 
 use super::convert::image_to_rgba8;
 use super::out_messages::{f32_image_msg, point_cloud_msg, selection_msg};
@@ -12,20 +13,28 @@ use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
 use crate::sweep::{DepthMaps, SweepError, SweepParams};
 use std::sync::Arc;
 
-/// The messages one reference of a frame set produces, all with the same header (the
-/// reference camera's stamp; its frame_id, or the virtual camera's). Their topics:
-/// [`super::OutputTopics`], `output` of the configuration's `references`.
+/// What one reference of a frame set gives: its depth maps as floats, with where its camera
+/// is ([`FrameMaps`], what fusion and the pose bookkeeping read), and its messages
+/// ([`FrameMessages`], what is published or recorded on [`super::OutputTopics`], `output` of
+/// the configuration's `references`). Kept apart so that nothing decodes a message back.
 #[derive(Debug, Clone)]
 pub struct FrameOutputs {
     /// Which of the configuration's `references` (its topics).
     pub output: usize,
+    pub maps: FrameMaps,
+    pub messages: FrameMessages,
+}
+
+/// One reference's depth and confidence as the engine gave them, and its camera's place.
+#[derive(Debug, Clone)]
+pub struct FrameMaps {
+    /// The messages' header: the reference camera's stamp; its frame_id, or the virtual
+    /// camera's.
     pub header: Header,
-    pub depth: Image,
-    pub depth_info: CameraInfo,
-    pub confidence: Image,
-    pub cost: Image,
-    pub selection: Image,
-    pub points: Option<PointCloud2>,
+    /// z along the optical axis in metres, NaN where invalid (the `depth` message's values).
+    pub depth_m: ImageF32,
+    /// In [0, 1], 0 where invalid (the `confidence` message's values).
+    pub confidence: ImageF32,
     /// A moving rig (`world_frame`): the pose of the header's frame in the world frame at the
     /// header's stamp (what tf2 gives a ROS user for the same stamp).
     pub world_from_frame: Option<RigidTransform>,
@@ -47,32 +56,24 @@ pub struct FrameOutputs {
     pub baseline_ratio: Option<f32>,
 }
 
-impl FrameOutputs {
-    /// The depth in metres (the `depth` message's 32FC1 data; NaN invalid).
-    pub fn depth_m(&self) -> ImageF32 {
-        f32_image(&self.depth)
-    }
-
-    /// The confidence (the `confidence` message's 32FC1 data), None where it is not the
-    /// depth's size.
-    pub fn confidence_map(&self) -> Option<ImageF32> {
-        let same = self.confidence.width == self.depth.width
-            && self.confidence.height == self.depth.height;
-        same.then(|| f32_image(&self.confidence))
+impl FrameMaps {
+    /// The confidence, None where it is not the depth's size.
+    pub fn confidence_map(&self) -> Option<&ImageF32> {
+        let same = self.confidence.width == self.depth_m.width
+            && self.confidence.height == self.depth_m.height;
+        same.then_some(&self.confidence)
     }
 }
 
-/// A 32FC1 message's data.
-fn f32_image(image: &Image) -> ImageF32 {
-    ImageF32 {
-        width: image.width,
-        height: image.height,
-        data: image
-            .data
-            .chunks_exact(4)
-            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-            .collect(),
-    }
+/// The messages of one reference, all with the same header ([`FrameMaps::header`]).
+#[derive(Debug, Clone)]
+pub struct FrameMessages {
+    pub depth: Image,
+    pub depth_info: CameraInfo,
+    pub confidence: Image,
+    pub cost: Image,
+    pub selection: Image,
+    pub points: Option<PointCloud2>,
 }
 
 /// What one frame set gives: each reference's outputs, and the references that failed.
@@ -100,33 +101,38 @@ pub fn process_job(
                 .map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))?,
         );
     }
-    if let Some((model, cam_from_rig, frame_id)) = &job.virtual_ref {
+    let first_virtual = job
+        .references
+        .first()
+        .and_then(|r| Some((r, r.virtual_camera.as_ref()?)));
+    if let Some((first, virtual_camera)) = first_virtual {
         let mut header: Header = job
             .images
-            .get(job.reference)
+            .get(first.index)
             .map(|m| m.header.clone())
             .unwrap_or_default();
-        header.frame_id = frame_id.clone();
+        header.frame_id = virtual_camera.frame_id.clone();
         let reference = Reference::Virtual {
-            model: *model,
-            cam_from_rig: *cam_from_rig,
+            model: virtual_camera.model,
+            cam_from_rig: virtual_camera.cam_from_rig,
         };
         let rig = Rig::new(job.cameras.clone(), reference)
             .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
         let maps = engine
             .run(&rig, &images, sweep)
             .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
-        let outputs = messages(
-            0,
+        let outputs = reference_outputs(
+            first.output,
             header,
-            &job.ref_info,
-            &maps,
+            &first.info,
+            maps,
             None,
             &rig.reference_model(),
+            // A virtual camera's points are in its own frame.
             &RigidTransform::IDENTITY,
             with_points,
             Placement {
-                rig_from_frame: cam_from_rig.inverse(),
+                rig_from_frame: virtual_camera.cam_from_rig.inverse(),
                 world_from_rig: job.world_from_rig,
                 anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
@@ -180,11 +186,11 @@ pub fn process_job(
             .cam_from_rig
             .inverse()
             .compose(&reference.cam_from_frame);
-        let mut outputs = messages(
+        let mut outputs = reference_outputs(
             reference.output,
             header,
             &reference.info,
-            &depth.maps,
+            depth.maps,
             images.get(reference.index),
             &camera.model,
             &reference.cam_from_frame.inverse(),
@@ -195,7 +201,7 @@ pub fn process_job(
                 anchor: (&job.ref_frame, job.ref_frame_from_rig),
             },
         );
-        outputs.baseline_ratio = (largest > 0.0).then_some((baseline / largest) as f32);
+        outputs.maps.baseline_ratio = (largest > 0.0).then_some((baseline / largest) as f32);
         set.outputs.push(outputs);
     }
     Ok(set)
@@ -209,16 +215,16 @@ struct Placement<'a> {
     anchor: (&'a str, RigidTransform),
 }
 
-/// The messages of one reference's depth maps.
+/// One reference's outputs from its depth maps (kept as floats, and made into messages).
 #[expect(
     clippy::too_many_arguments,
     reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
 )]
-fn messages(
+fn reference_outputs(
     output: usize,
     header: Header,
     info: &CameraInfo,
-    maps: &DepthMaps,
+    maps: DepthMaps,
     colour: Option<&Arc<Rgba8Image>>,
     model: &CameraModel,
     frame_from_cam: &RigidTransform,
@@ -240,22 +246,29 @@ fn messages(
             frame_from_cam,
         )
     });
-    FrameOutputs {
-        output,
+    let messages = FrameMessages {
         depth: f32_image_msg(&header, &maps.depth_m),
         depth_info,
         confidence: f32_image_msg(&header, &maps.confidence),
         cost: f32_image_msg(&header, &maps.cost),
         selection: selection_msg(&header, maps.width(), maps.height(), &maps.selection),
         points,
-        header,
-        world_from_frame,
-        rig_from_frame: placement.rig_from_frame,
-        anchor_frame: anchor_frame.to_string(),
-        anchor_from_frame: anchor_from_rig.compose(&placement.rig_from_frame),
-        model: *model,
-        frame_from_cam: *frame_from_cam,
-        colour: colour.cloned(),
-        baseline_ratio: None,
+    };
+    FrameOutputs {
+        output,
+        maps: FrameMaps {
+            header,
+            depth_m: maps.depth_m,
+            confidence: maps.confidence,
+            world_from_frame,
+            rig_from_frame: placement.rig_from_frame,
+            anchor_frame: anchor_frame.to_string(),
+            anchor_from_frame: anchor_from_rig.compose(&placement.rig_from_frame),
+            model: *model,
+            frame_from_cam: *frame_from_cam,
+            colour: colour.cloned(),
+            baseline_ratio: None,
+        },
+        messages,
     }
 }

@@ -311,7 +311,7 @@ impl Seen {
         if config.rig_file.is_some() {
             return None;
         }
-        let ref_frame = &self.cameras.get(config.reference)?.frame_id;
+        let ref_frame = &self.cameras.get(config.reference())?.frame_id;
         let topic = &config.tf_static_topic;
         for (i, seen) in self.cameras.iter().enumerate() {
             let frame = &seen.frame_id;
@@ -370,8 +370,8 @@ impl Seen {
         match config.sync {
             SyncPolicy::Exact => {
                 let pairs = (0..self.cameras.len())
-                    .filter(|&c| c != config.reference)
-                    .map(|c| (config.reference, c))
+                    .filter(|&c| c != config.reference())
+                    .map(|c| (config.reference(), c))
                     .chain(
                         (0..self.cameras.len())
                             .flat_map(|a| (a + 1..self.cameras.len()).map(move |b| (a, b))),
@@ -399,7 +399,7 @@ impl Seen {
             SyncPolicy::Approximate {
                 max_interval_ns, ..
             } => {
-                if let Some((c, offset)) = self.worst_offset(config.reference) {
+                if let Some((c, offset)) = self.worst_offset(config.reference()) {
                     if offset.abs() > max_interval_ns {
                         return Some(Why {
                             kind: WhyKind::SyncOffset,

@@ -39,7 +39,7 @@ impl WorldPoses {
         let timeout_ns = u64::try_from(config.tf_timeout.as_nanos()).unwrap_or(u64::MAX);
         let stamp = job
             .images
-            .get(job.reference)
+            .get(job.anchor())
             .map(|m| m.header.stamp)
             .unwrap_or_default();
         let frame = job.ref_frame.clone();

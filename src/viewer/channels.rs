@@ -10,7 +10,7 @@ use serde::Serialize;
 use super::ViewerError;
 use crate::msgdefs;
 use crate::msgs::to_cdr;
-use crate::pipeline::{FrameOutputs, Output, OutputTopics, OUTPUTS};
+use crate::pipeline::{FrameMessages, Output, OutputTopics, OUTPUTS};
 
 /// The message encoding of every channel (the ROS 2 wire format).
 pub const MESSAGE_ENCODING: &str = "cdr";
@@ -105,9 +105,9 @@ impl OutputChannels {
     /// Logs one set's outputs to the subscribed viewers (`log_time_ns`: wall clock, when the
     /// engine gave them). Each queue is bounded: a viewer that does not keep up loses the
     /// oldest messages, the caller never waits for it.
-    pub(super) fn log(&self, out: &FrameOutputs, log_time_ns: u64) -> Result<(), ViewerError> {
+    pub(super) fn log(&self, out: &FrameMessages, log_time_ns: u64) -> Result<(), ViewerError> {
         for (output, channel) in &self.channels {
-            if let Some(msg) = out.message(*output) {
+            if let Some(msg) = out.get(*output) {
                 log(channel, &msg, log_time_ns)?;
             }
         }

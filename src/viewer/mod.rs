@@ -142,8 +142,8 @@ impl Viewer {
     pub fn mesh_size(&self) -> (usize, usize) {
         (0, 0)
     }
-    pub fn offer(&self, _out: &crate::pipeline::FrameOutputs) {}
-    pub fn offer_owned(&self, _out: crate::pipeline::FrameOutputs) {}
+    pub fn offer(&self, _out: &crate::pipeline::FrameMessages) {}
+    pub fn offer_owned(&self, _out: crate::pipeline::FrameMessages) {}
     pub fn wants_points(&self) -> bool {
         false
     }

@@ -13,10 +13,10 @@ use super::page::PageServer;
 use super::{wall_time_ns, ViewerConfig, ViewerError, CLIENT_BACKLOG};
 use crate::handoff::Handoff;
 use crate::msgs::MarkerArray;
-use crate::pipeline::{FrameOutputs, OutputTopics};
+use crate::pipeline::{FrameMessages, OutputTopics};
 
 /// One set for the viewer's thread, with the wall-clock time it was offered (ns).
-type Offered = (Arc<FrameOutputs>, u64);
+type Offered = (Arc<FrameMessages>, u64);
 
 /// The last set offered, sent again to a viewer when it subscribes (as a latched topic), so a
 /// page opened after the last set of a bag still shows it.
@@ -147,10 +147,10 @@ impl Viewer {
         self.inner.channels.has_subscribers()
     }
 
-    /// Offers one set's outputs (the live node, which publishes them over DDS after): copied
+    /// Offers one set's messages (the live node, which publishes them over DDS after): copied
     /// for the viewer's thread only while a viewer is subscribed; a set the thread has not
     /// taken yet is replaced. Never waits.
-    pub fn offer(&self, out: &FrameOutputs) {
+    pub fn offer(&self, out: &FrameMessages) {
         let inner = &self.inner;
         if inner.channels.has_subscribers() {
             let offered = (Arc::new(out.clone()), wall_time_ns());
@@ -159,10 +159,10 @@ impl Viewer {
         }
     }
 
-    /// Offers one set's outputs that the caller no longer needs (`bag`): kept as the latched
+    /// Offers one set's messages that the caller no longer needs (`bag`): kept as the latched
     /// set for viewers that subscribe later, handed to the viewer's thread while one is
     /// subscribed. Never waits.
-    pub fn offer_owned(&self, out: FrameOutputs) {
+    pub fn offer_owned(&self, out: FrameMessages) {
         let inner = &self.inner;
         let offered = (Arc::new(out), wall_time_ns());
         inner.latch.set(offered.clone());

@@ -855,7 +855,7 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
     sort(pipeline.finish().sets);
     let stamps: Vec<Time> = posed
         .iter()
-        .map(|j| j.images[j.reference].header.stamp)
+        .map(|j| j.images[j.anchor()].header.stamp)
         .collect();
     assert_eq!(
         stamps,

@@ -230,7 +230,7 @@ fn one_set(
 }
 
 fn rig_of(job: &Job) -> Rig {
-    Rig::new(job.cameras.clone(), Reference::Camera(job.reference)).unwrap()
+    Rig::new(job.cameras.clone(), Reference::Camera(job.anchor())).unwrap()
 }
 
 fn assert_pose(what: &str, got: &RigidTransform, want: &RigidTransform) {
@@ -279,7 +279,13 @@ fn rectified_images_use_p_in_the_frame_rotated_by_r() {
         assert_pose(&format!("cam_from_ref {i}"), &rig.cam_from_ref(i), &want);
     }
     // The reference's rectified camera in its image's frame (the points are published there).
-    assert!(job.ref_cam_from_frame.rotation.angle_between(r_of(1)) < 1e-12);
+    assert!(
+        job.references[0]
+            .cam_from_frame
+            .rotation
+            .angle_between(r_of(1))
+            < 1e-12
+    );
 
     // The same messages read as raw images: K and D, and the physical (toed-in) poses. That
     // is what the node did before for a D = 0 camera with R != I, without the D.
@@ -431,6 +437,7 @@ fn rectified_images_give_the_right_depth() {
         width: WIDTH,
         height: HEIGHT,
         data: out
+            .messages
             .depth
             .data
             .chunks_exact(4)
@@ -446,7 +453,7 @@ fn rectified_images_give_the_right_depth() {
     );
     // The points are in the reference image's frame (its physical optical frame): the
     // rectified camera's points rotated back by R.
-    let points = out.points.expect("points");
+    let points = out.messages.points.expect("points");
     let (u, v) = (32usize, 24usize);
     let at = (v * WIDTH as usize + u) * 16;
     let xyz: Vec<f64> = (0..3)

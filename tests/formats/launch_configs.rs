@@ -241,7 +241,7 @@ fn node_config_accepts_the_params_files() {
 
     let four = config(FOUR_CAMERAS, "/rig");
     assert_eq!(four.identity.fqn(), "/rig/sweepdepth");
-    assert_eq!(four.reference, 1);
+    assert_eq!(four.reference(), 1);
     assert!(four.rig_file.is_none());
     assert_eq!(
         four.image_topics,
@@ -253,11 +253,11 @@ fn node_config_accepts_the_params_files() {
         ])
     );
     assert_eq!(four.info_topics[3], "/rig/cam3/camera_info");
-    assert_eq!(four.outputs.depth(), "/rig/depth/image");
+    assert_eq!(four.outputs().depth(), "/rig/depth/image");
     assert_eq!(four.tf_static_topic, "/tf_static");
 
     let row = config(CAMERA_ROW, "/row");
-    assert_eq!(row.reference, 2);
+    assert_eq!(row.reference(), 2);
     assert_eq!(row.rig_file.as_ref().map(|f| f.cameras.len()), Some(5));
     assert_eq!(row.image_topics[4], "/row/cam4/image_raw");
 
@@ -278,7 +278,7 @@ fn node_config_accepts_the_params_files() {
         surround.references[2].1.get(Output::Points),
         Some("/robot/cam2/points")
     );
-    assert_eq!(surround.outputs, surround.references[0].1);
+    assert_eq!(*surround.outputs(), surround.references[0].1);
     let world = surround.world.as_ref().expect("world_frame is set");
     assert_eq!(
         (world.frame.as_str(), world.tf_topic.as_str()),

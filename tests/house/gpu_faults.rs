@@ -64,7 +64,7 @@ fn lost_device_is_recreated_and_the_set_processed() {
     assert!(!host.is_lost());
     assert!(before.skipped.is_empty() && after.skipped.is_empty());
     assert_eq!(
-        before.outputs[0].depth.data, after.outputs[0].depth.data,
+        before.outputs[0].messages.depth.data, after.outputs[0].messages.depth.data,
         "same depth on the new device"
     );
     // And it keeps working.
