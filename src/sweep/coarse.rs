@@ -407,10 +407,7 @@ fn coarse_to_fine(
             continue;
         }
         let name = format!("coarse/{}", name.strip_prefix("coarse/").unwrap_or(name));
-        match coarse_stages.iter_mut().find(|(n, _)| *n == name) {
-            Some((_, total)) => *total += ms,
-            None => coarse_stages.push((name, *ms)),
-        }
+        super::add_stage_ms(&mut coarse_stages, &name, *ms);
     }
     let fine = cached(&mut plans.fine, rig, &fine_params)?;
     // The engine that keeps the coarse depths on the device narrows the rows there.

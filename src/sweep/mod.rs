@@ -584,6 +584,14 @@ impl DepthMaps {
     }
 }
 
+/// Adds `ms` to stage `name` of `stages` (a stage timed more than once is summed), or appends it.
+pub fn add_stage_ms(stages: &mut Vec<(String, f64)>, name: &str, ms: f64) {
+    match stages.iter_mut().find(|(n, _)| n == name) {
+        Some((_, total)) => *total += ms,
+        None => stages.push((name.to_string(), ms)),
+    }
+}
+
 /// Per-stage timings of one frame set, milliseconds (GPU timestamps where available).
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct StageTimings {

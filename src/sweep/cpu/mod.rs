@@ -93,10 +93,17 @@ pub struct CpuEngine {
     /// last: each level keeps its own, so no set allocates and faults in its cost volume and
     /// path sums again (a raw pair's full-resolution volume is 69 MB, the sums twice that).
     parked: Vec<((u32, u32), Buffers)>,
-    /// The plan running is a level below whose raw depth alone is read (phases after
-    /// `finalize` skipped).
-    depth_raw_only: bool,
     cancel: CancelFlag,
+}
+
+/// How far [`CpuEngine`] runs a plan's phases.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Through {
+    /// Every phase: the maps the caller unpacks.
+    All,
+    /// Up to `finalize`: a level below coarse to fine, whose raw depth alone is read (the
+    /// median, splat and visibility write other maps).
+    Finalize,
 }
 
 /// Sizes whose buffers [`CpuEngine`] keeps beside the current one (the coarse-to-fine levels of
@@ -154,7 +161,6 @@ impl CpuEngine {
             buffers: Buffers::default(),
             buffers_size: (0, 0),
             parked: Vec::new(),
-            depth_raw_only: false,
             cancel: CancelFlag::new(),
         }
     }
@@ -202,7 +208,7 @@ impl CpuEngine {
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
         let images = super::prefilter::for_plan(plan, images);
-        self.execute(plan, rig, &images)?;
+        self.execute(plan, rig, &images, Through::All)?;
         Ok(plan.depth_maps(&self.buffers.maps))
     }
 
@@ -214,7 +220,7 @@ impl CpuEngine {
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
         let images = super::prefilter::for_plan(plan, images);
-        self.execute(plan, rig, &images)?;
+        self.execute(plan, rig, &images, Through::All)?;
         Ok(self.buffers.maps.clone())
     }
 
@@ -226,7 +232,7 @@ impl CpuEngine {
         images: &[Rgba8Image],
     ) -> Result<CpuTrace, SweepError> {
         let images = super::prefilter::for_plan(plan, images);
-        self.execute(plan, rig, &images)?;
+        self.execute(plan, rig, &images, Through::All)?;
         Ok(CpuTrace {
             maps: self.buffers.maps.clone(),
             zbuffer: self.buffers.zbuffer.clone(),
@@ -239,6 +245,7 @@ impl CpuEngine {
         plan: &SweepPlan,
         rig: &Rig,
         images: &[Rgba8Image],
+        through: Through,
     ) -> Result<(), SweepError> {
         check_images(rig, images)?;
         self.buffers_for((plan.params.width, plan.params.height));
@@ -287,7 +294,9 @@ impl CpuEngine {
         // The rest of the plan's schedule (the sweep above is its first phase).
         // The fine sweep's mappings of its hypotheses, from the sweep's own.
         let refine = refine.then(|| refine::row_mappings(plan, &mappings));
-        let result = self.run_phases(plan, images, &volume, &mut state, band, refine, &mut clock);
+        let result = self.run_phases(
+            plan, images, &volume, &mut state, band, refine, through, &mut clock,
+        );
         self.timings = clock.timings();
         self.buffers.volume = volume;
         self.buffers.state = Some(state);
@@ -372,6 +381,7 @@ impl CpuEngine {
         state: &mut WtaState,
         band: usize,
         refine: Option<Vec<cost::Mapping>>,
+        through: Through,
         clock: &mut StageClock,
     ) -> Result<(), SweepError> {
         let p = &plan.params;
@@ -382,7 +392,7 @@ impl CpuEngine {
         zbuffer.resize(plan.total_camera_pixels, 0);
         let mut result = Ok(());
         for phase in Schedule::of_plan(plan).phases() {
-            if self.depth_raw_only
+            if through == Through::Finalize
                 && matches!(phase, Phase::Median | Phase::Splat | Phase::Visibility)
             {
                 continue;
@@ -484,10 +494,7 @@ impl super::coarse::PlanRunner for CpuEngine {
     ) -> Result<super::coarse::LevelDepth, SweepError> {
         let images = images.on_host(rig, &mut self.memo)?;
         let images = super::prefilter::for_plan(plan, images);
-        self.depth_raw_only = true;
-        let result = self.execute(plan, rig, &images);
-        self.depth_raw_only = false;
-        result?;
+        self.execute(plan, rig, &images, Through::Finalize)?;
         Ok(super::coarse::LevelDepth::Host(
             plan.depth_maps(&self.buffers.maps),
         ))
@@ -520,10 +527,7 @@ impl StageClock {
         let now = Instant::now();
         let ms = (now - self.last).as_secs_f64() * 1e3;
         self.last = now;
-        match self.stages.iter_mut().find(|(n, _)| n == name) {
-            Some((_, total)) => *total += ms,
-            None => self.stages.push((name.to_string(), ms)),
-        }
+        super::add_stage_ms(&mut self.stages, name, ms);
     }
 
     fn timings(self) -> StageTimings {

@@ -679,10 +679,7 @@ impl GpuEngine {
                         coarse_ms += times.stages.iter().map(|(_, ms)| ms).sum::<f64>();
                         for (name, ms) in times.stages {
                             let name = format!("coarse/{name}");
-                            match coarse_stages.iter_mut().find(|(n, _)| *n == name) {
-                                Some((_, total)) => *total += ms,
-                                None => coarse_stages.push((name, ms)),
-                            }
+                            crate::sweep::add_stage_ms(&mut coarse_stages, &name, ms);
                         }
                     }
                 }
