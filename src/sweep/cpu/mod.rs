@@ -266,7 +266,7 @@ impl CpuEngine {
             });
         let colour_in_alpha = plan.params.colour_in_alpha != 0;
         let frame = self.frame_images(rig, images, plan.uses_census(), colour_in_alpha, scattered);
-        clock.lap("images");
+        clock.lap(Lap::Images);
 
         // The sweep: bands of rows in parallel, every plane (`bands.rs`).
         let mut volume = std::mem::take(&mut self.buffers.volume);
@@ -288,7 +288,7 @@ impl CpuEngine {
         self.buffers.bands = scratches;
         self.buffers.planar = frame.planar;
         self.buffers.census = frame.census;
-        clock.lap("sweep");
+        clock.lap(Lap::Phase(Phase::Sweep));
         self.cancel.check()?;
 
         // The rest of the plan's schedule (the sweep above is its first phase).
@@ -427,16 +427,13 @@ impl CpuEngine {
                         result = Err(e);
                         break;
                     }
-                    clock.lap("sgm");
                 }
                 Phase::SgmSelect => {
                     let buffers = &self.buffers;
                     sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
-                    clock.lap("sgm_select");
                 }
                 Phase::Finalize => {
                     finalize::run(plan, state, &mut maps);
-                    clock.lap("finalize");
                 }
                 Phase::Refine => {
                     if let Some(hypotheses) = &refine {
@@ -448,21 +445,21 @@ impl CpuEngine {
                         refine::run(plan, &frame, &mut Vec::new(), band, hypotheses, raw);
                         self.buffers.planar = frame.planar;
                         self.buffers.census = frame.census;
-                        clock.lap("refine");
                     }
                 }
                 Phase::Median => {
                     median::run(plan, &mut maps);
-                    clock.lap("median");
                 }
                 Phase::Splat => {
                     occlusion::splat(plan, &maps, &mut zbuffer, &mut self.buffers.projections);
-                    clock.lap("splat");
                 }
                 Phase::Visibility => {
                     occlusion::visibility(plan, &zbuffer, &self.buffers.projections, &mut maps);
-                    clock.lap("visibility");
                 }
+            }
+            // The sweep was timed by the caller; the fine sweep only runs with hypotheses.
+            if !matches!(phase, Phase::Sweep) && (*phase != Phase::Refine || refine.is_some()) {
+                clock.lap(Lap::Phase(*phase));
             }
         }
         self.buffers.maps = maps.data;
@@ -509,7 +506,24 @@ impl super::coarse::PlanRunner for CpuEngine {
     }
 }
 
-/// Wall-clock time per stage, summed over repeated laps of the same name.
+/// What a lap of the [`StageClock`] timed: the frame set's images made ready, or a phase of
+/// the schedule (named as the WGSL engine's stages, [`Phase::name`]).
+#[derive(Debug, Clone, Copy)]
+enum Lap {
+    Images,
+    Phase(Phase),
+}
+
+impl Lap {
+    fn name(self) -> &'static str {
+        match self {
+            Lap::Images => "images",
+            Lap::Phase(phase) => phase.name(),
+        }
+    }
+}
+
+/// Wall-clock time per stage, summed over repeated laps of the same stage.
 struct StageClock {
     last: Instant,
     stages: Vec<(String, f64)>,
@@ -523,11 +537,11 @@ impl StageClock {
         }
     }
 
-    fn lap(&mut self, name: &str) {
+    fn lap(&mut self, lap: Lap) {
         let now = Instant::now();
         let ms = (now - self.last).as_secs_f64() * 1e3;
         self.last = now;
-        super::add_stage_ms(&mut self.stages, name, ms);
+        super::add_stage_ms(&mut self.stages, lap.name(), ms);
     }
 
     fn timings(self) -> StageTimings {
