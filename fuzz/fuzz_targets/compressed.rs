@@ -6,7 +6,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use sweepdepth::msgs::{CompressedImage, Header};
-use sweepdepth::pipeline::compressed::{carry, decode, MAX_DECODED_MEGAPIXELS};
+use sweepdepth::pipeline::compressed::{decode, MAX_DECODED_MEGAPIXELS};
 
 const FORMATS: [&str; 6] = [
     "rgb8; jpeg compressed bgr8",
@@ -27,7 +27,7 @@ fuzz_target!(|data: &[u8]| {
         format: format.to_string(),
         data: bytes.to_vec(),
     };
-    if let Ok(image) = decode("fuzz", &carry(msg)) {
+    if let Ok(image) = decode("fuzz", &msg) {
         assert!(image.encoding == "rgb8" || image.encoding == "mono8");
         let pixels = u64::from(image.width) * u64::from(image.height);
         assert!(pixels > 0 && pixels <= MAX_DECODED_MEGAPIXELS << 20);

@@ -11,12 +11,13 @@ use futures::Stream;
 use super::diag::Stats;
 use super::log::{lock, node_log, RateLimited};
 use crate::handoff::Handoff;
-use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::msgs::{CameraInfo, CompressedImage, Image, TFMessage};
 use crate::pipeline::{Input, Job, Pipeline};
 
 /// A subscription's next message, or what ros2-client said instead.
 pub(super) enum Event {
     Image(usize, Result<Image, String>),
+    Compressed(usize, Result<CompressedImage, String>),
     Info(usize, Result<Box<CameraInfo>, String>),
     Tf(Result<TFMessage, String>),
     /// `/tf` (a moving rig, `world_frame`).
@@ -43,10 +44,14 @@ impl LoopState<'_> {
                 lock(self.stats).on_image(camera, Instant::now());
                 Input::Image { camera, image }
             }
+            Event::Compressed(camera, Ok(image)) => {
+                lock(self.stats).on_image(camera, Instant::now());
+                Input::Compressed { camera, image }
+            }
             Event::Info(camera, Ok(info)) => Input::CameraInfo { camera, info },
             Event::Tf(Ok(msg)) => Input::TfStatic(msg),
             Event::TfDynamic(Ok(msg)) => Input::Tf(msg),
-            Event::Image(i, Err(e)) | Event::Info(i, Err(e)) => {
+            Event::Image(i, Err(e)) | Event::Compressed(i, Err(e)) | Event::Info(i, Err(e)) => {
                 let pipeline = lock(self.pipeline);
                 let camera = pipeline.config().cameras.get(i).map_or("?", String::as_str);
                 self.log.warn(&format!("read{i}"), || {

@@ -12,7 +12,6 @@ use super::topics::{self, subscribe, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, TF_ME
 use super::why::Requested;
 use super::{NodeConfig, NodeError};
 use crate::msgs::{CameraInfo, CompressedImage, Image, TFMessage};
-use crate::pipeline::compressed::carry;
 
 /// The node's subscriptions, alive as long as the event loop.
 pub(super) struct Inputs {
@@ -97,9 +96,10 @@ impl Inputs {
                 })));
         }
         for (i, sub) in self.compressed.iter().enumerate() {
-            streams.push(Box::pin(sub.async_stream().map(move |r| {
-                Event::Image(i, r.map(|(m, _)| carry(m)).map_err(err))
-            })));
+            streams
+                .push(Box::pin(sub.async_stream().map(move |r| {
+                    Event::Compressed(i, r.map(|(m, _)| m).map_err(err))
+                })));
         }
         for (i, sub) in self.infos.iter().enumerate() {
             streams.push(Box::pin(sub.async_stream().map(move |r| {

@@ -5,7 +5,7 @@
 
 use super::config::{PipelineConfig, VirtualConfig};
 use super::convert::check_image;
-use super::outcome::{Job, JobReference, Skip, SkipKind, VirtualCamera};
+use super::outcome::{InputImage, Job, JobReference, Skip, SkipKind, VirtualCamera};
 use crate::geometry::{CameraModel, PinholeIntrinsics, RigCamera, RigidTransform};
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::ros::camera_info::{camera_from_info, check_image_size, CameraCalibration, ImageKind};
@@ -52,7 +52,7 @@ impl Calibration {
         &self,
         config: &PipelineConfig,
         active: &[usize],
-        set: SyncedSet<Image>,
+        set: SyncedSet<InputImage>,
     ) -> Result<Job, Skip> {
         // Compressed images decoded first (in parallel): what follows needs their sizes.
         let set = super::compressed::decode_set(set, |k| {

@@ -4,9 +4,8 @@
 //! `mono8; jpeg compressed mono8`, `bgr8; png compressed bgr8`, ...) or, from older plugins, a
 //! bare `jpeg` / `png`.
 //!
-//! A compressed image goes through the roster and the synchroniser as it came ([`carry`]: an
-//! [`Image`] whose `encoding` says it is carried, its bytes still compressed, no size yet), so
-//! images the synchroniser drops are never decoded. When a set is complete the calibration
+//! A compressed image goes through the roster and the synchroniser as it came
+//! ([`InputImage::Compressed`]), so images the synchroniser drops are never decoded. When a set is complete the calibration
 //! decodes its images ([`decode_set`]) in parallel across cameras (rayon), before anything
 //! else looks at their sizes: on the thread that pushes inputs (the node's event loop, `bag`'s
 //! loop), never the engine's, and before the set can take another one's place in the node's
@@ -20,39 +19,14 @@ use std::io::Cursor;
 use rayon::prelude::*;
 
 use super::convert::MAX_IMAGE_SIDE;
-use super::outcome::{Input, Skip, SkipKind};
+use super::outcome::{Input, InputImage, Skip, SkipKind};
 use crate::msgs::{CompressedImage, Image};
 use crate::ros::sync::SyncedSet;
 
-/// The `encoding` of a carried compressed image starts with this, followed by its `format`.
-pub const CARRIED: &str = "compressed:";
-
-/// A compressed image carried as an [`Image`] up to its decoding: the header, `encoding`
-/// [`CARRIED`] + the format, the compressed bytes in `data`; width, height and step 0.
-pub fn carry(msg: CompressedImage) -> Image {
-    Image {
-        header: msg.header,
-        height: 0,
-        width: 0,
-        encoding: format!("{CARRIED}{}", msg.format),
-        is_bigendian: 0,
-        step: 0,
-        data: msg.data,
-    }
-}
-
-/// Whether `image` is a carried compressed image ([`carry`]).
-pub fn is_carried(image: &Image) -> bool {
-    image.encoding.starts_with(CARRIED)
-}
-
 impl Input {
     /// A compressed image of camera `camera` (a `sensor_msgs/CompressedImage`).
-    pub fn compressed(camera: usize, msg: CompressedImage) -> Self {
-        Input::Image {
-            camera,
-            image: carry(msg),
-        }
+    pub fn compressed(camera: usize, image: CompressedImage) -> Self {
+        Input::Compressed { camera, image }
     }
 }
 
@@ -160,15 +134,12 @@ pub enum DecodeError {
 /// sensors are about 150 MP.
 pub const MAX_DECODED_MEGAPIXELS: u64 = 200;
 
-/// Decodes a carried compressed image ([`carry`]) into an `rgb8` (colour) or `mono8` (grey)
+/// Decodes a compressed image into an `rgb8` (colour) or `mono8` (grey)
 /// [`Image`] with the same header. A header that claims more than [`MAX_IMAGE_SIDE`] per side
 /// or [`MAX_DECODED_MEGAPIXELS`] in all is refused before the pixels are allocated; a JPEG must end with its end-of-image marker (a truncated one is
 /// refused, not shown half grey).
-pub fn decode(camera: &str, image: &Image) -> Result<Image, DecodeError> {
-    let format = image
-        .encoding
-        .strip_prefix(CARRIED)
-        .unwrap_or(&image.encoding);
+pub fn decode(camera: &str, image: &CompressedImage) -> Result<Image, DecodeError> {
+    let format = image.format.as_str();
     let data = &image.data;
     let parsed = parse_format(format).ok_or_else(|| DecodeError::UnsupportedFormat {
         camera: camera.to_string(),
@@ -261,31 +232,40 @@ pub fn decode(camera: &str, image: &Image) -> Result<Image, DecodeError> {
     })
 }
 
-/// The images of a complete set with every carried compressed image decoded, in parallel
-/// across cameras; `name(k)` is the camera (index into the configuration's cameras, and its
-/// name) of message `k`. The first image that cannot be decoded skips the set.
+/// The images of a complete set with every compressed image decoded, in parallel across
+/// cameras; `name(k)` is the camera (index into the configuration's cameras, and its name) of
+/// message `k`. The first image that cannot be decoded skips the set.
 pub fn decode_set<'n>(
-    set: SyncedSet<Image>,
+    set: SyncedSet<InputImage>,
     name: impl Fn(usize) -> (usize, &'n str) + Sync,
 ) -> Result<SyncedSet<Image>, Skip> {
-    if !set.messages.iter().any(is_carried) {
-        return Ok(set);
-    }
     let SyncedSet {
         stamps_ns,
         messages,
     } = set;
-    let messages = messages
-        .into_par_iter()
-        .enumerate()
-        .map(|(k, image)| {
-            if !is_carried(&image) {
-                return Ok(image);
-            }
+    let compressed = messages
+        .iter()
+        .any(|m| matches!(m, InputImage::Compressed(_)));
+    let decode_one = |(k, image): (usize, InputImage)| match image {
+        InputImage::Raw(image) => Ok(image),
+        InputImage::Compressed(image) => {
             let (i, camera) = name(k);
             decode(camera, &image).map_err(|e| Skip::new(SkipKind::Decode, Some(i), e.to_string()))
-        })
-        .collect::<Result<Vec<Image>, Skip>>()?;
+        }
+    };
+    let messages = if compressed {
+        messages
+            .into_par_iter()
+            .enumerate()
+            .map(decode_one)
+            .collect::<Result<Vec<Image>, Skip>>()?
+    } else {
+        messages
+            .into_iter()
+            .enumerate()
+            .map(decode_one)
+            .collect::<Result<Vec<Image>, Skip>>()?
+    };
     Ok(SyncedSet {
         stamps_ns,
         messages,

@@ -38,8 +38,8 @@ fn raw(encoding: &str, w: u32, h: u32) -> Image {
     }
 }
 
-fn carried(encoding: &str, codec: Codec) -> Image {
-    carry(compress(&raw(encoding, W, H), codec, 95).unwrap())
+fn carried(encoding: &str, codec: Codec) -> CompressedImage {
+    compress(&raw(encoding, W, H), codec, 95).unwrap()
 }
 
 fn max_diff(a: &[u8], b: &[u8]) -> u8 {
@@ -98,13 +98,10 @@ fn jpeg_and_png_decode_to_the_raw_image() {
     assert!(max_diff(&mono.data, &raw("mono8", W, H).data) <= 8);
     let mut bare = compress(&raw("rgb8", W, H), Codec::Png, 95).unwrap();
     bare.format = "png".into();
-    assert_eq!(
-        decode("a", &carry(bare)).unwrap().data,
-        raw("rgb8", W, H).data
-    );
+    assert_eq!(decode("a", &bare).unwrap().data, raw("rgb8", W, H).data);
 }
 
-fn decode_err(image: &Image) -> DecodeError {
+fn decode_err(image: &CompressedImage) -> DecodeError {
     decode("a", image).unwrap_err()
 }
 
@@ -169,7 +166,7 @@ fn a_jpeg_claiming_a_huge_size_is_refused_before_decoding() {
 #[test]
 fn a_format_that_lies_is_refused() {
     let mut png_said_jpeg = carried("rgb8", Codec::Png);
-    png_said_jpeg.encoding = format!("{CARRIED}rgb8; jpeg compressed bgr8");
+    png_said_jpeg.format = "rgb8; jpeg compressed bgr8".into();
     let e = decode_err(&png_said_jpeg);
     assert!(matches!(e, DecodeError::FormatLies { .. }), "{e}");
     assert!(
@@ -177,11 +174,11 @@ fn a_format_that_lies_is_refused() {
         "{e}"
     );
     let mut colour_said_mono = carried("rgb8", Codec::Jpeg);
-    colour_said_mono.encoding = format!("{CARRIED}mono8; jpeg compressed mono8");
+    colour_said_mono.format = "mono8; jpeg compressed mono8".into();
     let e = decode_err(&colour_said_mono);
     assert!(e.to_string().contains("mono8 (grey)"), "{e}");
     let mut depth = carried("mono8", Codec::Png);
-    depth.encoding = format!("{CARRIED}16UC1; compressedDepth png");
+    depth.format = "16UC1; compressedDepth png".into();
     assert!(matches!(
         decode_err(&depth),
         DecodeError::UnsupportedFormat { .. }
@@ -318,7 +315,7 @@ fn nine_camera_vga_jpeg_set_decodes() {
     let rig = synthetic::row_rig(9, 0.1, model, 4).unwrap();
     let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
     let images = synthetic::render_rig(&scene, &rig);
-    let messages: Vec<Image> = images
+    let compressed: Vec<CompressedImage> = images
         .iter()
         .map(|im| {
             let mut data = Vec::with_capacity(im.pixels.len() * 3);
@@ -333,13 +330,17 @@ fn nine_camera_vga_jpeg_set_decodes() {
                 data,
                 ..Image::default()
             };
-            carry(compress(&raw, Codec::Jpeg, 95).unwrap())
+            compress(&raw, Codec::Jpeg, 95).unwrap()
         })
         .collect();
-    let bytes: usize = messages.iter().map(|m| m.data.len()).sum();
+    let bytes: usize = compressed.iter().map(|m| m.data.len()).sum();
     let set = SyncedSet {
         stamps_ns: vec![0; 9],
-        messages,
+        messages: compressed
+            .iter()
+            .cloned()
+            .map(InputImage::Compressed)
+            .collect(),
     };
     // Once to warm up (allocations, the thread pool), then timed.
     decode_set(set.clone(), |k| (k, "cam")).unwrap();
@@ -347,7 +348,7 @@ fn nine_camera_vga_jpeg_set_decodes() {
     let decoded = decode_set(set.clone(), |k| (k, "cam")).unwrap();
     let parallel = t0.elapsed();
     let t0 = std::time::Instant::now();
-    for m in &set.messages {
+    for m in &compressed {
         decode("cam", m).unwrap();
     }
     let serial = t0.elapsed();

@@ -8,9 +8,9 @@ use std::time::Duration;
 
 use glam::{DQuat, DVec3};
 
+use super::outcome::InputImage;
 use super::output_list::OutputTopics;
 use crate::geometry::{GeometryError, PinholeIntrinsics, RigidTransform};
-use crate::msgs::Image;
 use crate::params::checks::check_start;
 use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
 use crate::rig_file::{load_rig_file, RigFile, RigFileError};
@@ -509,7 +509,10 @@ impl PipelineConfig {
     }
 
     /// A synchroniser over `n` of the cameras.
-    pub fn synchronizer(&self, n: usize) -> Result<Box<dyn Synchronizer<Image> + Send>, SyncError> {
+    pub fn synchronizer(
+        &self,
+        n: usize,
+    ) -> Result<Box<dyn Synchronizer<InputImage> + Send>, SyncError> {
         Ok(match &self.sync {
             SyncPolicy::Exact => {
                 Box::new(ExactSync::new(n, self.queue_size)?.with_time_rules(self.time_rules)?)

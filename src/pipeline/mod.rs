@@ -46,14 +46,14 @@ pub use engine_host::{EngineHost, HostError};
 pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fusion_worker::{FusionStats, FusionWorker};
 pub use outcome::{
-    Degraded, Input, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip, SkipKind,
-    SyncVerdict, VirtualCamera,
+    Degraded, Input, InputImage, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip,
+    SkipKind, SyncVerdict, VirtualCamera,
 };
 pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
 pub use outputs::{process_job, FrameMaps, FrameMessages, FrameOutputs, SetOutputs};
 pub use why::{Asked, Publishers, Why, WhyKind};
 
-use crate::msgs::{Image, Time};
+use crate::msgs::Time;
 use crate::ros::sync::{time_to_ns, Admission, Discarded, SyncError, Synchronizer};
 
 use calibration::Calibration;
@@ -67,11 +67,11 @@ pub struct Pipeline<'a> {
     /// A moving rig (`world_frame`): the transforms and the sets waiting for their pose.
     world: Option<WorldPoses>,
     roster: Roster,
-    sync: Box<dyn Synchronizer<Image> + Send>,
+    sync: Box<dyn Synchronizer<InputImage> + Send>,
     /// While no set can be formed (the reference or the second camera silent): the images of
     /// the cameras in the rig, the newest `queue_size` of each camera, for the synchroniser
     /// once sets can be formed again (the camera that comes back costs no set).
-    held: Vec<(usize, Image)>,
+    held: Vec<(usize, InputImage)>,
     /// What came in and what it gave, for [`Pipeline::why_no_depth`].
     seen: why::Seen,
 }
@@ -107,7 +107,8 @@ impl<'a> Pipeline<'a> {
     /// time live, log time in a bag; it times camera dropout).
     pub fn push(&mut self, input: Input, now_ns: u64) -> Outcome {
         match &input {
-            Input::Image { camera, image } => self.seen.image(*camera, image, now_ns),
+            Input::Image { camera, image } => self.seen.image(*camera, &image.header, now_ns),
+            Input::Compressed { camera, image } => self.seen.image(*camera, &image.header, now_ns),
             Input::CameraInfo { camera, .. } => self.seen.info(*camera),
             Input::TfStatic(_) => self.seen.tf_static(),
             Input::Tf(_) => self.seen.tf(),
@@ -144,7 +145,13 @@ impl<'a> Pipeline<'a> {
                 if camera >= n {
                     return out_of_range("an image", camera);
                 }
-                self.on_image(camera, image, now_ns)
+                self.on_image(camera, InputImage::Raw(image), now_ns)
+            }
+            Input::Compressed { camera, image } => {
+                if camera >= n {
+                    return out_of_range("an image", camera);
+                }
+                self.on_image(camera, InputImage::Compressed(image), now_ns)
             }
             Input::CameraInfo { camera, info } => {
                 if camera >= n {
@@ -285,14 +292,14 @@ impl<'a> Pipeline<'a> {
             }
         }
         // By camera, in stamp order (each camera's images in the order they came).
-        let mut images: Vec<(usize, i64, Image)> = drained
+        let mut images: Vec<(usize, i64, InputImage)> = drained
             .buffered
             .into_iter()
             .map(|(stream, t, image)| (before.get(stream).copied().unwrap_or(stream), t, image))
             .chain(
                 self.held
                     .drain(..)
-                    .map(|(c, image)| (c, time_to_ns(&image.header.stamp), image)),
+                    .map(|(c, image)| (c, time_to_ns(&image.header().stamp), image)),
             )
             .collect();
         images.sort_by_key(|&(c, t, _)| (t, c));
@@ -332,7 +339,7 @@ impl<'a> Pipeline<'a> {
 
     /// Holds `image` of `camera` while no set can be formed (the camera's oldest held image
     /// goes beyond `queue_size`).
-    fn hold(&mut self, camera: usize, image: Image) {
+    fn hold(&mut self, camera: usize, image: InputImage) {
         self.held.push((camera, image));
         if self.held.iter().filter(|(c, _)| *c == camera).count() > self.config.queue_size {
             if let Some(oldest) = self.held.iter().position(|(c, _)| *c == camera) {
@@ -341,7 +348,7 @@ impl<'a> Pipeline<'a> {
         }
     }
 
-    fn on_image(&mut self, camera: usize, image: Image, now_ns: u64) -> Outcome {
+    fn on_image(&mut self, camera: usize, image: InputImage, now_ns: u64) -> Outcome {
         let config = self.config;
         let before = self.roster.active().to_vec();
         let mut outcome = Outcome {
@@ -379,7 +386,7 @@ impl<'a> Pipeline<'a> {
         let Some(stream) = self.roster.stream_of(camera) else {
             return outcome;
         };
-        let stamp = image.header.stamp;
+        let stamp = image.header().stamp;
         let pushed = match self.sync.push_stamped(stream, &stamp, image) {
             Ok(pushed) => pushed,
             Err(e) => {

@@ -6,7 +6,7 @@
 use std::fmt;
 
 use crate::geometry::{CameraModel, RigCamera, RigidTransform};
-use crate::msgs::{CameraInfo, Image, TFMessage, Time};
+use crate::msgs::{CameraInfo, CompressedImage, Header, Image, TFMessage, Time};
 use crate::ros::sync::{Admission, Discarded, DropReason, SyncStats};
 
 /// One input message of the pipeline.
@@ -14,6 +14,13 @@ use crate::ros::sync::{Admission, Discarded, DropReason, SyncStats};
 pub enum Input {
     /// An image of camera `camera` (an index into the configuration's cameras).
     Image { camera: usize, image: Image },
+    /// A compressed image of camera `camera` (image_transport's `compressed` plugin): carried
+    /// through the synchroniser as it came, decoded once its set is complete
+    /// (`compressed::decode_set`).
+    Compressed {
+        camera: usize,
+        image: CompressedImage,
+    },
     /// The latest calibration of camera `camera`.
     CameraInfo {
         camera: usize,
@@ -23,6 +30,23 @@ pub enum Input {
     TfStatic(TFMessage),
     /// A `/tf` message (read only with `world_frame`: a moving rig).
     Tf(TFMessage),
+}
+
+/// A camera image as the synchroniser holds it: raw, or still compressed (decoded only when its
+/// set is complete, so images the synchroniser drops are never decoded).
+#[derive(Debug, Clone)]
+pub enum InputImage {
+    Raw(Image),
+    Compressed(CompressedImage),
+}
+
+impl InputImage {
+    pub fn header(&self) -> &Header {
+        match self {
+            InputImage::Raw(image) => &image.header,
+            InputImage::Compressed(image) => &image.header,
+        }
+    }
 }
 
 /// One synchronised set with its calibration, ready for the engine.

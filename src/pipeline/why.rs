@@ -17,7 +17,7 @@ use std::fmt;
 
 use super::config::{PipelineConfig, SyncPolicy};
 use super::outcome::{Outcome, Skip};
-use crate::msgs::Image;
+use crate::msgs::Header;
 use crate::ros::sync::time_to_ns;
 use crate::ros::tf::{TfBuffer, TfError};
 
@@ -139,16 +139,16 @@ impl Seen {
         }
     }
 
-    pub fn image(&mut self, camera: usize, image: &Image, now_ns: u64) {
+    pub fn image(&mut self, camera: usize, header: &Header, now_ns: u64) {
         if let Some(c) = self.cameras.get_mut(camera) {
             c.images += 1;
             c.last_image_ns = Some(now_ns);
-            c.stamps.push_back(time_to_ns(&image.header.stamp));
+            c.stamps.push_back(time_to_ns(&header.stamp));
             if c.stamps.len() > STAMPS {
                 c.stamps.pop_front();
             }
-            if c.frame_id != image.header.frame_id {
-                c.frame_id.clone_from(&image.header.frame_id);
+            if c.frame_id != header.frame_id {
+                c.frame_id.clone_from(&header.frame_id);
             }
         }
     }

@@ -11,8 +11,9 @@ use serde::Serialize;
 
 use crate::geometry::CameraModel;
 use crate::image::Rgba8Image;
-use crate::msgs::{Header, Image};
+use crate::msgs::{CompressedImage, Header, Image};
 use crate::pipeline::compressed::{self, Codec};
+use crate::pipeline::InputImage;
 use crate::ros::sync::SyncedSet;
 use crate::synthetic::{self, Scene};
 
@@ -66,18 +67,20 @@ pub fn run(repeats: usize) -> anyhow::Result<DecodeResult> {
     let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
     let rig = synthetic::row_rig(CAMERAS, 0.1, model, CAMERAS / 2)?;
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let carried: Vec<Image> = synthetic::render_rig(&scene, &rig)
+    let carried: Vec<CompressedImage> = synthetic::render_rig(&scene, &rig)
         .iter()
-        .map(|image| {
-            compressed::compress(&rgb8(image), Codec::Jpeg, JPEG_QUALITY).map(compressed::carry)
-        })
+        .map(|image| compressed::compress(&rgb8(image), Codec::Jpeg, JPEG_QUALITY))
         .collect::<Result<_, _>>()?;
     let bytes_per_set = carried.iter().map(|m| m.data.len()).sum();
     let names: Vec<String> = (0..CAMERAS).map(|i| format!("cam{i}")).collect();
     let decode_set = || -> anyhow::Result<()> {
         let set = SyncedSet {
             stamps_ns: vec![0; CAMERAS],
-            messages: carried.clone(),
+            messages: carried
+                .iter()
+                .cloned()
+                .map(InputImage::Compressed)
+                .collect(),
         };
         let decoded = compressed::decode_set(set, |k| (k, names[k].as_str()))
             .map_err(|skip| anyhow::anyhow!("decoding the bench's set: {}", skip.message))?;

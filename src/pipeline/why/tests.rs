@@ -2,7 +2,9 @@
 //! feed it.
 
 use super::*;
-use crate::msgs::{CameraInfo, Header, TFMessage, Time, Transform, TransformStamped, Vector3};
+use crate::msgs::{
+    CameraInfo, Header, Image, TFMessage, Time, Transform, TransformStamped, Vector3,
+};
 use crate::pipeline::{intrinsics_info, Input, Pipeline};
 
 const W: u32 = 16;
