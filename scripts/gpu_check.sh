@@ -1,6 +1,6 @@
 #!/bin/sh
 # The one-command GPU check (issue 30, item 3): what a session lent a GPU runs at once, through
-# the `device` tool, in about 8 minutes of device time. It prints the adapter, then runs `bench`
+# the `device` tool, in about 9 minutes of device time. It prints the adapter, then runs `bench`
 # (both engines, every configuration, the OpenCV SGBM peer when the machine has cv2), `demo` and
 # `eval` on the built-in Tsukuba with the WGSL engine and with the CPU engine, and writes one
 # report, `$OUT/gpu_check.txt` (the device tool's folder that comes back; `target/gpu-check`
@@ -29,15 +29,24 @@ bin=${SWEEPDEPTH_BIN:-target/release/sweepdepth}
 : >"$report"
 
 say() { echo "$*" | tee -a "$report"; }
-# step NAME SECONDS COMMAND...: runs COMMAND under a limit, its output into the report.
+# The GPU's clocks, power state and temperature in one line (issue 56: the clock-state noise
+# visible beside each column's figures); nothing without nvidia-smi.
+clocks() {
+    command -v nvidia-smi >/dev/null 2>&1 || return 0
+    say "   clocks $1: $(nvidia-smi --query-gpu=clocks.sm,clocks.mem,clocks.max.sm,pstate,temperature.gpu,power.draw --format=csv,noheader 2>&1 | head -1)"
+}
+# step NAME SECONDS COMMAND...: runs COMMAND under a limit, its output into the report, the
+# clocks before and after.
 step() {
     name=$1
     limit=$2
     shift 2
     say "== $name ($(date -u +%H:%M:%S), limit ${limit} s): $*"
+    clocks before
     start=$(date +%s)
     timeout "$limit" "$@" >>"$report" 2>&1
     status=$?
+    clocks after
     say "-- $name: exit $status after $(($(date +%s) - start)) s"
 }
 
@@ -58,7 +67,8 @@ fi
 
 say "gpu_check: $(date -u +%Y-%m-%dT%H:%M:%SZ), $(uname -m), $(nproc) cores, VK_DRIVER_FILES=${VK_DRIVER_FILES:-unset}, loader: $(ldconfig -p | grep -c libvulkan)"
 command -v nvidia-smi >/dev/null 2>&1 &&
-    step nvidia-smi 30 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv
+    step nvidia-smi 30 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv &&
+    step nvidia-smi-clocks 30 nvidia-smi -q -d CLOCK
 # GPU_CHECK_PART=quality: only the quality and fine-sweep steps below (a second call, after a
 # full check in the same session).
 if [ "${GPU_CHECK_PART:-}" != quality ]; then
@@ -80,6 +90,12 @@ else
     # (`coarse/sgm`, ...), the WTA columns' and the host counts.
     step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""
 fi
+# A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
+# rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).
+step bench-stereo 120 "$bin" bench --config stereo-rect --config stereo-raw --repeats 5 --python python3
+# Fusion (issue 56): one 640x480 depth map integrated and meshed at 2 cm beside Open3D's
+# VoxelBlockGrid (when the machine's python3 has open3d; the synthetic pair otherwise).
+step bench-fusion 120 "$bin" bench --fusion --repeats 5
 step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
 step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu
 # The fine sweep (`subpixel_refine`) on the WGSL engine: its cost on a real GPU (lavapipe: the
