@@ -89,7 +89,7 @@ impl Stats {
         self.prune(now);
     }
 
-    /// A set was processed in `processing` and published at `now` (`now_wall` minus `stamp`
+    /// A set was processed in `processing` and is handed to its publishers at `now` (`now_wall`
     /// is its latency).
     pub fn on_published(
         &mut self,

@@ -208,13 +208,15 @@ fn worker_loop(
                     .collect(),
             );
         }
+        // Counted before the messages go out, so that /diagnostics never counts fewer sets
+        // than a subscriber has received (its thread may run between the two).
+        lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         for (output, messages) in messages {
             let Some(publishers) = publishers.get(output) else {
                 continue;
             };
             publish(publishers, messages, &mut log);
         }
-        lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
         published += 1;
         if published == 1 || published.is_multiple_of(100) {
             log_info(&format!(
