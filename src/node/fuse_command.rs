@@ -1,10 +1,10 @@
 //! `sweepdepth fuse --ros-args ...`: fusion alone, as a node. It subscribes to `depth_topics`
 //! (REP 118 depth images, each with the `camera_info` beside it), `/tf` and `/tf_static`,
 //! places every depth image in `world_frame` at its stamp ([`DepthSources`]) and fuses it on
-//! the fusion thread (`node::fusion`: the mesh on `mesh` as `visualization_msgs/MarkerArray`,
-//! `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a second. It is how a rig that
-//! outgrows one machine scales: depth nodes on several hosts, each with its share of the
-//! references, one `fuse` node collecting their depth over DDS.
+//! the fusion thread (`node::fusion_services`: the mesh on `mesh` as
+//! `visualization_msgs/MarkerArray`, `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a
+//! second. It is how a rig that outgrows one machine scales: depth nodes on several hosts, each
+//! with its share of the references, one `fuse` node collecting their depth over DDS.
 //!
 //! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
 //! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
@@ -20,7 +20,7 @@ use ros2_client::qos::History;
 use ros2_client::{Context, ContextOptions, NodeName, QosProfile, Subscription};
 
 use super::diag::wall_time_now;
-use super::fusion::{diagnostic_values, FusionNode};
+use super::fusion_services::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
 use super::params::node_options;
 use super::shutdown;
