@@ -80,7 +80,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     );
 
     // The live view (`foxglove_port`), before the GPU thread, which owns it.
-    let viewer = match ViewerConfig::from_params(&pipeline.params)? {
+    let viewer = match ViewerConfig::from_values(&pipeline.node)? {
         Some(viewer_config) => {
             // With fusion, the mesh's channel too (`mesh_rate` 0: no mesh updates to show).
             let mesh_topic = pipeline
