@@ -63,7 +63,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => sweepdepth::cli::demo::run(&args),
         Command::Node { args } => sweepdepth::node::run(&args).map_err(anyhow::Error::from),
         Command::Fuse { args } => {
-            sweepdepth::node::fuse_node::run(&args).map_err(anyhow::Error::from)
+            sweepdepth::node::fuse_command::run(&args).map_err(anyhow::Error::from)
         }
         Command::Bag(args) => sweepdepth::bag::process::run(&args).map_err(anyhow::Error::from),
         Command::Pack(args) => sweepdepth::bag::pack::run(&args).map_err(anyhow::Error::from),

@@ -665,7 +665,7 @@ fn start_viewer(
         .filter(|f| f.mesh_rate_hz > 0.0)
         .map(|_| config.mesh_topic.as_str());
     let viewer = Viewer::start_with_mesh(
-        &ViewerConfig::for_bag(&config.params)?,
+        &ViewerConfig::for_bag(&config.node)?,
         config.outputs(),
         mesh_topic,
     )?;

@@ -12,7 +12,7 @@
 //!
 //! [`evaluate`] fuses every view's depth map at its world pose
 //! ([`crate::fusion::integrate_weighted`], the views weighed by [`ViewWeights`]: alike, by
-//! their squared baselines, or per pixel as `pipeline::fuse`'s `Fuser` does,
+//! their squared baselines, or per pixel as `pipeline::fuser`'s `Fuser` does,
 //! [`Weighting::DEPTH_MAPS`]), ray-casts the model into every view
 //! ([`crate::fusion::raycast_depth`]) and compares both with the ground truth
 //! ([`DepthAccuracy`]); for the synthetic scene, the mesh's vertices against the true surface
@@ -437,7 +437,7 @@ pub enum ViewWeights {
     Baseline,
     /// Each pixel weighed by [`observation_weights`](crate::fusion::observation_weights) (its depth, confidence and neighbours,
     /// its view's baseline over the case's largest): [`Weighting::DEPTH_MAPS`] is what
-    /// `pipeline::fuse`'s `Fuser` (the node, `bag`, `fuse`) uses.
+    /// `pipeline::fuser`'s `Fuser` (the node, `bag`, `fuse`) uses.
     Pixels(Weighting),
 }
 

@@ -1,7 +1,7 @@
 //! The map, as nvblox's `Mapper`: the block TSDF grid, how depth maps are weighed, the
 //! integration's per-pixel buffers (kept from one depth map to the next) and the mesh of the
 //! surface. One sequence for everything that fuses depth: the node's and `bag`'s fusion thread
-//! (`pipeline/fuse.rs`), `eval --fusion` and `bench --fusion`.
+//! (`pipeline/fuser.rs`), `eval --fusion` and `bench --fusion`.
 
 use super::integrate::{integrate_into, IntegrationScratch};
 use super::{

@@ -51,17 +51,16 @@ impl NodeConfig {
         }
         let pipeline = PipelineConfig::from_ros_args(&ros)?;
         let diagnostics_topic = ros.resolve_topic("/diagnostics", &pipeline.identity)?;
-        let params = &pipeline.params;
-        let usize_param = |name: &'static str| -> Result<usize, NodeError> {
-            let value = params.get_i64(name)?;
+        let node = &pipeline.node;
+        let usize_param = |name: &'static str, value: i64| -> Result<usize, NodeError> {
             usize::try_from(value).map_err(|_| NodeError::Size { name, value })
         };
         Ok(Self {
             domain_id: domain_id(domain_env)?,
             diagnostics_topic,
-            input_reliable: params.get_bool("input_qos_reliable")?,
-            input_depth: usize_param("input_qos_depth")?,
-            output_depth: usize_param("output_qos_depth")?,
+            input_reliable: node.input_qos_reliable,
+            input_depth: usize_param("input_qos_depth", node.input_qos_depth)?,
+            output_depth: usize_param("output_qos_depth", node.output_qos_depth)?,
             pipeline,
         })
     }

@@ -2,7 +2,7 @@
 //! (`inputs.rs`) and output publishers (`topics.rs`), then the event loop (on a `futures`
 //! executor that also drives the ros2-client spinner) beside the diagnostics thread until
 //! SIGINT/SIGTERM. The diagnostics thread publishes `/diagnostics` from the statistics
-//! (`diag.rs`), why no depth comes out (`why.rs`) and fusion's lines (`fusion.rs`).
+//! (`diag.rs`), why no depth comes out (`why.rs`) and fusion's lines (`fusion_services.rs`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -14,7 +14,7 @@ use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
 use super::diag::wall_time_now;
 use super::events::LoopState;
-use super::fusion::{diagnostic_values, FusionNode};
+use super::fusion_services::{diagnostic_values, FusionNode};
 use super::inputs::Inputs;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
@@ -90,11 +90,11 @@ pub(super) fn run(
         )?),
         None => None,
     };
-    let fusion_worker = fusion.as_ref().map(FusionNode::worker);
+    let fuser_thread = fusion.as_ref().map(FusionNode::worker);
     publishers_tx
         .send(Outputs {
             references: reference_publishers,
-            fusion: fusion_worker.clone(),
+            fusion: fuser_thread.clone(),
             world_frame: pipeline.world.as_ref().map(|w| w.frame.clone()),
         })
         .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
@@ -157,7 +157,7 @@ pub(super) fn run(
                 config,
                 shared,
                 diag_pub,
-                fusion_worker.as_deref(),
+                fuser_thread.as_deref(),
                 &mut no_depth,
                 stop,
             )
@@ -175,7 +175,7 @@ fn publish_loop(
     config: &NodeConfig,
     shared: &Shared<'_>,
     publisher: Publisher<DiagnosticArray>,
-    fusion: Option<&crate::pipeline::FusionWorker>,
+    fusion: Option<&crate::pipeline::FuserThread>,
     no_depth: &mut NoDepth<'_>,
     stop: &AtomicBool,
 ) {

@@ -27,8 +27,8 @@ pub mod config;
 mod dds;
 pub mod diag;
 mod events;
-pub mod fuse_node;
-mod fusion;
+pub mod fuse_command;
+mod fusion_services;
 mod inputs;
 mod log;
 pub mod param_services;
@@ -80,7 +80,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     );
 
     // The live view (`foxglove_port`), before the GPU thread, which owns it.
-    let viewer = match ViewerConfig::from_params(&pipeline.params)? {
+    let viewer = match ViewerConfig::from_values(&pipeline.node)? {
         Some(viewer_config) => {
             // With fusion, the mesh's channel too (`mesh_rate` 0: no mesh updates to show).
             let mesh_topic = pipeline

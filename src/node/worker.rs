@@ -14,7 +14,7 @@ use super::NodeError;
 use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{
-    EngineHost, FrameMaps, FrameMessages, FusionInput, FusionWorker, HostError, Job, Output,
+    EngineHost, FrameMaps, FrameMessages, FuserThread, FusionInput, HostError, Job, Output,
     OutputMsg,
 };
 use crate::sweep::CancelFlag;
@@ -52,7 +52,7 @@ pub(super) struct Publishers {
 /// configuration's order) and, with `fusion`, the fusion thread.
 pub(super) struct Outputs {
     pub references: Vec<Publishers>,
-    pub fusion: Option<Arc<FusionWorker>>,
+    pub fusion: Option<Arc<FuserThread>>,
     /// `world_frame` on a moving rig (fusion's map frame).
     pub world_frame: Option<String>,
 }

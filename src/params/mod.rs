@@ -11,6 +11,8 @@
 //!   and the lookups and checks by name.
 //! * [`set`]: the current values ([`ParamSet`]), how a command line's parameter files and
 //!   `-p` rules set them, and their copy into the engine's parameters ([`apply_to_sweep`]).
+//! * [`values`]: the node's own parameters as typed values ([`NodeValues`]), read from a
+//!   [`ParamSet`] once, and the node's checks across them.
 //! * [`checks`]: the checks across parameters (depth range, best n of m, the rig's shape).
 //! * [`cli`]: [`EngineOptions`], the engine options of `demo`, `eval`, `bench`.
 //! * [`docs`]: the parameter table of docs/node.md.
@@ -26,6 +28,7 @@ pub mod node;
 pub mod set;
 pub mod spec;
 pub mod table;
+pub mod values;
 
 pub use crate::ros::param_value::{ParamKind, ParamValue};
 pub use cli::EngineOptions;
@@ -35,3 +38,4 @@ pub use error::ParamError;
 pub use set::{apply_to_sweep, ParamSet, ParamSource};
 pub use spec::{ParamRange, ParamSpec};
 pub use table::{coerce, param_spec, param_table, validate};
+pub use values::NodeValues;

@@ -32,6 +32,7 @@ pub enum ParamSource {
 }
 
 /// The current value of every parameter in [`param_table`], in table order.
+/// (Its node parameters as typed values, and the node's checks across them: `values.rs`.)
 #[derive(Debug, Clone, PartialEq)]
 pub struct ParamSet {
     values: Vec<ParamValue>,
@@ -115,62 +116,6 @@ impl ParamSet {
     }
     pub fn get_f64_array(&self, name: &str) -> Result<&[f64], ParamError> {
         self.typed(name, ParamValue::as_f64_array)
-    }
-
-    /// The node's checks across parameters: `cameras` is set (>= 2 distinct names) and
-    /// `reference_camera` is empty or one of them.
-    pub fn check_node(&self) -> Result<(), ParamError> {
-        let cameras = self.get_string_array("cameras")?;
-        if let Some(spec) = param_spec("cameras") {
-            spec.range
-                .check(&ParamValue::StringArray(cameras.to_vec()))
-                .map_err(|e| ParamError::Required {
-                    name: "cameras".into(),
-                    source: Box::new(e),
-                })?;
-        }
-        let reference = self.get_str("reference_camera")?;
-        if !reference.is_empty() && !cameras.iter().any(|c| c == reference) {
-            return Err(ParamError::UnknownReference {
-                reference: reference.to_string(),
-                cameras: cameras.to_vec(),
-            });
-        }
-        if self.get_bool("virtual_reference")? {
-            if self.get_str("pairs")? == "reference"
-                && self.source("pairs") != Some(&ParamSource::Default)
-            {
-                return Err(ParamError::VirtualNeedsAllPairs);
-            }
-            self.virtual_pose()?;
-        }
-        Ok(())
-    }
-
-    /// `virtual_pose` checked: 7 finite numbers `[x, y, z, qx, qy, qz, qw]` with a unit
-    /// quaternion by tf2's rule (`geometry::pose::unit_quaternion`).
-    pub fn virtual_pose(&self) -> Result<[f64; 7], ParamError> {
-        let v = self.get_f64_array("virtual_pose")?;
-        let pose: [f64; 7] = v.try_into().map_err(|_| ParamError::PoseLength(v.len()))?;
-        if pose.iter().any(|x| !x.is_finite()) {
-            return Err(ParamError::PoseNotFinite);
-        }
-        crate::geometry::pose::unit_quaternion(glam::DQuat::from_xyzw(
-            pose[3], pose[4], pose[5], pose[6],
-        ))
-        .map_err(ParamError::PoseNotUnit)?;
-        Ok(pose)
-    }
-
-    /// `reference_camera`, or the middle entry of `cameras` when it is empty (None without
-    /// cameras).
-    pub fn reference_camera(&self) -> Option<String> {
-        let reference = self.get_str("reference_camera").ok()?;
-        if !reference.is_empty() {
-            return Some(reference.to_string());
-        }
-        let cameras = self.get_string_array("cameras").ok()?;
-        cameras.get(cameras.len() / 2).cloned()
     }
 
     /// The node's parameters from the command line, merged as rcl merges them: every

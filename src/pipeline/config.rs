@@ -12,7 +12,7 @@ use super::outcome::InputImage;
 use super::output_list::OutputTopics;
 use crate::geometry::{GeometryError, PinholeIntrinsics, RigidTransform};
 use crate::params::checks::check_start;
-use crate::params::{apply_to_sweep, ParamError, ParamSet, ParamValue};
+use crate::params::{apply_to_sweep, NodeValues, ParamError, ParamSet, ParamValue};
 use crate::rig_file::{load_rig_file, RigFile, RigFileError};
 use crate::ros::args::{parse_ros_args, NodeIdentity, RosArgs, RosArgsError, DEFAULT_NODE_NAME};
 use crate::ros::camera_info::ImageKind;
@@ -86,31 +86,29 @@ pub struct VirtualConfig {
 }
 
 impl VirtualConfig {
-    fn from_params(params: &ParamSet) -> Result<Self, ConfigError> {
-        let pose = params.virtual_pose()?;
+    fn from_values(node: &NodeValues) -> Result<Self, ConfigError> {
+        let pose = node.virtual_pose()?;
         let ref_from_virtual = RigidTransform::from_quat_translation(
             "virtual_pose",
             DQuat::from_xyzw(pose[3], pose[4], pose[5], pose[6]),
             DVec3::new(pose[0], pose[1], pose[2]),
         )?;
-        let size = |name: &'static str| -> Result<u32, ConfigError> {
-            let value = params.get_i64(name)?;
+        let size = |name: &'static str, value: i64| -> Result<u32, ConfigError> {
             u32::try_from(value).map_err(|_| ConfigError::Size {
                 name,
                 value,
                 what: "u32",
             })
         };
-        let f = |name: &str| params.get_f64(name);
         Ok(Self {
-            frame_id: params.get_str("virtual_frame_id")?.to_string(),
+            frame_id: node.virtual_frame_id.clone(),
             ref_from_virtual,
-            width: size("virtual_width")?,
-            height: size("virtual_height")?,
-            fx: f("virtual_fx")?,
-            fy: f("virtual_fy")?,
-            cx: f("virtual_cx")?,
-            cy: f("virtual_cy")?,
+            width: size("virtual_width", node.virtual_width)?,
+            height: size("virtual_height", node.virtual_height)?,
+            fx: node.virtual_fx,
+            fy: node.virtual_fy,
+            cx: node.virtual_cx,
+            cy: node.virtual_cy,
         })
     }
 
@@ -149,13 +147,15 @@ pub struct WorldConfig {
     pub tf_timeout: Duration,
 }
 
-/// The virtual reference camera, when `virtual_reference` is set (its pairs default to all).
+/// The virtual reference camera, when `virtual_reference` is set (its pairs default to all,
+/// in `params`).
 fn virtual_config(
+    node: &NodeValues,
     params: &mut ParamSet,
     notes: &mut Vec<String>,
 ) -> Result<Option<VirtualConfig>, ConfigError> {
-    Ok(if params.get_bool("virtual_reference")? {
-        // check_node rejected an explicit pairs:=reference; the default becomes all.
+    Ok(if node.virtual_reference {
+        // NodeValues::check rejected an explicit pairs:=reference; the default becomes all.
         if params.get_str("pairs")? != "all" {
             params.set("pairs", &ParamValue::String("all".into()))?;
             notes.push(
@@ -163,7 +163,7 @@ fn virtual_config(
                     .into(),
             );
         }
-        let v = VirtualConfig::from_params(params)?;
+        let v = VirtualConfig::from_values(node)?;
         if v.frame_id.is_empty() && v.ref_from_virtual != RigidTransform::IDENTITY {
             notes.push("virtual_reference: virtual_frame_id is empty, so the outputs carry the reference camera's frame_id although the virtual camera is at virtual_pose in it".into());
         }
@@ -211,34 +211,50 @@ fn reference_outputs(
 
 /// Fusion's settings, when `fusion` is set (checked; its depth range is the sweep's).
 fn fusion_config(
-    params: &ParamSet,
+    node: &NodeValues,
     sweep: &SweepParams,
 ) -> Result<Option<FusionConfig>, ConfigError> {
-    Ok(if params.get_bool("fusion")? {
-        let fusion = FusionConfig {
-            params: crate::fusion::FusionParams {
-                voxel_size_m: params.get_f64("voxel_size")? as f32,
-                max_blocks: usize::try_from(params.get_i64("max_blocks")?).unwrap_or(usize::MAX),
-                min_depth_m: sweep.min_depth_m as f32,
-                max_depth_m: sweep.max_depth_m as f32,
-                ..crate::fusion::FusionParams::default()
-            },
-            mesh_rate_hz: params.get_f64("mesh_rate")?,
-        };
-        fusion.params.validate()?;
-        Some(fusion)
+    Ok(if node.fusion {
+        Some(FusionConfig::new(
+            node,
+            sweep.min_depth_m,
+            sweep.max_depth_m,
+        )?)
     } else {
         None
     })
 }
 
+impl FusionConfig {
+    /// Fusion's settings from `voxel_size`, `max_blocks` and `mesh_rate`, fusing the depths
+    /// from `min_depth_m` to `max_depth_m` (checked).
+    pub fn new(
+        node: &NodeValues,
+        min_depth_m: f64,
+        max_depth_m: f64,
+    ) -> Result<Self, crate::fusion::FusionError> {
+        let fusion = FusionConfig {
+            params: crate::fusion::FusionParams {
+                voxel_size_m: node.voxel_size_m as f32,
+                max_blocks: usize::try_from(node.max_blocks).unwrap_or(usize::MAX),
+                min_depth_m: min_depth_m as f32,
+                max_depth_m: max_depth_m as f32,
+                ..crate::fusion::FusionParams::default()
+            },
+            mesh_rate_hz: node.mesh_rate_hz,
+        };
+        fusion.params.validate()?;
+        Ok(fusion)
+    }
+}
+
 /// The rig file of `rig_file`, when set: loaded, and holding every camera.
 fn rig_file(
-    params: &ParamSet,
+    node: &NodeValues,
     cameras: &[String],
     notes: &mut Vec<String>,
 ) -> Result<Option<RigFile>, ConfigError> {
-    let rig_path = params.get_str("rig_file")?;
+    let rig_path = node.rig_file.as_str();
     Ok(if rig_path.is_empty() {
         None
     } else {
@@ -277,12 +293,12 @@ fn output_topics(
 /// else (empty, or `auto`) the name of its resolved image topic; a name that says neither is
 /// taken as raw, with a note.
 fn image_kinds(
-    params: &ParamSet,
+    node: &NodeValues,
     cameras: &[String],
     image_topics: &[String],
     notes: &mut Vec<String>,
 ) -> Result<Vec<ImageKind>, ConfigError> {
-    let declared = params.get_string_array("image_kinds")?;
+    let declared = &node.image_kinds;
     if !declared.is_empty() && declared.len() != cameras.len() {
         return Err(ConfigError::ImageKindsCount {
             kinds: declared.len(),
@@ -313,6 +329,8 @@ pub struct PipelineConfig {
     pub identity: NodeIdentity,
     /// Every parameter's value at start-up (the node declares them on its services).
     pub params: ParamSet,
+    /// The node's own parameters (not the engine's) of `params`, typed.
+    pub node: NodeValues,
     pub sweep: SweepParams,
     pub cameras: Vec<String>,
     /// Every reference camera (`references`; the one of `reference` when that list is empty),
@@ -382,13 +400,9 @@ impl PipelineConfig {
     }
 
     /// The `device` parameter: which engine runs the sweep (checked against its range when
-    /// the parameters were read; `auto` if it were ever unreadable).
+    /// the parameters were read; `auto` if it were ever unknown).
     pub fn device(&self) -> crate::engine::Device {
-        self.params
-            .get_str("device")
-            .ok()
-            .and_then(|d| d.parse().ok())
-            .unwrap_or_default()
+        self.node.device.parse().unwrap_or_default()
     }
 
     /// From a command line holding only a `--ros-args` block.
@@ -406,13 +420,14 @@ impl PipelineConfig {
         let identity = ros.node_identity(DEFAULT_NODE_NAME, "/")?;
         let (mut params, mut notes) = ParamSet::from_ros_args(ros, &identity)?;
         notes.extend(ros.notes.iter().cloned());
-        params.check_node()?;
-        let virtual_ref = virtual_config(&mut params, &mut notes)?;
+        let node = NodeValues::read(&params)?;
+        node.check(&params)?;
+        let virtual_ref = virtual_config(&node, &mut params, &mut notes)?;
         let mut sweep = SweepParams::default();
         apply_to_sweep(&params, &mut sweep)?;
-        let cameras = params.get_string_array("cameras")?.to_vec();
-        // check_node made sure the reference is one of the cameras.
-        let reference_name = params.reference_camera().unwrap_or_default();
+        let cameras = node.cameras.clone();
+        // NodeValues::check made sure the reference is one of the cameras.
+        let reference_name = node.reference_camera().unwrap_or_default();
         let reference = cameras
             .iter()
             .position(|c| *c == reference_name)
@@ -420,7 +435,7 @@ impl PipelineConfig {
                 reference: reference_name.clone(),
                 cameras: cameras.clone(),
             })?;
-        let image_topic = params.get_str("image_topic")?;
+        let image_topic = &node.image_topic;
         let resolve = |name: &str| ros.resolve_topic(name, &identity);
         let mut image_topics = Vec::new();
         let mut info_topics = Vec::new();
@@ -429,40 +444,39 @@ impl PipelineConfig {
             image_topics.push(resolve(&format!("{camera}/{image_topic}"))?);
             info_topics.push(resolve(&format!("{camera}/camera_info"))?);
         }
-        let image_kinds = image_kinds(&params, &cameras, &image_topics, &mut notes)?;
-        let publish_points = params.get_bool("publish_points")?;
-        let listed = params.get_string_array("references")?.to_vec();
+        let image_kinds = image_kinds(&node, &cameras, &image_topics, &mut notes)?;
+        let listed = &node.references;
         if !listed.is_empty() && virtual_ref.is_some() {
             return Err(ConfigError::ReferencesWithVirtual);
         }
-        let references = reference_outputs(&listed, &cameras, reference, publish_points, &resolve)?;
-        let world_frame = params.get_str("world_frame")?.to_string();
-        let world = if world_frame.is_empty() {
+        let references =
+            reference_outputs(listed, &cameras, reference, node.publish_points, &resolve)?;
+        let world = if node.world_frame.is_empty() {
             None
         } else {
             Some(WorldConfig {
-                frame: world_frame,
+                frame: node.world_frame.clone(),
                 tf_topic: resolve("/tf")?,
-                tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
+                tf_timeout: Duration::from_secs_f64(node.tf_timeout_s),
             })
         };
-        let fusion = fusion_config(&params, &sweep)?;
+        let fusion = fusion_config(&node, &sweep)?;
         let mesh_topic = resolve("mesh")?;
         let tf_static_topic = resolve("/tf_static")?;
-        let rig_file = rig_file(&params, &cameras, &mut notes)?;
-        let sync = match params.get_str("sync")? {
+        let rig_file = rig_file(&node, &cameras, &mut notes)?;
+        let sync = match node.sync.as_str() {
             "exact" => SyncPolicy::Exact,
             _ => SyncPolicy::Approximate {
-                max_interval_ns: seconds_to_ns(params.get_f64("sync_max_interval")?),
-                age_penalty: params.get_f64("age_penalty")?,
+                max_interval_ns: seconds_to_ns(node.sync_max_interval_s),
+                age_penalty: node.age_penalty,
             },
         };
         let time_rules = TimeRules {
-            future_window_ns: seconds_to_ns(params.get_f64("sync_future_window")?),
-            reset_backwards_ns: seconds_to_ns(params.get_f64("sync_reset_backwards")?),
+            future_window_ns: seconds_to_ns(node.sync_future_window_s),
+            reset_backwards_ns: seconds_to_ns(node.sync_reset_backwards_s),
         };
         let queue_size = {
-            let value = params.get_i64("queue_size")?;
+            let value = node.queue_size;
             usize::try_from(value).map_err(|_| ConfigError::Size {
                 name: "queue_size",
                 value,
@@ -489,18 +503,19 @@ impl PipelineConfig {
             image_topics,
             image_kinds,
             info_topics,
-            compressed_inputs: params.get_str("image_transport")? == "compressed",
+            compressed_inputs: node.image_transport == "compressed",
             tf_static_topic,
             rig_file,
             sync,
             queue_size,
             time_rules,
             camera_timeout: {
-                let t = params.get_f64("camera_timeout")?;
+                let t = node.camera_timeout_s;
                 (t > 0.0).then(|| Duration::from_secs_f64(t))
             },
             virtual_ref,
             params,
+            node,
             notes,
         };
         // The synchroniser is made now so that its parameters fail here, not at the first image.

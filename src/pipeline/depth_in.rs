@@ -11,7 +11,7 @@
 use std::time::Duration;
 
 use super::counts::SkipCounts;
-use super::fuse::FusionInput;
+use super::fuser::FusionInput;
 use super::pose_queue::{PoseQueue, Posed};
 use crate::image::ImageF32;
 use crate::msgs::{CameraInfo, Image, TFMessage};

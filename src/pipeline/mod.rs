@@ -25,8 +25,8 @@ pub mod convert;
 mod counts;
 pub mod depth_in;
 pub mod engine_host;
-pub mod fuse;
-pub mod fusion_worker;
+pub mod fuser;
+pub mod fuser_thread;
 pub mod out_messages;
 pub mod outcome;
 pub mod output_list;
@@ -43,8 +43,8 @@ pub use config::{
 pub use counts::{Counts, SkipCounts};
 pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
-pub use fuse::{FuseSkip, Fuser, FusionInput, SavedMesh};
-pub use fusion_worker::{FusionStats, FusionWorker};
+pub use fuser::{FuseSkip, Fuser, FusionInput, SavedMesh};
+pub use fuser_thread::{FuserThread, FusionStats};
 pub use outcome::{
     Degraded, Input, InputImage, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip,
     SkipKind, SyncVerdict, VirtualCamera,

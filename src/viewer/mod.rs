@@ -23,7 +23,7 @@ pub use channels::{points_topic, MESSAGE_ENCODING, SCHEMA_ENCODING};
 #[cfg(feature = "viewer")]
 pub use server::Viewer;
 
-use crate::params::{ParamError, ParamSet};
+use crate::params::NodeValues;
 
 /// The port `bag --view` serves on when `foxglove_port` is not set (Foxglove's default).
 pub const DEFAULT_PORT: u16 = 8765;
@@ -50,9 +50,9 @@ pub struct ViewerConfig {
 
 impl ViewerConfig {
     /// From the node's parameters: `None` when `foxglove_port` is 0 (off).
-    pub fn from_params(params: &ParamSet) -> Result<Option<Self>, ViewerError> {
-        let port = params.get_i64("foxglove_port")?;
-        let address = params.get_str("foxglove_address")?.to_string();
+    pub fn from_values(node: &NodeValues) -> Result<Option<Self>, ViewerError> {
+        let port = node.foxglove_port;
+        let address = node.foxglove_address.clone();
         if port == 0 {
             return Ok(None);
         }
@@ -69,11 +69,11 @@ impl ViewerConfig {
 
     /// For `bag --view`: `foxglove_port` and `foxglove_address`, with [`DEFAULT_PORT`] when
     /// the port is not set.
-    pub fn for_bag(params: &ParamSet) -> Result<Self, ViewerError> {
-        match Self::from_params(params)? {
+    pub fn for_bag(node: &NodeValues) -> Result<Self, ViewerError> {
+        match Self::from_values(node)? {
             Some(config) => Ok(config),
             None => Ok(Self {
-                address: params.get_str("foxglove_address")?.to_string(),
+                address: node.foxglove_address.clone(),
                 port: DEFAULT_PORT,
             }),
         }
@@ -88,8 +88,6 @@ impl ViewerConfig {
 /// Errors starting or feeding the viewer.
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
-    #[error(transparent)]
-    Param(#[from] ParamError),
     #[error(
         "foxglove_port {0}: the page is served on the next port, so the port must be in 1..=65534"
     )]

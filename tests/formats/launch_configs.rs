@@ -441,7 +441,7 @@ fn two_machines_params_split_the_references_and_feed_the_fuse_node() {
         assert_eq!(p.world.as_ref().map(|w| w.frame.as_str()), Some("odom"));
         assert!(p.fusion.is_none(), "the depth nodes do not fuse");
     }
-    let fuse = sweepdepth::node::fuse_node::FuseConfig::from_args(&args(None), None)
+    let fuse = sweepdepth::node::fuse_command::FuseConfig::from_args(&args(None), None)
         .unwrap_or_else(|e| panic!("{TWO_MACHINES} (fuse): {e}"));
     assert_eq!(fuse.fqn, "/sweepdepth_fuse");
     let mut both = topics(&a);

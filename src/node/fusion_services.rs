@@ -1,4 +1,4 @@
-//! Live fusion in the node (`fusion`): the [`FusionWorker`] beside the GPU thread, its mesh
+//! Live fusion in the node (`fusion`): the [`FuserThread`] beside the GPU thread, its mesh
 //! published as `visualization_msgs/MarkerArray` on `mesh`, and its two services:
 //! `~/save_mesh` (`sweepdepth/srv/SaveMesh`: the mesh to a PLY file at the path of the request)
 //! and `~/clear_map` (`std_srvs/srv/Trigger`: the map emptied, a `DELETEALL` marker sent).
@@ -16,7 +16,7 @@ use super::log::{log_info, RateLimited};
 use super::topics::ros_err;
 use super::NodeError;
 use crate::msgs::{KeyValue, MarkerArray};
-use crate::pipeline::{FusionConfig, FusionStats, FusionWorker};
+use crate::pipeline::{FuserThread, FusionConfig, FusionStats};
 use crate::viewer::Viewer;
 
 /// `sweepdepth/srv/SaveMesh` request (`msg/srv/SaveMesh.srv`).
@@ -43,7 +43,7 @@ impl ros2_client::Message for TriggerRequest {}
 
 /// The fusion thread with its publisher and services.
 pub(super) struct FusionNode {
-    worker: Arc<FusionWorker>,
+    worker: Arc<FuserThread>,
     save: Server<SaveMeshRequest, ServiceResult>,
     clear: Server<TriggerRequest, ServiceResult>,
 }
@@ -76,7 +76,7 @@ impl FusionNode {
             .create_publisher::<MarkerArray>(&topic, Some(qos.clone()))
             .map_err(ros_err)?;
         let mut log = RateLimited::default();
-        let worker = FusionWorker::spawn(config.params, config.mesh_rate_hz, move |markers| {
+        let worker = FuserThread::spawn(config.params, config.mesh_rate_hz, move |markers| {
             // The live view keeps its own copy of the mesh (never waits for a client).
             if let Some(viewer) = &viewer {
                 viewer.offer_mesh(&markers);
@@ -122,7 +122,7 @@ impl FusionNode {
         })
     }
 
-    pub fn worker(&self) -> Arc<FusionWorker> {
+    pub fn worker(&self) -> Arc<FuserThread> {
         Arc::clone(&self.worker)
     }
 

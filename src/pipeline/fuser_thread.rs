@@ -1,5 +1,5 @@
 //! Live fusion on its own thread, beside the engine (the node's `fusion`, the `fuse` node): the
-//! sets' depth maps come in through [`FusionWorker::offer`], which never waits (at most
+//! sets' depth maps come in through [`FuserThread::offer`], which never waits (at most
 //! [`PENDING_SETS`] sets wait; when fusion falls behind, the oldest waiting set is dropped and
 //! counted, so the engine is never held up by it); the thread integrates them in order and, at
 //! most `mesh_rate` times a second, hands the changed blocks' markers to a sink (the node's
@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use futures::channel::oneshot;
 
 use super::counts::SkipCounts;
-use super::fuse::{Fuser, FusionInput, SavedMesh};
+use super::fuser::{Fuser, FusionInput, SavedMesh};
 use crate::fusion::{FusionError, FusionParams};
 use crate::msgs::MarkerArray;
 
@@ -75,12 +75,12 @@ impl Shared {
 
 /// The fusion thread. Dropping it stops the thread (a set in integration is finished first)
 /// and waits for it.
-pub struct FusionWorker {
+pub struct FuserThread {
     shared: Arc<Shared>,
     handle: Option<JoinHandle<()>>,
 }
 
-impl FusionWorker {
+impl FuserThread {
     /// Starts the thread. `sink` gets each mesh update (never an empty one) and the `DELETEALL`
     /// of a clear; `mesh_rate_hz` 0: no updates (saving only).
     pub fn spawn(
@@ -168,7 +168,7 @@ impl FusionWorker {
     }
 }
 
-impl Drop for FusionWorker {
+impl Drop for FuserThread {
     fn drop(&mut self) {
         self.shared.lock().closed = true;
         self.shared.wake.notify_all();
@@ -329,7 +329,7 @@ mod tests {
     #[test]
     fn sets_are_fused_meshed_sent_saved_and_cleared() {
         let (tx, rx) = mpsc::channel();
-        let worker = FusionWorker::spawn(params(), 1000.0, move |m| {
+        let worker = FuserThread::spawn(params(), 1000.0, move |m| {
             let _ = tx.send(m);
         })
         .unwrap();
@@ -362,7 +362,7 @@ mod tests {
         // A sink that holds the thread until told: the sets offered meanwhile wait.
         let (gate_tx, gate_rx) = mpsc::channel::<()>();
         let (sent_tx, sent_rx) = mpsc::channel::<()>();
-        let worker = FusionWorker::spawn(params(), 1000.0, move |_| {
+        let worker = FuserThread::spawn(params(), 1000.0, move |_| {
             let _ = sent_tx.send(());
             let _ = gate_rx.recv();
         })

@@ -1,10 +1,10 @@
 //! `sweepdepth fuse --ros-args ...`: fusion alone, as a node. It subscribes to `depth_topics`
 //! (REP 118 depth images, each with the `camera_info` beside it), `/tf` and `/tf_static`,
 //! places every depth image in `world_frame` at its stamp ([`DepthSources`]) and fuses it on
-//! the fusion thread (`node::fusion`: the mesh on `mesh` as `visualization_msgs/MarkerArray`,
-//! `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a second. It is how a rig that
-//! outgrows one machine scales: depth nodes on several hosts, each with its share of the
-//! references, one `fuse` node collecting their depth over DDS.
+//! the fusion thread (`node::fusion_services`: the mesh on `mesh` as
+//! `visualization_msgs/MarkerArray`, `~/save_mesh`, `~/clear_map`), with `/diagnostics` once a
+//! second. It is how a rig that outgrows one machine scales: depth nodes on several hosts, each
+//! with its share of the references, one `fuse` node collecting their depth over DDS.
 //!
 //! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
 //! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
@@ -20,7 +20,7 @@ use ros2_client::qos::History;
 use ros2_client::{Context, ContextOptions, NodeName, QosProfile, Subscription};
 
 use super::diag::wall_time_now;
-use super::fusion::{diagnostic_values, FusionNode};
+use super::fusion_services::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
 use super::params::node_options;
 use super::shutdown;
@@ -31,9 +31,10 @@ use super::NodeError;
 use crate::msgs::{
     CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
 };
-use crate::params::{ParamError, ParamSet};
+use crate::params::{apply_to_sweep, NodeValues, ParamError, ParamSet};
 use crate::pipeline::{ConfigError, DepthSources, FusionConfig, FusionStats};
 use crate::ros::args::{domain_id, parse_ros_args};
+use crate::sweep::SweepParams;
 
 /// The fuse node's default name.
 pub const DEFAULT_FUSE_NODE_NAME: &str = "sweepdepth_fuse";
@@ -69,8 +70,9 @@ impl FuseConfig {
         for note in notes.iter().chain(ros.notes.iter()) {
             tracing::info!("{note}");
         }
+        let node = NodeValues::read(&params)?;
         let resolve = |name: &str| ros.resolve_topic(name, &identity);
-        let listed = params.get_string_array("depth_topics")?;
+        let listed = &node.depth_topics;
         if listed.is_empty() {
             return Err(NodeError::Param(ParamError::Required {
                 name: "depth_topics".into(),
@@ -89,24 +91,18 @@ impl FuseConfig {
             depth_topics.push(resolved);
             info_topics.push(info);
         }
-        let world_frame = params.get_str("world_frame")?.to_string();
+        let world_frame = node.world_frame.clone();
         if world_frame.is_empty() {
             return Err(NodeError::Name {
                 name: "world_frame".into(),
                 reason: "the fuse node needs world_frame: the fixed frame every depth image is placed in (e.g. map, odom)".into(),
             });
         }
-        let fusion = FusionConfig {
-            params: crate::fusion::FusionParams {
-                voxel_size_m: params.get_f64("voxel_size")? as f32,
-                max_blocks: usize::try_from(params.get_i64("max_blocks")?).unwrap_or(usize::MAX),
-                min_depth_m: params.get_f64("min_depth")? as f32,
-                max_depth_m: params.get_f64("max_depth")? as f32,
-                ..crate::fusion::FusionParams::default()
-            },
-            mesh_rate_hz: params.get_f64("mesh_rate")?,
-        };
-        fusion.params.validate().map_err(ConfigError::from)?;
+        // The depths fused: the engine parameters' `min_depth` and `max_depth`.
+        let mut sweep = SweepParams::default();
+        apply_to_sweep(&params, &mut sweep)?;
+        let fusion = FusionConfig::new(&node, sweep.min_depth_m, sweep.max_depth_m)
+            .map_err(ConfigError::from)?;
         Ok(Self {
             fqn: identity.fqn(),
             namespace: identity.namespace.clone(),
@@ -115,7 +111,7 @@ impl FuseConfig {
             depth_topics,
             info_topics,
             world_frame,
-            tf_timeout: Duration::from_secs_f64(params.get_f64("tf_timeout")?),
+            tf_timeout: Duration::from_secs_f64(node.tf_timeout_s),
             tf_topic: resolve("/tf")?,
             tf_static_topic: resolve("/tf_static")?,
             diagnostics_topic: resolve("/diagnostics")?,

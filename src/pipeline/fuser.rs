@@ -1,5 +1,5 @@
 //! Every reference's depth of every set into one mesh (issue 28): the node's live fusion
-//! (`fusion`, run beside the engine by [`super::fusion_worker`]), `bag --mesh` and the `fuse`
+//! (`fusion`, run beside the engine by [`super::fuser_thread`]), `bag --mesh` and the `fuse`
 //! node. Each depth map comes as a [`FusionInput`]: its depth, colour and camera placed in the
 //! map's frame (`world_frame` on a moving rig, else the frame of the set's first reference
 //! image); the [`Fuser`] integrates it into `src/fusion`'s [`Mapper`] and hands the mesh out per
