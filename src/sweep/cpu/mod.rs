@@ -391,8 +391,6 @@ impl CpuEngine {
         zbuffer.clear();
         zbuffer.resize(plan.total_camera_pixels, 0);
         let mut result = Ok(());
-        // Whether the SGM passes selected the winners already (`sgm::run_and_select`).
-        let mut selected = false;
         for phase in Schedule::of_plan(plan).phases() {
             if through == Through::Finalize
                 && matches!(phase, Phase::Median | Phase::Splat | Phase::Visibility)
@@ -412,27 +410,27 @@ impl CpuEngine {
                         &images[p.reference as usize].pixels
                     };
                     let buffers = &mut self.buffers;
-                    // The wide layout where it applies (4 threads or more), else two passes
-                    // that select as they go (`SgmSelect` then has nothing left to do).
-                    let (forward, backward) = (&mut buffers.forward, &mut buffers.backward);
-                    let run = if sgm_wide::applies(plan) {
-                        sgm_wide::run(plan, colours, volume, forward, backward, &cancel)
+                    // The wide layout where it applies (4 threads or more), else two passes.
+                    let sums = if sgm_wide::applies(plan) {
+                        sgm_wide::run
                     } else {
-                        selected = true;
-                        sgm::run_and_select(
-                            plan, colours, volume, forward, backward, state, &cancel,
-                        )
+                        sgm::run_two_passes
                     };
-                    if let Err(e) = run {
+                    if let Err(e) = sums(
+                        plan,
+                        colours,
+                        volume,
+                        &mut buffers.forward,
+                        &mut buffers.backward,
+                        &cancel,
+                    ) {
                         result = Err(e);
                         break;
                     }
                 }
                 Phase::SgmSelect => {
-                    if !selected {
-                        let buffers = &self.buffers;
-                        sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
-                    }
+                    let buffers = &self.buffers;
+                    sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
                 }
                 Phase::Finalize => {
                     finalize::run(plan, state, &mut maps);

@@ -15,8 +15,6 @@ use crate::sweep::gpu_types::*;
 use crate::sweep::plan::SweepPlan;
 use crate::sweep::{CancelFlag, SweepError};
 
-use std::sync::Mutex;
-
 use super::common::vectorised_fn;
 use super::select::{WtaChunk, WtaState};
 
@@ -202,78 +200,20 @@ pub(super) fn penalty_table(p1: u32, p2: u32, edge: u32) -> Vec<u16> {
         .collect()
 }
 
-/// One row of both passes' results: each pass's path-cost sums of the row, and when the passes
-/// also select ([`run_and_select`]) the row's selection state. Both passes visit every row,
-/// one at a time under the row's lock: the first writes its sums into its own buffer; the
-/// second, when selecting, adds its path costs into those and selects the row from the total
-/// while it is in cache (else it writes its own buffer too).
-pub(super) struct SumRow<'a> {
-    forward: &'a mut [u16],
-    backward: &'a mut [u16],
-    state: Option<WtaChunk<'a>>,
-    written: bool,
-}
-
-/// Splits the sums and (when selecting) the state into rows of `width` pixels of `n` lanes.
-fn sum_rows<'a>(
-    width: usize,
-    n: usize,
-    forward: &'a mut [u16],
-    backward: &'a mut [u16],
-    state: Option<&'a mut WtaState>,
-) -> Vec<Mutex<SumRow<'a>>> {
-    let row = (width * n).max(1);
-    let mut states = state.map(|s| s.chunks_mut(width.max(1)).into_iter());
-    forward
-        .chunks_mut(row)
-        .zip(backward.chunks_mut(row))
-        .map(|(forward, backward)| {
-            Mutex::new(SumRow {
-                forward,
-                backward,
-                state: states.as_mut().and_then(Iterator::next),
-                written: false,
-            })
-        })
-        .collect()
-}
-
-/// What the pass that reaches a row second selects with ([`select`]'s arguments).
-#[derive(Debug, Clone, Copy)]
-struct Selecting {
-    planes: usize,
-    unit: f32,
-    unique: Option<Uniqueness>,
-}
-
-impl Selecting {
-    fn of(plan: &SweepPlan) -> Self {
-        let p = &plan.params;
-        Self {
-            planes: plan.num_planes() as usize,
-            unit: p.sgm_unit_per_level,
-            unique: (p.uniqueness > 0.0 || p.ambiguity > 0.0).then_some(Uniqueness {
-                radius: p.uniqueness_radius.max(1) as usize,
-                levels_per_unit: p.sgm_levels_per_unit,
-            }),
-        }
-    }
-}
-
 vectorised_fn! { avx2:
 /// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
-/// reverse), summing the path costs of its directions into each row of `rows` ([`SumRow`]).
-/// Stops between rows once `cancel` is set (the sums are then incomplete; the caller checks).
-fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, rows: &[Mutex<SumRow<'_>>], cancel: &CancelFlag) {
+/// reverse), summing the path costs of its directions into `sums` (written, not added). Stops
+/// between rows once `cancel` is set (the sums are then incomplete; the caller checks).
+fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16], cancel: &CancelFlag) {
     // The common lane counts known at compile time (the demo's 32 planes: 32; `step_fixed`).
     match stride(plan.params.planes as usize) {
-        16 => pass_lanes::<16>(plan, reference_colours, volume, forward, rows, cancel),
-        32 => pass_lanes::<32>(plan, reference_colours, volume, forward, rows, cancel),
-        48 => pass_lanes::<48>(plan, reference_colours, volume, forward, rows, cancel),
-        64 => pass_lanes::<64>(plan, reference_colours, volume, forward, rows, cancel),
-        96 => pass_lanes::<96>(plan, reference_colours, volume, forward, rows, cancel),
-        128 => pass_lanes::<128>(plan, reference_colours, volume, forward, rows, cancel),
-        _ => pass_lanes::<0>(plan, reference_colours, volume, forward, rows, cancel),
+        16 => pass_lanes::<16>(plan, reference_colours, volume, forward, sums, cancel),
+        32 => pass_lanes::<32>(plan, reference_colours, volume, forward, sums, cancel),
+        48 => pass_lanes::<48>(plan, reference_colours, volume, forward, sums, cancel),
+        64 => pass_lanes::<64>(plan, reference_colours, volume, forward, sums, cancel),
+        96 => pass_lanes::<96>(plan, reference_colours, volume, forward, sums, cancel),
+        128 => pass_lanes::<128>(plan, reference_colours, volume, forward, sums, cancel),
+        _ => pass_lanes::<0>(plan, reference_colours, volume, forward, sums, cancel),
     }
 }
 }
@@ -285,7 +225,7 @@ fn pass_lanes<const N: usize>(
     reference_colours: &[u32],
     volume: &[u16],
     forward: bool,
-    rows: &[Mutex<SumRow<'_>>],
+    sums: &mut [u16],
     cancel: &CancelFlag,
 ) {
     {
@@ -293,7 +233,6 @@ fn pass_lanes<const N: usize>(
         let (w, h) = (p.width as usize, p.height as usize);
         let n = if N == 0 { stride(p.planes as usize) } else { N };
         let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
-        let selecting = Selecting::of(plan);
         // Path costs with a PAD lane on each side: the previous and current row of the vertical
         // and (8 paths) the two diagonal directions, and the last two pixels of the horizontal one.
         let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
@@ -326,43 +265,23 @@ fn pass_lanes<const N: usize>(
                     &mut pens,
                 );
             }
-            let Some(row) = rows.get(y) else {
-                return;
-            };
-            let mut row = row
-                .lock()
-                .unwrap_or_else(std::sync::PoisonError::into_inner);
-            let SumRow {
-                forward: forward_sums,
-                backward: backward_sums,
-                state,
-                written,
-            } = &mut *row;
-            // The second pass to reach the row adds into the first's sums when it selects.
-            let combine = *written && state.is_some();
-            let sums: &mut [u16] = if combine == forward {
-                backward_sums
-            } else {
-                forward_sums
-            };
             let [pen_h, pen_v, pen_b, pen_a] = &pens;
             let mut h_min = 0u16;
             for walk_x in 0..w {
                 let x = if forward { walk_x } else { w - 1 - walk_x };
                 let pix = y * w + x;
                 let cost = &volume[pix * n..(pix + 1) * n];
-                let sum = &mut sums[x * n..(x + 1) * n];
+                let sum = &mut sums[pix * n..(pix + 1) * n];
                 // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
                 let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
                 let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
 
-                // Horizontal: the previous pixel of this row; it writes the sums (or adds to
-                // the other pass's).
+                // Horizontal: the previous pixel of this row; it writes the sums.
                 let [a, b] = &mut horizontal;
                 let (h_prev, h_out) = if walk_x % 2 == 0 { (&*a, b) } else { (&*b, a) };
                 let start = walk_x == 0;
                 let pen = if start { 0 } else { pen_h[x] };
-                h_min = step_dyn::<N>(start, !combine, cost, h_prev, h_min, p1, pen, h_out, sum);
+                h_min = step_dyn::<N>(start, true, cost, h_prev, h_min, p1, pen, h_out, sum);
 
                 // Vertical and diagonals: the previous row at x, behind and ahead.
                 for dir in 0..row_dirs {
@@ -390,11 +309,6 @@ fn pass_lanes<const N: usize>(
                         step_dyn::<N>(start, false, cost, prev, prev_min, p1, pen, out, sum);
                 }
             }
-            if let (true, Some(st)) = (combine, state.as_mut()) {
-                let costs = &volume[y * w * n..(y + 1) * w * n];
-                select_run(selecting, n, sums, None, costs, st);
-            }
-            *written = true;
             std::mem::swap(&mut prev_rows, &mut cur_rows);
             std::mem::swap(&mut prev_mins, &mut cur_mins);
         }
@@ -465,8 +379,8 @@ pub(super) fn edge_penalties_row(
 
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
 /// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
-/// `Err(Cancelled)` when `cancel` stopped it between rows. The engine uses [`run_and_select`]
-/// instead, or the wide layout where it [`super::sgm_wide::applies`] (4 threads or more).
+/// `Err(Cancelled)` when `cancel` stopped it between rows. The engine uses the wide layout
+/// instead where it [`super::sgm_wide::applies`] (4 threads or more).
 pub fn run_two_passes(
     plan: &SweepPlan,
     reference_colours: &[u32],
@@ -475,60 +389,11 @@ pub fn run_two_passes(
     backward: &mut Vec<u16>,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
-    run_passes(
-        plan,
-        reference_colours,
-        volume,
-        forward,
-        backward,
-        None,
-        cancel,
-    )
-}
-
-/// Both passes on two threads, and [`select`] fused into them: each row is selected by the
-/// pass that reaches it second, from the sums the first left there plus its own path costs,
-/// while the row's sums and costs are in cache (the same integer sums, so the same state as
-/// [`run_two_passes`] then [`select`]). `forward` and `backward` are scratch afterwards.
-pub fn run_and_select(
-    plan: &SweepPlan,
-    reference_colours: &[u32],
-    volume: &[u16],
-    forward: &mut Vec<u16>,
-    backward: &mut Vec<u16>,
-    state: &mut WtaState,
-    cancel: &CancelFlag,
-) -> Result<(), SweepError> {
-    run_passes(
-        plan,
-        reference_colours,
-        volume,
-        forward,
-        backward,
-        Some(state),
-        cancel,
-    )
-}
-
-fn run_passes(
-    plan: &SweepPlan,
-    reference_colours: &[u32],
-    volume: &[u16],
-    forward: &mut Vec<u16>,
-    backward: &mut Vec<u16>,
-    state: Option<&mut WtaState>,
-    cancel: &CancelFlag,
-) -> Result<(), SweepError> {
     forward.resize(volume.len(), 0);
     backward.resize(volume.len(), 0);
-    let (w, n) = (
-        plan.params.width as usize,
-        stride(plan.num_planes() as usize),
-    );
-    let rows = sum_rows(w, n, forward, backward, state);
     rayon::join(
-        || pass(plan, reference_colours, volume, true, &rows, cancel),
-        || pass(plan, reference_colours, volume, false, &rows, cancel),
+        || pass(plan, reference_colours, volume, true, forward, cancel),
+        || pass(plan, reference_colours, volume, false, backward, cancel),
     );
     cancel.check()
 }
@@ -542,23 +407,17 @@ struct Winner {
     rival: Option<u16>,
 }
 
-/// Sums `forward + backward` (or takes `forward` alone, the total) into `sums` and finds the
-/// first minimum, its neighbours and the smallest sum away from them (vector adds and minimum
-/// reductions, one scan for the index).
+/// Sums `forward + backward` into `sums` and finds the first minimum, its neighbours and the
+/// smallest sum away from them (vector adds and minimum reductions, one scan for the index).
 #[inline(always)]
-fn winner(forward: &[u16], backward: Option<&[u16]>, sums: &mut [u16]) -> Winner {
+fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
     let planes = sums.len();
-    match backward {
-        Some(backward) => {
-            for ((s, &f), &b) in sums
-                .iter_mut()
-                .zip(&forward[..planes])
-                .zip(&backward[..planes])
-            {
-                *s = f.wrapping_add(b);
-            }
-        }
-        None => sums.copy_from_slice(&forward[..planes]),
+    for ((s, &f), &b) in sums
+        .iter_mut()
+        .zip(&forward[..planes])
+        .zip(&backward[..planes])
+    {
+        *s = f.wrapping_add(b);
     }
     let lowest = |v: &[u16]| v.iter().copied().fold(u16::MAX, u16::min);
     let best_sum = lowest(sums);
@@ -589,9 +448,15 @@ pub fn select(
     state: &mut WtaState,
 ) {
     use rayon::prelude::*;
-    let n = stride(plan.num_planes() as usize);
-    let selecting = Selecting::of(plan);
+    let planes = plan.num_planes() as usize;
+    let n = stride(planes);
+    let p = &plan.params;
+    let unit = p.sgm_unit_per_level;
     let chunk = 1024;
+    let unique = (p.uniqueness > 0.0 || p.ambiguity > 0.0).then_some(Uniqueness {
+        radius: p.uniqueness_radius.max(1) as usize,
+        levels_per_unit: p.sgm_levels_per_unit,
+    });
     state
         .chunks_mut(chunk)
         .into_par_iter()
@@ -602,30 +467,11 @@ pub fn select(
                 .zip(volume.par_chunks(chunk * n)),
         )
         .for_each(|(mut st, ((forward, backward), volume))| {
-            select_run(selecting, n, forward, Some(backward), volume, &mut st);
+            select_chunk(planes, n, unit, forward, backward, &mut st);
+            if let Some(unique) = unique {
+                uniqueness_chunk(planes, n, unique, volume, &mut st);
+            }
         });
-}
-
-/// [`select`] for one run of pixels: the sums `forward + backward` (or `forward`, the total)
-/// and the matching costs `volume` of its pixels.
-#[inline(always)]
-fn select_run(
-    selecting: Selecting,
-    n: usize,
-    forward: &[u16],
-    backward: Option<&[u16]>,
-    volume: &[u16],
-    st: &mut WtaChunk<'_>,
-) {
-    let Selecting {
-        planes,
-        unit,
-        unique,
-    } = selecting;
-    select_chunk(planes, n, unit, forward, backward, st);
-    if let Some(unique) = unique {
-        uniqueness_chunk(planes, n, unique, volume, st);
-    }
 }
 
 /// How [`uniqueness_on_costs`] reads a pixel's volume levels.
@@ -694,7 +540,7 @@ fn select_chunk(
     n: usize,
     unit: f32,
     forward: &[u16],
-    backward: Option<&[u16]>,
+    backward: &[u16],
     st: &mut WtaChunk<'_>,
 ) {
     // Summed levels back to score units, less the offset every volume level carries.
@@ -711,8 +557,8 @@ fn select_chunk(
         if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
             continue;
         }
-        let f = &forward[i * n..i * n + planes];
-        let s = winner(f, backward.map(|b| &b[i * n..i * n + planes]), &mut sums);
+        let (f, b) = (&forward[i * n..i * n + planes], &backward[i * n..i * n + planes]);
+        let s = winner(f, b, &mut sums);
         st.best[i] = score(s.best_sum);
         st.best_plane[i] = s.best as f32;
         st.before[i] = s.before.map_or(BIG, score);
@@ -730,7 +576,7 @@ fn select_fixed<const N: usize>(
     planes: usize,
     unit: f32,
     forward: &[u16],
-    backward: Option<&[u16]>,
+    backward: &[u16],
     st: &mut WtaChunk<'_>,
 ) {
     let score = |v: u16| f32::from(v) * unit - SGM_VOLUME_OFFSET;
@@ -738,16 +584,10 @@ fn select_fixed<const N: usize>(
         if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
             continue;
         }
-        let f = &forward[i * N..(i + 1) * N];
+        let (f, b) = (&forward[i * N..(i + 1) * N], &backward[i * N..(i + 1) * N]);
         let mut sums = [0u16; N];
-        match backward {
-            Some(backward) => {
-                let b = &backward[i * N..(i + 1) * N];
-                for d in 0..N {
-                    sums[d] = f[d].wrapping_add(b[d]);
-                }
-            }
-            None => sums.copy_from_slice(f),
+        for d in 0..N {
+            sums[d] = f[d].wrapping_add(b[d]);
         }
         // (sum, plane) keys: the smallest is the first plane of the smallest sum; lanes past
         // the planes never win.
@@ -839,102 +679,6 @@ mod tests {
         v
     }
 
-    /// One pass writing its sums into `sums`.
-    fn pass_into(
-        plan: &SweepPlan,
-        colours: &[u32],
-        costs: &[u16],
-        forward: bool,
-        sums: &mut [u16],
-    ) {
-        let mut other = vec![0u16; sums.len()];
-        let (w, n) = (
-            plan.params.width as usize,
-            stride(plan.num_planes() as usize),
-        );
-        let rows = if forward {
-            sum_rows(w, n, sums, &mut other, None)
-        } else {
-            sum_rows(w, n, &mut other, sums, None)
-        };
-        pass(plan, colours, costs, forward, &rows, &CancelFlag::new());
-    }
-
-    /// The passes that select as they go leave the state that the two passes and then
-    /// [`select`] leave, bit for bit: planes in one vector group, two, and six (a raw pair's
-    /// 96), with and without the uniqueness on the costs, 4 and 8 paths, edge-aware P2.
-    #[test]
-    fn selecting_in_the_passes_equals_selecting_after_them() {
-        let mut seed = 0x9e37_79b9_u32;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed
-        };
-        for (planes, paths, uniqueness) in [(11, 8, 0.0), (32, 8, 0.2), (96, 4, 0.2), (90, 8, 0.3)]
-        {
-            let (w, h) = (23usize, 17usize);
-            let model = CameraModel::pinhole(synthetic::intrinsics(w as u32, h as u32));
-            let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
-            let params = SweepParams {
-                num_planes: planes,
-                optimizer: Optimizer::Sgm,
-                ..SweepParams::default()
-            };
-            let mut plan = SweepPlan::new(&rig, &params).expect("plan");
-            plan.params.sgm_paths = paths;
-            plan.params.uniqueness = uniqueness;
-            plan.params.sgm_edge = 8 * 16;
-            let n = stride(planes as usize);
-            let mut costs = vec![PAD; w * h * n];
-            for pixel in costs.chunks_mut(n) {
-                for c in &mut pixel[..planes as usize] {
-                    *c = (next() % (SGM_COST_MAX + 1)) as u16;
-                }
-            }
-            let colours: Vec<u32> = (0..w * h).map(|_| next() & 0x00ff_ffff).collect();
-            // Some pixels the local winner-take-all found invalid: they keep their state.
-            let mut state = WtaState::new(w * h);
-            for i in 0..w * h {
-                let valid = next() % 5 != 0;
-                state.best[i] = if valid { 1.0 } else { BIG };
-                state.best_plane[i] = if valid {
-                    (next() % planes) as f32
-                } else {
-                    -1.0
-                };
-                state.local_confidence[i] = 0.5;
-            }
-            let (mut forward, mut backward) = (Vec::new(), Vec::new());
-            let cancel = CancelFlag::new();
-            let mut after = state.clone();
-            run_two_passes(
-                &plan,
-                &colours,
-                &costs,
-                &mut forward,
-                &mut backward,
-                &cancel,
-            )
-            .expect("not cancelled");
-            select(&plan, &costs, &forward, &backward, &mut after);
-            let mut fused = state.clone();
-            run_and_select(
-                &plan,
-                &colours,
-                &costs,
-                &mut forward,
-                &mut backward,
-                &mut fused,
-                &cancel,
-            )
-            .expect("not cancelled");
-            assert_eq!(fused, after, "{planes} planes, {paths} paths");
-            assert_ne!(fused, state, "{planes} planes: selection changed nothing");
-        }
-    }
-
     fn real(sums: &[u16]) -> Vec<[u16; 3]> {
         sums.chunks(stride(3)).map(|c| [c[0], c[1], c[2]]).collect()
     }
@@ -945,14 +689,14 @@ mod tests {
         // Pixel 0 is sure of plane 0; pixel 1 slightly prefers plane 2 locally.
         let costs = volume(&[[0, 50, 50], [5, 40, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass_into(&plan, &[0, 0], &costs, true, &mut sums);
+        pass(&plan, &[0, 0], &costs, true, &mut sums, &CancelFlag::new());
         // Left to right, pixel 1: d0 = 5 + min(0, 50 + 10, 0 + 30) - 0 = 5; d1 = 40 + min(50,
         // 0 + 10, 50 + 10, 30) = 50; d2 = 0 + min(50, 50 + 10, 30) = 30. The vertical path
         // adds the pixel's own cost.
         assert_eq!(real(&sums), [[0, 100, 100], [10, 90, 30]]);
         // Right to left, pixel 0: d0 = 0 + min(5, 40 + 10, 0 + 30) - 0 = 5; d1 = 50 + min(40,
         // 5 + 10, 0 + 10, 30) - 0 = 60; d2 = 50 + min(0, 40 + 10, 30) = 50.
-        pass_into(&plan, &[0, 0], &costs, false, &mut sums);
+        pass(&plan, &[0, 0], &costs, false, &mut sums, &CancelFlag::new());
         assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
         let (mut forward, mut backward) = (Vec::new(), Vec::new());
         run_two_passes(
@@ -1013,7 +757,7 @@ mod tests {
         plan.params.sgm_edge = 8 * 16;
         let costs = volume(&[[0, 50, 50], [50, 50, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass_into(&plan, &[0, 8], &costs, true, &mut sums);
+        pass(&plan, &[0, 8], &costs, true, &mut sums, &CancelFlag::new());
         // Pixel 1, plane 2: 0 + min(50, 50 + 10, 0 + 15) = 15, plus its own vertical 0.
         assert_eq!(real(&sums)[1], [100, 110, 15]);
     }
