@@ -12,6 +12,7 @@
 #   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
 #   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 #   cargo test --no-run --test engine; strip -o .gl/engine-tests target/debug/deps/engine-<hash>
+#   target/release/sweepdepth pack ../shared/data/middlebury2003_teddy_9view .gl/teddy9.mcap --frames 20 --compressed
 # (NVIDIA's Vulkan driver, libGLX_nvidia, needs libglvnd: with the loader alone it answers
 # "Could not get 'vkCreateInstance'" and wgpu finds no adapter). Then run it with
 # `carry: [".gl", "target/release/sweepdepth"]` and the command
@@ -96,6 +97,14 @@ step bench-stereo 120 "$bin" bench --config stereo-rect --config stereo-raw --re
 # Fusion (issue 56): one 640x480 depth map integrated and meshed at 2 cm beside Open3D's
 # VoxelBlockGrid (when the machine's python3 has open3d; the synthetic pair otherwise).
 step bench-fusion 120 "$bin" bench --fusion --repeats 5
+# The node's pipeline with fusion on, on the 9-camera rig (issue 56, item 4): the packed
+# Teddy bag (compressed images, as recorded) through `bag --mesh` on the WGSL engine, its ms
+# per set with every depth map fused (the live node itself needs DDS peers the device machine
+# has not).
+if [ -f .gl/teddy9.mcap ]; then
+    step bag-9-cameras-fusion 90 "$bin" bag .gl/teddy9.mcap /tmp/gpu-check-bag9 --force \
+        --params-file .gl/teddy9.params.yaml -p device:=gpu --mesh /tmp/gpu-check-bag9.ply --voxel-size 0.2
+fi
 step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
 step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu
 # The fine sweep (`subpixel_refine`) on the WGSL engine: its cost on a real GPU (lavapipe: the
