@@ -31,8 +31,6 @@ const SHADER: &str = concat!(
     include_str!("../../shaders/tsdf_integrate.wgsl")
 );
 
-/// Invocations per workgroup: one per row of eight voxels of a block.
-const WORKGROUP_SIZE: u32 = 64;
 /// The most workgroups along one dimension of a dispatch (WebGPU's limit).
 const MAX_GROUPS_PER_DIMENSION: u32 = 65_535;
 /// Bytes of one voxel in the pool.

@@ -408,7 +408,8 @@ fn the_shader_validates() {
         .iter()
         .find(|e| e.name == "integrate")
         .expect("entry point");
-    assert_eq!(entry.workgroup_size, [WORKGROUP_SIZE, 1, 1]);
+    // One invocation per row of eight voxels of a block, one workgroup per block.
+    assert_eq!(entry.workgroup_size, [64, 1, 1]);
     // The uniform's size as the host lays it out.
     let params = module
         .types
