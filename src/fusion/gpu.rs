@@ -19,9 +19,11 @@ use bytemuck::{Pod, Zeroable};
 
 use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
 use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
-use super::{FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK};
-use crate::geometry::{CameraModel, Distortion, RigidTransform};
-use crate::image::{ImageF32, Rgba8Image};
+use super::{
+    DepthView, FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK,
+};
+use crate::geometry::{CameraModel, Distortion};
+use crate::image::ImageF32;
 
 /// The shader: `camera.wgsl` (the camera struct and its projection with distortion, as the
 /// sweep's stages use it) and the integration.
@@ -366,24 +368,23 @@ impl GpuTsdf {
         self.pool.size() / SLOT_BYTES
     }
 
-    /// [`super::integrate_weighted`] on the device: one depth map (its weights and colour
-    /// optional) seen by `model` at `world_from_cam`. Refuses what the CPU refuses, and a
-    /// frame whose blocks the pool cannot hold within the adapter's largest buffer (nothing
-    /// changed then). Waits for the device (the stats count what the shader updated).
+    /// [`super::Mapper::integrate_weighted`] on the device: one depth map with its colour
+    /// (the view's confidence and baseline are not read) and its pixels' weights (None:
+    /// alike). Refuses what the CPU refuses, and a frame whose blocks the pool cannot hold
+    /// within the adapter's largest buffer (nothing changed then). Waits for the device (the
+    /// stats count what the shader updated).
     pub fn integrate(
         &mut self,
-        depth: &ImageF32,
+        view: &DepthView<'_>,
         weights: Option<&ImageF32>,
-        colour: Option<&Rgba8Image>,
-        model: &CameraModel,
-        world_from_cam: &RigidTransform,
     ) -> Result<IntegrationStats, GpuFusionError> {
+        let (depth, model) = (view.depth, view.model);
         let frame = FrameInput {
             depth,
             weights,
-            colour,
+            colour: view.colour,
             model,
-            world_from_cam,
+            world_from_cam: view.map_from_cam,
         };
         let voxel_size_m = self.params.voxel_size_m;
         let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;

@@ -52,6 +52,20 @@ pub struct Frame {
     pub world_from_cam: RigidTransform,
 }
 
+impl Frame {
+    /// The frame with its colour, as the integrations take it (no confidence, no baseline).
+    fn view<'a>(&'a self, model: &'a CameraModel) -> DepthView<'a> {
+        DepthView {
+            depth: &self.depth,
+            confidence: None,
+            baseline_ratio: None,
+            colour: Some(&self.colour),
+            model,
+            map_from_cam: &self.world_from_cam,
+        }
+    }
+}
+
 /// The bench's input: where it came from, the camera, two frames.
 pub struct FusionBenchInput {
     pub source: String,
@@ -247,16 +261,7 @@ pub fn time_ours(
 ) -> anyhow::Result<FusionBenchResult> {
     let [a, b] = &input.frames;
     let model = &input.model;
-    let run = |mapper: &mut Mapper, frame: &Frame| {
-        mapper.integrate(&DepthView {
-            depth: &frame.depth,
-            confidence: None,
-            baseline_ratio: None,
-            colour: Some(&frame.colour),
-            model,
-            map_from_cam: &frame.world_from_cam,
-        })
-    };
+    let run = |mapper: &mut Mapper, frame: &Frame| mapper.integrate(&frame.view(model));
     let new_map = || Mapper::new(*params, Weighting::EQUAL);
     // The steady state's starting point: frame 0 integrated and meshed.
     let mut base = new_map()?;
@@ -341,15 +346,7 @@ pub fn time_gpu(
 ) -> anyhow::Result<GpuFusionResult> {
     let [a, b] = &input.frames;
     let model = &input.model;
-    let run = |tsdf: &mut GpuTsdf, frame: &Frame| {
-        tsdf.integrate(
-            &frame.depth,
-            None,
-            Some(&frame.colour),
-            model,
-            &frame.world_from_cam,
-        )
-    };
+    let run = |tsdf: &mut GpuTsdf, frame: &Frame| tsdf.integrate(&frame.view(model), None);
     let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut last = None;
     for i in 0..=repeats.max(1) {

@@ -10,7 +10,9 @@ use crate::fusion::test_scenes::{
     camera, look_at, red_left_blue_right, render_plane, sphere_before_slanted_wall,
 };
 use crate::fusion::{integrate_weighted, observation_weights, Mesh, Weighting};
+use crate::geometry::RigidTransform;
 use crate::gpu_context::GpuContext;
+use crate::image::Rgba8Image;
 
 /// One device for the tests, and one test at a time on it (a device polled from several
 /// threads at once met a wgpu bug; `sweep/gpu/record.rs`).
@@ -25,6 +27,23 @@ fn gpu() -> (&'static GpuContext, std::sync::MutexGuard<'static, ()>) {
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner);
     (context, guard)
+}
+
+/// A depth map as the GPU integration takes it.
+fn view<'a>(
+    depth: &'a ImageF32,
+    colour: Option<&'a Rgba8Image>,
+    model: &'a CameraModel,
+    map_from_cam: &'a RigidTransform,
+) -> DepthView<'a> {
+    DepthView {
+        depth,
+        confidence: None,
+        baseline_ratio: None,
+        colour,
+        model,
+        map_from_cam,
+    }
 }
 
 /// Tolerances of a voxel: the shader projects as `common.wgsl` does (`x / z` times the focal
@@ -190,7 +209,7 @@ fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
         )
         .unwrap();
         let b = gpu
-            .integrate(&depth, weights.as_ref(), Some(&colour), &model, pose)
+            .integrate(&view(&depth, Some(&colour), &model, pose), weights.as_ref())
             .unwrap();
         let what = format!("frame {i}");
         assert_same_stats(&what, &a, &b);
@@ -257,7 +276,7 @@ fn the_weight_cap_holds_on_the_gpu() {
         let a = integrate_weighted(&mut cpu, &params, depth, None, Some(&colour), &model, &pose)
             .unwrap();
         let b = gpu
-            .integrate(depth, None, Some(&colour), &model, &pose)
+            .integrate(&view(depth, Some(&colour), &model, &pose), None)
             .unwrap();
         assert_same_stats("wall", &a, &b);
     }
@@ -306,7 +325,7 @@ fn a_distorted_camera_integrates_on_the_gpu_as_on_the_cpu() {
     )
     .unwrap();
     let b = gpu
-        .integrate(&depth, None, Some(&colour), &model, &pose)
+        .integrate(&view(&depth, Some(&colour), &model, &pose), None)
         .unwrap();
     assert_same_stats("distorted", &a, &b);
     let read = gpu.read_grid().unwrap();
@@ -333,7 +352,9 @@ fn dropped_blocks_leave_and_their_slots_come_back_empty() {
         // Off the voxel centres' planes (see the weight cap's test).
         let depth = render_plane(&model, &pose, DVec3::Z, 3.013);
         let a = integrate_weighted(&mut cpu, &params, &depth, None, None, &model, &pose).unwrap();
-        let b = gpu.integrate(&depth, None, None, &model, &pose).unwrap();
+        let b = gpu
+            .integrate(&view(&depth, None, &model, &pose), None)
+            .unwrap();
         assert_same_stats(&format!("frame {i}"), &a, &b);
         dropped += b.blocks_dropped;
         gpu.sync_into(&mut mirror).unwrap();
@@ -359,7 +380,7 @@ fn bad_input_and_a_full_pool_are_refused() {
         data: vec![1.0; 100],
     };
     let err = gpu
-        .integrate(&small, None, None, &model, &pose)
+        .integrate(&view(&small, None, &model, &pose), None)
         .unwrap_err();
     assert!(
         matches!(err, GpuFusionError::Fusion(FusionError::ImageSize { .. })),
@@ -376,7 +397,7 @@ fn bad_input_and_a_full_pool_are_refused() {
     let mut gpu = GpuTsdf::new(&tiny.device, &tiny.queue, params).unwrap();
     let depth = render_plane(&model, &pose, DVec3::Z, 3.0);
     let err = gpu
-        .integrate(&depth, None, None, &model, &pose)
+        .integrate(&view(&depth, None, &model, &pose), None)
         .unwrap_err();
     assert!(matches!(err, GpuFusionError::PoolFull { .. }), "{err}");
     assert!(err.to_string().contains("262144 bytes"), "{err}");
