@@ -1,4 +1,4 @@
-//! Build script: prepends `shaders/common.wgsl` to every stage shader of the stage registry
+//! Build script: prepends `shaders/camera.wgsl` and `shaders/common.wgsl` to every stage shader of the stage registry
 //! (`src/sweep/stages.rs`) and writes the combined sources to OUT_DIR for `include_str!`.
 //! Standard library only, so the first release build compiles no shader compiler for it: the
 //! check of each shader against its registry row (naga: parse, validate, entry point,
@@ -19,8 +19,11 @@ fn main() {
     let out_dir = PathBuf::from(env::var("OUT_DIR").expect("cargo sets OUT_DIR"));
     println!("cargo:rerun-if-changed=shaders");
     println!("cargo:rerun-if-changed=src/sweep/stages.rs");
+    let camera =
+        fs::read_to_string("shaders/camera.wgsl").expect("shaders/camera.wgsl is readable");
     let common =
         fs::read_to_string("shaders/common.wgsl").expect("shaders/common.wgsl is readable");
+    let common = format!("{camera}\n{common}");
     let variants = SUBGROUP_VARIANTS.iter().map(|(_, info)| info);
     for stage in STAGES.iter().chain(variants) {
         let path = format!("shaders/{}.wgsl", stage.name);
@@ -39,7 +42,7 @@ fn main() {
         .map(|(_, s)| include(s.name))
         .collect();
     let generated = format!(
-        "/// The sources of the stages (registry order), `common.wgsl` prepended.\npub const SHADERS: [&str; {n}] = [{}];\n/// The same of `SUBGROUP_VARIANTS`.\npub const SUBGROUP_SHADERS: [&str; {m}] = [{}];\n",
+        "/// The sources of the stages (registry order), `camera.wgsl` and `common.wgsl` prepended.\npub const SHADERS: [&str; {n}] = [{}];\n/// The same of `SUBGROUP_VARIANTS`.\npub const SUBGROUP_SHADERS: [&str; {m}] = [{}];\n",
         sources.join(", "),
         variants.join(", "),
         n = STAGES.len(),

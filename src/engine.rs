@@ -207,7 +207,7 @@ fn gpu_device_nodes() -> bool {
 /// A hardware adapter, if wgpu offers one (not a CPU adapter such as lavapipe). A machine
 /// with a GPU's device node but no hardware adapter (a headless server without the vendor's
 /// Vulkan driver) runs the CPU engine and says so loudly: that is a slow engine by mistake.
-fn hardware_gpu() -> Option<GpuContext> {
+pub fn hardware_gpu() -> Option<GpuContext> {
     let nodes = gpu_device_nodes();
     if !nodes && std::env::var_os("WGPU_ADAPTER_NAME").is_none() {
         return None;

@@ -102,6 +102,22 @@ impl Voxel {
         colour_weight: 0,
     };
 
+    /// A voxel from its stored fields (the colour in 8.8 fixed point), as the GPU's pool
+    /// (`super::gpu`) keeps them.
+    pub(super) fn from_fields(
+        tsdf: f32,
+        weight: f32,
+        colour_fixed: [u16; 3],
+        colour_weight: u16,
+    ) -> Self {
+        Self {
+            tsdf,
+            weight,
+            colour_fixed,
+            colour_weight,
+        }
+    }
+
     /// The averaged colour (black before any colour was seen).
     pub fn colour(&self) -> [u8; 3] {
         self.colour_fixed
@@ -355,6 +371,37 @@ fn observe_colour_row(
 }
 }
 
+/// The blocks of `blocks` beyond the `max_blocks` nearest to `centre_in_world` (0: no limit),
+/// which [`VoxelBlockGrid::drop_farthest`] drops: the ones whose centres (blocks of voxels of
+/// `voxel_size_m`) lie farthest from it, ties broken by index so that the choice is
+/// repeatable. O(n) in the blocks held (a selection, not a sort), and only when over the limit.
+pub(super) fn farthest_blocks<V>(
+    blocks: &BlockMap<V>,
+    max_blocks: usize,
+    voxel_size_m: f32,
+    centre_in_world: DVec3,
+) -> Vec<BlockIndex> {
+    if max_blocks == 0 || blocks.len() <= max_blocks {
+        return Vec::new();
+    }
+    let block_m = f64::from(voxel_size_m) * BLOCK_SIDE as f64;
+    let half = DVec3::splat(0.5 * block_m - 0.5 * f64::from(voxel_size_m));
+    let mut by_distance: Vec<(f64, BlockIndex)> = blocks
+        .keys()
+        .map(|index| {
+            let [a, b, c] = index.0.map(f64::from);
+            let centre = DVec3::new(a, b, c) * block_m + half;
+            (centre.distance_squared(centre_in_world), *index)
+        })
+        .collect();
+    // The `max_blocks` nearest first.
+    by_distance.select_nth_unstable_by(max_blocks, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    by_distance
+        .drain(max_blocks..)
+        .map(|(_, index)| index)
+        .collect()
+}
+
 /// The TSDF grid: blocks by index, the voxel size, and the blocks changed and removed since
 /// the last meshing ([`super::Mesh::update`] takes both).
 #[derive(Debug, Clone)]
@@ -462,30 +509,32 @@ impl VoxelBlockGrid {
     /// were dropped; they join [`Self::removed_blocks`]. O(n) in the blocks held (a selection,
     /// not a sort), and only when over the limit.
     pub fn drop_farthest(&mut self, max_blocks: usize, centre_in_world: DVec3) -> usize {
-        if max_blocks == 0 || self.blocks.len() <= max_blocks {
-            return 0;
+        let dropped = farthest_blocks(&self.blocks, max_blocks, self.voxel_size_m, centre_in_world);
+        for index in &dropped {
+            self.remove_block(*index);
         }
-        let block_m = f64::from(self.block_size_m());
-        let half = DVec3::splat(0.5 * block_m - 0.5 * f64::from(self.voxel_size_m));
-        let mut by_distance: Vec<(f64, BlockIndex)> = self
-            .blocks
-            .keys()
-            .map(|index| {
-                let [a, b, c] = index.0.map(f64::from);
-                let centre = DVec3::new(a, b, c) * block_m + half;
-                (centre.distance_squared(centre_in_world), *index)
-            })
-            .collect();
-        // The `max_blocks` nearest first (ties broken by index, so the choice is repeatable).
-        by_distance
-            .select_nth_unstable_by(max_blocks, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let dropped = by_distance.len() - max_blocks;
-        for (_, index) in by_distance.drain(max_blocks..) {
-            self.blocks.remove(&index);
-            self.changed.remove(&index);
-            self.removed.insert(index);
-        }
-        dropped
+        dropped.len()
+    }
+
+    /// Drops one block (it joins [`Self::removed_blocks`]).
+    pub(super) fn remove_block(&mut self, index: BlockIndex) {
+        self.blocks.remove(&index);
+        self.changed.remove(&index);
+        self.removed.insert(index);
+    }
+
+    /// Allocates an empty block at `index` (as the integration allocates them, not marked
+    /// changed).
+    pub(super) fn insert_empty_block(&mut self, index: BlockIndex) {
+        self.blocks.insert(index, Block::default());
+        self.removed.remove(&index);
+    }
+
+    /// Puts a block in (replacing the one at `index`) and marks it changed.
+    pub(super) fn insert_block(&mut self, index: BlockIndex, block: Block) {
+        self.blocks.insert(index, block);
+        self.removed.remove(&index);
+        self.changed.insert(index);
     }
 
     /// The blocks dropped ([`Self::drop_farthest`], [`Self::clear`]) since the last meshing.

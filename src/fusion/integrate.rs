@@ -46,7 +46,7 @@ mod pinhole;
 use allocate::RayGrid;
 use pinhole::{pinhole_samples, update_block_pinhole, PinholeSamples, DEPTH_TILE};
 
-use super::blocks::{Block, BlockIndex, BlockSet, RowObservation, BLOCK_SIDE};
+use super::blocks::{Block, BlockIndex, BlockMap, BlockSet, RowObservation, BLOCK_SIDE};
 use super::{FusionError, FusionParams, VoxelBlockGrid};
 
 /// The least weight of one observation (a view at 84 degrees to the surface or more).
@@ -128,73 +128,20 @@ pub(super) fn integrate_into(
     model: &CameraModel,
     world_from_cam: &RigidTransform,
 ) -> Result<IntegrationStats, FusionError> {
-    let world_from_cam = super::check_view(grid, params, model, world_from_cam, "fusion camera")?;
-    let (width, height) = (model.intrinsics.width_px, model.intrinsics.height_px);
-    let size_error = |what, got_width, got_height| FusionError::ImageSize {
-        what,
-        got_width,
-        got_height,
-        width,
-        height,
+    let frame = FrameInput {
+        depth,
+        weights,
+        colour,
+        model,
+        world_from_cam,
     };
-    if depth.width != width || depth.height != height {
-        return Err(size_error("depth image", depth.width, depth.height));
-    }
-    let pixels = width as usize * height as usize;
-    if depth.data.len() != pixels {
-        return Err(FusionError::Camera(format!(
-            "depth image of {width}x{height} holds {} values",
-            depth.data.len()
-        )));
-    }
-    if let Some(w) = weights {
-        if w.width != width || w.height != height || w.data.len() != pixels {
-            return Err(size_error("weight image", w.width, w.height));
-        }
-    }
-    if let Some(c) = colour {
-        if c.width != width || c.height != height {
-            return Err(size_error("colour image", c.width, c.height));
-        }
-        if c.pixels.len() != pixels {
-            return Err(FusionError::Camera(format!(
-                "colour image of {width}x{height} holds {} pixels",
-                c.pixels.len()
-            )));
-        }
-    }
-    // Step 0: the valid depths and each pixel's observation weight, once per frame.
-    let taken = std::mem::take(scratch);
-    let mut view = View::new(grid, params, depth, colour, model, &world_from_cam, taken);
-    if let Some(w) = weights {
-        for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
-            let keep = w.is_finite() && w > 0.0;
-            sample.weight = if keep { sample.weight * w } else { f32::NAN };
-        }
-    }
+    let (view, world_from_cam) = prepare(grid.voxel_size_m(), scratch, params, &frame)?;
     let pixels_valid = view.pixels_valid;
-    // Blocks already allocated that the view may update (before step 1 adds its own).
-    let mut in_view: BlockSet = grid
-        .blocks_map()
-        .par_iter()
-        .filter(|(index, _)| view.block_in_view(**index))
-        .map(|(index, _)| *index)
-        .collect::<Vec<_>>()
-        .into_iter()
-        .collect();
     // Step 1: allocation.
-    let band = view.band_blocks(&world_from_cam);
+    let (in_view, new) = blocks_to_update(&view, grid.blocks_map(), &world_from_cam);
     let map = grid.blocks_map_mut();
     // The new blocks made on the pool's threads: a block's zeroed voxels are 6 KiB of fresh
-    // pages to fault in, a first frame's ~1500 of them 9 MB (`band` may list a block more
-    // than once: `in_view` keeps one of each).
-    let mut new = Vec::new();
-    for index in band {
-        if in_view.insert(index) && !map.contains_key(&index) {
-            new.push(index);
-        }
-    }
-    new.sort_unstable();
+    // pages to fault in, a first frame's ~1500 of them 9 MB.
     let made: Vec<Block> = new.par_iter().map(|_| Block::default()).collect();
     let blocks_allocated = new.len();
     map.extend(new.into_iter().zip(made));
@@ -238,6 +185,113 @@ pub(super) fn integrate_into(
     Ok(stats)
 }
 
+/// One depth map with what goes with it, as [`integrate_weighted`] takes them.
+pub(super) struct FrameInput<'a> {
+    pub depth: &'a ImageF32,
+    pub weights: Option<&'a ImageF32>,
+    pub colour: Option<&'a Rgba8Image>,
+    pub model: &'a CameraModel,
+    pub world_from_cam: &'a RigidTransform,
+}
+
+/// The checks of a frame and step 0 (each pixel's depth, weight and colour), shared by the CPU
+/// update and the GPU's (`super::gpu`): the view, with the buffers of `scratch` (hand them back
+/// with [`View::into_scratch`]), and the pose with its rotation normalised.
+pub(super) fn prepare<'a>(
+    voxel_size_m: f32,
+    scratch: &mut IntegrationScratch,
+    params: &FusionParams,
+    frame: &FrameInput<'a>,
+) -> Result<(View<'a>, RigidTransform), FusionError> {
+    let FrameInput {
+        depth,
+        weights,
+        colour,
+        model,
+        world_from_cam,
+    } = *frame;
+    let world_from_cam =
+        super::check_view(voxel_size_m, params, model, world_from_cam, "fusion camera")?;
+    let (width, height) = (model.intrinsics.width_px, model.intrinsics.height_px);
+    let size_error = |what, got_width, got_height| FusionError::ImageSize {
+        what,
+        got_width,
+        got_height,
+        width,
+        height,
+    };
+    if depth.width != width || depth.height != height {
+        return Err(size_error("depth image", depth.width, depth.height));
+    }
+    let pixels = width as usize * height as usize;
+    if depth.data.len() != pixels {
+        return Err(FusionError::Camera(format!(
+            "depth image of {width}x{height} holds {} values",
+            depth.data.len()
+        )));
+    }
+    if let Some(w) = weights {
+        if w.width != width || w.height != height || w.data.len() != pixels {
+            return Err(size_error("weight image", w.width, w.height));
+        }
+    }
+    if let Some(c) = colour {
+        if c.width != width || c.height != height {
+            return Err(size_error("colour image", c.width, c.height));
+        }
+        if c.pixels.len() != pixels {
+            return Err(FusionError::Camera(format!(
+                "colour image of {width}x{height} holds {} pixels",
+                c.pixels.len()
+            )));
+        }
+    }
+    // Step 0: the valid depths and each pixel's observation weight, once per frame.
+    let taken = std::mem::take(scratch);
+    let mut view = View::new(
+        voxel_size_m,
+        params,
+        depth,
+        colour,
+        model,
+        &world_from_cam,
+        taken,
+    );
+    if let Some(w) = weights {
+        for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
+            let keep = w.is_finite() && w > 0.0;
+            sample.weight = if keep { sample.weight * w } else { f32::NAN };
+        }
+    }
+    Ok((view, world_from_cam))
+}
+
+/// Step 1 over the blocks allocated so far (`allocated`: the CPU's grid, the GPU's slots): the
+/// blocks the view updates (those allocated inside the view and the band's new ones) and the
+/// new ones among them, sorted.
+pub(super) fn blocks_to_update<V: Sync>(
+    view: &View<'_>,
+    allocated: &BlockMap<V>,
+    world_from_cam: &RigidTransform,
+) -> (BlockSet, Vec<BlockIndex>) {
+    let mut in_view: BlockSet = allocated
+        .par_iter()
+        .filter(|(index, _)| view.block_in_view(**index))
+        .map(|(index, _)| *index)
+        .collect::<Vec<_>>()
+        .into_iter()
+        .collect();
+    // `band` may list a block more than once: `in_view` keeps one of each.
+    let mut new = Vec::new();
+    for index in view.band_blocks(world_from_cam) {
+        if in_view.insert(index) && !allocated.contains_key(&index) {
+            new.push(index);
+        }
+    }
+    new.sort_unstable();
+    (in_view, new)
+}
+
 /// The depths a frame integrates: finite, positive and within `[min_m, max_m]`.
 #[derive(Clone, Copy)]
 struct DepthLimits {
@@ -268,7 +322,7 @@ fn validate_depths(limits: DepthLimits, out: &mut [f32], input: &[f32]) -> usize
 }
 
 /// Camera frame to pixel.
-enum Projector {
+pub(super) enum Projector {
     Pinhole {
         fx: f32,
         fy: f32,
@@ -304,11 +358,11 @@ impl Projector {
 #[derive(Debug, Clone, Copy)]
 pub(super) struct PixelSample {
     /// The depth where valid, NaN elsewhere.
-    depth_m: f32,
+    pub(super) depth_m: f32,
     /// The observation weight ([`View::pixel_weight`]), NaN where there is none.
-    weight: f32,
+    pub(super) weight: f32,
     /// The colour ([`Rgba8Image::pack`]), 0 without a colour image.
-    rgb: u32,
+    pub(super) rgb: u32,
 }
 
 /// The per-pixel buffers of [`View`], kept by [`super::Mapper`] from one frame to the next: a fresh
@@ -328,30 +382,30 @@ impl std::fmt::Debug for IntegrationScratch {
 }
 
 /// One depth map with its camera, as the integration reads it.
-struct View<'a> {
+pub(super) struct View<'a> {
     depth: &'a ImageF32,
     /// The depth where valid (finite, within the depth limits), NaN elsewhere.
     depth_m: Vec<f32>,
-    pixels_valid: usize,
+    pub(super) pixels_valid: usize,
     /// What step 2 reads of each pixel, side by side.
-    samples: Vec<PixelSample>,
+    pub(super) samples: Vec<PixelSample>,
     /// A pinhole camera's greatest valid depth per [`DEPTH_TILE`]-square tile (row by row,
     /// `width.div_ceil(DEPTH_TILE)` a row; -inf where none is valid); empty for a distorted
     /// camera.
     tile_max: Vec<f32>,
-    colour: Option<&'a Rgba8Image>,
-    model: CameraModel,
-    projector: Projector,
+    pub(super) colour: Option<&'a Rgba8Image>,
+    pub(super) model: CameraModel,
+    pub(super) projector: Projector,
     /// A distorted model's rays for step 1.
     ray_grid: Option<RayGrid>,
     cam_from_world_rotation: DMat3,
     cam_from_world_translation: DVec3,
     /// `cam_from_world_rotation` times the voxel size, column per axis (f32).
-    voxel_steps_in_cam: Mat3,
+    pub(super) voxel_steps_in_cam: Mat3,
     voxel_size_m: f32,
-    truncation_m: f32,
+    pub(super) truncation_m: f32,
     max_depth_m: f32,
-    max_weight: f32,
+    pub(super) max_weight: f32,
     /// Whether the image has at least 2x2 pixels (step 2's lanes clamp their offsets into it),
     /// fewer than 2^31 (they are i32) and sides below 2^22 (`pinhole::floor_small`).
     lanes_fit: bool,
@@ -359,7 +413,7 @@ struct View<'a> {
 
 impl<'a> View<'a> {
     fn new(
-        grid: &VoxelBlockGrid,
+        voxel_size_m: f32,
         params: &FusionParams,
         depth: &'a ImageF32,
         colour: Option<&'a Rgba8Image>,
@@ -443,8 +497,8 @@ impl<'a> View<'a> {
             projector,
             cam_from_world_rotation: rotation,
             cam_from_world_translation: cam_from_world.translation,
-            voxel_steps_in_cam: (rotation * f64::from(grid.voxel_size_m())).as_mat3(),
-            voxel_size_m: grid.voxel_size_m(),
+            voxel_steps_in_cam: (rotation * f64::from(voxel_size_m)).as_mat3(),
+            voxel_size_m,
             truncation_m: trunc,
             max_depth_m,
             max_weight: params.max_weight,
@@ -474,7 +528,7 @@ impl<'a> View<'a> {
     }
 
     /// Hands the per-pixel buffers back for the next frame.
-    fn into_scratch(self) -> IntegrationScratch {
+    pub(super) fn into_scratch(self) -> IntegrationScratch {
         IntegrationScratch {
             depth_m: self.depth_m,
             samples: self.samples,
@@ -494,7 +548,7 @@ impl<'a> View<'a> {
     }
 
     /// Whether an allocated block may be seen (a conservative test on its bounding box).
-    fn block_in_view(&self, index: BlockIndex) -> bool {
+    pub(super) fn block_in_view(&self, index: BlockIndex) -> bool {
         let first = index.first_voxel();
         let half = (BLOCK_SIDE as f64 - 1.0) / 2.0;
         let s = f64::from(self.voxel_size_m);
@@ -638,14 +692,18 @@ impl<'a> View<'a> {
         du.cross(dv).try_normalize()
     }
 
-    /// Step 2 for one block; returns how many voxels it updated.
-    fn update_block(&self, index: BlockIndex, block: &mut Block) -> usize {
+    /// The centre of a block's voxel `(0, 0, 0)` in the camera frame (made in f64, so that far
+    /// from the world's origin it keeps the precision of a voxel's offset in the block).
+    pub(super) fn block_origin_in_cam(&self, index: BlockIndex) -> Vec3 {
         let first = index.first_voxel();
         let origin_in_world = DVec3::new(first[0] as f64, first[1] as f64, first[2] as f64)
             * f64::from(self.voxel_size_m);
-        let origin = (self.cam_from_world_rotation * origin_in_world
-            + self.cam_from_world_translation)
-            .as_vec3();
+        (self.cam_from_world_rotation * origin_in_world + self.cam_from_world_translation).as_vec3()
+    }
+
+    /// Step 2 for one block; returns how many voxels it updated.
+    fn update_block(&self, index: BlockIndex, block: &mut Block) -> usize {
+        let origin = self.block_origin_in_cam(index);
         let [step_x, step_y, step_z] = [
             self.voxel_steps_in_cam.x_axis,
             self.voxel_steps_in_cam.y_axis,
@@ -729,7 +787,7 @@ mod tests {
         let depth = scene(&second);
         let scratch = IntegrationScratch::default();
         let view = View::new(
-            &grid,
+            grid.voxel_size_m(),
             &params,
             &depth,
             Some(&colour),

@@ -13,6 +13,8 @@
 //!   grid, [`IntegrationStats`]. Observations weigh the squared cosine between the viewing
 //!   ray and the surface normal (nvblox weighs them equally), which keeps grazing views from
 //!   pushing a curved surface outwards.
+//! - [`gpu`]: [`GpuTsdf`]: the integration's twin on a wgpu device (the voxels in a device
+//!   pool, the block hash and steps 0 and 1 on the host), read back into a grid for meshing.
 //! - [`mesh`]: [`Mesh`]: marching cubes per block, re-meshing only the blocks that changed
 //!   ([`Mesh::update`], [`MeshStats`]); [`Mesh::collect`] concatenates the blocks.
 //! - [`ply`]: [`write_ply`]: the collected mesh as a binary PLY (MeshLab, Blender).
@@ -36,6 +38,7 @@
 
 pub mod accuracy;
 pub mod blocks;
+pub mod gpu;
 pub mod integrate;
 pub mod mapper;
 pub mod mesh;
@@ -46,6 +49,7 @@ pub mod weights;
 
 pub use accuracy::{vertex_accuracy, DepthAccuracy, DepthAccuracySummary, VertexAccuracy};
 pub use blocks::{Block, BlockIndex, Voxel, VoxelBlockGrid, BLOCK_SIDE, VOXELS_PER_BLOCK};
+pub use gpu::{GpuFusionError, GpuTsdf};
 pub use integrate::{integrate, integrate_weighted, IntegrationStats};
 pub use mapper::{DepthView, Mapper};
 pub use mesh::{BlockMesh, Mesh, MeshStats};
@@ -143,20 +147,20 @@ impl FusionParams {
 }
 
 /// The checks [`integrate()`] and [`raycast_depth`] make of a view before using it: the
-/// parameters, the grid's voxel size, the camera (`what` names it in the error) and its pose;
+/// parameters, the grid's voxel size (`voxel_size_m`), the camera (`what` names it in the error) and its pose;
 /// returns the pose with its rotation normalised (tf2's tolerance).
 pub(crate) fn check_view(
-    grid: &VoxelBlockGrid,
+    voxel_size_m: f32,
     params: &FusionParams,
     model: &crate::geometry::CameraModel,
     world_from_cam: &crate::geometry::RigidTransform,
     what: &str,
 ) -> Result<crate::geometry::RigidTransform, FusionError> {
     params.validate()?;
-    if (params.voxel_size_m - grid.voxel_size_m()).abs() > 1e-6 * grid.voxel_size_m() {
+    if (params.voxel_size_m - voxel_size_m).abs() > 1e-6 * voxel_size_m {
         return Err(FusionError::VoxelSizeMismatch {
             params_m: params.voxel_size_m,
-            grid_m: grid.voxel_size_m(),
+            grid_m: voxel_size_m,
         });
     }
     model

@@ -35,7 +35,13 @@ pub fn raycast_depth(
     model: &CameraModel,
     world_from_cam: &RigidTransform,
 ) -> Result<ImageF32, FusionError> {
-    let world_from_cam = super::check_view(grid, params, model, world_from_cam, "ray-cast camera")?;
+    let world_from_cam = super::check_view(
+        grid.voxel_size_m(),
+        params,
+        model,
+        world_from_cam,
+        "ray-cast camera",
+    )?;
     let (width, height) = (model.intrinsics.width_px, model.intrinsics.height_px);
     let caster = Caster {
         grid,

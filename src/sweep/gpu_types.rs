@@ -1,5 +1,5 @@
-//! Structs shared by Rust and WGSL. Keep in sync with `shaders/common.wgsl` (`Camera`, `Params`,
-//! `Batch`); the size test below guards the layout.
+//! Structs shared by Rust and WGSL. Keep in sync with `shaders/camera.wgsl` (`Camera`) and
+//! `shaders/common.wgsl` (`Params`, `Batch`); the size test below guards the layout.
 
 use bytemuck::{Pod, Zeroable};
 
@@ -221,7 +221,11 @@ mod tests {
             std::mem::size_of::<GpuBatch>(),
             16 + 16 * MAX_BATCH_PLANES as usize
         );
-        let common = include_str!("../../shaders/common.wgsl");
+        // What build.rs prepends to every stage.
+        let common = concat!(
+            include_str!("../../shaders/camera.wgsl"),
+            include_str!("../../shaders/common.wgsl")
+        );
         // The WGSL `Params` names the same fields in the same order (all 4-byte scalars).
         let start = common
             .find("struct Params {")

@@ -9,6 +9,11 @@
 //! - `integrate steady`: frame 1 into a grid that holds frame 0 (already meshed): the live case;
 //! - `mesh`: [`Mapper::update_mesh`](crate::fusion::Mapper::update_mesh) of the blocks that frame 1 changed.
 //!
+//! With `--device gpu` (or `auto` where a hardware GPU exists) the same three on the device
+//! ([`GpuTsdf`]) in the same run: integration on the GPU (it waits for the device), and the
+//! mesh as that path makes it: the changed blocks read back ([`GpuTsdf::sync_into`]) and
+//! meshed on the CPU.
+//!
 //! The peer, `tools/open3d_fusion_peer.py`, runs the same two integrations
 //! (`compute_unique_block_coordinates` + `integrate`, block resolutions 8 and 16) on the same
 //! depth maps, colour and poses, written for it as `.npy` files and JSON into a temporary folder,
@@ -25,8 +30,12 @@ use serde::{Deserialize, Serialize};
 
 use super::{median, round3, BenchArgs};
 use crate::datasets::icl_nuim::{parse_povray_camera, povray_camera_model, read_icl_depth};
-use crate::fusion::{DepthView, FusionParams, IntegrationStats, Mapper, Weighting};
+use crate::engine::Device;
+use crate::fusion::{
+    DepthView, FusionParams, GpuTsdf, IntegrationStats, Mapper, Mesh, VoxelBlockGrid, Weighting,
+};
 use crate::geometry::{CameraModel, RigidTransform};
+use crate::gpu_context::GpuContext;
 use crate::image::{ImageF32, Rgba8Image};
 use crate::synthetic::{self, Scene};
 
@@ -41,6 +50,20 @@ pub struct Frame {
     pub depth: ImageF32,
     pub colour: Rgba8Image,
     pub world_from_cam: RigidTransform,
+}
+
+impl Frame {
+    /// The frame with its colour, as the integrations take it (no confidence, no baseline).
+    fn view<'a>(&'a self, model: &'a CameraModel) -> DepthView<'a> {
+        DepthView {
+            depth: &self.depth,
+            confidence: None,
+            baseline_ratio: None,
+            colour: Some(&self.colour),
+            model,
+            map_from_cam: &self.world_from_cam,
+        }
+    }
 }
 
 /// The bench's input: where it came from, the camera, two frames.
@@ -98,6 +121,23 @@ pub struct FusionBenchResult {
     pub steady_vs_open3d: Option<f64>,
     /// `mesh_ms / integrate_steady_ms` (the bar: at most 1).
     pub mesh_vs_integrate: f64,
+    /// The GPU path (`--device gpu`, or `auto` on a hardware GPU).
+    pub gpu: Option<GpuFusionResult>,
+}
+
+/// What the bench measured of the GPU path ([`GpuTsdf`]).
+#[derive(Debug, Serialize)]
+pub struct GpuFusionResult {
+    pub adapter: String,
+    pub integrate_first_ms: f64,
+    pub integrate_steady_ms: f64,
+    /// Frame 1's changed blocks read back and re-meshed on the CPU.
+    pub mesh_ms: f64,
+    pub first: IntegrationStats,
+    pub steady: IntegrationStats,
+    pub blocks_meshed: usize,
+    /// The device's voxel pool.
+    pub pool_mib: f64,
 }
 
 /// The parameters of the bench (2 cm voxels, the defaults otherwise).
@@ -221,16 +261,7 @@ pub fn time_ours(
 ) -> anyhow::Result<FusionBenchResult> {
     let [a, b] = &input.frames;
     let model = &input.model;
-    let run = |mapper: &mut Mapper, frame: &Frame| {
-        mapper.integrate(&DepthView {
-            depth: &frame.depth,
-            confidence: None,
-            baseline_ratio: None,
-            colour: Some(&frame.colour),
-            model,
-            map_from_cam: &frame.world_from_cam,
-        })
-    };
+    let run = |mapper: &mut Mapper, frame: &Frame| mapper.integrate(&frame.view(model));
     let new_map = || Mapper::new(*params, Weighting::EQUAL);
     // The steady state's starting point: frame 0 integrated and meshed.
     let mut base = new_map()?;
@@ -291,6 +322,71 @@ pub fn time_ours(
         first_vs_open3d: None,
         steady_vs_open3d: None,
         mesh_vs_integrate: round3(mesh_ms / integrate_steady_ms),
+        gpu: None,
+    })
+}
+
+/// The device the GPU path runs on: none for `--device cpu`, wgpu's adapter (lavapipe
+/// without a GPU) for `gpu`, a hardware GPU if there is one for `auto`.
+fn fusion_gpu(device: Device) -> anyhow::Result<Option<GpuContext>> {
+    Ok(match device {
+        Device::Cpu => None,
+        Device::Gpu => Some(GpuContext::new()?),
+        Device::Auto => crate::engine::hardware_gpu(),
+    })
+}
+
+/// Times the GPU path on `input`: as [`time_ours`], a fresh [`GpuTsdf`] per run (a grid on
+/// the device cannot be cloned: the steady state's frame 0 is integrated again, untimed).
+pub fn time_gpu(
+    gpu: &GpuContext,
+    input: &FusionBenchInput,
+    params: &FusionParams,
+    repeats: usize,
+) -> anyhow::Result<GpuFusionResult> {
+    let [a, b] = &input.frames;
+    let model = &input.model;
+    let run = |tsdf: &mut GpuTsdf, frame: &Frame| tsdf.integrate(&frame.view(model), None);
+    let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut last = None;
+    for i in 0..=repeats.max(1) {
+        let mut empty = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
+        let started = Instant::now();
+        let first = run(&mut empty, a)?;
+        let first_elapsed = started.elapsed();
+        drop(empty);
+
+        // Frame 0 integrated and meshed, then frame 1.
+        let mut tsdf = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
+        let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
+        let mut mesh = Mesh::new();
+        run(&mut tsdf, a)?;
+        tsdf.sync_into(&mut grid)?;
+        mesh.update(&mut grid);
+        let started = Instant::now();
+        let steady = run(&mut tsdf, b)?;
+        let steady_elapsed = started.elapsed();
+        let started = Instant::now();
+        tsdf.sync_into(&mut grid)?;
+        let stats = mesh.update(&mut grid);
+        let mesh_elapsed = started.elapsed();
+        if i > 0 {
+            first_ms.push(first_elapsed.as_secs_f64() * 1e3);
+            steady_ms.push(steady_elapsed.as_secs_f64() * 1e3);
+            mesh_ms.push(mesh_elapsed.as_secs_f64() * 1e3);
+        }
+        last = Some((first, steady, stats.blocks_meshed, tsdf.pool_bytes()));
+    }
+    let (first, steady, blocks_meshed, pool) = last.context("no run")?;
+    Ok(GpuFusionResult {
+        adapter: gpu.adapter_label(),
+        integrate_first_ms: round3(median(first_ms)),
+        integrate_steady_ms: round3(median(steady_ms)),
+        mesh_ms: round3(median(mesh_ms)),
+        first,
+        steady,
+        blocks_meshed,
+        pool_mib: round3(pool as f64 / (1024.0 * 1024.0)),
     })
 }
 
@@ -438,6 +534,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let input = load_input(args.fusion_data.as_deref())?;
     let peer = run_open3d(args.open3d_python.as_deref(), &input, &params, repeats);
     let mut result = time_ours(&input, &params, repeats)?;
+    if let Some(gpu) = fusion_gpu(args.device)? {
+        result.gpu = Some(time_gpu(&gpu, &input, &params, repeats)?);
+    }
     if let Ok(peer) = &peer {
         let best = peer
             .results
@@ -516,5 +615,70 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         "grid: {} blocks, {:.1} MiB",
         result.blocks, result.memory_mib
     );
+    if let Some(gpu) = &result.gpu {
+        print_gpu(gpu);
+    }
     Ok(())
+}
+
+/// The GPU path's rows.
+fn print_gpu(gpu: &GpuFusionResult) {
+    println!("GPU: {}", gpu.adapter);
+    println!(
+        "sweepdepth GPU integrate first:  {:.1} ms ({} blocks allocated)",
+        gpu.integrate_first_ms, gpu.first.blocks_allocated
+    );
+    println!(
+        "sweepdepth GPU integrate steady: {:.1} ms ({} blocks in view, {} new, {} voxels updated)",
+        gpu.integrate_steady_ms,
+        gpu.steady.blocks_in_view,
+        gpu.steady.blocks_allocated,
+        gpu.steady.voxels_updated
+    );
+    println!(
+        "sweepdepth GPU mesh update:      {:.1} ms ({} blocks read back and re-meshed on the CPU)",
+        gpu.mesh_ms, gpu.blocks_meshed
+    );
+    println!("GPU voxel pool: {:.1} MiB", gpu.pool_mib);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `bench --fusion --device gpu`'s GPU rows on the built-in pair (lavapipe in CI): the GPU
+    /// path runs beside the CPU's and does the same work (blocks and voxels updated, blocks
+    /// re-meshed). Only the counts are compared, never the times.
+    #[test]
+    fn the_gpu_rows_do_the_cpus_work() {
+        let input = load_synthetic().unwrap();
+        let params = bench_params();
+        let cpu = time_ours(&input, &params, 1).unwrap();
+        let gpu = match fusion_gpu(Device::Gpu) {
+            Ok(Some(gpu)) => gpu,
+            Ok(None) => unreachable!("--device gpu always asks wgpu"),
+            Err(e) => panic!("GPU tests need an adapter (lavapipe is fine): {e}"),
+        };
+        let result = time_gpu(&gpu, &input, &params, 1).unwrap();
+        let counts = |s: &IntegrationStats| {
+            (
+                s.pixels_valid,
+                s.blocks_allocated,
+                s.blocks_in_view,
+                s.blocks_updated,
+            )
+        };
+        assert_eq!(counts(&result.first), counts(&cpu.first));
+        assert_eq!(counts(&result.steady), counts(&cpu.steady));
+        assert!(
+            result
+                .steady
+                .voxels_updated
+                .abs_diff(cpu.steady.voxels_updated)
+                <= 10
+        );
+        assert_eq!(result.blocks_meshed, cpu.blocks_meshed);
+        assert!(result.first.blocks_allocated > 500 && result.pool_mib > 0.0);
+        assert!(fusion_gpu(Device::Cpu).unwrap().is_none());
+    }
 }

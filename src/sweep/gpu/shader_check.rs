@@ -100,7 +100,7 @@ fn every_shader_validates_and_matches_its_registry_row() {
         .map(|((_, s), source)| (s, source, naga::valid::Capabilities::SUBGROUP));
     let mut failures = Vec::new();
     for (stage, source, capabilities) in stages.chain(variants) {
-        let label = format!("common.wgsl + shaders/{}.wgsl", stage.name);
+        let label = format!("camera.wgsl + common.wgsl + shaders/{}.wgsl", stage.name);
         match naga::front::wgsl::parse_str(source) {
             Err(error) => failures.push(error.emit_to_string_with_path(source, &label)),
             Ok(module) => {

@@ -1,0 +1,788 @@
+//! TSDF integration on a wgpu device (issue 56), the twin of [`super::integrate_weighted`]:
+//! the same checks, step 0 (each pixel's valid depth, cos² observation weight and colour) and
+//! step 1 (the blocks the truncation band crosses, and those allocated inside the view) on the
+//! host with the CPU's own code; step 2, the projective update of every voxel of those blocks,
+//! in `shaders/tsdf_integrate.wgsl`, one workgroup per block.
+//!
+//! The voxels live on the device in a pool of slots of [`VOXELS_PER_BLOCK`] voxels (16 bytes
+//! each, as [`Voxel`] keeps them), grown by doubling up to the adapter's largest storage
+//! buffer; the block hash stays on the host (a map from [`BlockIndex`] to slot): step 1 reads
+//! it, and a frame uploads only its samples and the list of (block origin, slot) to update.
+//! [`GpuTsdf::sync_into`] copies the blocks changed since the last call into a
+//! [`VoxelBlockGrid`] (for [`super::Mesh::update`] on the CPU), [`GpuTsdf::read_grid`] all of
+//! them.
+
+use std::borrow::Cow;
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
+use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
+use super::{
+    DepthView, FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK,
+};
+use crate::geometry::{CameraModel, Distortion};
+use crate::image::ImageF32;
+
+/// The shader: `camera.wgsl` (the camera struct and its projection with distortion, as the
+/// sweep's stages use it) and the integration.
+const SHADER: &str = concat!(
+    include_str!("../../shaders/camera.wgsl"),
+    "\n",
+    include_str!("../../shaders/tsdf_integrate.wgsl")
+);
+
+/// The most workgroups along one dimension of a dispatch (WebGPU's limit).
+const MAX_GROUPS_PER_DIMENSION: u32 = 65_535;
+/// Bytes of one voxel in the pool.
+const VOXEL_BYTES: u64 = std::mem::size_of::<PoolVoxel>() as u64;
+/// Bytes of one slot.
+const SLOT_BYTES: u64 = VOXEL_BYTES * VOXELS_PER_BLOCK as u64;
+/// The pool's first size, in slots (grown by doubling).
+const FIRST_SLOTS: u32 = 1024;
+
+/// `camera.wgsl`'s distortion models.
+const DIST_NONE: u32 = 0;
+const DIST_PLUMB_BOB: u32 = 1;
+const DIST_EQUIDISTANT: u32 = 2;
+
+/// WGSL `Camera` (`shaders/camera.wgsl`); only the intrinsics, distortion and size are read.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct GpuCamera {
+    rows: [[f32; 4]; 3],
+    intrinsics: [f32; 4],
+    dist_a: [f32; 4],
+    dist_b: [f32; 4],
+    size: [u32; 4],
+    info: [u32; 4],
+}
+
+/// WGSL `TsdfParams`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct TsdfUniform {
+    camera: GpuCamera,
+    step_x: [f32; 4],
+    step_y: [f32; 4],
+    step_z: [f32; 4],
+    truncation_m: f32,
+    inv_truncation: f32,
+    max_weight: f32,
+    colour: u32,
+    items: u32,
+    pad: [u32; 3],
+}
+
+/// WGSL `Sample`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct GpuSample {
+    depth_m: f32,
+    weight: f32,
+    rgb: u32,
+}
+
+/// WGSL `Work`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct GpuWork {
+    origin: [f32; 3],
+    slot: u32,
+}
+
+/// WGSL `PoolVoxel`: a [`Voxel`]'s fields, the colour's 16-bit halves in pairs.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct PoolVoxel {
+    tsdf: f32,
+    weight: f32,
+    rg: u32,
+    b_count: u32,
+}
+
+impl PoolVoxel {
+    fn voxel(&self) -> Voxel {
+        let low = |w: u32| (w & 0xffff) as u16;
+        let high = |w: u32| (w >> 16) as u16;
+        Voxel::from_fields(
+            self.tsdf,
+            self.weight,
+            [low(self.rg), high(self.rg), low(self.b_count)],
+            high(self.b_count),
+        )
+    }
+}
+
+/// Why the GPU integration refused its input or failed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GpuFusionError {
+    #[error(transparent)]
+    Fusion(#[from] FusionError),
+    #[error(
+        "the GPU's voxel pool cannot hold {blocks} blocks ({bytes} bytes): the adapter's largest \
+         storage buffer is {limit} bytes (lower FusionParams::max_blocks or raise the voxel size)"
+    )]
+    PoolFull {
+        blocks: usize,
+        bytes: u64,
+        limit: u64,
+    },
+    #[error(
+        "the {what} of a {width}x{height} depth map ({bytes} bytes) exceeds the adapter's largest \
+         storage buffer ({limit} bytes)"
+    )]
+    TooLarge {
+        what: &'static str,
+        width: u32,
+        height: u32,
+        bytes: u64,
+        limit: u64,
+    },
+    #[error("GPU fusion: {0}")]
+    Gpu(String),
+}
+
+/// A device buffer that grows (to a power of two of bytes) when a frame needs more.
+struct Grown {
+    buffer: wgpu::Buffer,
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+}
+
+impl Grown {
+    fn new(device: &wgpu::Device, label: &'static str, usage: wgpu::BufferUsages) -> Self {
+        Self {
+            buffer: make_buffer(device, label, 256, usage),
+            label,
+            usage,
+        }
+    }
+
+    /// Makes room for `bytes` (the contents are not kept), in a buffer of at most `limit`
+    /// bytes unless `bytes` is more.
+    fn reserve(&mut self, device: &wgpu::Device, bytes: u64, limit: u64) {
+        if bytes > self.buffer.size() {
+            let size = bytes.next_power_of_two().min(limit).max(bytes).max(256);
+            self.buffer = make_buffer(device, self.label, size, self.usage);
+        }
+    }
+}
+
+fn make_buffer(
+    device: &wgpu::Device,
+    label: &str,
+    size: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage,
+        mapped_at_creation: false,
+    })
+}
+
+/// The blocks of a TSDF grid on a wgpu device, integrated by `shaders/tsdf_integrate.wgsl`:
+/// [`GpuTsdf::integrate`] is [`super::integrate_weighted`] with the voxels on the device
+/// (the same blocks, the same arithmetic; on a CPU adapter the same values to float rounding).
+pub struct GpuTsdf {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    params: FusionParams,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    uniform: wgpu::Buffer,
+    /// The voxels, [`SLOT_BYTES`] per slot.
+    pool: wgpu::Buffer,
+    samples: Grown,
+    work: Grown,
+    /// Voxels updated per work item, and its copy for the host.
+    counts: Grown,
+    counts_readback: Grown,
+    /// The largest buffer the adapter binds, in bytes.
+    limit: u64,
+    /// Block to slot.
+    slots: BlockMap<u32>,
+    /// Slots of dropped blocks, to reuse (cleared first).
+    free: Vec<u32>,
+    /// Slots handed out so far (the pool's high-water mark).
+    next_slot: u32,
+    changed: BlockSet,
+    /// Allocated since the last [`GpuTsdf::sync_into`] (empty until updated).
+    allocated: BlockSet,
+    removed: BlockSet,
+    scratch: IntegrationScratch,
+}
+
+impl std::fmt::Debug for GpuTsdf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "GpuTsdf({} blocks, {} slots)",
+            self.slots.len(),
+            self.pool_slots()
+        )
+    }
+}
+
+impl GpuTsdf {
+    /// An empty grid with `params` (checked) on `device`.
+    pub fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        params: FusionParams,
+    ) -> Result<Self, GpuFusionError> {
+        params.validate()?;
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Storage { read_only },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let uniform_entry = wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("tsdf_integrate"),
+            entries: &[
+                uniform_entry,
+                storage(1, true),
+                storage(2, true),
+                storage(3, false),
+                storage(4, false),
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("tsdf_integrate"),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADER)),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("tsdf_integrate"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("tsdf_integrate"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("integrate"),
+            // The shader's block counter relies on zeroed workgroup memory.
+            compilation_options: wgpu::PipelineCompilationOptions::default(),
+            cache: None,
+        });
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(GpuFusionError::Gpu(format!(
+                "building the pipeline: {error}"
+            )));
+        }
+        let limits = device.limits();
+        let limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let storage_usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let first_slots = FIRST_SLOTS.min((limit / SLOT_BYTES).max(1) as u32);
+        Ok(Self {
+            device: device.clone(),
+            queue: queue.clone(),
+            params,
+            pipeline,
+            layout,
+            uniform: make_buffer(
+                device,
+                "tsdf params",
+                std::mem::size_of::<TsdfUniform>() as u64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            ),
+            pool: make_buffer(
+                device,
+                "tsdf pool",
+                pool_usage_size(first_slots),
+                pool_usage(),
+            ),
+            samples: Grown::new(device, "tsdf samples", storage_usage),
+            work: Grown::new(device, "tsdf work", storage_usage),
+            counts: Grown::new(
+                device,
+                "tsdf counts",
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            counts_readback: Grown::new(
+                device,
+                "tsdf counts readback",
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            limit,
+            slots: BlockMap::default(),
+            free: Vec::new(),
+            next_slot: 0,
+            changed: BlockSet::default(),
+            allocated: BlockSet::default(),
+            removed: BlockSet::default(),
+            scratch: IntegrationScratch::default(),
+        })
+    }
+
+    pub fn params(&self) -> &FusionParams {
+        &self.params
+    }
+
+    /// Blocks allocated.
+    pub fn block_count(&self) -> usize {
+        self.slots.len()
+    }
+
+    pub fn contains(&self, index: BlockIndex) -> bool {
+        self.slots.contains_key(&index)
+    }
+
+    /// Every allocated block, in no particular order.
+    pub fn block_indices(&self) -> impl Iterator<Item = &BlockIndex> {
+        self.slots.keys()
+    }
+
+    /// The blocks changed since the last [`GpuTsdf::sync_into`].
+    pub fn changed_blocks(&self) -> &BlockSet {
+        &self.changed
+    }
+
+    /// The device memory the voxel pool holds, in bytes.
+    pub fn pool_bytes(&self) -> u64 {
+        self.pool.size()
+    }
+
+    fn pool_slots(&self) -> u64 {
+        self.pool.size() / SLOT_BYTES
+    }
+
+    /// [`super::Mapper::integrate_weighted`] on the device: one depth map with its colour
+    /// (the view's confidence and baseline are not read) and its pixels' weights (None:
+    /// alike). Refuses what the CPU refuses, and a frame whose blocks the pool cannot hold
+    /// within the adapter's largest buffer (nothing changed then). Waits for the device (the
+    /// stats count what the shader updated).
+    pub fn integrate(
+        &mut self,
+        view: &DepthView<'_>,
+        weights: Option<&ImageF32>,
+    ) -> Result<IntegrationStats, GpuFusionError> {
+        let (depth, model) = (view.depth, view.model);
+        let frame = FrameInput {
+            depth,
+            weights,
+            colour: view.colour,
+            model,
+            world_from_cam: view.map_from_cam,
+        };
+        let voxel_size_m = self.params.voxel_size_m;
+        let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;
+        let (width, height) = (depth.width, depth.height);
+        let samples: Vec<GpuSample> = view
+            .samples
+            .iter()
+            .map(|s| GpuSample {
+                depth_m: if s.depth_m.is_nan() { 0.0 } else { s.depth_m },
+                weight: if s.weight > 0.0 { s.weight } else { -1.0 },
+                rgb: s.rgb,
+            })
+            .collect();
+        let sample_bytes = std::mem::size_of_val(samples.as_slice()) as u64;
+        if sample_bytes > self.limit {
+            return Err(GpuFusionError::TooLarge {
+                what: "samples",
+                width,
+                height,
+                bytes: sample_bytes,
+                limit: self.limit,
+            });
+        }
+        // Step 1 on the host map; the pool grown before anything is changed.
+        let (in_view, new) = blocks_to_update(&view, &self.slots, &pose);
+        let fresh = new.len().saturating_sub(self.free.len());
+        let grown = self.grow_for(self.next_slot as usize + fresh)?;
+        let mut reused = Vec::new();
+        for index in &new {
+            let slot = match self.free.pop() {
+                Some(slot) => {
+                    reused.push(slot);
+                    slot
+                }
+                None => {
+                    self.next_slot += 1;
+                    self.next_slot - 1
+                }
+            };
+            self.slots.insert(*index, slot);
+            self.allocated.insert(*index);
+        }
+        let mut order: Vec<BlockIndex> = in_view.into_iter().collect();
+        // In index order, as the CPU: neighbouring blocks read neighbouring pixels.
+        order.sort_unstable();
+        let work: Vec<GpuWork> = order
+            .iter()
+            .filter_map(|index| {
+                let slot = *self.slots.get(index)?;
+                Some(GpuWork {
+                    origin: view.block_origin_in_cam(*index).to_array(),
+                    slot,
+                })
+            })
+            .collect();
+        let uniform = TsdfUniform {
+            camera: gpu_camera(&view.projector, model),
+            step_x: extend(view.voxel_steps_in_cam.x_axis.to_array()),
+            step_y: extend(view.voxel_steps_in_cam.y_axis.to_array()),
+            step_z: extend(view.voxel_steps_in_cam.z_axis.to_array()),
+            truncation_m: view.truncation_m,
+            inv_truncation: 1.0 / view.truncation_m,
+            max_weight: view.max_weight,
+            colour: u32::from(view.colour.is_some()),
+            items: work.len() as u32,
+            pad: [0; 3],
+        };
+        let pixels_valid = view.pixels_valid;
+        self.scratch = view.into_scratch();
+        let counts = self.run(&uniform, &samples, &work, &reused, grown)?;
+        let mut stats = IntegrationStats {
+            pixels_valid,
+            blocks_allocated: new.len(),
+            blocks_in_view: work.len(),
+            ..IntegrationStats::default()
+        };
+        for (index, &count) in order.iter().zip(&counts) {
+            if count > 0 {
+                stats.blocks_updated += 1;
+                stats.voxels_updated += count as usize;
+                self.changed.insert(*index);
+            }
+        }
+        // The memory bound, as the CPU's `VoxelBlockGrid::drop_farthest`.
+        let dropped = farthest_blocks(
+            &self.slots,
+            self.params.max_blocks,
+            voxel_size_m,
+            pose.translation,
+        );
+        for index in &dropped {
+            if let Some(slot) = self.slots.remove(index) {
+                self.free.push(slot);
+            }
+            self.changed.remove(index);
+            self.allocated.remove(index);
+            self.removed.insert(*index);
+        }
+        stats.blocks_dropped = dropped.len();
+        Ok(stats)
+    }
+
+    /// Makes the pool hold `slots` slots (doubling), or says it cannot; returns the old pool
+    /// when it was replaced (its contents still to be copied).
+    fn grow_for(&mut self, slots: usize) -> Result<Option<wgpu::Buffer>, GpuFusionError> {
+        let have = self.pool_slots();
+        if slots as u64 <= have {
+            return Ok(None);
+        }
+        let bytes = slots as u64 * SLOT_BYTES;
+        let max_slots = self.limit / SLOT_BYTES;
+        if slots as u64 > max_slots {
+            return Err(GpuFusionError::PoolFull {
+                blocks: slots,
+                bytes,
+                limit: self.limit,
+            });
+        }
+        let mut size = have.max(1);
+        while size < slots as u64 {
+            size *= 2;
+        }
+        let size = size.min(max_slots) as u32;
+        let bigger = make_buffer(
+            &self.device,
+            "tsdf pool",
+            pool_usage_size(size),
+            pool_usage(),
+        );
+        Ok(Some(std::mem::replace(&mut self.pool, bigger)))
+    }
+
+    /// Uploads a frame, copies the old pool into a grown one, clears reused slots, runs the
+    /// shader and returns the voxels updated per work item.
+    fn run(
+        &mut self,
+        uniform: &TsdfUniform,
+        samples: &[GpuSample],
+        work: &[GpuWork],
+        reused: &[u32],
+        old_pool: Option<wgpu::Buffer>,
+    ) -> Result<Vec<u32>, GpuFusionError> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let count_bytes = (work.len().max(1) * 4) as u64;
+        let (device, limit) = (&self.device, self.limit);
+        let sample_bytes = std::mem::size_of_val(samples) as u64;
+        self.samples.reserve(device, sample_bytes, limit);
+        let work_bytes = std::mem::size_of_val(work).max(16) as u64;
+        self.work.reserve(device, work_bytes, limit);
+        self.counts.reserve(device, count_bytes, limit);
+        self.counts_readback.reserve(device, count_bytes, limit);
+        self.queue
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(uniform));
+        self.queue
+            .write_buffer(&self.samples.buffer, 0, bytemuck::cast_slice(samples));
+        if !work.is_empty() {
+            self.queue
+                .write_buffer(&self.work.buffer, 0, bytemuck::cast_slice(work));
+        }
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("tsdf integrate"),
+            });
+        if let Some(old) = &old_pool {
+            encoder.copy_buffer_to_buffer(old, 0, &self.pool, 0, old.size());
+        }
+        for &slot in reused {
+            encoder.clear_buffer(&self.pool, u64::from(slot) * SLOT_BYTES, Some(SLOT_BYTES));
+        }
+        if !work.is_empty() {
+            let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("tsdf integrate"),
+                layout: &self.layout,
+                entries: &[
+                    entry(0, &self.uniform),
+                    entry(1, &self.samples.buffer),
+                    entry(2, &self.work.buffer),
+                    entry(3, &self.pool),
+                    entry(4, &self.counts.buffer),
+                ],
+            });
+            let items = work.len() as u32;
+            let x = items.min(MAX_GROUPS_PER_DIMENSION);
+            let y = items.div_ceil(x);
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("tsdf integrate"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind_group, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+            drop(pass);
+            encoder.copy_buffer_to_buffer(
+                &self.counts.buffer,
+                0,
+                &self.counts_readback.buffer,
+                0,
+                count_bytes,
+            );
+        }
+        self.queue.submit([encoder.finish()]);
+        if let Some(error) = futures::executor::block_on(scope.pop()) {
+            return Err(GpuFusionError::Gpu(format!("integration: {error}")));
+        }
+        if work.is_empty() {
+            return Ok(Vec::new());
+        }
+        let words: Vec<u32> = read_buffer(&self.device, &self.counts_readback.buffer, count_bytes)?;
+        Ok(words.into_iter().take(work.len()).collect())
+    }
+
+    /// The voxels of `indices` (allocated blocks; others are skipped) from the device.
+    fn read_blocks(
+        &self,
+        indices: &[BlockIndex],
+    ) -> Result<Vec<(BlockIndex, Block)>, GpuFusionError> {
+        let present: Vec<(BlockIndex, u32)> = indices
+            .iter()
+            .filter_map(|index| self.slots.get(index).map(|slot| (*index, *slot)))
+            .collect();
+        if present.is_empty() {
+            return Ok(Vec::new());
+        }
+        // In pieces no larger than the largest buffer.
+        let per_piece = (self.limit / SLOT_BYTES).max(1) as usize;
+        let mut out = Vec::with_capacity(present.len());
+        for piece in present.chunks(per_piece) {
+            let bytes = piece.len() as u64 * SLOT_BYTES;
+            let staging = make_buffer(
+                &self.device,
+                "tsdf readback",
+                bytes,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            );
+            let mut encoder = self
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("tsdf readback"),
+                });
+            for (i, (_, slot)) in piece.iter().enumerate() {
+                encoder.copy_buffer_to_buffer(
+                    &self.pool,
+                    u64::from(*slot) * SLOT_BYTES,
+                    &staging,
+                    i as u64 * SLOT_BYTES,
+                    SLOT_BYTES,
+                );
+            }
+            self.queue.submit([encoder.finish()]);
+            let voxels: Vec<PoolVoxel> = read_buffer(&self.device, &staging, bytes)?;
+            for ((index, _), slot) in piece.iter().zip(voxels.chunks_exact(VOXELS_PER_BLOCK)) {
+                let mut block = Block::default();
+                for (offset, voxel) in slot.iter().enumerate() {
+                    block.set_voxel_at_offset(offset, voxel.voxel());
+                }
+                out.push((*index, block));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Brings `grid` (of the same voxel size) up to date: the blocks changed since the last
+    /// call copied from the device (and marked changed in `grid`, for
+    /// [`super::Mesh::update`]), those allocated and not updated added empty (as the CPU's
+    /// integration leaves them), the blocks dropped since removed. Returns how many blocks
+    /// were copied.
+    pub fn sync_into(&mut self, grid: &mut VoxelBlockGrid) -> Result<usize, GpuFusionError> {
+        let voxel_size_m = self.params.voxel_size_m;
+        if (grid.voxel_size_m() - voxel_size_m).abs() > 1e-6 * voxel_size_m {
+            return Err(FusionError::VoxelSizeMismatch {
+                params_m: voxel_size_m,
+                grid_m: grid.voxel_size_m(),
+            }
+            .into());
+        }
+        let mut changed: Vec<BlockIndex> = self.changed.iter().copied().collect();
+        changed.sort_unstable();
+        let blocks = self.read_blocks(&changed)?;
+        let copied = blocks.len();
+        for index in self.removed.drain() {
+            grid.remove_block(index);
+        }
+        for index in self.allocated.drain() {
+            if !self.changed.contains(&index) {
+                grid.insert_empty_block(index);
+            }
+        }
+        for (index, block) in blocks {
+            grid.insert_block(index, block);
+        }
+        self.changed.clear();
+        Ok(copied)
+    }
+
+    /// Every block as a new [`VoxelBlockGrid`] (all marked changed).
+    pub fn read_grid(&self) -> Result<VoxelBlockGrid, GpuFusionError> {
+        let mut grid = VoxelBlockGrid::new(self.params.voxel_size_m)?;
+        let mut all: Vec<BlockIndex> = self.slots.keys().copied().collect();
+        all.sort_unstable();
+        for (index, block) in self.read_blocks(&all)? {
+            grid.insert_block(index, block);
+        }
+        Ok(grid)
+    }
+
+    /// Drops every block (the pool keeps its size; a later [`GpuTsdf::sync_into`] removes
+    /// them from its grid).
+    pub fn clear(&mut self) {
+        for (index, slot) in self.slots.drain() {
+            self.free.push(slot);
+            self.removed.insert(index);
+        }
+        self.changed.clear();
+        self.allocated.clear();
+    }
+}
+
+fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: buffer.as_entire_binding(),
+    }
+}
+
+fn pool_usage() -> wgpu::BufferUsages {
+    wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST
+}
+
+fn pool_usage_size(slots: u32) -> u64 {
+    u64::from(slots.max(1)) * SLOT_BYTES
+}
+
+fn extend(v: [f32; 3]) -> [f32; 4] {
+    [v[0], v[1], v[2], 0.0]
+}
+
+/// The shader's camera: the projector's intrinsics (f32, as the CPU's pinhole path uses
+/// them), the distortion's coefficients and the square of its largest undistorted radius.
+fn gpu_camera(projector: &Projector, model: &CameraModel) -> GpuCamera {
+    let k = &model.intrinsics;
+    let intrinsics = match *projector {
+        Projector::Pinhole { fx, fy, cx, cy } => [fx, fy, cx, cy],
+        Projector::Distorted(..) => [k.fx_px, k.fy_px, k.cx_px, k.cy_px].map(|v| v as f32),
+    };
+    let max_radius = match projector {
+        Projector::Pinhole { .. } => f64::INFINITY,
+        Projector::Distorted(_, radius) => *radius,
+    };
+    let max_r2 = (max_radius * max_radius).min(f64::from(f32::MAX)) as f32;
+    let (kind, dist_a, dist_b) = match model.distortion {
+        Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
+        Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
+            DIST_PLUMB_BOB,
+            [k1, k2, p1, p2].map(|v| v as f32),
+            [k3 as f32, max_r2, 0.0, 0.0],
+        ),
+        Distortion::Equidistant { k1, k2, k3, k4 } => (
+            DIST_EQUIDISTANT,
+            [k1, k2, k3, k4].map(|v| v as f32),
+            [0.0, max_r2, 0.0, 0.0],
+        ),
+    };
+    GpuCamera {
+        rows: [[0.0; 4]; 3],
+        intrinsics,
+        dist_a,
+        dist_b,
+        size: [k.width_px, k.height_px, 0, kind],
+        info: [0; 4],
+    }
+}
+
+/// Maps the first `bytes` of a buffer (after the last submission), waits, and copies them out.
+fn read_buffer<T: Pod>(
+    device: &wgpu::Device,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<T>, GpuFusionError> {
+    let gpu = |e: &dyn std::fmt::Display| GpuFusionError::Gpu(format!("reading back: {e}"));
+    let (sender, receiver) = mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
+        let _ = sender.send(r);
+    });
+    device
+        .poll(wgpu::PollType::Wait {
+            submission_index: None,
+            timeout: None,
+        })
+        .map_err(|e| gpu(&e))?;
+    receiver.recv().map_err(|e| gpu(&e))?.map_err(|e| gpu(&e))?;
+    let out = {
+        let range = buffer.get_mapped_range(..bytes).map_err(|e| gpu(&e))?;
+        bytemuck::pod_collect_to_vec(&range)
+    };
+    buffer.unmap();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests;

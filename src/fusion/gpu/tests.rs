@@ -1,0 +1,444 @@
+//! The GPU integration against the CPU's on analytic scenes (CI runs them on lavapipe): the
+//! same blocks, the same stats, TSDF, weights and colours to float rounding, the same mesh.
+
+use std::sync::{Mutex, OnceLock};
+
+use glam::DVec3;
+
+use super::*;
+use crate::fusion::test_scenes::{
+    camera, look_at, red_left_blue_right, render_plane, sphere_before_slanted_wall,
+};
+use crate::fusion::{integrate_weighted, observation_weights, Mesh, Weighting};
+use crate::geometry::RigidTransform;
+use crate::gpu_context::GpuContext;
+use crate::image::Rgba8Image;
+
+/// One device for the tests, and one test at a time on it (a device polled from several
+/// threads at once met a wgpu bug; `sweep/gpu/record.rs`).
+fn gpu() -> (&'static GpuContext, std::sync::MutexGuard<'static, ()>) {
+    static GPU: OnceLock<GpuContext> = OnceLock::new();
+    static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+    let context = GPU.get_or_init(|| match GpuContext::new() {
+        Ok(context) => context,
+        Err(e) => panic!("GPU tests need an adapter (lavapipe is fine): {e}"),
+    });
+    let guard = ONE_AT_A_TIME
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    (context, guard)
+}
+
+/// A depth map as the GPU integration takes it.
+fn view<'a>(
+    depth: &'a ImageF32,
+    colour: Option<&'a Rgba8Image>,
+    model: &'a CameraModel,
+    map_from_cam: &'a RigidTransform,
+) -> DepthView<'a> {
+    DepthView {
+        depth,
+        confidence: None,
+        baseline_ratio: None,
+        colour,
+        model,
+        map_from_cam,
+    }
+}
+
+/// Tolerances of a voxel: the shader projects as `common.wgsl` does (`x / z` times the focal
+/// length, where the CPU multiplies by `1 / z`), so a voxel's pixel position differs in its
+/// last bits, and with it the bilinear depth.
+const TSDF_TOLERANCE: f32 = 1e-4;
+/// Relative, of the weight.
+const WEIGHT_TOLERANCE: f32 = 1e-4;
+/// The largest share of voxels observed by one path and not the other, or beyond the
+/// tolerances (a position at a pixel's or the image's edge rounding the other way).
+const MAX_DIFFERING_SHARE: f64 = 1e-4;
+
+/// What differs between the two grids.
+#[derive(Debug, Default)]
+struct Differences {
+    voxels: usize,
+    /// Observed by one path only.
+    observed: usize,
+    /// Beyond the tolerances.
+    values: usize,
+    worst_tsdf: f32,
+}
+
+/// Asserts the same blocks, and returns how their voxels differ.
+fn compare_grids(cpu: &VoxelBlockGrid, gpu: &VoxelBlockGrid) -> Differences {
+    let mut cpu_blocks: Vec<BlockIndex> = cpu.blocks().map(|(i, _)| *i).collect();
+    let mut gpu_blocks: Vec<BlockIndex> = gpu.blocks().map(|(i, _)| *i).collect();
+    cpu_blocks.sort_unstable();
+    gpu_blocks.sort_unstable();
+    if cpu_blocks != gpu_blocks {
+        let only = |a: &[BlockIndex], b: &[BlockIndex]| -> Vec<BlockIndex> {
+            a.iter()
+                .filter(|i| b.binary_search(i).is_err())
+                .copied()
+                .collect()
+        };
+        panic!(
+            "the blocks differ: {} and {}; on the CPU only {:?}, on the GPU only {:?}",
+            cpu_blocks.len(),
+            gpu_blocks.len(),
+            only(&cpu_blocks, &gpu_blocks),
+            only(&gpu_blocks, &cpu_blocks)
+        );
+    }
+    let mut d = Differences::default();
+    for index in &cpu_blocks {
+        let (Some(a), Some(b)) = (cpu.block(*index), gpu.block(*index)) else {
+            unreachable!("both grids hold {index:?}");
+        };
+        for offset in 0..VOXELS_PER_BLOCK {
+            let (a, b) = (a.voxel_at_offset(offset), b.voxel_at_offset(offset));
+            d.voxels += 1;
+            if a.is_observed() != b.is_observed() {
+                d.observed += 1;
+                continue;
+            }
+            let tsdf = (a.tsdf - b.tsdf).abs();
+            d.worst_tsdf = d.worst_tsdf.max(tsdf);
+            let weight = (a.weight - b.weight).abs() / a.weight.max(1e-6);
+            let colour = a
+                .colour()
+                .iter()
+                .zip(b.colour())
+                .any(|(x, y)| x.abs_diff(y) > 1);
+            if tsdf > TSDF_TOLERANCE
+                || weight > WEIGHT_TOLERANCE
+                || colour
+                || a.colour_weight() != b.colour_weight()
+            {
+                d.values += 1;
+            }
+        }
+    }
+    d
+}
+
+fn assert_close(what: &str, d: &Differences) {
+    let share = (d.observed + d.values) as f64 / d.voxels.max(1) as f64;
+    assert!(
+        share <= MAX_DIFFERING_SHARE,
+        "{what}: {d:?} ({share:.2e} of the voxels differ)"
+    );
+}
+
+/// The counts a frame reports, which the two paths must agree on exactly but for the
+/// voxels updated (within the differing share).
+fn assert_same_stats(what: &str, cpu: &IntegrationStats, gpu: &IntegrationStats) {
+    let key = |s: &IntegrationStats| {
+        (
+            s.pixels_valid,
+            s.blocks_allocated,
+            s.blocks_in_view,
+            s.blocks_dropped,
+        )
+    };
+    assert_eq!(key(cpu), key(gpu), "{what}: {cpu:?} against {gpu:?}");
+    let voxels = cpu.voxels_updated.abs_diff(gpu.voxels_updated) as f64;
+    assert!(
+        voxels <= MAX_DIFFERING_SHARE * cpu.voxels_updated as f64,
+        "{what}: voxels updated {cpu:?} against {gpu:?}"
+    );
+    assert!(cpu.voxels_updated > 0, "{what}: nothing updated");
+}
+
+/// Each block's mesh: the same triangles, vertices within a hundredth of a voxel.
+fn assert_same_mesh(cpu: &VoxelBlockGrid, gpu: &VoxelBlockGrid) -> usize {
+    let (mut a, mut b) = (Mesh::new(), Mesh::new());
+    let (sa, sb) = (a.rebuild(cpu), b.rebuild(gpu));
+    assert_eq!(sa.triangles, sb.triangles, "triangles");
+    assert_eq!(sa.blocks_with_surface, sb.blocks_with_surface);
+    let tolerance = 0.01 * cpu.voxel_size_m();
+    for (index, mesh) in a.blocks() {
+        let Some(other) = b.block(*index) else {
+            panic!("block {index:?} has a mesh on the CPU only");
+        };
+        assert_eq!(mesh.triangles, other.triangles, "{index:?}: triangles");
+        for (p, q) in mesh.vertices.iter().zip(&other.vertices) {
+            let far = p.iter().zip(q).any(|(x, y)| (x - y).abs() > tolerance);
+            assert!(!far, "{index:?}: vertex {p:?} against {q:?}");
+        }
+    }
+    sa.triangles
+}
+
+/// Two frames of a sphere before a slanted wall from two oblique poses, with colour, the
+/// second with per-pixel weights (depth and discontinuities): after each, the CPU's and the
+/// GPU's grids hold the same blocks with the same voxels, and mesh alike.
+#[test]
+fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
+    let (context, _one) = gpu();
+    let params = FusionParams {
+        voxel_size_m: 0.02,
+        ..FusionParams::default()
+    };
+    let model = camera(320, 240, 280.0);
+    let up = DVec3::new(0.1, -1.0, 0.2);
+    let target = DVec3::new(0.0, 0.0, 2.0);
+    let poses = [
+        look_at(DVec3::new(0.7, -0.4, -0.2), target, up),
+        look_at(DVec3::new(-0.3, 0.2, 0.1), target, up),
+    ];
+    let colour = red_left_blue_right(320, 240);
+    let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    let mut mirror = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut reads = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        let depth = sphere_before_slanted_wall(&model, pose);
+        let weighting = Weighting {
+            depth_power: 2.0,
+            edge_ratio: Some(0.05),
+            ..Weighting::EQUAL
+        };
+        let weights = (i == 1).then(|| observation_weights(&depth, None, None, &weighting));
+        let a = integrate_weighted(
+            &mut cpu,
+            &params,
+            &depth,
+            weights.as_ref(),
+            Some(&colour),
+            &model,
+            pose,
+        )
+        .unwrap();
+        let b = gpu
+            .integrate(&view(&depth, Some(&colour), &model, pose), weights.as_ref())
+            .unwrap();
+        let what = format!("frame {i}");
+        assert_same_stats(&what, &a, &b);
+        assert_eq!(gpu.changed_blocks().len(), b.blocks_updated);
+        let read = gpu.read_grid().unwrap();
+        let d = compare_grids(&cpu, &read);
+        eprintln!("{what}: {d:?}");
+        assert_close(&what, &d);
+        // The incremental copy holds what the whole read does.
+        let copied = gpu.sync_into(&mut mirror).unwrap();
+        assert!(copied > 0 && gpu.changed_blocks().is_empty());
+        let again = compare_grids(&read, &mirror);
+        assert_eq!((again.observed, again.values), (0, 0));
+        reads.push(read);
+    }
+    assert!(cpu.block_count() > 1000, "{} blocks", cpu.block_count());
+    // Many voxels were observed in both frames: the second frame's running average met the
+    // first's.
+    let (first, read) = (&reads[0], &reads[1]);
+    let mut twice = 0;
+    for (index, block) in first.blocks() {
+        let Some(later) = read.block(*index) else {
+            continue;
+        };
+        for offset in 0..VOXELS_PER_BLOCK {
+            let (a, b) = (block.voxel_at_offset(offset), later.voxel_at_offset(offset));
+            twice += usize::from(a.is_observed() && b.weight > a.weight);
+        }
+    }
+    assert!(twice > 10_000, "{twice} voxels seen twice");
+    let triangles = assert_same_mesh(&cpu, read);
+    assert!(triangles > 10_000, "{triangles} triangles");
+}
+
+/// A camera at `at` looking along z, moved off the voxel grid: with the camera on it and this
+/// focal length, rows of voxel centres project exactly onto the image's edge (u = -0.5), where
+/// rounding decides whether they are seen.
+fn off_the_grid(at: DVec3) -> RigidTransform {
+    RigidTransform {
+        translation: at + DVec3::new(0.0123, -0.0071, 0.0037),
+        ..RigidTransform::IDENTITY
+    }
+}
+
+/// A wall seen again and again with a small weight cap: the capped running averages agree
+/// (TSDF, weight and colour count at the cap).
+#[test]
+fn the_weight_cap_holds_on_the_gpu() {
+    let (context, _one) = gpu();
+    let params = FusionParams {
+        max_weight: 3.0,
+        ..FusionParams::default()
+    };
+    let model = camera(160, 120, 150.0);
+    let pose = off_the_grid(DVec3::ZERO);
+    // Off the voxel centres' planes (5 cm apart), so that no voxel lies exactly at the truncation
+    // distance behind the wall, where rounding decides.
+    let near = render_plane(&model, &pose, DVec3::Z, 2.513);
+    let far = render_plane(&model, &pose, DVec3::Z, 2.717);
+    let colour = red_left_blue_right(160, 120);
+    let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    for depth in [&near, &near, &near, &near, &far, &far] {
+        let a = integrate_weighted(&mut cpu, &params, depth, None, Some(&colour), &model, &pose)
+            .unwrap();
+        let b = gpu
+            .integrate(&view(depth, Some(&colour), &model, &pose), None)
+            .unwrap();
+        assert_same_stats("wall", &a, &b);
+    }
+    let read = gpu.read_grid().unwrap();
+    assert_close("wall", &compare_grids(&cpu, &read));
+    let at_cap = read
+        .blocks()
+        .flat_map(|(_, b)| (0..VOXELS_PER_BLOCK).map(|o| b.voxel_at_offset(o)))
+        .filter(|v| v.weight == 3.0 && v.colour_weight() == 3)
+        .count();
+    assert!(at_cap > 1000, "{at_cap} voxels at the cap");
+    assert_same_mesh(&cpu, &read);
+}
+
+/// A plumb_bob camera: the shader projects through `common.wgsl`'s distortion (f32) where the
+/// CPU uses `CameraModel::project_within` (f64).
+#[test]
+fn a_distorted_camera_integrates_on_the_gpu_as_on_the_cpu() {
+    let (context, _one) = gpu();
+    let params = FusionParams::default();
+    let mut model = camera(160, 120, 150.0);
+    model.distortion = Distortion::PlumbBob {
+        k1: -0.1,
+        k2: 0.01,
+        p1: 0.001,
+        p2: -0.002,
+        k3: 0.0,
+    };
+    let pose = look_at(
+        DVec3::new(0.2, 0.1, 0.0),
+        DVec3::new(0.0, 0.0, 2.0),
+        -DVec3::Y,
+    );
+    let depth = sphere_before_slanted_wall(&model, &pose);
+    let colour = red_left_blue_right(160, 120);
+    let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    let a = integrate_weighted(
+        &mut cpu,
+        &params,
+        &depth,
+        None,
+        Some(&colour),
+        &model,
+        &pose,
+    )
+    .unwrap();
+    let b = gpu
+        .integrate(&view(&depth, Some(&colour), &model, &pose), None)
+        .unwrap();
+    assert_same_stats("distorted", &a, &b);
+    let read = gpu.read_grid().unwrap();
+    assert_close("distorted", &compare_grids(&cpu, &read));
+    assert!(assert_same_mesh(&cpu, &read) > 1000);
+}
+
+/// A camera sliding along a wall with a bound on the blocks: the same blocks dropped (and
+/// their slots reused, cleared) as on the CPU, and the synchronised grid follows.
+#[test]
+fn dropped_blocks_leave_and_their_slots_come_back_empty() {
+    let (context, _one) = gpu();
+    let params = FusionParams {
+        max_blocks: 120,
+        ..FusionParams::default()
+    };
+    let model = camera(160, 120, 150.0);
+    let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    let mut mirror = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut dropped = 0;
+    for i in 0..12 {
+        let pose = off_the_grid(DVec3::new(0.5 * f64::from(i), 0.0, 0.0));
+        // Off the voxel centres' planes (see the weight cap's test).
+        let depth = render_plane(&model, &pose, DVec3::Z, 3.013);
+        let a = integrate_weighted(&mut cpu, &params, &depth, None, None, &model, &pose).unwrap();
+        let b = gpu
+            .integrate(&view(&depth, None, &model, &pose), None)
+            .unwrap();
+        assert_same_stats(&format!("frame {i}"), &a, &b);
+        dropped += b.blocks_dropped;
+        gpu.sync_into(&mut mirror).unwrap();
+    }
+    assert!(dropped > 100, "{dropped} dropped");
+    assert!(gpu.block_count() <= 120);
+    assert_close("sliding", &compare_grids(&cpu, &gpu.read_grid().unwrap()));
+    assert_close("mirror", &compare_grids(&cpu, &mirror));
+}
+
+/// Bad input is refused as the CPU refuses it, and a frame that needs more blocks than the
+/// adapter's largest buffer holds is refused with the sizes, changing nothing.
+#[test]
+fn bad_input_and_a_full_pool_are_refused() {
+    let (context, _one) = gpu();
+    let params = FusionParams::default();
+    let model = camera(160, 120, 150.0);
+    let pose = RigidTransform::IDENTITY;
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    let small = ImageF32 {
+        width: 10,
+        height: 10,
+        data: vec![1.0; 100],
+    };
+    let err = gpu
+        .integrate(&view(&small, None, &model, &pose), None)
+        .unwrap_err();
+    assert!(
+        matches!(err, GpuFusionError::Fusion(FusionError::ImageSize { .. })),
+        "{err}"
+    );
+    let bad = FusionParams {
+        max_weight: f32::NAN,
+        ..params
+    };
+    assert!(GpuTsdf::new(&context.device, &context.queue, bad).is_err());
+    assert_eq!(gpu.block_count(), 0);
+    // 256 KiB: the samples fit, 32 slots do not hold the wall's blocks.
+    let tiny = GpuContext::with_max_storage_binding(256 * 1024).unwrap();
+    let mut gpu = GpuTsdf::new(&tiny.device, &tiny.queue, params).unwrap();
+    let depth = render_plane(&model, &pose, DVec3::Z, 3.0);
+    let err = gpu
+        .integrate(&view(&depth, None, &model, &pose), None)
+        .unwrap_err();
+    assert!(matches!(err, GpuFusionError::PoolFull { .. }), "{err}");
+    assert!(err.to_string().contains("262144 bytes"), "{err}");
+    assert_eq!(gpu.block_count(), 0);
+}
+
+/// The shader parses and validates (naga, as wgpu does), without an adapter.
+#[test]
+fn the_shader_validates() {
+    let module = match naga::front::wgsl::parse_str(SHADER) {
+        Ok(module) => module,
+        Err(e) => panic!(
+            "{}",
+            e.emit_to_string_with_path(SHADER, "shaders/tsdf_integrate.wgsl")
+        ),
+    };
+    let mut validator = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::default(),
+    );
+    if let Err(e) = validator.validate(&module) {
+        panic!(
+            "{}",
+            e.emit_to_string_with_path(SHADER, "shaders/tsdf_integrate.wgsl")
+        );
+    }
+    let entry = module
+        .entry_points
+        .iter()
+        .find(|e| e.name == "integrate")
+        .expect("entry point");
+    // One invocation per row of eight voxels of a block, one workgroup per block.
+    assert_eq!(entry.workgroup_size, [64, 1, 1]);
+    // The uniform's size as the host lays it out.
+    let params = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some("TsdfParams"))
+        .expect("TsdfParams");
+    assert_eq!(
+        params.1.inner.size(module.to_ctx()) as usize,
+        std::mem::size_of::<TsdfUniform>()
+    );
+}
