@@ -94,9 +94,10 @@ fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).
 step bench-stereo 120 "$bin" bench --config stereo-rect --config stereo-raw --repeats 5 --python python3
-# Fusion (issue 56): one 640x480 depth map integrated and meshed at 2 cm beside Open3D's
-# VoxelBlockGrid (when the machine's python3 has open3d; the synthetic pair otherwise).
-step bench-fusion 120 "$bin" bench --fusion --repeats 5
+# Fusion (issue 56): one 640x480 depth map integrated and meshed at 2 cm, on the GPU
+# (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
+# has open3d; the synthetic pair otherwise).
+step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 # The node's pipeline with fusion on, on the 9-camera rig (issue 56, item 4): the packed
 # Teddy bag (compressed images, as recorded) through `bag --mesh` on the WGSL engine, its ms
 # per set with every depth map fused (the live node itself needs DDS peers the device machine
