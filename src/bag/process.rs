@@ -403,7 +403,11 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
 
     let fuser = match &fusion {
         Some(f) => Some(BagFusion {
-            fuser: Fuser::new(f.params)?,
+            // On the WGSL engine's GPU when it runs on one (`fusion::GpuTsdf`).
+            fuser: match host.gpu() {
+                Some(gpu) => Fuser::on_gpu(f.params, gpu)?,
+                None => Fuser::new(f.params)?,
+            },
             topic: config.mesh_topic.clone(),
             period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
             next_ns: 0,
@@ -626,6 +630,7 @@ fn mesh_summary(
 ) -> Result<String, BagRunError> {
     let fuser = &mut fusion.fuser;
     let (blocks, bytes) = fuser.blocks();
+    let on = if fuser.is_on_gpu() { " on the GPU" } else { "" };
     let grid = format!(
         "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
         fuser.params().voxel_size_m,
@@ -638,7 +643,7 @@ fn mesh_summary(
                 source,
             })?;
             format!(
-                "{} depth maps fused into {} ({} triangles, {} vertices; {grid})",
+                "{} depth maps fused{on} into {} ({} triangles, {} vertices; {grid})",
                 fuser.integrated,
                 path.display(),
                 saved.triangles,
@@ -646,7 +651,7 @@ fn mesh_summary(
             )
         }
         None => format!(
-            "{} depth maps fused ({} triangles on {}; {grid})",
+            "{} depth maps fused{on} ({} triangles on {}; {grid})",
             fuser.integrated,
             fuser.triangles(),
             fusion.topic,

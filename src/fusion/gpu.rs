@@ -785,4 +785,4 @@ fn read_buffer<T: Pod>(
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -3,6 +3,7 @@
 //! surface. One sequence for everything that fuses depth: the node's and `bag`'s fusion thread
 //! (`pipeline/fuser.rs`), `eval --fusion` and `bench --fusion`.
 
+use super::gpu::{GpuFusionError, GpuTsdf};
 use super::integrate::{integrate_into, IntegrationScratch};
 use super::{
     observation_weights, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
@@ -27,14 +28,26 @@ pub struct DepthView<'a> {
 }
 
 /// The grid, its weighing, the integration's buffers and the mesh ([`Mapper::integrate`],
-/// [`Mapper::update_mesh`], [`Mapper::clear`]).
-#[derive(Debug, Clone)]
+/// [`Mapper::update_mesh`], [`Mapper::clear`]). Made [`Mapper::on_gpu`], it integrates on a
+/// wgpu device ([`GpuTsdf`]) and keeps `grid` as the device's copy (the blocks each depth map
+/// changed read back), which the mesh and everything else read as on the CPU.
+#[derive(Debug)]
 pub struct Mapper {
     params: FusionParams,
     weighting: Weighting,
     grid: VoxelBlockGrid,
     scratch: IntegrationScratch,
     mesh: Mesh,
+    gpu: Option<GpuTsdf>,
+}
+
+/// A GPU fusion error as the fusion's own: bad input as the CPU says it, the device's as
+/// [`FusionError::Gpu`].
+fn from_gpu(e: GpuFusionError) -> FusionError {
+    match e {
+        GpuFusionError::Fusion(e) => e,
+        other => FusionError::Gpu(other.to_string()),
+    }
 }
 
 impl Mapper {
@@ -47,7 +60,26 @@ impl Mapper {
             weighting,
             scratch: IntegrationScratch::default(),
             mesh: Mesh::new(),
+            gpu: None,
         })
+    }
+
+    /// An empty map of `params` that integrates on `device` ([`GpuTsdf`]).
+    pub fn on_gpu(
+        params: FusionParams,
+        weighting: Weighting,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<Self, FusionError> {
+        let gpu = GpuTsdf::new(device, queue, params).map_err(from_gpu)?;
+        let mut mapper = Self::new(params, weighting)?;
+        mapper.gpu = Some(gpu);
+        Ok(mapper)
+    }
+
+    /// Whether the map integrates on a GPU ([`Mapper::on_gpu`]).
+    pub fn is_on_gpu(&self) -> bool {
+        self.gpu.is_some()
     }
 
     pub fn params(&self) -> &FusionParams {
@@ -79,6 +111,11 @@ impl Mapper {
         view: &DepthView<'_>,
         weights: Option<&ImageF32>,
     ) -> Result<IntegrationStats, FusionError> {
+        if let Some(gpu) = &mut self.gpu {
+            let stats = gpu.integrate(view, weights).map_err(from_gpu)?;
+            gpu.sync_into(&mut self.grid).map_err(from_gpu)?;
+            return Ok(stats);
+        }
         integrate_into(
             &mut self.grid,
             &mut self.scratch,
@@ -115,6 +152,9 @@ impl Mapper {
     /// Empties the map and its mesh; returns the blocks dropped.
     pub fn clear(&mut self) -> usize {
         let blocks = self.grid.block_count();
+        if let Some(gpu) = &mut self.gpu {
+            gpu.clear();
+        }
         self.grid.clear();
         self.mesh.clear();
         blocks
@@ -163,5 +203,42 @@ mod tests {
         assert!(mapper.grid().is_empty() && mapper.mesh().triangle_count() == 0);
         mapper.integrate(&view).expect("integrates again");
         assert_eq!(mapper.grid().block_count(), grid.block_count());
+
+        // On a GPU (lavapipe here): the grid is the device's copy, the same blocks and
+        // voxels to float rounding, meshed as on the CPU; cleared, it takes depth again.
+        let (gpu, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
+        let mut on_gpu =
+            Mapper::on_gpu(params, Weighting::EQUAL, &gpu.device, &gpu.queue).expect("GPU mapper");
+        assert!(on_gpu.is_on_gpu() && !mapper.is_on_gpu());
+        let stats = on_gpu.integrate(&view).expect("integrates on the GPU");
+        assert!(stats.blocks_updated > 0);
+        assert_eq!(on_gpu.grid().block_count(), grid.block_count());
+        // A few voxels whose point lands exactly on a pixel edge or the truncation limit go
+        // either way with the last bit of a projection (`gpu/tests.rs` has the exact bounds).
+        let (mut compared, mut differ) = (0, 0);
+        for (index, block) in grid.blocks() {
+            let mine = on_gpu.grid().block(*index).expect("the same blocks");
+            for offset in 0..crate::fusion::VOXELS_PER_BLOCK {
+                let (a, b) = (block.voxel_at_offset(offset), mine.voxel_at_offset(offset));
+                if a.is_observed() || b.is_observed() {
+                    compared += 1;
+                    differ += usize::from(
+                        a.is_observed() != b.is_observed() || (a.tsdf - b.tsdf).abs() > 1e-3,
+                    );
+                }
+            }
+        }
+        assert!(compared > 1000, "{compared} voxels observed");
+        assert!(
+            differ * 100 <= compared,
+            "{differ} of {compared} voxels differ"
+        );
+        assert!(on_gpu.update_mesh().blocks_meshed > 0 && on_gpu.mesh().triangle_count() > 0);
+        assert_eq!(on_gpu.clear(), grid.block_count());
+        assert!(on_gpu.grid().is_empty() && on_gpu.mesh().triangle_count() == 0);
+        on_gpu
+            .integrate(&view)
+            .expect("integrates again on the GPU");
+        assert_eq!(on_gpu.grid().block_count(), grid.block_count());
     }
 }

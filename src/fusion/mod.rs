@@ -202,6 +202,9 @@ pub enum FusionError {
     Camera(String),
     #[error("camera pose: {0}")]
     Pose(String),
+    /// The device refused or failed the integration ([`GpuFusionError`] beyond bad input).
+    #[error("{0}")]
+    Gpu(String),
 }
 
 #[cfg(test)]

@@ -79,6 +79,12 @@ impl EngineHost {
         self.engine.gpu().map(|gpu| &gpu.device)
     }
 
+    /// The WGSL engine's adapter, device and queue (e.g. for fusion on the same GPU); None
+    /// for the CPU engine.
+    pub fn gpu(&self) -> Option<&crate::gpu_context::GpuContext> {
+        self.engine.gpu()
+    }
+
     pub fn is_lost(&self) -> bool {
         self.lost.load(Ordering::SeqCst)
     }

@@ -17,6 +17,7 @@ use crate::fusion::{
     MeshStats, Weighting,
 };
 use crate::geometry::{CameraModel, RigidTransform};
+use crate::gpu_context::GpuContext;
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{ColorRGBA, Header, Marker, MarkerArray, Point, Pose, Time, Vector3};
 
@@ -88,6 +89,7 @@ impl FuseSkip {
             FuseSkip::Fusion(FusionError::ImageSize { .. }) => "fusion: image size",
             FuseSkip::Fusion(FusionError::Camera(_)) => "fusion: camera",
             FuseSkip::Fusion(FusionError::Pose(_)) => "fusion: pose",
+            FuseSkip::Fusion(FusionError::Gpu(_)) => "fusion: GPU",
             FuseSkip::Fusion(_) => "fusion: parameters",
         }
     }
@@ -122,8 +124,19 @@ pub struct Fuser {
 
 impl Fuser {
     pub fn new(params: FusionParams) -> Result<Self, FusionError> {
+        Self::with_mapper(Mapper::new(params, Weighting::DEPTH_MAPS)?)
+    }
+
+    /// A fuser that integrates on `gpu`'s device ([`Mapper::on_gpu`]): `bag --mesh` with the
+    /// WGSL engine.
+    pub fn on_gpu(params: FusionParams, gpu: &GpuContext) -> Result<Self, FusionError> {
+        let mapper = Mapper::on_gpu(params, Weighting::DEPTH_MAPS, &gpu.device, &gpu.queue)?;
+        Self::with_mapper(mapper)
+    }
+
+    fn with_mapper(mapper: Mapper) -> Result<Self, FusionError> {
         Ok(Self {
-            mapper: Mapper::new(params, Weighting::DEPTH_MAPS)?,
+            mapper,
             frame: None,
             stamp: Time::default(),
             ids: HashMap::new(),
@@ -136,6 +149,11 @@ impl Fuser {
 
     pub fn params(&self) -> &FusionParams {
         self.mapper.params()
+    }
+
+    /// Whether it integrates on a GPU ([`Fuser::on_gpu`]).
+    pub fn is_on_gpu(&self) -> bool {
+        self.mapper.is_on_gpu()
     }
 
     /// The map's frame (None before the first depth map).

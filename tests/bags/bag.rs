@@ -954,4 +954,50 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
         100.0 * accuracy.fraction(),
         accuracy.median_voxels
     );
+
+    // With the WGSL engine (lavapipe here) the depth maps are fused on the same device
+    // (`fusion::GpuTsdf`): said so, and the mesh as close to the true scene.
+    let mesh_gpu = dir.join("mesh_gpu.ply");
+    let out3 = dir.join("out3.mcap");
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            out3.to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+            "-p",
+            "device:=gpu",
+            "--mesh",
+            mesh_gpu.to_str().unwrap(),
+            "--voxel-size",
+            "0.05",
+        ]),
+        "sweepdepth bag --mesh on the GPU",
+    );
+    assert!(
+        stderr.contains("mesh: 4 depth maps fused on the GPU"),
+        "{stderr}"
+    );
+    let gpu_points: Vec<[f32; 3]> =
+        crate::common::mesh::ply_vertices(&std::fs::read(&mesh_gpu).expect("the GPU's PLY"))
+            .iter()
+            .map(|p| p.as_vec3().to_array())
+            .collect();
+    let gpu_vertices = gpu_points.len();
+    assert!(
+        gpu_vertices * 10 >= vertices * 9 && gpu_vertices * 10 <= vertices * 11,
+        "{gpu_vertices} vertices on the GPU against {vertices} on the CPU"
+    );
+    let gpu_accuracy = sweepdepth::fusion::vertex_accuracy(
+        &gpu_points,
+        0.05,
+        sweepdepth::eval::fusion::VERTEX_LIMIT_VOXELS,
+        |p| Some(sweepdepth::eval::fusion::scene_distance_m(&scene, p)),
+    );
+    assert!(
+        gpu_accuracy.fraction() >= sweepdepth::eval::fusion::MIN_VERTICES_WITHIN,
+        "only {:.1} % of {gpu_vertices} GPU mesh vertices lie within 2 voxels of the true scene",
+        100.0 * gpu_accuracy.fraction(),
+    );
 }

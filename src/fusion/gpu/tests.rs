@@ -16,7 +16,7 @@ use crate::image::Rgba8Image;
 
 /// One device for the tests, and one test at a time on it (a device polled from several
 /// threads at once met a wgpu bug; `sweep/gpu/record.rs`).
-fn gpu() -> (&'static GpuContext, std::sync::MutexGuard<'static, ()>) {
+pub(crate) fn gpu() -> (&'static GpuContext, std::sync::MutexGuard<'static, ()>) {
     static GPU: OnceLock<GpuContext> = OnceLock::new();
     static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
     let context = GPU.get_or_init(|| match GpuContext::new() {
