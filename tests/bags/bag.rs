@@ -907,97 +907,70 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
 
     // `--mesh`: the four posed depth maps fused in the world frame: every vertex lies on the
     // true scene (the wall at z = 4 m, the box's front at z = 2 m, in the world) to 2 voxels,
-    // as `eval --fusion`'s bar; fused without the poses it would lie 0.2-0.5 m off.
-    let mesh = dir.join("mesh.ply");
-    let out2 = dir.join("out2.mcap");
-    let stderr = ok(
-        &sweepdepth(&[
+    // as `eval --fusion`'s bar; fused without the poses it would lie 0.2-0.5 m off. Then with
+    // the WGSL engine (lavapipe here), whose depth maps are fused on the same device
+    // (`fusion::GpuTsdf`): said so, and its mesh as close to the true scene.
+    let fuse = |name: &str, engine: &[&str], said: &str| -> Vec<[f32; 3]> {
+        let mesh = dir.join(format!("{name}.ply"));
+        let out = dir.join(format!("{name}.mcap"));
+        let mut args = vec![
             "bag",
             bag.to_str().unwrap(),
-            out2.to_str().unwrap(),
+            out.to_str().unwrap(),
             "--params-file",
             params.to_str().unwrap(),
             "--mesh",
             mesh.to_str().unwrap(),
             "--voxel-size",
             "0.05",
-        ]),
-        "sweepdepth bag --mesh",
-    );
-    assert!(stderr.contains("mesh: 4 depth maps fused"), "{stderr}");
-    let bytes = std::fs::read(&mesh).expect("the PLY");
-    assert!(
-        bytes.starts_with(b"ply\nformat binary_little_endian 1.0\n"),
-        "not a binary little-endian PLY"
-    );
-    let points: Vec<[f32; 3]> = crate::common::mesh::ply_vertices(&bytes)
-        .iter()
-        .map(|p| p.as_vec3().to_array())
-        .collect();
-    let vertices = points.len();
-    assert!(vertices > 1000, "{vertices} vertices");
-    let accuracy = sweepdepth::fusion::vertex_accuracy(
-        &points,
-        0.05,
-        sweepdepth::eval::fusion::VERTEX_LIMIT_VOXELS,
-        |p| Some(sweepdepth::eval::fusion::scene_distance_m(&scene, p)),
-    );
-    eprintln!(
-        "mesh: {vertices} vertices, {:.1} % within 2 voxels of the true scene (median {:.2} voxels)",
-        100.0 * accuracy.fraction(),
-        accuracy.median_voxels
-    );
-    assert!(
-        accuracy.fraction() >= sweepdepth::eval::fusion::MIN_VERTICES_WITHIN,
-        "only {:.1} % of {vertices} mesh vertices lie within 2 voxels of the true scene \
-         (median {:.2} voxels)",
-        100.0 * accuracy.fraction(),
-        accuracy.median_voxels
-    );
-
-    // With the WGSL engine (lavapipe here) the depth maps are fused on the same device
-    // (`fusion::GpuTsdf`): said so, and the mesh as close to the true scene.
-    let mesh_gpu = dir.join("mesh_gpu.ply");
-    let out3 = dir.join("out3.mcap");
-    let stderr = ok(
-        &sweepdepth(&[
-            "bag",
-            bag.to_str().unwrap(),
-            out3.to_str().unwrap(),
-            "--params-file",
-            params.to_str().unwrap(),
-            "-p",
-            "device:=gpu",
-            "--mesh",
-            mesh_gpu.to_str().unwrap(),
-            "--voxel-size",
-            "0.05",
-        ]),
-        "sweepdepth bag --mesh on the GPU",
-    );
-    assert!(
-        stderr.contains("mesh: 4 depth maps fused on the GPU"),
-        "{stderr}"
-    );
-    let gpu_points: Vec<[f32; 3]> =
-        crate::common::mesh::ply_vertices(&std::fs::read(&mesh_gpu).expect("the GPU's PLY"))
+        ];
+        args.extend_from_slice(engine);
+        let stderr = ok(
+            &sweepdepth(&args),
+            &format!("sweepdepth bag --mesh ({name})"),
+        );
+        assert!(stderr.contains(said), "{stderr}");
+        let bytes = std::fs::read(&mesh).expect("the PLY");
+        assert!(
+            bytes.starts_with(b"ply\nformat binary_little_endian 1.0\n"),
+            "not a binary little-endian PLY"
+        );
+        let points: Vec<[f32; 3]> = crate::common::mesh::ply_vertices(&bytes)
             .iter()
             .map(|p| p.as_vec3().to_array())
             .collect();
-    let gpu_vertices = gpu_points.len();
-    assert!(
-        gpu_vertices * 10 >= vertices * 9 && gpu_vertices * 10 <= vertices * 11,
-        "{gpu_vertices} vertices on the GPU against {vertices} on the CPU"
+        let vertices = points.len();
+        assert!(vertices > 1000, "{name}: {vertices} vertices");
+        let accuracy = sweepdepth::fusion::vertex_accuracy(
+            &points,
+            0.05,
+            sweepdepth::eval::fusion::VERTEX_LIMIT_VOXELS,
+            |p| Some(sweepdepth::eval::fusion::scene_distance_m(&scene, p)),
+        );
+        eprintln!(
+            "{name}: {vertices} vertices, {:.1} % within 2 voxels of the true scene (median {:.2} \
+             voxels)",
+            100.0 * accuracy.fraction(),
+            accuracy.median_voxels
+        );
+        assert!(
+            accuracy.fraction() >= sweepdepth::eval::fusion::MIN_VERTICES_WITHIN,
+            "{name}: only {:.1} % of {vertices} mesh vertices lie within 2 voxels of the true \
+             scene (median {:.2} voxels)",
+            100.0 * accuracy.fraction(),
+            accuracy.median_voxels
+        );
+        points
+    };
+    let cpu = fuse("mesh", &[], "mesh: 4 depth maps fused into");
+    let gpu = fuse(
+        "mesh_gpu",
+        &["-p", "device:=gpu"],
+        "mesh: 4 depth maps fused on the GPU",
     );
-    let gpu_accuracy = sweepdepth::fusion::vertex_accuracy(
-        &gpu_points,
-        0.05,
-        sweepdepth::eval::fusion::VERTEX_LIMIT_VOXELS,
-        |p| Some(sweepdepth::eval::fusion::scene_distance_m(&scene, p)),
-    );
+    let (cpu, gpu) = (cpu.len(), gpu.len());
     assert!(
-        gpu_accuracy.fraction() >= sweepdepth::eval::fusion::MIN_VERTICES_WITHIN,
-        "only {:.1} % of {gpu_vertices} GPU mesh vertices lie within 2 voxels of the true scene",
-        100.0 * gpu_accuracy.fraction(),
+        gpu * 10 >= cpu * 9 && gpu * 10 <= cpu * 11,
+        "{gpu} vertices on the GPU against {cpu} on the CPU"
     );
 }
