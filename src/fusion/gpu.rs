@@ -214,6 +214,8 @@ pub struct GpuTsdf {
     allocated: BlockSet,
     removed: BlockSet,
     scratch: IntegrationScratch,
+    /// The frame's samples as uploaded, kept from frame to frame (a 640x480 map's are 3.6 MB).
+    host_samples: Vec<GpuSample>,
 }
 
 impl std::fmt::Debug for GpuTsdf {
@@ -333,6 +335,7 @@ impl GpuTsdf {
             allocated: BlockSet::default(),
             removed: BlockSet::default(),
             scratch: IntegrationScratch::default(),
+            host_samples: Vec::new(),
         })
     }
 
@@ -389,15 +392,13 @@ impl GpuTsdf {
         let voxel_size_m = self.params.voxel_size_m;
         let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;
         let (width, height) = (depth.width, depth.height);
-        let samples: Vec<GpuSample> = view
-            .samples
-            .iter()
-            .map(|s| GpuSample {
-                depth_m: if s.depth_m.is_nan() { 0.0 } else { s.depth_m },
-                weight: if s.weight > 0.0 { s.weight } else { -1.0 },
-                rgb: s.rgb,
-            })
-            .collect();
+        let mut samples = std::mem::take(&mut self.host_samples);
+        samples.clear();
+        samples.extend(view.samples.iter().map(|s| GpuSample {
+            depth_m: if s.depth_m.is_nan() { 0.0 } else { s.depth_m },
+            weight: if s.weight > 0.0 { s.weight } else { -1.0 },
+            rgb: s.rgb,
+        }));
         let sample_bytes = std::mem::size_of_val(samples.as_slice()) as u64;
         if sample_bytes > self.limit {
             return Err(GpuFusionError::TooLarge {
@@ -454,7 +455,9 @@ impl GpuTsdf {
         };
         let pixels_valid = view.pixels_valid;
         self.scratch = view.into_scratch();
-        let counts = self.run(&uniform, &samples, &work, &reused, grown)?;
+        let counts = self.run(&uniform, &samples, &work, &reused, grown);
+        self.host_samples = samples;
+        let counts = counts?;
         let mut stats = IntegrationStats {
             pixels_valid,
             blocks_allocated: new.len(),
