@@ -70,8 +70,13 @@ fn store_level(
     low: u32,
     first_in_batch: bool,
     last_in_batch: bool,
+    swept: bool,
 ) -> u32 {
-    let level = volume_level(score);
+    // A plane outside the pixel's range is marked absent for SGM.
+    var level = SGM_OUTSIDE_LEVEL;
+    if (swept) {
+        level = volume_level(score);
+    }
     let word = (pix - band.first_pixel) * ((params.planes + 1u) / 2u) + plane / 2u;
     if ((plane & 1u) == 0u) {
         if (last_in_batch) {
@@ -495,7 +500,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             let k = f32(batch.first_plane + z);
             var best = array<vec2<f32>, 2>(no_hypothesis(), no_hypothesis());
             // x and x + 1 share a tile (RANGE_TILE is even).
-            if (sweeps(x, y, batch.first_plane + z)) {
+            let swept = sweeps(x, y, batch.first_plane + z);
+            if (swept) {
                 best = score_plane_paired(z, i32(x), i32(y));
             }
             a = select_plane(a, k, best[0]);
@@ -503,9 +509,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             // The fine sweep writes no cost volume (SGM has run).
             if (VOLUME && batch.refine == 0u) {
                 let last = z + 1u == batch.plane_count;
-                low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u, last);
+                low_a = store_level(pix, batch.first_plane + z, best[0].x, low_a, z == 0u, last, swept);
                 if (has_b) {
-                    low_b = store_level(pix + 1u, batch.first_plane + z, best[1].x, low_b, z == 0u, last);
+                    low_b = store_level(pix + 1u, batch.first_plane + z, best[1].x, low_b, z == 0u, last, swept);
                 }
             }
         }
@@ -523,13 +529,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var low = 0u;
     for (var z = 0u; z < batch.plane_count; z++) {
         var best = no_hypothesis();
-        if (sweeps(gid.x, y, batch.first_plane + z)) {
+        let swept = sweeps(gid.x, y, batch.first_plane + z);
+        if (swept) {
             best = score_plane(z, i32(gid.x), i32(y));
         }
         st = select_plane(st, f32(batch.first_plane + z), best);
         if (VOLUME && batch.refine == 0u) {
             let last = z + 1u == batch.plane_count;
-            low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u, last);
+            low = store_level(pix, batch.first_plane + z, best.x, low, z == 0u, last, swept);
         }
     }
     store_state(pix, st);

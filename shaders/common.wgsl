@@ -96,6 +96,23 @@ struct Params {
 const SUBPIXEL_V_FIT: u32 = 4u;
 
 const SGM_COST_MAX: u32 = 1023u;   // the level of a cost of tau (raised by SGM_VOLUME_OFFSET), and of a hypothesis with no valid pair
+// Coarse to fine: the level of a plane outside the pixel's range (aggregate.wgsl). SGM treats it
+// as absent: its path cost is SGM_PATH_PAD (above any real one, so no path passes through it),
+// it adds nothing to the sums, and the selection and the uniqueness skip it. CPU twin: the
+// windows of src/sweep/cpu/sgm.rs.
+const SGM_OUTSIDE_LEVEL: u32 = 65535u;
+const SGM_PATH_PAD: u32 = 32767u;
+
+// A volume word's two path costs `l` with the planes the word marks outside set to SGM_PATH_PAD.
+fn sgm_absent(c: u32, l: vec2<u32>) -> vec2<u32> {
+    return select(l, vec2<u32>(SGM_PATH_PAD), vec2<u32>(c & 0xffffu, c >> 16u) == vec2<u32>(SGM_OUTSIDE_LEVEL));
+}
+
+// The two path costs `l` of a volume word `c` packed for the sums (0 for a plane outside).
+fn sgm_sum_word(c: u32, l: vec2<u32>) -> u32 {
+    let counted = select(l, vec2<u32>(0u), vec2<u32>(c & 0xffffu, c >> 16u) == vec2<u32>(SGM_OUTSIDE_LEVEL));
+    return counted.x | (counted.y << 16u);
+}
 const MAX_SGM_PLANES: u32 = 1024u; // planes per pixel (previous path costs in workgroup memory)
 
 // One row band of the cost volume and the path sums (keep in sync with GpuBand): an adapter's

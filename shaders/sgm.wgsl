@@ -4,7 +4,8 @@
 // with P2' = max(P1, P2 / (1 + step / edge)) where `step` is the largest RGB channel difference
 // of the reference image between p - r and p (P2 constant when edge = 0). The first pass writes
 // L into `sums`, the others add to it; L <= C + P2, so paths x (SGM_COST_MAX + P2) < 2^16 keeps
-// both u16 halves of a word from carrying (checked by SweepParams::validate).
+// both u16 halves of a word from carrying (checked by SweepParams::validate). A plane the volume
+// marks SGM_OUTSIDE_LEVEL (coarse to fine: outside the pixel's range) is absent (`sgm_absent`).
 // Two layouts of the same arithmetic (the engine picks one per adapter; results are identical):
 // - GPUs (LINE_PER_INVOCATION = false): one workgroup per path line walks it pixel by pixel; its
 //   lanes split the planes (two per u32 word), the previous pixel's L lives in workgroup memory
@@ -142,6 +143,9 @@ fn walk_line(line: i32) {
                     l1 += line_term(prev, d + 1u, planes, prev_min, p1, penalty2);
                 }
             }
+            let absent = sgm_absent(c, vec2<u32>(l0, l1));
+            l0 = absent.x;
+            l1 = absent.y;
             if (d + 1u >= planes) {
                 l1 = 0u;
             } else {
@@ -150,7 +154,7 @@ fn walk_line(line: i32) {
             local_min = min(local_min, l0);
             line_costs[next + d] = l0;
             line_costs[next + d + 1u] = l1;
-            let packed = l0 | (l1 << 16u);
+            let packed = sgm_sum_word(c, vec2<u32>(l0, l1));
             if (first_pass) {
                 sums[at] = packed;
             } else {
@@ -236,6 +240,9 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                     l1 += path_term(prev, d + 1u, planes, prev_min, p1, penalty2);
                 }
             }
+            let absent = sgm_absent(c, vec2<u32>(l0, l1));
+            l0 = absent.x;
+            l1 = absent.y;
             if (d + 1u >= planes) {
                 l1 = 0u;
             } else {
@@ -244,7 +251,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             local_min = min(local_min, l0);
             path_costs[next + d] = l0;
             path_costs[next + d + 1u] = l1;
-            let packed = l0 | (l1 << 16u);
+            let packed = sgm_sum_word(c, vec2<u32>(l0, l1));
             if (first_pass) {
                 sums[at] = packed;
             } else {

@@ -40,7 +40,8 @@ fn uniqueness_on_costs(local_pix: u32, best: u32) -> f32 {
             if (d == best) {
                 best_level = level;
             }
-            if (d + radius < best || d > best + radius) {
+            // A plane outside the pixel's range (SGM_OUTSIDE_LEVEL) is no rival.
+            if ((d + radius < best || d > best + radius) && level != SGM_OUTSIDE_LEVEL) {
                 rival = min(rival, level);
             }
         }
@@ -71,11 +72,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     var st = Wta(vec4<f32>(BIG, -1.0, BIG, BIG), vec4<f32>(BIG), vec4<f32>(selection, 1.0, 0.0, 0.0));
     for (var j = 0u; j < words; j++) {
         let word = sums[local_pix * words + j];
+        let costs = volume[local_pix * words + j];
         let d = 2u * j;
-        // Summed levels back to score units, less the offset every volume level carries.
-        st = select_plane(st, f32(d), vec2<f32>(f32(word & 0xffffu) * unit - SGM_VOLUME_OFFSET, selection));
+        // Summed levels back to score units, less the offset every volume level carries; BIG for
+        // a plane outside the pixel's range (coarse to fine: it is absent, never the winner, its
+        // neighbour or a rival).
+        var score = vec2<f32>(f32(word & 0xffffu), f32(word >> 16u)) * unit - SGM_VOLUME_OFFSET;
+        score = select(score, vec2<f32>(BIG), vec2<u32>(costs & 0xffffu, costs >> 16u) == vec2<u32>(SGM_OUTSIDE_LEVEL));
+        st = select_plane(st, f32(d), vec2<f32>(score.x, selection));
         if (d + 1u < planes) {
-            st = select_plane(st, f32(d + 1u), vec2<f32>(f32(word >> 16u) * unit - SGM_VOLUME_OFFSET, selection));
+            st = select_plane(st, f32(d + 1u), vec2<f32>(score.y, selection));
         }
     }
     if (params.uniqueness > 0.0 || params.ambiguity > 0.0) {

@@ -155,6 +155,9 @@ fn main(
                         l1 += term(prev1[i], prev0[i], above, d + 1u, planes, prev_min, p1, penalty2);
                     }
                 }
+                let absent = sgm_absent(c, vec2<u32>(l0, l1));
+                l0 = absent.x;
+                l1 = absent.y;
                 if (d + 1u >= planes) {
                     l1 = 0u;
                 } else {
@@ -165,7 +168,7 @@ fn main(
                 below = prev1[i];
                 prev0[i] = l0;
                 prev1[i] = l1;
-                let packed = l0 | (l1 << 16u);
+                let packed = sgm_sum_word(c, vec2<u32>(l0, l1));
                 if (first_pass) {
                     atomicStore(&sums[at], packed);
                 } else if (together) {

@@ -33,6 +33,10 @@ pub const HALF_REFERENCE: u32 = 2;
 
 /// SGM: a scored cost of `tau` (or no valid pair) is this many levels in the u16 cost volume.
 pub const SGM_COST_MAX: u32 = 1023;
+/// Coarse to fine: the volume level (common.wgsl) of a plane outside the pixel's range, absent
+/// from SGM; its path cost is SGM_PATH_PAD (the CPU's `sgm::PAD`).
+pub const SGM_OUTSIDE_LEVEL: u32 = 0xffff;
+pub const SGM_PATH_PAD: u32 = 0x7fff;
 /// SGM: planes per pixel (the previous path costs live in workgroup memory).
 pub const MAX_SGM_PLANES: u32 = 1024;
 /// SGM: the colour step of `sgm_edge` in 1/16 grey levels (integer maths on both sides).
@@ -263,6 +267,8 @@ mod tests {
             ("MAX_BATCH_PLANES", MAX_BATCH_PLANES),
             ("MAP_VISIBLE", MAP_VISIBLE as u32),
             ("SGM_COST_MAX", SGM_COST_MAX),
+            ("SGM_OUTSIDE_LEVEL", SGM_OUTSIDE_LEVEL),
+            ("SGM_PATH_PAD", SGM_PATH_PAD),
             ("SUBPIXEL_V_FIT", SUBPIXEL_V_FIT),
             ("MAX_SGM_PLANES", MAX_SGM_PLANES),
             ("MARGIN_PLANES", crate::sweep::coarse::MARGIN_PLANES),

@@ -1041,7 +1041,7 @@ fn cpu_volume_kept_across_fewer_planes_changes_nothing() {
 
 /// Coarse to fine: rows that sweep only some planes (`SweepPlan::narrow_planes`) score BIG
 /// elsewhere, in both engines alike (the CPU engine skips the planes no row of a band needs),
-/// with the winner-take-all and with SGM.
+/// with the winner-take-all and with SGM (where those planes are absent: every SGM layout).
 #[test]
 fn narrowed_plane_ranges_agree() {
     let (rig, images, mut params) = tsukuba_crop();
@@ -1085,8 +1085,21 @@ fn narrowed_plane_ranges_agree() {
         assert_ne!(narrowed.id, plan.id);
         let name = format!("narrowed_{optimizer:?}_{:?}", base.window_mode);
         compare(&name, &narrowed, &rig, &images);
+        if optimizer == Optimizer::Sgm {
+            // The planes outside a pixel's range are absent from SGM in every shader layout
+            // as in the CPU's windows.
+            for layout in sgm_layouts() {
+                compare_with(
+                    &format!("{name}_{layout:?}"),
+                    &narrowed,
+                    &rig,
+                    &images,
+                    Some(layout),
+                );
+            }
+        }
         // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
-        // neighbour (SGM's path sums are finite on the masked planes).
+        // neighbour (with SGM the planes outside are absent: its winner lies inside).
         let maps = CpuEngine::new()
             .run_plan(&narrowed, &rig, &images)
             .expect("cpu");

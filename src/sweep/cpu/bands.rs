@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use super::plane::{self, FrameImages, PlaneScratch};
 use super::select::{self, WtaState};
-use super::{aggregate, common, cost, sgm};
+use super::{aggregate, common, cost, sgm, sgm_windows};
 use crate::sweep::gpu_types::{GpuParams, BIG};
 use crate::sweep::plan::SweepPlan;
 use crate::sweep::CancelFlag;
@@ -30,11 +30,14 @@ pub(super) fn sweep(
     let npix = plan.pixel_count();
     let planes = plan.num_planes() as usize;
     let sgm = plan.sgm_paths() > 0;
-    let stride = sgm::stride(planes);
+    // Each pixel's lanes (`sgm_windows::VolumeLayout`: under coarse to fine, its window's alone).
+    let layout = sgm_windows::VolumeLayout::of(plan);
     if !sgm {
         *volume = Vec::new();
-    } else if volume.len() != npix * stride {
-        *volume = vec![sgm::PAD; npix * stride];
+    } else {
+        // Every lane of every window is written below (each group of a window holds one of
+        // its pixel's planes, so its band sweeps the group).
+        volume.resize(layout.len(), sgm::PAD);
     }
     let mut state = match state {
         Some(mut state) => {
@@ -56,6 +59,7 @@ pub(super) fn sweep(
                     b: usize,
                     st: &mut select::WtaChunk<'_>,
                     vol: Option<&mut [u16]>| {
+        let vol = vol.map(|v| (v, &layout));
         sweep_band(plan, frame, mappings, cancel, rows(b), scratch, st, vol)
     };
     let mut chunks = state.chunks_mut(band * width);
@@ -68,10 +72,21 @@ pub(super) fn sweep(
         BandScratch::new(plan, band * width, levels)
     });
     if sgm {
+        // The bands' lanes of the volume.
+        let mut bands = Vec::with_capacity(chunks.len());
+        let mut rest = &mut volume[..];
+        for b in 0..chunks.len() {
+            let r = rows(b);
+            let lanes = layout.row_start(r.end) - layout.row_start(r.start);
+            let lanes = lanes.min(rest.len());
+            let (band, after) = std::mem::take(&mut rest).split_at_mut(lanes);
+            bands.push(band);
+            rest = after;
+        }
         chunks
             .par_iter_mut()
             .zip(scratches.par_iter_mut())
-            .zip(volume.par_chunks_mut(band * width * stride))
+            .zip(bands.into_par_iter())
             .enumerate()
             .for_each(|(b, ((st, scratch), vol))| run_band(scratch, b, st, Some(vol)));
     } else {
@@ -100,11 +115,10 @@ fn sweep_band(
     rows: std::ops::Range<usize>,
     scratch: &mut BandScratch,
     st: &mut select::WtaChunk<'_>,
-    mut vol: Option<&mut [u16]>,
+    mut vol: Option<(&mut [u16], &sgm_windows::VolumeLayout)>,
 ) {
     let width = plan.params.width as usize;
     let planes = mappings.len();
-    let stride = sgm::stride(planes);
     let levels_per_unit = plan.params.sgm_levels_per_unit;
     let len = rows.len() * width;
     // With SGM only the winner is needed (its uniqueness is read off the volume later).
@@ -171,12 +185,13 @@ fn sweep_band(
             }
             select_plane(k as f32, score, sel, st, false);
         }
-        if let Some(vol) = vol.as_deref_mut() {
+        if let Some((vol, layout)) = vol.as_mut() {
             // Levels of a group of planes are gathered plane by plane, then written
             // pixel by pixel (each pixel's group of lanes at once: the band's volume
             // is far larger than the cache, so a lane at a time would pull every
-            // pixel's lanes in once per plane). A group no pixel of the band sweeps is
-            // written as the idle level straight away.
+            // pixel's lanes in once per plane). Only the pixels whose window holds the group
+            // have its lanes (`sgm_windows::VolumeLayout`): a group no pixel of the band sweeps is in
+            // none of their windows.
             let g = k % LEVEL_GROUP;
             let levels = &mut scratch.levels[g * len..(g + 1) * len];
             levels[..swept.start].fill(idle_level);
@@ -190,9 +205,12 @@ fn sweep_band(
             if g + 1 == LEVEL_GROUP || k + 1 == planes {
                 let first = k - g;
                 if group_swept {
-                    write_level_group(&scratch.levels, len, stride, first, g + 1, vol);
-                } else {
-                    fill_level_group(idle_level, len, stride, first, g + 1, vol);
+                    let group = Group {
+                        rows: rows.clone(),
+                        first,
+                        count: g + 1,
+                    };
+                    write_level_group(&scratch.levels, len, layout, group, vol);
                 }
                 group_swept = false;
             }
@@ -295,48 +313,69 @@ fn volume_levels(levels_per_unit: f32, scores: &[f32], levels: &mut [u16]) {
 }
 }
 
-common::vectorised_fn! {
-/// The levels of planes `first..first + count` (plane-major in `levels`, `len` pixels each)
-/// into lanes `first..` of each pixel's `stride` lanes of `vol`.
-fn write_level_group(
-    levels: &[u16],
-    len: usize,
-    stride: usize,
+/// A group of planes of one band whose levels go into the volume.
+struct Group {
+    /// The band's rows.
+    rows: std::ops::Range<usize>,
+    /// Its first plane (a multiple of LEVEL_GROUP) and how many planes it has (fewer than
+    /// LEVEL_GROUP only at the last plane).
     first: usize,
     count: usize,
-    vol: &mut [u16],
-) {
-    if count == LEVEL_GROUP {
-        // A whole group: each pixel's LEVEL_GROUP lanes gathered from the planes' rows into
-        // one array and stored at once (the lane-by-lane loop below was a scalar load and
-        // store per level, 61 M instructions of a demo set and its warm-up).
-        let mut rows: [&[u16]; LEVEL_GROUP] = [&[]; LEVEL_GROUP];
-        for (g, row) in rows.iter_mut().enumerate() {
-            *row = &levels[g * len..(g + 1) * len];
-        }
-        for (i, lanes) in vol.chunks_exact_mut(stride).take(len).enumerate() {
-            let mut group = [0u16; LEVEL_GROUP];
-            for (level, row) in group.iter_mut().zip(&rows) {
-                *level = row[i];
-            }
-            lanes[first..first + LEVEL_GROUP].copy_from_slice(&group);
-        }
-        return;
-    }
-    for (i, lanes) in vol.chunks_exact_mut(stride).take(len).enumerate() {
-        for (g, lane) in lanes[first..first + count].iter_mut().enumerate() {
-            *lane = levels[g * len + i];
-        }
-    }
-}
 }
 
 common::vectorised_fn! {
-/// Lanes `first..first + count` of each of the first `len` pixels' `stride` lanes of `vol` set
-/// to `level` (a group of planes no pixel of the band sweeps).
-fn fill_level_group(level: u16, len: usize, stride: usize, first: usize, count: usize, vol: &mut [u16]) {
-    for lanes in vol.chunks_exact_mut(stride).take(len) {
-        lanes[first..first + count].fill(level);
+/// The levels of a group of planes (plane-major in `levels`, `len` pixels each) into the lanes
+/// of the band's pixels whose window holds the group (`vol`: the band's lanes of `layout`).
+/// The lanes past the last plane are PAD.
+fn write_level_group(
+    levels: &[u16],
+    len: usize,
+    layout: &sgm_windows::VolumeLayout,
+    group: Group,
+    vol: &mut [u16],
+) {
+    let Group { rows, first, count } = group;
+    let width = len / rows.len().max(1);
+    let base = layout.row_start(rows.start);
+    let g = first / LEVEL_GROUP;
+    let tile = crate::sweep::plan::RANGE_TILE as usize;
+    let mut rows_of: [&[u16]; LEVEL_GROUP] = [&[]; LEVEL_GROUP];
+    for (j, row) in rows_of.iter_mut().enumerate().take(count) {
+        *row = &levels[j * len..(j + 1) * len];
+    }
+    for (i, y) in rows.enumerate() {
+        for x0 in (0..width).step_by(tile) {
+            let (at, window) = layout.pixel(x0, y);
+            let groups = window.groups();
+            if !groups.contains(&g) {
+                continue;
+            }
+            // The tile's pixels side by side, each its window's lanes.
+            let (lanes, skip) = (window.lanes(), (g - groups.start) * LEVEL_GROUP);
+            let at = at - base + skip;
+            for x in x0..(x0 + tile).min(width) {
+                let from = at + (x - x0) * lanes;
+                let Some(out) = vol.get_mut(from..from + LEVEL_GROUP) else {
+                    continue;
+                };
+                // Each pixel's LEVEL_GROUP lanes gathered from the planes' rows into one array
+                // and stored at once (a scalar load and store per level was 61 M instructions of
+                // a demo set and its warm-up).
+                let mut lanes = [sgm::PAD; LEVEL_GROUP];
+                let p = i * width + x;
+                if count == LEVEL_GROUP {
+                    // A whole group: the count known to the compiler (unrolled, in one vector).
+                    for (level, row) in lanes.iter_mut().zip(&rows_of) {
+                        *level = row[p];
+                    }
+                } else {
+                    for (level, row) in lanes.iter_mut().zip(&rows_of).take(count) {
+                        *level = row[p];
+                    }
+                }
+                out.copy_from_slice(&lanes);
+            }
+        }
     }
 }
 }

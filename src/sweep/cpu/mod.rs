@@ -25,6 +25,7 @@ pub mod refine;
 pub mod select;
 pub mod sgm;
 pub mod sgm_wide;
+pub mod sgm_windows;
 
 use std::time::Instant;
 
@@ -410,8 +411,11 @@ impl CpuEngine {
                         &images[p.reference as usize].pixels
                     };
                     let buffers = &mut self.buffers;
-                    // The wide layout where it applies (4 threads or more), else two passes.
-                    let sums = if sgm_wide::applies(plan) {
+                    // Coarse to fine: each pixel's window alone; else the wide layout where
+                    // it applies (4 threads or more), else two passes.
+                    let sums = if plan.narrowed() {
+                        sgm_windows::run_two_passes
+                    } else if sgm_wide::applies(plan) {
                         sgm_wide::run
                     } else {
                         sgm::run_two_passes
@@ -430,7 +434,12 @@ impl CpuEngine {
                 }
                 Phase::SgmSelect => {
                     let buffers = &self.buffers;
-                    sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
+                    let select = if plan.narrowed() {
+                        sgm_windows::select
+                    } else {
+                        sgm::select
+                    };
+                    select(plan, volume, &buffers.forward, &buffers.backward, state);
                 }
                 Phase::Finalize => {
                     finalize::run(plan, state, &mut maps);

@@ -22,7 +22,7 @@ use super::select::{WtaChunk, WtaState};
 pub const LANES: usize = 16;
 /// The cost of a padding lane: larger than any real path cost, so it never wins a minimum
 /// (the shader skips planes >= planes instead).
-pub const PAD: u16 = 0x7fff;
+pub const PAD: u16 = SGM_PATH_PAD as u16;
 
 /// u16 lanes per pixel of the CPU cost volume.
 pub fn stride(planes: usize) -> usize {
@@ -378,7 +378,8 @@ pub(super) fn edge_penalties_row(
 }
 
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
-/// backward ones' into `backward` (resized to the volume; [`select`] adds the two).
+/// backward ones' into `backward` (resized to the volume; [`select`] adds the two). Not for a
+/// narrowed plan, whose volume holds each pixel's window alone (`sgm_windows`).
 /// `Err(Cancelled)` when `cancel` stopped it between rows. The engine uses the wide layout
 /// instead where it [`super::sgm_wide::applies`] (4 threads or more).
 pub fn run_two_passes(
@@ -399,18 +400,18 @@ pub fn run_two_passes(
 }
 
 /// The winner over the summed path costs of one pixel.
-struct Winner {
-    best: usize,
-    best_sum: u16,
-    before: Option<u16>,
-    after: Option<u16>,
-    rival: Option<u16>,
+pub(super) struct Winner {
+    pub(super) best: usize,
+    pub(super) best_sum: u16,
+    pub(super) before: Option<u16>,
+    pub(super) after: Option<u16>,
+    pub(super) rival: Option<u16>,
 }
 
 /// Sums `forward + backward` into `sums` and finds the first minimum, its neighbours and the
 /// smallest sum away from them (vector adds and minimum reductions, one scan for the index).
 #[inline(always)]
-fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
+pub(super) fn winner(forward: &[u16], backward: &[u16], sums: &mut [u16]) -> Winner {
     let planes = sums.len();
     for ((s, &f), &b) in sums
         .iter_mut()
@@ -453,10 +454,7 @@ pub fn select(
     let p = &plan.params;
     let unit = p.sgm_unit_per_level;
     let chunk = 1024;
-    let unique = (p.uniqueness > 0.0 || p.ambiguity > 0.0).then_some(Uniqueness {
-        radius: p.uniqueness_radius.max(1) as usize,
-        levels_per_unit: p.sgm_levels_per_unit,
-    });
+    let unique = uniqueness_of(plan);
     state
         .chunks_mut(chunk)
         .into_par_iter()
@@ -474,18 +472,28 @@ pub fn select(
         });
 }
 
+/// How the selection reads the uniqueness on the matching costs, where `uniqueness` or
+/// `ambiguity` needs it.
+pub(super) fn uniqueness_of(plan: &SweepPlan) -> Option<Uniqueness> {
+    let p = &plan.params;
+    (p.uniqueness > 0.0 || p.ambiguity > 0.0).then_some(Uniqueness {
+        radius: p.uniqueness_radius.max(1) as usize,
+        levels_per_unit: p.sgm_levels_per_unit,
+    })
+}
+
 /// How [`uniqueness_on_costs`] reads a pixel's volume levels.
 #[derive(Debug, Clone, Copy)]
-struct Uniqueness {
+pub(super) struct Uniqueness {
     /// Planes either side of the winner that are not its rivals.
-    radius: usize,
+    pub(super) radius: usize,
     /// Volume levels per score unit.
-    levels_per_unit: f32,
+    pub(super) levels_per_unit: f32,
 }
 
 /// A volume level back to score units (twin of `level_score` in sgm_select.wgsl).
 #[inline(always)]
-fn level_score(level: u16, levels_per_unit: f32) -> f32 {
+pub(super) fn level_score(level: u16, levels_per_unit: f32) -> f32 {
     f32::from(level) / levels_per_unit - SGM_VOLUME_OFFSET
 }
 

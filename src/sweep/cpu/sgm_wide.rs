@@ -15,6 +15,7 @@
 //! ring 219 ms against 128 ms), the largest stage of a set there. On 2 threads the two passes
 //! keep both threads busy already, and the wide layout reads the volume three times (the two
 //! row walks and the horizontal pass) where they read it twice (not measured on 2 threads).
+//! Not for a narrowed plan (coarse to fine), whose compact volume the two passes walk.
 
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -45,8 +46,13 @@ pub fn force(wide: Option<bool>) {
     );
 }
 
-/// Whether `plan`'s SGM runs in the wide layout on this thread pool.
+/// Whether `plan`'s SGM runs in the wide layout on this thread pool. Never for a narrowed
+/// plan (coarse to fine): its volume holds each pixel's window of planes alone
+/// (`sgm_windows::VolumeLayout`), which the two passes walk at a fraction of the full volume's cost.
 pub fn applies(plan: &SweepPlan) -> bool {
+    if plan.narrowed() {
+        return false;
+    }
     match FORCE.load(Ordering::Relaxed) {
         1 => true,
         2 => false,
