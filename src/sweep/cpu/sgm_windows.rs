@@ -391,11 +391,11 @@ fn tile_run<const G: usize>(
     }
 }
 
+vectorised_fn! { avx2:
 /// `sgm::pass` under coarse to fine: each pixel's [`Window`] alone, its lanes in the
 /// [`VolumeLayout`] of `volume` and `sums`; a range tile's pixels at a time, with its window's
 /// group count known at compile time for the common counts (the per-pixel lookups and a
 /// varying count cost more than the groups they skip).
-#[inline(always)]
 fn pass_windowed(
     plan: &SweepPlan,
     reference_colours: &[u32],
@@ -469,6 +469,7 @@ fn pass_windowed(
         std::mem::swap(&mut rows.prev_mins, &mut rows.cur_mins);
         std::mem::swap(&mut rows.prev_groups, &mut rows.cur_groups);
     }
+}
 }
 
 vectorised_fn! {
