@@ -390,13 +390,23 @@ pub fn run_two_passes(
     backward: &mut Vec<u16>,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
-    forward.resize(volume.len(), 0);
-    backward.resize(volume.len(), 0);
-    rayon::join(
-        || pass(plan, reference_colours, volume, true, forward, cancel),
-        || pass(plan, reference_colours, volume, false, backward, cancel),
-    );
+    forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
+        pass(plan, reference_colours, volume, walks_forward, sums, cancel)
+    });
     cancel.check()
+}
+
+/// `pass` walking forward into `forward` and backward into `backward` on two threads, the sums
+/// resized to the volume's `lanes` first (every layout of the passes runs its two so).
+pub(super) fn forward_and_backward(
+    lanes: usize,
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+    pass: impl Fn(bool, &mut [u16]) + Sync,
+) {
+    forward.resize(lanes, 0);
+    backward.resize(lanes, 0);
+    rayon::join(|| pass(true, forward), || pass(false, backward));
 }
 
 /// The winner over the summed path costs of one pixel.

@@ -25,7 +25,7 @@ use crate::sweep::plan::SweepPlan;
 use crate::sweep::{CancelFlag, SweepError};
 
 use super::common::vectorised_fn;
-use super::sgm::{edge_penalties_row, penalty_table, step_dyn, stride, PAD};
+use super::sgm::{edge_penalties_row, forward_and_backward, penalty_table, step_dyn, stride, PAD};
 
 /// The fewest threads with which the wide layout is used.
 pub const MIN_THREADS: usize = 4;
@@ -69,12 +69,9 @@ pub fn run(
     backward: &mut Vec<u16>,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
-    forward.resize(volume.len(), 0);
-    backward.resize(volume.len(), 0);
-    rayon::join(
-        || rows_pass(plan, colours, volume, true, forward, cancel),
-        || rows_pass(plan, colours, volume, false, backward, cancel),
-    );
+    forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
+        rows_pass(plan, colours, volume, walks_forward, sums, cancel)
+    });
     cancel.check()?;
     horizontal(plan, colours, volume, forward, cancel);
     cancel.check()

@@ -17,8 +17,8 @@ use crate::sweep::{CancelFlag, SweepError};
 use super::common::vectorised_fn;
 use super::select::{WtaChunk, WtaState};
 use super::sgm::{
-    edge_penalties_row, penalty_table, stride, uniqueness_of, uniqueness_on_costs, winner,
-    Uniqueness, LANES, PAD,
+    edge_penalties_row, forward_and_backward, penalty_table, stride, uniqueness_of,
+    uniqueness_on_costs, winner, Uniqueness, LANES, PAD,
 };
 
 /// `sgm::run_two_passes` for a narrowed plan: the forward and backward passes on two threads,
@@ -32,12 +32,9 @@ pub fn run_two_passes(
     backward: &mut Vec<u16>,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
-    forward.resize(volume.len(), 0);
-    backward.resize(volume.len(), 0);
-    rayon::join(
-        || pass_windowed(plan, reference_colours, volume, true, forward, cancel),
-        || pass_windowed(plan, reference_colours, volume, false, backward, cancel),
-    );
+    forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
+        pass_windowed(plan, reference_colours, volume, walks_forward, sums, cancel)
+    });
     cancel.check()
 }
 
@@ -595,16 +592,7 @@ mod tests {
         };
         let (p1, p2) = (10u32, 60u32);
         let mut totals = vec![vec![0u32; planes]; w * h];
-        for (dx, dy) in [
-            (1, 0),
-            (-1, 0),
-            (0, 1),
-            (0, -1),
-            (1, 1),
-            (-1, -1),
-            (1, -1),
-            (-1, 1),
-        ] {
+        for (dx, dy) in crate::sweep::schedule::SGM_DIRECTIONS {
             let mut l = vec![vec![0u32; planes]; w * h];
             let ys: Vec<usize> = if dy >= 0 {
                 (0..h).collect()
@@ -618,7 +606,7 @@ mod tests {
             };
             for &y in &ys {
                 for &x in &xs {
-                    let (px, py) = (x as i64 - dx, y as i64 - dy);
+                    let (px, py) = (x as i64 - i64::from(dx), y as i64 - i64::from(dy));
                     let prev = (px >= 0 && py >= 0 && px < w as i64 && py < h as i64)
                         .then(|| l[py as usize * w + px as usize].clone());
                     for d in 0..planes {
