@@ -138,6 +138,13 @@ pub struct RowScorer {
     best: Vec<Vec<f32>>,
     left_best: Vec<Vec<f32>>,
     right_best: Vec<Vec<f32>>,
+    /// Half-sequence scoring whose halves each score their best pair or have none
+    /// (`score_halves_best_one`).
+    best_one: bool,
+    /// Per-pair aggregation whose pairs all lie in one half (a reference at an end of its rig,
+    /// e.g. a stereo pair): that half's selection code (`score_halves_best_one` then skips the
+    /// empty half).
+    one_side: Option<f32>,
 }
 
 impl RowScorer {
@@ -150,6 +157,7 @@ impl RowScorer {
         let span = if windows.shiftable { padded } else { width };
         let ring_rows = if windows.shiftable { windows.h } else { 0 };
         let ranks = |n: usize| (0..n).map(|_| vec![BIG; span]).collect();
+        let has = |side: u32| plan.pairs.iter().take(channels).any(|p| p[2] == side);
         Self {
             width,
             padded,
@@ -173,6 +181,18 @@ impl RowScorer {
             }),
             left_best: ranks(plan.half_ranks()[0] as usize),
             right_best: ranks(plan.half_ranks()[1] as usize),
+            best_one: p.scoring == SCORING_HALF
+                && [HALF_LEFT, HALF_RIGHT]
+                    .into_iter()
+                    .zip(plan.half_ranks())
+                    .all(|(side, ranks)| ranks == 1 || (ranks == 0 && !has(side))),
+            one_side: {
+                match (has(HALF_LEFT), has(HALF_RIGHT)) {
+                    (true, false) => Some(SEL_LEFT),
+                    (false, true) => Some(SEL_RIGHT),
+                    _ => None,
+                }
+            },
         }
     }
 
@@ -356,7 +376,7 @@ impl RowScorer {
     #[inline(always)]
     fn score_pairs(&mut self, plan: &SweepPlan, set: usize, offset: usize) {
         let p = &plan.params;
-        if p.scoring == SCORING_HALF && self.left_best.len() == 1 && self.right_best.len() == 1 {
+        if self.best_one {
             self.score_halves_best_one(plan, set, offset);
             return;
         }
@@ -441,7 +461,8 @@ impl RowScorer {
 
 impl RowScorer {
     /// `score_pairs` for the half-sequence whose halves each score their best pair (the
-    /// defaults with two pairs a side: `half_ranks` [1, 1]), the same floats with a third of
+    /// defaults with two pairs a side: `half_ranks` [1, 1]) or have no pair (a stereo pair:
+    /// [1, 0] or [0, 1], the empty half BIG as `best_mean` leaves it), the same floats with a third of
     /// the row passes: each pair's window mean goes straight into its half's minimum (the
     /// one-rank bubble), and each half's score is that minimum through `best_mean` and
     /// `mean_or_big` (`(0 + best) / 1`, or BIG when the half saw nothing); the halves' sums of
@@ -452,8 +473,13 @@ impl RowScorer {
         let w = self.span;
         let [_, _, left, _, right, _] = &mut self.acc;
         let (left, right) = (&mut left[..w], &mut right[..w]);
-        left.fill(BIG);
-        right.fill(BIG);
+        // Each half's minimum over its pairs (an empty half of a one-sided plan is not read).
+        if self.one_side != Some(SEL_RIGHT) {
+            left.fill(BIG);
+        }
+        if self.one_side != Some(SEL_LEFT) {
+            right.fill(BIG);
+        }
         for (pair, info) in plan.pairs.iter().enumerate().take(p.channels as usize) {
             let best = match info[2] {
                 HALF_LEFT => &mut *left,
@@ -470,6 +496,21 @@ impl RowScorer {
         let h = HALF_NOISE_FLOOR;
         let one = |b: f32| if b < BIG { (0.0 + b) / 1.0 } else { BIG };
         let (score, sel) = (&mut self.lane_score[..w], &mut self.lane_sel[..w]);
+        if let Some(side) = self.one_side {
+            // The other half is empty (BIG): `half_min` is the `fmin` of the two, and
+            // `half_decision` picks this half wherever it saw something.
+            let best = if side == SEL_LEFT { &*left } else { &*right };
+            for ((score, sel), &b) in score.iter_mut().zip(sel.iter_mut()).zip(best) {
+                let b = one(b);
+                *score = if side == SEL_LEFT {
+                    fmin(b, BIG)
+                } else {
+                    fmin(BIG, b)
+                };
+                *sel = if b < BIG { side } else { SEL_NONE };
+            }
+            return;
+        }
         for (((score, sel), &l), &r) in score
             .iter_mut()
             .zip(sel.iter_mut())
@@ -538,5 +579,50 @@ fn best_mean(list: &[Vec<f32>], sum: &mut [f32], count: &mut [f32]) {
     count.fill(0.0);
     for rank in list {
         add_seen(rank, sum, count);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::CameraModel;
+    use crate::sweep::SweepParams;
+    use crate::synthetic;
+
+    /// The half-sequence's fast paths give `score_pairs`' general floats bit for bit: a stereo
+    /// pair (one half empty: `half_ranks` [1, 0]) through the one-sided path and the two-sided
+    /// one, and three cameras with the reference in the middle ([1, 1]); window means that saw
+    /// nothing (count 0) included.
+    #[test]
+    fn the_halves_fast_paths_are_the_general_scoring() {
+        let model = CameraModel::pinhole(synthetic::intrinsics(40, 3));
+        for (cameras, reference, one_sided) in [(2, 0, true), (2, 1, true), (3, 1, false)] {
+            let rig = synthetic::row_rig(cameras, 0.1, model, reference).expect("rig");
+            let plan = SweepPlan::new(&rig, &SweepParams::default()).expect("plan");
+            assert_eq!(plan.params.aggregation, AGG_PER_PAIR);
+            let mut scorer = RowScorer::new(&plan);
+            assert!(scorer.best_one);
+            assert_eq!(scorer.one_side.is_some(), one_sided, "{cameras} cameras");
+            for (i, (s, n)) in scorer.sums.iter_mut().zip(&mut scorer.counts).enumerate() {
+                *n = (i % 4) as f32 * 5.0;
+                *s = *n * ((i * 37) % 101) as f32 * 0.37;
+            }
+            let side = scorer.one_side;
+            let run = |scorer: &mut RowScorer, best_one: bool, one_side: Option<f32>| {
+                (scorer.best_one, scorer.one_side) = (best_one, one_side);
+                scorer.score_pairs(&plan, 0, 0);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                (bits(&scorer.lane_score), bits(&scorer.lane_sel))
+            };
+            let general = run(&mut scorer, false, None);
+            let both = run(&mut scorer, true, None);
+            assert_eq!(both, general, "{cameras} cameras, both halves");
+            let fast = run(&mut scorer, true, side);
+            assert_eq!(fast, general, "{cameras} cameras, fast path");
+            // Not vacuous: some pixels saw nothing (BIG, no selection) and some chose a half.
+            let scores = &scorer.lane_score;
+            assert!(scores.iter().any(|&s| s >= BIG) && scores.iter().any(|&s| s < BIG));
+            assert!(scorer.lane_sel.iter().any(|&s| s != SEL_NONE));
+        }
     }
 }

@@ -121,6 +121,9 @@ pub struct PlanarImage {
     pub height: usize,
     /// R, G, B planes, row-major.
     pub channels: [Vec<f32>; 3],
+    /// The three channels hold the same values (a prefiltered image: its alpha byte in all
+    /// three, `Params.colour_in_alpha`): the row loops sample and compare R alone.
+    pub grey: bool,
     /// Per texel, row-major: its colour's bytes [R, G, B, 0] (little-endian in the first
     /// `u32`: `f32::from(byte)` is the channel's value, as `v / 255 * 255 == v` in f32 for every
     /// byte, `texel_bytes_are_the_channel_values`) and its census word (0 without census
@@ -153,6 +156,7 @@ impl PlanarImage {
     ) {
         self.width = width;
         self.height = height;
+        self.grey = colour_in_alpha;
         // The colour the cost compares (`texel_at` in cost.wgsl): the RGB, or for prefiltered
         // images (`sweep/prefilter.rs`) the alpha byte in all three.
         let colour = |p: u32| {

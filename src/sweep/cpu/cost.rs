@@ -519,7 +519,8 @@ fn sample_row_shifted(
     out[0][..x_lo].fill(f32::NAN);
     out[0][x_lo + count..].fill(f32::NAN);
     let mix = |a: f32, b: f32, t: f32| a + (b - a) * t;
-    for (plane, row_out) in image.channels.iter().zip(out.iter_mut()) {
+    let channels = if image.grey { 1 } else { 3 };
+    for (plane, row_out) in image.channels.iter().zip(out.iter_mut()).take(channels) {
         let dst = &mut row_out[x_lo..x_lo + count];
         let row = |yy: usize| &plane[yy * image.width + first..];
         let top = row(y0);
@@ -546,9 +547,22 @@ fn sample_row_shifted(
 }
 
 /// Pair TSSD along a row: `min(tau, |a - b|^2)`, INVALID where either colour is missing.
+/// `grey`: the three channels of both are equal (`PlanarImage::grey`) and R alone is read:
+/// the same floats from a third of the loads (`(x + x) + x` is the sum of three equal
+/// squares as the colour loop adds them).
 #[inline(always)]
-pub fn pair_cost_row(tau: f32, a: [&[f32]; 3], b: [&[f32]; 3], out: &mut [f32]) {
+pub fn pair_cost_row(tau: f32, a: [&[f32]; 3], b: [&[f32]; 3], out: &mut [f32], grey: bool) {
     let n = out.len();
+    if grey {
+        let (a, b) = (&a[0][..n], &b[0][..n]);
+        for x in 0..n {
+            let d = a[x] - b[x];
+            let square = d * d;
+            let ssd = square + square + square;
+            out[x] = if ssd >= 0.0 { fmin(tau, ssd) } else { INVALID };
+        }
+        return;
+    }
     let (ar, ag, ab) = (&a[0][..n], &a[1][..n], &a[2][..n]);
     let (br, bg, bb) = (&b[0][..n], &b[1][..n], &b[2][..n]);
     for x in 0..n {
@@ -687,6 +701,66 @@ pub fn scored_channels(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Prefiltered (grey) images: R alone is sampled and compared, with the floats that the
+    /// three equal channels give: shifted rows, scattered gathers and the pair cost, samples
+    /// outside the image (NaN, INVALID) included.
+    #[test]
+    fn grey_images_sample_and_cost_as_their_three_equal_channels() {
+        let (w, h, width) = (37usize, 9usize, 30usize);
+        let pixels: Vec<u32> = (0..w * h)
+            .map(|i| (i as u32).wrapping_mul(2_654_435_761))
+            .collect();
+        let mut grey = PlanarImage::default();
+        grey.fill_from_packed(w, h, &pixels, true, true, None);
+        let mut three = PlanarImage::default();
+        three.fill_from_packed(w, h, &pixels, true, true, None);
+        three.grey = false;
+        assert!(grey.grey && grey.channels[0] == grey.channels[2]);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let shifted = |image: &PlanarImage, dx: f64, dy: f64, y: usize| {
+            let mut out = colour_row(width);
+            sample_row_shifted(image, dx, dy, y, width, &mut out);
+            out
+        };
+        let reference = shifted(&three, 0.0, 0.0, 4);
+        for (dx, dy, y) in [(2.25, 0.5, 3), (0.0, 0.0, 1), (9.75, -0.25, 6)] {
+            let (g, t) = (shifted(&grey, dx, dy, y), shifted(&three, dx, dy, y));
+            assert_eq!(bits(&g[0]), bits(&t[0]));
+            assert!(t[0].iter().any(|v| v.is_nan()) || dx < 5.0);
+            let cost = |a: &ColourRow, grey: bool| {
+                let mut out = vec![0.0; width];
+                fn rows(r: &ColourRow) -> [&[f32]; 3] {
+                    std::array::from_fn(|c| r[c].as_slice())
+                }
+                pair_cost_row(60.0, rows(&reference), rows(a), &mut out, grey);
+                bits(&out)
+            };
+            let want = cost(&t, false);
+            assert_eq!(cost(&g, true), want, "shift ({dx}, {dy})");
+            assert!(want.contains(&INVALID.to_bits()) || dx < 5.0);
+        }
+        // Scattered samples, every seventh not seen.
+        let xs: Vec<f32> = (0..width)
+            .map(|i| {
+                if i % 7 == 3 {
+                    f32::NAN
+                } else {
+                    (i as f32 * 1.13) % 36.0
+                }
+            })
+            .collect();
+        let ys: Vec<f32> = (0..width).map(|i| (i as f32 * 0.71) % 8.0).collect();
+        let gathered = |image: &PlanarImage| {
+            let mut out = colour_row(width);
+            let [r, g, b] = &mut out;
+            super::super::gather::gather_row(image, &xs, &ys, [r, g, b], None);
+            out
+        };
+        let (g, t) = (gathered(&grey), gathered(&three));
+        assert_eq!(bits(&g[0]), bits(&t[0]));
+        assert_eq!(bits(&t[0]), bits(&t[1]));
+    }
 
     /// The General mapping's row loop (`general_row`: pinhole and plumb-bob lenses, every step
     /// computed and selected) against `ray_pixel` per pixel, bit for bit, NaN where not seen:

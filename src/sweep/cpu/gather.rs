@@ -29,7 +29,8 @@ fn whole(v: f32) -> u32 {
 }
 
 /// The bilinear colours at `xs`, `ys` (NaN in `xs`: not seen; else a position that `inside`
-/// accepted) into `out` (NaN where not seen), and with `census` (the reference row's words,
+/// accepted) into `out` (NaN where not seen; R alone for a grey image, whose G and B equal
+/// it and are not read), and with `census` (the reference row's words,
 /// the distances out) the census distances of the samples (not written where not seen).
 /// Returns whether it made distances.
 #[inline(always)]
@@ -90,8 +91,10 @@ pub fn gather_row(
         let at = start..start + n;
         let (wx, wy) = (&wx[..n], &wy[..n]);
         mix_chunk(&colours, cx, wx, wy, &mut out_r[at.clone()], 0);
-        mix_chunk(&colours, cx, wx, wy, &mut out_g[at.clone()], 8);
-        mix_chunk(&colours, cx, wx, wy, &mut out_b[at.clone()], 16);
+        if !image.grey {
+            mix_chunk(&colours, cx, wx, wy, &mut out_g[at.clone()], 8);
+            mix_chunk(&colours, cx, wx, wy, &mut out_b[at.clone()], 16);
+        }
         if let Some((reference, distances)) = census.as_mut() {
             let (reference, distances) = (&reference[at.clone()], &mut distances[at]);
             distance_chunk(&words, reference, cx, wx, wy, distances);
@@ -149,11 +152,15 @@ pub fn gather_row_along(
         let at = start..start + n;
         let wx = &wx[..n];
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let channels = if image.grey { 1 } else { 3 };
         for (out, shift) in [
             (&mut out_r[at.clone()], 0),
             (&mut out_g[at.clone()], 8),
             (&mut out_b[at.clone()], 16),
-        ] {
+        ]
+        .into_iter()
+        .take(channels)
+        {
             let channel = |colour: u32| ((colour >> shift) & 0xff) as i32 as f32;
             let (t0, t1) = (&colours[0][..n], &colours[1][..n]);
             for j in 0..n {

@@ -316,7 +316,7 @@ fn cost_row(
             row.map(|channel| &channel[from.clone()])
         }
         let (a, b) = (cut(a, lo - a_lo..hi - a_lo), cut(b, lo - b_lo..hi - b_lo));
-        cost::pair_cost_row(p.tau, a, b, &mut costs[lo..hi]);
+        cost::pair_cost_row(p.tau, a, b, &mut costs[lo..hi], p.colour_in_alpha != 0);
     }
     if plan.uses_census() {
         census_costs(plan, images, mappings, k, y, hull.clone(), s);

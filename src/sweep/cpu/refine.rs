@@ -347,6 +347,7 @@ mod tests {
             height: h,
             channels: [spike.clone(), spike.clone(), vec![1.0; w * h]],
             texels: Vec::new(),
+            grey: false,
         };
         let mut out = [vec![0.0; w], vec![0.0; w], vec![0.0; w]];
         let coords = |xs: [f32; 5], ys: [f32; 5]| [xs.to_vec(), ys.to_vec()];
@@ -394,6 +395,7 @@ mod tests {
             height: h,
             channels: [noise(1), noise(2), noise(3)],
             texels: Vec::new(),
+            grey: false,
         };
         let xs: Vec<f32> = (0..w)
             .map(|x| {
