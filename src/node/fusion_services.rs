@@ -76,7 +76,7 @@ impl FusionNode {
             .create_publisher::<MarkerArray>(&topic, Some(qos.clone()))
             .map_err(ros_err)?;
         let mut log = RateLimited::default();
-        let worker = FuserThread::spawn(config.params, config.mesh_rate_hz, move |markers| {
+        let worker = FuserThread::spawn(config.params, None, config.mesh_rate_hz, move |markers| {
             // The live view keeps its own copy of the mesh (never waits for a client).
             if let Some(viewer) = &viewer {
                 viewer.offer_mesh(&markers);
