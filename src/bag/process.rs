@@ -403,13 +403,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
 
     let fuser = match &fusion {
         Some(f) => Some(BagFusion {
-            // On a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`).
-            fuser: {
-                let placement = fusion_gpu(f.device, FusionHost::Engine(host.gpu()))
-                    .map_err(|e| HostError::Engine(e.into()))?;
-                tracing::info!("fusion {}", placement.label());
-                Fuser::on(f.params, placement.gpu.as_ref())?
-            },
+            fuser: bag_fuser(f, &host)?,
             topic: config.mesh_topic.clone(),
             period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
             next_ns: 0,
@@ -596,6 +590,17 @@ fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline
         }),
         (None, None) => None,
     }
+}
+
+/// The fuser, on a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`).
+fn bag_fuser(
+    fusion: &crate::pipeline::FusionConfig,
+    host: &EngineHost,
+) -> Result<Fuser, BagRunError> {
+    let placement = fusion_gpu(fusion.device, FusionHost::Engine(host.gpu()))
+        .map_err(|e| HostError::Engine(e.into()))?;
+    tracing::info!("fusion {}", placement.label());
+    Ok(Fuser::on(fusion.params, placement.gpu.as_ref())?)
 }
 
 /// A bag message on a topic routed to `route`, as the pipeline's input (or why it does not
