@@ -417,11 +417,12 @@ mod tests {
     }
 
     /// Waits (one generous limit, whatever the machine's speed) until the thread has taken
-    /// `n` depth maps (integrated or refused) and is idle.
+    /// `n` depth maps (integrated or refused) and is idle; no set may have been dropped.
     fn settle(worker: &FuserThread, n: u64) -> FusionStats {
         let started = Instant::now();
         loop {
             let stats = worker.stats();
+            assert_eq!(stats.dropped_sets, 0, "offer one set at a time");
             if stats.integrated + stats.skipped.total() >= n {
                 worker.flush();
                 return worker.stats();
@@ -462,9 +463,12 @@ mod tests {
         let (context, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
         let gpu = FuserThread::spawn(params(), Some(context), 0.0, |_| {}).unwrap();
         let cpu = FuserThread::spawn(params(), None, 0.0, |_| {}).unwrap();
+        // One at a time: a set offered while two wait would drop the oldest.
         for i in 0..3 {
             gpu.offer(vec![oblique(i)]);
             cpu.offer(vec![oblique(i)]);
+            settle(&gpu, i as u64 + 1);
+            settle(&cpu, i as u64 + 1);
         }
         let (on_gpu, on_cpu) = (settle(&gpu, 3), settle(&cpu, 3));
         assert!(on_gpu.on_gpu && !on_cpu.on_gpu);
@@ -495,6 +499,8 @@ mod tests {
         for i in 1..3 {
             gpu.offer(vec![oblique(i)]);
             cpu.offer(vec![oblique(i)]);
+            settle(&gpu, i as u64 + 1);
+            settle(&cpu, i as u64 + 1);
         }
         let (after, reference) = (settle(&gpu, 3), settle(&cpu, 3));
         assert!(!after.on_gpu, "still on the GPU after its loss");
