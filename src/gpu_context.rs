@@ -1,7 +1,24 @@
 //! Making a wgpu device for the binaries and tests. The engine itself never makes one: it takes
 //! the device and queue it is given.
 
-/// An adapter, device and queue.
+/// One device poll or queue submission at a time in this process. wgpu-core 30.0.1 can panic
+/// when two threads poll (or one polls while another submits) on one device at once ("If the
+/// queue is empty, the current submission index ... should be at least the wait submission
+/// index", gfx-rs/wgpu#9958, fixed later): the tests share one device across threads, a CI
+/// run met it once, and the node's fusion thread shares the engine's device. Held for one
+/// submission or one poll with a short timeout, never for a whole wait.
+static DEVICE_POLL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// [`DEVICE_POLL`], also after a thread panicked holding it (it guards no data).
+pub fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
+    DEVICE_POLL
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// An adapter, device and queue. A clone is another handle to the same device (wgpu's
+/// handles are reference-counted), e.g. for the fusion thread beside the engine.
+#[derive(Clone)]
 pub struct GpuContext {
     pub adapter: wgpu::Adapter,
     pub device: wgpu::Device,

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
-use crate::pipeline::{Asked, Fuser, FusionInput, Publishers};
+use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, FusionInput, Publishers};
 use crate::pipeline::{
     ConfigError, EngineHost, FrameMessages, HostError, Input, Job, Outcome, Output, OutputTopics,
     Pipeline, PipelineConfig, Skip,
@@ -403,11 +403,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
 
     let fuser = match &fusion {
         Some(f) => Some(BagFusion {
-            // On the WGSL engine's GPU when it runs on one (`fusion::GpuTsdf`).
-            fuser: match host.gpu() {
-                Some(gpu) => Fuser::on_gpu(f.params, gpu)?,
-                None => Fuser::new(f.params)?,
-            },
+            fuser: bag_fuser(f, &host)?,
             topic: config.mesh_topic.clone(),
             period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
             next_ns: 0,
@@ -590,9 +586,21 @@ fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline
                 ..FusionParams::default()
             },
             mesh_rate_hz: 1.0,
+            device: config.node.fusion_device.parse().unwrap_or_default(),
         }),
         (None, None) => None,
     }
+}
+
+/// The fuser, on a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`).
+fn bag_fuser(
+    fusion: &crate::pipeline::FusionConfig,
+    host: &EngineHost,
+) -> Result<Fuser, BagRunError> {
+    let placement = fusion_gpu(fusion.device, FusionHost::Engine(host.gpu()))
+        .map_err(|e| HostError::Engine(e.into()))?;
+    tracing::info!("fusion {}", placement.label());
+    Ok(Fuser::on(fusion.params, placement.gpu.as_ref())?)
 }
 
 /// A bag message on a topic routed to `route`, as the pipeline's input (or why it does not
@@ -630,7 +638,11 @@ fn mesh_summary(
 ) -> Result<String, BagRunError> {
     let fuser = &mut fusion.fuser;
     let (blocks, bytes) = fuser.blocks();
-    let on = if fuser.is_on_gpu() { " on the GPU" } else { "" };
+    let on = match (fuser.is_on_gpu(), fuser.left_gpu()) {
+        (true, _) => " on the GPU".to_string(),
+        (false, None) => String::new(),
+        (false, Some(reason)) => format!(" (on the CPU after leaving the GPU: {reason})"),
+    };
     let grid = format!(
         "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
         fuser.params().voxel_size_m,

@@ -13,10 +13,10 @@
 //! them.
 
 use std::borrow::Cow;
-use std::sync::mpsc;
 
 use bytemuck::{Pod, Zeroable};
 
+use self::device::{make_buffer, read_buffer, submit};
 use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
 use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
 use super::{
@@ -168,20 +168,6 @@ impl Grown {
             self.buffer = make_buffer(device, self.label, size, self.usage);
         }
     }
-}
-
-fn make_buffer(
-    device: &wgpu::Device,
-    label: &str,
-    size: u64,
-    usage: wgpu::BufferUsages,
-) -> wgpu::Buffer {
-    device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some(label),
-        size,
-        usage,
-        mapped_at_creation: false,
-    })
 }
 
 /// The blocks of a TSDF grid on a wgpu device, integrated by `shaders/tsdf_integrate.wgsl`:
@@ -589,7 +575,7 @@ impl GpuTsdf {
                 count_bytes,
             );
         }
-        self.queue.submit([encoder.finish()]);
+        submit(&self.queue, encoder.finish());
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(GpuFusionError::Gpu(format!("integration: {error}")));
         }
@@ -637,7 +623,7 @@ impl GpuTsdf {
                     SLOT_BYTES,
                 );
             }
-            self.queue.submit([encoder.finish()]);
+            submit(&self.queue, encoder.finish());
             let voxels: Vec<PoolVoxel> = read_buffer(&self.device, &staging, bytes)?;
             for ((index, _), slot) in piece.iter().zip(voxels.chunks_exact(VOXELS_PER_BLOCK)) {
                 let mut block = Block::default();
@@ -761,31 +747,6 @@ fn gpu_camera(projector: &Projector, model: &CameraModel) -> GpuCamera {
     }
 }
 
-/// Maps the first `bytes` of a buffer (after the last submission), waits, and copies them out.
-fn read_buffer<T: Pod>(
-    device: &wgpu::Device,
-    buffer: &wgpu::Buffer,
-    bytes: u64,
-) -> Result<Vec<T>, GpuFusionError> {
-    let gpu = |e: &dyn std::fmt::Display| GpuFusionError::Gpu(format!("reading back: {e}"));
-    let (sender, receiver) = mpsc::channel();
-    buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
-        let _ = sender.send(r);
-    });
-    device
-        .poll(wgpu::PollType::Wait {
-            submission_index: None,
-            timeout: None,
-        })
-        .map_err(|e| gpu(&e))?;
-    receiver.recv().map_err(|e| gpu(&e))?.map_err(|e| gpu(&e))?;
-    let out = {
-        let range = buffer.get_mapped_range(..bytes).map_err(|e| gpu(&e))?;
-        bytemuck::pod_collect_to_vec(&range)
-    };
-    buffer.unmap();
-    Ok(out)
-}
-
+mod device;
 #[cfg(test)]
 pub(crate) mod tests;

@@ -82,6 +82,14 @@ impl Mapper {
         self.gpu.is_some()
     }
 
+    /// Integrates on the CPU from now on (a lost device, a GPU that failed): the device's map
+    /// is dropped, `grid` (its copy, synced after every integration that succeeded) keeps
+    /// every block fused so far. A depth map whose GPU integration failed changed nothing
+    /// here and can be integrated again. Returns whether the map was on a GPU.
+    pub fn leave_gpu(&mut self) -> bool {
+        self.gpu.take().is_some()
+    }
+
     pub fn params(&self) -> &FusionParams {
         &self.params
     }

@@ -208,4 +208,4 @@ pub enum FusionError {
 }
 
 #[cfg(test)]
-mod test_scenes;
+pub(crate) mod test_scenes;

@@ -25,7 +25,7 @@ use super::why::{Discovery, NoDepth};
 use super::worker::Outputs;
 use super::{NodeConfig, NodeError, Shared};
 use crate::msgs::DiagnosticArray;
-use crate::pipeline::{ConfigError, Pipeline};
+use crate::pipeline::{ConfigError, FusionHost, Pipeline};
 
 /// The spinner's future, kept until the node is dropped: the node's `Drop` tells the spinner to
 /// stop, which fails (with an ERROR line) once the spinner is gone.
@@ -85,6 +85,7 @@ pub(super) fn run(
             &mut node,
             &pipeline.identity.fqn(),
             fusion_config,
+            FusionHost::Engine(shared.engine_gpu),
             &pipeline.mesh_topic,
             shared.viewer.cloned(),
         )?),

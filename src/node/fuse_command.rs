@@ -8,7 +8,8 @@
 //!
 //! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
 //! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
-//! `max_blocks`, `mesh_rate`, `min_depth` and `max_depth` (the depths fused). It serves no
+//! `max_blocks`, `mesh_rate`, `fusion_device` (`auto`: a hardware GPU if wgpu offers one, else
+//! the CPU), `min_depth` and `max_depth` (the depths fused). It serves no
 //! parameter services (the depth node does).
 
 use std::sync::atomic::Ordering;
@@ -32,7 +33,7 @@ use crate::msgs::{
     CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
 };
 use crate::params::{apply_to_sweep, NodeValues, ParamError, ParamSet};
-use crate::pipeline::{ConfigError, DepthSources, FusionConfig, FusionStats};
+use crate::pipeline::{ConfigError, DepthSources, FusionConfig, FusionHost, FusionStats};
 use crate::ros::args::{domain_id, parse_ros_args};
 use crate::sweep::SweepParams;
 
@@ -249,6 +250,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         &mut node,
         &config.fqn,
         &config.fusion,
+        FusionHost::Alone,
         &config.mesh_topic,
         None,
     )?;

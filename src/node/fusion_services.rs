@@ -16,7 +16,7 @@ use super::log::{log_info, RateLimited};
 use super::topics::ros_err;
 use super::NodeError;
 use crate::msgs::{KeyValue, MarkerArray};
-use crate::pipeline::{FuserThread, FusionConfig, FusionStats};
+use crate::pipeline::{fusion_gpu, FuserThread, FusionConfig, FusionHost, FusionStats};
 use crate::viewer::Viewer;
 
 /// `sweepdepth/srv/SaveMesh` request (`msg/srv/SaveMesh.srv`).
@@ -50,11 +50,13 @@ pub(super) struct FusionNode {
 
 impl FusionNode {
     /// The `mesh` publisher (reliable, volatile, the last 10 updates), the fusion thread that
-    /// publishes on it, and the services under the node's name.
+    /// publishes on it (on a GPU or the CPU as `fusion_device` decides beside `host`:
+    /// [`fusion_gpu`]), and the services under the node's name.
     pub fn new(
         node: &mut Node,
         node_fqn: &str,
         config: &FusionConfig,
+        host: FusionHost<'_>,
         mesh_topic: &str,
         viewer: Option<Viewer>,
     ) -> Result<Self, NodeError> {
@@ -75,8 +77,11 @@ impl FusionNode {
         let publisher = node
             .create_publisher::<MarkerArray>(&topic, Some(qos.clone()))
             .map_err(ros_err)?;
+        let placement = fusion_gpu(config.device, host)
+            .map_err(|e| NodeError::Gpu(format!("fusion_device gpu: {e}")))?;
         let mut log = RateLimited::default();
-        let worker = FuserThread::spawn(config.params, config.mesh_rate_hz, move |markers| {
+        let gpu = placement.gpu.as_ref();
+        let worker = FuserThread::spawn(config.params, gpu, config.mesh_rate_hz, move |markers| {
             // The live view keeps its own copy of the mesh (never waits for a client).
             if let Some(viewer) = &viewer {
                 viewer.offer_mesh(&markers);
@@ -111,9 +116,12 @@ impl FusionNode {
             )
             .map_err(ros_err)?;
         log_info(&format!(
-            "fusion: voxels of {} m, at most {} blocks, the mesh on {mesh_topic} at {} Hz; \
+            "fusion {}: voxels of {} m, at most {} blocks, the mesh on {mesh_topic} at {} Hz; \
              services {node_fqn}/save_mesh, {node_fqn}/clear_map",
-            config.params.voxel_size_m, config.params.max_blocks, config.mesh_rate_hz
+            placement.label(),
+            config.params.voxel_size_m,
+            config.params.max_blocks,
+            config.mesh_rate_hz
         ));
         Ok(Self {
             worker: Arc::new(worker),
@@ -200,7 +208,15 @@ pub fn diagnostic_values(stats: &FusionStats) -> Vec<KeyValue> {
         key: key.into(),
         value,
     };
-    let mut values = vec![kv("fusion depth maps", stats.integrated.to_string())];
+    let on = match (stats.on_gpu, &stats.left_gpu) {
+        (true, _) => "GPU".to_string(),
+        (false, None) => "CPU".to_string(),
+        (false, Some(reason)) => format!("CPU (left the GPU: {reason})"),
+    };
+    let mut values = vec![
+        kv("fusion on", on),
+        kv("fusion depth maps", stats.integrated.to_string()),
+    ];
     for (source, n) in &stats.integrated_by_source {
         values.push(kv(
             &format!("fusion depth maps from {source}"),
@@ -235,4 +251,32 @@ pub fn diagnostic_values(stats: &FusionStats) -> Vec<KeyValue> {
         values.push(kv(&format!("skipped: {reason}"), count.to_string()));
     }
     values
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn on(stats: &FusionStats) -> String {
+        let values = diagnostic_values(stats);
+        let line = values.iter().find(|kv| kv.key == "fusion on");
+        line.map(|kv| kv.value.clone()).expect("a 'fusion on' line")
+    }
+
+    /// `/diagnostics` says where the map integrates, and why it left its GPU.
+    #[test]
+    fn diagnostics_say_where_fusion_runs_and_why_it_left_the_gpu() {
+        let mut stats = FusionStats {
+            on_gpu: true,
+            ..FusionStats::default()
+        };
+        assert_eq!(on(&stats), "GPU");
+        stats.on_gpu = false;
+        assert_eq!(on(&stats), "CPU");
+        stats.left_gpu = Some("GPU fusion: reading back: the device is lost".into());
+        assert_eq!(
+            on(&stats),
+            "CPU (left the GPU: GPU fusion: reading back: the device is lost)"
+        );
+    }
 }

@@ -58,6 +58,8 @@ struct Shared<'a> {
     stats: &'a Mutex<Stats>,
     /// The adapter the engine runs on.
     adapter: &'a str,
+    /// The WGSL engine's device (None: the CPU engine), for fusion (`fusion_device`).
+    engine_gpu: Option<&'a crate::gpu_context::GpuContext>,
     /// The live view, for fusion's mesh (the GPU thread has its own handle).
     viewer: Option<&'a Viewer>,
 }
@@ -126,6 +128,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         live: &live,
         stats: &stats,
         adapter: &gpu.adapter,
+        engine_gpu: gpu.gpu.as_ref(),
         viewer: mesh_viewer.as_ref(),
     };
     let mut handle = Some(gpu.handle);

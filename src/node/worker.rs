@@ -11,6 +11,7 @@ use super::diag::{wall_time_now, Stats};
 use super::log::{lock, log_info, RateLimited};
 use super::params::LiveParams;
 use super::NodeError;
+use crate::gpu_context::GpuContext;
 use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{
@@ -62,6 +63,8 @@ pub(super) struct GpuThread {
     pub handle: JoinHandle<()>,
     /// The adapter the engine runs on.
     pub adapter: String,
+    /// The WGSL engine's device (None: the CPU engine), for fusion on the same GPU.
+    pub gpu: Option<GpuContext>,
     /// Where the publishers go once DDS is up; the thread waits for them.
     pub publishers: mpsc::Sender<Outputs>,
 }
@@ -76,7 +79,7 @@ pub(super) fn spawn(
     stats: Arc<Mutex<Stats>>,
     viewer: Option<Viewer>,
 ) -> Result<GpuThread, NodeError> {
-    let (init_tx, init_rx) = mpsc::channel::<Result<String, HostError>>();
+    let (init_tx, init_rx) = mpsc::channel::<Result<(String, Option<GpuContext>), HostError>>();
     let (publishers_tx, publishers_rx) = mpsc::channel::<Outputs>();
     let handle = std::thread::Builder::new()
         .name("sweepdepth-gpu".into())
@@ -89,15 +92,15 @@ pub(super) fn spawn(
                 }
             };
             host.set_cancel(cancel);
-            let _ = init_tx.send(Ok(host.adapter_label()));
+            let _ = init_tx.send(Ok((host.adapter_label(), host.gpu().cloned())));
             let Ok(publishers) = publishers_rx.recv() else {
                 return;
             };
             worker_loop(&slot, &live, &stats, host, &publishers, viewer.as_ref());
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
-    let adapter = match init_rx.recv() {
-        Ok(Ok(adapter)) => adapter,
+    let (adapter, gpu) = match init_rx.recv() {
+        Ok(Ok(engine)) => engine,
         Ok(Err(e)) => return Err(NodeError::Engine(e)),
         Err(_) => {
             return Err(NodeError::Gpu(
@@ -108,6 +111,7 @@ pub(super) fn spawn(
     Ok(GpuThread {
         handle,
         adapter,
+        gpu,
         publishers: publishers_tx,
     })
 }

@@ -101,6 +101,8 @@ node_values! {
     max_blocks: i64 = "max_blocks";
     /// `mesh_rate`, Hz.
     mesh_rate_hz: f64 = "mesh_rate";
+    /// `fusion_device`: `auto`, `gpu` or `cpu`.
+    fusion_device: String = "fusion_device";
     /// `depth_topics`: the `fuse` node's inputs.
     depth_topics: Vec<String> = "depth_topics";
     /// `device`: `auto`, `gpu` or `cpu`.

@@ -134,6 +134,8 @@ pub struct FusionConfig {
     pub params: crate::fusion::FusionParams,
     /// `mesh_rate` (Hz; 0: the mesh is only saved).
     pub mesh_rate_hz: f64,
+    /// `fusion_device`: where it integrates ([`super::fusion_gpu`] decides).
+    pub device: crate::engine::Device,
 }
 
 /// A moving rig: where its poses come from (`world_frame`, `tf_timeout`).
@@ -226,8 +228,8 @@ fn fusion_config(
 }
 
 impl FusionConfig {
-    /// Fusion's settings from `voxel_size`, `max_blocks` and `mesh_rate`, fusing the depths
-    /// from `min_depth_m` to `max_depth_m` (checked).
+    /// Fusion's settings from `voxel_size`, `max_blocks`, `mesh_rate` and `fusion_device`,
+    /// fusing the depths from `min_depth_m` to `max_depth_m` (checked).
     pub fn new(
         node: &NodeValues,
         min_depth_m: f64,
@@ -242,6 +244,7 @@ impl FusionConfig {
                 ..crate::fusion::FusionParams::default()
             },
             mesh_rate_hz: node.mesh_rate_hz,
+            device: node.fusion_device.parse().unwrap_or_default(),
         };
         fusion.params.validate()?;
         Ok(fusion)

@@ -120,6 +120,8 @@ pub struct Fuser {
     pub integrated_by_source: BTreeMap<String, u64>,
     /// Depth maps refused, by reason.
     pub skipped: SkipCounts,
+    /// Why the map left its GPU for the CPU ([`Fuser::left_gpu`]).
+    left_gpu: Option<String>,
 }
 
 impl Fuser {
@@ -127,11 +129,27 @@ impl Fuser {
         Self::with_mapper(Mapper::new(params, Weighting::DEPTH_MAPS)?)
     }
 
-    /// A fuser that integrates on `gpu`'s device ([`Mapper::on_gpu`]): `bag --mesh` with the
-    /// WGSL engine.
+    /// A fuser that integrates on `gpu`'s device ([`Mapper::on_gpu`]). When the device fails
+    /// later ([`FusionError::Gpu`]: lost, reset, out of room), the map goes on on the CPU with
+    /// every block it had, the failed depth map integrated there ([`Fuser::left_gpu`] says why).
     pub fn on_gpu(params: FusionParams, gpu: &GpuContext) -> Result<Self, FusionError> {
         let mapper = Mapper::on_gpu(params, Weighting::DEPTH_MAPS, &gpu.device, &gpu.queue)?;
         Self::with_mapper(mapper)
+    }
+
+    /// On `gpu`'s device when given ([`Fuser::on_gpu`]), else on the CPU; a device that
+    /// refuses the fusion ([`FusionError::Gpu`]) leaves it on the CPU, with the reason in
+    /// [`Fuser::left_gpu`]. Refuses only bad parameters.
+    pub fn on(params: FusionParams, gpu: Option<&GpuContext>) -> Result<Self, FusionError> {
+        match gpu.map(|gpu| Self::on_gpu(params, gpu)) {
+            None => Self::new(params),
+            Some(Err(FusionError::Gpu(reason))) => {
+                let mut fuser = Self::new(params)?;
+                fuser.left_gpu = Some(format!("the GPU refused the fusion: {reason}"));
+                Ok(fuser)
+            }
+            Some(other) => other,
+        }
     }
 
     fn with_mapper(mapper: Mapper) -> Result<Self, FusionError> {
@@ -144,6 +162,7 @@ impl Fuser {
             integrated: 0,
             integrated_by_source: BTreeMap::new(),
             skipped: SkipCounts::default(),
+            left_gpu: None,
         })
     }
 
@@ -154,6 +173,11 @@ impl Fuser {
     /// Whether it integrates on a GPU ([`Fuser::on_gpu`]).
     pub fn is_on_gpu(&self) -> bool {
         self.mapper.is_on_gpu()
+    }
+
+    /// Why the map left the GPU it was made on for the CPU (None: it never did).
+    pub fn left_gpu(&self) -> Option<&str> {
+        self.left_gpu.as_deref()
     }
 
     /// The map's frame (None before the first depth map).
@@ -179,14 +203,23 @@ impl Fuser {
                 });
             }
         }
-        let stats = self.mapper.integrate(&DepthView {
+        let view = DepthView {
             depth: &input.depth,
             confidence: input.confidence.as_ref(),
             baseline_ratio: input.baseline_ratio,
             colour: input.colour.as_deref(),
             model: &input.model,
             map_from_cam: &input.map_from_cam,
-        })?;
+        };
+        let stats = match self.mapper.integrate(&view) {
+            // The device failed: the map goes on on the CPU, this depth map first (the
+            // failed integration changed nothing of the map's grid).
+            Err(FusionError::Gpu(reason)) if self.mapper.leave_gpu() => {
+                self.left_gpu = Some(reason);
+                self.mapper.integrate(&view)
+            }
+            other => other,
+        }?;
         if self.frame.is_none() {
             self.frame = Some(input.frame.clone());
         }

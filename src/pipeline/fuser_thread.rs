@@ -17,6 +17,7 @@ use futures::channel::oneshot;
 use super::counts::SkipCounts;
 use super::fuser::{Fuser, FusionInput, SavedMesh};
 use crate::fusion::{FusionError, FusionParams};
+use crate::gpu_context::GpuContext;
 use crate::msgs::MarkerArray;
 
 /// Sets waiting for the fusion thread at most; an offer beyond drops the oldest.
@@ -44,6 +45,10 @@ pub struct FusionStats {
     /// The last set's integration (all its depth maps) and the last meshing.
     pub last_integration: Duration,
     pub last_meshing: Duration,
+    /// The map integrates on a GPU.
+    pub on_gpu: bool,
+    /// Why the map left its GPU for the CPU (a lost device; None: it never did).
+    pub left_gpu: Option<String>,
 }
 
 /// A request to the fusion thread.
@@ -81,16 +86,21 @@ pub struct FuserThread {
 }
 
 impl FuserThread {
-    /// Starts the thread. `sink` gets each mesh update (never an empty one) and the `DELETEALL`
-    /// of a clear; `mesh_rate_hz` 0: no updates (saving only).
+    /// Starts the thread, integrating on `gpu`'s device when given ([`Fuser::on`]; a device
+    /// that fails, then or later, leaves the map on the CPU with every block it had, logged
+    /// once and in [`FusionStats::left_gpu`]). `sink` gets each mesh update (never an empty
+    /// one) and the `DELETEALL` of a clear; `mesh_rate_hz` 0: no updates (saving only).
     pub fn spawn(
         params: FusionParams,
+        gpu: Option<&GpuContext>,
         mesh_rate_hz: f64,
         sink: impl FnMut(MarkerArray) + Send + 'static,
     ) -> Result<Self, FusionError> {
-        let fuser = Fuser::new(params)?;
+        let fuser = Fuser::on(params, gpu)?;
+        let mut state = State::default();
+        record(&mut state.stats, &fuser);
         let shared = Arc::new(Shared {
-            state: Mutex::new(State::default()),
+            state: Mutex::new(state),
             wake: Condvar::new(),
         });
         let period = (mesh_rate_hz > 0.0 && mesh_rate_hz.is_finite())
@@ -270,8 +280,13 @@ fn run(
     }
 }
 
-/// The fuser's counts into the shared stats.
+/// The fuser's counts into the shared stats; says once that the map left its GPU.
 fn record(stats: &mut FusionStats, fuser: &Fuser) {
+    if let (None, Some(reason)) = (&stats.left_gpu, fuser.left_gpu()) {
+        tracing::warn!("fusion: the map goes on on the CPU, with every block it had: {reason}");
+        stats.left_gpu = Some(reason.to_string());
+    }
+    stats.on_gpu = fuser.is_on_gpu();
     stats.integrated = fuser.integrated;
     stats.integrated_by_source = fuser.integrated_by_source.clone();
     stats.skipped = fuser.skipped.clone();
@@ -329,7 +344,7 @@ mod tests {
     #[test]
     fn sets_are_fused_meshed_sent_saved_and_cleared() {
         let (tx, rx) = mpsc::channel();
-        let worker = FuserThread::spawn(params(), 1000.0, move |m| {
+        let worker = FuserThread::spawn(params(), None, 1000.0, move |m| {
             let _ = tx.send(m);
         })
         .unwrap();
@@ -362,7 +377,7 @@ mod tests {
         // A sink that holds the thread until told: the sets offered meanwhile wait.
         let (gate_tx, gate_rx) = mpsc::channel::<()>();
         let (sent_tx, sent_rx) = mpsc::channel::<()>();
-        let worker = FuserThread::spawn(params(), 1000.0, move |_| {
+        let worker = FuserThread::spawn(params(), None, 1000.0, move |_| {
             let _ = sent_tx.send(());
             let _ = gate_rx.recv();
         })
@@ -379,5 +394,131 @@ mod tests {
         drop(gate_tx);
         worker.flush();
         assert_eq!(worker.stats().integrated, 1 + PENDING_SETS as u64);
+    }
+
+    /// A depth map of the sphere before the slanted wall (`fusion::test_scenes`) from the
+    /// `i`th of three oblique poses.
+    fn oblique(i: usize) -> FusionInput {
+        use crate::fusion::test_scenes::{camera, look_at, sphere_before_slanted_wall};
+        let model = camera(128, 96, 110.0);
+        let (up, target) = (
+            glam::DVec3::new(0.1, -1.0, 0.2),
+            glam::DVec3::new(0.0, 0.0, 2.0),
+        );
+        let eyes = [(0.7, -0.4, -0.2), (-0.3, 0.2, 0.1), (0.2, 0.5, 0.0)];
+        let (x, y, z) = eyes[i];
+        let pose = look_at(glam::DVec3::new(x, y, z), target, up);
+        FusionInput {
+            depth: sphere_before_slanted_wall(&model, &pose),
+            model,
+            map_from_cam: pose,
+            ..wall(i as i32)
+        }
+    }
+
+    /// Waits (one generous limit, whatever the machine's speed) until the thread has taken
+    /// `n` depth maps (integrated or refused) and is idle; no set may have been dropped.
+    fn settle(worker: &FuserThread, n: u64) -> FusionStats {
+        let started = Instant::now();
+        loop {
+            let stats = worker.stats();
+            assert_eq!(stats.dropped_sets, 0, "offer one set at a time");
+            if stats.integrated + stats.skipped.total() >= n {
+                worker.flush();
+                return worker.stats();
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(600),
+                "the fusion thread took {} of {n} depth maps",
+                stats.integrated + stats.skipped.total()
+            );
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+
+    /// The whole mesh of `worker` saved: (triangles, vertices).
+    fn saved(worker: &FuserThread, name: &str) -> (usize, usize) {
+        let dir = std::env::temp_dir().join(format!("sweepdepth-fw-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let saved = futures::executor::block_on(worker.save(dir.join("m.ply")))
+            .unwrap()
+            .unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        (saved.triangles, saved.vertices)
+    }
+
+    /// Two maps' meshes alike: within 1 % (the GPU's voxels differ from the CPU's in their
+    /// last bits, `fusion/mapper.rs`'s test; a surface crossing differs with one of them).
+    fn assert_alike(what: &str, gpu: (usize, usize), cpu: (usize, usize)) {
+        assert!(cpu.0 > 500, "{what}: {cpu:?}");
+        for (g, c) in [(gpu.0, cpu.0), (gpu.1, cpu.1)] {
+            assert!(g.abs_diff(c) * 100 <= c, "{what}: {gpu:?} against {cpu:?}");
+        }
+    }
+
+    /// A thread on a GPU (lavapipe here) integrates the depth maps offered as a CPU thread
+    /// does: the same blocks, the same mesh to float rounding, and says it is on the GPU.
+    #[test]
+    fn a_fusion_thread_on_the_gpu_fuses_as_the_cpu_one() {
+        let (context, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
+        let gpu = FuserThread::spawn(params(), Some(context), 0.0, |_| {}).unwrap();
+        let cpu = FuserThread::spawn(params(), None, 0.0, |_| {}).unwrap();
+        // One at a time: a set offered while two wait would drop the oldest.
+        for i in 0..3 {
+            gpu.offer(vec![oblique(i)]);
+            cpu.offer(vec![oblique(i)]);
+            settle(&gpu, i as u64 + 1);
+            settle(&cpu, i as u64 + 1);
+        }
+        let (on_gpu, on_cpu) = (settle(&gpu, 3), settle(&cpu, 3));
+        assert!(on_gpu.on_gpu && !on_cpu.on_gpu);
+        assert_eq!(on_gpu.left_gpu, None);
+        assert_eq!((on_gpu.integrated, on_cpu.integrated), (3, 3));
+        assert!(on_gpu.skipped.is_empty(), "{:?}", on_gpu.skipped);
+        assert!(on_cpu.blocks > 100, "{} blocks", on_cpu.blocks);
+        assert_eq!(on_gpu.blocks, on_cpu.blocks);
+        assert_alike("three views", saved(&gpu, "gpu"), saved(&cpu, "cpu"));
+    }
+
+    /// The device lost between two depth maps (`Device::destroy`, on a device of the test's
+    /// own): the thread says why once, goes on on the CPU with every block fused on the GPU,
+    /// integrates the depth map whose GPU integration failed and those after, and its map is
+    /// the CPU thread's.
+    #[test]
+    fn a_lost_device_leaves_the_map_on_the_cpu_with_every_block() {
+        let (_shared, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
+        let own = GpuContext::new().expect("an adapter (lavapipe is fine)");
+        let gpu = FuserThread::spawn(params(), Some(&own), 0.0, |_| {}).unwrap();
+        let cpu = FuserThread::spawn(params(), None, 0.0, |_| {}).unwrap();
+        gpu.offer(vec![oblique(0)]);
+        cpu.offer(vec![oblique(0)]);
+        let (first, reference) = (settle(&gpu, 1), settle(&cpu, 1));
+        assert!(first.on_gpu && first.left_gpu.is_none());
+        assert_eq!(first.blocks, reference.blocks);
+        own.device.destroy();
+        for i in 1..3 {
+            gpu.offer(vec![oblique(i)]);
+            cpu.offer(vec![oblique(i)]);
+            settle(&gpu, i as u64 + 1);
+            settle(&cpu, i as u64 + 1);
+        }
+        let (after, reference) = (settle(&gpu, 3), settle(&cpu, 3));
+        assert!(!after.on_gpu, "still on the GPU after its loss");
+        let reason = after.left_gpu.clone().expect("the reason it left the GPU");
+        eprintln!("left the GPU: {reason}");
+        assert!(reason.contains("GPU"), "{reason}");
+        assert_eq!(
+            after.integrated, 3,
+            "no depth map lost: {:?}",
+            after.skipped
+        );
+        assert!(
+            after.blocks > first.blocks,
+            "{} then {}",
+            first.blocks,
+            after.blocks
+        );
+        assert_eq!(after.blocks, reference.blocks);
+        assert_alike("after the loss", saved(&gpu, "lost"), saved(&cpu, "kept"));
     }
 }

@@ -27,6 +27,7 @@ pub mod depth_in;
 pub mod engine_host;
 pub mod fuser;
 pub mod fuser_thread;
+pub mod fusion_device;
 pub mod out_messages;
 pub mod outcome;
 pub mod output_list;
@@ -45,6 +46,7 @@ pub use depth_in::{DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, HostError};
 pub use fuser::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fuser_thread::{FuserThread, FusionStats};
+pub use fusion_device::{fusion_gpu, FusionHost, FusionPlacement};
 pub use outcome::{
     Degraded, Input, InputImage, Job, JobReference, Notice, NoticeKind, Outcome, RigEvent, Skip,
     SkipKind, SyncVerdict, VirtualCamera,

@@ -965,7 +965,7 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
     let cpu = fuse("mesh", &[], "mesh: 4 depth maps fused into");
     let gpu = fuse(
         "mesh_gpu",
-        &["-p", "device:=gpu"],
+        &["-p", "device:=gpu", "-p", "fusion_device:=gpu"],
         "mesh: 4 depth maps fused on the GPU",
     );
     let (cpu, gpu) = (cpu.len(), gpu.len());

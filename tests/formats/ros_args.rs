@@ -818,6 +818,7 @@ fn table_has_node_parameters() {
         ("voxel_size", ParamValue::Double(0.05)),
         ("max_blocks", ParamValue::Int(50_000)),
         ("mesh_rate", ParamValue::Double(1.0)),
+        ("fusion_device", ParamValue::String("auto".into())),
         ("depth_topics", ParamValue::StringArray(vec![])),
     ];
     for (name, default) in &expect {

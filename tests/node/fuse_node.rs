@@ -9,11 +9,12 @@
 //! rig's pose; `/tf_static` rig -> cameras, `/tf` world -> rig around each set's stamp, the
 //! first pose 1 m up and a quarter turn from the identity), depth node `a` (reference cam0,
 //! its depth remapped to `/a/cam0/depth/...`), the `fuse` node (namespace `/fused`) and depth
-//! node `one` (references cam0 and cam2, `fusion:=true`: the one-process run). On B: depth
-//! node `b` (reference cam2, `/b/cam2/depth/...`). The fuse node must count maps from both
-//! hosts in `/diagnostics`, and both meshes, saved through `~/save_mesh`, must lie on the
-//! true scene in `world` (95 % of the vertices within 2 voxels): a node that ignored /tf, or
-//! fused one host only, fails.
+//! node `one` (references cam0 and cam2, `fusion:=true`: the one-process run, the WGSL engine
+//! with fusion on its device). On B: depth node `b` (reference cam2, `/b/cam2/depth/...`). The
+//! fuse node (fusing on a device of its own) must count maps from both hosts in
+//! `/diagnostics`, and both meshes, saved through `~/save_mesh`, must lie on the true scene in
+//! `world` (95 % of the vertices within 2 voxels): a node that ignored /tf, or fused one host
+//! only, fails.
 
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -127,6 +128,9 @@ fn two_hosts() {
                 "max_depth:=4.0",
                 "-p",
                 "mesh_rate:=5.0",
+                // On a device of its own (lavapipe without a GPU: `auto` would take the CPU).
+                "-p",
+                "fusion_device:=gpu",
             ]
             .iter()
             .map(|s| s.to_string())
@@ -148,6 +152,11 @@ fn two_hosts() {
             "tf_timeout:=5.0",
             "-p",
             "fusion:=true",
+            // The WGSL engine and fusion on its device, from two threads (lavapipe here).
+            "-p",
+            "device:=gpu",
+            "-p",
+            "fusion_device:=gpu",
             "-p",
             "voxel_size:=0.04",
             "-p",
@@ -281,6 +290,21 @@ fn two_hosts() {
         per_source("/b/cam2/depth/image"),
     );
     eprintln!("fuse node: {maps_a} maps from host a, {maps_b} from host b");
+    // Where each map integrates (`fusion_device:=gpu`): the fuse node on a device of its
+    // own, the one-process node on its engine's.
+    let on = |status_name: &str| -> Option<String> {
+        let statuses = arrays.iter().flat_map(|a| &a.status);
+        let mine = statuses.filter(|s| s.name.contains(status_name));
+        mine.filter_map(|s| dds::value_of(s, "fusion on"))
+            .next_back()
+            .map(str::to_string)
+    };
+    assert_eq!(on("fuse").as_deref(), Some("GPU"), "the fuse node's fusion");
+    assert_eq!(
+        on("/one/").as_deref(),
+        Some("GPU"),
+        "the one-process node's fusion"
+    );
     assert!(
         maps_a >= 1 && maps_b >= 1,
         "the fuse node fused {maps_a} maps from host a's /a/cam0/depth/image and {maps_b} from \

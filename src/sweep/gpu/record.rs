@@ -47,19 +47,9 @@ pub(super) fn record_census(
     pass.dispatch_workgroups(x, y, plan.params.cameras);
 }
 
-/// One device poll or queue submission at a time in this process. wgpu-core 30.0.1 can panic
-/// when two threads poll (or one polls while another submits) on one device at once ("If the
-/// queue is empty, the current submission index ... should be at least the wait submission
-/// index", gfx-rs/wgpu#9958, fixed later): the tests share one device across threads, and a
-/// CI run met it once. The lock is held for one poll of at most CANCEL_POLL.
-static DEVICE_POLL: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// [`DEVICE_POLL`], also after a thread panicked holding it (it guards no data).
-pub(super) fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
-    DEVICE_POLL
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-}
+/// One device poll or queue submission at a time in this process
+/// ([`crate::gpu_context::device_poll_lock`], which the fusion's GPU integration takes too).
+pub(super) use crate::gpu_context::device_poll_lock;
 
 /// How often a wait for the GPU looks at the cancel flag.
 const CANCEL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
