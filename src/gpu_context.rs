@@ -9,7 +9,8 @@
 /// submission or one poll with a short timeout, never for a whole wait.
 static DEVICE_POLL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// [`DEVICE_POLL`], also after a thread panicked holding it (it guards no data).
+/// Takes the process's device lock (one device poll or queue submission at a time; see
+/// `DEVICE_POLL`), also after a thread panicked holding it (it guards no data).
 pub fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
     DEVICE_POLL
         .lock()
