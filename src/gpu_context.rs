@@ -17,6 +17,31 @@ pub fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+/// Waits until `device` has finished its last submission, polling under [`device_poll_lock`]
+/// for at most `slice` at a time (another thread may share the device) and calling `between`
+/// after each slice that timed out (a cancel check; its error ends the wait). A submission that
+/// failed (a lost device, a validation error) has nothing to wait for: the wait ends, and the
+/// error scope or the read that follows says why.
+pub fn wait_for_device<E>(
+    device: &wgpu::Device,
+    slice: std::time::Duration,
+    mut between: impl FnMut() -> Result<(), E>,
+) -> Result<(), E> {
+    loop {
+        let polled = {
+            let _poll = device_poll_lock();
+            device.poll(wgpu::PollType::Wait {
+                submission_index: None,
+                timeout: Some(slice),
+            })
+        };
+        match polled {
+            Ok(_) | Err(wgpu::PollError::WrongSubmissionIndex(..)) => return Ok(()),
+            Err(wgpu::PollError::Timeout) => between()?,
+        }
+    }
+}
+
 /// An adapter, device and queue. A clone is another handle to the same device (wgpu's
 /// handles are reference-counted), e.g. for the fusion thread beside the engine.
 #[derive(Clone)]

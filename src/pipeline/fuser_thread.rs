@@ -456,6 +456,17 @@ mod tests {
         }
     }
 
+    /// Offers the `views` to both threads one at a time, each after the last was taken (a set
+    /// offered while two wait would drop the oldest).
+    fn offer_both(a: &FuserThread, b: &FuserThread, views: std::ops::Range<usize>) {
+        for i in views {
+            a.offer(vec![oblique(i)]);
+            b.offer(vec![oblique(i)]);
+            settle(a, i as u64 + 1);
+            settle(b, i as u64 + 1);
+        }
+    }
+
     /// A thread on a GPU (lavapipe here) integrates the depth maps offered as a CPU thread
     /// does: the same blocks, the same mesh to float rounding, and says it is on the GPU.
     #[test]
@@ -463,13 +474,7 @@ mod tests {
         let (context, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
         let gpu = FuserThread::spawn(params(), Some(context), 0.0, |_| {}).unwrap();
         let cpu = FuserThread::spawn(params(), None, 0.0, |_| {}).unwrap();
-        // One at a time: a set offered while two wait would drop the oldest.
-        for i in 0..3 {
-            gpu.offer(vec![oblique(i)]);
-            cpu.offer(vec![oblique(i)]);
-            settle(&gpu, i as u64 + 1);
-            settle(&cpu, i as u64 + 1);
-        }
+        offer_both(&gpu, &cpu, 0..3);
         let (on_gpu, on_cpu) = (settle(&gpu, 3), settle(&cpu, 3));
         assert!(on_gpu.on_gpu && !on_cpu.on_gpu);
         assert_eq!(on_gpu.left_gpu, None);
@@ -496,12 +501,7 @@ mod tests {
         assert!(first.on_gpu && first.left_gpu.is_none());
         assert_eq!(first.blocks, reference.blocks);
         own.device.destroy();
-        for i in 1..3 {
-            gpu.offer(vec![oblique(i)]);
-            cpu.offer(vec![oblique(i)]);
-            settle(&gpu, i as u64 + 1);
-            settle(&cpu, i as u64 + 1);
-        }
+        offer_both(&gpu, &cpu, 1..3);
         let (after, reference) = (settle(&gpu, 3), settle(&cpu, 3));
         assert!(!after.on_gpu, "still on the GPU after its loss");
         let reason = after.left_gpu.clone().expect("the reason it left the GPU");

@@ -45,23 +45,8 @@ pub(super) fn read_buffer<T: Pod>(
     buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
         let _ = sender.send(r);
     });
-    loop {
-        // The lock for one short poll at a time: the engine may share the device.
-        let polled = {
-            let _poll = device_poll_lock();
-            device.poll(wgpu::PollType::Wait {
-                submission_index: None,
-                timeout: Some(POLL_SLICE),
-            })
-        };
-        match polled {
-            Ok(_) => break,
-            Err(wgpu::PollError::Timeout) => {}
-            // A submission that failed (a lost device) has nothing to wait for: the map's
-            // answer says why.
-            Err(wgpu::PollError::WrongSubmissionIndex(..)) => break,
-        }
-    }
+    // One short poll at a time: the engine may share the device.
+    crate::gpu_context::wait_for_device(device, POLL_SLICE, || Ok::<(), GpuFusionError>(()))?;
     receiver.recv().map_err(|e| gpu(&e))?.map_err(|e| gpu(&e))?;
     let out = {
         let range = buffer.get_mapped_range(..bytes).map_err(|e| gpu(&e))?;

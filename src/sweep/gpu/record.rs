@@ -143,22 +143,7 @@ impl<'a> Submitter<'a> {
 
 /// Waits for the latest submission, looking at the cancel flag every [`CANCEL_POLL`].
 fn wait(device: &wgpu::Device, cancel: &CancelFlag) -> Result<(), SweepError> {
-    loop {
-        let polled = {
-            let _poll = device_poll_lock();
-            device.poll(wgpu::PollType::Wait {
-                submission_index: None,
-                timeout: Some(CANCEL_POLL),
-            })
-        };
-        match polled {
-            Ok(_) => return Ok(()),
-            Err(wgpu::PollError::Timeout) => cancel.check()?,
-            // A submission that failed (a lost device, a validation error) has no index to
-            // wait for: nothing is running; the error scope or the read says why.
-            Err(wgpu::PollError::WrongSubmissionIndex(..)) => return Ok(()),
-        }
-    }
+    crate::gpu_context::wait_for_device(device, CANCEL_POLL, || cancel.check())
 }
 
 /// SGM in subgroups over one band walks direction 0 (which writes the sums), then every other
