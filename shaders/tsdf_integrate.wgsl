@@ -38,15 +38,6 @@ struct Work {
     slot: u32,
 }
 
-// A voxel as `Voxel` keeps it: the colour in 8.8 fixed point, red and green in `rg` (red
-// low), blue and the colour count in `b_count` (blue low).
-struct PoolVoxel {
-    tsdf: f32,
-    weight: f32,
-    rg: u32,
-    b_count: u32,
-}
-
 @group(0) @binding(0) var<uniform> tsdf: TsdfParams;
 @group(0) @binding(1) var<storage, read> samples: array<Sample>;
 @group(0) @binding(2) var<storage, read> work: array<Work>;

@@ -26,9 +26,11 @@ use crate::geometry::{CameraModel, Distortion};
 use crate::image::ImageF32;
 
 /// The shader: `camera.wgsl` (the camera struct and its projection with distortion, as the
-/// sweep's stages use it) and the integration.
+/// sweep's stages use it), the pool's voxel and the integration.
 const SHADER: &str = concat!(
     include_str!("../../shaders/camera.wgsl"),
+    "\n",
+    include_str!("../../shaders/tsdf_voxel.wgsl"),
     "\n",
     include_str!("../../shaders/tsdf_integrate.wgsl")
 );
@@ -202,6 +204,8 @@ pub struct GpuTsdf {
     scratch: IntegrationScratch,
     /// The frame's samples as uploaded, kept from frame to frame (a 640x480 map's are 3.6 MB).
     host_samples: Vec<GpuSample>,
+    /// The meshing pipeline (`gpu/mesh.rs`), made when first asked to mesh.
+    mesher: Option<mesh::Mesher>,
 }
 
 impl std::fmt::Debug for GpuTsdf {
@@ -322,6 +326,7 @@ impl GpuTsdf {
             removed: BlockSet::default(),
             scratch: IntegrationScratch::default(),
             host_samples: Vec::new(),
+            mesher: None,
         })
     }
 
@@ -748,5 +753,6 @@ fn gpu_camera(projector: &Projector, model: &CameraModel) -> GpuCamera {
 }
 
 mod device;
+mod mesh;
 #[cfg(test)]
 pub(crate) mod tests;

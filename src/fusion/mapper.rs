@@ -136,9 +136,20 @@ impl Mapper {
         )
     }
 
-    /// Meshes the blocks that changed since the last call.
+    /// Meshes the blocks that changed since the last call: on the GPU for a map on a GPU
+    /// (`GpuTsdf::mesh_blocks`, from the device's voxels; on the CPU from `grid`, its copy,
+    /// if that fails), else on the CPU.
     pub fn update_mesh(&mut self) -> MeshStats {
-        self.mesh.update(&mut self.grid)
+        let Some(gpu) = self.gpu.as_mut() else {
+            return self.mesh.update(&mut self.grid);
+        };
+        let (stats, error) = self
+            .mesh
+            .update_with(&mut self.grid, |todo| gpu.mesh_blocks(todo));
+        if let Some(e) = error {
+            tracing::warn!("meshing on the GPU failed ({e}); these blocks were meshed on the CPU");
+        }
+        stats
     }
 
     /// The mesh as last updated, per block ([`Mesh::take_dirty`] names the blocks whose

@@ -71,6 +71,40 @@ impl Mesh {
     /// into them), drops the meshes of blocks no longer in the grid, and clears the grid's
     /// changed set.
     pub fn update(&mut self, grid: &mut VoxelBlockGrid) -> MeshStats {
+        let todo = self.take_changes(grid);
+        let meshes = todo
+            .par_iter()
+            .map(|index| (*index, mesh_block(grid, *index)))
+            .collect();
+        self.apply(meshes, todo.len())
+    }
+
+    /// [`Mesh::update`] with the blocks meshed by `mesh_blocks` (given the blocks to mesh, in
+    /// index order; the GPU's [`crate::fusion::GpuTsdf::mesh_blocks`]), whose voxels `grid`
+    /// holds a copy of. When it fails, the same blocks are meshed on the CPU from `grid`, and
+    /// its error is returned beside the stats.
+    pub fn update_with<E>(
+        &mut self,
+        grid: &mut VoxelBlockGrid,
+        mesh_blocks: impl FnOnce(&[BlockIndex]) -> Result<Vec<(BlockIndex, BlockMesh)>, E>,
+    ) -> (MeshStats, Option<E>) {
+        let todo = self.take_changes(grid);
+        let (meshes, error) = match mesh_blocks(&todo) {
+            Ok(meshes) => (meshes, None),
+            Err(e) => (
+                todo.par_iter()
+                    .map(|index| (*index, mesh_block(grid, *index)))
+                    .collect(),
+                Some(e),
+            ),
+        };
+        (self.apply(meshes, todo.len()), error)
+    }
+
+    /// The blocks to mesh again after the grid's changes (each changed or dropped block and
+    /// the blocks below it), in index order; drops the meshes of blocks the grid dropped and
+    /// clears the grid's changed set.
+    fn take_changes(&mut self, grid: &mut VoxelBlockGrid) -> Vec<BlockIndex> {
         let changed = grid.take_changed();
         // Dropped blocks: their meshes go, and the blocks below them mesh again (their cubes
         // reached into them).
@@ -94,7 +128,12 @@ impl Mesh {
             }
         }
         self.removed.sort_unstable();
-        let mut stats = self.remesh(grid, &todo);
+        todo
+    }
+
+    /// Keeps `meshes` (of `meshed` blocks) and counts the mesh.
+    fn apply(&mut self, meshes: Vec<(BlockIndex, BlockMesh)>, meshed: usize) -> MeshStats {
+        let mut stats = self.keep(meshes, meshed);
         stats.blocks_removed = self.removed.len();
         stats
     }
@@ -119,6 +158,11 @@ impl Mesh {
             .par_iter()
             .map(|index| (*index, mesh_block(grid, *index)))
             .collect();
+        self.keep(meshes, todo.len())
+    }
+
+    /// Keeps each block's new mesh (drops the empty ones) and counts the mesh.
+    fn keep(&mut self, meshes: Vec<(BlockIndex, BlockMesh)>, meshed: usize) -> MeshStats {
         for (index, mesh) in meshes {
             self.dirty.insert(index);
             if mesh.is_empty() {
@@ -128,7 +172,7 @@ impl Mesh {
             }
         }
         MeshStats {
-            blocks_meshed: todo.len(),
+            blocks_meshed: meshed,
             blocks_with_surface: self.blocks.len(),
             triangles: self.triangle_count(),
             vertices: self.blocks.values().map(|m| m.vertices.len()).sum(),

@@ -9,7 +9,7 @@ use super::*;
 use crate::fusion::test_scenes::{
     camera, look_at, red_left_blue_right, render_plane, sphere_before_slanted_wall,
 };
-use crate::fusion::{integrate_weighted, observation_weights, Mesh, Weighting};
+use crate::fusion::{integrate_weighted, observation_weights, BlockMesh, Mesh, Weighting};
 use crate::geometry::RigidTransform;
 use crate::gpu_context::GpuContext;
 use crate::image::Rgba8Image;
@@ -242,6 +242,115 @@ fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
     assert!(twice > 10_000, "{twice} voxels seen twice");
     let triangles = assert_same_mesh(&cpu, read);
     assert!(triangles > 10_000, "{triangles} triangles");
+}
+
+/// Each block's mesh made on the device against the CPU's of the same voxels: the same
+/// vertices in the same order (positions within a thousandth of a voxel; colours equal, or a
+/// level apart where a device's fused multiply-add rounds a half the other way, counted in
+/// `off_by_one`) and the same triangles.
+fn assert_meshes_equal(cpu: &BlockMesh, gpu: &BlockMesh, what: &str, voxel_m: f32) -> usize {
+    assert_eq!(cpu.triangles, gpu.triangles, "{what}: triangles");
+    assert_eq!(cpu.vertices.len(), gpu.vertices.len(), "{what}: vertices");
+    for (p, q) in cpu.vertices.iter().zip(&gpu.vertices) {
+        let far = p.iter().zip(q).any(|(x, y)| (x - y).abs() > 1e-3 * voxel_m);
+        assert!(!far, "{what}: vertex {p:?} against {q:?}");
+    }
+    let mut off_by_one = 0;
+    for (a, b) in cpu.colours.iter().zip(&gpu.colours) {
+        let worst = a.iter().zip(b).map(|(x, y)| x.abs_diff(*y)).max();
+        assert!(worst <= Some(1), "{what}: colour {a:?} against {b:?}");
+        off_by_one += usize::from(worst == Some(1));
+    }
+    off_by_one
+}
+
+/// Marching cubes on the device (`GpuTsdf::mesh_blocks`) is the CPU's: two frames of the
+/// sphere before a slanted wall with colour; after each, every block meshed on both from the
+/// device's voxels gives the same mesh, and a `Mesh` updated with the GPU's meshes (only the
+/// blocks the frame changed and those below them) holds what one updated on the CPU holds.
+/// A failing GPU mesher leaves the update to the CPU, and says why.
+#[test]
+fn the_gpu_meshes_blocks_as_the_cpu_does() {
+    let (context, _one) = gpu();
+    let params = FusionParams {
+        voxel_size_m: 0.02,
+        ..FusionParams::default()
+    };
+    let voxel_m = params.voxel_size_m;
+    let model = camera(320, 240, 280.0);
+    let up = DVec3::new(0.1, -1.0, 0.2);
+    let target = DVec3::new(0.0, 0.0, 2.0);
+    let poses = [
+        look_at(DVec3::new(0.7, -0.4, -0.2), target, up),
+        look_at(DVec3::new(-0.3, 0.2, 0.1), target, up),
+    ];
+    let colour = red_left_blue_right(320, 240);
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    let mut mirror = VoxelBlockGrid::new(voxel_m).unwrap();
+    let (mut on_cpu, mut on_gpu) = (Mesh::new(), Mesh::new());
+    for (i, pose) in poses.iter().enumerate() {
+        let depth = sphere_before_slanted_wall(&model, pose);
+        gpu.integrate(&view(&depth, Some(&colour), &model, pose), None)
+            .unwrap();
+        gpu.sync_into(&mut mirror).unwrap();
+        // Every block, and one that is not in the grid.
+        let mut all: Vec<BlockIndex> = mirror.blocks().map(|(index, _)| *index).collect();
+        all.sort_unstable();
+        all.push(BlockIndex([1000, 1000, 1000]));
+        let made = gpu.mesh_blocks(&all).unwrap();
+        let mut whole = Mesh::new();
+        whole.rebuild(&mirror);
+        let (mut surfaces, mut triangles, mut vertices, mut off_by_one) = (0, 0, 0, 0);
+        for (index, mesh) in &made {
+            let empty = BlockMesh::default();
+            let cpu = whole.block(*index).unwrap_or(&empty);
+            let what = format!("frame {i}, block {index:?}");
+            off_by_one += assert_meshes_equal(cpu, mesh, &what, voxel_m);
+            surfaces += usize::from(!mesh.is_empty());
+            triangles += mesh.triangles.len();
+            vertices += mesh.vertices.len();
+        }
+        assert!(made.iter().map(|(index, _)| *index).eq(all.iter().copied()));
+        assert!(
+            surfaces > 100 && triangles > 10_000,
+            "{surfaces} blocks, {triangles} triangles"
+        );
+        // Halves rounded the other way are rare (none on lavapipe).
+        assert!(
+            off_by_one * 1000 <= vertices,
+            "{off_by_one} of {vertices} colours a level off"
+        );
+        // The incremental update, from the same changes.
+        let mut twin = mirror.clone();
+        let a = on_cpu.update(&mut twin);
+        let (b, error) = on_gpu.update_with(&mut mirror, |todo| gpu.mesh_blocks(todo));
+        assert!(error.is_none(), "{error:?}");
+        assert_eq!(a, b, "frame {i}");
+        assert!(b.blocks_meshed < mirror.block_count() || i == 0, "{b:?}");
+        for (index, mesh) in on_cpu.blocks() {
+            let other = on_gpu.block(*index).expect("the same blocks with surface");
+            assert_meshes_equal(
+                mesh,
+                other,
+                &format!("update {i}, block {index:?}"),
+                voxel_m,
+            );
+        }
+    }
+    // A mesher that fails: the blocks are meshed on the CPU, and the error comes back.
+    let depth = sphere_before_slanted_wall(&model, &poses[0]);
+    gpu.integrate(&view(&depth, Some(&colour), &model, &poses[0]), None)
+        .unwrap();
+    gpu.sync_into(&mut mirror).unwrap();
+    let mut twin = mirror.clone();
+    let a = on_cpu.update(&mut twin);
+    let (b, error) = on_gpu.update_with(&mut mirror, |_| Err("device lost"));
+    assert_eq!((a, error), (b, Some("device lost")));
+    assert!(a.blocks_meshed > 0);
+    for (index, mesh) in on_cpu.blocks() {
+        let other = on_gpu.block(*index).expect("the same blocks with surface");
+        assert_meshes_equal(mesh, other, &format!("fallback, block {index:?}"), voxel_m);
+    }
 }
 
 /// A camera at `at` looking along z, moved off the voxel grid: with the camera on it and this
