@@ -3,6 +3,8 @@
 //! surface. One sequence for everything that fuses depth: the node's and `bag`'s fusion thread
 //! (`pipeline/fuser.rs`), `eval --fusion` and `bench --fusion`.
 
+use std::time::{Duration, Instant};
+
 use super::gpu::{GpuFusionError, GpuTsdf};
 use super::integrate::{integrate_into, IntegrationScratch};
 use super::{
@@ -27,10 +29,16 @@ pub struct DepthView<'a> {
     pub map_from_cam: &'a RigidTransform,
 }
 
+/// How often a map on a GPU copies the blocks it changed to the host ([`Mapper::grid`]) as it
+/// integrates: what a lost device leaves the map (at most this much of depth maps is lost
+/// with it). Reading the blocks back costs more than integrating them, so not every frame.
+pub const MIRROR_PERIOD: Duration = Duration::from_secs(1);
+
 /// The grid, its weighing, the integration's buffers and the mesh ([`Mapper::integrate`],
-/// [`Mapper::update_mesh`], [`Mapper::clear`]). Made [`Mapper::on_gpu`], it integrates on a
-/// wgpu device ([`GpuTsdf`]) and keeps `grid` as the device's copy (the blocks each depth map
-/// changed read back), which the mesh and everything else read as on the CPU.
+/// [`Mapper::update_mesh`], [`Mapper::clear`]). Made [`Mapper::on_gpu`], it integrates and
+/// meshes on a wgpu device ([`GpuTsdf`]) and keeps `grid` as the device's copy, brought up to
+/// date at the first depth map, every [`MIRROR_PERIOD`] after, at each mesh update and on
+/// [`Mapper::sync_grid`].
 #[derive(Debug)]
 pub struct Mapper {
     params: FusionParams,
@@ -39,6 +47,11 @@ pub struct Mapper {
     scratch: IntegrationScratch,
     mesh: Mesh,
     gpu: Option<GpuTsdf>,
+    /// Since `grid` was last brought up to date with the device (None: never).
+    mirrored_at: Option<Instant>,
+    mirror_period: Duration,
+    /// Why the device's meshing or copy failed in the last [`Mapper::update_mesh`].
+    gpu_error: Option<String>,
 }
 
 /// A GPU fusion error as the fusion's own: bad input as the CPU says it, the device's as
@@ -61,6 +74,9 @@ impl Mapper {
             scratch: IntegrationScratch::default(),
             mesh: Mesh::new(),
             gpu: None,
+            mirrored_at: None,
+            mirror_period: MIRROR_PERIOD,
+            gpu_error: None,
         })
     }
 
@@ -83,11 +99,40 @@ impl Mapper {
     }
 
     /// Integrates on the CPU from now on (a lost device, a GPU that failed): the device's map
-    /// is dropped, `grid` (its copy, synced after every integration that succeeded) keeps
-    /// every block fused so far. A depth map whose GPU integration failed changed nothing
+    /// is dropped, `grid` (its copy, as of its last update: at most [`MIRROR_PERIOD`] or one
+    /// mesh update old) goes on. A depth map whose GPU integration failed changed nothing
     /// here and can be integrated again. Returns whether the map was on a GPU.
     pub fn leave_gpu(&mut self) -> bool {
         self.gpu.take().is_some()
+    }
+
+    /// How often a map on a GPU brings `grid` up to date as it integrates ([`MIRROR_PERIOD`]
+    /// unless set; zero: after every depth map).
+    pub fn set_mirror_period(&mut self, period: Duration) {
+        self.mirror_period = period;
+    }
+
+    /// Brings `grid` up to date with the device's voxels (a map on a GPU; on the CPU it is
+    /// the map itself).
+    pub fn sync_grid(&mut self) -> Result<&VoxelBlockGrid, FusionError> {
+        if let Some(gpu) = &mut self.gpu {
+            gpu.sync_into(&mut self.grid).map_err(from_gpu)?;
+            self.mirrored_at = Some(Instant::now());
+        }
+        Ok(&self.grid)
+    }
+
+    /// Blocks in the map (on a GPU: on the device, whatever `grid` holds yet).
+    pub fn block_count(&self) -> usize {
+        self.gpu
+            .as_ref()
+            .map_or(self.grid.block_count(), GpuTsdf::block_count)
+    }
+
+    /// Why the device failed in the last [`Mapper::update_mesh`] (then the mesh was made on
+    /// the CPU from `grid`); taken once.
+    pub fn take_gpu_error(&mut self) -> Option<String> {
+        self.gpu_error.take()
     }
 
     pub fn params(&self) -> &FusionParams {
@@ -121,7 +166,12 @@ impl Mapper {
     ) -> Result<IntegrationStats, FusionError> {
         if let Some(gpu) = &mut self.gpu {
             let stats = gpu.integrate(view, weights).map_err(from_gpu)?;
-            gpu.sync_into(&mut self.grid).map_err(from_gpu)?;
+            let due = self
+                .mirrored_at
+                .is_none_or(|at| at.elapsed() >= self.mirror_period);
+            if due {
+                self.sync_grid()?;
+            }
             return Ok(stats);
         }
         integrate_into(
@@ -136,10 +186,17 @@ impl Mapper {
         )
     }
 
-    /// Meshes the blocks that changed since the last call: on the GPU for a map on a GPU
-    /// (`GpuTsdf::mesh_blocks`, from the device's voxels; on the CPU from `grid`, its copy,
-    /// if that fails), else on the CPU.
+    /// Meshes the blocks that changed since the last call: for a map on a GPU on the device
+    /// (`GpuTsdf::mesh_blocks`, after bringing `grid` up to date, which names the blocks that
+    /// changed; if the device fails, on the CPU from `grid`, and [`Mapper::take_gpu_error`]
+    /// says why), else on the CPU.
     pub fn update_mesh(&mut self) -> MeshStats {
+        if self.gpu.is_none() {
+            return self.mesh.update(&mut self.grid);
+        }
+        if let Err(e) = self.sync_grid() {
+            self.gpu_error = Some(e.to_string());
+        }
         let Some(gpu) = self.gpu.as_mut() else {
             return self.mesh.update(&mut self.grid);
         };
@@ -147,7 +204,7 @@ impl Mapper {
             .mesh
             .update_with(&mut self.grid, |todo| gpu.mesh_blocks(todo));
         if let Some(e) = error {
-            tracing::warn!("meshing on the GPU failed ({e}); these blocks were meshed on the CPU");
+            self.gpu_error.get_or_insert(e.to_string());
         }
         stats
     }
@@ -170,12 +227,13 @@ impl Mapper {
 
     /// Empties the map and its mesh; returns the blocks dropped.
     pub fn clear(&mut self) -> usize {
-        let blocks = self.grid.block_count();
+        let blocks = self.block_count();
         if let Some(gpu) = &mut self.gpu {
             gpu.clear();
         }
         self.grid.clear();
         self.mesh.clear();
+        self.mirrored_at = None;
         blocks
     }
 }
@@ -259,5 +317,31 @@ mod tests {
             .integrate(&view)
             .expect("integrates again on the GPU");
         assert_eq!(on_gpu.grid().block_count(), grid.block_count());
+
+        // The device's copy: after every depth map with a zero period; with one that never
+        // comes, not before a mesh update or `sync_grid`.
+        let weight = |m: &Mapper| -> f32 {
+            let voxels = |b: &crate::fusion::Block| {
+                (0..crate::fusion::VOXELS_PER_BLOCK)
+                    .map(|o| b.voxel_at_offset(o).weight)
+                    .sum::<f32>()
+            };
+            m.grid().blocks().map(|(_, b)| voxels(b)).sum()
+        };
+        on_gpu.set_mirror_period(Duration::ZERO);
+        let before = weight(&on_gpu);
+        on_gpu.integrate(&view).expect("integrates");
+        let copied = weight(&on_gpu);
+        assert!(copied > before, "{copied} after {before}");
+        on_gpu.set_mirror_period(Duration::MAX);
+        on_gpu.integrate(&view).expect("integrates");
+        assert_eq!(weight(&on_gpu), copied, "copied before its period");
+        on_gpu.sync_grid().expect("copies");
+        let synced = weight(&on_gpu);
+        assert!(synced > copied, "{synced} after {copied}");
+        on_gpu.integrate(&view).expect("integrates");
+        on_gpu.update_mesh();
+        assert!(weight(&on_gpu) > synced, "a mesh update copies");
+        assert_eq!(on_gpu.block_count(), on_gpu.grid().block_count());
     }
 }

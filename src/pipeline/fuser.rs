@@ -130,8 +130,9 @@ impl Fuser {
     }
 
     /// A fuser that integrates on `gpu`'s device ([`Mapper::on_gpu`]). When the device fails
-    /// later ([`FusionError::Gpu`]: lost, reset, out of room), the map goes on on the CPU with
-    /// every block it had, the failed depth map integrated there ([`Fuser::left_gpu`] says why).
+    /// later ([`FusionError::Gpu`]: lost, reset, out of room), the map goes on on the CPU from
+    /// its host copy (at most [`crate::fusion::mapper::MIRROR_PERIOD`] or one mesh update old),
+    /// the failed depth map integrated there ([`Fuser::left_gpu`] says why).
     pub fn on_gpu(params: FusionParams, gpu: &GpuContext) -> Result<Self, FusionError> {
         let mapper = Mapper::on_gpu(params, Weighting::DEPTH_MAPS, &gpu.device, &gpu.queue)?;
         Self::with_mapper(mapper)
@@ -234,14 +235,22 @@ impl Fuser {
         Ok(stats)
     }
 
-    /// Meshes the blocks that changed since the last call.
+    /// Meshes the blocks that changed since the last call (a map on a GPU whose device fails
+    /// here goes on on the CPU, as after a failed integration).
     pub fn update_mesh(&mut self) -> MeshStats {
-        self.mapper.update_mesh()
+        let stats = self.mapper.update_mesh();
+        if let Some(reason) = self.mapper.take_gpu_error() {
+            if self.mapper.leave_gpu() {
+                self.left_gpu = Some(reason);
+            }
+        }
+        stats
     }
 
     /// The whole mesh, up to date.
     pub fn mesh(&mut self) -> BlockMesh {
-        self.mapper.collect_mesh()
+        self.update_mesh();
+        self.mapper.mesh().collect()
     }
 
     /// The mesh's changes since the last call as markers (after meshing the changed blocks):
@@ -316,8 +325,7 @@ impl Fuser {
 
     /// Blocks allocated and their memory, for reports.
     pub fn blocks(&self) -> (usize, usize) {
-        let grid = self.mapper.grid();
-        (grid.block_count(), grid.memory_bytes())
+        (self.mapper.block_count(), self.mapper.grid().memory_bytes())
     }
 
     /// Triangles in the mesh as last meshed.

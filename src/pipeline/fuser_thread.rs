@@ -486,9 +486,10 @@ mod tests {
     }
 
     /// The device lost between two depth maps (`Device::destroy`, on a device of the test's
-    /// own): the thread says why once, goes on on the CPU with every block fused on the GPU,
-    /// integrates the depth map whose GPU integration failed and those after, and its map is
-    /// the CPU thread's.
+    /// own): the thread says why once, goes on on the CPU with every block fused on the GPU
+    /// (the map copies its blocks to the host at its first depth map, then every
+    /// `MIRROR_PERIOD`), integrates the depth map whose GPU integration failed and those
+    /// after, and its map is the CPU thread's.
     #[test]
     fn a_lost_device_leaves_the_map_on_the_cpu_with_every_block() {
         let (_shared, _one_at_a_time) = crate::fusion::gpu::tests::gpu();

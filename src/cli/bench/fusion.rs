@@ -10,9 +10,10 @@
 //! - `mesh`: [`Mapper::update_mesh`](crate::fusion::Mapper::update_mesh) of the blocks that frame 1 changed.
 //!
 //! With `--device gpu` (or `auto` where a hardware GPU exists) the same three on the device
-//! ([`GpuTsdf`]) in the same run: integration on the GPU (it waits for the device), and the
-//! mesh as that path makes it: the changed blocks read back ([`GpuTsdf::sync_into`]) and
-//! meshed on the CPU.
+//! ([`GpuTsdf`]) in the same run: integration on the GPU (it waits for the device), the
+//! changed blocks copied to the host ([`GpuTsdf::sync_into`], what the map does every
+//! [`crate::fusion::mapper::MIRROR_PERIOD`] and at each mesh update) and meshed on the device
+//! ([`GpuTsdf::mesh_blocks`]), each timed apart.
 //!
 //! The peer, `tools/open3d_fusion_peer.py`, runs the same two integrations
 //! (`compute_unique_block_coordinates` + `integrate`, block resolutions 8 and 16) on the same
@@ -131,8 +132,10 @@ pub struct GpuFusionResult {
     pub adapter: String,
     pub integrate_first_ms: f64,
     pub integrate_steady_ms: f64,
-    /// Frame 1's changed blocks read back and re-meshed on the CPU.
+    /// Frame 1's changed blocks (and those below them) meshed on the device.
     pub mesh_ms: f64,
+    /// Frame 1's changed blocks copied to the host (the map's copy for a lost device).
+    pub sync_ms: f64,
     pub first: IntegrationStats,
     pub steady: IntegrationStats,
     pub blocks_meshed: usize,
@@ -345,6 +348,7 @@ pub fn time_gpu(
     let model = &input.model;
     let run = |tsdf: &mut GpuTsdf, frame: &Frame| tsdf.integrate(&frame.view(model), None);
     let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut sync_ms = Vec::new();
     let mut last = None;
     for i in 0..=repeats.max(1) {
         let mut empty = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
@@ -353,23 +357,31 @@ pub fn time_gpu(
         let first_elapsed = started.elapsed();
         drop(empty);
 
-        // Frame 0 integrated and meshed, then frame 1.
+        // Frame 0 integrated and meshed, then frame 1: integrated, its blocks copied to the
+        // host (what the map keeps every `MIRROR_PERIOD` and at each mesh update), meshed on
+        // the device.
         let mut tsdf = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
         let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
         let mut mesh = Mesh::new();
         run(&mut tsdf, a)?;
         tsdf.sync_into(&mut grid)?;
-        mesh.update(&mut grid);
+        mesh.update_with(&mut grid, |todo| tsdf.mesh_blocks(todo))
+            .1
+            .map_or(Ok(()), Err)?;
         let started = Instant::now();
         let steady = run(&mut tsdf, b)?;
         let steady_elapsed = started.elapsed();
         let started = Instant::now();
         tsdf.sync_into(&mut grid)?;
-        let stats = mesh.update(&mut grid);
+        let sync_elapsed = started.elapsed();
+        let started = Instant::now();
+        let (stats, failed) = mesh.update_with(&mut grid, |todo| tsdf.mesh_blocks(todo));
         let mesh_elapsed = started.elapsed();
+        failed.map_or(Ok(()), Err)?;
         if i > 0 {
             first_ms.push(first_elapsed.as_secs_f64() * 1e3);
             steady_ms.push(steady_elapsed.as_secs_f64() * 1e3);
+            sync_ms.push(sync_elapsed.as_secs_f64() * 1e3);
             mesh_ms.push(mesh_elapsed.as_secs_f64() * 1e3);
         }
         last = Some((first, steady, stats.blocks_meshed, tsdf.pool_bytes()));
@@ -380,6 +392,7 @@ pub fn time_gpu(
         integrate_first_ms: round3(median(first_ms)),
         integrate_steady_ms: round3(median(steady_ms)),
         mesh_ms: round3(median(mesh_ms)),
+        sync_ms: round3(median(sync_ms)),
         first,
         steady,
         blocks_meshed,
@@ -633,7 +646,11 @@ fn print_gpu(gpu: &GpuFusionResult) {
         gpu.steady.voxels_updated
     );
     println!(
-        "sweepdepth GPU mesh update:      {:.1} ms ({} blocks read back and re-meshed on the CPU)",
+        "sweepdepth GPU blocks to host:   {:.1} ms (frame 1's changed blocks copied back)",
+        gpu.sync_ms
+    );
+    println!(
+        "sweepdepth GPU mesh update:      {:.1} ms ({} blocks re-meshed on the device)",
         gpu.mesh_ms, gpu.blocks_meshed
     );
     println!("GPU voxel pool: {:.1} MiB", gpu.pool_mib);
