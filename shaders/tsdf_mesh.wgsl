@@ -112,17 +112,26 @@ fn owns(x: u32, y: u32, z: u32, edge: u32) -> bool {
         late = vec3<i32>(0, 1, 0);
     }
     let mine = vec3<i32>(i32(x), i32(y), i32(z));
-    let candidates = array<vec3<i32>, 3>(low - early - late, low - late, low - early);
-    for (var i = 0u; i < 3u; i += 1u) {
-        let c = candidates[i];
-        if (all(c == mine)) {
-            return true;
-        }
-        if (case_at(c.x, c.y, c.z) < MESH_MISSING) {
-            return false;
-        }
+    // Unrolled (a local array indexed in a loop is slow on some drivers).
+    let c0 = low - early - late;
+    if (all(c0 == mine)) {
+        return true;
     }
-    return true;
+    if (case_at(c0.x, c0.y, c0.z) < MESH_MISSING) {
+        return false;
+    }
+    let c1 = low - late;
+    if (all(c1 == mine)) {
+        return true;
+    }
+    if (case_at(c1.x, c1.y, c1.z) < MESH_MISSING) {
+        return false;
+    }
+    let c2 = low - early;
+    if (all(c2 == mine)) {
+        return true;
+    }
+    return case_at(c2.x, c2.y, c2.z) >= MESH_MISSING;
 }
 
 // TRI_TABLE[case][k], 255 for the CPU's -1.
@@ -169,18 +178,13 @@ fn make_vertex(item: u32, x: u32, y: u32, z: u32, edge: u32) -> MeshVertex {
     let info = tables[EDGES_AT + edge];
     let axis = info >> 4u;
     let low = vec3<u32>(x + (info & 1u), y + ((info >> 1u) & 1u), z + ((info >> 2u) & 1u));
-    var step = vec3<u32>(0u, 0u, 0u);
-    step[axis] = 1u;
-    let high = low + step;
+    let along_axis = vec3<bool>(axis == 0u, axis == 1u, axis == 2u);
+    let high = low + select(vec3<u32>(0u), vec3<u32>(1u), along_axis);
     let t_lo = field_at(low.x, low.y, low.z);
     let t_hi = field_at(high.x, high.y, high.z);
     let t = clamp(t_lo / (t_lo - t_hi), 0.0, 1.0);
-    let first = work[item].first;
-    var position = vec3<f32>(0.0, 0.0, 0.0);
-    for (var k = 0u; k < 3u; k += 1u) {
-        let along = select(0.0, t, k == axis);
-        position[k] = (f32(first[k] + i32(low[k])) + along) * mesh_params.voxel_size_m;
-    }
+    let along = select(vec3<f32>(0.0), vec3<f32>(t), along_axis);
+    let position = (vec3<f32>(work[item].first + vec3<i32>(low)) + along) * mesh_params.voxel_size_m;
     let v_lo = pool[voxel_index(item, low.x, low.y, low.z)];
     let v_hi = pool[voxel_index(item, high.x, high.y, high.z)];
     let r = mix_channel(v_lo.rg, v_hi.rg, 0u, t);
