@@ -12,6 +12,7 @@
 #   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
 #   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 #   cargo test --no-run --test engine; strip -o .gl/engine-tests target/debug/deps/engine-<hash>
+#   cargo test --no-run --lib; strip -o .gl/lib-tests target/debug/deps/sweepdepth-<hash>
 #   target/release/sweepdepth pack ../shared/data/middlebury2003_teddy_9view .gl/teddy9.mcap --frames 20 --compressed
 # (NVIDIA's Vulkan driver, libGLX_nvidia, needs libglvnd: with the loader alone it answers
 # "Could not get 'vkCreateInstance'" and wgpu finds no adapter). Then run it with
@@ -81,6 +82,11 @@ if [ -x .gl/engine-tests ]; then
     export SWEEPDEPTH_GPU_TEST_STATS=1
     step gpu-tests 150 .gl/engine-tests gpu_vs_cpu --test-threads 4
 fi
+# Fusion's GPU twins (integration, marching cubes, the fusion thread on a GPU) on the real
+# adapter: the library's tests as a stripped binary, `.gl/lib-tests`.
+if [ -x .gl/lib-tests ]; then
+    step gpu-fusion-tests 120 .gl/lib-tests fusion::gpu fusion::mapper pipeline::fuser_thread --test-threads 2
+fi
 if [ -n "${GPU_CHECK_QUICK:-}" ]; then
     step bench 600 "$bin" bench --quick
 else
@@ -94,8 +100,8 @@ fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).
 step bench-stereo 120 "$bin" bench --config stereo-rect --config stereo-raw --repeats 5 --python python3
-# Fusion (issue 56): one 640x480 depth map integrated and meshed at 2 cm, on the GPU
-# (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
+# Fusion (issue 56): one 640x480 depth map integrated, copied to the host and meshed at 2 cm,
+# on the GPU (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
 # has open3d; the synthetic pair otherwise).
 step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 # The node's pipeline with fusion on, on the 9-camera rig (issue 56, item 4): the packed
