@@ -87,8 +87,8 @@ pub struct FuserThread {
 
 impl FuserThread {
     /// Starts the thread, integrating on `gpu`'s device when given ([`Fuser::on`]; a device
-    /// that fails, then or later, leaves the map on the CPU with every block it had, logged
-    /// once and in [`FusionStats::left_gpu`]). `sink` gets each mesh update (never an empty
+    /// that fails, then or later, leaves the map on the CPU from its host copy, logged once
+    /// and in [`FusionStats::left_gpu`]). `sink` gets each mesh update (never an empty
     /// one) and the `DELETEALL` of a clear; `mesh_rate_hz` 0: no updates (saving only).
     pub fn spawn(
         params: FusionParams,
@@ -283,7 +283,7 @@ fn run(
 /// The fuser's counts into the shared stats; says once that the map left its GPU.
 fn record(stats: &mut FusionStats, fuser: &Fuser) {
     if let (None, Some(reason)) = (&stats.left_gpu, fuser.left_gpu()) {
-        tracing::warn!("fusion: the map goes on on the CPU, with every block it had: {reason}");
+        tracing::warn!("fusion: the map goes on on the CPU from its host copy: {reason}");
         stats.left_gpu = Some(reason.to_string());
     }
     stats.on_gpu = fuser.is_on_gpu();
