@@ -96,6 +96,9 @@ else
     # The same as JSON beside the report: every stage, the coarse levels' own
     # (`coarse/sgm`, ...), the WTA columns' and the host counts.
     step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""
+    # SGM with one path line per workgroup, against the default above (several lines per
+    # workgroup where the subgroups have one size: NVIDIA's 32): the 1-megapixel rig and the ring.
+    step bench-gpu-sgm-lines-1 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --sgm-lines 1
 fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).

@@ -4,9 +4,11 @@
 // contiguous run of planes (SGM_LANE_WORDS words, two planes each) in registers, the planes
 // next to its run come from the neighbouring lanes by one shuffle up and one shuffle down, and
 // the previous pixel's minimum over all planes is one subgroup reduction. No workgroup memory,
-// no barrier. The workgroup is one subgroup: SGM_LANES is the adapter's smallest subgroup size,
-// so every subgroup the adapter forms holds the whole workgroup (lanes beyond it are inactive and
-// take part in no shuffle or reduction). Needs `Features::SUBGROUP`; the engine uses it where the
+// no barrier. A workgroup holds SGM_LINES subgroups, a line each (its `subgroup_id`), SGM_LANES
+// lanes each: SGM_LANES is the adapter's smallest subgroup size, so every subgroup the adapter
+// forms holds the whole line (with one line per workgroup, lanes beyond it are inactive and take
+// part in no shuffle or reduction); several lines per workgroup only where the adapter's
+// subgroups all have SGM_LANES lanes (more lines resident at once to hide each walk's latency). Needs `Features::SUBGROUP`; the engine uses it where the
 // adapter has it, one band covering the image (banded runs use sgm.wgsl's line per invocation).
 // The sums are integer and bit-identical to sgm.wgsl and to the CPU twin (src/sweep/cpu/sgm.rs).
 
@@ -15,6 +17,8 @@ override SGM_LANES: u32 = 32u;
 // of two (a handful of pipelines), at most MAX_LANE_WORDS. A constant trip count lets the
 // shader compiler keep `prev0`/`prev1` in registers.
 override SGM_LANE_WORDS: u32 = 1u;
+// Path lines (subgroups) per workgroup.
+override SGM_LINES: u32 = 1u;
 
 // The most words a lane holds: MAX_SGM_PLANES over the smallest subgroup wgpu allows (4).
 const MAX_LANE_WORDS: u32 = MAX_SGM_PLANES / 8u;
@@ -54,13 +58,15 @@ fn term(at: u32, below: u32, above: u32, d: u32, planes: u32, prev_min: u32, p1:
     return best - prev_min;
 }
 
-@compute @workgroup_size(SGM_LANES, 1, 1)
+@compute @workgroup_size(SGM_LANES * SGM_LINES, 1, 1)
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
+    @builtin(subgroup_id) subgroup: u32,
     @builtin(subgroup_invocation_id) lane: u32,
 ) {
-    var line = i32(wid.x);
-    // Uniform over the workgroup: every lane leaves together (the shuffles below need all).
+    var line = i32(wid.x * SGM_LINES + subgroup);
+    // Uniform over the subgroup: every lane of the line leaves together (the shuffles below
+    // need all).
     if (line >= sgm_pass.direction.z) {
         return;
     }

@@ -322,6 +322,14 @@ impl Engine {
         }
     }
 
+    /// The WGSL engine's SGM path lines per workgroup in its subgroup layout
+    /// (`GpuEngine::set_sgm_lines`; nothing for the CPU engine).
+    pub fn set_sgm_lines(&mut self, lines: u32) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_sgm_lines(lines);
+        }
+    }
+
     /// The WGSL engine's submissions, readbacks, waits and host time since the last call
     /// (`None` for the CPU engine).
     pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {

@@ -66,6 +66,11 @@ pub struct BenchArgs {
     /// built-in synthetic pair).
     #[arg(long, value_name = "DIR")]
     pub fusion_data: Option<PathBuf>,
+    /// The WGSL engine's SGM path lines per workgroup in its subgroup layout (default: the
+    /// adapter's, several where its subgroups have one size; 1: a workgroup per line), to
+    /// compare the two on a GPU.
+    #[arg(long, value_name = "N")]
+    pub sgm_lines: Option<u32>,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
@@ -468,6 +473,9 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Ok(mut engine) => {
                 // As the node runs it: the maps its outputs publish (issue 35).
                 engine.set_diagnostic_maps(false);
+                if let Some(lines) = args.sgm_lines {
+                    engine.set_sgm_lines(lines);
+                }
                 engines.push(engine)
             }
             Err(e) if args.device == Device::Auto => {

@@ -360,6 +360,6 @@ pub const SUBGROUP_VARIANTS: [(Stage, StageInfo); 1] = [(
         entry_point: "main",
         bindings: SGM_BINDINGS,
         workgroup_size: None,
-        overrides: &["SGM_LANES", "SGM_LANE_WORDS"],
+        overrides: &["SGM_LANES", "SGM_LANE_WORDS", "SGM_LINES"],
     },
 )];

@@ -278,6 +278,22 @@ fn sgm_in_row_bands_equals_one_band() {
             whole.push(engine.run_plan_raw(&plan, &rig, &images).expect("one band"));
         }
         let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+        // The subgroup layout with one line per workgroup, with three (a last workgroup part
+        // empty) and with the adapter's default (several where its subgroups have one size:
+        // lavapipe 16), its directions after the first one by one and side by side.
+        if layouts.contains(&SgmLayout::Subgroup) {
+            for (lines, together) in [(1, false), (3, true), (0, true), (0, false)] {
+                let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+                engine.set_sgm_layout(SgmLayout::Subgroup).expect("layout");
+                if lines > 0 {
+                    engine.set_sgm_lines(lines);
+                }
+                engine.set_sgm_directions_together(together);
+                let maps = engine.run_plan_raw(&plan, &rig, &images).expect("run");
+                let what = format!("{name}: {} lines, together {together}", engine.sgm_lines());
+                assert_eq!(bits(&whole[0]), bits(&maps), "{what}");
+            }
+        }
         for (layout, maps) in layouts.iter().zip(&whole).skip(1) {
             assert_eq!(
                 bits(&whole[0]),

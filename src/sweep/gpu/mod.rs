@@ -106,6 +106,8 @@ pub struct GpuEngine {
     sgm_together: bool,
     /// The adapter's smallest subgroup (the subgroup layout's workgroup).
     subgroup_size: u32,
+    /// Path lines per workgroup of the subgroup layout (`sgm_lines_for`).
+    sgm_lines: u32,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
     sgm_band_bytes: Option<u64>,
     /// A smaller budget than `shape::SLAB_BUDGET_BYTES` for one batch of planes (tests of the
@@ -147,6 +149,22 @@ fn gpu_err(e: impl std::fmt::Display) -> SweepError {
     SweepError::Gpu(e.to_string())
 }
 
+/// Invocations per workgroup of the subgroup SGM where several lines share one.
+const SGM_GROUP_INVOCATIONS: u32 = 128;
+
+/// Path lines per workgroup of the subgroup SGM on `info`'s adapter: enough subgroups for
+/// [`SGM_GROUP_INVOCATIONS`] invocations where every subgroup has the same size (NVIDIA 32,
+/// lavapipe 8: several walks resident per workgroup hide each one's latency); one where the
+/// size varies (a subgroup could then span two lines).
+fn sgm_lines_for(info: &wgpu::AdapterInfo) -> u32 {
+    let (least, most) = (info.subgroup_min_size, info.subgroup_max_size);
+    if least == most && least > 0 {
+        (SGM_GROUP_INVOCATIONS / least).max(1)
+    } else {
+        1
+    }
+}
+
 impl GpuEngine {
     /// Builds the layouts and shader modules on the caller's device. Shader compilation errors
     /// are caught with an error scope and returned.
@@ -177,6 +195,7 @@ impl GpuEngine {
             // on the demo; docs/notes/speed-history.md).
             sgm_together: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
+            sgm_lines: sgm_lines_for(&info),
             sgm_band_bytes: None,
             slab_bytes: None,
             buffers: None,
@@ -193,6 +212,17 @@ impl GpuEngine {
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
         })
+    }
+
+    /// Path lines per workgroup of the subgroup SGM instead of the adapter's default (tests and
+    /// comparisons; 1: a workgroup per line). The sums are the same whatever the count.
+    pub fn set_sgm_lines(&mut self, lines: u32) {
+        self.sgm_lines = lines.max(1);
+    }
+
+    /// Path lines per workgroup of the subgroup SGM.
+    pub fn sgm_lines(&self) -> u32 {
+        self.sgm_lines
     }
 
     /// Chooses the SGM layout instead of the adapter's default (tests run every layout the
@@ -493,7 +523,7 @@ impl GpuEngine {
         } else {
             self.sgm_layout
         };
-        let spec = Specialisation::of(plan, layout, self.subgroup_size);
+        let spec = Specialisation::of(plan, layout, self.subgroup_size, self.sgm_lines);
         let pipelines = self.pipelines.get(&self.device, &spec)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let Some((buffers, schedule)) = self.buffers.as_ref() else {

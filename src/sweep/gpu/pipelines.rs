@@ -49,6 +49,8 @@ pub(super) struct Specialisation {
     pub sgm_layout: SgmLayout,
     /// `SgmLayout::Subgroup`: words (two planes each) per lane, a power of two.
     pub sgm_lane_words: u32,
+    /// `SgmLayout::Subgroup`: path lines (subgroups) per workgroup; 1 in the other layouts.
+    pub sgm_lines: u32,
 }
 
 impl Specialisation {
@@ -58,8 +60,10 @@ impl Specialisation {
         self.window_mode == WINDOW_SHIFTABLE && self.window_w == 2 && self.window_h == 2
     }
 
-    /// `subgroup_size`: the adapter's smallest subgroup (the workgroup of the subgroup layout).
-    pub fn of(plan: &SweepPlan, sgm_layout: SgmLayout, subgroup_size: u32) -> Self {
+    /// `subgroup_size`: the adapter's smallest subgroup (a line's lanes in the subgroup layout),
+    /// `sgm_lines`: the lines per workgroup of the subgroup layout (more than one only where
+    /// every subgroup has `subgroup_size` lanes).
+    pub fn of(plan: &SweepPlan, sgm_layout: SgmLayout, subgroup_size: u32, sgm_lines: u32) -> Self {
         let p = &plan.params;
         let sgm_lanes = match sgm_layout {
             SgmLayout::LinePerInvocation => 8,
@@ -90,6 +94,10 @@ impl Specialisation {
             sgm_lanes,
             sgm_layout,
             sgm_lane_words,
+            sgm_lines: match sgm_layout {
+                SgmLayout::Subgroup => sgm_lines.max(1),
+                _ => 1,
+            },
         }
     }
 
@@ -118,6 +126,7 @@ impl Specialisation {
             "SGM_LANES" => f64::from(self.sgm_lanes),
             "LINE_PER_INVOCATION" => flag(self.sgm_line_per_invocation()),
             "SGM_LANE_WORDS" => f64::from(self.sgm_lane_words),
+            "SGM_LINES" => f64::from(self.sgm_lines),
             _ => return None,
         })
     }
@@ -311,6 +320,7 @@ mod tests {
             sgm_lanes: 8,
             sgm_layout: SgmLayout::LinePerInvocation,
             sgm_lane_words: 1,
+            sgm_lines: 1,
         };
         let variants = SUBGROUP_VARIANTS.iter().map(|(_, info)| info);
         for stage in STAGES.iter().chain(variants) {

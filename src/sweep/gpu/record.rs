@@ -182,7 +182,11 @@ fn workgroups(
         }
         Stage::Sgm if dispatch.direction == 1 && together => (
             Some(SGM_REST_PASS as u64 * align.pass),
-            (sgm_rest_lines(key.sgm_paths, key.width, key.height), 1, 1),
+            (
+                sgm_rest_lines(key.sgm_paths, key.width, key.height).div_ceil(spec.sgm_lines),
+                1,
+                1,
+            ),
         ),
         Stage::Sgm => {
             let (dx, dy) = SGM_DIRECTIONS[dispatch.direction as usize];
@@ -190,7 +194,7 @@ fn workgroups(
             let workgroups = if spec.sgm_line_per_invocation() {
                 lines.div_ceil(spec.sgm_lanes)
             } else {
-                lines
+                lines.div_ceil(spec.sgm_lines)
             };
             (
                 Some(u64::from(dispatch.direction) * align.pass),
