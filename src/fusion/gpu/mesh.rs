@@ -380,8 +380,11 @@ impl GpuTsdf {
         let meshes = blocks
             .iter()
             .map(|b| {
-                let vs = b.vertex_first as usize..(b.vertex_first + b.vertices) as usize;
-                let ts = b.triangle_first as usize..(b.triangle_first + b.triangles) as usize;
+                let span = |first: u32, n: u32| first as usize..first as usize + n as usize;
+                let (vs, ts) = (
+                    span(b.vertex_first, b.vertices),
+                    span(b.triangle_first, b.triangles),
+                );
                 let (Some(vs), Some(ts)) = (all_vertices.get(vs), all_triangles.get(ts)) else {
                     return BlockMesh::default();
                 };
