@@ -72,10 +72,7 @@ impl Mesh {
     /// changed set.
     pub fn update(&mut self, grid: &mut VoxelBlockGrid) -> MeshStats {
         let todo = self.take_changes(grid);
-        let meshes = todo
-            .par_iter()
-            .map(|index| (*index, mesh_block(grid, *index)))
-            .collect();
+        let meshes = mesh_on_cpu(grid, &todo);
         self.apply(meshes, todo.len())
     }
 
@@ -91,12 +88,7 @@ impl Mesh {
         let todo = self.take_changes(grid);
         let (meshes, error) = match mesh_blocks(&todo) {
             Ok(meshes) => (meshes, None),
-            Err(e) => (
-                todo.par_iter()
-                    .map(|index| (*index, mesh_block(grid, *index)))
-                    .collect(),
-                Some(e),
-            ),
+            Err(e) => (mesh_on_cpu(grid, &todo), Some(e)),
         };
         (self.apply(meshes, todo.len()), error)
     }
@@ -154,11 +146,7 @@ impl Mesh {
     }
 
     fn remesh(&mut self, grid: &VoxelBlockGrid, todo: &[BlockIndex]) -> MeshStats {
-        let meshes: Vec<(BlockIndex, BlockMesh)> = todo
-            .par_iter()
-            .map(|index| (*index, mesh_block(grid, *index)))
-            .collect();
-        self.keep(meshes, todo.len())
+        self.keep(mesh_on_cpu(grid, todo), todo.len())
     }
 
     /// Keeps each block's new mesh (drops the empty ones) and counts the mesh.
@@ -332,6 +320,13 @@ fn row_cases(observed: &[f32; SIDE * SIDE * SIDE], base: usize) -> [u32; BLOCK_S
         case[x] = if missing[x] { 0 } else { case[x] };
     }
     case
+}
+
+/// Each of `todo`'s meshes, on rayon's threads.
+fn mesh_on_cpu(grid: &VoxelBlockGrid, todo: &[BlockIndex]) -> Vec<(BlockIndex, BlockMesh)> {
+    todo.par_iter()
+        .map(|index| (*index, mesh_block(grid, *index)))
+        .collect()
 }
 
 crate::simd::vectorised_fn! {
