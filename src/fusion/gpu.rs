@@ -9,14 +9,12 @@
 //! buffer; the block hash stays on the host (a map from [`BlockIndex`] to slot): step 1 reads
 //! it, and a frame uploads only its samples and the list of (block origin, slot) to update.
 //! [`GpuTsdf::sync_into`] copies the blocks changed since the last call into a
-//! [`VoxelBlockGrid`] (for [`super::Mesh::update`] on the CPU), [`GpuTsdf::read_grid`] all of
-//! them.
-
-use std::borrow::Cow;
+//! [`VoxelBlockGrid`] (the map's host copy), [`GpuTsdf::read_grid`] all of them;
+//! [`GpuTsdf::mesh_blocks`] (`gpu/mesh.rs`) meshes blocks on the device.
 
 use bytemuck::{Pod, Zeroable};
 
-use self::device::{make_buffer, read_buffer, submit};
+use self::device::{compute_pipeline, make_buffer, read_buffer, submit};
 use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
 use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
 use super::{
@@ -227,60 +225,14 @@ impl GpuTsdf {
         params: FusionParams,
     ) -> Result<Self, GpuFusionError> {
         params.validate()?;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let storage = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let uniform_entry = wgpu::BindGroupLayoutEntry {
-            binding: 0,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Uniform,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tsdf_integrate"),
-            entries: &[
-                uniform_entry,
-                storage(1, true),
-                storage(2, true),
-                storage(3, false),
-                storage(4, false),
-            ],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("tsdf_integrate"),
-            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADER)),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("tsdf_integrate"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("tsdf_integrate"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("integrate"),
-            // The shader's block counter relies on zeroed workgroup memory.
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
-        if let Some(error) = futures::executor::block_on(scope.pop()) {
-            return Err(GpuFusionError::Gpu(format!(
-                "building the pipeline: {error}"
-            )));
-        }
+        use self::device::Binding::{Read, ReadWrite, Uniform};
+        let (pipeline, layout) = compute_pipeline(
+            device,
+            "tsdf_integrate",
+            SHADER,
+            "integrate",
+            &[Uniform, Read, Read, ReadWrite, ReadWrite],
+        )?;
         let limits = device.limits();
         let limit = limits
             .max_storage_buffer_binding_size

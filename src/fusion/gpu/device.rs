@@ -24,6 +24,75 @@ pub(super) fn make_buffer(
     })
 }
 
+/// What one binding of a fusion shader's bind group holds.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Binding {
+    Uniform,
+    /// A storage buffer the shader only reads.
+    Read,
+    /// A storage buffer the shader writes.
+    ReadWrite,
+}
+
+/// The compute pipeline of `source`'s entry point `entry` with one bind group whose bindings
+/// 0, 1, ... are `bindings`, and that group's layout; what the device refuses comes back as
+/// an error. Built with the default options, which zero workgroup memory (the integration's
+/// block counter relies on it).
+pub(super) fn compute_pipeline(
+    device: &wgpu::Device,
+    label: &str,
+    source: &'static str,
+    entry: &str,
+    bindings: &[Binding],
+) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuFusionError> {
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+        .iter()
+        .enumerate()
+        .map(|(i, binding)| wgpu::BindGroupLayoutEntry {
+            binding: i as u32,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: match binding {
+                    Binding::Uniform => wgpu::BufferBindingType::Uniform,
+                    Binding::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                    Binding::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+                },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+        .collect();
+    let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &entries,
+    });
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(std::borrow::Cow::Borrowed(source)),
+    });
+    let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(label),
+        bind_group_layouts: &[Some(&layout)],
+        immediate_size: 0,
+    });
+    let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: Some(&pipeline_layout),
+        module: &module,
+        entry_point: Some(entry),
+        compilation_options: wgpu::PipelineCompilationOptions::default(),
+        cache: None,
+    });
+    if let Some(error) = futures::executor::block_on(scope.pop()) {
+        return Err(GpuFusionError::Gpu(format!(
+            "building the {label} pipeline: {error}"
+        )));
+    }
+    Ok((pipeline, layout))
+}
+
 /// How long one poll of a wait holds [`device_poll_lock`].
 const POLL_SLICE: std::time::Duration = std::time::Duration::from_millis(50);
 

@@ -5,11 +5,9 @@
 //! vertex and triangle for triangle (the vertices' positions and colours to the device's
 //! float rounding).
 
-use std::borrow::Cow;
-
 use bytemuck::{Pod, Zeroable};
 
-use super::device::{make_buffer, read_buffer, submit};
+use super::device::{compute_pipeline, make_buffer, read_buffer, submit};
 use super::{entry, GpuFusionError, GpuTsdf, Grown, MAX_GROUPS_PER_DIMENSION};
 use crate::fusion::blocks::BlockIndex;
 use crate::fusion::tables::{CORNERS, EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
@@ -106,48 +104,16 @@ pub(super) struct Mesher {
 
 impl Mesher {
     fn new(device: &wgpu::Device, queue: &wgpu::Queue) -> Result<Self, GpuFusionError> {
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let buffer_entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty,
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let storage = |read_only| wgpu::BufferBindingType::Storage { read_only };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tsdf_mesh"),
-            entries: &[
-                buffer_entry(0, wgpu::BufferBindingType::Uniform),
-                buffer_entry(1, storage(true)),
-                buffer_entry(2, storage(true)),
-                buffer_entry(3, storage(true)),
-                buffer_entry(4, storage(false)),
-                buffer_entry(5, storage(false)),
-                buffer_entry(6, storage(false)),
-                buffer_entry(7, storage(false)),
+        use super::device::Binding::{Read, ReadWrite, Uniform};
+        let (pipeline, layout) = compute_pipeline(
+            device,
+            "tsdf_mesh",
+            SHADER,
+            "mesh",
+            &[
+                Uniform, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite,
             ],
-        });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("tsdf_mesh"),
-            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADER)),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("tsdf_mesh"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("tsdf_mesh"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("mesh"),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
+        )?;
         let words = table_words();
         let tables = make_buffer(
             device,
@@ -156,11 +122,6 @@ impl Mesher {
             wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
         );
         queue.write_buffer(&tables, 0, bytemuck::cast_slice(&words));
-        if let Some(error) = futures::executor::block_on(scope.pop()) {
-            return Err(GpuFusionError::Gpu(format!(
-                "building the meshing pipeline: {error}"
-            )));
-        }
         let out = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
         Ok(Self {
             pipeline,
@@ -410,23 +371,7 @@ mod tests {
     /// the host's.
     #[test]
     fn the_meshing_shader_validates_with_the_hosts_layouts() {
-        let module = match naga::front::wgsl::parse_str(SHADER) {
-            Ok(module) => module,
-            Err(e) => panic!(
-                "{}",
-                e.emit_to_string_with_path(SHADER, "shaders/tsdf_mesh.wgsl")
-            ),
-        };
-        let mut validator = naga::valid::Validator::new(
-            naga::valid::ValidationFlags::all(),
-            naga::valid::Capabilities::default(),
-        );
-        if let Err(e) = validator.validate(&module) {
-            panic!(
-                "{}",
-                e.emit_to_string_with_path(SHADER, "shaders/tsdf_mesh.wgsl")
-            );
-        }
+        let module = super::super::tests::validated(SHADER, "shaders/tsdf_mesh.wgsl");
         let size = |name: &str| {
             let (_, t) = module
                 .types

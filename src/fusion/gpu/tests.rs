@@ -168,24 +168,34 @@ fn assert_same_mesh(cpu: &VoxelBlockGrid, gpu: &VoxelBlockGrid) -> usize {
     sa.triangles
 }
 
-/// Two frames of a sphere before a slanted wall from two oblique poses, with colour, the
-/// second with per-pixel weights (depth and discontinuities): after each, the CPU's and the
-/// GPU's grids hold the same blocks with the same voxels, and mesh alike.
-#[test]
-fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
-    let (context, _one) = gpu();
+/// 2 cm voxels, a 320x240 camera and two oblique poses looking at the sphere before the
+/// slanted wall (`sphere_before_slanted_wall`), and a colour image.
+fn oblique_scene() -> (FusionParams, CameraModel, [RigidTransform; 2], Rgba8Image) {
     let params = FusionParams {
         voxel_size_m: 0.02,
         ..FusionParams::default()
     };
-    let model = camera(320, 240, 280.0);
     let up = DVec3::new(0.1, -1.0, 0.2);
     let target = DVec3::new(0.0, 0.0, 2.0);
     let poses = [
         look_at(DVec3::new(0.7, -0.4, -0.2), target, up),
         look_at(DVec3::new(-0.3, 0.2, 0.1), target, up),
     ];
-    let colour = red_left_blue_right(320, 240);
+    (
+        params,
+        camera(320, 240, 280.0),
+        poses,
+        red_left_blue_right(320, 240),
+    )
+}
+
+/// Two frames of a sphere before a slanted wall from two oblique poses, with colour, the
+/// second with per-pixel weights (depth and discontinuities): after each, the CPU's and the
+/// GPU's grids hold the same blocks with the same voxels, and mesh alike.
+#[test]
+fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
+    let (context, _one) = gpu();
+    let (params, model, poses, colour) = oblique_scene();
     let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
     let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
     let mut mirror = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
@@ -272,19 +282,8 @@ fn assert_meshes_equal(cpu: &BlockMesh, gpu: &BlockMesh, what: &str, voxel_m: f3
 #[test]
 fn the_gpu_meshes_blocks_as_the_cpu_does() {
     let (context, _one) = gpu();
-    let params = FusionParams {
-        voxel_size_m: 0.02,
-        ..FusionParams::default()
-    };
+    let (params, model, poses, colour) = oblique_scene();
     let voxel_m = params.voxel_size_m;
-    let model = camera(320, 240, 280.0);
-    let up = DVec3::new(0.1, -1.0, 0.2);
-    let target = DVec3::new(0.0, 0.0, 2.0);
-    let poses = [
-        look_at(DVec3::new(0.7, -0.4, -0.2), target, up),
-        look_at(DVec3::new(-0.3, 0.2, 0.1), target, up),
-    ];
-    let colour = red_left_blue_right(320, 240);
     let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
     let mut mirror = VoxelBlockGrid::new(voxel_m).unwrap();
     let (mut on_cpu, mut on_gpu) = (Mesh::new(), Mesh::new());
@@ -513,26 +512,27 @@ fn bad_input_and_a_full_pool_are_refused() {
     assert_eq!(gpu.block_count(), 0);
 }
 
-/// The shader parses and validates (naga, as wgpu does), without an adapter.
-#[test]
-fn the_shader_validates() {
-    let module = match naga::front::wgsl::parse_str(SHADER) {
+/// `source` parsed and validated by naga, as wgpu does, without an adapter (a failure names
+/// `path` and the line).
+pub(super) fn validated(source: &str, path: &str) -> naga::Module {
+    let module = match naga::front::wgsl::parse_str(source) {
         Ok(module) => module,
-        Err(e) => panic!(
-            "{}",
-            e.emit_to_string_with_path(SHADER, "shaders/tsdf_integrate.wgsl")
-        ),
+        Err(e) => panic!("{}", e.emit_to_string_with_path(source, path)),
     };
     let mut validator = naga::valid::Validator::new(
         naga::valid::ValidationFlags::all(),
         naga::valid::Capabilities::default(),
     );
     if let Err(e) = validator.validate(&module) {
-        panic!(
-            "{}",
-            e.emit_to_string_with_path(SHADER, "shaders/tsdf_integrate.wgsl")
-        );
+        panic!("{}", e.emit_to_string_with_path(source, path));
     }
+    module
+}
+
+/// The shader parses and validates (naga, as wgpu does), without an adapter.
+#[test]
+fn the_shader_validates() {
+    let module = validated(SHADER, "shaders/tsdf_integrate.wgsl");
     let entry = module
         .entry_points
         .iter()
