@@ -14,7 +14,7 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use self::device::{compute_pipeline, make_buffer, read_buffer, submit};
+use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
 use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
 use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
 use super::{
@@ -33,8 +33,6 @@ const SHADER: &str = concat!(
     include_str!("../../shaders/tsdf_integrate.wgsl")
 );
 
-/// The most workgroups along one dimension of a dispatch (WebGPU's limit).
-const MAX_GROUPS_PER_DIMENSION: u32 = 65_535;
 /// Bytes of one voxel in the pool.
 const VOXEL_BYTES: u64 = std::mem::size_of::<PoolVoxel>() as u64;
 /// Bytes of one slot.
@@ -514,16 +512,13 @@ impl GpuTsdf {
                 ],
             });
             let items = work.len() as u32;
-            let x = items.min(MAX_GROUPS_PER_DIMENSION);
-            let y = items.div_ceil(x);
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("tsdf integrate"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.dispatch_workgroups(x, y, 1);
-            drop(pass);
+            dispatch_items(
+                &mut encoder,
+                "tsdf integrate",
+                &self.pipeline,
+                &bind_group,
+                items,
+            );
             encoder.copy_buffer_to_buffer(
                 &self.counts.buffer,
                 0,

@@ -93,6 +93,28 @@ pub(super) fn compute_pipeline(
     Ok((pipeline, layout))
 }
 
+/// The most workgroups along one dimension of a dispatch (WebGPU's limit).
+const MAX_GROUPS_PER_DIMENSION: u32 = 65_535;
+
+/// Records one compute pass of `pipeline` with `bind_group`, one workgroup per item of
+/// `items` (laid out over x and y within WebGPU's limit; the shader flattens them back).
+pub(super) fn dispatch_items(
+    encoder: &mut wgpu::CommandEncoder,
+    label: &str,
+    pipeline: &wgpu::ComputePipeline,
+    bind_group: &wgpu::BindGroup,
+    items: u32,
+) {
+    let x = items.clamp(1, MAX_GROUPS_PER_DIMENSION);
+    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        label: Some(label),
+        timestamp_writes: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind_group, &[]);
+    pass.dispatch_workgroups(x, items.div_ceil(x), 1);
+}
+
 /// How long one poll of a wait holds [`device_poll_lock`].
 const POLL_SLICE: std::time::Duration = std::time::Duration::from_millis(50);
 

@@ -7,8 +7,8 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::device::{compute_pipeline, make_buffer, read_buffer, submit};
-use super::{entry, GpuFusionError, GpuTsdf, Grown, MAX_GROUPS_PER_DIMENSION};
+use super::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
+use super::{entry, GpuFusionError, GpuTsdf, Grown};
 use crate::fusion::blocks::BlockIndex;
 use crate::fusion::tables::{CORNERS, EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
 use crate::fusion::BlockMesh;
@@ -288,17 +288,14 @@ impl GpuTsdf {
             label: Some("tsdf mesh"),
         });
         encoder.clear_buffer(&mesher.totals, 0, None);
-        {
-            let items = work.len() as u32;
-            let x = items.min(MAX_GROUPS_PER_DIMENSION);
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("tsdf mesh"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&mesher.pipeline);
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.dispatch_workgroups(x, items.div_ceil(x), 1);
-        }
+        let items = work.len() as u32;
+        dispatch_items(
+            &mut encoder,
+            "tsdf mesh",
+            &mesher.pipeline,
+            &bind_group,
+            items,
+        );
         encoder.copy_buffer_to_buffer(&mesher.totals, 0, &readback, 0, 8);
         encoder.copy_buffer_to_buffer(&mesher.blocks_out.buffer, 0, &readback, 8, out_bytes);
         submit(&self.queue, encoder.finish());
