@@ -12,10 +12,6 @@
 
 const CENSUS_RADIUS: i32 = 2;
 
-fn census_luma(pixel: u32) -> u32 {
-    return (pixel & 0xffu) * 77u + ((pixel >> 8u) & 0xffu) * 150u + ((pixel >> 16u) & 0xffu) * 29u;
-}
-
 @compute @workgroup_size(8, 8, 1)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (gid.z >= params.cameras) {

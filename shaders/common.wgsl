@@ -318,3 +318,9 @@ fn select_plane(st: Wta, k: f32, best: vec2<f32>) -> Wta {
     s1.w = c;
     return Wta(s0, s1, s2);
 }
+
+// The integer grey of a packed RGBA texel, 77 R + 150 G + 29 B (the census and the prefilter;
+// CPU twin: src/sweep/census.rs `luma`).
+fn census_luma(pixel: u32) -> u32 {
+    return (pixel & 0xffu) * 77u + ((pixel >> 8u) & 0xffu) * 150u + ((pixel >> 16u) & 0xffu) * 29u;
+}

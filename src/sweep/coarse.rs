@@ -157,6 +157,13 @@ pub trait PlanRunner {
 
     /// What the references of one frame set share (census words, half-size images).
     fn memo(&mut self) -> &mut super::frame_memo::FrameMemo;
+
+    /// Whether the engine makes a pair's matching images itself from the caller's (the WGSL
+    /// engine, on the device) where the plan's colour term reads them
+    /// (`Params.colour_in_alpha`); otherwise `run` prefilters them on the host first.
+    fn prefilters_on_device(&self) -> bool {
+        false
+    }
 }
 
 /// An engine's plans per reference (the reference camera's name, or "" for a virtual one):
@@ -254,11 +261,13 @@ pub fn run(
     images: &[Rgba8Image],
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
-    // The matching images (issue 52): prefiltered for real cameras, on the host for both
-    // engines; the joint median below keeps the caller's.
+    // The matching images (issue 52): prefiltered for real cameras, on the host for the CPU
+    // engine (the WGSL engine makes them on the device); the joint median below keeps the
+    // caller's.
     let prefiltered;
     let mut prefilter_ms = None;
-    let matching = if params.prefilter.applies(rig.cameras.len()) {
+    let on_host = !engine.prefilters_on_device();
+    let matching = if params.prefilter.applies(rig.cameras.len()) && on_host {
         super::check_images(rig, images)?;
         let started = std::time::Instant::now();
         prefiltered = super::prefilter::gradient_all(images);

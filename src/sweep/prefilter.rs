@@ -11,8 +11,9 @@
 //! cost's texels read it in all three channels); the RGB stay the camera's, so the census half,
 //! SGM's edge-aware P2 and the joint median see exactly what they see without the prefilter.
 //!
-//! A host step of both engines (`coarse::run`, before the levels), so both sweep the same
-//! images.
+//! A host step of the CPU engine (`coarse::run`, before the levels); the WGSL engine makes the
+//! same bytes on the device from the caller's images (`shaders/prefilter.wgsl`, in its image
+//! pyramid before the halvings), so both sweep the same images.
 
 use rayon::prelude::*;
 

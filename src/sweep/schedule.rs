@@ -354,7 +354,11 @@ mod tests {
                     Stage::Median => Phase::Median,
                     Stage::Splat => Phase::Splat,
                     Stage::Visibility => Phase::Visibility,
-                    Stage::Census | Stage::Half | Stage::PlaneSpans | Stage::PlaneRanges => {
+                    Stage::Census
+                    | Stage::Half
+                    | Stage::Prefilter
+                    | Stage::PlaneSpans
+                    | Stage::PlaneRanges => {
                         unreachable!("not in a schedule: {d:?}")
                     }
                 };

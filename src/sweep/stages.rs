@@ -60,10 +60,11 @@ pub enum Stage {
     PlaneRanges,
     RefineBase,
     RefineSelect,
+    Prefilter,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 16] = [
+    pub const ALL: [Stage; 17] = [
         Stage::Cost,
         Stage::BoxH,
         Stage::BoxV,
@@ -80,6 +81,7 @@ impl Stage {
         Stage::PlaneRanges,
         Stage::RefineBase,
         Stage::RefineSelect,
+        Stage::Prefilter,
     ];
 
     /// This stage's row of the registry.
@@ -137,7 +139,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 16] = [
+pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -344,6 +346,15 @@ pub const STAGES: [StageInfo; 16] = [
             read("hypotheses"),
             read_write("maps"),
         ],
+        workgroup_size: TILE,
+        overrides: &[],
+    },
+    // A pair's matching images (`prefilter.rs`) from the caller's, on the engine's image
+    // pyramid (`gpu/pyramid.rs`) like `half`, before the halvings.
+    StageInfo {
+        name: "prefilter",
+        entry_point: "main",
+        bindings: &[uniform("prefilter"), read("raw"), read_write("filtered")],
         workgroup_size: TILE,
         overrides: &[],
     },

@@ -1615,6 +1615,128 @@ fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
     assert!(words == packed, "the full-resolution images and census");
 }
 
+/// Gentle ramps with a little noise: Sobel derivatives inside the prefilter's clamp (the
+/// noise images saturate it), both roundings of its byte.
+fn ramp_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
+    let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+    rig.cameras
+        .iter()
+        .map(|camera| {
+            let k = camera.model.intrinsics;
+            let pixels = (0..k.height_px)
+                .flat_map(|y| (0..k.width_px).map(move |x| (x, y)))
+                .map(|(x, y)| {
+                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                    let n = state >> 28;
+                    let c = |o: u32| ((x * 3 + y * 2 + o + n) & 0xff) as u8;
+                    Rgba8Image::pack(c(0), c(40), c(90))
+                })
+                .collect();
+            Rgba8Image {
+                width: k.width_px,
+                height: k.height_px,
+                pixels,
+            }
+        })
+        .collect()
+}
+
+/// A pair's matching images (issue 52's prefilter) are made on the device
+/// (`shaders/prefilter.wgsl`) bit for bit as the CPU engine makes them on the host
+/// (`prefilter::gradient`): odd and tiny sizes, edge columns and rows, cameras of two sizes,
+/// derivatives inside and beyond the clamp; in a one-level sweep (the `images` buffer: the
+/// prefiltered pixels, then their census) and in every level of a coarse-to-fine set (each the
+/// half-size of the prefiltered level above), a second set with other images in the same
+/// buffers; and the sweep on them agrees with the CPU engine's.
+#[test]
+fn prefiltered_images_on_the_gpu_equal_the_cpu_twin() {
+    use sweepdepth::sweep::prefilter::gradient;
+    let gpu = common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    for (size, other) in [
+        ((37u32, 29u32), (18u32, 29u32)),
+        ((3, 2), (2, 3)),
+        ((1, 4), (5, 1)),
+    ] {
+        let model = CameraModel::pinhole(synthetic::intrinsics(size.0, size.1));
+        let mut rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+        rig.cameras[1].model = CameraModel::pinhole(synthetic::intrinsics(other.0, other.1));
+        for (i, images) in [noise_images(&rig, 3), ramp_images(&rig, 5)]
+            .iter()
+            .enumerate()
+        {
+            let params = SweepParams {
+                cost: Cost::AdCensus,
+                num_planes: 4,
+                ..base()
+            };
+            let plan = SweepPlan::new(&rig, &params).expect("plan");
+            assert_eq!(
+                plan.params.colour_in_alpha, 1,
+                "a pair prefilters by default"
+            );
+            engine.run_plan_raw(&plan, &rig, images).expect("gpu run");
+            let words = engine.device_images().expect("images read back");
+            let filtered: Vec<Rgba8Image> = images.iter().map(gradient).collect();
+            let mut expected: Vec<u32> = filtered.iter().flat_map(|i| i.pixels.clone()).collect();
+            for image in &filtered {
+                sweepdepth::sweep::census::transform(
+                    image.width as usize,
+                    image.height as usize,
+                    &image.pixels,
+                    &mut expected,
+                );
+            }
+            let differ = words.iter().zip(&expected).filter(|(a, b)| a != b).count();
+            assert_eq!(
+                (words.len(), differ),
+                (expected.len(), 0),
+                "{size:?} + {other:?}, images {i}"
+            );
+        }
+    }
+    // Coarse to fine: 3 levels, two frame sets.
+    let model = CameraModel::pinhole(synthetic::intrinsics(642, 330));
+    let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        cost: Cost::Census,
+        optimizer: Optimizer::Wta,
+        ..SweepParams::default()
+    };
+    let levels = sweepdepth::sweep::coarse::levels(&rig, &params);
+    assert_eq!(levels, 3);
+    for images in [ramp_images(&rig, 9), noise_images(&rig, 11)] {
+        engine.run(&rig, &images, &params).expect("run");
+        let mut expected: Vec<Rgba8Image> = images.iter().map(gradient).collect();
+        assert!(expected
+            .iter()
+            .zip(&images)
+            .any(|(e, i)| e.pixels != i.pixels));
+        for level in 0..levels {
+            let words = engine.device_image_level(level).expect("level read back");
+            let packed: Vec<u32> = expected.iter().flat_map(|i| i.pixels.clone()).collect();
+            let differ = words.iter().zip(&packed).filter(|(a, b)| a != b).count();
+            assert_eq!((words.len(), differ), (packed.len(), 0), "level {level}");
+            expected = expected
+                .iter()
+                .map(sweepdepth::sweep::coarse::half_image)
+                .collect();
+        }
+    }
+    // The sweep of a pair on them: the CPU engine's maps (prefiltered on the host).
+    let model = CameraModel::pinhole(synthetic::intrinsics(96, 72));
+    let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let plan = SweepPlan::new(&rig, &base()).expect("plan");
+    assert_eq!(plan.params.colour_in_alpha, 1);
+    compare("pair_prefiltered", &plan, &rig, &images);
+}
+
 /// The fine sweep (`subpixel_refine`, refine_base / the sweep's stages in refine batches /
 /// refine_select) against its CPU twin in every shape it runs in: winner-take-all with
 /// centred windows, SGM (whose volume the refine batches must leave alone), the paper's paired

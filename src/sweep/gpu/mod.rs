@@ -352,9 +352,9 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<DepthMaps, SweepError> {
-        let images = super::prefilter::for_plan(plan, images);
+        // The caller's images: a plan that reads the prefilter's makes them on the device.
         self.timed(|engine| {
-            engine.record_level(plan, rig, LevelImages::given(&images), false)?;
+            engine.record_level(plan, rig, LevelImages::given(images), false)?;
             let diagnostics = engine.diagnostics;
             let sections = SweepPlan::unpacked_sections(diagnostics);
             let first = sections.start;
@@ -371,9 +371,8 @@ impl GpuEngine {
         rig: &Rig,
         images: &[Rgba8Image],
     ) -> Result<Vec<f32>, SweepError> {
-        let images = super::prefilter::for_plan(plan, images);
         self.timed(|engine| {
-            engine.record_level(plan, rig, LevelImages::given(&images), false)?;
+            engine.record_level(plan, rig, LevelImages::given(images), false)?;
             engine.finish_set(0..MAP_COUNT, <[f32]>::to_vec)
         })
     }
@@ -500,13 +499,23 @@ impl GpuEngine {
         // The level's images: the caller's, written straight into the `images` buffer, or a
         // level of the pyramid (the set's first level uploads the caller's images and makes
         // every half-size level below on the GPU; the others copy theirs).
+        // A pair's matching images are made on the device from the caller's (`prefilter`
+        // stage), in level 0 of the pyramid (a one-level sweep too).
+        let prefilter = plan.params.colour_in_alpha != 0;
         let halvings = images.halvings();
-        let fill = halvings > 0 && self.pyramid_filled.is_none_or(|d| d < halvings);
+        let fill = (halvings > 0 || prefilter) && self.pyramid_filled.is_none_or(|d| d < halvings);
         if fill {
             self.fit_pyramid(images.full(), halvings)?;
+            if let (true, Some(pyramid)) = (prefilter, self.pyramid.as_mut()) {
+                pyramid.ensure_raw(
+                    &self.device,
+                    &self.queue,
+                    &self.pipelines.layouts[Stage::Prefilter as usize],
+                );
+            }
         }
-        let from_pyramid = halvings > 0 || self.pyramid_filled.is_some();
-        if !from_pyramid {
+        let from_pyramid = halvings > 0 || prefilter || self.pyramid_filled.is_some();
+        if halvings == 0 && (fill || !from_pyramid) {
             super::check_images(rig, images.full())?;
         }
         let key = ShapeKey::of(
@@ -565,7 +574,9 @@ impl GpuEngine {
                     });
                 }
             }
-            (true, Some(pyramid)) if fill => parts.extend(pyramid.uploads(images.full())),
+            (true, Some(pyramid)) if fill => {
+                parts.extend(pyramid.uploads(images.full(), prefilter));
+            }
             (true, Some(_)) => {}
             (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
         }
@@ -590,6 +601,9 @@ impl GpuEngine {
         if let (true, Some(pyramid)) = (from_pyramid, self.pyramid.as_ref()) {
             if fill {
                 self.pyramid_filled = Some(halvings);
+                if prefilter {
+                    pyramid.record_prefilter(encoder, &pipelines[Stage::Prefilter as usize])?;
+                }
                 pyramid.record_halvings(encoder, &pipelines[Stage::Half as usize], halvings);
             }
             pyramid.record_copy(encoder, halvings, plan, &buffers.images)?;
@@ -766,5 +780,9 @@ impl super::coarse::PlanRunner for GpuEngine {
 
     fn memo(&mut self) -> &mut super::frame_memo::FrameMemo {
         &mut self.memo
+    }
+
+    fn prefilters_on_device(&self) -> bool {
+        true
     }
 }

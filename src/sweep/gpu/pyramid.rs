@@ -3,6 +3,9 @@
 //! made from the level above by the `half` stage (`shaders/half.wgsl`, one compute pass in the
 //! command buffer of the set's first level), and a level's pixels copied into its shape's
 //! `images` buffer, where the `census` stage adds the census words (`shaders/census.wgsl`).
+//! A pair's matching images (`sweep/prefilter.rs`) are made here too: the caller's images are
+//! then written into `raw`, and the `prefilter` stage writes level 0 from them
+//! (`shaders/prefilter.wgsl`) before the halvings.
 //! Every level packs its cameras in rig order, as the plan's `size.z` offsets do.
 
 use super::super::gpu_types::MAX_RIG_CAMERAS;
@@ -35,11 +38,27 @@ impl Level {
     }
 }
 
+/// WGSL `PrefilterCameras` (`shaders/prefilter.wgsl`): the camera count and the scale's bits,
+/// then per camera its width, height and word of pixel (0, 0) in `raw` and in level 0.
+const PREFILTER_BYTES: u64 = 16 + 16 * MAX_RIG_CAMERAS as u64;
+
+/// The caller's images before the prefilter, and the `prefilter` pass that makes level 0 from
+/// them.
+struct Raw {
+    buffer: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    workgroups: (u32, u32, u32),
+    /// The uniform block (kept alive with its bind group).
+    _uniform: wgpu::Buffer,
+}
+
 /// The levels of one rig's image sizes, 0 (full resolution) to `depth`.
 pub(super) struct Pyramid {
     levels: Vec<Level>,
     /// The uniform blocks of the halvings (kept alive with their bind groups).
     _halvings: Vec<wgpu::Buffer>,
+    /// Made at the first prefiltered frame set.
+    raw: Option<Raw>,
 }
 
 /// Each camera's word of pixel (0, 0), the cameras packed in order.
@@ -154,7 +173,89 @@ impl Pyramid {
         Ok(Self {
             levels,
             _halvings: halvings,
+            raw: None,
         })
+    }
+
+    /// Makes the buffer of the caller's images before the prefilter and the `prefilter` pass
+    /// into level 0 (once).
+    pub fn ensure_raw(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        layout: &wgpu::BindGroupLayout,
+    ) {
+        if self.raw.is_some() {
+            return;
+        }
+        let level = &self.levels[0];
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("raw images"),
+            size: (level.words() * 4).max(16),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut block = vec![0u32; (PREFILTER_BYTES / 4) as usize];
+        block[0] = level.sizes.len() as u32;
+        block[1] = (super::super::prefilter::SCALE / 256.0).to_bits();
+        for (c, ([w, h], at)) in level.sizes.iter().zip(&level.offsets).enumerate() {
+            block[4 + 4 * c..8 + 4 * c].copy_from_slice(&[*w, *h, *at, *at]);
+        }
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("prefilter"),
+            size: PREFILTER_BYTES,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        queue.write_buffer(&uniform, 0, bytemuck::cast_slice(&block));
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("prefilter"),
+            layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: buffer.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: level.buffer.as_entire_binding(),
+                },
+            ],
+        });
+        let widest = level.sizes.iter().map(|s| s[0]).max().unwrap_or(0);
+        let tallest = level.sizes.iter().map(|s| s[1]).max().unwrap_or(0);
+        let (x, y, _) = tiles_of(widest, tallest);
+        self.raw = Some(Raw {
+            buffer,
+            group,
+            workgroups: (x, y, level.sizes.len() as u32),
+            _uniform: uniform,
+        });
+    }
+
+    /// Records level 0 made from the caller's images in `raw` (`ensure_raw` first).
+    pub fn record_prefilter(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        prefilter: &wgpu::ComputePipeline,
+    ) -> Result<(), SweepError> {
+        let raw = self
+            .raw
+            .as_ref()
+            .ok_or_else(|| SweepError::Gpu("internal: no buffer for the raw images".into()))?;
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("prefilter"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(prefilter);
+        pass.set_bind_group(0, &raw.group, &[]);
+        let (x, y, z) = raw.workgroups;
+        pass.dispatch_workgroups(x, y, z);
+        Ok(())
     }
 
     /// Whether the pyramid holds levels 0 to `depth` of images of these sizes.
@@ -173,14 +274,26 @@ impl Pyramid {
         self.levels.get(level).map(|l| (&l.buffer, l.words() * 4))
     }
 
-    /// The writes of the caller's images into level 0, each from its own pixels.
-    pub fn uploads<'a>(&'a self, images: &'a [Rgba8Image]) -> impl Iterator<Item = Part<'a>> + 'a {
+    /// The writes of the caller's images into level 0 (or, `raw`, into the buffer the
+    /// prefilter reads: `ensure_raw` first), each from its own pixels.
+    pub fn uploads<'a>(
+        &'a self,
+        images: &'a [Rgba8Image],
+        raw: bool,
+    ) -> impl Iterator<Item = Part<'a>> + 'a {
         let level = &self.levels[0];
-        images.iter().zip(&level.offsets).map(|(image, at)| Part {
-            target: &level.buffer,
-            offset: u64::from(*at) * 4,
-            data: bytemuck::cast_slice(&image.pixels),
-        })
+        let target = match (&self.raw, raw) {
+            (Some(r), true) => &r.buffer,
+            _ => &level.buffer,
+        };
+        images
+            .iter()
+            .zip(&level.offsets)
+            .map(move |(image, at)| Part {
+                target,
+                offset: u64::from(*at) * 4,
+                data: bytemuck::cast_slice(&image.pixels),
+            })
     }
 
     /// Records levels 1 to `depth`, each from the one above, in one compute pass.

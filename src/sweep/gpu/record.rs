@@ -209,7 +209,9 @@ fn workgroups(
         | Stage::RefineBase
         | Stage::RefineSelect => (None, tiles(key.width, key.height)),
         // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.
-        Stage::Census | Stage::Half | Stage::PlaneSpans | Stage::PlaneRanges => (None, (0, 0, 0)),
+        Stage::Census | Stage::Half | Stage::Prefilter | Stage::PlaneSpans | Stage::PlaneRanges => {
+            (None, (0, 0, 0))
+        }
     }
 }
 
