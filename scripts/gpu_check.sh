@@ -99,6 +99,9 @@ else
     # SGM with one path line per workgroup, against the default above (several lines per
     # workgroup where the subgroups have one size: NVIDIA's 32): the 1-megapixel rig and the ring.
     step bench-gpu-sgm-lines-1 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --sgm-lines 1
+    # The host copies (images in, maps out) on one thread, against the default above (split
+    # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar).
+    step bench-gpu-host-copies-serial 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --host-copies serial
 fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).

@@ -322,6 +322,14 @@ impl Engine {
         }
     }
 
+    /// Whether the WGSL engine's host copies (images in, maps out) run on several threads
+    /// (`GpuEngine::set_host_copies`; nothing for the CPU engine).
+    pub fn set_host_copies(&mut self, copies: crate::sweep::gpu::HostCopies) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_host_copies(copies);
+        }
+    }
+
     /// The WGSL engine's SGM path lines per workgroup in its subgroup layout
     /// (`GpuEngine::set_sgm_lines`; nothing for the CPU engine).
     pub fn set_sgm_lines(&mut self, lines: u32) {

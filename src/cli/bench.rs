@@ -71,6 +71,11 @@ pub struct BenchArgs {
     /// compare the two on a GPU.
     #[arg(long, value_name = "N")]
     pub sgm_lines: Option<u32>,
+    /// The WGSL engine's host copies (images in, maps out): split over threads where the set
+    /// is large and the host has many cores (auto), or always on one thread / split, to
+    /// compare the two on a GPU host.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub host_copies: crate::sweep::gpu::HostCopies,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
@@ -476,6 +481,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 if let Some(lines) = args.sgm_lines {
                     engine.set_sgm_lines(lines);
                 }
+                engine.set_host_copies(args.host_copies);
                 engines.push(engine)
             }
             Err(e) if args.device == Device::Auto => {

@@ -610,7 +610,7 @@ impl SweepPlan {
     /// Unpacks the `maps` buffer into the public outputs; without `diagnostics`, the maps that
     /// no output publishes (`depth_raw_m`, `visible_cameras`) are left empty (0 x 0).
     pub fn unpack_maps(&self, maps: &[f32], diagnostics: bool) -> crate::sweep::DepthMaps {
-        self.unpack_map_sections(maps, 0, diagnostics)
+        self.unpack_map_sections(maps, 0, diagnostics, false)
     }
 
     /// The sections of `maps` that [`Self::unpack_maps`] reads (`diagnostics` or not): the
@@ -625,22 +625,26 @@ impl SweepPlan {
     }
 
     /// [`Self::unpack_maps`] of `maps` that begin at section `first` (a readback of
-    /// [`Self::unpacked_sections`]).
+    /// [`Self::unpacked_sections`]), copied on rayon's threads with `split`
+    /// (`gpu::HostCopies`).
     pub fn unpack_map_sections(
         &self,
         maps: &[f32],
         first: usize,
         diagnostics: bool,
+        split: bool,
     ) -> crate::sweep::DepthMaps {
+        use super::gpu::copies;
         use crate::image::ImageF32;
         let npix = self.pixel_count();
         let of = |s: usize| &maps[(s - first) * npix..(s - first + 1) * npix];
         let section = |s: usize| ImageF32 {
             width: self.width,
             height: self.height,
-            data: of(s).to_vec(),
+            data: copies::to_vec(of(s), split),
         };
-        let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan);
+        let bytes =
+            |s: usize, nan: u8| copies::to_bytes(of(s), split, |v, o| floats_to_u8(v, nan, o));
         crate::sweep::DepthMaps {
             depth_m: section(MAP_DEPTH),
             depth_raw_m: if diagnostics {
@@ -707,6 +711,7 @@ crate::simd::vectorised_fn! {
 }
 
 /// A map of small integers held as floats, as bytes (`v as u8`; a NaN `nan`).
+#[cfg(test)]
 fn bytes_of_floats(values: &[f32], nan: u8) -> Vec<u8> {
     let mut out = vec![0u8; values.len()];
     floats_to_u8(values, nan, &mut out);

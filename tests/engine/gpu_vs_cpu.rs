@@ -1379,6 +1379,67 @@ fn uploads_reuse_one_staging_buffer() {
     }
 }
 
+/// The host's copies split over threads (`HostCopies::Parallel`: the images into the staging
+/// buffer in pieces, each mapped on its own; the maps out of the readback in pieces) change no
+/// bit of any map, and still go through the one staging buffer: a set of 3.7 MB of images (four
+/// pieces) and every map section (diagnostics on), two sets of other images in turn.
+#[test]
+fn split_host_copies_change_no_bit() {
+    use sweepdepth::sweep::gpu::HostCopies;
+    let model = CameraModel::pinhole(synthetic::intrinsics(640, 480));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let near = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let far = Scene::wall_and_box(4.0, Some((2.4, 0.3)), model.intrinsics.fx_px);
+    let (near, far) = (
+        synthetic::render_rig(&near, &rig),
+        synthetic::render_rig(&far, &rig),
+    );
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 16,
+        optimizer: Optimizer::Wta,
+        ..SweepParams::default()
+    };
+    let gpu = common::gpu();
+    let mut runs = Vec::new();
+    for copies in [HostCopies::Serial, HostCopies::Parallel] {
+        let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+        engine.set_host_copies(copies);
+        let mut sets = Vec::new();
+        for (set, images) in [&near, &far].into_iter().enumerate() {
+            let maps = engine.run(&rig, images, &params).expect("run");
+            let counts = engine.take_set_counts();
+            assert_eq!(
+                counts.staging_buffers,
+                u32::from(set == 0),
+                "{copies:?}: {counts:?}"
+            );
+            let floats = [
+                &maps.depth_m,
+                &maps.depth_raw_m,
+                &maps.confidence,
+                &maps.cost,
+            ];
+            let mut bits: Vec<u32> = floats
+                .iter()
+                .flat_map(|m| m.data.iter().map(|v| v.to_bits()))
+                .collect();
+            bits.extend(
+                maps.selection
+                    .iter()
+                    .chain(&maps.visible_cameras)
+                    .map(|&b| u32::from(b)),
+            );
+            assert_eq!(bits.len(), 307_200 * 6, "{copies:?}: every map");
+            sets.push(bits);
+        }
+        assert!(sets[0] != sets[1], "{copies:?}: other images, other maps");
+        runs.push(sets);
+    }
+    assert!(runs[0] == runs[1], "split copies changed the maps");
+}
+
 /// Without the diagnostic maps (the node's, `bag`'s and `bench`'s engine), a frame set's
 /// published maps are the same, and the raw depth and the visible cameras come back empty.
 #[test]

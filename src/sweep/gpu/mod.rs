@@ -10,14 +10,16 @@
 //!   SGM row bands; limits checked).
 //! - `pipelines.rs`: layouts, modules and specialised pipelines from the registry.
 //! - `buffers.rs`: the buffers of a shape, bind groups by binding name, the plan's upload.
-//! - `pyramid.rs`: the frame set's images on the device (uploaded once, halved there for the
-//!   levels of coarse to fine, copied into a level's `images` buffer).
+//! - `pyramid.rs`: the frame set's images on the device (uploaded once, a pair's prefiltered
+//!   and halved there for coarse to fine, copied into a level's `images` buffer).
 //! - `record.rs`: recording the census, the schedule, the submission, the readback and
 //!   per-phase timestamps.
 //! - `upload.rs`: the set's uploads (images, plane ranges) through one staging buffer kept from
 //!   set to set, mapped again right after each submission.
+//! - `copies.rs`: those copies and the maps' unpacking split over threads (`HostCopies`).
 
 mod buffers;
+pub(crate) mod copies;
 mod pipelines;
 mod pyramid;
 mod record;
@@ -37,6 +39,7 @@ use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 use buffers::{Alignments, Buffers};
+pub use copies::HostCopies;
 pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use pyramid::Pyramid;
@@ -135,6 +138,8 @@ pub struct GpuEngine {
     uploads: upload::Uploads,
     /// Whether `run` unpacks the maps no output publishes (`depth_raw_m`, `visible_cameras`).
     diagnostics: bool,
+    /// Whether the images' and the maps' host copies run on several threads.
+    host_copies: HostCopies,
     timings: StageTimings,
     cancel: CancelFlag,
     counts: SetCounts,
@@ -208,10 +213,16 @@ impl GpuEngine {
             open: None,
             uploads: upload::Uploads::new(),
             diagnostics: true,
+            host_copies: HostCopies::Auto,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
             counts: SetCounts::default(),
         })
+    }
+
+    /// Whether the host copies of the images and the maps run on several threads (`copies.rs`).
+    pub fn set_host_copies(&mut self, copies: HostCopies) {
+        self.host_copies = copies;
     }
 
     /// Path lines per workgroup of the subgroup SGM instead of the adapter's default (tests and
@@ -357,9 +368,9 @@ impl GpuEngine {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
             let diagnostics = engine.diagnostics;
             let sections = SweepPlan::unpacked_sections(diagnostics);
-            let first = sections.start;
+            let (first, copies) = (sections.start, engine.host_copies);
             engine.finish_set(sections, |m| {
-                plan.unpack_map_sections(m, first, diagnostics)
+                plan.unpack_map_sections(m, first, diagnostics, copies.split(m.len() * 4))
             })
         })
     }
@@ -580,8 +591,9 @@ impl GpuEngine {
             (true, Some(_)) => {}
             (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
         }
+        let copies = self.host_copies;
         self.uploads
-            .write(&self.device, &self.queue, encoder, &parts);
+            .write(&self.device, &self.queue, encoder, &parts, copies);
         drop(parts);
         match (narrowed, open.levels.last()) {
             (false, _) => {}
@@ -755,9 +767,9 @@ impl super::coarse::PlanRunner for GpuEngine {
         self.record_level(plan, rig, images, narrowed)?;
         let diagnostics = self.diagnostics;
         let sections = SweepPlan::unpacked_sections(diagnostics);
-        let first = sections.start;
+        let (first, copies) = (sections.start, self.host_copies);
         self.finish_set(sections, |m| {
-            plan.unpack_map_sections(m, first, diagnostics)
+            plan.unpack_map_sections(m, first, diagnostics, copies.split(m.len() * 4))
         })
     }
 

@@ -9,6 +9,10 @@
 
 use std::sync::mpsc;
 
+use rayon::prelude::*;
+
+use super::copies::{HostCopies, PIECE};
+
 /// One write: `data` at `offset` bytes into `target`.
 pub(super) struct Part<'a> {
     pub target: &'a wgpu::Buffer,
@@ -59,6 +63,7 @@ impl Uploads {
         queue: &wgpu::Queue,
         encoder: &mut wgpu::CommandEncoder,
         parts: &[Part<'_>],
+        copies: HostCopies,
     ) {
         let bytes: u64 = parts.iter().map(padded).sum();
         if bytes == 0 {
@@ -66,19 +71,11 @@ impl Uploads {
         }
         let written = match (self.room(device, bytes), &mut self.staging) {
             (Some(at), Some((staging, State::Mapped { cursor }))) => {
-                match staging.get_mapped_range_mut(at..at + bytes) {
-                    Ok(mut view) => {
-                        let mut to = 0;
-                        for part in parts {
-                            let len = part.data.len();
-                            view.slice(to..to + len).copy_from_slice(part.data);
-                            to += padded(part) as usize;
-                        }
-                        *cursor = at + bytes;
-                        Some((staging, at))
-                    }
-                    Err(_) => None,
-                }
+                let split = copies.split(bytes as usize);
+                write_pieces(staging, at, bytes, parts, split).then(|| {
+                    *cursor = at + bytes;
+                    (&*staging, at)
+                })
             }
             _ => None,
         };
@@ -116,7 +113,8 @@ impl Uploads {
         }
     }
 
-    /// Where `bytes` more go in the mapped staging buffer (None: it is not mapped yet). With
+    /// Where `bytes` more go in the mapped staging buffer (None: it is not mapped yet), at a
+    /// multiple of `wgpu::MAP_ALIGNMENT` (where a mapped range may start). With
     /// nothing of it written in this set, one that is too small, failed to map or is missing
     /// is made anew, mapped.
     fn room(&mut self, device: &wgpu::Device, bytes: u64) -> Option<u64> {
@@ -143,8 +141,10 @@ impl Uploads {
             }
         }
         match &mut self.staging {
-            Some((buffer, State::Mapped { cursor })) if *cursor + bytes <= buffer.size() => {
-                return Some(*cursor)
+            Some((buffer, State::Mapped { cursor }))
+                if cursor.next_multiple_of(wgpu::MAP_ALIGNMENT) + bytes <= buffer.size() =>
+            {
+                return Some(cursor.next_multiple_of(wgpu::MAP_ALIGNMENT))
             }
             // Copies from it are recorded already: it stays.
             Some((_, State::Mapped { cursor })) if *cursor > 0 => return None,
@@ -202,5 +202,50 @@ impl Uploads {
         if let Some((_, State::Mapped { cursor })) = &mut self.staging {
             *cursor = 0;
         }
+    }
+}
+
+/// Writes `parts` (each at its padded place from `at`, `bytes` in all) into the mapped
+/// `staging`: in one mapped range, or (`split`) in `PIECE`s on rayon's threads, each piece
+/// mapped on its own. False where a range could not be mapped (nothing recorded: the caller
+/// writes the parts another way).
+fn write_pieces(
+    staging: &wgpu::Buffer,
+    at: u64,
+    bytes: u64,
+    parts: &[Part<'_>],
+    split: bool,
+) -> bool {
+    let starts: Vec<u64> = parts
+        .iter()
+        .scan(0, |next, part| {
+            let start = *next;
+            *next += padded(part);
+            Some(start)
+        })
+        .collect();
+    // The bytes [from, to) of the parts, into a range mapped from `from`.
+    let piece = |(from, to): (u64, u64)| match staging.get_mapped_range_mut(at + from..at + to) {
+        Ok(mut view) => {
+            for (part, &start) in parts.iter().zip(&starts) {
+                let end = start + part.data.len() as u64;
+                let (a, b) = (start.max(from), end.min(to));
+                if a < b {
+                    view.slice((a - from) as usize..(b - from) as usize)
+                        .copy_from_slice(&part.data[(a - start) as usize..(b - start) as usize]);
+                }
+            }
+            true
+        }
+        Err(_) => false,
+    };
+    if split {
+        let pieces: Vec<(u64, u64)> = (0..bytes)
+            .step_by(PIECE)
+            .map(|from| (from, (from + PIECE as u64).min(bytes)))
+            .collect();
+        pieces.into_par_iter().all(piece)
+    } else {
+        piece((0, bytes))
     }
 }
