@@ -1329,14 +1329,10 @@ fn coarse_to_fine_is_one_submission_per_set() {
     }
 }
 
-/// The uploads (the caller's images, a level's plane ranges) go through one staging buffer
-/// kept from set to set (issue 35): the first set makes it, no later set makes any (wgpu's
-/// `Queue::write_buffer` made one per image and set), and each set sees its own images: a set
-/// of other images in between does not change the maps of the same images run again, one
-/// level or coarse to fine.
-#[test]
-fn uploads_reuse_one_staging_buffer() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
+/// A row of 3 cameras of `width` x `height` (the middle one the reference) and its images of
+/// two scenes: a wall and a box near, and farther.
+fn near_and_far(width: u32, height: u32) -> (Rig, Vec<Rgba8Image>, Vec<Rgba8Image>) {
+    let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let near = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
     let far = Scene::wall_and_box(4.0, Some((2.4, 0.3)), model.intrinsics.fx_px);
@@ -1344,6 +1340,17 @@ fn uploads_reuse_one_staging_buffer() {
         synthetic::render_rig(&near, &rig),
         synthetic::render_rig(&far, &rig),
     );
+    (rig, near, far)
+}
+
+/// The uploads (the caller's images, a level's plane ranges) go through one staging buffer
+/// kept from set to set (issue 35): the first set makes it, no later set makes any (wgpu's
+/// `Queue::write_buffer` made one per image and set), and each set sees its own images: a set
+/// of other images in between does not change the maps of the same images run again, one
+/// level or coarse to fine.
+#[test]
+fn uploads_reuse_one_staging_buffer() {
+    let (rig, near, far) = near_and_far(320, 240);
     let bits = |maps: &sweepdepth::sweep::DepthMaps| {
         maps.depth_m
             .data
@@ -1386,14 +1393,7 @@ fn uploads_reuse_one_staging_buffer() {
 #[test]
 fn split_host_copies_change_no_bit() {
     use sweepdepth::sweep::gpu::HostCopies;
-    let model = CameraModel::pinhole(synthetic::intrinsics(640, 480));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let near = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
-    let far = Scene::wall_and_box(4.0, Some((2.4, 0.3)), model.intrinsics.fx_px);
-    let (near, far) = (
-        synthetic::render_rig(&near, &rig),
-        synthetic::render_rig(&far, &rig),
-    );
+    let (rig, near, far) = near_and_far(640, 480);
     let params = SweepParams {
         min_depth_m: 1.0,
         max_depth_m: 5.0,
@@ -1544,24 +1544,15 @@ fn plane_ranges_on_the_device_equal_the_host_twin() {
     }
 }
 
-/// Pseudo-random RGBA pixels (every byte value, so both roundings of (sum + 2) / 4 and every
-/// grey comparison of the census occur), deterministic per seed.
-fn noise_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
-    let mut state = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+/// Each camera's image of the rig, `pixel(x, y)` row by row, camera after camera.
+fn images_of(rig: &Rig, mut pixel: impl FnMut(u32, u32) -> u32) -> Vec<Rgba8Image> {
     rig.cameras
         .iter()
         .map(|camera| {
             let k = camera.model.intrinsics;
-            let pixels = (0..k.width_px * k.height_px)
-                .map(|_| {
-                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                    // Flat patches now and then: equal greys (no bit) occur too.
-                    if state >> 28 == 0 {
-                        0x8080_8080
-                    } else {
-                        state ^ (state >> 15)
-                    }
-                })
+            let pixels = (0..k.height_px)
+                .flat_map(|y| (0..k.width_px).map(move |x| (x, y)))
+                .map(|(x, y)| pixel(x, y))
                 .collect();
             Rgba8Image {
                 width: k.width_px,
@@ -1570,6 +1561,36 @@ fn noise_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
             }
         })
         .collect()
+}
+
+/// Pseudo-random RGBA pixels (every byte value, so both roundings of (sum + 2) / 4 and every
+/// grey comparison of the census occur), deterministic per seed.
+fn noise_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
+    let mut state = seed.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    images_of(rig, |_, _| {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        // Flat patches now and then: equal greys (no bit) occur too.
+        if state >> 28 == 0 {
+            0x8080_8080
+        } else {
+            state ^ (state >> 15)
+        }
+    })
+}
+
+/// What a census cost's `images` buffer holds: every camera's pixels, then every camera's
+/// census words (`sweep/census.rs`).
+fn pixels_and_census(images: &[Rgba8Image]) -> Vec<u32> {
+    let mut words: Vec<u32> = images.iter().flat_map(|i| i.pixels.clone()).collect();
+    for image in images {
+        sweepdepth::sweep::census::transform(
+            image.width as usize,
+            image.height as usize,
+            &image.pixels,
+            &mut words,
+        );
+    }
+    words
 }
 
 /// The census stage (`shaders/census.wgsl`) writes, after every camera's pixels in `images`,
@@ -1595,16 +1616,8 @@ fn census_on_the_gpu_equals_the_cpu_twin() {
             let plan = SweepPlan::new(&rig, &params).expect("plan");
             engine.run_plan_raw(&plan, &rig, &images).expect("gpu run");
             let words = engine.device_images().expect("images read back");
-            let mut expected: Vec<u32> = images.iter().flat_map(|i| i.pixels.clone()).collect();
-            assert_eq!(expected.len(), plan.total_camera_pixels);
-            for image in &images {
-                sweepdepth::sweep::census::transform(
-                    image.width as usize,
-                    image.height as usize,
-                    &image.pixels,
-                    &mut expected,
-                );
-            }
+            let expected = pixels_and_census(&images);
+            assert_eq!(expected.len(), 2 * plan.total_camera_pixels);
             assert_eq!(plan.params.census_offset as usize, plan.total_camera_pixels);
             let differ = words.iter().zip(&expected).filter(|(a, b)| a != b).count();
             assert_eq!(
@@ -1613,6 +1626,35 @@ fn census_on_the_gpu_equals_the_cpu_twin() {
                 "{width}x{height} {cost:?}"
             );
         }
+    }
+}
+
+/// Coarse to fine in three levels on a 642x330 rig (96 planes, census, winner-take-all).
+fn three_levels() -> SweepParams {
+    SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        cost: Cost::Census,
+        optimizer: Optimizer::Wta,
+        ..SweepParams::default()
+    }
+}
+
+/// The engine's image pyramid after its last `run`: level 0 `full`, each level below the
+/// host's `coarse::half_image` of the one above, bit for bit.
+fn assert_pyramid(engine: &mut GpuEngine, full: Vec<Rgba8Image>, levels: usize) {
+    let mut expected = full;
+    for level in 0..levels {
+        let words = engine.device_image_level(level).expect("level read back");
+        let packed: Vec<u32> = expected.iter().flat_map(|i| i.pixels.clone()).collect();
+        let differ = words.iter().zip(&packed).filter(|(a, b)| a != b).count();
+        assert_eq!((words.len(), differ), (packed.len(), 0), "level {level}");
+        expected = expected
+            .iter()
+            .map(sweepdepth::sweep::coarse::half_image)
+            .collect();
     }
 }
 
@@ -1626,15 +1668,7 @@ fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
     // A camera of another (odd) size: 643x331 -> 321x165 -> 160x82.
     rig.cameras[2].model = CameraModel::pinhole(synthetic::intrinsics(643, 331));
     let images = noise_images(&rig, 7);
-    let params = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 5.0,
-        num_planes: 96,
-        coarse_to_fine: true,
-        cost: Cost::Census,
-        optimizer: Optimizer::Wta,
-        ..SweepParams::default()
-    };
+    let params = three_levels();
     let levels = sweepdepth::sweep::coarse::levels(&rig, &params);
     assert_eq!(levels, 3);
     let gpu = common::gpu();
@@ -1651,28 +1685,10 @@ fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
         (3, 1, 1, 1),
         "{counts:?}"
     );
-    let mut expected = images.clone();
-    for level in 0..levels {
-        let words = engine.device_image_level(level).expect("level read back");
-        let packed: Vec<u32> = expected.iter().flat_map(|i| i.pixels.clone()).collect();
-        let differ = words.iter().zip(&packed).filter(|(a, b)| a != b).count();
-        assert_eq!((words.len(), differ), (packed.len(), 0), "level {level}");
-        expected = expected
-            .iter()
-            .map(sweepdepth::sweep::coarse::half_image)
-            .collect();
-    }
+    assert_pyramid(&mut engine, images.clone(), levels);
     // The full-resolution level's `images` buffer: the caller's pixels, then their census.
     let words = engine.device_images().expect("images read back");
-    let mut packed: Vec<u32> = images.iter().flat_map(|i| i.pixels.clone()).collect();
-    for image in &images {
-        sweepdepth::sweep::census::transform(
-            image.width as usize,
-            image.height as usize,
-            &image.pixels,
-            &mut packed,
-        );
-    }
+    let packed = pixels_and_census(&images);
     assert!(words == packed, "the full-resolution images and census");
 }
 
@@ -1680,26 +1696,12 @@ fn half_size_images_on_the_gpu_equal_the_cpu_twin() {
 /// noise images saturate it), both roundings of its byte.
 fn ramp_images(rig: &Rig, seed: u32) -> Vec<Rgba8Image> {
     let mut state = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
-    rig.cameras
-        .iter()
-        .map(|camera| {
-            let k = camera.model.intrinsics;
-            let pixels = (0..k.height_px)
-                .flat_map(|y| (0..k.width_px).map(move |x| (x, y)))
-                .map(|(x, y)| {
-                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-                    let n = state >> 28;
-                    let c = |o: u32| ((x * 3 + y * 2 + o + n) & 0xff) as u8;
-                    Rgba8Image::pack(c(0), c(40), c(90))
-                })
-                .collect();
-            Rgba8Image {
-                width: k.width_px,
-                height: k.height_px,
-                pixels,
-            }
-        })
-        .collect()
+    images_of(rig, |x, y| {
+        state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let n = state >> 28;
+        let c = |o: u32| ((x * 3 + y * 2 + o + n) & 0xff) as u8;
+        Rgba8Image::pack(c(0), c(40), c(90))
+    })
 }
 
 /// A pair's matching images (issue 52's prefilter) are made on the device
@@ -1739,15 +1741,7 @@ fn prefiltered_images_on_the_gpu_equal_the_cpu_twin() {
             engine.run_plan_raw(&plan, &rig, images).expect("gpu run");
             let words = engine.device_images().expect("images read back");
             let filtered: Vec<Rgba8Image> = images.iter().map(gradient).collect();
-            let mut expected: Vec<u32> = filtered.iter().flat_map(|i| i.pixels.clone()).collect();
-            for image in &filtered {
-                sweepdepth::sweep::census::transform(
-                    image.width as usize,
-                    image.height as usize,
-                    &image.pixels,
-                    &mut expected,
-                );
-            }
+            let expected = pixels_and_census(&filtered);
             let differ = words.iter().zip(&expected).filter(|(a, b)| a != b).count();
             assert_eq!(
                 (words.len(), differ),
@@ -1759,34 +1753,17 @@ fn prefiltered_images_on_the_gpu_equal_the_cpu_twin() {
     // Coarse to fine: 3 levels, two frame sets.
     let model = CameraModel::pinhole(synthetic::intrinsics(642, 330));
     let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
-    let params = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 5.0,
-        num_planes: 96,
-        coarse_to_fine: true,
-        cost: Cost::Census,
-        optimizer: Optimizer::Wta,
-        ..SweepParams::default()
-    };
+    let params = three_levels();
     let levels = sweepdepth::sweep::coarse::levels(&rig, &params);
     assert_eq!(levels, 3);
     for images in [ramp_images(&rig, 9), noise_images(&rig, 11)] {
         engine.run(&rig, &images, &params).expect("run");
-        let mut expected: Vec<Rgba8Image> = images.iter().map(gradient).collect();
+        let expected: Vec<Rgba8Image> = images.iter().map(gradient).collect();
         assert!(expected
             .iter()
             .zip(&images)
             .any(|(e, i)| e.pixels != i.pixels));
-        for level in 0..levels {
-            let words = engine.device_image_level(level).expect("level read back");
-            let packed: Vec<u32> = expected.iter().flat_map(|i| i.pixels.clone()).collect();
-            let differ = words.iter().zip(&packed).filter(|(a, b)| a != b).count();
-            assert_eq!((words.len(), differ), (packed.len(), 0), "level {level}");
-            expected = expected
-                .iter()
-                .map(sweepdepth::sweep::coarse::half_image)
-                .collect();
-        }
+        assert_pyramid(&mut engine, expected, levels);
     }
     // The sweep of a pair on them: the CPU engine's maps (prefiltered on the host).
     let model = CameraModel::pinhole(synthetic::intrinsics(96, 72));

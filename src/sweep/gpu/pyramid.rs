@@ -15,18 +15,84 @@ use super::record::tiles_of;
 use super::upload::Part;
 use crate::image::Rgba8Image;
 
-/// WGSL `Halving` (`shaders/half.wgsl`): the camera count, then per camera the finer level's
-/// width and height, its word of pixel (0, 0) and the coarser level's.
-const HALVING_BYTES: u64 = 16 + 16 * MAX_RIG_CAMERAS as u64;
+/// The uniform block of a pass over one level's cameras, WGSL `Halving` (`shaders/half.wgsl`)
+/// and `PrefilterCameras` (`shaders/prefilter.wgsl`): the camera count (and, for the prefilter,
+/// the scale's bits), then per camera its width and height, its word of pixel (0, 0) in the
+/// buffer read and in the buffer written.
+const PASS_BYTES: u64 = 16 + 16 * MAX_RIG_CAMERAS as u64;
+
+/// A pass over one level's cameras (`half`, `prefilter`): one invocation per texel of the
+/// widest and tallest camera, the cameras in z.
+struct CameraPass {
+    group: wgpu::BindGroup,
+    workgroups: (u32, u32, u32),
+    /// The uniform block (kept alive with its bind group).
+    _uniform: wgpu::Buffer,
+}
+
+impl CameraPass {
+    /// `head`: the block's first two words after the camera count; `cameras`: per camera its
+    /// width, height and words of pixel (0, 0) in `from` and in `to`.
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        layout: &wgpu::BindGroupLayout,
+        label: &'static str,
+        head: u32,
+        cameras: &[[u32; 4]],
+        from: &wgpu::Buffer,
+        to: &wgpu::Buffer,
+    ) -> Self {
+        let mut block = vec![0u32; (PASS_BYTES / 4) as usize];
+        block[0] = cameras.len() as u32;
+        block[1] = head;
+        for (c, camera) in cameras.iter().enumerate() {
+            block[4 + 4 * c..8 + 4 * c].copy_from_slice(camera);
+        }
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: PASS_BYTES,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        queue.write_buffer(&uniform, 0, bytemuck::cast_slice(&block));
+        fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+            wgpu::BindGroupEntry {
+                binding,
+                resource: buffer.as_entire_binding(),
+            }
+        }
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &[entry(0, &uniform), entry(1, from), entry(2, to)],
+        });
+        let widest = cameras.iter().map(|c| c[0]).max().unwrap_or(0);
+        let tallest = cameras.iter().map(|c| c[1]).max().unwrap_or(0);
+        let (x, y, _) = tiles_of(widest, tallest);
+        Self {
+            group,
+            workgroups: (x, y, cameras.len() as u32),
+            _uniform: uniform,
+        }
+    }
+
+    /// Records the pass into `pass`.
+    fn dispatch(&self, pass: &mut wgpu::ComputePass<'_>) {
+        let (x, y, z) = self.workgroups;
+        pass.set_bind_group(0, &self.group, &[]);
+        pass.dispatch_workgroups(x, y, z);
+    }
+}
 
 /// One level: each camera's size and word of pixel (0, 0), and the buffer holding them.
 struct Level {
     sizes: Vec<[u32; 2]>,
     offsets: Vec<u32>,
     buffer: wgpu::Buffer,
-    /// How this level is made from the one above (None for level 0): its `half` bind group
-    /// and workgroups.
-    made: Option<(wgpu::BindGroup, (u32, u32, u32))>,
+    /// How this level is made from the one above (None for level 0): its `half` pass.
+    made: Option<CameraPass>,
 }
 
 impl Level {
@@ -38,25 +104,16 @@ impl Level {
     }
 }
 
-/// WGSL `PrefilterCameras` (`shaders/prefilter.wgsl`): the camera count and the scale's bits,
-/// then per camera its width, height and word of pixel (0, 0) in `raw` and in level 0.
-const PREFILTER_BYTES: u64 = 16 + 16 * MAX_RIG_CAMERAS as u64;
-
 /// The caller's images before the prefilter, and the `prefilter` pass that makes level 0 from
 /// them.
 struct Raw {
     buffer: wgpu::Buffer,
-    group: wgpu::BindGroup,
-    workgroups: (u32, u32, u32),
-    /// The uniform block (kept alive with its bind group).
-    _uniform: wgpu::Buffer,
+    pass: CameraPass,
 }
 
 /// The levels of one rig's image sizes, 0 (full resolution) to `depth`.
 pub(super) struct Pyramid {
     levels: Vec<Level>,
-    /// The uniform blocks of the halvings (kept alive with their bind groups).
-    _halvings: Vec<wgpu::Buffer>,
     /// Made at the first prefiltered frame set.
     raw: Option<Raw>,
 }
@@ -100,7 +157,6 @@ impl Pyramid {
         };
         let mut sizes: Vec<[u32; 2]> = images.iter().map(|i| [i.width, i.height]).collect();
         let mut levels: Vec<Level> = Vec::with_capacity(depth + 1);
-        let mut halvings = Vec::with_capacity(depth);
         let first_offsets = offsets(&sizes);
         let first_words = sizes
             .iter()
@@ -118,63 +174,36 @@ impl Pyramid {
                 .ok_or_else(|| SweepError::Gpu("internal: no level".into()))?;
             sizes = sizes.iter().map(|[w, h]| [w / 2, h / 2]).collect();
             let coarse_offsets = offsets(&sizes);
-            let mut block = vec![0u32; (HALVING_BYTES / 4) as usize];
-            block[0] = images.len() as u32;
-            for (c, (([w, h], at), coarse_at)) in finer
+            let cameras: Vec<[u32; 4]> = finer
                 .sizes
                 .iter()
                 .zip(&finer.offsets)
                 .zip(&coarse_offsets)
-                .enumerate()
-            {
-                block[4 + 4 * c..8 + 4 * c].copy_from_slice(&[*w, *h, *at, *coarse_at]);
-            }
-            let uniform = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("halving"),
-                size: HALVING_BYTES,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            queue.write_buffer(&uniform, 0, bytemuck::cast_slice(&block));
+                .map(|(([w, h], at), coarse_at)| [*w, *h, *at, *coarse_at])
+                .collect();
             let words: u64 = sizes
                 .iter()
                 .map(|[w, h]| u64::from(*w) * u64::from(*h))
                 .sum();
             let coarser = buffer(words);
-            let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("half"),
-                layout: half_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: uniform.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: finer.buffer.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: coarser.as_entire_binding(),
-                    },
-                ],
-            });
-            let widest = sizes.iter().map(|s| s[0]).max().unwrap_or(0);
-            let tallest = sizes.iter().map(|s| s[1]).max().unwrap_or(0);
-            let (x, y, _) = tiles_of(widest, tallest);
+            let half = CameraPass::new(
+                device,
+                queue,
+                half_layout,
+                "half",
+                0,
+                &cameras,
+                &finer.buffer,
+                &coarser,
+            );
             levels.push(Level {
                 offsets: coarse_offsets,
                 sizes: sizes.clone(),
                 buffer: coarser,
-                made: Some((group, (x, y, images.len() as u32))),
+                made: Some(half),
             });
-            halvings.push(uniform);
         }
-        Ok(Self {
-            levels,
-            _halvings: halvings,
-            raw: None,
-        })
+        Ok(Self { levels, raw: None })
     }
 
     /// Makes the buffer of the caller's images before the prefilter and the `prefilter` pass
@@ -195,46 +224,23 @@ impl Pyramid {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let mut block = vec![0u32; (PREFILTER_BYTES / 4) as usize];
-        block[0] = level.sizes.len() as u32;
-        block[1] = (super::super::prefilter::SCALE / 256.0).to_bits();
-        for (c, ([w, h], at)) in level.sizes.iter().zip(&level.offsets).enumerate() {
-            block[4 + 4 * c..8 + 4 * c].copy_from_slice(&[*w, *h, *at, *at]);
-        }
-        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("prefilter"),
-            size: PREFILTER_BYTES,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        queue.write_buffer(&uniform, 0, bytemuck::cast_slice(&block));
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("prefilter"),
+        let cameras: Vec<[u32; 4]> = level
+            .sizes
+            .iter()
+            .zip(&level.offsets)
+            .map(|([w, h], at)| [*w, *h, *at, *at])
+            .collect();
+        let pass = CameraPass::new(
+            device,
+            queue,
             layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: uniform.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: buffer.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: level.buffer.as_entire_binding(),
-                },
-            ],
-        });
-        let widest = level.sizes.iter().map(|s| s[0]).max().unwrap_or(0);
-        let tallest = level.sizes.iter().map(|s| s[1]).max().unwrap_or(0);
-        let (x, y, _) = tiles_of(widest, tallest);
-        self.raw = Some(Raw {
-            buffer,
-            group,
-            workgroups: (x, y, level.sizes.len() as u32),
-            _uniform: uniform,
-        });
+            "prefilter",
+            (super::super::prefilter::SCALE / 256.0).to_bits(),
+            &cameras,
+            &buffer,
+            &level.buffer,
+        );
+        self.raw = Some(Raw { buffer, pass });
     }
 
     /// Records level 0 made from the caller's images in `raw` (`ensure_raw` first).
@@ -252,9 +258,7 @@ impl Pyramid {
             timestamp_writes: None,
         });
         pass.set_pipeline(prefilter);
-        pass.set_bind_group(0, &raw.group, &[]);
-        let (x, y, z) = raw.workgroups;
-        pass.dispatch_workgroups(x, y, z);
+        raw.pass.dispatch(&mut pass);
         Ok(())
     }
 
@@ -309,9 +313,8 @@ impl Pyramid {
         });
         pass.set_pipeline(half);
         for level in self.levels.iter().take(depth + 1) {
-            if let Some((group, (x, y, z))) = &level.made {
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(*x, *y, *z);
+            if let Some(half) = &level.made {
+                half.dispatch(&mut pass);
             }
         }
     }
