@@ -643,8 +643,7 @@ impl SweepPlan {
             height: self.height,
             data: copies::to_vec(of(s), split),
         };
-        let bytes =
-            |s: usize, nan: u8| copies::to_bytes(of(s), split, |v, o| floats_to_u8(v, nan, o));
+        let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan, split);
         crate::sweep::DepthMaps {
             depth_m: section(MAP_DEPTH),
             depth_raw_m: if diagnostics {
@@ -710,12 +709,10 @@ crate::simd::vectorised_fn! {
     }
 }
 
-/// A map of small integers held as floats, as bytes (`v as u8`; a NaN `nan`).
-#[cfg(test)]
-fn bytes_of_floats(values: &[f32], nan: u8) -> Vec<u8> {
-    let mut out = vec![0u8; values.len()];
-    floats_to_u8(values, nan, &mut out);
-    out
+/// A map of small integers held as floats, as bytes (`v as u8`; a NaN `nan`), on rayon's
+/// threads with `split` (`gpu::HostCopies`).
+fn bytes_of_floats(values: &[f32], nan: u8, split: bool) -> Vec<u8> {
+    super::gpu::copies::to_bytes(values, split, |v, o| floats_to_u8(v, nan, o))
 }
 
 /// Per (row, tile) of `ranges` (`tiles` per row): its own range and the hull of the ranges of
@@ -784,11 +781,13 @@ mod float_to_u8_tests {
         ];
         values.extend((0..5000).map(|i| i as f32 * 0.0731 - 20.0));
         let expected: Vec<u8> = values.iter().map(|&v| v as u8).collect();
-        assert_eq!(super::bytes_of_floats(&values, 0), expected);
+        for split in [false, true] {
+            assert_eq!(super::bytes_of_floats(&values, 0, split), expected);
+        }
         let each: Vec<u8> = values.iter().map(|&v| super::float_to_u8(v)).collect();
         assert_eq!(each, expected);
         let visible: Vec<u8> = values.iter().map(|&v| v.min(255.0) as u8).collect();
-        assert_eq!(super::bytes_of_floats(&values, 255), visible);
+        assert_eq!(super::bytes_of_floats(&values, 255, true), visible);
     }
 }
 
