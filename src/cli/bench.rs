@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::engine::{Device, Engine, Sweeper};
 use crate::geometry::{CameraModel, Rig};
 use crate::image::Rgba8Image;
-use crate::params::EngineOptions;
+use crate::params::{EngineOptions, ParamValue};
 use crate::sweep::{Cost, Optimizer, Prefilter, Scoring, SweepParams, WindowMode};
 use crate::synthetic::{self, Scene};
 
@@ -319,6 +319,46 @@ fn time_runs(
     Ok((median(frame_ms), stages, host))
 }
 
+/// The configurations `names` ask for (all, or with `quick` the paper's and the demo's), each
+/// with `--planes`' planes where it is given (the engines' and the peer's disparities).
+fn selected_configs(
+    names: &[String],
+    quick: bool,
+    options: &EngineOptions,
+) -> anyhow::Result<Vec<BenchConfig>> {
+    if let Some(unknown) = names
+        .iter()
+        .find(|n| !CONFIGS.iter().any(|c| c.name == n.as_str()))
+    {
+        let known: Vec<&str> = CONFIGS.iter().map(|c| c.name).collect();
+        anyhow::bail!(
+            "unknown bench configuration '{unknown}' (known: {})",
+            known.join(", ")
+        );
+    }
+    let planes = planes_override(options);
+    Ok(CONFIGS
+        .iter()
+        .filter(|c| !quick || matches!(c.name, "paper" | "demo"))
+        .filter(|c| names.is_empty() || names.iter().any(|n| n == c.name))
+        .map(|c| BenchConfig {
+            planes: planes.unwrap_or(c.planes),
+            ..*c
+        })
+        .collect())
+}
+
+/// The planes `--planes` asks for (None: each configuration's own).
+fn planes_override(options: &EngineOptions) -> Option<u32> {
+    options
+        .values()
+        .iter()
+        .find_map(|(name, value)| match value {
+            ParamValue::Int(n) if *name == "num_planes" => u32::try_from(*n).ok(),
+            _ => None,
+        })
+}
+
 /// Runs one configuration on one engine: winner-take-all, then SGM (the ratios to the peer
 /// are left to the caller, which times the peer beside it).
 pub fn run_config(
@@ -490,22 +530,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Err(e) => return Err(e.into()),
         }
     }
-    if let Some(unknown) = args
-        .configs
-        .iter()
-        .find(|n| !CONFIGS.iter().any(|c| c.name == n.as_str()))
-    {
-        let known: Vec<&str> = CONFIGS.iter().map(|c| c.name).collect();
-        anyhow::bail!(
-            "unknown bench configuration '{unknown}' (known: {})",
-            known.join(", ")
-        );
-    }
-    let configs: Vec<&BenchConfig> = CONFIGS
-        .iter()
-        .filter(|c| !args.quick || matches!(c.name, "paper" | "demo"))
-        .filter(|c| args.configs.is_empty() || args.configs.iter().any(|n| n == c.name))
-        .collect();
+    let configs = selected_configs(&args.configs, args.quick, &args.params)?;
     if !args.json {
         println!(
             "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  SGM stages (ms)",
@@ -672,5 +697,37 @@ fn truncate(s: &str, n: usize) -> String {
         s.to_string()
     } else {
         s.chars().take(n - 1).chain(std::iter::once('~')).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::{Args, Command, FromArgMatches};
+
+    fn options(args: &[&str]) -> EngineOptions {
+        let cmd = EngineOptions::augment_args(Command::new("t").no_binary_name(true));
+        let matches = cmd.try_get_matches_from(args).expect("parses");
+        EngineOptions::from_arg_matches(&matches).expect("options")
+    }
+
+    /// `--planes` is the planes of every configuration (it was overwritten by each
+    /// configuration's own); other options leave them alone.
+    #[test]
+    fn the_planes_option_sets_the_configurations_planes() {
+        assert_eq!(planes_override(&options(&["--planes", "8"])), Some(8));
+        assert_eq!(planes_override(&options(&["--tau", "30"])), None);
+        assert_eq!(planes_override(&options(&[])), None);
+        let names = ["sxga".to_string(), "demo".to_string()];
+        let eight = selected_configs(&names, false, &options(&["--planes", "8"])).expect("known");
+        assert_eq!(eight.len(), 2);
+        for config in &eight {
+            assert_eq!(config.planes, 8, "{}", config.name);
+            let params = bench_params(config, &options(&["--planes", "8"]), Optimizer::Wta);
+            assert_eq!(params.num_planes, 8);
+        }
+        let own = selected_configs(&names, false, &options(&[])).expect("known");
+        assert!(own.iter().all(|c| c.planes != 8));
+        assert!(selected_configs(&["nope".into()], false, &options(&[])).is_err());
     }
 }
