@@ -102,6 +102,9 @@ else
     # The host copies (images in, maps out) on one thread, against the default above (split
     # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar).
     step bench-gpu-host-copies-serial 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --host-copies serial
+    # Depth and confidence read back alone (the node while nobody subscribes to cost and
+    # selection): half the readback.
+    step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
 fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).

@@ -313,12 +313,12 @@ impl Engine {
         }
     }
 
-    /// Whether the WGSL engine unpacks the diagnostic maps no output publishes
-    /// (`DepthMaps::depth_raw_m`, `visible_cameras`; on by default; off, they come back
-    /// empty). The CPU engine always has them.
-    pub fn set_diagnostic_maps(&mut self, on: bool) {
+    /// The maps beyond depth and confidence the WGSL engine reads back and unpacks
+    /// (`GpuEngine::set_wanted_maps`; all by default, one left out comes back empty). The CPU
+    /// engine always makes them all.
+    pub fn set_wanted_maps(&mut self, wanted: crate::sweep::WantedMaps) {
         if let Self::Gpu { engine, .. } = self {
-            engine.set_diagnostic_maps(on);
+            engine.set_wanted_maps(wanted);
         }
     }
 

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
-use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, FusionInput, Publishers};
+use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, FusionInput, Publishers, Wanted};
 use crate::pipeline::{
     ConfigError, EngineHost, FrameMessages, HostError, Input, Job, Outcome, Output, OutputTopics,
     Pipeline, PipelineConfig, Skip,
@@ -265,9 +265,10 @@ impl Sink<'_> {
         let config = self.config;
         self.report.sets_found += 1;
         let t0 = Instant::now();
-        // The live view always shows the point cloud.
+        // Every output the bag has; the live view always shows the point cloud.
         let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
-        let result = set.and_then(|job| self.host.process(&job, &config.sweep, with_points));
+        let wanted = Wanted::all(with_points);
+        let result = set.and_then(|job| self.host.process(&job, &config.sweep, wanted));
         match result {
             Ok(set) => {
                 for skip in &set.skipped {

@@ -22,7 +22,7 @@ use crate::engine::{Device, Engine, Sweeper};
 use crate::geometry::{CameraModel, Rig};
 use crate::image::Rgba8Image;
 use crate::params::{EngineOptions, ParamValue};
-use crate::sweep::{Cost, Optimizer, Prefilter, Scoring, SweepParams, WindowMode};
+use crate::sweep::{Cost, Optimizer, Prefilter, Scoring, SweepParams, WantedMaps, WindowMode};
 use crate::synthetic::{self, Scene};
 
 mod configs;
@@ -76,6 +76,10 @@ pub struct BenchArgs {
     /// compare the two on a GPU host.
     #[arg(long, value_enum, default_value = "auto")]
     pub host_copies: crate::sweep::gpu::HostCopies,
+    /// The WGSL engine reads back depth and confidence alone, as for the node while nobody
+    /// subscribes to its cost and selection images (default: those too, as `bag` writes them).
+    #[arg(long)]
+    pub depth_only: bool,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
@@ -517,7 +521,15 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         match Engine::new(Device::Gpu) {
             Ok(mut engine) => {
                 // As the node runs it: the maps its outputs publish (issue 35).
-                engine.set_diagnostic_maps(false);
+                engine.set_wanted_maps(if args.depth_only {
+                    WantedMaps {
+                        cost: false,
+                        selection: false,
+                        diagnostics: false,
+                    }
+                } else {
+                    WantedMaps::OUTPUTS
+                });
                 if let Some(lines) = args.sgm_lines {
                     engine.set_sgm_lines(lines);
                 }

@@ -12,6 +12,7 @@ use futures::StreamExt;
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
+use super::demand::Demand;
 use super::diag::wall_time_now;
 use super::events::LoopState;
 use super::fusion_services::{diagnostic_values, FusionNode};
@@ -92,11 +93,13 @@ pub(super) fn run(
         None => None,
     };
     let fuser_thread = fusion.as_ref().map(FusionNode::worker);
+    let demand = Arc::new(Demand::new(&reference_publishers));
     publishers_tx
         .send(Outputs {
             references: reference_publishers,
             fusion: fuser_thread.clone(),
             world_frame: pipeline.world.as_ref().map(|w| w.frame.clone()),
+            demand: Arc::clone(&demand),
         })
         .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
 
@@ -148,6 +151,7 @@ pub(super) fn run(
             | futures::future::Either::Right((futures::future::Either::Right((e, _)), _)) => e,
         }
     };
+    let participant = context.domain_participant();
     let outcome = shutdown::run_until_signal(
         &mut spin,
         event_loop,
@@ -159,6 +163,7 @@ pub(super) fn run(
                 shared,
                 diag_pub,
                 fuser_thread.as_deref(),
+                (&demand, &participant),
                 &mut no_depth,
                 stop,
             )
@@ -171,12 +176,14 @@ pub(super) fn run(
     outcome
 }
 
-/// Publishes `/diagnostics` once a second until `stop` is set.
+/// Publishes `/diagnostics` once a second until `stop` is set; brings the outputs' demand up
+/// to date with discovery every time it wakes (10 times a second).
 fn publish_loop(
     config: &NodeConfig,
     shared: &Shared<'_>,
     publisher: Publisher<DiagnosticArray>,
     fusion: Option<&crate::pipeline::FuserThread>,
+    (demand, participant): (&Demand, &ros2_client::dds::rustdds::DomainParticipant),
     no_depth: &mut NoDepth<'_>,
     stop: &AtomicBool,
 ) {
@@ -184,6 +191,12 @@ fn publish_loop(
     let mut next = Instant::now() + Duration::from_secs(1);
     let mut log = RateLimited::default();
     while !stop.load(Ordering::Relaxed) {
+        if demand.refresh(participant) {
+            log_info(&format!(
+                "outputs made for their subscribers: {}",
+                demand.wanted().describe()
+            ));
+        }
         let now = Instant::now();
         if now < next {
             std::thread::sleep((next - now).min(Duration::from_millis(100)));

@@ -42,6 +42,8 @@ pub struct Stats {
     pub why: Option<String>,
     /// The engine's last skip (a set that gave no depth after the pipeline).
     pub engine_skip: Option<String>,
+    /// The outputs made on demand (`super::demand`) in the last set published.
+    pub made_on_demand: crate::pipeline::Wanted,
 }
 
 impl Stats {
@@ -61,6 +63,7 @@ impl Stats {
             world_poses: Default::default(),
             why: None,
             engine_skip: None,
+            made_on_demand: crate::pipeline::Wanted::NONE,
         }
     }
 
@@ -189,6 +192,10 @@ impl Stats {
                 .map_or("n/a".to_string(), |l| format!("{l:.3}")),
         );
         kv("gpu adapter".into(), adapter.to_string());
+        kv(
+            "outputs made on demand".into(),
+            self.made_on_demand.describe(),
+        );
         kv(
             "cameras out of the rig".into(),
             if self.inactive_cameras.is_empty() {

@@ -25,6 +25,7 @@
 
 pub mod config;
 mod dds;
+mod demand;
 pub mod diag;
 mod events;
 pub mod fuse_command;

@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use ros2_client::Publisher;
 
+use super::demand::Demand;
 use super::diag::{wall_time_now, Stats};
 use super::log::{lock, log_info, RateLimited};
 use super::params::LiveParams;
@@ -16,7 +17,7 @@ use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2};
 use crate::pipeline::{
     EngineHost, FrameMaps, FrameMessages, FuserThread, FusionInput, HostError, Job, Output,
-    OutputMsg,
+    OutputMsg, Wanted,
 };
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
@@ -56,6 +57,8 @@ pub(super) struct Outputs {
     pub fusion: Option<Arc<FuserThread>>,
     /// `world_frame` on a moving rig (fusion's map frame).
     pub world_frame: Option<String>,
+    /// Which optional outputs have subscribers (made only then).
+    pub demand: Arc<Demand>,
 }
 
 /// The running GPU thread.
@@ -127,9 +130,6 @@ fn worker_loop(
     let publishers = &outputs.references;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;
-    let wants_points = publishers
-        .iter()
-        .any(|p| p.outputs.iter().any(|(o, ..)| *o == Output::Points));
     while let Some(job) = slot.take() {
         let started = Instant::now();
         if let Some(image) = job.images.get(job.anchor()) {
@@ -143,9 +143,14 @@ fn worker_loop(
         }
         // Parameter changes apply from the next set on.
         let sweep = live.sweep();
-        // A subscribed viewer shows the point cloud even when DDS does not carry it.
-        let with_points = wants_points || viewer.is_some_and(Viewer::wants_points);
-        let set = match host.process(&job, &sweep, with_points) {
+        // The outputs with subscribers; a subscribed viewer shows them all (the point cloud
+        // even when DDS does not carry it).
+        let wanted = if viewer.is_some_and(Viewer::wants_points) {
+            Wanted::all(true)
+        } else {
+            outputs.demand.wanted()
+        };
+        let set = match host.process(&job, &sweep, wanted) {
             Ok(set) => set,
             // Shutting down: the run was stopped between passes; nobody waits for it.
             Err(_) if host.is_cancelled() => {
@@ -214,7 +219,13 @@ fn worker_loop(
         }
         // Counted before the messages go out, so that /diagnostics never counts fewer sets
         // than a subscriber has received (its thread may run between the two).
-        lock(stats).on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
+        {
+            let mut stats = lock(stats);
+            stats.made_on_demand = messages
+                .first()
+                .map_or(Wanted::NONE, |(_, m)| Wanted::made(m));
+            stats.on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
+        }
         for (output, messages) in messages {
             let Some(publishers) = publishers.get(output) else {
                 continue;

@@ -6,10 +6,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use super::outcome::{Job, Skip, SkipKind};
-use super::outputs::{process_job, SetOutputs};
+use super::outputs::{process_job, SetOutputs, Wanted};
 use crate::engine::{Device, Engine, EngineError};
 use crate::gpu_context::GpuContext;
-use crate::sweep::{CancelFlag, SweepParams};
+use crate::sweep::{CancelFlag, SweepParams, WantedMaps};
 
 /// Why no engine could be made (the device, or the engine on it).
 #[derive(Debug, thiserror::Error)]
@@ -34,7 +34,7 @@ impl EngineHost {
     pub fn new(device: Device) -> Result<Self, HostError> {
         let mut engine = Engine::new(device)?;
         // The outputs publish neither the raw depth nor the visible cameras.
-        engine.set_diagnostic_maps(false);
+        engine.set_wanted_maps(WantedMaps::OUTPUTS);
         let lost = Self::watch(&engine);
         Ok(Self {
             engine,
@@ -89,13 +89,13 @@ impl EngineHost {
         self.lost.load(Ordering::SeqCst)
     }
 
-    /// Runs `job` (`with_points`: the point cloud too); when the device is lost (before or
+    /// Runs `job` for the outputs `wanted` (the engine makes only the maps they need); when the device is lost (before or
     /// during the run) the device and engine are made anew and the job runs once more.
     pub fn process(
         &mut self,
         job: &Job,
         sweep: &SweepParams,
-        with_points: bool,
+        wanted: Wanted,
     ) -> Result<SetOutputs, Skip> {
         if self.is_cancelled() {
             return Err(Skip::new(
@@ -105,7 +105,8 @@ impl EngineHost {
             ));
         }
         if !self.is_lost() {
-            match process_job(&mut self.engine, job, sweep, with_points) {
+            self.engine.set_wanted_maps(wanted.maps());
+            match process_job(&mut self.engine, job, sweep, wanted) {
                 Err(skip) if skip.kind == SkipKind::Engine && self.is_lost() => {
                     tracing::warn!("{skip}");
                 }
@@ -132,10 +133,10 @@ impl EngineHost {
             })?;
         self.lost = Self::watch(&engine);
         engine.set_cancel(self.cancel.clone());
-        engine.set_diagnostic_maps(false);
+        engine.set_wanted_maps(wanted.maps());
         self.engine = engine;
         self.recreated += 1;
         tracing::info!("engine recreated: {}", self.engine.label());
-        process_job(&mut self.engine, job, sweep, with_points)
+        process_job(&mut self.engine, job, sweep, wanted)
     }
 }

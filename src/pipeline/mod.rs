@@ -52,7 +52,7 @@ pub use outcome::{
     SkipKind, SyncVerdict, VirtualCamera,
 };
 pub use output_list::{MsgType, Output, OutputMsg, OutputRef, OutputSpec, OutputTopics, OUTPUTS};
-pub use outputs::{process_job, FrameMaps, FrameMessages, FrameOutputs, SetOutputs};
+pub use outputs::{process_job, FrameMaps, FrameMessages, FrameOutputs, SetOutputs, Wanted};
 pub use why::{Asked, Publishers, Why, WhyKind};
 
 use crate::msgs::Time;

@@ -195,8 +195,8 @@ impl FrameMessages {
             Output::Depth => OutputRef::Image(&self.depth),
             Output::DepthInfo => OutputRef::CameraInfo(&self.depth_info),
             Output::Confidence => OutputRef::Image(&self.confidence),
-            Output::Cost => OutputRef::Image(&self.cost),
-            Output::Selection => OutputRef::Image(&self.selection),
+            Output::Cost => OutputRef::Image(self.cost.as_ref()?),
+            Output::Selection => OutputRef::Image(self.selection.as_ref()?),
             Output::Points => OutputRef::PointCloud2(self.points.as_ref()?),
         })
     }
@@ -211,7 +211,7 @@ impl FrameMessages {
             .filter_map(|(spec, topic)| Some((topic, self.get(spec.output)?)))
     }
 
-    /// The messages, moved out (for publishers), in the list's order.
+    /// The messages the set has, moved out (for publishers), in the list's order.
     pub fn into_list(self) -> Vec<(Output, OutputMsg)> {
         let mut out = Vec::with_capacity(OUTPUTS.len());
         out.push((Output::Depth, OutputMsg::Image(self.depth)));
@@ -220,15 +220,15 @@ impl FrameMessages {
             OutputMsg::CameraInfo(Box::new(self.depth_info)),
         ));
         out.push((Output::Confidence, OutputMsg::Image(self.confidence)));
-        out.push((Output::Cost, OutputMsg::Image(self.cost)));
-        out.push((Output::Selection, OutputMsg::Image(self.selection)));
+        if let Some(cost) = self.cost {
+            out.push((Output::Cost, OutputMsg::Image(cost)));
+        }
+        if let Some(selection) = self.selection {
+            out.push((Output::Selection, OutputMsg::Image(selection)));
+        }
         if let Some(points) = self.points {
             out.push((Output::Points, OutputMsg::PointCloud2(points)));
         }
-        debug_assert!(out
-            .iter()
-            .map(|(o, _)| o)
-            .eq(OUTPUTS.iter().map(|s| &s.output).take(out.len())));
         out
     }
 }

@@ -10,7 +10,7 @@ use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
-use crate::sweep::{DepthMaps, SweepError, SweepParams};
+use crate::sweep::{DepthMaps, SweepError, SweepParams, WantedMaps};
 use std::sync::Arc;
 
 /// What one reference of a frame set gives: its depth maps as floats, with where its camera
@@ -71,9 +71,73 @@ pub struct FrameMessages {
     pub depth: Image,
     pub depth_info: CameraInfo,
     pub confidence: Image,
-    pub cost: Image,
-    pub selection: Image,
+    /// None where the set was not asked for it ([`Wanted`]).
+    pub cost: Option<Image>,
+    pub selection: Option<Image>,
     pub points: Option<PointCloud2>,
+}
+
+/// Which of a reference's outputs that cost work to make a set makes (depth, its camera info
+/// and confidence always): the node asks for those that have subscribers, `bag` for what it
+/// writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Wanted {
+    pub cost: bool,
+    pub selection: bool,
+    pub points: bool,
+}
+
+impl Wanted {
+    /// Depth, its camera info and confidence only.
+    pub const NONE: Self = Self {
+        cost: false,
+        selection: false,
+        points: false,
+    };
+
+    /// Cost and selection, and the points as `points` says.
+    pub fn all(points: bool) -> Self {
+        Self {
+            cost: true,
+            selection: true,
+            points,
+        }
+    }
+
+    /// The outputs `messages` has.
+    pub fn made(messages: &FrameMessages) -> Self {
+        Self {
+            cost: messages.cost.is_some(),
+            selection: messages.selection.is_some(),
+            points: messages.points.is_some(),
+        }
+    }
+
+    /// "cost, selection", or "none" (`/diagnostics`, the log).
+    pub fn describe(self) -> String {
+        let names: Vec<&str> = [
+            (self.cost, "cost"),
+            (self.selection, "selection"),
+            (self.points, "points"),
+        ]
+        .into_iter()
+        .filter_map(|(on, name)| on.then_some(name))
+        .collect();
+        if names.is_empty() {
+            "none".into()
+        } else {
+            names.join(", ")
+        }
+    }
+
+    /// The engine's maps for these outputs (never the diagnostic ones).
+    pub fn maps(self) -> WantedMaps {
+        WantedMaps {
+            cost: self.cost,
+            selection: self.selection,
+            diagnostics: false,
+        }
+    }
 }
 
 /// What one frame set gives: each reference's outputs, and the references that failed.
@@ -85,13 +149,14 @@ pub struct SetOutputs {
 }
 
 /// Runs one job through the engine with the given parameters and builds its output messages
-/// (`with_points`: the point clouds too): every reference of the job, the set's images
+/// (those `wanted`; the engine is told which maps that needs by its caller,
+/// `EngineHost::process`): every reference of the job, the set's images
 /// converted once. Fails as a whole only when its images cannot be read.
 pub fn process_job(
     engine: &mut impl Sweeper,
     job: &Job,
     sweep: &SweepParams,
-    with_points: bool,
+    wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
     let mut images = Vec::with_capacity(job.images.len());
     for (i, msg) in job.images.iter().enumerate() {
@@ -130,7 +195,7 @@ pub fn process_job(
             &rig.reference_model(),
             // A virtual camera's points are in its own frame.
             &RigidTransform::IDENTITY,
-            with_points,
+            wanted,
             Placement {
                 rig_from_frame: virtual_camera.cam_from_rig.inverse(),
                 world_from_rig: job.world_from_rig,
@@ -194,7 +259,7 @@ pub fn process_job(
             images.get(reference.index),
             &camera.model,
             &reference.cam_from_frame.inverse(),
-            with_points,
+            wanted,
             Placement {
                 rig_from_frame,
                 world_from_rig: job.world_from_rig,
@@ -228,7 +293,7 @@ fn reference_outputs(
     colour: Option<&Arc<Rgba8Image>>,
     model: &CameraModel,
     frame_from_cam: &RigidTransform,
-    with_points: bool,
+    wanted: Wanted,
     placement: Placement<'_>,
 ) -> FrameOutputs {
     let (anchor_frame, anchor_from_rig) = placement.anchor;
@@ -237,7 +302,7 @@ fn reference_outputs(
         .map(|w| w.compose(&placement.rig_from_frame));
     let mut depth_info = info.clone();
     depth_info.header = header.clone();
-    let points = with_points.then(|| {
+    let points = wanted.points.then(|| {
         point_cloud_msg(
             &header,
             &maps.depth_m,
@@ -250,8 +315,11 @@ fn reference_outputs(
         depth: f32_image_msg(&header, &maps.depth_m),
         depth_info,
         confidence: f32_image_msg(&header, &maps.confidence),
-        cost: f32_image_msg(&header, &maps.cost),
-        selection: selection_msg(&header, maps.width(), maps.height(), &maps.selection),
+        // An engine that made a map not wanted (the CPU engine makes them all) has it dropped.
+        cost: (wanted.cost && !maps.cost.data.is_empty())
+            .then(|| f32_image_msg(&header, &maps.cost)),
+        selection: (wanted.selection && !maps.selection.is_empty())
+            .then(|| selection_msg(&header, maps.width(), maps.height(), &maps.selection)),
         points,
     };
     FrameOutputs {

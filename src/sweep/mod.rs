@@ -552,19 +552,54 @@ pub mod selection {
     }
 }
 
+/// Which of a frame set's maps beyond depth and confidence its caller reads: the WGSL engine
+/// reads back and unpacks only these (the others come back empty), the CPU engine makes them
+/// all. The node asks for cost and selection while someone subscribes to them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WantedMaps {
+    /// [`DepthMaps::cost`].
+    pub cost: bool,
+    /// [`DepthMaps::selection`].
+    pub selection: bool,
+    /// [`DepthMaps::depth_raw_m`] and [`DepthMaps::visible_cameras`], which no output publishes.
+    pub diagnostics: bool,
+}
+
+impl WantedMaps {
+    /// Every map (the default).
+    pub const ALL: Self = Self {
+        cost: true,
+        selection: true,
+        diagnostics: true,
+    };
+    /// What the outputs publish: all but the diagnostic maps.
+    pub const OUTPUTS: Self = Self {
+        diagnostics: false,
+        ..Self::ALL
+    };
+}
+
+impl Default for WantedMaps {
+    fn default() -> Self {
+        Self::ALL
+    }
+}
+
 /// Everything one sweep produces, all in the reference camera's pixel grid.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthMaps {
     /// z along the reference optical axis, metres, NaN where invalid (REP 118).
     pub depth_m: ImageF32,
     /// Depth before the median and the occlusion check (diagnostics; 0 x 0 where the WGSL
-    /// engine was told to leave the diagnostic maps out: `Engine::set_diagnostic_maps`).
+    /// engine was told to leave the diagnostic maps out: [`WantedMaps`]).
     pub depth_raw_m: ImageF32,
     /// In [0, 1]; 0 where invalid.
     pub confidence: ImageF32,
-    /// The winning (aggregated) score; NaN where no hypothesis was valid.
+    /// The winning (aggregated) score; NaN where no hypothesis was valid (0 x 0 where the
+    /// WGSL engine was told the caller does not read it: [`WantedMaps`]).
     pub cost: ImageF32,
-    /// [`selection`] codes.
+    /// [`selection`] codes (empty where the WGSL engine was told the caller does not read
+    /// them).
     pub selection: Vec<u8>,
     /// Cameras that see each pixel after the occlusion check, the reference counted
     /// (diagnostics; empty where the WGSL engine leaves the diagnostic maps out).

@@ -8,7 +8,7 @@ use glam::DVec2;
 use super::gpu_types::*;
 use super::{
     check_images, Aggregation, Cost, HypothesisGenerator, Optimizer, PairSet, Scoring, SweepError,
-    SweepParams, WindowMode,
+    SweepParams, WantedMaps, WindowMode,
 };
 use crate::geometry::{CameraModel, Distortion, Rig};
 use crate::image::Rgba8Image;
@@ -604,34 +604,33 @@ impl SweepPlan {
 
     /// Unpacks the `maps` buffer into the public outputs.
     pub fn depth_maps(&self, maps: &[f32]) -> crate::sweep::DepthMaps {
-        self.unpack_maps(maps, true)
+        self.unpack_map_sections(maps, 0, WantedMaps::ALL, false)
     }
 
-    /// Unpacks the `maps` buffer into the public outputs; without `diagnostics`, the maps that
-    /// no output publishes (`depth_raw_m`, `visible_cameras`) are left empty (0 x 0).
-    pub fn unpack_maps(&self, maps: &[f32], diagnostics: bool) -> crate::sweep::DepthMaps {
-        self.unpack_map_sections(maps, 0, diagnostics, false)
-    }
-
-    /// The sections of `maps` that [`Self::unpack_maps`] reads (`diagnostics` or not): the
-    /// WGSL engine reads back only these (the median filter's input and, without diagnostics,
-    /// the raw depth and the visible cameras stay on the device).
-    pub fn unpacked_sections(diagnostics: bool) -> std::ops::Range<usize> {
-        if diagnostics {
+    /// The sections of `maps` that [`Self::unpack_map_sections`] reads for `wanted`: the WGSL
+    /// engine reads back only these (the median filter's input never; the raw depth and the
+    /// visible cameras with diagnostics; the cost and selection when wanted). Depth and
+    /// confidence come first, so what is wanted is one range.
+    pub fn unpacked_sections(wanted: WantedMaps) -> std::ops::Range<usize> {
+        if wanted.diagnostics {
             MAP_DEPTH_RAW..MAP_COUNT
-        } else {
+        } else if wanted.selection {
             MAP_DEPTH..MAP_VISIBLE
+        } else if wanted.cost {
+            MAP_DEPTH..MAP_SELECTION
+        } else {
+            MAP_DEPTH..MAP_COST
         }
     }
 
-    /// [`Self::unpack_maps`] of `maps` that begin at section `first` (a readback of
-    /// [`Self::unpacked_sections`]), copied on rayon's threads with `split`
+    /// The maps `wanted` of `maps`, a readback of [`Self::unpacked_sections`] that begins at
+    /// section `first` (the others left empty), copied on rayon's threads with `split`
     /// (`gpu::HostCopies`).
     pub fn unpack_map_sections(
         &self,
         maps: &[f32],
         first: usize,
-        diagnostics: bool,
+        wanted: WantedMaps,
         split: bool,
     ) -> crate::sweep::DepthMaps {
         use super::gpu::copies;
@@ -643,22 +642,32 @@ impl SweepPlan {
             height: self.height,
             data: copies::to_vec(of(s), split),
         };
+        let empty = || ImageF32 {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        };
         let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan, split);
+        let diagnostics = wanted.diagnostics;
         crate::sweep::DepthMaps {
             depth_m: section(MAP_DEPTH),
             depth_raw_m: if diagnostics {
                 section(MAP_DEPTH_RAW)
             } else {
-                ImageF32 {
-                    width: 0,
-                    height: 0,
-                    data: Vec::new(),
-                }
+                empty()
             },
             confidence: section(MAP_CONFIDENCE),
-            cost: section(MAP_COST),
+            cost: if wanted.cost || diagnostics {
+                section(MAP_COST)
+            } else {
+                empty()
+            },
             // `v as u8`.
-            selection: bytes(MAP_SELECTION, 0),
+            selection: if wanted.selection || diagnostics {
+                bytes(MAP_SELECTION, 0)
+            } else {
+                Vec::new()
+            },
             // `v.min(255.0) as u8`: `v as u8`, but a NaN 255.
             visible_cameras: if diagnostics {
                 bytes(MAP_VISIBLE, 255)

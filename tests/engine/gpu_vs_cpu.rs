@@ -9,7 +9,9 @@ use sweepdepth::sweep::cpu::CpuEngine;
 use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout};
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::{range_tiles, SweepPlan, RANGE_TILE};
-use sweepdepth::sweep::{Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WindowMode};
+use sweepdepth::sweep::{
+    Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WantedMaps, WindowMode,
+};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Tolerances: depths may differ by float rounding (1e-3 relative), and a WTA tie may flip on a
@@ -1441,9 +1443,12 @@ fn split_host_copies_change_no_bit() {
 }
 
 /// Without the diagnostic maps (the node's, `bag`'s and `bench`'s engine), a frame set's
-/// published maps are the same, and the raw depth and the visible cameras come back empty.
+/// published maps are the same, and the raw depth and the visible cameras come back empty;
+/// without the cost and the selection too (the node's while nobody subscribes to them), the
+/// depth and confidence are the same, those come back empty and their bytes stay on the
+/// device.
 #[test]
-fn diagnostic_maps_left_out_change_nothing_else() {
+fn maps_left_out_change_nothing_else() {
     let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
     let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
     let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
@@ -1456,13 +1461,15 @@ fn diagnostic_maps_left_out_change_nothing_else() {
     };
     let gpu = common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
-    let all = engine.run(&rig, &images, &params).expect("run");
-    let all_bytes = engine.take_set_counts().readback_bytes;
-    engine.set_diagnostic_maps(false);
-    let published = engine.run(&rig, &images, &params).expect("run");
+    let mut run = |wanted: WantedMaps| {
+        engine.set_wanted_maps(wanted);
+        let maps = engine.run(&rig, &images, &params).expect("run");
+        (maps, engine.take_set_counts().readback_bytes)
+    };
+    let (all, all_bytes) = run(WantedMaps::ALL);
+    let (published, published_bytes) = run(WantedMaps::OUTPUTS);
     // Only the sections unpacked come back (depth, confidence, cost, selection: 4 of the 7
     // that come back with the diagnostics), besides the timestamps.
-    let published_bytes = engine.take_set_counts().readback_bytes;
     let section = 160 * 120 * 4;
     assert_eq!(all_bytes - published_bytes, 3 * section, "readback bytes");
     let bits = |image: &ImageF32| image.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
@@ -1473,6 +1480,29 @@ fn diagnostic_maps_left_out_change_nothing_else() {
     assert_eq!(all.depth_raw_m.data.len(), 160 * 120);
     assert_eq!(all.visible_cameras.len(), 160 * 120);
     assert!(published.depth_raw_m.data.is_empty() && published.visible_cameras.is_empty());
+
+    let none = WantedMaps {
+        cost: false,
+        selection: false,
+        diagnostics: false,
+    };
+    let cost_only = WantedMaps { cost: true, ..none };
+    for (wanted, sections) in [(none, 2), (cost_only, 3)] {
+        let (maps, bytes) = run(wanted);
+        assert_eq!(
+            published_bytes - bytes,
+            (4 - sections) * section,
+            "{wanted:?}: readback bytes"
+        );
+        assert_eq!(bits(&maps.depth_m), bits(&all.depth_m), "{wanted:?}");
+        assert_eq!(bits(&maps.confidence), bits(&all.confidence), "{wanted:?}");
+        if wanted.cost {
+            assert_eq!(bits(&maps.cost), bits(&all.cost));
+        } else {
+            assert!(maps.cost.data.is_empty() && maps.cost.width == 0);
+        }
+        assert!(maps.selection.is_empty(), "{wanted:?}");
+    }
 }
 
 /// The plane ranges the device makes between the levels of a coarse-to-fine sweep

@@ -13,7 +13,9 @@ use sweepdepth::geometry::{
 use sweepdepth::msgs::{
     CameraInfo, Header, Image, Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
 };
-use sweepdepth::pipeline::{process_job, ConfigError, Input, Job, Pipeline, PipelineConfig, Skip};
+use sweepdepth::pipeline::{
+    process_job, ConfigError, Input, Job, Pipeline, PipelineConfig, Skip, Wanted,
+};
 use sweepdepth::ros::camera_info::ImageKind;
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::SweepParams;
@@ -425,7 +427,7 @@ fn rectified_images_give_the_right_depth() {
         num_planes: 48,
         ..SweepParams::default()
     };
-    let set = process_job(&mut engine, &job, &sweep, true).expect("the set runs");
+    let set = process_job(&mut engine, &job, &sweep, Wanted::all(true)).expect("the set runs");
     assert!(set.skipped.is_empty(), "{:?}", set.skipped);
     let out = set
         .outputs

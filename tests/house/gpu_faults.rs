@@ -8,7 +8,7 @@ use sweepdepth::bag::BagReader;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::gpu_context::GpuContext;
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use sweepdepth::pipeline::{EngineHost, Input, Job, Pipeline, PipelineConfig};
+use sweepdepth::pipeline::{EngineHost, Input, Job, Pipeline, PipelineConfig, Wanted};
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{SweepError, SweepParams};
 use sweepdepth::synthetic::{self, Scene};
@@ -53,12 +53,14 @@ fn lost_device_is_recreated_and_the_set_processed() {
     let config = PipelineConfig::from_args(&args).expect("config");
     let job = fixture_job(&config);
     let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
-    let before = host.process(&job, &config.sweep, false).expect("first run");
+    let before = host
+        .process(&job, &config.sweep, Wanted::all(false))
+        .expect("first run");
     host.device()
         .expect("the WGSL engine has a device")
         .destroy();
     let after = host
-        .process(&job, &config.sweep, false)
+        .process(&job, &config.sweep, Wanted::all(false))
         .expect("the run after the loss succeeds on a new device");
     assert_eq!(host.recreated, 1);
     assert!(!host.is_lost());
@@ -68,7 +70,8 @@ fn lost_device_is_recreated_and_the_set_processed() {
         "same depth on the new device"
     );
     // And it keeps working.
-    host.process(&job, &config.sweep, false).expect("third run");
+    host.process(&job, &config.sweep, Wanted::all(false))
+        .expect("third run");
     assert_eq!(host.recreated, 1);
 }
 

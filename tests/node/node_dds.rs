@@ -56,6 +56,15 @@ fn node_publishes_diagnostics() {
 }
 
 #[test]
+fn node_makes_cost_and_selection_on_demand() {
+    in_private_netns(
+        INNER,
+        "node_dds::node_makes_cost_and_selection_on_demand",
+        on_demand,
+    );
+}
+
+#[test]
 fn node_parameter_services() {
     in_private_netns(
         INNER,
@@ -603,6 +612,66 @@ fn diagnostics() {
     });
     assert!(log.level == Log::INFO || log.level == Log::WARN, "{log:?}");
     assert!(!log.msg.is_empty());
+}
+
+/// The cost and selection images are made while someone subscribes to them, as
+/// image_pipeline's nodes do (the WGSL engine then reads back only depth and confidence): none
+/// while only depth is read, the cost once a subscriber of it appears (a real 32FC1 map of the
+/// set's stamp), not the selection, and none again after it leaves.
+fn on_demand() {
+    const KEY: &str = "outputs made on demand";
+    let mut h = Harness::start(wall(), &["sync:=exact"]);
+    let mut diag = Diagnostics::new(&mut h.peer);
+    let depth_sub = h.subscribe::<Image>("/depth/image", dds::IMAGE);
+    let mut depths = 0;
+    let (status, sent) = h.feed_until("depth, and a status made after it", 1, same_stamps, || {
+        depths += dds::take_all(&depth_sub).len();
+        let published = |s: &DiagnosticStatus| dds::counter(s, "sets published") > 0;
+        (depths > 0)
+            .then(|| diag.take().into_iter().find(published))
+            .flatten()
+    });
+    assert_eq!(dds::value_of(&status, KEY), Some("none"), "{status:?}");
+
+    let cost_sub = h.subscribe::<Image>("/cost/image", dds::IMAGE);
+    let (cost, k) = h.feed_until("a cost image", sent + 1, same_stamps, || {
+        cost_sub.take().ok().flatten().map(|(m, _)| m)
+    });
+    assert!(
+        (sent + 1..=k).any(|j| stamp_of(j) == cost.header.stamp),
+        "stamp {:?} was never sent",
+        cost.header.stamp
+    );
+    assert_eq!((cost.width, cost.height), (WIDTH, HEIGHT));
+    assert_eq!(cost.encoding, "32FC1");
+    assert_eq!(cost.data.len(), (4 * WIDTH * HEIGHT) as usize);
+    let finite = cost
+        .data
+        .chunks_exact(4)
+        .filter(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]).is_finite())
+        .count();
+    assert!(
+        finite * 2 > (WIDTH * HEIGHT) as usize,
+        "{finite} finite costs"
+    );
+    // The last set published had the cost and nothing else made on demand.
+    diag.wait_until("the cost made", &mut h.node, |s| {
+        dds::value_of(s, KEY) == Some("cost")
+    });
+
+    // Its reader gone, the next sets have no cost.
+    drop(cost_sub);
+    let (status, _) = h.feed_until(
+        "a set without the cost once its reader left",
+        k + 1,
+        same_stamps,
+        || {
+            diag.take()
+                .into_iter()
+                .find(|s| dds::value_of(s, KEY) == Some("none"))
+        },
+    );
+    assert!(dds::counter(&status, "sets published") > 1);
 }
 
 type SetClient = ros2_client::Client<SetParametersRequest, SetParametersResponse>;

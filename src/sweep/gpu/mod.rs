@@ -35,7 +35,7 @@ use super::gpu_types::{MAP_COUNT, MAP_DEPTH_RAW};
 use super::plan::SweepPlan;
 use super::schedule::Schedule;
 use super::stages::Stage;
-use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
+use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams, WantedMaps};
 use crate::geometry::Rig;
 use crate::image::Rgba8Image;
 use buffers::{Alignments, Buffers};
@@ -136,8 +136,8 @@ pub struct GpuEngine {
     open: Option<OpenSet>,
     /// The staging buffer of the uploads, kept from set to set.
     uploads: upload::Uploads,
-    /// Whether `run` unpacks the maps no output publishes (`depth_raw_m`, `visible_cameras`).
-    diagnostics: bool,
+    /// The maps beyond depth and confidence that `run` reads back and unpacks.
+    wanted: WantedMaps,
     /// Whether the images' and the maps' host copies run on several threads.
     host_copies: HostCopies,
     timings: StageTimings,
@@ -212,7 +212,7 @@ impl GpuEngine {
             pyramid_filled: None,
             open: None,
             uploads: upload::Uploads::new(),
-            diagnostics: true,
+            wanted: WantedMaps::ALL,
             host_copies: HostCopies::Auto,
             timings: StageTimings::default(),
             cancel: CancelFlag::new(),
@@ -291,12 +291,12 @@ impl GpuEngine {
         self.buffers.as_ref().map_or(0, |(b, _)| b.key.bands())
     }
 
-    /// Whether `run` and `run_plan` unpack the diagnostic maps that no output publishes
-    /// (`DepthMaps::depth_raw_m`, `visible_cameras`; on by default). Off, they come back empty
-    /// and each frame set's host time is two maps' unpacking shorter (the node and `bag` turn
-    /// them off).
-    pub fn set_diagnostic_maps(&mut self, on: bool) {
-        self.diagnostics = on;
+    /// The maps beyond depth and confidence that `run` and `run_plan` read back and unpack
+    /// (all by default; one left out comes back empty, its bytes never leave the device: the
+    /// node and `bag` leave out the diagnostic maps, the node the cost and selection while
+    /// nobody subscribes to them).
+    pub fn set_wanted_maps(&mut self, wanted: WantedMaps) {
+        self.wanted = wanted;
     }
 
     /// Per-stage times of the last frame set.
@@ -366,12 +366,7 @@ impl GpuEngine {
         // The caller's images: a plan that reads the prefilter's makes them on the device.
         self.timed(|engine| {
             engine.record_level(plan, rig, LevelImages::given(images), false)?;
-            let diagnostics = engine.diagnostics;
-            let sections = SweepPlan::unpacked_sections(diagnostics);
-            let (first, copies) = (sections.start, engine.host_copies);
-            engine.finish_set(sections, |m| {
-                plan.unpack_map_sections(m, first, diagnostics, copies.split(m.len() * 4))
-            })
+            engine.finish_maps(plan)
         })
     }
 
@@ -644,6 +639,16 @@ impl GpuEngine {
         Ok(())
     }
 
+    /// [`Self::finish_set`] with the wanted maps of `plan` unpacked.
+    fn finish_maps(&mut self, plan: &SweepPlan) -> Result<DepthMaps, SweepError> {
+        let (wanted, copies) = (self.wanted, self.host_copies);
+        let sections = SweepPlan::unpacked_sections(wanted);
+        let first = sections.start;
+        self.finish_set(sections, |m| {
+            plan.unpack_map_sections(m, first, wanted, copies.split(m.len() * 4))
+        })
+    }
+
     /// Submits the frame set recorded so far (one submission), waits once and reads back
     /// once: the last level's maps, `unpack`ed straight out of the mapped range, and every
     /// level's timestamps (the levels below the last as one `coarse` stage).
@@ -765,12 +770,7 @@ impl super::coarse::PlanRunner for GpuEngine {
         // the set is the level below it (`run_plan_for_ranges`): this one is narrowed from it.
         let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
         self.record_level(plan, rig, images, narrowed)?;
-        let diagnostics = self.diagnostics;
-        let sections = SweepPlan::unpacked_sections(diagnostics);
-        let (first, copies) = (sections.start, self.host_copies);
-        self.finish_set(sections, |m| {
-            plan.unpack_map_sections(m, first, diagnostics, copies.split(m.len() * 4))
-        })
+        self.finish_maps(plan)
     }
 
     fn run_plan_for_ranges(
