@@ -93,7 +93,10 @@ pub(super) fn run(
         None => None,
     };
     let fuser_thread = fusion.as_ref().map(FusionNode::worker);
-    let demand = Arc::new(Demand::new(&reference_publishers));
+    let published = reference_publishers.iter().flat_map(|p| &p.outputs);
+    let demand = Arc::new(Demand::new(
+        published.map(|(output, topic, _)| (*output, topic.as_str())),
+    ));
     publishers_tx
         .send(Outputs {
             references: reference_publishers,

@@ -9,7 +9,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use ros2_client::dds::rustdds::DomainParticipant;
 
-use super::worker::Publishers;
 use crate::pipeline::{Output, Wanted};
 
 /// The optional outputs, in the order [`Demand`] keeps them.
@@ -23,13 +22,9 @@ pub(super) struct Demand {
 }
 
 impl Demand {
-    /// For the references' publishers (nothing subscribed until [`Demand::refresh`]).
-    pub fn new(references: &[Publishers]) -> Self {
-        let names = references.iter().flat_map(|p| &p.outputs);
-        Self::for_topics(names.map(|(output, topic, _)| (*output, topic.as_str())))
-    }
-
-    fn for_topics<'a>(topics: impl Iterator<Item = (Output, &'a str)>) -> Self {
+    /// For the outputs published, each with its topic (nothing subscribed until
+    /// [`Demand::refresh`]).
+    pub fn new<'a>(topics: impl Iterator<Item = (Output, &'a str)>) -> Self {
         let topics = topics
             .filter(|(output, _)| OPTIONAL.contains(output))
             .map(|(output, topic)| (output, format!("rt/{}", topic.trim_start_matches('/'))))
@@ -83,7 +78,7 @@ mod tests {
     /// only an output that is published (`points` without `publish_points` never).
     #[test]
     fn outputs_follow_their_readers() {
-        let demand = Demand::for_topics(
+        let demand = Demand::new(
             [
                 (Output::Depth, "/rig/a/depth/image"),
                 (Output::Cost, "/rig/a/cost/image"),

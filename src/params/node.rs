@@ -217,7 +217,7 @@ fn output_params() -> Vec<ParamSpec> {
             "publish_points",
             Bool(false),
             ParamRange::Any,
-            "Also publish a sensor_msgs/PointCloud2 of the valid depths.",
+            "Also publish a sensor_msgs/PointCloud2 of the valid depths (made while subscribed).",
         ),
         node_spec(
             "input_qos_reliable",
