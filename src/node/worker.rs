@@ -143,13 +143,11 @@ fn worker_loop(
         }
         // Parameter changes apply from the next set on.
         let sweep = live.sweep();
-        // The outputs with subscribers; a subscribed viewer shows them all (the point cloud
-        // even when DDS does not carry it).
-        let wanted = if viewer.is_some_and(Viewer::wants_points) {
-            Wanted::all(true)
-        } else {
-            outputs.demand.wanted()
-        };
+        // The outputs with subscribers over DDS or in a live view (the point cloud even when
+        // DDS does not carry it).
+        let wanted = viewer
+            .map_or(Wanted::NONE, Viewer::wanted)
+            .or(outputs.demand.wanted());
         let set = match host.process(&job, &sweep, wanted) {
             Ok(set) => set,
             // Shutting down: the run was stopped between passes; nobody waits for it.

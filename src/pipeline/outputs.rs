@@ -104,6 +104,15 @@ impl Wanted {
         }
     }
 
+    /// Each output either wants.
+    pub fn or(self, other: Self) -> Self {
+        Self {
+            cost: self.cost || other.cost,
+            selection: self.selection || other.selection,
+            points: self.points || other.points,
+        }
+    }
+
     /// The outputs `messages` has.
     pub fn made(messages: &FrameMessages) -> Self {
         Self {

@@ -10,7 +10,7 @@ use serde::Serialize;
 use super::ViewerError;
 use crate::msgdefs;
 use crate::msgs::to_cdr;
-use crate::pipeline::{FrameMessages, Output, OutputTopics, OUTPUTS};
+use crate::pipeline::{FrameMessages, Output, OutputTopics, Wanted, OUTPUTS};
 
 /// The message encoding of every channel (the ROS 2 wire format).
 pub const MESSAGE_ENCODING: &str = "cdr";
@@ -100,6 +100,20 @@ impl OutputChannels {
     /// Whether any viewer subscribed to any of the channels.
     pub(super) fn has_subscribers(&self) -> bool {
         self.channels.iter().any(|(_, c)| c.has_sinks())
+    }
+
+    /// The outputs made on demand that a viewer subscribed to.
+    pub(super) fn wanted(&self) -> Wanted {
+        let on = |output: Output| {
+            self.channels
+                .iter()
+                .any(|(o, c)| *o == output && c.has_sinks())
+        };
+        Wanted {
+            cost: on(Output::Cost),
+            selection: on(Output::Selection),
+            points: on(Output::Points),
+        }
     }
 
     /// Logs one set's outputs to the subscribed viewers (`log_time_ns`: wall clock, when the

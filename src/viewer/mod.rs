@@ -142,8 +142,8 @@ impl Viewer {
     }
     pub fn offer(&self, _out: &crate::pipeline::FrameMessages) {}
     pub fn offer_owned(&self, _out: crate::pipeline::FrameMessages) {}
-    pub fn wants_points(&self) -> bool {
-        false
+    pub fn wanted(&self) -> crate::pipeline::Wanted {
+        crate::pipeline::Wanted::NONE
     }
     pub fn page_url(&self) -> String {
         String::new()

@@ -141,10 +141,11 @@ impl Viewer {
         })
     }
 
-    /// Whether a viewer subscribed to the point cloud or anything else (then the engine should
-    /// make the point cloud even when it is not published over DDS).
-    pub fn wants_points(&self) -> bool {
-        self.inner.channels.has_subscribers()
+    /// The outputs made on demand (cost, selection, points) that a viewer subscribed to: the
+    /// engine makes them even when nobody reads them over DDS (the point cloud even when it is
+    /// not published there).
+    pub fn wanted(&self) -> crate::pipeline::Wanted {
+        self.inner.channels.wanted()
     }
 
     /// Offers one set's messages (the live node, which publishes them over DDS after): copied

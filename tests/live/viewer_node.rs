@@ -1,6 +1,7 @@
 //! The live view of `sweepdepth node` (issue 13): a Foxglove WebSocket client (tests/common/
 //! foxglove.rs, written from the protocol's spec) connects to a node fed by the test peers over
-//! DDS, subscribes, and decodes depth and points equal to what the node publishes over DDS; the
+//! DDS, subscribes, and decodes depth and points equal to what the node publishes over DDS (and
+//! the node makes no cost or selection nobody reads); the
 //! page is served on the next port; without `foxglove_port` nothing listens; a viewer that
 //! reads nothing does not slow the node nor grow its memory (the soak case).
 //!
@@ -14,7 +15,7 @@ use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::time::{Duration, Instant};
 
-use crate::common::dds::{self, frame, NodeProcess, Peer, RigFeed};
+use crate::common::dds::{self, frame, Diagnostics, NodeProcess, Peer, RigFeed};
 use crate::common::foxglove::Client;
 use crate::common::netns::in_private_netns;
 use sweepdepth::geometry::CameraModel;
@@ -145,6 +146,7 @@ fn http_get(port: u16, path: &str) -> (String, Vec<u8>) {
 
 fn same_as_dds() {
     let mut h = Harness::start(&["publish_points:=true", &format!("foxglove_port:={PORT}")]);
+    let mut diagnostics = Diagnostics::new(&mut h.peer);
     let depth_sub = h
         .peer
         .subscription::<Image>("/depth/image", dds::IMAGE, &dds::reliable(50));
@@ -235,6 +237,16 @@ fn same_as_dds() {
     assert_eq!(
         ws, over_dds,
         "the viewer's points equal the DDS points, byte for byte"
+    );
+    // Nobody reads the cost or the selection, over DDS or in the viewer: the node makes
+    // neither (the engine reads back depth and confidence, and the points are made).
+    let status = diagnostics.wait_until("what the last set made", &mut h.node, |s| {
+        dds::counter(s, "sets published") > 0
+    });
+    assert_eq!(
+        dds::value_of(&status, "outputs made on demand"),
+        Some("points"),
+        "{status:?}"
     );
 
     // The page, on the next port, from the binary (works offline).
