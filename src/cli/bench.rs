@@ -522,11 +522,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Ok(mut engine) => {
                 // As the node runs it: the maps its outputs publish (issue 35).
                 engine.set_wanted_maps(if args.depth_only {
-                    WantedMaps {
-                        cost: false,
-                        selection: false,
-                        diagnostics: false,
-                    }
+                    crate::pipeline::Wanted::NONE.maps()
                 } else {
                     WantedMaps::OUTPUTS
                 });

@@ -9,6 +9,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use ros2_client::dds::rustdds::DomainParticipant;
 
+use super::why::dds_topic_name;
 use crate::pipeline::{Output, Wanted};
 
 /// The optional outputs, in the order [`Demand`] keeps them.
@@ -27,7 +28,7 @@ impl Demand {
     pub fn new<'a>(topics: impl Iterator<Item = (Output, &'a str)>) -> Self {
         let topics = topics
             .filter(|(output, _)| OPTIONAL.contains(output))
-            .map(|(output, topic)| (output, format!("rt/{}", topic.trim_start_matches('/'))))
+            .map(|(output, topic)| (output, dds_topic_name(topic)))
             .collect();
         Self {
             topics,
@@ -38,22 +39,18 @@ impl Demand {
     /// Brings the demand up to date with the readers discovery knows; returns whether it
     /// changed.
     pub fn refresh(&self, participant: &DomainParticipant) -> bool {
-        let readers: Vec<String> = participant
-            .discovered_readers()
-            .into_iter()
-            .map(|r| r.subscription_topic_data.topic_name)
-            .collect();
-        self.update(&readers)
+        let readers = participant.discovered_readers();
+        self.update(&readers, |r| r.subscription_topic_data.topic_name.as_str())
     }
 
-    /// [`Demand::refresh`] from the topic names of the readers discovered.
-    fn update(&self, readers: &[String]) -> bool {
+    /// [`Demand::refresh`] from the readers discovered, `topic` naming each one's topic.
+    fn update<R>(&self, readers: &[R], topic: impl Fn(&R) -> &str) -> bool {
         let mut changed = false;
         for (i, output) in OPTIONAL.iter().enumerate() {
             let subscribed = self
                 .topics
                 .iter()
-                .any(|(o, topic)| o == output && readers.iter().any(|r| r == topic));
+                .any(|(o, name)| o == output && readers.iter().any(|r| topic(r) == name.as_str()));
             changed |= self.subscribed[i].swap(subscribed, Ordering::Relaxed) != subscribed;
         }
         changed
@@ -93,17 +90,19 @@ mod tests {
         assert_eq!(demand.wanted().describe(), "none");
         let readers = |names: &[&str]| names.iter().map(|n| n.to_string()).collect::<Vec<_>>();
         // Depth readers change nothing; a reader of b's cost turns the cost on.
-        assert!(!demand.update(&readers(&["rt/rig/a/depth/image"])));
-        assert!(demand.update(&readers(&["rt/rig/a/depth/image", "rt/rig/b/cost/image"])));
+        assert!(!demand.update(&readers(&["rt/rig/a/depth/image"]), String::as_str));
+        assert!(demand.update(
+            &readers(&["rt/rig/a/depth/image", "rt/rig/b/cost/image"]),
+            String::as_str
+        ));
         assert_eq!(demand.wanted(), Wanted { cost: true, ..none });
         assert_eq!(demand.wanted().describe(), "cost");
-        assert!(!demand.update(&readers(&["rt/rig/b/cost/image"])));
+        assert!(!demand.update(&readers(&["rt/rig/b/cost/image"]), String::as_str));
         // Points are not published here: their readers are not a demand.
-        assert!(demand.update(&readers(&[
-            "rt/rig/a/selection/image",
-            "rt/rig/a/points",
-            "rt/points"
-        ])));
+        assert!(demand.update(
+            &readers(&["rt/rig/a/selection/image", "rt/rig/a/points", "rt/points"]),
+            String::as_str
+        ));
         assert_eq!(
             demand.wanted(),
             Wanted {
@@ -112,7 +111,7 @@ mod tests {
             }
         );
         // A reader gone: the output stops.
-        assert!(demand.update(&[]));
+        assert!(demand.update(&[], String::as_str));
         assert_eq!(demand.wanted(), none);
     }
 }

@@ -95,13 +95,19 @@ impl Discovery {
     }
 }
 
+/// The DDS topic name of a fully qualified ROS topic (`/rig/cost/image` -> `rt/rig/cost/image`),
+/// as discovery reports it.
+pub(super) fn dds_topic_name(topic: &str) -> String {
+    format!("rt/{}", topic.trim_start_matches('/'))
+}
+
 /// What `writers` (DDS topic name and QoS) say of `topic`'s publishers, for the subscriptions
 /// `requested`.
 fn publishers(requested: &[Requested], writers: &[(String, Offered)], topic: &str) -> Publishers {
     let Some(requested) = requested.iter().find(|r| r.topic == topic) else {
         return Publishers::Unknown;
     };
-    let dds_name = format!("rt/{}", topic.trim_start_matches('/'));
+    let dds_name = dds_topic_name(topic);
     let offered: Vec<Offered> = writers
         .iter()
         .filter(|(name, _)| *name == dds_name)

@@ -89,8 +89,9 @@ impl EngineHost {
         self.lost.load(Ordering::SeqCst)
     }
 
-    /// Runs `job` for the outputs `wanted` (the engine makes only the maps they need); when the device is lost (before or
-    /// during the run) the device and engine are made anew and the job runs once more.
+    /// Runs `job` for the outputs `wanted` (the engine makes only the maps they need); when
+    /// the device is lost (before or during the run) the device and engine are made anew and
+    /// the job runs once more.
     pub fn process(
         &mut self,
         job: &Job,

@@ -229,6 +229,10 @@ impl FrameMessages {
         if let Some(points) = self.points {
             out.push((Output::Points, OutputMsg::PointCloud2(points)));
         }
+        // The list's order (the enum's, a test checks), those made on demand left out.
+        debug_assert!(out
+            .windows(2)
+            .all(|w| (w[0].0 as usize) < (w[1].0 as usize)));
         out
     }
 }
