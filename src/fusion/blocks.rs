@@ -402,6 +402,32 @@ pub(super) fn farthest_blocks<V>(
         .collect()
 }
 
+/// The blocks changed and dropped since a consumer last took them (a mesh update:
+/// [`super::Mesh::take_changes`]).
+#[derive(Debug, Clone, Default)]
+pub struct BlockChanges {
+    pub changed: BlockSet,
+    pub removed: BlockSet,
+}
+
+impl BlockChanges {
+    /// `index` changed (or was allocated again after a drop).
+    pub fn change(&mut self, index: BlockIndex) {
+        self.removed.remove(&index);
+        self.changed.insert(index);
+    }
+
+    /// `index` was dropped.
+    pub fn remove(&mut self, index: BlockIndex) {
+        self.changed.remove(&index);
+        self.removed.insert(index);
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.changed.is_empty() && self.removed.is_empty()
+    }
+}
+
 /// The TSDF grid: blocks by index, the voxel size, and the blocks changed and removed since
 /// the last meshing ([`super::Mesh::update`] takes both).
 #[derive(Debug, Clone)]
@@ -558,6 +584,14 @@ impl VoxelBlockGrid {
 
     pub(super) fn take_changed(&mut self) -> BlockSet {
         std::mem::take(&mut self.changed)
+    }
+
+    /// The blocks changed and removed since the last call (then none).
+    pub(super) fn take_changes(&mut self) -> BlockChanges {
+        BlockChanges {
+            changed: self.take_changed(),
+            removed: self.take_removed(),
+        }
     }
 
     pub(super) fn mark_changed(&mut self, index: BlockIndex) {

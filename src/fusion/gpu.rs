@@ -15,7 +15,7 @@
 use bytemuck::{Pod, Zeroable};
 
 use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
-use super::blocks::{farthest_blocks, Block, BlockIndex, BlockMap, BlockSet, Voxel};
+use super::blocks::{farthest_blocks, Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel};
 use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
 use super::{
     DepthView, FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK,
@@ -197,6 +197,8 @@ pub struct GpuTsdf {
     /// Allocated since the last [`GpuTsdf::sync_into`] (empty until updated).
     allocated: BlockSet,
     removed: BlockSet,
+    /// Changed and dropped since the last [`GpuTsdf::take_unmeshed`] (a mesh update's).
+    unmeshed: BlockChanges,
     scratch: IntegrationScratch,
     /// The frame's samples as uploaded, kept from frame to frame (a 640x480 map's are 3.6 MB).
     host_samples: Vec<GpuSample>,
@@ -274,6 +276,7 @@ impl GpuTsdf {
             changed: BlockSet::default(),
             allocated: BlockSet::default(),
             removed: BlockSet::default(),
+            unmeshed: BlockChanges::default(),
             scratch: IntegrationScratch::default(),
             host_samples: Vec::new(),
             mesher: None,
@@ -301,6 +304,13 @@ impl GpuTsdf {
     /// The blocks changed since the last [`GpuTsdf::sync_into`].
     pub fn changed_blocks(&self) -> &BlockSet {
         &self.changed
+    }
+
+    /// The blocks changed and dropped since the last call, whatever was copied to the host
+    /// since: what a mesh update meshes again ([`crate::fusion::Mesh::take_changes`], then
+    /// [`GpuTsdf::mesh_blocks`]).
+    pub fn take_unmeshed(&mut self) -> BlockChanges {
+        std::mem::take(&mut self.unmeshed)
     }
 
     /// The device memory the voxel pool holds, in bytes.
@@ -410,6 +420,7 @@ impl GpuTsdf {
                 stats.blocks_updated += 1;
                 stats.voxels_updated += count as usize;
                 self.changed.insert(*index);
+                self.unmeshed.change(*index);
             }
         }
         // The memory bound, as the CPU's `VoxelBlockGrid::drop_farthest`.
@@ -426,6 +437,7 @@ impl GpuTsdf {
             self.changed.remove(index);
             self.allocated.remove(index);
             self.removed.insert(*index);
+            self.unmeshed.remove(*index);
         }
         stats.blocks_dropped = dropped.len();
         Ok(stats)
@@ -638,6 +650,7 @@ impl GpuTsdf {
         for (index, slot) in self.slots.drain() {
             self.free.push(slot);
             self.removed.insert(index);
+            self.unmeshed.remove(index);
         }
         self.changed.clear();
         self.allocated.clear();

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use super::gpu::{GpuFusionError, GpuTsdf};
 use super::integrate::{integrate_into, IntegrationScratch};
+use super::mesh::mesh_on_cpu;
 use super::{
     observation_weights, BlockMesh, FusionError, FusionParams, IntegrationStats, Mesh, MeshStats,
     VoxelBlockGrid, Weighting,
@@ -37,8 +38,8 @@ pub const MIRROR_PERIOD: Duration = Duration::from_secs(1);
 /// The grid, its weighing, the integration's buffers and the mesh ([`Mapper::integrate`],
 /// [`Mapper::update_mesh`], [`Mapper::clear`]). Made [`Mapper::on_gpu`], it integrates and
 /// meshes on a wgpu device ([`GpuTsdf`]) and keeps `grid` as the device's copy, brought up to
-/// date at the first depth map, every [`MIRROR_PERIOD`] after, at each mesh update and on
-/// [`Mapper::sync_grid`].
+/// date at the first depth map, every [`MIRROR_PERIOD`] after and on [`Mapper::sync_grid`]
+/// (a mesh update reads the device's voxels where they are).
 #[derive(Debug)]
 pub struct Mapper {
     params: FusionParams,
@@ -99,11 +100,16 @@ impl Mapper {
     }
 
     /// Integrates on the CPU from now on (a lost device, a GPU that failed): the device's map
-    /// is dropped, `grid` (its copy, as of its last update: at most [`MIRROR_PERIOD`] or one
-    /// mesh update old) goes on. A depth map whose GPU integration failed changed nothing
-    /// here and can be integrated again. Returns whether the map was on a GPU.
+    /// is dropped, `grid` (its copy, as of its last update: at most [`MIRROR_PERIOD`] old)
+    /// goes on, and the mesh is made again from it (the device's mesh could be newer). A
+    /// depth map whose GPU integration failed changed nothing here and can be integrated
+    /// again. Returns whether the map was on a GPU.
     pub fn leave_gpu(&mut self) -> bool {
-        self.gpu.take().is_some()
+        if self.gpu.take().is_none() {
+            return false;
+        }
+        self.mesh.rebuild(&self.grid);
+        true
     }
 
     /// How often a map on a GPU brings `grid` up to date as it integrates ([`MIRROR_PERIOD`]
@@ -118,6 +124,9 @@ impl Mapper {
         if let Some(gpu) = &mut self.gpu {
             gpu.sync_into(&mut self.grid).map_err(from_gpu)?;
             self.mirrored_at = Some(Instant::now());
+            // The device names what its mesh updates mesh (`GpuTsdf::take_unmeshed`); the
+            // copy's own changes would only pile up.
+            self.grid.take_changes();
         }
         Ok(&self.grid)
     }
@@ -187,26 +196,27 @@ impl Mapper {
     }
 
     /// Meshes the blocks that changed since the last call: for a map on a GPU on the device
-    /// (`GpuTsdf::mesh_blocks`, after bringing `grid` up to date, which names the blocks that
-    /// changed; if the device fails, on the CPU from `grid`, and [`Mapper::take_gpu_error`]
-    /// says why), else on the CPU.
+    /// from its voxels there (`GpuTsdf::mesh_blocks`; nothing is copied to the host; if the
+    /// device fails, on the CPU from `grid` brought up to date as far as the device still
+    /// answers, and [`Mapper::take_gpu_error`] says why), else on the CPU.
     pub fn update_mesh(&mut self) -> MeshStats {
-        if self.gpu.is_none() {
-            return self.mesh.update(&mut self.grid);
-        }
-        if let Err(e) = self.sync_grid() {
-            self.gpu_error = Some(e.to_string());
-        }
         let Some(gpu) = self.gpu.as_mut() else {
             return self.mesh.update(&mut self.grid);
         };
-        let (stats, error) = self
+        let todo = self
             .mesh
-            .update_with(&mut self.grid, |todo| gpu.mesh_blocks(todo));
-        if let Some(e) = error {
-            self.gpu_error.get_or_insert(e.to_string());
-        }
-        stats
+            .take_changes(gpu.take_unmeshed(), |index| gpu.contains(index));
+        let meshes = match gpu.mesh_blocks(&todo) {
+            Ok(meshes) => meshes,
+            Err(e) => {
+                self.gpu_error = Some(e.to_string());
+                if let Err(e) = self.sync_grid() {
+                    tracing::debug!("fusion: the host copy could not be brought up to date: {e}");
+                }
+                mesh_on_cpu(&self.grid, &todo)
+            }
+        };
+        self.mesh.apply(meshes, todo.len())
     }
 
     /// The mesh as last updated, per block ([`Mesh::take_dirty`] names the blocks whose
@@ -319,7 +329,7 @@ mod tests {
         assert_eq!(on_gpu.grid().block_count(), grid.block_count());
 
         // The device's copy: after every depth map with a zero period; with one that never
-        // comes, not before a mesh update or `sync_grid`.
+        // comes, not before `sync_grid` (nor at a mesh update).
         let weight = |m: &Mapper| -> f32 {
             let voxels = |b: &crate::fusion::Block| {
                 (0..crate::fusion::VOXELS_PER_BLOCK)
@@ -341,7 +351,7 @@ mod tests {
         assert!(synced > copied, "{synced} after {copied}");
         on_gpu.integrate(&view).expect("integrates");
         on_gpu.update_mesh();
-        assert!(weight(&on_gpu) > synced, "a mesh update copies");
+        assert_eq!(weight(&on_gpu), synced, "a mesh update copied blocks back");
         assert_eq!(on_gpu.block_count(), on_gpu.grid().block_count());
     }
 }

@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::blocks::{Block, BlockIndex, BlockMap, BlockSet, Voxel, BLOCK_SIDE};
+use super::blocks::{Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel, BLOCK_SIDE};
 use super::tables::{CORNERS, EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
 use super::VoxelBlockGrid;
 
@@ -71,7 +71,7 @@ impl Mesh {
     /// into them), drops the meshes of blocks no longer in the grid, and clears the grid's
     /// changed set.
     pub fn update(&mut self, grid: &mut VoxelBlockGrid) -> MeshStats {
-        let todo = self.take_changes(grid);
+        let todo = self.take_changes(grid.take_changes(), |index| grid.contains(index));
         let meshes = mesh_on_cpu(grid, &todo);
         self.apply(meshes, todo.len())
     }
@@ -85,7 +85,7 @@ impl Mesh {
         grid: &mut VoxelBlockGrid,
         mesh_blocks: impl FnOnce(&[BlockIndex]) -> Result<Vec<(BlockIndex, BlockMesh)>, E>,
     ) -> (MeshStats, Option<E>) {
-        let todo = self.take_changes(grid);
+        let todo = self.take_changes(grid.take_changes(), |index| grid.contains(index));
         let (meshes, error) = match mesh_blocks(&todo) {
             Ok(meshes) => (meshes, None),
             Err(e) => (mesh_on_cpu(grid, &todo), Some(e)),
@@ -93,28 +93,33 @@ impl Mesh {
         (self.apply(meshes, todo.len()), error)
     }
 
-    /// The blocks to mesh again after the grid's changes (each changed or dropped block and
-    /// the blocks below it), in index order; drops the meshes of blocks the grid dropped and
-    /// clears the grid's changed set.
-    fn take_changes(&mut self, grid: &mut VoxelBlockGrid) -> Vec<BlockIndex> {
-        let changed = grid.take_changed();
+    /// The blocks to mesh again after `changes` to a grid that holds the blocks `contains`
+    /// says (each changed or dropped block and the blocks below it), in index order; drops
+    /// the meshes of the dropped blocks. Their meshes then go to [`Mesh::apply`]. A map on a
+    /// GPU keeps its changes on its own ([`crate::fusion::GpuTsdf::take_unmeshed`]) and
+    /// meshes on the device, without a host copy of its voxels.
+    pub fn take_changes(
+        &mut self,
+        changes: BlockChanges,
+        contains: impl Fn(BlockIndex) -> bool,
+    ) -> Vec<BlockIndex> {
+        let BlockChanges { changed, removed } = changes;
         // Dropped blocks: their meshes go, and the blocks below them mesh again (their cubes
         // reached into them).
-        let removed = grid.take_removed();
         let mut todo: Vec<BlockIndex> = changed
             .iter()
             .chain(removed.iter())
             .flat_map(|index| {
                 (0..8).map(move |i| index.offset([-(i & 1), -((i >> 1) & 1), -((i >> 2) & 1)]))
             })
-            .filter(|index| grid.contains(*index))
+            .filter(|index| contains(*index))
             .collect();
         todo.sort_unstable();
         todo.dedup();
         self.removed.clear();
         for index in removed {
             // A block dropped and allocated again since is in `changed`.
-            if !grid.contains(index) && self.blocks.remove(&index).is_some() {
+            if !contains(index) && self.blocks.remove(&index).is_some() {
                 self.dirty.insert(index);
                 self.removed.push(index);
             }
@@ -123,8 +128,9 @@ impl Mesh {
         todo
     }
 
-    /// Keeps `meshes` (of `meshed` blocks) and counts the mesh.
-    fn apply(&mut self, meshes: Vec<(BlockIndex, BlockMesh)>, meshed: usize) -> MeshStats {
+    /// Keeps `meshes` (of the `meshed` blocks [`Mesh::take_changes`] named) and counts the
+    /// mesh.
+    pub fn apply(&mut self, meshes: Vec<(BlockIndex, BlockMesh)>, meshed: usize) -> MeshStats {
         let mut stats = self.keep(meshes, meshed);
         stats.blocks_removed = self.removed.len();
         stats
@@ -323,7 +329,10 @@ fn row_cases(observed: &[f32; SIDE * SIDE * SIDE], base: usize) -> [u32; BLOCK_S
 }
 
 /// Each of `todo`'s meshes, on rayon's threads.
-fn mesh_on_cpu(grid: &VoxelBlockGrid, todo: &[BlockIndex]) -> Vec<(BlockIndex, BlockMesh)> {
+pub(crate) fn mesh_on_cpu(
+    grid: &VoxelBlockGrid,
+    todo: &[BlockIndex],
+) -> Vec<(BlockIndex, BlockMesh)> {
     todo.par_iter()
         .map(|index| (*index, mesh_block(grid, *index)))
         .collect()

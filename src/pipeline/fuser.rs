@@ -131,8 +131,8 @@ impl Fuser {
 
     /// A fuser that integrates on `gpu`'s device ([`Mapper::on_gpu`]). When the device fails
     /// later ([`FusionError::Gpu`]: lost, reset, out of room), the map goes on on the CPU from
-    /// its host copy (at most [`crate::fusion::mapper::MIRROR_PERIOD`] or one mesh update old),
-    /// the failed depth map integrated there ([`Fuser::left_gpu`] says why).
+    /// its host copy (at most [`crate::fusion::mapper::MIRROR_PERIOD`] old; its mesh made again
+    /// from it), the failed depth map integrated there ([`Fuser::left_gpu`] says why).
     pub fn on_gpu(params: FusionParams, gpu: &GpuContext) -> Result<Self, FusionError> {
         let mapper = Mapper::on_gpu(params, Weighting::DEPTH_MAPS, &gpu.device, &gpu.queue)?;
         Self::with_mapper(mapper)

@@ -352,6 +352,92 @@ fn the_gpu_meshes_blocks_as_the_cpu_does() {
     }
 }
 
+/// Every block's mesh of `a` is `b`'s (the same blocks with a surface).
+fn assert_same_meshes(a: &Mesh, b: &Mesh, what: &str, voxel_m: f32) {
+    let sorted = |m: &Mesh| {
+        let mut v: Vec<BlockIndex> = m.blocks().map(|(index, _)| *index).collect();
+        v.sort_unstable();
+        v
+    };
+    let blocks = sorted(a);
+    assert_eq!(blocks, sorted(b), "{what}: the blocks with a surface");
+    for index in blocks {
+        let (Some(x), Some(y)) = (a.block(index), b.block(index)) else {
+            unreachable!("{what}: listed above");
+        };
+        assert_meshes_equal(x, y, &format!("{what}, block {index:?}"), voxel_m);
+    }
+}
+
+/// A map on a GPU meshes from the device's voxels without copying them to the host: after a
+/// depth map its host copy has not seen (its period never comes), the mesh update leaves the
+/// copy as it was and its mesh is the CPU's mesh of the device's voxels (read here from a
+/// second device map fed the same depth maps). Left for the CPU, the map's mesh is made again
+/// from the copy: the surface only the device had goes.
+#[test]
+fn a_gpu_map_meshes_on_the_device_without_copying_back() {
+    let (context, _one) = gpu();
+    let (params, model, poses, colour) = oblique_scene();
+    let voxel_m = params.voxel_size_m;
+    let (device, queue) = (&context.device, &context.queue);
+    let mut mapper =
+        crate::fusion::Mapper::on_gpu(params, Weighting::EQUAL, device, queue).unwrap();
+    mapper.set_mirror_period(std::time::Duration::MAX);
+    let mut twin = GpuTsdf::new(device, queue, params).unwrap();
+    let depths = poses.map(|pose| sphere_before_slanted_wall(&model, &pose));
+    let views: Vec<DepthView<'_>> = depths
+        .iter()
+        .zip(&poses)
+        .map(|(depth, pose)| view(depth, Some(&colour), &model, pose))
+        .collect();
+    // The first depth map is copied to the host at once; the second is not.
+    mapper.integrate(&views[0]).unwrap();
+    twin.integrate(&views[0], None).unwrap();
+    let first = mapper.update_mesh();
+    assert!(
+        first.blocks_meshed > 0 && first.triangles > 10_000,
+        "{first:?}"
+    );
+    let copy = mapper.grid().clone();
+    mapper.integrate(&views[1]).unwrap();
+    twin.integrate(&views[1], None).unwrap();
+    let second = mapper.update_mesh();
+    assert!(mapper.take_gpu_error().is_none());
+    assert!(second.blocks_meshed > 0, "{second:?}");
+    // Nothing copied back: the host copy is the first depth map's.
+    assert_eq!(mapper.grid().block_count(), copy.block_count());
+    assert!(
+        mapper.block_count() > copy.block_count(),
+        "the second view adds blocks"
+    );
+    for (index, block) in copy.blocks() {
+        let mine = mapper.grid().block(*index).expect("the copy's blocks");
+        for offset in 0..VOXELS_PER_BLOCK {
+            assert_eq!(block.voxel_at_offset(offset), mine.voxel_at_offset(offset));
+        }
+    }
+    // The mesh is the device's voxels' (both depth maps), not the copy's.
+    let (mut from_device, mut from_copy) = (Mesh::new(), Mesh::new());
+    from_device.rebuild(&twin.read_grid().unwrap());
+    from_copy.rebuild(&copy);
+    assert!(from_device.triangle_count() != from_copy.triangle_count());
+    assert_same_meshes(mapper.mesh(), &from_device, "on the device", voxel_m);
+    // Left for the CPU: the copy's mesh, and every block that changed is dirty.
+    mapper.mesh_mut().take_dirty();
+    assert!(mapper.leave_gpu() && !mapper.is_on_gpu());
+    assert_same_meshes(mapper.mesh(), &from_copy, "after leaving the GPU", voxel_m);
+    let dirty = mapper.mesh_mut().take_dirty();
+    let gone = from_device
+        .blocks()
+        .filter(|(index, _)| from_copy.block(**index).is_none())
+        .count();
+    assert!(
+        gone > 0 && dirty.len() >= gone,
+        "{} dirty, {gone} gone",
+        dirty.len()
+    );
+}
+
 /// A camera at `at` looking along z, moved off the voxel grid: with the camera on it and this
 /// focal length, rows of voxel centres project exactly onto the image's edge (u = -0.5), where
 /// rounding decides whether they are seen.
