@@ -201,6 +201,8 @@ struct Sink<'a> {
 /// The bag's fusion: the fuser, and when its markers next go into OUT.
 struct BagFusion {
     fuser: Fuser,
+    /// It fuses on the engine's device, and follows the engine onto a new one after a loss.
+    follows_engine: bool,
     topic: String,
     /// `mesh_rate` as a period in log time (None: no markers).
     period_ns: Option<u64>,
@@ -268,7 +270,16 @@ impl Sink<'_> {
         // Every output the bag has; the live view always shows the point cloud.
         let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
         let wanted = Wanted::all(with_points);
+        let recreated = self.host.recreated;
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, wanted));
+        // Fusion on the engine's device follows it onto a new one after a loss.
+        if let (Some(fusion), Some(gpu)) = (&mut self.fuser, self.host.gpu()) {
+            if fusion.follows_engine && self.host.recreated != recreated {
+                if let Err(e) = fusion.fuser.move_to_gpu(gpu) {
+                    warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
+                }
+            }
+        }
         match result {
             Ok(set) => {
                 for skip in &set.skipped {
@@ -403,11 +414,15 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     };
 
     let fuser = match &fusion {
-        Some(f) => Some(BagFusion {
-            fuser: bag_fuser(f, &host)?,
-            topic: config.mesh_topic.clone(),
-            period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
-            next_ns: 0,
+        Some(f) => Some({
+            let (fuser, follows_engine) = bag_fuser(f, &host)?;
+            BagFusion {
+                fuser,
+                follows_engine,
+                topic: config.mesh_topic.clone(),
+                period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
+                next_ns: 0,
+            }
         }),
         None => None,
     };
@@ -593,15 +608,17 @@ fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline
     }
 }
 
-/// The fuser, on a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`).
+/// The fuser, on a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`), and
+/// whether that is the engine's device.
 fn bag_fuser(
     fusion: &crate::pipeline::FusionConfig,
     host: &EngineHost,
-) -> Result<Fuser, BagRunError> {
+) -> Result<(Fuser, bool), BagRunError> {
     let placement = fusion_gpu(fusion.device, FusionHost::Engine(host.gpu()))
         .map_err(|e| HostError::Engine(e.into()))?;
     tracing::info!("fusion {}", placement.label());
-    Ok(Fuser::on(fusion.params, placement.gpu.as_ref())?)
+    let fuser = Fuser::on(fusion.params, placement.gpu.as_ref())?;
+    Ok((fuser, placement.engine_device))
 }
 
 /// A bag message on a topic routed to `route`, as the pipeline's input (or why it does not

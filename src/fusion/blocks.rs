@@ -118,6 +118,16 @@ impl Voxel {
         }
     }
 
+    /// Its stored fields, as [`Voxel::from_fields`] takes them.
+    pub(super) fn fields(&self) -> (f32, f32, [u16; 3], u16) {
+        (
+            self.tsdf,
+            self.weight,
+            self.colour_fixed,
+            self.colour_weight,
+        )
+    }
+
     /// The averaged colour (black before any colour was seen).
     pub fn colour(&self) -> [u8; 3] {
         self.colour_fixed

@@ -101,6 +101,16 @@ struct PoolVoxel {
 }
 
 impl PoolVoxel {
+    fn from_voxel(voxel: Voxel) -> Self {
+        let (tsdf, weight, [r, g, b], count) = voxel.fields();
+        Self {
+            tsdf,
+            weight,
+            rg: u32::from(r) | (u32::from(g) << 16),
+            b_count: u32::from(b) | (u32::from(count) << 16),
+        }
+    }
+
     fn voxel(&self) -> Voxel {
         let low = |w: u32| (w & 0xffff) as u16;
         let high = |w: u32| (w >> 16) as u16;
@@ -281,6 +291,45 @@ impl GpuTsdf {
             host_samples: Vec::new(),
             mesher: None,
         })
+    }
+
+    /// A map on `device` holding every block of `grid` (of `params`' voxel size), as if
+    /// integrated there: a map that left a lost device for the CPU goes back onto a new one.
+    /// Its record of changes starts empty (`grid`'s are its own).
+    pub fn from_grid(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        params: FusionParams,
+        grid: &VoxelBlockGrid,
+    ) -> Result<Self, GpuFusionError> {
+        let voxel_size_m = params.voxel_size_m;
+        if (grid.voxel_size_m() - voxel_size_m).abs() > 1e-6 * voxel_size_m {
+            return Err(FusionError::VoxelSizeMismatch {
+                params_m: voxel_size_m,
+                grid_m: grid.voxel_size_m(),
+            }
+            .into());
+        }
+        let mut tsdf = Self::new(device, queue, params)?;
+        let blocks: Vec<(&BlockIndex, &Block)> = grid.blocks().collect();
+        // The pool is empty: nothing of the old one to copy.
+        tsdf.grow_for(blocks.len())?;
+        // A few thousand blocks (8 KiB each) at a time.
+        for (piece, chunk) in blocks.chunks(4096).enumerate() {
+            let first = piece * 4096;
+            let mut voxels = Vec::with_capacity(chunk.len() * VOXELS_PER_BLOCK);
+            for (i, (index, block)) in chunk.iter().enumerate() {
+                tsdf.slots.insert(**index, (first + i) as u32);
+                voxels.extend(
+                    (0..VOXELS_PER_BLOCK).map(|o| PoolVoxel::from_voxel(block.voxel_at_offset(o))),
+                );
+            }
+            let at = first as u64 * SLOT_BYTES;
+            queue.write_buffer(&tsdf.pool, at, bytemuck::cast_slice(&voxels));
+        }
+        tsdf.next_slot = blocks.len() as u32;
+        queue.submit([]);
+        Ok(tsdf)
     }
 
     pub fn params(&self) -> &FusionParams {

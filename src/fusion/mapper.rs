@@ -112,6 +112,31 @@ impl Mapper {
         true
     }
 
+    /// Integrates and meshes on `device` from now on, its blocks uploaded from `grid` (a map
+    /// that left a lost device, going onto the new one); the mesh is first brought up to date
+    /// with `grid` on the CPU. On a device still (the lost one, not yet noticed), the map
+    /// leaves it first with what it still gives back ([`Mapper::sync_grid`]; nothing from a
+    /// lost one). Returns whether it left one. The device refusing the map leaves it on the
+    /// CPU.
+    pub fn move_to_gpu(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+    ) -> Result<bool, FusionError> {
+        let left = self.gpu.is_some();
+        if left {
+            if let Err(e) = self.sync_grid() {
+                tracing::debug!("fusion: leaving a device that no longer answers: {e}");
+            }
+            self.leave_gpu();
+        }
+        self.mesh.update(&mut self.grid);
+        let gpu = GpuTsdf::from_grid(device, queue, self.params, &self.grid).map_err(from_gpu)?;
+        self.gpu = Some(gpu);
+        self.mirrored_at = Some(Instant::now());
+        Ok(left)
+    }
+
     /// How often a map on a GPU brings `grid` up to date as it integrates ([`MIRROR_PERIOD`]
     /// unless set; zero: after every depth map).
     pub fn set_mirror_period(&mut self, period: Duration) {

@@ -101,6 +101,7 @@ pub(super) fn run(
         .send(Outputs {
             references: reference_publishers,
             fusion: fuser_thread.clone(),
+            fusion_follows_engine: fusion.as_ref().is_some_and(FusionNode::on_engine_device),
             world_frame: pipeline.world.as_ref().map(|w| w.frame.clone()),
             demand: Arc::clone(&demand),
         })

@@ -44,6 +44,8 @@ impl ros2_client::Message for TriggerRequest {}
 /// The fusion thread with its publisher and services.
 pub(super) struct FusionNode {
     worker: Arc<FuserThread>,
+    /// It fuses on the engine's device (and follows it to a new one after a loss).
+    engine_device: bool,
     save: Server<SaveMeshRequest, ServiceResult>,
     clear: Server<TriggerRequest, ServiceResult>,
 }
@@ -125,6 +127,7 @@ impl FusionNode {
         ));
         Ok(Self {
             worker: Arc::new(worker),
+            engine_device: placement.engine_device,
             save,
             clear,
         })
@@ -132,6 +135,11 @@ impl FusionNode {
 
     pub fn worker(&self) -> Arc<FuserThread> {
         Arc::clone(&self.worker)
+    }
+
+    /// Whether it fuses on the engine's device (`FusionPlacement::engine_device`).
+    pub fn on_engine_device(&self) -> bool {
+        self.engine_device
     }
 
     /// Answers requests until a request stream fails.
@@ -209,7 +217,8 @@ pub fn diagnostic_values(stats: &FusionStats) -> Vec<KeyValue> {
         value,
     };
     let on = match (stats.on_gpu, &stats.left_gpu) {
-        (true, _) => "GPU".to_string(),
+        (true, None) => "GPU".to_string(),
+        (true, Some(reason)) => format!("GPU (a new device, after leaving one: {reason})"),
         (false, None) => "CPU".to_string(),
         (false, Some(reason)) => format!("CPU (left the GPU: {reason})"),
     };
@@ -263,7 +272,8 @@ mod tests {
         line.map(|kv| kv.value.clone()).expect("a 'fusion on' line")
     }
 
-    /// `/diagnostics` says where the map integrates, and why it left its GPU.
+    /// `/diagnostics` says where the map integrates, why it left its GPU, and that it went
+    /// on on a new one.
     #[test]
     fn diagnostics_say_where_fusion_runs_and_why_it_left_the_gpu() {
         let mut stats = FusionStats {
@@ -277,6 +287,11 @@ mod tests {
         assert_eq!(
             on(&stats),
             "CPU (left the GPU: GPU fusion: reading back: the device is lost)"
+        );
+        stats.on_gpu = true;
+        assert_eq!(
+            on(&stats),
+            "GPU (a new device, after leaving one: GPU fusion: reading back: the device is lost)"
         );
     }
 }

@@ -55,6 +55,8 @@ pub(super) struct Publishers {
 pub(super) struct Outputs {
     pub references: Vec<Publishers>,
     pub fusion: Option<Arc<FuserThread>>,
+    /// Fusion runs on the engine's device: it follows the engine to a new one after a loss.
+    pub fusion_follows_engine: bool,
     /// `world_frame` on a moving rig (fusion's map frame).
     pub world_frame: Option<String>,
     /// Which optional outputs have subscribers (made only then).
@@ -127,6 +129,11 @@ fn worker_loop(
     outputs: &Outputs,
     viewer: Option<&Viewer>,
 ) {
+    // Fusion on the engine's device follows it to a new one after a loss.
+    if let (Some(fusion), true) = (&outputs.fusion, outputs.fusion_follows_engine) {
+        let fusion = Arc::clone(fusion);
+        host.on_new_device(move |gpu| fusion.follow_device(gpu.clone()));
+    }
     let publishers = &outputs.references;
     let mut log = RateLimited::default();
     let mut published: u64 = 0;

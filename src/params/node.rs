@@ -132,7 +132,7 @@ fn world_params() -> Vec<ParamSpec> {
             "fusion_device",
             s("auto"),
             ParamRange::one_of(&["auto", "gpu", "cpu"]),
-            "Fusion (the depth node, bag, the fuse node): where the TSDF integrates. auto = on the engine's GPU when the WGSL engine runs on a hardware GPU (the fuse node: a hardware GPU if wgpu offers one), else the CPU (on a CPU adapter such as lavapipe the CPU integrator is faster); gpu = on the engine's device, else one of its own (lavapipe without a GPU); cpu = the CPU. On a GPU the mesh is made there too. A device lost or failing mid-run: the map goes on on the CPU from its host copy, at most a second old (logged once; /diagnostics: fusion on).",
+            "Fusion (the depth node, bag, the fuse node): where the TSDF integrates. auto = on the engine's GPU when the WGSL engine runs on a hardware GPU (the fuse node: a hardware GPU if wgpu offers one), else the CPU (on a CPU adapter such as lavapipe the CPU integrator is faster); gpu = on the engine's device, else one of its own (lavapipe without a GPU); cpu = the CPU. On a GPU the mesh is made there too. A device lost or failing mid-run: the map goes on on the CPU from its host copy, at most a second old (logged once; /diagnostics: fusion on), and onto the engine's new device once the engine makes one.",
         ),
         node_spec(
             "depth_topics",

@@ -18,6 +18,9 @@ pub enum HostError {
     Engine(#[from] EngineError),
 }
 
+/// What is told each device made anew.
+type NewDeviceHook = Box<dyn FnMut(&GpuContext) + Send>;
+
 /// The engine, and for the WGSL engine whether its device was lost.
 pub struct EngineHost {
     engine: Engine,
@@ -27,6 +30,8 @@ pub struct EngineHost {
     pub recreated: u64,
     /// Stops a run between passes (given to every engine made here).
     cancel: CancelFlag,
+    /// Told each new device (fusion on the engine's device follows it).
+    on_new_device: Option<NewDeviceHook>,
 }
 
 impl EngineHost {
@@ -41,6 +46,7 @@ impl EngineHost {
             lost,
             recreated: 0,
             cancel: CancelFlag::new(),
+            on_new_device: None,
         })
     }
 
@@ -49,6 +55,12 @@ impl EngineHost {
     pub fn set_cancel(&mut self, cancel: CancelFlag) {
         self.engine.set_cancel(cancel.clone());
         self.cancel = cancel;
+    }
+
+    /// `hook` gets each device made anew after a loss (the node's fusion thread, when it
+    /// fuses on the engine's device, goes onto it: [`super::FuserThread::follow_device`]).
+    pub fn on_new_device(&mut self, hook: impl FnMut(&GpuContext) + Send + 'static) {
+        self.on_new_device = Some(Box::new(hook));
     }
 
     pub fn is_cancelled(&self) -> bool {
@@ -138,6 +150,9 @@ impl EngineHost {
         self.engine = engine;
         self.recreated += 1;
         tracing::info!("engine recreated: {}", self.engine.label());
+        if let (Some(hook), Some(gpu)) = (self.on_new_device.as_mut(), self.engine.gpu()) {
+            hook(gpu);
+        }
         process_job(&mut self.engine, job, sweep, wanted)
     }
 }

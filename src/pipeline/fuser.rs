@@ -176,9 +176,26 @@ impl Fuser {
         self.mapper.is_on_gpu()
     }
 
-    /// Why the map left the GPU it was made on for the CPU (None: it never did).
+    /// Why the map left the GPU it was made on for the CPU (None: it never did; it stays
+    /// said after [`Fuser::move_to_gpu`]).
     pub fn left_gpu(&self) -> Option<&str> {
         self.left_gpu.as_deref()
+    }
+
+    /// Goes on on `gpu`'s device, the map's blocks uploaded from its host copy: the engine's
+    /// device was lost and made anew, and the map, which left the old one for the CPU (or is
+    /// still on it: it leaves it now with what it still gives back), follows
+    /// ([`Mapper::move_to_gpu`]). The device refusing the map leaves it on the CPU, and says
+    /// why.
+    pub fn move_to_gpu(&mut self, gpu: &GpuContext) -> Result<(), String> {
+        if self.mapper.is_on_gpu() {
+            self.left_gpu
+                .get_or_insert_with(|| "its device was replaced".into());
+        }
+        self.mapper
+            .move_to_gpu(&gpu.device, &gpu.queue)
+            .map(|_| ())
+            .map_err(|e| format!("the new GPU refused the map: {e}"))
     }
 
     /// The map's frame (None before the first depth map).

@@ -55,6 +55,8 @@ pub struct FusionStats {
 enum Request {
     Save(PathBuf, oneshot::Sender<Result<SavedMesh, String>>),
     Clear(oneshot::Sender<usize>),
+    /// The engine's device was made anew: the map goes onto it ([`Fuser::move_to_gpu`]).
+    Device(GpuContext),
 }
 
 #[derive(Default)]
@@ -154,6 +156,14 @@ impl FuserThread {
         rx
     }
 
+    /// The engine's device was lost and made anew: a map that fused on the old one goes on on
+    /// `gpu` (after the sets already offered, which leave the lost device for the CPU), its
+    /// blocks uploaded from its host copy. Logged; a device that refuses it leaves it on the
+    /// CPU.
+    pub fn follow_device(&self, gpu: GpuContext) {
+        self.request(Request::Device(gpu));
+    }
+
     fn request(&self, request: Request) {
         self.shared.lock().requests.push_back(request);
         self.shared.wake.notify_one();
@@ -247,6 +257,16 @@ fn run(
                     .map_err(|e| format!("{}: {e}", path.display()));
                 record(&mut shared.lock().stats, &fuser);
                 let _ = answer.send(result);
+            }
+            Some(Request::Device(gpu)) => {
+                match fuser.move_to_gpu(&gpu) {
+                    Ok(()) => tracing::info!(
+                        "fusion: the map goes on on the new device: {}",
+                        gpu.adapter_label()
+                    ),
+                    Err(e) => tracing::warn!("fusion: the map stays on the CPU: {e}"),
+                }
+                record(&mut shared.lock().stats, &fuser);
             }
             Some(Request::Clear(answer)) => {
                 let (blocks, markers) = fuser.clear();
@@ -405,7 +425,12 @@ mod tests {
             glam::DVec3::new(0.1, -1.0, 0.2),
             glam::DVec3::new(0.0, 0.0, 2.0),
         );
-        let eyes = [(0.7, -0.4, -0.2), (-0.3, 0.2, 0.1), (0.2, 0.5, 0.0)];
+        let eyes = [
+            (0.7, -0.4, -0.2),
+            (-0.3, 0.2, 0.1),
+            (0.2, 0.5, 0.0),
+            (0.4, 0.1, -0.3),
+        ];
         let (x, y, z) = eyes[i];
         let pose = look_at(glam::DVec3::new(x, y, z), target, up);
         FusionInput {
@@ -521,5 +546,50 @@ mod tests {
         );
         assert_eq!(after.blocks, reference.blocks);
         assert_alike("after the loss", saved(&gpu, "lost"), saved(&cpu, "kept"));
+    }
+
+    /// The engine's device lost and made anew (`follow_device`, as the node's GPU thread does
+    /// after recreating its engine): a map that left the lost device for the CPU goes on on
+    /// the new one with every block, says so, and fuses on as the CPU thread does.
+    #[test]
+    fn a_map_follows_the_engine_onto_its_new_device() {
+        let (_shared, _one_at_a_time) = crate::fusion::gpu::tests::gpu();
+        let own = GpuContext::new().expect("an adapter (lavapipe is fine)");
+        let gpu = FuserThread::spawn(params(), Some(&own), 0.0, |_| {}).unwrap();
+        let cpu = FuserThread::spawn(params(), None, 0.0, |_| {}).unwrap();
+        offer_both(&gpu, &cpu, 0..1);
+        own.device.destroy();
+        offer_both(&gpu, &cpu, 1..2);
+        let left = settle(&gpu, 2);
+        assert!(!left.on_gpu && left.left_gpu.is_some(), "{left:?}");
+        let new = GpuContext::new().expect("a new device");
+        gpu.follow_device(new.clone());
+        gpu.flush();
+        let moved = gpu.stats();
+        assert!(moved.on_gpu, "not on the new device: {moved:?}");
+        assert!(moved.left_gpu.is_some(), "the loss is still told");
+        assert_eq!(
+            moved.blocks, left.blocks,
+            "every block went onto the new device"
+        );
+        offer_both(&gpu, &cpu, 2..4);
+        let (after, reference) = (settle(&gpu, 4), settle(&cpu, 4));
+        assert!(after.on_gpu && after.skipped.is_empty(), "{after:?}");
+        assert_eq!(after.blocks, reference.blocks);
+        assert_alike(
+            "on the new device",
+            saved(&gpu, "new"),
+            saved(&cpu, "stayed"),
+        );
+        // Moved again from a device that still answers: nothing is lost on the way.
+        gpu.follow_device(GpuContext::new().expect("a third device"));
+        gpu.flush();
+        let third = gpu.stats();
+        assert!(third.on_gpu && third.blocks == after.blocks, "{third:?}");
+        assert_alike(
+            "on the third device",
+            saved(&gpu, "third"),
+            saved(&cpu, "still"),
+        );
     }
 }

@@ -23,6 +23,9 @@ pub enum FusionHost<'a> {
 pub struct FusionPlacement {
     /// The device (None: the CPU).
     pub gpu: Option<GpuContext>,
+    /// On the engine's own device: when the engine makes its device anew after a loss, the map
+    /// follows ([`super::FuserThread::follow_device`]).
+    pub engine_device: bool,
     pub why: String,
 }
 
@@ -30,6 +33,7 @@ impl FusionPlacement {
     fn cpu(why: impl Into<String>) -> Self {
         Self {
             gpu: None,
+            engine_device: false,
             why: why.into(),
         }
     }
@@ -38,7 +42,16 @@ impl FusionPlacement {
         let why = format!("{why}: {}", gpu.adapter_label());
         Self {
             gpu: Some(gpu),
+            engine_device: false,
             why,
+        }
+    }
+
+    /// On the engine's device.
+    fn engine(gpu: &GpuContext, why: &str) -> Self {
+        Self {
+            engine_device: true,
+            ..Self::gpu(gpu.clone(), why)
         }
     }
 
@@ -65,7 +78,7 @@ pub fn fusion_gpu(
     Ok(match (choice, host) {
         (Device::Cpu, _) => FusionPlacement::cpu("fusion_device cpu"),
         (Device::Gpu, FusionHost::Engine(Some(gpu))) => {
-            FusionPlacement::gpu(gpu.clone(), "fusion_device gpu, the engine's device")
+            FusionPlacement::engine(gpu, "fusion_device gpu, the engine's device")
         }
         (Device::Gpu, _) => FusionPlacement::gpu(GpuContext::new()?, "fusion_device gpu"),
         (Device::Auto, FusionHost::Engine(None)) => {
@@ -74,7 +87,7 @@ pub fn fusion_gpu(
         (Device::Auto, FusionHost::Engine(Some(gpu))) => {
             let info = gpu.adapter.get_info();
             if auto_fuses_on(info.device_type) {
-                FusionPlacement::gpu(gpu.clone(), "fusion_device auto, the engine's GPU")
+                FusionPlacement::engine(gpu, "fusion_device auto, the engine's GPU")
             } else {
                 FusionPlacement::cpu(format!(
                     "fusion_device auto: the engine's adapter '{}' is a CPU adapter, where the \

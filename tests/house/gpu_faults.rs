@@ -3,12 +3,16 @@
 //! limit.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use sweepdepth::bag::BagReader;
+use sweepdepth::fusion::FusionParams;
 use sweepdepth::geometry::CameraModel;
 use sweepdepth::gpu_context::GpuContext;
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
-use sweepdepth::pipeline::{EngineHost, Input, Job, Pipeline, PipelineConfig, Wanted};
+use sweepdepth::pipeline::{
+    EngineHost, FuserThread, FusionInput, Input, Job, Pipeline, PipelineConfig, Wanted,
+};
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{SweepError, SweepParams};
 use sweepdepth::synthetic::{self, Scene};
@@ -73,6 +77,62 @@ fn lost_device_is_recreated_and_the_set_processed() {
     host.process(&job, &config.sweep, Wanted::all(false))
         .expect("third run");
     assert_eq!(host.recreated, 1);
+}
+
+/// Fusion on the engine's device follows the engine onto the device it makes after a loss
+/// (`EngineHost::on_new_device`, as the node's GPU thread wires it): the map, still on the lost
+/// device, leaves it for its host copy and goes onto the new one with every block, and fuses on
+/// there.
+#[test]
+fn fusion_follows_the_engine_onto_its_new_device() {
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let config = PipelineConfig::from_args(&args).expect("config");
+    let job = fixture_job(&config);
+    let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
+    let fusion_params = FusionParams {
+        voxel_size_m: 0.05,
+        ..FusionParams::default()
+    };
+    let fusion = Arc::new(FuserThread::spawn(fusion_params, host.gpu(), 0.0, |_| {}).unwrap());
+    let follower = Arc::clone(&fusion);
+    host.on_new_device(move |gpu| follower.follow_device(gpu.clone()));
+    let fuse = |set: sweepdepth::pipeline::SetOutputs| {
+        let inputs = set.outputs.into_iter();
+        fusion.offer(
+            inputs
+                .map(|o| FusionInput::from_maps(o.maps, None))
+                .collect(),
+        );
+        fusion.flush();
+        fusion.stats()
+    };
+    let wanted = Wanted::all(false);
+    let first = fuse(
+        host.process(&job, &config.sweep, wanted)
+            .expect("first run"),
+    );
+    assert!(
+        first.on_gpu && first.integrated == 1 && first.blocks > 0,
+        "{first:?}"
+    );
+    let old = host.device().expect("the WGSL engine's device").clone();
+    old.destroy();
+    let after = host
+        .process(&job, &config.sweep, wanted)
+        .expect("the run after the loss");
+    assert_eq!(host.recreated, 1);
+    fusion.flush();
+    let moved = fusion.stats();
+    assert!(moved.on_gpu, "fusion did not follow the engine: {moved:?}");
+    assert!(moved.left_gpu.is_some(), "the loss is told: {moved:?}");
+    assert_eq!(moved.blocks, first.blocks, "the blocks went along");
+    let last = fuse(after);
+    assert!(last.on_gpu && last.integrated == 2, "{last:?}");
+    assert!(last.skipped.is_empty(), "{:?}", last.skipped);
 }
 
 #[test]

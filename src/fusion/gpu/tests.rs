@@ -438,6 +438,90 @@ fn a_gpu_map_meshes_on_the_device_without_copying_back() {
     );
 }
 
+/// A grid made on the CPU goes onto a device as it is (`GpuTsdf::from_grid`, how a map that
+/// left a lost device goes onto a new one): the same blocks and every voxel bit for bit, the
+/// CPU's meshes; a depth map integrated after on both leaves them alike, and a grid of
+/// another voxel size is refused.
+#[test]
+fn a_grid_uploaded_to_a_device_holds_the_same_voxels_and_fuses_on() {
+    let (context, _one) = gpu();
+    let (params, model, poses, colour) = oblique_scene();
+    let voxel_m = params.voxel_size_m;
+    let mut cpu = VoxelBlockGrid::new(voxel_m).unwrap();
+    let depths = poses.map(|pose| sphere_before_slanted_wall(&model, &pose));
+    integrate_weighted(
+        &mut cpu,
+        &params,
+        &depths[0],
+        None,
+        Some(&colour),
+        &model,
+        &poses[0],
+    )
+    .unwrap();
+    let mut gpu = GpuTsdf::from_grid(&context.device, &context.queue, params, &cpu).unwrap();
+    assert_eq!(gpu.block_count(), cpu.block_count());
+    assert!(gpu.take_unmeshed().is_empty() && gpu.changed_blocks().is_empty());
+    let read = gpu.read_grid().unwrap();
+    assert_eq!(read.block_count(), cpu.block_count());
+    let mut observed = 0;
+    for (index, block) in cpu.blocks() {
+        let mine = read.block(*index).expect("every block uploaded");
+        for offset in 0..VOXELS_PER_BLOCK {
+            let (a, b) = (block.voxel_at_offset(offset), mine.voxel_at_offset(offset));
+            assert_eq!(a, b, "{index:?} voxel {offset}");
+            observed += usize::from(a.is_observed());
+        }
+    }
+    assert!(observed > 10_000, "{observed} voxels observed");
+    let mut all: Vec<BlockIndex> = cpu.blocks().map(|(index, _)| *index).collect();
+    all.sort_unstable();
+    let mut whole = Mesh::new();
+    whole.rebuild(&cpu);
+    let mut triangles = 0;
+    for (index, mesh) in gpu.mesh_blocks(&all).unwrap() {
+        let empty = BlockMesh::default();
+        let expected = whole.block(index).unwrap_or(&empty);
+        assert_meshes_equal(expected, &mesh, &format!("block {index:?}"), voxel_m);
+        triangles += mesh.triangles.len();
+    }
+    assert!(triangles > 10_000, "{triangles} triangles");
+    // The next depth map, on both.
+    let a = integrate_weighted(
+        &mut cpu,
+        &params,
+        &depths[1],
+        None,
+        Some(&colour),
+        &model,
+        &poses[1],
+    )
+    .unwrap();
+    let b = gpu
+        .integrate(&view(&depths[1], Some(&colour), &model, &poses[1]), None)
+        .unwrap();
+    assert_same_stats("after the upload", &a, &b);
+    assert_close(
+        "after the upload",
+        &compare_grids(&cpu, &gpu.read_grid().unwrap()),
+    );
+    // Another voxel size.
+    let coarse = FusionParams {
+        voxel_size_m: 2.0 * voxel_m,
+        ..params
+    };
+    let refused = GpuTsdf::from_grid(&context.device, &context.queue, coarse, &cpu);
+    assert!(
+        matches!(
+            refused,
+            Err(GpuFusionError::Fusion(
+                FusionError::VoxelSizeMismatch { .. }
+            ))
+        ),
+        "{refused:?}"
+    );
+}
+
 /// A camera at `at` looking along z, moved off the voxel grid: with the camera on it and this
 /// focal length, rows of voxel centres project exactly onto the image's edge (u = -0.5), where
 /// rounding decides whether they are seen.
