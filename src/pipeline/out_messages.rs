@@ -9,10 +9,13 @@ use crate::msgs::{Header, Image, PointCloud2, PointField};
 
 /// A `32FC1` little-endian image message (step = 4 * width).
 pub fn f32_image_msg(header: &Header, image: &ImageF32) -> Image {
-    let mut data = Vec::with_capacity(image.data.len() * 4);
-    for v in &image.data {
-        data.extend_from_slice(&v.to_le_bytes());
-    }
+    // On a little-endian host the floats' bytes as they lie: one copy (a value at a time took
+    // 3-4 times as long; a megapixel map is 4.9 MB, and depth and confidence go out every set).
+    let data = if cfg!(target_endian = "little") {
+        bytemuck::cast_slice::<f32, u8>(&image.data).to_vec()
+    } else {
+        image.data.iter().flat_map(|v| v.to_le_bytes()).collect()
+    };
     Image {
         header: header.clone(),
         height: image.height,
@@ -138,6 +141,8 @@ mod tests {
         assert_eq!(m.step, 8);
         assert_eq!(m.encoding, "32FC1");
         assert_eq!(&m.data[0..4], &1.5f32.to_le_bytes());
+        assert_eq!(m.data.len(), 8);
+        assert!(f32::from_le_bytes([m.data[4], m.data[5], m.data[6], m.data[7]]).is_nan());
     }
 
     #[test]

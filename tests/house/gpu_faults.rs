@@ -47,8 +47,8 @@ fn fixture_job(config: &PipelineConfig) -> Job {
     panic!("no complete set in the fixture");
 }
 
-#[test]
-fn lost_device_is_recreated_and_the_set_processed() {
+/// The Tsukuba bag fixture's configuration and first job.
+fn fixture() -> (PipelineConfig, Job) {
     let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
     let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
         .iter()
@@ -56,6 +56,12 @@ fn lost_device_is_recreated_and_the_set_processed() {
         .collect();
     let config = PipelineConfig::from_args(&args).expect("config");
     let job = fixture_job(&config);
+    (config, job)
+}
+
+#[test]
+fn lost_device_is_recreated_and_the_set_processed() {
+    let (config, job) = fixture();
     let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
     let before = host
         .process(&job, &config.sweep, Wanted::all(false))
@@ -85,13 +91,7 @@ fn lost_device_is_recreated_and_the_set_processed() {
 /// there.
 #[test]
 fn fusion_follows_the_engine_onto_its_new_device() {
-    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
-    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
-    let config = PipelineConfig::from_args(&args).expect("config");
-    let job = fixture_job(&config);
+    let (config, job) = fixture();
     let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
     let fusion_params = FusionParams {
         voxel_size_m: 0.05,
