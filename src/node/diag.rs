@@ -23,6 +23,8 @@ pub struct Stats {
     /// The synchroniser's verdicts, counted ([`crate::pipeline::SyncVerdict::count`]).
     pub sync: SyncStats,
     pub gpu_dropped: u64,
+    /// Sets dropped for newer ones while waiting to be sent (`super::sender`).
+    pub send_dropped: u64,
     pub published: u64,
     last_published: Option<Instant>,
     last_processing: Option<Duration>,
@@ -52,6 +54,7 @@ impl Stats {
             arrivals: vec![VecDeque::new(); cameras],
             sync: SyncStats::default(),
             gpu_dropped: 0,
+            send_dropped: 0,
             published: 0,
             last_published: None,
             last_processing: None,
@@ -161,6 +164,10 @@ impl Stats {
         kv("sync future stamps".into(), self.sync.future.to_string());
         kv("sync resets".into(), self.sync.resets.to_string());
         kv("gpu sets dropped".into(), self.gpu_dropped.to_string());
+        kv(
+            "sets dropped waiting to be sent".into(),
+            self.send_dropped.to_string(),
+        );
         for (reason, n) in &self.skipped {
             kv(format!("skipped: {reason}"), n.to_string());
         }

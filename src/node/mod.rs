@@ -34,6 +34,7 @@ mod inputs;
 mod log;
 pub mod param_services;
 pub mod params;
+mod sender;
 mod shutdown;
 mod topics;
 mod why;

@@ -3,7 +3,7 @@
 
 use std::sync::{mpsc, Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use ros2_client::Publisher;
 
@@ -11,10 +11,11 @@ use super::demand::Demand;
 use super::diag::{wall_time_now, Stats};
 use super::log::{lock, log_info, RateLimited};
 use super::params::LiveParams;
+use super::sender::Sender;
 use super::NodeError;
 use crate::gpu_context::GpuContext;
 use crate::handoff::Handoff;
-use crate::msgs::{CameraInfo, Image, PointCloud2};
+use crate::msgs::{CameraInfo, Image, PointCloud2, Time};
 use crate::pipeline::{
     EngineHost, FrameMaps, FrameMessages, FuserThread, FusionInput, HostError, Job, Output,
     OutputMsg, Wanted,
@@ -101,7 +102,7 @@ pub(super) fn spawn(
             let Ok(publishers) = publishers_rx.recv() else {
                 return;
             };
-            worker_loop(&slot, &live, &stats, host, &publishers, viewer.as_ref());
+            worker_loop(&slot, &live, &stats, host, publishers, viewer.as_ref());
         })
         .map_err(|e| NodeError::Gpu(format!("cannot start the GPU thread: {e}")))?;
     let (adapter, gpu) = match init_rx.recv() {
@@ -121,12 +122,55 @@ pub(super) fn spawn(
     })
 }
 
+/// One set's messages on their way to the sending thread.
+struct Outgoing {
+    messages: Vec<(usize, FrameMessages)>,
+    /// From the set's start on the GPU thread to its hand-over.
+    processing: Duration,
+    stamp: Time,
+}
+
+/// The sending thread (`sender.rs`): counts each set as published, then publishes it.
+fn start_sending(
+    publishers: Vec<Publishers>,
+    stats: Arc<Mutex<Stats>>,
+    dropped: impl Fn() -> u64 + Send + 'static,
+) -> std::io::Result<Sender<Outgoing>> {
+    let mut log = RateLimited::default();
+    let mut published: u64 = 0;
+    Sender::spawn(move |set: Outgoing| {
+        // Counted before the messages go out, so that /diagnostics never counts fewer sets
+        // than a subscriber has received (its thread may run between the two).
+        {
+            let mut stats = lock(&stats);
+            stats.made_on_demand = set
+                .messages
+                .first()
+                .map_or(Wanted::NONE, |(_, m)| Wanted::made(m));
+            stats.on_published(set.processing, Instant::now(), wall_time_now(), set.stamp);
+        }
+        for (output, messages) in set.messages {
+            let Some(publishers) = publishers.get(output) else {
+                continue;
+            };
+            publish(publishers, messages, &mut log);
+        }
+        published += 1;
+        if published == 1 || published.is_multiple_of(100) {
+            log_info(&format!(
+                "published {published} depth images ({} sets dropped for newer ones)",
+                dropped()
+            ));
+        }
+    })
+}
+
 fn worker_loop(
-    slot: &Handoff<Job>,
+    slot: &Arc<Handoff<Job>>,
     live: &LiveParams,
-    stats: &Mutex<Stats>,
+    stats: &Arc<Mutex<Stats>>,
     mut host: EngineHost,
-    outputs: &Outputs,
+    outputs: Outputs,
     viewer: Option<&Viewer>,
 ) {
     // Fusion on the engine's device follows it to a new one after a loss.
@@ -134,9 +178,17 @@ fn worker_loop(
         let fusion = Arc::clone(fusion);
         host.on_new_device(move |gpu| fusion.follow_device(gpu.clone()));
     }
-    let publishers = &outputs.references;
+    let waiting = Arc::clone(slot);
+    let sender = match start_sending(outputs.references, Arc::clone(stats), move || {
+        waiting.dropped()
+    }) {
+        Ok(sender) => sender,
+        Err(e) => {
+            tracing::error!("cannot start the sending thread: {e}; nothing will be published");
+            return;
+        }
+    };
     let mut log = RateLimited::default();
-    let mut published: u64 = 0;
     while let Some(job) = slot.take() {
         let started = Instant::now();
         if let Some(image) = job.images.get(job.anchor()) {
@@ -222,28 +274,14 @@ fn worker_loop(
                     .collect(),
             );
         }
-        // Counted before the messages go out, so that /diagnostics never counts fewer sets
-        // than a subscriber has received (its thread may run between the two).
-        {
-            let mut stats = lock(stats);
-            stats.made_on_demand = messages
-                .first()
-                .map_or(Wanted::NONE, |(_, m)| Wanted::made(m));
-            stats.on_published(started.elapsed(), Instant::now(), wall_time_now(), stamp);
-        }
-        for (output, messages) in messages {
-            let Some(publishers) = publishers.get(output) else {
-                continue;
-            };
-            publish(publishers, messages, &mut log);
-        }
-        published += 1;
-        if published == 1 || published.is_multiple_of(100) {
-            log_info(&format!(
-                "published {published} depth images ({} sets dropped waiting for the GPU)",
-                slot.dropped()
-            ));
-        }
+        // Sent on the sending thread while the next set runs; a set still waiting there is
+        // dropped for this newer one.
+        sender.offer(Outgoing {
+            messages,
+            processing: started.elapsed(),
+            stamp,
+        });
+        lock(stats).send_dropped = sender.dropped();
     }
 }
 

@@ -564,6 +564,7 @@ fn diagnostics() {
         "sync future stamps",
         "sync resets",
         "gpu sets dropped",
+        "sets dropped waiting to be sent",
         "sets published",
         "processing time last (ms)",
         "processing time mean (ms)",
