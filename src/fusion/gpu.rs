@@ -315,8 +315,9 @@ impl GpuTsdf {
         // The pool is empty: nothing of the old one to copy.
         tsdf.grow_for(blocks.len())?;
         // A few thousand blocks (8 KiB each) at a time.
-        for (piece, chunk) in blocks.chunks(4096).enumerate() {
-            let first = piece * 4096;
+        const PIECE: usize = 4096;
+        for (piece, chunk) in blocks.chunks(PIECE).enumerate() {
+            let first = piece * PIECE;
             let mut voxels = Vec::with_capacity(chunk.len() * VOXELS_PER_BLOCK);
             for (i, (index, block)) in chunk.iter().enumerate() {
                 tsdf.slots.insert(**index, (first + i) as u32);

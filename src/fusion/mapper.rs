@@ -228,19 +228,15 @@ impl Mapper {
         let Some(gpu) = self.gpu.as_mut() else {
             return self.mesh.update(&mut self.grid);
         };
-        let todo = self
-            .mesh
-            .take_changes(gpu.take_unmeshed(), |index| gpu.contains(index));
-        let meshes = match gpu.mesh_blocks(&todo) {
-            Ok(meshes) => meshes,
-            Err(e) => {
-                self.gpu_error = Some(e.to_string());
-                if let Err(e) = self.sync_grid() {
-                    tracing::debug!("fusion: the host copy could not be brought up to date: {e}");
-                }
-                mesh_on_cpu(&self.grid, &todo)
-            }
+        let (todo, e) = match gpu.update_mesh(&mut self.mesh) {
+            Ok(stats) => return stats,
+            Err(failed) => failed,
         };
+        self.gpu_error = Some(e.to_string());
+        if let Err(e) = self.sync_grid() {
+            tracing::debug!("fusion: the host copy could not be brought up to date: {e}");
+        }
+        let meshes = mesh_on_cpu(&self.grid, &todo);
         self.mesh.apply(meshes, todo.len())
     }
 

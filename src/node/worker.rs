@@ -158,7 +158,7 @@ fn start_sending(
         published += 1;
         if published == 1 || published.is_multiple_of(100) {
             log_info(&format!(
-                "published {published} depth images ({} sets dropped for newer ones)",
+                "published {published} depth images ({} sets dropped waiting for the GPU)",
                 dropped()
             ));
         }

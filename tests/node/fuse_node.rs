@@ -13,10 +13,10 @@
 //! with fusion on its device). On B: depth node `b` (reference cam2, `/b/cam2/depth/...`). The
 //! fuse node (fusing on a device of its own) must count maps from both hosts in
 //! `/diagnostics`, and both meshes, saved through `~/save_mesh`, must lie on the true scene in
-//! `world` (93 % of the vertices within 2 voxels; the fuse node's mesh gave 94.8-95.7 % over five
-//! runs on the 2-core machine with a build beside, as sets dropped under load change which depth
-//! maps are fused; the one-process run 96.6-96.9 %): a node that ignored /tf, or fused one host
-//! only, fails.
+//! `world` (90 % of the vertices within 2 voxels; the fuse node's mesh gave 93.4-95.7 % over six
+//! runs on the 2-core machine with builds beside, as sets dropped under load change which depth
+//! maps are fused; the one-process run 96.5-96.9 %; a rig placed without /tf is 0.2-0.5 m, 10-25
+//! voxels, off): a node that ignored /tf, or fused one host only, fails.
 
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -345,7 +345,7 @@ fn two_hosts() {
             vertices.len()
         );
         assert!(
-            on_scene * 100 >= vertices.len() * 93,
+            on_scene * 100 >= vertices.len() * 90,
             "{name}: only {on_scene} of {} mesh vertices lie within 2 voxels of the true scene",
             vertices.len()
         );

@@ -363,11 +363,8 @@ pub fn time_gpu(
         let mut tsdf = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
         let mut grid = VoxelBlockGrid::new(params.voxel_size_m)?;
         let mut mesh = Mesh::new();
-        let update_mesh = |tsdf: &mut GpuTsdf, mesh: &mut Mesh| {
-            let todo = mesh.take_changes(tsdf.take_unmeshed(), |index| tsdf.contains(index));
-            let meshes = tsdf.mesh_blocks(&todo)?;
-            anyhow::Ok(mesh.apply(meshes, todo.len()))
-        };
+        let update_mesh =
+            |tsdf: &mut GpuTsdf, mesh: &mut Mesh| tsdf.update_mesh(mesh).map_err(|(_, e)| e);
         run(&mut tsdf, a)?;
         tsdf.sync_into(&mut grid)?;
         update_mesh(&mut tsdf, &mut mesh)?;

@@ -11,7 +11,7 @@ use super::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, 
 use super::{entry, GpuFusionError, GpuTsdf, Grown};
 use crate::fusion::blocks::BlockIndex;
 use crate::fusion::tables::{CORNERS, EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
-use crate::fusion::BlockMesh;
+use crate::fusion::{BlockMesh, Mesh, MeshStats};
 
 /// The shader: the pool's voxel and the meshing.
 const SHADER: &str = concat!(
@@ -159,6 +159,21 @@ enum Pass {
 }
 
 impl GpuTsdf {
+    /// Brings `mesh` up to date with this map: the blocks changed and dropped since the last
+    /// call ([`GpuTsdf::take_unmeshed`], [`Mesh::take_changes`]) meshed here from the voxels
+    /// where they are. When the device fails, the blocks it was to mesh come back with the
+    /// error (the caller meshes them on the CPU: `Mapper::update_mesh`).
+    pub fn update_mesh(
+        &mut self,
+        mesh: &mut Mesh,
+    ) -> Result<MeshStats, (Vec<BlockIndex>, GpuFusionError)> {
+        let todo = mesh.take_changes(self.take_unmeshed(), |index| self.contains(index));
+        match self.mesh_blocks(&todo) {
+            Ok(meshes) => Ok(mesh.apply(meshes, todo.len())),
+            Err(e) => Err((todo, e)),
+        }
+    }
+
     /// Meshes `todo` on the device, each block as [`crate::fusion::Mesh`] meshes it on the CPU
     /// (its cubes reach into the blocks above it); a block not in the grid meshes empty. In
     /// `todo`'s order.
