@@ -15,7 +15,7 @@
 //! `/diagnostics`, and both meshes, saved through `~/save_mesh`, must lie on the true scene in
 //! `world` (90 % of the vertices within 2 voxels; the fuse node's mesh gave 93.4-95.7 % over six
 //! runs on the 2-core machine with builds beside, as sets dropped under load change which depth
-//! maps are fused; the one-process run 96.5-96.9 %; a rig placed without /tf is 0.2-0.5 m, 10-25
+//! maps are fused; the one-process run 96.5-96.9 %; a rig placed without /tf is 0.2-0.5 m, 5-12
 //! voxels, off): a node that ignored /tf, or fused one host only, fails.
 
 use std::process::Command;
