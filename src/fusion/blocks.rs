@@ -444,8 +444,8 @@ impl BlockChanges {
 pub struct VoxelBlockGrid {
     voxel_size_m: f32,
     blocks: BlockMap<Block>,
-    changed: BlockSet,
-    removed: BlockSet,
+    /// Changed and dropped since the last meshing.
+    changes: BlockChanges,
 }
 
 impl VoxelBlockGrid {
@@ -459,8 +459,7 @@ impl VoxelBlockGrid {
         Ok(Self {
             voxel_size_m,
             blocks: BlockMap::default(),
-            changed: BlockSet::default(),
-            removed: BlockSet::default(),
+            changes: BlockChanges::default(),
         })
     }
 
@@ -528,15 +527,16 @@ impl VoxelBlockGrid {
         let per_entry = std::mem::size_of::<(BlockIndex, Block)>() + 1;
         self.blocks.len() * per_block
             + self.blocks.capacity() * per_entry
-            + (self.changed.capacity() + self.removed.capacity())
+            + (self.changes.changed.capacity() + self.changes.removed.capacity())
                 * (std::mem::size_of::<BlockIndex>() + 1)
     }
 
     /// Drops every block (a later [`super::Mesh::update`] drops their meshes).
     pub fn clear(&mut self) {
-        self.removed.extend(self.blocks.keys().copied());
+        for index in self.blocks.keys() {
+            self.changes.remove(*index);
+        }
         self.blocks.clear();
-        self.changed.clear();
     }
 
     /// Keeps at most `max_blocks` blocks (0: no limit): when there are more, drops the ones
@@ -555,57 +555,44 @@ impl VoxelBlockGrid {
     /// Drops one block (it joins [`Self::removed_blocks`]).
     pub(super) fn remove_block(&mut self, index: BlockIndex) {
         self.blocks.remove(&index);
-        self.changed.remove(&index);
-        self.removed.insert(index);
+        self.changes.remove(index);
     }
 
     /// Allocates an empty block at `index` (as the integration allocates them, not marked
     /// changed).
     pub(super) fn insert_empty_block(&mut self, index: BlockIndex) {
         self.blocks.insert(index, Block::default());
-        self.removed.remove(&index);
+        self.changes.removed.remove(&index);
     }
 
     /// Puts a block in (replacing the one at `index`) and marks it changed.
     pub(super) fn insert_block(&mut self, index: BlockIndex, block: Block) {
         self.blocks.insert(index, block);
-        self.removed.remove(&index);
-        self.changed.insert(index);
+        self.changes.change(index);
     }
 
     /// The blocks dropped ([`Self::drop_farthest`], [`Self::clear`]) since the last meshing.
     pub fn removed_blocks(&self) -> &BlockSet {
-        &self.removed
-    }
-
-    pub(super) fn take_removed(&mut self) -> BlockSet {
-        std::mem::take(&mut self.removed)
+        &self.changes.removed
     }
 
     /// The blocks changed since the last meshing.
     pub fn changed_blocks(&self) -> &BlockSet {
-        &self.changed
+        &self.changes.changed
     }
 
     /// Marks every block changed (the next [`super::Mesh::update`] re-meshes all).
     pub fn mark_all_changed(&mut self) {
-        self.changed = self.blocks.keys().copied().collect();
-    }
-
-    pub(super) fn take_changed(&mut self) -> BlockSet {
-        std::mem::take(&mut self.changed)
+        self.changes.changed = self.blocks.keys().copied().collect();
     }
 
     /// The blocks changed and removed since the last call (then none).
     pub(super) fn take_changes(&mut self) -> BlockChanges {
-        BlockChanges {
-            changed: self.take_changed(),
-            removed: self.take_removed(),
-        }
+        std::mem::take(&mut self.changes)
     }
 
     pub(super) fn mark_changed(&mut self, index: BlockIndex) {
-        self.changed.insert(index);
+        self.changes.change(index);
     }
 
     pub(super) fn blocks_map(&self) -> &BlockMap<Block> {

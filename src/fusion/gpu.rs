@@ -203,10 +203,10 @@ pub struct GpuTsdf {
     free: Vec<u32>,
     /// Slots handed out so far (the pool's high-water mark).
     next_slot: u32,
-    changed: BlockSet,
+    /// Changed and dropped since the last [`GpuTsdf::sync_into`].
+    unsynced: BlockChanges,
     /// Allocated since the last [`GpuTsdf::sync_into`] (empty until updated).
     allocated: BlockSet,
-    removed: BlockSet,
     /// Changed and dropped since the last [`GpuTsdf::take_unmeshed`] (a mesh update's).
     unmeshed: BlockChanges,
     scratch: IntegrationScratch,
@@ -283,9 +283,8 @@ impl GpuTsdf {
             slots: BlockMap::default(),
             free: Vec::new(),
             next_slot: 0,
-            changed: BlockSet::default(),
+            unsynced: BlockChanges::default(),
             allocated: BlockSet::default(),
-            removed: BlockSet::default(),
             unmeshed: BlockChanges::default(),
             scratch: IntegrationScratch::default(),
             host_samples: Vec::new(),
@@ -353,7 +352,7 @@ impl GpuTsdf {
 
     /// The blocks changed since the last [`GpuTsdf::sync_into`].
     pub fn changed_blocks(&self) -> &BlockSet {
-        &self.changed
+        &self.unsynced.changed
     }
 
     /// The blocks changed and dropped since the last call, whatever was copied to the host
@@ -469,7 +468,7 @@ impl GpuTsdf {
             if count > 0 {
                 stats.blocks_updated += 1;
                 stats.voxels_updated += count as usize;
-                self.changed.insert(*index);
+                self.unsynced.change(*index);
                 self.unmeshed.change(*index);
             }
         }
@@ -484,9 +483,8 @@ impl GpuTsdf {
             if let Some(slot) = self.slots.remove(index) {
                 self.free.push(slot);
             }
-            self.changed.remove(index);
             self.allocated.remove(index);
-            self.removed.insert(*index);
+            self.unsynced.remove(*index);
             self.unmeshed.remove(*index);
         }
         stats.blocks_dropped = dropped.len();
@@ -664,22 +662,22 @@ impl GpuTsdf {
             }
             .into());
         }
-        let mut changed: Vec<BlockIndex> = self.changed.iter().copied().collect();
+        let mut changed: Vec<BlockIndex> = self.unsynced.changed.iter().copied().collect();
         changed.sort_unstable();
         let blocks = self.read_blocks(&changed)?;
         let copied = blocks.len();
-        for index in self.removed.drain() {
+        let BlockChanges { changed, removed } = std::mem::take(&mut self.unsynced);
+        for index in removed {
             grid.remove_block(index);
         }
         for index in self.allocated.drain() {
-            if !self.changed.contains(&index) {
+            if !changed.contains(&index) {
                 grid.insert_empty_block(index);
             }
         }
         for (index, block) in blocks {
             grid.insert_block(index, block);
         }
-        self.changed.clear();
         Ok(copied)
     }
 
@@ -699,10 +697,9 @@ impl GpuTsdf {
     pub fn clear(&mut self) {
         for (index, slot) in self.slots.drain() {
             self.free.push(slot);
-            self.removed.insert(index);
+            self.unsynced.remove(index);
             self.unmeshed.remove(index);
         }
-        self.changed.clear();
         self.allocated.clear();
     }
 }
