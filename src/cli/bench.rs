@@ -8,7 +8,8 @@
 //! times just before and after it (`peer ms`), so load that moves during a long bench moves
 //! both sides alike.
 //! After the table, what decoding a 9-camera 640x480 JPEG set costs ([`decode`]), beside each
-//! engine's 9-camera set of the same run.
+//! engine's 9-camera set of the same run, and the node's own host work per set at 1 MP
+//! ([`messages`]: image messages in, depth and confidence messages out).
 //! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`.
 
 use std::path::{Path, PathBuf};
@@ -28,6 +29,7 @@ use crate::synthetic::{self, Scene};
 mod configs;
 pub mod decode;
 pub mod fusion;
+pub mod messages;
 
 pub use configs::{BenchConfig, PeerKind, Workload, CONFIGS};
 
@@ -669,6 +671,8 @@ fn decode_line(
     let result = decode::run(3 * repeats).context("the decode line")?;
     if json {
         println!("{}", serde_json::to_string(&result)?);
+        let messages = messages::run(3 * repeats).context("the messages line")?;
+        println!("{}", serde_json::to_string(&messages)?);
         return Ok(());
     }
     println!(
@@ -684,6 +688,7 @@ fn decode_line(
         result.image_ms,
         result.runs
     );
+    messages_line(repeats)?;
     for (engine, wta, sgm) in nine_camera {
         let share = |ms: Option<f64>| {
             ms.map_or("n/a".to_string(), |ms| {
@@ -697,6 +702,24 @@ fn decode_line(
             share(*sgm)
         );
     }
+    Ok(())
+}
+
+/// The messages line: the node's own host work per set at 1 MP, besides the engine's.
+fn messages_line(repeats: usize) -> anyhow::Result<()> {
+    let result = messages::run(3 * repeats).context("the messages line")?;
+    println!(
+        "messages: {} x {}x{} rgb8 into the engine's images {:.1} ms per set ({} threads), \
+         depth and confidence out as 32FC1 {:.1} ms (median of {}; the node's host work per \
+         set besides the engine's host ms)",
+        result.cameras,
+        result.width,
+        result.height,
+        result.images_in_ms,
+        result.threads,
+        result.maps_out_ms,
+        result.runs
+    );
     Ok(())
 }
 

@@ -1,6 +1,8 @@
 //! Images in: ROS image messages checked ([`check_image`]) and converted into the engine's
 //! images ([`image_to_rgba8`]). (The messages out: `out_messages.rs`.) No DDS, unit-tested.
 
+use rayon::prelude::*;
+
 use crate::image::Rgba8Image;
 use crate::msgs::Image;
 
@@ -140,6 +142,20 @@ pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertEr
         height,
         pixels,
     })
+}
+
+/// A set's images converted ([`image_to_rgba8`]), the cameras in parallel on rayon's threads
+/// (the engine's thread waits for them); `name(i)` is image `i`'s camera. The first image that
+/// cannot be converted fails the set.
+pub fn set_to_rgba8<'n>(
+    images: &[Image],
+    name: impl Fn(usize) -> &'n str + Sync,
+) -> Result<Vec<Rgba8Image>, ConvertError> {
+    images
+        .par_iter()
+        .enumerate()
+        .map(|(i, msg)| image_to_rgba8(name(i), msg))
+        .collect()
 }
 
 /// One row of a checked encoding into packed pixels (`Rgba8Image::pack`'s layout): the

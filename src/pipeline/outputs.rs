@@ -2,9 +2,7 @@
 //! ([`FrameOutputs`]): the maps as floats, and the messages, all with the reference camera's
 //! header.
 
-use rayon::prelude::*;
-
-use super::convert::image_to_rgba8;
+use super::convert::set_to_rgba8;
 use super::out_messages::{f32_image_msg, point_cloud_msg, selection_msg};
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
@@ -169,16 +167,10 @@ pub fn process_job(
     sweep: &SweepParams,
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
-    // The cameras in parallel on rayon's threads: the engine's thread waits for them.
-    let images = job
-        .images
-        .par_iter()
-        .enumerate()
-        .map(|(i, msg)| {
-            let name = job.cameras.get(i).map_or("?", |c| c.name.as_str());
-            image_to_rgba8(name, msg).map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))
-        })
-        .collect::<Result<Vec<_>, Skip>>()?;
+    let images = set_to_rgba8(&job.images, |i| {
+        job.cameras.get(i).map_or("?", |c| c.name.as_str())
+    })
+    .map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))?;
     let first_virtual = job
         .references
         .first()

@@ -40,7 +40,7 @@ pub struct DecodeResult {
     pub runs: usize,
 }
 
-fn rgb8(image: &Rgba8Image) -> Image {
+pub(super) fn rgb8(image: &Rgba8Image) -> Image {
     let mut data = Vec::with_capacity(image.pixels.len() * 3);
     for &p in &image.pixels {
         let [r, g, b, _] = Rgba8Image::unpack(p);
@@ -57,7 +57,7 @@ fn rgb8(image: &Rgba8Image) -> Image {
     }
 }
 
-fn median(mut values: Vec<f64>) -> f64 {
+pub(super) fn median(mut values: Vec<f64>) -> f64 {
     values.sort_by(|a, b| a.total_cmp(b));
     values[values.len() / 2]
 }
