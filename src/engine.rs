@@ -3,11 +3,9 @@
 //! CPU engine otherwise: on a machine without a GPU, the CPU engine is several times faster than
 //! the same shaders on Mesa's lavapipe (see docs/speed.md).
 
-use std::borrow::Cow;
-
 use crate::geometry::{Rig, RigCamera};
 use crate::gpu_context::{GpuContext, GpuContextError};
-use crate::image::Rgba8Image;
+use crate::image::{Rgba8Image, SetImages};
 use crate::sweep::coarse::PlanRunner;
 use crate::sweep::cpu::CpuEngine;
 use crate::sweep::frame_memo::FrameMemo;
@@ -64,10 +62,22 @@ pub enum EngineError {
 
 /// Runs the sweep; both engines and the wrapper implement it.
 pub trait Sweeper {
+    /// The depth of `rig`'s reference from `images`, one per camera of the rig.
     fn run(
         &mut self,
         rig: &Rig,
         images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        self.run_set(rig, SetImages::All(images), params)
+    }
+
+    /// [`Sweeper::run`] with the images as a [`SetImages`] (a frame set's cameras picked
+    /// for one reference, not copied).
+    fn run_set(
+        &mut self,
+        rig: &Rig,
+        images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError>;
 
@@ -120,12 +130,11 @@ pub trait Sweeper {
         let mut stages: Vec<(String, f64)> = Vec::new();
         for &reference in references {
             let result = reference_rig(cameras, reference, params).and_then(|r| {
-                let own: Cow<'_, [Rgba8Image]> = if r.cameras.len() == images.len() {
-                    Cow::Borrowed(images)
-                } else {
-                    Cow::Owned(r.cameras.iter().map(|&i| images[i].clone()).collect())
-                };
-                let maps = self.run(&r.rig, &own, params)?;
+                // The reference's views, picked from the set's images without a copy.
+                let own = SetImages::picked(images, &r.cameras).ok_or_else(|| {
+                    SweepError::InvalidParams("internal: a view outside the set".into())
+                })?;
+                let maps = self.run_set(&r.rig, own, params)?;
                 Ok(ReferenceDepth {
                     reference,
                     cameras: r.cameras,
@@ -154,13 +163,13 @@ pub trait Sweeper {
 }
 
 impl Sweeper for GpuEngine {
-    fn run(
+    fn run_set(
         &mut self,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        GpuEngine::run(self, rig, images, params)
+        GpuEngine::run_set(self, rig, images, params)
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
@@ -173,13 +182,13 @@ impl Sweeper for GpuEngine {
 }
 
 impl Sweeper for CpuEngine {
-    fn run(
+    fn run_set(
         &mut self,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        CpuEngine::run(self, rig, images, params)
+        CpuEngine::run_set(self, rig, images, params)
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
@@ -357,15 +366,15 @@ impl Engine {
 }
 
 impl Sweeper for Engine {
-    fn run(
+    fn run_set(
         &mut self,
         rig: &Rig,
-        images: &[Rgba8Image],
+        images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
         match self {
-            Self::Gpu { engine, .. } => engine.run(rig, images, params),
-            Self::Cpu(cpu) => cpu.run(rig, images, params),
+            Self::Gpu { engine, .. } => engine.run_set(rig, images, params),
+            Self::Cpu(cpu) => cpu.run_set(rig, images, params),
         }
     }
 

@@ -60,6 +60,68 @@ impl Rgba8Image {
     }
 }
 
+/// The images of one sweep, one per camera of its rig, in the rig's order: a slice of the
+/// caller's, or the cameras `picked` from a frame set's images (a reference's views, as
+/// [`crate::engine::Sweeper::run_references`] picks them) without copying a pixel.
+#[derive(Debug, Clone, Copy)]
+pub enum SetImages<'a> {
+    All(&'a [Rgba8Image]),
+    Picked {
+        set: &'a [Rgba8Image],
+        picked: &'a [usize],
+    },
+}
+
+impl<'a> SetImages<'a> {
+    /// The images `picked` (indices into `set`); None when an index is outside it.
+    pub fn picked(set: &'a [Rgba8Image], picked: &'a [usize]) -> Option<Self> {
+        if picked.len() == set.len() && picked.iter().enumerate().all(|(k, &i)| k == i) {
+            return Some(Self::All(set));
+        }
+        picked
+            .iter()
+            .all(|&i| i < set.len())
+            .then_some(Self::Picked { set, picked })
+    }
+
+    pub fn len(&self) -> usize {
+        match self {
+            Self::All(images) => images.len(),
+            Self::Picked { picked, .. } => picked.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Camera `i`'s image.
+    pub fn get(&self, i: usize) -> Option<&'a Rgba8Image> {
+        match *self {
+            Self::All(images) => images.get(i),
+            Self::Picked { set, picked } => picked.get(i).and_then(|&k| set.get(k)),
+        }
+    }
+
+    pub fn iter(self) -> impl Iterator<Item = &'a Rgba8Image> {
+        (0..self.len()).filter_map(move |i| self.get(i))
+    }
+
+    /// The images as one slice where they are one (`All`).
+    pub fn as_slice(&self) -> Option<&'a [Rgba8Image]> {
+        match *self {
+            Self::All(images) => Some(images),
+            Self::Picked { .. } => None,
+        }
+    }
+}
+
+impl<'a> From<&'a [Rgba8Image]> for SetImages<'a> {
+    fn from(images: &'a [Rgba8Image]) -> Self {
+        Self::All(images)
+    }
+}
+
 /// A single-channel f32 image, top row first.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImageF32 {

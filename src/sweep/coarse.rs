@@ -10,7 +10,7 @@
 //! row of a band sweeps.
 
 use crate::geometry::{CameraModel, Reference, Rig, RigCamera};
-use crate::image::{ImageF32, Rgba8Image};
+use crate::image::{ImageF32, Rgba8Image, SetImages};
 
 use std::cell::OnceCell;
 
@@ -62,7 +62,7 @@ pub const COARSE_OPTIMIZER: super::Optimizer = super::Optimizer::Sgm;
 /// level and frame set).
 #[derive(Debug, Clone, Copy)]
 pub struct LevelImages<'a> {
-    full: &'a [Rgba8Image],
+    full: SetImages<'a>,
     halvings: usize,
     /// The levels made on the host so far (level h at h - 1).
     host: &'a [OnceCell<Vec<Rgba8Image>>],
@@ -72,14 +72,14 @@ impl<'a> LevelImages<'a> {
     /// The caller's images themselves.
     pub fn given(images: &'a [Rgba8Image]) -> Self {
         Self {
-            full: images,
+            full: SetImages::All(images),
             halvings: 0,
             host: &[],
         }
     }
 
     /// The caller's (full-resolution) images.
-    pub fn full(&self) -> &'a [Rgba8Image] {
+    pub fn full(&self) -> SetImages<'a> {
         self.full
     }
 
@@ -99,7 +99,9 @@ impl<'a> LevelImages<'a> {
     /// The level's images on the host (the CPU engine; the cameras' names in `rig` key the
     /// frame set's memo): made level by level on first use.
     pub fn on_host(&self, rig: &Rig, memo: &mut FrameMemo) -> Result<&'a [Rgba8Image], SweepError> {
-        let mut images = self.full;
+        let mut images = self.full.as_slice().ok_or_else(|| {
+            SweepError::InvalidParams("internal: picked images on the host, not one slice".into())
+        })?;
         for level in 0..self.halvings {
             let cell = self.host.get(level).ok_or_else(|| {
                 SweepError::InvalidParams(format!(
@@ -258,7 +260,7 @@ pub fn run(
     engine: &mut dyn PlanRunner,
     plans: &mut Plans,
     rig: &Rig,
-    images: &[Rgba8Image],
+    images: SetImages<'_>,
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
     // The matching images (issue 52): prefiltered for real cameras, on the host for the CPU
@@ -270,9 +272,12 @@ pub fn run(
     let matching = if params.prefilter.applies(rig.cameras.len()) && on_host {
         super::check_images(rig, images)?;
         let started = std::time::Instant::now();
-        prefiltered = super::prefilter::gradient_all(images);
+        let slice = images.as_slice().ok_or_else(|| {
+            SweepError::InvalidParams("internal: picked images on the host, not one slice".into())
+        })?;
+        prefiltered = super::prefilter::gradient_all(slice);
         prefilter_ms = Some(started.elapsed().as_secs_f64() * 1e3);
-        &prefiltered[..]
+        SetImages::All(&prefiltered)
     } else {
         images
     };

@@ -19,7 +19,7 @@ pub mod stages;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{GeometryError, Rig};
-use crate::image::{ImageF32, Rgba8Image};
+use crate::image::{ImageF32, SetImages};
 
 pub use hypotheses::{HypothesisGenerator, InverseDepthSweep, Plane, PlaneFamily};
 
@@ -636,14 +636,15 @@ pub struct StageTimings {
 }
 
 /// Checks that the images match the rig.
-pub fn check_images(rig: &Rig, images: &[Rgba8Image]) -> Result<(), SweepError> {
+pub fn check_images<'a>(rig: &Rig, images: impl Into<SetImages<'a>>) -> Result<(), SweepError> {
+    let images = images.into();
     if images.len() != rig.cameras.len() {
         return Err(SweepError::ImageCount {
             images: images.len(),
             cameras: rig.cameras.len(),
         });
     }
-    for (camera, image) in rig.cameras.iter().zip(images) {
+    for (camera, image) in rig.cameras.iter().zip(images.iter()) {
         let k = &camera.model.intrinsics;
         if image.width != k.width_px
             || image.height != k.height_px

@@ -132,3 +132,49 @@ fn a_32_camera_dome_runs_with_the_defaults() {
         other => panic!("max_neighbours 20 is refused: {:?}", other.map(|_| ())),
     }
 }
+
+/// The WGSL engine sweeps a reference's views where they lie in the set's images
+/// (`SetImages::Picked`, no copy): on the 32-camera dome (9 of 32 picked, not the first 9) its
+/// maps equal, to the bit, a run on the picked images copied into a rig of their own.
+#[test]
+fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
+    use sweepdepth::gpu_context::GpuContext;
+    use sweepdepth::sweep::references::reference_rig;
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = params();
+    let shared = crate::common::gpu();
+    let gpu = || {
+        Engine::on_gpu(GpuContext {
+            adapter: shared.adapter.clone(),
+            device: shared.device.clone(),
+            queue: shared.queue.clone(),
+        })
+        .expect("WGSL engine")
+    };
+    let picked = gpu()
+        .run_references(&rig.cameras, &images, &[0], &p)
+        .pop()
+        .expect("one result")
+        .expect("the dome on the WGSL engine");
+    let chosen = reference_rig(&rig.cameras, 0, &p).expect("its rig");
+    assert_eq!(picked.cameras, chosen.cameras);
+    assert_eq!(chosen.cameras.len(), 9);
+    assert_ne!(
+        chosen.cameras,
+        (0..9).collect::<Vec<_>>(),
+        "not the first nine"
+    );
+    let copies: Vec<Rgba8Image> = chosen.cameras.iter().map(|&i| images[i].clone()).collect();
+    let copied = gpu().run(&chosen.rig, &copies, &p).expect("the copies");
+    let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    assert_eq!(bits(&picked.maps.depth_m), bits(&copied.depth_m));
+    assert_eq!(bits(&picked.maps.confidence), bits(&copied.confidence));
+    let (rel, within) = errors(
+        &picked.maps.depth_m,
+        &synthetic::reference_depth(&scene, &rig),
+    );
+    assert!(rel < 0.01 && within > 0.7, "{rel:.4} / {within:.3}");
+}

@@ -36,7 +36,7 @@ use super::plan::SweepPlan;
 use super::schedule::{Phase, Schedule};
 use super::{check_images, CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 use crate::geometry::Rig;
-use crate::image::Rgba8Image;
+use crate::image::{Rgba8Image, SetImages};
 use bands::BandScratch;
 use common::PlanarImage;
 use plane::FrameImages;
@@ -195,8 +195,28 @@ impl CpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
+        self.run_set(rig, SetImages::All(images), params)
+    }
+
+    /// [`CpuEngine::run`] with the images as a [`SetImages`]. The CPU engine reads the images
+    /// as one slice: picked cameras are copied into one here (the WGSL engine uploads each
+    /// from where it lies).
+    pub fn run_set(
+        &mut self,
+        rig: &Rig,
+        images: SetImages<'_>,
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        let copied: Vec<Rgba8Image>;
+        let images = match images.as_slice() {
+            Some(images) => images,
+            None => {
+                copied = images.iter().cloned().collect();
+                &copied
+            }
+        };
         let mut plans = std::mem::take(&mut self.plans);
-        let result = super::coarse::run(self, plans.for_rig(rig), rig, images, params);
+        let result = super::coarse::run(self, plans.for_rig(rig), rig, images.into(), params);
         self.plans = plans;
         result
     }

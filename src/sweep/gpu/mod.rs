@@ -37,7 +37,7 @@ use super::schedule::Schedule;
 use super::stages::Stage;
 use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams, WantedMaps};
 use crate::geometry::Rig;
-use crate::image::Rgba8Image;
+use crate::image::{Rgba8Image, SetImages};
 use buffers::{Alignments, Buffers};
 pub use copies::HostCopies;
 pub use pipelines::SgmLayout;
@@ -343,6 +343,16 @@ impl GpuEngine {
         images: &[Rgba8Image],
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
+        self.run_set(rig, SetImages::All(images), params)
+    }
+
+    /// [`GpuEngine::run`] with the images as a [`SetImages`]: each uploaded from where it lies.
+    pub fn run_set(
+        &mut self,
+        rig: &Rig,
+        images: SetImages<'_>,
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
         self.timed(|engine| {
             // One shape at a time outside coarse to fine: the other levels' buffers go; with
             // it, the buffers of every level below the current one stay.
@@ -472,7 +482,7 @@ impl GpuEngine {
 
     /// An image pyramid that holds `full` and `halvings` levels below it (made anew when the
     /// one there does not).
-    fn fit_pyramid(&mut self, full: &[Rgba8Image], halvings: usize) -> Result<(), SweepError> {
+    fn fit_pyramid(&mut self, full: SetImages<'_>, halvings: usize) -> Result<(), SweepError> {
         if !self
             .pyramid
             .as_ref()

@@ -13,7 +13,7 @@ use super::super::plan::SweepPlan;
 use super::super::SweepError;
 use super::record::tiles_of;
 use super::upload::Part;
-use crate::image::Rgba8Image;
+use crate::image::SetImages;
 
 /// The uniform block of a pass over one level's cameras, WGSL `Halving` (`shaders/half.wgsl`)
 /// and `PrefilterCameras` (`shaders/prefilter.wgsl`): the camera count (and, for the prefilter,
@@ -136,7 +136,7 @@ impl Pyramid {
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         half_layout: &wgpu::BindGroupLayout,
-        images: &[Rgba8Image],
+        images: SetImages<'_>,
         depth: usize,
     ) -> Result<Self, SweepError> {
         if images.len() > MAX_RIG_CAMERAS as usize {
@@ -263,13 +263,13 @@ impl Pyramid {
     }
 
     /// Whether the pyramid holds levels 0 to `depth` of images of these sizes.
-    pub fn fits(&self, images: &[Rgba8Image], depth: usize) -> bool {
+    pub fn fits(&self, images: SetImages<'_>, depth: usize) -> bool {
         self.levels.len() > depth
             && self.levels[0].sizes.len() == images.len()
             && self.levels[0]
                 .sizes
                 .iter()
-                .zip(images)
+                .zip(images.iter())
                 .all(|([w, h], i)| *w == i.width && *h == i.height)
     }
 
@@ -282,7 +282,7 @@ impl Pyramid {
     /// prefilter reads: `ensure_raw` first), each from its own pixels.
     pub fn uploads<'a>(
         &'a self,
-        images: &'a [Rgba8Image],
+        images: SetImages<'a>,
         raw: bool,
     ) -> impl Iterator<Item = Part<'a>> + 'a {
         let level = &self.levels[0];
