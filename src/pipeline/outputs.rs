@@ -3,7 +3,9 @@
 //! header.
 
 use super::convert::set_to_rgba8;
-use super::out_messages::{f32_image_msg, point_cloud_msg, selection_msg};
+use super::out_messages::{
+    depth_and_confidence_msgs, f32_image_msg, point_cloud_msg, selection_msg,
+};
 use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
 use crate::fusion::rms_baseline_m;
@@ -316,10 +318,11 @@ fn reference_outputs(
             frame_from_cam,
         )
     });
+    let (depth, confidence) = depth_and_confidence_msgs(&header, &maps.depth_m, &maps.confidence);
     let messages = FrameMessages {
-        depth: f32_image_msg(&header, &maps.depth_m),
+        depth,
         depth_info,
-        confidence: f32_image_msg(&header, &maps.confidence),
+        confidence,
         // An engine that made a map not wanted (the CPU engine makes them all) has it dropped.
         cost: (wanted.cost && !maps.cost.data.is_empty())
             .then(|| f32_image_msg(&header, &maps.cost)),

@@ -2,7 +2,7 @@
 //! for every set besides the engine's own, at the `sxga` size (4 x 1280x960). In: the set's
 //! `rgb8` image messages into the engine's images (`convert::set_to_rgba8`, as the node's
 //! `process_job` does: the cameras in parallel on rayon's threads). Out: the reference's depth
-//! and confidence as `32FC1` messages (`f32_image_msg`, every set). The WGSL engine's own host
+//! and confidence as `32FC1` messages (`depth_and_confidence_msgs`, every set). The WGSL engine's own host
 //! time is the table's `host ms`; a node's host time per set is about the sum.
 
 use std::time::Instant;
@@ -14,7 +14,7 @@ use crate::geometry::CameraModel;
 use crate::image::ImageF32;
 use crate::msgs::{Header, Image};
 use crate::pipeline::convert::set_to_rgba8;
-use crate::pipeline::out_messages::f32_image_msg;
+use crate::pipeline::out_messages::depth_and_confidence_msgs;
 use crate::synthetic::{self, Scene};
 
 pub const CAMERAS: usize = 4;
@@ -64,11 +64,8 @@ pub fn run(repeats: usize) -> anyhow::Result<MessagesResult> {
         Ok(())
     };
     let maps_out = || -> usize {
-        let out = [
-            f32_image_msg(&header, &depth),
-            f32_image_msg(&header, &confidence),
-        ];
-        out.iter().map(|m| m.data.len()).sum()
+        let (depth, confidence) = depth_and_confidence_msgs(&header, &depth, &confidence);
+        depth.data.len() + confidence.data.len()
     };
     images_in()?;
     anyhow::ensure!(maps_out() == 2 * 4 * (WIDTH * HEIGHT) as usize);
