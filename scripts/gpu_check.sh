@@ -100,7 +100,8 @@ else
     # workgroup where the subgroups have one size: NVIDIA's 32): the 1-megapixel rig and the ring.
     step bench-gpu-sgm-lines-1 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --sgm-lines 1
     # The host copies (images in, maps out) on one thread, against the default above (split
-    # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar).
+    # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar;
+    # every bench ends with the `messages:` line, the node's own host work per set at 1 MP).
     step bench-gpu-host-copies-serial 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --host-copies serial
     # Depth and confidence read back alone (the node while nobody subscribes to cost and
     # selection): half the readback.
