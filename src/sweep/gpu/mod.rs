@@ -154,22 +154,6 @@ fn gpu_err(e: impl std::fmt::Display) -> SweepError {
     SweepError::Gpu(e.to_string())
 }
 
-/// Invocations per workgroup of the subgroup SGM where several lines share one.
-const SGM_GROUP_INVOCATIONS: u32 = 128;
-
-/// Path lines per workgroup of the subgroup SGM on `info`'s adapter: enough subgroups for
-/// [`SGM_GROUP_INVOCATIONS`] invocations where every subgroup has the same size (NVIDIA 32,
-/// lavapipe 8: several walks resident per workgroup hide each one's latency); one where the
-/// size varies (a subgroup could then span two lines).
-fn sgm_lines_for(info: &wgpu::AdapterInfo) -> u32 {
-    let (least, most) = (info.subgroup_min_size, info.subgroup_max_size);
-    if least == most && least > 0 {
-        (SGM_GROUP_INVOCATIONS / least).max(1)
-    } else {
-        1
-    }
-}
-
 impl GpuEngine {
     /// Builds the layouts and shader modules on the caller's device. Shader compilation errors
     /// are caught with an error scope and returned.
@@ -200,7 +184,7 @@ impl GpuEngine {
             // on the demo; docs/notes/speed-history.md).
             sgm_together: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
-            sgm_lines: sgm_lines_for(&info),
+            sgm_lines: shape::sgm_lines_for(&info),
             sgm_band_bytes: None,
             slab_bytes: None,
             buffers: None,

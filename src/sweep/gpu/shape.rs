@@ -7,6 +7,22 @@ use super::super::plan::SweepPlan;
 use super::super::schedule::{Schedule, ScheduleShape};
 use super::super::SweepError;
 
+/// Invocations per workgroup of the subgroup SGM where several lines share one.
+const SGM_GROUP_INVOCATIONS: u32 = 128;
+
+/// Path lines per workgroup of the subgroup SGM on `info`'s adapter: enough subgroups for
+/// [`SGM_GROUP_INVOCATIONS`] invocations where every subgroup has the same size (NVIDIA 32,
+/// lavapipe 8: several walks resident per workgroup hide each one's latency); one where the
+/// size varies (a subgroup could then span two lines).
+pub(super) fn sgm_lines_for(info: &wgpu::AdapterInfo) -> u32 {
+    let (least, most) = (info.subgroup_min_size, info.subgroup_max_size);
+    if least == most && least > 0 {
+        (SGM_GROUP_INVOCATIONS / least).max(1)
+    } else {
+        1
+    }
+}
+
 /// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 
