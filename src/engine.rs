@@ -118,6 +118,24 @@ pub trait Sweeper {
         references: &[usize],
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        self.run_references_set(cameras, SetImages::All(images), references, params)
+    }
+
+    /// Whether the engine takes packed images ([`crate::image::PackedImage`]) without a
+    /// conversion on the host (the WGSL engine unpacks them on the device).
+    fn unpacks_on_device(&self) -> bool {
+        false
+    }
+
+    /// [`Sweeper::run_references`] with the set's images as a [`SetImages`] (some of them
+    /// packed: see [`Sweeper::unpacks_on_device`]).
+    fn run_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
         if images.len() != cameras.len() {
             let error = || SweepError::ImageCount {
                 images: images.len(),
@@ -131,7 +149,7 @@ pub trait Sweeper {
         for &reference in references {
             let result = reference_rig(cameras, reference, params).and_then(|r| {
                 // The reference's views, picked from the set's images without a copy.
-                let own = SetImages::picked(images, &r.cameras).ok_or_else(|| {
+                let own = images.pick(&r.cameras).ok_or_else(|| {
                     SweepError::InvalidParams("internal: a view outside the set".into())
                 })?;
                 let maps = self.run_set(&r.rig, own, params)?;
@@ -170,6 +188,10 @@ impl Sweeper for GpuEngine {
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
         GpuEngine::run_set(self, rig, images, params)
+    }
+
+    fn unpacks_on_device(&self) -> bool {
+        true
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
@@ -376,6 +398,10 @@ impl Sweeper for Engine {
             Self::Gpu { engine, .. } => engine.run_set(rig, images, params),
             Self::Cpu(cpu) => cpu.run_set(rig, images, params),
         }
+    }
+
+    fn unpacks_on_device(&self) -> bool {
+        matches!(self, Self::Gpu { .. })
     }
 
     fn memo(&mut self) -> &mut FrameMemo {

@@ -60,9 +60,107 @@ impl Rgba8Image {
     }
 }
 
+/// A camera image's bytes as its message carries them, rows without padding, for an engine
+/// that unpacks them itself (the WGSL engine's `unpack` stage): fewer bytes to upload than an
+/// [`Rgba8Image`] and no conversion on the host.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PackedFormat {
+    Rgb8 = 1,
+    Bgr8 = 2,
+    Mono8 = 3,
+}
+
+impl PackedFormat {
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgb8 | Self::Bgr8 => 3,
+            Self::Mono8 => 1,
+        }
+    }
+}
+
+/// [`PackedFormat`] bytes of a `width` x `height` image (`bytes.len()` is `width * height *
+/// bytes_per_pixel`, checked by `sweep::check_images`).
+#[derive(Debug, Clone, Copy)]
+pub struct PackedImage<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub format: PackedFormat,
+    pub bytes: &'a [u8],
+}
+
+impl PackedImage<'_> {
+    /// The same pixels as an [`Rgba8Image`] (what the `unpack` stage makes on the device).
+    pub fn to_rgba8(&self) -> Rgba8Image {
+        let pixels = match self.format {
+            PackedFormat::Rgb8 => self
+                .bytes
+                .chunks_exact(3)
+                .map(|p| Rgba8Image::pack(p[0], p[1], p[2]))
+                .collect(),
+            PackedFormat::Bgr8 => self
+                .bytes
+                .chunks_exact(3)
+                .map(|p| Rgba8Image::pack(p[2], p[1], p[0]))
+                .collect(),
+            PackedFormat::Mono8 => self
+                .bytes
+                .iter()
+                .map(|&v| Rgba8Image::pack(v, v, v))
+                .collect(),
+        };
+        Rgba8Image {
+            width: self.width,
+            height: self.height,
+            pixels,
+        }
+    }
+}
+
+/// One camera's image for a sweep: packed RGBA, or its message's own bytes.
+#[derive(Debug, Clone, Copy)]
+pub enum CameraImage<'a> {
+    Rgba(&'a Rgba8Image),
+    Packed(PackedImage<'a>),
+}
+
+impl<'a> CameraImage<'a> {
+    pub fn width(&self) -> u32 {
+        match self {
+            Self::Rgba(image) => image.width,
+            Self::Packed(image) => image.width,
+        }
+    }
+
+    pub fn height(&self) -> u32 {
+        match self {
+            Self::Rgba(image) => image.height,
+            Self::Packed(image) => image.height,
+        }
+    }
+
+    /// Whether it holds exactly `width * height` pixels.
+    pub fn is_whole(&self) -> bool {
+        let pixels = self.width() as usize * self.height() as usize;
+        match self {
+            Self::Rgba(image) => image.pixels.len() == pixels,
+            Self::Packed(image) => image.bytes.len() == pixels * image.format.bytes_per_pixel(),
+        }
+    }
+
+    /// As an [`Rgba8Image`]: itself, or its bytes converted.
+    pub fn rgba(&self) -> std::borrow::Cow<'a, Rgba8Image> {
+        match *self {
+            Self::Rgba(image) => std::borrow::Cow::Borrowed(image),
+            Self::Packed(image) => std::borrow::Cow::Owned(image.to_rgba8()),
+        }
+    }
+}
+
 /// The images of one sweep, one per camera of its rig, in the rig's order: a slice of the
-/// caller's, or the cameras `picked` from a frame set's images (a reference's views, as
-/// [`crate::engine::Sweeper::run_references`] picks them) without copying a pixel.
+/// caller's, the cameras `picked` from a frame set's images (a reference's views, as
+/// [`crate::engine::Sweeper::run_references`] picks them) without copying a pixel, or a set's
+/// [`CameraImage`]s (some of them packed), all or picked.
 #[derive(Debug, Clone, Copy)]
 pub enum SetImages<'a> {
     All(&'a [Rgba8Image]),
@@ -70,24 +168,43 @@ pub enum SetImages<'a> {
         set: &'a [Rgba8Image],
         picked: &'a [usize],
     },
+    Cameras {
+        set: &'a [CameraImage<'a>],
+        picked: Option<&'a [usize]>,
+    },
 }
 
 impl<'a> SetImages<'a> {
     /// The images `picked` (indices into `set`); None when an index is outside it.
     pub fn picked(set: &'a [Rgba8Image], picked: &'a [usize]) -> Option<Self> {
-        if picked.len() == set.len() && picked.iter().enumerate().all(|(k, &i)| k == i) {
-            return Some(Self::All(set));
+        Self::All(set).pick(picked)
+    }
+
+    /// The images `picked` of these (indices into them; all of them: these); None when an index
+    /// is outside them or these are picked already.
+    pub fn pick(self, picked: &'a [usize]) -> Option<Self> {
+        let len = self.len();
+        if picked.len() == len && picked.iter().enumerate().all(|(k, &i)| k == i) {
+            return Some(self);
         }
-        picked
-            .iter()
-            .all(|&i| i < set.len())
-            .then_some(Self::Picked { set, picked })
+        if picked.iter().any(|&i| i >= len) {
+            return None;
+        }
+        match self {
+            Self::All(set) => Some(Self::Picked { set, picked }),
+            Self::Cameras { set, picked: None } => Some(Self::Cameras {
+                set,
+                picked: Some(picked),
+            }),
+            _ => None,
+        }
     }
 
     pub fn len(&self) -> usize {
         match self {
             Self::All(images) => images.len(),
             Self::Picked { picked, .. } => picked.len(),
+            Self::Cameras { set, picked } => picked.map_or(set.len(), <[usize]>::len),
         }
     }
 
@@ -96,22 +213,35 @@ impl<'a> SetImages<'a> {
     }
 
     /// Camera `i`'s image.
-    pub fn get(&self, i: usize) -> Option<&'a Rgba8Image> {
+    pub fn get(&self, i: usize) -> Option<CameraImage<'a>> {
         match *self {
-            Self::All(images) => images.get(i),
-            Self::Picked { set, picked } => picked.get(i).and_then(|&k| set.get(k)),
+            Self::All(images) => images.get(i).map(CameraImage::Rgba),
+            Self::Picked { set, picked } => picked
+                .get(i)
+                .and_then(|&k| set.get(k))
+                .map(CameraImage::Rgba),
+            Self::Cameras { set, picked: None } => set.get(i).copied(),
+            Self::Cameras {
+                set,
+                picked: Some(picked),
+            } => picked.get(i).and_then(|&k| set.get(k)).copied(),
         }
     }
 
-    pub fn iter(self) -> impl Iterator<Item = &'a Rgba8Image> {
+    pub fn iter(self) -> impl Iterator<Item = CameraImage<'a>> {
         (0..self.len()).filter_map(move |i| self.get(i))
+    }
+
+    /// Whether any image is packed.
+    pub fn has_packed(&self) -> bool {
+        self.iter().any(|c| matches!(c, CameraImage::Packed(_)))
     }
 
     /// The images as one slice where they are one (`All`).
     pub fn as_slice(&self) -> Option<&'a [Rgba8Image]> {
         match *self {
             Self::All(images) => Some(images),
-            Self::Picked { .. } => None,
+            _ => None,
         }
     }
 }

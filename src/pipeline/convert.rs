@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use crate::image::Rgba8Image;
+use crate::image::{PackedFormat, PackedImage, Rgba8Image};
 use crate::msgs::Image;
 
 /// The largest image side accepted from a message, pixels (as `virtual_width`'s range). A
@@ -158,6 +158,40 @@ pub fn set_to_rgba8<'n>(
         .collect()
 }
 
+/// [`set_to_rgba8`] of the images `wanted` (the others None).
+pub fn some_to_rgba8<'n>(
+    images: &[Image],
+    name: impl Fn(usize) -> &'n str + Sync,
+    wanted: impl Fn(usize) -> bool + Sync,
+) -> Result<Vec<Option<Rgba8Image>>, ConvertError> {
+    images
+        .par_iter()
+        .enumerate()
+        .map(|(i, msg)| wanted(i).then(|| image_to_rgba8(name(i), msg)).transpose())
+        .collect()
+}
+
+/// The message's bytes as an engine that unpacks on the device takes them
+/// ([`PackedImage`]): `rgb8`, `bgr8` or `mono8`, rows without padding, a whole number of 4-byte
+/// words (every even-sized image). None for anything else (converted on the host instead).
+pub fn packed_view(msg: &Image) -> Option<PackedImage<'_>> {
+    let format = match msg.encoding.as_str() {
+        "rgb8" => PackedFormat::Rgb8,
+        "bgr8" => PackedFormat::Bgr8,
+        "mono8" | "8UC1" => PackedFormat::Mono8,
+        _ => return None,
+    };
+    let row = msg.width as usize * format.bytes_per_pixel();
+    let len = row * msg.height as usize;
+    let bytes = msg.data.get(..len)?;
+    (msg.step as usize == row && len.is_multiple_of(4) && len > 0).then_some(PackedImage {
+        width: msg.width,
+        height: msg.height,
+        format,
+        bytes,
+    })
+}
+
 /// One row of a checked encoding into packed pixels (`Rgba8Image::pack`'s layout): the
 /// encoding is matched once per image, each loop is one kind of pixel (the compiler vectorises
 /// them; a match per pixel cost several times the copy).
@@ -307,6 +341,30 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The messages an engine may unpack itself, and their bytes unpacked on the host
+    /// (`PackedImage::to_rgba8`, the `unpack` stage's twin) as `image_to_rgba8` converts them.
+    #[test]
+    fn packed_views_are_the_messages_bytes_and_unpack_as_converted() {
+        let data = |n: usize| (0..n).map(|i| (i * 37 % 251) as u8).collect::<Vec<u8>>();
+        for (encoding, bpp) in [("rgb8", 3), ("bgr8", 3), ("mono8", 1), ("8UC1", 1)] {
+            let m = msg(encoding, 6, 4, 6 * bpp, data(24 * bpp as usize));
+            let view = packed_view(&m).unwrap_or_else(|| panic!("{encoding}"));
+            assert_eq!(view.bytes, &m.data[..]);
+            assert_eq!(
+                view.to_rgba8(),
+                image_to_rgba8("c", &m).unwrap(),
+                "{encoding}"
+            );
+        }
+        // Row padding, 16 bits, RGBA, and a size that is not a whole number of words: not.
+        assert!(packed_view(&msg("rgb8", 6, 4, 20, data(80))).is_none());
+        assert!(packed_view(&msg("mono16", 6, 4, 12, data(48))).is_none());
+        assert!(packed_view(&msg("rgba8", 6, 4, 24, data(96))).is_none());
+        assert!(packed_view(&msg("rgb8", 5, 3, 15, data(45))).is_none());
+        // Too few bytes: not a view past the data.
+        assert!(packed_view(&msg("rgb8", 6, 4, 18, data(71))).is_none());
     }
 
     #[test]

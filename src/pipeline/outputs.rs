@@ -2,7 +2,7 @@
 //! ([`FrameOutputs`]): the maps as floats, and the messages, all with the reference camera's
 //! header.
 
-use super::convert::set_to_rgba8;
+use super::convert::{packed_view, set_to_rgba8, some_to_rgba8, ConvertError};
 use super::out_messages::{
     depth_and_confidence_msgs, f32_image_msg, point_cloud_msg, selection_msg,
 };
@@ -10,7 +10,7 @@ use super::outcome::{Job, Skip, SkipKind};
 use crate::engine::Sweeper;
 use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
-use crate::image::{ImageF32, Rgba8Image};
+use crate::image::{CameraImage, ImageF32, Rgba8Image, SetImages};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
 use crate::sweep::{DepthMaps, SweepError, SweepParams, WantedMaps};
 use std::sync::Arc;
@@ -169,10 +169,8 @@ pub fn process_job(
     sweep: &SweepParams,
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
-    let images = set_to_rgba8(&job.images, |i| {
-        job.cameras.get(i).map_or("?", |c| c.name.as_str())
-    })
-    .map_err(|e| Skip::new(SkipKind::Image, None, e.to_string()))?;
+    let name = |i: usize| job.cameras.get(i).map_or("?", |c| c.name.as_str());
+    let image_skip = |e: ConvertError| Skip::new(SkipKind::Image, None, e.to_string());
     let first_virtual = job
         .references
         .first()
@@ -190,6 +188,7 @@ pub fn process_job(
         };
         let rig = Rig::new(job.cameras.clone(), reference)
             .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
+        let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
         let maps = engine
             .run(&rig, &images, sweep)
             .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
@@ -215,7 +214,31 @@ pub fn process_job(
         });
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
-    let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+    // The images go on to the outputs (colour for points and fusion) without a copy. An
+    // engine that unpacks on the device takes the bytes of every camera but the references as
+    // they came (no conversion here, fewer bytes to upload).
+    let (results, images) = if engine.unpacks_on_device() {
+        let packed = |i: usize| job.images.get(i).and_then(packed_view);
+        let wanted = |i: usize| indices.contains(&i) || packed(i).is_none();
+        let converted = some_to_rgba8(&job.images, name, wanted).map_err(image_skip)?;
+        let cameras: Vec<CameraImage<'_>> = (0..converted.len())
+            .filter_map(|i| match &converted[i] {
+                Some(image) => Some(CameraImage::Rgba(image)),
+                None => packed(i).map(CameraImage::Packed),
+            })
+            .collect();
+        let set = SetImages::Cameras {
+            set: &cameras,
+            picked: None,
+        };
+        let results = engine.run_references_set(&job.cameras, set, &indices, sweep);
+        drop(cameras);
+        (results, converted)
+    } else {
+        let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
+        let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+        (results, images.into_iter().map(Some).collect())
+    };
     let baselines: Vec<f64> = results
         .iter()
         .map(|r| {
@@ -225,8 +248,8 @@ pub fn process_job(
         })
         .collect();
     let largest = baselines.iter().copied().fold(0.0, f64::max);
-    // The images go on to the outputs (colour for points and fusion) without a copy.
-    let images: Vec<Arc<Rgba8Image>> = images.into_iter().map(Arc::new).collect();
+    let images: Vec<Option<Arc<Rgba8Image>>> =
+        images.into_iter().map(|i| i.map(Arc::new)).collect();
     let mut set = SetOutputs::default();
     for ((reference, result), baseline) in job.references.iter().zip(results).zip(baselines) {
         let name = job
@@ -263,7 +286,7 @@ pub fn process_job(
             header,
             &reference.info,
             depth.maps,
-            images.get(reference.index),
+            images.get(reference.index).and_then(Option::as_ref),
             &camera.model,
             &reference.cam_from_frame.inverse(),
             wanted,

@@ -309,7 +309,7 @@ pub fn run(
     {
         if let Some(guide) = images.get(*r) {
             let started = std::time::Instant::now();
-            filter.apply(&mut maps.depth_m, guide, &bins);
+            filter.apply(&mut maps.depth_m, &guide.rgba(), &bins);
             let ms = started.elapsed().as_secs_f64() * 1e3;
             engine
                 .timings_mut()

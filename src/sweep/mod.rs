@@ -646,14 +646,11 @@ pub fn check_images<'a>(rig: &Rig, images: impl Into<SetImages<'a>>) -> Result<(
     }
     for (camera, image) in rig.cameras.iter().zip(images.iter()) {
         let k = &camera.model.intrinsics;
-        if image.width != k.width_px
-            || image.height != k.height_px
-            || image.pixels.len() != image.pixel_count()
-        {
+        if image.width() != k.width_px || image.height() != k.height_px || !image.is_whole() {
             return Err(SweepError::ImageSize {
                 camera: camera.name.clone(),
-                got_w: image.width,
-                got_h: image.height,
+                got_w: image.width(),
+                got_h: image.height(),
                 want_w: k.width_px,
                 want_h: k.height_px,
             });

@@ -357,6 +357,7 @@ mod tests {
                     Stage::Census
                     | Stage::Half
                     | Stage::Prefilter
+                    | Stage::Unpack
                     | Stage::PlaneSpans
                     | Stage::PlaneRanges => {
                         unreachable!("not in a schedule: {d:?}")

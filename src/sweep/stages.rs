@@ -61,10 +61,11 @@ pub enum Stage {
     RefineBase,
     RefineSelect,
     Prefilter,
+    Unpack,
 }
 
 impl Stage {
-    pub const ALL: [Stage; 17] = [
+    pub const ALL: [Stage; 18] = [
         Stage::Cost,
         Stage::BoxH,
         Stage::BoxV,
@@ -82,6 +83,7 @@ impl Stage {
         Stage::RefineBase,
         Stage::RefineSelect,
         Stage::Prefilter,
+        Stage::Unpack,
     ];
 
     /// This stage's row of the registry.
@@ -139,7 +141,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 17] = [
+pub const STAGES: [StageInfo; 18] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -355,6 +357,15 @@ pub const STAGES: [StageInfo; 17] = [
         name: "prefilter",
         entry_point: "main",
         bindings: &[uniform("prefilter"), read("raw"), read_write("filtered")],
+        workgroup_size: TILE,
+        overrides: &[],
+    },
+    // The caller's packed images (`image::PackedImage`) into level 0 of the engine's image
+    // pyramid (or the prefilter's raw images), before the prefilter and the halvings.
+    StageInfo {
+        name: "unpack",
+        entry_point: "main",
+        bindings: &[uniform("unpacking"), read("packed"), read_write("unpacked")],
         workgroup_size: TILE,
         overrides: &[],
     },

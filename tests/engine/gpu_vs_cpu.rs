@@ -1935,3 +1935,107 @@ fn the_fine_sweep_agrees_in_every_shape() {
     let narrowed = plan.narrow_planes(ranges).expect("narrowed");
     compare("refine_narrowed", &narrowed, &crop_rig, &crop_images);
 }
+
+/// The WGSL engine unpacks camera images that come as their messages' bytes (`rgb8`, `bgr8`,
+/// `mono8`: `image::PackedImage`, the `unpack` stage) to the same pixels the host's
+/// conversion makes: with the reference in RGBA and the others packed, each format, its
+/// depth and confidence equal to the bit a run on the converted images. One level (no
+/// pyramid otherwise), coarse to fine, and a prefiltered pair (unpacked into the prefilter's
+/// input); then a set that has no packed image after one that had.
+#[test]
+fn packed_images_unpack_on_the_device_to_the_converted_pixels() {
+    use sweepdepth::engine::Sweeper;
+    use sweepdepth::geometry::Reference;
+    use sweepdepth::image::{CameraImage, PackedFormat, PackedImage, SetImages};
+    let gpu = common::gpu();
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let bytes_of = |image: &Rgba8Image, format: PackedFormat| -> Vec<u8> {
+        image
+            .pixels
+            .iter()
+            .flat_map(|&p| {
+                let [r, g, b, _] = Rgba8Image::unpack(p);
+                match format {
+                    PackedFormat::Rgb8 => vec![r, g, b],
+                    PackedFormat::Bgr8 => vec![b, g, r],
+                    PackedFormat::Mono8 => vec![r],
+                }
+            })
+            .collect()
+    };
+    let grey = |image: &Rgba8Image| Rgba8Image {
+        width: image.width,
+        height: image.height,
+        pixels: image
+            .pixels
+            .iter()
+            .map(|&p| {
+                let v = Rgba8Image::unpack(p)[1];
+                Rgba8Image::pack(v, v, v)
+            })
+            .collect(),
+    };
+    let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    for (cameras, planes) in [(4, 32), (4, 64), (2, 32)] {
+        for format in [PackedFormat::Rgb8, PackedFormat::Bgr8, PackedFormat::Mono8] {
+            let rig = synthetic::row_rig(cameras, 0.1, model, 0).expect("rig");
+            let rig = Rig::new(rig.cameras, Reference::Camera(0)).expect("rig");
+            let mut images = synthetic::render_rig(&scene, &rig);
+            if format == PackedFormat::Mono8 {
+                images = images.iter().map(grey).collect();
+            }
+            let bytes: Vec<Vec<u8>> = images.iter().map(|i| bytes_of(i, format)).collect();
+            let set: Vec<CameraImage<'_>> = images
+                .iter()
+                .zip(&bytes)
+                .enumerate()
+                .map(|(c, (image, bytes))| match c {
+                    0 => CameraImage::Rgba(image),
+                    _ => CameraImage::Packed(PackedImage {
+                        width: image.width,
+                        height: image.height,
+                        format,
+                        bytes,
+                    }),
+                })
+                .collect();
+            let p = SweepParams {
+                min_depth_m: 1.0,
+                max_depth_m: 8.0,
+                num_planes: planes,
+                ..SweepParams::default()
+            };
+            let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
+            let all = SetImages::Cameras {
+                set: &set,
+                picked: None,
+            };
+            let packed = Sweeper::run_set(&mut engine, &rig, all, &p).expect("packed");
+            let converted = GpuEngine::new(&gpu.device, &gpu.queue)
+                .expect("engine")
+                .run(&rig, &images, &p)
+                .expect("converted");
+            let case = format!("{cameras} cameras, {planes} planes, {format:?}");
+            assert_eq!(bits(&packed.depth_m), bits(&converted.depth_m), "{case}");
+            assert_eq!(
+                bits(&packed.confidence),
+                bits(&converted.confidence),
+                "{case}"
+            );
+            assert!(
+                packed.depth_m.data.iter().filter(|d| d.is_finite()).count()
+                    > packed.depth_m.data.len() / 2,
+                "{case}: depth found"
+            );
+            // The same engine on converted images after a packed set: the pixels, not the
+            // last set's unpacked ones.
+            let again = engine.run(&rig, &images, &p).expect("after");
+            assert_eq!(
+                bits(&again.depth_m),
+                bits(&converted.depth_m),
+                "{case}, after"
+            );
+        }
+    }
+}

@@ -1,6 +1,7 @@
 //! GPU faults: a lost device (simulated with `Device::destroy`) is recreated and the set still
 //! processed; a configuration larger than the adapter's limits is refused up front, naming the
-//! limit.
+//! limit. And the node's pipeline on the WGSL engine: the messages' own bytes unpacked on the
+//! device give the outputs of converted images.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -243,4 +244,82 @@ fn transform_changes_apply_from_the_next_set() {
         "{before:?} -> {after:?}"
     );
     assert!((centre(&jobs[1], 0) - centre(&jobs[0], 0)).length() < 1e-12);
+}
+
+/// The node's pipeline hands a WGSL engine the messages' own bytes for every camera but the
+/// reference (`convert::packed_view`, unpacked on the device by the `unpack` stage): depth,
+/// confidence and the coloured points equal, to the bit, those of the same engine fed images
+/// converted on the host.
+#[test]
+fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
+    use sweepdepth::engine::Sweeper;
+    use sweepdepth::image::SetImages;
+    use sweepdepth::pipeline::convert::packed_view;
+    use sweepdepth::sweep::frame_memo::FrameMemo;
+    use sweepdepth::sweep::{DepthMaps, StageTimings};
+    /// The WGSL engine; `unpacks` says whether it takes packed images, `packed` counts the
+    /// sweeps that had some.
+    struct Probe {
+        engine: GpuEngine,
+        unpacks: bool,
+        packed: usize,
+    }
+    impl Sweeper for Probe {
+        fn run_set(
+            &mut self,
+            rig: &sweepdepth::geometry::Rig,
+            images: SetImages<'_>,
+            params: &SweepParams,
+        ) -> Result<DepthMaps, SweepError> {
+            self.packed += usize::from(images.has_packed());
+            self.engine.run_set(rig, images, params)
+        }
+        fn memo(&mut self) -> &mut FrameMemo {
+            Sweeper::memo(&mut self.engine)
+        }
+        fn timings_mut(&mut self) -> &mut StageTimings {
+            Sweeper::timings_mut(&mut self.engine)
+        }
+        fn unpacks_on_device(&self) -> bool {
+            self.unpacks
+        }
+    }
+    let (config, job) = fixture();
+    assert!(job.images.len() > 2);
+    assert!(
+        job.images.iter().all(|m| packed_view(m).is_some()),
+        "{:?}",
+        job.images[0].encoding
+    );
+    let gpu = GpuContext::new().expect("GPU");
+    let run = |unpacks: bool| {
+        let engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
+        let mut probe = Probe {
+            engine,
+            unpacks,
+            packed: 0,
+        };
+        let set =
+            sweepdepth::pipeline::process_job(&mut probe, &job, &config.sweep, Wanted::all(true))
+                .expect("the set");
+        (set, probe.packed)
+    };
+    let (packed, sweeps_with_packed) = run(true);
+    let (converted, none) = run(false);
+    assert!(
+        sweeps_with_packed > 0 && none == 0,
+        "{sweeps_with_packed} / {none}"
+    );
+    assert_eq!(packed.outputs.len(), converted.outputs.len());
+    for (a, b) in packed.outputs.iter().zip(&converted.outputs) {
+        assert_eq!(a.messages.depth.data, b.messages.depth.data);
+        assert_eq!(a.messages.confidence.data, b.messages.confidence.data);
+        let (pa, pb) = (a.messages.points.as_ref(), b.messages.points.as_ref());
+        assert_eq!(
+            pa.map(|p| &p.data),
+            pb.map(|p| &p.data),
+            "the points and their colours"
+        );
+        assert!(pa.is_some_and(|p| !p.data.is_empty()));
+    }
 }

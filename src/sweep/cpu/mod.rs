@@ -199,8 +199,8 @@ impl CpuEngine {
     }
 
     /// [`CpuEngine::run`] with the images as a [`SetImages`]. The CPU engine reads the images
-    /// as one slice: picked cameras are copied into one here (the WGSL engine uploads each
-    /// from where it lies).
+    /// as one slice: picked cameras are copied (packed ones converted) into one here (the WGSL
+    /// engine uploads each from where it lies).
     pub fn run_set(
         &mut self,
         rig: &Rig,
@@ -211,7 +211,7 @@ impl CpuEngine {
         let images = match images.as_slice() {
             Some(images) => images,
             None => {
-                copied = images.iter().cloned().collect();
+                copied = images.iter().map(|c| c.rgba().into_owned()).collect();
                 &copied
             }
         };

@@ -105,7 +105,10 @@ fn make_bind_groups<'a>(
 ) -> Result<Vec<Vec<wgpu::BindGroup>>, SweepError> {
     let mut bind_groups = Vec::with_capacity(STAGES.len());
     for (stage, layout) in STAGES.iter().zip(layouts) {
-        if stage.name == Stage::Half.name() || stage.name == Stage::Prefilter.name() {
+        if [Stage::Half, Stage::Prefilter, Stage::Unpack]
+            .iter()
+            .any(|s| s.name() == stage.name)
+        {
             // Binds the image pyramid's levels (`pyramid.rs`), not this shape's buffers.
             bind_groups.push(Vec::new());
             continue;

@@ -37,7 +37,7 @@ use super::schedule::Schedule;
 use super::stages::Stage;
 use super::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams, WantedMaps};
 use crate::geometry::Rig;
-use crate::image::{Rgba8Image, SetImages};
+use crate::image::{CameraImage, Rgba8Image, SetImages};
 use buffers::{Alignments, Buffers};
 pub use copies::HostCopies;
 pub use pipelines::SgmLayout;
@@ -417,24 +417,7 @@ impl GpuEngine {
 
     /// Copies the first `bytes` of `buffer` to a fresh readback buffer and reads it back.
     fn read_buffer(&self, buffer: &wgpu::Buffer, bytes: u64) -> Result<Vec<u32>, SweepError> {
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("debug readback"),
-            size: bytes.max(4),
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut encoder = self
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
-        let mut counts = SetCounts::default();
-        let mut submitter =
-            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut counts);
-        submitter.submit(encoder.finish())?;
-        let mut words = submitter.read_back(&[(&staging, bytes)])?;
-        words
-            .pop()
-            .ok_or_else(|| SweepError::Gpu("internal: nothing read back".into()))
+        record::read_buffer(&self.device, &self.queue, &self.cancel, buffer, bytes)
     }
 
     /// Makes the buffers of shape `key` the current ones: kept, taken from the spares, or made;
@@ -501,9 +484,12 @@ impl GpuEngine {
         // every half-size level below on the GPU; the others copy theirs).
         // A pair's matching images are made on the device from the caller's (`prefilter`
         // stage), in level 0 of the pyramid (a one-level sweep too).
+        // Packed images are unpacked on the device into level 0 (or the prefilter's input).
         let prefilter = plan.params.colour_in_alpha != 0;
+        let packed = images.full().has_packed();
         let halvings = images.halvings();
-        let fill = (halvings > 0 || prefilter) && self.pyramid_filled.is_none_or(|d| d < halvings);
+        let fill = (halvings > 0 || prefilter || packed)
+            && self.pyramid_filled.is_none_or(|d| d < halvings);
         if fill {
             self.fit_pyramid(images.full(), halvings)?;
             if let (true, Some(pyramid)) = (prefilter, self.pyramid.as_mut()) {
@@ -513,8 +499,13 @@ impl GpuEngine {
                     &self.pipelines.layouts[Stage::Prefilter as usize],
                 );
             }
+            if let (true, Some(pyramid)) = (packed, self.pyramid.as_mut()) {
+                let layout = &self.pipelines.layouts[Stage::Unpack as usize];
+                let full = images.full();
+                pyramid.ensure_packed(&self.device, &self.queue, layout, full, prefilter)?;
+            }
         }
-        let from_pyramid = halvings > 0 || prefilter || self.pyramid_filled.is_some();
+        let from_pyramid = halvings > 0 || prefilter || packed || self.pyramid_filled.is_some();
         if halvings == 0 && (fill || !from_pyramid) {
             super::check_images(rig, images.full())?;
         }
@@ -567,6 +558,9 @@ impl GpuEngine {
         match (from_pyramid, self.pyramid.as_ref()) {
             (false, _) => {
                 for (image, camera) in images.full().iter().zip(&plan.cameras) {
+                    let CameraImage::Rgba(image) = image else {
+                        return Err(SweepError::Gpu("internal: a packed image uploaded".into()));
+                    };
                     parts.push(upload::Part {
                         target: &buffers.images,
                         offset: u64::from(camera.size[2]) * 4,
@@ -575,7 +569,7 @@ impl GpuEngine {
                 }
             }
             (true, Some(pyramid)) if fill => {
-                parts.extend(pyramid.uploads(images.full(), prefilter));
+                parts.extend(pyramid.uploads(images.full(), prefilter)?);
             }
             (true, Some(_)) => {}
             (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
@@ -602,6 +596,9 @@ impl GpuEngine {
         if let (true, Some(pyramid)) = (from_pyramid, self.pyramid.as_ref()) {
             if fill {
                 self.pyramid_filled = Some(halvings);
+                if packed {
+                    pyramid.record_unpack(encoder, &pipelines[Stage::Unpack as usize]);
+                }
                 if prefilter {
                     pyramid.record_prefilter(encoder, &pipelines[Stage::Prefilter as usize])?;
                 }

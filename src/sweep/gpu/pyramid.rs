@@ -13,7 +13,7 @@ use super::super::plan::SweepPlan;
 use super::super::SweepError;
 use super::record::tiles_of;
 use super::upload::Part;
-use crate::image::SetImages;
+use crate::image::{CameraImage, SetImages};
 
 /// The uniform block of a pass over one level's cameras, WGSL `Halving` (`shaders/half.wgsl`)
 /// and `PrefilterCameras` (`shaders/prefilter.wgsl`): the camera count (and, for the prefilter,
@@ -111,11 +111,24 @@ struct Raw {
     pass: CameraPass,
 }
 
+/// The caller's packed images (`image::PackedImage`) and the `unpack` passes (one per format)
+/// that write them into level 0 or into `raw`.
+struct Packed {
+    /// Per camera: its format (0: not packed), and whether the passes write `raw`.
+    key: (Vec<u8>, bool),
+    /// Per camera: the word of its first byte in `buffer`.
+    offsets: Vec<u32>,
+    buffer: wgpu::Buffer,
+    passes: Vec<CameraPass>,
+}
+
 /// The levels of one rig's image sizes, 0 (full resolution) to `depth`.
 pub(super) struct Pyramid {
     levels: Vec<Level>,
     /// Made at the first prefiltered frame set.
     raw: Option<Raw>,
+    /// Made at the first frame set with packed images (anew when their formats change).
+    packed: Option<Packed>,
 }
 
 /// Each camera's word of pixel (0, 0), the cameras packed in order.
@@ -155,7 +168,7 @@ impl Pyramid {
                 mapped_at_creation: false,
             })
         };
-        let mut sizes: Vec<[u32; 2]> = images.iter().map(|i| [i.width, i.height]).collect();
+        let mut sizes: Vec<[u32; 2]> = images.iter().map(|i| [i.width(), i.height()]).collect();
         let mut levels: Vec<Level> = Vec::with_capacity(depth + 1);
         let first_offsets = offsets(&sizes);
         let first_words = sizes
@@ -203,7 +216,11 @@ impl Pyramid {
                 made: Some(half),
             });
         }
-        Ok(Self { levels, raw: None })
+        Ok(Self {
+            levels,
+            raw: None,
+            packed: None,
+        })
     }
 
     /// Makes the buffer of the caller's images before the prefilter and the `prefilter` pass
@@ -243,6 +260,108 @@ impl Pyramid {
         self.raw = Some(Raw { buffer, pass });
     }
 
+    /// Makes the buffer of `images`' packed bytes and the `unpack` passes into level 0 (or,
+    /// `into_raw`, into the buffer the prefilter reads: `ensure_raw` first), unless those of
+    /// the same formats are there. Each camera's bytes must be a whole number of words.
+    pub fn ensure_packed(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        layout: &wgpu::BindGroupLayout,
+        images: SetImages<'_>,
+        into_raw: bool,
+    ) -> Result<(), SweepError> {
+        let formats: Vec<u8> = images
+            .iter()
+            .map(|image| match image {
+                CameraImage::Packed(p) => p.format as u8,
+                CameraImage::Rgba(_) => 0,
+            })
+            .collect();
+        let key = (formats, into_raw);
+        if self.packed.as_ref().is_some_and(|p| p.key == key) {
+            return Ok(());
+        }
+        let mut offsets = Vec::with_capacity(key.0.len());
+        let mut words = 0u64;
+        for image in images.iter() {
+            offsets.push(u32::try_from(words).map_err(|_| {
+                SweepError::InvalidParams("packed images of more than 16 GiB".into())
+            })?);
+            if let CameraImage::Packed(p) = image {
+                if !p.bytes.len().is_multiple_of(4) {
+                    return Err(SweepError::InvalidParams(format!(
+                        "a packed {}x{} image of {} bytes: a whole number of 4-byte words is needed",
+                        p.width,
+                        p.height,
+                        p.bytes.len()
+                    )));
+                }
+                words += p.bytes.len() as u64 / 4;
+            }
+        }
+        let level = &self.levels[0];
+        let target = match (&self.raw, into_raw) {
+            (Some(r), true) => &r.buffer,
+            (None, true) => {
+                return Err(SweepError::Gpu(
+                    "internal: no buffer for the raw images".into(),
+                ))
+            }
+            _ => &level.buffer,
+        };
+        self.packed = None;
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("packed images"),
+            size: (words * 4).max(16),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut passes = Vec::new();
+        for format in 1..=3u8 {
+            let cameras: Vec<[u32; 4]> = (0..key.0.len())
+                .filter(|&c| key.0[c] == format)
+                .map(|c| {
+                    let [w, h] = level.sizes[c];
+                    [w, h, offsets[c], level.offsets[c]]
+                })
+                .collect();
+            if !cameras.is_empty() {
+                let head = u32::from(format);
+                let pass = CameraPass::new(
+                    device, queue, layout, "unpack", head, &cameras, &buffer, target,
+                );
+                passes.push(pass);
+            }
+        }
+        self.packed = Some(Packed {
+            key,
+            offsets,
+            buffer,
+            passes,
+        });
+        Ok(())
+    }
+
+    /// Records the packed images unpacked into level 0 or `raw` (`ensure_packed` first).
+    pub fn record_unpack(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        unpack: &wgpu::ComputePipeline,
+    ) {
+        let Some(packed) = &self.packed else {
+            return;
+        };
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("unpack"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(unpack);
+        for camera_pass in &packed.passes {
+            camera_pass.dispatch(&mut pass);
+        }
+    }
+
     /// Records level 0 made from the caller's images in `raw` (`ensure_raw` first).
     pub fn record_prefilter(
         &self,
@@ -270,7 +389,7 @@ impl Pyramid {
                 .sizes
                 .iter()
                 .zip(images.iter())
-                .all(|([w, h], i)| *w == i.width && *h == i.height)
+                .all(|([w, h], i)| *w == i.width() && *h == i.height())
     }
 
     /// Level `level`'s buffer and the bytes of its pixels.
@@ -279,25 +398,39 @@ impl Pyramid {
     }
 
     /// The writes of the caller's images into level 0 (or, `raw`, into the buffer the
-    /// prefilter reads: `ensure_raw` first), each from its own pixels.
+    /// prefilter reads: `ensure_raw` first), each from its own pixels; packed images' bytes
+    /// into the packed buffer (`ensure_packed` first), which `record_unpack` unpacks.
     pub fn uploads<'a>(
         &'a self,
         images: SetImages<'a>,
         raw: bool,
-    ) -> impl Iterator<Item = Part<'a>> + 'a {
+    ) -> Result<Vec<Part<'a>>, SweepError> {
         let level = &self.levels[0];
         let target = match (&self.raw, raw) {
             (Some(r), true) => &r.buffer,
             _ => &level.buffer,
         };
-        images
-            .iter()
-            .zip(&level.offsets)
-            .map(move |(image, at)| Part {
-                target,
-                offset: u64::from(*at) * 4,
-                data: bytemuck::cast_slice(&image.pixels),
-            })
+        let mut parts = Vec::with_capacity(images.len());
+        for (c, (image, at)) in images.iter().zip(&level.offsets).enumerate() {
+            parts.push(match image {
+                CameraImage::Rgba(image) => Part {
+                    target,
+                    offset: u64::from(*at) * 4,
+                    data: bytemuck::cast_slice(&image.pixels),
+                },
+                CameraImage::Packed(p) => {
+                    let packed = self.packed.as_ref().ok_or_else(|| {
+                        SweepError::Gpu("internal: no buffer for the packed images".into())
+                    })?;
+                    Part {
+                        target: &packed.buffer,
+                        offset: u64::from(packed.offsets[c]) * 4,
+                        data: p.bytes,
+                    }
+                }
+            });
+        }
+        Ok(parts)
     }
 
     /// Records levels 1 to `depth`, each from the one above, in one compute pass.

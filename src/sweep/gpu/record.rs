@@ -209,9 +209,12 @@ fn workgroups(
         | Stage::RefineBase
         | Stage::RefineSelect => (None, tiles(key.width, key.height)),
         // Recorded before the schedule (`record_census`, `pyramid.rs`), not dispatched by it.
-        Stage::Census | Stage::Half | Stage::Prefilter | Stage::PlaneSpans | Stage::PlaneRanges => {
-            (None, (0, 0, 0))
-        }
+        Stage::Census
+        | Stage::Half
+        | Stage::Prefilter
+        | Stage::Unpack
+        | Stage::PlaneSpans
+        | Stage::PlaneRanges => (None, (0, 0, 0)),
     }
 }
 
@@ -331,4 +334,30 @@ pub(super) fn phase_times(
         gpu_timestamps: true,
         stages,
     })
+}
+
+/// Copies the first `bytes` of `buffer` to a fresh readback buffer and reads it back.
+pub(super) fn read_buffer(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    cancel: &CancelFlag,
+    buffer: &wgpu::Buffer,
+    bytes: u64,
+) -> Result<Vec<u32>, SweepError> {
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("debug readback"),
+        size: bytes.max(4),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder =
+        device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+    encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+    let mut counts = SetCounts::default();
+    let mut submitter = Submitter::new(device, queue, cancel, &mut counts);
+    submitter.submit(encoder.finish())?;
+    let mut words = submitter.read_back(&[(&staging, bytes)])?;
+    words
+        .pop()
+        .ok_or_else(|| SweepError::Gpu("internal: nothing read back".into()))
 }
