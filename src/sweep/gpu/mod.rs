@@ -448,8 +448,14 @@ impl GpuEngine {
     }
 
     /// An image pyramid that holds `full` and `halvings` levels below it (made anew when the
-    /// one there does not).
-    fn fit_pyramid(&mut self, full: SetImages<'_>, halvings: usize) -> Result<(), SweepError> {
+    /// one there does not), with the prefilter's input (`prefilter`) and the buffer and passes
+    /// of `full`'s packed images where they are needed.
+    fn fit_pyramid(
+        &mut self,
+        full: SetImages<'_>,
+        halvings: usize,
+        prefilter: bool,
+    ) -> Result<(), SweepError> {
         if !self
             .pyramid
             .as_ref()
@@ -463,6 +469,21 @@ impl GpuEngine {
                 full,
                 halvings,
             )?);
+        }
+        let Some(pyramid) = self.pyramid.as_mut() else {
+            return Err(SweepError::Gpu("internal: no image pyramid".into()));
+        };
+        let layouts = &self.pipelines.layouts;
+        if prefilter {
+            pyramid.ensure_raw(
+                &self.device,
+                &self.queue,
+                &layouts[Stage::Prefilter as usize],
+            );
+        }
+        if full.has_packed() {
+            let layout = &layouts[Stage::Unpack as usize];
+            pyramid.ensure_packed(&self.device, &self.queue, layout, full, prefilter)?;
         }
         Ok(())
     }
@@ -491,19 +512,7 @@ impl GpuEngine {
         let fill = (halvings > 0 || prefilter || packed)
             && self.pyramid_filled.is_none_or(|d| d < halvings);
         if fill {
-            self.fit_pyramid(images.full(), halvings)?;
-            if let (true, Some(pyramid)) = (prefilter, self.pyramid.as_mut()) {
-                pyramid.ensure_raw(
-                    &self.device,
-                    &self.queue,
-                    &self.pipelines.layouts[Stage::Prefilter as usize],
-                );
-            }
-            if let (true, Some(pyramid)) = (packed, self.pyramid.as_mut()) {
-                let layout = &self.pipelines.layouts[Stage::Unpack as usize];
-                let full = images.full();
-                pyramid.ensure_packed(&self.device, &self.queue, layout, full, prefilter)?;
-            }
+            self.fit_pyramid(images.full(), halvings, prefilter)?;
         }
         let from_pyramid = halvings > 0 || prefilter || packed || self.pyramid_filled.is_some();
         if halvings == 0 && (fill || !from_pyramid) {
