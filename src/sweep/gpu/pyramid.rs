@@ -321,9 +321,9 @@ impl Pyramid {
         for format in 1..=3u8 {
             let cameras: Vec<[u32; 4]> = (0..key.0.len())
                 .filter(|&c| key.0[c] == format)
-                .map(|c| {
-                    let [w, h] = level.sizes[c];
-                    [w, h, offsets[c], level.offsets[c]]
+                .filter_map(|c| {
+                    let ([w, h], at) = (level.sizes.get(c)?, level.offsets.get(c)?);
+                    Some([*w, *h, offsets[c], *at])
                 })
                 .collect();
             if !cameras.is_empty() {
@@ -422,9 +422,12 @@ impl Pyramid {
                     let packed = self.packed.as_ref().ok_or_else(|| {
                         SweepError::Gpu("internal: no buffer for the packed images".into())
                     })?;
+                    let at = packed.offsets.get(c).ok_or_else(|| {
+                        SweepError::Gpu("internal: a packed image without its place".into())
+                    })?;
                     Part {
                         target: &packed.buffer,
-                        offset: u64::from(packed.offsets[c]) * 4,
+                        offset: u64::from(*at) * 4,
                         data: p.bytes,
                     }
                 }
