@@ -136,48 +136,60 @@ pub trait Sweeper {
         references: &[usize],
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
-        if images.len() != cameras.len() {
-            let error = || SweepError::ImageCount {
-                images: images.len(),
-                cameras: cameras.len(),
-            };
-            return references.iter().map(|_| Err(error())).collect();
-        }
-        self.memo().begin(cameras.iter().map(|c| c.name.as_str()));
-        let mut results = Vec::with_capacity(references.len());
-        let mut stages: Vec<(String, f64)> = Vec::new();
-        for &reference in references {
-            let result = reference_rig(cameras, reference, params).and_then(|r| {
-                // The reference's views, picked from the set's images without a copy.
-                let own = images.pick(&r.cameras).ok_or_else(|| {
-                    SweepError::InvalidParams("internal: a view outside the set".into())
-                })?;
-                let maps = self.run_set(&r.rig, own, params)?;
-                Ok(ReferenceDepth {
-                    reference,
-                    cameras: r.cameras,
-                    maps,
-                })
-            });
-            // The set's timings: every reference's stages summed.
-            for (name, ms) in &self.timings_mut().stages {
-                match stages.iter_mut().find(|(n, _)| n == name) {
-                    Some((_, total)) => *total += ms,
-                    None => stages.push((name.clone(), *ms)),
-                }
-            }
-            let cancelled = matches!(result, Err(SweepError::Cancelled));
-            results.push(result);
-            if cancelled {
-                break;
-            }
-        }
-        self.memo().end();
-        if references.len() > 1 {
-            self.timings_mut().stages = stages;
-        }
-        results
+        each_reference(self, cameras, images, references, params)
     }
+}
+
+/// [`Sweeper::run_references_set`]: each reference swept with its own views, picked from the
+/// set's images, within one frame memo.
+fn each_reference<S: Sweeper + ?Sized>(
+    engine: &mut S,
+    cameras: &[RigCamera],
+    images: SetImages<'_>,
+    references: &[usize],
+    params: &SweepParams,
+) -> Vec<Result<ReferenceDepth, SweepError>> {
+    if images.len() != cameras.len() {
+        let error = || SweepError::ImageCount {
+            images: images.len(),
+            cameras: cameras.len(),
+        };
+        return references.iter().map(|_| Err(error())).collect();
+    }
+    engine.memo().begin(cameras.iter().map(|c| c.name.as_str()));
+    let mut results = Vec::with_capacity(references.len());
+    let mut stages: Vec<(String, f64)> = Vec::new();
+    for &reference in references {
+        let result = reference_rig(cameras, reference, params).and_then(|r| {
+            // The reference's views, picked from the set's images without a copy.
+            let own = images.pick(&r.cameras).ok_or_else(|| {
+                SweepError::InvalidParams("internal: a view outside the set".into())
+            })?;
+            let maps = engine.run_set(&r.rig, own, params)?;
+            Ok(ReferenceDepth {
+                reference,
+                cameras: r.cameras,
+                maps,
+            })
+        });
+        // The set's timings: every reference's stages summed.
+        for (name, ms) in &engine.timings_mut().stages {
+            match stages.iter_mut().find(|(n, _)| n == name) {
+                Some((_, total)) => *total += ms,
+                None => stages.push((name.clone(), *ms)),
+            }
+        }
+        let cancelled = matches!(result, Err(SweepError::Cancelled));
+        results.push(result);
+        if cancelled {
+            break;
+        }
+    }
+    engine.memo().end();
+    if references.len() > 1 {
+        engine.timings_mut().stages = stages;
+    }
+    results
 }
 
 impl Sweeper for GpuEngine {
@@ -192,6 +204,25 @@ impl Sweeper for GpuEngine {
 
     fn unpacks_on_device(&self) -> bool {
         true
+    }
+
+    /// Each camera's image goes up once for all of the references (`GpuEngine::hold_set`).
+    fn run_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        let hold = references.len() > 1 && images.len() == cameras.len();
+        if hold {
+            if let Err(e) = self.hold_set(images) {
+                tracing::debug!("each reference uploads its own images: {e}");
+            }
+        }
+        let results = each_reference(self, cameras, images, references, params);
+        self.release_set();
+        results
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
@@ -402,6 +433,21 @@ impl Sweeper for Engine {
 
     fn unpacks_on_device(&self) -> bool {
         matches!(self, Self::Gpu { .. })
+    }
+
+    fn run_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        match self {
+            Self::Gpu { engine, .. } => {
+                Sweeper::run_references_set(engine.as_mut(), cameras, images, references, params)
+            }
+            Self::Cpu(cpu) => cpu.run_references_set(cameras, images, references, params),
+        }
     }
 
     fn memo(&mut self) -> &mut FrameMemo {

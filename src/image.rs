@@ -232,6 +232,39 @@ impl<'a> SetImages<'a> {
         (0..self.len()).filter_map(move |i| self.get(i))
     }
 
+    /// Camera `i`'s index in the frame set it was picked from (itself when nothing was picked).
+    pub fn set_index(&self, i: usize) -> Option<usize> {
+        match *self {
+            Self::All(images) => (i < images.len()).then_some(i),
+            Self::Cameras { set, picked: None } => (i < set.len()).then_some(i),
+            Self::Picked { picked, .. }
+            | Self::Cameras {
+                picked: Some(picked),
+                ..
+            } => picked.get(i).copied(),
+        }
+    }
+
+    /// The frame set these images were picked from, as itself: every image of it, none picked.
+    pub fn whole_set(&self) -> Self {
+        match *self {
+            Self::All(images) | Self::Picked { set: images, .. } => Self::All(images),
+            Self::Cameras { set, .. } => Self::Cameras { set, picked: None },
+        }
+    }
+
+    /// Which frame set these images were picked from: the address and length of its slice of
+    /// images (equal for every pick from one set while it lives; compared, never followed).
+    pub fn set_id(&self) -> (usize, usize) {
+        fn id<T>(s: &[T]) -> (usize, usize) {
+            (s.as_ptr() as usize, s.len())
+        }
+        match *self {
+            Self::All(images) | Self::Picked { set: images, .. } => id(images),
+            Self::Cameras { set, .. } => id(set),
+        }
+    }
+
     /// Whether any image is packed.
     pub fn has_packed(&self) -> bool {
         self.iter().any(|c| matches!(c, CameraImage::Packed(_)))

@@ -178,3 +178,117 @@ fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
     );
     assert!(rel < 0.01 && within > 0.7, "{rel:.4} / {within:.3}");
 }
+
+/// A frame set of several references on the WGSL engine writes each camera's image up once
+/// (`GpuEngine::hold_set`): the dome's three references sweep 9 views each, 27 images, of
+/// fewer distinct cameras, and the set writes exactly those; every reference's maps equal, to
+/// the bit, the same reference swept alone (its own uploads). With the cameras but the
+/// references handed over as their messages' packed bytes (unpacked on the device, once) the
+/// maps are the same again.
+#[test]
+fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
+    use std::collections::BTreeSet;
+    use sweepdepth::image::{CameraImage, PackedFormat, PackedImage, SetImages};
+    use sweepdepth::sweep::gpu::GpuEngine;
+    use sweepdepth::sweep::references::reference_rig;
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = params();
+    let gpu = crate::common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let references = [0, 5, 17];
+    let views: Vec<Vec<usize>> = references
+        .iter()
+        .map(|&r| reference_rig(&rig.cameras, r, &p).expect("its rig").cameras)
+        .collect();
+    let distinct: BTreeSet<usize> = views.iter().flatten().copied().collect();
+    let picked: usize = views.iter().map(Vec::len).sum();
+    assert!(
+        distinct.len() < picked,
+        "{distinct:?}: the references share views"
+    );
+    let image_bytes = 160 * 120 * 4;
+    let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    let mut alone = Vec::new();
+    for &r in &references {
+        engine.take_set_counts();
+        let depth = engine
+            .run_references(&rig.cameras, &images, &[r], &p)
+            .pop()
+            .expect("one result")
+            .expect("one reference");
+        let views = reference_rig(&rig.cameras, r, &p).expect("its rig").cameras;
+        assert_eq!(
+            engine.take_set_counts().image_bytes,
+            (views.len() * image_bytes) as u64,
+            "a reference alone writes its views"
+        );
+        alone.push(depth);
+    }
+    engine.take_set_counts();
+    let together = engine.run_references(&rig.cameras, &images, &references, &p);
+    assert_eq!(
+        engine.take_set_counts().image_bytes,
+        (distinct.len() * image_bytes) as u64,
+        "each camera of the set once ({} images picked)",
+        picked
+    );
+    // The same set with every camera but the references as packed rgb8 bytes.
+    let bytes: Vec<Vec<u8>> = images
+        .iter()
+        .map(|i| {
+            i.pixels
+                .iter()
+                .flat_map(|&p| Rgba8Image::unpack(p)[..3].to_vec())
+                .collect()
+        })
+        .collect();
+    let cameras: Vec<CameraImage<'_>> = (0..images.len())
+        .map(|c| match references.contains(&c) {
+            true => CameraImage::Rgba(&images[c]),
+            false => CameraImage::Packed(PackedImage {
+                width: 160,
+                height: 120,
+                format: PackedFormat::Rgb8,
+                bytes: &bytes[c],
+            }),
+        })
+        .collect();
+    let set = SetImages::Cameras {
+        set: &cameras,
+        picked: None,
+    };
+    // A fresh engine: nothing of the set above on its device.
+    let mut fresh = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let packed = fresh.run_references_set(&rig.cameras, set, &references, &p);
+    assert_eq!(
+        fresh.take_set_counts().image_bytes,
+        distinct
+            .iter()
+            .map(|c| match references.contains(c) {
+                true => image_bytes,
+                false => image_bytes / 4 * 3,
+            })
+            .sum::<usize>() as u64,
+        "the packed cameras' bytes as they came"
+    );
+    for (one, (a, b)) in alone.iter().zip(together.iter().zip(&packed)) {
+        for other in [a, b] {
+            let other = other.as_ref().expect("each reference of the set");
+            assert_eq!(other.reference, one.reference);
+            assert_eq!(other.cameras, one.cameras);
+            assert_eq!(bits(&other.maps.depth_m), bits(&one.maps.depth_m));
+            assert_eq!(bits(&other.maps.confidence), bits(&one.maps.confidence));
+        }
+        let (rel, within) = errors(
+            &one.maps.depth_m,
+            &synthetic::reference_depth(
+                &scene,
+                &Rig::new(rig.cameras.clone(), Reference::Camera(one.reference)).expect("rig"),
+            ),
+        );
+        assert!(rel < 0.02 && within > 0.5, "{rel:.4} / {within:.3}");
+    }
+}

@@ -17,12 +17,17 @@
 //! - `upload.rs`: the set's uploads (images, plane ranges) through one staging buffer kept from
 //!   set to set, mapped again right after each submission.
 //! - `copies.rs`: those copies and the maps' unpacking split over threads (`HostCopies`).
+//! - `level_images.rs`: how a level's images get to the device (uploaded, unpacked, made from
+//!   the level above, copied from a held set's).
+//! - `set_images.rs`: a frame set's images kept on the device across its references.
 
 mod buffers;
 pub(crate) mod copies;
+mod level_images;
 mod pipelines;
 mod pyramid;
 mod record;
+mod set_images;
 #[cfg(test)]
 mod shader_check;
 mod shape;
@@ -40,6 +45,7 @@ use crate::geometry::Rig;
 use crate::image::{CameraImage, Rgba8Image, SetImages};
 use buffers::{Alignments, Buffers};
 pub use copies::HostCopies;
+use level_images::LevelInput;
 pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use pyramid::Pyramid;
@@ -67,6 +73,9 @@ pub struct SetCounts {
     /// Milliseconds spent in `Queue::submit` (lavapipe blocks there while an earlier
     /// submission runs: a wait in all but name).
     pub submit_ms: f64,
+    /// Bytes of the caller's images written up (each reference's views, or each camera of a
+    /// set of several references once: `set_images.rs`).
+    pub image_bytes: u64,
     /// Staging buffers made for the uploads (images, plane ranges): the engine's own, kept
     /// from set to set (so 0 once it is made), and one per write it could not take
     /// (`Queue::write_buffer` makes one per call).
@@ -132,6 +141,8 @@ pub struct GpuEngine {
     /// The deepest level of `pyramid` made for the current `run` (None: nothing uploaded yet;
     /// each `run`, `run_plan` and `run_plan_raw` starts afresh).
     pyramid_filled: Option<usize>,
+    /// The images of a frame set of several references, kept across them.
+    set_images: set_images::SetOnDevice,
     /// The levels of the current frame set recorded so far (None between frame sets).
     open: Option<OpenSet>,
     /// The staging buffer of the uploads, kept from set to set.
@@ -194,6 +205,7 @@ impl GpuEngine {
             uploaded_plan: None,
             pyramid: None,
             pyramid_filled: None,
+            set_images: Default::default(),
             open: None,
             uploads: upload::Uploads::new(),
             wanted: WantedMaps::ALL,
@@ -301,6 +313,7 @@ impl GpuEngine {
         if self.open.take().is_some() {
             self.uploads.abandoned();
         }
+        self.set_images.abandoned();
         let waited_before = self.counts.wait_ms + self.counts.submit_ms;
         let made_before = self.uploads.made();
         let result = f(self);
@@ -447,47 +460,6 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// An image pyramid that holds `full` and `halvings` levels below it (made anew when the
-    /// one there does not), with the prefilter's input (`prefilter`) and the buffer and passes
-    /// of `full`'s packed images where they are needed.
-    fn fit_pyramid(
-        &mut self,
-        full: SetImages<'_>,
-        halvings: usize,
-        prefilter: bool,
-    ) -> Result<(), SweepError> {
-        if !self
-            .pyramid
-            .as_ref()
-            .is_some_and(|p| p.fits(full, halvings))
-        {
-            self.pyramid = None;
-            self.pyramid = Some(Pyramid::new(
-                &self.device,
-                &self.queue,
-                &self.pipelines.layouts[Stage::Half as usize],
-                full,
-                halvings,
-            )?);
-        }
-        let Some(pyramid) = self.pyramid.as_mut() else {
-            return Err(SweepError::Gpu("internal: no image pyramid".into()));
-        };
-        let layouts = &self.pipelines.layouts;
-        if prefilter {
-            pyramid.ensure_raw(
-                &self.device,
-                &self.queue,
-                &layouts[Stage::Prefilter as usize],
-            );
-        }
-        if full.has_packed() {
-            let layout = &layouts[Stage::Unpack as usize];
-            pyramid.ensure_packed(&self.device, &self.queue, layout, full, prefilter)?;
-        }
-        Ok(())
-    }
-
     /// Records one plan (one level of a frame set) into the frame set's command buffer: its
     /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
     /// on the device; otherwise the plan's own ranges are uploaded), its images and its
@@ -500,24 +472,16 @@ impl GpuEngine {
         narrowed: bool,
     ) -> Result<(), SweepError> {
         self.counts.levels += 1;
-        // The level's images: the caller's, written straight into the `images` buffer, or a
-        // level of the pyramid (the set's first level uploads the caller's images and makes
-        // every half-size level below on the GPU; the others copy theirs).
-        // A pair's matching images are made on the device from the caller's (`prefilter`
-        // stage), in level 0 of the pyramid (a one-level sweep too).
-        // Packed images are unpacked on the device into level 0 (or the prefilter's input).
-        let prefilter = plan.params.colour_in_alpha != 0;
-        let packed = images.full().has_packed();
-        let halvings = images.halvings();
-        let fill = (halvings > 0 || prefilter || packed)
-            && self.pyramid_filled.is_none_or(|d| d < halvings);
-        if fill {
-            self.fit_pyramid(images.full(), halvings, prefilter)?;
-        }
-        let from_pyramid = halvings > 0 || prefilter || packed || self.pyramid_filled.is_some();
-        if halvings == 0 && (fill || !from_pyramid) {
-            super::check_images(rig, images.full())?;
-        }
+        // The level's images (`level_images.rs`).
+        let LevelInput {
+            prefilter,
+            packed,
+            held,
+            halvings,
+            fill,
+            from_pyramid,
+            missing,
+        } = self.level_input(rig, images, plan.params.colour_in_alpha != 0)?;
         let key = ShapeKey::of(
             plan,
             &self.device.limits(),
@@ -577,12 +541,18 @@ impl GpuEngine {
                     });
                 }
             }
+            (true, Some(_)) if fill && held => {
+                parts.extend(self.set_images.uploads(images.full(), &missing)?);
+            }
             (true, Some(pyramid)) if fill => {
                 parts.extend(pyramid.uploads(images.full(), prefilter)?);
             }
             (true, Some(_)) => {}
             (true, None) => return Err(SweepError::Gpu("internal: no image pyramid".into())),
         }
+        let ranges_bytes = ranges.map_or(0, std::mem::size_of_val);
+        let bytes: usize = parts.iter().map(|p| p.data.len()).sum();
+        self.counts.image_bytes += (bytes - ranges_bytes) as u64;
         let copies = self.host_copies;
         self.uploads
             .write(&self.device, &self.queue, encoder, &parts, copies);
@@ -605,8 +575,13 @@ impl GpuEngine {
         if let (true, Some(pyramid)) = (from_pyramid, self.pyramid.as_ref()) {
             if fill {
                 self.pyramid_filled = Some(halvings);
-                if packed {
-                    pyramid.record_unpack(encoder, &pipelines[Stage::Unpack as usize]);
+                let unpack = &pipelines[Stage::Unpack as usize];
+                if held {
+                    let written = (images.full(), &missing[..]);
+                    self.set_images
+                        .record(encoder, unpack, written, pyramid, prefilter)?;
+                } else if packed {
+                    pyramid.record_unpack(encoder, unpack);
                 }
                 if prefilter {
                     pyramid.record_prefilter(encoder, &pipelines[Stage::Prefilter as usize])?;
@@ -701,6 +676,7 @@ impl GpuEngine {
         let submitted = submitter.submit(encoder.finish());
         self.uploads.submitted();
         submitted?;
+        self.set_images.submitted();
         let mut unpack = Some(unpack);
         let mut maps = None;
         let mut ticks: Option<Vec<u32>> = None;
@@ -720,35 +696,11 @@ impl GpuEngine {
         let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
         self.timings = match ticks {
             Some(ticks) => {
-                // Each level's timestamps in turn; the levels below the last as one stage.
-                let mut at = 0;
-                let mut coarse_ms = 0.0;
-                // The levels below the last stage by stage too (`coarse/<stage>`: bench's JSON).
-                let mut coarse_stages: Vec<(String, f64)> = Vec::new();
-                let mut last = StageTimings::default();
-                for (i, level) in levels.iter().enumerate() {
-                    // Two u32 words per timestamp.
-                    let words = level.timestamps.as_ref().map_or(0, |t| 2 * t.1 as usize);
-                    let own = ticks
-                        .get(at..at + words)
-                        .ok_or_else(|| SweepError::Gpu("internal: timestamps missing".into()))?;
-                    at += words;
-                    let times = record::phase_times(&self.queue, &level.schedule, own)?;
-                    if i + 1 == levels.len() {
-                        last = times;
-                    } else {
-                        coarse_ms += times.stages.iter().map(|(_, ms)| ms).sum::<f64>();
-                        for (name, ms) in times.stages {
-                            let name = format!("coarse/{name}");
-                            crate::sweep::add_stage_ms(&mut coarse_stages, &name, ms);
-                        }
-                    }
-                }
-                if levels.len() > 1 {
-                    last.stages.insert(0, ("coarse".to_string(), coarse_ms));
-                    last.stages.extend(coarse_stages);
-                }
-                last
+                let levels: Vec<_> = levels
+                    .iter()
+                    .map(|l| (&l.schedule, l.timestamps.as_ref().map_or(0, |t| t.1)))
+                    .collect();
+                record::set_timings(&self.queue, &levels, &ticks)?
             }
             None => StageTimings {
                 stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],

@@ -405,35 +405,82 @@ impl Pyramid {
         images: SetImages<'a>,
         raw: bool,
     ) -> Result<Vec<Part<'a>>, SweepError> {
+        images
+            .iter()
+            .enumerate()
+            .map(|(c, image)| self.upload(c, image, raw))
+            .collect()
+    }
+
+    /// The write of camera `c`'s `image` (as [`Self::uploads`]).
+    pub fn upload<'a>(
+        &'a self,
+        c: usize,
+        image: CameraImage<'a>,
+        raw: bool,
+    ) -> Result<Part<'a>, SweepError> {
         let level = &self.levels[0];
-        let target = match (&self.raw, raw) {
-            (Some(r), true) => &r.buffer,
-            _ => &level.buffer,
-        };
-        let mut parts = Vec::with_capacity(images.len());
-        for (c, (image, at)) in images.iter().zip(&level.offsets).enumerate() {
-            parts.push(match image {
-                CameraImage::Rgba(image) => Part {
-                    target,
+        let at = level
+            .offsets
+            .get(c)
+            .ok_or_else(|| SweepError::Gpu("internal: an image without its place".into()))?;
+        Ok(match image {
+            CameraImage::Rgba(image) => Part {
+                target: self.first_target(raw),
+                offset: u64::from(*at) * 4,
+                data: bytemuck::cast_slice(&image.pixels),
+            },
+            CameraImage::Packed(p) => {
+                let packed = self.packed.as_ref().ok_or_else(|| {
+                    SweepError::Gpu("internal: no buffer for the packed images".into())
+                })?;
+                let at = packed.offsets.get(c).ok_or_else(|| {
+                    SweepError::Gpu("internal: a packed image without its place".into())
+                })?;
+                Part {
+                    target: &packed.buffer,
                     offset: u64::from(*at) * 4,
-                    data: bytemuck::cast_slice(&image.pixels),
-                },
-                CameraImage::Packed(p) => {
-                    let packed = self.packed.as_ref().ok_or_else(|| {
-                        SweepError::Gpu("internal: no buffer for the packed images".into())
-                    })?;
-                    let at = packed.offsets.get(c).ok_or_else(|| {
-                        SweepError::Gpu("internal: a packed image without its place".into())
-                    })?;
-                    Part {
-                        target: &packed.buffer,
-                        offset: u64::from(*at) * 4,
-                        data: p.bytes,
-                    }
+                    data: p.bytes,
                 }
-            });
+            }
+        })
+    }
+
+    /// Where the caller's images go: level 0, or (`raw`, once `ensure_raw` made it) the buffer
+    /// the prefilter reads.
+    fn first_target(&self, raw: bool) -> &wgpu::Buffer {
+        match (&self.raw, raw) {
+            (Some(r), true) => &r.buffer,
+            _ => &self.levels[0].buffer,
         }
-        Ok(parts)
+    }
+
+    /// Records level 0's images (or, `raw`, the prefilter's input) copied on the device from
+    /// level 0 of `from`, a pyramid of a whole frame set's images: camera `c` from its camera
+    /// `set_index(c)` (`set_images.rs`).
+    pub fn record_copy_from(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        from: &Pyramid,
+        set_index: impl Fn(usize) -> Option<usize>,
+        raw: bool,
+    ) -> Result<(), SweepError> {
+        let (ours, theirs) = (&self.levels[0], &from.levels[0]);
+        let target = self.first_target(raw);
+        for (c, (size, at)) in ours.sizes.iter().zip(&ours.offsets).enumerate() {
+            let source = set_index(c)
+                .and_then(|s| Some((theirs.sizes.get(s)?, theirs.offsets.get(s)?)))
+                .filter(|(their_size, _)| *their_size == size);
+            let Some((_, from_at)) = source else {
+                return Err(SweepError::Gpu(
+                    "internal: a reference's image is not in its set's images".into(),
+                ));
+            };
+            let bytes = u64::from(size[0]) * u64::from(size[1]) * 4;
+            let (from_at, at) = (u64::from(*from_at) * 4, u64::from(*at) * 4);
+            encoder.copy_buffer_to_buffer(&theirs.buffer, from_at, target, at, bytes);
+        }
+        Ok(())
     }
 
     /// Records levels 1 to `depth`, each from the one above, in one compute pass.

@@ -302,6 +302,43 @@ pub(super) fn record_sweep(
     }
 }
 
+/// A frame set's timings from its levels' timestamps, read back one level after the other
+/// (`levels`: each level's schedule and its count of timestamps, two words each): the last
+/// level's phases, the levels below it as one stage `coarse` and stage by stage as
+/// `coarse/<stage>` (bench's JSON).
+pub(super) fn set_timings(
+    queue: &wgpu::Queue,
+    levels: &[(&Schedule, u32)],
+    ticks: &[u32],
+) -> Result<StageTimings, SweepError> {
+    let mut at = 0;
+    let mut coarse_ms = 0.0;
+    let mut coarse_stages: Vec<(String, f64)> = Vec::new();
+    let mut last = StageTimings::default();
+    for (i, (schedule, count)) in levels.iter().enumerate() {
+        let words = 2 * *count as usize;
+        let own = ticks
+            .get(at..at + words)
+            .ok_or_else(|| SweepError::Gpu("internal: timestamps missing".into()))?;
+        at += words;
+        let times = phase_times(queue, schedule, own)?;
+        if i + 1 == levels.len() {
+            last = times;
+        } else {
+            coarse_ms += times.stages.iter().map(|(_, ms)| ms).sum::<f64>();
+            for (name, ms) in times.stages {
+                let name = format!("coarse/{name}");
+                crate::sweep::add_stage_ms(&mut coarse_stages, &name, ms);
+            }
+        }
+    }
+    if levels.len() > 1 {
+        last.stages.insert(0, ("coarse".to_string(), coarse_ms));
+        last.stages.extend(coarse_stages);
+    }
+    Ok(last)
+}
+
 /// Per-phase GPU times from the timestamps read back (`raw`), in the names the CPU engine's
 /// clock uses.
 pub(super) fn phase_times(
