@@ -151,6 +151,8 @@ pub struct HostWork {
     pub submissions: u32,
     pub readbacks: u32,
     pub readback_bytes: u64,
+    /// Bytes of the caller's images written up (a set of several references: each once).
+    pub image_bytes: u64,
     pub waits: u32,
     /// Staging buffers made for uploads (0 once the engine's own is made).
     pub staging_buffers: u32,
@@ -319,6 +321,7 @@ fn time_runs(
         submissions: c.submissions,
         readbacks: c.readbacks,
         readback_bytes: c.readback_bytes,
+        image_bytes: c.image_bytes,
         waits: c.waits,
         staging_buffers: c.staging_buffers,
     });
