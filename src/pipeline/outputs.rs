@@ -215,12 +215,13 @@ pub fn process_job(
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
     // The images go on to the outputs (colour for points and fusion) without a copy. An
-    // engine that unpacks on the device takes the bytes of every camera but the references as
-    // they came (no conversion here, fewer bytes to upload).
+    // engine that unpacks on the device takes the bytes of every camera whose encoding it
+    // unpacks as they came (no conversion here, fewer bytes to upload); the references'
+    // colour is converted on rayon's threads meanwhile, while this one waits for the device.
     let (results, images) = if engine.unpacks_on_device() {
         let packed = |i: usize| job.images.get(i).and_then(packed_view);
-        let wanted = |i: usize| indices.contains(&i) || packed(i).is_none();
-        let converted = some_to_rgba8(&job.images, name, wanted).map_err(image_skip)?;
+        let converted = some_to_rgba8(&job.images, name, |i| packed(i).is_none());
+        let converted = converted.map_err(image_skip)?;
         let cameras: Vec<CameraImage<'_>> = (0..converted.len())
             .filter_map(|i| match &converted[i] {
                 Some(image) => Some(CameraImage::Rgba(image)),
@@ -231,9 +232,18 @@ pub fn process_job(
             set: &cameras,
             picked: None,
         };
-        let results = engine.run_references_set(&job.cameras, set, &indices, sweep);
+        let colour_of = |i: usize| indices.contains(&i) && packed(i).is_some();
+        let mut colour = Ok(Vec::new());
+        let results = rayon::in_place_scope(|scope| {
+            scope.spawn(|_| colour = some_to_rgba8(&job.images, name, colour_of));
+            engine.run_references_set(&job.cameras, set, &indices, sweep)
+        });
         drop(cameras);
-        (results, converted)
+        let mut colour = colour.map_err(image_skip)?;
+        let mut colour = |i: usize| colour.get_mut(i).and_then(Option::take);
+        let images = converted.into_iter().enumerate();
+        let images: Vec<_> = images.map(|(i, c)| c.or_else(|| colour(i))).collect();
+        (results, images)
     } else {
         let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
         let results = engine.run_references(&job.cameras, &images, &indices, sweep);

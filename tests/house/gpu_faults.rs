@@ -246,23 +246,25 @@ fn transform_changes_apply_from_the_next_set() {
     assert!((centre(&jobs[1], 0) - centre(&jobs[0], 0)).length() < 1e-12);
 }
 
-/// The node's pipeline hands a WGSL engine the messages' own bytes for every camera but the
-/// reference (`convert::packed_view`, unpacked on the device by the `unpack` stage): depth,
-/// confidence and the coloured points equal, to the bit, those of the same engine fed images
-/// converted on the host.
+/// The node's pipeline hands a WGSL engine the messages' own bytes for every camera, the
+/// references too (`convert::packed_view`, unpacked on the device by the `unpack` stage; the
+/// references' colour converted on the host beside the sweep): depth, confidence and the
+/// coloured points equal, to the bit, those of the same engine fed images converted on the
+/// host.
 #[test]
 fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
     use sweepdepth::engine::Sweeper;
-    use sweepdepth::image::SetImages;
+    use sweepdepth::image::{CameraImage, SetImages};
     use sweepdepth::pipeline::convert::packed_view;
     use sweepdepth::sweep::frame_memo::FrameMemo;
     use sweepdepth::sweep::{DepthMaps, StageTimings};
     /// The WGSL engine; `unpacks` says whether it takes packed images, `packed` counts the
-    /// sweeps that had some.
+    /// sweeps that had some, `all_packed` those that had nothing else.
     struct Probe {
         engine: GpuEngine,
         unpacks: bool,
         packed: usize,
+        all_packed: usize,
     }
     impl Sweeper for Probe {
         fn run_set(
@@ -272,6 +274,8 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
             params: &SweepParams,
         ) -> Result<DepthMaps, SweepError> {
             self.packed += usize::from(images.has_packed());
+            let packed = |c: CameraImage<'_>| matches!(c, CameraImage::Packed(_));
+            self.all_packed += usize::from(images.iter().all(packed));
             self.engine.run_set(rig, images, params)
         }
         fn memo(&mut self) -> &mut FrameMemo {
@@ -298,17 +302,18 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
             engine,
             unpacks,
             packed: 0,
+            all_packed: 0,
         };
         let set =
             sweepdepth::pipeline::process_job(&mut probe, &job, &config.sweep, Wanted::all(true))
                 .expect("the set");
-        (set, probe.packed)
+        (set, probe.packed, probe.all_packed)
     };
-    let (packed, sweeps_with_packed) = run(true);
-    let (converted, none) = run(false);
+    let (packed, sweeps_with_packed, all_packed) = run(true);
+    let (converted, none, _) = run(false);
     assert!(
-        sweeps_with_packed > 0 && none == 0,
-        "{sweeps_with_packed} / {none}"
+        sweeps_with_packed > 0 && all_packed == sweeps_with_packed && none == 0,
+        "{sweeps_with_packed} / {all_packed} / {none}"
     );
     assert_eq!(packed.outputs.len(), converted.outputs.len());
     for (a, b) in packed.outputs.iter().zip(&converted.outputs) {

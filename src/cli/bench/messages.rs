@@ -3,8 +3,9 @@
 //! `rgb8` image messages into the engine's images (`convert::set_to_rgba8`, as the node's
 //! `process_job` does: the cameras in parallel on rayon's threads). Out: the reference's depth
 //! and confidence as `32FC1` messages (`depth_and_confidence_msgs`, every set). The WGSL engine's own host
-//! time is the table's `host ms`. (The node converts only the references' images for the WGSL
-//! engine, which unpacks the others' bytes on the device: this line is the CPU engine's case.)
+//! time is the table's `host ms`. (For the WGSL engine, which unpacks the messages' bytes on
+//! the device, the node converts only the references' colour, beside the sweep: this line's
+//! conversion is the CPU engine's case.)
 
 use std::time::Instant;
 
