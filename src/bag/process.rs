@@ -203,6 +203,8 @@ struct BagFusion {
     fuser: Fuser,
     /// It fuses on the engine's device, and follows the engine onto a new one after a loss.
     follows_engine: bool,
+    /// The engine's devices made anew that fusion has followed (`Fuser::follow_engine`).
+    devices_seen: u64,
     topic: String,
     /// `mesh_rate` as a period in log time (None: no markers).
     period_ns: Option<u64>,
@@ -270,14 +272,14 @@ impl Sink<'_> {
         // Every output the bag has; the live view always shows the point cloud.
         let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
         let wanted = Wanted::all(with_points);
-        let recreated = self.host.recreated;
         let result = set.and_then(|job| self.host.process(&job, &config.sweep, wanted));
         // Fusion on the engine's device follows it onto a new one after a loss.
-        if let (Some(fusion), Some(gpu)) = (&mut self.fuser, self.host.gpu()) {
-            if fusion.follows_engine && self.host.recreated != recreated {
-                if let Err(e) = fusion.fuser.move_to_gpu(gpu) {
-                    warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
-                }
+        if let Some(fusion) = self.fuser.as_mut().filter(|f| f.follows_engine) {
+            let followed = fusion
+                .fuser
+                .follow_engine(&self.host, &mut fusion.devices_seen);
+            if let Err(e) = followed {
+                warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
             }
         }
         match result {
@@ -419,6 +421,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             BagFusion {
                 fuser,
                 follows_engine,
+                devices_seen: host.recreated,
                 topic: config.mesh_topic.clone(),
                 period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
                 next_ns: 0,

@@ -187,6 +187,26 @@ impl Fuser {
     /// still on it: it leaves it now with what it still gives back), follows
     /// ([`Mapper::move_to_gpu`]). The device refusing the map leaves it on the CPU, and says
     /// why.
+    /// Follows `host`'s engine onto the device it made anew since it had made `seen` (its
+    /// [`super::EngineHost::recreated`] when this fuser last looked, brought up to date):
+    /// [`Self::move_to_gpu`] when there is a new device, true once moved. `bag` calls it after
+    /// each set; the node's GPU thread hands its fuser thread the device instead
+    /// ([`super::EngineHost::on_new_device`]).
+    pub fn follow_engine(
+        &mut self,
+        host: &super::EngineHost,
+        seen: &mut u64,
+    ) -> Result<bool, String> {
+        if host.recreated == *seen {
+            return Ok(false);
+        }
+        *seen = host.recreated;
+        match host.gpu() {
+            Some(gpu) => self.move_to_gpu(gpu).map(|()| true),
+            None => Ok(false),
+        }
+    }
+
     pub fn move_to_gpu(&mut self, gpu: &GpuContext) -> Result<(), String> {
         if self.mapper.is_on_gpu() {
             self.left_gpu

@@ -12,7 +12,7 @@ use sweepdepth::geometry::CameraModel;
 use sweepdepth::gpu_context::GpuContext;
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
 use sweepdepth::pipeline::{
-    EngineHost, FuserThread, FusionInput, Input, Job, Pipeline, PipelineConfig, Wanted,
+    EngineHost, Fuser, FuserThread, FusionInput, Input, Job, Pipeline, PipelineConfig, Wanted,
 };
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{SweepError, SweepParams};
@@ -134,6 +134,56 @@ fn fusion_follows_the_engine_onto_its_new_device() {
     let last = fuse(after);
     assert!(last.on_gpu && last.integrated == 2, "{last:?}");
     assert!(last.skipped.is_empty(), "{:?}", last.skipped);
+}
+
+/// `bag`'s fusion (a `Fuser` on the engine's device, no thread) follows the engine onto the
+/// device it makes after a loss (`Fuser::follow_engine`, which `bag` calls after each set):
+/// nothing to follow before the loss; after it the map goes onto the new device with every
+/// block and fuses on there; once followed, the next set has nothing to follow again.
+#[test]
+fn a_bags_fusion_follows_the_engine_onto_its_new_device() {
+    let (config, job) = fixture();
+    let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
+    let params = FusionParams {
+        voxel_size_m: 0.05,
+        ..FusionParams::default()
+    };
+    let mut fuser = Fuser::on(params, host.gpu()).expect("a fuser on the engine's device");
+    let mut seen = host.recreated;
+    let wanted = Wanted::all(false);
+    let fuse = |fuser: &mut Fuser, set: sweepdepth::pipeline::SetOutputs| {
+        for out in set.outputs {
+            fuser
+                .add(&FusionInput::from_maps(out.maps, None))
+                .expect("fused");
+        }
+    };
+    let first = host
+        .process(&job, &config.sweep, wanted)
+        .expect("first run");
+    assert_eq!(fuser.follow_engine(&host, &mut seen), Ok(false));
+    fuse(&mut fuser, first);
+    let blocks = fuser.blocks().0;
+    assert!(fuser.is_on_gpu() && blocks > 0, "{blocks} blocks");
+    let old = host.device().expect("the WGSL engine's device").clone();
+    old.destroy();
+    let after = host
+        .process(&job, &config.sweep, wanted)
+        .expect("the run after the loss");
+    assert_eq!(host.recreated, 1);
+    assert_eq!(fuser.follow_engine(&host, &mut seen), Ok(true));
+    assert!(fuser.is_on_gpu(), "fusion did not follow the engine");
+    assert!(fuser.left_gpu().is_some(), "the loss is told");
+    assert_eq!(fuser.blocks().0, blocks, "the blocks went along");
+    fuse(&mut fuser, after);
+    assert_eq!(fuser.integrated, 2);
+    assert!(fuser.is_on_gpu());
+    let third = host
+        .process(&job, &config.sweep, wanted)
+        .expect("third run");
+    assert_eq!(fuser.follow_engine(&host, &mut seen), Ok(false));
+    fuse(&mut fuser, third);
+    assert!(fuser.is_on_gpu() && fuser.integrated == 3);
 }
 
 #[test]
