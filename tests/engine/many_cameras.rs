@@ -292,3 +292,51 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
         assert!(rel < 0.02 && within > 0.5, "{rel:.4} / {within:.3}");
     }
 }
+
+/// Both cameras of a stereo pair as references on the WGSL engine: the set's two images go up
+/// once, and each reference's prefiltered images (the pair's Sobel byte, made on the device
+/// from the set's copies) give the maps of that reference swept alone, to the bit.
+#[test]
+fn both_cameras_of_a_pair_as_references_sweep_as_alone_on_the_wgsl_engine() {
+    use sweepdepth::sweep::gpu::GpuEngine;
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(2, 0.12, model, 0).expect("pair");
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = params();
+    assert!(p.prefilter.applies(2), "a pair sweeps prefiltered images");
+    let gpu = crate::common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let image_bytes = (160 * 120 * 4) as u64;
+    let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    let mut alone = Vec::new();
+    for r in [0, 1] {
+        engine.take_set_counts();
+        let depth = engine.run_references(&rig.cameras, &images, &[r], &p);
+        assert_eq!(engine.take_set_counts().image_bytes, 2 * image_bytes);
+        alone.push(depth.into_iter().next().expect("one").expect("alone"));
+    }
+    // A fresh engine: nothing of the runs above on its device.
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let together = engine.run_references(&rig.cameras, &images, &[0, 1], &p);
+    assert_eq!(engine.take_set_counts().image_bytes, 2 * image_bytes);
+    for (one, other) in alone.iter().zip(&together) {
+        let other = other.as_ref().expect("each reference of the pair");
+        assert_eq!(other.reference, one.reference);
+        assert_eq!(bits(&other.maps.depth_m), bits(&one.maps.depth_m));
+        assert_eq!(bits(&other.maps.confidence), bits(&one.maps.confidence));
+        let valid = one
+            .maps
+            .depth_m
+            .data
+            .iter()
+            .filter(|d| d.is_finite())
+            .count();
+        assert!(valid * 2 > one.maps.depth_m.data.len(), "{valid} valid");
+    }
+    assert_ne!(
+        bits(&alone[0].maps.depth_m),
+        bits(&alone[1].maps.depth_m),
+        "two references, two maps"
+    );
+}
