@@ -6,7 +6,7 @@ use super::convert::{packed_view, set_to_rgba8, some_to_rgba8, ConvertError};
 use super::out_messages::{
     depth_and_confidence_msgs, f32_image_msg, point_cloud_msg, selection_msg,
 };
-use super::outcome::{Job, Skip, SkipKind};
+use super::outcome::{Job, JobReference, Skip, SkipKind, VirtualCamera};
 use crate::engine::Sweeper;
 use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
@@ -170,48 +170,14 @@ pub fn process_job(
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
     let name = |i: usize| job.cameras.get(i).map_or("?", |c| c.name.as_str());
+    let packed = |i: usize| job.images.get(i).and_then(packed_view);
     let image_skip = |e: ConvertError| Skip::new(SkipKind::Image, None, e.to_string());
     let first_virtual = job
         .references
         .first()
         .and_then(|r| Some((r, r.virtual_camera.as_ref()?)));
     if let Some((first, virtual_camera)) = first_virtual {
-        let mut header: Header = job
-            .images
-            .get(first.index)
-            .map(|m| m.header.clone())
-            .unwrap_or_default();
-        header.frame_id = virtual_camera.frame_id.clone();
-        let reference = Reference::Virtual {
-            model: virtual_camera.model,
-            cam_from_rig: virtual_camera.cam_from_rig,
-        };
-        let rig = Rig::new(job.cameras.clone(), reference)
-            .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
-        let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
-        let maps = engine
-            .run(&rig, &images, sweep)
-            .map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
-        let outputs = reference_outputs(
-            first.output,
-            header,
-            &first.info,
-            maps,
-            None,
-            &rig.reference_model(),
-            // A virtual camera's points are in its own frame.
-            &RigidTransform::IDENTITY,
-            wanted,
-            Placement {
-                rig_from_frame: virtual_camera.cam_from_rig.inverse(),
-                world_from_rig: job.world_from_rig,
-                anchor: (&job.ref_frame, job.ref_frame_from_rig),
-            },
-        );
-        return Ok(SetOutputs {
-            outputs: vec![outputs],
-            skipped: Vec::new(),
-        });
+        return virtual_outputs(engine, job, (first, virtual_camera), sweep, wanted);
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
     // The images go on to the outputs (colour for points and fusion) without a copy. An
@@ -219,15 +185,9 @@ pub fn process_job(
     // unpacks as they came (no conversion here, fewer bytes to upload); the references'
     // colour is converted on rayon's threads meanwhile, while this one waits for the device.
     let (results, images) = if engine.unpacks_on_device() {
-        let packed = |i: usize| job.images.get(i).and_then(packed_view);
         let converted = some_to_rgba8(&job.images, name, |i| packed(i).is_none());
         let converted = converted.map_err(image_skip)?;
-        let cameras: Vec<CameraImage<'_>> = (0..converted.len())
-            .filter_map(|i| match &converted[i] {
-                Some(image) => Some(CameraImage::Rgba(image)),
-                None => packed(i).map(CameraImage::Packed),
-            })
-            .collect();
+        let cameras = engine_images(&converted, packed);
         let set = SetImages::Cameras {
             set: &cameras,
             picked: None,
@@ -310,6 +270,82 @@ pub fn process_job(
         set.outputs.push(outputs);
     }
     Ok(set)
+}
+
+/// [`process_job`] of a virtual camera (the job's first reference's): one sweep of every
+/// camera, its outputs without colour.
+fn virtual_outputs(
+    engine: &mut impl Sweeper,
+    job: &Job,
+    (first, virtual_camera): (&JobReference, &VirtualCamera),
+    sweep: &SweepParams,
+    wanted: Wanted,
+) -> Result<SetOutputs, Skip> {
+    let name = |i: usize| job.cameras.get(i).map_or("?", |c| c.name.as_str());
+    let packed = |i: usize| job.images.get(i).and_then(packed_view);
+    let image_skip = |e: ConvertError| Skip::new(SkipKind::Image, None, e.to_string());
+    let mut header: Header = job
+        .images
+        .get(first.index)
+        .map(|m| m.header.clone())
+        .unwrap_or_default();
+    header.frame_id = virtual_camera.frame_id.clone();
+    let reference = Reference::Virtual {
+        model: virtual_camera.model,
+        cam_from_rig: virtual_camera.cam_from_rig,
+    };
+    let rig = Rig::new(job.cameras.clone(), reference)
+        .map_err(|e| Skip::new(SkipKind::Rig, None, format!("cannot build the rig: {e}")))?;
+    // No colour for a virtual camera: an engine that unpacks on the device takes the
+    // messages' bytes as they came.
+    let maps = if engine.unpacks_on_device() {
+        let converted = some_to_rgba8(&job.images, name, |i| packed(i).is_none());
+        let converted = converted.map_err(image_skip)?;
+        let cameras = engine_images(&converted, packed);
+        let set = SetImages::Cameras {
+            set: &cameras,
+            picked: None,
+        };
+        engine.run_set(&rig, set, sweep)
+    } else {
+        let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
+        engine.run(&rig, &images, sweep)
+    };
+    let maps = maps.map_err(|e| Skip::new(SkipKind::Engine, None, format!("sweep failed: {e}")))?;
+    let outputs = reference_outputs(
+        first.output,
+        header,
+        &first.info,
+        maps,
+        None,
+        &rig.reference_model(),
+        // A virtual camera's points are in its own frame.
+        &RigidTransform::IDENTITY,
+        wanted,
+        Placement {
+            rig_from_frame: virtual_camera.cam_from_rig.inverse(),
+            world_from_rig: job.world_from_rig,
+            anchor: (&job.ref_frame, job.ref_frame_from_rig),
+        },
+    );
+    Ok(SetOutputs {
+        outputs: vec![outputs],
+        skipped: Vec::new(),
+    })
+}
+
+/// The set's images as the engine takes them: each converted one, else its message's bytes
+/// (`packed`, for an engine that unpacks on the device).
+fn engine_images<'a>(
+    converted: &'a [Option<Rgba8Image>],
+    packed: impl Fn(usize) -> Option<crate::image::PackedImage<'a>>,
+) -> Vec<CameraImage<'a>> {
+    (0..converted.len())
+        .filter_map(|i| match &converted[i] {
+            Some(image) => Some(CameraImage::Rgba(image)),
+            None => packed(i).map(CameraImage::Packed),
+        })
+        .collect()
 }
 
 /// Where a reference's header frame is: in the rig, and in the world on a moving rig; the

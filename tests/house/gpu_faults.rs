@@ -12,7 +12,8 @@ use sweepdepth::geometry::CameraModel;
 use sweepdepth::gpu_context::GpuContext;
 use sweepdepth::msgs::{from_cdr, CameraInfo, Image, TFMessage};
 use sweepdepth::pipeline::{
-    EngineHost, Fuser, FuserThread, FusionInput, Input, Job, Pipeline, PipelineConfig, Wanted,
+    EngineHost, Fuser, FuserThread, FusionInput, Input, Job, Pipeline, PipelineConfig,
+    VirtualCamera, Wanted,
 };
 use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{SweepError, SweepParams};
@@ -297,7 +298,7 @@ fn transform_changes_apply_from_the_next_set() {
 }
 
 /// The node's pipeline hands a WGSL engine the messages' own bytes for every camera, the
-/// references too (`convert::packed_view`, unpacked on the device by the `unpack` stage; the
+/// references and a virtual reference's sweep too (`convert::packed_view`, unpacked on the device by the `unpack` stage; the
 /// references' colour converted on the host beside the sweep): depth, confidence and the
 /// coloured points equal, to the bit, those of the same engine fed images converted on the
 /// host.
@@ -345,36 +346,53 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
         "{:?}",
         job.images[0].encoding
     );
-    let gpu = GpuContext::new().expect("GPU");
-    let run = |unpacks: bool| {
-        let engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
-        let mut probe = Probe {
-            engine,
-            unpacks,
-            packed: 0,
-            all_packed: 0,
-        };
-        let set =
-            sweepdepth::pipeline::process_job(&mut probe, &job, &config.sweep, Wanted::all(true))
-                .expect("the set");
-        (set, probe.packed, probe.all_packed)
+    // The same set with a virtual reference where camera 0 is (one sweep of every camera, no
+    // colour: nothing converted on the host for the WGSL engine).
+    let mut virtual_job = job.clone();
+    virtual_job.references.truncate(1);
+    virtual_job.references[0].virtual_camera = Some(VirtualCamera {
+        model: job.cameras[0].model,
+        cam_from_rig: job.cameras[0].cam_from_rig,
+        frame_id: "virtual".into(),
+    });
+    let all_pairs = SweepParams {
+        pairs: sweepdepth::sweep::PairSet::All,
+        ..config.sweep.clone()
     };
-    let (packed, sweeps_with_packed, all_packed) = run(true);
-    let (converted, none, _) = run(false);
-    assert!(
-        sweeps_with_packed > 0 && all_packed == sweeps_with_packed && none == 0,
-        "{sweeps_with_packed} / {all_packed} / {none}"
-    );
-    assert_eq!(packed.outputs.len(), converted.outputs.len());
-    for (a, b) in packed.outputs.iter().zip(&converted.outputs) {
-        assert_eq!(a.messages.depth.data, b.messages.depth.data);
-        assert_eq!(a.messages.confidence.data, b.messages.confidence.data);
-        let (pa, pb) = (a.messages.points.as_ref(), b.messages.points.as_ref());
-        assert_eq!(
-            pa.map(|p| &p.data),
-            pb.map(|p| &p.data),
-            "the points and their colours"
+    let gpu = GpuContext::new().expect("GPU");
+    for (job, sweep) in [(&job, &config.sweep), (&virtual_job, &all_pairs)] {
+        let run = |unpacks: bool| {
+            let engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
+            let mut probe = Probe {
+                engine,
+                unpacks,
+                packed: 0,
+                all_packed: 0,
+            };
+            let wanted = Wanted::all(true);
+            let set =
+                sweepdepth::pipeline::process_job(&mut probe, job, sweep, wanted).expect("the set");
+            (set, probe.packed, probe.all_packed)
+        };
+        let (packed, sweeps_with_packed, all_packed) = run(true);
+        let (converted, none, _) = run(false);
+        assert!(
+            sweeps_with_packed > 0 && all_packed == sweeps_with_packed && none == 0,
+            "{sweeps_with_packed} / {all_packed} / {none}"
         );
-        assert!(pa.is_some_and(|p| !p.data.is_empty()));
+        assert_eq!(packed.outputs.len(), converted.outputs.len());
+        assert!(!packed.outputs.is_empty());
+        for (a, b) in packed.outputs.iter().zip(&converted.outputs) {
+            assert_eq!(a.messages.depth.data, b.messages.depth.data);
+            assert_eq!(a.messages.confidence.data, b.messages.confidence.data);
+            let (pa, pb) = (a.messages.points.as_ref(), b.messages.points.as_ref());
+            assert_eq!(
+                pa.map(|p| &p.data),
+                pb.map(|p| &p.data),
+                "the points and their colours"
+            );
+            assert!(pa.is_some_and(|p| !p.data.is_empty()));
+        }
     }
+    assert_eq!(virtual_job.references.len(), 1);
 }
