@@ -10,7 +10,7 @@ use crate::sweep::coarse::PlanRunner;
 use crate::sweep::cpu::CpuEngine;
 use crate::sweep::frame_memo::FrameMemo;
 use crate::sweep::gpu::GpuEngine;
-use crate::sweep::references::{reference_rig, ReferenceDepth};
+use crate::sweep::references::{reference_rig, ReferenceDepth, ReferenceRig};
 use crate::sweep::{CancelFlag, DepthMaps, StageTimings, SweepError, SweepParams};
 
 /// Which engine runs the sweep (`--device`, parameter `device`): this module.
@@ -161,11 +161,7 @@ fn each_reference<S: Sweeper + ?Sized>(
     let mut stages: Vec<(String, f64)> = Vec::new();
     for &reference in references {
         let result = reference_rig(cameras, reference, params).and_then(|r| {
-            // The reference's views, picked from the set's images without a copy.
-            let own = images.pick(&r.cameras).ok_or_else(|| {
-                SweepError::InvalidParams("internal: a view outside the set".into())
-            })?;
-            let maps = engine.run_set(&r.rig, own, params)?;
+            let maps = engine.run_set(&r.rig, own(images, &r)?, params)?;
             Ok(ReferenceDepth {
                 reference,
                 cameras: r.cameras,
@@ -206,7 +202,8 @@ impl Sweeper for GpuEngine {
         true
     }
 
-    /// Each camera's image goes up once for all of the references (`GpuEngine::hold_set`).
+    /// Each camera's image goes up once for all of the references (`GpuEngine::hold_set`),
+    /// and every reference is submitted before the first is read back ([`submit_ahead`]).
     fn run_references_set(
         &mut self,
         cameras: &[RigCamera],
@@ -214,13 +211,25 @@ impl Sweeper for GpuEngine {
         references: &[usize],
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
-        let hold = references.len() > 1 && images.len() == cameras.len();
-        if hold {
-            if let Err(e) = self.hold_set(images) {
-                tracing::debug!("each reference uploads its own images: {e}");
-            }
+        if references.len() < 2 || images.len() != cameras.len() {
+            return each_reference(self, cameras, images, references, params);
         }
-        let results = each_reference(self, cameras, images, references, params);
+        let rigs: Vec<_> = references
+            .iter()
+            .map(|&r| reference_rig(cameras, r, params))
+            .collect();
+        let mut used: Vec<usize> = rigs
+            .iter()
+            .flatten()
+            .flat_map(|r| r.cameras.clone())
+            .collect();
+        used.sort_unstable();
+        used.dedup();
+        if let Err(e) = self.hold_set(images, &used) {
+            tracing::debug!("each reference uploads its own images: {e}");
+            return each_reference(self, cameras, images, references, params);
+        }
+        let results = submit_ahead(self, images, rigs, params);
         self.release_set();
         results
     }
@@ -232,6 +241,62 @@ impl Sweeper for GpuEngine {
     fn timings_mut(&mut self) -> &mut StageTimings {
         PlanRunner::timings_mut(self)
     }
+}
+
+/// The references of a set on the WGSL engine: each submitted in turn (the host records the
+/// next while the GPU runs the one before), then each read back in the same order (the GPU
+/// runs the next while the host reads one): one wait per reference, none between two
+/// submissions. The results and timings as [`each_reference`]'s.
+fn submit_ahead(
+    engine: &mut GpuEngine,
+    images: SetImages<'_>,
+    rigs: Vec<Result<ReferenceRig, SweepError>>,
+    params: &SweepParams,
+) -> Vec<Result<ReferenceDepth, SweepError>> {
+    let mut submitted = Vec::with_capacity(rigs.len());
+    for rig in rigs {
+        let result = rig.and_then(|r| {
+            engine
+                .submit_set(&r.rig, own(images, &r)?, params)
+                .map(|()| r)
+        });
+        let cancelled = matches!(result, Err(SweepError::Cancelled));
+        submitted.push(result);
+        if cancelled {
+            break;
+        }
+    }
+    let mut results = Vec::with_capacity(submitted.len());
+    let mut stages: Vec<(String, f64)> = Vec::new();
+    for result in submitted {
+        let result = result.and_then(|r| {
+            let maps = engine.collect_set(&r.rig, own(images, &r)?, params)?;
+            // The set's timings: every reference's stages summed.
+            for (name, ms) in &engine.last_timings().stages {
+                crate::sweep::add_stage_ms(&mut stages, name, *ms);
+            }
+            Ok(ReferenceDepth {
+                reference: r.reference,
+                cameras: r.cameras,
+                maps,
+            })
+        });
+        let cancelled = matches!(result, Err(SweepError::Cancelled));
+        results.push(result);
+        if cancelled {
+            break;
+        }
+    }
+    engine.drop_submitted();
+    PlanRunner::timings_mut(engine).stages = stages;
+    results
+}
+
+/// A reference's views, picked from the set's images without a copy.
+fn own<'a>(images: SetImages<'a>, r: &'a ReferenceRig) -> Result<SetImages<'a>, SweepError> {
+    images
+        .pick(&r.cameras)
+        .ok_or_else(|| SweepError::InvalidParams("internal: a view outside the set".into()))
 }
 
 impl Sweeper for CpuEngine {

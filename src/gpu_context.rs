@@ -25,13 +25,24 @@ pub fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
 pub fn wait_for_device<E>(
     device: &wgpu::Device,
     slice: std::time::Duration,
+    between: impl FnMut() -> Result<(), E>,
+) -> Result<(), E> {
+    wait_for_submission(device, None, slice, between)
+}
+
+/// [`wait_for_device`] until `submission` alone has finished (None: the last one); the
+/// submissions after it may still run.
+pub fn wait_for_submission<E>(
+    device: &wgpu::Device,
+    submission: Option<wgpu::SubmissionIndex>,
+    slice: std::time::Duration,
     mut between: impl FnMut() -> Result<(), E>,
 ) -> Result<(), E> {
     loop {
         let polled = {
             let _poll = device_poll_lock();
             device.poll(wgpu::PollType::Wait {
-                submission_index: None,
+                submission_index: submission.clone(),
                 timeout: Some(slice),
             })
         };

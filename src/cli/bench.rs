@@ -154,6 +154,8 @@ pub struct HostWork {
     /// Bytes of the caller's images written up (a set of several references: each once).
     pub image_bytes: u64,
     pub waits: u32,
+    /// The most submissions not read back yet at once (a set's references: all of them).
+    pub most_in_flight: u32,
     /// Staging buffers made for uploads (0 once the engine's own is made).
     pub staging_buffers: u32,
 }
@@ -323,6 +325,7 @@ fn time_runs(
         readback_bytes: c.readback_bytes,
         image_bytes: c.image_bytes,
         waits: c.waits,
+        most_in_flight: c.most_in_flight,
         staging_buffers: c.staging_buffers,
     });
     Ok((median(frame_ms), stages, host))

@@ -130,6 +130,9 @@ pub enum LevelDepth {
     /// the level into the frame set's command buffer, and the next `run_plan` narrows its rows
     /// from it there: `shaders/plane_spans.wgsl`, `shaders/plane_ranges.wgsl`).
     Device,
+    /// The full-resolution level submitted, its maps read back later (the WGSL engine's
+    /// references of a set, `GpuEngine::submit_set`; [`finish`] follows).
+    Submitted,
 }
 
 /// Runs a plan on an engine (both engines implement it).
@@ -146,6 +149,17 @@ pub trait PlanRunner {
     /// the depths and makes the next level's ranges on the device ([`LevelDepth::Device`]: the
     /// `run_plan` that follows is that next level).
     fn run_plan_for_ranges(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: LevelImages<'_>,
+    ) -> Result<LevelDepth, SweepError> {
+        self.run_plan(plan, rig, images).map(LevelDepth::Host)
+    }
+
+    /// Runs the plan of a frame set's last (full-resolution) level: its maps, or
+    /// [`LevelDepth::Submitted`] where the engine reads them back later.
+    fn run_plan_last(
         &mut self,
         plan: &SweepPlan,
         rig: &Rig,
@@ -263,6 +277,23 @@ pub fn run(
     images: SetImages<'_>,
     params: &SweepParams,
 ) -> Result<DepthMaps, SweepError> {
+    match start(engine, plans, rig, images, params)? {
+        LevelDepth::Host(maps) => finish(engine, maps, rig, images, params),
+        LevelDepth::Device | LevelDepth::Submitted => Err(SweepError::InvalidParams(
+            "internal: a frame set's maps left on the device".into(),
+        )),
+    }
+}
+
+/// The sweep of [`run`], level by level, up to the last level's maps (or their submission,
+/// [`LevelDepth::Submitted`]); [`finish`] makes the rest.
+pub fn start(
+    engine: &mut dyn PlanRunner,
+    plans: &mut Plans,
+    rig: &Rig,
+    images: SetImages<'_>,
+    params: &SweepParams,
+) -> Result<LevelDepth, SweepError> {
     // The matching images (issue 52): prefiltered for real cameras, on the host for the CPU
     // engine (the WGSL engine makes them on the device); the joint median below keeps the
     // caller's.
@@ -289,20 +320,25 @@ pub fn run(
         halvings: 0,
         host: &host,
     };
-    let LevelDepth::Host(mut maps) = run_level(engine, plans, rig, levels, params, Wanted::All)?
-    else {
-        return Err(SweepError::InvalidParams(
-            "internal: a frame set's maps left on the device".into(),
-        ));
-    };
+    let depth = run_level(engine, plans, rig, levels, params, Wanted::All)?;
     if let Some(ms) = prefilter_ms {
         engine
             .timings_mut()
             .stages
             .insert(0, ("prefilter".to_string(), ms));
     }
-    // The host post-step of both engines (issue 29), guided by the reference's own image (a
-    // virtual reference has none).
+    Ok(depth)
+}
+
+/// The host post-step of both engines (issue 29) on the maps of [`start`]: the joint median,
+/// guided by the reference's own image (a virtual reference has none).
+pub fn finish(
+    engine: &mut dyn PlanRunner,
+    mut maps: DepthMaps,
+    rig: &Rig,
+    images: SetImages<'_>,
+    params: &SweepParams,
+) -> Result<DepthMaps, SweepError> {
     let filter = JointMedian::of_params(params);
     if let (Reference::Camera(r), Some(bins), true) =
         (&rig.reference, Bins::of_params(params), filter.radius > 0)
@@ -338,7 +374,7 @@ impl Wanted {
         images: LevelImages<'_>,
     ) -> Result<LevelDepth, SweepError> {
         match self {
-            Wanted::All => engine.run_plan(plan, rig, images).map(LevelDepth::Host),
+            Wanted::All => engine.run_plan_last(plan, rig, images),
             Wanted::DepthRaw => engine.run_plan_for_ranges(plan, rig, images),
         }
     }
@@ -438,6 +474,11 @@ fn coarse_to_fine(
             true
         }
         LevelDepth::Device => false,
+        LevelDepth::Submitted => {
+            return Err(SweepError::InvalidParams(
+                "internal: a level below submitted as the last".into(),
+            ))
+        }
     };
     let coarse_ms = started.elapsed().as_secs_f64() * 1e3;
     let maps = wanted.run_plan(engine, fine, rig, images)?;

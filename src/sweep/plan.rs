@@ -633,48 +633,59 @@ impl SweepPlan {
         wanted: WantedMaps,
         split: bool,
     ) -> crate::sweep::DepthMaps {
-        use super::gpu::copies;
-        use crate::image::ImageF32;
-        let npix = self.pixel_count();
-        let of = |s: usize| &maps[(s - first) * npix..(s - first + 1) * npix];
-        let section = |s: usize| ImageF32 {
-            width: self.width,
-            height: self.height,
-            data: copies::to_vec(of(s), split),
-        };
-        let empty = || ImageF32 {
-            width: 0,
-            height: 0,
-            data: Vec::new(),
-        };
-        let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan, split);
-        let diagnostics = wanted.diagnostics;
-        crate::sweep::DepthMaps {
-            depth_m: section(MAP_DEPTH),
-            depth_raw_m: if diagnostics {
-                section(MAP_DEPTH_RAW)
-            } else {
-                empty()
-            },
-            confidence: section(MAP_CONFIDENCE),
-            cost: if wanted.cost || diagnostics {
-                section(MAP_COST)
-            } else {
-                empty()
-            },
-            // `v as u8`.
-            selection: if wanted.selection || diagnostics {
-                bytes(MAP_SELECTION, 0)
-            } else {
-                Vec::new()
-            },
-            // `v.min(255.0) as u8`: `v as u8`, but a NaN 255.
-            visible_cameras: if diagnostics {
-                bytes(MAP_VISIBLE, 255)
-            } else {
-                Vec::new()
-            },
-        }
+        unpack_sections((self.width, self.height), maps, first, wanted, split)
+    }
+}
+
+/// [`SweepPlan::unpack_map_sections`] of a plan whose maps are `width` x `height`.
+pub fn unpack_sections(
+    (width, height): (u32, u32),
+    maps: &[f32],
+    first: usize,
+    wanted: WantedMaps,
+    split: bool,
+) -> crate::sweep::DepthMaps {
+    use super::gpu::copies;
+    use crate::image::ImageF32;
+    let npix = width as usize * height as usize;
+    let of = |s: usize| &maps[(s - first) * npix..(s - first + 1) * npix];
+    let section = |s: usize| ImageF32 {
+        width,
+        height,
+        data: copies::to_vec(of(s), split),
+    };
+    let empty = || ImageF32 {
+        width: 0,
+        height: 0,
+        data: Vec::new(),
+    };
+    let bytes = |s: usize, nan: u8| bytes_of_floats(of(s), nan, split);
+    let diagnostics = wanted.diagnostics;
+    crate::sweep::DepthMaps {
+        depth_m: section(MAP_DEPTH),
+        depth_raw_m: if diagnostics {
+            section(MAP_DEPTH_RAW)
+        } else {
+            empty()
+        },
+        confidence: section(MAP_CONFIDENCE),
+        cost: if wanted.cost || diagnostics {
+            section(MAP_COST)
+        } else {
+            empty()
+        },
+        // `v as u8`.
+        selection: if wanted.selection || diagnostics {
+            bytes(MAP_SELECTION, 0)
+        } else {
+            Vec::new()
+        },
+        // `v.min(255.0) as u8`: `v as u8`, but a NaN 255.
+        visible_cameras: if diagnostics {
+            bytes(MAP_VISIBLE, 255)
+        } else {
+            Vec::new()
+        },
     }
 }
 

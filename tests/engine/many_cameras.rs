@@ -181,7 +181,9 @@ fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
 
 /// A frame set of several references on the WGSL engine writes each camera's image up once
 /// (`GpuEngine::hold_set`): the dome's three references sweep 9 views each, 27 images, of
-/// fewer distinct cameras, and the set writes exactly those; every reference's maps equal, to
+/// fewer distinct cameras, and the set writes exactly those; every reference is submitted
+/// before the first is read back (`GpuEngine::submit_set`), and the next sets make no staging
+/// buffer; every reference's maps equal, to
 /// the bit, the same reference swept alone (its own uploads). With the cameras but the
 /// references handed over as their messages' packed bytes (unpacked on the device, once) the
 /// maps are the same again.
@@ -190,7 +192,7 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
     use std::collections::BTreeSet;
     use sweepdepth::image::{CameraImage, PackedFormat, PackedImage, SetImages};
     use sweepdepth::sweep::gpu::GpuEngine;
-    use sweepdepth::sweep::references::reference_rig;
+    use sweepdepth::sweep::references::{reference_rig, ReferenceDepth};
     let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
     let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
@@ -229,12 +231,34 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
     }
     engine.take_set_counts();
     let together = engine.run_references(&rig.cameras, &images, &references, &p);
+    let counts = engine.take_set_counts();
     assert_eq!(
-        engine.take_set_counts().image_bytes,
+        counts.image_bytes,
         (distinct.len() * image_bytes) as u64,
         "each camera of the set once ({} images picked)",
         picked
     );
+    // Every reference submitted before the first is read back, each read back after its own
+    // submission.
+    assert_eq!(
+        (counts.submissions, counts.most_in_flight, counts.waits),
+        (3, 3, 3),
+        "{counts:?}"
+    );
+    // A set of other images, then these again: the staging and readback buffers of the first
+    // set serve (none made), and no set reads another's bytes.
+    let other_scene = Scene::wall_and_box(3.0, Some((1.5, 0.3)), model.intrinsics.fx_px);
+    let other_images = synthetic::render_rig(&other_scene, &rig);
+    let other = engine.run_references(&rig.cameras, &other_images, &references, &p);
+    let again = engine.run_references(&rig.cameras, &images, &references, &p);
+    let counts = engine.take_set_counts();
+    assert_eq!(counts.staging_buffers, 0, "{counts:?}");
+    let depth_bits =
+        |d: &Result<ReferenceDepth, _>| bits(&d.as_ref().expect("a reference").maps.depth_m);
+    for ((a, b), o) in together.iter().zip(&again).zip(&other) {
+        assert_eq!(depth_bits(a), depth_bits(b), "the same images again");
+        assert_ne!(depth_bits(a), depth_bits(o), "other images, other depths");
+    }
     // The same set with every camera but the references as packed rgb8 bytes.
     let bytes: Vec<Vec<u8>> = images
         .iter()

@@ -34,8 +34,9 @@ pub(super) struct LevelInput {
 
 impl GpuEngine {
     /// Keeps the images of the frame set `images` on the device for the runs of its references
-    /// until [`Self::release_set`]: each camera's image goes up once (`set_images.rs`).
-    pub fn hold_set(&mut self, images: SetImages<'_>) -> Result<(), SweepError> {
+    /// until [`Self::release_set`]: each camera's image goes up once (`set_images.rs`), those
+    /// of `used` (the cameras the references sweep with) all with the first reference.
+    pub fn hold_set(&mut self, images: SetImages<'_>, used: &[usize]) -> Result<(), SweepError> {
         let layouts = &self.pipelines.layouts;
         let layouts = (
             &layouts[Stage::Half as usize],
@@ -43,7 +44,7 @@ impl GpuEngine {
         );
         let held = self
             .set_images
-            .hold(&self.device, &self.queue, layouts, images);
+            .hold(&self.device, &self.queue, layouts, images, used);
         if held.is_err() {
             self.set_images.release();
         }

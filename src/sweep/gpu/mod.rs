@@ -24,6 +24,7 @@
 mod buffers;
 pub(crate) mod copies;
 mod level_images;
+mod pending;
 mod pipelines;
 mod pyramid;
 mod record;
@@ -76,6 +77,10 @@ pub struct SetCounts {
     /// Bytes of the caller's images written up (each reference's views, or each camera of a
     /// set of several references once: `set_images.rs`).
     pub image_bytes: u64,
+    /// The most submissions whose maps were not read back yet at once: 1 where each
+    /// submission is read back before the next, the references of a set where they are all
+    /// submitted first (`GpuEngine::submit_set`).
+    pub most_in_flight: u32,
     /// Staging buffers made for the uploads (images, plane ranges): the engine's own, kept
     /// from set to set (so 0 once it is made), and one per write it could not take
     /// (`Queue::write_buffer` makes one per call).
@@ -145,8 +150,10 @@ pub struct GpuEngine {
     set_images: set_images::SetOnDevice,
     /// The levels of the current frame set recorded so far (None between frame sets).
     open: Option<OpenSet>,
-    /// The staging buffer of the uploads, kept from set to set.
+    /// The staging buffers of the uploads, kept from set to set.
     uploads: upload::Uploads,
+    /// Frame sets submitted and not read back yet (`pending.rs`).
+    deferred: pending::Deferred,
     /// The maps beyond depth and confidence that `run` reads back and unpacks.
     wanted: WantedMaps,
     /// Whether the images' and the maps' host copies run on several threads.
@@ -208,6 +215,7 @@ impl GpuEngine {
             set_images: Default::default(),
             open: None,
             uploads: upload::Uploads::new(),
+            deferred: pending::Deferred::default(),
             wanted: WantedMaps::ALL,
             host_copies: HostCopies::Auto,
             timings: StageTimings::default(),
@@ -308,12 +316,17 @@ impl GpuEngine {
     /// Runs `f`, adding its wall time less the GPU waits it made to `host_ms`.
     /// Each call is a frame set of its own: the image pyramid is filled again.
     fn timed<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
-        let started = Instant::now();
         self.pyramid_filled = None;
         if self.open.take().is_some() {
             self.uploads.abandoned();
         }
         self.set_images.abandoned();
+        self.measured(f)
+    }
+
+    /// Runs `f`, adding its wall time less the GPU waits it made to `host_ms`.
+    fn measured<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
+        let started = Instant::now();
         let waited_before = self.counts.wait_ms + self.counts.submit_ms;
         let made_before = self.uploads.made();
         let result = f(self);
@@ -625,89 +638,15 @@ impl GpuEngine {
     }
 
     /// Submits the frame set recorded so far (one submission), waits once and reads back
-    /// once: the last level's maps, `unpack`ed straight out of the mapped range, and every
-    /// level's timestamps (the levels below the last as one `coarse` stage).
+    /// once (`pending.rs`): the last level's maps, `unpack`ed straight out of the mapped
+    /// range, and every level's timestamps.
     fn finish_set<T>(
         &mut self,
         sections: std::ops::Range<usize>,
         unpack: impl FnOnce(&[f32]) -> T,
     ) -> Result<T, SweepError> {
-        let Some(OpenSet {
-            mut encoder,
-            levels,
-            started,
-        }) = self.open.take()
-        else {
-            return Err(SweepError::Gpu("internal: no level recorded".into()));
-        };
-        // Every upload of the set is written: the staging buffer is unmapped for its copies,
-        // and mapped again for the next set right after the submission (ready when this set's
-        // wait ends).
-        self.uploads.submitting();
-        let Some((buffers, _)) = self.buffers.as_ref() else {
-            return Err(SweepError::Gpu("internal: no buffers".into()));
-        };
-        // Only the sections the caller unpacks (`SweepPlan::unpacked_sections`).
-        let section_bytes = buffers.maps.size() / MAP_COUNT as u64;
-        let first = section_bytes * sections.start.min(MAP_COUNT) as u64;
-        let maps_len = section_bytes * sections.end.min(MAP_COUNT) as u64 - first;
-        encoder.copy_buffer_to_buffer(&buffers.maps, first, &buffers.readback, 0, maps_len);
-        let ticks_at = buffers::timestamps_offset(maps_len);
-        let mut wanted = ticks_at;
-        for (resolve, count) in levels.iter().filter_map(|l| l.timestamps.as_ref()) {
-            let bytes = u64::from(*count) * 8;
-            if wanted + bytes > buffers.readback.size() {
-                return Err(SweepError::Gpu(format!(
-                    "internal: no room for the timestamps of {} levels",
-                    levels.len()
-                )));
-            }
-            encoder.copy_buffer_to_buffer(resolve, 0, &buffers.readback, wanted, bytes);
-            wanted += bytes;
-        }
-        let has_ticks = wanted > ticks_at;
-        if !has_ticks {
-            wanted = maps_len;
-        }
-        // One submission, one wait and one readback per frame set: the maps, then the
-        // timestamps, in one buffer.
-        let mut submitter =
-            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        let submitted = submitter.submit(encoder.finish());
-        self.uploads.submitted();
-        submitted?;
-        self.set_images.submitted();
-        let mut unpack = Some(unpack);
-        let mut maps = None;
-        let mut ticks: Option<Vec<u32>> = None;
-        submitter.read_back_with(&[(&buffers.readback, wanted)], |_, bytes| {
-            let map_bytes = &bytes[..maps_len as usize];
-            if let Some(unpack) = unpack.take() {
-                maps = Some(match bytemuck::try_cast_slice::<u8, f32>(map_bytes) {
-                    Ok(floats) => unpack(floats),
-                    Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(map_bytes)),
-                });
-            }
-            if has_ticks {
-                ticks = Some(bytemuck::pod_collect_to_vec(&bytes[ticks_at as usize..]));
-            }
-            Ok(())
-        })?;
-        let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
-        self.timings = match ticks {
-            Some(ticks) => {
-                let levels: Vec<_> = levels
-                    .iter()
-                    .map(|l| (&l.schedule, l.timestamps.as_ref().map_or(0, |t| t.1)))
-                    .collect();
-                record::set_timings(&self.queue, &levels, &ticks)?
-            }
-            None => StageTimings {
-                stages: vec![("total".to_string(), started.elapsed().as_secs_f64() * 1e3)],
-                gpu_timestamps: false,
-            },
-        };
-        Ok(maps)
+        let submitted = self.submit_open_set(sections, false)?;
+        self.read_submitted(submitted, unpack)
     }
 }
 
@@ -723,6 +662,16 @@ impl super::coarse::PlanRunner for GpuEngine {
         let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
         self.record_level(plan, rig, images, narrowed)?;
         self.finish_maps(plan)
+    }
+
+    /// The last level read back now, or submitted ahead (`GpuEngine::submit_set`).
+    fn run_plan_last(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: LevelImages<'_>,
+    ) -> Result<LevelDepth, SweepError> {
+        self.run_last_level(plan, rig, images)
     }
 
     fn run_plan_for_ranges(

@@ -80,16 +80,19 @@ impl<'a> Submitter<'a> {
     }
 
     /// Submits `commands` (without waiting).
-    pub fn submit(&mut self, commands: wgpu::CommandBuffer) -> Result<(), SweepError> {
+    pub fn submit(
+        &mut self,
+        commands: wgpu::CommandBuffer,
+    ) -> Result<wgpu::SubmissionIndex, SweepError> {
         self.cancel.check()?;
         let started = Instant::now();
-        {
+        let index = {
             let _poll = device_poll_lock();
-            self.queue.submit([commands]);
-        }
+            self.queue.submit([commands])
+        };
         self.counts.submissions += 1;
         self.counts.submit_ms += started.elapsed().as_secs_f64() * 1e3;
-        Ok(())
+        Ok(index)
     }
 
     /// Maps the first `bytes` of every buffer of `buffers`, waits once for the GPU, and copies
@@ -112,6 +115,17 @@ impl<'a> Submitter<'a> {
     pub fn read_back_with(
         &mut self,
         buffers: &[(&wgpu::Buffer, u64)],
+        read: impl FnMut(usize, &[u8]) -> Result<(), SweepError>,
+    ) -> Result<(), SweepError> {
+        self.read_back_after(None, buffers, read)
+    }
+
+    /// [`Self::read_back_with`] after the submission `after` alone (None: the last one): the
+    /// submissions after it go on running while the host reads.
+    pub fn read_back_after(
+        &mut self,
+        after: Option<wgpu::SubmissionIndex>,
+        buffers: &[(&wgpu::Buffer, u64)],
         mut read: impl FnMut(usize, &[u8]) -> Result<(), SweepError>,
     ) -> Result<(), SweepError> {
         let receivers: Vec<_> = buffers
@@ -127,7 +141,10 @@ impl<'a> Submitter<'a> {
             })
             .collect();
         let started = Instant::now();
-        let waited = wait(self.device, self.cancel);
+        let waited =
+            crate::gpu_context::wait_for_submission(self.device, after, CANCEL_POLL, || {
+                self.cancel.check()
+            });
         self.counts.waits += 1;
         self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
         waited?;
@@ -139,11 +156,6 @@ impl<'a> Submitter<'a> {
         }
         Ok(())
     }
-}
-
-/// Waits for the latest submission, looking at the cancel flag every [`CANCEL_POLL`].
-fn wait(device: &wgpu::Device, cancel: &CancelFlag) -> Result<(), SweepError> {
-    crate::gpu_context::wait_for_device(device, CANCEL_POLL, || cancel.check())
 }
 
 /// SGM in subgroups over one band walks direction 0 (which writes the sums), then every other

@@ -31,16 +31,20 @@ pub(super) struct SetOnDevice {
     /// Level 0 of the set's cameras (kept from set to set while their sizes and formats stay).
     pyramid: Option<Pyramid>,
     cameras: Vec<State>,
+    /// The cameras every reference of the set sweeps with together (`hold`).
+    used: Vec<usize>,
 }
 
 impl SetOnDevice {
-    /// Holds the frame set `images` (all of a set's cameras) until [`Self::release`].
+    /// Holds the frame set `images` (all of a set's cameras) until [`Self::release`]; the
+    /// cameras `used` are written up together, with the first run that writes any.
     pub fn hold(
         &mut self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         layouts: (&wgpu::BindGroupLayout, &wgpu::BindGroupLayout),
         images: SetImages<'_>,
+        used: &[usize],
     ) -> Result<(), SweepError> {
         self.release();
         let (half_layout, unpack_layout) = layouts;
@@ -54,6 +58,7 @@ impl SetOnDevice {
         }
         self.set = Some(whole.set_id());
         self.cameras = vec![State::Absent; whole.len()];
+        self.used = used.to_vec();
         Ok(())
     }
 
@@ -61,6 +66,7 @@ impl SetOnDevice {
     pub fn release(&mut self) {
         self.set = None;
         self.cameras.clear();
+        self.used.clear();
     }
 
     /// Whether `images` are picked from the held set.
@@ -69,10 +75,12 @@ impl SetOnDevice {
     }
 
     /// The cameras of the held set that `images` (picked from it) sweep with and that are not
-    /// on the device yet: marked as recorded (`submitted` or `abandoned` settles them).
+    /// on the device yet, with every other camera of the set's references not there yet (one
+    /// staging write for the set): marked as recorded (`submitted` or `abandoned` settles them).
     pub fn take_missing(&mut self, images: &SetImages<'_>) -> Vec<usize> {
         let mut missing = Vec::new();
-        for s in (0..images.len()).filter_map(|i| images.set_index(i)) {
+        let own = (0..images.len()).filter_map(|i| images.set_index(i));
+        for s in own.chain(self.used.iter().copied()) {
             if let Some(state @ State::Absent) = self.cameras.get_mut(s) {
                 *state = State::Recorded;
                 missing.push(s);

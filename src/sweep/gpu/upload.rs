@@ -2,9 +2,10 @@
 //! caller's images (and a level's plane ranges) are written into its mapped range, copied to
 //! their buffers at the start of the set's command buffer, and the buffer is mapped again for
 //! writing right after the submission, so that it is mapped once more when the set's one wait
-//! ends. `Queue::write_buffer` instead makes a fresh staging buffer per call, whose memory the
-//! host faults in anew every set (lavapipe: 1.2 MB of images per set at the paper's size, 6 MB
-//! for the 9-camera rig). A staging buffer still being mapped, or one lost to an error, falls
+//! ends (sets submitted one after the other without a wait take one each).
+//! `Queue::write_buffer` instead makes a fresh staging buffer per call, whose memory the host
+//! faults in anew every set (lavapipe: 1.2 MB of images per set at the paper's size, 6 MB for
+//! the 9-camera rig). A staging buffer still being mapped, or one lost to an error, falls
 //! back to `write_buffer` for that set.
 
 use std::sync::mpsc;
@@ -29,12 +30,20 @@ enum State {
     Unmapped,
 }
 
-/// The staging buffer and what it is doing.
+/// The staging buffers and what each is doing: one, but for the frame sets submitted without
+/// a wait between them (the references of a set, `pending.rs`), whose next one writes into
+/// another while the last is still in flight.
 pub(super) struct Uploads {
-    staging: Option<(wgpu::Buffer, State)>,
+    staging: Vec<(wgpu::Buffer, State)>,
+    /// The one the current frame set writes into.
+    active: Option<usize>,
     /// Staging buffers made so far: the engine's own, and one per `write_buffer` fallback.
     made: u64,
 }
+
+/// Staging buffers kept at most (the frame sets in flight at once; more write through
+/// `Queue::write_buffer`).
+const MAX_STAGING: usize = 4;
 
 /// Bytes of `part` in the staging buffer (copies need multiples of 4).
 fn padded(part: &Part<'_>) -> u64 {
@@ -44,7 +53,8 @@ fn padded(part: &Part<'_>) -> u64 {
 impl Uploads {
     pub fn new() -> Self {
         Self {
-            staging: None,
+            staging: Vec::new(),
+            active: None,
             made: 0,
         }
     }
@@ -55,7 +65,7 @@ impl Uploads {
     }
 
     /// Writes `parts` into the staging buffer after the set's earlier writes and records their
-    /// copies into `encoder` (or, when it is not mapped yet, writes them with
+    /// copies into `encoder` (or, when none is mapped yet, writes them with
     /// `Queue::write_buffer`, which lands before the submission's commands).
     pub fn write(
         &mut self,
@@ -69,16 +79,14 @@ impl Uploads {
         if bytes == 0 {
             return;
         }
-        let written = match (self.room(device, bytes), &mut self.staging) {
-            (Some(at), Some((staging, State::Mapped { cursor }))) => {
-                let split = copies.split(bytes as usize);
-                write_pieces(staging, at, bytes, parts, split).then(|| {
-                    *cursor = at + bytes;
-                    (&*staging, at)
-                })
-            }
-            _ => None,
-        };
+        let written = self.room(device, bytes).and_then(|(i, at)| {
+            let (staging, state) = &mut self.staging[i];
+            let split = copies.split(bytes as usize);
+            write_pieces(staging, at, bytes, parts, split).then(|| {
+                *state = State::Mapped { cursor: at + bytes };
+                (&*staging, at)
+            })
+        });
         let Some((staging, at)) = written else {
             // Not mapped (yet): through wgpu's own staging, one buffer per write.
             for part in parts {
@@ -113,51 +121,48 @@ impl Uploads {
         }
     }
 
-    /// Where `bytes` more go in the mapped staging buffer (None: it is not mapped yet), at a
-    /// multiple of `wgpu::MAP_ALIGNMENT` (where a mapped range may start). With
-    /// nothing of it written in this set, one that is too small, failed to map or is missing
-    /// is made anew, mapped.
-    fn room(&mut self, device: &wgpu::Device, bytes: u64) -> Option<u64> {
-        if let Some((_, state @ State::Mapping(_))) = &mut self.staging {
-            let State::Mapping(receiver) = &*state else {
-                return None;
-            };
-            let answer = match receiver.try_recv() {
-                Err(mpsc::TryRecvError::Empty) => {
-                    // Its submission is done once the set's wait ended; the callback comes
-                    // with the next poll.
-                    let _ = {
-                        let _poll = super::record::device_poll_lock();
-                        device.poll(wgpu::PollType::Poll)
-                    };
-                    receiver.try_recv()
+    /// Which staging buffer takes `bytes` more and where (None: none is mapped), at a multiple
+    /// of `wgpu::MAP_ALIGNMENT` (where a mapped range may start): the set's own once it wrote
+    /// into one, else the smallest mapped one that holds them; one that is too small, failed
+    /// to map or is missing is made anew, mapped.
+    fn room(&mut self, device: &wgpu::Device, bytes: u64) -> Option<(usize, u64)> {
+        if let Some(i) = self.active {
+            return match &self.staging[i] {
+                (buffer, State::Mapped { cursor })
+                    if cursor.next_multiple_of(wgpu::MAP_ALIGNMENT) + bytes <= buffer.size() =>
+                {
+                    Some((i, cursor.next_multiple_of(wgpu::MAP_ALIGNMENT)))
                 }
-                answer => answer,
+                // Copies from it are recorded already: it stays.
+                _ => None,
             };
-            match answer {
-                Ok(Ok(())) => *state = State::Mapped { cursor: 0 },
-                Err(mpsc::TryRecvError::Empty) => return None,
-                Ok(Err(_)) | Err(mpsc::TryRecvError::Disconnected) => self.staging = None,
-            }
         }
-        match &mut self.staging {
-            Some((buffer, State::Mapped { cursor }))
-                if cursor.next_multiple_of(wgpu::MAP_ALIGNMENT) + bytes <= buffer.size() =>
-            {
-                return Some(cursor.next_multiple_of(wgpu::MAP_ALIGNMENT))
-            }
-            // Copies from it are recorded already: it stays.
-            Some((_, State::Mapped { cursor })) if *cursor > 0 => return None,
-            Some((_, State::Mapping(_))) => return None,
-            Some((buffer, state @ State::Unmapped)) => {
-                // Unmapped for a set that was not submitted after all: mapped again for the
-                // next one.
+        self.settle_mappings(device);
+        let free = |(_, (buffer, state)): &(usize, &(wgpu::Buffer, State))| {
+            matches!(state, State::Mapped { cursor: 0 }) && buffer.size() >= bytes
+        };
+        let fitting = self.staging.iter().enumerate().filter(free);
+        if let Some((i, _)) = fitting.min_by_key(|(_, (buffer, _))| buffer.size()) {
+            self.active = Some(i);
+            return Some((i, 0));
+        }
+        for (buffer, state) in &mut self.staging {
+            if matches!(state, State::Unmapped) {
+                // Unmapped for a set that was not submitted after all: mapped again.
                 *state = Self::map(buffer);
-                return None;
             }
-            _ => {}
         }
-        self.staging = Some((
+        // A mapped one too small for this set is replaced; else one more while there is room.
+        let slot = match self
+            .staging
+            .iter()
+            .position(|(_, state)| matches!(state, State::Mapped { cursor: 0 }))
+        {
+            Some(i) => i,
+            None if self.staging.len() < MAX_STAGING => self.staging.len(),
+            None => return None,
+        };
+        let made = (
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("uploads"),
                 size: bytes,
@@ -165,24 +170,60 @@ impl Uploads {
                 mapped_at_creation: true,
             }),
             State::Mapped { cursor: 0 },
-        ));
+        );
+        match self.staging.get_mut(slot) {
+            Some(old) => *old = made,
+            None => self.staging.push(made),
+        }
         self.made += 1;
-        Some(0)
+        self.active = Some(slot);
+        Some((slot, 0))
     }
 
-    /// Before a submission (after the set's last write): unmaps the staging buffer if the set
+    /// The staging buffers mapped again since their submissions ended (one poll, without
+    /// waiting), and those whose mapping failed dropped.
+    fn settle_mappings(&mut self, device: &wgpu::Device) {
+        let mapping = |state: &State| matches!(state, State::Mapping(_));
+        if !self.staging.iter().any(|(_, s)| mapping(s)) {
+            return;
+        }
+        // Their submissions are done once the set's wait ended; the callbacks come with a poll.
+        let _ = {
+            let _poll = super::record::device_poll_lock();
+            device.poll(wgpu::PollType::Poll)
+        };
+        let mut failed = Vec::new();
+        for (i, (_, state)) in self.staging.iter_mut().enumerate() {
+            let State::Mapping(receiver) = &*state else {
+                continue;
+            };
+            match receiver.try_recv() {
+                Ok(Ok(())) => *state = State::Mapped { cursor: 0 },
+                Err(mpsc::TryRecvError::Empty) => {}
+                Ok(Err(_)) | Err(mpsc::TryRecvError::Disconnected) => failed.push(i),
+            }
+        }
+        // No set writes into one between sets (`active` is None here).
+        for i in failed.into_iter().rev() {
+            self.staging.remove(i);
+        }
+    }
+
+    /// Before a submission (after the set's last write): unmaps the set's staging buffer if it
     /// wrote into it.
     pub fn submitting(&mut self) {
-        if let Some((buffer, state @ State::Mapped { cursor: 1.. })) = &mut self.staging {
+        let active = self.active.and_then(|i| self.staging.get_mut(i));
+        if let Some((buffer, state @ State::Mapped { cursor: 1.. })) = active {
             buffer.unmap();
             *state = State::Unmapped;
         }
     }
 
-    /// After a submission: maps the staging buffer again (for the next set) if it was
-    /// unmapped; the mapping completes with the wait for that submission.
+    /// After a submission: maps the set's staging buffer again (for a set after it) if it was
+    /// unmapped; the mapping completes once that submission is done.
     pub fn submitted(&mut self) {
-        if let Some((buffer, state @ State::Unmapped)) = &mut self.staging {
+        let active = self.active.take().and_then(|i| self.staging.get_mut(i));
+        if let Some((buffer, state @ State::Unmapped)) = active {
             *state = Self::map(buffer);
         }
     }
@@ -196,10 +237,11 @@ impl Uploads {
         State::Mapping(receiver)
     }
 
-    /// A frame set's command buffer was dropped unsubmitted: its copies never run, and the
+    /// A frame set's command buffer was dropped unsubmitted: its copies never run, and its
     /// staging buffer, still mapped, is free again.
     pub fn abandoned(&mut self) {
-        if let Some((_, State::Mapped { cursor })) = &mut self.staging {
+        let active = self.active.take().and_then(|i| self.staging.get_mut(i));
+        if let Some((_, State::Mapped { cursor })) = active {
             *cursor = 0;
         }
     }
