@@ -317,6 +317,45 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
     }
 }
 
+/// A reference that cannot run among several on the WGSL engine (an index outside the rig,
+/// between two that can): its error in its place, and the others, submitted ahead around it,
+/// each get their own maps (those of the reference swept alone, to the bit).
+#[test]
+fn a_failing_reference_among_several_leaves_the_others_their_own_maps_on_the_wgsl_engine() {
+    use sweepdepth::sweep::gpu::GpuEngine;
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = params();
+    let gpu = crate::common::gpu();
+    let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    let alone = |engine: &mut GpuEngine, r: usize| {
+        let mut results = engine.run_references(&rig.cameras, &images, &[r], &p);
+        let depth = results.pop().expect("one").expect("runs alone");
+        bits(&depth.maps.depth_m)
+    };
+    let (first, last) = (alone(&mut engine, 17), alone(&mut engine, 5));
+    let results = engine.run_references(&rig.cameras, &images, &[17, 99, 5], &p);
+    assert_eq!(results.len(), 3);
+    let depth = |i: usize| match &results[i] {
+        Ok(d) => bits(&d.maps.depth_m),
+        Err(e) => panic!("reference {i}: {e}"),
+    };
+    assert!(depth(0) == first, "the first reference's own maps");
+    assert!(
+        matches!(
+            results[1],
+            Err(SweepError::NoSuchReference { index: 99, .. })
+        ),
+        "{:?}",
+        results[1].as_ref().err()
+    );
+    assert!(depth(2) == last, "the last reference's own maps");
+    assert_ne!(first, last);
+}
+
 /// Both cameras of a stereo pair as references on the WGSL engine: the set's two images go up
 /// once, and each reference's prefiltered images (the pair's Sobel byte, made on the device
 /// from the set's copies) give the maps of that reference swept alone, to the bit.
