@@ -103,6 +103,10 @@ else
     # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar;
     # every bench ends with the `messages:` line, the node's own host work per set at 1 MP).
     step bench-gpu-host-copies-serial 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --host-copies serial
+    # A set's references read back one by one (`--serial-references`) against the default
+    # (every reference submitted before the first is read back), alternated twice: the 9-camera
+    # rig with three references (`most_in_flight` 1 against 3 in the JSON).
+    step bench-gpu-refs 120 sh -c "for r in 1 2; do \"$bin\" bench --device gpu --config 9-camera-3refs --repeats 5; \"$bin\" bench --device gpu --config 9-camera-3refs --repeats 5 --serial-references; done"
     # Depth and confidence read back alone (the node while nobody subscribes to cost and
     # selection): half the readback.
     step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only

@@ -229,7 +229,10 @@ impl Sweeper for GpuEngine {
             tracing::debug!("each reference uploads its own images: {e}");
             return each_reference(self, cameras, images, references, params);
         }
-        let results = submit_ahead(self, images, rigs, params);
+        let results = match self.submits_ahead() {
+            true => submit_ahead(self, images, rigs, params),
+            false => each_reference(self, cameras, images, references, params),
+        };
         self.release_set();
         results
     }
@@ -454,6 +457,14 @@ impl Engine {
     pub fn set_host_copies(&mut self, copies: crate::sweep::gpu::HostCopies) {
         if let Self::Gpu { engine, .. } = self {
             engine.set_host_copies(copies);
+        }
+    }
+
+    /// Whether the WGSL engine submits every reference of a set before it reads the first back
+    /// (`GpuEngine::set_submit_ahead`; nothing for the CPU engine).
+    pub fn set_submit_ahead(&mut self, ahead: bool) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_submit_ahead(ahead);
         }
     }
 

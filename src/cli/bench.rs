@@ -78,6 +78,10 @@ pub struct BenchArgs {
     /// compare the two on a GPU host.
     #[arg(long, value_enum, default_value = "auto")]
     pub host_copies: crate::sweep::gpu::HostCopies,
+    /// The WGSL engine reads each reference of a set back before it records the next (default:
+    /// every reference submitted before the first is read back), to compare the two on a GPU.
+    #[arg(long)]
+    pub serial_references: bool,
     /// The WGSL engine reads back depth and confidence alone, as for the node while nobody
     /// subscribes to its cost and selection images (default: those too, as `bag` writes them).
     #[arg(long)]
@@ -538,6 +542,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                     engine.set_sgm_lines(lines);
                 }
                 engine.set_host_copies(args.host_copies);
+                engine.set_submit_ahead(!args.serial_references);
                 engines.push(engine)
             }
             Err(e) if args.device == Device::Auto => {

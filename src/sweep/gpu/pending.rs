@@ -45,8 +45,9 @@ struct Pending {
 }
 
 /// Frame sets submitted and not read back yet.
-#[derive(Default)]
 pub(super) struct Deferred {
+    /// A set's references are submitted ahead (`GpuEngine::set_submit_ahead`).
+    allowed: bool,
     /// `run_plan_last` submits the last level without reading it back.
     on: bool,
     sets: VecDeque<Pending>,
@@ -58,6 +59,18 @@ pub(super) struct Deferred {
 
 /// Readback buffers kept at most for sets submitted ahead.
 const MAX_READBACKS: usize = 8;
+
+impl Default for Deferred {
+    fn default() -> Self {
+        Self {
+            allowed: true,
+            on: false,
+            sets: VecDeque::new(),
+            readbacks: Vec::new(),
+            in_flight: 0,
+        }
+    }
+}
 
 impl Deferred {
     /// A free readback buffer of `bytes` (the smallest that holds them), or a new one.
@@ -89,6 +102,17 @@ impl Deferred {
 }
 
 impl GpuEngine {
+    /// Whether the references of a set are all submitted before the first is read back (the
+    /// default), or each read back before the next is recorded (to compare the two).
+    pub fn set_submit_ahead(&mut self, ahead: bool) {
+        self.deferred.allowed = ahead;
+    }
+
+    /// See [`Self::set_submit_ahead`].
+    pub fn submits_ahead(&self) -> bool {
+        self.deferred.allowed
+    }
+
     /// Submits the frame set recorded so far (one submission, without waiting): the
     /// `sections` of the last level's maps and every level's timestamps copied into one
     /// readback buffer (the shape's own, or with `pooled` one of its own).
