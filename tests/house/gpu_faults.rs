@@ -301,7 +301,8 @@ fn transform_changes_apply_from_the_next_set() {
 /// references and a virtual reference's sweep too (`convert::packed_view`, unpacked on the device by the `unpack` stage; the
 /// references' colour converted on the host beside the sweep): depth, confidence and the
 /// coloured points equal, to the bit, those of the same engine fed images converted on the
-/// host.
+/// host, one reference after the other; three references of one set on the engine itself
+/// (each image up once, all submitted before the first is read back) too.
 #[test]
 fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
     use sweepdepth::engine::Sweeper;
@@ -359,8 +360,22 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
         pairs: sweepdepth::sweep::PairSet::All,
         ..config.sweep.clone()
     };
+    // The same bag with three references.
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
+        .into_iter()
+        .chain(["-p", "references:=[cam1, cam2, cam3]"])
+        .map(String::from)
+        .collect();
+    let three_config = PipelineConfig::from_args(&args).expect("config");
+    let three = fixture_job(&three_config);
+    assert_eq!(three.references.len(), 3);
     let gpu = GpuContext::new().expect("GPU");
-    for (job, sweep) in [(&job, &config.sweep), (&virtual_job, &all_pairs)] {
+    for (job, sweep) in [
+        (&job, &config.sweep),
+        (&virtual_job, &all_pairs),
+        (&three, &three_config.sweep),
+    ] {
         let run = |unpacks: bool| {
             let engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
             let mut probe = Probe {
@@ -374,8 +389,23 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
                 sweepdepth::pipeline::process_job(&mut probe, job, sweep, wanted).expect("the set");
             (set, probe.packed, probe.all_packed)
         };
-        let (packed, sweeps_with_packed, all_packed) = run(true);
+        let (probed, sweeps_with_packed, all_packed) = run(true);
         let (converted, none, _) = run(false);
+        // The engine itself (its own `run_references_set`).
+        let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("engine");
+        let wanted = Wanted::all(true);
+        let packed =
+            sweepdepth::pipeline::process_job(&mut engine, job, sweep, wanted).expect("the set");
+        assert_eq!(packed.outputs.len(), job.references.len());
+        let counts = engine.take_set_counts();
+        assert_eq!(
+            counts.most_in_flight as usize,
+            job.references.len(),
+            "{counts:?}"
+        );
+        for (a, b) in probed.outputs.iter().zip(&packed.outputs) {
+            assert_eq!(a.messages.depth.data, b.messages.depth.data);
+        }
         assert!(
             sweeps_with_packed > 0 && all_packed == sweeps_with_packed && none == 0,
             "{sweeps_with_packed} / {all_packed} / {none}"
