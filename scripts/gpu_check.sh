@@ -6,14 +6,9 @@
 # report, `$OUT/gpu_check.txt` (the device tool's folder that comes back; `target/gpu-check`
 # here).
 #
-# Prepare here, once (the device machine has no Rust and may have no Vulkan loader):
-#   cargo build --release
-#   echo /.gl/ >> .git/info/exclude; mkdir -p .gl /tmp/amd64/partial
-#   o='-oAPT::Architecture=amd64 -oAPT::Architectures=amd64 -oDir::State::Lists=/tmp/amd64'
-#   apt-get $o update; (cd .gl && apt-get $o download libvulkan1 libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
-#   cargo test --no-run --test engine; strip -o .gl/engine-tests target/debug/deps/engine-<hash>
-#   cargo test --no-run --lib; strip -o .gl/lib-tests target/debug/deps/sweepdepth-<hash>
-#   target/release/sweepdepth pack ../shared/data/middlebury2003_teddy_9view .gl/teddy9.mcap --frames 20 --compressed
+# Prepare here first: `sh scripts/gpu_prepare.sh` (the release binary; in `.gl/` the stripped
+# engine and library test binaries, the Vulkan loader's and libglvnd's .debs and the packed
+# 9-camera Teddy bag; about 62 MiB to carry).
 # (NVIDIA's Vulkan driver, libGLX_nvidia, needs libglvnd: with the loader alone it answers
 # "Could not get 'vkCreateInstance'" and wgpu finds no adapter). Then run it with
 # `carry: [".gl", "target/release/sweepdepth"]` and the command
