@@ -203,7 +203,7 @@ impl Sweeper for GpuEngine {
     }
 
     /// Each camera's image goes up once for all of the references (`GpuEngine::hold_set`),
-    /// and every reference is submitted before the first is read back ([`submit_ahead`]).
+    /// and every reference is submitted before the first is read back (`submit_ahead`).
     fn run_references_set(
         &mut self,
         cameras: &[RigCamera],
