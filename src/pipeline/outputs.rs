@@ -169,9 +169,8 @@ pub fn process_job(
     sweep: &SweepParams,
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
-    let name = |i: usize| job.cameras.get(i).map_or("?", |c| c.name.as_str());
-    let packed = |i: usize| job.images.get(i).and_then(packed_view);
-    let image_skip = |e: ConvertError| Skip::new(SkipKind::Image, None, e.to_string());
+    let name = |i| camera_name(job, i);
+    let packed = |i| packed_image(job, i);
     let first_virtual = job
         .references
         .first()
@@ -281,9 +280,8 @@ fn virtual_outputs(
     sweep: &SweepParams,
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
-    let name = |i: usize| job.cameras.get(i).map_or("?", |c| c.name.as_str());
-    let packed = |i: usize| job.images.get(i).and_then(packed_view);
-    let image_skip = |e: ConvertError| Skip::new(SkipKind::Image, None, e.to_string());
+    let name = |i| camera_name(job, i);
+    let packed = |i| packed_image(job, i);
     let mut header: Header = job
         .images
         .get(first.index)
@@ -332,6 +330,21 @@ fn virtual_outputs(
         outputs: vec![outputs],
         skipped: Vec::new(),
     })
+}
+
+/// Camera `i`'s name in `job` ("?" outside it).
+fn camera_name(job: &Job, i: usize) -> &str {
+    job.cameras.get(i).map_or("?", |c| c.name.as_str())
+}
+
+/// Camera `i`'s message bytes as they came, where the engine may unpack them on the device.
+fn packed_image(job: &Job, i: usize) -> Option<crate::image::PackedImage<'_>> {
+    job.images.get(i).and_then(packed_view)
+}
+
+/// A set whose images cannot be read.
+fn image_skip(e: ConvertError) -> Skip {
+    Skip::new(SkipKind::Image, None, e.to_string())
 }
 
 /// The set's images as the engine takes them: each converted one, else its message's bytes

@@ -43,6 +43,15 @@ fn params() -> SweepParams {
     }
 }
 
+/// A 32-camera capture dome of 160x120 views 4 m from a wall with a box, its scene and images.
+fn dome() -> (Rig, Scene, Vec<Rgba8Image>) {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
+    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    (rig, scene, images)
+}
+
 /// The frames `keep` of `rig` (the reference among them), with their images.
 fn subset(rig: &Rig, images: &[Rgba8Image], keep: &[usize]) -> (Rig, Vec<Rgba8Image>) {
     let reference = rig.reference_index().expect("a camera reference");
@@ -97,10 +106,7 @@ fn a_dense_trajectory_with_every_frame_is_no_worse_than_every_fifth() {
 /// With the defaults it runs (8 views chosen of 31) and finds the wall and box.
 #[test]
 fn a_32_camera_dome_runs_with_the_defaults() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
-    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
+    let (rig, scene, images) = dome();
     let truth = synthetic::reference_depth(&scene, &rig);
     let p = params();
     let mut engine = Engine::Cpu(CpuEngine::new());
@@ -140,10 +146,7 @@ fn a_32_camera_dome_runs_with_the_defaults() {
 fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
     use sweepdepth::gpu_context::GpuContext;
     use sweepdepth::sweep::references::reference_rig;
-    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
-    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
+    let (rig, scene, images) = dome();
     let p = params();
     let shared = crate::common::gpu();
     let gpu = || {
@@ -193,10 +196,7 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
     use sweepdepth::image::{CameraImage, PackedFormat, PackedImage, SetImages};
     use sweepdepth::sweep::gpu::GpuEngine;
     use sweepdepth::sweep::references::{reference_rig, ReferenceDepth};
-    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
-    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
+    let (rig, scene, images) = dome();
     let p = params();
     let gpu = crate::common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
@@ -247,7 +247,8 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
     );
     // A set of other images, then these again: the staging and readback buffers of the first
     // set serve (none made), and no set reads another's bytes.
-    let other_scene = Scene::wall_and_box(3.0, Some((1.5, 0.3)), model.intrinsics.fx_px);
+    let fx = rig.cameras[0].model.intrinsics.fx_px;
+    let other_scene = Scene::wall_and_box(3.0, Some((1.5, 0.3)), fx);
     let other_images = synthetic::render_rig(&other_scene, &rig);
     let other = engine.run_references(&rig.cameras, &other_images, &references, &p);
     let again = engine.run_references(&rig.cameras, &images, &references, &p);
@@ -323,10 +324,7 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
 #[test]
 fn a_failing_reference_among_several_leaves_the_others_their_own_maps_on_the_wgsl_engine() {
     use sweepdepth::sweep::gpu::GpuEngine;
-    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
-    let rig = synthetic::dome_rig(32, 35f64.to_radians(), 4.0, model, 0).expect("dome");
-    let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
+    let (rig, _, images) = dome();
     let p = params();
     let gpu = crate::common::gpu();
     let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");

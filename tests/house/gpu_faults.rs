@@ -51,9 +51,15 @@ fn fixture_job(config: &PipelineConfig) -> Job {
 
 /// The Tsukuba bag fixture's configuration and first job.
 fn fixture() -> (PipelineConfig, Job) {
+    fixture_with(&[])
+}
+
+/// [`fixture`] with the parameters `extra` (`-p name:=value` pairs) after its own.
+fn fixture_with(extra: &[&str]) -> (PipelineConfig, Job) {
     let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
     let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
         .iter()
+        .chain(extra)
         .map(|s| s.to_string())
         .collect();
     let config = PipelineConfig::from_args(&args).expect("config");
@@ -361,14 +367,7 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
         ..config.sweep.clone()
     };
     // The same bag with three references.
-    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
-    let args: Vec<String> = ["--ros-args", "--params-file", params.to_str().unwrap()]
-        .into_iter()
-        .chain(["-p", "references:=[cam1, cam2, cam3]"])
-        .map(String::from)
-        .collect();
-    let three_config = PipelineConfig::from_args(&args).expect("config");
-    let three = fixture_job(&three_config);
+    let (three_config, three) = fixture_with(&["-p", "references:=[cam1, cam2, cam3]"]);
     assert_eq!(three.references.len(), 3);
     let gpu = GpuContext::new().expect("GPU");
     for (job, sweep) in [

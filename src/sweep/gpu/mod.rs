@@ -363,6 +363,19 @@ impl GpuEngine {
         images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
+        self.sweep_set(rig, params, |engine, plans| {
+            super::coarse::run(engine, plans, rig, images, params)
+        })
+    }
+
+    /// Runs `sweep` (`coarse::run`, or `coarse::start` for a set submitted ahead) as one
+    /// timed frame set with the plans of `rig`'s reference.
+    fn sweep_set<T>(
+        &mut self,
+        rig: &Rig,
+        params: &SweepParams,
+        sweep: impl FnOnce(&mut Self, &mut super::coarse::Plans) -> Result<T, SweepError>,
+    ) -> Result<T, SweepError> {
         self.timed(|engine| {
             // One shape at a time outside coarse to fine: the other levels' buffers go; with
             // it, the buffers of every level below the current one stay.
@@ -370,10 +383,22 @@ impl GpuEngine {
             let excess = engine.spares.len().saturating_sub(below);
             engine.spares.drain(..excess);
             let mut plans = std::mem::take(&mut engine.plans);
-            let result = super::coarse::run(engine, plans.for_rig(rig), rig, images, params);
+            let result = sweep(engine, plans.for_rig(rig));
             engine.plans = plans;
             result
         })
+    }
+
+    /// Records the next level of the frame set: a level recorded before it in the set is the
+    /// level below it (`run_plan_for_ranges`), and this one is narrowed from it.
+    fn record_next_level(
+        &mut self,
+        plan: &SweepPlan,
+        rig: &Rig,
+        images: LevelImages<'_>,
+    ) -> Result<(), SweepError> {
+        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
+        self.record_level(plan, rig, images, narrowed)
     }
 
     /// Runs a prepared plan (e.g. with a custom hypothesis family).
@@ -657,10 +682,8 @@ impl super::coarse::PlanRunner for GpuEngine {
         rig: &Rig,
         images: LevelImages<'_>,
     ) -> Result<DepthMaps, SweepError> {
-        // Inside `run`, which times the whole frame set. A level recorded before this one in
-        // the set is the level below it (`run_plan_for_ranges`): this one is narrowed from it.
-        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
-        self.record_level(plan, rig, images, narrowed)?;
+        // Inside `run`, which times the whole frame set.
+        self.record_next_level(plan, rig, images)?;
         self.finish_maps(plan)
     }
 
@@ -682,8 +705,7 @@ impl super::coarse::PlanRunner for GpuEngine {
     ) -> Result<LevelDepth, SweepError> {
         // Recorded, not submitted: the next level's plane ranges are made from its raw depths
         // on the device, in the same command buffer.
-        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
-        self.record_level(plan, rig, images, narrowed)?;
+        self.record_next_level(plan, rig, images)?;
         Ok(LevelDepth::Device)
     }
 

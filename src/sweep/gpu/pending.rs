@@ -94,11 +94,6 @@ impl Deferred {
         }
         self.readbacks.push(buffer);
     }
-
-    /// Whether the last level is submitted without a readback.
-    pub fn on(&self) -> bool {
-        self.on
-    }
 }
 
 impl GpuEngine {
@@ -268,12 +263,8 @@ impl GpuEngine {
         params: &SweepParams,
     ) -> Result<(), SweepError> {
         self.deferred.on = true;
-        let started = self.timed(|engine| {
-            let mut plans = std::mem::take(&mut engine.plans);
-            let result =
-                super::super::coarse::start(engine, plans.for_rig(rig), rig, images, params);
-            engine.plans = plans;
-            result
+        let started = self.sweep_set(rig, params, |engine, plans| {
+            super::super::coarse::start(engine, plans, rig, images, params)
         });
         self.deferred.on = false;
         match started? {
@@ -325,9 +316,8 @@ impl GpuEngine {
         rig: &Rig,
         images: LevelImages<'_>,
     ) -> Result<LevelDepth, SweepError> {
-        let narrowed = self.open.as_ref().is_some_and(|o| !o.levels.is_empty());
-        self.record_level(plan, rig, images, narrowed)?;
-        if self.deferred.on() {
+        self.record_next_level(plan, rig, images)?;
+        if self.deferred.on {
             self.submit_maps(plan)
         } else {
             self.finish_maps(plan).map(LevelDepth::Host)
