@@ -120,6 +120,10 @@ step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 if [ -f .gl/teddy9.mcap ]; then
     step bag-9-cameras-fusion 90 "$bin" bag .gl/teddy9.mcap /tmp/gpu-check-bag9 --force \
         --params-file .gl/teddy9.params.yaml -p device:=gpu --mesh /tmp/gpu-check-bag9.ply --voxel-size 0.2
+    # The next set on the device while the host reads one back and writes it (the default)
+    # against each set read back before the next is submitted, alternated twice: the
+    # summary's ms per set.
+    step bag-sets-ahead 120 sh -c "for r in 1 2; do for a in 1 0; do \"$bin\" bag .gl/teddy9.mcap /tmp/gpu-check-bag-ahead --force --params-file .gl/teddy9.params.yaml -p device:=gpu --sets-ahead \$a 2>&1 | grep 'frame sets found'; done; done"
 fi
 step demo-gpu 40 "$bin" demo --device gpu --out /tmp/gpu-check-demo-gpu
 step demo-cpu 40 "$bin" demo --device cpu --out /tmp/gpu-check-demo-cpu

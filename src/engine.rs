@@ -138,6 +138,39 @@ pub trait Sweeper {
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
         each_reference(self, cameras, images, references, params)
     }
+
+    /// Starts the set of [`Sweeper::run_references_set`]: an engine that can
+    /// ([`Sweeper::starts_without_waiting`]) submits its work to the device and returns;
+    /// [`Sweeper::finish_references_set`] (with the same images and parameters) waits for it.
+    /// Several sets may be started before the first is finished; they finish in order. An
+    /// engine that cannot runs the set here.
+    fn start_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> StartedSet {
+        let results = self.run_references_set(cameras, images, references, params);
+        StartedSet::done(self, results)
+    }
+
+    /// The results of the oldest set [`Sweeper::start_references_set`] started.
+    fn finish_references_set(
+        &mut self,
+        started: StartedSet,
+        _images: SetImages<'_>,
+        _params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        started.into_results(self)
+    }
+
+    /// Whether [`Sweeper::start_references_set`] returns before the set's work is done (the
+    /// WGSL engine submits it to the device): a caller may then start the next set before it
+    /// finishes this one.
+    fn starts_without_waiting(&self) -> bool {
+        false
+    }
 }
 
 /// [`Sweeper::run_references_set`]: each reference swept with its own views, picked from the
@@ -203,7 +236,7 @@ impl Sweeper for GpuEngine {
     }
 
     /// Each camera's image goes up once for all of the references (`GpuEngine::hold_set`),
-    /// and every reference is submitted before the first is read back (`submit_ahead`).
+    /// and every reference is submitted before the first is read back.
     fn run_references_set(
         &mut self,
         cameras: &[RigCamera],
@@ -211,30 +244,73 @@ impl Sweeper for GpuEngine {
         references: &[usize],
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
-        if references.len() < 2 || images.len() != cameras.len() {
+        if references.len() < 2 {
             return each_reference(self, cameras, images, references, params);
+        }
+        let started = self.start_references_set(cameras, images, references, params);
+        self.finish_references_set(started, images, params)
+    }
+
+    /// Submits every reference of the set (each camera's image up once for all of them,
+    /// `GpuEngine::hold_set`) and returns without waiting for the device; with submitting
+    /// ahead turned off (`GpuEngine::set_submit_ahead`), runs the set here.
+    fn start_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> StartedSet {
+        let run_here = |engine: &mut Self| {
+            let results = each_reference(engine, cameras, images, references, params);
+            StartedSet::done(engine, results)
+        };
+        let alone = !self.submits_ahead() && references.len() < 2;
+        if alone || references.is_empty() || images.len() != cameras.len() {
+            return run_here(self);
         }
         let rigs: Vec<_> = references
             .iter()
             .map(|&r| reference_rig(cameras, r, params))
             .collect();
-        let mut used: Vec<usize> = rigs
-            .iter()
-            .flatten()
-            .flat_map(|r| r.cameras.clone())
-            .collect();
-        used.sort_unstable();
-        used.dedup();
-        if let Err(e) = self.hold_set(images, &used) {
-            tracing::debug!("each reference uploads its own images: {e}");
-            return each_reference(self, cameras, images, references, params);
+        let held = references.len() > 1;
+        if held {
+            let mut used: Vec<usize> = rigs
+                .iter()
+                .flatten()
+                .flat_map(|r| r.cameras.clone())
+                .collect();
+            used.sort_unstable();
+            used.dedup();
+            if let Err(e) = self.hold_set(images, &used) {
+                tracing::debug!("each reference uploads its own images: {e}");
+                return run_here(self);
+            }
         }
-        let results = match self.submits_ahead() {
-            true => submit_ahead(self, images, rigs, params),
-            false => each_reference(self, cameras, images, references, params),
+        let started = match self.submits_ahead() {
+            true => StartedSet::Submitted(submit_each(self, images, rigs, params)),
+            false => run_here(self),
         };
-        self.release_set();
-        results
+        if held {
+            self.release_set();
+        }
+        started
+    }
+
+    fn finish_references_set(
+        &mut self,
+        started: StartedSet,
+        images: SetImages<'_>,
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        match started {
+            StartedSet::Submitted(submitted) => collect_each(self, images, submitted, params),
+            done => done.into_results(self),
+        }
+    }
+
+    fn starts_without_waiting(&self) -> bool {
+        self.submits_ahead()
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
@@ -246,16 +322,59 @@ impl Sweeper for GpuEngine {
     }
 }
 
-/// The references of a set on the WGSL engine: each submitted in turn (the host records the
-/// next while the GPU runs the one before), then each read back in the same order (the GPU
-/// runs the next while the host reads one): one wait per reference, none between two
-/// submissions. The results and timings as [`each_reference`]'s.
-fn submit_ahead(
+/// A frame set's references started by [`Sweeper::start_references_set`], for
+/// [`Sweeper::finish_references_set`].
+pub enum StartedSet {
+    /// Run to the end already, with the set's timings.
+    Done {
+        results: Vec<Result<ReferenceDepth, SweepError>>,
+        timings: StageTimings,
+    },
+    /// Each reference submitted to the device (or why not), in order, not read back yet.
+    Submitted(Vec<Result<ReferenceRig, SweepError>>),
+}
+
+impl StartedSet {
+    /// A set run to the end by `engine`, with its timings.
+    fn done<S: Sweeper + ?Sized>(
+        engine: &mut S,
+        results: Vec<Result<ReferenceDepth, SweepError>>,
+    ) -> Self {
+        let timings = engine.timings_mut().clone();
+        Self::Done { results, timings }
+    }
+
+    /// The results of a set run to the end (its timings made the engine's last again).
+    fn into_results<S: Sweeper + ?Sized>(
+        self,
+        engine: &mut S,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        match self {
+            Self::Done { results, timings } => {
+                *engine.timings_mut() = timings;
+                results
+            }
+            Self::Submitted(submitted) => submitted
+                .into_iter()
+                .map(|_| {
+                    Err(SweepError::InvalidParams(
+                        "internal: a set submitted to a device handed to an engine without one"
+                            .into(),
+                    ))
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The references of a set on the WGSL engine, each submitted in turn (the host records the
+/// next while the GPU runs the one before), none waited for: read back by [`collect_each`].
+fn submit_each(
     engine: &mut GpuEngine,
     images: SetImages<'_>,
     rigs: Vec<Result<ReferenceRig, SweepError>>,
     params: &SweepParams,
-) -> Vec<Result<ReferenceDepth, SweepError>> {
+) -> Vec<Result<ReferenceRig, SweepError>> {
     let mut submitted = Vec::with_capacity(rigs.len());
     for rig in rigs {
         let result = rig.and_then(|r| {
@@ -269,10 +388,24 @@ fn submit_ahead(
             break;
         }
     }
+    submitted
+}
+
+/// The references [`submit_each`] submitted, read back in the same order (the GPU runs the
+/// next while the host reads one): one wait per reference. The results and timings as
+/// [`each_reference`]'s. Sets submitted after this one stay submitted.
+fn collect_each(
+    engine: &mut GpuEngine,
+    images: SetImages<'_>,
+    submitted: Vec<Result<ReferenceRig, SweepError>>,
+    params: &SweepParams,
+) -> Vec<Result<ReferenceDepth, SweepError>> {
+    let mut left = submitted.iter().filter(|r| r.is_ok()).count();
     let mut results = Vec::with_capacity(submitted.len());
     let mut stages: Vec<(String, f64)> = Vec::new();
     for result in submitted {
         let result = result.and_then(|r| {
+            left -= 1;
             let maps = engine.collect_set(&r.rig, own(images, &r)?, params)?;
             // The set's timings: every reference's stages summed.
             for (name, ms) in &engine.last_timings().stages {
@@ -290,7 +423,8 @@ fn submit_ahead(
             break;
         }
     }
-    engine.drop_submitted();
+    // A cancelled set's references not read back.
+    engine.drop_oldest_submitted(left);
     PlanRunner::timings_mut(engine).stages = stages;
     results
 }
@@ -523,6 +657,42 @@ impl Sweeper for Engine {
                 Sweeper::run_references_set(engine.as_mut(), cameras, images, references, params)
             }
             Self::Cpu(cpu) => cpu.run_references_set(cameras, images, references, params),
+        }
+    }
+
+    fn start_references_set(
+        &mut self,
+        cameras: &[RigCamera],
+        images: SetImages<'_>,
+        references: &[usize],
+        params: &SweepParams,
+    ) -> StartedSet {
+        match self {
+            Self::Gpu { engine, .. } => {
+                Sweeper::start_references_set(engine.as_mut(), cameras, images, references, params)
+            }
+            Self::Cpu(cpu) => cpu.start_references_set(cameras, images, references, params),
+        }
+    }
+
+    fn finish_references_set(
+        &mut self,
+        started: StartedSet,
+        images: SetImages<'_>,
+        params: &SweepParams,
+    ) -> Vec<Result<ReferenceDepth, SweepError>> {
+        match self {
+            Self::Gpu { engine, .. } => {
+                Sweeper::finish_references_set(engine.as_mut(), started, images, params)
+            }
+            Self::Cpu(cpu) => cpu.finish_references_set(started, images, params),
+        }
+    }
+
+    fn starts_without_waiting(&self) -> bool {
+        match self {
+            Self::Gpu { engine, .. } => Sweeper::starts_without_waiting(engine.as_ref()),
+            Self::Cpu(_) => false,
         }
     }
 

@@ -7,6 +7,7 @@ pub mod pack;
 pub mod process;
 pub mod reader;
 pub mod report;
+mod sink;
 /// The message definitions (shared with `viewer/`).
 pub use crate::msgdefs as schemas;
 pub mod writer;

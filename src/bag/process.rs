@@ -3,7 +3,7 @@
 //! the live node), every frame set processed (nothing dropped for speed), the outputs written
 //! to OUT under the node's topic names.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -11,17 +11,15 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use crate::fusion::FusionParams;
 use crate::msgs::{from_cdr, CameraInfo, CompressedImage, Image, TFMessage};
-use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, FusionInput, Publishers, Wanted};
-use crate::pipeline::{
-    ConfigError, EngineHost, FrameMessages, HostError, Input, Job, Outcome, Output, OutputTopics,
-    Pipeline, PipelineConfig, Skip,
-};
+use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, Publishers};
+use crate::pipeline::{ConfigError, EngineHost, HostError, Input, Pipeline, PipelineConfig};
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
 use super::pace::{Pacer, ViewRate};
 use super::reader::TopicInfo;
 use super::report::BagReport;
 use super::schemas::{CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, MARKER_ARRAY, TF_MESSAGE};
+use super::sink::{BagFusion, Sink};
 use super::{writer, BagError, BagReader, BagWriter};
 
 /// `sweepdepth bag` arguments.
@@ -67,6 +65,10 @@ pub struct BagArgs {
     /// With --mesh: the voxel size, metres (the truncation distance is 4 voxels).
     #[arg(long, value_name = "M", default_value_t = 0.05, requires = "mesh")]
     pub voxel_size: f32,
+    /// On the WGSL engine, the sets left running on the device while the host reads the one
+    /// before back and writes it (0: each set read back before the next is submitted).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub sets_ahead: usize,
 }
 
 impl BagArgs {
@@ -173,177 +175,6 @@ fn image_route(config: &PipelineConfig, known: &[TopicInfo], i: usize) -> (Strin
     }
 }
 
-/// Offline every distinct message is printed once (the first 200); the summary counts.
-fn warn(bar: &ProgressBar, seen: &mut HashSet<String>, msg: &str) {
-    if seen.len() < 200 && seen.insert(msg.to_string()) {
-        bar.suspend(|| tracing::warn!("{msg}"));
-        if seen.len() == 200 {
-            bar.suspend(|| tracing::warn!("further distinct warnings are not printed"));
-        }
-    }
-}
-
-/// Where the sets go: the engine, the output bag, the report.
-struct Sink<'a> {
-    config: &'a PipelineConfig,
-    host: EngineHost,
-    writer: BagWriter,
-    report: BagReport,
-    seen: HashSet<String>,
-    busy: Duration,
-    bar: ProgressBar,
-    /// `--view`: the live view, fed every processed set.
-    viewer: Option<Viewer>,
-    /// `fusion` or `--mesh`: every reference's depth fused into one mesh.
-    fuser: Option<BagFusion>,
-}
-
-/// The bag's fusion: the fuser, and when its markers next go into OUT.
-struct BagFusion {
-    fuser: Fuser,
-    /// It fuses on the engine's device, and follows the engine onto a new one after a loss.
-    follows_engine: bool,
-    /// The engine's devices made anew that fusion has followed (`Fuser::follow_engine`).
-    devices_seen: u64,
-    topic: String,
-    /// `mesh_rate` as a period in log time (None: no markers).
-    period_ns: Option<u64>,
-    next_ns: u64,
-}
-
-impl BagFusion {
-    /// The changed blocks' markers into OUT when the mesh period has passed (or `last`), and
-    /// to the live view.
-    fn write_markers(
-        &mut self,
-        writer: &mut BagWriter,
-        viewer: Option<&Viewer>,
-        log_time_ns: u64,
-        last: bool,
-    ) -> Result<(), BagError> {
-        let Some(period) = self.period_ns else {
-            return Ok(());
-        };
-        if log_time_ns < self.next_ns && !last {
-            return Ok(());
-        }
-        self.next_ns = log_time_ns.saturating_add(period);
-        let markers = self.fuser.markers();
-        if !markers.markers.is_empty() {
-            writer.write_msg(&self.topic, log_time_ns, &markers)?;
-            if let Some(viewer) = viewer {
-                viewer.offer_mesh_owned(markers);
-            }
-        }
-        Ok(())
-    }
-}
-
-impl Sink<'_> {
-    /// A message that could not be decoded: counted per topic, reported once per topic.
-    fn bad_message(&mut self, topic: &str, message: &str) {
-        self.report.bad_messages.add(topic.to_string());
-        warn(&self.bar, &mut self.seen, message);
-    }
-
-    /// What one input gave: logged, counted, and its sets processed (outputs written at
-    /// `log_time_ns`).
-    fn outcome(&mut self, outcome: Outcome, log_time_ns: u64) -> Result<(), BagError> {
-        for event in &outcome.rig_events {
-            self.bar.suspend(|| tracing::warn!("{event}"));
-        }
-        for notice in &outcome.notices {
-            warn(&self.bar, &mut self.seen, &notice.message);
-        }
-        if let Some(verdict) = &outcome.sync {
-            verdict.count(&mut self.report.sync);
-        }
-        for set in outcome.sets {
-            self.set(set, log_time_ns)?;
-        }
-        Ok(())
-    }
-
-    /// Processes one synchronised set (or records why not), writing its outputs at `log_time_ns`.
-    fn set(&mut self, set: Result<Job, Skip>, log_time_ns: u64) -> Result<(), BagError> {
-        let config = self.config;
-        self.report.sets_found += 1;
-        let t0 = Instant::now();
-        // Every output the bag has; the live view always shows the point cloud.
-        let with_points = config.outputs().get(Output::Points).is_some() || self.viewer.is_some();
-        let wanted = Wanted::all(with_points);
-        let result = set.and_then(|job| self.host.process(&job, &config.sweep, wanted));
-        // Fusion on the engine's device follows it onto a new one after a loss.
-        if let Some(fusion) = self.fuser.as_mut().filter(|f| f.follows_engine) {
-            let followed = fusion
-                .fuser
-                .follow_engine(&self.host, &mut fusion.devices_seen);
-            if let Err(e) = followed {
-                warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
-            }
-        }
-        match result {
-            Ok(set) => {
-                for skip in &set.skipped {
-                    self.report.skipped.add(skip.kind.label());
-                    self.report.last_skip = Some(skip.to_string());
-                    warn(&self.bar, &mut self.seen, &format!("no depth: {skip}"));
-                }
-                if let Some(fusion) = &mut self.fuser {
-                    let world = config.world.as_ref().map(|w| w.frame.as_str());
-                    for out in &set.outputs {
-                        let input = FusionInput::from_maps(out.maps.clone(), world);
-                        if let Err(e) = fusion.fuser.add(&input) {
-                            warn(&self.bar, &mut self.seen, &format!("fusion: {e}"));
-                        }
-                    }
-                    fusion.write_markers(
-                        &mut self.writer,
-                        self.viewer.as_ref(),
-                        log_time_ns,
-                        false,
-                    )?;
-                }
-                // (Points go into OUT only with publish_points: `write_outputs`.)
-                for out in &set.outputs {
-                    if let Some((_, topics)) = config.references.get(out.output) {
-                        write_outputs(&mut self.writer, topics, log_time_ns, &out.messages)?;
-                    }
-                }
-                self.busy += t0.elapsed();
-                if !set.outputs.is_empty() {
-                    self.report.sets_processed += 1;
-                    self.report.depth_maps += set.outputs.len() as u64;
-                }
-                // The live view shows the first reference's outputs.
-                if let (Some(viewer), Some(first)) = (&self.viewer, set.outputs.into_iter().next())
-                {
-                    viewer.offer_owned(first.messages);
-                }
-            }
-            Err(skip) => {
-                self.report.skipped.add(skip.kind.label());
-                self.report.last_skip = Some(skip.to_string());
-                warn(&self.bar, &mut self.seen, &format!("set skipped: {skip}"));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Writes the outputs of one set.
-fn write_outputs(
-    writer: &mut BagWriter,
-    topics: &OutputTopics,
-    log_time_ns: u64,
-    messages: &FrameMessages,
-) -> Result<(), BagError> {
-    for (topic, msg) in messages.with_topics(topics) {
-        writer.write_msg(topic, log_time_ns, &msg)?;
-    }
-    Ok(())
-}
-
 fn progress_bar(total: Option<u64>) -> ProgressBar {
     let bar = match total {
         Some(n) => ProgressBar::with_draw_target(Some(n), ProgressDrawTarget::stderr()),
@@ -416,17 +247,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     };
 
     let fuser = match &fusion {
-        Some(f) => Some({
-            let (fuser, follows_engine) = bag_fuser(f, &host)?;
-            BagFusion {
-                fuser,
-                follows_engine,
-                devices_seen: host.recreated,
-                topic: config.mesh_topic.clone(),
-                period_ns: (f.mesh_rate_hz > 0.0).then(|| (1e9 / f.mesh_rate_hz) as u64),
-                next_ns: 0,
-            }
-        }),
+        Some(f) => Some(bag_fusion_sink(&config, f, &host)?),
         None => None,
     };
     let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
@@ -440,6 +261,8 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         bar: progress_bar(total),
         viewer,
         fuser,
+        sets_ahead: args.sets_ahead,
+        log_times: VecDeque::new(),
     };
     let started = Instant::now();
     let mut last_log_ns = 0u64;
@@ -495,6 +318,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     }
     // The sets the synchroniser held back waiting for later messages that never came.
     sink.outcome(pipeline.finish(), last_log_ns)?;
+    sink.finish_all()?;
     // No depth at all: the first thing the sets lacked, as the live node says it.
     if sink.report.sets_processed == 0 {
         sink.report.no_depth = no_depth(&pipeline, last_log_ns, sink.report.last_skip.as_deref());
@@ -613,6 +437,23 @@ fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline
 
 /// The fuser, on a GPU as `fusion_device` decides beside the engine (`fusion::GpuTsdf`), and
 /// whether that is the engine's device.
+/// The bag's fusion as its sink runs it: the fuser, and when its markers go into OUT.
+fn bag_fusion_sink(
+    config: &PipelineConfig,
+    fusion: &crate::pipeline::FusionConfig,
+    host: &EngineHost,
+) -> Result<BagFusion, BagRunError> {
+    let (fuser, follows_engine) = bag_fuser(fusion, host)?;
+    Ok(BagFusion {
+        fuser,
+        follows_engine,
+        devices_seen: host.recreated,
+        topic: config.mesh_topic.clone(),
+        period_ns: (fusion.mesh_rate_hz > 0.0).then(|| (1e9 / fusion.mesh_rate_hz) as u64),
+        next_ns: 0,
+    })
+}
+
 fn bag_fuser(
     fusion: &crate::pipeline::FusionConfig,
     host: &EngineHost,

@@ -26,6 +26,9 @@ pub struct BagReport {
     /// Topics of the bag the pipeline does not read.
     pub ignored_topics: Vec<String>,
     pub mean_time_per_set: Option<Duration>,
+    /// The most sets on the engine at once: 2 where the WGSL engine ran one set while the host
+    /// finished the one before (`--sets-ahead`), else 1.
+    pub most_in_flight: u64,
     /// Read errors (a truncated or corrupt file: each names the file and byte offset); reading
     /// goes on at the next intact chunk where the file allows.
     pub read_errors: Vec<String>,
@@ -82,6 +85,9 @@ impl BagReport {
             (Some(t), _) => s += &format!("; {:.1} ms per set", t.as_secs_f64() * 1e3),
             (None, Some(why)) => s += &format!("; no set processed: {why}"),
             (None, None) => s += "; no set processed",
+        }
+        if self.most_in_flight > 1 {
+            s += &format!(" ({} sets on the device at once)", self.most_in_flight);
         }
         if let Some(out) = &self.output {
             s += &format!(

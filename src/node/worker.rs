@@ -18,7 +18,7 @@ use crate::handoff::Handoff;
 use crate::msgs::{CameraInfo, Image, PointCloud2, Time};
 use crate::pipeline::{
     EngineHost, FrameMaps, FrameMessages, FuserThread, FusionInput, HostError, Job, Output,
-    OutputMsg, Wanted,
+    OutputMsg, SetOutputs, Wanted,
 };
 use crate::sweep::CancelFlag;
 use crate::viewer::Viewer;
@@ -170,7 +170,7 @@ fn worker_loop(
     live: &LiveParams,
     stats: &Arc<Mutex<Stats>>,
     mut host: EngineHost,
-    outputs: Outputs,
+    mut outputs: Outputs,
     viewer: Option<&Viewer>,
 ) {
     // Fusion on the engine's device follows it to a new one after a loss.
@@ -179,9 +179,8 @@ fn worker_loop(
         host.on_new_device(move |gpu| fusion.follow_device(gpu.clone()));
     }
     let waiting = Arc::clone(slot);
-    let sender = match start_sending(outputs.references, Arc::clone(stats), move || {
-        waiting.dropped()
-    }) {
+    let references = std::mem::take(&mut outputs.references);
+    let sender = match start_sending(references, Arc::clone(stats), move || waiting.dropped()) {
         Ok(sender) => sender,
         Err(e) => {
             tracing::error!("cannot start the sending thread: {e}; nothing will be published");
@@ -189,25 +188,38 @@ fn worker_loop(
         }
     };
     let mut log = RateLimited::default();
-    while let Some(job) = slot.take() {
-        let started = Instant::now();
-        if let Some(image) = job.images.get(job.anchor()) {
-            let stamp = image.header.stamp;
-            tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
+    loop {
+        // A set is waited for only when none is in flight.
+        if host.in_flight() == 0 {
+            let Some(job) = slot.take() else {
+                break;
+            };
+            start_set(&mut host, job, live, viewer, &outputs, &mut log);
         }
-        for name in &job.absent_references {
-            log.warn(&format!("absent-reference {name}"), || {
-                format!("reference camera '{name}' is out of the rig: no depth for it")
-            });
+        // A newer set already waiting goes onto the device before the one in flight is read
+        // back (the WGSL engine): the device runs it while this thread reads the other back.
+        // None waiting: the set in flight is read back at once (no added latency).
+        if host.starts_without_waiting() && host.in_flight() < 2 {
+            if let Some(job) = slot.try_take() {
+                start_set(&mut host, job, live, viewer, &outputs, &mut log);
+            }
         }
-        // Parameter changes apply from the next set on.
-        let sweep = live.sweep();
-        // The outputs with subscribers over DDS or in a live view (the point cloud even when
-        // DDS does not carry it).
-        let wanted = viewer
-            .map_or(Wanted::NONE, Viewer::wanted)
-            .or(outputs.demand.wanted());
-        let set = match host.process(&job, &sweep, wanted) {
+        let Some(finished) = host.finish() else {
+            continue;
+        };
+        let stamp = finished
+            .job
+            .images
+            .get(finished.job.anchor())
+            .map(|i| i.header.stamp);
+        if let Some(stamp) = stamp {
+            tracing::debug!(
+                "finished the set stamped {}.{:09}",
+                stamp.sec,
+                stamp.nanosec
+            );
+        }
+        let set = match finished.result {
             Ok(set) => set,
             // Shutting down: the run was stopped between passes; nobody waits for it.
             Err(_) if host.is_cancelled() => {
@@ -228,61 +240,110 @@ fn worker_loop(
             log_info("shutting down: the set in flight was cancelled");
             break;
         }
-        if !set.skipped.is_empty() {
-            let mut stats = lock(stats);
-            for skip in &set.skipped {
-                stats.skipped.add(skip.kind.label());
-                stats.engine_skip = Some(skip.to_string());
-            }
-        }
-        for skip in &set.skipped {
-            log.warn(&skip.key(), || {
-                format!("{skip}; no depth for it in this set")
-            });
-        }
-        let Some(stamp) = set.outputs.first().map(|o| o.maps.header.stamp) else {
-            continue;
-        };
-        // A copy for the live view (only while a viewer is subscribed; never waits for it):
-        // the first reference's outputs.
-        if let (Some(viewer), Some(first)) = (viewer, set.outputs.first()) {
-            viewer.offer(&first.messages);
-        }
-        {
-            let mut stats = lock(stats);
-            for out in &set.outputs {
-                if let Some(pose) = out.maps.world_from_frame {
-                    let header = &out.maps.header;
-                    stats
-                        .world_poses
-                        .insert(header.frame_id.clone(), (header.stamp, pose));
-                }
-            }
-        }
-        let (maps, messages): (Vec<FrameMaps>, Vec<(usize, FrameMessages)>) = set
-            .outputs
-            .into_iter()
-            .map(|out| (out.maps, (out.output, out.messages)))
-            .unzip();
-        // Fusion takes the depths as floats, moved (never waits: a fusion that falls behind
-        // drops its own oldest waiting set, counted in /diagnostics).
-        if let Some(fusion) = &outputs.fusion {
-            let world = outputs.world_frame.as_deref();
-            fusion.offer(
-                maps.into_iter()
-                    .map(|m| FusionInput::from_maps(m, world))
-                    .collect(),
-            );
-        }
-        // Sent on the sending thread while the next set runs; a set still waiting there is
-        // dropped for this newer one.
-        sender.offer(Outgoing {
-            messages,
-            processing: started.elapsed(),
-            stamp,
-        });
-        lock(stats).send_dropped = sender.dropped();
+        hand_over(
+            set,
+            finished.since,
+            stats,
+            &outputs,
+            viewer,
+            &sender,
+            &mut log,
+        );
     }
+}
+
+/// Starts one set on the engine with the engine parameters and wanted outputs of the moment.
+fn start_set(
+    host: &mut EngineHost,
+    job: Job,
+    live: &LiveParams,
+    viewer: Option<&Viewer>,
+    outputs: &Outputs,
+    log: &mut RateLimited,
+) {
+    if let Some(image) = job.images.get(job.anchor()) {
+        let stamp = image.header.stamp;
+        tracing::debug!("running the set stamped {}.{:09}", stamp.sec, stamp.nanosec);
+    }
+    for name in &job.absent_references {
+        log.warn(&format!("absent-reference {name}"), || {
+            format!("reference camera '{name}' is out of the rig: no depth for it")
+        });
+    }
+    // Parameter changes apply from the next set on.
+    let sweep = live.sweep();
+    // The outputs with subscribers over DDS or in a live view (the point cloud even when
+    // DDS does not carry it).
+    let wanted = viewer
+        .map_or(Wanted::NONE, Viewer::wanted)
+        .or(outputs.demand.wanted());
+    host.start(job, &sweep, wanted);
+}
+
+/// A finished set's outputs: counted, shown, fused and handed to the sending thread.
+fn hand_over(
+    set: SetOutputs,
+    since: Instant,
+    stats: &Arc<Mutex<Stats>>,
+    outputs: &Outputs,
+    viewer: Option<&Viewer>,
+    sender: &Sender<Outgoing>,
+    log: &mut RateLimited,
+) {
+    if !set.skipped.is_empty() {
+        let mut stats = lock(stats);
+        for skip in &set.skipped {
+            stats.skipped.add(skip.kind.label());
+            stats.engine_skip = Some(skip.to_string());
+        }
+    }
+    for skip in &set.skipped {
+        log.warn(&skip.key(), || {
+            format!("{skip}; no depth for it in this set")
+        });
+    }
+    let Some(stamp) = set.outputs.first().map(|o| o.maps.header.stamp) else {
+        return;
+    };
+    // A copy for the live view (only while a viewer is subscribed; never waits for it):
+    // the first reference's outputs.
+    if let (Some(viewer), Some(first)) = (viewer, set.outputs.first()) {
+        viewer.offer(&first.messages);
+    }
+    {
+        let mut stats = lock(stats);
+        for out in &set.outputs {
+            if let Some(pose) = out.maps.world_from_frame {
+                let header = &out.maps.header;
+                stats
+                    .world_poses
+                    .insert(header.frame_id.clone(), (header.stamp, pose));
+            }
+        }
+    }
+    let (maps, messages): (Vec<FrameMaps>, Vec<(usize, FrameMessages)>) = set
+        .outputs
+        .into_iter()
+        .map(|out| (out.maps, (out.output, out.messages)))
+        .unzip();
+    // Fusion takes the depths as floats, moved (never waits: a fusion that falls behind
+    // drops its own oldest waiting set, counted in /diagnostics).
+    if let Some(fusion) = &outputs.fusion {
+        let world = outputs.world_frame.as_deref();
+        fusion.offer(
+            maps.into_iter()
+                .map(|m| FusionInput::from_maps(m, world))
+                .collect(),
+        );
+    }
+    // Sent on the sending thread while the next set runs; a set still waiting there is
+    // dropped for this newer one.
+    sender.offer(Outgoing {
+        messages,
+        processing: since.elapsed(),
+        stamp,
+    });
+    lock(stats).send_dropped = sender.dropped();
 }
 
 /// Publishes one reference's messages on its publishers.

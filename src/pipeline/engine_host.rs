@@ -2,12 +2,14 @@
 //! its device, made anew when the device is lost (a driver reset, a GPU that fell off the bus,
 //! `Device::destroy`).
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::time::Instant;
 
 use super::outcome::{Job, Skip, SkipKind};
-use super::outputs::{process_job, SetOutputs, Wanted};
-use crate::engine::{Device, Engine, EngineError};
+use super::outputs::{finish_job, process_job, start_job, SetOutputs, StartedJob, Wanted};
+use crate::engine::{Device, Engine, EngineError, Sweeper};
 use crate::gpu_context::GpuContext;
 use crate::sweep::{CancelFlag, SweepParams, WantedMaps};
 
@@ -32,6 +34,8 @@ pub struct EngineHost {
     cancel: CancelFlag,
     /// Told each new device (fusion on the engine's device follows it).
     on_new_device: Option<NewDeviceHook>,
+    /// Jobs started and not finished, oldest first ([`EngineHost::start`]).
+    in_flight: VecDeque<InFlight>,
 }
 
 impl EngineHost {
@@ -47,6 +51,7 @@ impl EngineHost {
             recreated: 0,
             cancel: CancelFlag::new(),
             on_new_device: None,
+            in_flight: VecDeque::new(),
         })
     }
 
@@ -97,6 +102,12 @@ impl EngineHost {
         self.engine.gpu()
     }
 
+    /// The WGSL engine's submissions, readbacks, waits and sets in flight since the last
+    /// call (`None` for the CPU engine).
+    pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {
+        self.engine.take_gpu_counts()
+    }
+
     pub fn is_lost(&self) -> bool {
         self.lost.load(Ordering::SeqCst)
     }
@@ -111,28 +122,124 @@ impl EngineHost {
         wanted: Wanted,
     ) -> Result<SetOutputs, Skip> {
         if self.is_cancelled() {
-            return Err(Skip::new(
-                SkipKind::Engine,
-                None,
-                "the engine was cancelled".into(),
-            ));
+            return Err(cancelled());
         }
         if !self.is_lost() {
             self.engine.set_wanted_maps(wanted.maps());
-            match process_job(&mut self.engine, job, sweep, wanted) {
-                Err(skip) if skip.kind == SkipKind::Engine && self.is_lost() => {
-                    tracing::warn!("{skip}");
-                }
-                Ok(set)
-                    if self.is_lost() && set.skipped.iter().any(|s| s.kind == SkipKind::Engine) =>
-                {
-                    for skip in &set.skipped {
-                        tracing::warn!("{skip}");
-                    }
-                }
-                other => return other,
+            let result = process_job(&mut self.engine, job, sweep, wanted);
+            if !self.lost_in(&result) {
+                return result;
             }
         }
+        self.recreate(wanted)?;
+        process_job(&mut self.engine, job, sweep, wanted)
+    }
+
+    /// Whether [`EngineHost::start`] leaves the job's work on the device (the WGSL engine):
+    /// the caller may then start the next job before it finishes this one, and the device
+    /// runs one while the host reads the other back and makes its messages. Otherwise
+    /// `start` runs the job to the end.
+    pub fn starts_without_waiting(&self) -> bool {
+        !self.is_lost() && self.engine.starts_without_waiting()
+    }
+
+    /// Jobs started and not finished.
+    pub fn in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    /// Starts `job` ([`EngineHost::process`] up to its submission to the device); its
+    /// outputs come with [`EngineHost::finish`], in the order the jobs started.
+    pub fn start(&mut self, job: Job, sweep: &SweepParams, wanted: Wanted) {
+        self.start_since(job, sweep, wanted, Instant::now());
+    }
+
+    fn start_since(&mut self, job: Job, sweep: &SweepParams, wanted: Wanted, since: Instant) {
+        let started = if self.is_cancelled() {
+            StartedJob::done(Err(cancelled()))
+        } else if self.is_lost() {
+            StartedJob::done(
+                self.recreate(wanted)
+                    .and_then(|()| process_job(&mut self.engine, &job, sweep, wanted)),
+            )
+        } else {
+            self.engine.set_wanted_maps(wanted.maps());
+            start_job(&mut self.engine, &job, sweep, wanted)
+        };
+        self.in_flight.push_back(InFlight {
+            job,
+            sweep: sweep.clone(),
+            wanted,
+            started,
+            since,
+        });
+    }
+
+    /// The oldest job started and not finished, with its outputs (None: no job in flight).
+    /// When the device was lost under it, the device and engine are made anew, the job runs
+    /// once more, and the jobs started after it are started again on the new device.
+    pub fn finish(&mut self) -> Option<Finished> {
+        let InFlight {
+            job,
+            sweep,
+            wanted,
+            started,
+            since,
+        } = self.in_flight.pop_front()?;
+        let mut result = finish_job(&mut self.engine, started, &job, &sweep, wanted);
+        if self.lost_in(&result) {
+            result = self.process(&job, &sweep, wanted);
+            let later: Vec<InFlight> = self.in_flight.drain(..).collect();
+            for f in later {
+                self.start_since(f.job, &f.sweep, f.wanted, f.since);
+            }
+        }
+        Some(Finished { job, result, since })
+    }
+
+    /// Whether `result` failed for a device lost under it (the failures logged).
+    fn lost_in(&self, result: &Result<SetOutputs, Skip>) -> bool {
+        let failed = match result {
+            Err(skip) => skip.kind == SkipKind::Engine,
+            Ok(set) => set.skipped.iter().any(|s| s.kind == SkipKind::Engine),
+        };
+        if !failed {
+            return false;
+        }
+        // A destroyed device says it is lost at the first poll that finds its queue empty (a
+        // later set may still be on it): waited for, a few seconds at most.
+        if let (false, Some(gpu)) = (self.is_lost(), self.engine.gpu()) {
+            let mut slices = 0;
+            let slice = std::time::Duration::from_millis(100);
+            let _ = crate::gpu_context::wait_for_device(&gpu.device, slice, || {
+                slices += 1;
+                if slices < 100 {
+                    Ok(())
+                } else {
+                    Err(())
+                }
+            });
+        }
+        if !self.is_lost() {
+            return false;
+        }
+        match result {
+            Err(skip) if skip.kind == SkipKind::Engine => {
+                tracing::warn!("{skip}");
+                true
+            }
+            Ok(set) if set.skipped.iter().any(|s| s.kind == SkipKind::Engine) => {
+                for skip in &set.skipped {
+                    tracing::warn!("{skip}");
+                }
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// A new device and engine after a loss (told to `on_new_device`).
+    fn recreate(&mut self, wanted: Wanted) -> Result<(), Skip> {
         tracing::warn!("the GPU device was lost: recreating the device and the engine");
         let mut engine = GpuContext::new()
             .map_err(EngineError::from)
@@ -153,6 +260,28 @@ impl EngineHost {
         if let (Some(hook), Some(gpu)) = (self.on_new_device.as_mut(), self.engine.gpu()) {
             hook(gpu);
         }
-        process_job(&mut self.engine, job, sweep, wanted)
+        Ok(())
     }
+}
+
+/// A job that was cancelled.
+fn cancelled() -> Skip {
+    Skip::new(SkipKind::Engine, None, "the engine was cancelled".into())
+}
+
+/// A job started by [`EngineHost::start`] and not finished.
+struct InFlight {
+    job: Job,
+    sweep: SweepParams,
+    wanted: Wanted,
+    started: StartedJob,
+    since: Instant,
+}
+
+/// A job [`EngineHost::finish`] finished: the job, its outputs (or why none), and when it
+/// started.
+pub struct Finished {
+    pub job: Job,
+    pub result: Result<SetOutputs, Skip>,
+    pub since: Instant,
 }

@@ -43,7 +43,7 @@ pub use config::{
 };
 pub use counts::{Counts, SkipCounts};
 pub use depth_in::{DepthSkip, DepthSources};
-pub use engine_host::{EngineHost, HostError};
+pub use engine_host::{EngineHost, Finished, HostError};
 pub use fuser::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fuser_thread::{FuserThread, FusionStats};
 pub use fusion_device::{fusion_gpu, FusionHost, FusionPlacement};

@@ -7,11 +7,12 @@ use super::out_messages::{
     depth_and_confidence_msgs, f32_image_msg, point_cloud_msg, selection_msg,
 };
 use super::outcome::{Job, JobReference, Skip, SkipKind, VirtualCamera};
-use crate::engine::Sweeper;
+use crate::engine::{StartedSet, Sweeper};
 use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
 use crate::image::{CameraImage, ImageF32, Rgba8Image, SetImages};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
+use crate::sweep::references::ReferenceDepth;
 use crate::sweep::{DepthMaps, SweepError, SweepParams, WantedMaps};
 use std::sync::Arc;
 
@@ -169,6 +170,41 @@ pub fn process_job(
     sweep: &SweepParams,
     wanted: Wanted,
 ) -> Result<SetOutputs, Skip> {
+    let started = start_job(engine, job, sweep, wanted);
+    finish_job(engine, started, job, sweep, wanted)
+}
+
+/// A job [`start_job`] started, for [`finish_job`].
+pub struct StartedJob(Started);
+
+impl StartedJob {
+    /// A job run to the end already, or that could not start.
+    pub fn done(result: Result<SetOutputs, Skip>) -> Self {
+        Self(Started::Done(result))
+    }
+}
+
+enum Started {
+    /// Run to the end already (the CPU engine, a virtual camera, images that cannot be read).
+    Done(Result<SetOutputs, Skip>),
+    /// Its references started on an engine that unpacks on the device
+    /// ([`Sweeper::start_references_set`]), with the images it took converted.
+    Engine {
+        converted: Vec<Option<Rgba8Image>>,
+        started: StartedSet,
+    },
+}
+
+/// [`process_job`] up to the engine's start of the set: on an engine that starts without
+/// waiting ([`Sweeper::starts_without_waiting`]), the set is on the device when this returns
+/// and the caller may start the next before it finishes this one with [`finish_job`] (jobs
+/// finish in the order they started, each with the same job, parameters and outputs).
+pub fn start_job(
+    engine: &mut impl Sweeper,
+    job: &Job,
+    sweep: &SweepParams,
+    wanted: Wanted,
+) -> StartedJob {
     let name = |i| camera_name(job, i);
     let packed = |i| packed_image(job, i);
     let first_virtual = job
@@ -176,38 +212,80 @@ pub fn process_job(
         .first()
         .and_then(|r| Some((r, r.virtual_camera.as_ref()?)));
     if let Some((first, virtual_camera)) = first_virtual {
-        return virtual_outputs(engine, job, (first, virtual_camera), sweep, wanted);
+        let done = virtual_outputs(engine, job, (first, virtual_camera), sweep, wanted);
+        return StartedJob(Started::Done(done));
     }
     let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
-    // The images go on to the outputs (colour for points and fusion) without a copy. An
-    // engine that unpacks on the device takes the bytes of every camera whose encoding it
-    // unpacks as they came (no conversion here, fewer bytes to upload); the references'
-    // colour is converted on rayon's threads meanwhile, while this one waits for the device.
-    let (results, images) = if engine.unpacks_on_device() {
-        let converted = some_to_rgba8(&job.images, name, |i| packed(i).is_none());
-        let converted = converted.map_err(image_skip)?;
-        let cameras = engine_images(&converted, packed);
-        let set = SetImages::Cameras {
-            set: &cameras,
-            picked: None,
-        };
-        let colour_of = |i: usize| indices.contains(&i) && packed(i).is_some();
-        let mut colour = Ok(Vec::new());
-        let results = rayon::in_place_scope(|scope| {
-            scope.spawn(|_| colour = some_to_rgba8(&job.images, name, colour_of));
-            engine.run_references_set(&job.cameras, set, &indices, sweep)
-        });
-        drop(cameras);
-        let mut colour = colour.map_err(image_skip)?;
-        let mut colour = |i: usize| colour.get_mut(i).and_then(Option::take);
-        let images = converted.into_iter().enumerate();
-        let images: Vec<_> = images.map(|(i, c)| c.or_else(|| colour(i))).collect();
-        (results, images)
-    } else {
-        let images = set_to_rgba8(&job.images, name).map_err(image_skip)?;
-        let results = engine.run_references(&job.cameras, &images, &indices, sweep);
-        (results, images.into_iter().map(Some).collect())
+    if !engine.unpacks_on_device() {
+        let done = set_to_rgba8(&job.images, name)
+            .map_err(image_skip)
+            .map(|images| {
+                let results = engine.run_references(&job.cameras, &images, &indices, sweep);
+                let images = images.into_iter().map(Some).collect();
+                job_outputs(job, results, images, wanted)
+            });
+        return StartedJob(Started::Done(done));
+    }
+    // An engine that unpacks on the device takes the bytes of every camera whose encoding it
+    // unpacks as they came (no conversion here, fewer bytes to upload).
+    let converted = match some_to_rgba8(&job.images, name, |i| packed(i).is_none()) {
+        Ok(converted) => converted,
+        Err(e) => return StartedJob(Started::Done(Err(image_skip(e)))),
     };
+    let cameras = engine_images(&converted, packed);
+    let set = SetImages::Cameras {
+        set: &cameras,
+        picked: None,
+    };
+    let started = engine.start_references_set(&job.cameras, set, &indices, sweep);
+    drop(cameras);
+    StartedJob(Started::Engine { converted, started })
+}
+
+/// The outputs of a job [`start_job`] started: the engine's results read back while the
+/// references' colour is converted on rayon's threads, then each reference's messages.
+pub fn finish_job(
+    engine: &mut impl Sweeper,
+    started: StartedJob,
+    job: &Job,
+    sweep: &SweepParams,
+    wanted: Wanted,
+) -> Result<SetOutputs, Skip> {
+    let (converted, started) = match started.0 {
+        Started::Done(done) => return done,
+        Started::Engine { converted, started } => (converted, started),
+    };
+    let name = |i| camera_name(job, i);
+    let packed = |i| packed_image(job, i);
+    let indices: Vec<usize> = job.references.iter().map(|r| r.index).collect();
+    // The images go on to the outputs (colour for points and fusion) without a copy.
+    let cameras = engine_images(&converted, packed);
+    let set = SetImages::Cameras {
+        set: &cameras,
+        picked: None,
+    };
+    let colour_of = |i: usize| indices.contains(&i) && packed(i).is_some();
+    let mut colour = Ok(Vec::new());
+    let results = rayon::in_place_scope(|scope| {
+        scope.spawn(|_| colour = some_to_rgba8(&job.images, name, colour_of));
+        engine.finish_references_set(started, set, sweep)
+    });
+    drop(cameras);
+    let mut colour = colour.map_err(image_skip)?;
+    let mut colour = |i: usize| colour.get_mut(i).and_then(Option::take);
+    let images = converted.into_iter().enumerate();
+    let images: Vec<_> = images.map(|(i, c)| c.or_else(|| colour(i))).collect();
+    Ok(job_outputs(job, results, images, wanted))
+}
+
+/// Each reference's outputs from the engine's `results` (in the job's order of references)
+/// and the set's `images` (colour for points and fusion).
+fn job_outputs(
+    job: &Job,
+    results: Vec<Result<ReferenceDepth, SweepError>>,
+    images: Vec<Option<Rgba8Image>>,
+    wanted: Wanted,
+) -> SetOutputs {
     let baselines: Vec<f64> = results
         .iter()
         .map(|r| {
@@ -268,7 +346,7 @@ pub fn process_job(
         outputs.maps.baseline_ratio = (largest > 0.0).then_some((baseline / largest) as f32);
         set.outputs.push(outputs);
     }
-    Ok(set)
+    set
 }
 
 /// [`process_job`] of a virtual camera (the job's first reference's): one sweep of every

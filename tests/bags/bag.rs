@@ -974,3 +974,51 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
         "{gpu} vertices on the GPU against {cpu} on the CPU"
     );
 }
+
+/// On the WGSL engine `bag` keeps the next set on the device while it reads one back and
+/// writes it: the summary says two sets were on the device at once, and the output bag is the
+/// one written with each set read back before the next is submitted (`--sets-ahead 0`),
+/// message for message, in the same order, to the byte (three references per set).
+#[test]
+fn sets_ahead_on_the_wgsl_engine_write_the_same_bag() {
+    let dir = scratch("sets_ahead");
+    let refs = ["-p", "device:=gpu", "-p", "references:=[cam1, cam2, cam3]"];
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let args: Vec<&str> = refs.iter().chain(extra).copied().collect();
+        let stderr = run_bag(&fixture(), &out, &args);
+        assert!(
+            stderr.contains(
+                "3 frame sets found, 3 processed, 0 incomplete, 0 skipped (9 depth maps)"
+            ),
+            "{name}: {stderr}"
+        );
+        let written: Vec<(String, u64, Vec<u8>)> = messages(&out)
+            .into_iter()
+            .map(|m| (m.topic, m.log_time_ns, m.data))
+            .collect();
+        (stderr, written)
+    };
+    let (ahead_log, ahead) = run("ahead", &[]);
+    let (serial_log, serial) = run("serial", &["--sets-ahead", "0"]);
+    assert!(
+        ahead_log.contains("(2 sets on the device at once)"),
+        "{ahead_log}"
+    );
+    assert!(
+        !serial_log.contains("on the device at once"),
+        "{serial_log}"
+    );
+    assert_eq!(ahead.len(), serial.len());
+    assert!(ahead.len() >= 9, "{} messages", ahead.len());
+    for (i, (a, s)) in ahead.iter().zip(&serial).enumerate() {
+        assert!(
+            a.0 == s.0 && a.1 == s.1 && a.2 == s.2,
+            "message {i}: {} at {} against {} at {}",
+            a.0,
+            a.1,
+            s.0,
+            s.1
+        );
+    }
+}

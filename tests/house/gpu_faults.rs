@@ -425,3 +425,60 @@ fn the_wgsl_engine_takes_the_messages_bytes_and_gives_the_same_outputs() {
     }
     assert_eq!(virtual_job.references.len(), 1);
 }
+
+/// Sets started one after the other on the WGSL engine (`EngineHost::start`, as `bag` and the
+/// node's GPU thread keep the next set on the device while the host finishes the one before)
+/// are all on the device before the first is read back, and each finishes, in order, with the
+/// outputs it has alone, to the bit: one reference, three references of the same images, one
+/// reference again. A device lost with two sets on it is made anew and both sets still come
+/// out whole, in order.
+#[test]
+fn sets_started_ahead_finish_in_order_with_their_own_outputs_even_after_a_lost_device() {
+    let (config, one) = fixture();
+    let (three_config, three) = fixture_with(&["-p", "references:=[cam1, cam2, cam3]"]);
+    assert_eq!((one.references.len(), three.references.len()), (1, 3));
+    let wanted = Wanted::all(true);
+    let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
+    assert!(host.starts_without_waiting());
+    let alone_one = host.process(&one, &config.sweep, wanted).expect("alone");
+    let alone_three = host
+        .process(&three, &three_config.sweep, wanted)
+        .expect("alone");
+    let depths = |set: &sweepdepth::pipeline::SetOutputs| -> Vec<Vec<u8>> {
+        assert!(set.skipped.is_empty(), "{:?}", set.skipped);
+        set.outputs
+            .iter()
+            .map(|o| o.messages.depth.data.clone())
+            .collect()
+    };
+    let (alone_one, alone_three) = (depths(&alone_one), depths(&alone_three));
+    assert_eq!((alone_one.len(), alone_three.len()), (1, 3));
+    assert_ne!(
+        alone_three[0], alone_three[1],
+        "each reference its own depth"
+    );
+    host.take_gpu_counts();
+    host.start(one.clone(), &config.sweep, wanted);
+    host.start(three.clone(), &three_config.sweep, wanted);
+    host.start(one.clone(), &config.sweep, wanted);
+    assert_eq!(host.in_flight(), 3);
+    let expected = [&alone_one, &alone_three, &alone_one];
+    for (i, expected) in expected.into_iter().enumerate() {
+        let finished = host.finish().expect("a set in flight");
+        let set = finished.result.expect("the set");
+        assert!(depths(&set) == *expected, "set {i}: its own outputs");
+    }
+    assert!(host.finish().is_none(), "nothing left in flight");
+    let counts = host.take_gpu_counts().expect("the WGSL engine");
+    // Five references on the device before the first was read back.
+    assert_eq!(counts.most_in_flight, 5, "{counts:?}");
+    // A device lost under two sets in flight.
+    host.start(three.clone(), &three_config.sweep, wanted);
+    host.start(one.clone(), &config.sweep, wanted);
+    host.device().expect("a device").destroy();
+    let first = host.finish().expect("in flight").result.expect("rerun");
+    let second = host.finish().expect("in flight").result.expect("rerun");
+    assert_eq!(host.recreated, 1);
+    assert!(depths(&first) == alone_three && depths(&second) == alone_one);
+    assert!(host.finish().is_none());
+}

@@ -302,10 +302,13 @@ impl GpuEngine {
         })
     }
 
-    /// Drops the sets submitted ahead and not collected (a run that stopped on an error).
-    pub fn drop_submitted(&mut self) {
-        self.deferred.sets.clear();
-        self.deferred.in_flight = 0;
+    /// Drops the `count` oldest sets submitted ahead and not collected (a set whose run was
+    /// cancelled part way); the sets submitted after them stay.
+    pub fn drop_oldest_submitted(&mut self, count: usize) {
+        let count = count.min(self.deferred.sets.len());
+        self.deferred.sets.drain(..count);
+        let count = u32::try_from(count).unwrap_or(u32::MAX);
+        self.deferred.in_flight = self.deferred.in_flight.saturating_sub(count);
     }
 
     /// Records the last level of a frame set: read back now, or (sets submitted ahead)
