@@ -105,6 +105,10 @@ else
     # Depth and confidence read back alone (the node while nobody subscribes to cost and
     # selection): half the readback.
     step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
+    # Sets back to back with the next on the device while one is read back (`bag` and the
+    # node under load) against each set alone, alternated twice: ms per set of the stream
+    # (the host's share hidden behind the device's) against one set's start to end.
+    step bench-gpu-sets-ahead 150 sh -c "for r in 1 2; do \"$bin\" bench --device gpu --config ring --config sxga --repeats 9 --sets-ahead 1; \"$bin\" bench --device gpu --config ring --config sxga --repeats 9; done"
 fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).

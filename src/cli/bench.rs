@@ -30,6 +30,7 @@ mod configs;
 pub mod decode;
 pub mod fusion;
 pub mod messages;
+mod streamed;
 
 pub use configs::{BenchConfig, PeerKind, Workload, CONFIGS};
 
@@ -82,6 +83,11 @@ pub struct BenchArgs {
     /// every reference submitted before the first is read back), to compare the two on a GPU.
     #[arg(long)]
     pub serial_references: bool,
+    /// The timed sets back to back with N sets left on the WGSL engine's device while the one
+    /// before is read back (as `bag` runs them): ms per set of the stream (default 0: each set
+    /// alone, start to end).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub sets_ahead: usize,
     /// The WGSL engine reads back depth and confidence alone, as for the node while nobody
     /// subscribes to its cost and selection images (default: those too, as `bag` writes them).
     #[arg(long)]
@@ -261,7 +267,7 @@ fn time_runs(
     images: &[Rgba8Image],
     params: &SweepParams,
     references: &[usize],
-    repeats: usize,
+    (repeats, ahead): (usize, usize),
 ) -> Result<Timed, crate::sweep::SweepError> {
     let run = |engine: &mut Engine| -> Result<(), crate::sweep::SweepError> {
         if references.is_empty() {
@@ -291,9 +297,38 @@ fn time_runs(
     }
     let mut frame_ms = Vec::with_capacity(repeats);
     let mut stage_ms: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut add_stages = |stages: &[(String, f64)]| {
+        for (name, ms) in stages {
+            match stage_ms.iter_mut().find(|(n, _)| n == name) {
+                Some((_, v)) => v.push(*ms),
+                None => stage_ms.push((name.clone(), vec![*ms])),
+            }
+        }
+    };
     let (mut host_ms, mut wait_ms, mut submit_ms) = (Vec::new(), Vec::new(), Vec::new());
     let mut last_counts = None;
-    for _ in 0..repeats.max(1) {
+    let stream = match ahead {
+        0 => None,
+        _ => streamed::run_stream(engine, rig, images, params, references, repeats, ahead)?,
+    };
+    if let Some(stream) = stream {
+        frame_ms.push(stream.ms_per_set);
+        if let Some(counts) = stream.counts {
+            // The stream's work per set.
+            let counts = streamed::per_set(counts, repeats.max(1));
+            host_ms.push(counts.host_ms);
+            wait_ms.push(counts.wait_ms);
+            submit_ms.push(counts.submit_ms);
+            last_counts = Some(counts);
+        }
+        stream.stages.iter().for_each(|s| add_stages(s));
+    }
+    let serial = if frame_ms.is_empty() {
+        repeats.max(1)
+    } else {
+        0
+    };
+    for _ in 0..serial {
         engine.take_gpu_counts();
         let started = Instant::now();
         run(engine)?;
@@ -304,12 +339,7 @@ fn time_runs(
             submit_ms.push(counts.submit_ms);
             last_counts = Some(counts);
         }
-        for (name, ms) in &engine.last_timings().stages {
-            match stage_ms.iter_mut().find(|(n, _)| n == name) {
-                Some((_, v)) => v.push(*ms),
-                None => stage_ms.push((name.clone(), vec![*ms])),
-            }
-        }
+        add_stages(&engine.last_timings().stages);
     }
     let mut stages = serde_json::Map::new();
     for (name, values) in stage_ms {
@@ -381,7 +411,7 @@ pub fn run_config(
     engine: &mut Engine,
     config: &BenchConfig,
     overrides: &EngineOptions,
-    repeats: usize,
+    (repeats, sets_ahead): (usize, usize),
 ) -> anyhow::Result<BenchResult> {
     let (rig, images, base) = workload(config)?;
     let params_for = |optimizer| match &base {
@@ -397,7 +427,8 @@ pub fn run_config(
     let mut notes = Vec::new();
     let mut column = |optimizer: Optimizer| -> anyhow::Result<_> {
         let params = params_for(optimizer);
-        match time_runs(engine, &rig, &images, &params, config.references, repeats) {
+        let runs = (repeats, sets_ahead);
+        match time_runs(engine, &rig, &images, &params, config.references, runs) {
             Ok((ms, stages, host)) => Ok((Some(round3(ms)), stages, host)),
             // A volume too large for the adapter is a result, not a failure of the bench.
             Err(crate::sweep::SweepError::InvalidParams(reason)) => {
@@ -572,7 +603,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let mut nine_camera: Vec<(String, Option<f64>, Option<f64>)> = Vec::new();
     for engine in &mut engines {
         for config in &configs {
-            let mut result = run_config(engine, config, &args.params, repeats)
+            let mut result = run_config(engine, config, &args.params, (repeats, args.sets_ahead))
                 .with_context(|| format!("{} on {}", config.name, engine.label()))?;
             if config.peer != PeerKind::Tsukuba {
                 // Its own peer, just before (timed here, after the engine: the same machine
