@@ -619,6 +619,16 @@ impl Engine {
         }
     }
 
+    /// Whether the oldest set started and not finished is done on the device
+    /// (`GpuEngine::oldest_submitted_done`; always for the CPU engine, which runs a set when
+    /// it starts it).
+    pub fn oldest_done(&self) -> bool {
+        match self {
+            Self::Gpu { engine, .. } => engine.oldest_submitted_done(),
+            Self::Cpu(_) => true,
+        }
+    }
+
     /// Per-stage times of the last frame set (GPU timestamps, or the CPU clock).
     pub fn last_timings(&self) -> &StageTimings {
         match self {

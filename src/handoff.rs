@@ -75,6 +75,36 @@ impl<T> Handoff<T> {
         }
     }
 
+    /// [`Handoff::take`] that waits at most `limit`: None when nothing came in time or the
+    /// hand-over is closed ([`Handoff::is_closed`] says which).
+    pub fn take_timeout(&self, limit: std::time::Duration) -> Option<T> {
+        let deadline = std::time::Instant::now() + limit;
+        let mut state = self.lock();
+        loop {
+            if state.closed {
+                state.pending = None;
+                return None;
+            }
+            if let Some(item) = state.pending.take() {
+                return Some(item);
+            }
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return None;
+            }
+            state = self
+                .ready
+                .wait_timeout(state, left)
+                .map(|(state, _)| state)
+                .unwrap_or_else(|e| e.into_inner().0);
+        }
+    }
+
+    /// Whether [`Handoff::close`] was called.
+    pub fn is_closed(&self) -> bool {
+        self.lock().closed
+    }
+
     /// The pending item if there is one, without waiting; None once closed.
     pub fn try_take(&self) -> Option<T> {
         let mut state = self.lock();
@@ -148,5 +178,24 @@ mod tests {
         h.offer(3);
         h.close();
         assert_eq!(h.try_take(), None);
+    }
+
+    /// `take_timeout` gives an item offered while it waits, and None after its limit or once
+    /// closed (waiting no longer than needed for a close: the generous limit is never reached).
+    #[test]
+    fn take_timeout_gives_what_comes_in_time() {
+        use std::time::Duration;
+        let h = Arc::new(Handoff::new());
+        assert_eq!(h.take_timeout(Duration::from_millis(1)), None);
+        assert!(!h.is_closed());
+        let h2 = Arc::clone(&h);
+        let waiter = std::thread::spawn(move || h2.take_timeout(Duration::from_secs(600)));
+        h.offer(7);
+        assert_eq!(waiter.join().unwrap(), Some(7));
+        let h2 = Arc::clone(&h);
+        let waiter = std::thread::spawn(move || h2.take_timeout(Duration::from_secs(600)));
+        h.close();
+        assert_eq!(waiter.join().unwrap(), None);
+        assert!(h.is_closed());
     }
 }

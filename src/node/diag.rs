@@ -46,6 +46,9 @@ pub struct Stats {
     pub engine_skip: Option<String>,
     /// The outputs made on demand (`super::demand`) in the last set published.
     pub made_on_demand: crate::pipeline::Wanted,
+    /// The most sets on the engine at once: 2 where a set came while the one before was on
+    /// the WGSL engine's device and went onto it too.
+    pub most_in_flight: usize,
 }
 
 impl Stats {
@@ -67,6 +70,7 @@ impl Stats {
             why: None,
             engine_skip: None,
             made_on_demand: crate::pipeline::Wanted::NONE,
+            most_in_flight: 0,
         }
     }
 
@@ -199,6 +203,10 @@ impl Stats {
                 .map_or("n/a".to_string(), |l| format!("{l:.3}")),
         );
         kv("gpu adapter".into(), adapter.to_string());
+        kv(
+            "gpu sets in flight (most)".into(),
+            self.most_in_flight.to_string(),
+        );
         kv(
             "outputs made on demand".into(),
             self.made_on_demand.describe(),

@@ -122,6 +122,9 @@ pub(super) fn spawn(
     })
 }
 
+/// How often the GPU thread looks for a new set while the set in flight is on the device.
+const NEXT_SET_POLL: Duration = Duration::from_millis(1);
+
 /// One set's messages on their way to the sending thread.
 struct Outgoing {
     messages: Vec<(usize, FrameMessages)>,
@@ -195,13 +198,20 @@ fn worker_loop(
                 break;
             };
             start_set(&mut host, job, live, viewer, &outputs, &mut log);
+            let mut stats = lock(stats);
+            stats.most_in_flight = stats.most_in_flight.max(host.in_flight());
         }
-        // A newer set already waiting goes onto the device before the one in flight is read
-        // back (the WGSL engine): the device runs it while this thread reads the other back.
-        // None waiting: the set in flight is read back at once (no added latency).
-        if host.starts_without_waiting() && host.in_flight() < 2 {
-            if let Some(job) = slot.try_take() {
+        // While the set in flight is still on the device (the WGSL engine), a set that comes
+        // goes onto the device too: the device runs it while this thread reads the other back.
+        // The one in flight is read back within a millisecond of being done (no set waits
+        // longer for its outputs).
+        while host.starts_without_waiting() && host.in_flight() < 2 && !host.oldest_done() {
+            if let Some(job) = slot.take_timeout(NEXT_SET_POLL) {
                 start_set(&mut host, job, live, viewer, &outputs, &mut log);
+                let mut stats = lock(stats);
+                stats.most_in_flight = stats.most_in_flight.max(host.in_flight());
+            } else if slot.is_closed() || host.is_cancelled() {
+                break;
             }
         }
         let Some(finished) = host.finish() else {

@@ -143,6 +143,12 @@ impl EngineHost {
         !self.is_lost() && self.engine.starts_without_waiting()
     }
 
+    /// Whether [`EngineHost::finish`] would find the oldest job's work done on the device (no
+    /// wait for it); true with none in flight.
+    pub fn oldest_done(&self) -> bool {
+        self.in_flight.is_empty() || self.is_lost() || self.engine.oldest_done()
+    }
+
     /// Jobs started and not finished.
     pub fn in_flight(&self) -> usize {
         self.in_flight.len()

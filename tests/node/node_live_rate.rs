@@ -9,6 +9,11 @@
 //! set. The share of sets answered is printed, not asserted: `scripts/live_rate.sh` runs this
 //! test on a release build with more sets to measure it (docs/speed.md).
 //!
+//! The same on the WGSL engine (lavapipe here) with a smaller rig played faster than the
+//! engine runs it: a set that comes while the one before is still on the device goes onto the
+//! device too (`/diagnostics`: `gpu sets in flight (most)` 2), and every depth is still
+//! correct, newer than the last, the last set answered and every set accounted for.
+//!
 //! SAFETY: no DDS packet may leave the machine; see tests/common/netns.rs.
 
 use std::time::{Duration, Instant};
@@ -21,25 +26,68 @@ use sweepdepth::msgs::{DiagnosticStatus, Image, Time};
 use sweepdepth::synthetic::{self, Scene};
 
 const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
-const DOMAIN: u16 = 47;
-const WIDTH: u32 = 450;
-const HEIGHT: u32 = 375;
-const CAMERAS: usize = 9;
-/// The reference is the middle camera of the row.
-const REFERENCE: usize = 4;
-const PLANES: &str = "num_planes:=57";
-/// The player's period: 2 Hz.
-const PERIOD: Duration = Duration::from_millis(500);
 /// Wall and box depths of the scene, metres.
 const WALL_M: f32 = 2.0;
 const BOX_M: f32 = 1.2;
 
+/// A rig played live: its row of cameras (the reference in the middle), planes, the player's
+/// period, and the node's device.
+struct Live {
+    domain: u16,
+    width: u32,
+    height: u32,
+    cameras: usize,
+    planes: u32,
+    period: Duration,
+    /// Sets played after the warm-up (`SWEEPDEPTH_LIVE_SETS` overrides it).
+    sets: u32,
+    gpu: bool,
+}
+
+impl Live {
+    fn reference(&self) -> usize {
+        self.cameras / 2
+    }
+}
+
+/// The 9-camera rig at 2 Hz on the default device.
+const NINE_AT_2_HZ: Live = Live {
+    domain: 47,
+    width: 450,
+    height: 375,
+    cameras: 9,
+    planes: 57,
+    period: Duration::from_millis(500),
+    sets: 8,
+    gpu: false,
+};
+
+/// Five cameras at 50 Hz on the WGSL engine: faster than lavapipe (or any GPU this test meets)
+/// runs a set, so that sets come while the one before is on the device.
+const FIVE_AT_50_HZ_ON_THE_WGSL_ENGINE: Live = Live {
+    domain: 48,
+    width: 320,
+    height: 240,
+    cameras: 5,
+    planes: 32,
+    period: Duration::from_millis(20),
+    sets: 20,
+    gpu: true,
+};
+
 #[test]
 fn node_live_9_cameras_at_2_hz() {
+    in_private_netns(INNER, "node_live_rate::node_live_9_cameras_at_2_hz", || {
+        live_rate(&NINE_AT_2_HZ)
+    });
+}
+
+#[test]
+fn node_live_on_the_wgsl_engine_puts_a_set_that_comes_onto_the_device_beside_the_one_before() {
     in_private_netns(
         INNER,
-        "node_live_rate::node_live_9_cameras_at_2_hz",
-        live_rate,
+        "node_live_rate::node_live_on_the_wgsl_engine_puts_a_set_that_comes_onto_the_device_beside_the_one_before",
+        || live_rate(&FIVE_AT_50_HZ_ON_THE_WGSL_ENGINE),
     );
 }
 
@@ -50,24 +98,24 @@ fn stamp_of(k: u32) -> Time {
     }
 }
 
-/// How many sets are played after the warm-up: `SWEEPDEPTH_LIVE_SETS`, default 8.
-fn played_sets() -> u32 {
+/// How many sets are played after the warm-up: `SWEEPDEPTH_LIVE_SETS`, else `default`.
+fn played_sets(default: u32) -> u32 {
     std::env::var("SWEEPDEPTH_LIVE_SETS")
         .ok()
         .and_then(|s| s.parse().ok())
         .filter(|&n: &u32| n >= 2)
-        .unwrap_or(8)
+        .unwrap_or(default)
 }
 
 /// Several references per set (issue 27): `SWEEPDEPTH_LIVE_REFERENCES=cam1,cam4,cam7` (cam4,
 /// the middle camera, among them: its depth is the one checked) and
 /// `SWEEPDEPTH_LIVE_MAX_NEIGHBOURS`; unset, the middle camera alone.
-fn references() -> Option<(String, Option<String>)> {
+fn references(reference: usize) -> Option<(String, Option<String>)> {
     let list = std::env::var("SWEEPDEPTH_LIVE_REFERENCES").ok()?;
     let names: Vec<&str> = list.split(',').map(str::trim).collect();
     assert!(
-        names.contains(&format!("cam{REFERENCE}").as_str()),
-        "SWEEPDEPTH_LIVE_REFERENCES must hold cam{REFERENCE}: {list}"
+        names.contains(&format!("cam{reference}").as_str()),
+        "SWEEPDEPTH_LIVE_REFERENCES must hold cam{reference}: {list}"
     );
     let max = std::env::var("SWEEPDEPTH_LIVE_MAX_NEIGHBOURS")
         .ok()
@@ -75,32 +123,34 @@ fn references() -> Option<(String, Option<String>)> {
     Some((format!("references:=[{}]", names.join(", ")), max))
 }
 
-fn live_rate() {
-    let focal_px = synthetic::intrinsics(WIDTH, HEIGHT).fx_px;
+fn live_rate(live: &Live) {
+    let (width, height, reference) = (live.width, live.height, live.reference());
+    let focal_px = synthetic::intrinsics(width, height).fx_px;
     let scene = Scene::wall_and_box(f64::from(WALL_M), Some((f64::from(BOX_M), 0.25)), focal_px);
-    let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
-    let rig = synthetic::row_rig(CAMERAS, 0.08, model, REFERENCE).expect("rig");
+    let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
+    let rig = synthetic::row_rig(live.cameras, 0.08, model, reference).expect("rig");
     let images = synthetic::render_rig(&scene, &rig);
     let truth = synthetic::reference_depth(&scene, &rig);
     let cameras = format!(
         "cameras:=[{}]",
-        (0..CAMERAS)
+        (0..live.cameras)
             .map(|i| format!("cam{i}"))
             .collect::<Vec<_>>()
             .join(", ")
     );
-    let reference = format!("reference_camera:=cam{REFERENCE}");
+    let reference_param = format!("reference_camera:=cam{reference}");
+    let planes = format!("num_planes:={}", live.planes);
     let args = [
         "-p",
         &cameras,
         "-p",
-        &reference,
+        &reference_param,
         "-p",
         "min_depth:=1.0",
         "-p",
         "max_depth:=4.0",
         "-p",
-        PLANES,
+        &planes,
         "-p",
         "camera_timeout:=0.0",
         "-p",
@@ -111,6 +161,9 @@ fn live_rate() {
         "output_qos_depth:=50",
     ];
     let mut args: Vec<&str> = args.to_vec();
+    if live.gpu {
+        args.extend(["-p", "device:=gpu"]);
+    }
     // Live fusion beside the engine (issue 28): `SWEEPDEPTH_LIVE_FUSION=<voxel size, m>`.
     let fusion = std::env::var("SWEEPDEPTH_LIVE_FUSION")
         .ok()
@@ -119,7 +172,7 @@ fn live_rate() {
         args.extend(["-p", "fusion:=true", "-p", voxel]);
         eprintln!("live rate with fusion:=true {voxel}");
     }
-    let several = references();
+    let several = references(reference);
     let depth_topic = match &several {
         Some((list, max)) => {
             args.extend(["-p", list]);
@@ -127,16 +180,16 @@ fn live_rate() {
                 args.extend(["-p", max]);
             }
             eprintln!("live rate with {list} {}", max.as_deref().unwrap_or(""));
-            format!("/cam{REFERENCE}/depth/image")
+            format!("/cam{reference}/depth/image")
         }
         None => "/depth/image".to_string(),
     };
-    let mut node = NodeProcess::start(DOMAIN, &args);
-    let mut peer = Peer::new(DOMAIN, "sweepdepth_live_player");
+    let mut node = NodeProcess::start(live.domain, &args);
+    let mut peer = Peer::new(live.domain, "sweepdepth_live_player");
     let feed = RigFeed::new(&mut peer, rig, &images, &dds::reliable(10), None);
     let depth_sub = peer.subscription::<Image>(&depth_topic, dds::IMAGE, &dds::reliable(50));
     let mut diag = Diagnostics::new(&mut peer);
-    let same = |k: u32| [stamp_of(k); CAMERAS];
+    let same = |k: u32| vec![stamp_of(k); live.cameras];
 
     // Warm-up: sets until one is answered, then the depth of the last one sent (the node is
     // idle after it: each camera's images arrive in order).
@@ -168,13 +221,13 @@ fn live_rate() {
     let before = diag.wait_after(dds::wall_time_now(), &mut node);
     depths.clear();
 
-    // The live run: sets at 2 Hz on the player's clock.
-    let sets = played_sets();
+    // The live run: sets at the rig's rate on the player's clock.
+    let sets = played_sets(live.sets);
     let first = warm_last + 1;
     let last = first + sets - 1;
     let started = Instant::now();
     for (n, k) in (first..=last).enumerate() {
-        let due = started + PERIOD * n as u32;
+        let due = started + live.period * n as u32;
         while Instant::now() < due {
             depths.extend(dds::take_all(&depth_sub));
             node.check_alive();
@@ -209,7 +262,7 @@ fn live_rate() {
             );
         }
         previous = Some(k);
-        check_depth(d, &truth);
+        check_depth(d, &truth, live);
     }
 
     // The accounting: every set matched in the live run was published or dropped for a newer
@@ -232,13 +285,20 @@ fn live_rate() {
         "of {matched} sets matched, {published} were published and {dropped} dropped: {after:?}"
     );
     let mean_ms = dds::value_of(&after, "processing time mean (ms)").unwrap_or("?");
+    let most = dds::value_of(&after, "gpu sets in flight (most)").unwrap_or("?");
     eprintln!(
-        "live rate: {} of {sets} sets at 2 Hz answered ({:.0} %), {dropped} dropped for newer \
-         sets; processing time mean {mean_ms} ms; played in {:.1} s",
+        "live rate: {} of {sets} sets every {} ms answered ({:.0} %), {dropped} dropped for \
+         newer sets; processing time mean {mean_ms} ms; most sets in flight {most}; played in \
+         {:.1} s",
         depths.len(),
+        live.period.as_millis(),
         100.0 * depths.len() as f64 / f64::from(sets),
         started.elapsed().as_secs_f64()
     );
+    // The WGSL engine had the next set on its device beside the one before.
+    if live.gpu {
+        assert_eq!(most, "2", "{after:?}");
+    }
     assert_eq!(
         dds::value_of(&after, "cameras out of the rig"),
         Some("none")
@@ -248,10 +308,10 @@ fn live_rate() {
 
 /// The depth image of the reference camera: of the pixels on the wall and on the box, at least
 /// half valid and 90 % of the valid ones within 5 % (about two plane steps) of the truth.
-fn check_depth(received: &Image, truth: &ImageF32) {
+fn check_depth(received: &Image, truth: &ImageF32, live: &Live) {
     assert_eq!(received.encoding, "32FC1");
-    assert_eq!((received.width, received.height), (WIDTH, HEIGHT));
-    assert_eq!(received.header.frame_id, frame(REFERENCE));
+    assert_eq!((received.width, received.height), (live.width, live.height));
+    assert_eq!(received.header.frame_id, frame(live.reference()));
     let depths = dds::depth_values(received);
     for surface_m in [WALL_M, BOX_M] {
         let (mut total, mut valid, mut within) = (0usize, 0usize, 0usize);

@@ -302,6 +302,21 @@ impl GpuEngine {
         })
     }
 
+    /// Whether the oldest set submitted ahead has finished on the device (or none is
+    /// waiting), so that [`Self::collect_set`] would not wait for it: a poll that does not
+    /// block. A device that fails the poll says so at the collect.
+    pub fn oldest_submitted_done(&self) -> bool {
+        let Some(oldest) = self.deferred.sets.front() else {
+            return true;
+        };
+        let _poll = crate::gpu_context::device_poll_lock();
+        let polled = self.device.poll(wgpu::PollType::Wait {
+            submission_index: Some(oldest.submitted.index.clone()),
+            timeout: Some(std::time::Duration::ZERO),
+        });
+        !matches!(polled, Err(wgpu::PollError::Timeout))
+    }
+
     /// Drops the `count` oldest sets submitted ahead and not collected (a set whose run was
     /// cancelled part way); the sets submitted after them stay.
     pub fn drop_oldest_submitted(&mut self, count: usize) {
