@@ -185,9 +185,9 @@ fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
 /// A frame set of several references on the WGSL engine writes each camera's image up once
 /// (`GpuEngine::hold_set`): the dome's three references sweep 9 views each, 27 images, of
 /// fewer distinct cameras, and the set writes exactly those; every reference is submitted
-/// before the first is read back (`GpuEngine::submit_set`), and the next sets make no staging
-/// buffer; every reference's maps equal, to
-/// the bit, the same reference swept alone (its own uploads). With the cameras but the
+/// before the first is read back (`GpuEngine::submit_set`), and the staging buffers are kept
+/// from set to set; every reference's maps equal, to the bit, the same reference swept alone
+/// (its own uploads). With the cameras but the
 /// references handed over as their messages' packed bytes (unpacked on the device, once) the
 /// maps are the same again.
 #[test]
@@ -245,15 +245,21 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
         (3, 3, 3),
         "{counts:?}"
     );
-    // A set of other images, then these again: the staging and readback buffers of the first
-    // set serve (none made), and no set reads another's bytes.
+    // A set of other images, then these again: the staging buffers are kept from set to set
+    // (at most one per submission in flight at once, the three references', over the three
+    // sets; one per submission would be nine), and no set reads another's bytes. (How many
+    // the first set makes depends on how soon lavapipe ends a submission: a reference may
+    // find the one before's buffer free again, or not.)
     let fx = rig.cameras[0].model.intrinsics.fx_px;
     let other_scene = Scene::wall_and_box(3.0, Some((1.5, 0.3)), fx);
     let other_images = synthetic::render_rig(&other_scene, &rig);
     let other = engine.run_references(&rig.cameras, &other_images, &references, &p);
     let again = engine.run_references(&rig.cameras, &images, &references, &p);
-    let counts = engine.take_set_counts();
-    assert_eq!(counts.staging_buffers, 0, "{counts:?}");
+    let later = engine.take_set_counts();
+    assert!(
+        counts.staging_buffers + later.staging_buffers <= references.len() as u32,
+        "{counts:?} then {later:?}"
+    );
     let depth_bits =
         |d: &Result<ReferenceDepth, _>| bits(&d.as_ref().expect("a reference").maps.depth_m);
     for ((a, b), o) in together.iter().zip(&again).zip(&other) {
