@@ -638,6 +638,16 @@ impl Engine {
     }
 }
 
+impl Engine {
+    /// The engine behind the wrapper, for the [`Sweeper`] calls it forwards.
+    fn sweeper(&mut self) -> &mut dyn Sweeper {
+        match self {
+            Self::Gpu { engine, .. } => engine.as_mut(),
+            Self::Cpu(cpu) => cpu,
+        }
+    }
+}
+
 impl Sweeper for Engine {
     fn run_set(
         &mut self,
@@ -645,10 +655,7 @@ impl Sweeper for Engine {
         images: SetImages<'_>,
         params: &SweepParams,
     ) -> Result<DepthMaps, SweepError> {
-        match self {
-            Self::Gpu { engine, .. } => engine.run_set(rig, images, params),
-            Self::Cpu(cpu) => cpu.run_set(rig, images, params),
-        }
+        self.sweeper().run_set(rig, images, params)
     }
 
     fn unpacks_on_device(&self) -> bool {
@@ -662,12 +669,8 @@ impl Sweeper for Engine {
         references: &[usize],
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
-        match self {
-            Self::Gpu { engine, .. } => {
-                Sweeper::run_references_set(engine.as_mut(), cameras, images, references, params)
-            }
-            Self::Cpu(cpu) => cpu.run_references_set(cameras, images, references, params),
-        }
+        self.sweeper()
+            .run_references_set(cameras, images, references, params)
     }
 
     fn start_references_set(
@@ -677,12 +680,8 @@ impl Sweeper for Engine {
         references: &[usize],
         params: &SweepParams,
     ) -> StartedSet {
-        match self {
-            Self::Gpu { engine, .. } => {
-                Sweeper::start_references_set(engine.as_mut(), cameras, images, references, params)
-            }
-            Self::Cpu(cpu) => cpu.start_references_set(cameras, images, references, params),
-        }
+        self.sweeper()
+            .start_references_set(cameras, images, references, params)
     }
 
     fn finish_references_set(
@@ -691,12 +690,8 @@ impl Sweeper for Engine {
         images: SetImages<'_>,
         params: &SweepParams,
     ) -> Vec<Result<ReferenceDepth, SweepError>> {
-        match self {
-            Self::Gpu { engine, .. } => {
-                Sweeper::finish_references_set(engine.as_mut(), started, images, params)
-            }
-            Self::Cpu(cpu) => cpu.finish_references_set(started, images, params),
-        }
+        self.sweeper()
+            .finish_references_set(started, images, params)
     }
 
     fn starts_without_waiting(&self) -> bool {
@@ -707,17 +702,11 @@ impl Sweeper for Engine {
     }
 
     fn memo(&mut self) -> &mut FrameMemo {
-        match self {
-            Self::Gpu { engine, .. } => PlanRunner::memo(engine.as_mut()),
-            Self::Cpu(cpu) => PlanRunner::memo(cpu),
-        }
+        self.sweeper().memo()
     }
 
     fn timings_mut(&mut self) -> &mut StageTimings {
-        match self {
-            Self::Gpu { engine, .. } => PlanRunner::timings_mut(engine.as_mut()),
-            Self::Cpu(cpu) => PlanRunner::timings_mut(cpu),
-        }
+        self.sweeper().timings_mut()
     }
 }
 
