@@ -425,6 +425,12 @@ pub fn run_config(
     };
     let hypotheses = f64::from(config.width) * f64::from(config.height) * f64::from(config.planes);
     let mut notes = Vec::new();
+    if sets_ahead > 0 && engine.starts_without_waiting() {
+        notes.push(format!(
+            "ms per set of {} sets back to back, {sets_ahead} ahead",
+            repeats.max(1)
+        ));
+    }
     let mut column = |optimizer: Optimizer| -> anyhow::Result<_> {
         let params = params_for(optimizer);
         let runs = (repeats, sets_ahead);
