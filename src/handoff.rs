@@ -62,23 +62,17 @@ impl<T> Handoff<T> {
     /// Blocks until an item is pending (Some) or the hand-over is closed (None: a pending item
     /// is abandoned, as a thread shutting down has nobody to give its outputs to).
     pub fn take(&self) -> Option<T> {
-        let mut state = self.lock();
-        loop {
-            if state.closed {
-                state.pending = None;
-                return None;
-            }
-            if let Some(item) = state.pending.take() {
-                return Some(item);
-            }
-            state = self.ready.wait(state).unwrap_or_else(|e| e.into_inner());
-        }
+        self.take_before(None)
     }
 
     /// [`Handoff::take`] that waits at most `limit`: None when nothing came in time or the
     /// hand-over is closed ([`Handoff::is_closed`] says which).
     pub fn take_timeout(&self, limit: std::time::Duration) -> Option<T> {
-        let deadline = std::time::Instant::now() + limit;
+        self.take_before(Some(std::time::Instant::now() + limit))
+    }
+
+    /// Waits for an item until `deadline` (None: for ever) or `close`.
+    fn take_before(&self, deadline: Option<std::time::Instant>) -> Option<T> {
         let mut state = self.lock();
         loop {
             if state.closed {
@@ -88,15 +82,19 @@ impl<T> Handoff<T> {
             if let Some(item) = state.pending.take() {
                 return Some(item);
             }
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
-            if left.is_zero() {
-                return None;
-            }
-            state = self
-                .ready
-                .wait_timeout(state, left)
-                .map(|(state, _)| state)
-                .unwrap_or_else(|e| e.into_inner().0);
+            state = match deadline {
+                None => self.ready.wait(state).unwrap_or_else(|e| e.into_inner()),
+                Some(deadline) => {
+                    let left = deadline.saturating_duration_since(std::time::Instant::now());
+                    if left.is_zero() {
+                        return None;
+                    }
+                    self.ready
+                        .wait_timeout(state, left)
+                        .map(|(state, _)| state)
+                        .unwrap_or_else(|e| e.into_inner().0)
+                }
+            };
         }
     }
 
