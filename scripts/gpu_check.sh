@@ -94,6 +94,11 @@ else
     # SGM with one path line per workgroup, against the default above (several lines per
     # workgroup where the subgroups have one size: NVIDIA's 32): the 1-megapixel rig and the ring.
     step bench-gpu-sgm-lines-1 120 "$bin" bench --device gpu --config ring --config sxga --repeats 5 --sgm-lines 1
+    # SGM's directions: all in one dispatch (the default on a GPU, after the sums are cleared)
+    # against the first apart and the rest together (the walks before 2026-12-01) and one
+    # dispatch per direction, alternated twice: the `sgm` ms and the SGM stages of the ring and
+    # the 1-megapixel rig (`sgm_dispatches` per set in the JSON: levels x 1, 2 or 8).
+    step bench-gpu-sgm-walks 180 sh -c "for r in 1 2; do for w in together first-apart one-by-one; do echo \"sgm-walks \$w\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --sgm-walks \$w; done; done"
     # The host copies (images in, maps out) on one thread, against the default above (split
     # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar;
     # every bench ends with the `messages:` line, the node's own host work per set at 1 MP).

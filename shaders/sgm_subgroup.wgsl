@@ -26,13 +26,14 @@ const MAX_LANE_WORDS: u32 = MAX_SGM_PLANES / 8u;
 struct SgmPass {
     direction: vec4<i32>,   // dx, dy, path lines, index of the direction (0 = the first pass: write, not add)
 }
-// `direction.w` of the pass that walks directions 1 .. paths - 1 in one dispatch (the first
-// pass, direction 0, writes the sums before it): `direction.x` is the paths, `direction.z` the
-// lines of those directions together, and each workgroup's line picks its direction. The walk
-// of a line is latency-bound (one pixel after the other), so the directions run side by side,
-// adding into the sums atomically (integer adds: the sums are the sequential passes' bit for
-// bit, whatever the order).
-const SGM_REST: i32 = -1;
+// `direction.w` of a pass that walks directions `direction.y` .. paths - 1 in one dispatch
+// (`direction.x` the paths, `direction.z` the lines of those directions together; each
+// workgroup's line picks its direction): every direction, adding into sums the engine cleared
+// before, or those after the first, which wrote the sums in a dispatch of its own. The walk of a
+// line is latency-bound (one pixel after the other), so the directions run side by side, adding
+// into the sums atomically (integer adds: the sums are the sequential passes' bit for bit,
+// whatever the order).
+const SGM_TOGETHER: i32 = -1;
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> sgm_pass: SgmPass;
@@ -75,7 +76,7 @@ fn main(
     var dx = sgm_pass.direction.x;
     var dy = sgm_pass.direction.y;
     var first_pass = sgm_pass.direction.w == 0;
-    let together = sgm_pass.direction.w == SGM_REST;
+    let together = sgm_pass.direction.w == SGM_TOGETHER;
     if (together) {
         // schedule.rs's SGM_DIRECTIONS; the lines of direction r as `sgm_lines` counts them.
         var directions = array<vec2<i32>, 8>(
@@ -83,7 +84,7 @@ fn main(
             vec2<i32>(1, 1), vec2<i32>(-1, -1), vec2<i32>(1, -1), vec2<i32>(-1, 1),
         );
         let paths = min(u32(sgm_pass.direction.x), 8u);
-        var r = 1u;
+        var r = u32(sgm_pass.direction.y);
         loop {
             if (r >= paths) {
                 return;
@@ -121,6 +122,24 @@ fn main(
     var prev0: array<u32, MAX_LANE_WORDS>;
     var prev1: array<u32, MAX_LANE_WORDS>;
     var p = line_start(line, dx, dy, w, h);
+    // This pixel's volume words and colour, loaded one step ahead: a step's loads do not depend
+    // on the step before, so each word of the next pixel is loaded as this pixel's word is taken
+    // and is not waited for until the next step: the walk waits on the arithmetic and the
+    // subgroup's exchanges rather than on a memory load every pixel.
+    var cost: array<u32, MAX_LANE_WORDS>;
+    var colour = 0u;
+    if (p.x >= 0 && p.y >= 0 && p.x < w && p.y < h) {
+        let pix = u32(p.y * w + p.x);
+        for (var i = 0u; i < SGM_LANE_WORDS; i++) {
+            let j = first_word + i;
+            if (j < words) {
+                cost[i] = volume[(pix - band.first_pixel) * words + j];
+            }
+        }
+        if (edge > 0u) {
+            colour = images[image_offset + pix];
+        }
+    }
     var step = 0u;
     var previous_colour = 0u;
     var prev_min = 0u;
@@ -129,13 +148,21 @@ fn main(
             break;
         }
         let pix = u32(p.y * w + p.x);
-        var penalty2 = p2;
-        var colour = 0u;
-        if (edge > 0u) {
-            colour = images[image_offset + pix];
-            if (step > 0u) {
-                penalty2 = max(p1, p2 * edge / (edge + 16u * colour_step(colour, previous_colour)));
+        let at_pixel = (pix - band.first_pixel) * words;
+        let colour_here = colour;
+        // The next pixel of the line (`at_next`: its first word), or none at the line's end.
+        let q = p + vec2<i32>(dx, dy);
+        let has_next = q.x >= 0 && q.y >= 0 && q.x < w && q.y < h;
+        var at_next = 0u;
+        if (has_next) {
+            at_next = (u32(q.y * w + q.x) - band.first_pixel) * words;
+            if (edge > 0u) {
+                colour = images[image_offset + u32(q.y * w + q.x)];
             }
+        }
+        var penalty2 = p2;
+        if (edge > 0u && step > 0u) {
+            penalty2 = max(p1, p2 * edge / (edge + 16u * colour_step(colour_here, previous_colour)));
         }
         // The previous L of the planes just outside this lane's run: the last plane of the lane
         // below, the first of the lane above.
@@ -146,8 +173,11 @@ fn main(
         for (var i = 0u; i < SGM_LANE_WORDS; i++) {
             let j = first_word + i;
             if (j < words) {
-                let at = (pix - band.first_pixel) * words + j;
-                let c = volume[at];
+                let at = at_pixel + j;
+                let c = cost[i];
+                if (has_next) {
+                    cost[i] = volume[at_next + j];
+                }
                 let d = 2u * j;
                 var l0 = c & 0xffffu;
                 var l1 = c >> 16u;
@@ -186,7 +216,7 @@ fn main(
             }
         }
         prev_min = subgroupMin(local_min);
-        previous_colour = colour;
+        previous_colour = colour_here;
         p += vec2<i32>(dx, dy);
         step += 1u;
     }

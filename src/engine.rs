@@ -610,6 +610,14 @@ impl Engine {
         }
     }
 
+    /// How the WGSL engine's SGM dispatches its directions (`GpuEngine::set_sgm_walks`;
+    /// nothing for the CPU engine).
+    pub fn set_sgm_walks(&mut self, walks: crate::sweep::gpu::SgmWalks) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_sgm_walks(walks);
+        }
+    }
+
     /// The WGSL engine's submissions, readbacks, waits and host time since the last call
     /// (`None` for the CPU engine).
     pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {

@@ -6,28 +6,31 @@
 /// queue is empty, the current submission index ... should be at least the wait submission
 /// index", gfx-rs/wgpu#9958, fixed later): the tests share one device across threads, a CI
 /// run met it once, and the node's fusion thread shares the engine's device. Held for one
-/// submission or one poll with a short timeout, never for a whole wait.
-static DEVICE_POLL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+/// submission or one poll of at most [`POLL_SLICE`], never for a whole wait, and handed to a
+/// thread waiting for it after each slice (a waiting engine may submit its next set while
+/// fusion waits for its own readback, and the other way round).
+static DEVICE_POLL: parking_lot::Mutex<()> = parking_lot::const_mutex(());
+
+/// How long one poll of a wait holds the device lock: another thread that shares the device
+/// waits at most this long to submit or poll.
+pub const POLL_SLICE: std::time::Duration = std::time::Duration::from_millis(2);
 
 /// Takes the process's device lock (one device poll or queue submission at a time; see
-/// `DEVICE_POLL`), also after a thread panicked holding it (it guards no data).
-pub fn device_poll_lock() -> std::sync::MutexGuard<'static, ()> {
-    DEVICE_POLL
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
+/// `DEVICE_POLL`).
+pub fn device_poll_lock() -> parking_lot::MutexGuard<'static, ()> {
+    DEVICE_POLL.lock()
 }
 
 /// Waits until `device` has finished its last submission, polling under [`device_poll_lock`]
-/// for at most `slice` at a time (another thread may share the device) and calling `between`
-/// after each slice that timed out (a cancel check; its error ends the wait). A submission that
-/// failed (a lost device, a validation error) has nothing to wait for: the wait ends, and the
-/// error scope or the read that follows says why.
+/// for at most [`POLL_SLICE`] at a time (another thread may share the device) and calling
+/// `between` after each slice that timed out (a cancel check or a deadline; its error ends the
+/// wait). A submission that failed (a lost device, a validation error) has nothing to wait
+/// for: the wait ends, and the error scope or the read that follows says why.
 pub fn wait_for_device<E>(
     device: &wgpu::Device,
-    slice: std::time::Duration,
     between: impl FnMut() -> Result<(), E>,
 ) -> Result<(), E> {
-    wait_for_submission(device, None, slice, between)
+    wait_for_submission(device, None, between)
 }
 
 /// [`wait_for_device`] until `submission` alone has finished (None: the last one); the
@@ -35,17 +38,31 @@ pub fn wait_for_device<E>(
 pub fn wait_for_submission<E>(
     device: &wgpu::Device,
     submission: Option<wgpu::SubmissionIndex>,
-    slice: std::time::Duration,
+    between: impl FnMut() -> Result<(), E>,
+) -> Result<(), E> {
+    poll_in_slices(
+        || {
+            device.poll(wgpu::PollType::Wait {
+                submission_index: submission.clone(),
+                timeout: Some(POLL_SLICE),
+            })
+        },
+        between,
+    )
+}
+
+/// The loop of [`wait_for_submission`]: `poll` (one slice) under the device lock until it
+/// says done, the lock handed fairly to a waiting thread after each slice: a plain unlock
+/// lets this thread take it straight back, and a thread that polls or submits beside a long
+/// wait would wait with it.
+fn poll_in_slices<E>(
+    mut poll: impl FnMut() -> Result<wgpu::PollStatus, wgpu::PollError>,
     mut between: impl FnMut() -> Result<(), E>,
 ) -> Result<(), E> {
     loop {
-        let polled = {
-            let _poll = device_poll_lock();
-            device.poll(wgpu::PollType::Wait {
-                submission_index: submission.clone(),
-                timeout: Some(slice),
-            })
-        };
+        let lock = device_poll_lock();
+        let polled = poll();
+        parking_lot::MutexGuard::unlock_fair(lock);
         match polled {
             Ok(_) | Err(wgpu::PollError::WrongSubmissionIndex(..)) => return Ok(()),
             Err(wgpu::PollError::Timeout) => between()?,
@@ -160,5 +177,66 @@ impl GpuContext {
         )
         .trim()
         .to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+
+    /// A thread that submits or polls beside a long wait (the engine beside fusion's readback)
+    /// gets the device lock between the wait's slices, not when the wait ends: the wait here
+    /// ends only once the other thread has held the lock, so a lock held over the whole wait
+    /// (or never handed over) runs into its 60 s limit.
+    #[test]
+    fn a_thread_beside_a_long_wait_gets_the_device_lock_between_its_slices() {
+        let waiting = Arc::new(AtomicBool::new(false));
+        let other_held = Arc::new(AtomicBool::new(false));
+        let waiter = {
+            let (waiting, other_held) = (waiting.clone(), other_held.clone());
+            std::thread::spawn(move || {
+                let limit = std::time::Instant::now() + std::time::Duration::from_secs(60);
+                let mut slices = 0u32;
+                let waited = poll_in_slices(
+                    || {
+                        // One slice of a device wait, under the lock.
+                        slices += 1;
+                        waiting.store(true, Ordering::SeqCst);
+                        std::thread::sleep(POLL_SLICE);
+                        if other_held.load(Ordering::SeqCst) {
+                            Ok(wgpu::PollStatus::WaitSucceeded)
+                        } else {
+                            Err(wgpu::PollError::Timeout)
+                        }
+                    },
+                    || {
+                        if std::time::Instant::now() < limit {
+                            Ok(())
+                        } else {
+                            Err(())
+                        }
+                    },
+                );
+                (waited, slices)
+            })
+        };
+        while !waiting.load(Ordering::SeqCst) {
+            std::thread::yield_now();
+        }
+        {
+            let _lock = device_poll_lock();
+            other_held.store(true, Ordering::SeqCst);
+        }
+        let (waited, slices) = waiter.join().expect("the waiting thread");
+        assert!(
+            waited.is_ok(),
+            "the other thread did not get the device lock in 60 s of the wait ({slices} slices)"
+        );
+        assert!(
+            slices >= 2,
+            "the wait ended after the other thread held the lock"
+        );
     }
 }

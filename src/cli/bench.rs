@@ -74,6 +74,11 @@ pub struct BenchArgs {
     /// compare the two on a GPU.
     #[arg(long, value_name = "N")]
     pub sgm_lines: Option<u32>,
+    /// How the WGSL engine's SGM dispatches its path directions: the adapter's (auto: all
+    /// side by side on GPUs, one by one on CPU adapters), or together, first-apart (the first
+    /// direction, then the others side by side) or one-by-one, to compare them on a GPU.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub sgm_walks: crate::sweep::gpu::SgmWalks,
     /// The WGSL engine's host copies (images in, maps out): split over threads where the set
     /// is large and the host has many cores (auto), or always on one thread / split, to
     /// compare the two on a GPU host.
@@ -159,6 +164,8 @@ pub struct HostWork {
     /// Plans run: levels of coarse to fine times references.
     pub levels: u32,
     pub submissions: u32,
+    /// SGM's dispatches, every level's (each one direction, or several side by side).
+    pub sgm_dispatches: u32,
     pub readbacks: u32,
     pub readback_bytes: u64,
     /// Bytes of the caller's images written up (a set of several references: each once).
@@ -355,6 +362,7 @@ fn time_runs(
         submit_ms: round3(median(submit_ms)),
         levels: c.levels,
         submissions: c.submissions,
+        sgm_dispatches: c.sgm_dispatches,
         readbacks: c.readbacks,
         readback_bytes: c.readback_bytes,
         image_bytes: c.image_bytes,
@@ -578,6 +586,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 if let Some(lines) = args.sgm_lines {
                     engine.set_sgm_lines(lines);
                 }
+                engine.set_sgm_walks(args.sgm_walks);
                 engine.set_host_copies(args.host_copies);
                 engine.set_submit_ahead(!args.serial_references);
                 engines.push(engine)

@@ -328,7 +328,10 @@ impl GpuTsdf {
             queue.write_buffer(&tsdf.pool, at, bytemuck::cast_slice(&voxels));
         }
         tsdf.next_slot = blocks.len() as u32;
-        queue.submit([]);
+        {
+            let _poll = crate::gpu_context::device_poll_lock();
+            queue.submit([]);
+        }
         Ok(tsdf)
     }
 
@@ -587,14 +590,15 @@ impl GpuTsdf {
                 count_bytes,
             );
         }
-        submit(&self.queue, encoder.finish());
+        let submitted = submit(&self.queue, encoder.finish());
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(GpuFusionError::Gpu(format!("integration: {error}")));
         }
         if work.is_empty() {
             return Ok(Vec::new());
         }
-        let words: Vec<u32> = read_buffer(&self.device, &self.counts_readback.buffer, count_bytes)?;
+        let readback = &self.counts_readback.buffer;
+        let words: Vec<u32> = read_buffer(&self.device, submitted, readback, count_bytes)?;
         Ok(words.into_iter().take(work.len()).collect())
     }
 
@@ -635,8 +639,8 @@ impl GpuTsdf {
                     SLOT_BYTES,
                 );
             }
-            submit(&self.queue, encoder.finish());
-            let voxels: Vec<PoolVoxel> = read_buffer(&self.device, &staging, bytes)?;
+            let submitted = submit(&self.queue, encoder.finish());
+            let voxels: Vec<PoolVoxel> = read_buffer(&self.device, submitted, &staging, bytes)?;
             for ((index, _), slot) in piece.iter().zip(voxels.chunks_exact(VOXELS_PER_BLOCK)) {
                 let mut block = Block::default();
                 for (offset, voxel) in slot.iter().enumerate() {

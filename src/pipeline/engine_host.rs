@@ -215,11 +215,9 @@ impl EngineHost {
         // A destroyed device says it is lost at the first poll that finds its queue empty (a
         // later set may still be on it): waited for, a few seconds at most.
         if let (false, Some(gpu)) = (self.is_lost(), self.engine.gpu()) {
-            let mut slices = 0;
-            let slice = std::time::Duration::from_millis(100);
-            let _ = crate::gpu_context::wait_for_device(&gpu.device, slice, || {
-                slices += 1;
-                if slices < 100 {
+            let deadline = Instant::now() + std::time::Duration::from_secs(10);
+            let _ = crate::gpu_context::wait_for_device(&gpu.device, || {
+                if Instant::now() < deadline {
                     Ok(())
                 } else {
                     Err(())

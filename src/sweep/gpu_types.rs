@@ -172,9 +172,9 @@ pub struct GpuParams {
 /// winner at least: nearer planes are the same match, sampled between texels.
 pub const UNIQUENESS_RADIUS_PX: f64 = 1.5;
 
-/// `direction.w` of the SGM pass that walks directions 1 .. paths - 1 in one dispatch
-/// (`SGM_REST` in `sgm_subgroup.wgsl`).
-pub const SGM_REST: i32 = -1;
+/// `direction.w` of an SGM pass that walks directions `direction.y` .. paths - 1 in one
+/// dispatch (`SGM_TOGETHER` in `sgm_subgroup.wgsl`).
+pub const SGM_TOGETHER: i32 = -1;
 
 /// WGSL `SgmPass`: one direction of the semi-global optimiser.
 #[repr(C)]

@@ -19,16 +19,19 @@ pub const SGM_DIRECTIONS: [(i32, i32); 8] = [
     (-1, 1),
 ];
 
-/// The element of the WGSL engine's `sgm_passes` array after the directions' own: the pass that
-/// walks directions 1 .. paths - 1 in one dispatch (`SGM_REST` in `sgm_subgroup.wgsl`).
-pub const SGM_REST_PASS: usize = SGM_DIRECTIONS.len();
+/// The elements of the WGSL engine's `sgm_passes` array after the directions' own: the passes
+/// that walk several directions in one dispatch (`SGM_TOGETHER` in `sgm_subgroup.wgsl`), every
+/// direction (`SGM_ALL_PASS`: the sums cleared before) or those after the first
+/// (`SGM_REST_PASS`: direction 0 writes the sums in a dispatch of its own before).
+pub const SGM_ALL_PASS: usize = SGM_DIRECTIONS.len();
+pub const SGM_REST_PASS: usize = SGM_DIRECTIONS.len() + 1;
 
-/// Path lines of directions 1 .. `paths` - 1 together (the `SGM_REST_PASS` dispatch).
-pub fn sgm_rest_lines(paths: u32, width: u32, height: u32) -> u32 {
+/// Path lines of directions `first` .. `paths` - 1 together (one `SGM_TOGETHER` dispatch).
+pub fn sgm_together_lines(first: u32, paths: u32, width: u32, height: u32) -> u32 {
     SGM_DIRECTIONS
         .iter()
         .take(paths as usize)
-        .skip(1)
+        .skip(first as usize)
         .map(|&(dx, dy)| sgm_lines(dx, dy, width, height))
         .sum()
 }
@@ -372,17 +375,19 @@ mod tests {
     }
 
     #[test]
-    fn the_rest_pass_walks_the_lines_of_every_direction_after_the_first() {
+    fn the_passes_together_walk_the_lines_of_their_directions() {
         // 8 paths over 40x30: 30 rows, 40 columns, 30 rows... each diagonal w + h - 1 lines.
         let each: Vec<u32> = SGM_DIRECTIONS
             .iter()
             .map(|&(dx, dy)| sgm_lines(dx, dy, 40, 30))
             .collect();
         assert_eq!(each, [30, 30, 40, 40, 69, 69, 69, 69]);
-        assert_eq!(sgm_rest_lines(8, 40, 30), 30 + 40 + 40 + 4 * 69);
-        assert_eq!(sgm_rest_lines(4, 40, 30), 30 + 40 + 40);
-        assert_eq!(sgm_rest_lines(1, 40, 30), 0);
-        assert_eq!(SGM_REST_PASS, 8);
+        assert_eq!(sgm_together_lines(1, 8, 40, 30), 30 + 40 + 40 + 4 * 69);
+        assert_eq!(sgm_together_lines(1, 4, 40, 30), 30 + 40 + 40);
+        assert_eq!(sgm_together_lines(1, 1, 40, 30), 0);
+        assert_eq!(sgm_together_lines(0, 8, 40, 30), 2 * 30 + 2 * 40 + 4 * 69);
+        assert_eq!(sgm_together_lines(0, 4, 40, 30), 2 * 30 + 2 * 40);
+        assert_eq!((SGM_ALL_PASS, SGM_REST_PASS), (8, 9));
     }
 
     #[test]

@@ -6,7 +6,7 @@ use crate::common;
 use sweepdepth::geometry::{CameraModel, Distortion, Rig};
 use sweepdepth::image::{ImageF32, Rgba8Image};
 use sweepdepth::sweep::cpu::CpuEngine;
-use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout};
+use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout, SgmWalks};
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::{range_tiles, SweepPlan, RANGE_TILE};
 use sweepdepth::sweep::{
@@ -94,9 +94,11 @@ fn compare_with(
         engine
             .set_sgm_layout(layout)
             .expect("the adapter has the layout");
-        // The subgroup layout as a GPU runs it: the directions after the first side by side
-        // (the adapter's default, one after the other on lavapipe, runs with `None`).
-        engine.set_sgm_directions_together(layout == SgmLayout::Subgroup);
+        // The subgroup layout as a GPU runs it: every direction side by side (the adapter's
+        // default, one after the other on lavapipe, runs with `None`).
+        if layout == SgmLayout::Subgroup {
+            engine.set_sgm_walks(SgmWalks::Together);
+        }
     }
     let gpu_maps = engine.run_plan_raw(plan, rig, images).expect("gpu run");
     let cpu = CpuEngine::new().trace(plan, rig, images).expect("cpu run");
@@ -282,18 +284,34 @@ fn sgm_in_row_bands_equals_one_band() {
         let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
         // The subgroup layout with one line per workgroup, with three (a last workgroup part
         // empty) and with the adapter's default (several where its subgroups have one size:
-        // lavapipe 16), its directions after the first one by one and side by side.
+        // lavapipe 16), its directions one by one, the first apart and the others side by side,
+        // and all side by side (into sums cleared before): the same sums, in one dispatch per
+        // direction, two, and one.
         if layouts.contains(&SgmLayout::Subgroup) {
-            for (lines, together) in [(1, false), (3, true), (0, true), (0, false)] {
+            let paths = params.sgm_paths;
+            for (lines, walks, dispatches) in [
+                (1, SgmWalks::OneByOne, paths),
+                (3, SgmWalks::Together, 1),
+                (0, SgmWalks::FirstApart, 2),
+                (0, SgmWalks::Together, 1),
+                (0, SgmWalks::OneByOne, paths),
+            ] {
                 let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
                 engine.set_sgm_layout(SgmLayout::Subgroup).expect("layout");
                 if lines > 0 {
                     engine.set_sgm_lines(lines);
                 }
-                engine.set_sgm_directions_together(together);
+                engine.set_sgm_walks(walks);
                 let maps = engine.run_plan_raw(&plan, &rig, &images).expect("run");
-                let what = format!("{name}: {} lines, together {together}", engine.sgm_lines());
+                let counts = engine.take_set_counts();
+                let what = format!("{name}: {} lines, {walks:?}", engine.sgm_lines());
                 assert_eq!(bits(&whole[0]), bits(&maps), "{what}");
+                assert_eq!(
+                    counts.sgm_dispatches,
+                    dispatches * counts.levels,
+                    "{what}: SGM dispatches over {} levels",
+                    counts.levels
+                );
             }
         }
         for (layout, maps) in layouts.iter().zip(&whole).skip(1) {

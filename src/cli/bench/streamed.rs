@@ -78,6 +78,7 @@ pub(super) fn per_set(
     let n = u32::try_from(sets.max(1)).unwrap_or(u32::MAX);
     counts.levels /= n;
     counts.submissions /= n;
+    counts.sgm_dispatches /= n;
     counts.readbacks /= n;
     counts.waits /= n;
     counts.readback_bytes /= u64::from(n);

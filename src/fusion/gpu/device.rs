@@ -115,19 +115,18 @@ pub(super) fn dispatch_items(
     pass.dispatch_workgroups(x, items.div_ceil(x), 1);
 }
 
-/// How long one poll of a wait holds [`device_poll_lock`].
-const POLL_SLICE: std::time::Duration = std::time::Duration::from_millis(50);
-
 /// Submits `commands` under [`device_poll_lock`] (the device may be the engine's, polled
 /// from its thread).
-pub(super) fn submit(queue: &wgpu::Queue, commands: wgpu::CommandBuffer) {
+pub(super) fn submit(queue: &wgpu::Queue, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
     let _poll = device_poll_lock();
-    queue.submit([commands]);
+    queue.submit([commands])
 }
 
-/// Maps the first `bytes` of a buffer (after the last submission), waits, and copies them out.
+/// Maps the first `bytes` of a buffer that `submitted` last used, waits for that submission
+/// alone (the engine's sets submitted after it go on running), and copies them out.
 pub(super) fn read_buffer<T: Pod>(
     device: &wgpu::Device,
+    submitted: wgpu::SubmissionIndex,
     buffer: &wgpu::Buffer,
     bytes: u64,
 ) -> Result<Vec<T>, GpuFusionError> {
@@ -137,7 +136,9 @@ pub(super) fn read_buffer<T: Pod>(
         let _ = sender.send(r);
     });
     // One short poll at a time: the engine may share the device.
-    crate::gpu_context::wait_for_device(device, POLL_SLICE, || Ok::<(), GpuFusionError>(()))?;
+    crate::gpu_context::wait_for_submission(device, Some(submitted), || {
+        Ok::<(), GpuFusionError>(())
+    })?;
     receiver.recv().map_err(|e| gpu(&e))?.map_err(|e| gpu(&e))?;
     let out = {
         let range = buffer.get_mapped_range(..bytes).map_err(|e| gpu(&e))?;

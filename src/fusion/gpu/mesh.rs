@@ -313,11 +313,11 @@ impl GpuTsdf {
         );
         encoder.copy_buffer_to_buffer(&mesher.totals, 0, &readback, 0, 8);
         encoder.copy_buffer_to_buffer(&mesher.blocks_out.buffer, 0, &readback, 8, out_bytes);
-        submit(&self.queue, encoder.finish());
+        let submitted = submit(&self.queue, encoder.finish());
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(GpuFusionError::Gpu(format!("meshing: {error}")));
         }
-        let words: Vec<u32> = read_buffer(device, &readback, 8 + out_bytes)?;
+        let words: Vec<u32> = read_buffer(device, submitted, &readback, 8 + out_bytes)?;
         let (totals, blocks) = words.split_at(2);
         let (vertices, triangles) = (u64::from(totals[0]), u64::from(totals[1]));
         if vertices > vertex_room || triangles > triangle_room {
@@ -343,9 +343,9 @@ impl GpuTsdf {
             let (from, to) = (&mesher.triangles.buffer, vertex_bytes);
             encoder.copy_buffer_to_buffer(from, 0, &outputs, to, triangle_bytes);
         }
-        submit(&self.queue, encoder.finish());
-        let words: Vec<u32> =
-            read_buffer(device, &outputs, (vertex_bytes + triangle_bytes).max(4))?;
+        let submitted = submit(&self.queue, encoder.finish());
+        let bytes = (vertex_bytes + triangle_bytes).max(4);
+        let words: Vec<u32> = read_buffer(device, submitted, &outputs, bytes)?;
         let (vertex_words, triangle_words) = words.split_at((vertex_bytes / 4) as usize);
         let all_vertices: &[MeshVertex] = bytemuck::cast_slice(vertex_words);
         let all_triangles: &[[u32; 3]] =

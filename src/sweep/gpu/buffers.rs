@@ -3,7 +3,9 @@
 
 use super::super::gpu_types::*;
 use super::super::plan::SweepPlan;
-use super::super::schedule::{sgm_lines, sgm_rest_lines, SGM_DIRECTIONS, SGM_REST_PASS};
+use super::super::schedule::{
+    sgm_lines, sgm_together_lines, SGM_ALL_PASS, SGM_DIRECTIONS, SGM_REST_PASS,
+};
 use super::super::stages::{Stage, STAGES};
 use super::super::SweepError;
 use super::shape::ShapeKey;
@@ -47,6 +49,9 @@ pub(super) struct Buffers {
     bands: wgpu::Buffer,
     pub maps: wgpu::Buffer,
     pub zbuffer: wgpu::Buffer,
+    /// SGM's path sums, one buffer per row band (cleared before the directions walk side by
+    /// side: `SgmWalks::Together`).
+    pub sgm_sums: Vec<wgpu::Buffer>,
     pub readback: wgpu::Buffer,
     /// The reference model whose rays are in `rays` (`SweepPlan::ray_model`).
     rays_of: std::cell::Cell<Option<crate::geometry::CameraModel>>,
@@ -351,6 +356,7 @@ impl Buffers {
             bands,
             maps,
             zbuffer,
+            sgm_sums: sums,
             readback,
             rays_of: std::cell::Cell::new(None),
             bind_groups,
@@ -424,17 +430,19 @@ impl Buffers {
                 .copy_from_slice(bytemuck::bytes_of(&pass));
         }
         if key.sgm_paths > 1 {
-            let rest = GpuSgmPass {
-                direction: [
-                    key.sgm_paths as i32,
-                    0,
-                    sgm_rest_lines(key.sgm_paths, key.width, key.height) as i32,
-                    SGM_REST,
-                ],
-            };
-            let at = (SGM_REST_PASS as u64 * align.pass) as usize;
-            passes[at..at + std::mem::size_of::<GpuSgmPass>()]
-                .copy_from_slice(bytemuck::bytes_of(&rest));
+            for (first, slot) in [(0, SGM_ALL_PASS), (1, SGM_REST_PASS)] {
+                let together = GpuSgmPass {
+                    direction: [
+                        key.sgm_paths as i32,
+                        first as i32,
+                        sgm_together_lines(first, key.sgm_paths, key.width, key.height) as i32,
+                        SGM_TOGETHER,
+                    ],
+                };
+                let at = (slot as u64 * align.pass) as usize;
+                passes[at..at + std::mem::size_of::<GpuSgmPass>()]
+                    .copy_from_slice(bytemuck::bytes_of(&together));
+            }
         }
         queue.write_buffer(&self.sgm_passes, 0, &passes);
         let mut bands = vec![0u8; self.bands.size() as usize];

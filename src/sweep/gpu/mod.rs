@@ -50,6 +50,7 @@ use level_images::LevelInput;
 pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use pyramid::Pyramid;
+pub use record::SgmWalks;
 use shape::ShapeKey;
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
@@ -63,6 +64,9 @@ pub struct SetCounts {
     pub levels: u32,
     /// Command buffers submitted to the queue.
     pub submissions: u32,
+    /// SGM's compute dispatches, every level's (one direction each, or several side by side:
+    /// [`SgmWalks`]): the walks of one dispatch run one after the other's.
+    pub sgm_dispatches: u32,
     /// Buffers mapped and read back.
     pub readbacks: u32,
     /// Bytes of those buffers.
@@ -119,8 +123,10 @@ pub struct GpuEngine {
     align: Alignments,
     /// How SGM spreads a path line over the adapter.
     sgm_layout: SgmLayout,
-    /// SGM's directions after the first in one dispatch (subgroup layout, one band).
-    sgm_together: bool,
+    /// How SGM dispatches its directions (`SgmWalks::Auto`: by the adapter, `gpu`).
+    sgm_walks: SgmWalks,
+    /// The adapter is not a CPU (lavapipe, llvmpipe).
+    gpu: bool,
     /// The adapter's smallest subgroup (the subgroup layout's workgroup).
     subgroup_size: u32,
     /// Path lines per workgroup of the subgroup layout (`sgm_lines_for`).
@@ -197,10 +203,8 @@ impl GpuEngine {
             pipelines,
             align: Alignments::of(device),
             sgm_layout,
-            // A GPU walks SGM's other directions side by side (record.rs, `sgm_together`); a CPU
-            // adapter has no idle lanes to fill (on lavapipe side by side was about 1.6x slower
-            // on the demo; docs/notes/speed-history.md).
-            sgm_together: info.device_type != wgpu::DeviceType::Cpu,
+            sgm_walks: SgmWalks::Auto,
+            gpu: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
             sgm_lines: shape::sgm_lines_for(&info),
             sgm_band_bytes: None,
@@ -255,10 +259,11 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// With the subgroup layout, walks SGM's directions after the first in one dispatch (the
-    /// default on GPUs) or one dispatch per direction (CPU adapters). Results are identical.
-    pub fn set_sgm_directions_together(&mut self, together: bool) {
-        self.sgm_together = together;
+    /// How SGM dispatches its directions in the subgroup layout over one band (the default,
+    /// `SgmWalks::Auto`: every direction in one dispatch on GPUs, one dispatch per direction
+    /// on CPU adapters). Results are identical.
+    pub fn set_sgm_walks(&mut self, walks: SgmWalks) {
+        self.sgm_walks = walks;
     }
 
     /// The SGM layout the engine uses when one band holds the volume.
@@ -631,9 +636,9 @@ impl GpuEngine {
         if plan.uses_census() {
             record::record_census(encoder, buffers, &pipelines[Stage::Census as usize], plan);
         }
-        let together = self.sgm_together;
-        record::record_sweep(
-            encoder, buffers, pipelines, &spec, schedule, self.align, together,
+        let walks = self.sgm_walks.resolve(&spec, buffers, self.gpu);
+        self.counts.sgm_dispatches += record::record_sweep(
+            encoder, buffers, pipelines, &spec, schedule, self.align, walks,
         );
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));

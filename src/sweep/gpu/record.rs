@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use super::super::plan::SweepPlan;
 use super::super::schedule::{
-    sgm_lines, sgm_rest_lines, Dispatch, Schedule, SGM_DIRECTIONS, SGM_REST_PASS,
+    sgm_lines, sgm_together_lines, Dispatch, Schedule, SGM_ALL_PASS, SGM_DIRECTIONS, SGM_REST_PASS,
 };
 use super::super::stages::Stage;
 use super::super::{CancelFlag, StageTimings, SweepError};
@@ -50,9 +50,6 @@ pub(super) fn record_census(
 /// One device poll or queue submission at a time in this process
 /// ([`crate::gpu_context::device_poll_lock`], which the fusion's GPU integration takes too).
 pub(super) use crate::gpu_context::device_poll_lock;
-
-/// How often a wait for the GPU looks at the cancel flag.
-const CANCEL_POLL: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// Submits a level's command buffer and brings its results back, counting both (a cancel is
 /// seen before the submission and while the host waits).
@@ -142,9 +139,7 @@ impl<'a> Submitter<'a> {
             .collect();
         let started = Instant::now();
         let waited =
-            crate::gpu_context::wait_for_submission(self.device, after, CANCEL_POLL, || {
-                self.cancel.check()
-            });
+            crate::gpu_context::wait_for_submission(self.device, after, || self.cancel.check());
         self.counts.waits += 1;
         self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
         waited?;
@@ -158,15 +153,54 @@ impl<'a> Submitter<'a> {
     }
 }
 
-/// SGM in subgroups over one band walks direction 0 (which writes the sums), then every other
-/// direction in one dispatch (the schedule's dispatch of direction 1 stands for them all; those
-/// of directions 2.. are not recorded): a line's walk is one pixel after the other, so eight
-/// dispatches one after the other left the GPU mostly idle (the H200: the coarse levels' SGM,
-/// a quarter of the pixels, took half the fine level's time). Other layouts and banded runs
-/// keep one dispatch per direction (line per invocation adds without atomics; bands pass each
-/// line's state from band to band in order), and so do CPU adapters (`allowed` false).
-fn sgm_together(spec: &Specialisation, buffers: &Buffers, allowed: bool) -> bool {
-    allowed && spec.sgm_layout == SgmLayout::Subgroup && buffers.key.bands() == 1
+/// How the WGSL engine's SGM dispatches its path directions (the sums are the same, bit for
+/// bit: integer adds in any order). A line's walk is one pixel after the other, so dispatches
+/// one after the other leave a GPU mostly idle (the H200: the coarse levels' SGM, a quarter of
+/// the pixels, took half the fine level's time).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
+pub enum SgmWalks {
+    /// The adapter's: `together` on GPUs, `one-by-one` on CPU adapters (no idle lanes to fill;
+    /// on lavapipe side by side was about 1.6x slower on the demo).
+    #[default]
+    Auto,
+    /// Every direction in one dispatch, adding into the sums cleared before it.
+    Together,
+    /// Direction 0 in a dispatch of its own (writing the sums), then the others in one.
+    FirstApart,
+    /// One dispatch per direction.
+    OneByOne,
+}
+
+impl SgmWalks {
+    /// What runs for `spec` over `buffers` on an adapter that is a GPU or not: the directions
+    /// side by side only in the subgroup layout over one band with more than one direction
+    /// (the other layouts and banded runs keep one dispatch per direction: line per invocation
+    /// adds without atomics; bands pass each line's state from band to band in order).
+    pub(super) fn resolve(self, spec: &Specialisation, buffers: &Buffers, gpu: bool) -> Self {
+        let walks = match self {
+            Self::Auto if gpu => Self::Together,
+            Self::Auto => Self::OneByOne,
+            other => other,
+        };
+        let side_by_side = spec.sgm_layout == SgmLayout::Subgroup
+            && buffers.key.bands() == 1
+            && buffers.key.sgm_paths > 1;
+        if side_by_side {
+            walks
+        } else {
+            Self::OneByOne
+        }
+    }
+
+    /// The `sgm_passes` element of the dispatch that walks several directions, and the first
+    /// direction it walks (the schedule's dispatch of that direction stands for them all).
+    fn together_pass(self) -> Option<(usize, u32)> {
+        match self {
+            Self::Together => Some((SGM_ALL_PASS, 0)),
+            Self::FirstApart => Some((SGM_REST_PASS, 1)),
+            Self::Auto | Self::OneByOne => None,
+        }
+    }
 }
 
 /// The workgroups of one dispatch and the dynamic offset of its uniform element.
@@ -175,11 +209,18 @@ fn workgroups(
     buffers: &Buffers,
     spec: &Specialisation,
     align: Alignments,
-    together: bool,
+    walks: SgmWalks,
 ) -> (Option<u64>, (u32, u32, u32)) {
     let key = buffers.key;
     let band_rows = key.band(dispatch.band).rows;
     let batch = Some(u64::from(dispatch.batch) * align.batch);
+    if let (Stage::Sgm, Some((slot, first))) = (dispatch.stage, walks.together_pass()) {
+        if dispatch.direction == first {
+            let lines = sgm_together_lines(first, key.sgm_paths, key.width, key.height);
+            let groups = (lines.div_ceil(spec.sgm_lines), 1, 1);
+            return (Some(slot as u64 * align.pass), groups);
+        }
+    }
     match dispatch.stage {
         Stage::Cost => (batch, tiles(key.width, key.height)),
         Stage::BoxH => (batch, tiles(key.padded_width, key.height)),
@@ -192,14 +233,6 @@ fn workgroups(
             };
             (batch, tiles(width, band_rows))
         }
-        Stage::Sgm if dispatch.direction == 1 && together => (
-            Some(SGM_REST_PASS as u64 * align.pass),
-            (
-                sgm_rest_lines(key.sgm_paths, key.width, key.height).div_ceil(spec.sgm_lines),
-                1,
-                1,
-            ),
-        ),
         Stage::Sgm => {
             let (dx, dy) = SGM_DIRECTIONS[dispatch.direction as usize];
             let lines = sgm_lines(dx, dy, key.width, key.height);
@@ -268,7 +301,7 @@ pub(super) fn record_plane_ranges(
 /// Records every dispatch of `schedule` (after the level's images and plane ranges), one
 /// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
 /// in SGM's; wgpu orders the dispatches of a pass), each timestamped at its start and end,
-/// and resolves the level's timestamps into its `resolve` buffer.
+/// and resolves the level's timestamps into its `resolve` buffer. Returns SGM's dispatches.
 pub(super) fn record_sweep(
     encoder: &mut wgpu::CommandEncoder,
     buffers: &Buffers,
@@ -276,10 +309,15 @@ pub(super) fn record_sweep(
     spec: &Specialisation,
     schedule: &Schedule,
     align: Alignments,
-    sgm_directions_together: bool,
-) {
-    let together = sgm_together(spec, buffers, sgm_directions_together);
+    walks: SgmWalks,
+) -> u32 {
+    let together = walks.together_pass();
+    let mut sgm_dispatches = 0;
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
+    if walks == SgmWalks::Together {
+        // Every direction adds into the sums (none writes them first).
+        encoder.clear_buffer(&buffers.sgm_sums[0], 0, None);
+    }
     for (p, (phase, dispatches)) in schedule.phase_dispatches().enumerate() {
         let p = p as u32;
         let timestamp_writes =
@@ -296,10 +334,13 @@ pub(super) fn record_sweep(
             timestamp_writes,
         });
         for dispatch in dispatches {
-            if dispatch.stage == Stage::Sgm && dispatch.direction > 1 && together {
-                continue;
+            // The dispatch of the first direction walked together stands for them all.
+            if let (Stage::Sgm, Some((_, first))) = (dispatch.stage, together) {
+                if dispatch.direction > first {
+                    continue;
+                }
             }
-            let (offset, groups) = workgroups(dispatch, buffers, spec, align, together);
+            let (offset, groups) = workgroups(dispatch, buffers, spec, align, walks);
             pass.set_pipeline(&pipelines[dispatch.stage as usize]);
             let group = buffers.bind_group(dispatch.stage, dispatch.band);
             match offset {
@@ -307,11 +348,13 @@ pub(super) fn record_sweep(
                 None => pass.set_bind_group(0, group, &[]),
             }
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
+            sgm_dispatches += u32::from(dispatch.stage == Stage::Sgm);
         }
     }
     if let Some(t) = &buffers.timestamps {
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
     }
+    sgm_dispatches
 }
 
 /// A frame set's timings from its levels' timestamps, read back one level after the other
