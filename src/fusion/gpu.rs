@@ -214,6 +214,8 @@ pub struct GpuTsdf {
     host_samples: Vec<GpuSample>,
     /// The meshing pipeline (`gpu/mesh.rs`), made when first asked to mesh.
     mesher: Option<mesh::Mesher>,
+    /// How long the last integration waited for the device (its work and the counts' readback).
+    last_wait: std::time::Duration,
 }
 
 impl std::fmt::Debug for GpuTsdf {
@@ -289,6 +291,7 @@ impl GpuTsdf {
             scratch: IntegrationScratch::default(),
             host_samples: Vec::new(),
             mesher: None,
+            last_wait: std::time::Duration::ZERO,
         })
     }
 
@@ -363,6 +366,12 @@ impl GpuTsdf {
     /// [`GpuTsdf::mesh_blocks`]).
     pub fn take_unmeshed(&mut self) -> BlockChanges {
         std::mem::take(&mut self.unmeshed)
+    }
+
+    /// How long the last [`Self::integrate`] waited for the device (its work and the
+    /// readback of the voxels updated per block); the rest of its time is the host's.
+    pub fn last_wait(&self) -> std::time::Duration {
+        self.last_wait
     }
 
     /// The device memory the voxel pool holds, in bytes.
@@ -534,6 +543,7 @@ impl GpuTsdf {
         reused: &[u32],
         old_pool: Option<wgpu::Buffer>,
     ) -> Result<Vec<u32>, GpuFusionError> {
+        self.last_wait = std::time::Duration::ZERO;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let count_bytes = (work.len().max(1) * 4) as u64;
         let (device, limit) = (&self.device, self.limit);
@@ -598,7 +608,10 @@ impl GpuTsdf {
             return Ok(Vec::new());
         }
         let readback = &self.counts_readback.buffer;
-        let words: Vec<u32> = read_buffer(&self.device, submitted, readback, count_bytes)?;
+        let started = std::time::Instant::now();
+        let words = read_buffer(&self.device, submitted, readback, count_bytes);
+        self.last_wait = started.elapsed();
+        let words: Vec<u32> = words?;
         Ok(words.into_iter().take(work.len()).collect())
     }
 

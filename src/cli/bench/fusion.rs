@@ -133,6 +133,9 @@ pub struct GpuFusionResult {
     pub adapter: String,
     pub integrate_first_ms: f64,
     pub integrate_steady_ms: f64,
+    /// The host's share of the steady integration (the frame's samples, the blocks in view,
+    /// the work list, the uploads): its time less the wait for the device.
+    pub integrate_steady_host_ms: f64,
     /// Frame 1's changed blocks (and those below them) meshed on the device.
     pub mesh_ms: f64,
     /// Frame 1's changed blocks copied to the host (the map's copy for a lost device).
@@ -349,7 +352,7 @@ pub fn time_gpu(
     let model = &input.model;
     let run = |tsdf: &mut GpuTsdf, frame: &Frame| tsdf.integrate(&frame.view(model), None);
     let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
-    let mut sync_ms = Vec::new();
+    let (mut sync_ms, mut host_ms) = (Vec::new(), Vec::new());
     let mut last = None;
     for i in 0..=repeats.max(1) {
         let mut empty = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
@@ -371,6 +374,7 @@ pub fn time_gpu(
         let started = Instant::now();
         let steady = run(&mut tsdf, b)?;
         let steady_elapsed = started.elapsed();
+        let steady_wait = tsdf.last_wait();
         let started = Instant::now();
         tsdf.sync_into(&mut grid)?;
         let sync_elapsed = started.elapsed();
@@ -380,6 +384,7 @@ pub fn time_gpu(
         if i > 0 {
             first_ms.push(first_elapsed.as_secs_f64() * 1e3);
             steady_ms.push(steady_elapsed.as_secs_f64() * 1e3);
+            host_ms.push(steady_elapsed.saturating_sub(steady_wait).as_secs_f64() * 1e3);
             sync_ms.push(sync_elapsed.as_secs_f64() * 1e3);
             mesh_ms.push(mesh_elapsed.as_secs_f64() * 1e3);
         }
@@ -390,6 +395,7 @@ pub fn time_gpu(
         adapter: gpu.adapter_label(),
         integrate_first_ms: round3(median(first_ms)),
         integrate_steady_ms: round3(median(steady_ms)),
+        integrate_steady_host_ms: round3(median(host_ms)),
         mesh_ms: round3(median(mesh_ms)),
         sync_ms: round3(median(sync_ms)),
         first,
@@ -638,8 +644,9 @@ fn print_gpu(gpu: &GpuFusionResult) {
         gpu.integrate_first_ms, gpu.first.blocks_allocated
     );
     println!(
-        "sweepdepth GPU integrate steady: {:.1} ms ({} blocks in view, {} new, {} voxels updated)",
+        "sweepdepth GPU integrate steady: {:.1} ms, the host's share {:.1} ({} blocks in view, {} new, {} voxels updated)",
         gpu.integrate_steady_ms,
+        gpu.integrate_steady_host_ms,
         gpu.steady.blocks_in_view,
         gpu.steady.blocks_allocated,
         gpu.steady.voxels_updated
@@ -692,6 +699,10 @@ mod tests {
         );
         assert_eq!(result.blocks_meshed, cpu.blocks_meshed);
         assert!(result.first.blocks_allocated > 500 && result.pool_mib > 0.0);
+        // The host's share is the integration less its wait for the device, which is never
+        // nothing (the shader's work and the counts' readback).
+        let (host, all) = (result.integrate_steady_host_ms, result.integrate_steady_ms);
+        assert!(host > 0.0 && host < all, "host {host} ms of {all} ms");
         assert!(fusion_gpu(Device::Cpu).unwrap().is_none());
     }
 }
