@@ -16,7 +16,7 @@ use std::collections::VecDeque;
 use std::fmt;
 
 use super::config::{PipelineConfig, SyncPolicy};
-use super::outcome::{Outcome, Skip};
+use super::outcome::{Outcome, Skip, SkipKind};
 use crate::msgs::Header;
 use crate::ros::sync::time_to_ns;
 use crate::ros::tf::{TfBuffer, TfError};
@@ -477,10 +477,18 @@ impl Seen {
         peers: &dyn Fn(&str) -> Publishers,
     ) -> Option<Why> {
         if let Some(skip) = &self.last_skip {
+            let mut message = format!("sets are skipped: {skip}");
+            // Skipped for want of a world pose with nothing ever on /tf and nobody publishing
+            // it: that is the cause to name (the skip alone says only what tf2 lacks).
+            if let (SkipKind::NoWorldPose, 0, Some(world)) = (skip.kind, self.tf, &config.world) {
+                if peers(&world.tf_topic) == Publishers::None {
+                    message = format!("{message}; {}", no_publisher(&world.tf_topic));
+                }
+            }
             return Some(Why {
                 kind: WhyKind::Skipped,
                 camera: skip.camera,
-                message: format!("sets are skipped: {skip}"),
+                message,
             });
         }
         let world = config.world.as_ref()?;

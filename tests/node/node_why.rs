@@ -417,21 +417,27 @@ fn tf_static_link_missing() {
 }
 
 /// A moving rig (`world_frame:=world`) with nobody publishing /tf: the sets wait for their
-/// world pose (`tf_timeout` 60 s, the most: none is skipped yet), and the node says so, naming
-/// /tf.
+/// world pose (`tf_timeout` 60 s, the most), and the node says so, naming /tf. Where DDS
+/// discovery is slow enough (a loaded machine: /tf_static once took 60 s to come) that the
+/// first sets outwait `tf_timeout`, they are skipped, and the node says that, naming /tf too.
 fn moving_rig_without_tf() {
     let mut node = Node::start(&["world_frame:=world", "tf_timeout:=60.0"]);
     let mut peer = Peer::new(DOMAIN, "sweepdepth_why_peer");
     let mut diag = Diagnostics::new(&mut peer);
     let feed = Feed::new(&mut peer, &dds::reliable(10), &[0, 1, 2, 3], &[0, 1, 2, 3]);
-    wait_for_why(
+    let line = wait_for_why(
         &mut node,
         &mut diag,
         Some(&feed),
         &[
-            " set(s) wait for their pose in world_frame 'world': no publisher on /tf: check the \
-             namespace, the remaps and ROS_DOMAIN_ID",
+            "world_frame 'world'",
+            "no publisher on /tf: check the namespace, the remaps and ROS_DOMAIN_ID",
         ],
+    );
+    assert!(
+        line.contains(" set(s) wait for their pose in world_frame 'world': no publisher on /tf")
+            || line.contains("sets are skipped: no pose of 'cam1_optical' in world_frame 'world'"),
+        "{line}"
     );
 }
 

@@ -334,3 +334,30 @@ fn skipped_sets_give_the_last_reason() {
     assert!(why.message.starts_with("sets are skipped: "), "{why}");
     assert!(why.message.contains('b'), "{why}");
 }
+
+/// A moving rig whose sets were skipped without a world pose (`tf_timeout` ran out) while
+/// nothing came on /tf: the skip's reason, and the cause, nobody publishing /tf, where DDS
+/// discovery says so (where it does not know, the reason alone).
+#[test]
+fn sets_skipped_without_a_world_pose_name_a_missing_tf_publisher() {
+    let config = config(&["world_frame:=world", "tf_timeout:=0.2"]);
+    let tf_topic = config.world.as_ref().unwrap().tf_topic.clone();
+    let mut p = Pipeline::new(&config).unwrap();
+    calibrated(&mut p);
+    let now = feed(&mut p, 0, 10, [0; 3]);
+    let nobody = |topic: &str| {
+        if topic == tf_topic {
+            Publishers::None
+        } else {
+            Publishers::Unknown
+        }
+    };
+    let why = p.why_no_depth(live(now), &nobody).unwrap();
+    assert_eq!(why.kind, WhyKind::Skipped);
+    assert!(why.message.starts_with("sets are skipped: "), "{why}");
+    assert!(why.message.contains("in world_frame 'world'"), "{why}");
+    let cause = format!("; no publisher on {tf_topic}: check the namespace");
+    assert!(why.message.contains(&cause), "{why}");
+    let why = p.why_no_depth(live(now), &unknown).unwrap();
+    assert!(!why.message.contains("no publisher"), "{why}");
+}
