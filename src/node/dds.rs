@@ -172,9 +172,12 @@ pub(super) fn run(
                 stop,
             )
         },
+        // The GPU thread at once (its run cancelled, its pending set abandoned), not after
+        // the diagnostics thread's next tick: a set that ends meanwhile must not be followed
+        // by another.
+        &mut *stop_worker,
     );
-    // The GPU thread (its run cancelled, its pending set abandoned) and the `/rosout` writer
-    // go before the node and the participant.
+    // The `/rosout` writer goes before the node and the participant (the GPU thread is gone).
     stop_worker();
     *lock(&ROSOUT) = None;
     outcome

@@ -343,5 +343,6 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                 let _ = diag_pub.publish(msg);
             }
         },
+        || {},
     )
 }

@@ -29,13 +29,15 @@ pub(super) fn signals() -> UnboundedReceiver<()> {
 /// Runs `background` on a thread of its own (named `thread_name`, told to stop through the
 /// flag it gets) while the spinner and the event loop run on this one, until the spinner
 /// fails, the event loop ends with its error, or a signal comes (a clean stop: `Ok`); then
-/// stops and joins the thread.
+/// calls `on_stop` at once (the node cancels its set in flight and takes no other: the
+/// background thread may take up to its tick to see its flag) and stops and joins the thread.
 pub(super) fn run_until_signal<S, E>(
     spin: S,
     event_loop: E,
     mut signals: UnboundedReceiver<()>,
     thread_name: &str,
     background: impl FnOnce(&AtomicBool) + Send,
+    on_stop: impl FnOnce(),
 ) -> Result<(), NodeError>
 where
     S: Future<Output = ros2_client::CreateResult<()>> + Unpin,
@@ -63,6 +65,7 @@ where
                 }
             }
         });
+        on_stop();
         stop.store(true, Ordering::Relaxed);
         let _ = thread.join();
         outcome
