@@ -155,9 +155,10 @@ fn main(
         let has_next = q.x >= 0 && q.y >= 0 && q.x < w && q.y < h;
         var at_next = 0u;
         if (has_next) {
-            at_next = (u32(q.y * w + q.x) - band.first_pixel) * words;
+            let next = u32(q.y * w + q.x);
+            at_next = (next - band.first_pixel) * words;
             if (edge > 0u) {
-                colour = images[image_offset + u32(q.y * w + q.x)];
+                colour = images[image_offset + next];
             }
         }
         var penalty2 = p2;

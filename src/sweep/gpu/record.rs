@@ -314,9 +314,9 @@ pub(super) fn record_sweep(
     let together = walks.together_pass();
     let mut sgm_dispatches = 0;
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
-    if walks == SgmWalks::Together {
+    if let (SgmWalks::Together, Some(sums)) = (walks, buffers.sgm_sums.first()) {
         // Every direction adds into the sums (none writes them first).
-        encoder.clear_buffer(&buffers.sgm_sums[0], 0, None);
+        encoder.clear_buffer(sums, 0, None);
     }
     for (p, (phase, dispatches)) in schedule.phase_dispatches().enumerate() {
         let p = p as u32;
