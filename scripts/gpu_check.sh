@@ -110,6 +110,9 @@ else
     # Depth and confidence read back alone (the node while nobody subscribes to cost and
     # selection): half the readback.
     step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
+    # A 1-MP set's depth and confidence to their messages: copied out of the readback first
+    # (the node with fusion) against lent out of it (without), alternated.
+    step bench-gpu-maps-out 60 "$bin" bench --maps-out --repeats 15
     # Sets back to back with the next on the device while one is read back (`bag` and the
     # node under load) against each set alone, alternated twice: ms per set of the stream
     # (the host's share hidden behind the device's) against one set's start to end.

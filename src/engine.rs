@@ -102,7 +102,7 @@ pub trait Sweeper {
                 .run_references(&rig.cameras, images, &[reference], params)
                 .pop()
                 .unwrap_or(Err(SweepError::Cancelled))
-                .map(|depth| depth.maps),
+                .map(|depth| depth.maps.into_owned()),
             None => self.run(rig, images, params),
         }
     }
@@ -198,7 +198,7 @@ fn each_reference<S: Sweeper + ?Sized>(
             Ok(ReferenceDepth {
                 reference,
                 cameras: r.cameras,
-                maps,
+                maps: maps.into(),
             })
         });
         // The set's timings: every reference's stages summed.

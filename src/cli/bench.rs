@@ -10,7 +10,8 @@
 //! After the table, what decoding a 9-camera 640x480 JPEG set costs ([`decode`]), beside each
 //! engine's 9-camera set of the same run, and the node's own host work per set at 1 MP
 //! ([`messages`]: image messages in, depth and confidence messages out).
-//! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`.
+//! `bench --fusion` ([`fusion`]): the TSDF fusion beside Open3D's `VoxelBlockGrid`;
+//! `bench --maps-out` ([`maps_out`]): a 1-MP set's maps into messages, copied out or lent.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -29,6 +30,7 @@ use crate::synthetic::{self, Scene};
 mod configs;
 pub mod decode;
 pub mod fusion;
+pub mod maps_out;
 pub mod messages;
 mod streamed;
 
@@ -97,6 +99,9 @@ pub struct BenchArgs {
     /// subscribes to its cost and selection images (default: those too, as `bag` writes them).
     #[arg(long)]
     pub depth_only: bool,
+    /// Only the maps-out line: a 1-MP set's depth and confidence to messages, copied or lent.
+    #[arg(long)]
+    pub maps_out: bool,
     /// Engine options applied to every configuration (window, scoring, ...).
     #[command(flatten)]
     pub params: EngineOptions,
@@ -547,6 +552,8 @@ pub fn run_peer_for(
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     if args.fusion {
         return fusion::run(args);
+    } else if args.maps_out {
+        return maps_out::run(args);
     }
     let repeats = if args.quick { 3 } else { args.repeats };
     let peer = run_peer(args.python.as_deref(), 3 * repeats);
@@ -579,7 +586,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Ok(mut engine) => {
                 // As the node runs it: the maps its outputs publish (issue 35).
                 engine.set_wanted_maps(if args.depth_only {
-                    crate::pipeline::Wanted::NONE.maps()
+                    crate::pipeline::Wanted::NONE.maps(true)
                 } else {
                     WantedMaps::OUTPUTS
                 });

@@ -263,14 +263,15 @@ pub fn synthetic_moving_rig(
         engine_ms += started.elapsed().as_secs_f64() * 1e3;
         for result in results {
             let depth = result?;
+            let maps = depth.maps.into_owned();
             let camera = &rig.cameras[depth.reference];
             views.push(FusionView {
                 name: format!("set{set}/{}", camera.name),
                 model: camera.model,
                 world_from_cam: world_from_rig.compose(&camera.cam_from_rig.inverse()),
                 truth_m: truths[depth.reference].clone(),
-                depth_m: depth.maps.depth_m,
-                confidence: depth.maps.confidence,
+                depth_m: maps.depth_m,
+                confidence: maps.confidence,
                 baseline_m: rms_baseline_m(&rig.cameras, depth.reference, &depth.cameras),
                 colour: images[depth.reference].clone(),
             });
@@ -394,6 +395,7 @@ pub fn icl_nuim(
     let mut views = Vec::with_capacity(results.len());
     for result in results {
         let depth = result?;
+        let maps = depth.maps.into_owned();
         let camera = &cameras[depth.reference];
         views.push(FusionView {
             name: camera.name.clone(),
@@ -401,8 +403,8 @@ pub fn icl_nuim(
             // The rig frame is ICL-NUIM's world frame.
             world_from_cam: camera.cam_from_rig.inverse(),
             truth_m: truths[depth.reference].clone(),
-            depth_m: depth.maps.depth_m,
-            confidence: depth.maps.confidence,
+            depth_m: maps.depth_m,
+            confidence: maps.confidence,
             baseline_m: rms_baseline_m(&cameras, depth.reference, &depth.cameras),
             colour: images[depth.reference].clone(),
         });

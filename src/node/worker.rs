@@ -176,6 +176,9 @@ fn worker_loop(
     mut outputs: Outputs,
     viewer: Option<&Viewer>,
 ) {
+    // Only fusion reads the depths as floats: without it the WGSL engine lends them out of
+    // its readback buffer and the messages are made from there (one copy fewer per map).
+    host.set_keep_floats(outputs.fusion.is_some());
     // Fusion on the engine's device follows it to a new one after a loss.
     if let (Some(fusion), true) = (&outputs.fusion, outputs.fusion_follows_engine) {
         let fusion = Arc::clone(fusion);

@@ -36,6 +36,9 @@ pub struct EngineHost {
     on_new_device: Option<NewDeviceHook>,
     /// Jobs started and not finished, oldest first ([`EngineHost::start`]).
     in_flight: VecDeque<InFlight>,
+    /// Whether the outputs' depth and confidence maps are kept as floats
+    /// ([`EngineHost::set_keep_floats`]).
+    keep_floats: bool,
 }
 
 impl EngineHost {
@@ -52,7 +55,16 @@ impl EngineHost {
             cancel: CancelFlag::new(),
             on_new_device: None,
             in_flight: VecDeque::new(),
+            keep_floats: true,
         })
+    }
+
+    /// Whether the caller reads the outputs' depth and confidence as floats
+    /// ([`super::FrameMaps`]: fusion does), the default. Without, the WGSL engine lends them
+    /// out of its readback buffer to make their messages from, and the outputs' maps are left
+    /// empty (the node without fusion: one copy of both maps fewer per reference).
+    pub fn set_keep_floats(&mut self, keep: bool) {
+        self.keep_floats = keep;
     }
 
     /// Runs stop at their next pass boundary once `cancel` is set (the job is then skipped
@@ -125,7 +137,7 @@ impl EngineHost {
             return Err(cancelled());
         }
         if !self.is_lost() {
-            self.engine.set_wanted_maps(wanted.maps());
+            self.engine.set_wanted_maps(wanted.maps(self.keep_floats));
             let result = process_job(&mut self.engine, job, sweep, wanted);
             if !self.lost_in(&result) {
                 return result;
@@ -169,7 +181,7 @@ impl EngineHost {
                     .and_then(|()| process_job(&mut self.engine, &job, sweep, wanted)),
             )
         } else {
-            self.engine.set_wanted_maps(wanted.maps());
+            self.engine.set_wanted_maps(wanted.maps(self.keep_floats));
             start_job(&mut self.engine, &job, sweep, wanted)
         };
         self.in_flight.push_back(InFlight {
@@ -257,7 +269,7 @@ impl EngineHost {
             })?;
         self.lost = Self::watch(&engine);
         engine.set_cancel(self.cancel.clone());
-        engine.set_wanted_maps(wanted.maps());
+        engine.set_wanted_maps(wanted.maps(self.keep_floats));
         self.engine = engine;
         self.recreated += 1;
         tracing::info!("engine recreated: {}", self.engine.label());

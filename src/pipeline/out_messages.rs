@@ -9,20 +9,26 @@ use crate::msgs::{Header, Image, PointCloud2, PointField};
 
 /// A `32FC1` little-endian image message (step = 4 * width).
 pub fn f32_image_msg(header: &Header, image: &ImageF32) -> Image {
+    f32_values_msg(header, (image.width, image.height), &image.data)
+}
+
+/// [`f32_image_msg`] of a `width` x `height` map's `values` (a map lent out of the engine's
+/// readback buffer: `sweep::gpu::LentMaps`).
+pub fn f32_values_msg(header: &Header, (width, height): (u32, u32), values: &[f32]) -> Image {
     // On a little-endian host the floats' bytes as they lie: one copy (a value at a time took
     // 3-4 times as long; a megapixel map is 4.9 MB, and depth and confidence go out every set).
     let data = if cfg!(target_endian = "little") {
-        bytemuck::cast_slice::<f32, u8>(&image.data).to_vec()
+        bytemuck::cast_slice::<f32, u8>(values).to_vec()
     } else {
-        image.data.iter().flat_map(|v| v.to_le_bytes()).collect()
+        values.iter().flat_map(|v| v.to_le_bytes()).collect()
     };
     Image {
         header: header.clone(),
-        height: image.height,
-        width: image.width,
+        height,
+        width,
         encoding: "32FC1".to_string(),
         is_bigendian: 0,
-        step: image.width.saturating_mul(4),
+        step: width.saturating_mul(4),
         data,
     }
 }
@@ -37,6 +43,19 @@ pub fn depth_and_confidence_msgs(
     rayon::join(
         || f32_image_msg(header, depth),
         || f32_image_msg(header, confidence),
+    )
+}
+
+/// [`depth_and_confidence_msgs`] of a reference's maps lent out of the WGSL engine's readback
+/// buffer: the messages' bytes copied straight from where the GPU put them.
+pub fn lent_depth_and_confidence_msgs(
+    header: &Header,
+    maps: &crate::sweep::gpu::LentMaps,
+) -> (Image, Image) {
+    let size = (maps.width(), maps.height());
+    rayon::join(
+        || f32_values_msg(header, size, maps.depth_m()),
+        || f32_values_msg(header, size, maps.confidence()),
     )
 }
 

@@ -4,7 +4,8 @@
 
 use super::convert::{packed_view, set_to_rgba8, some_to_rgba8, ConvertError};
 use super::out_messages::{
-    depth_and_confidence_msgs, f32_image_msg, point_cloud_msg, selection_msg,
+    depth_and_confidence_msgs, f32_image_msg, lent_depth_and_confidence_msgs, point_cloud_msg,
+    selection_msg,
 };
 use super::outcome::{Job, JobReference, Skip, SkipKind, VirtualCamera};
 use crate::engine::{StartedSet, Sweeper};
@@ -12,7 +13,7 @@ use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
 use crate::image::{CameraImage, ImageF32, Rgba8Image, SetImages};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
-use crate::sweep::references::ReferenceDepth;
+use crate::sweep::references::{ReferenceDepth, ReferenceMaps};
 use crate::sweep::{DepthMaps, SweepError, SweepParams, WantedMaps};
 use std::sync::Arc;
 
@@ -34,9 +35,10 @@ pub struct FrameMaps {
     /// The messages' header: the reference camera's stamp; its frame_id, or the virtual
     /// camera's.
     pub header: Header,
-    /// z along the optical axis in metres, NaN where invalid (the `depth` message's values).
+    /// z along the optical axis in metres, NaN where invalid (the `depth` message's values;
+    /// 0 x 0 where the engine's host was told no floats are kept: `EngineHost::set_keep_floats`).
     pub depth_m: ImageF32,
-    /// In [0, 1], 0 where invalid (the `confidence` message's values).
+    /// In [0, 1], 0 where invalid (the `confidence` message's values; 0 x 0 as `depth_m`).
     pub confidence: ImageF32,
     /// A moving rig (`world_frame`): the pose of the header's frame in the world frame at the
     /// header's stamp (what tf2 gives a ROS user for the same stamp).
@@ -142,12 +144,15 @@ impl Wanted {
         }
     }
 
-    /// The engine's maps for these outputs (never the diagnostic ones).
-    pub fn maps(self) -> WantedMaps {
+    /// The engine's maps for these outputs (never the diagnostic ones); depth and confidence
+    /// as floats of the caller's own where `keep_floats` (fusion reads them) or the points
+    /// are made from them, else they may come lent out of the WGSL engine's readback buffer.
+    pub fn maps(self, keep_floats: bool) -> WantedMaps {
         WantedMaps {
             cost: self.cost,
             selection: self.selection,
             diagnostics: false,
+            floats: keep_floats || self.points,
         }
     }
 }
@@ -392,7 +397,7 @@ fn virtual_outputs(
         first.output,
         header,
         &first.info,
-        maps,
+        maps.into(),
         None,
         &rig.reference_model(),
         // A virtual camera's points are in its own frame.
@@ -456,7 +461,7 @@ fn reference_outputs(
     output: usize,
     header: Header,
     info: &CameraInfo,
-    maps: DepthMaps,
+    maps: ReferenceMaps,
     colour: Option<&Arc<Rgba8Image>>,
     model: &CameraModel,
     frame_from_cam: &RigidTransform,
@@ -469,6 +474,13 @@ fn reference_outputs(
         .map(|w| w.compose(&placement.rig_from_frame));
     let mut depth_info = info.clone();
     depth_info.header = header.clone();
+    // Maps lent out of the WGSL engine's readback (a caller that keeps no floats): the
+    // messages copied from where the GPU put them, no maps kept. Points are made from owned
+    // maps (the engine lends none where they are wanted).
+    let (maps, lent) = match maps {
+        ReferenceMaps::Lent(lent) if !wanted.points => (DepthMaps::empty(), Some(lent)),
+        other => (other.into_owned(), None),
+    };
     let points = wanted.points.then(|| {
         point_cloud_msg(
             &header,
@@ -478,7 +490,11 @@ fn reference_outputs(
             frame_from_cam,
         )
     });
-    let (depth, confidence) = depth_and_confidence_msgs(&header, &maps.depth_m, &maps.confidence);
+    let (depth, confidence) = match &lent {
+        Some(lent) => lent_depth_and_confidence_msgs(&header, lent),
+        None => depth_and_confidence_msgs(&header, &maps.depth_m, &maps.confidence),
+    };
+    drop(lent);
     let messages = FrameMessages {
         depth,
         depth_info,

@@ -563,6 +563,10 @@ pub struct WantedMaps {
     pub selection: bool,
     /// [`DepthMaps::depth_raw_m`] and [`DepthMaps::visible_cameras`], which no output publishes.
     pub diagnostics: bool,
+    /// Whether the caller keeps depth and confidence as maps of its own. Where it does not
+    /// (and wants nothing else), the WGSL engine may lend them out of its mapped readback
+    /// buffer instead of copying them ([`crate::sweep::references::ReferenceMaps::Lent`]).
+    pub floats: bool,
 }
 
 impl WantedMaps {
@@ -571,6 +575,7 @@ impl WantedMaps {
         cost: true,
         selection: true,
         diagnostics: true,
+        floats: true,
     };
     /// What the outputs publish: all but the diagnostic maps.
     pub const OUTPUTS: Self = Self {
@@ -607,6 +612,23 @@ pub struct DepthMaps {
 }
 
 impl DepthMaps {
+    /// Every map 0 x 0.
+    pub fn empty() -> Self {
+        let empty = || ImageF32 {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        };
+        Self {
+            depth_m: empty(),
+            depth_raw_m: empty(),
+            confidence: empty(),
+            cost: empty(),
+            selection: Vec::new(),
+            visible_cameras: Vec::new(),
+        }
+    }
+
     pub fn width(&self) -> u32 {
         self.depth_m.width
     }

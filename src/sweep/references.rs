@@ -8,6 +8,7 @@
 
 use crate::geometry::{neighbours::neighbours, Reference, Rig, RigCamera};
 
+use super::gpu::LentMaps;
 use super::{DepthMaps, SweepError, SweepParams};
 
 /// The rig one reference sweeps: its neighbours and itself.
@@ -62,13 +63,46 @@ pub fn reference_rig(
 }
 
 /// One reference's depth of a frame set.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct ReferenceDepth {
     /// The reference, as an index into the set's cameras.
     pub reference: usize,
     /// The set's cameras it swept with (itself included), in set order.
     pub cameras: Vec<usize>,
-    pub maps: DepthMaps,
+    pub maps: ReferenceMaps,
+}
+
+/// A reference's maps: the engine's own, or its depth and confidence lent out of the WGSL
+/// engine's readback buffer (only to a caller that said it keeps no floats:
+/// [`crate::sweep::WantedMaps::floats`]).
+#[derive(Debug)]
+pub enum ReferenceMaps {
+    Owned(DepthMaps),
+    Lent(LentMaps),
+}
+
+impl ReferenceMaps {
+    /// The engine's own maps (None where they are lent).
+    pub fn owned(&self) -> Option<&DepthMaps> {
+        match self {
+            Self::Owned(maps) => Some(maps),
+            Self::Lent(_) => None,
+        }
+    }
+
+    /// The maps as the caller's own (lent ones copied out).
+    pub fn into_owned(self) -> DepthMaps {
+        match self {
+            Self::Owned(maps) => maps,
+            Self::Lent(lent) => lent.to_maps(),
+        }
+    }
+}
+
+impl From<DepthMaps> for ReferenceMaps {
+    fn from(maps: DepthMaps) -> Self {
+        Self::Owned(maps)
+    }
 }
 
 #[cfg(test)]

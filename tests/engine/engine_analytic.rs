@@ -753,7 +753,7 @@ fn every_reference_of_an_arc_gets_its_depth_as_if_alone() {
         );
         check_within(
             &format!("arc_reference_{r}_cpu"),
-            &depth.maps.depth_m,
+            &depth.maps.owned().expect("owned maps").depth_m,
             &truth(*r),
             0.02,
             0.85,
@@ -763,6 +763,8 @@ fn every_reference_of_an_arc_gets_its_depth_as_if_alone() {
         let alone = CpuEngine::new().run(&rig_r, &images, &p).expect("alone");
         let same = depth
             .maps
+            .owned()
+            .expect("owned maps")
             .depth_m
             .data
             .iter()
@@ -785,7 +787,7 @@ fn every_reference_of_an_arc_gets_its_depth_as_if_alone() {
         let depth = result.unwrap_or_else(|e| panic!("reference {r} (WGSL): {e}"));
         check_within(
             &format!("arc_reference_{r}_gpu"),
-            &depth.maps.depth_m,
+            &depth.maps.owned().expect("owned maps").depth_m,
             &truth(*r),
             0.02,
             0.85,
@@ -832,7 +834,7 @@ fn surround_references_take_their_neighbours_and_a_lonely_one_is_refused() {
     let rig_4 = Rig::new(cameras.clone(), Reference::Camera(4)).expect("rig");
     check_within(
         "row_reference_4_of_7",
-        &second.maps.depth_m,
+        &second.maps.owned().expect("owned maps").depth_m,
         &synthetic::reference_depth(&scene, &rig_4),
         0.05,
         0.85,

@@ -1503,6 +1503,7 @@ fn maps_left_out_change_nothing_else() {
         cost: false,
         selection: false,
         diagnostics: false,
+        floats: true,
     };
     let cost_only = WantedMaps { cost: true, ..none };
     for (wanted, sections) in [(none, 2), (cost_only, 3)] {

@@ -12,6 +12,7 @@ mod engine_analytic;
 mod fusion_accuracy;
 mod fusion_soak;
 mod gpu_vs_cpu;
+mod lent_maps;
 mod many_cameras;
 mod quality;
 mod real_cameras;

@@ -116,7 +116,7 @@ fn a_32_camera_dome_runs_with_the_defaults() {
         .expect("one result")
         .expect("the dome with the defaults");
     assert_eq!(chosen.cameras.len(), 9, "8 views and the reference");
-    let (rel, within) = errors(&chosen.maps.depth_m, &truth);
+    let (rel, within) = errors(&chosen.maps.owned().expect("owned maps").depth_m, &truth);
     assert!(
         rel < 0.01 && within > 0.7,
         "dome: mean relative error {rel:.4}, {:.1} % within 1 %",
@@ -173,10 +173,16 @@ fn picked_views_sweep_as_their_copies_on_the_wgsl_engine() {
     let copies: Vec<Rgba8Image> = chosen.cameras.iter().map(|&i| images[i].clone()).collect();
     let copied = gpu().run(&chosen.rig, &copies, &p).expect("the copies");
     let bits = |m: &ImageF32| m.data.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
-    assert_eq!(bits(&picked.maps.depth_m), bits(&copied.depth_m));
-    assert_eq!(bits(&picked.maps.confidence), bits(&copied.confidence));
+    assert_eq!(
+        bits(&picked.maps.owned().expect("owned maps").depth_m),
+        bits(&copied.depth_m)
+    );
+    assert_eq!(
+        bits(&picked.maps.owned().expect("owned maps").confidence),
+        bits(&copied.confidence)
+    );
     let (rel, within) = errors(
-        &picked.maps.depth_m,
+        &picked.maps.owned().expect("owned maps").depth_m,
         &synthetic::reference_depth(&scene, &rig),
     );
     assert!(rel < 0.01 && within > 0.7, "{rel:.4} / {within:.3}");
@@ -260,8 +266,16 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
         counts.staging_buffers + later.staging_buffers <= references.len() as u32,
         "{counts:?} then {later:?}"
     );
-    let depth_bits =
-        |d: &Result<ReferenceDepth, _>| bits(&d.as_ref().expect("a reference").maps.depth_m);
+    let depth_bits = |d: &Result<ReferenceDepth, _>| {
+        bits(
+            &d.as_ref()
+                .expect("a reference")
+                .maps
+                .owned()
+                .expect("owned maps")
+                .depth_m,
+        )
+    };
     for ((a, b), o) in together.iter().zip(&again).zip(&other) {
         assert_eq!(depth_bits(a), depth_bits(b), "the same images again");
         assert_ne!(depth_bits(a), depth_bits(o), "other images, other depths");
@@ -310,11 +324,17 @@ fn a_set_of_several_references_writes_each_image_once_on_the_wgsl_engine() {
             let other = other.as_ref().expect("each reference of the set");
             assert_eq!(other.reference, one.reference);
             assert_eq!(other.cameras, one.cameras);
-            assert_eq!(bits(&other.maps.depth_m), bits(&one.maps.depth_m));
-            assert_eq!(bits(&other.maps.confidence), bits(&one.maps.confidence));
+            assert_eq!(
+                bits(&other.maps.owned().expect("owned maps").depth_m),
+                bits(&one.maps.owned().expect("owned maps").depth_m)
+            );
+            assert_eq!(
+                bits(&other.maps.owned().expect("owned maps").confidence),
+                bits(&one.maps.owned().expect("owned maps").confidence)
+            );
         }
         let (rel, within) = errors(
-            &one.maps.depth_m,
+            &one.maps.owned().expect("owned maps").depth_m,
             &synthetic::reference_depth(
                 &scene,
                 &Rig::new(rig.cameras.clone(), Reference::Camera(one.reference)).expect("rig"),
@@ -338,13 +358,13 @@ fn a_failing_reference_among_several_leaves_the_others_their_own_maps_on_the_wgs
     let alone = |engine: &mut GpuEngine, r: usize| {
         let mut results = engine.run_references(&rig.cameras, &images, &[r], &p);
         let depth = results.pop().expect("one").expect("runs alone");
-        bits(&depth.maps.depth_m)
+        bits(&depth.maps.owned().expect("owned maps").depth_m)
     };
     let (first, last) = (alone(&mut engine, 17), alone(&mut engine, 5));
     let results = engine.run_references(&rig.cameras, &images, &[17, 99, 5], &p);
     assert_eq!(results.len(), 3);
     let depth = |i: usize| match &results[i] {
-        Ok(d) => bits(&d.maps.depth_m),
+        Ok(d) => bits(&d.maps.owned().expect("owned maps").depth_m),
         Err(e) => panic!("reference {i}: {e}"),
     };
     assert!(depth(0) == first, "the first reference's own maps");
@@ -390,20 +410,31 @@ fn both_cameras_of_a_pair_as_references_sweep_as_alone_on_the_wgsl_engine() {
     for (one, other) in alone.iter().zip(&together) {
         let other = other.as_ref().expect("each reference of the pair");
         assert_eq!(other.reference, one.reference);
-        assert_eq!(bits(&other.maps.depth_m), bits(&one.maps.depth_m));
-        assert_eq!(bits(&other.maps.confidence), bits(&one.maps.confidence));
+        assert_eq!(
+            bits(&other.maps.owned().expect("owned maps").depth_m),
+            bits(&one.maps.owned().expect("owned maps").depth_m)
+        );
+        assert_eq!(
+            bits(&other.maps.owned().expect("owned maps").confidence),
+            bits(&one.maps.owned().expect("owned maps").confidence)
+        );
         let valid = one
             .maps
+            .owned()
+            .expect("owned maps")
             .depth_m
             .data
             .iter()
             .filter(|d| d.is_finite())
             .count();
-        assert!(valid * 2 > one.maps.depth_m.data.len(), "{valid} valid");
+        assert!(
+            valid * 2 > one.maps.owned().expect("owned maps").depth_m.data.len(),
+            "{valid} valid"
+        );
     }
     assert_ne!(
-        bits(&alone[0].maps.depth_m),
-        bits(&alone[1].maps.depth_m),
+        bits(&alone[0].maps.owned().expect("owned maps").depth_m),
+        bits(&alone[1].maps.owned().expect("owned maps").depth_m),
         "two references, two maps"
     );
 }

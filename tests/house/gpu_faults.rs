@@ -482,3 +482,56 @@ fn sets_started_ahead_finish_in_order_with_their_own_outputs_even_after_a_lost_d
     assert!(depths(&first) == alone_three && depths(&second) == alone_one);
     assert!(host.finish().is_none());
 }
+
+/// The node without fusion (`EngineHost::set_keep_floats(false)`): the WGSL engine lends
+/// depth and confidence out of its readback buffer and the messages are made from there, the
+/// same bytes as from the maps it copies out otherwise; no maps are kept as floats then, and
+/// where the points are made (from the floats) they are kept again.
+#[test]
+fn messages_made_from_lent_maps_are_those_made_from_copied_ones() {
+    let (config, job) = fixture();
+    let mut host = EngineHost::new(sweepdepth::engine::Device::Gpu).expect("GPU");
+    let kept = host
+        .process(&job, &config.sweep, Wanted::NONE)
+        .expect("a run keeping floats");
+    host.set_keep_floats(false);
+    let lent = host
+        .process(&job, &config.sweep, Wanted::NONE)
+        .expect("a run with lent maps");
+    let points = host
+        .process(
+            &job,
+            &config.sweep,
+            Wanted {
+                points: true,
+                ..Wanted::NONE
+            },
+        )
+        .expect("a run making points");
+    let (kept, lent, points) = (&kept.outputs[0], &lent.outputs[0], &points.outputs[0]);
+    let pixels = (kept.messages.depth.width * kept.messages.depth.height) as usize;
+    assert!(pixels > 0);
+    assert_eq!(kept.maps.depth_m.data.len(), pixels);
+    assert_eq!(kept.maps.confidence.data.len(), pixels);
+    assert!(
+        lent.maps.depth_m.data.is_empty() && lent.maps.confidence.data.is_empty(),
+        "no floats kept"
+    );
+    for (a, b) in [
+        (&kept.messages.depth, &lent.messages.depth),
+        (&kept.messages.confidence, &lent.messages.confidence),
+        (&kept.messages.depth, &points.messages.depth),
+    ] {
+        assert_eq!(
+            (a.width, a.height, &a.encoding),
+            (b.width, b.height, &b.encoding)
+        );
+        assert_eq!(a.data, b.data);
+    }
+    assert!(points.messages.points.is_some());
+    assert_eq!(
+        points.maps.depth_m.data.len(),
+        pixels,
+        "points keep the floats"
+    );
+}

@@ -20,9 +20,12 @@
 //! - `level_images.rs`: how a level's images get to the device (uploaded, unpacked, made from
 //!   the level above, copied from a held set's).
 //! - `set_images.rs`: a frame set's images kept on the device across its references.
+//! - `pending.rs`: sets submitted ahead and read back in order; `lent.rs`: their depth and
+//!   confidence lent out of the mapped readback buffer.
 
 mod buffers;
 pub(crate) mod copies;
+mod lent;
 mod level_images;
 mod pending;
 mod pipelines;
@@ -46,6 +49,7 @@ use crate::geometry::Rig;
 use crate::image::{CameraImage, Rgba8Image, SetImages};
 use buffers::{Alignments, Buffers};
 pub use copies::HostCopies;
+pub use lent::LentMaps;
 use level_images::LevelInput;
 pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
@@ -89,6 +93,9 @@ pub struct SetCounts {
     /// from set to set (so 0 once it is made), and one per write it could not take
     /// (`Queue::write_buffer` makes one per call).
     pub staging_buffers: u32,
+    /// Readback buffers made for sets submitted ahead: kept from set to set (and given back
+    /// by the maps lent out of them when those are dropped), so 0 once there are enough.
+    pub readback_buffers: u32,
     /// Milliseconds of `run` (or `run_plan`) neither waiting for the GPU nor in `submit`: the
     /// host's share of a frame set (planning, images, census, half-size images, uploads,
     /// recording, unpacking the maps).

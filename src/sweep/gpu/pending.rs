@@ -12,9 +12,12 @@ use std::ops::Range;
 use std::time::Instant;
 
 use super::super::coarse::{LevelDepth, LevelImages};
-use super::super::gpu_types::MAP_COUNT;
+use super::super::gpu_types::{MAP_CONFIDENCE, MAP_COST, MAP_COUNT, MAP_DEPTH};
+use super::super::joint_median::JointMedian;
 use super::super::plan::{unpack_sections, SweepPlan};
-use super::super::{DepthMaps, StageTimings, SweepError, SweepParams, WantedMaps};
+use super::super::references::ReferenceMaps;
+use super::super::{StageTimings, SweepError, SweepParams, WantedMaps};
+use super::lent::{LentMaps, ReturnedBuffers};
 use super::{buffers, record, GpuEngine, HostCopies, OpenSet, Recorded};
 use crate::geometry::Rig;
 use crate::image::SetImages;
@@ -55,6 +58,8 @@ pub(super) struct Deferred {
     readbacks: Vec<wgpu::Buffer>,
     /// Submissions whose maps are not read back yet.
     in_flight: u32,
+    /// Readback buffers of maps lent out ([`LentMaps`]) given back when they were dropped.
+    returned: ReturnedBuffers,
 }
 
 /// Readback buffers kept at most for sets submitted ahead.
@@ -68,23 +73,32 @@ impl Default for Deferred {
             sets: VecDeque::new(),
             readbacks: Vec::new(),
             in_flight: 0,
+            returned: ReturnedBuffers::default(),
         }
     }
 }
 
 impl Deferred {
-    /// A free readback buffer of `bytes` (the smallest that holds them), or a new one.
-    fn take_readback(&mut self, device: &wgpu::Device, bytes: u64) -> wgpu::Buffer {
+    /// A free readback buffer of `bytes` (the smallest that holds them), or a new one
+    /// (counted in `made`).
+    fn take_readback(&mut self, device: &wgpu::Device, bytes: u64, made: &mut u32) -> wgpu::Buffer {
+        let returned = std::mem::take(&mut *self.returned.lock());
+        for buffer in returned {
+            self.give_back(buffer);
+        }
         let fitting = self.readbacks.iter().enumerate();
         let fitting = fitting.filter(|(_, b)| b.size() >= bytes);
         match fitting.min_by_key(|(_, b)| b.size()).map(|(i, _)| i) {
             Some(i) => self.readbacks.swap_remove(i),
-            None => device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback, submitted ahead"),
-                size: bytes,
-                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            None => {
+                *made += 1;
+                device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("readback, submitted ahead"),
+                    size: bytes,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            }
         }
     }
 
@@ -131,9 +145,11 @@ impl GpuEngine {
             return Err(SweepError::Gpu("internal: no buffers".into()));
         };
         let readback = match pooled {
-            true => self
-                .deferred
-                .take_readback(&self.device, buffers.readback.size()),
+            true => self.deferred.take_readback(
+                &self.device,
+                buffers.readback.size(),
+                &mut self.counts.readback_buffers,
+            ),
             false => buffers.readback.clone(),
         };
         // Only the sections the caller unpacks (`SweepPlan::unpacked_sections`).
@@ -221,6 +237,18 @@ impl GpuEngine {
             self.deferred.give_back(readback);
         }
         let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
+        self.set_timings(&levels, ticks, started)?;
+        Ok(maps)
+    }
+
+    /// The engine's timings of a set read back: every level's timestamps (`ticks`; the levels
+    /// below the last as one `coarse` stage), or the set's wall time where there are none.
+    fn set_timings(
+        &mut self,
+        levels: &[Recorded],
+        ticks: Option<Vec<u32>>,
+        started: Instant,
+    ) -> Result<(), SweepError> {
         self.timings = match ticks {
             Some(ticks) => {
                 let levels: Vec<_> = levels
@@ -234,7 +262,50 @@ impl GpuEngine {
                 gpu_timestamps: false,
             },
         };
-        Ok(maps)
+        Ok(())
+    }
+
+    /// Waits for the set `submitted` alone and lends its depth and confidence out of its
+    /// readback buffer, mapped ([`LentMaps`]; the buffer comes back to the pool when they are
+    /// dropped). Maps the view cannot lend (not aligned as floats) are copied.
+    fn lend_submitted(
+        &mut self,
+        submitted: Submitted,
+        size: (u32, u32),
+    ) -> Result<ReferenceMaps, SweepError> {
+        let Submitted {
+            index,
+            readback,
+            maps_len,
+            ticks_at,
+            mapped,
+            levels,
+            started,
+            ..
+        } = submitted;
+        let mut submitter =
+            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
+        let view = submitter.map_after(Some(index), &readback, mapped);
+        self.deferred.in_flight = self.deferred.in_flight.saturating_sub(1);
+        let view = view?;
+        let ticks = (mapped > maps_len).then(|| {
+            let ticks = view.get(ticks_at as usize..).unwrap_or(&[]);
+            bytemuck::pod_collect_to_vec(ticks)
+        });
+        self.set_timings(&levels, ticks, started)?;
+        match LentMaps::new(view, readback.clone(), &self.deferred.returned, size) {
+            Ok(lent) => Ok(ReferenceMaps::Lent(lent)),
+            Err(view) => {
+                let bytes = view.get(..maps_len as usize).unwrap_or(&[]);
+                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(bytes);
+                drop(view);
+                readback.unmap();
+                self.deferred.give_back(readback);
+                let wanted = self.wanted;
+                let maps = unpack_sections(size, &floats, MAP_DEPTH, wanted, false);
+                Ok(ReferenceMaps::Owned(maps))
+            }
+        }
     }
 
     /// The last level of a set submitted by [`Self::submit_set`]: submitted, its maps read
@@ -276,13 +347,16 @@ impl GpuEngine {
     }
 
     /// The maps of the oldest set [`Self::submit_set`] submitted, read back after its own
-    /// submission alone has run (the host's post-step made as `run` does).
+    /// submission alone has run (the host's post-step made as `run` does). Lent out of the
+    /// readback buffer ([`ReferenceMaps::Lent`]) where the set was submitted for a caller
+    /// that keeps no floats and reads depth and confidence alone ([`WantedMaps::floats`]) and
+    /// the host has nothing to do to them (no joint median).
     pub fn collect_set(
         &mut self,
         rig: &Rig,
         images: SetImages<'_>,
         params: &SweepParams,
-    ) -> Result<DepthMaps, SweepError> {
+    ) -> Result<ReferenceMaps, SweepError> {
         self.measured(|engine| {
             let Some(pending) = engine.deferred.sets.pop_front() else {
                 return Err(SweepError::Gpu("internal: no set submitted ahead".into()));
@@ -294,11 +368,20 @@ impl GpuEngine {
                 wanted,
                 copies,
             } = pending;
+            let lend = !wanted.floats
+                && sections == (MAP_DEPTH..MAP_COST)
+                && MAP_CONFIDENCE == MAP_DEPTH + 1
+                && submitted.pooled
+                && JointMedian::of_params(params).radius == 0;
+            if lend {
+                return engine.lend_submitted(submitted, size);
+            }
             let maps = engine.read_submitted(submitted, |m| {
                 let split = copies.split(m.len() * 4);
                 unpack_sections(size, m, sections.start, wanted, split)
             })?;
             super::super::coarse::finish(engine, maps, rig, images, params)
+                .map(ReferenceMaps::Owned)
         })
     }
 

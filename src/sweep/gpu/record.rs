@@ -151,6 +151,30 @@ impl<'a> Submitter<'a> {
         }
         Ok(())
     }
+
+    /// Maps `bytes` of `buffer` once the submission `after` alone has run and hands out the
+    /// mapped view (the buffer stays mapped: its holder unmaps it when done with it).
+    pub fn map_after(
+        &mut self,
+        after: Option<wgpu::SubmissionIndex>,
+        buffer: &wgpu::Buffer,
+        bytes: u64,
+    ) -> Result<wgpu::BufferView, SweepError> {
+        let (sender, receiver) = mpsc::channel();
+        buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
+            let _ = sender.send(r);
+        });
+        self.counts.readbacks += 1;
+        self.counts.readback_bytes += bytes;
+        let started = Instant::now();
+        let waited =
+            crate::gpu_context::wait_for_submission(self.device, after, || self.cancel.check());
+        self.counts.waits += 1;
+        self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
+        waited?;
+        receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
+        buffer.get_mapped_range(..bytes).map_err(gpu_err)
+    }
 }
 
 /// How the WGSL engine's SGM dispatches its path directions (the sums are the same, bit for
