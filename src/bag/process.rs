@@ -219,7 +219,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         .find(|t| &t.name == ref_topic)
         .and_then(|t| t.count);
 
-    let host = EngineHost::new(config.device())?;
+    let mut host = EngineHost::new(config.device())?;
     tracing::info!("engine: {}", host.adapter_label());
 
     let mut writer = BagWriter::create(&args.output, args.force)?;
@@ -250,6 +250,9 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         Some(f) => Some(bag_fusion_sink(&config, f, &host)?),
         None => None,
     };
+    // Only fusion reads the depths as floats: without `--mesh` the WGSL engine lends them out
+    // of its readback and the messages written are copied from there.
+    host.set_keep_floats(fuser.is_some());
     let mut pipeline = Pipeline::new(&config).map_err(ConfigError::from)?;
     let mut sink = Sink {
         config: &config,
