@@ -127,22 +127,9 @@ impl<'a> Submitter<'a> {
     ) -> Result<(), SweepError> {
         let receivers: Vec<_> = buffers
             .iter()
-            .map(|&(buffer, bytes)| {
-                let (sender, receiver) = mpsc::channel();
-                buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
-                    let _ = sender.send(r);
-                });
-                self.counts.readbacks += 1;
-                self.counts.readback_bytes += bytes;
-                receiver
-            })
+            .map(|&(buffer, bytes)| self.map_counted(buffer, bytes))
             .collect();
-        let started = Instant::now();
-        let waited =
-            crate::gpu_context::wait_for_submission(self.device, after, || self.cancel.check());
-        self.counts.waits += 1;
-        self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
-        waited?;
+        self.wait_after(after)?;
         for (i, (&(buffer, bytes), receiver)) in buffers.iter().zip(receivers).enumerate() {
             receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
             let result = read(i, &buffer.get_mapped_range(..bytes).map_err(gpu_err)?[..]);
@@ -160,20 +147,36 @@ impl<'a> Submitter<'a> {
         buffer: &wgpu::Buffer,
         bytes: u64,
     ) -> Result<wgpu::BufferView, SweepError> {
+        let receiver = self.map_counted(buffer, bytes);
+        self.wait_after(after)?;
+        receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
+        buffer.get_mapped_range(..bytes).map_err(gpu_err)
+    }
+
+    /// Asks for `bytes` of `buffer` mapped for reading (counted as a readback); the receiver
+    /// says when.
+    fn map_counted(
+        &mut self,
+        buffer: &wgpu::Buffer,
+        bytes: u64,
+    ) -> mpsc::Receiver<Result<(), wgpu::BufferAsyncError>> {
         let (sender, receiver) = mpsc::channel();
         buffer.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
             let _ = sender.send(r);
         });
         self.counts.readbacks += 1;
         self.counts.readback_bytes += bytes;
+        receiver
+    }
+
+    /// Waits (counted) for the submission `after` alone, or the last one.
+    fn wait_after(&mut self, after: Option<wgpu::SubmissionIndex>) -> Result<(), SweepError> {
         let started = Instant::now();
         let waited =
             crate::gpu_context::wait_for_submission(self.device, after, || self.cancel.check());
         self.counts.waits += 1;
         self.counts.wait_ms += started.elapsed().as_secs_f64() * 1e3;
-        waited?;
-        receiver.recv().map_err(gpu_err)?.map_err(gpu_err)?;
-        buffer.get_mapped_range(..bytes).map_err(gpu_err)
+        waited
     }
 }
 
