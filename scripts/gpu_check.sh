@@ -82,13 +82,24 @@ fi
 if [ -x .gl/lib-tests ]; then
     step gpu-fusion-tests 120 .gl/lib-tests fusion::gpu fusion::mapper pipeline::fuser_thread --test-threads 2
 fi
+# Issue 56's bars first (a check that runs out of time loses comparisons, not bars). Fusion:
+# one 640x480 depth map integrated, copied to the host and meshed at 2 cm,
+# on the GPU (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
+# has open3d; the synthetic pair otherwise).
+step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 if [ -n "${GPU_CHECK_QUICK:-}" ]; then
     step bench 600 "$bin" bench --quick
 else
     # The WGSL engine on every configuration first (the figures the README needs), then both
     # engines beside the peer.
     step bench-gpu 150 "$bin" bench --device gpu --repeats 5
-    # The same as JSON beside the report: every stage, the coarse levels' own
+    # Depth and confidence read back alone (the node while nobody subscribes to cost and
+    # selection): half the readback.
+    step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
+    # A 1-MP set's depth and confidence to their messages: copied out of the readback first
+    # (the node with fusion) against lent out of it (without), alternated.
+    step bench-gpu-maps-out 60 "$bin" bench --maps-out --repeats 15
+    # bench-gpu again as JSON beside the report: every stage, the coarse levels' own
     # (`coarse/sgm`, ...), the WTA columns' and the host counts.
     step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""
     # SGM with one path line per workgroup, against the default above (several lines per
@@ -107,12 +118,6 @@ else
     # (every reference submitted before the first is read back), alternated twice: the 9-camera
     # rig with three references (`most_in_flight` 1 against 3 in the JSON).
     step bench-gpu-refs 120 sh -c "for r in 1 2; do \"$bin\" bench --device gpu --config 9-camera-3refs --repeats 5; \"$bin\" bench --device gpu --config 9-camera-3refs --repeats 5 --serial-references; done"
-    # Depth and confidence read back alone (the node while nobody subscribes to cost and
-    # selection): half the readback.
-    step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
-    # A 1-MP set's depth and confidence to their messages: copied out of the readback first
-    # (the node with fusion) against lent out of it (without), alternated.
-    step bench-gpu-maps-out 60 "$bin" bench --maps-out --repeats 15
     # Sets back to back with the next on the device while one is read back (`bag` and the
     # node under load) against each set alone, alternated twice: ms per set of the stream
     # (the host's share hidden behind the device's) against one set's start to end.
@@ -121,10 +126,6 @@ fi
 # A stereo camera (issue 52): the rectified and the raw pair on both engines, beside
 # rectification + SGBM 3-way (cv2 from the machine's python3, when it has it).
 step bench-stereo 120 "$bin" bench --config stereo-rect --config stereo-raw --repeats 5 --python python3
-# Fusion (issue 56): one 640x480 depth map integrated, copied to the host and meshed at 2 cm,
-# on the GPU (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
-# has open3d; the synthetic pair otherwise).
-step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 # The node's pipeline with fusion on, on the 9-camera rig (issue 56, item 4): the packed
 # Teddy bag (compressed images, as recorded) through `bag --mesh` on the WGSL engine, its ms
 # per set with every depth map fused (the live node itself needs DDS peers the device machine
