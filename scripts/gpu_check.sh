@@ -97,8 +97,9 @@ else
     # selection): half the readback.
     step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
     # A 1-MP set's depth and confidence to their messages: copied out of the readback first
-    # (the node with fusion) against lent out of it (without), alternated.
-    step bench-gpu-maps-out 60 "$bin" bench --maps-out --repeats 15
+    # (the node with fusion) against lent out of it (without), alternated; with the copies
+    # split over threads (auto, on this host) and on one thread, twice.
+    step bench-gpu-maps-out 90 sh -c "for r in 1 2; do \"$bin\" bench --maps-out --repeats 15; \"$bin\" bench --maps-out --repeats 15 --host-copies serial; done"
     # bench-gpu again as JSON beside the report: every stage, the coarse levels' own
     # (`coarse/sgm`, ...), the WTA columns' and the host counts.
     step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""

@@ -6,19 +6,28 @@ use glam::DVec2;
 use crate::geometry::{CameraModel, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{Header, Image, PointCloud2, PointField};
+use crate::sweep::gpu::{copies, HostCopies};
 
 /// A `32FC1` little-endian image message (step = 4 * width).
 pub fn f32_image_msg(header: &Header, image: &ImageF32) -> Image {
-    f32_values_msg(header, (image.width, image.height), &image.data)
+    let size = (image.width, image.height);
+    f32_values_msg(header, size, &image.data, HostCopies::Auto)
 }
 
 /// [`f32_image_msg`] of a `width` x `height` map's `values` (a map lent out of the engine's
-/// readback buffer: `sweep::gpu::LentMaps`).
-pub fn f32_values_msg(header: &Header, (width, height): (u32, u32), values: &[f32]) -> Image {
+/// readback buffer: `sweep::gpu::LentMaps`), the copy split over rayon's threads as
+/// `copies` says (`HostCopies::Auto`: on a host of 8+ threads, a megapixel map).
+pub fn f32_values_msg(
+    header: &Header,
+    (width, height): (u32, u32),
+    values: &[f32],
+    copies: HostCopies,
+) -> Image {
     // On a little-endian host the floats' bytes as they lie: one copy (a value at a time took
     // 3-4 times as long; a megapixel map is 4.9 MB, and depth and confidence go out every set).
     let data = if cfg!(target_endian = "little") {
-        bytemuck::cast_slice::<f32, u8>(values).to_vec()
+        let bytes = bytemuck::cast_slice::<f32, u8>(values);
+        copies::to_vec(bytes, copies.split(bytes.len()))
     } else {
         values.iter().flat_map(|v| v.to_le_bytes()).collect()
     };
@@ -51,11 +60,12 @@ pub fn depth_and_confidence_msgs(
 pub fn lent_depth_and_confidence_msgs(
     header: &Header,
     maps: &crate::sweep::gpu::LentMaps,
+    copies: HostCopies,
 ) -> (Image, Image) {
     let size = (maps.width(), maps.height());
     rayon::join(
-        || f32_values_msg(header, size, maps.depth_m()),
-        || f32_values_msg(header, size, maps.confidence()),
+        || f32_values_msg(header, size, maps.depth_m(), copies),
+        || f32_values_msg(header, size, maps.confidence(), copies),
     )
 }
 

@@ -13,6 +13,7 @@ use crate::fusion::rms_baseline_m;
 use crate::geometry::{CameraModel, Reference, Rig, RigidTransform};
 use crate::image::{CameraImage, ImageF32, Rgba8Image, SetImages};
 use crate::msgs::{CameraInfo, Header, Image, PointCloud2};
+use crate::sweep::gpu::HostCopies;
 use crate::sweep::references::{ReferenceDepth, ReferenceMaps};
 use crate::sweep::{DepthMaps, SweepError, SweepParams, WantedMaps};
 use std::sync::Arc;
@@ -491,7 +492,7 @@ fn reference_outputs(
         )
     });
     let (depth, confidence) = match &lent {
-        Some(lent) => lent_depth_and_confidence_msgs(&header, lent),
+        Some(lent) => lent_depth_and_confidence_msgs(&header, lent, HostCopies::Auto),
         None => depth_and_confidence_msgs(&header, &maps.depth_m, &maps.confidence),
     };
     drop(lent);

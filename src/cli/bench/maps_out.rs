@@ -18,7 +18,8 @@ use crate::engine::{Device, Engine, Sweeper};
 use crate::geometry::CameraModel;
 use crate::image::SetImages;
 use crate::msgs::{Header, Image};
-use crate::pipeline::out_messages::{depth_and_confidence_msgs, lent_depth_and_confidence_msgs};
+use crate::pipeline::out_messages::{f32_values_msg, lent_depth_and_confidence_msgs};
+use crate::sweep::gpu::HostCopies;
 use crate::sweep::references::ReferenceMaps;
 use crate::sweep::{SweepParams, WantedMaps};
 use crate::synthetic::{self, Scene};
@@ -37,6 +38,9 @@ pub struct MapsOutResult {
     /// Of those, the messages' build alone (medians).
     pub copied_messages_ms: f64,
     pub lent_messages_ms: f64,
+    /// `--host-copies`: the engine's copies and the messages' (auto: split on a host of 8+
+    /// threads).
+    pub host_copies: String,
     pub runs: usize,
 }
 
@@ -44,7 +48,7 @@ pub struct MapsOutResult {
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let repeats = if args.quick { 3 } else { args.repeats.max(1) };
     let mut engine = Engine::new(Device::Gpu).context("--maps-out needs the WGSL engine")?;
-    let result = measure(&mut engine, repeats)?;
+    let result = measure(&mut engine, repeats, args.host_copies)?;
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
         return Ok(());
@@ -52,7 +56,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     println!(
         "maps out: {} x {}x{} on {}: readback to depth and confidence 32FC1 messages {:.2} ms \
          per set copied out first (messages {:.2}), {:.2} ms lent (messages {:.2}) \
-         (engine host ms + messages, medians of {}, alternated)",
+         (engine host ms + messages, medians of {}, alternated; host copies {})",
         result.cameras,
         result.width,
         result.height,
@@ -61,13 +65,18 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         result.copied_messages_ms,
         result.lent_ms,
         result.lent_messages_ms,
-        result.runs
+        result.runs,
+        result.host_copies
     );
     Ok(())
 }
 
 /// One set of each way per run (after one of each untimed), `runs` runs.
-pub fn measure(engine: &mut Engine, runs: usize) -> anyhow::Result<MapsOutResult> {
+pub fn measure(
+    engine: &mut Engine,
+    runs: usize,
+    copies: HostCopies,
+) -> anyhow::Result<MapsOutResult> {
     let model = CameraModel::pinhole(synthetic::intrinsics(WIDTH, HEIGHT));
     let rig = synthetic::row_rig(CAMERAS, 0.1, model, CAMERAS / 2)?;
     let scene = Scene::wall_and_box(4.0, Some((2.0, 0.4)), model.intrinsics.fx_px);
@@ -80,6 +89,10 @@ pub fn measure(engine: &mut Engine, runs: usize) -> anyhow::Result<MapsOutResult
         ..SweepParams::default()
     };
     let header = Header::default();
+    let f32_image_with = |image: &crate::image::ImageF32| {
+        f32_values_msg(&header, (image.width, image.height), &image.data, copies)
+    };
+    engine.set_host_copies(copies);
     let one = |engine: &mut Engine, lend: bool| -> anyhow::Result<(f64, f64, Vec<Image>)> {
         engine.set_wanted_maps(WantedMaps {
             cost: false,
@@ -97,10 +110,13 @@ pub fn measure(engine: &mut Engine, runs: usize) -> anyhow::Result<MapsOutResult
         let mut messages = Vec::new();
         for result in results {
             let (depth, confidence) = match result?.maps {
-                ReferenceMaps::Lent(maps) if lend => lent_depth_and_confidence_msgs(&header, &maps),
-                ReferenceMaps::Owned(maps) if !lend => {
-                    depth_and_confidence_msgs(&header, &maps.depth_m, &maps.confidence)
+                ReferenceMaps::Lent(maps) if lend => {
+                    lent_depth_and_confidence_msgs(&header, &maps, copies)
                 }
+                ReferenceMaps::Owned(maps) if !lend => rayon::join(
+                    || f32_image_with(&maps.depth_m),
+                    || f32_image_with(&maps.confidence),
+                ),
                 _ => anyhow::bail!("the engine did not hand the maps out as asked (lent: {lend})"),
             };
             messages.extend([depth, confidence]);
@@ -138,6 +154,7 @@ pub fn measure(engine: &mut Engine, runs: usize) -> anyhow::Result<MapsOutResult
         lent_ms: round3(median(lent_ms)),
         copied_messages_ms: round3(median(copied_msgs)),
         lent_messages_ms: round3(median(lent_msgs)),
+        host_copies: format!("{copies:?}").to_lowercase(),
         runs: runs.max(1),
     })
 }
@@ -150,7 +167,7 @@ mod tests {
     #[test]
     fn the_maps_out_line_times_both_ways_with_the_same_messages() {
         let mut engine = Engine::new(Device::Gpu).expect("an adapter (lavapipe is fine)");
-        let result = measure(&mut engine, 1).expect("runs");
+        let result = measure(&mut engine, 1, HostCopies::Parallel).expect("runs");
         assert_eq!((result.width, result.height), (1280, 960));
         assert!(result.copied_ms > 0.0 && result.lent_ms > 0.0, "{result:?}");
         assert!(result.lent_messages_ms > 0.0 && result.copied_messages_ms > 0.0);

@@ -1,6 +1,6 @@
 //! The WGSL engine's big host copies on several threads (issue 56, item 3): the caller's images
-//! into the mapped staging buffer (`upload.rs`) and the maps out of the mapped readback
-//! (`SweepPlan::unpack_map_sections`). At a megapixel these are about 20 MB each way per frame
+//! into the mapped staging buffer (`upload.rs`), the maps out of the mapped readback
+//! (`SweepPlan::unpack_map_sections`) and into their `32FC1` messages (`out_messages.rs`). At a megapixel these are about 20 MB each way per frame
 //! set, most of the host's time, and one thread copies far below what a many-core host's
 //! memory moves. Split in `PIECE`s over rayon's threads, each piece of the staging buffer
 //! mapped on its own (wgpu's mapped views do not cross threads; disjoint ranges may be mapped
@@ -40,10 +40,11 @@ impl HostCopies {
     }
 }
 
-/// `values.to_vec()`, split over rayon's threads with `split`.
-pub fn to_vec(values: &[f32], split: bool) -> Vec<f32> {
+/// `values.to_vec()`, split over rayon's threads with `split` (a piece at a time).
+pub fn to_vec<T: Copy + Send + Sync>(values: &[T], split: bool) -> Vec<T> {
     if split {
-        values.par_iter().with_min_len(PIECE / 4).copied().collect()
+        let piece = (PIECE / std::mem::size_of::<T>().max(1)).max(1);
+        values.par_iter().with_min_len(piece).copied().collect()
     } else {
         values.to_vec()
     }
@@ -82,6 +83,9 @@ mod tests {
         let (a, b) = (to_vec(&values, true), to_vec(&values, false));
         assert_eq!(a.len(), values.len());
         assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+        // Bytes (a message's data) likewise.
+        let bytes: &[u8] = bytemuck::cast_slice(&values);
+        assert_eq!(to_vec(bytes, true), bytes);
         let f = |v: &[f32], o: &mut [u8]| {
             for (o, v) in o.iter_mut().zip(v) {
                 *o = *v as u8;
