@@ -1,6 +1,7 @@
 //! The WGSL engine's big host copies on several threads (issue 56, item 3): the caller's images
 //! into the mapped staging buffer (`upload.rs`), the maps out of the mapped readback
-//! (`SweepPlan::unpack_map_sections`) and into their `32FC1` messages (`out_messages.rs`). At a megapixel these are about 20 MB each way per frame
+//! (`SweepPlan::unpack_map_sections`) and into their `32FC1` messages (`out_messages.rs`). At
+//! a megapixel these are about 20 MB each way per frame
 //! set, most of the host's time, and one thread copies far below what a many-core host's
 //! memory moves. Split in `PIECE`s over rayon's threads, each piece of the staging buffer
 //! mapped on its own (wgpu's mapped views do not cross threads; disjoint ranges may be mapped

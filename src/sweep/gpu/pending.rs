@@ -37,6 +37,19 @@ pub(super) struct Submitted {
     started: Instant,
 }
 
+/// A submitted set's readback buffer, mapped once its submission has run.
+struct MappedSet {
+    view: wgpu::BufferView,
+    readback: wgpu::Buffer,
+    pooled: bool,
+    /// Bytes of maps at the view's start.
+    maps_len: usize,
+    /// Every level's timestamps.
+    ticks: Option<Vec<u32>>,
+    levels: Vec<Recorded>,
+    started: Instant,
+}
+
 /// A frame set submitted by [`GpuEngine::submit_set`], waiting for [`GpuEngine::collect_set`].
 struct Pending {
     submitted: Submitted,
@@ -194,14 +207,9 @@ impl GpuEngine {
         })
     }
 
-    /// Waits for the set `submitted` alone (later submissions go on running) and reads it
-    /// back once: its maps `unpack`ed straight out of the mapped range, and every level's
-    /// timestamps (the levels below the last as one `coarse` stage) as the engine's timings.
-    pub(super) fn read_submitted<T>(
-        &mut self,
-        submitted: Submitted,
-        unpack: impl FnOnce(&[f32]) -> T,
-    ) -> Result<T, SweepError> {
+    /// Waits for the set `submitted` alone (later submissions go on running) and maps its
+    /// readback buffer: the view, and every level's timestamps read out of it.
+    fn map_submitted(&mut self, submitted: Submitted) -> Result<MappedSet, SweepError> {
         let Submitted {
             index,
             readback,
@@ -214,31 +222,58 @@ impl GpuEngine {
         } = submitted;
         let mut submitter =
             record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        let mut unpack = Some(unpack);
-        let mut maps = None;
-        let mut ticks: Option<Vec<u32>> = None;
-        let has_ticks = mapped > maps_len;
-        let read = submitter.read_back_after(Some(index), &[(&readback, mapped)], |_, bytes| {
-            let map_bytes = &bytes[..maps_len as usize];
-            if let Some(unpack) = unpack.take() {
-                maps = Some(match bytemuck::try_cast_slice::<u8, f32>(map_bytes) {
-                    Ok(floats) => unpack(floats),
-                    Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(map_bytes)),
-                });
-            }
-            if has_ticks {
-                ticks = Some(bytemuck::pod_collect_to_vec(&bytes[ticks_at as usize..]));
-            }
-            Ok(())
-        });
+        let view = submitter.map_after(Some(index), &readback, mapped);
         self.deferred.in_flight = self.deferred.in_flight.saturating_sub(1);
-        read?;
+        let view = view?;
+        let ticks = (mapped > maps_len)
+            .then(|| bytemuck::pod_collect_to_vec(&view[ticks_at as usize..mapped as usize]));
+        Ok(MappedSet {
+            view,
+            readback,
+            pooled,
+            maps_len: maps_len as usize,
+            ticks,
+            levels,
+            started,
+        })
+    }
+
+    /// Waits for the set `submitted` alone (later submissions go on running) and reads it
+    /// back once: its maps `unpack`ed straight out of the mapped range, and every level's
+    /// timestamps (the levels below the last as one `coarse` stage) as the engine's timings.
+    pub(super) fn read_submitted<T>(
+        &mut self,
+        submitted: Submitted,
+        unpack: impl FnOnce(&[f32]) -> T,
+    ) -> Result<T, SweepError> {
+        let set = self.map_submitted(submitted)?;
+        let map_bytes = &set.view[..set.maps_len];
+        let maps = match bytemuck::try_cast_slice::<u8, f32>(map_bytes) {
+            Ok(floats) => unpack(floats),
+            Err(_) => unpack(&bytemuck::pod_collect_to_vec::<u8, f32>(map_bytes)),
+        };
+        self.release(set)?;
+        Ok(maps)
+    }
+
+    /// A set's readback done with: its buffer unmapped (a pooled one back in the pool), its
+    /// timings the engine's.
+    fn release(&mut self, set: MappedSet) -> Result<(), SweepError> {
+        let MappedSet {
+            view,
+            readback,
+            pooled,
+            ticks,
+            levels,
+            started,
+            ..
+        } = set;
+        drop(view);
+        readback.unmap();
         if pooled {
             self.deferred.give_back(readback);
         }
-        let maps = maps.ok_or_else(|| SweepError::Gpu("internal: no maps read back".into()))?;
-        self.set_timings(&levels, ticks, started)?;
-        Ok(maps)
+        self.set_timings(&levels, ticks, started)
     }
 
     /// The engine's timings of a set read back: every level's timestamps (`ticks`; the levels
@@ -267,41 +302,38 @@ impl GpuEngine {
 
     /// Waits for the set `submitted` alone and lends its depth and confidence out of its
     /// readback buffer, mapped ([`LentMaps`]; the buffer comes back to the pool when they are
-    /// dropped). Maps the view cannot lend (not aligned as floats) are copied.
+    /// dropped). Maps the view cannot lend (not aligned as floats) are copied as `wanted`.
     fn lend_submitted(
         &mut self,
         submitted: Submitted,
         size: (u32, u32),
+        wanted: WantedMaps,
     ) -> Result<ReferenceMaps, SweepError> {
-        let Submitted {
-            index,
+        let MappedSet {
+            view,
             readback,
+            pooled,
             maps_len,
-            ticks_at,
-            mapped,
+            ticks,
             levels,
             started,
-            ..
-        } = submitted;
-        let mut submitter =
-            record::Submitter::new(&self.device, &self.queue, &self.cancel, &mut self.counts);
-        let view = submitter.map_after(Some(index), &readback, mapped);
-        self.deferred.in_flight = self.deferred.in_flight.saturating_sub(1);
-        let view = view?;
-        let ticks = (mapped > maps_len).then(|| {
-            let ticks = view.get(ticks_at as usize..).unwrap_or(&[]);
-            bytemuck::pod_collect_to_vec(ticks)
-        });
-        self.set_timings(&levels, ticks, started)?;
+        } = self.map_submitted(submitted)?;
         match LentMaps::new(view, readback.clone(), &self.deferred.returned, size) {
-            Ok(lent) => Ok(ReferenceMaps::Lent(lent)),
+            Ok(lent) => {
+                self.set_timings(&levels, ticks, started)?;
+                Ok(ReferenceMaps::Lent(lent))
+            }
             Err(view) => {
-                let bytes = view.get(..maps_len as usize).unwrap_or(&[]);
-                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(bytes);
-                drop(view);
-                readback.unmap();
-                self.deferred.give_back(readback);
-                let wanted = self.wanted;
+                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&view[..maps_len]);
+                self.release(MappedSet {
+                    view,
+                    readback,
+                    pooled,
+                    maps_len,
+                    ticks,
+                    levels,
+                    started,
+                })?;
                 let maps = unpack_sections(size, &floats, MAP_DEPTH, wanted, false);
                 Ok(ReferenceMaps::Owned(maps))
             }
@@ -374,7 +406,7 @@ impl GpuEngine {
                 && submitted.pooled
                 && JointMedian::of_params(params).radius == 0;
             if lend {
-                return engine.lend_submitted(submitted, size);
+                return engine.lend_submitted(submitted, size, wanted);
             }
             let maps = engine.read_submitted(submitted, |m| {
                 let split = copies.split(m.len() * 4);
