@@ -1,6 +1,6 @@
 // Stages 4c + 5a: window placement and scoring, then winner-take-all. For each window placement (shiftable: the four w x h
 // windows with the pixel at a corner; centred: one window around it) the channel means are read
-// from the box sums and combined into one score; the best (smallest) placement wins.
+// from the row sums (summed over the window's rows here) and combined into one score; the best (smallest) placement wins.
 // Channels by mode:
 //   per-pair aggregation: one per camera pair (pair TSSD) -> SSSD / best n / half-sequence over
 //     the window means of the pairs seen in the window (visibility normalisation);
@@ -28,7 +28,8 @@ override VOLUME: bool = false;     // = params.sgm_paths != 0
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> batch: Batch;
-@group(0) @binding(2) var<storage, read> box_sums: array<vec2<f32>>;
+// Horizontal window sums per row (`box_h.wgsl`; a placeholder without the box pass).
+@group(0) @binding(2) var<storage, read> row_sums: array<vec2<f32>>;
 @group(0) @binding(5) var<storage, read> cost_slab: array<f32>;
 // Streaming winner-take-all state, per pixel 3 x vec4 (see the selection step in main):
 //   [0] best cost, best plane, cost of plane best-1, cost of plane best+1
@@ -99,14 +100,21 @@ fn direct_windows() -> bool {
     return WINDOW_MODE == WINDOW_SHIFTABLE && WINDOW_W <= 2u && WINDOW_H <= 2u;
 }
 
-// Mean of channel `ch` of plane `z` in the window anchored at (ax, ay) from the box sums; BIG
-// when nothing is valid.
+// Mean of channel `ch` of plane `z` in the window anchored at (ax, ay) (its top-left texel):
+// the row sums of its rows inside the image (`box_h.wgsl`) added top to bottom; BIG when
+// nothing is valid. (A pass of its own wrote these vertical sums for every anchor and plane
+// before: twice the memory of the row sums, read back once.)
 fn box_mean(z: u32, ch: u32, ax: i32, ay: i32) -> f32 {
     let padded_w = params.padded_w;
-    let padded_h = params.padded_h;
+    let height = i32(params.height);
     let px = u32(ax + i32(WINDOW_W) - 1);
-    let py = u32(ay + i32(WINDOW_H) - 1);
-    let s = box_sums[((z * CHANNELS + ch) * padded_h + py) * padded_w + px];
+    let y_first = max(ay, 0);
+    let y_end = min(ay + i32(WINDOW_H), height);
+    let base = (z * CHANNELS + ch) * params.height;
+    var s = vec2<f32>(0.0);
+    for (var y = y_first; y < y_end; y++) {
+        s += row_sums[(base + u32(y)) * padded_w + px];
+    }
     if (s.y <= 0.0) {
         return BIG;
     }

@@ -432,7 +432,7 @@ impl SweepPlan {
     }
 
     /// The ranges as the shaders read them, per (row, tile) in the layout of
-    /// [`SweepPlan::plane_ranges`]: its own range (aggregate.wgsl, box_v.wgsl) and the hull of
+    /// [`SweepPlan::plane_ranges`]: its own range (aggregate.wgsl) and the hull of
     /// the ranges of the tiles whose pixels' windows reach its pixels, the planes whose costs
     /// and row sums it must have (cost.wgsl, box_h.wgsl; window_h - 1 rows and window_w - 1
     /// columns either way cover centred and shiftable windows).

@@ -139,7 +139,7 @@ fn sweep_batches(
         };
         dispatches.push(at(Stage::Cost));
         if shape.box_passes {
-            dispatches.extend([at(Stage::BoxH), at(Stage::BoxV)]);
+            dispatches.push(at(Stage::BoxH));
         }
         dispatches.extend((0..shape.bands.max(1)).map(|band| Dispatch {
             band,
@@ -284,10 +284,7 @@ mod tests {
         use Stage::*;
         assert_eq!(
             stages,
-            [
-                Cost, BoxH, BoxV, Aggregate, Cost, BoxH, BoxV, Aggregate, Finalize, Median, Splat,
-                Visibility
-            ]
+            [Cost, BoxH, Aggregate, Cost, BoxH, Aggregate, Finalize, Median, Splat, Visibility]
         );
     }
 
@@ -316,12 +313,10 @@ mod tests {
                 (RefineBase, 0, 0),
                 (Cost, 3, 0),
                 (BoxH, 3, 0),
-                (BoxV, 3, 0),
                 (Aggregate, 3, 0),
                 (Aggregate, 3, 1),
                 (Cost, 4, 0),
                 (BoxH, 4, 0),
-                (BoxV, 4, 0),
                 (Aggregate, 4, 0),
                 (Aggregate, 4, 1),
                 (RefineSelect, 0, 0),
@@ -344,12 +339,10 @@ mod tests {
             assert!(!dispatches.is_empty(), "{phase:?}");
             for d in dispatches {
                 let expected = match d.stage {
-                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate
-                        if d.batch < s.shape.batches =>
-                    {
+                    Stage::Cost | Stage::BoxH | Stage::Aggregate if d.batch < s.shape.batches => {
                         Phase::Sweep
                     }
-                    Stage::Cost | Stage::BoxH | Stage::BoxV | Stage::Aggregate => Phase::Refine,
+                    Stage::Cost | Stage::BoxH | Stage::Aggregate => Phase::Refine,
                     Stage::RefineBase | Stage::RefineSelect => Phase::Refine,
                     Stage::Sgm => Phase::Sgm,
                     Stage::SgmSelect => Phase::SgmSelect,

@@ -46,7 +46,6 @@ pub struct StageInfo {
 pub enum Stage {
     Cost,
     BoxH,
-    BoxV,
     Aggregate,
     Finalize,
     Median,
@@ -65,10 +64,9 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 18] = [
+    pub const ALL: [Stage; 17] = [
         Stage::Cost,
         Stage::BoxH,
-        Stage::BoxV,
         Stage::Aggregate,
         Stage::Finalize,
         Stage::Median,
@@ -141,7 +139,7 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 18] = [
+pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
@@ -179,25 +177,12 @@ pub const STAGES: [StageInfo; 18] = [
         overrides: &["DISTORTED", "WINDOW_W", "CHANNELS"],
     },
     StageInfo {
-        name: "box_v",
-        entry_point: "main",
-        bindings: &[
-            uniform("params"),
-            dynamic("batch"),
-            read("row_sums"),
-            read_write("box_sums"),
-            read("plane_ranges"),
-        ],
-        workgroup_size: TILE,
-        overrides: &["DISTORTED", "WINDOW_H", "CHANNELS"],
-    },
-    StageInfo {
         name: "aggregate",
         entry_point: "main",
         bindings: &[
             uniform("params"),
             dynamic("batch"),
-            read("box_sums"),
+            read("row_sums"),
             read_write("state"),
             uniform("pairs"),
             read("cost_slab"),

@@ -1,4 +1,4 @@
-//! Twins of `shaders/box_h.wgsl` and `shaders/box_v.wgsl`: window sums (sum, count) of the
+//! Twins of `shaders/box_h.wgsl` and the vertical sums of `shaders/aggregate.wgsl`: window sums (sum, count) of the
 //! valid costs, added in the shaders' order (left to right, then top to bottom) so the sums are
 //! the same floats. Rows are processed as they are made: a ring keeps the last rows' horizontal
 //! sums, so a plane never needs its whole cost slab.
@@ -351,7 +351,7 @@ impl RowRing {
         }
     }
 
-    /// Vertical sums (box_v.wgsl) of rows `first..end` of `channel` into (sums, counts), added
+    /// Vertical sums (`box_mean` of aggregate.wgsl) of rows `first..end` of `channel` into (sums, counts), added
     /// top to bottom from zero.
     #[inline(always)]
     pub fn box_v(

@@ -1,4 +1,4 @@
-//! One plane, top to bottom: the CPU's fused form of a batch's cost -> box_h -> box_v ->
+//! One plane, top to bottom: the CPU's fused form of a batch's cost -> box_h ->
 //! aggregate dispatches. Each reference row's costs are made once (`cost.rs`), summed along the
 //! row into a ring (`boxes.rs`), and every output row whose windows are complete is scored
 //! (`aggregate.rs`). The working set is a few rows, so it stays in cache; bands of rows run in

@@ -274,10 +274,9 @@ impl Buffers {
         );
         let pairs = uniform("pairs", u64::from(MAX_PAIRS) * 16);
         // Without box passes (2x2 shiftable windows) the sums are never used: 16 bytes each.
-        let [cost_bytes, row_bytes, box_bytes] = key.batch_bytes();
+        let [cost_bytes, row_bytes] = key.batch_bytes();
         let cost_slab = storage("cost_slab", cost_bytes, none);
         let row_sums = storage("row_sums", row_bytes, none);
-        let box_sums = storage("box_sums", box_bytes, none);
         let state = storage("state", npix * 48, none);
         // The fine sweep's base surface (`refine_base.wgsl`), only where it runs.
         let hypotheses = storage(
@@ -327,7 +326,6 @@ impl Buffers {
                 "pairs" => whole(&pairs),
                 "cost_slab" => whole(&cost_slab),
                 "row_sums" => whole(&row_sums),
-                "box_sums" => whole(&box_sums),
                 "state" => whole(&state),
                 "hypotheses" => whole(&hypotheses),
                 "volume" => whole(volumes.get(band as usize)?),

@@ -251,7 +251,6 @@ fn workgroups(
     match dispatch.stage {
         Stage::Cost => (batch, tiles(key.width, key.height)),
         Stage::BoxH => (batch, tiles(key.padded_width, key.height)),
-        Stage::BoxV => (batch, tiles(key.padded_width, key.padded_height)),
         Stage::Aggregate => {
             let width = if spec.paired() {
                 key.width.div_ceil(2)

@@ -29,23 +29,16 @@ const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 /// Hypotheses of the fine sweep per pixel (`subpixel_refine`).
 pub(super) const REFINE_HYPOTHESES: u32 = 2 * super::super::cpu::refine::REACH as u32 + 1;
 
-/// Bytes per plane of the cost slab, the row sums and the box sums (the sums 0 without box
-/// passes): what `buffers.rs` allocates per plane of a batch.
-fn slice_bytes(
-    npix: u64,
-    channels: u64,
-    padded_w: u32,
-    padded_h: u32,
-    height: u32,
-    box_passes: bool,
-) -> [u64; 3] {
+/// Bytes per plane of the cost slab and the row sums (0 without the box pass): what
+/// `buffers.rs` allocates per plane of a batch. The vertical sums are made where they are read
+/// (`aggregate.wgsl`), so they take no memory.
+fn slice_bytes(npix: u64, channels: u64, padded_w: u32, height: u32, box_passes: bool) -> [u64; 2] {
     let cost = npix * 4 * channels;
     if !box_passes {
-        return [cost, 0, 0];
+        return [cost, 0];
     }
     let row = u64::from(padded_w) * u64::from(height) * 8 * channels;
-    let boxes = u64::from(padded_w) * u64::from(padded_h) * 8 * channels;
-    [cost, row, boxes]
+    [cost, row]
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -106,14 +99,13 @@ impl ShapeKey {
         })
     }
 
-    /// Bytes of one batch's cost slab, row sums and box sums (the sums 0 without box passes).
-    pub fn batch_bytes(&self) -> [u64; 3] {
+    /// Bytes of one batch's cost slab and row sums (the sums 0 without the box pass).
+    pub fn batch_bytes(&self) -> [u64; 2] {
         let npix = u64::from(self.width) * u64::from(self.height);
         slice_bytes(
             npix,
             u64::from(self.channels),
             self.padded_width,
-            self.padded_height,
             self.height,
             !self.direct_windows,
         )
@@ -134,18 +126,18 @@ impl ShapeKey {
         let channels = plan.channels() as u64;
         let (padded_w, padded_h) = plan.padded_size();
         let box_passes = plan.box_passes();
-        let [cost_bytes, row_bytes, box_bytes] =
-            slice_bytes(npix, channels, padded_w, padded_h, plan.height, box_passes);
-        // What one plane of a batch allocates: its cost slab, and its window sums only where
-        // the box passes run (2x2 shiftable windows read the slab directly).
-        let per_plane = cost_bytes + row_bytes + box_bytes;
+        let [cost_bytes, row_bytes] =
+            slice_bytes(npix, channels, padded_w, plan.height, box_passes);
+        // What one plane of a batch allocates: its cost slab, and its row sums only where
+        // the box pass runs (2x2 shiftable windows read the slab directly).
+        let per_plane = cost_bytes + row_bytes;
         let max_binding = limits
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
         let budget = slab_bytes.unwrap_or(SLAB_BUDGET_BYTES).min(max_binding);
-        if box_bytes > max_binding {
+        if row_bytes > max_binding {
             return Err(SweepError::InvalidParams(format!(
-                "reference image of {npix} pixels needs {box_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({max_binding})"
+                "reference image of {npix} pixels needs {row_bytes} bytes of window sums per plane, more than this adapter's storage binding limit ({max_binding})"
             )));
         }
         let maps_bytes = npix * 4 * MAP_COUNT as u64;
@@ -242,8 +234,8 @@ mod tests {
     fn batches_count_only_what_the_mode_allocates() {
         let limits = wgpu::Limits::default();
         let direct = ShapeKey::of(&plan(1280, 960, true), &limits, None, None).expect("shape");
-        let [cost, row, boxes] = direct.batch_bytes();
-        assert_eq!((row, boxes), (0, 0));
+        let [cost, row] = direct.batch_bytes();
+        assert_eq!(row, 0);
         let budget = limits.max_storage_buffer_binding_size;
         assert!(cost <= budget, "{cost} > {budget}");
         // One more plane would not fit: the budget is used.
@@ -252,9 +244,9 @@ mod tests {
         assert!(direct.batch >= 8, "batch {}", direct.batch);
         // Centred windows run the box passes: their sums are counted.
         let boxed = ShapeKey::of(&plan(1280, 960, false), &limits, None, None).expect("shape");
-        let [cost, row, boxes] = boxed.batch_bytes();
-        assert!(row > 0 && boxes > 0);
-        assert!(cost + row + boxes <= budget);
+        let [cost, row] = boxed.batch_bytes();
+        assert!(row > 0);
+        assert!(cost + row <= budget);
         assert!(boxed.batch < direct.batch);
     }
 
