@@ -1,4 +1,5 @@
-//! Build script: prepends `shaders/camera.wgsl` and `shaders/common.wgsl` to every stage shader of the stage registry
+//! Build script: prepends `shaders/camera.wgsl`, `shaders/common.wgsl` and the stage's `prelude`
+//! files to every stage shader of the stage registry
 //! (`src/sweep/stages.rs`) and writes the combined sources to OUT_DIR for `include_str!`.
 //! Standard library only, so the first release build compiles no shader compiler for it: the
 //! check of each shader against its registry row (naga: parse, validate, entry point,
@@ -29,7 +30,14 @@ fn main() {
         let path = format!("shaders/{}.wgsl", stage.name);
         println!("cargo:rerun-if-changed={path}");
         let body = fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
-        let source = format!("{common}\n// ---- {path} ----\n{body}");
+        let mut source = common.clone();
+        for prelude in stage.prelude {
+            let path = format!("shaders/{prelude}.wgsl");
+            println!("cargo:rerun-if-changed={path}");
+            let text = fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
+            source.push_str(&format!("\n// ---- {path} ----\n{text}"));
+        }
+        source.push_str(&format!("\n// ---- {path} ----\n{body}"));
         fs::write(out_dir.join(format!("{}.wgsl", stage.name)), source)
             .expect("OUT_DIR is writable");
     }

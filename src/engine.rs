@@ -618,6 +618,14 @@ impl Engine {
         }
     }
 
+    /// Whether the WGSL engine makes the costs and their row sums in one stage
+    /// (`GpuEngine::set_cost_rows`; nothing for the CPU engine).
+    pub fn set_cost_rows(&mut self, rows: crate::sweep::gpu::CostRows) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_cost_rows(rows);
+        }
+    }
+
     /// The WGSL engine's submissions, readbacks, waits and host time since the last call
     /// (`None` for the CPU engine).
     pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {

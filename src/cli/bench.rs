@@ -30,11 +30,13 @@ use crate::synthetic::{self, Scene};
 mod configs;
 pub mod decode;
 pub mod fusion;
+mod gpu_layout;
 pub mod maps_out;
 pub mod messages;
 mod streamed;
 
 pub use configs::{BenchConfig, PeerKind, Workload, CONFIGS};
+pub use gpu_layout::GpuLayout;
 
 #[derive(Debug, clap::Args)]
 pub struct BenchArgs {
@@ -71,25 +73,9 @@ pub struct BenchArgs {
     /// built-in synthetic pair).
     #[arg(long, value_name = "DIR")]
     pub fusion_data: Option<PathBuf>,
-    /// The WGSL engine's SGM path lines per workgroup in its subgroup layout (default: the
-    /// adapter's, several where its subgroups have one size; 1: a workgroup per line), to
-    /// compare the two on a GPU.
-    #[arg(long, value_name = "N")]
-    pub sgm_lines: Option<u32>,
-    /// How the WGSL engine's SGM dispatches its path directions: the adapter's (auto: all
-    /// side by side on GPUs, one by one on CPU adapters), or together, first-apart (the first
-    /// direction, then the others side by side) or one-by-one, to compare them on a GPU.
-    #[arg(long, value_enum, default_value = "auto")]
-    pub sgm_walks: crate::sweep::gpu::SgmWalks,
-    /// The WGSL engine's host copies (images in, maps out): split over threads where the set
-    /// is large and the host has many cores (auto), or always on one thread / split, to
-    /// compare the two on a GPU host.
-    #[arg(long, value_enum, default_value = "auto")]
-    pub host_copies: crate::sweep::gpu::HostCopies,
-    /// The WGSL engine reads each reference of a set back before it records the next (default:
-    /// every reference submitted before the first is read back), to compare the two on a GPU.
-    #[arg(long)]
-    pub serial_references: bool,
+    /// How the WGSL engine lays its work out, to compare the ways on a GPU.
+    #[command(flatten)]
+    pub gpu: GpuLayout,
     /// The timed sets back to back with N sets left on the WGSL engine's device while the one
     /// before is read back (as `bag` runs them): ms per set of the stream (default 0: each set
     /// alone, start to end).
@@ -171,6 +157,8 @@ pub struct HostWork {
     pub submissions: u32,
     /// SGM's dispatches, every level's (each one direction, or several side by side).
     pub sgm_dispatches: u32,
+    /// The sweep's dispatches (cost, row sums, aggregate), every level's.
+    pub sweep_dispatches: u32,
     pub readbacks: u32,
     pub readback_bytes: u64,
     /// Bytes of the caller's images written up (a set of several references: each once).
@@ -368,6 +356,7 @@ fn time_runs(
         levels: c.levels,
         submissions: c.submissions,
         sgm_dispatches: c.sgm_dispatches,
+        sweep_dispatches: c.sweep_dispatches,
         readbacks: c.readbacks,
         readback_bytes: c.readback_bytes,
         image_bytes: c.image_bytes,
@@ -590,12 +579,7 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
                 } else {
                     WantedMaps::OUTPUTS
                 });
-                if let Some(lines) = args.sgm_lines {
-                    engine.set_sgm_lines(lines);
-                }
-                engine.set_sgm_walks(args.sgm_walks);
-                engine.set_host_copies(args.host_copies);
-                engine.set_submit_ahead(!args.serial_references);
+                args.gpu.apply(&mut engine);
                 engines.push(engine)
             }
             Err(e) if args.device == Device::Auto => {

@@ -519,6 +519,13 @@ impl SweepPlan {
         !(p.window_mode == WINDOW_SHIFTABLE && p.window_w <= 2 && p.window_h <= 2)
     }
 
+    /// The WGSL engine costs and sums along rows in one stage (`cost_rows.wgsl`, no cost slab):
+    /// window sums of per-pair aggregation over the reference's pairs (the defaults).
+    pub fn cost_rows(&self) -> bool {
+        let p = &self.params;
+        self.box_passes() && p.aggregation == AGG_PER_PAIR && p.pair_mode == PAIRS_REFERENCE
+    }
+
     /// SGM path directions; 0 = winner-take-all (no cost volume).
     pub fn sgm_paths(&self) -> u32 {
         self.params.sgm_paths

@@ -113,8 +113,10 @@ impl Dispatch {
 pub struct ScheduleShape {
     /// Batches of planes the sweep runs in.
     pub batches: u32,
-    /// Window sums need the two box passes (windows larger than 2x2, or centred ones).
+    /// Window sums need the box pass (windows larger than 2x2, or centred ones).
     pub box_passes: bool,
+    /// The cost and the box pass run as one stage (`Stage::CostRows`; `SweepPlan::cost_rows`).
+    pub cost_rows: bool,
     /// SGM path directions (0: winner-take-all).
     pub sgm_paths: u32,
     /// Row bands of the SGM volume (1 when one binding holds it).
@@ -137,9 +139,13 @@ fn sweep_batches(
             batch,
             ..Dispatch::of(stage)
         };
-        dispatches.push(at(Stage::Cost));
-        if shape.box_passes {
-            dispatches.push(at(Stage::BoxH));
+        if shape.cost_rows {
+            dispatches.push(at(Stage::CostRows));
+        } else {
+            dispatches.push(at(Stage::Cost));
+            if shape.box_passes {
+                dispatches.push(at(Stage::BoxH));
+            }
         }
         dispatches.extend((0..shape.bands.max(1)).map(|band| Dispatch {
             band,
@@ -235,6 +241,7 @@ impl Schedule {
         Self::new(ScheduleShape {
             batches: 1,
             box_passes: plan.box_passes(),
+            cost_rows: plan.cost_rows(),
             sgm_paths: plan.sgm_paths(),
             bands: 1,
             refine_batches: u32::from(refines(plan)),
@@ -270,6 +277,7 @@ mod tests {
         ScheduleShape {
             batches,
             box_passes,
+            cost_rows: false,
             sgm_paths,
             bands,
             refine_batches: 0,
@@ -285,6 +293,22 @@ mod tests {
         assert_eq!(
             stages,
             [Cost, BoxH, Aggregate, Cost, BoxH, Aggregate, Finalize, Median, Splat, Visibility]
+        );
+    }
+
+    /// With the cost and its row sums in one stage (`cost_rows.wgsl`) each batch runs it and
+    /// aggregate: no cost pass, no row-sum pass.
+    #[test]
+    fn fused_cost_rows_replace_the_cost_and_row_sum_passes() {
+        let s = Schedule::new(ScheduleShape {
+            cost_rows: true,
+            ..shape(2, true, 0, 1)
+        });
+        let stages: Vec<Stage> = s.dispatches().iter().map(|d| d.stage).collect();
+        use Stage::*;
+        assert_eq!(
+            stages,
+            [CostRows, Aggregate, CostRows, Aggregate, Finalize, Median, Splat, Visibility]
         );
     }
 
@@ -339,10 +363,12 @@ mod tests {
             assert!(!dispatches.is_empty(), "{phase:?}");
             for d in dispatches {
                 let expected = match d.stage {
-                    Stage::Cost | Stage::BoxH | Stage::Aggregate if d.batch < s.shape.batches => {
+                    Stage::Cost | Stage::CostRows | Stage::BoxH | Stage::Aggregate
+                        if d.batch < s.shape.batches =>
+                    {
                         Phase::Sweep
                     }
-                    Stage::Cost | Stage::BoxH | Stage::Aggregate => Phase::Refine,
+                    Stage::Cost | Stage::CostRows | Stage::BoxH | Stage::Aggregate => Phase::Refine,
                     Stage::RefineBase | Stage::RefineSelect => Phase::Refine,
                     Stage::Sgm => Phase::Sgm,
                     Stage::SgmSelect => Phase::SgmSelect,

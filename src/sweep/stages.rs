@@ -32,6 +32,9 @@ pub struct Binding {
 pub struct StageInfo {
     /// Also the shader file: `shaders/{name}.wgsl` (with `common.wgsl` prepended).
     pub name: &'static str,
+    /// Shader files (`shaders/{prelude}.wgsl`) build.rs puts between `common.wgsl` and the
+    /// stage's own: bindings and functions two stages share.
+    pub prelude: &'static [&'static str],
     pub entry_point: &'static str,
     /// Binding `i` of group 0 is `bindings[i]`.
     pub bindings: &'static [Binding],
@@ -45,6 +48,9 @@ pub struct StageInfo {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stage {
     Cost,
+    /// `cost_rows.wgsl`: cost and the row sums in one (per-pair aggregation over reference
+    /// pairs with window sums; `SweepPlan::cost_rows`).
+    CostRows,
     BoxH,
     Aggregate,
     Finalize,
@@ -64,8 +70,9 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub const ALL: [Stage; 17] = [
+    pub const ALL: [Stage; 18] = [
         Stage::Cost,
+        Stage::CostRows,
         Stage::BoxH,
         Stage::Aggregate,
         Stage::Finalize,
@@ -122,6 +129,9 @@ const fn read_write(name: &'static str) -> Binding {
     }
 }
 
+/// Columns of one reference row per workgroup of `cost_rows.wgsl` (its `ROW_LANES`).
+pub const COST_ROW_LANES: u32 = 64;
+
 /// The 8x8 tile of reference pixels most stages run per workgroup.
 const TILE: Option<[u32; 3]> = Some([8, 8, 1]);
 
@@ -139,10 +149,11 @@ const SGM_BINDINGS: &[Binding] = &[
 ];
 
 /// The registry, in `Stage` order.
-pub const STAGES: [StageInfo; 17] = [
+pub const STAGES: [StageInfo; 18] = [
     StageInfo {
         name: "cost",
         entry_point: "main",
+        prelude: &["cost_common"],
         bindings: &[
             uniform("params"),
             dynamic("batch"),
@@ -164,8 +175,26 @@ pub const STAGES: [StageInfo; 17] = [
         ],
     },
     StageInfo {
+        name: "cost_rows",
+        entry_point: "main",
+        prelude: &["cost_common"],
+        bindings: &[
+            uniform("params"),
+            dynamic("batch"),
+            uniform("cameras"),
+            read("images"),
+            read("rays"),
+            read_write("row_sums"),
+            read("plane_ranges"),
+            read("hypotheses"),
+        ],
+        workgroup_size: Some([COST_ROW_LANES, 1, 1]),
+        overrides: &["DISTORTED", "WINDOW_W", "CHANNELS"],
+    },
+    StageInfo {
         name: "box_h",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             dynamic("batch"),
@@ -179,6 +208,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "aggregate",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             dynamic("batch"),
@@ -209,6 +239,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "finalize",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             read("rays"),
@@ -222,6 +253,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "median",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("params"), read_write("maps")],
         workgroup_size: TILE,
         overrides: &["DISTORTED"],
@@ -229,6 +261,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "splat",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             uniform("cameras"),
@@ -242,6 +275,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "visibility",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             uniform("cameras"),
@@ -255,6 +289,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "sgm",
         entry_point: "main",
+        prelude: &[],
         bindings: SGM_BINDINGS,
         workgroup_size: None,
         overrides: &["DISTORTED", "SGM_LANES", "LINE_PER_INVOCATION"],
@@ -262,6 +297,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "sgm_select",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             read("sums"),
@@ -275,6 +311,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "census",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("params"), uniform("cameras"), read_write("images")],
         workgroup_size: TILE,
         overrides: &[],
@@ -283,6 +320,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "half",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("halving"), read("finer"), read_write("coarser")],
         workgroup_size: TILE,
         overrides: &[],
@@ -292,6 +330,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "plane_spans",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             read("rays"),
@@ -305,6 +344,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "plane_ranges",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("params"), read("spans"), read_write("plane_ranges")],
         workgroup_size: TILE,
         overrides: &[],
@@ -314,6 +354,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "refine_base",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             read("rays"),
@@ -327,6 +368,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "refine_select",
         entry_point: "main",
+        prelude: &[],
         bindings: &[
             uniform("params"),
             read("state"),
@@ -341,6 +383,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "prefilter",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("prefilter"), read("raw"), read_write("filtered")],
         workgroup_size: TILE,
         overrides: &[],
@@ -350,6 +393,7 @@ pub const STAGES: [StageInfo; 17] = [
     StageInfo {
         name: "unpack",
         entry_point: "main",
+        prelude: &[],
         bindings: &[uniform("unpacking"), read("packed"), read_write("unpacked")],
         workgroup_size: TILE,
         overrides: &[],
@@ -365,6 +409,7 @@ pub const SUBGROUP_VARIANTS: [(Stage, StageInfo); 1] = [(
     StageInfo {
         name: "sgm_subgroup",
         entry_point: "main",
+        prelude: &[],
         bindings: SGM_BINDINGS,
         workgroup_size: None,
         overrides: &["SGM_LANES", "SGM_LANE_WORDS", "SGM_LINES"],

@@ -620,7 +620,7 @@ fn distorted_arc_agrees() {
     compare("distorted_arc", &plan, &rig, &images);
 }
 
-fn tsukuba_crop() -> (Rig, Vec<Rgba8Image>, SweepParams) {
+pub(crate) fn tsukuba_crop() -> (Rig, Vec<Rgba8Image>, SweepParams) {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba");
     let dataset = sweepdepth::datasets::load_dataset(&dir).expect("shipped Tsukuba loads");
     // Crop to the centre 96x72 of every view (same crop: the rig stays rectified).
@@ -679,7 +679,7 @@ fn pinhole_arc_case() -> (Rig, Vec<Rgba8Image>) {
 }
 
 /// The same arc with a barrel lens on every camera: the CPU engine projects every pixel.
-fn distorted_arc_case() -> (Rig, Vec<Rgba8Image>) {
+pub(crate) fn distorted_arc_case() -> (Rig, Vec<Rgba8Image>) {
     arc_case(synthetic::plumb_bob_barrel())
 }
 

@@ -7,6 +7,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 
+mod cost_rows;
 mod datasets_eval;
 mod engine_analytic;
 mod fusion_accuracy;

@@ -48,7 +48,7 @@ pub struct MapsOutResult {
 pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
     let repeats = if args.quick { 3 } else { args.repeats.max(1) };
     let mut engine = Engine::new(Device::Gpu).context("--maps-out needs the WGSL engine")?;
-    let result = measure(&mut engine, repeats, args.host_copies)?;
+    let result = measure(&mut engine, repeats, args.gpu.host_copies)?;
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
         return Ok(());

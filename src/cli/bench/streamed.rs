@@ -79,6 +79,7 @@ pub(super) fn per_set(
     counts.levels /= n;
     counts.submissions /= n;
     counts.sgm_dispatches /= n;
+    counts.sweep_dispatches /= n;
     counts.readbacks /= n;
     counts.waits /= n;
     counts.readback_bytes /= u64::from(n);

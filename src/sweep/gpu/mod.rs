@@ -55,6 +55,7 @@ pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use pyramid::Pyramid;
 pub use record::SgmWalks;
+pub use shape::CostRows;
 use shape::ShapeKey;
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
@@ -71,6 +72,9 @@ pub struct SetCounts {
     /// SGM's compute dispatches, every level's (one direction each, or several side by side:
     /// [`SgmWalks`]): the walks of one dispatch run one after the other's.
     pub sgm_dispatches: u32,
+    /// The sweep's compute dispatches, every level's (cost, row sums, aggregate per batch of
+    /// planes and band of the volume; `CostRows`).
+    pub sweep_dispatches: u32,
     /// Buffers mapped and read back.
     pub readbacks: u32,
     /// Bytes of those buffers.
@@ -132,6 +136,9 @@ pub struct GpuEngine {
     sgm_layout: SgmLayout,
     /// How SGM dispatches its directions (`SgmWalks::Auto`: by the adapter, `gpu`).
     sgm_walks: SgmWalks,
+    /// Whether the costs and their row sums run as one stage (`CostRows::Auto`: by the
+    /// adapter, `gpu`).
+    cost_rows: CostRows,
     /// The adapter is not a CPU (lavapipe, llvmpipe).
     gpu: bool,
     /// The adapter's smallest subgroup (the subgroup layout's workgroup).
@@ -211,6 +218,7 @@ impl GpuEngine {
             align: Alignments::of(device),
             sgm_layout,
             sgm_walks: SgmWalks::Auto,
+            cost_rows: CostRows::Auto,
             gpu: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
             sgm_lines: shape::sgm_lines_for(&info),
@@ -271,6 +279,12 @@ impl GpuEngine {
     /// on CPU adapters). Results are identical.
     pub fn set_sgm_walks(&mut self, walks: SgmWalks) {
         self.sgm_walks = walks;
+    }
+
+    /// Whether the costs and their row sums run as one stage where the plan allows it (the
+    /// default, `CostRows::Auto`: on GPUs, apart on CPU adapters). Results are identical.
+    pub fn set_cost_rows(&mut self, rows: CostRows) {
+        self.cost_rows = rows;
     }
 
     /// The SGM layout the engine uses when one band holds the volume.
@@ -514,6 +528,21 @@ impl GpuEngine {
     /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
     /// on the device; otherwise the plan's own ranges are uploaded), its images and its
     /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
+    /// The shape of `plan` on this device, and the SGM layout it runs in.
+    fn shape_of(&self, plan: &SweepPlan) -> Result<(ShapeKey, SgmLayout), SweepError> {
+        let limits = self.device.limits();
+        let fused = self.cost_rows.fused(self.gpu);
+        let key = ShapeKey::of(plan, &limits, self.sgm_band_bytes, self.slab_bytes, fused)?;
+        // Workgroup memory does not outlive a dispatch: bands carry the path state in the
+        // per-line scratch of the line-per-invocation layout.
+        let layout = if key.bands() > 1 {
+            SgmLayout::LinePerInvocation
+        } else {
+            self.sgm_layout
+        };
+        Ok((key, layout))
+    }
+
     fn record_level(
         &mut self,
         plan: &SweepPlan,
@@ -532,20 +561,8 @@ impl GpuEngine {
             from_pyramid,
             missing,
         } = self.level_input(rig, images, plan.params.colour_in_alpha != 0)?;
-        let key = ShapeKey::of(
-            plan,
-            &self.device.limits(),
-            self.sgm_band_bytes,
-            self.slab_bytes,
-        )?;
+        let (key, layout) = self.shape_of(plan)?;
         self.use_buffers(key)?;
-        // Workgroup memory does not outlive a dispatch: bands carry the path state in the
-        // per-line scratch of the line-per-invocation layout.
-        let layout = if key.bands() > 1 {
-            SgmLayout::LinePerInvocation
-        } else {
-            self.sgm_layout
-        };
         let spec = Specialisation::of(plan, layout, self.subgroup_size, self.sgm_lines);
         let pipelines = self.pipelines.get(&self.device, &spec)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -644,9 +661,11 @@ impl GpuEngine {
             record::record_census(encoder, buffers, &pipelines[Stage::Census as usize], plan);
         }
         let walks = self.sgm_walks.resolve(&spec, buffers, self.gpu);
-        self.counts.sgm_dispatches += record::record_sweep(
+        let (sgm, sweep) = record::record_sweep(
             encoder, buffers, pipelines, &spec, schedule, self.align, walks,
         );
+        self.counts.sgm_dispatches += sgm;
+        self.counts.sweep_dispatches += sweep;
         if let Some(error) = futures::executor::block_on(scope.pop()) {
             return Err(SweepError::Gpu(format!("encoding the sweep: {error}")));
         }

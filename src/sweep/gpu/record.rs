@@ -11,7 +11,7 @@ use super::super::plan::SweepPlan;
 use super::super::schedule::{
     sgm_lines, sgm_together_lines, Dispatch, Schedule, SGM_ALL_PASS, SGM_DIRECTIONS, SGM_REST_PASS,
 };
-use super::super::stages::Stage;
+use super::super::stages::{Stage, COST_ROW_LANES};
 use super::super::{CancelFlag, StageTimings, SweepError};
 use super::buffers::{Alignments, Buffers};
 use super::pipelines::{SgmLayout, Specialisation};
@@ -250,6 +250,11 @@ fn workgroups(
     }
     match dispatch.stage {
         Stage::Cost => (batch, tiles(key.width, key.height)),
+        Stage::CostRows => {
+            // Each group sums the windows of COST_ROW_LANES - (window_w - 1) padded columns.
+            let anchors = COST_ROW_LANES - (key.padded_width - key.width);
+            (batch, (key.padded_width.div_ceil(anchors), key.height, 1))
+        }
         Stage::BoxH => (batch, tiles(key.padded_width, key.height)),
         Stage::Aggregate => {
             let width = if spec.paired() {
@@ -327,7 +332,8 @@ pub(super) fn record_plane_ranges(
 /// Records every dispatch of `schedule` (after the level's images and plane ranges), one
 /// compute pass per phase (every batch of planes in the sweep's pass, every direction and band
 /// in SGM's; wgpu orders the dispatches of a pass), each timestamped at its start and end,
-/// and resolves the level's timestamps into its `resolve` buffer. Returns SGM's dispatches.
+/// and resolves the level's timestamps into its `resolve` buffer. Returns SGM's dispatches and
+/// the sweep's (cost, row sums, aggregate: every batch's, the fine sweep's included).
 pub(super) fn record_sweep(
     encoder: &mut wgpu::CommandEncoder,
     buffers: &Buffers,
@@ -336,9 +342,9 @@ pub(super) fn record_sweep(
     schedule: &Schedule,
     align: Alignments,
     walks: SgmWalks,
-) -> u32 {
+) -> (u32, u32) {
     let together = walks.together_pass();
-    let mut sgm_dispatches = 0;
+    let (mut sgm_dispatches, mut sweep_dispatches) = (0, 0);
     encoder.clear_buffer(&buffers.zbuffer, 0, None);
     if let (SgmWalks::Together, Some(sums)) = (walks, buffers.sgm_sums.first()) {
         // Every direction adds into the sums (none writes them first).
@@ -375,12 +381,16 @@ pub(super) fn record_sweep(
             }
             pass.dispatch_workgroups(groups.0, groups.1, groups.2);
             sgm_dispatches += u32::from(dispatch.stage == Stage::Sgm);
+            sweep_dispatches += u32::from(matches!(
+                dispatch.stage,
+                Stage::Cost | Stage::CostRows | Stage::BoxH | Stage::Aggregate
+            ));
         }
     }
     if let Some(t) = &buffers.timestamps {
         encoder.resolve_query_set(&t.query_set, 0..t.count, &t.resolve, 0);
     }
-    sgm_dispatches
+    (sgm_dispatches, sweep_dispatches)
 }
 
 /// A frame set's timings from its levels' timestamps, read back one level after the other

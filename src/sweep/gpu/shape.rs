@@ -23,17 +23,53 @@ pub(super) fn sgm_lines_for(info: &wgpu::AdapterInfo) -> u32 {
     }
 }
 
+/// Where the window sums run (per-pair aggregation over the reference's pairs, windows larger
+/// than 2x2 or centred: `SweepPlan::cost_rows`): the costs into the cost slab, then their row
+/// sums in a pass of their own (`cost.wgsl`, `box_h.wgsl`), or both in one stage that keeps
+/// the costs in workgroup memory (`cost_rows.wgsl`: no cost slab, one dispatch fewer per batch,
+/// about twice the planes per batch). The same floats either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
+pub enum CostRows {
+    /// The adapter's: `fused` on GPUs, `apart` on CPU adapters (on lavapipe the fused stage,
+    /// a workgroup barrier per pair and block of planes, made the demo's sweep 1.7x slower).
+    #[default]
+    Auto,
+    /// One stage (`cost_rows.wgsl`).
+    Fused,
+    /// Cost slab, then the row sums.
+    Apart,
+}
+
+impl CostRows {
+    /// Whether the stages run fused on an adapter that is a GPU (`gpu`) or not.
+    pub fn fused(self, gpu: bool) -> bool {
+        match self {
+            Self::Auto => gpu,
+            Self::Fused => true,
+            Self::Apart => false,
+        }
+    }
+}
+
 /// Largest cost slab + window sums we allocate for one batch of planes.
 const SLAB_BUDGET_BYTES: u64 = 192 << 20;
 
 /// Hypotheses of the fine sweep per pixel (`subpixel_refine`).
 pub(super) const REFINE_HYPOTHESES: u32 = 2 * super::super::cpu::refine::REACH as u32 + 1;
 
-/// Bytes per plane of the cost slab and the row sums (0 without the box pass): what
-/// `buffers.rs` allocates per plane of a batch. The vertical sums are made where they are read
-/// (`aggregate.wgsl`), so they take no memory.
-fn slice_bytes(npix: u64, channels: u64, padded_w: u32, height: u32, box_passes: bool) -> [u64; 2] {
-    let cost = npix * 4 * channels;
+/// Bytes per plane of the cost slab (0 where `cost_rows.wgsl` sums the costs as it makes
+/// them) and the row sums (0 without the box pass): what `buffers.rs` allocates per plane of a
+/// batch. The vertical sums are made where they are read (`aggregate.wgsl`), so they take no
+/// memory.
+fn slice_bytes(
+    npix: u64,
+    channels: u64,
+    padded_w: u32,
+    height: u32,
+    box_passes: bool,
+    cost_rows: bool,
+) -> [u64; 2] {
+    let cost = if cost_rows { 0 } else { npix * 4 * channels };
     if !box_passes {
         return [cost, 0];
     }
@@ -57,6 +93,8 @@ pub(super) struct ShapeKey {
     pub batch: u32,
     /// Windows of at most 2x2 are summed straight from the cost slab (no box passes).
     pub direct_windows: bool,
+    /// Cost and row sums in one stage, no cost slab (`SweepPlan::cost_rows`).
+    pub cost_rows: bool,
     /// SGM path directions (0 = winner-take-all: no cost volume).
     pub sgm_paths: u32,
     /// u32 words per pixel of the cost volume (0 without SGM).
@@ -93,6 +131,7 @@ impl ShapeKey {
         Schedule::new(ScheduleShape {
             batches: self.batches(),
             box_passes: !self.direct_windows,
+            cost_rows: self.cost_rows,
             sgm_paths: self.sgm_paths,
             bands: self.bands(),
             refine_batches: self.refine_batches,
@@ -108,26 +147,31 @@ impl ShapeKey {
             self.padded_width,
             self.height,
             !self.direct_windows,
+            self.cost_rows,
         )
         .map(|bytes| bytes * u64::from(self.batch))
     }
 
     /// The shape of `plan` on a device with `limits`; `sgm_band_bytes` caps one band of the SGM
     /// volume below the binding limit, `slab_bytes` the bytes of one batch of planes below
-    /// SLAB_BUDGET_BYTES (tests force several batches with it). Refuses what the adapter
-    /// cannot hold, with the sizes.
+    /// SLAB_BUDGET_BYTES (tests force several batches with it), `cost_rows` whether the
+    /// engine makes the costs and their row sums in one stage where the plan allows it
+    /// (`SweepPlan::cost_rows`, [`super::CostRows`]). Refuses what the adapter cannot hold,
+    /// with the sizes.
     pub fn of(
         plan: &SweepPlan,
         limits: &wgpu::Limits,
         sgm_band_bytes: Option<u64>,
         slab_bytes: Option<u64>,
+        cost_rows: bool,
     ) -> Result<Self, SweepError> {
+        let cost_rows = cost_rows && plan.cost_rows();
         let npix = plan.pixel_count() as u64;
         let channels = plan.channels() as u64;
         let (padded_w, padded_h) = plan.padded_size();
         let box_passes = plan.box_passes();
         let [cost_bytes, row_bytes] =
-            slice_bytes(npix, channels, padded_w, plan.height, box_passes);
+            slice_bytes(npix, channels, padded_w, plan.height, box_passes, cost_rows);
         // What one plane of a batch allocates: its cost slab, and its row sums only where
         // the box pass runs (2x2 shiftable windows read the slab directly).
         let per_plane = cost_bytes + row_bytes;
@@ -192,6 +236,7 @@ impl ShapeKey {
             channels: plan.channels() as u32,
             batch,
             direct_windows: !plan.box_passes(),
+            cost_rows,
             sgm_paths,
             volume_words,
             band_rows,
@@ -233,7 +278,8 @@ mod tests {
     #[test]
     fn batches_count_only_what_the_mode_allocates() {
         let limits = wgpu::Limits::default();
-        let direct = ShapeKey::of(&plan(1280, 960, true), &limits, None, None).expect("shape");
+        let direct =
+            ShapeKey::of(&plan(1280, 960, true), &limits, None, None, false).expect("shape");
         let [cost, row] = direct.batch_bytes();
         assert_eq!(row, 0);
         let budget = limits.max_storage_buffer_binding_size;
@@ -243,7 +289,8 @@ mod tests {
         assert!(cost + per_plane > budget, "batch {}", direct.batch);
         assert!(direct.batch >= 8, "batch {}", direct.batch);
         // Centred windows run the box passes: their sums are counted.
-        let boxed = ShapeKey::of(&plan(1280, 960, false), &limits, None, None).expect("shape");
+        let boxed =
+            ShapeKey::of(&plan(1280, 960, false), &limits, None, None, false).expect("shape");
         let [cost, row] = boxed.batch_bytes();
         assert!(row > 0);
         assert!(cost + row <= budget);
@@ -254,10 +301,10 @@ mod tests {
     fn a_slab_budget_forces_batches() {
         let limits = wgpu::Limits::default();
         let p = plan(320, 240, true);
-        let one = ShapeKey::of(&p, &limits, None, None).expect("shape");
+        let one = ShapeKey::of(&p, &limits, None, None, false).expect("shape");
         assert_eq!(one.batches(), 1);
         let per_plane = one.batch_bytes()[0] / u64::from(one.batch);
-        let forced = ShapeKey::of(&p, &limits, None, Some(5 * per_plane)).expect("shape");
+        let forced = ShapeKey::of(&p, &limits, None, Some(5 * per_plane), false).expect("shape");
         assert_eq!((forced.batch, forced.batches()), (5, 128u32.div_ceil(5)));
         assert_eq!(forced.schedule().shape.batches, forced.batches());
     }
