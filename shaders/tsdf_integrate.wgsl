@@ -23,12 +23,26 @@ struct TsdfParams {
     pad2: u32,
 }
 
-// One pixel as step 0 made it: depth 0 where invalid, weight < 0 where the pixel adds no
-// observation (NaN on the CPU: WGSL may assume there is none), the colour packed RGBA8.
+// One pixel as step 0 made it (the CPU integrator's `PixelSample`, uploaded as it is): the
+// depth and the observation weight as bits, NaN where invalid or none (WGSL may assume floats
+// are never NaN, so they are tested as integers: `finite_or`), the colour packed RGBA8.
 struct Sample {
-    depth_m: f32,
-    weight: f32,
+    depth_bits: u32,
+    weight_bits: u32,
     rgb: u32,
+}
+
+// The float of `bits`, or `fallback` where they are a NaN or an infinity.
+fn finite_or(bits: u32, fallback: f32) -> f32 {
+    if ((bits & 0x7fffffffu) >= 0x7f800000u) {
+        return fallback;
+    }
+    return bitcast<f32>(bits);
+}
+
+// Pixel i's depth, 0 where invalid.
+fn depth_of(i: u32) -> f32 {
+    return finite_or(samples[i].depth_bits, 0.0);
 }
 
 // A block to update: its voxel (0, 0, 0) in the camera frame (made in f64 on the host, as the
@@ -74,10 +88,10 @@ fn sample_depth(u: f32, v: f32) -> DepthSample {
     let v1 = u32(v + 1.0);
     if (u1 >= 1u && v1 >= 1u && u1 < width && v1 < height) {
         let i = (v1 - 1u) * width + (u1 - 1u);
-        let d0 = samples[i].depth_m;
-        let d1 = samples[i + 1u].depth_m;
-        let d2 = samples[i + width].depth_m;
-        let d3 = samples[i + width + 1u].depth_m;
+        let d0 = depth_of(i);
+        let d1 = depth_of(i + 1u);
+        let d2 = depth_of(i + width);
+        let d3 = depth_of(i + width + 1u);
         let lo = min(min(d0, d1), min(d2, d3));
         let hi = max(max(d0, d1), max(d2, d3));
         if (lo > 0.0 && hi - lo < tsdf.truncation_m) {
@@ -88,7 +102,7 @@ fn sample_depth(u: f32, v: f32) -> DepthSample {
             return DepthSample(top + (bottom - top) * fv, nearest);
         }
     }
-    let d = samples[nearest].depth_m;
+    let d = depth_of(nearest);
     if (d > 0.0) {
         return DepthSample(d, nearest);
     }
@@ -102,11 +116,11 @@ fn colour_mean(fixed: u32, count: f32, rcp: f32, observed: u32) -> u32 {
 
 // One observation of a voxel: the capped running averages of `Voxel::observe_tsdf` and,
 // near the surface, `Voxel::observe_colour`.
-fn observe(index: u32, sdf: f32, sample: Sample) {
+fn observe(index: u32, sdf: f32, sample: Sample, weight: f32) {
     var voxel = pool[index];
     let observed = min(sdf * tsdf.inv_truncation, 1.0);
-    let total = voxel.weight + sample.weight;
-    voxel.tsdf = (voxel.tsdf * voxel.weight + observed * sample.weight) / total;
+    let total = voxel.weight + weight;
+    voxel.tsdf = (voxel.tsdf * voxel.weight + observed * weight) / total;
     voxel.weight = min(total, tsdf.max_weight);
     if (tsdf.colour != 0u && abs(sdf) < tsdf.truncation_m) {
         let count = f32(voxel.b_count >> 16u);
@@ -155,10 +169,11 @@ fn integrate(
             continue;
         }
         let sample = samples[seen.pixel];
-        if (!(sample.weight > 0.0)) {
+        let weight = finite_or(sample.weight_bits, -1.0);
+        if (!(weight > 0.0)) {
             continue;
         }
-        observe(first + x, sdf, sample);
+        observe(first + x, sdf, sample, weight);
         count += 1u;
     }
     atomicAdd(&block_updates, count);

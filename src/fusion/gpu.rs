@@ -16,7 +16,9 @@ use bytemuck::{Pod, Zeroable};
 
 use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
 use super::blocks::{farthest_blocks, Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel};
-use super::integrate::{blocks_to_update, prepare, FrameInput, IntegrationScratch, Projector};
+use super::integrate::{
+    blocks_to_update, prepare, FrameInput, IntegrationScratch, PixelSample, Projector,
+};
 use super::{
     DepthView, FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK,
 };
@@ -71,15 +73,6 @@ struct TsdfUniform {
     colour: u32,
     items: u32,
     pad: [u32; 3],
-}
-
-/// WGSL `Sample`.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct GpuSample {
-    depth_m: f32,
-    weight: f32,
-    rgb: u32,
 }
 
 /// WGSL `Work`.
@@ -210,8 +203,6 @@ pub struct GpuTsdf {
     /// Changed and dropped since the last [`GpuTsdf::take_unmeshed`] (a mesh update's).
     unmeshed: BlockChanges,
     scratch: IntegrationScratch,
-    /// The frame's samples as uploaded, kept from frame to frame (a 640x480 map's are 3.6 MB).
-    host_samples: Vec<GpuSample>,
     /// The meshing pipeline (`gpu/mesh.rs`), made when first asked to mesh.
     mesher: Option<mesh::Mesher>,
     /// How long the last integration waited for the device (its work and the counts' readback).
@@ -289,7 +280,6 @@ impl GpuTsdf {
             allocated: BlockSet::default(),
             unmeshed: BlockChanges::default(),
             scratch: IntegrationScratch::default(),
-            host_samples: Vec::new(),
             mesher: None,
             last_wait: std::time::Duration::ZERO,
         })
@@ -404,14 +394,9 @@ impl GpuTsdf {
         let voxel_size_m = self.params.voxel_size_m;
         let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;
         let (width, height) = (depth.width, depth.height);
-        let mut samples = std::mem::take(&mut self.host_samples);
-        samples.clear();
-        samples.extend(view.samples.iter().map(|s| GpuSample {
-            depth_m: if s.depth_m.is_nan() { 0.0 } else { s.depth_m },
-            weight: if s.weight > 0.0 { s.weight } else { -1.0 },
-            rgb: s.rgb,
-        }));
-        let sample_bytes = std::mem::size_of_val(samples.as_slice()) as u64;
+        // The CPU's samples as they are (the shader reads their NaNs as bits).
+        let samples = view.samples.as_slice();
+        let sample_bytes = std::mem::size_of_val(samples) as u64;
         if sample_bytes > self.limit {
             return Err(GpuFusionError::TooLarge {
                 what: "samples",
@@ -466,9 +451,8 @@ impl GpuTsdf {
             pad: [0; 3],
         };
         let pixels_valid = view.pixels_valid;
+        let counts = self.run(&uniform, samples, &work, &reused, grown);
         self.scratch = view.into_scratch();
-        let counts = self.run(&uniform, &samples, &work, &reused, grown);
-        self.host_samples = samples;
         let counts = counts?;
         let mut stats = IntegrationStats {
             pixels_valid,
@@ -538,7 +522,7 @@ impl GpuTsdf {
     fn run(
         &mut self,
         uniform: &TsdfUniform,
-        samples: &[GpuSample],
+        samples: &[PixelSample],
         work: &[GpuWork],
         reused: &[u32],
         old_pool: Option<wgpu::Buffer>,

@@ -355,7 +355,9 @@ impl Projector {
 
 /// One pixel as step 2 reads it: a voxel's four bilinear neighbours, its weight and colour
 /// in one or two cache lines.
-#[derive(Debug, Clone, Copy)]
+/// The GPU integrator uploads them as they are (`tsdf_integrate.wgsl`'s `Sample`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct PixelSample {
     /// The depth where valid, NaN elsewhere.
     pub(super) depth_m: f32,

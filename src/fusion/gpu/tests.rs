@@ -189,8 +189,8 @@ fn oblique_scene() -> (FusionParams, CameraModel, [RigidTransform; 2], Rgba8Imag
     )
 }
 
-/// Two frames of a sphere before a slanted wall from two oblique poses, with colour, the
-/// second with per-pixel weights (depth and discontinuities): after each, the CPU's and the
+/// Two frames of a sphere before a slanted wall from two oblique poses, with colour and holes
+/// of invalid depth, the second with per-pixel weights (depth and discontinuities): after each, the CPU's and the
 /// GPU's grids hold the same blocks with the same voxels, and mesh alike.
 #[test]
 fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
@@ -201,7 +201,16 @@ fn two_frames_integrate_on_the_gpu_as_on_the_cpu() {
     let mut mirror = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
     let mut reads = Vec::new();
     for (i, pose) in poses.iter().enumerate() {
-        let depth = sphere_before_slanted_wall(&model, pose);
+        let mut depth = sphere_before_slanted_wall(&model, pose);
+        // Invalid pixels (NaN) beside valid ones, a band and scattered: the device reads the
+        // CPU's samples as they are and must take their NaNs for invalid (no depth, no weight).
+        let width = depth.width as usize;
+        for (p, d) in depth.data.iter_mut().enumerate() {
+            let (x, y) = (p % width, p / width);
+            if (100..106).contains(&x) || (x * 7 + y * 13) % 29 == 0 {
+                *d = f32::NAN;
+            }
+        }
         let weighting = Weighting {
             depth_power: 2.0,
             edge_ratio: Some(0.05),
