@@ -117,6 +117,10 @@ else
     # alternated twice: the `sweep` and `coarse/sweep` ms of the ring and of the 1-megapixel
     # rig with centred 5x5 windows (lavapipe: fused 1.7x slower, hence apart on CPU adapters).
     step bench-gpu-cost-rows 180 sh -c "for r in 1 2; do for m in fused apart; do echo \"cost-rows \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --window-mode centred --window 5x5 --cost-rows \$m; done; done"
+    # Batches of planes: the GPU's 512 MiB per batch (the default) against the CPU adapters'
+    # 192 MiB, alternated twice (`sweep_dispatches` in the JSON: fewer batches, fewer
+    # dispatches and fewer passes over each pixel's winner-take-all state).
+    step bench-gpu-slab 150 sh -c "for r in 1 2; do for m in 512 192; do echo \"slab-mib \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --slab-mib \$m; done; done"
     # The host copies (images in, maps out) on one thread, against the default above (split
     # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar;
     # every bench ends with the `messages:` line, the node's own host work per set at 1 MP).

@@ -618,6 +618,14 @@ impl Engine {
         }
     }
 
+    /// The WGSL engine's bytes per batch of planes (`GpuEngine::set_slab_bytes`; nothing for
+    /// the CPU engine).
+    pub fn set_slab_bytes(&mut self, bytes: Option<u64>) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_slab_bytes(bytes);
+        }
+    }
+
     /// Whether the WGSL engine makes the costs and their row sums in one stage
     /// (`GpuEngine::set_cost_rows`; nothing for the CPU engine).
     pub fn set_cost_rows(&mut self, rows: crate::sweep::gpu::CostRows) {

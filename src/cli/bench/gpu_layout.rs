@@ -20,6 +20,10 @@ pub struct GpuLayout {
     /// GPUs), to compare the two on a GPU.
     #[arg(long, value_enum, default_value = "auto")]
     pub cost_rows: crate::sweep::gpu::CostRows,
+    /// The WGSL engine's bytes per batch of planes, MiB (default: 512 on a GPU, 192 on a CPU
+    /// adapter, at most the adapter's binding limit), to compare budgets on a GPU.
+    #[arg(long, value_name = "MIB")]
+    pub slab_mib: Option<u64>,
     /// The WGSL engine's host copies (images in, maps out): split over threads where the set
     /// is large and the host has many cores (auto), or always on one thread / split, to
     /// compare the two on a GPU host.
@@ -39,6 +43,9 @@ impl GpuLayout {
         }
         engine.set_sgm_walks(self.sgm_walks);
         engine.set_cost_rows(self.cost_rows);
+        if let Some(mib) = self.slab_mib {
+            engine.set_slab_bytes(Some(mib.max(1) << 20));
+        }
         engine.set_host_copies(self.host_copies);
         engine.set_submit_ahead(!self.serial_references);
     }

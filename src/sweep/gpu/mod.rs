@@ -147,8 +147,8 @@ pub struct GpuEngine {
     sgm_lines: u32,
     /// A smaller limit than the adapter's for one band of the SGM volume (tests of the bands).
     sgm_band_bytes: Option<u64>,
-    /// A smaller budget than `shape::SLAB_BUDGET_BYTES` for one batch of planes (tests of the
-    /// batches).
+    /// Another budget than `shape::slab_budget`'s for one batch of planes (tests of the
+    /// batches, `bench --slab-mib`).
     slab_bytes: Option<u64>,
     /// The buffers of the last shape, and what runs on them.
     buffers: Option<(Buffers, Schedule)>,
@@ -304,9 +304,10 @@ impl GpuEngine {
         self.sgm_band_bytes = max_bytes;
     }
 
-    /// Caps the bytes of one batch of planes (cost slab and window sums) below the engine's
-    /// budget (`None`: the budget). Tests use it to run a plan in several batches; the result
-    /// equals the run in one.
+    /// The bytes of one batch of planes (cost slab and window sums; `None`: the engine's
+    /// budget, 192 MiB on a CPU adapter, 512 MiB on a GPU, at most the adapter's binding
+    /// limit). Tests use it to run a plan in several batches (the result equals the run in
+    /// one), `bench --slab-mib` to compare budgets on a GPU.
     pub fn set_slab_bytes(&mut self, max_bytes: Option<u64>) {
         self.slab_bytes = max_bytes;
     }
@@ -532,7 +533,8 @@ impl GpuEngine {
     fn shape_of(&self, plan: &SweepPlan) -> Result<(ShapeKey, SgmLayout), SweepError> {
         let limits = self.device.limits();
         let fused = self.cost_rows.fused(self.gpu);
-        let key = ShapeKey::of(plan, &limits, self.sgm_band_bytes, self.slab_bytes, fused)?;
+        let budget = self.slab_bytes.unwrap_or(shape::slab_budget(self.gpu));
+        let key = ShapeKey::of(plan, &limits, self.sgm_band_bytes, Some(budget), fused)?;
         // Workgroup memory does not outlive a dispatch: bands carry the path state in the
         // per-line scratch of the line-per-invocation layout.
         let layout = if key.bands() > 1 {

@@ -51,8 +51,23 @@ impl CostRows {
     }
 }
 
-/// Largest cost slab + window sums we allocate for one batch of planes.
-const SLAB_BUDGET_BYTES: u64 = 192 << 20;
+/// Largest cost slab + window sums we allocate for one batch of planes on a CPU adapter
+/// (lavapipe: its 128 MiB bindings cap it anyway).
+pub(super) const SLAB_BUDGET_BYTES: u64 = 192 << 20;
+
+/// The same on a GPU: fewer, larger batches. Every batch runs its dispatches over the whole
+/// reference and reads and writes each pixel's winner-take-all state (48 bytes a pixel each
+/// way): at 1 MP with the default windows 22 batches at 192 MiB, 8 at 512 MiB.
+pub(super) const GPU_SLAB_BUDGET_BYTES: u64 = 512 << 20;
+
+/// The bytes of one batch of planes on an adapter that is a GPU or not.
+pub(super) fn slab_budget(gpu: bool) -> u64 {
+    if gpu {
+        GPU_SLAB_BUDGET_BYTES
+    } else {
+        SLAB_BUDGET_BYTES
+    }
+}
 
 /// Hypotheses of the fine sweep per pixel (`subpixel_refine`).
 pub(super) const REFINE_HYPOTHESES: u32 = 2 * super::super::cpu::refine::REACH as u32 + 1;
@@ -295,6 +310,28 @@ mod tests {
         assert!(row > 0);
         assert!(cost + row <= budget);
         assert!(boxed.batch < direct.batch);
+    }
+
+    /// A GPU's budget (its bindings as an H200's, 4 GiB) runs a 1-MP rig with the default
+    /// windows in a third of the batches a CPU adapter's does: each batch reads and writes
+    /// every pixel's winner-take-all state again.
+    #[test]
+    fn a_gpu_runs_fewer_larger_batches() {
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: 4 << 30,
+            max_buffer_size: 4 << 30,
+            ..wgpu::Limits::default()
+        };
+        let p = plan(1280, 960, false);
+        let batches = |gpu: bool| {
+            let key = ShapeKey::of(&p, &limits, None, Some(slab_budget(gpu)), true);
+            key.expect("shape").batches()
+        };
+        let (gpu, cpu) = (batches(true), batches(false));
+        assert!(
+            gpu <= 8 && cpu >= 3 * gpu - 2,
+            "GPU {gpu} batches, CPU adapter {cpu}"
+        );
     }
 
     #[test]
