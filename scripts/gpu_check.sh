@@ -71,11 +71,12 @@ command -v nvidia-smi >/dev/null 2>&1 &&
 if [ "${GPU_CHECK_PART:-}" != quality ]; then
 # The adapter wgpu picks, and the WGSL engine working at all, on the paper's configuration.
 step adapter 120 "$bin" bench --device gpu --config paper --repeats 1
-# The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe):
+# The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe), and
+# the fused cost and row sums (the default on a GPU) against the two passes:
 # carried as a stripped test binary, `.gl/engine-tests` (strip target/debug/deps/engine-*).
 if [ -x .gl/engine-tests ]; then
     export SWEEPDEPTH_GPU_TEST_STATS=1
-    step gpu-tests 150 .gl/engine-tests gpu_vs_cpu --test-threads 4
+    step gpu-tests 150 .gl/engine-tests gpu_vs_cpu cost_rows --test-threads 4
 fi
 # Fusion's GPU twins (integration, marching cubes, the fusion thread on a GPU) on the real
 # adapter: the library's tests as a stripped binary, `.gl/lib-tests`.
