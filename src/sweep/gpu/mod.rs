@@ -525,10 +525,6 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// Records one plan (one level of a frame set) into the frame set's command buffer: its
-    /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
-    /// on the device; otherwise the plan's own ranges are uploaded), its images and its
-    /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
     /// The shape of `plan` on this device, and the SGM layout it runs in.
     fn shape_of(&self, plan: &SweepPlan) -> Result<(ShapeKey, SgmLayout), SweepError> {
         let limits = self.device.limits();
@@ -545,6 +541,10 @@ impl GpuEngine {
         Ok((key, layout))
     }
 
+    /// Records one plan (one level of a frame set) into the frame set's command buffer: its
+    /// uploads, its plane ranges from the level recorded before it (`narrowed`: coarse to fine
+    /// on the device; otherwise the plan's own ranges are uploaded), its images and its
+    /// schedule. Nothing is submitted: [`Self::finish_set`] does, once per frame set.
     fn record_level(
         &mut self,
         plan: &SweepPlan,

@@ -27,7 +27,7 @@ pub(super) fn sgm_lines_for(info: &wgpu::AdapterInfo) -> u32 {
 /// than 2x2 or centred: `SweepPlan::cost_rows`): the costs into the cost slab, then their row
 /// sums in a pass of their own (`cost.wgsl`, `box_h.wgsl`), or both in one stage that keeps
 /// the costs in workgroup memory (`cost_rows.wgsl`: no cost slab, one dispatch fewer per batch,
-/// about twice the planes per batch). The same floats either way.
+/// about 1.5x the planes per batch). The same floats either way.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
 pub enum CostRows {
     /// The adapter's: `fused` on GPUs, `apart` on CPU adapters (on lavapipe the fused stage,
