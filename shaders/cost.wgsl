@@ -253,13 +253,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
                 continue;
             }
             let cam = cameras[i];
-            // The ray and the camera's centre in its own frame: a point at depth d on the ray
-            // is ray_in_cam * d + centre_offset, three multiply-adds per plane.
-            let ray_in_cam = vec3<f32>(dot(cam.row0.xyz, ray), dot(cam.row1.xyz, ray), dot(cam.row2.xyz, ray));
-            let offset = vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w);
+            let in_cam = cam_ray(cam, ray);
             for (var z = 0u; z < batch.plane_count; z++) {
                 if (costed(batch.first_plane + z, needed)) {
-                    let cost = pair_cost_at(cam, z, ray, pix, ray_in_cam, offset, r);
+                    let cost = pair_cost_at(cam, z, ray, pix, in_cam, r);
                     cost_slab[(z * CHANNELS + p) * npix + pix] = cost;
                 }
             }

@@ -155,13 +155,24 @@ fn reference_pixel(x: u32, y: u32) -> RefPixel {
     return r;
 }
 
+// A reference pixel's ray in a camera's frame and the reference's centre there: a point at
+// depth d on the ray is `ray * d + offset`, three multiply-adds per plane.
+struct CamRay {
+    ray: vec3<f32>,
+    offset: vec3<f32>,
+}
+fn cam_ray(cam: Camera, ray: vec3<f32>) -> CamRay {
+    let in_cam = vec3<f32>(dot(cam.row0.xyz, ray), dot(cam.row1.xyz, ray), dot(cam.row2.xyz, ray));
+    return CamRay(in_cam, vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w));
+}
+
 // The cost of reference pair (reference, `cam`) at hypothesis `z` of the batch for the pixel
-// `pix` on `ray`, whose ray in the camera's frame is `ray_in_cam` (`offset` the camera's centre
-// there); INVALID where the camera does not see the point.
-fn pair_cost_at(cam: Camera, z: u32, ray: vec3<f32>, pix: u32, ray_in_cam: vec3<f32>, offset: vec3<f32>, r: RefPixel) -> f32 {
+// `pix` on `ray` (`in_cam`: the same in the camera's frame); INVALID where the camera does not
+// see the point.
+fn pair_cost_at(cam: Camera, z: u32, ray: vec3<f32>, pix: u32, in_cam: CamRay, r: RefPixel) -> f32 {
     let depth = hypothesis_depth(z, ray, pix);
     if (depth > 0.0) {
-        let projected = project_in_cam(cam, ray_in_cam * depth + offset);
+        let projected = project_in_cam(cam, in_cam.ray * depth + in_cam.offset);
         if (projected.z > 0.0 && inside(cam, projected.xy)) {
             let matched = matched_colour(r.colour, r.across, r.along, projected.xy);
             return reference_pair_cost(matched, r.word, cam, projected.xy);

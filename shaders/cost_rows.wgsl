@@ -54,15 +54,14 @@ fn main(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index
             continue;
         }
         let cam = cameras[i];
-        let ray_in_cam = vec3<f32>(dot(cam.row0.xyz, ray), dot(cam.row1.xyz, ray), dot(cam.row2.xyz, ray));
-        let offset = vec3<f32>(cam.row0.w, cam.row1.w, cam.row2.w);
+        let in_cam = cam_ray(cam, ray);
         for (var z0 = 0u; z0 < batch.plane_count; z0 += ROW_PLANES) {
             let block = parity * ROW_PLANES * ROW_LANES;
             for (var j = 0u; j < ROW_PLANES; j++) {
                 let z = z0 + j;
                 var cost = INVALID;
                 if (in_image && z < batch.plane_count && costed(batch.first_plane + z, needed)) {
-                    cost = pair_cost_at(cam, z, ray, pix, ray_in_cam, offset, r);
+                    cost = pair_cost_at(cam, z, ray, pix, in_cam, r);
                 }
                 row_costs[block + j * ROW_LANES + lane] = cost;
             }

@@ -6,15 +6,14 @@
 //! 0 to 32 columns into the group before, batches of one plane, rows narrowed to a range of
 //! planes, coarse-to-fine levels, the fine sweep's hypotheses, lens distortion.
 
-use super::gpu_vs_cpu::{distorted_arc_case, tsukuba_crop};
+use super::gpu_vs_cpu::{coarse_to_fine_case, distorted_arc_case, tsukuba_crop};
 use crate::common;
 
-use sweepdepth::geometry::{CameraModel, Rig};
+use sweepdepth::geometry::Rig;
 use sweepdepth::image::Rgba8Image;
 use sweepdepth::sweep::gpu::{CostRows, GpuEngine, SetCounts};
 use sweepdepth::sweep::plan::{range_tiles, SweepPlan};
 use sweepdepth::sweep::{Aggregation, SweepParams, WindowMode};
-use sweepdepth::synthetic::{self, Scene};
 
 fn bits(maps: &[f32]) -> Vec<u32> {
     maps.iter().map(|v| v.to_bits()).collect()
@@ -179,17 +178,7 @@ fn fused_row_sums_give_the_cost_slabs_floats_in_fewer_dispatches() {
 /// level above).
 #[test]
 fn fused_row_sums_give_the_same_coarse_to_fine_set() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let params = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 5.0,
-        num_planes: 96,
-        coarse_to_fine: true,
-        ..SweepParams::default()
-    };
+    let (rig, images, params) = coarse_to_fine_case(320, 240);
     assert_eq!(sweepdepth::sweep::coarse::levels(&rig, &params), 2);
     let gpu = common::gpu();
     let [(fused, f), (apart, a)] = [CostRows::Fused, CostRows::Apart].map(|rows| {

@@ -648,6 +648,23 @@ pub(crate) fn tsukuba_crop() -> (Rig, Vec<Rgba8Image>, SweepParams) {
     (rig, images, dataset.params.clone())
 }
 
+/// Three `width` x `height` cameras in a row before a wall and a box, swept over 96 planes
+/// coarse to fine (320x240: two levels).
+pub(crate) fn coarse_to_fine_case(width: u32, height: u32) -> (Rig, Vec<Rgba8Image>, SweepParams) {
+    let model = CameraModel::pinhole(synthetic::intrinsics(width, height));
+    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let params = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 5.0,
+        num_planes: 96,
+        coarse_to_fine: true,
+        ..SweepParams::default()
+    };
+    (rig, images, params)
+}
+
 /// Real images: a crop of Middlebury Tsukuba shipped in the repo (data/tsukuba), with the
 /// dataset's defaults (optimizer sgm).
 #[test]
@@ -1280,17 +1297,7 @@ fn several_batches_in_one_submission_equal_one_batch() {
 /// the levels below as `coarse`, then the schedule's phases.
 #[test]
 fn coarse_to_fine_is_one_submission_per_set() {
-    let model = CameraModel::pinhole(synthetic::intrinsics(320, 240));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let params = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 5.0,
-        num_planes: 96,
-        coarse_to_fine: true,
-        ..SweepParams::default()
-    };
+    let (rig, images, params) = coarse_to_fine_case(320, 240);
     let levels = sweepdepth::sweep::coarse::levels(&rig, &params) as u32;
     assert_eq!(levels, 2);
     let gpu = common::gpu();
@@ -1532,17 +1539,7 @@ fn maps_left_out_change_nothing_else() {
 #[test]
 fn plane_ranges_on_the_device_equal_the_host_twin() {
     use sweepdepth::sweep::coarse;
-    let model = CameraModel::pinhole(synthetic::intrinsics(400, 320));
-    let rig = synthetic::row_rig(3, 0.1, model, 1).expect("rig");
-    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), model.intrinsics.fx_px);
-    let images = synthetic::render_rig(&scene, &rig);
-    let centred = SweepParams {
-        min_depth_m: 1.0,
-        max_depth_m: 5.0,
-        num_planes: 96,
-        coarse_to_fine: true,
-        ..SweepParams::default()
-    };
+    let (rig, images, centred) = coarse_to_fine_case(400, 320);
     let shiftable = SweepParams {
         optimizer: Optimizer::Wta,
         cost: Cost::Tssd,
