@@ -101,6 +101,16 @@ else
     # (the node with fusion) against lent out of it (without), alternated; with the copies
     # split over threads (auto, on this host) and on one thread, twice.
     step bench-gpu-maps-out 90 sh -c "for r in 1 2; do \"$bin\" bench --maps-out --repeats 15; \"$bin\" bench --maps-out --repeats 15 --host-copies serial; done"
+    # Window sums (the defaults' centred 5x5): the costs summed along rows in the stage that
+    # makes them (`cost_rows.wgsl`, the default on a GPU: no cost slab, one dispatch fewer per
+    # batch, 1.5x the planes per batch) against the cost slab and a row-sum pass of its own,
+    # alternated twice: the `sweep` and `coarse/sweep` ms of the ring and of the 1-megapixel
+    # rig with centred 5x5 windows (lavapipe: fused 1.7x slower, hence apart on CPU adapters).
+    step bench-gpu-cost-rows 180 sh -c "for r in 1 2; do for m in fused apart; do echo \"cost-rows \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --window-mode centred --window 5x5 --cost-rows \$m; done; done"
+    # Batches of planes: the GPU's 512 MiB per batch (the default) against the CPU adapters'
+    # 192 MiB, alternated twice (`sweep_dispatches` in the JSON: fewer batches, fewer
+    # dispatches and fewer passes over each pixel's winner-take-all state).
+    step bench-gpu-slab 150 sh -c "for r in 1 2; do for m in 512 192; do echo \"slab-mib \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --slab-mib \$m; done; done"
     # bench-gpu again as JSON beside the report: every stage, the coarse levels' own
     # (`coarse/sgm`, ...), the WTA columns' and the host counts.
     step bench-gpu-json 120 sh -c "\"$bin\" bench --device gpu --repeats 5 --json >\"$out/bench-gpu.json\""
@@ -112,16 +122,6 @@ else
     # dispatch per direction, alternated twice: the `sgm` ms and the SGM stages of the ring and
     # the 1-megapixel rig (`sgm_dispatches` per set in the JSON: levels x 1, 2 or 8).
     step bench-gpu-sgm-walks 180 sh -c "for r in 1 2; do for w in together first-apart one-by-one; do echo \"sgm-walks \$w\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --sgm-walks \$w; done; done"
-    # Window sums (the defaults' centred 5x5): the costs summed along rows in the stage that
-    # makes them (`cost_rows.wgsl`, the default on a GPU: no cost slab, one dispatch fewer per
-    # batch, twice the planes per batch) against the cost slab and a row-sum pass of its own,
-    # alternated twice: the `sweep` and `coarse/sweep` ms of the ring and of the 1-megapixel
-    # rig with centred 5x5 windows (lavapipe: fused 1.7x slower, hence apart on CPU adapters).
-    step bench-gpu-cost-rows 180 sh -c "for r in 1 2; do for m in fused apart; do echo \"cost-rows \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --window-mode centred --window 5x5 --cost-rows \$m; done; done"
-    # Batches of planes: the GPU's 512 MiB per batch (the default) against the CPU adapters'
-    # 192 MiB, alternated twice (`sweep_dispatches` in the JSON: fewer batches, fewer
-    # dispatches and fewer passes over each pixel's winner-take-all state).
-    step bench-gpu-slab 150 sh -c "for r in 1 2; do for m in 512 192; do echo \"slab-mib \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --slab-mib \$m; done; done"
     # The host copies (images in, maps out) on one thread, against the default above (split
     # over rayon's threads on a host of 8 or more: `host ms` of sxga is issue 56's <= 2 ms bar;
     # every bench ends with the `messages:` line, the node's own host work per set at 1 MP).
