@@ -38,7 +38,8 @@ seed cdr_image tests/fixtures/cdr/image.bin
 seed cdr_camera_info tests/fixtures/cdr/camera_info.bin
 seed cdr_tf tests/fixtures/cdr/tf_message.bin tests/fixtures/cdr/transform_stamped.bin
 seed tf_history tests/fixtures/cdr/tf_message.bin tests/fixtures/cdr/transform_stamped.bin
-seed compressed tests/fixtures/fuzz/seeds/compressed_jpeg.bin tests/fixtures/fuzz/seeds/compressed_png.bin
+seed compressed tests/fixtures/fuzz/seeds/compressed_jpeg.bin tests/fixtures/fuzz/seeds/compressed_png.bin \
+    tests/fixtures/fuzz/compressed/jpeg_coefficient_overflow.bin
 seed sync
 seed params
 mkdir -p fuzz/corpus/bag_reader

@@ -2,7 +2,14 @@
 //! format the node accepts, decoded as the node and `bag` decode it. Nothing may panic; an
 //! image that decodes is `rgb8` or `mono8`, within the size limits, with exactly
 //! `step * height` bytes.
+//!
+//! The one exception: a panic inside an image decoder crate (zune-jpeg's overflow on a damaged
+//! JPEG) is caught by `decode`, which turns it into a corrupt-image error, so such a panic must
+//! not abort the fuzzer (libFuzzer's hook aborts on every panic, before it unwinds to
+//! `decode`). Any other panic still aborts.
 #![no_main]
+
+use std::sync::Once;
 
 use libfuzzer_sys::fuzz_target;
 use sweepdepth::msgs::{CompressedImage, Header};
@@ -17,7 +24,27 @@ const FORMATS: [&str; 6] = [
     "16UC1; compressedDepth png",
 ];
 
+static HOOK: Once = Once::new();
+
+/// The crates whose panics `decode` catches (the decoders under `image`).
+const DECODERS: [&str; 4] = ["/zune-jpeg-", "/zune-core-", "/png-", "/fdeflate-"];
+
+fn install_hook() {
+    HOOK.call_once(|| {
+        let abort = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let in_decoder = info
+                .location()
+                .is_some_and(|l| DECODERS.iter().any(|d| l.file().contains(d)));
+            if !in_decoder {
+                abort(info);
+            }
+        }));
+    });
+}
+
 fuzz_target!(|data: &[u8]| {
+    install_hook();
     let Some((&selector, bytes)) = data.split_first() else {
         return;
     };

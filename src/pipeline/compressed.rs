@@ -202,7 +202,12 @@ pub fn decode(camera: &str, image: &CompressedImage) -> Result<Image, DecodeErro
     limits.max_image_width = Some(MAX_IMAGE_SIDE);
     limits.max_image_height = Some(MAX_IMAGE_SIDE);
     reader.limits(limits);
-    let decoded = reader.decode().map_err(|e| corrupt(e.to_string()))?;
+    // A decoder that panics on a malformed stream is a corrupt image, not a crash: zune-jpeg
+    // 0.5.15 multiplies a coefficient past i32 on some damaged JPEGs (a panic where overflow
+    // checks are on; tests/fixtures/fuzz/README.md).
+    let decoded = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.decode()))
+        .map_err(|_| corrupt("the decoder failed on the stream (it panicked)".into()))?
+        .map_err(|e| corrupt(e.to_string()))?;
     let colour = decoded.color().has_color();
     if let Some(original) = &parsed.original {
         if let Some(says_colour) = is_colour(original) {
