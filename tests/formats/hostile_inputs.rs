@@ -411,7 +411,10 @@ fn fuzz_found_compressed_images_are_errors_not_crashes() {
         // image must come back as an error or an image, never a panic.
         if cfg!(debug_assertions) {
             let error = result.expect_err(name);
-            assert!(matches!(error, DecodeError::Corrupt { .. }), "{name}: {error}");
+            assert!(
+                matches!(error, DecodeError::Corrupt { .. }),
+                "{name}: {error}"
+            );
             assert!(error.to_string().contains("cam0"), "{name}: {error}");
         }
     }
