@@ -389,33 +389,28 @@ fn image_frame_id_with_a_leading_slash_is_refused_as_tf2_refuses_it() {
     );
 }
 
-/// The fuzz inputs that crashed the compressed-image decoder (tests/fixtures/fuzz/README.md):
-/// each is refused as a corrupt image, without a panic.
+/// The fuzz input that crashed the compressed-image decoder (tests/fixtures/fuzz/README.md):
+/// refused as a corrupt image, without a panic.
 #[test]
 fn fuzz_found_compressed_images_are_errors_not_crashes() {
     use sweepdepth::msgs::{CompressedImage, Header};
     use sweepdepth::pipeline::compressed::{decode, DecodeError};
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/fuzz/compressed");
-    for name in ["jpeg_coefficient_overflow.bin"] {
-        let input = std::fs::read(dir.join(name)).unwrap();
-        // The fuzz target's first byte chooses the format: 0 = a JPEG of an rgb8 image.
-        assert_eq!(input[0], 0, "{name}");
-        let msg = CompressedImage {
-            header: Header::default(),
-            format: "rgb8; jpeg compressed bgr8".into(),
-            data: input[1..].to_vec(),
-        };
-        let result = decode("cam0", &msg);
-        // Where overflow checks are on (test builds) the decoder panics inside; either way the
-        // image must come back as an error or an image, never a panic.
-        if cfg!(debug_assertions) {
-            let error = result.expect_err(name);
-            assert!(
-                matches!(error, DecodeError::Corrupt { .. }),
-                "{name}: {error}"
-            );
-            assert!(error.to_string().contains("cam0"), "{name}: {error}");
-        }
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/fuzz/compressed/jpeg_coefficient_overflow.bin");
+    let input = std::fs::read(path).unwrap();
+    // The fuzz target's first byte chooses the format: 0 = a JPEG of an rgb8 image.
+    assert_eq!(input[0], 0);
+    let msg = CompressedImage {
+        header: Header::default(),
+        format: "rgb8; jpeg compressed bgr8".into(),
+        data: input[1..].to_vec(),
+    };
+    let result = decode("cam0", &msg);
+    // Where overflow checks are on (test builds) the decoder panics inside; either way the
+    // image must come back as an error or an image, never a panic.
+    if cfg!(debug_assertions) {
+        let error = result.expect_err("a corrupt image");
+        assert!(matches!(error, DecodeError::Corrupt { .. }), "{error}");
+        assert!(error.to_string().contains("cam0"), "{error}");
     }
 }
