@@ -309,31 +309,16 @@ impl GpuEngine {
         size: (u32, u32),
         wanted: WantedMaps,
     ) -> Result<ReferenceMaps, SweepError> {
-        let MappedSet {
-            view,
-            readback,
-            pooled,
-            maps_len,
-            ticks,
-            levels,
-            started,
-        } = self.map_submitted(submitted)?;
-        match LentMaps::new(view, readback.clone(), &self.deferred.returned, size) {
+        let set = self.map_submitted(submitted)?;
+        let readback = set.readback.clone();
+        match LentMaps::new(set.view, readback, &self.deferred.returned, size) {
             Ok(lent) => {
-                self.set_timings(&levels, ticks, started)?;
+                self.set_timings(&set.levels, set.ticks, set.started)?;
                 Ok(ReferenceMaps::Lent(lent))
             }
             Err(view) => {
-                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&view[..maps_len]);
-                self.release(MappedSet {
-                    view,
-                    readback,
-                    pooled,
-                    maps_len,
-                    ticks,
-                    levels,
-                    started,
-                })?;
+                let floats: Vec<f32> = bytemuck::pod_collect_to_vec(&view[..set.maps_len]);
+                self.release(MappedSet { view, ..set })?;
                 let maps = unpack_sections(size, &floats, MAP_DEPTH, wanted, false);
                 Ok(ReferenceMaps::Owned(maps))
             }
