@@ -8,5 +8,6 @@ mod common;
 mod bag;
 mod bag_compressed;
 mod bag_faults;
+mod bag_references;
 mod bag_why;
 mod util;
