@@ -37,6 +37,13 @@ pub enum BagError {
     Write { path: PathBuf, reason: String },
     #[error("{0} exists (pass --force to replace it)")]
     OutputExists(PathBuf),
+    #[error("{out} is the input {input} or holds it: write the output elsewhere")]
+    OutputIsInput { out: PathBuf, input: PathBuf },
+    #[error(
+        "{out} exists and is not a bag ({what}): not replaced, even with --force; remove it \
+         yourself or write the output elsewhere"
+    )]
+    OutputNotABag { out: PathBuf, what: String },
     #[error("topic {0} was not declared before writing")]
     UnknownTopic(String),
     #[error("the bag writer is already finished")]

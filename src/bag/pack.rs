@@ -369,12 +369,14 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         )));
     }
     let params_file = params_path(&args.output);
-    writer::check_output(&args.output, args.force)?;
-    writer::check_output(&params_file, args.force)?;
     let rig = args
         .rig
         .clone()
         .or_else(|| Some(args.dir.join("rig.yaml")).filter(|p| p.is_file()));
+    let mut inputs = vec![args.dir.as_path()];
+    inputs.extend(rig.as_deref());
+    writer::check_bag_output(&args.output, args.force, &inputs)?;
+    writer::check_output(&params_file, args.force)?;
     let (cameras, reference, source, depth) = match &rig {
         Some(rig) => {
             let (c, r, s) = rig_folder_cameras(&args.dir, rig)?;

@@ -202,12 +202,13 @@ pub fn process_bag(args: &BagArgs) -> Result<BagReport, BagRunError> {
 
 /// [`process_bag`], also returning the live view of `--view` (still serving the last set).
 fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), BagRunError> {
+    let mut reader = BagReader::open(&args.input)?;
     let config = PipelineConfig::from_args(&args.ros_args())?;
     for note in &config.notes {
         tracing::info!("{note}");
     }
-    writer::check_output(&args.output, args.force)?;
-    let mut reader = BagReader::open(&args.input)?;
+    writer::check_bag_output(&args.output, args.force, &[&args.input])?;
+    check_fusion_early(&config, args)?;
 
     let known = reader.topics().to_vec();
     let (routes, image_topics) = routes(&config, &known);
@@ -417,6 +418,34 @@ fn check_topics(
         }
     }
     Ok(wrong_type)
+}
+
+/// What would fail fusion only after the whole bag, refused before it: its parameters, and a
+/// `--mesh` file in a folder that does not exist.
+fn check_fusion_early(config: &PipelineConfig, args: &BagArgs) -> Result<(), BagRunError> {
+    if let Some(fusion) = bag_fusion(config, args) {
+        fusion.params.validate()?;
+    }
+    if let Some(mesh) = &args.mesh {
+        let folder = mesh
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(std::path::Path::new("."));
+        if !folder.is_dir() || mesh.is_dir() {
+            return Err(BagRunError::MeshFile {
+                path: mesh.display().to_string(),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    if mesh.is_dir() {
+                        "a folder, not a file name".to_string()
+                    } else {
+                        format!("no folder {}", folder.display())
+                    },
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with

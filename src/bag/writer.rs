@@ -1,6 +1,8 @@
 //! Writing bags: a lone `.mcap` file, or a rosbag2 directory (`metadata.yaml` + one MCAP
 //! file) that `ros2 bag info` / `ros2 bag play` accept. MCAP with zstd chunks, profile `ros2`,
 //! schemas in `ros2msg` encoding (the full definitions of `msg/schemas/`), messages in `cdr`.
+//! A bag is written beside its output as `<out>.partial` and moved into place when finished:
+//! a run that fails leaves no half-written output (and the one it replaces untouched).
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -10,12 +12,109 @@ use std::path::{Path, PathBuf};
 use super::schemas;
 use super::BagError;
 
-/// Where a bag goes and whether it may replace what is there.
+/// Where a file goes and whether it may replace what is there.
 pub fn check_output(out: &Path, force: bool) -> Result<(), BagError> {
     if out.exists() && !force {
         return Err(BagError::OutputExists(out.to_path_buf()));
     }
     Ok(())
+}
+
+/// Where a bag goes: never one of `inputs` or a folder that holds one; where something is
+/// there already, replaced only with `force` and only when it is a bag itself (a lone MCAP or
+/// sqlite3 file, or a folder of bag files alone), so that `--force` never deletes a dataset, a
+/// folder of other files or the input being read.
+pub fn check_bag_output(out: &Path, force: bool, inputs: &[&Path]) -> Result<(), BagError> {
+    if !out.exists() {
+        return Ok(());
+    }
+    let out_real = out.canonicalize().map_err(|e| BagError::io(out, e))?;
+    for input in inputs {
+        if let Ok(input_real) = input.canonicalize() {
+            if input_real.starts_with(&out_real) {
+                return Err(BagError::OutputIsInput {
+                    out: out.to_path_buf(),
+                    input: input.to_path_buf(),
+                });
+            }
+        }
+    }
+    check_output(out, force)?;
+    match not_a_bag(out) {
+        Some(what) => Err(BagError::OutputNotABag {
+            out: out.to_path_buf(),
+            what,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// What makes the existing `path` something other than a bag, if anything: a file that is
+/// neither MCAP nor sqlite3 (by its first bytes), a folder with other entries than bag files.
+fn not_a_bag(path: &Path) -> Option<String> {
+    use std::io::Read;
+    const MAGICS: [&[u8]; 2] = [b"\x89MCAP0\r\n", b"SQLite format 3\0"];
+    if path.is_dir() {
+        let entries = match std::fs::read_dir(path) {
+            Ok(entries) => entries,
+            Err(e) => return Some(format!("a folder that cannot be listed: {e}")),
+        };
+        let mut others: Vec<String> = entries
+            .filter_map(Result::ok)
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|name| {
+                let bag_file = name == "metadata.yaml"
+                    || [".mcap", ".db3", ".db3-shm", ".db3-wal", ".zstd"]
+                        .iter()
+                        .any(|ext| name.ends_with(ext));
+                !bag_file
+            })
+            .collect();
+        if others.is_empty() {
+            return None;
+        }
+        others.sort();
+        let more = others.len().saturating_sub(3);
+        others.truncate(3);
+        let mut what = format!("a folder holding {}", others.join(", "));
+        if more > 0 {
+            what += &format!(" and {more} more");
+        }
+        return Some(what);
+    }
+    let mut head = [0u8; 16];
+    let read = File::open(path)
+        .and_then(|mut f| f.read(&mut head))
+        .unwrap_or(0);
+    let head = &head[..read];
+    if read == 0 || MAGICS.iter().any(|m| head.starts_with(m)) {
+        None
+    } else {
+        Some("a file that is neither MCAP nor sqlite3".into())
+    }
+}
+
+/// `<out>.partial`: where the bag is written until it is finished.
+fn partial_path(out: &Path) -> Result<PathBuf, BagError> {
+    let name = out.file_name().ok_or_else(|| BagError::Format {
+        path: out.to_path_buf(),
+        reason: "not a file or folder name to write a bag to".into(),
+    })?;
+    let mut partial = name.to_os_string();
+    partial.push(".partial");
+    Ok(out.with_file_name(partial))
+}
+
+/// Removes a file or a folder, if there.
+fn remove(path: &Path) -> Result<(), BagError> {
+    let r = if path.is_dir() {
+        std::fs::remove_dir_all(path)
+    } else if path.exists() {
+        std::fs::remove_file(path)
+    } else {
+        Ok(())
+    };
+    r.map_err(|e| BagError::io(path, e))
 }
 
 struct Topic {
@@ -37,6 +136,8 @@ pub struct WriteSummary {
 pub struct BagWriter {
     /// The path the user gave (a `.mcap` file or a directory).
     out: PathBuf,
+    /// Where the bag is written until it is finished (`<out>.partial`).
+    partial: PathBuf,
     /// The MCAP file inside.
     mcap_path: PathBuf,
     directory: bool,
@@ -49,32 +150,34 @@ pub struct BagWriter {
 }
 
 impl BagWriter {
-    /// Creates `out`: a lone MCAP file when it ends in `.mcap`, else a rosbag2 directory. An
-    /// existing `out` is an error unless `force` (then it is replaced).
+    /// Creates `out`: a lone MCAP file when it ends in `.mcap`, else a rosbag2 directory,
+    /// written as `<out>.partial` until [`BagWriter::finish`]. An existing `out` is an error
+    /// unless `force` and it is a bag ([`check_bag_output`]; then it is replaced when the new
+    /// one is finished).
     pub fn create(out: &Path, force: bool) -> Result<Self, BagError> {
-        check_output(out, force)?;
+        check_bag_output(out, force, &[])?;
         let directory = out.extension().and_then(|e| e.to_str()) != Some("mcap");
-        if out.exists() {
-            let r = if out.is_dir() {
-                std::fs::remove_dir_all(out)
-            } else {
-                std::fs::remove_file(out)
-            };
-            r.map_err(|e| BagError::io(out, e))?;
+        let partial = partial_path(out)?;
+        // A `.partial` of a run that was killed: only ever a bag of ours.
+        if partial.exists() {
+            if let Some(what) = not_a_bag(&partial) {
+                return Err(BagError::OutputNotABag { out: partial, what });
+            }
+            remove(&partial)?;
+        }
+        if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|e| BagError::io(parent, e))?;
         }
         let mcap_path = if directory {
-            std::fs::create_dir_all(out).map_err(|e| BagError::io(out, e))?;
+            std::fs::create_dir_all(&partial).map_err(|e| BagError::io(&partial, e))?;
             let stem = out
                 .file_name()
                 .and_then(|n| n.to_str())
                 .filter(|n| !n.is_empty())
                 .unwrap_or("bag");
-            out.join(format!("{stem}_0.mcap"))
+            partial.join(format!("{stem}_0.mcap"))
         } else {
-            if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-                std::fs::create_dir_all(parent).map_err(|e| BagError::io(parent, e))?;
-            }
-            out.to_path_buf()
+            partial.clone()
         };
         let file = File::create(&mcap_path).map_err(|e| BagError::io(&mcap_path, e))?;
         let writer = mcap::WriteOptions::new()
@@ -86,6 +189,7 @@ impl BagWriter {
             .map_err(|e| BagError::write(&mcap_path, e))?;
         Ok(Self {
             out: out.to_path_buf(),
+            partial,
             mcap_path,
             directory,
             writer: Some(writer),
@@ -176,13 +280,25 @@ impl BagWriter {
         self.write(topic, log_time_ns, log_time_ns, &data)
     }
 
-    /// Writes the MCAP summary and, for a directory, `metadata.yaml`.
+    /// Writes the MCAP summary and, for a directory, `metadata.yaml`, and moves the bag into
+    /// place (replacing what `out` held, checked to be a bag when the writer was made).
     pub fn finish(mut self) -> Result<WriteSummary, BagError> {
         let mut writer = self.writer.take().ok_or(BagError::Finished)?;
-        writer
+        let ended = writer
             .finish()
-            .map_err(|e| BagError::write(&self.mcap_path, e))?;
+            .map_err(|e| BagError::write(&self.mcap_path, e));
+        // The file closed before it moves.
         drop(writer);
+        let summary = ended.and_then(|_| self.move_into_place());
+        if summary.is_err() {
+            // Not finished: nothing left behind (as `drop` does).
+            let _ = remove(&self.partial);
+        }
+        summary
+    }
+
+    /// The finished MCAP file's `metadata.yaml` (a directory), then the bag into place.
+    fn move_into_place(&self) -> Result<WriteSummary, BagError> {
         let mut topics: Vec<(String, String, u64)> = self
             .topics
             .iter()
@@ -190,10 +306,12 @@ impl BagWriter {
             .collect();
         topics.sort();
         if self.directory {
-            let path = self.out.join("metadata.yaml");
+            let path = self.partial.join("metadata.yaml");
             std::fs::write(&path, self.metadata_yaml(&topics))
                 .map_err(|e| BagError::io(&path, e))?;
         }
+        remove(&self.out)?;
+        std::fs::rename(&self.partial, &self.out).map_err(|e| BagError::io(&self.out, e))?;
         Ok(WriteSummary {
             path: self.out.clone(),
             messages: self.messages,
@@ -230,6 +348,17 @@ impl BagWriter {
             self.messages
         );
         y
+    }
+}
+
+impl Drop for BagWriter {
+    /// A bag not finished (the run failed) leaves nothing behind.
+    fn drop(&mut self) {
+        if self.writer.take().is_some() {
+            if let Err(e) = remove(&self.partial) {
+                tracing::warn!("cannot remove the unfinished bag: {e}");
+            }
+        }
     }
 }
 
@@ -299,10 +428,93 @@ mod tests {
         assert!(meta.contains("message_count: 3"));
     }
 
+    /// A bag is written as `<out>.partial` and moved into place when finished: a writer
+    /// dropped unfinished (a failed run) leaves neither, and the bag it would have replaced
+    /// stays as it was.
+    #[test]
+    fn an_unfinished_bag_leaves_nothing_and_replaces_nothing() {
+        let out = tmp("unfinished.mcap");
+        let partial = tmp("unfinished.mcap.partial");
+        let _ = std::fs::remove_file(&out);
+        let mut w = BagWriter::create(&out, false).unwrap();
+        w.add_topic("/a", schemas::IMAGE, None).unwrap();
+        w.write("/a", 10, 10, &[0, 1, 0, 0, 7]).unwrap();
+        assert!(partial.is_file() && !out.exists());
+        drop(w);
+        assert!(!partial.exists() && !out.exists());
+
+        round_trip(&out);
+        let finished = std::fs::read(&out).unwrap();
+        let mut w = BagWriter::create(&out, true).unwrap();
+        w.add_topic("/z", schemas::IMAGE, None).unwrap();
+        drop(w);
+        assert_eq!(std::fs::read(&out).unwrap(), finished);
+        assert!(!partial.exists());
+
+        // A folder bag: the same, `metadata.yaml` and its MCAP file moved in together.
+        let dir = tmp("unfinished_dir");
+        let _ = std::fs::remove_dir_all(&dir);
+        let w = BagWriter::create(&dir, false).unwrap();
+        assert!(tmp("unfinished_dir.partial").is_dir() && !dir.exists());
+        drop(w);
+        assert!(!tmp("unfinished_dir.partial").exists() && !dir.exists());
+    }
+
+    /// `--force` replaces bags alone: a lone MCAP or sqlite3 file, an empty file, a folder of
+    /// bag files; never another file or a folder holding one, nor the input or its folder.
+    #[test]
+    fn force_replaces_bags_alone() {
+        let root = tmp("force_cases");
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let file = |name: &str, bytes: &[u8]| {
+            let p = root.join(name);
+            std::fs::write(&p, bytes).unwrap();
+            p
+        };
+        let mcap = file("a.mcap", b"\x89MCAP0\r\nrest");
+        let db3 = file("b.db3", b"SQLite format 3\0rest");
+        let empty = file("c.mcap", b"");
+        let text = file("d.mcap", b"not a bag");
+        for ok in [&mcap, &db3, &empty] {
+            assert!(check_bag_output(ok, true, &[]).is_ok(), "{}", ok.display());
+            assert!(matches!(
+                check_bag_output(ok, false, &[]),
+                Err(BagError::OutputExists(_))
+            ));
+        }
+        assert!(matches!(
+            check_bag_output(&text, true, &[]),
+            Err(BagError::OutputNotABag { .. })
+        ));
+        let bag_dir = root.join("bag");
+        std::fs::create_dir(&bag_dir).unwrap();
+        std::fs::write(bag_dir.join("metadata.yaml"), "x").unwrap();
+        std::fs::write(bag_dir.join("bag_0.mcap"), "x").unwrap();
+        assert!(check_bag_output(&bag_dir, true, &[]).is_ok());
+        std::fs::write(bag_dir.join("notes.txt"), "x").unwrap();
+        let refused = check_bag_output(&bag_dir, true, &[]).unwrap_err();
+        assert!(
+            refused.to_string().contains("a folder holding notes.txt"),
+            "{refused}"
+        );
+        // The input, and the folder that holds it, even when both are bags.
+        let input = bag_dir.join("bag_0.mcap");
+        std::fs::remove_file(bag_dir.join("notes.txt")).unwrap();
+        for out in [&input, &bag_dir] {
+            assert!(matches!(
+                check_bag_output(out, true, &[&input]),
+                Err(BagError::OutputIsInput { .. })
+            ));
+        }
+        // Not yet there: nothing to check.
+        assert!(check_bag_output(&root.join("new.mcap"), false, &[&input]).is_ok());
+    }
+
     #[test]
     fn existing_output_is_refused_without_force() {
         let out = tmp("exists.mcap");
-        std::fs::write(&out, b"x").unwrap();
+        std::fs::write(&out, b"\x89MCAP0\r\n").unwrap();
         assert!(matches!(
             BagWriter::create(&out, false),
             Err(BagError::OutputExists(_))

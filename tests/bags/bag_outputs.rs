@@ -1,0 +1,170 @@
+//! Where `bag` and `pack` write, and what `--force` may replace: never the input or a folder
+//! that holds it, never a folder of other files or a file that is not a bag; a run that fails
+//! leaves no output behind (so that the same command can run again without `--force`; a
+//! writer dropped unfinished: `bag::writer`'s unit tests).
+
+use super::util::{messages, ok, root, scratch, sweepdepth};
+use std::path::{Path, PathBuf};
+
+fn fixture() -> PathBuf {
+    root().join("tests/fixtures/bags/tsukuba_half.mcap")
+}
+
+fn params() -> PathBuf {
+    root().join("tests/fixtures/bags/tsukuba_half.params.yaml")
+}
+
+/// Runs `bag IN OUT` with the fixture's parameters and `extra`: (success, stderr).
+fn bag(input: &Path, output: &Path, extra: &[&str]) -> (bool, String) {
+    let params = params();
+    let mut args = vec![
+        "bag",
+        input.to_str().unwrap(),
+        output.to_str().unwrap(),
+        "--params-file",
+        params.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let out = sweepdepth(&args);
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Every file below `dir` with its bytes, sorted by path.
+fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut files = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let bytes = std::fs::read(&path).unwrap();
+                files.push((path, bytes));
+            }
+        }
+    }
+    files.sort();
+    files
+}
+
+#[test]
+fn force_never_replaces_the_input_or_what_is_not_a_bag() {
+    let dir = scratch("force");
+    let input = dir.join("in.mcap");
+    std::fs::copy(fixture(), &input).unwrap();
+    let notes = dir.join("notes.txt");
+    std::fs::write(&notes, "the user's own file\n").unwrap();
+    let before = tree(&dir);
+
+    // OUT is the input.
+    let (done, stderr) = bag(&input, &input, &["--force"]);
+    assert!(!done, "bag IN IN --force succeeded");
+    assert!(stderr.contains("is the input"), "{stderr}");
+    // OUT is the folder that holds the input (and the user's file).
+    let (done, stderr) = bag(&input, &dir, &["--force"]);
+    assert!(!done, "bag IN (its folder) --force succeeded");
+    assert!(stderr.contains("or holds it"), "{stderr}");
+    // OUT is a file that is not a bag.
+    let (done, stderr) = bag(&input, &notes, &["--force"]);
+    assert!(!done, "bag IN notes.txt --force succeeded");
+    assert!(stderr.contains("is not a bag"), "{stderr}");
+    assert_eq!(tree(&dir), before, "a refused --force changed the folder");
+
+    // OUT is a folder of other files.
+    let other = dir.join("other");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::write(other.join("calib.txt"), "x").unwrap();
+    let (done, stderr) = bag(&input, &other, &["--force"]);
+    assert!(!done);
+    assert!(
+        stderr.contains("is not a bag (a folder holding calib.txt)"),
+        "{stderr}"
+    );
+    assert!(other.join("calib.txt").is_file());
+
+    // `pack` into the dataset folder it reads.
+    let dataset = dir.join("tsukuba");
+    std::fs::create_dir(&dataset).unwrap();
+    for entry in std::fs::read_dir(root().join("data/tsukuba")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_file() {
+            std::fs::copy(&path, dataset.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    let dataset_before = tree(&dataset);
+    let out = sweepdepth(&[
+        "pack",
+        dataset.to_str().unwrap(),
+        dataset.to_str().unwrap(),
+        "--force",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "pack DIR DIR --force succeeded");
+    assert!(stderr.contains("is the input"), "{stderr}");
+    assert_eq!(tree(&dataset), dataset_before, "pack changed its dataset");
+
+    // A bag in OUT is replaced: the new one holds this run's depth.
+    let old = dir.join("old.mcap");
+    std::fs::copy(fixture(), &old).unwrap();
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            input.to_str().unwrap(),
+            old.to_str().unwrap(),
+            "--params-file",
+            params().to_str().unwrap(),
+            "--force",
+        ]),
+        "bag over an older bag with --force",
+    );
+    assert!(stderr.contains("3 processed"), "{stderr}");
+    let depths = messages(&old)
+        .iter()
+        .filter(|m| m.topic == "/depth/image")
+        .count();
+    assert_eq!(depths, 3, "the replaced bag's depth messages");
+}
+
+#[test]
+fn a_failed_run_leaves_no_output_behind() {
+    let dir = scratch("failed");
+    let out = dir.join("out.mcap");
+    // Refused before the bag is read: a mesh into a folder that does not exist, and a voxel
+    // size fusion refuses; neither leaves an output.
+    let missing = dir.join("no/such/folder/mesh.ply");
+    let (done, stderr) = bag(&fixture(), &out, &["--mesh", missing.to_str().unwrap()]);
+    assert!(!done);
+    assert!(
+        stderr.contains("--mesh: cannot write") && stderr.contains("no folder"),
+        "{stderr}"
+    );
+    let mesh = dir.join("mesh.ply");
+    let (done, stderr) = bag(
+        &fixture(),
+        &out,
+        &["--mesh", mesh.to_str().unwrap(), "--voxel-size", "0"],
+    );
+    assert!(!done);
+    assert!(stderr.contains("voxel"), "{stderr}");
+    let names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.is_empty(), "left behind: {names:?}");
+    // The same command again, without --force: it runs.
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            fixture().to_str().unwrap(),
+            out.to_str().unwrap(),
+            "--params-file",
+            params().to_str().unwrap(),
+        ]),
+        "bag after the failed runs",
+    );
+    assert!(stderr.contains("3 processed"), "{stderr}");
+}
