@@ -239,9 +239,14 @@ fn cached<'a>(
     }
 }
 
-/// Whether a level of `width` x `height` pixels and `planes` planes has a level below it.
+/// Whether a level of `width` x `height` pixels and `planes` planes has a level below it: large
+/// enough, and the level below within what its SGM takes (`COARSE_OPTIMIZER`; with more planes
+/// than that, `wta` sweeps at full resolution alone).
 fn halves(width: u32, height: u32, planes: u32) -> bool {
-    planes >= MIN_PLANES && width >= MIN_SIZE && height >= MIN_SIZE
+    planes >= MIN_PLANES
+        && width >= MIN_SIZE
+        && height >= MIN_SIZE
+        && coarse_planes(planes) <= super::gpu_types::MAX_SGM_PLANES
 }
 
 /// Whether a sweep of `rig` with `params` runs coarse to fine.
@@ -800,16 +805,24 @@ mod tests {
             "150 px: too small to halve"
         );
         assert_eq!(levels(&rig(384, 288), &params(32)), 1);
-        // The deepest: 4096 planes (the most a plan takes) halve seven times (the WGSL
-        // engine keeps at most seven spare shapes, gpu/mod.rs MAX_SPARES).
-        assert_eq!(levels(&rig(16384, 16384), &params(4096)), 8);
+        // The deepest: 2048 planes halve six times (the WGSL engine keeps at most seven spare
+        // shapes, gpu/mod.rs MAX_SPARES). With more, the level below would run its SGM over
+        // more planes than SGM takes (MAX_SGM_PLANES): `wta` sweeps them at full resolution.
+        assert_eq!(levels(&rig(16384, 16384), &params(2048)), 7);
+        assert_eq!(levels(&rig(16384, 16384), &params(2049)), 1);
+        assert_eq!(levels(&rig(640, 480), &params(4096)), 1);
         let off = SweepParams {
             coarse_to_fine: false,
             ..params(96)
         };
         assert_eq!(levels(&rig(640, 480), &off), 1);
         // `applies` is the first step of `levels`.
-        for (w, h, planes) in [(640, 480, 96), (384, 288, 32), (100, 500, 96)] {
+        for (w, h, planes) in [
+            (640, 480, 96),
+            (384, 288, 32),
+            (100, 500, 96),
+            (640, 480, 4096),
+        ] {
             assert_eq!(
                 applies(&rig(w, h), &params(planes)),
                 levels(&rig(w, h), &params(planes)) > 1

@@ -611,6 +611,31 @@ fn coarse_to_fine_in_three_levels_keeps_the_depth() {
 }
 
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
+/// More planes than SGM takes at the half-resolution level (2049 and up, with `wta`): coarse to
+/// fine steps aside and the sweep runs at full resolution alone. It used to run the coarse pass
+/// and then fail every set with "optimizer sgm supports at most 1024 planes, got 1025", a count
+/// the user never gave, for an optimizer they had not asked for.
+#[test]
+fn wta_with_more_planes_than_sgm_takes_sweeps_at_full_resolution() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 160));
+    let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let p = SweepParams {
+        optimizer: Optimizer::Wta,
+        ..params(1.0, 4.0, 2050)
+    };
+    assert!(
+        p.coarse_to_fine,
+        "coarse to fine is on and steps aside by itself"
+    );
+    let maps = CpuEngine::new()
+        .run(&rig, &images, &p)
+        .expect("2050 planes with wta");
+    let truth = synthetic::reference_depth(&scene, &rig);
+    check_within("wta_2050_planes", &maps.depth_m, &truth, 0.01, 0.8);
+}
+
 #[test]
 fn tilted_plane_family_recovers_a_floor() {
     let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
