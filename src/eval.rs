@@ -113,8 +113,6 @@ pub enum EvalError {
     NoNonoccMask(String),
     #[error("no pixel has ground truth{0}")]
     NoGroundTruthPixels(String),
-    #[error("the peer: {0}")]
-    Peer(String),
     #[error("{path}: cannot create folder: {source}")]
     CreateDir {
         path: PathBuf,
@@ -190,10 +188,12 @@ pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(
     Ok(())
 }
 
+/// `eval_one`'s dataset, with the Python of `--peer sgbm` (found before any dataset runs).
 fn eval_one(
     engine: &mut Engine,
     dir: &Path,
     args: &EvalArgs,
+    peer_python: Option<&Path>,
     progress: &str,
 ) -> Result<String, EvalError> {
     let started = Instant::now();
@@ -230,20 +230,29 @@ fn eval_one(
         eprintln!("{progress} wrote {}", dir.display());
     }
     let mut rows = table_row(&dataset, metrics.as_ref(), maps.invalid_fraction(), ms);
-    if args.peer == Some(EvalPeer::Sgbm) {
-        let python = peer::cv2_python(args.python.as_deref())
-            .ok_or(EvalError::Peer(peer::PeerError::NoPython.to_string()))?;
+    if let Some(python) = peer_python {
+        // The engine's row stands whatever becomes of the peer's: a dataset it cannot run on
+        // (not a rectified pair) or a failed run is a comment line of the table instead.
         let right = args.right_view.as_deref().unwrap_or("im1.png");
-        let row = peer::sgbm_row(&python, dir, right, &dataset, &std::env::temp_dir())
-            .map_err(|e| EvalError::Peer(e.to_string()))?;
+        let row = peer::check_pair(&dataset)
+            .and_then(|()| peer::sgbm_row(python, dir, right, &dataset, &std::env::temp_dir()));
         rows.push('\n');
-        rows.push_str(&table_row_as(
-            &format!("  sgbm-3way {}", dataset.name),
-            &dataset,
-            Some(&row.metrics),
-            row.invalid,
-            row.ms,
-        ));
+        match row {
+            Ok(row) => rows.push_str(&table_row_as(
+                &format!("  sgbm-3way {}", dataset.name),
+                &dataset,
+                Some(&row.metrics),
+                row.invalid,
+                row.ms,
+            )),
+            Err(e) => {
+                eprintln!(
+                    "{progress} the SGBM peer did not run on {}: {e}",
+                    dataset.name
+                );
+                rows.push_str(&format!("#  sgbm-3way {}: not run: {e}", dataset.name));
+            }
+        }
     }
     Ok(rows)
 }
@@ -258,6 +267,8 @@ pub enum EvalRunError {
     Engine(#[from] SweepError),
     #[error("writing the table: {0}")]
     Stdout(#[from] std::io::Error),
+    #[error("--peer sgbm: {0}")]
+    Peer(#[from] peer::PeerError),
     #[error("{} of {total} dataset(s) failed: {}", failed.len(), failed.join(", "))]
     Failed { failed: Vec<String>, total: usize },
 }
@@ -268,6 +279,10 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
     if args.fusion {
         return fusion::run(args);
     }
+    let peer_python = match args.peer {
+        Some(EvalPeer::Sgbm) => Some(peer::require_cv2_python(args.python.as_deref())?),
+        None => None,
+    };
     let mut engine = Engine::new(args.device)?;
     let mut stdout = std::io::stdout();
     writeln!(stdout, "# engine: {}", engine.label())?;
@@ -283,7 +298,7 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
     let total = args.dirs.len();
     for (i, dir) in args.dirs.iter().enumerate() {
         let progress = format!("[{}/{total}]", i + 1);
-        match eval_one(&mut engine, dir, args, &progress) {
+        match eval_one(&mut engine, dir, args, peer_python.as_deref(), &progress) {
             Ok(row) => {
                 writeln!(stdout, "{row}")?;
                 stdout.flush()?;

@@ -11,17 +11,25 @@ use crate::datasets::{Dataset, GroundTruth, Layout};
 use crate::image::ImageF32;
 use crate::io;
 
-/// A Python that can import cv2: `explicit`, the repo's test venv, then `python3`.
-pub fn cv2_python(explicit: Option<&Path>) -> Option<PathBuf> {
+/// `tools/sgbm_baseline.py`, built into the binary: `eval --peer` runs its `--pair` mode, which
+/// reads only the paths it is given, so an installed binary needs no checkout.
+const SGBM_SCRIPT: &str = include_str!("../../tools/sgbm_baseline.py");
+
+/// The Pythons [`cv2_python`] tries: `explicit`, else the repo's test venv, then `python3`.
+fn python_candidates(explicit: Option<&Path>) -> Vec<PathBuf> {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let candidates: Vec<PathBuf> = match explicit {
+    match explicit {
         Some(p) => vec![p.to_path_buf()],
         None => vec![
             repo.join("target/test-venv/bin/python"),
             PathBuf::from("python3"),
         ],
-    };
-    candidates.into_iter().find(|python| {
+    }
+}
+
+/// A Python that can import cv2: `explicit`, the repo's test venv, then `python3`.
+pub fn cv2_python(explicit: Option<&Path>) -> Option<PathBuf> {
+    python_candidates(explicit).into_iter().find(|python| {
         Command::new(python)
             .args(["-c", "import cv2"])
             .output()
@@ -30,13 +38,36 @@ pub fn cv2_python(explicit: Option<&Path>) -> Option<PathBuf> {
     })
 }
 
+/// [`cv2_python`], or why there is none (the Pythons tried, by path).
+pub fn require_cv2_python(explicit: Option<&Path>) -> Result<PathBuf, PeerError> {
+    cv2_python(explicit).ok_or_else(|| {
+        let tried: Vec<String> = python_candidates(explicit)
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        PeerError::NoPython(tried.join(", "))
+    })
+}
+
+/// Whether the peer can run on `dataset`: a rectified pair with disparity ground truth.
+pub fn check_pair(dataset: &Dataset) -> Result<(), PeerError> {
+    let is_pair = matches!(dataset.ground_truth, GroundTruth::Disparity { .. })
+        && dataset.layout == Layout::Middlebury2014
+        && dataset.rig.cameras.len() == 2;
+    if is_pair {
+        Ok(())
+    } else {
+        Err(PeerError::NotAPair(dataset.layout))
+    }
+}
+
 /// Why the peer gave no row.
 #[derive(Debug, thiserror::Error)]
 pub enum PeerError {
     #[error("the SGBM peer runs on rectified pairs (middlebury2014 layout), not {0}")]
     NotAPair(Layout),
-    #[error("no Python with OpenCV (cv2) found: run scripts/setup.sh, `pip install opencv-python-headless`, or pass --python")]
-    NoPython,
+    #[error("no Python with OpenCV (cv2) found (tried {0}): run scripts/setup.sh, `pip install opencv-python-headless`, or pass --python")]
+    NoPython(String),
     #[error("{0}")]
     Run(String),
     #[error(transparent)]
@@ -78,7 +109,9 @@ pub fn sgbm_row(
     let max_disparity = *focal_baseline_eval / dataset.params.min_depth_m - doffs;
     let num_disp = (max_disparity.ceil() as i64).max(16);
     let out = scratch.join(format!("sgbm-{}.pfm", std::process::id()));
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/sgbm_baseline.py");
+    let script = scratch.join(format!("sweepdepth-sgbm-{}.py", std::process::id()));
+    std::fs::write(&script, SGBM_SCRIPT)
+        .map_err(|e| PeerError::Run(format!("writing {}: {e}", script.display())))?;
     let output = Command::new(python)
         .arg(&script)
         .arg("--pair")
@@ -93,7 +126,9 @@ pub fn sgbm_row(
         ])
         .arg(&out)
         .output()
-        .map_err(|e| PeerError::Run(format!("running {}: {e}", python.display())))?;
+        .map_err(|e| PeerError::Run(format!("running {}: {e}", python.display())));
+    let _ = std::fs::remove_file(&script);
+    let output = output?;
     if !output.status.success() {
         return Err(PeerError::Run(format!(
             "{} --pair failed: {}",

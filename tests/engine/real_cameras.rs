@@ -385,3 +385,56 @@ fn a_real_stereo_camera_pair_beats_sgbm_with_the_defaults() {
         ours.bad1
     );
 }
+
+/// `eval --peer sgbm` over a dataset the peer cannot run on (Tsukuba's five views) and a
+/// rectified pair (the repo's ETH3D pair): our rows for both, SGBM's beside ours on the pair, a
+/// comment line saying why not on the other, and success. (It used to drop our rows of every
+/// folder the peer could not run on and fail the command.) A Python without OpenCV is named
+/// before any dataset runs.
+#[test]
+fn eval_with_the_sgbm_peer_keeps_our_rows_and_says_where_it_did_not_run() {
+    use sweepdepth::eval::peer;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let python = peer::cv2_python(None).unwrap_or_else(|| {
+        panic!(
+            "the SGBM peer needs OpenCV: {}",
+            common::python::INSTALL_HINT
+        )
+    });
+    let run = |python: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .args(["eval", "--device", "cpu", "--peer", "sgbm", "--python"])
+            .arg(python)
+            .arg(root.join("data/tsukuba"))
+            .arg(root.join("data/eth3d_terrace_2s"))
+            .output()
+            .expect("run sweepdepth eval")
+    };
+    let out = run(&python);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    let row = |start: &str| stdout.lines().find(|l| l.starts_with(start));
+    assert!(row("tsukuba ").is_some(), "{stdout}");
+    assert!(row("eth3d_terrace_2s ").is_some(), "{stdout}");
+    let sgbm = row("  sgbm-3way eth3d_terrace_2s").unwrap_or_else(|| panic!("{stdout}"));
+    assert!(
+        sgbm.contains("middlebury2014") && sgbm.contains('%'),
+        "{sgbm}"
+    );
+    assert!(
+        row("#  sgbm-3way tsukuba: not run: the SGBM peer runs on rectified pairs").is_some(),
+        "{stdout}"
+    );
+
+    let missing = root.join("target/no-such-python");
+    let out = run(&missing);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains(&format!("tried {}", missing.display())) && !stderr.contains("loading"),
+        "{stderr}"
+    );
+}
