@@ -53,21 +53,44 @@ impl<S: Subscriber> Layer<S> for RateLimitDds {
     }
 }
 
+/// Whether the log colours its lines: on a terminal, unless `NO_COLOR` is set (no-color.org);
+/// a log written to a file or a pipe (`2> log`, journald, a launch file's) holds no escape codes.
+fn colours(stderr_is_terminal: bool, no_color: Option<std::ffi::OsString>) -> bool {
+    stderr_is_terminal && no_color.is_none_or(|v| v.is_empty())
+}
+
 /// Installs the stderr log (once, in `main`).
 pub fn init() {
+    use std::io::IsTerminal;
+    let ansi = colours(
+        std::io::stderr().is_terminal(),
+        std::env::var_os("NO_COLOR"),
+    );
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
         tracing_subscriber::EnvFilter::new("warn,sweepdepth=info,rustdds=error")
     });
     tracing_subscriber::registry()
         .with(filter)
         .with(RateLimitDds::default())
-        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_ansi(ansi)
+                .with_writer(std::io::stderr),
+        )
         .init();
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn colours_only_on_a_terminal_without_no_color() {
+        assert!(colours(true, None));
+        assert!(!colours(false, None));
+        assert!(!colours(true, Some("1".into())));
+        assert!(colours(true, Some("".into())));
+    }
 
     /// Call sites are told apart by address: each has a byte, so two are never one.
     struct Site(
