@@ -611,6 +611,44 @@ mod tests {
         );
     }
 
+    /// The stamps (ns) of the set that the configuration's synchroniser emits when camera b
+    /// sends images stamped 0 and 32 ms and then camera a one stamped 20 ms.
+    fn chosen_stamps(cfg: &PipelineConfig) -> Vec<i64> {
+        const MS: i64 = 1_000_000;
+        let mut sync = cfg.synchronizer(2).unwrap();
+        let image = || InputImage::Raw(crate::msgs::Image::default());
+        assert!(sync.push(1, 0, image()).unwrap().sets.is_empty());
+        assert!(sync.push(1, 32 * MS, image()).unwrap().sets.is_empty());
+        let sets = sync.push(0, 20 * MS, image()).unwrap().sets;
+        assert_eq!(sets.len(), 1);
+        sets[0].stamps_ns.clone()
+    }
+
+    /// `age_penalty` reaches the approximate synchroniser the configuration builds: with the
+    /// default (0.1) the tighter, newer set {20, 32} ms is chosen; with `age_penalty:=1.0` the
+    /// older set {20, 0} ms is kept (see the policy's `approx_age_penalty_favours_the_older_set`).
+    #[test]
+    fn config_age_penalty_reaches_the_synchroniser() {
+        const MS: i64 = 1_000_000;
+        let with = |extra: &[&str]| {
+            let mut a = args(&["--ros-args", "-p", "cameras:=[a, b]"]);
+            a.extend(args(extra));
+            PipelineConfig::from_args(&a).unwrap()
+        };
+        let default = with(&[]);
+        let penalised = with(&["-p", "age_penalty:=1.0"]);
+        assert!(matches!(
+            penalised.sync,
+            SyncPolicy::Approximate { age_penalty, .. } if age_penalty == 1.0
+        ));
+        assert_eq!(chosen_stamps(&default), vec![20 * MS, 32 * MS]);
+        assert_eq!(
+            chosen_stamps(&penalised),
+            vec![20 * MS, 0],
+            "age_penalty 1.0 must keep the older set"
+        );
+    }
+
     #[test]
     fn config_errors() {
         assert!(PipelineConfig::from_args(&args(&["--ros-args"])).is_err());

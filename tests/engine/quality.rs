@@ -7,11 +7,14 @@ use common::shared_data;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::OnceLock;
 
 use sweepdepth::datasets::{load_dataset, GroundTruth};
+use sweepdepth::engine::{Device, Engine, Sweeper};
 use sweepdepth::eval::{metrics_for, Metrics};
 use sweepdepth::image::ImageF32;
 use sweepdepth::sweep::gpu::GpuEngine;
+use sweepdepth::sweep::DepthMaps;
 
 fn tsukuba_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tsukuba")
@@ -135,6 +138,261 @@ fn table_value(stdout: &str, dataset: &str, column: usize) -> f64 {
         .unwrap_or_else(|e| panic!("{cell}: {e}"))
 }
 
+/// The CPU engine's maps of the built-in Tsukuba with the dataset's parameters, made once per
+/// test process: what `eval --device cpu` and `demo --device cpu` must have saved.
+fn tsukuba_cpu_maps() -> &'static DepthMaps {
+    static MAPS: OnceLock<DepthMaps> = OnceLock::new();
+    MAPS.get_or_init(|| {
+        let dataset = load_dataset(&tsukuba_dir()).expect("dataset loads");
+        let mut engine = Engine::new(Device::Cpu).expect("CPU engine");
+        engine
+            .run_views(&dataset.rig, &dataset.images, &dataset.params)
+            .expect("sweep")
+    })
+}
+
+/// Whether two PFM values are the same (NaN equals NaN).
+fn same_value(a: f32, b: f32) -> bool {
+    a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+}
+
+/// The `q`-quantile of `sorted` by nearest rank.
+fn nearest_rank(sorted: &[f32], q: f64) -> f32 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Checks what `eval --save` / `demo` wrote in `dir` against `maps`, each file decoded and
+/// recomputed here: `confidence.pfm` holds the confidence map value for value;
+/// `disparity.pfm` is `focal_baseline_eval / depth` (NaN where invalid); `confidence.png` is
+/// the confidence times 255, rounded; `selection.png` is each pixel's selection code in its
+/// colour; `depth.png` is black exactly where the disparity is invalid and elsewhere the turbo
+/// colour of the disparity (inverse depth) normalised between its 2nd and 98th percentiles, so
+/// a depth image drawn from any other map fails.
+fn assert_saved_maps_are(dir: &Path, maps: &DepthMaps, focal_baseline_eval: f64) {
+    let (w, h) = (maps.width(), maps.height());
+    let n = (w * h) as usize;
+    let confidence = sweepdepth::io::read_pfm(&dir.join("confidence.pfm")).expect("confidence");
+    assert_eq!((confidence.width, confidence.height), (w, h));
+    let differing = (0..n)
+        .filter(|&i| !same_value(confidence.data[i], maps.confidence.data[i]))
+        .count();
+    assert_eq!(differing, 0, "confidence.pfm differs from the engine's map");
+    // A confidence map that says something: not constant.
+    let valid_conf: Vec<f32> = confidence
+        .data
+        .iter()
+        .copied()
+        .filter(|c| *c > 0.0)
+        .collect();
+    assert!(valid_conf.iter().any(|&c| c != valid_conf[0]));
+
+    let disparity = sweepdepth::io::read_pfm(&dir.join("disparity.pfm")).expect("disparity");
+    assert_eq!((disparity.width, disparity.height), (w, h));
+    for (i, (&d, &z)) in disparity.data.iter().zip(&maps.depth_m.data).enumerate() {
+        let expected = if z.is_finite() && z > 0.0 {
+            (focal_baseline_eval / f64::from(z)) as f32
+        } else {
+            f32::NAN
+        };
+        assert!(same_value(d, expected), "pixel {i}: {d} vs {expected}");
+    }
+
+    let grey = image::open(dir.join("confidence.png"))
+        .expect("confidence.png")
+        .into_luma8();
+    assert_eq!(grey.dimensions(), (w, h));
+    for (i, (&g, &c)) in grey.as_raw().iter().zip(&maps.confidence.data).enumerate() {
+        let c = if c.is_finite() {
+            c.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        assert_eq!(g, (c * 255.0).round() as u8, "confidence.png pixel {i}");
+    }
+
+    let selection = image::open(dir.join("selection.png"))
+        .expect("selection.png")
+        .into_rgb8();
+    assert_eq!(selection.dimensions(), (w, h));
+    for (i, (pixel, &code)) in selection.pixels().zip(&maps.selection).enumerate() {
+        let want = sweepdepth::sweep::selection::colour(code);
+        assert_eq!(pixel.0, want, "selection.png pixel {i} (code {code})");
+    }
+
+    let depth = image::open(dir.join("depth.png"))
+        .expect("depth.png")
+        .into_rgb8();
+    assert_eq!(depth.dimensions(), (w, h));
+    let mut valid: Vec<f32> = disparity
+        .data
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .collect();
+    assert!(valid.len() > n / 2, "{} valid of {n}", valid.len());
+    valid.sort_by(f32::total_cmp);
+    let (lo, hi) = (nearest_rank(&valid, 0.02), nearest_rank(&valid, 0.98));
+    assert!(hi > lo);
+    let mut off = Vec::new();
+    for (i, (pixel, &d)) in depth.pixels().zip(&disparity.data).enumerate() {
+        let want = if d.is_finite() {
+            sweepdepth::io::turbo(f64::from(d - lo) / f64::from(hi - lo))
+        } else {
+            [0, 0, 0]
+        };
+        // Invalid pixels exactly black; valid ones within rounding of the expected colour.
+        let close = pixel.0.iter().zip(want).all(|(&a, b)| a.abs_diff(b) <= 1);
+        if !(close && (d.is_finite() || pixel.0 == want)) {
+            off.push((i, pixel.0, want));
+        }
+    }
+    assert!(
+        off.is_empty(),
+        "{} depth.png pixels are not the turbo colour of their disparity, e.g. {:?}",
+        off.len(),
+        &off[..off.len().min(5)]
+    );
+}
+
+/// Copies the built-in Tsukuba into `dir` with a ground truth for the right view of its
+/// evaluation pair (col4) made by warping the left one (col3): each left pixel x with
+/// disparity d lands on x - d, the nearer surface (larger d) winning. Returns the non-occluded
+/// mask computed here: the left pixels whose landing spot kept their own disparity, within the
+/// left-right check's 1 px ([`sweepdepth::datasets::NONOCC_TOLERANCE_PX`]).
+fn tsukuba_with_right_ground_truth(dir: &Path) -> Vec<bool> {
+    let _ = std::fs::remove_dir_all(dir);
+    std::fs::create_dir_all(dir).expect("tmp dir");
+    for entry in std::fs::read_dir(tsukuba_dir()).expect("data/tsukuba") {
+        let path = entry.expect("entry").path();
+        if path.extension().is_some_and(|e| e == "png") {
+            std::fs::copy(&path, dir.join(path.file_name().expect("name"))).expect("copy");
+        }
+    }
+    let left = image::open(tsukuba_dir().join("truedisp.row3.col3.png"))
+        .expect("ground truth")
+        .into_luma8();
+    let (w, h) = left.dimensions();
+    let mut right = image::GrayImage::new(w, h);
+    // Tsukuba's ground truth is 16 x the adjacent-view disparity, whole pixels.
+    let landing = |x: u32, v: u8| (v > 0).then(|| x.checked_sub(u32::from(v) / 16)).flatten();
+    for y in 0..h {
+        for x in 0..w {
+            let v = left.get_pixel(x, y).0[0];
+            if let Some(xr) = landing(x, v) {
+                let r = right.get_pixel_mut(xr, y);
+                r.0[0] = r.0[0].max(v);
+            }
+        }
+    }
+    right
+        .save(dir.join("truedisp.row3.col4.png"))
+        .expect("right ground truth");
+    let mut mask = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let v = left.get_pixel(x, y).0[0];
+            // Kept within the left-right check's tolerance of 1 px (16 in these units).
+            mask.push(
+                landing(x, v).is_some_and(|xr| right.get_pixel(xr, y).0[0].abs_diff(v) <= 16),
+            );
+        }
+    }
+    mask
+}
+
+/// Runs `sweepdepth eval --device cpu DIR --save OUT` with `extra` arguments; returns stdout.
+fn run_eval(dataset: &Path, out: &Path, extra: &[&str]) -> String {
+    let _ = std::fs::remove_dir_all(out);
+    let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args(["eval", "--device", "cpu"])
+        .args(extra)
+        .arg(dataset)
+        .arg("--save")
+        .arg(out)
+        .output()
+        .expect("sweepdepth runs");
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    assert!(
+        output.status.success(),
+        "eval failed: {}\n{stdout}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    stdout
+}
+
+/// `eval --mask nonocc` (README's command table) on Tsukuba with a warped right-view ground
+/// truth: the printed bad>1 equals the rate recomputed here from the saved disparity PFM over
+/// the non-occluded pixels only (the mask computed here, which the loader must agree with),
+/// and differs from the `--mask all` figure, which is the same PFM scored over every pixel.
+#[test]
+fn eval_nonocc_mask_scores_only_non_occluded_pixels() {
+    let tmp = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("eval_nonocc");
+    let dir = tmp.join("tsukuba_lr");
+    let mask = tsukuba_with_right_ground_truth(&dir);
+    let dataset = load_dataset(&dir).expect("dataset");
+    assert_eq!(dataset.nonocc_mask.as_ref(), Some(&mask));
+    let GroundTruth::Disparity {
+        disparity_eval_px,
+        border_px,
+        ..
+    } = &dataset.ground_truth
+    else {
+        panic!("Tsukuba has disparity ground truth");
+    };
+    // Occlusions exist (Tsukuba's lamp and head against the background), but are a minority.
+    let with_gt = disparity_eval_px
+        .data
+        .iter()
+        .filter(|d| d.is_finite())
+        .count();
+    let occluded = with_gt - mask.iter().filter(|&&m| m).count();
+    assert!(
+        occluded * 100 > with_gt && occluded * 5 < with_gt,
+        "{occluded} of {with_gt}"
+    );
+    let nonocc_gt = ImageF32 {
+        width: disparity_eval_px.width,
+        height: disparity_eval_px.height,
+        data: disparity_eval_px
+            .data
+            .iter()
+            .zip(&mask)
+            .map(|(&d, &keep)| if keep { d } else { f32::NAN })
+            .collect(),
+    };
+
+    let nonocc_out = tmp.join("out_nonocc");
+    let stdout = run_eval(&dir, &nonocc_out, &["--mask", "nonocc"]);
+    assert!(stdout.contains("# mask: non-occluded"), "{stdout}");
+    let printed_nonocc = table_value(&stdout, "tsukuba_lr", 6);
+    let pfm = nonocc_out.join("tsukuba_lr/disparity.pfm");
+    let recomputed_nonocc = bad_from_pfm(&pfm, &nonocc_gt, *border_px, 1.0);
+    assert!(
+        (recomputed_nonocc - printed_nonocc).abs() < 0.01,
+        "nonocc: table says {printed_nonocc} %, the PFM over the mask gives {recomputed_nonocc:.3} %"
+    );
+
+    let all_out = tmp.join("out_all");
+    let stdout = run_eval(&dir, &all_out, &["--mask", "all"]);
+    let printed_all = table_value(&stdout, "tsukuba_lr", 6);
+    let recomputed_all = bad_from_pfm(&pfm, disparity_eval_px, *border_px, 1.0);
+    assert!(
+        (recomputed_all - printed_all).abs() < 0.01,
+        "all: table says {printed_all} %, the same PFM over every pixel gives {recomputed_all:.3} %"
+    );
+    eprintln!(
+        "tsukuba_lr bad>1: nonocc {printed_nonocc} %, all {printed_all} %; \
+         {occluded} of {with_gt} pixels with ground truth occluded"
+    );
+    assert!(
+        (printed_all - printed_nonocc).abs() >= 0.1,
+        "--mask nonocc ({printed_nonocc} %) scores as --mask all ({printed_all} %)"
+    );
+}
+
+/// `eval --save` on the built-in Tsukuba (CPU engine): the printed bad>0.5 and bad>1 equal
+/// the rates recomputed here from the saved disparity PFM (rows bottom to top), and every saved
+/// map is the CPU engine's own map of the same input (`assert_saved_maps_are`).
 #[test]
 fn eval_command_saves_pfms_that_agree_with_its_table() {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("eval_cli");
@@ -142,6 +400,8 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
     let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
         .args([
             "eval",
+            "--device",
+            "cpu",
             tsukuba_dir().to_str().expect("utf-8 path"),
             "--save",
         ])
@@ -160,7 +420,7 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
     let GroundTruth::Disparity {
         disparity_eval_px,
         border_px,
-        ..
+        focal_baseline_eval,
     } = &dataset.ground_truth
     else {
         panic!("Tsukuba has disparity ground truth");
@@ -198,14 +458,7 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
         first_in_file.to_bits() == bottom_left.to_bits(),
         "{first_in_file} vs {bottom_left}"
     );
-    for name in [
-        "confidence.pfm",
-        "depth.png",
-        "confidence.png",
-        "selection.png",
-    ] {
-        assert!(dir.join(name).is_file(), "{name} missing");
-    }
+    assert_saved_maps_are(&dir, tsukuba_cpu_maps(), *focal_baseline_eval);
 }
 
 #[test]
@@ -222,12 +475,14 @@ fn eval_command_rejects_a_folder_in_no_known_layout() {
     assert!(stderr.contains("layout"), "unhelpful error: {stderr}");
 }
 
+/// `demo` (CPU engine) prints a bad>1 of at most 5 % and writes the CPU engine's maps of the
+/// built-in Tsukuba, each checked against a run in this process (`assert_saved_maps_are`).
 #[test]
 fn demo_writes_its_images_and_a_quality_line() {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("demo_cli");
     let _ = std::fs::remove_dir_all(&out);
     let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-        .args(["demo", "--out"])
+        .args(["demo", "--device", "cpu", "--out"])
         .arg(&out)
         .output()
         .expect("sweepdepth runs");
@@ -248,11 +503,17 @@ fn demo_writes_its_images_and_a_quality_line() {
         .and_then(|s| s.parse().ok())
         .expect("bad>1 value");
     assert!(bad1 <= 5.0, "{quality}");
-    for name in ["depth.png", "confidence.png", "selection.png"] {
-        let path = out.join("tsukuba").join(name);
-        let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        assert_eq!((img.width(), img.height()), (384, 288));
-    }
+    let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
+    let GroundTruth::Disparity {
+        focal_baseline_eval,
+        ..
+    } = dataset.ground_truth
+    else {
+        panic!("Tsukuba has disparity ground truth");
+    };
+    let maps = tsukuba_cpu_maps();
+    assert_eq!((maps.width(), maps.height()), (384, 288));
+    assert_saved_maps_are(&out.join("tsukuba"), maps, focal_baseline_eval);
 }
 
 /// The issue's bar on the shared Middlebury sets (present in CI, not in a user's clone:

@@ -390,7 +390,12 @@ fn image_frame_id_with_a_leading_slash_is_refused_as_tf2_refuses_it() {
 }
 
 /// The fuzz input that crashed the compressed-image decoder (tests/fixtures/fuzz/README.md):
-/// refused as a corrupt image, without a panic.
+/// never a panic, and the outcome each build gives is checked. Where overflow checks are on
+/// (debug builds, the fuzz target) zune-jpeg panics inside on this stream and `decode` turns
+/// that into a corrupt-image error naming the camera. Where they are off (`cargo test
+/// --release`, as CI runs) the same multiplication wraps and the decoder returns a (garbled)
+/// picture: `decode` must then hand back exactly what the `image` crate decodes from the bytes,
+/// as rgb8 of the JPEG header's size, under the message's own header.
 #[test]
 fn fuzz_found_compressed_images_are_errors_not_crashes() {
     use sweepdepth::msgs::{CompressedImage, Header};
@@ -400,17 +405,48 @@ fn fuzz_found_compressed_images_are_errors_not_crashes() {
     let input = std::fs::read(path).unwrap();
     // The fuzz target's first byte chooses the format: 0 = a JPEG of an rgb8 image.
     assert_eq!(input[0], 0);
+    let header = Header {
+        stamp: stamp(1234),
+        frame_id: "cam0_optical".into(),
+    };
     let msg = CompressedImage {
-        header: Header::default(),
+        header: header.clone(),
         format: "rgb8; jpeg compressed bgr8".into(),
         data: input[1..].to_vec(),
     };
     let result = decode("cam0", &msg);
-    // Where overflow checks are on (test builds) the decoder panics inside; either way the
-    // image must come back as an error or an image, never a panic.
     if cfg!(debug_assertions) {
         let error = result.expect_err("a corrupt image");
         assert!(matches!(error, DecodeError::Corrupt { .. }), "{error}");
-        assert!(error.to_string().contains("cam0"), "{error}");
+        let text = error.to_string();
+        assert!(text.contains("cam0") && text.contains("panicked"), "{text}");
+    } else {
+        let image = result.expect("without overflow checks the decoder returns a picture");
+        // The size the JPEG header claims, read on its own.
+        let (width, height) = image::ImageReader::with_format(
+            std::io::Cursor::new(&input[1..]),
+            image::ImageFormat::Jpeg,
+        )
+        .into_dimensions()
+        .unwrap();
+        assert_eq!((width, height), (1040, 293));
+        let expected = image::load_from_memory_with_format(&input[1..], image::ImageFormat::Jpeg)
+            .unwrap()
+            .into_rgb8();
+        assert_eq!(image.header, header);
+        assert_eq!(
+            (
+                image.width,
+                image.height,
+                image.encoding.as_str(),
+                image.step
+            ),
+            (width, height, "rgb8", 3 * width)
+        );
+        assert_eq!(image.is_bigendian, 0);
+        assert!(
+            image.data == expected.as_raw().as_slice(),
+            "decoded pixels differ from the image crate's decode of the same bytes"
+        );
     }
 }

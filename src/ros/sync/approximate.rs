@@ -820,6 +820,44 @@ mod tests {
         assert_eq!(bounded.bound_violations(), 1);
     }
 
+    /// Pushes stream 1's messages at 0 and 32 ms, then stream 0's at 20 ms, through an
+    /// approximate sync with `age_penalty`; returns the one set that push emits and the number
+    /// of messages dropped.
+    fn choice_with_age_penalty(age_penalty: f64) -> (SyncedSet<Msg>, u64) {
+        let mut sync = ApproximateSync::new(2, 5)
+            .unwrap()
+            .with_age_penalty(age_penalty)
+            .unwrap();
+        assert!(sync.push(1, 0, (1, 0)).unwrap().sets.is_empty());
+        assert!(sync.push(1, 32 * MS, (1, 1)).unwrap().sets.is_empty());
+        let mut sets = sync.push(0, 20 * MS, (0, 0)).unwrap().sets;
+        assert_eq!(sets.len(), 1, "{sets:?}");
+        (sets.remove(0), sync.stats().dropped)
+    }
+
+    /// message_filters' ApproximateTime semantics of `age_penalty`: with stream 0's 20 ms as
+    /// pivot, the older set {20, 0} (span 20 ms) is the first candidate and the newer set
+    /// {20, 32} (span 12 ms) replaces it only if `12 * (1 + age_penalty) < 20 - 0`. Penalty 0
+    /// (and the default 0.1: 13.2 < 20) picks the tighter newer set and drops the 0 ms message;
+    /// penalty 1 (24 >= 20) keeps the older set and keeps 32 ms queued.
+    #[test]
+    fn approx_age_penalty_favours_the_older_set() {
+        let (set, dropped) = choice_with_age_penalty(0.0);
+        assert_eq!(set.stamps_ns, vec![20 * MS, 32 * MS]);
+        assert_eq!(set.messages, vec![(0, 0), (1, 1)]);
+        assert_eq!(dropped, 1);
+        let (set, _) = choice_with_age_penalty(0.1);
+        assert_eq!(set.stamps_ns, vec![20 * MS, 32 * MS]);
+        let (set, dropped) = choice_with_age_penalty(1.0);
+        assert_eq!(
+            set.stamps_ns,
+            vec![20 * MS, 0],
+            "penalty 1 must keep the older set"
+        );
+        assert_eq!(set.messages, vec![(0, 0), (1, 0)]);
+        assert_eq!(dropped, 0);
+    }
+
     #[test]
     fn approx_picks_the_tightest_set() {
         // Stream 1 has two messages around stream 0's 100 ms: the closer one must be chosen,
