@@ -295,9 +295,20 @@ fn live_rate(live: &Live) {
         100.0 * depths.len() as f64 / f64::from(sets),
         started.elapsed().as_secs_f64()
     );
-    // The WGSL engine had the next set on its device beside the one before.
+    // The WGSL engine had the next set on its device beside the one before, wherever a set
+    // came while the one before was still being processed: certainly when a set took longer
+    // than two periods on average (lavapipe, CI: 5-10 periods). A device that outruns the
+    // player (a GPU: ~2 ms a set) never has two sets to hold, and holds at most two.
     if live.gpu {
-        assert_eq!(most, "2", "{after:?}");
+        let mean: f64 = mean_ms
+            .parse()
+            .unwrap_or_else(|_| panic!("processing time mean '{mean_ms}': {after:?}"));
+        let period_ms = live.period.as_secs_f64() * 1e3;
+        if mean > 2.0 * period_ms {
+            assert_eq!(most, "2", "{mean} ms a set every {period_ms} ms: {after:?}");
+        } else {
+            assert!(matches!(most, "1" | "2"), "{after:?}");
+        }
     }
     assert_eq!(
         dds::value_of(&after, "cameras out of the rig"),
