@@ -611,6 +611,102 @@ fn coarse_to_fine_in_three_levels_keeps_the_depth() {
 }
 
 /// The generalized sweep: a tilted plane family recovers a floor seen at a grazing angle.
+/// The occlusion check's outcome (`min_visible_cameras`): a row of three cameras 15 cm apart
+/// facing a wall, the reference in the middle; the strips at the reference's left and right
+/// edges are seen by one side camera alone (2 cameras, the reference counted), the rest by
+/// both (3). The engine's count of cameras that see each pixel agrees with the geometry, and
+/// `min_visible_cameras: 3` invalidates the strips and nothing else, where 2 keeps them.
+#[test]
+fn pixels_seen_by_too_few_cameras_are_invalid() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(160, 120));
+    let rig = synthetic::row_rig(3, 0.15, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(2.0, None, model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    let (w, h) = (160usize, 120usize);
+    // Cameras that see each reference pixel's wall point (all cameras are pinhole, the rig's
+    // frame is the reference's).
+    let seen_by = |x: usize, y: usize| -> Option<u8> {
+        let z = f64::from(truth.data[y * w + x]);
+        let ray = model.unproject_z1(glam::DVec2::new(x as f64, y as f64))?;
+        let point = ray * z;
+        let count = rig
+            .cameras
+            .iter()
+            .filter(|c| {
+                c.model
+                    .project(c.cam_from_rig.transform_point(point))
+                    .is_some_and(|p| {
+                        p.x >= -0.5 && p.x <= w as f64 - 0.5 && p.y >= -0.5 && p.y <= h as f64 - 0.5
+                    })
+            })
+            .count();
+        Some(count as u8)
+    };
+    let mut engine = CpuEngine::new();
+    let run = |engine: &mut CpuEngine, min_visible: u32| {
+        let p = SweepParams {
+            min_visible_cameras: min_visible,
+            ..params(1.0, 4.0, 64)
+        };
+        engine.run(&rig, &images, &p).expect("sweep")
+    };
+    let keep = run(&mut engine, 2);
+    let strict = run(&mut engine, 3);
+    // Pixels 3 columns or more from where the count changes (the depth's own error moves the
+    // border by a column or two), away from the windows' reach at the top and bottom.
+    let (mut two, mut three, mut agree, mut judged) = (0, 0, 0, 0);
+    let (mut two_invalid, mut two_kept, mut three_invalid) = (0, 0, 0);
+    for y in 3..h - 3 {
+        for x in 3..w - 3 {
+            let counts: Vec<Option<u8>> = (x - 3..=x + 3).map(|x| seen_by(x, y)).collect();
+            let Some(count) = counts[3] else { continue };
+            if counts.iter().any(|c| *c != Some(count)) {
+                continue;
+            }
+            let i = y * w + x;
+            judged += 1;
+            if keep.visible_cameras.get(i) == Some(&count) {
+                agree += 1;
+            }
+            match count {
+                2 => {
+                    two += 1;
+                    two_invalid += usize::from(!strict.depth_m.data[i].is_finite());
+                    two_kept += usize::from(keep.depth_m.data[i].is_finite());
+                }
+                3 => {
+                    three += 1;
+                    three_invalid += usize::from(
+                        keep.depth_m.data[i].is_finite() && !strict.depth_m.data[i].is_finite(),
+                    );
+                }
+                _ => {}
+            }
+        }
+    }
+    assert!(
+        two > 500 && three > 5000,
+        "{two} pixels seen by 2, {three} by 3"
+    );
+    assert!(
+        agree * 100 >= judged * 95,
+        "the engine's visible cameras agree with the geometry on {agree} of {judged} pixels"
+    );
+    assert_eq!(
+        two_invalid, two,
+        "min_visible_cameras 3: {two_invalid} of {two} pixels seen by 2 cameras invalid"
+    );
+    assert!(
+        two_kept * 100 >= two * 80,
+        "min_visible_cameras 2: {two_kept} of {two} pixels seen by 2 cameras valid"
+    );
+    assert!(
+        three_invalid * 100 <= three,
+        "min_visible_cameras 3: {three_invalid} of {three} pixels seen by 3 cameras lost"
+    );
+}
+
 /// More planes than SGM takes at the half-resolution level (2049 and up, with `wta`): coarse to
 /// fine steps aside and the sweep runs at full resolution alone. It used to run the coarse pass
 /// and then fail every set with "optimizer sgm supports at most 1024 planes, got 1025", a count
