@@ -18,18 +18,17 @@
 //! socket waits for the next heartbeat (100 ms) and every process for a core.
 //!
 //! What is asserted, for each size, so that a loaded machine passes and broken repair fails:
-//! the RustDDS median is at most min([`ABSOLUTE_MS`], max([`RATIO`] x the Fast DDS median of the
-//! same run, [`FLOOR_MS`])) = min(2 s, max(5 x Fast DDS, 1 s)):
-//! - 2 s whatever Fast DDS did: five times the loaded working median above, below broken
-//!   repair's median;
-//! - 5 x Fast DDS, never below 1 s: load slows both publishers alike, so a machine slow enough to
-//!   push a working RustDDS past 1 s slows Fast DDS too; and a Fast DDS run that happened to lose
-//!   nothing (tens of ms) does not demand the impossible of RustDDS. This is what catches broken
-//!   repair by a wide margin (a median of seconds against Fast DDS's tens of ms).
+//! the RustDDS median is at most max([`RATIO`] x the Fast DDS median of the same run,
+//! [`FLOOR_MS`]) = max(5 x Fast DDS, 1 s): load slows both publishers alike, so a machine slow
+//! enough to push a working RustDDS past 1 s slows Fast DDS too; and a Fast DDS run that
+//! happened to lose nothing (tens of ms) does not demand the impossible of RustDDS. This catches
+//! broken repair by a wide margin (a median of seconds against Fast DDS's tens of ms), and no
+//! bound is a fixed time (a machine several times slower than the loaded one above passes).
 //!
-//! An image that does not arrive within the limit below fails at once, and so does a run where
-//! more than half of the RustDDS images were over 2 s (the median is then too), without waiting
-//! for the rest. The figures are printed for docs/node.md (lines starting `RCL_LATENCY`).
+//! An image that does not arrive within the limit below fails at once. Once more than half of
+//! the RustDDS images were over [`EARLY_STOP_MS`] the median is too, and the rest are not
+//! waited for: that lower bound of the median is judged instead. The figures are printed for
+//! docs/node.md (lines starting `RCL_LATENCY`).
 //!
 //! Pace: every wait (the subscriber and the Fast DDS publisher ready, discovery, the warm-up
 //! images, each measured image) is for an outcome within the one generous limit
@@ -55,9 +54,10 @@ const DOMAIN: &str = "47";
 /// Images per publisher and size.
 const COUNT: u32 = 7;
 
-/// The RustDDS median must be at most this, whatever Fast DDS did (see the top of the file).
-const ABSOLUTE_MS: f64 = 2000.0;
-/// ... and within this many times the Fast DDS median of the same run ...
+/// Past this, RustDDS images are not waited for once more than half of them took longer (the
+/// median is at least this much: broken repair takes seconds; see the top of the file).
+const EARLY_STOP_MS: f64 = 2000.0;
+/// The RustDDS median must be within this many times the Fast DDS median of the same run ...
 const RATIO: f64 = 5.0;
 /// ... or at most this floor.
 const FLOOR_MS: f64 = 1000.0;
@@ -272,9 +272,9 @@ fn latency_run(width: u32, height: u32) {
             if rust {
                 lat.0.push(ms);
                 // More than half of the images over the absolute bound: so is the median.
-                if lat.0.iter().filter(|&&ms| ms > ABSOLUTE_MS).count() > COUNT as usize / 2 {
+                if lat.0.iter().filter(|&&ms| ms > EARLY_STOP_MS).count() > COUNT as usize / 2 {
                     eprintln!(
-                        "more than half of the RustDDS images took over {ABSOLUTE_MS} ms; stopping"
+                        "more than half of the RustDDS images took over {EARLY_STOP_MS} ms; stopping"
                     );
                     stopped = true;
                     break 'measure;
@@ -292,16 +292,16 @@ fn latency_run(width: u32, height: u32) {
         lat.0
             .iter()
             .copied()
-            .filter(|&ms| ms > ABSOLUTE_MS)
+            .filter(|&ms| ms > EARLY_STOP_MS)
             .fold(f64::INFINITY, f64::min)
     } else {
         median(&lat.0)
     };
     let at_least = if stopped { "at least " } else { "" };
     let fast_ms = median(&lat.1);
-    let bound = (RATIO * fast_ms).clamp(FLOOR_MS, ABSOLUTE_MS);
+    let bound = (RATIO * fast_ms).max(FLOOR_MS);
     eprintln!(
-        "RCL_LATENCY {width}x{height} 32FC1 ({} bytes): median latency to a default rclpy subscriber: RustDDS {at_least}{rust:.1} ms (max {:.1}, {} images), Fast DDS {fast_ms:.1} ms (max {:.1}, {} images); bound min({ABSOLUTE_MS:.0}, max({RATIO} x {fast_ms:.1}, {FLOOR_MS:.0})) = {bound:.1} ms",
+        "RCL_LATENCY {width}x{height} 32FC1 ({} bytes): median latency to a default rclpy subscriber: RustDDS {at_least}{rust:.1} ms (max {:.1}, {} images), Fast DDS {fast_ms:.1} ms (max {:.1}, {} images); bound max({RATIO} x {fast_ms:.1}, {FLOOR_MS:.0}) = {bound:.1} ms",
         width * height * 4,
         max(&lat.0),
         lat.0.len(),
@@ -310,6 +310,6 @@ fn latency_run(width: u32, height: u32) {
     );
     assert!(
         rust <= bound,
-        "RustDDS {width}x{height} images reach a default Fast DDS subscriber late: median {at_least}{rust:.1} ms against Fast DDS's {fast_ms:.1} ms in the same run, over the bound min({ABSOLUTE_MS:.0} ms, max({RATIO} x Fast DDS, {FLOOR_MS:.0} ms)) = {bound:.1} ms; is reliable repair of fragmented samples slow again? (vendor/rustdds/SWEEPDEPTH.md)"
+        "RustDDS {width}x{height} images reach a default Fast DDS subscriber late: median {at_least}{rust:.1} ms against Fast DDS's {fast_ms:.1} ms in the same run, over the bound max({RATIO} x Fast DDS, {FLOOR_MS:.0} ms) = {bound:.1} ms; is reliable repair of fragmented samples slow again? (vendor/rustdds/SWEEPDEPTH.md)"
     );
 }
