@@ -7,9 +7,11 @@
 //! between the mesh and the points.
 //!
 //! Chromium is required: `scripts/setup.sh` installs it (package `chromium`); without it the
-//! test fails and says so. No DDS here (`bag` opens none); the servers bind 127.0.0.1. Chromium
-//! runs with every background-networking feature off (its flags below), so it opens no
-//! connection beyond the page's.
+//! test fails and says so. No DDS here (`bag` opens none); the servers bind 127.0.0.1, each test
+//! in a private network namespace of its own (tests/common/netns.rs), so that the ports it
+//! picks are not taken by another process between the pick and the bind. Chromium runs with
+//! every background-networking feature off (its flags below), so it opens no connection beyond
+//! the page's.
 
 // The live view is the cargo feature `viewer` (on by default).
 #![cfg(feature = "viewer")]
@@ -21,7 +23,9 @@ use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::common::netns::KillOnDrop;
+use crate::common::netns::{in_private_netns, KillOnDrop};
+
+const INNER: &str = "SWEEPDEPTH_TEST_PRIVATE_NETNS";
 use serde_json::{json, Value};
 
 fn root() -> PathBuf {
@@ -422,6 +426,14 @@ const BACKGROUND: [u8; 3] = [0x14, 0x16, 0x1a];
 
 #[test]
 fn page_draws_the_point_cloud_of_bag_view() {
+    in_private_netns(
+        INNER,
+        "viewer_page::page_draws_the_point_cloud_of_bag_view",
+        point_cloud_of_bag_view,
+    );
+}
+
+fn point_cloud_of_bag_view() {
     let mut session = Session::start("cloud", &[]);
     let state = session.wait_for("a point cloud and a depth image", |s| s["drawn"] == "1");
     eprintln!("page state: {state}");
@@ -468,6 +480,14 @@ fn page_draws_the_point_cloud_of_bag_view() {
 /// subscriber, then the deltas), shows it by default, and switches to the points and to both.
 #[test]
 fn page_draws_the_fused_mesh_of_bag_view() {
+    in_private_netns(
+        INNER,
+        "viewer_page::page_draws_the_fused_mesh_of_bag_view",
+        fused_mesh_of_bag_view,
+    );
+}
+
+fn fused_mesh_of_bag_view() {
     let mesh_file = std::env::temp_dir().join(format!(
         "sweepdepth-viewer-page-mesh-{}.ply",
         std::process::id()
