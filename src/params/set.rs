@@ -247,6 +247,46 @@ impl ParamSet {
     }
 }
 
+/// Why a required parameter may have come out empty: no parameter file, or parameter files
+/// none of whose sections is for this node (`fqn`), with their sections, as a sentence to add
+/// to the error; `None` where some section applies.
+pub fn unmatched_params_hint(ros: &RosArgs, fqn: &str) -> Option<String> {
+    if ros.params_files.is_empty() {
+        return Some(
+            "no parameter file given: pass --params-file FILE (examples in launch_configs/) or \
+             -p cameras:=[cam0, cam1, ...]"
+                .into(),
+        );
+    }
+    let applies = ros.params_files.iter().any(|file| {
+        file.sections
+            .iter()
+            .any(|section| node_pattern_matches(&section.node_pattern, fqn))
+    });
+    if applies {
+        return None;
+    }
+    let sections: Vec<String> = ros
+        .params_files
+        .iter()
+        .flat_map(|file| {
+            file.sections
+                .iter()
+                .map(move |s| format!("'{}' in {}", s.node_pattern, file.path.display()))
+        })
+        .collect();
+    Some(format!(
+        "no section of the parameter file is for this node ({fqn}): it has {}; set the node's \
+         namespace and name to match (`-r __ns:=/ns`, `-r __node:=name`) or name a section \
+         {fqn} or /**",
+        if sections.is_empty() {
+            "none".to_string()
+        } else {
+            sections.join(", ")
+        }
+    ))
+}
+
 /// Which nodes an entry of rcl's merged parameter table is for.
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Target {

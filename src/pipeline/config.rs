@@ -28,6 +28,9 @@ pub enum ConfigError {
     Fusion(#[from] crate::fusion::FusionError),
     #[error(transparent)]
     Param(#[from] ParamError),
+    /// A required parameter with no value, and why none reached the node.
+    #[error("{error}; {hint}")]
+    Unconfigured { error: String, hint: String },
     #[error("unexpected arguments {0:?}: `sweepdepth node` takes only `--ros-args ...`")]
     ExtraArgs(Vec<String>),
     #[error(transparent)]
@@ -424,7 +427,18 @@ impl PipelineConfig {
         let (mut params, mut notes) = ParamSet::from_ros_args(ros, &identity)?;
         notes.extend(ros.notes.iter().cloned());
         let node = NodeValues::read(&params)?;
-        node.check(&params)?;
+        node.check(&params).map_err(|e| match e {
+            ParamError::Required { .. } => {
+                match crate::params::set::unmatched_params_hint(ros, &identity.fqn()) {
+                    Some(hint) => ConfigError::Unconfigured {
+                        error: e.to_string(),
+                        hint,
+                    },
+                    None => ConfigError::Param(e),
+                }
+            }
+            e => ConfigError::Param(e),
+        })?;
         let virtual_ref = virtual_config(&node, &mut params, &mut notes)?;
         let mut sweep = SweepParams::default();
         apply_to_sweep(&params, &mut sweep)?;
@@ -646,6 +660,50 @@ mod tests {
             chosen_stamps(&penalised),
             vec![20 * MS, 0],
             "age_penalty 1.0 must keep the older set"
+        );
+    }
+
+    /// No `cameras` reached the node: the error says why (no parameter file; a file whose
+    /// sections are for another node, named, with the remap that fixes it) and not where a
+    /// section applies (then the parameter itself is wrong).
+    #[test]
+    fn missing_cameras_say_why_no_parameter_reached_the_node() {
+        let dir = std::env::temp_dir().join(format!("sweepdepth-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("rig.params.yaml");
+        std::fs::write(
+            &file,
+            "/rig/sweepdepth:\n  ros__parameters:\n    cameras: [a, b]\n",
+        )
+        .unwrap();
+        let error = |extra: &[&str]| {
+            let mut a = args(&["--ros-args"]);
+            a.extend(args(extra));
+            PipelineConfig::from_args(&a)
+                .map(|_| ())
+                .unwrap_err()
+                .to_string()
+        };
+        let none = error(&[]);
+        assert!(none.contains("no parameter file given"), "{none}");
+        let path = file.to_str().unwrap();
+        let other = error(&["--params-file", path]);
+        assert!(
+            other.contains("no section of the parameter file is for this node (/sweepdepth)")
+                && other.contains("'/rig/sweepdepth' in")
+                && other.contains("-r __ns:=/ns"),
+            "{other}"
+        );
+        // With the namespace the file's section is for, it applies.
+        let mut a = args(&["--ros-args", "--params-file", path, "-r", "__ns:=/rig"]);
+        a.extend(args(&[]));
+        assert!(PipelineConfig::from_args(&a).is_ok());
+        // A section that applies but names one camera: the parameter's own error alone.
+        std::fs::write(&file, "/**:\n  ros__parameters:\n    cameras: [a]\n").unwrap();
+        let one = error(&["--params-file", path]);
+        assert!(
+            one.contains("needs at least 2 entries, got 1") && !one.contains("no section"),
+            "{one}"
         );
     }
 
