@@ -33,8 +33,9 @@ pub struct EvalArgs {
     /// with --fusion, ICL-NUIM frames only, and none is needed).
     #[arg(required_unless_present = "fusion", num_args = 1..)]
     pub dirs: Vec<PathBuf>,
-    /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/` (with
-    /// --fusion: each fused mesh as `OUT/<dataset>.ply`).
+    /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/`
+    /// (`<name>-2`, `<name>-3`, ... for a name an earlier folder of the same run has; with
+    /// --fusion: each fused mesh as `OUT/<dataset>.ply`). OUT must be a folder or not exist.
     #[arg(long, value_name = "OUT")]
     pub save: Option<PathBuf>,
     /// The fused model's accuracy (issue 28) instead: a synthetic moving rig, then each folder
@@ -188,13 +189,48 @@ pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(
     Ok(())
 }
 
-/// `eval_one`'s dataset, with the Python of `--peer sgbm` (found before any dataset runs).
+/// The name of a dataset called `name` in the table and under `--save`: `name` itself, or
+/// `name-2`, `name-3`, ... where an earlier dataset of the run has it (ignoring ASCII case, as
+/// a case-insensitive file system would); the name chosen is added to `taken`.
+pub fn distinct_name(name: &str, taken: &mut Vec<String>) -> String {
+    let free = |candidate: &str| !taken.iter().any(|t| t.eq_ignore_ascii_case(candidate));
+    let chosen = if free(name) {
+        name.to_string()
+    } else {
+        (2..)
+            .map(|k| format!("{name}-{k}"))
+            .find(|candidate| free(candidate))
+            .unwrap_or_else(|| name.to_string())
+    };
+    taken.push(chosen.clone());
+    chosen
+}
+
+/// Checks `--save OUT` before any dataset runs: OUT is a folder (made here where it does not
+/// exist), not a file.
+pub fn check_save_folder(out: &Path) -> Result<(), EvalRunError> {
+    let refuse = |reason: String| EvalRunError::Save {
+        path: out.to_path_buf(),
+        reason,
+    };
+    if out.exists() && !out.is_dir() {
+        return Err(refuse(
+            "exists and is not a folder (give a folder, or a path that does not exist)".into(),
+        ));
+    }
+    std::fs::create_dir_all(out).map_err(|e| refuse(format!("cannot create the folder: {e}")))
+}
+
+/// One dataset folder `dir` through the engine: its table row (and its peer's, with the Python
+/// of `--peer sgbm` found before any dataset runs), its maps saved under `--save`. `taken`:
+/// the names of the run's earlier datasets ([`distinct_name`]).
 fn eval_one(
     engine: &mut Engine,
     dir: &Path,
     args: &EvalArgs,
     peer_python: Option<&Path>,
     progress: &str,
+    taken: &mut Vec<String>,
 ) -> Result<String, EvalError> {
     let started = Instant::now();
     eprintln!("{progress} loading {}", dir.display());
@@ -224,12 +260,22 @@ fn eval_one(
     let ms = run_started.elapsed().as_secs_f64() * 1e3;
     eprintln!("{progress} engine ran in {ms:.0} ms");
     let metrics = metrics_for(&dataset, &maps)?;
+    let name = distinct_name(&dataset.name, taken);
     if let Some(out) = &args.save {
-        let dir = out.join(&dataset.name);
+        let dir = out.join(&name);
         save_outputs(&dir, &dataset, &maps)?;
-        eprintln!("{progress} wrote {}", dir.display());
+        let renamed = if name == dataset.name {
+            String::new()
+        } else {
+            format!(
+                " (as {name}: an earlier dataset of this run is named {} too)",
+                dataset.name
+            )
+        };
+        eprintln!("{progress} wrote {}{renamed}", dir.display());
     }
-    let mut rows = table_row(&dataset, metrics.as_ref(), maps.invalid_fraction(), ms);
+    let invalid = maps.invalid_fraction();
+    let mut rows = table_row_as(&name, &dataset, metrics.as_ref(), invalid, ms);
     if let Some(python) = peer_python {
         // The engine's row stands whatever becomes of the peer's: a dataset it cannot run on
         // (not a rectified pair) or a failed run is a comment line of the table instead.
@@ -239,18 +285,15 @@ fn eval_one(
         rows.push('\n');
         match row {
             Ok(row) => rows.push_str(&table_row_as(
-                &format!("  sgbm-3way {}", dataset.name),
+                &format!("  sgbm-3way {name}"),
                 &dataset,
                 Some(&row.metrics),
                 row.invalid,
                 row.ms,
             )),
             Err(e) => {
-                eprintln!(
-                    "{progress} the SGBM peer did not run on {}: {e}",
-                    dataset.name
-                );
-                rows.push_str(&format!("#  sgbm-3way {}: not run: {e}", dataset.name));
+                eprintln!("{progress} the SGBM peer did not run on {name}: {e}");
+                rows.push_str(&format!("#  sgbm-3way {name}: not run: {e}"));
             }
         }
     }
@@ -269,13 +312,18 @@ pub enum EvalRunError {
     Stdout(#[from] std::io::Error),
     #[error("--peer sgbm: {0}")]
     Peer(#[from] peer::PeerError),
+    #[error("--save {}: {reason}", path.display())]
+    Save { path: PathBuf, reason: String },
     #[error("{} of {total} dataset(s) failed: {}", failed.len(), failed.join(", "))]
     Failed { failed: Vec<String>, total: usize },
 }
 
 /// `sweepdepth eval`: one engine (`--device`) for all folders; a folder that fails is reported and the
-/// others still run; the command fails at the end if any did.
+/// others still run; the command fails at the end if any did. `--save` is checked first.
 pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
+    if let Some(out) = &args.save {
+        check_save_folder(out)?;
+    }
     if args.fusion {
         return fusion::run(args);
     }
@@ -295,10 +343,12 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
     writeln!(stdout, "{}", table_header())?;
     stdout.flush()?;
     let mut failed = Vec::new();
+    let mut taken = Vec::new();
     let total = args.dirs.len();
     for (i, dir) in args.dirs.iter().enumerate() {
         let progress = format!("[{}/{total}]", i + 1);
-        match eval_one(&mut engine, dir, args, peer_python.as_deref(), &progress) {
+        let python = peer_python.as_deref();
+        match eval_one(&mut engine, dir, args, python, &progress, &mut taken) {
             Ok(row) => {
                 writeln!(stdout, "{row}")?;
                 stdout.flush()?;

@@ -475,6 +475,141 @@ fn eval_command_rejects_a_folder_in_no_known_layout() {
     assert!(stderr.contains("layout"), "unhelpful error: {stderr}");
 }
 
+/// Copies the built-in Tsukuba's files into `dir` (a dataset of the same folder name when
+/// `dir` ends in `tsukuba`).
+fn copy_tsukuba(dir: &Path) {
+    let _ = std::fs::remove_dir_all(dir);
+    std::fs::create_dir_all(dir).expect("tmp dir");
+    for entry in std::fs::read_dir(tsukuba_dir()).expect("data/tsukuba") {
+        let path = entry.expect("entry").path();
+        std::fs::copy(&path, dir.join(path.file_name().expect("name"))).expect("copy");
+    }
+}
+
+/// Outcome checked: `eval --save OUT` of two folders with the same name (data/tsukuba and a
+/// copy at another path's `tsukuba`) saves each in a folder of its own, `OUT/tsukuba` and
+/// `OUT/tsukuba-2`, both holding the CPU engine's maps (`assert_saved_maps_are`), says where
+/// the second went, and prints two rows that can be told apart (`tsukuba`, `tsukuba-2`).
+#[test]
+fn eval_save_keeps_datasets_of_the_same_name_apart() {
+    let tmp = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("eval_same_name");
+    let copy = tmp.join("copy").join("tsukuba");
+    copy_tsukuba(&copy);
+    let out = tmp.join("out");
+    let _ = std::fs::remove_dir_all(&out);
+    let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args(["eval", "--device", "cpu"])
+        .arg(tsukuba_dir())
+        .arg(&copy)
+        .arg("--save")
+        .arg(&out)
+        .output()
+        .expect("sweepdepth runs");
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "eval failed: {stderr}\n{stdout}");
+    let first_cell = |l: &str| l.split_whitespace().next().map(str::to_string);
+    let rows: Vec<String> = stdout
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("dataset"))
+        .filter_map(first_cell)
+        .collect();
+    assert_eq!(rows, ["tsukuba", "tsukuba-2"], "{stdout}");
+    assert!(
+        stderr.contains(&format!("wrote {}", out.join("tsukuba").display())),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains(&format!(
+            "wrote {} (as tsukuba-2: an earlier dataset of this run is named tsukuba too)",
+            out.join("tsukuba-2").display()
+        )),
+        "{stderr}"
+    );
+    let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
+    let GroundTruth::Disparity {
+        focal_baseline_eval,
+        ..
+    } = dataset.ground_truth
+    else {
+        panic!("Tsukuba has disparity ground truth");
+    };
+    for name in ["tsukuba", "tsukuba-2"] {
+        let dir = out.join(name);
+        for file in [
+            "disparity.pfm",
+            "confidence.pfm",
+            "depth.png",
+            "confidence.png",
+            "selection.png",
+        ] {
+            assert!(dir.join(file).is_file(), "{name}/{file} missing");
+        }
+        assert_saved_maps_are(&dir, tsukuba_cpu_maps(), focal_baseline_eval);
+    }
+    let mut entries: Vec<String> = std::fs::read_dir(&out)
+        .expect("OUT")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    entries.sort();
+    assert_eq!(entries, ["tsukuba", "tsukuba-2"]);
+}
+
+/// Outcome checked: the names `eval` gives datasets that share one (`distinct_name`) skip a
+/// suffixed name an earlier folder already has, and treat names that differ only in case as
+/// the same (one folder on a case-insensitive file system).
+#[test]
+fn eval_distinct_names_skip_taken_ones_and_ignore_case() {
+    use sweepdepth::eval::distinct_name;
+    let mut taken = Vec::new();
+    let names: Vec<String> = ["tsukuba", "tsukuba-2", "tsukuba", "Tsukuba", "teddy"]
+        .iter()
+        .map(|n| distinct_name(n, &mut taken))
+        .collect();
+    assert_eq!(
+        names,
+        ["tsukuba", "tsukuba-2", "tsukuba-3", "Tsukuba-4", "teddy"]
+    );
+}
+
+/// Outcome checked: `eval --save OUT` where OUT is a regular file, or lies below one, fails
+/// before any dataset is loaded (no "loading" line, no table), says why, and leaves the file as
+/// it was.
+#[test]
+fn eval_refuses_a_save_path_that_is_a_file_before_any_dataset() {
+    let tmp = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("eval_save_file");
+    let _ = std::fs::remove_dir_all(&tmp);
+    std::fs::create_dir_all(&tmp).expect("tmp dir");
+    let file = tmp.join("results.txt");
+    std::fs::write(&file, "the user's notes\n").expect("write");
+    for (save, says) in [
+        (file.clone(), "exists and is not a folder"),
+        (file.join("sub"), "cannot create the folder"),
+    ] {
+        let output = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .args(["eval", "--device", "cpu"])
+            .arg(tsukuba_dir())
+            .arg(tsukuba_dir())
+            .arg("--save")
+            .arg(&save)
+            .output()
+            .expect("sweepdepth runs");
+        let stdout = String::from_utf8_lossy(&output.stdout);
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "{}: {stderr}", save.display());
+        assert!(
+            stderr.contains(&format!("--save {}: {says}", save.display())),
+            "{stderr}"
+        );
+        assert!(!stderr.contains("loading"), "a dataset ran: {stderr}");
+        assert!(stdout.is_empty(), "a table was printed: {stdout}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(&file).expect("the file"),
+        "the user's notes\n"
+    );
+}
+
 /// `demo` (CPU engine) prints a bad>1 of at most 5 % and writes the CPU engine's maps of the
 /// built-in Tsukuba, each checked against a run in this process (`assert_saved_maps_are`).
 #[test]
