@@ -152,9 +152,8 @@ pub fn evaluate(
 }
 
 /// Writes the outputs of one dataset into `dir` (created if needed): `disparity.pfm`
-/// (evaluation units, NaN invalid) and `confidence.pfm` for disparity ground truth, `depth.pfm`
-/// (metres) for the others, `confidence.pfm` for depth ground truth, and always `depth.png`,
-/// `confidence.png`, `selection.png`.
+/// (evaluation units, NaN invalid) for disparity ground truth, `depth.pfm` (metres) for the
+/// others, and always `confidence.pfm`, `depth.png`, `confidence.png`, `selection.png`.
 pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(), EvalError> {
     std::fs::create_dir_all(dir).map_err(|source| EvalError::CreateDir {
         path: dir.to_path_buf(),
@@ -167,16 +166,12 @@ pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(
         } => {
             let disparity = depth_to_disparity(&maps.depth_m, *focal_baseline_eval);
             io::write_pfm(&dir.join("disparity.pfm"), &disparity)?;
-            io::write_pfm(&dir.join("confidence.pfm"), &maps.confidence)?;
         }
-        GroundTruth::Depth { .. } => {
-            io::write_pfm(&dir.join("depth.pfm"), &maps.depth_m)?;
-            io::write_pfm(&dir.join("confidence.pfm"), &maps.confidence)?;
-        }
-        GroundTruth::None => {
+        GroundTruth::Depth { .. } | GroundTruth::None => {
             io::write_pfm(&dir.join("depth.pfm"), &maps.depth_m)?;
         }
     }
+    io::write_pfm(&dir.join("confidence.pfm"), &maps.confidence)?;
     io::save_image(&dir.join("depth.png"), &io::depth_png(&maps.depth_m))?;
     io::save_image(
         &dir.join("confidence.png"),

@@ -548,8 +548,18 @@ fn mesh_summary(
                 path: path.display().to_string(),
                 source,
             })?;
+            let empty = if saved.triangles == 0 && fuser.integrated > 0 {
+                format!(
+                    "; no surface came out of {} depth maps: a voxel of {} m may be too coarse \
+                     for the scene (try --voxel-size near a hundredth of its depth)",
+                    fuser.integrated,
+                    fuser.params().voxel_size_m
+                )
+            } else {
+                String::new()
+            };
             format!(
-                "{} depth maps fused{on} into {} ({} triangles, {} vertices; {grid})",
+                "{} depth maps fused{on} into {} ({} triangles, {} vertices; {grid}){empty}",
                 fuser.integrated,
                 path.display(),
                 saved.triangles,

@@ -311,11 +311,15 @@ impl SweepParams {
     pub fn validate_shape(&self, shape: RigShape) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
-            return bad(format!("min_depth_m must be > 0, got {}", self.min_depth_m));
+            return bad(format!(
+                "min_depth (--min-depth) must be a finite number of metres > 0, got {}",
+                self.min_depth_m
+            ));
         }
         if !(self.max_depth_m > self.min_depth_m && self.max_depth_m.is_finite()) {
             return bad(format!(
-                "max_depth_m ({}) must be finite and > min_depth_m ({})",
+                "max_depth (--max-depth, {} m) must be finite and greater than min_depth \
+                 (--min-depth, {} m)",
                 self.max_depth_m, self.min_depth_m
             ));
         }
