@@ -29,8 +29,9 @@ pub use table::{table_header, table_row, table_row_as};
 /// Command-line arguments of `sweepdepth eval`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
-    /// Dataset folders (Middlebury 2001/2003/2005/2006, ICL-NUIM frames, Middlebury multi-view;
-    /// with --fusion, ICL-NUIM frames only, and none is needed).
+    /// Dataset folders (Middlebury 2001/2003/2005/2006, Middlebury 2014 and ETH3D two-view
+    /// pairs in its layout, ICL-NUIM frames, Middlebury multi-view; with --fusion, ICL-NUIM
+    /// frames only, and none is needed).
     #[arg(required_unless_present = "fusion", num_args = 1..)]
     pub dirs: Vec<PathBuf>,
     /// Write disparity/depth/confidence PFMs and PNGs to `OUT/<dataset folder name>/`

@@ -91,9 +91,11 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         "confidence.png",
         "selection.png",
         "disparity.pfm",
+        "confidence.pfm",
     ] {
         println!("wrote {}", out.join(name).display());
     }
+    println!("(the input views and ground truth: {})", input.display());
     match metrics {
         Some(Metrics::Disparity(m)) => println!(
             "quality: bad>1 {:.2} %, bad>2 {:.2} %, invalid {:.2} % (Tsukuba ground truth, 18 px border); {ms:.0} ms per frame set on {adapter}",
