@@ -44,14 +44,14 @@ pub struct BenchArgs {
     #[arg(long)]
     pub json: bool,
     /// Timed runs per configuration (after one warm-up run); the median is reported.
-    #[arg(long, default_value_t = 7)]
+    #[arg(long, default_value_t = 7, value_parser = at_least_one)]
     pub repeats: usize,
     /// A short run: the paper's configuration and the demo's set only, 3 timed runs each.
     #[arg(long)]
     pub quick: bool,
     /// Only these configurations (repeatable): paper, demo, 9-camera, 9-camera-near4,
     /// 9-camera-3refs, 9-camera-3refs-near4, vga, ring, ring-distorted, sxga, stereo-rect,
-    /// stereo-raw.
+    /// stereo-raw, dome-8, dome-32.
     #[arg(long = "config", value_name = "NAME")]
     pub configs: Vec<String>,
     /// Python with OpenCV for the peer (default: target/test-venv, then python3).
@@ -367,6 +367,14 @@ fn time_runs(
     Ok((median(frame_ms), stages, host))
 }
 
+/// `--repeats`: a whole number of at least 1.
+fn at_least_one(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(n) if n >= 1 => Ok(n),
+        _ => Err(format!("must be a whole number >= 1, got '{text}'")),
+    }
+}
+
 /// The configurations `names` ask for (all, or with `quick` the paper's and the demo's), each
 /// with `--planes`' planes where it is given (the engines' and the peer's disparities).
 fn selected_configs(
@@ -545,6 +553,8 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         return maps_out::run(args);
     }
     let repeats = if args.quick { 3 } else { args.repeats };
+    // Unknown names are refused before anything is timed.
+    let configs = selected_configs(&args.configs, args.quick, &args.params)?;
     let peer = run_peer(args.python.as_deref(), 3 * repeats);
     // The peer is timed again after every configuration; each ratio divides by the mean of the
     // peer's times just before and just after it.
@@ -588,7 +598,6 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
             Err(e) => return Err(e.into()),
         }
     }
-    let configs = selected_configs(&args.configs, args.quick, &args.params)?;
     if !args.json {
         println!(
             "{:<8} {:<44} {:>19} {:>30} {:>9} {:>9} {:>8} {:>8} {:>7} {:>15} {:>9}  SGM stages (ms)",
