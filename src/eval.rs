@@ -308,6 +308,8 @@ pub enum EvalRunError {
     Stdout(#[from] std::io::Error),
     #[error("--peer sgbm: {0}")]
     Peer(#[from] peer::PeerError),
+    #[error("--peer compares depth maps on rectified pairs; with --fusion there is none to compare (bench --fusion times fusion beside Open3D)")]
+    PeerWithFusion,
     #[error("--save {}: {reason}", path.display())]
     Save { path: PathBuf, reason: String },
     #[error("{} of {total} dataset(s) failed: {}", failed.len(), failed.join(", "))]
@@ -321,6 +323,9 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
         check_save_folder(out)?;
     }
     if args.fusion {
+        if args.peer.is_some() {
+            return Err(EvalRunError::PeerWithFusion);
+        }
         return fusion::run(args);
     }
     let peer_python = match args.peer {

@@ -262,6 +262,13 @@ pub fn load_dataset_with(dir: &Path, options: &LoadOptions) -> Result<Dataset, D
             ),
         });
     }
+    if let (Some(right), false) = (&options.right_view, layout == Layout::Middlebury2014) {
+        tracing::warn!(
+            "{}: right view '{right}' not used: a {layout} set has no variants of its views \
+             (--right-view picks one of a Middlebury 2014 or ETH3D pair's)",
+            dir.display()
+        );
+    }
     match layout {
         Layout::Middlebury2001 | Layout::Middlebury2003 | Layout::Middlebury2005 => {
             load_middlebury(dir, &names, layout)
