@@ -103,6 +103,8 @@ fn option(param: &'static EngineParam) -> Option<Arg> {
         .long(flag.long())
         .value_name(value_name(flag))
         .action(ArgAction::Set)
+        // `--min-depth -1` is a value to refuse with its range, not an unknown option.
+        .allow_negative_numbers(true)
         .required(false);
     Some(match (flag, &param.spec.range) {
         (Flag::Height(_), _) => return None,
@@ -271,6 +273,9 @@ mod tests {
             ),
             (&["--window", "3"], "not WxH"),
             (&["--tau=-1"], "out of range"),
+            // A negative value after a space is a value (clap took it for an option).
+            (&["--min-depth", "-1"], "out of range: must be > 0.0, got -1"),
+            (&["--max-depth", "inf"], "must be finite, got inf"),
             (&["--tau", "abc"], "wrong type"),
             (&["--scoring", "best"], "possible values"),
             (&["--median", "yes"], "possible values"),

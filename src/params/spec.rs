@@ -150,7 +150,9 @@ impl ParamRange {
                 } else {
                     *d <= *max
                 };
-                if d.is_finite() && above_min && below_max {
+                if !d.is_finite() {
+                    Err(ParamError::NotFinite(*d))
+                } else if above_min && below_max {
                     Ok(())
                 } else {
                     Err(ParamError::DoubleOutOfRange {
