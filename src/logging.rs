@@ -59,16 +59,43 @@ fn colours(stderr_is_terminal: bool, no_color: Option<std::ffi::OsString>) -> bo
     stderr_is_terminal && no_color.is_none_or(|v| v.is_empty())
 }
 
-/// Installs the stderr log (once, in `main`).
-pub fn init() {
+/// The log's filter where `RUST_LOG` sets none: this crate at `level` (an rcutils level name, a
+/// node's `--log-level`; `info` when none), everything else at `warn` (RustDDS at `error`).
+pub fn default_filter(level: Option<&str>) -> String {
+    let ours = match level.map(str::to_ascii_lowercase).as_deref() {
+        Some("debug") => "debug",
+        Some("warn") => "warn",
+        Some("error" | "fatal") => "error",
+        _ => "info",
+    };
+    let others = if ours == "error" { "error" } else { "warn" };
+    format!("{others},sweepdepth={ours},rustdds=error")
+}
+
+/// The level a node's `--ros-args --log-level` gives its own logger (rcl's rules: the node's
+/// dotted logger name, `ns.name`, or an ancestor, else the level without a logger), for the
+/// `node` and `fuse` commands' arguments; `None` where none is given or they do not parse (the
+/// command then reports them).
+pub fn node_log_level(args: &[String], default_node_name: &str) -> Option<String> {
+    let ros = crate::ros::args::parse_ros_args(args).ok()?;
+    if ros.log_levels.is_empty() {
+        return None;
+    }
+    let identity = ros.node_identity(default_node_name, "/").ok()?;
+    let logger = identity.fqn().trim_start_matches('/').replace('/', ".");
+    Some(ros.log_level(&logger).to_string())
+}
+
+/// Installs the stderr log (once, in `main`): `RUST_LOG` where set, else
+/// [`default_filter`] of `level` (a node's `--log-level`, [`node_log_level`]).
+pub fn init(level: Option<&str>) {
     use std::io::IsTerminal;
     let ansi = colours(
         std::io::stderr().is_terminal(),
         std::env::var_os("NO_COLOR"),
     );
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new("warn,sweepdepth=info,rustdds=error")
-    });
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter(level)));
     tracing_subscriber::registry()
         .with(filter)
         .with(RateLimitDds::default())
@@ -83,6 +110,46 @@ pub fn init() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `--log-level` as rcl reads it: the node's own logger (`ns.name`) or an ancestor first,
+    /// then the level without a logger; the filter it makes.
+    #[test]
+    fn a_nodes_log_level_sets_the_filter() {
+        let args = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let level = |a: &[&str]| node_log_level(&args(a), "sweepdepth");
+        assert_eq!(level(&["--ros-args", "-p", "cameras:=[a, b]"]), None);
+        assert_eq!(
+            level(&["--ros-args", "--log-level", "warn"]).as_deref(),
+            Some("warn")
+        );
+        assert_eq!(
+            level(&[
+                "--ros-args",
+                "-r",
+                "__ns:=/rig",
+                "--log-level",
+                "warn",
+                "--log-level",
+                "rig.sweepdepth:=error"
+            ])
+            .as_deref(),
+            Some("error")
+        );
+        // Another node's logger: the level without one (here none: rcutils' info).
+        assert_eq!(
+            level(&["--ros-args", "--log-level", "other:=debug"]).as_deref(),
+            Some("info")
+        );
+        assert_eq!(default_filter(None), "warn,sweepdepth=info,rustdds=error");
+        assert_eq!(
+            default_filter(Some("DEBUG")),
+            "warn,sweepdepth=debug,rustdds=error"
+        );
+        assert_eq!(
+            default_filter(Some("fatal")),
+            "error,sweepdepth=error,rustdds=error"
+        );
+    }
 
     #[test]
     fn colours_only_on_a_terminal_without_no_color() {

@@ -44,8 +44,19 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    sweepdepth::logging::init();
     let cli = Cli::parse();
+    // A node's `--log-level` (rcl's rules) where `RUST_LOG` is not set.
+    let level = match &cli.command {
+        Command::Node { args } => {
+            sweepdepth::logging::node_log_level(args, sweepdepth::ros::args::DEFAULT_NODE_NAME)
+        }
+        Command::Fuse { args } => sweepdepth::logging::node_log_level(
+            args,
+            sweepdepth::node::fuse_command::DEFAULT_FUSE_NODE_NAME,
+        ),
+        _ => None,
+    };
+    sweepdepth::logging::init(level.as_deref());
     // Before any thread starts (set_var is only sound then).
     let mut defaults = vec![
         sweepdepth::process_env::quiet_vulkan_device_select(),
