@@ -280,6 +280,8 @@ pub enum RigEvent {
 pub enum Degraded {
     /// It was the reference: nothing is published until it is back.
     ReferenceLost,
+    /// It was not a reference, and no reference is in the rig either (one left before).
+    ReferenceStillOut,
     /// Fewer than 2 cameras remain: nothing is published.
     TooFew,
     /// Depth goes on with the other `n` cameras.
@@ -299,6 +301,10 @@ impl fmt::Display for RigEvent {
                 match then {
                     Degraded::ReferenceLost => f.write_str(
                         "it is the reference camera: no depth is published until it is back",
+                    ),
+                    Degraded::ReferenceStillOut => f.write_str(
+                        "the reference camera is out of the rig too: no depth is published \
+                         until it is back",
                     ),
                     Degraded::TooFew => {
                         f.write_str("fewer than 2 cameras remain: no depth is published")

@@ -96,8 +96,11 @@ impl Roster {
             .collect();
         for (j, quiet) in silent {
             self.active.retain(|&a| a != j);
-            let then = if !self.references.iter().any(|r| self.active.contains(r)) {
+            let no_reference = !self.references.iter().any(|r| self.active.contains(r));
+            let then = if no_reference && self.references.contains(&j) {
                 Degraded::ReferenceLost
+            } else if no_reference {
+                Degraded::ReferenceStillOut
             } else if self.active.len() < 2 {
                 Degraded::TooFew
             } else {
@@ -157,6 +160,16 @@ mod tests {
             .to_string()
             .contains("it is the reference camera: no depth is published"));
         assert!(!r.publishing());
+        // c stops too: it is not the reference, and says the reference is out.
+        let events = r.track(0, 760 * MS);
+        assert_eq!(events.len(), 1, "{events:?}");
+        let said = events[0].to_string();
+        assert!(
+            said.starts_with("camera 'c' ")
+                && said.ends_with("the reference camera is out of the rig too: no depth is published until it is back")
+                && !said.contains("it is the reference camera"),
+            "{said}"
+        );
     }
 
     #[test]
