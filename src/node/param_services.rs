@@ -232,7 +232,14 @@ impl Answers {
                         p.name, p.value
                     ));
                 }
-                let event = changed.then(|| raw::Parameter::from(p.clone()));
+                // The value as stored (an integer given for a double is kept as the double),
+                // as `get_parameters` answers it.
+                let event = changed.then(|| {
+                    raw::Parameter::from(Parameter {
+                        value: self.value(&p.name),
+                        name: p.name.clone(),
+                    })
+                });
                 (ok(), event)
             }
             Err(e) => {
@@ -291,7 +298,10 @@ impl Answers {
                     .into_iter()
                     .zip(changed)
                     .filter(|(_, c)| *c)
-                    .map(|((name, value), _)| raw::Parameter::from(Parameter { name, value }))
+                    .map(|((name, _), _)| {
+                        let value = self.value(&name);
+                        raw::Parameter::from(Parameter { name, value })
+                    })
                     .collect();
                 (SetParametersAtomicallyResponse { result: ok() }, events)
             }
@@ -566,5 +576,17 @@ mod tests {
         });
         assert!(!r.result.successful && events.is_empty());
         assert_eq!(a.live.sweep().num_planes, 32, "all or none");
+        // An integer given for a double is stored as the double, and the event says what is
+        // stored (as `get_parameters` answers), alone and atomically.
+        let (r, events) = a.set(set("min_depth", RosValue::Integer(1)));
+        assert!(r.results[0].successful, "{:?}", r.results);
+        let stored = RosValue::from(events[0].value.clone());
+        assert_eq!(stored, RosValue::Double(1.0));
+        let (r, events) = a.set_atomically(set("max_depth", RosValue::Integer(9)));
+        assert!(r.result.successful);
+        assert_eq!(
+            RosValue::from(events[0].value.clone()),
+            RosValue::Double(9.0)
+        );
     }
 }

@@ -224,7 +224,15 @@ impl ParamSet {
             for item in &entry.items {
                 if param_spec(&item.name).is_none() {
                     if let Some(note) = ignored_standard(&item.name) {
-                        notes.push(format!("{}: {note}", item.origin));
+                        let note = format!("{}: {note}", item.origin);
+                        // Simulated time asked for and not given: the stamps the node reads
+                        // and writes stay the messages' own, which a user of a simulator must
+                        // hear of (a note is only logged at info).
+                        if item.name == "use_sim_time" && item.value == ParamValue::Bool(true) {
+                            tracing::warn!("{note}: stamps are the messages' own, never /clock");
+                        } else {
+                            notes.push(note);
+                        }
                         continue;
                     }
                     if item.wildcard {
