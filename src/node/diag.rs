@@ -220,19 +220,20 @@ impl Stats {
             },
         );
         let (level, message) = if self.stale(now) {
+            // "yet" until the first depth: the node may have been up for less than 5 s.
+            let silent = match self.last_published {
+                None => "no depth published yet".to_string(),
+                Some(_) => format!("no depth published in the last {} s", STALE_AFTER.as_secs()),
+            };
             (
                 DiagnosticStatus::WARN,
                 if let Some(why) = &self.why {
-                    format!(
-                        "no depth published in the last {} s: {why}",
-                        STALE_AFTER.as_secs()
-                    )
+                    format!("{silent}: {why}")
                 } else if self.inactive_cameras.is_empty() {
-                    format!("no depth published in the last {} s", STALE_AFTER.as_secs())
+                    silent
                 } else {
                     format!(
-                        "no depth published in the last {} s; out of the rig (silent): {}",
-                        STALE_AFTER.as_secs(),
+                        "{silent}; out of the rig (silent): {}",
                         self.inactive_cameras.join(", ")
                     )
                 },
@@ -302,6 +303,8 @@ mod tests {
         );
         assert_eq!(a.status[0].level, DiagnosticStatus::WARN);
         assert_eq!(a.status[0].name, "sweepdepth: /n");
+        // Up for 2 s and nothing published: not "in the last 5 s".
+        assert_eq!(a.status[0].message, "no depth published yet");
         assert_eq!(value(&a, "processing time mean (ms)"), "n/a");
         for k in 0..10 {
             s.on_image(0, t0 + Duration::from_millis(1000 + 100 * k));

@@ -345,7 +345,9 @@ fn wait_for_why(
                     .expect("the reason after 'no depth: '");
                 // The same text in /diagnostics (the status of the same second).
                 if statuses.iter().any(|s| {
-                    s.starts_with("no depth published in the last 5 s: ") && s.ends_with(why)
+                    (s.starts_with("no depth published yet: ")
+                        || s.starts_with("no depth published in the last 5 s: "))
+                        && s.ends_with(why)
                 }) {
                     return why.to_string();
                 }
