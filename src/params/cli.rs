@@ -274,7 +274,10 @@ mod tests {
             (&["--window", "3"], "not WxH"),
             (&["--tau=-1"], "out of range"),
             // A negative value after a space is a value (clap took it for an option).
-            (&["--min-depth", "-1"], "out of range: must be > 0.0, got -1"),
+            (
+                &["--min-depth", "-1"],
+                "out of range: must be > 0.0, got -1",
+            ),
             (&["--max-depth", "inf"], "must be finite, got inf"),
             (&["--tau", "abc"], "wrong type"),
             (&["--scoring", "best"], "possible values"),
