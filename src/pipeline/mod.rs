@@ -357,6 +357,18 @@ impl<'a> Pipeline<'a> {
             rig_events: self.roster.track(camera, now_ns),
             ..Outcome::default()
         };
+        if let Some((period_s, timeout_s)) = self.roster.too_slow(camera) {
+            outcome.notices.push(Notice {
+                kind: NoticeKind::SlowCamera,
+                camera: Some(camera),
+                message: format!(
+                    "camera '{}' sends an image every {period_s:.2} s, more than half of \
+                     camera_timeout ({timeout_s} s): an image that comes late takes it out of \
+                     the rig; set camera_timeout to three frame periods or more",
+                    self.config.cameras[camera]
+                ),
+            });
+        }
         // What a rebuild of the synchroniser carried over (no image of its own).
         let mut carried = SyncVerdict {
             camera: None,

@@ -211,6 +211,8 @@ pub enum NoticeKind {
     /// An input the pipeline cannot place (a camera index out of range) or a synchroniser
     /// that cannot be made.
     Input,
+    /// A camera sends so rarely that `camera_timeout` takes it out of the rig at a late image.
+    SlowCamera,
 }
 
 impl NoticeKind {
@@ -223,6 +225,7 @@ impl NoticeKind {
             NoticeKind::TimeReset => "time reset",
             NoticeKind::Transform => "transform",
             NoticeKind::Input => "input",
+            NoticeKind::SlowCamera => "slow camera",
         }
     }
 }

@@ -19,8 +19,15 @@ pub(super) struct Roster {
     /// The cameras in the rig, in rig order.
     active: Vec<usize>,
     last_seen_ns: Vec<Option<u64>>,
+    /// Per camera, its gaps between images so far (the last [`GAPS`]), and whether it was
+    /// said to be too slow for the timeout ([`Roster::too_slow`]).
+    gaps_ns: Vec<Vec<u64>>,
+    said_slow: Vec<bool>,
     first_ns: Option<u64>,
 }
+
+/// Gaps between a camera's images that [`Roster::too_slow`] judges its frame period by.
+const GAPS: usize = 5;
 
 impl Roster {
     pub fn new(names: Vec<String>, references: Vec<usize>, timeout: Option<Duration>) -> Self {
@@ -31,6 +38,8 @@ impl Roster {
             timeout,
             active: (0..n).collect(),
             last_seen_ns: vec![None; n],
+            gaps_ns: vec![Vec::with_capacity(GAPS); n],
+            said_slow: vec![false; n],
             first_ns: None,
         }
     }
@@ -63,11 +72,36 @@ impl Roster {
             .collect()
     }
 
+    /// Once per camera, when its frame period (the median of its first [`GAPS`] gaps between
+    /// images) is more than half of `camera_timeout`: an image half a period late then takes
+    /// it out of the rig (a 1 Hz capture rig with the default 1 s). The period and the timeout,
+    /// in seconds.
+    pub fn too_slow(&mut self, camera: usize) -> Option<(f64, f64)> {
+        let timeout = self.timeout?;
+        let gaps = self.gaps_ns.get(camera)?;
+        if self.said_slow[camera] || gaps.len() < GAPS {
+            return None;
+        }
+        let mut sorted = gaps.clone();
+        sorted.sort_unstable();
+        let period_s = sorted[GAPS / 2] as f64 * 1e-9;
+        let timeout_s = timeout.as_secs_f64();
+        self.said_slow[camera] = true;
+        (2.0 * period_s > timeout_s).then_some((period_s, timeout_s))
+    }
+
     /// Camera `camera` sent something at `now_ns`: it is (back) in the rig, and every camera
     /// silent for longer than the timeout leaves it. Returns what changed.
     pub fn track(&mut self, camera: usize, now_ns: u64) -> Vec<RigEvent> {
         let n = self.names.len();
         let first = *self.first_ns.get_or_insert(now_ns);
+        if let Some(last) = self.last_seen_ns[camera] {
+            let gaps = &mut self.gaps_ns[camera];
+            if gaps.len() == GAPS {
+                gaps.remove(0);
+            }
+            gaps.push(now_ns.saturating_sub(last));
+        }
         self.last_seen_ns[camera] = Some(now_ns);
         let mut events = Vec::new();
         if !self.active.contains(&camera) {
@@ -170,6 +204,27 @@ mod tests {
                 && !said.contains("it is the reference camera"),
             "{said}"
         );
+    }
+
+    /// A 1 Hz camera with the default 1 s timeout is said to be too slow for it, once, after
+    /// its first five gaps; a 10 Hz one is not.
+    #[test]
+    fn a_camera_slower_than_half_the_timeout_is_said_once() {
+        let mut r = Roster::new(
+            vec!["a".into(), "b".into()],
+            vec![0],
+            Some(Duration::from_secs(1)),
+        );
+        for k in 0..20u64 {
+            r.track(0, k * 100 * MS);
+            assert_eq!(r.too_slow(0), None, "10 Hz");
+        }
+        let mut said = Vec::new();
+        for k in 0..8u64 {
+            r.track(1, k * 1000 * MS);
+            said.extend(r.too_slow(1));
+        }
+        assert_eq!(said, vec![(1.0, 1.0)]);
     }
 
     #[test]
