@@ -72,22 +72,8 @@ pub fn default_filter(level: Option<&str>) -> String {
     format!("{others},sweepdepth={ours},rustdds=error")
 }
 
-/// The level a node's `--ros-args --log-level` gives its own logger (rcl's rules: the node's
-/// dotted logger name, `ns.name`, or an ancestor, else the level without a logger), for the
-/// `node` and `fuse` commands' arguments; `None` where none is given or they do not parse (the
-/// command then reports them).
-pub fn node_log_level(args: &[String], default_node_name: &str) -> Option<String> {
-    let ros = crate::ros::args::parse_ros_args(args).ok()?;
-    if ros.log_levels.is_empty() {
-        return None;
-    }
-    let identity = ros.node_identity(default_node_name, "/").ok()?;
-    let logger = identity.fqn().trim_start_matches('/').replace('/', ".");
-    Some(ros.log_level(&logger).to_string())
-}
-
 /// Installs the stderr log (once, in `main`): `RUST_LOG` where set, else
-/// [`default_filter`] of `level` (a node's `--log-level`, [`node_log_level`]).
+/// [`default_filter`] of `level` (a node's `--log-level`, `ros::args::node_log_level`).
 pub fn init(level: Option<&str>) {
     use std::io::IsTerminal;
     let ansi = colours(
@@ -111,35 +97,9 @@ pub fn init(level: Option<&str>) {
 mod tests {
     use super::*;
 
-    /// `--log-level` as rcl reads it: the node's own logger (`ns.name`) or an ancestor first,
-    /// then the level without a logger; the filter it makes.
+    /// The filter a node's `--log-level` makes (`ros::args::node_log_level` reads the level).
     #[test]
     fn a_nodes_log_level_sets_the_filter() {
-        let args = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let level = |a: &[&str]| node_log_level(&args(a), "sweepdepth");
-        assert_eq!(level(&["--ros-args", "-p", "cameras:=[a, b]"]), None);
-        assert_eq!(
-            level(&["--ros-args", "--log-level", "warn"]).as_deref(),
-            Some("warn")
-        );
-        assert_eq!(
-            level(&[
-                "--ros-args",
-                "-r",
-                "__ns:=/rig",
-                "--log-level",
-                "warn",
-                "--log-level",
-                "rig.sweepdepth:=error"
-            ])
-            .as_deref(),
-            Some("error")
-        );
-        // Another node's logger: the level without one (here none: rcutils' info).
-        assert_eq!(
-            level(&["--ros-args", "--log-level", "other:=debug"]).as_deref(),
-            Some("info")
-        );
         assert_eq!(default_filter(None), "warn,sweepdepth=info,rustdds=error");
         assert_eq!(
             default_filter(Some("DEBUG")),

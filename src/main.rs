@@ -48,9 +48,9 @@ fn main() -> ExitCode {
     // A node's `--log-level` (rcl's rules) where `RUST_LOG` is not set.
     let level = match &cli.command {
         Command::Node { args } => {
-            sweepdepth::logging::node_log_level(args, sweepdepth::ros::args::DEFAULT_NODE_NAME)
+            sweepdepth::ros::args::node_log_level(args, sweepdepth::ros::args::DEFAULT_NODE_NAME)
         }
-        Command::Fuse { args } => sweepdepth::logging::node_log_level(
+        Command::Fuse { args } => sweepdepth::ros::args::node_log_level(
             args,
             sweepdepth::node::fuse_command::DEFAULT_FUSE_NODE_NAME,
         ),

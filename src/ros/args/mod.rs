@@ -102,6 +102,20 @@ pub fn domain_id(env_value: Option<&str>) -> Result<u16, RosArgsError> {
     }
 }
 
+/// The level a node's `--ros-args --log-level` gives its own logger (rcl's rules: the node's
+/// dotted logger name, `ns.name`, or an ancestor, else the level without a logger), for the
+/// `node` and `fuse` commands' arguments; `None` where none is given or they do not parse (the
+/// command then reports them).
+pub fn node_log_level(args: &[String], default_node_name: &str) -> Option<String> {
+    let ros = parse_ros_args(args).ok()?;
+    if ros.log_levels.is_empty() {
+        return None;
+    }
+    let identity = ros.node_identity(default_node_name, "/").ok()?;
+    let logger = identity.fqn().trim_start_matches('/').replace('/', ".");
+    Some(ros.log_level(&logger).to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -110,5 +124,36 @@ mod tests {
     fn domain_ids() {
         assert_eq!(domain_id(Some("232")).ok(), Some(232));
         assert!(domain_id(Some("233")).is_err());
+    }
+
+    /// `--log-level` as rcl reads it: the node's own logger (`ns.name`) or an ancestor first,
+    /// then the level without a logger.
+    #[test]
+    fn a_nodes_own_log_level() {
+        let args = |a: &[&str]| a.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let level = |a: &[&str]| super::node_log_level(&args(a), "sweepdepth");
+        assert_eq!(level(&["--ros-args", "-p", "cameras:=[a, b]"]), None);
+        assert_eq!(
+            level(&["--ros-args", "--log-level", "warn"]).as_deref(),
+            Some("warn")
+        );
+        assert_eq!(
+            level(&[
+                "--ros-args",
+                "-r",
+                "__ns:=/rig",
+                "--log-level",
+                "warn",
+                "--log-level",
+                "rig.sweepdepth:=error"
+            ])
+            .as_deref(),
+            Some("error")
+        );
+        // Another node's logger: the level without one (here none: rcutils' info).
+        assert_eq!(
+            level(&["--ros-args", "--log-level", "other:=debug"]).as_deref(),
+            Some("info")
+        );
     }
 }
