@@ -19,8 +19,8 @@ pub(super) struct Roster {
     /// The cameras in the rig, in rig order.
     active: Vec<usize>,
     last_seen_ns: Vec<Option<u64>>,
-    /// Per camera, its gaps between images so far (the last [`GAPS`]), and whether it was
-    /// said to be too slow for the timeout ([`Roster::too_slow`]).
+    /// Per camera, its first [`GAPS`] gaps between images, and whether they were judged
+    /// ([`Roster::too_slow`]).
     gaps_ns: Vec<Vec<u64>>,
     said_slow: Vec<bool>,
     first_ns: Option<u64>,
@@ -95,12 +95,12 @@ impl Roster {
     pub fn track(&mut self, camera: usize, now_ns: u64) -> Vec<RigEvent> {
         let n = self.names.len();
         let first = *self.first_ns.get_or_insert(now_ns);
-        if let Some(last) = self.last_seen_ns[camera] {
+        // Its first gaps alone: [`Roster::too_slow`] judges them once.
+        if let (Some(last), false) = (self.last_seen_ns[camera], self.said_slow[camera]) {
             let gaps = &mut self.gaps_ns[camera];
-            if gaps.len() == GAPS {
-                gaps.remove(0);
+            if gaps.len() < GAPS {
+                gaps.push(now_ns.saturating_sub(last));
             }
-            gaps.push(now_ns.saturating_sub(last));
         }
         self.last_seen_ns[camera] = Some(now_ns);
         let mut events = Vec::new();

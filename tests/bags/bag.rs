@@ -698,9 +698,7 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
     use glam::{DQuat, DVec3};
     use sweepdepth::geometry::{CameraModel, RigCamera, RigidTransform};
     use sweepdepth::msgdefs::{CAMERA_INFO, IMAGE, TF_MESSAGE};
-    use sweepdepth::msgs::{
-        to_cdr, Header, Quaternion, TFMessage, Transform, TransformStamped, Vector3,
-    };
+    use sweepdepth::msgs::{to_cdr, Header, TFMessage};
     use sweepdepth::pipeline::{Input, Pipeline, PipelineConfig, SkipKind};
     use sweepdepth::synthetic::{self, Scene};
 
@@ -724,25 +722,8 @@ fn moving_rig_sets_are_posed_in_the_world_at_their_stamps() {
         nanosec: ((t - t.floor()) * 1e9).round() as u32,
     };
     let ns = |t: f64| (t * 1e9).round() as u64;
-    let stamped = |parent: &str, child: &str, t: f64, pose: &RigidTransform| TransformStamped {
-        header: Header {
-            stamp: time(t),
-            frame_id: parent.into(),
-        },
-        child_frame_id: child.into(),
-        transform: Transform {
-            translation: Vector3 {
-                x: pose.translation.x,
-                y: pose.translation.y,
-                z: pose.translation.z,
-            },
-            rotation: Quaternion {
-                x: pose.rotation.x,
-                y: pose.rotation.y,
-                z: pose.rotation.z,
-                w: pose.rotation.w,
-            },
-        },
+    let stamped = |parent: &str, child: &str, t: f64, pose: &RigidTransform| {
+        super::util::transform_stamped(parent, child, time(t), pose)
     };
     // (log time, topic, type, bytes), sorted by log time before writing.
     let mut records: Vec<(u64, String, &str, Vec<u8>)> = Vec::new();

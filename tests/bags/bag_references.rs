@@ -4,15 +4,13 @@
 //! placed at the first one's pose (or with the link's rotation dropped) lies 0.4 m off the
 //! scene and fails the mesh's accuracy bar.
 
-use super::util::{ok, scratch, sweepdepth};
+use super::util::{ok, scratch, sweepdepth, transform_stamped};
 use crate::common;
 
 use glam::{DQuat, DVec3};
 use sweepdepth::geometry::{CameraModel, RigCamera, RigidTransform};
 use sweepdepth::msgdefs::{CAMERA_INFO, IMAGE, TF_MESSAGE};
-use sweepdepth::msgs::{
-    to_cdr, Header, Quaternion, TFMessage, Time, Transform, TransformStamped, Vector3,
-};
+use sweepdepth::msgs::{to_cdr, Header, TFMessage, Time, TransformStamped};
 use sweepdepth::synthetic::{self, Scene};
 
 /// Where rig camera `i` of four sits on the base (the base is the scene's frame): cam0 and cam1
@@ -32,26 +30,7 @@ fn base_from_cam(i: usize) -> RigidTransform {
 }
 
 fn stamped(child: &str, pose: &RigidTransform) -> TransformStamped {
-    TransformStamped {
-        header: Header {
-            stamp: Time { sec: 0, nanosec: 0 },
-            frame_id: "base".into(),
-        },
-        child_frame_id: child.into(),
-        transform: Transform {
-            translation: Vector3 {
-                x: pose.translation.x,
-                y: pose.translation.y,
-                z: pose.translation.z,
-            },
-            rotation: Quaternion {
-                x: pose.rotation.x,
-                y: pose.rotation.y,
-                z: pose.rotation.z,
-                w: pose.rotation.w,
-            },
-        },
-    }
+    transform_stamped("base", child, Time { sec: 0, nanosec: 0 }, pose)
 }
 
 #[test]

@@ -41,3 +41,33 @@ pub fn messages(path: &Path) -> Vec<BagMessage> {
         .map(|m| m.expect("message"))
         .collect()
 }
+
+/// `/tf_static` or `/tf`'s entry: `child` at `pose` in `parent`, stamped `stamp`.
+pub fn transform_stamped(
+    parent: &str,
+    child: &str,
+    stamp: sweepdepth::msgs::Time,
+    pose: &sweepdepth::geometry::RigidTransform,
+) -> sweepdepth::msgs::TransformStamped {
+    use sweepdepth::msgs::{Header, Quaternion, Transform, TransformStamped, Vector3};
+    TransformStamped {
+        header: Header {
+            stamp,
+            frame_id: parent.into(),
+        },
+        child_frame_id: child.into(),
+        transform: Transform {
+            translation: Vector3 {
+                x: pose.translation.x,
+                y: pose.translation.y,
+                z: pose.translation.z,
+            },
+            rotation: Quaternion {
+                x: pose.rotation.x,
+                y: pose.rotation.y,
+                z: pose.rotation.z,
+                w: pose.rotation.w,
+            },
+        },
+    }
+}

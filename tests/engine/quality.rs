@@ -138,6 +138,19 @@ fn table_value(stdout: &str, dataset: &str, column: usize) -> f64 {
         .unwrap_or_else(|e| panic!("{cell}: {e}"))
 }
 
+/// The built-in Tsukuba's focal length x baseline in evaluation units (disparity = it / depth).
+fn tsukuba_focal_baseline() -> f64 {
+    let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
+    let GroundTruth::Disparity {
+        focal_baseline_eval,
+        ..
+    } = dataset.ground_truth
+    else {
+        panic!("Tsukuba has disparity ground truth");
+    };
+    focal_baseline_eval
+}
+
 /// The CPU engine's maps of the built-in Tsukuba with the dataset's parameters, made once per
 /// test process: what `eval --device cpu` and `demo --device cpu` must have saved.
 fn tsukuba_cpu_maps() -> &'static DepthMaps {
@@ -526,14 +539,7 @@ fn eval_save_keeps_datasets_of_the_same_name_apart() {
         )),
         "{stderr}"
     );
-    let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
-    let GroundTruth::Disparity {
-        focal_baseline_eval,
-        ..
-    } = dataset.ground_truth
-    else {
-        panic!("Tsukuba has disparity ground truth");
-    };
+    let focal_baseline_eval = tsukuba_focal_baseline();
     for name in ["tsukuba", "tsukuba-2"] {
         let dir = out.join(name);
         for file in [
@@ -638,14 +644,7 @@ fn demo_writes_its_images_and_a_quality_line() {
         .and_then(|s| s.parse().ok())
         .expect("bad>1 value");
     assert!(bad1 <= 5.0, "{quality}");
-    let dataset = load_dataset(&tsukuba_dir()).expect("dataset");
-    let GroundTruth::Disparity {
-        focal_baseline_eval,
-        ..
-    } = dataset.ground_truth
-    else {
-        panic!("Tsukuba has disparity ground truth");
-    };
+    let focal_baseline_eval = tsukuba_focal_baseline();
     let maps = tsukuba_cpu_maps();
     assert_eq!((maps.width(), maps.height()), (384, 288));
     assert_saved_maps_are(&out.join("tsukuba"), maps, focal_baseline_eval);
