@@ -75,10 +75,21 @@ impl FuseConfig {
         let resolve = |name: &str| ros.resolve_topic(name, &identity);
         let listed = &node.depth_topics;
         if listed.is_empty() {
-            return Err(NodeError::Param(ParamError::Required {
+            let error = ParamError::Required {
                 name: "depth_topics".into(),
                 source: Box::new(ParamError::TooFewEntries { min_len: 1, got: 0 }),
-            }));
+            };
+            let example = "depth_topics:=[/a/cam0/depth/image, ...] -p world_frame:=map";
+            return Err(
+                match crate::params::set::unmatched_params_hint(&ros, &identity.fqn(), example) {
+                    Some(hint) => ConfigError::Unconfigured {
+                        error: error.to_string(),
+                        hint,
+                    }
+                    .into(),
+                    None => NodeError::Param(error),
+                },
+            );
         }
         let mut depth_topics = Vec::new();
         let mut info_topics = Vec::new();
@@ -345,4 +356,53 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         },
         || {},
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// No `depth_topics` reached the fuse node: the error says why, as the depth node's does
+    /// (no parameter file; a file whose sections are for other nodes, named).
+    #[test]
+    fn missing_depth_topics_say_why_no_parameter_reached_the_node() {
+        let args = |extra: &[&str]| -> Vec<String> {
+            ["--ros-args"]
+                .iter()
+                .chain(extra)
+                .map(|s| s.to_string())
+                .collect()
+        };
+        let error = |extra: &[&str]| match FuseConfig::from_args(&args(extra), None) {
+            Ok(c) => panic!("{extra:?}: configured with {:?}", c.depth_topics),
+            Err(e) => crate::cli::error_line(&anyhow::Error::new(e)),
+        };
+        let none = error(&[]);
+        assert!(
+            none.contains("'depth_topics'")
+                && none.contains("no parameter file given")
+                && none.contains("-p depth_topics:=["),
+            "{none}"
+        );
+        let file = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/launch_configs/four_cameras.params.yaml"
+        );
+        let other = error(&["--params-file", file]);
+        assert!(
+            other.contains("no section of the parameter file is for this node (/sweepdepth_fuse)"),
+            "{other}"
+        );
+        // A section that applies but lists no topic: the parameter's own error alone.
+        let dir = std::env::temp_dir().join(format!("sweepdepth-fuse-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let own = dir.join("fuse.params.yaml");
+        std::fs::write(&own, "/**:\n  ros__parameters:\n    world_frame: map\n").unwrap();
+        let listed = error(&["--params-file", own.to_str().unwrap()]);
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(
+            listed.contains("'depth_topics'") && !listed.contains("no section"),
+            "{listed}"
+        );
+    }
 }

@@ -257,14 +257,14 @@ impl ParamSet {
 
 /// Why a required parameter may have come out empty: no parameter file, or parameter files
 /// none of whose sections is for this node (`fqn`), with their sections, as a sentence to add
-/// to the error; `None` where some section applies.
-pub fn unmatched_params_hint(ros: &RosArgs, fqn: &str) -> Option<String> {
+/// to the error; `None` where some section applies. `example` is the `-p` that would set it
+/// (`cameras:=[cam0, cam1, ...]`).
+pub fn unmatched_params_hint(ros: &RosArgs, fqn: &str, example: &str) -> Option<String> {
     if ros.params_files.is_empty() {
-        return Some(
+        return Some(format!(
             "no parameter file given: pass --params-file FILE (examples in launch_configs/) or \
-             -p cameras:=[cam0, cam1, ...]"
-                .into(),
-        );
+             -p {example}"
+        ));
     }
     let applies = ros.params_files.iter().any(|file| {
         file.sections

@@ -429,7 +429,11 @@ impl PipelineConfig {
         let node = NodeValues::read(&params)?;
         node.check(&params).map_err(|e| match e {
             ParamError::Required { .. } => {
-                match crate::params::set::unmatched_params_hint(ros, &identity.fqn()) {
+                match crate::params::set::unmatched_params_hint(
+                    ros,
+                    &identity.fqn(),
+                    "cameras:=[cam0, cam1, ...]",
+                ) {
                     Some(hint) => ConfigError::Unconfigured {
                         error: e.to_string(),
                         hint,
