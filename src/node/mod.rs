@@ -107,10 +107,10 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let live = LiveParams::new(
         pipeline.params.clone(),
         pipeline.sweep.clone(),
-        crate::sweep::RigShape {
-            cameras: pipeline.cameras.len(),
-            real_reference: pipeline.virtual_ref.is_none(),
-        },
+        crate::sweep::RigShape::chosen_views(
+            pipeline.cameras.len(),
+            pipeline.virtual_ref.is_none(),
+        ),
     );
     let stats = Arc::new(Mutex::new(Stats::new(pipeline.cameras.len())));
     let cancel = CancelFlag::new();

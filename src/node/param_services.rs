@@ -488,10 +488,7 @@ mod tests {
         Answers::new(LiveParams::new(
             set,
             sweep,
-            crate::sweep::RigShape {
-                cameras: 2,
-                real_reference: true,
-            },
+            crate::sweep::RigShape::chosen_views(2, true),
         ))
     }
 

@@ -165,10 +165,7 @@ mod tests {
     use super::*;
 
     fn shape(cameras: usize, real_reference: bool) -> RigShape {
-        RigShape {
-            cameras,
-            real_reference,
-        }
+        RigShape::chosen_views(cameras, real_reference)
     }
 
     fn live() -> Arc<LiveParams> {

@@ -68,7 +68,7 @@ pub fn check_start(sweep: &SweepParams, shape: RigShape) -> Result<(), ParamErro
             },
             message: e.to_string(),
         })?;
-    check_rig_consistency(&SweepParams::default(), sweep, shape.cameras)
+    check_rig_consistency(&SweepParams::default(), sweep, shape.swept(sweep))
 }
 
 /// The parameter set and engine parameters that setting `name` to `value` gives a running
@@ -109,7 +109,7 @@ pub fn check_change(
             }
             .named(name)
         })?;
-        check_rig_consistency(current_sweep, &sweep, shape.cameras)
+        check_rig_consistency(current_sweep, &sweep, shape.swept(&sweep))
             .map_err(|e| ParamError::KeepCurrent(Box::new(e.named(name))))?;
     }
     Ok((params, sweep))

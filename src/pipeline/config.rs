@@ -508,10 +508,7 @@ impl PipelineConfig {
         let virtual_reference = virtual_ref.is_some();
         check_start(
             &sweep,
-            RigShape {
-                cameras: cameras.len(),
-                real_reference: !virtual_reference,
-            },
+            RigShape::chosen_views(cameras.len(), !virtual_reference),
         )?;
         let config = Self {
             identity,
@@ -807,5 +804,33 @@ mod tests {
         assert_eq!(world.frame, "odom");
         assert_eq!(world.tf_topic, "/tf");
         assert_eq!(world.tf_timeout, Duration::from_millis(250));
+    }
+
+    /// Any number of cameras starts with the defaults: each reference sweeps with its best
+    /// views (8), so per-pair aggregation's 16 pairs bound `max_neighbours`, not the rig.
+    #[test]
+    fn a_rig_of_many_cameras_starts_with_the_defaults() {
+        let rig = |n: usize, extra: &[&str]| {
+            let names: Vec<String> = (0..n).map(|i| format!("c{i}")).collect();
+            let mut a = args(&["--ros-args", "-p"]);
+            a.push(format!("cameras:=[{}]", names.join(", ")));
+            a.extend(args(extra));
+            PipelineConfig::from_args(&a)
+        };
+        for n in [17, 18, 24, 40] {
+            rig(n, &[]).unwrap_or_else(|e| panic!("{n} cameras: {e}"));
+            rig(n, &["-p", "max_neighbours:=16"])
+                .unwrap_or_else(|e| panic!("{n} cameras, 16 views: {e}"));
+        }
+        let e = rig(24, &["-p", "max_neighbours:=17"]).unwrap_err();
+        assert!(e.to_string().contains("at most 16"), "{e}");
+        // A virtual reference sweeps every camera: all pairs of 24 are too many to aggregate
+        // per pair, and the message names the parameters.
+        let e = rig(24, &["-p", "virtual_reference:=true"]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("aggregation per_pair with pairs all holds at most 16 camera pairs"),
+            "{e}"
+        );
     }
 }

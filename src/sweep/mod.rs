@@ -285,13 +285,38 @@ impl CancelFlag {
 pub struct RigShape {
     pub cameras: usize,
     pub real_reference: bool,
+    /// Each real reference sweeps with its [`SweepParams::neighbour_count`] best views
+    /// (`references::reference_rig`: the node and `bag`), not with the whole rig.
+    pub views_chosen: bool,
 }
 
 impl RigShape {
+    /// The shape of `rig` swept whole.
     pub fn of(rig: &Rig) -> Self {
         Self {
             cameras: rig.cameras.len(),
             real_reference: rig.reference_index().is_some(),
+            views_chosen: false,
+        }
+    }
+
+    /// The node's and `bag`'s rig of `cameras`: a real reference sweeps with its best views,
+    /// a virtual one with every camera.
+    pub fn chosen_views(cameras: usize, real_reference: bool) -> Self {
+        Self {
+            cameras,
+            real_reference,
+            views_chosen: real_reference,
+        }
+    }
+
+    /// How many cameras one sweep takes under `params`: the reference and its chosen views,
+    /// or the whole rig.
+    pub fn swept(&self, params: &SweepParams) -> usize {
+        if self.views_chosen && self.real_reference {
+            self.cameras.min(1 + params.neighbour_count())
+        } else {
+            self.cameras
         }
     }
 }
@@ -401,35 +426,53 @@ impl SweepParams {
                 shape.cameras
             ));
         }
+        // The parameters' own names for the message (`aggregation: per_pair`, `pairs: all`).
+        let names = format!(
+            "aggregation {} with pairs {}",
+            match self.aggregation {
+                Aggregation::Scored => "scored",
+                Aggregation::PerHalf => "per_half",
+                Aggregation::PerPair => "per_pair",
+            },
+            match pairs {
+                PairSet::Reference => "reference",
+                PairSet::All => "all",
+            }
+        );
         if self.max_neighbours as usize > self.max_views() {
             return bad(format!(
-                "max_neighbours {} is more views than one reference can sweep with under {:?} aggregation with {:?} pairs: at most {} (0 takes the {} best)",
+                "max_neighbours {} is more views than one reference can sweep with under {names}: at most {} (0 takes the {} best)",
                 self.max_neighbours,
-                self.aggregation,
-                pairs,
                 self.max_views(),
                 AUTO_NEIGHBOURS.min(self.max_views())
             ));
         }
         if self.aggregation == Aggregation::PerPair {
-            let n = shape.cameras;
+            let n = shape.swept(self);
             let m = match pairs {
                 PairSet::Reference => n - 1,
                 PairSet::All => n * (n - 1) / 2,
             };
             if m > gpu_types::MAX_PAIRS as usize {
+                let fix = if shape.views_chosen && shape.real_reference {
+                    format!("max_neighbours <= {}", self.max_views())
+                } else {
+                    format!(
+                        "let each reference choose its views (`Sweeper::run_views` or `run_references` with max_neighbours <= {})",
+                        self.max_views()
+                    )
+                };
                 return bad(format!(
-                    "per-pair aggregation supports at most {} pairs; {n} cameras with {pairs:?} pairs make {m} (let each reference choose its views: `Sweeper::run_views` or `run_references` with max_neighbours <= {}; or aggregation = scored)",
+                    "{names} holds at most {} camera pairs; {n} cameras swept together make {m} (set {fix}, or aggregation scored)",
                     gpu_types::MAX_PAIRS,
-                    self.max_views()
                 ));
             }
         }
-        if pairs == PairSet::All && shape.cameras > gpu_types::MAX_CAMERAS as usize {
+        if pairs == PairSet::All && shape.swept(self) > gpu_types::MAX_CAMERAS as usize {
             return bad(format!(
                 "all-pairs scoring supports at most {} cameras, the rig has {}",
                 gpu_types::MAX_CAMERAS,
-                shape.cameras
+                shape.swept(self)
             ));
         }
         Ok(())
