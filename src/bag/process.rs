@@ -109,7 +109,7 @@ pub enum BagRunError {
         /// `topic (type)` of every topic in the bag.
         found: Vec<String>,
     },
-    #[error("the bag is damaged ({count} read errors, the first: {first}); the {sets} sets that could be read are in {output}")]
+    #[error("the bag is damaged ({count} read errors, the first: {first}); {}", if *sets == 0 { "no set could be processed: nothing written".to_string() } else { format!("the {sets} sets that could be read are in {output}") })]
     Damaged {
         count: usize,
         first: String,
@@ -345,7 +345,11 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
-    report.output = Some(writer.finish()?);
+    // A run with no set processed fails (`run`): it leaves no bag (the writer's partial file
+    // goes with it; a bag that `--force` would replace stays).
+    if report.sets_processed > 0 {
+        report.output = Some(writer.finish()?);
+    }
     Ok((report, viewer))
 }
 
@@ -392,6 +396,15 @@ fn check_topics(
                 t.msg_type,
                 expected_type(r)
             );
+                wrong_type.insert(t.name.clone());
+            }
+            Some(&r) if !t.encoding.is_empty() && t.encoding != "cdr" => {
+                tracing::error!(
+                    "topic {} has message encoding '{}' in the bag, but the node reads ROS 2's 'cdr' {} there; its messages are ignored",
+                    t.name,
+                    t.encoding,
+                    expected_type(r)
+                );
                 wrong_type.insert(t.name.clone());
             }
             Some(_) => {}

@@ -56,5 +56,17 @@ fn bag_without_a_camera_info_says_which() {
         stderr.contains("no frame set could be processed") && stderr.matches(why).count() >= 2,
         "{stderr}"
     );
+    // A run that fails leaves no bag (nor its partial file) at OUT.
+    let left: Vec<String> = std::fs::read_dir(&dir)
+        .expect("read the scratch dir")
+        .map(|e| {
+            e.expect("an entry")
+                .file_name()
+                .to_string_lossy()
+                .into_owned()
+        })
+        .filter(|name| name.starts_with("out.mcap"))
+        .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -8,6 +8,7 @@ mod common;
 mod bag;
 mod bag_compressed;
 mod bag_faults;
+mod bag_foreign;
 mod bag_maps;
 mod bag_outputs;
 mod bag_references;

@@ -136,6 +136,9 @@ struct McapChannel {
     topic: String,
     msg_type: String,
     encoding: String,
+    /// A channel of another encoding than ROS 2's `cdr` (a Foxglove `json` topic, a ROS 1
+    /// recording) is not read: said once, when its first message is met.
+    skipped: bool,
 }
 
 /// The largest MCAP record (or decompressed chunk) accepted: 1 GiB, a 16384 x 16384 rgba8 image.
@@ -192,6 +195,7 @@ impl McapSource {
                         .map(|(n, _)| normalise_type(n))
                         .unwrap_or_default(),
                     encoding: encoding.clone(),
+                    skipped: false,
                 },
             );
         }
@@ -327,21 +331,27 @@ impl McapSource {
                                     topic: c.topic,
                                     msg_type,
                                     encoding: c.message_encoding,
+                                    skipped: false,
                                 },
                             );
                         }
                         mcap::records::Record::Message { header, data } => {
-                            let Some(channel) = self.channels.get(&header.channel_id) else {
+                            let Some(channel) = self.channels.get_mut(&header.channel_id) else {
                                 let reason =
                                     format!("message on unknown channel {}", header.channel_id);
                                 return Err(self.error(reason));
                             };
                             if channel.encoding != "cdr" {
-                                let reason = format!(
-                                    "topic {} has message encoding '{}', not ROS 2 'cdr'",
-                                    channel.topic, channel.encoding
-                                );
-                                return Err(self.error(reason));
+                                if !channel.skipped {
+                                    channel.skipped = true;
+                                    tracing::info!(
+                                        "{}: topic {} has message encoding '{}', not ROS 2's 'cdr': its messages are not read",
+                                        self.path.display(),
+                                        channel.topic,
+                                        channel.encoding
+                                    );
+                                }
+                                continue;
                             }
                             return Ok(Some(BagMessage {
                                 topic: channel.topic.clone(),
