@@ -74,3 +74,113 @@ fn a_json_channel_beside_the_cameras_is_skipped_not_damage() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A rosbag2 directory compressed per file (`compression_mode: FILE`) whose `.zstd` was cut
+/// short (a recording killed while compressing): the sets before the cut are processed, the
+/// cut reported as damage; and no decompressed copy is left in the temporary folder, neither
+/// then nor when a metadata.yaml claims compression its file does not have.
+#[test]
+fn a_file_compressed_bag_cut_short_gives_its_first_sets_and_leaves_no_copy() {
+    let dir = scratch("foreign-zstd");
+    let bag = dir.join("rec");
+    let fixture = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+    let mut writer = sweepdepth::bag::BagWriter::create(&bag, false).expect("create the bag");
+    for m in messages(&fixture) {
+        writer.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        writer
+            .write(&m.topic, m.log_time_ns, m.publish_time_ns, &m.data)
+            .unwrap();
+    }
+    writer.finish().expect("finish the bag");
+    // The storage file again as a recorder writes it: chunks of 64 KiB, uncompressed (a cut
+    // loses the chunk it falls in, not the file).
+    let file = bag.join("rec_0.mcap");
+    let small = std::fs::File::create(&file).unwrap();
+    let mut storage = mcap::WriteOptions::new()
+        .compression(None)
+        .chunk_size(Some(64 * 1024))
+        .create(BufWriter::new(small))
+        .expect("an MCAP writer");
+    let mut channels: BTreeMap<String, u16> = BTreeMap::new();
+    // In time order, as recorded: a set's messages side by side.
+    let mut recorded = messages(&fixture);
+    recorded.sort_by_key(|m| m.log_time_ns);
+    for (sequence, m) in recorded.into_iter().enumerate() {
+        let channel = match channels.get(&m.topic) {
+            Some(&id) => id,
+            None => {
+                let schema = storage.add_schema(&m.msg_type, "ros2msg", b"").unwrap();
+                let id = storage
+                    .add_channel(schema, &m.topic, "cdr", &BTreeMap::new())
+                    .unwrap();
+                channels.insert(m.topic.clone(), id);
+                id
+            }
+        };
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: sequence as u32,
+            log_time: m.log_time_ns,
+            publish_time: m.publish_time_ns,
+        };
+        storage.write_to_known_channel(&header, &m.data).unwrap();
+    }
+    storage.finish().unwrap();
+    drop(storage);
+    let raw = std::fs::read(&file).expect("the storage file");
+    let packed = zstd::encode_all(&raw[..], 3).expect("compress");
+    std::fs::remove_file(&file).unwrap();
+    // Cut 16 bytes short: the stream's last block (up to 128 KiB of the file's end) is lost,
+    // the first sets' images are whole (the fixture's sets repeat their images, so the
+    // later sets take few compressed bytes).
+    std::fs::write(bag.join("rec_0.mcap.zstd"), &packed[..packed.len() - 16]).unwrap();
+    let metadata = bag.join("metadata.yaml");
+    let yaml = std::fs::read_to_string(&metadata)
+        .unwrap()
+        .replace("rec_0.mcap", "rec_0.mcap.zstd")
+        .replace(
+            "compression_format: \"\"\n  compression_mode: \"\"",
+            "compression_format: zstd\n  compression_mode: FILE",
+        );
+    assert!(yaml.contains("compression_mode: FILE"), "{yaml}");
+    std::fs::write(&metadata, &yaml).unwrap();
+    let tmp = dir.join("tmp");
+    std::fs::create_dir_all(&tmp).unwrap();
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let run = |input: &std::path::Path, out: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .args([
+                "bag",
+                input.to_str().unwrap(),
+                dir.join(out).to_str().unwrap(),
+                "--params-file",
+                params.to_str().unwrap(),
+            ])
+            .env("RUST_LOG", "warn,sweepdepth=info")
+            .env("TMPDIR", &tmp)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .expect("run sweepdepth bag")
+    };
+    let cut = run(&bag, "out.mcap");
+    let stderr = String::from_utf8_lossy(&cut.stderr);
+    assert!(cut.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("zstd file compression")
+            && stderr.contains("read errors (damaged bag)")
+            && !stderr.contains(" 0 processed"),
+        "{stderr}"
+    );
+    let left = || std::fs::read_dir(&tmp).unwrap().count();
+    assert_eq!(left(), 0, "a decompressed copy was left behind");
+    // The same folder claiming compression of an uncompressed file: an error, no copy.
+    std::fs::write(bag.join("rec_0.mcap.zstd"), &raw).unwrap();
+    let claimed = run(&bag, "out2.mcap");
+    let stderr = String::from_utf8_lossy(&claimed.stderr);
+    assert!(
+        !claimed.status.success() && stderr.contains("zstd file compression"),
+        "{stderr}"
+    );
+    assert_eq!(left(), 0, "a copy was left behind after the error");
+    let _ = std::fs::remove_dir_all(&dir);
+}

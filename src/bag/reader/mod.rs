@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
 mod mcap_source;
@@ -266,12 +266,44 @@ fn decompress_to_temp(path: &Path) -> Result<PathBuf, BagError> {
     let tmp = std::env::temp_dir().join(format!("sweepdepth-{}-{name}", std::process::id()));
     let input = File::open(path).map_err(|e| BagError::io(path, e))?;
     let mut output = File::create(&tmp).map_err(|e| BagError::io(&tmp, e))?;
-    zstd::stream::copy_decode(BufReader::new(input), &mut output).map_err(|e| {
+    // A stream cut short (a recording killed while compressing): what came before the cut is
+    // read, and its storage's reader reports where it ends; nothing decompressed: an error.
+    // Either way no copy is left behind on an error.
+    let fail = |reason: String| {
+        let _ = std::fs::remove_file(&tmp);
         BagError::Format {
             path: path.to_path_buf(),
-            reason: format!("zstd file compression: {e}"),
+            reason,
         }
-    })?;
+    };
+    let mut decoder = match zstd::stream::read::Decoder::new(BufReader::new(input)) {
+        Ok(d) => d,
+        Err(e) => return Err(fail(format!("zstd file compression: {e}"))),
+    };
+    let mut written = 0u64;
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        match decoder.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => {
+                output.write_all(&buf[..n]).map_err(|e| {
+                    let _ = std::fs::remove_file(&tmp);
+                    BagError::io(&tmp, e)
+                })?;
+                written += n as u64;
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) if written > 0 => {
+                tracing::warn!(
+                    "{}: zstd file compression: {e}; reading the {:.1} MB decompressed before it",
+                    path.display(),
+                    written as f64 / 1e6
+                );
+                break;
+            }
+            Err(e) => return Err(fail(format!("zstd file compression: {e}"))),
+        }
+    }
     Ok(tmp)
 }
 
