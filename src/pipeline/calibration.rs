@@ -194,7 +194,14 @@ impl Calibration {
         let name = &config.cameras[i];
         let file_camera = config.rig_file.as_ref().and_then(|f| f.camera_for(name));
         let kind = config.image_kinds.get(i).copied().unwrap_or(ImageKind::Raw);
-        let calibration = match (&self.infos[i], file_camera.and_then(|c| c.model)) {
+        let file_model = file_camera.and_then(|c| c.model);
+        // A CameraInfo with K and P all zero (a driver not yet calibrated) gives way to the
+        // rig file's intrinsics, as if none had come.
+        let info = self.infos[i].as_ref().filter(|info| {
+            let uncalibrated = info.k.iter().all(|&v| v == 0.0) && info.p.iter().all(|&v| v == 0.0);
+            !(uncalibrated && file_model.is_some())
+        });
+        let calibration = match (info, file_model) {
             (Some(info), _) => camera_from_info(name, info, kind)
                 .and_then(|calibration| {
                     check_image_size(name, info, image.width, image.height).map(|()| calibration)

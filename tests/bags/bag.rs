@@ -499,7 +499,7 @@ fn pack_images_and_rig_file_then_bag() {
             t.x, t.y, t.z, q.x, q.y, q.z, q.w, k.width_px, k.height_px, k.fx_px, k.fy_px, k.cx_px, k.cy_px
         );
     }
-    std::fs::write(images.join("rig.yaml"), yaml).unwrap();
+    std::fs::write(images.join("rig.yaml"), &yaml).unwrap();
     let bag = dir.join("rig.mcap");
     let stderr = ok(
         &sweepdepth(&[
@@ -539,10 +539,69 @@ fn pack_images_and_rig_file_then_bag() {
         ]),
         "bag",
     );
-    let depths = depths(&out);
-    assert_eq!(depths.len(), 1);
-    let (_, image, values) = &depths[0];
+    let found = depths(&out);
+    assert_eq!(found.len(), 1);
+    let (_, image, values) = &found[0];
     assert_eq!(image.header.frame_id, "view2_optical_frame");
+    let bad = bad_fraction(values, image.width, image.height);
+    assert!(bad < 0.10, "bad pixels {:.1} %", bad * 100.0);
+    // Drivers not yet calibrated publish CameraInfo with K and P all zero: the rig file's
+    // intrinsics (here the packed ones) are used instead, and the depth is as good.
+    let uncalibrated = dir.join("uncalibrated.mcap");
+    let mut w = sweepdepth::bag::BagWriter::create(&uncalibrated, false).unwrap();
+    let mut rig = String::from("rig_frame: rig\ncameras:\n");
+    let poses: Vec<&str> = yaml.split("  - name: ").skip(1).collect();
+    for m in messages(&bag) {
+        w.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        let mut data = m.data.clone();
+        if m.topic.ends_with("camera_info") {
+            let mut info: sweepdepth::msgs::CameraInfo = from_cdr(&m.data).unwrap();
+            let name = m.topic.trim_start_matches('/').split('/').next().unwrap();
+            if !rig.contains(&format!("- name: {name}\n")) {
+                let pose = poses
+                    .iter()
+                    .find(|p| p.starts_with(&format!("{name}\n")))
+                    .and_then(|p| p.split("    intrinsics").next())
+                    .unwrap();
+                let k = info.k;
+                rig += &format!(
+                    "  - name: {pose}    intrinsics: {{width: {}, height: {}, fx: {}, fy: {}, cx: {}, cy: {}}}\n",
+                    info.width, info.height, k[0], k[4], k[2], k[5]
+                );
+            }
+            info.k = [0.0; 9];
+            info.p = [0.0; 12];
+            data = sweepdepth::msgs::to_cdr(&info).unwrap();
+        }
+        w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &data)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let packed_rig = dir.join("packed_rig.yaml");
+    std::fs::write(&packed_rig, &rig).unwrap();
+    let out = dir.join("uncalibrated_out.mcap");
+    let rig_file = format!("rig_file:={}", packed_rig.display());
+    ok(
+        &sweepdepth(&[
+            "bag",
+            uncalibrated.to_str().unwrap(),
+            out.to_str().unwrap(),
+            "--params-file",
+            dir.join("rig.params.yaml").to_str().unwrap(),
+            "-p",
+            &min,
+            "-p",
+            &max,
+            "-p",
+            &planes,
+            "-p",
+            &rig_file,
+        ]),
+        "bag with uncalibrated camera_info and a rig file",
+    );
+    let found = depths(&out);
+    assert_eq!(found.len(), 1, "{rig}");
+    let (_, image, values) = &found[0];
     let bad = bad_fraction(values, image.width, image.height);
     assert!(bad < 0.10, "bad pixels {:.1} %", bad * 100.0);
 }
