@@ -59,12 +59,14 @@ pub struct BagArgs {
     pub strict: bool,
     /// Fuse every reference's depth of every set into one coloured mesh, written at the end
     /// as a binary PLY (MeshLab, Blender): in the world frame on a moving rig (`world_frame`),
-    /// else in the rig frame (the first reference camera's optical frame, or the rig file's).
+    /// else in the first reference camera's optical frame. An existing FILE is replaced only
+    /// with --force, and only if it is a PLY.
     #[arg(long, value_name = "FILE.ply")]
     pub mesh: Option<PathBuf>,
-    /// With --mesh: the voxel size, metres (the truncation distance is 4 voxels).
-    #[arg(long, value_name = "M", default_value_t = 0.05, requires = "mesh")]
-    pub voxel_size: f32,
+    /// With --mesh: the voxel size, metres, 0.001 to 10 (the truncation distance is 4 voxels;
+    /// default 0.05, or the `voxel_size` parameter with `fusion:=true`).
+    #[arg(long, value_name = "M", requires = "mesh")]
+    pub voxel_size: Option<f32>,
     /// On the WGSL engine, the sets left running on the device while the host reads the one
     /// before back and writes it (0: each set read back before the next is submitted).
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -118,6 +120,8 @@ pub enum BagRunError {
     },
     #[error("--mesh: {0}")]
     Fusion(#[from] crate::fusion::FusionError),
+    #[error("--voxel-size must be in [0.001, 10] m (as the voxel_size parameter), got {0}")]
+    VoxelSize(f32),
     #[error("--mesh: cannot write {path}: {source}")]
     MeshFile {
         path: String,
@@ -333,22 +337,24 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         busy,
         bar,
         viewer,
-        fuser,
+        mut fuser,
         ..
     } = sink;
     bar.finish_and_clear();
     let mut writer = writer;
-    if let Some(mut fusion) = fuser {
+    if let Some(fusion) = &mut fuser {
         fusion.write_markers(&mut writer, viewer.as_ref(), last_log_ns, true)?;
-        report.mesh = Some(mesh_summary(&mut fusion, args.mesh.as_deref())?);
-    }
-    if report.sets_processed > 0 {
-        report.mean_time_per_set = Some(busy / report.sets_processed as u32);
     }
     // A run with no set processed fails (`run`): it leaves no bag (the writer's partial file
-    // goes with it; a bag that `--force` would replace stays).
+    // goes with it; a bag that `--force` would replace stays) and no mesh.
     if report.sets_processed > 0 {
+        report.mean_time_per_set = Some(busy / report.sets_processed as u32);
         report.output = Some(writer.finish()?);
+    }
+    // The mesh after the bag: a mesh that cannot be written loses no depth.
+    if let Some(mut fusion) = fuser {
+        let mesh = args.mesh.as_deref().filter(|_| report.sets_processed > 0);
+        report.mesh = Some(mesh_summary(&mut fusion, mesh)?);
     }
     Ok((report, viewer))
 }
@@ -436,6 +442,11 @@ fn check_topics(
 /// What would fail fusion only after the whole bag, refused before it: its parameters, and a
 /// `--mesh` file in a folder that does not exist.
 fn check_fusion_early(config: &PipelineConfig, args: &BagArgs) -> Result<(), BagRunError> {
+    if let Some(v) = args.voxel_size {
+        if !(0.001..=10.0).contains(&v) {
+            return Err(BagRunError::VoxelSize(v));
+        }
+    }
     if let Some(fusion) = bag_fusion(config, args) {
         fusion.params.validate()?;
     }
@@ -457,6 +468,45 @@ fn check_fusion_early(config: &PipelineConfig, args: &BagArgs) -> Result<(), Bag
                 ),
             });
         }
+        check_mesh_target(mesh, args)?;
+    }
+    Ok(())
+}
+
+/// `--mesh FILE` may not be the input bag or OUT (nor inside them), and replaces an existing
+/// file only with `--force`, and only a PLY.
+fn check_mesh_target(mesh: &std::path::Path, args: &BagArgs) -> Result<(), BagRunError> {
+    // A path with its folder resolved (the file itself need not exist).
+    let resolved = |p: &std::path::Path| -> Option<std::path::PathBuf> {
+        let folder = p.parent().filter(|f| !f.as_os_str().is_empty());
+        let folder = folder.unwrap_or(std::path::Path::new("."));
+        Some(folder.canonicalize().ok()?.join(p.file_name()?))
+    };
+    let refuse = |why: String| {
+        Err(BagRunError::MeshFile {
+            path: mesh.display().to_string(),
+            source: std::io::Error::new(std::io::ErrorKind::AlreadyExists, why),
+        })
+    };
+    if let Some(target) = resolved(mesh) {
+        for (what, other) in [("the input bag", &args.input), ("OUT", &args.output)] {
+            if resolved(other).is_some_and(|o| target.starts_with(&o)) {
+                return refuse(format!("it is {what} ({})", other.display()));
+            }
+        }
+    }
+    if mesh.exists() {
+        let mut magic = [0u8; 4];
+        let is_ply = std::fs::File::open(mesh)
+            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
+            .is_ok()
+            && &magic == b"ply\n";
+        if !is_ply {
+            return refuse("the file exists and is not a PLY: not replaced".into());
+        }
+        if !args.force {
+            return refuse("the file exists (pass --force to replace it)".into());
+        }
     }
     Ok(())
 }
@@ -464,18 +514,35 @@ fn check_fusion_early(config: &PipelineConfig, args: &BagArgs) -> Result<(), Bag
 /// Fusion: the `fusion` parameter (its voxel size and mesh rate) or `--mesh` (with
 /// `--voxel-size`); the markers go into OUT on `mesh` at the mesh rate in log time.
 fn bag_fusion(config: &PipelineConfig, args: &BagArgs) -> Option<crate::pipeline::FusionConfig> {
+    // `--voxel-size` wins over the `voxel_size` parameter; `--mesh` alone takes the fusion
+    // parameters (`voxel_size`, `max_blocks`, `fusion_device`) with markers once a second.
+    let voxel = |f: &crate::pipeline::FusionConfig| crate::pipeline::FusionConfig {
+        params: FusionParams {
+            voxel_size_m: args.voxel_size.unwrap_or(f.params.voxel_size_m),
+            ..f.params
+        },
+        ..f.clone()
+    };
     match (&config.fusion, &args.mesh) {
-        (Some(f), _) => Some(f.clone()),
-        (None, Some(_)) => Some(crate::pipeline::FusionConfig {
-            params: FusionParams {
-                voxel_size_m: args.voxel_size,
-                min_depth_m: config.sweep.min_depth_m as f32,
-                max_depth_m: config.sweep.max_depth_m as f32,
-                ..FusionParams::default()
-            },
-            mesh_rate_hz: 1.0,
-            device: config.node.fusion_device.parse().unwrap_or_default(),
-        }),
+        (Some(f), _) => Some(voxel(f)),
+        (None, Some(_)) => {
+            let (min, max) = (config.sweep.min_depth_m, config.sweep.max_depth_m);
+            let mut f = match crate::pipeline::FusionConfig::new(&config.node, min, max) {
+                Ok(f) => f,
+                // Checked again (and said) by `check_fusion_early`.
+                Err(_) => crate::pipeline::FusionConfig {
+                    params: FusionParams {
+                        min_depth_m: min as f32,
+                        max_depth_m: max as f32,
+                        ..FusionParams::default()
+                    },
+                    mesh_rate_hz: 1.0,
+                    device: Default::default(),
+                },
+            };
+            f.mesh_rate_hz = 1.0;
+            Some(voxel(&f))
+        }
         (None, None) => None,
     }
 }

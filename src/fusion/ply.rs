@@ -52,9 +52,24 @@ pub fn write_ply<W: Write>(mesh: &BlockMesh, out: W) -> io::Result<()> {
     out.flush()
 }
 
-/// [`write_ply`] into a new file at `path`.
+/// [`write_ply`] into a file at `path`, whole or not at all: written beside it as
+/// `<path>.partial` and moved into place when complete (a full disk leaves the file that was
+/// there, and no half-written mesh).
 pub fn write_ply_file(mesh: &BlockMesh, path: &Path) -> io::Result<()> {
-    write_ply(mesh, std::fs::File::create(path)?)
+    let mut partial = path.as_os_str().to_os_string();
+    partial.push(".partial");
+    let partial = std::path::PathBuf::from(partial);
+    let written = std::fs::File::create(&partial)
+        .and_then(|file| {
+            let mut out = io::BufWriter::new(file);
+            write_ply(mesh, &mut out)?;
+            out.into_inner().map_err(|e| e.into_error())?.sync_all()
+        })
+        .and_then(|()| std::fs::rename(&partial, path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&partial);
+    }
+    written
 }
 
 #[cfg(test)]

@@ -168,3 +168,84 @@ fn a_failed_run_leaves_no_output_behind() {
     );
     assert!(stderr.contains("3 processed"), "{stderr}");
 }
+
+/// `--mesh FILE` is an output too: never the input bag or OUT, an existing file replaced only
+/// with `--force` and only when it is a PLY, no mesh written by a run that processed no set
+/// (the PLY there stays byte for byte), and `--voxel-size` in the `voxel_size` parameter's range.
+#[test]
+fn mesh_never_replaces_the_input_or_a_good_mesh() {
+    let dir = scratch("mesh-target");
+    let input = dir.join("in.mcap");
+    std::fs::copy(fixture(), &input).unwrap();
+    let out = dir.join("out.mcap");
+    let refused = |mesh: &Path, extra: &[&str], why: &str| {
+        let before = tree(&dir);
+        let mut args = vec!["--mesh", mesh.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let (done, stderr) = bag(&input, &out, &args);
+        assert!(
+            !done && stderr.contains(why),
+            "{mesh:?} {extra:?}: {stderr}"
+        );
+        assert!(
+            tree(&dir) == before,
+            "{mesh:?} {extra:?}: the folder changed"
+        );
+    };
+    refused(&input, &["--force"], "it is the input bag");
+    refused(&out, &[], "it is OUT");
+    let notes = dir.join("notes.txt");
+    std::fs::write(&notes, "mine").unwrap();
+    refused(&notes, &["--force"], "is not a PLY");
+    refused(
+        &dir.join("m.ply"),
+        &["--voxel-size", "0.0001"],
+        "--voxel-size",
+    );
+    // A good mesh, then a run that processes no set: the mesh stays.
+    let mesh = dir.join("good.ply");
+    let (done, stderr) = bag(&input, &out, &["--mesh", mesh.to_str().unwrap()]);
+    assert!(done && stderr.contains("depth maps fused into"), "{stderr}");
+    let good = std::fs::read(&mesh).unwrap();
+    assert!(good.starts_with(b"ply\n") && good.len() > 10_000);
+    std::fs::remove_file(&out).unwrap();
+    refused(&mesh, &[], "pass --force");
+    let (done, stderr) = bag(
+        &input,
+        &out,
+        &[
+            "--mesh",
+            mesh.to_str().unwrap(),
+            "--force",
+            "-p",
+            "cameras:=[cam0, cam9]",
+            "-p",
+            "reference_camera:=cam0",
+        ],
+    );
+    assert!(!done, "{stderr}");
+    assert!(
+        std::fs::read(&mesh).unwrap() == good,
+        "the mesh was replaced"
+    );
+    assert!(!out.exists(), "a bag was written");
+    // With --force and sets processed, the mesh is replaced, no partial file left.
+    let (done, stderr) = bag(
+        &input,
+        &out,
+        &[
+            "--mesh",
+            mesh.to_str().unwrap(),
+            "--force",
+            "--voxel-size",
+            "0.1",
+        ],
+    );
+    assert!(done, "{stderr}");
+    assert!(std::fs::read(&mesh).unwrap() != good);
+    let names: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(!names.iter().any(|n| n.ends_with(".partial")), "{names:?}");
+}
