@@ -331,8 +331,20 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     if sink.report.sets_processed == 0 {
         sink.report.no_depth = no_depth(&pipeline, last_log_ns, sink.report.last_skip.as_deref());
     }
+    finish_outputs(sink, args, last_log_ns)
+}
+
+/// The run's end: the last markers, the bag (only when some set was processed: a run with
+/// none fails, `run`, and leaves no bag: the writer's partial file goes with it, a bag that
+/// `--force` would replace stays), then the mesh (after the bag: a mesh that cannot be
+/// written loses no depth; none without a set).
+fn finish_outputs(
+    sink: Sink,
+    args: &BagArgs,
+    last_log_ns: u64,
+) -> Result<(BagReport, Option<Viewer>), BagRunError> {
     let Sink {
-        writer,
+        mut writer,
         mut report,
         busy,
         bar,
@@ -341,17 +353,13 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
         ..
     } = sink;
     bar.finish_and_clear();
-    let mut writer = writer;
     if let Some(fusion) = &mut fuser {
         fusion.write_markers(&mut writer, viewer.as_ref(), last_log_ns, true)?;
     }
-    // A run with no set processed fails (`run`): it leaves no bag (the writer's partial file
-    // goes with it; a bag that `--force` would replace stays) and no mesh.
     if report.sets_processed > 0 {
         report.mean_time_per_set = Some(busy / report.sets_processed as u32);
         report.output = Some(writer.finish()?);
     }
-    // The mesh after the bag: a mesh that cannot be written loses no depth.
     if let Some(mut fusion) = fuser {
         let mesh = args.mesh.as_deref().filter(|_| report.sets_processed > 0);
         report.mesh = Some(mesh_summary(&mut fusion, mesh)?);
