@@ -274,6 +274,9 @@ fn rig_file(
             }
         }
         notes.extend(file.notes.iter().cloned());
+        for note in file.topic_notes(cameras) {
+            tracing::warn!("{note}");
+        }
         Some(file)
     })
 }

@@ -69,7 +69,7 @@
 //!   camera). `radtan` [k1, k2, r1, r2] becomes plumb_bob [k1, k2, p1=r1, p2=r2, k3=0];
 //!   `equidistant` [k1..k4] stays equidistant; `none` has no (or all-zero) coefficients.
 //! - `rostopic` is kept ([`RigFileCamera::rostopic`]) so that the node can match a camera by
-//!   its topic namespace as well as by name ([`RigFile::camera_for`]); `T_cam_imu` is kept as
+//!   its topic namespace first, then by name ([`RigFile::camera_for`]); `T_cam_imu` is kept as
 //!   [`RigFileCamera::cam_from_imu`]; `cam_overlaps` and `timeshift_cam_imu` are accepted and
 //!   unused. Other per-camera keys (Kalibr forks add some) are not errors but are listed in
 //!   [`RigFile::notes`] for the node to log; unknown top-level keys are errors.
@@ -213,14 +213,52 @@ impl RigFile {
         self.cameras.iter().find(|c| c.name == name)
     }
 
-    /// The camera for an entry of the node's `cameras` parameter: by name first, then by
-    /// Kalibr topic namespace (see [`RigFileCamera::matches`]).
+    /// The camera for an entry of the node's `cameras` parameter: the one whose Kalibr topic
+    /// lies in the camera's namespace (`rostopic: /cam4/image_raw` is camera `cam4`, whatever
+    /// its key: Kalibr numbers its keys in the order it was given the topics), else the one of
+    /// that name (see [`RigFileCamera::matches`]).
     pub fn camera_for(&self, camera: &str) -> Option<&RigFileCamera> {
         let wanted = camera.trim_matches('/');
+        if wanted.is_empty() {
+            return None;
+        }
         self.cameras
             .iter()
-            .find(|c| !wanted.is_empty() && c.name.trim_matches('/') == wanted)
-            .or_else(|| self.cameras.iter().find(|c| c.matches(camera)))
+            .find(|c| {
+                c.topic_namespace()
+                    .is_some_and(|ns| ns.trim_matches('/') == wanted)
+            })
+            .or_else(|| {
+                self.cameras
+                    .iter()
+                    .find(|c| c.name.trim_matches('/') == wanted)
+            })
+    }
+
+    /// Cameras of `cameras` that the file names by key but whose Kalibr topic says they are
+    /// another camera: "Kalibr's cam0 (rostopic /cam4/image_raw) is taken as camera cam4".
+    pub fn topic_notes(&self, cameras: &[String]) -> Vec<String> {
+        cameras
+            .iter()
+            .filter_map(|camera| {
+                let by_topic = self.camera_for(camera)?;
+                let by_name = self
+                    .cameras
+                    .iter()
+                    .find(|c| c.name.trim_matches('/') == camera.trim_matches('/'))?;
+                (by_topic.name != by_name.name).then(|| {
+                    format!(
+                        "{}: camera {camera} is Kalibr's {} by its rostopic {}, not {} (whose \
+                         rostopic is {})",
+                        self.path.display(),
+                        by_topic.name,
+                        by_topic.rostopic.as_deref().unwrap_or(""),
+                        by_name.name,
+                        by_name.rostopic.as_deref().unwrap_or("none"),
+                    )
+                })
+            })
+            .collect()
     }
 }
 

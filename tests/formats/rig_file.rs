@@ -510,6 +510,28 @@ fn kalibr_chain_places_the_cameras_in_cam0s_frame() {
     assert_eq!(rig.camera_for("/cam2").unwrap().name, "cam2");
     assert!(rig.camera_for("cam3").is_none());
     assert!(rig.notes.is_empty(), "{:?}", rig.notes);
+    assert!(rig.topic_notes(&["cam0".into(), "cam2".into()]).is_empty());
+}
+
+/// Kalibr numbers its keys in the order it was given the topics: with the topics given in
+/// the other order, key cam0 is the camera on /cam2. The topic decides, and the node says so.
+#[test]
+fn kalibr_topics_decide_which_camera_a_key_is() {
+    let reversed = three_camera_chain()
+        .replace("/cam0/image_raw", "/camX/image_raw")
+        .replace("/cam2/image_raw", "/cam0/image_raw")
+        .replace("/camX/image_raw", "/cam2/image_raw");
+    let rig = load_ok(&reversed);
+    assert_eq!(rig.camera_for("cam0").unwrap().name, "cam2");
+    assert_eq!(rig.camera_for("cam2").unwrap().name, "cam0");
+    assert_eq!(rig.camera_for("cam1").unwrap().name, "cam1");
+    let cameras: Vec<String> = ["cam0", "cam1", "cam2"].map(String::from).to_vec();
+    let notes = rig.topic_notes(&cameras);
+    assert_eq!(notes.len(), 2, "{notes:?}");
+    assert!(
+        notes[0].contains("camera cam0 is Kalibr's cam2 by its rostopic /cam0/image_raw"),
+        "{notes:?}"
+    );
 }
 
 #[test]
