@@ -196,6 +196,33 @@ fn layout_name(layout: Layout) -> &'static str {
 
 const IMAGE_EXTS: [&str; 5] = ["png", "jpg", "jpeg", "ppm", "pgm"];
 
+/// A file name's natural order: runs of digits compare as numbers (`frame_2` < `frame_10`).
+fn natural_key(path: &Path) -> Vec<(String, u128)> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut digits = c.to_string();
+            while let Some(d) = chars.next_if(char::is_ascii_digit) {
+                digits.push(d);
+            }
+            key.push((
+                std::mem::take(&mut text),
+                digits.parse().unwrap_or(u128::MAX),
+            ));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
+
 fn is_image(p: &Path) -> bool {
     p.extension()
         .and_then(|e| e.to_str())
@@ -227,7 +254,8 @@ fn rig_folder_cameras(
                     paths.push(p);
                 }
             }
-            paths.sort();
+            // frame_2 before frame_10, as a recorder numbers them.
+            paths.sort_by(|a, b| natural_key(a).cmp(&natural_key(b)));
         } else if let Some(p) = IMAGE_EXTS
             .iter()
             .map(|e| dir.join(format!("{}.{e}", c.name)))
@@ -235,6 +263,14 @@ fn rig_folder_cameras(
         {
             paths.push(p);
         }
+        // The camera's topics carry its name: a ROS name, or `bag` refuses the parameter file.
+        crate::ros::args::validate_topic_name(&format!("/{}/image_raw", c.name)).map_err(|e| {
+            PackError::Invalid(format!(
+                "{}: camera name '{}' cannot name ROS topics: {e}",
+                rig.display(),
+                c.name
+            ))
+        })?;
         if paths.is_empty() {
             return Err(PackError::Invalid(format!(
                 "{}: no image for camera '{}' (expected {}.png or a folder {}/ of frames)",
@@ -273,6 +309,25 @@ fn rig_folder_cameras(
             "{}: a rig needs at least 2 cameras",
             rig.display()
         )));
+    }
+    // A sequence: every camera with its folder of frames, as many each (a camera with one
+    // image repeats it).
+    let counts: Vec<(usize, &str)> = cameras
+        .iter()
+        .map(|c| (c.frames.len(), c.name.as_str()))
+        .filter(|(n, _)| *n > 1)
+        .collect();
+    if let (Some(&(most, a)), Some(&(least, b))) = (
+        counts.iter().max_by_key(|(n, _)| *n),
+        counts.iter().min_by_key(|(n, _)| *n),
+    ) {
+        if most != least {
+            return Err(PackError::Invalid(format!(
+                "{}: camera '{a}' has {most} frames but '{b}' has {least}: a sequence needs as \
+                 many frames from every camera (frame k of each camera makes set k)",
+                dir.display()
+            )));
+        }
     }
     let reference = cameras.len() / 2;
     Ok((cameras, reference, format!("images of {}", rig.display())))
@@ -401,6 +456,22 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         }
     }
 
+    let sequence = cameras.iter().map(|c| c.frames.len()).max().unwrap_or(1);
+    if sequence > 1 && args.frames as usize != sequence {
+        tracing::warn!(
+            "{}: a sequence of {sequence} frames per camera; --frames {} packs {}",
+            args.dir.display(),
+            args.frames,
+            if (args.frames as usize) < sequence {
+                format!("its first {} (--frames {sequence} for all)", args.frames)
+            } else {
+                format!(
+                    "it {:.1} times over, from the start",
+                    f64::from(args.frames) / sequence as f64
+                )
+            }
+        );
+    }
     let mut writer = BagWriter::create(&args.output, args.force)?;
     let (image_topic, image_type) = if args.compressed {
         ("image_raw/compressed", COMPRESSED_IMAGE)

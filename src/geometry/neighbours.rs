@@ -6,7 +6,8 @@
 //! the depth range: a grid of reference pixels, each at the nearest, the farthest and the
 //! middle (in inverse depth) depth of the sweep, projected into the camera (in front of it and
 //! inside its image). A camera that faces away (a surround rig's back cameras) or sees a
-//! sliver only is left out; it would cost a sweep and give nothing but noise.
+//! sliver only is left out; it would cost a sweep and give nothing but noise. So is a camera
+//! too close to the reference to give [`MIN_PARALLAX_PX`] across the depth range.
 //!
 //! When there are more candidates than the reference may take, they are chosen as multi-view
 //! stereo chooses source views (MVSNet's view score; COLMAP and ACMM score alike): each
@@ -26,6 +27,25 @@ use super::{Reference, Rig, RigCamera};
 
 /// The share of the reference's sampled view a camera must see to be a neighbour.
 pub const MIN_OVERLAP: f64 = 0.1;
+
+/// The least parallax (pixels of the reference, across the whole depth range) a camera must
+/// give to be a neighbour: a camera at the reference's centre (a rig file with no
+/// translations, a mirror camera) sees all of its view and cannot tell one depth from another.
+pub const MIN_PARALLAX_PX: f64 = 1.0;
+
+/// The most parallax `camera` can give reference `reference` across `[min_depth_m,
+/// max_depth_m]`: `fx * baseline * (1 / min - 1 / max)`, pixels (a baseline across the view).
+pub fn parallax_px(
+    reference: &RigCamera,
+    camera: &RigCamera,
+    min_depth_m: f64,
+    max_depth_m: f64,
+) -> f64 {
+    let centre = |c: &RigCamera| c.cam_from_rig.inverse().translation;
+    let baseline = (centre(camera) - centre(reference)).length();
+    let k = reference.model.intrinsics;
+    k.fx_px.max(k.fy_px) * baseline * (1.0 / min_depth_m - 1.0 / max_depth_m)
+}
 
 /// Samples across and down the reference image.
 const GRID: (u32, u32) = (16, 12);
@@ -147,6 +167,9 @@ pub fn neighbours(
             (i, score)
         })
         .filter(|(_, s)| s.overlap >= MIN_OVERLAP)
+        .filter(|&(i, _)| {
+            parallax_px(ref_camera, &cameras[i], min_depth_m, max_depth_m) >= MIN_PARALLAX_PX
+        })
         .collect();
     let mut chosen: Vec<usize> = if count == 0 || seeing.len() <= count {
         seeing.iter().map(|(i, _)| *i).collect()
@@ -269,6 +292,22 @@ mod tests {
         // Turned 90 degrees: nothing either.
         let side = camera("side", 0.2, std::f64::consts::FRAC_PI_2);
         assert_eq!(view_overlap(&row[2], &side, 2.0, 10.0), 0.0);
+    }
+
+    /// A camera at the reference's centre (a rig file with no translations) sees all of its
+    /// view but gives no parallax: not a neighbour; one 5 cm away (1.6 px here) still is.
+    #[test]
+    fn a_camera_at_the_reference_centre_is_no_neighbour() {
+        let rig = vec![
+            camera("a", 0.0, 0.0),
+            camera("b", 0.0, 0.0),
+            camera("c", 0.05, 0.0),
+        ];
+        assert!(view_overlap(&rig[0], &rig[1], 2.0, 10.0) > 0.9);
+        assert_eq!(parallax_px(&rig[0], &rig[1], 2.0, 10.0), 0.0);
+        assert!(parallax_px(&rig[0], &rig[2], 2.0, 10.0) >= MIN_PARALLAX_PX);
+        assert_eq!(neighbours(&rig, 0, 2.0, 10.0, 0), vec![0, 2]);
+        assert_eq!(neighbours(&rig[..2], 0, 2.0, 10.0, 0), vec![0]);
     }
 
     #[test]

@@ -235,7 +235,7 @@ pub enum SweepError {
     #[error("the run was cancelled")]
     Cancelled,
     /// A reference camera that no other camera of the rig sees (`references`).
-    #[error("reference camera '{reference}': no other camera sees at least 10 % of its view between {min_depth_m} and {max_depth_m} m, so it has no pair to match (point another camera at what it sees, or leave it out of references)")]
+    #[error("reference camera '{reference}': no other camera sees at least 10 % of its view between {min_depth_m} and {max_depth_m} m from far enough to give a pixel of parallax, so it has no pair to match (point another camera at what it sees, check the rig's translations, in metres, or leave it out of references)")]
     NoNeighbours {
         reference: String,
         min_depth_m: f64,

@@ -1062,3 +1062,65 @@ fn sets_ahead_on_the_wgsl_engine_write_the_same_bag() {
         );
     }
 }
+
+/// `pack` of a sequence (a folder of frames per camera): frames in their numbers' order
+/// (`frame_2` before `frame_10`), as many from every camera or a clear error, and camera
+/// names that can name ROS topics (`bag` would refuse the parameter file otherwise).
+#[test]
+fn pack_a_sequence_in_frame_order_or_say_why_not() {
+    let dir = scratch("sequence");
+    let images = dir.join("images");
+    let rig = |names: [&str; 2]| {
+        let mut yaml = String::from("cameras:\n");
+        for (i, name) in names.iter().enumerate() {
+            yaml += &format!(
+                "  - name: {name}\n    translation: [{}, 0, 0]\n    rotation: [0, 0, 0, 1]\n    intrinsics: {{width: 8, height: 6, fx: 8, fy: 8, cx: 3.5, cy: 2.5}}\n",
+                0.1 * i as f64
+            );
+        }
+        std::fs::write(images.join("rig.yaml"), yaml).unwrap();
+    };
+    for camera in ["a", "b"] {
+        std::fs::create_dir_all(images.join(camera)).unwrap();
+        for n in [1u8, 2, 10] {
+            // Frame n: every pixel n * 10.
+            let frame = image::RgbImage::from_pixel(8, 6, image::Rgb([n * 10; 3]));
+            frame
+                .save(images.join(camera).join(format!("frame_{n}.png")))
+                .unwrap();
+        }
+    }
+    rig(["a", "b"]);
+    let bag = dir.join("seq.mcap");
+    let pack = |extra: &[&str]| {
+        let mut args = vec!["pack", images.to_str().unwrap(), bag.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        args.push("--force");
+        sweepdepth(&args)
+    };
+    ok(&pack(&["--frames", "3"]), "pack a sequence");
+    let firsts: Vec<u8> = messages(&bag)
+        .iter()
+        .filter(|m| m.topic == "/a/image_raw")
+        .map(|m| from_cdr::<Image>(&m.data).unwrap().data[0])
+        .collect();
+    assert_eq!(firsts, [10, 20, 100], "frames out of order");
+    // One frame fewer from one camera: refused, naming both counts.
+    std::fs::remove_file(images.join("b/frame_10.png")).unwrap();
+    let out = pack(&["--frames", "3"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("has 3 frames but 'b' has 2"),
+        "{stderr}"
+    );
+    std::fs::remove_file(images.join("a/frame_10.png")).unwrap();
+    // A name that cannot name a topic.
+    rig(["a", "front-0"]);
+    std::fs::rename(images.join("b"), images.join("front-0")).unwrap();
+    let out = pack(&[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("camera name 'front-0' cannot name ROS topics"),
+        "{stderr}"
+    );
+}
