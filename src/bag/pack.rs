@@ -255,7 +255,7 @@ fn rig_folder_cameras(
                 }
             }
             // frame_2 before frame_10, as a recorder numbers them.
-            paths.sort_by(|a, b| natural_key(a).cmp(&natural_key(b)));
+            paths.sort_by_key(|p| natural_key(p));
         } else if let Some(p) = IMAGE_EXTS
             .iter()
             .map(|e| dir.join(format!("{}.{e}", c.name)))
@@ -402,27 +402,7 @@ fn keep_nearest(
 
 /// Packs `args.dir` into `args.output`.
 pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
-    if !(args.scale > 0.0 && args.scale <= 4.0) {
-        return Err(PackError::Invalid(format!(
-            "--scale must be in (0, 4], got {}",
-            args.scale
-        )));
-    }
-    if !(args.rate_hz > 0.0 && args.rate_hz.is_finite()) {
-        return Err(PackError::Invalid(format!(
-            "--rate-hz must be > 0, got {}",
-            args.rate_hz
-        )));
-    }
-    if args.frames == 0 {
-        return Err(PackError::Invalid("--frames must be at least 1".into()));
-    }
-    if !(args.start >= 0.0 && args.start < 2.0e9) {
-        return Err(PackError::Invalid(format!(
-            "--start must be in [0, 2e9) s, got {}",
-            args.start
-        )));
-    }
+    check_args(args)?;
     let params_file = params_path(&args.output);
     let rig = args
         .rig
@@ -456,22 +436,7 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         }
     }
 
-    let sequence = cameras.iter().map(|c| c.frames.len()).max().unwrap_or(1);
-    if sequence > 1 && args.frames as usize != sequence {
-        tracing::warn!(
-            "{}: a sequence of {sequence} frames per camera; --frames {} packs {}",
-            args.dir.display(),
-            args.frames,
-            if (args.frames as usize) < sequence {
-                format!("its first {} (--frames {sequence} for all)", args.frames)
-            } else {
-                format!(
-                    "it {:.1} times over, from the start",
-                    f64::from(args.frames) / sequence as f64
-                )
-            }
-        );
-    }
+    warn_sequence_frames(&cameras, args);
     let mut writer = BagWriter::create(&args.output, args.force)?;
     let (image_topic, image_type) = if args.compressed {
         ("image_raw/compressed", COMPRESSED_IMAGE)
@@ -584,4 +549,50 @@ pub fn run(args: &PackArgs) -> Result<(), PackError> {
         report.params_file.display()
     );
     Ok(())
+}
+
+/// `pack`'s numeric options in their ranges.
+fn check_args(args: &PackArgs) -> Result<(), PackError> {
+    if !(args.scale > 0.0 && args.scale <= 4.0) {
+        return Err(PackError::Invalid(format!(
+            "--scale must be in (0, 4], got {}",
+            args.scale
+        )));
+    }
+    if !(args.rate_hz > 0.0 && args.rate_hz.is_finite()) {
+        return Err(PackError::Invalid(format!(
+            "--rate-hz must be > 0, got {}",
+            args.rate_hz
+        )));
+    }
+    if args.frames == 0 {
+        return Err(PackError::Invalid("--frames must be at least 1".into()));
+    }
+    if !(args.start >= 0.0 && args.start < 2.0e9) {
+        return Err(PackError::Invalid(format!(
+            "--start must be in [0, 2e9) s, got {}",
+            args.start
+        )));
+    }
+    Ok(())
+}
+
+/// A sequence packed short or repeated (`--frames` other than its length) is said.
+fn warn_sequence_frames(cameras: &[PackCamera], args: &PackArgs) {
+    let sequence = cameras.iter().map(|c| c.frames.len()).max().unwrap_or(1);
+    if sequence > 1 && args.frames as usize != sequence {
+        tracing::warn!(
+            "{}: a sequence of {sequence} frames per camera; --frames {} packs {}",
+            args.dir.display(),
+            args.frames,
+            if (args.frames as usize) < sequence {
+                format!("its first {} (--frames {sequence} for all)", args.frames)
+            } else {
+                format!(
+                    "it {:.1} times over, from the start",
+                    f64::from(args.frames) / sequence as f64
+                )
+            }
+        );
+    }
 }
