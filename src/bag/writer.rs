@@ -213,6 +213,7 @@ impl BagWriter {
         }
         let writer = self.writer.as_mut().ok_or(BagError::Finished)?;
         let schema_data = schema
+            .filter(|s| !s.is_empty())
             .map(<[u8]>::to_vec)
             .or_else(|| schemas::definition(msg_type).map(|s| s.as_bytes().to_vec()))
             .unwrap_or_default();

@@ -184,3 +184,52 @@ fn a_file_compressed_bag_cut_short_gives_its_first_sets_and_leaves_no_copy() {
     assert_eq!(left(), 0, "a copy was left behind after the error");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--copy-inputs` from a rosbag2 directory (whose metadata.yaml carries no message
+/// definitions) copies a topic of a type sweepdepth does not know with the definition its
+/// storage file recorded: readers of OUT (rosbags, Foxglove) decode it.
+#[test]
+fn copied_topics_keep_the_definitions_of_a_directory_bag() {
+    let dir = scratch("foreign-copy");
+    let bag = dir.join("rec");
+    let fixture = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+    let mut writer = sweepdepth::bag::BagWriter::create(&bag, false).expect("create the bag");
+    let definition: &[u8] = b"uint8[] data\n";
+    writer
+        .add_topic("/my/blob", "my_pkg/msg/Blob", Some(definition))
+        .unwrap();
+    for m in messages(&fixture) {
+        writer.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        writer
+            .write(&m.topic, m.log_time_ns, m.publish_time_ns, &m.data)
+            .unwrap();
+        // A CDR uint8[] of three bytes.
+        let blob = [0u8, 1, 0, 0, 3, 0, 0, 0, 7, 8, 9];
+        writer
+            .write("/my/blob", m.log_time_ns, m.publish_time_ns, &blob)
+            .unwrap();
+    }
+    writer.finish().expect("finish the bag");
+    assert!(bag.join("metadata.yaml").is_file());
+    let out = dir.join("out.mcap");
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            out.to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+            "--copy-inputs",
+        ]),
+        "bag --copy-inputs from a directory",
+    );
+    let reader = sweepdepth::bag::BagReader::open(&out).expect("open OUT");
+    let blob = reader
+        .topics()
+        .iter()
+        .find(|t| t.name == "/my/blob")
+        .expect("the copied topic");
+    assert_eq!(blob.schema.as_deref(), Some(definition));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -92,14 +92,29 @@ impl BagReader {
         } else {
             reader.sources = vec![path.to_path_buf()];
         }
-        // Topics and counts from the storage files' own indexes where metadata lacked them.
-        if reader.topics.is_empty() && !reader.file_zstd {
+        // Topics and counts from the storage files' own indexes where metadata lacked them,
+        // and the message definitions they carry (metadata.yaml has none: `--copy-inputs`
+        // writes them with the copied topics).
+        let lacking_schema = reader.topics.iter().any(|t| t.schema.is_none());
+        if (reader.topics.is_empty() || lacking_schema) && !reader.file_zstd {
+            let from_metadata = !reader.topics.is_empty();
             let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
             for file in &reader.sources {
                 let found = match storage_kind(file)? {
                     StorageKind::Mcap => mcap_summary_topics(file)?,
                     StorageKind::Sqlite => SqliteSource::open(file, 0)?.topic_infos(),
                 };
+                if from_metadata {
+                    for t in found {
+                        let Some(schema) = t.schema else { continue };
+                        for known in &mut reader.topics {
+                            if known.schema.is_none() && known.msg_type == t.msg_type {
+                                known.schema = Some(schema.clone());
+                            }
+                        }
+                    }
+                    continue;
+                }
                 for t in found {
                     topics
                         .entry(t.name.clone())
@@ -112,7 +127,9 @@ impl BagReader {
                         .or_insert(t);
                 }
             }
-            reader.topics = topics.into_values().collect();
+            if !from_metadata {
+                reader.topics = topics.into_values().collect();
+            }
         }
         Ok(reader)
     }

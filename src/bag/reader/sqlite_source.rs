@@ -77,6 +77,7 @@ impl SqliteSource {
     }
 
     pub fn topic_infos(&self) -> Vec<TopicInfo> {
+        let definitions = self.definitions();
         let mut v: Vec<TopicInfo> = self
             .topics
             .iter()
@@ -85,11 +86,35 @@ impl SqliteSource {
                 msg_type: ty.clone(),
                 encoding: fmt.clone(),
                 count: Some(self.counts.get(id).copied().unwrap_or(0)),
-                schema: None,
+                schema: definitions.get(ty).cloned(),
             })
             .collect();
         v.sort_by(|a, b| a.name.cmp(&b.name));
         v
+    }
+
+    /// The `ros2msg` message definitions rosbag2 (Iron and later) records per type, by
+    /// normalised type name; none in older bags (no `message_definitions` table).
+    fn definitions(&self) -> HashMap<String, Vec<u8>> {
+        let query = "SELECT topic_type, encoding, encoded_message_definition \
+                     FROM message_definitions";
+        let Ok(mut stmt) = self.conn.prepare(query) else {
+            return HashMap::new();
+        };
+        let rows = stmt.query_map([], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, String>(2)?,
+            ))
+        });
+        let Ok(rows) = rows else {
+            return HashMap::new();
+        };
+        rows.flatten()
+            .filter(|(_, encoding, text)| encoding == "ros2msg" && !text.is_empty())
+            .map(|(ty, _, text)| (normalise_type(&ty), text.into_bytes()))
+            .collect()
     }
 
     fn fill_page(&mut self) -> Result<(), BagError> {
