@@ -625,8 +625,17 @@ fn mesh_summary(
         (false, None) => String::new(),
         (false, Some(reason)) => format!(" (on the CPU after leaving the GPU: {reason})"),
     };
+    // Blocks dropped by `max_blocks` take their part of the surface with them: said.
+    let dropped = match fuser.blocks_dropped {
+        0 => String::new(),
+        n => format!(
+            "; {n} blocks dropped at max_blocks {} (the farthest from the camera: raise it, or \
+             a coarser voxel, for the whole scene)",
+            fuser.params().max_blocks
+        ),
+    };
     let grid = format!(
-        "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB",
+        "{blocks} blocks of 8^3 voxels of {} m, {:.1} MiB{dropped}",
         fuser.params().voxel_size_m,
         bytes as f64 / (1 << 20) as f64
     );
@@ -636,7 +645,7 @@ fn mesh_summary(
                 path: path.display().to_string(),
                 source,
             })?;
-            let empty = if saved.triangles == 0 && fuser.integrated > 0 {
+            let empty = if saved.triangles == 0 && fuser.integrated > 0 && dropped.is_empty() {
                 format!(
                     "; no surface came out of {} depth maps: a voxel of {} m may be too coarse \
                      for the scene (try --voxel-size near a hundredth of its depth)",

@@ -120,6 +120,8 @@ pub struct Fuser {
     pub integrated_by_source: BTreeMap<String, u64>,
     /// Depth maps refused, by reason.
     pub skipped: SkipCounts,
+    /// Blocks dropped to stay within `max_blocks` (the farthest from the newest camera).
+    pub blocks_dropped: u64,
     /// Why the map left its GPU for the CPU ([`Fuser::left_gpu`]).
     left_gpu: Option<String>,
 }
@@ -163,6 +165,7 @@ impl Fuser {
             integrated: 0,
             integrated_by_source: BTreeMap::new(),
             skipped: SkipCounts::default(),
+            blocks_dropped: 0,
             left_gpu: None,
         })
     }
@@ -263,6 +266,7 @@ impl Fuser {
         }
         self.stamp = self.stamp.max(input.stamp);
         self.integrated += 1;
+        self.blocks_dropped += stats.blocks_dropped as u64;
         match self.integrated_by_source.get_mut(&input.source) {
             Some(count) => *count += 1,
             None => {

@@ -248,4 +248,23 @@ fn mesh_never_replaces_the_input_or_a_good_mesh() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert!(!names.iter().any(|n| n.ends_with(".partial")), "{names:?}");
+    // `--mesh` alone takes `max_blocks`, and blocks it drops are said.
+    let (done, stderr) = bag(
+        &input,
+        &out,
+        &[
+            "--mesh",
+            mesh.to_str().unwrap(),
+            "--force",
+            "--voxel-size",
+            "0.1",
+            "-p",
+            "max_blocks:=20",
+        ],
+    );
+    assert!(
+        done && stderr.contains("20 blocks of 8^3")
+            && stderr.contains("blocks dropped at max_blocks 20"),
+        "{stderr}"
+    );
 }
