@@ -233,3 +233,37 @@ fn copied_topics_keep_the_definitions_of_a_directory_bag() {
     assert_eq!(blob.schema.as_deref(), Some(definition));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A rosbag2 directory without its metadata.yaml (a recording that did not finish): its
+/// storage files are read in name order, with a warning.
+#[test]
+fn a_directory_without_metadata_is_read_from_its_storage_files() {
+    let dir = scratch("foreign-nometa");
+    let bag = dir.join("rec");
+    let fixture = root().join("tests/fixtures/bags/tsukuba_half.mcap");
+    let mut writer = sweepdepth::bag::BagWriter::create(&bag, false).expect("create the bag");
+    for m in messages(&fixture) {
+        writer.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        writer
+            .write(&m.topic, m.log_time_ns, m.publish_time_ns, &m.data)
+            .unwrap();
+    }
+    writer.finish().expect("finish the bag");
+    std::fs::remove_file(bag.join("metadata.yaml")).unwrap();
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let stderr = ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            dir.join("out.mcap").to_str().unwrap(),
+            "--params-file",
+            params.to_str().unwrap(),
+        ]),
+        "bag on a directory without metadata.yaml",
+    );
+    assert!(
+        stderr.contains("no metadata.yaml") && stderr.contains("3 processed"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

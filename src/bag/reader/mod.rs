@@ -77,8 +77,41 @@ impl BagReader {
             file_zstd: false,
             failed: false,
         };
-        if meta.is_dir() {
+        if meta.is_dir() && !path.join("metadata.yaml").exists() {
+            // A recording that did not finish writes no metadata.yaml: its storage files,
+            // which describe themselves, in name order.
+            reader.sources = storage_files(path)?;
+            if reader.sources.is_empty() {
+                return Err(BagError::Format {
+                    path: path.to_path_buf(),
+                    reason: "a folder without metadata.yaml or .mcap / .db3 files: not a \
+                             rosbag2 bag"
+                        .into(),
+                });
+            }
+            tracing::warn!(
+                "{}: no metadata.yaml (a recording that did not finish?): reading its {} \
+                 storage file(s) in name order",
+                path.display(),
+                reader.sources.len()
+            );
+        } else if meta.is_dir() {
             let metadata = Metadata::read(path)?;
+            let unlisted: Vec<String> = storage_files(path)?
+                .into_iter()
+                .filter(|f| !metadata.files.contains(f))
+                .filter(|f| !metadata.files.iter().any(|m| m.with_extension("") == *f))
+                .filter_map(|f| Some(f.file_name()?.to_string_lossy().into_owned()))
+                .collect();
+            if !unlisted.is_empty() && !metadata.file_zstd {
+                tracing::warn!(
+                    "{}: metadata.yaml does not list {} of the folder's storage files, which are \
+                     not read ({}; `ros2 bag reindex` rewrites metadata.yaml)",
+                    path.display(),
+                    unlisted.len(),
+                    unlisted.join(", ")
+                );
+            }
             reader.topics = metadata.topics;
             reader.message_zstd = metadata.message_zstd;
             reader.file_zstd = metadata.file_zstd;
@@ -322,6 +355,28 @@ fn decompress_to_temp(path: &Path) -> Result<PathBuf, BagError> {
         }
     }
     Ok(tmp)
+}
+
+/// A folder's MCAP and sqlite3 files (by name: `.mcap`, `.db3`), in natural name order
+/// (`rec_2` before `rec_10`).
+fn storage_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
+    let mut files: Vec<PathBuf> = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(|e| BagError::io(dir, e))? {
+        let file = entry.map_err(|e| BagError::io(dir, e))?.path();
+        let ext = file.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if file.is_file() && (ext == "mcap" || ext == "db3") {
+            files.push(file);
+        }
+    }
+    let number = |p: &PathBuf| -> (String, u64) {
+        let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
+        let stem = stem.unwrap_or_default();
+        let digits = stem.len() - stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
+        let (head, tail) = stem.split_at(stem.len() - digits);
+        (head.to_string(), tail.parse().unwrap_or(0))
+    };
+    files.sort_by_key(number);
+    Ok(files)
 }
 
 /// The parts of a rosbag2 `metadata.yaml` we use.
