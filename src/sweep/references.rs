@@ -50,6 +50,7 @@ pub fn reference_rig(
             max_depth_m: params.max_depth_m,
         });
     }
+    say_views(cameras, reference, &chosen, params);
     let position = chosen.iter().position(|&i| i == reference).unwrap_or(0);
     let rig = Rig::new(
         chosen.iter().map(|&i| cameras[i].clone()).collect(),
@@ -60,6 +61,62 @@ pub fn reference_rig(
         cameras: chosen,
         rig,
     })
+}
+
+/// Logs which cameras a reference sweeps with, and why the others are left out, when that
+/// first comes and whenever it changes (per reference camera name, for the process).
+fn say_views(cameras: &[RigCamera], reference: usize, chosen: &[usize], params: &SweepParams) {
+    use crate::geometry::neighbours::{parallax_px, view_overlap, MIN_OVERLAP, MIN_PARALLAX_PX};
+    static SAID: parking_lot::Mutex<Vec<(String, Vec<String>)>> =
+        parking_lot::const_mutex(Vec::new());
+    let name = |i: usize| cameras[i].name.clone();
+    let views: Vec<String> = chosen.iter().map(|&i| name(i)).collect();
+    let reference_name = name(reference);
+    {
+        let mut said = SAID.lock();
+        let known = said.iter().position(|(r, _)| *r == reference_name);
+        match known {
+            Some(at) if said[at].1 == views => return,
+            Some(at) => said[at].1 = views.clone(),
+            // A bounded memory: the rigs of one process name a few hundred references at most.
+            None if said.len() < 4096 => said.push((reference_name.clone(), views.clone())),
+            None => return,
+        }
+    }
+    let (near, far) = (params.min_depth_m, params.max_depth_m);
+    // The cameras left out, by reason.
+    let mut left: Vec<(String, Vec<String>)> = Vec::new();
+    for i in (0..cameras.len()).filter(|i| !chosen.contains(i)) {
+        let why = if view_overlap(&cameras[reference], &cameras[i], near, far) < MIN_OVERLAP {
+            "seeing under 10 % of its view".to_string()
+        } else if parallax_px(&cameras[reference], &cameras[i], near, far) < MIN_PARALLAX_PX {
+            "too near it for a pixel of parallax".to_string()
+        } else {
+            format!("beyond its {} best views", params.neighbour_count())
+        };
+        match left.iter_mut().find(|(w, _)| *w == why) {
+            Some((_, names)) => names.push(name(i)),
+            None => left.push((why, vec![name(i)])),
+        }
+    }
+    let others: Vec<&str> = views
+        .iter()
+        .filter(|v| **v != reference_name)
+        .map(String::as_str)
+        .collect();
+    let left: Vec<String> = left
+        .iter()
+        .map(|(why, names)| format!("{} ({why})", names.join(", ")))
+        .collect();
+    tracing::info!(
+        "reference {reference_name} sweeps with {}{}",
+        others.join(", "),
+        if left.is_empty() {
+            String::new()
+        } else {
+            format!("; left out: {}", left.join("; "))
+        }
+    );
 }
 
 /// One reference's depth of a frame set.

@@ -523,7 +523,7 @@ fn pack_images_and_rig_file_then_bag() {
     let min = format!("min_depth:={}", p.min_depth_m);
     let max = format!("max_depth:={}", p.max_depth_m);
     let planes = format!("num_planes:={}", p.num_planes);
-    ok(
+    let stderr = ok(
         &sweepdepth(&[
             "bag",
             bag.to_str().unwrap(),
@@ -538,6 +538,14 @@ fn pack_images_and_rig_file_then_bag() {
             &planes,
         ]),
         "bag",
+    );
+    // The views the reference sweeps with, said once.
+    assert_eq!(
+        stderr
+            .matches("reference view2 sweeps with view0, view1, view3, view4\n")
+            .count(),
+        1,
+        "{stderr}"
     );
     let found = depths(&out);
     assert_eq!(found.len(), 1);
