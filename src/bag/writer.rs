@@ -25,6 +25,16 @@ pub fn check_output(out: &Path, force: bool) -> Result<(), BagError> {
 /// sqlite3 file, or a folder of bag files alone), so that `--force` never deletes a dataset, a
 /// folder of other files or the input being read.
 pub fn check_bag_output(out: &Path, force: bool, inputs: &[&Path]) -> Result<(), BagError> {
+    // sqlite3 is read, not written: a `.db3` OUT would silently be a directory of MCAP.
+    let extension = out.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if extension.eq_ignore_ascii_case("db3") {
+        return Err(BagError::Format {
+            path: out.to_path_buf(),
+            reason: "bags are written as MCAP, not sqlite3: name OUT `.mcap` (one file) or give \
+                     a folder name (a rosbag2 directory)"
+                .into(),
+        });
+    }
     if !out.exists() {
         return Ok(());
     }
@@ -156,7 +166,10 @@ impl BagWriter {
     /// one is finished).
     pub fn create(out: &Path, force: bool) -> Result<Self, BagError> {
         check_bag_output(out, force, &[])?;
-        let directory = out.extension().and_then(|e| e.to_str()) != Some("mcap");
+        let directory = !out
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| e.eq_ignore_ascii_case("mcap"));
         let partial = partial_path(out)?;
         // A `.partial` of a run that was killed: only ever a bag of ours.
         if partial.exists() {
@@ -521,5 +534,21 @@ mod tests {
             Err(BagError::OutputExists(_))
         ));
         assert!(BagWriter::create(&out, true).is_ok());
+    }
+
+    /// OUT's name decides the layout whatever its case (`OUT.MCAP` is one file); a `.db3` OUT
+    /// is refused (sqlite3 is read, not written) instead of becoming a directory of MCAP.
+    #[test]
+    fn out_names_mcap_file_or_refused_sqlite3() {
+        let upper = tmp("upper.MCAP");
+        let _ = std::fs::remove_file(&upper);
+        let mut writer = BagWriter::create(&upper, false).unwrap();
+        writer.add_topic("/a", "std_msgs/msg/Empty", None).unwrap();
+        writer.finish().unwrap();
+        assert!(upper.is_file(), "OUT.MCAP is one MCAP file");
+        let db3 = tmp("out.db3");
+        let e = BagWriter::create(&db3, false).err().expect("a .db3 OUT");
+        assert!(e.to_string().contains("not sqlite3"), "{e}");
+        assert!(!db3.exists());
     }
 }
