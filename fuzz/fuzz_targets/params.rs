@@ -96,10 +96,7 @@ fuzz_target!(|input: Input| {
     }
     let mut sweep = SweepParams::default();
     apply_to_sweep(&set, &mut sweep).unwrap();
-    let shape = RigShape {
-        cameras,
-        real_reference: !input.virtual_reference,
-    };
+    let shape = RigShape::chosen_views(cameras, !input.virtual_reference);
     let live = LiveParams::new(set, sweep, shape);
     for (name, value) in input.sets.iter().take(64) {
         let name = name_of(name);
