@@ -487,7 +487,13 @@ mod tests {
             p
         };
         let mcap = file("a.mcap", b"\x89MCAP0\r\nrest");
-        let db3 = file("b.db3", b"SQLite format 3\0rest");
+        // An sqlite3 file by its magic bytes (named `.db3` it is refused: MCAP is written).
+        let db3 = file("b", b"SQLite format 3\0rest");
+        let named_db3 = file("b.db3", b"SQLite format 3\0rest");
+        assert!(matches!(
+            check_bag_output(&named_db3, true, &[]),
+            Err(BagError::Format { .. })
+        ));
         let empty = file("c.mcap", b"");
         let text = file("d.mcap", b"not a bag");
         for ok in [&mcap, &db3, &empty] {
