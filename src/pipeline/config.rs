@@ -274,7 +274,7 @@ fn rig_file(
             }
         }
         notes.extend(file.notes.iter().cloned());
-        for note in file.topic_notes(cameras) {
+        for note in file.topic_notes(cameras).into_iter().chain(file.doubts()) {
             tracing::warn!("{note}");
         }
         Some(file)

@@ -235,6 +235,49 @@ impl RigFile {
             })
     }
 
+    /// Intrinsics that are valid but unlikely to be what was meant, as sentences: a pinhole
+    /// focal length giving a field of view over 160 degrees (a focal length in millimetres,
+    /// not pixels?), a principal point outside the image (intrinsics of another resolution?).
+    pub fn doubts(&self) -> Vec<String> {
+        let mut doubts = Vec::new();
+        for c in &self.cameras {
+            let Some(model) = c.model else { continue };
+            let k = model.intrinsics;
+            let (w, h) = (f64::from(k.width_px), f64::from(k.height_px));
+            let fov = |size: f64, f: f64| 2.0 * (0.5 * size / f).atan().to_degrees();
+            let wide = fov(w, k.fx_px).max(fov(h, k.fy_px));
+            let fisheye = matches!(
+                model.distortion,
+                crate::geometry::Distortion::Equidistant { .. }
+            );
+            if wide > 160.0 && !fisheye {
+                doubts.push(format!(
+                    "{}: camera {}: fx {} / fy {} px give a {wide:.0}-degree field of view \
+                     across {}x{} px: focal lengths are in pixels (is it one in millimetres?)",
+                    self.path.display(),
+                    c.name,
+                    k.fx_px,
+                    k.fy_px,
+                    k.width_px,
+                    k.height_px
+                ));
+            }
+            if !(-0.5..=w - 0.5).contains(&k.cx_px) || !(-0.5..=h - 0.5).contains(&k.cy_px) {
+                doubts.push(format!(
+                    "{}: camera {}: the principal point ({}, {}) lies outside its {}x{} image \
+                     (intrinsics of another resolution?)",
+                    self.path.display(),
+                    c.name,
+                    k.cx_px,
+                    k.cy_px,
+                    k.width_px,
+                    k.height_px
+                ));
+            }
+        }
+        doubts
+    }
+
     /// Cameras of `cameras` that the file names by key but whose Kalibr topic says they are
     /// another camera: "Kalibr's cam0 (rostopic /cam4/image_raw) is taken as camera cam4".
     pub fn topic_notes(&self, cameras: &[String]) -> Vec<String> {

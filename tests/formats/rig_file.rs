@@ -776,3 +776,41 @@ fn example_kalibr_camchain_loads() {
     ));
     assert_eq!(rig.camera_for("/cam1").unwrap().name, "cam1");
 }
+
+/// Valid intrinsics that are likely a mistake are doubted (the node warns): a focal length
+/// in millimetres (a 178-degree pinhole), a principal point of another resolution; a real
+/// lens's and a fisheye's are not.
+#[test]
+fn unlikely_intrinsics_are_doubted() {
+    let pose = "    translation: [0, 0, 0]\n    rotation: [0, 0, 0, 1]\n";
+    let doubts = |intrinsics: &str, distortion: &str| {
+        load_ok(&one_camera(&format!(
+            "{pose}    intrinsics: {{{intrinsics}}}\n{distortion}"
+        )))
+        .doubts()
+    };
+    let sane = "width: 384, height: 288, fx: 384, fy: 384, cx: 191.5, cy: 143.5";
+    assert!(doubts(sane, "").is_empty());
+    let mm = doubts(
+        "width: 384, height: 288, fx: 3.6, fy: 3.6, cx: 191.5, cy: 143.5",
+        "",
+    );
+    assert!(
+        mm.len() == 1 && mm[0].contains("178-degree field of view"),
+        "{mm:?}"
+    );
+    let full = doubts(
+        "width: 384, height: 288, fx: 384, fy: 384, cx: 959.5, cy: 539.5",
+        "",
+    );
+    assert!(
+        full.len() == 1 && full[0].contains("lies outside its 384x288 image"),
+        "{full:?}"
+    );
+    let fisheye = "    distortion: {model: equidistant, coefficients: [0.01, 0.0, 0.0, 0.0]}\n";
+    assert!(doubts(
+        "width: 384, height: 288, fx: 30, fy: 30, cx: 191.5, cy: 143.5",
+        fisheye
+    )
+    .is_empty());
+}
