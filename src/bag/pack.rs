@@ -196,33 +196,6 @@ fn layout_name(layout: Layout) -> &'static str {
 
 const IMAGE_EXTS: [&str; 5] = ["png", "jpg", "jpeg", "ppm", "pgm"];
 
-/// A file name's natural order: runs of digits compare as numbers (`frame_2` < `frame_10`).
-fn natural_key(path: &Path) -> Vec<(String, u128)> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let mut key = Vec::new();
-    let mut text = String::new();
-    let mut chars = name.chars().peekable();
-    while let Some(c) = chars.next() {
-        if c.is_ascii_digit() {
-            let mut digits = c.to_string();
-            while let Some(d) = chars.next_if(char::is_ascii_digit) {
-                digits.push(d);
-            }
-            key.push((
-                std::mem::take(&mut text),
-                digits.parse().unwrap_or(u128::MAX),
-            ));
-        } else {
-            text.push(c);
-        }
-    }
-    key.push((text, 0));
-    key
-}
-
 fn is_image(p: &Path) -> bool {
     p.extension()
         .and_then(|e| e.to_str())
@@ -255,7 +228,7 @@ fn rig_folder_cameras(
                 }
             }
             // frame_2 before frame_10, as a recorder numbers them.
-            paths.sort_by_key(|p| natural_key(p));
+            paths.sort_by_key(|p| super::reader::natural_key(p));
         } else if let Some(p) = IMAGE_EXTS
             .iter()
             .map(|e| dir.join(format!("{}.{e}", c.name)))

@@ -70,19 +70,21 @@ fn say_views(cameras: &[RigCamera], reference: usize, chosen: &[usize], params: 
     static SAID: parking_lot::Mutex<Vec<(String, Vec<String>)>> =
         parking_lot::const_mutex(Vec::new());
     let name = |i: usize| cameras[i].name.clone();
-    let views: Vec<String> = chosen.iter().map(|&i| name(i)).collect();
-    let reference_name = name(reference);
+    // Per set: compared in place (no allocation unless the views are new).
+    let same = |said: &[String]| said.iter().eq(chosen.iter().map(|&i| &cameras[i].name));
+    let views = || chosen.iter().map(|&i| name(i)).collect::<Vec<String>>();
     {
         let mut said = SAID.lock();
-        let known = said.iter().position(|(r, _)| *r == reference_name);
+        let known = said.iter().position(|(r, _)| *r == cameras[reference].name);
         match known {
-            Some(at) if said[at].1 == views => return,
-            Some(at) => said[at].1 = views.clone(),
+            Some(at) if same(&said[at].1) => return,
+            Some(at) => said[at].1 = views(),
             // A bounded memory: the rigs of one process name a few hundred references at most.
-            None if said.len() < 4096 => said.push((reference_name.clone(), views.clone())),
+            None if said.len() < 4096 => said.push((name(reference), views())),
             None => return,
         }
     }
+    let (views, reference_name) = (views(), name(reference));
     let (near, far) = (params.min_depth_m, params.max_depth_m);
     // The cameras left out, by reason.
     let mut left: Vec<(String, Vec<String>)> = Vec::new();

@@ -5,6 +5,38 @@ use super::util::{messages, ok, root, scratch, sweepdepth};
 use std::collections::BTreeMap;
 use std::io::BufWriter;
 
+/// Writes `m` as ROS 2 CDR on its topic's channel (made on its first message, with an empty
+/// `ros2msg` schema as a recorder without the definition writes it).
+fn write_cdr<W: std::io::Write + std::io::Seek>(
+    writer: &mut mcap::Writer<W>,
+    channels: &mut BTreeMap<String, u16>,
+    sequence: usize,
+    m: &sweepdepth::bag::BagMessage,
+) {
+    let channel = match channels.get(&m.topic) {
+        Some(&id) => id,
+        None => {
+            let schema = writer
+                .add_schema(&m.msg_type, "ros2msg", b"")
+                .expect("a schema");
+            let id = writer
+                .add_channel(schema, &m.topic, "cdr", &BTreeMap::new())
+                .expect("a channel");
+            channels.insert(m.topic.clone(), id);
+            id
+        }
+    };
+    let header = mcap::records::MessageHeader {
+        channel_id: channel,
+        sequence: sequence as u32,
+        log_time: m.log_time_ns,
+        publish_time: m.publish_time_ns,
+    };
+    writer
+        .write_to_known_channel(&header, &m.data)
+        .expect("a message");
+}
+
 #[test]
 fn a_json_channel_beside_the_cameras_is_skipped_not_damage() {
     let dir = scratch("foreign-json");
@@ -20,30 +52,15 @@ fn a_json_channel_beside_the_cameras_is_skipped_not_damage() {
         .add_channel(json_schema, "/foxglove/log", "json", &BTreeMap::new())
         .expect("a channel");
     for (sequence, m) in messages(&fixture).into_iter().enumerate() {
-        let channel = match channels.get(&m.topic) {
-            Some(&id) => id,
-            None => {
-                let schema = writer
-                    .add_schema(&m.msg_type, "ros2msg", b"")
-                    .expect("a schema");
-                let id = writer
-                    .add_channel(schema, &m.topic, "cdr", &BTreeMap::new())
-                    .expect("a channel");
-                channels.insert(m.topic.clone(), id);
-                id
-            }
-        };
-        let header = |channel_id| mcap::records::MessageHeader {
-            channel_id,
+        write_cdr(&mut writer, &mut channels, sequence, &m);
+        let header = mcap::records::MessageHeader {
+            channel_id: json,
             sequence: sequence as u32,
             log_time: m.log_time_ns,
             publish_time: m.publish_time_ns,
         };
         writer
-            .write_to_known_channel(&header(channel), &m.data)
-            .expect("a message");
-        writer
-            .write_to_known_channel(&header(json), br#"{"message": "hello"}"#)
+            .write_to_known_channel(&header, br#"{"message": "hello"}"#)
             .expect("a json message");
     }
     writer.finish().expect("finish the bag");
@@ -106,24 +123,7 @@ fn a_file_compressed_bag_cut_short_gives_its_first_sets_and_leaves_no_copy() {
     let mut recorded = messages(&fixture);
     recorded.sort_by_key(|m| m.log_time_ns);
     for (sequence, m) in recorded.into_iter().enumerate() {
-        let channel = match channels.get(&m.topic) {
-            Some(&id) => id,
-            None => {
-                let schema = storage.add_schema(&m.msg_type, "ros2msg", b"").unwrap();
-                let id = storage
-                    .add_channel(schema, &m.topic, "cdr", &BTreeMap::new())
-                    .unwrap();
-                channels.insert(m.topic.clone(), id);
-                id
-            }
-        };
-        let header = mcap::records::MessageHeader {
-            channel_id: channel,
-            sequence: sequence as u32,
-            log_time: m.log_time_ns,
-            publish_time: m.publish_time_ns,
-        };
-        storage.write_to_known_channel(&header, &m.data).unwrap();
+        write_cdr(&mut storage, &mut channels, sequence, &m);
     }
     storage.finish().unwrap();
     drop(storage);

@@ -357,6 +357,34 @@ fn decompress_to_temp(path: &Path) -> Result<PathBuf, BagError> {
     Ok(tmp)
 }
 
+/// A file name's natural order: runs of digits compare as numbers (`frame_2` < `frame_10`;
+/// also the storage files of a rosbag2 folder without metadata: `rec_2` < `rec_10`).
+pub(crate) fn natural_key(path: &Path) -> Vec<(String, u128)> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut digits = c.to_string();
+            while let Some(d) = chars.next_if(char::is_ascii_digit) {
+                digits.push(d);
+            }
+            key.push((
+                std::mem::take(&mut text),
+                digits.parse().unwrap_or(u128::MAX),
+            ));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
+
 /// A folder's MCAP and sqlite3 files (by name: `.mcap`, `.db3`), in natural name order
 /// (`rec_2` before `rec_10`).
 fn storage_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
@@ -368,14 +396,7 @@ fn storage_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
             files.push(file);
         }
     }
-    let number = |p: &PathBuf| -> (String, u64) {
-        let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
-        let stem = stem.unwrap_or_default();
-        let digits = stem.len() - stem.trim_end_matches(|c: char| c.is_ascii_digit()).len();
-        let (head, tail) = stem.split_at(stem.len() - digits);
-        (head.to_string(), tail.parse().unwrap_or(0))
-    };
-    files.sort_by_key(number);
+    files.sort_by_key(|p| natural_key(p));
     Ok(files)
 }
 
