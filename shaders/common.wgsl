@@ -88,6 +88,10 @@ struct Params {
     colour_in_alpha: u32,         // 1: images prefiltered, the cost's colour is the alpha byte
     ambiguity: f32,               // with SGM: uniqueness below which the confidence is scaled down
     uniqueness_radius: u32,       // with SGM: planes either side of the winner that are no rival
+    keep_range_ends: u32,         // 1: a winner on the first or last plane keeps its depth; 0: invalid
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // Semi-global matching (optimizer sgm): the scored cost of every pixel and plane is stored as

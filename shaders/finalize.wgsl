@@ -1,4 +1,4 @@
-// Stage 5b: winner -> depth (sub-pixel parabola or V in inverse depth), max_cost invalidation, confidence.
+// Stage 5b: winner -> depth (sub-pixel parabola or V in inverse depth), max_cost and range-end invalidation, confidence.
 // One invocation per reference pixel. CPU twin: src/sweep/cpu/finalize.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -35,6 +35,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let k = u32(s0.y);
+    if (params.keep_range_ends == 0u && (k == 0u || k + 1u == n_planes)) {
+        // At the range's end: the surface is likely nearer or farther than the range.
+        maps[MAP_DEPTH_RAW * npix + pix] = nan();
+        maps[MAP_CONFIDENCE * npix + pix] = 0.0;
+        maps[MAP_COST * npix + pix] = best;
+        maps[MAP_SELECTION * npix + pix] = f32(SEL_INVALID);
+        return;
+    }
     let ray = rays[pix].xyz;
     var q = inverse_depth(k, ray);
     if (params.subpixel != 0u && k > 0u && k + 1u < n_planes && s0.z < 0.5 * BIG && s0.w < 0.5 * BIG) {

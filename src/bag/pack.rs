@@ -21,7 +21,8 @@ use crate::pipeline::compressed::{compress, Codec};
 /// `sweepdepth pack` arguments.
 #[derive(Debug, Clone, clap::Args)]
 pub struct PackArgs {
-    /// A dataset folder (Middlebury 2001/2003/2005-6, Middlebury multi-view ring, ICL-NUIM), or a
+    /// A dataset folder (Middlebury 2001/2003/2005-6, Middlebury multi-view ring, ICL-NUIM, a
+    /// rectified pair as Middlebury 2014 / ETH3D give it: im0.png, im1.png, calib.txt), or a
     /// folder of images plus a rig file (`rig.yaml`, or --rig).
     pub dir: PathBuf,
     /// Output: a `.mcap` file when the name ends in .mcap, else a rosbag2 directory.
@@ -91,6 +92,8 @@ pub struct PackReport {
     pub height: u32,
     pub params_file: PathBuf,
     pub messages: u64,
+    /// No depth range came with the input: the parameter file holds the node's defaults.
+    pub default_depth: bool,
 }
 
 /// The parameter file written beside `out`.
@@ -163,7 +166,13 @@ fn frame_id(camera: &str) -> String {
 type Packed = (Vec<PackCamera>, usize, String, Option<(f64, f64, u32)>);
 
 fn dataset_cameras(dir: &Path) -> Result<Packed, PackError> {
-    let dataset = load_dataset(dir)?;
+    let dataset = load_dataset(dir).map_err(|e| match e {
+        crate::datasets::DatasetError::UnknownLayout { .. } => PackError::Invalid(format!(
+            "{e}; or images of your own cameras: give their poses in a rig file, `rig.yaml` in \
+             the folder or --rig FILE (our YAML or a Kalibr camchain; launch_configs/README.md)"
+        )),
+        e => e.into(),
+    })?;
     let reference = dataset.reference_index();
     let cameras = dataset
         .rig
@@ -302,7 +311,8 @@ fn rig_folder_cameras(
             )));
         }
     }
-    let reference = cameras.len() / 2;
+    // As the node's default (`NodeValues::reference_camera`): a pair's first camera.
+    let reference = cameras.len().saturating_sub(1) / 2;
     Ok((cameras, reference, format!("images of {}", rig.display())))
 }
 
@@ -489,9 +499,23 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         names.join(", "),
         names[reference],
     );
-    if let Some((min, max, planes)) = depth {
-        yaml +=
-            &format!("    min_depth: {min:?}\n    max_depth: {max:?}\n    num_planes: {planes}\n");
+    match depth {
+        Some((min, max, planes)) => {
+            yaml += &format!(
+                "    min_depth: {}\n    max_depth: {}\n    num_planes: {planes}\n",
+                crate::geometry::metres(min),
+                crate::geometry::metres(max)
+            );
+        }
+        None => {
+            let d = crate::sweep::SweepParams::default();
+            yaml += &format!(
+                "    # No depth range came with the images: the node's defaults. Set your scene's\n    # nearest and farthest depth (metres) and the planes between them.\n    min_depth: {}\n    max_depth: {}\n    num_planes: {}\n",
+                crate::geometry::metres(d.min_depth_m),
+                crate::geometry::metres(d.max_depth_m),
+                d.num_planes
+            );
+        }
     }
     std::fs::write(&params_file, yaml).map_err(|e| BagError::io(&params_file, e))?;
     let k = cameras[reference].model.intrinsics;
@@ -503,6 +527,7 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         height: k.height_px,
         params_file,
         messages: summary.messages,
+        default_depth: depth.is_none(),
     })
 }
 
@@ -521,6 +546,16 @@ pub fn run(args: &PackArgs) -> Result<(), PackError> {
         args.output.display(),
         report.params_file.display()
     );
+    if report.default_depth {
+        let d = crate::sweep::SweepParams::default();
+        eprintln!(
+            "pack: no depth range came with the images: {} sweeps the node's defaults ({}-{} m, {} planes); set min_depth, max_depth and num_planes there to your scene's",
+            report.params_file.display(),
+            d.min_depth_m,
+            d.max_depth_m,
+            d.num_planes
+        );
+    }
     Ok(())
 }
 

@@ -26,6 +26,22 @@ pub use distortion::Distortion;
 pub use pose::RigidTransform;
 pub use rig::{Reference, Rig, RigCamera};
 
+/// A length in metres for messages and parameter files: to the micrometre, without float
+/// noise (`2.4000000000000004` reads `2.4`), always with a decimal point (`10.0`: a YAML
+/// double, not an integer).
+pub fn metres(m: f64) -> String {
+    if !m.is_finite() {
+        return format!("{m}");
+    }
+    let s = format!("{m:.6}");
+    let s = s.trim_end_matches('0');
+    if s.ends_with('.') {
+        format!("{s}0")
+    } else {
+        s.to_string()
+    }
+}
+
 /// Errors building camera models and rigs.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum GeometryError {
@@ -69,4 +85,17 @@ pub enum GeometryError {
     InvalidPose { frame: String, reason: String },
     #[error("rig: {0}")]
     InvalidRig(String),
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn metres_drop_float_noise_and_keep_a_decimal_point() {
+        assert_eq!(super::metres(2.4000000000000004), "2.4");
+        assert_eq!(super::metres(76.80000000000001), "76.8");
+        assert_eq!(super::metres(10.0), "10.0");
+        assert_eq!(super::metres(0.465), "0.465");
+        assert_eq!(super::metres(-1.5), "-1.5");
+        assert_eq!(super::metres(f64::NAN), "NaN");
+    }
 }

@@ -237,6 +237,8 @@ engine_params! {
         "Truncation of the colour SSD (sum over RGB of squared 0..255 differences); the scale of every cost (a census cost of tau = all 24 bits differ).";
     max_cost: f32 = 100.0, "max_cost", Long("max-cost"), ParamRange::above(0.0),
         "A best score above this makes the pixel invalid.";
+    keep_range_ends: bool = false, "keep_range_ends", Long("keep-range-ends"), ParamRange::Any,
+        "Keep the depth of pixels whose best plane is the first or the last (min_depth, max_depth): a surface nearer or farther than the range lands there, so by default they are invalid.";
     subpixel: bool = true, "subpixel", Long("subpixel"), ParamRange::Any,
         "Sub-pixel depth between the planes (a parabola through the winner's and its neighbours' scores).";
     subpixel_v_fit: bool = false, "subpixel_v_fit", Long("subpixel-v-fit"), ParamRange::Any,

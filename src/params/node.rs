@@ -72,7 +72,7 @@ fn input_params() -> Vec<ParamSpec> {
             "reference_camera",
             s(""),
             ParamRange::OptionalName,
-            "Camera whose view the depth map is in; empty = the middle entry of cameras.",
+            "Camera whose view the depth map is in; empty = the middle entry of cameras (of two middle entries the first: a stereo pair's first camera, its left by convention).",
         ),
         node_spec(
             "references",

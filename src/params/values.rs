@@ -204,13 +204,16 @@ impl NodeValues {
         Ok(pose)
     }
 
-    /// `reference_camera`, or the middle entry of `cameras` when it is empty (None without
-    /// cameras).
+    /// `reference_camera`, or the middle entry of `cameras` when it is empty, the first of the
+    /// two middle ones for an even count (a stereo pair's first camera, its left by ROS's
+    /// convention; None without cameras).
     pub fn reference_camera(&self) -> Option<String> {
         if !self.reference_camera.is_empty() {
             return Some(self.reference_camera.clone());
         }
-        self.cameras.get(self.cameras.len() / 2).cloned()
+        self.cameras
+            .get(self.cameras.len().saturating_sub(1) / 2)
+            .cloned()
     }
 }
 
@@ -249,5 +252,21 @@ mod tests {
         assert_eq!(values.virtual_pose().unwrap()[6], 1.0);
         assert!(!values.fusion);
         assert_eq!(values.reference_camera(), None);
+    }
+
+    /// Without `reference_camera`: the middle camera, of two middle ones the first (a stereo
+    /// pair's left, as stereo_image_proc and OpenCV give a pair's depth).
+    #[test]
+    fn the_default_reference_is_the_middle_camera_and_a_pairs_first() {
+        let mut values = NodeValues::read(&ParamSet::defaults()).unwrap();
+        for (cameras, reference) in [
+            (&["left", "right"][..], "left"),
+            (&["a", "b", "c"][..], "b"),
+            (&["a", "b", "c", "d"][..], "b"),
+            (&["only"][..], "only"),
+        ] {
+            values.cameras = cameras.iter().map(|c| c.to_string()).collect();
+            assert_eq!(values.reference_camera().as_deref(), Some(reference));
+        }
     }
 }

@@ -95,10 +95,25 @@ use crate::geometry::{CameraModel, RigCamera, RigidTransform};
 use kalibr::{kalibr_index, parse_kalibr};
 use native::parse_sweepdepth;
 
+/// Where a relative path was looked for (the working directory), for an error that cannot
+/// open it; empty for an absolute one.
+fn relative_note(path: &Path) -> String {
+    if path.is_absolute() {
+        return String::new();
+    }
+    match std::env::current_dir() {
+        Ok(dir) => format!(
+            " (a relative path is opened from the working directory, {}; give an absolute one)",
+            dir.display()
+        ),
+        Err(_) => String::new(),
+    }
+}
+
 /// Errors reading a rig file. Every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum RigFileError {
-    #[error("cannot read rig file '{}': {source}", path.display())]
+    #[error("cannot read rig file '{}': {source}{}", path.display(), relative_note(path))]
     Read {
         path: PathBuf,
         source: std::io::Error,

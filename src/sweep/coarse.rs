@@ -423,6 +423,8 @@ fn coarse_params(params: &SweepParams) -> SweepParams {
         // confidence.
         subpixel_refine: false,
         ambiguity: 0.0,
+        // A surface beyond the range sets its tile's planes at the range's end.
+        keep_range_ends: true,
         ..params.clone()
     }
 }

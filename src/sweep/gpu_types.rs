@@ -93,7 +93,7 @@ pub struct GpuCamera {
     pub info: [u32; 4],
 }
 
-/// WGSL `Params`: named scalars, 32 x 4 bytes (the size test below and naga's layout of the
+/// WGSL `Params`: named scalars, 40 x 4 bytes (the size test below and naga's layout of the
 /// WGSL struct agree).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable, PartialEq)]
@@ -166,6 +166,11 @@ pub struct GpuParams {
     /// With SGM: planes either side of the winner that are not its rivals on the matching
     /// costs (about [`UNIQUENESS_RADIUS_PX`] of shift in the widest view), at least 1.
     pub uniqueness_radius: u32,
+    /// 1: a winner on the first or last plane keeps its depth; 0: it is invalid.
+    pub keep_range_ends: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    pub _pad2: u32,
 }
 
 /// How far (pixels of shift in the widest view) a rival on the matching costs lies from the
@@ -218,7 +223,7 @@ mod tests {
     #[test]
     fn layouts_match_wgsl() {
         assert_eq!(std::mem::size_of::<GpuCamera>(), 128);
-        assert_eq!(std::mem::size_of::<GpuParams>(), 144);
+        assert_eq!(std::mem::size_of::<GpuParams>(), 160);
         assert_eq!(std::mem::size_of::<GpuSgmPass>(), 16);
         assert_eq!(std::mem::size_of::<GpuBand>(), 16);
         assert_eq!(

@@ -157,6 +157,10 @@ pub struct SweepParams {
     pub tau: f32,
     /// A best score above this is invalid.
     pub max_cost: f32,
+    /// Keep the depth of a pixel whose best plane is the first or the last of the range
+    /// (false: such a pixel is invalid, its surface likely outside the range). The levels below
+    /// a coarse-to-fine sweep keep them: their depths only narrow the next level's planes.
+    pub keep_range_ends: bool,
     pub subpixel: bool,
     /// With `subpixel`: the V (equiangular line) through the three scores instead of the
     /// parabola (`cpu::finalize::subpixel_offset`; issue 29, docs/quality.md).
@@ -327,6 +331,26 @@ impl SweepParams {
         self.validate_shape(RigShape::of(rig))
     }
 
+    /// `min_depth` and `max_depth` make a range: finite, above 0, the first below the second
+    /// (`!(a && b)` tests: NaN fails them).
+    pub fn check_depth_range(&self) -> Result<(), SweepError> {
+        let bad = |m: String| Err(SweepError::InvalidParams(m));
+        if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
+            return bad(format!(
+                "min_depth must be a finite number of metres > 0, got {}",
+                self.min_depth_m
+            ));
+        }
+        if !(self.max_depth_m > self.min_depth_m && self.max_depth_m.is_finite()) {
+            return bad(format!(
+                "max_depth ({} m) must be finite and greater than min_depth ({} m)",
+                crate::geometry::metres(self.max_depth_m),
+                crate::geometry::metres(self.min_depth_m)
+            ));
+        }
+        Ok(())
+    }
+
     /// [`SweepParams::validate`] against a rig's shape.
     // `!(x > 0.0)` on purpose: it also rejects NaN.
     #[expect(
@@ -335,19 +359,7 @@ impl SweepParams {
     )]
     pub fn validate_shape(&self, shape: RigShape) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
-        if !(self.min_depth_m > 0.0 && self.min_depth_m.is_finite()) {
-            return bad(format!(
-                "min_depth (--min-depth) must be a finite number of metres > 0, got {}",
-                self.min_depth_m
-            ));
-        }
-        if !(self.max_depth_m > self.min_depth_m && self.max_depth_m.is_finite()) {
-            return bad(format!(
-                "max_depth (--max-depth, {} m) must be finite and greater than min_depth \
-                 (--min-depth, {} m)",
-                self.max_depth_m, self.min_depth_m
-            ));
-        }
+        self.check_depth_range()?;
         if self.num_planes < 2 || self.num_planes > 4096 {
             return bad(format!(
                 "num_planes must be in 2..=4096, got {}",

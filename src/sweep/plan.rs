@@ -363,6 +363,7 @@ impl SweepPlan {
             uniqueness: params.uniqueness,
             ambiguity: params.ambiguity,
             uniqueness_radius: uniqueness_radius(rig, params, planes.len()),
+            keep_range_ends: u32::from(params.keep_range_ends),
             colour_in_alpha: u32::from(params.prefilter.applies(rig.cameras.len())),
             ..GpuParams::zeroed()
         };

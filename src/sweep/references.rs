@@ -36,6 +36,8 @@ pub fn reference_rig(
             cameras: cameras.len(),
         });
     }
+    // A range that is none would read as "no camera sees it" below.
+    params.check_depth_range()?;
     let chosen = neighbours(
         cameras,
         reference,

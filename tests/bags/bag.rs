@@ -517,7 +517,16 @@ fn pack_images_and_rig_file_then_bag() {
     );
     let params = std::fs::read_to_string(dir.join("rig.params.yaml")).unwrap();
     assert!(params.contains("reference_camera: view2"), "{params}");
-    // The rig file gives no depth range: the dataset's, as -p.
+    // The rig file gives no depth range: the file holds the node's defaults, said, for the
+    // user to set (here the dataset's, as -p after the file).
+    assert!(
+        params.contains("    min_depth: 0.5\n    max_depth: 10.0\n    num_planes: 64\n"),
+        "{params}"
+    );
+    assert!(
+        stderr.contains("no depth range came with the images") && stderr.contains("0.5-10 m"),
+        "{stderr}"
+    );
     let p = &dataset.params;
     let out = dir.join("out.mcap");
     let min = format!("min_depth:={}", p.min_depth_m);

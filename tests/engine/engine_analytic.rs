@@ -115,6 +115,65 @@ fn fronto_parallel_plane_comes_back_at_its_depth() {
     );
 }
 
+/// A wall farther than `max_depth` behind a box inside the range: the wall's best plane is the
+/// last, where a surface beyond the range lands. By default those pixels are invalid (no sheet
+/// of depth at `max_depth`); `keep_range_ends` keeps them there. The box keeps its depth either
+/// way, on both engines.
+#[test]
+fn surfaces_beyond_the_range_are_invalid_not_at_its_end() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(80, 60));
+    let rig = synthetic::row_rig(5, 0.1, model, 2).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.4, 0.35)), 70.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let truth = synthetic::reference_depth(&scene, &rig);
+    let max_depth = 1.8;
+    let is_wall: Vec<bool> = truth.data.iter().map(|t| *t > 2.5).collect();
+    let walls = is_wall.iter().filter(|w| **w).count();
+    assert!(walls > truth.data.len() / 3, "{walls} wall pixels");
+    for keep_range_ends in [false, true] {
+        let p = SweepParams {
+            keep_range_ends,
+            ..params(1.0, max_depth, 48)
+        };
+        let gpu = engine().run(&rig, &images, &p).expect("gpu sweep");
+        let cpu = CpuEngine::new().run(&rig, &images, &p).expect("cpu sweep");
+        for (label, maps) in [("gpu", &gpu), ("cpu", &cpu)] {
+            let wall = |keep: fn(f32) -> bool| {
+                let n = (maps.depth_m.data.iter().zip(&is_wall))
+                    .filter(|(d, w)| **w && keep(**d))
+                    .count();
+                n as f64 / walls as f64
+            };
+            let invalid = wall(|d| !d.is_finite());
+            let at_end = wall(|d| (d - 1.8).abs() < 0.02 * 1.8);
+            eprintln!("{label}, keep {keep_range_ends}: wall invalid {invalid:.3}, at max_depth {at_end:.3}");
+            if keep_range_ends {
+                assert!(
+                    at_end > 0.85,
+                    "{label}: {at_end:.3} of the wall at max_depth"
+                );
+            } else {
+                assert!(invalid > 0.85, "{label}: {invalid:.3} of the wall invalid");
+                assert!(
+                    at_end < 0.01,
+                    "{label}: {at_end:.3} of the wall at max_depth"
+                );
+            }
+            // The box, inside the range, keeps its depth.
+            let box_truth = ImageF32 {
+                data: (truth.data.iter().zip(&is_wall))
+                    .map(|(t, w)| if *w { f32::NAN } else { *t })
+                    .collect(),
+                ..truth.clone()
+            };
+            let (within, _) = common::fraction_within(&maps.depth_m, &box_truth, 0.02);
+            let boxes = box_truth.data.iter().filter(|t| t.is_finite()).count();
+            let share = within * truth.data.len() as f64 / boxes as f64;
+            assert!(share > 0.85, "{label}: {share:.3} of the box within 2 %");
+        }
+    }
+}
+
 /// The parabola through the winner and its neighbours moves the depth between planes, for a wall
 /// halfway between two planes (the worst case). Measured with the defaults (best half-sequence,
 /// 5x5 windows, SGM) on this 3-camera row, whose halves are one pair each: the colour SSD

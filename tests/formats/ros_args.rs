@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 34);
+    assert_eq!(fields.len(), 35);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -721,6 +721,7 @@ fn defaults_match_sweep_params() {
         window_mode: WindowMode::Shiftable,
         tau: 1.0,
         max_cost: 2.0,
+        keep_range_ends: true,
         subpixel: false,
         subpixel_refine: true,
         subpixel_v_fit: true,
@@ -826,8 +827,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 34 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 34 + expect.len() + 9);
+    // 35 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 35 + expect.len() + 9);
 }
 
 #[test]
@@ -848,6 +849,31 @@ fn markdown_table_lists_every_parameter() {
     );
     assert!(md.contains("`best_n_of_m`"));
     assert!(md.contains("(required)"));
+}
+
+/// docs/engine.md's list of the engine options names every engine parameter's option.
+#[test]
+fn engine_page_lists_every_engine_option() {
+    let page = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/engine.md"))
+        .expect("docs/engine.md is readable");
+    let start = page
+        .find("## Engine options")
+        .expect("an engine options section");
+    let end = page[start..]
+        .find("\n## ")
+        .map_or(page.len(), |e| start + e);
+    let section = page[start..end].replace('\n', " ");
+    for param in sweepdepth::params::engine::engine_params() {
+        let option = match param.flag {
+            sweepdepth::params::engine::Flag::Long(name) => format!("`--{name}"),
+            other => format!("`--{} WxH`", other.long()),
+        };
+        assert!(
+            section.contains(&option),
+            "docs/engine.md's engine options do not name {option}` ({})",
+            param.spec.name
+        );
+    }
 }
 
 /// The parameter section of docs/node.md is the table's own rendering (the table drives the

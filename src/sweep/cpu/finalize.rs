@@ -1,6 +1,6 @@
 //! Twin of `shaders/finalize.wgsl`: winner -> depth (sub-pixel parabola or V in inverse depth,
 //! [`subpixel_offset`]),
-//! `max_cost` invalidation, confidence. Rows in parallel.
+//! `max_cost` and range-end invalidation, confidence. Rows in parallel.
 // The `!(x > 0.0)` tests mirror the shaders and are NaN-safe on purpose.
 #![expect(
     clippy::neg_cmp_op_on_partial_ord,
@@ -66,6 +66,14 @@ pub fn run(plan: &SweepPlan, st: &WtaState, maps: &mut Maps) {
                     continue;
                 }
                 let k = st.best_plane[pix] as u32;
+                if params.keep_range_ends == 0 && (k == 0 || k + 1 == n_planes) {
+                    // At the range's end: the surface is likely nearer or farther than the range.
+                    raw[x] = f32::NAN;
+                    confidence[x] = 0.0;
+                    cost[x] = best;
+                    selection[x] = 3.0;
+                    continue;
+                }
                 let ray = xyz(plan.rays[pix]);
                 let mut q = inverse_depth(plan, k, ray);
                 let (before, after) = (st.before[pix], st.after[pix]);
