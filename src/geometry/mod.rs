@@ -47,7 +47,7 @@ pub fn metres(m: f64) -> String {
 pub enum GeometryError {
     #[error("camera '{camera}': {reason}")]
     InvalidIntrinsics { camera: String, reason: String },
-    #[error("camera '{camera}': unsupported distortion model '{model}' (supported: plumb_bob, rational_polynomial with zero k4..k6, equidistant, none)")]
+    #[error("camera '{camera}': unsupported distortion model '{model}' (supported: plumb_bob, rational_polynomial with zero k4..k6, equidistant, none); a driver that also publishes rectified images: subscribe its image_rect topic (image_topic), whose CameraInfo P describes it without distortion")]
     UnsupportedDistortion { camera: String, model: String },
     #[error(
         "camera '{camera}': distortion model '{model}' needs {expected} coefficients, got {got}"

@@ -33,6 +33,9 @@ pub struct Stats {
     last_latency_ms: Option<f64>,
     /// Cameras out of the rig (silent longer than `camera_timeout`).
     pub inactive_cameras: Vec<String>,
+    /// Why no set is formed while those cameras leave no reference or fewer than two
+    /// ([`crate::pipeline::Pipeline::halted`]).
+    pub halted: Option<String>,
     /// Sets (or, with several references, one reference of a set) that gave no depth, by
     /// reason ([`crate::pipeline::SkipKind::label`]).
     pub skipped: crate::pipeline::SkipCounts,
@@ -64,6 +67,7 @@ impl Stats {
             total_processing: Duration::ZERO,
             last_latency_ms: None,
             inactive_cameras: Vec::new(),
+            halted: None,
             skipped: Default::default(),
             waiting_for_pose: 0,
             world_poses: Default::default(),
@@ -238,6 +242,9 @@ impl Stats {
                     )
                 },
             )
+        } else if let Some(halted) = &self.halted {
+            // Depth came less than STALE_AFTER ago, but none comes now.
+            (DiagnosticStatus::WARN, format!("no depth: {halted}"))
         } else if !self.inactive_cameras.is_empty() {
             (
                 DiagnosticStatus::WARN,
@@ -366,6 +373,23 @@ mod tests {
         assert_eq!(
             a.status[0].message,
             "no depth published in the last 5 s: no image on /rig/cam2/image_raw yet"
+        );
+        // A camera out of the rig: "degraded" while depth goes on over the others, but the
+        // reason at once (not "publishing depth") when the others cannot make a set.
+        s.why = None;
+        s.inactive_cameras = vec!["b".into()];
+        let a = s.diagnostics("/n", &cams, "gpu", now, Time::default());
+        assert_eq!(
+            a.status[0].message,
+            "degraded rig: publishing depth without b (silent longer than camera_timeout)"
+        );
+        s.halted =
+            Some("fewer than 2 cameras are sending (out of the rig: b); not publishing".into());
+        let a = s.diagnostics("/n", &cams, "gpu", now, Time::default());
+        assert_eq!(a.status[0].level, DiagnosticStatus::WARN);
+        assert_eq!(
+            a.status[0].message,
+            "no depth: fewer than 2 cameras are sending (out of the rig: b); not publishing"
         );
     }
 }

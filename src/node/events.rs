@@ -70,13 +70,14 @@ impl LoopState<'_> {
                 return;
             }
         };
-        let (outcome, waiting_for_pose, inactive_cameras) = {
+        let (outcome, waiting_for_pose, inactive_cameras, halted) = {
             let mut pipeline = lock(self.pipeline);
             let outcome = pipeline.push(input, now_ns);
             (
                 outcome,
                 pipeline.waiting_for_pose(),
                 pipeline.inactive_cameras(),
+                pipeline.halted(),
             )
         };
         for event in &outcome.rig_events {
@@ -98,6 +99,7 @@ impl LoopState<'_> {
                 verdict.count(&mut stats.sync);
             }
             stats.inactive_cameras = inactive_cameras;
+            stats.halted = halted;
         }
         for job in outcome.jobs() {
             self.offer(job);

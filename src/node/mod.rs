@@ -80,7 +80,9 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
         config.domain_id,
         pipeline.cameras.join(", "),
         pipeline.cameras[pipeline.reference()],
-        pipeline.image_topics
+        (0..pipeline.cameras.len())
+            .map(|i| pipeline.input_image_topic(i))
+            .collect::<Vec<_>>()
     );
 
     // The live view (`foxglove_port`), before the GPU thread, which owns it.

@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use ros2_client::parameters::ParameterValue as RosValue;
 use ros2_client::NodeOptions;
 
-use crate::params::checks::check_change;
+use crate::params::checks::{check_change, check_changes};
 use crate::params::{ParamError, ParamSet, ParamValue};
 use crate::sweep::{RigShape, SweepParams};
 
@@ -136,15 +136,22 @@ impl LiveParams {
     /// one is accepted all are stored. Returns, per change, whether it changed the value.
     pub fn apply_all(&self, changes: &[(String, RosValue)]) -> Result<Vec<bool>, SetError> {
         let mut current = lock(&self.params);
-        let mut params = current.clone();
-        let mut sweep = self.sweep();
-        let mut changed = Vec::with_capacity(changes.len());
-        for (name, value) in changes {
-            let before = params.get(name).cloned();
-            let value = from_ros(value)?;
-            (params, sweep) = check_change(&params, &sweep, Some(self.shape), name, &value)?;
-            changed.push(params.get(name) != before.as_ref());
-        }
+        let values = changes
+            .iter()
+            .map(|(_, value)| from_ros(value))
+            .collect::<Result<Vec<_>, _>>()?;
+        let named: Vec<(&str, &ParamValue)> = changes
+            .iter()
+            .zip(&values)
+            .map(|((name, _), value)| (name.as_str(), value))
+            .collect();
+        // Checked together: the values the others give, not the current ones (a new depth
+        // range beyond the current one is one valid change).
+        let (params, sweep) = check_changes(&current, &self.sweep(), Some(self.shape), &named)?;
+        let changed = changes
+            .iter()
+            .map(|(name, _)| params.get(name) != current.get(name))
+            .collect();
         *current = params;
         drop(current);
         *lock(&self.sweep) = sweep;
@@ -203,7 +210,7 @@ mod tests {
             ])
             .is_err());
         assert_eq!(l.sweep().num_planes, 64);
-        // Checked in order: max_depth first makes the min_depth change valid.
+        // Both ends of the depth range moved at once.
         let changed = l
             .apply_all(&[
                 ("max_depth".into(), RosValue::Double(200.0)),
@@ -213,6 +220,28 @@ mod tests {
             .unwrap();
         assert_eq!(changed, [true, true, false]);
         assert_eq!(l.sweep().min_depth_m, 100.0);
+        // Checked together, not in order: min_depth first, beyond the current max_depth, is
+        // valid with the new max_depth (as rclcpp hands its callback the whole list).
+        let changed = l
+            .apply_all(&[
+                ("min_depth".into(), RosValue::Double(300.0)),
+                ("max_depth".into(), RosValue::Double(400.0)),
+            ])
+            .unwrap();
+        assert_eq!(changed, [true, true]);
+        assert_eq!(
+            (l.sweep().min_depth_m, l.sweep().max_depth_m),
+            (300.0, 400.0)
+        );
+        // ... and a range that is none together is refused, nothing stored.
+        let e = l
+            .apply_all(&[
+                ("min_depth".into(), RosValue::Double(50.0)),
+                ("max_depth".into(), RosValue::Double(40.0)),
+            ])
+            .unwrap_err();
+        assert!(e.to_string().contains("must be smaller"), "{e}");
+        assert_eq!(l.sweep().min_depth_m, 300.0);
     }
 
     #[test]

@@ -83,16 +83,30 @@ pub fn check_change(
     name: &str,
     value: &ParamValue,
 ) -> Result<(ParamSet, SweepParams), ParamError> {
-    let spec = param_spec(name).ok_or_else(|| ParamError::Unknown(name.to_string()))?;
-    if spec.read_only {
-        if current.get(name) == Some(value) {
-            return Ok((current.clone(), current_sweep.clone()));
-        }
-        return Err(ParamError::ReadOnly(name.to_string()));
-    }
-    validate(name, value).map_err(|e| e.named(name))?;
+    check_changes(current, current_sweep, shape, &[(name, value)])
+}
+
+/// [`check_change`] for several parameters set together (`set_parameters_atomically`): each
+/// value is checked on its own, then what they give together (the depth range, the rig), so
+/// that moving both ends of the depth range at once is one valid change.
+pub fn check_changes(
+    current: &ParamSet,
+    current_sweep: &SweepParams,
+    shape: Option<RigShape>,
+    changes: &[(&str, &ParamValue)],
+) -> Result<(ParamSet, SweepParams), ParamError> {
     let mut params = current.clone();
-    params.set(name, value).map_err(|e| e.named(name))?;
+    for &(name, value) in changes {
+        let spec = param_spec(name).ok_or_else(|| ParamError::Unknown(name.to_string()))?;
+        if spec.read_only {
+            if current.get(name) == Some(value) {
+                continue;
+            }
+            return Err(ParamError::ReadOnly(name.to_string()));
+        }
+        validate(name, value).map_err(|e| e.named(name))?;
+        params.set(name, value).map_err(|e| e.named(name))?;
+    }
     let mut sweep = current_sweep.clone();
     apply_to_sweep(&params, &mut sweep)?;
     if sweep.min_depth_m >= sweep.max_depth_m {
@@ -101,16 +115,18 @@ pub fn check_change(
             max: sweep.max_depth_m,
         });
     }
+    let names: Vec<&str> = changes.iter().map(|(name, _)| *name).collect();
+    let names = names.join(", ");
     if let Some(shape) = shape {
         sweep.validate_shape(shape).map_err(|e| {
             ParamError::Engine {
                 context: "",
                 message: e.to_string(),
             }
-            .named(name)
+            .named(&names)
         })?;
         check_rig_consistency(current_sweep, &sweep, shape.swept(&sweep))
-            .map_err(|e| ParamError::KeepCurrent(Box::new(e.named(name))))?;
+            .map_err(|e| ParamError::KeepCurrent(Box::new(e.named(&names))))?;
     }
     Ok((params, sweep))
 }

@@ -13,7 +13,7 @@ pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Why an input image cannot be used. Every variant names the camera.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConvertError {
-    #[error("camera '{camera}': unsupported image encoding '{encoding}' (supported: rgb8, bgr8, rgba8, bgra8, mono8, mono16)")]
+    #[error("camera '{camera}': unsupported image encoding '{encoding}' (supported: rgb8, bgr8, rgba8, bgra8, mono8, mono16, and 8UC1, 8UC3, 8UC4, 16UC1 read as mono8, bgr8, bgra8, mono16)")]
     UnsupportedEncoding { camera: String, encoding: String },
     #[error("camera '{camera}': empty image ({width}x{height})")]
     Empty {
@@ -51,8 +51,9 @@ pub enum ConvertError {
 /// Bytes per pixel of a supported encoding.
 fn bytes_per_pixel(encoding: &str) -> Option<u32> {
     match encoding {
-        "rgb8" | "bgr8" => Some(3),
-        "rgba8" | "bgra8" => Some(4),
+        // 8UC3 and 8UC4: OpenCV's BGR order, as cv_bridge hands a cv::Mat over.
+        "rgb8" | "bgr8" | "8UC3" => Some(3),
+        "rgba8" | "bgra8" | "8UC4" => Some(4),
         "mono8" | "8UC1" => Some(1),
         "mono16" | "16UC1" => Some(2),
         _ => None,
@@ -121,7 +122,8 @@ pub fn check_image(camera: &str, msg: &Image) -> Result<ImageLayout, ConvertErro
     })
 }
 
-/// Converts a `sensor_msgs/Image` (rgb8, bgr8, rgba8, bgra8, mono8, mono16) into an
+/// Converts a `sensor_msgs/Image` (rgb8, bgr8, rgba8, bgra8, mono8, mono16; 8UC1, 8UC3, 8UC4,
+/// 16UC1 as mono8, bgr8, bgra8, mono16) into an
 /// [`Rgba8Image`], honouring `step` and, for mono16, `is_bigendian` (any non-zero value is
 /// big-endian; scaled to 8 bits by the high byte). The last row may omit its padding.
 ///
@@ -177,7 +179,7 @@ pub fn some_to_rgba8<'n>(
 pub fn packed_view(msg: &Image) -> Option<PackedImage<'_>> {
     let format = match msg.encoding.as_str() {
         "rgb8" => PackedFormat::Rgb8,
-        "bgr8" => PackedFormat::Bgr8,
+        "bgr8" | "8UC3" => PackedFormat::Bgr8,
         "mono8" | "8UC1" => PackedFormat::Mono8,
         _ => return None,
     };
@@ -235,9 +237,9 @@ fn row_filler(encoding: &str, big_endian: bool) -> fn(&[u8], &mut Vec<u32>) {
     }
     match encoding {
         "rgb8" => rgb,
-        "bgr8" => bgr,
+        "bgr8" | "8UC3" => bgr,
         "rgba8" => rgba,
-        "bgra8" => bgra,
+        "bgra8" | "8UC4" => bgra,
         "mono16" | "16UC1" if big_endian => mono16_be,
         "mono16" | "16UC1" => mono16_le,
         // mono8 and 8UC1, the rest of `bytes_per_pixel`'s encodings.
@@ -304,6 +306,8 @@ mod tests {
             ("bgr8", 3),
             ("rgba8", 4),
             ("bgra8", 4),
+            ("8UC3", 3),
+            ("8UC4", 4),
             ("mono8", 1),
             ("8UC1", 1),
             ("mono16", 2),
@@ -324,7 +328,9 @@ mod tests {
                         let p = &data[y * step as usize + x * bpp as usize..][..bpp as usize];
                         let want = match (encoding, p) {
                             ("rgb8" | "rgba8", [r, g, b, ..]) => Rgba8Image::pack(*r, *g, *b),
-                            ("bgr8" | "bgra8", [b, g, r, ..]) => Rgba8Image::pack(*r, *g, *b),
+                            ("bgr8" | "bgra8" | "8UC3" | "8UC4", [b, g, r, ..]) => {
+                                Rgba8Image::pack(*r, *g, *b)
+                            }
                             (_, [lo, hi]) => {
                                 let v = if big_endian == 1 { *lo } else { *hi };
                                 Rgba8Image::pack(v, v, v)

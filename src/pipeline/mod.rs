@@ -105,6 +105,12 @@ impl<'a> Pipeline<'a> {
         self.roster.inactive()
     }
 
+    /// Why no set is formed while the cameras out of the rig leave no reference or fewer than
+    /// two cameras; None while the rig can publish.
+    pub fn halted(&self) -> Option<String> {
+        (!self.roster.publishing()).then(|| self.degraded().message)
+    }
+
     /// One input message, received at `now_ns` (any monotonic clock in nanoseconds: receive
     /// time live, log time in a bag; it times camera dropout).
     pub fn push(&mut self, input: Input, now_ns: u64) -> Outcome {
@@ -357,6 +363,21 @@ impl<'a> Pipeline<'a> {
             rig_events: self.roster.track(camera, now_ns),
             ..Outcome::default()
         };
+        if image.header().frame_id.is_empty() && config.rig_file.is_some() {
+            // Placed by the rig file, the set goes on; but its outputs carry the frame_id,
+            // and tf (RViz, fusion in another node) cannot place an empty one. Without the
+            // rig file the lookup refuses it (SkipKind::FrameId).
+            outcome.notices.push(Notice {
+                kind: NoticeKind::EmptyFrameId,
+                camera: Some(camera),
+                message: format!(
+                    "camera '{}': its images carry an empty frame_id, and so do the outputs \
+                     made in its view: tf and RViz cannot place them; set the driver's \
+                     frame_id (e.g. {}_optical_frame)",
+                    config.cameras[camera], config.cameras[camera]
+                ),
+            });
+        }
         if let Some((period_s, timeout_s)) = self.roster.too_slow(camera) {
             outcome.notices.push(Notice {
                 kind: NoticeKind::SlowCamera,

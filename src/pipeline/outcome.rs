@@ -213,6 +213,8 @@ pub enum NoticeKind {
     Input,
     /// A camera sends so rarely that `camera_timeout` takes it out of the rig at a late image.
     SlowCamera,
+    /// An image with an empty `frame_id` placed by the rig file: its outputs carry none.
+    EmptyFrameId,
 }
 
 impl NoticeKind {
@@ -226,6 +228,7 @@ impl NoticeKind {
             NoticeKind::Transform => "transform",
             NoticeKind::Input => "input",
             NoticeKind::SlowCamera => "slow camera",
+            NoticeKind::EmptyFrameId => "empty frame_id",
         }
     }
 }

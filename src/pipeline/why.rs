@@ -213,7 +213,23 @@ impl Seen {
         let topic = &config.input_image_topic(first);
         let seen = &self.cameras[first];
         let (kind, mut message) = match (peers(topic), seen.last_image_ns) {
-            (Publishers::None, _) => (WhyKind::NoPublisher, no_publisher(topic)),
+            (Publishers::None, _) => {
+                // The other transport's topic has a publisher: the parameter, not the graph.
+                let (other, transport) = if config.compressed_inputs {
+                    (config.image_topics[first].clone(), "raw")
+                } else {
+                    (format!("{topic}/compressed"), "compressed")
+                };
+                let message = if matches!(peers(&other), Publishers::None) {
+                    no_publisher(topic)
+                } else {
+                    format!(
+                        "no publisher on {topic}, but one on {other}: set image_transport \
+                         to {transport}"
+                    )
+                };
+                (WhyKind::NoPublisher, message)
+            }
             (Publishers::Incompatible(why), _) => {
                 (WhyKind::IncompatibleQos, incompatible(topic, &why))
             }

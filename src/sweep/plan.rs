@@ -14,7 +14,7 @@ use crate::geometry::{CameraModel, Distortion, Rig};
 use crate::image::Rgba8Image;
 
 /// Columns per tile of the plane ranges (coarse to fine narrows each row's planes per tile of
-/// this many columns: docs/speed.md, "How much plane ranges per tile would save").
+/// this many columns: docs/notes/speed-history.md, "How much plane ranges per tile would save").
 pub const RANGE_TILE: u32 = 16;
 
 /// Tiles of plane ranges across a reference `width` pixels wide.

@@ -589,6 +589,12 @@ fn pack_images_and_rig_file_then_bag() {
             info.k = [0.0; 9];
             info.p = [0.0; 12];
             data = sweepdepth::msgs::to_cdr(&info).unwrap();
+        } else if m.topic == "/view0/image_raw" {
+            // A driver left without a frame_id: the rig file places the camera, and the node
+            // says the id is missing.
+            let mut image: Image = from_cdr(&m.data).unwrap();
+            image.header.frame_id.clear();
+            data = sweepdepth::msgs::to_cdr(&image).unwrap();
         }
         w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &data)
             .unwrap();
@@ -598,7 +604,7 @@ fn pack_images_and_rig_file_then_bag() {
     std::fs::write(&packed_rig, &rig).unwrap();
     let out = dir.join("uncalibrated_out.mcap");
     let rig_file = format!("rig_file:={}", packed_rig.display());
-    ok(
+    let stderr = ok(
         &sweepdepth(&[
             "bag",
             uncalibrated.to_str().unwrap(),
@@ -615,6 +621,10 @@ fn pack_images_and_rig_file_then_bag() {
             &rig_file,
         ]),
         "bag with uncalibrated camera_info and a rig file",
+    );
+    assert!(
+        stderr.contains("camera 'view0': its images carry an empty frame_id"),
+        "{stderr}"
     );
     let found = depths(&out);
     assert_eq!(found.len(), 1, "{rig}");

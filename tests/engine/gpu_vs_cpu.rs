@@ -26,7 +26,7 @@ const MAX_DISAGREE: f64 = 0.01;
 /// On a hardware GPU the shader's arithmetic is not the host's (fused multiply-adds, division
 /// to 2.5 ULP): a sample moves a little, a score by a few thousandths, and where two planes
 /// score within that of each other the other wins. Measured on an NVIDIA H200 (driver
-/// 580.159.04, 2026-11-27, every case of this file; docs/speed.md "The first GPU figures"),
+/// 580.159.04, 2026-11-27, every case of this file; docs/notes/speed-history.md "The first GPU figures"),
 /// the worst case per map: depths beyond 1e-3 relative on up to 35 % of pixels (sub-pixel
 /// offsets of SGM sums one level apart), beyond 1e-2 on 3.4 %, beyond 5e-2 on 2.7 %, beyond
 /// 0.2 on 1.0 %; scores (cost, confidence) beyond 5e-2 on 6.5 %, beyond 0.2 on 2.1 %; the

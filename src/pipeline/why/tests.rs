@@ -149,6 +149,24 @@ fn nothing_at_all_names_the_first_image_topic() {
         ),
         "{why}"
     );
+    // A driver that publishes only image_transport's compressed topic: the parameter to set.
+    let why = p
+        .why_no_depth(live(6 * S), &|topic| {
+            if topic.ends_with("/compressed") {
+                Publishers::Matched(1)
+            } else {
+                Publishers::None
+            }
+        })
+        .unwrap();
+    assert_eq!(why.kind, WhyKind::NoPublisher);
+    assert!(
+        why.message.starts_with(
+            "no publisher on /rig/a/image_raw, but one on /rig/a/image_raw/compressed: set \
+             image_transport to compressed"
+        ),
+        "{why}"
+    );
     let why = p
         .why_no_depth(live(6 * S), &|topic| {
             if topic == "/rig/a/image_raw" {
