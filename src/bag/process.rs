@@ -5,6 +5,7 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -120,6 +121,12 @@ pub enum BagRunError {
     },
     #[error("--mesh: {0}")]
     Fusion(#[from] crate::fusion::FusionError),
+    #[error("stopped by Ctrl-C after {sets} frame sets: {output} holds them{}", mesh.as_ref().map_or(String::new(), |m| format!(", {m} their mesh")))]
+    Interrupted {
+        sets: u64,
+        output: String,
+        mesh: Option<String>,
+    },
     #[error("--voxel-size must be in [0.001, 10] m (as the voxel_size parameter), got {0}")]
     VoxelSize(f32),
     #[error("--mesh: cannot write {path}: {source}")]
@@ -275,6 +282,10 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let started = Instant::now();
     let mut last_log_ns = 0u64;
     for item in reader.by_ref() {
+        if INTERRUPTED.load(Ordering::Relaxed) {
+            sink.report.interrupted = true;
+            break;
+        }
         let msg = match item {
             Ok(m) => m,
             Err(e) => {
@@ -324,8 +335,11 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .set_message(format!("{done} sets, {rate:.2} sets/s"));
         }
     }
-    // The sets the synchroniser held back waiting for later messages that never came.
-    sink.outcome(pipeline.finish(), last_log_ns)?;
+    // The sets the synchroniser held back waiting for later messages that never came (none
+    // after Ctrl-C: the user wants out).
+    if !sink.report.interrupted {
+        sink.outcome(pipeline.finish(), last_log_ns)?;
+    }
     sink.finish_all()?;
     // No depth at all: the first thing the sets lacked, as the live node says it.
     if sink.report.sets_processed == 0 {
@@ -708,13 +722,34 @@ fn no_depth(pipeline: &Pipeline, last_log_ns: u64, last_skip: Option<&str>) -> O
         .or_else(|| last_skip.map(|s| format!("sets are skipped: {s}")))
 }
 
+/// Set by the first Ctrl-C (or SIGTERM) of `bag`: reading stops, the sets in hand finish and
+/// the bag and the mesh are written with what was processed.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// `bag`'s Ctrl-C: the first stops the run cleanly ([`INTERRUPTED`]), the second quits at
+/// once (exit status 130, nothing more written). False when no handler could be set.
+fn handle_interrupts() -> bool {
+    static PRESSED: AtomicUsize = AtomicUsize::new(0);
+    let set = ctrlc::set_handler(|| {
+        if PRESSED.fetch_add(1, Ordering::SeqCst) == 0 {
+            INTERRUPTED.store(true, Ordering::SeqCst);
+            eprintln!(
+                "\nCtrl-C: stopping; the sets processed so far are written (Ctrl-C again to quit \
+                 without writing)"
+            );
+        } else {
+            std::process::exit(130);
+        }
+    });
+    if let Err(e) = &set {
+        tracing::warn!("cannot handle Ctrl-C ({e}): it ends the run without writing");
+    }
+    set.is_ok()
+}
+
 /// `--view` after the bag: the last set stays on view until Ctrl-C (or SIGTERM).
-fn hold_view(viewer: &Viewer) {
-    let (tx, rx) = std::sync::mpsc::channel();
-    if let Err(e) = ctrlc::set_handler(move || {
-        let _ = tx.send(());
-    }) {
-        tracing::warn!("cannot wait for Ctrl-C ({e}); the live view ends now");
+fn hold_view(viewer: &Viewer, interrupts: bool) {
+    if !interrupts {
         return;
     }
     eprintln!(
@@ -722,19 +757,31 @@ fn hold_view(viewer: &Viewer) {
         viewer.page_url(),
         viewer.websocket_url()
     );
-    let _ = rx.recv();
+    while !INTERRUPTED.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
 }
 
 /// The `bag` subcommand: prints the summary; fails when the bag is damaged (with `--strict`,
 /// or when nothing could be read) or nothing usable was in it.
 pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
+    let interrupts = handle_interrupts();
     let (report, viewer) = process_bag_viewing(args)?;
     eprintln!("{}", report.summary_line());
     if let Some(mesh) = &report.mesh {
         eprintln!("mesh: {mesh}");
     }
+    if report.interrupted {
+        return Err(BagRunError::Interrupted {
+            sets: report.sets_processed,
+            output: args.output.display().to_string(),
+            mesh: (args.mesh.as_ref())
+                .filter(|_| report.sets_processed > 0)
+                .map(|m| m.display().to_string()),
+        });
+    }
     if let Some(viewer) = viewer {
-        hold_view(&viewer);
+        hold_view(&viewer, interrupts);
     }
     if !report.ignored_topics.is_empty() {
         tracing::info!("topics not read: {}", report.ignored_topics.join(", "));

@@ -40,6 +40,8 @@ pub struct BagReport {
     /// No set processed: why ([`crate::pipeline::Pipeline::why_no_depth`], the same reasons
     /// as the live node's "no depth" line, e.g. "camera_info never recorded for cam3").
     pub no_depth: Option<String>,
+    /// Ctrl-C stopped the reading: the outputs hold the sets processed before it.
+    pub interrupted: bool,
 }
 
 impl BagReport {
@@ -47,8 +49,16 @@ impl BagReport {
     pub fn summary_line(&self) -> String {
         let skipped = self.skipped.total();
         let mut s = format!(
-            "bag: {} frame sets found, {} processed, {} incomplete, {} skipped",
-            self.sets_found, self.sets_processed, self.sync.incomplete, skipped
+            "bag: {} frame sets found{}, {} processed, {} incomplete, {} skipped",
+            self.sets_found,
+            if self.interrupted {
+                " before Ctrl-C"
+            } else {
+                ""
+            },
+            self.sets_processed,
+            self.sync.incomplete,
+            skipped
         );
         if self.depth_maps > self.sets_processed {
             s += &format!(" ({} depth maps)", self.depth_maps);

@@ -316,10 +316,14 @@ fn job_outputs(
                     SweepError::NoNeighbours { .. } => SkipKind::Rig,
                     _ => SkipKind::Engine,
                 };
+                let hint = match e {
+                    SweepError::NoNeighbours { .. } => shared_frame_hint(job, reference.index),
+                    _ => String::new(),
+                };
                 set.skipped.push(Skip::new(
                     kind,
                     Some(reference.index),
-                    format!("reference '{name}': sweep failed: {e}"),
+                    format!("reference '{name}': sweep failed: {e}{hint}"),
                 ));
                 continue;
             }
@@ -524,4 +528,35 @@ fn reference_outputs(
         },
         messages,
     }
+}
+
+/// Why a reference may have no neighbour though cameras look where it looks: other cameras
+/// whose images carry its `frame_id` and sit at its centre (two drivers left at their default
+/// frame, no `Tx` in P). Empty when there are none.
+fn shared_frame_hint(job: &Job, reference: usize) -> String {
+    let frame = |i: usize| job.images.get(i).map(|m| m.header.frame_id.as_str());
+    let centre = |c: &crate::geometry::RigCamera| c.cam_from_rig.inverse().translation;
+    let Some(ours) = job.cameras.get(reference) else {
+        return String::new();
+    };
+    let together: Vec<&str> = (job.cameras.iter().enumerate())
+        .filter(|&(i, c)| {
+            i != reference
+                && frame(i).is_some()
+                && frame(i) == frame(reference)
+                && (centre(c) - centre(ours)).length() < 1e-3
+        })
+        .map(|(_, c)| c.name.as_str())
+        .collect();
+    if together.is_empty() {
+        return String::new();
+    }
+    format!(
+        " (cameras '{}' and '{}' carry one frame_id, '{}', at one place: give each camera its \
+         own frame on /tf_static, or the second camera's CameraInfo P its baseline, Tx = -fx * \
+         baseline in metres)",
+        ours.name,
+        together.join("', '"),
+        frame(reference).unwrap_or_default()
+    )
 }

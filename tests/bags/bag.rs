@@ -633,6 +633,42 @@ fn pack_images_and_rig_file_then_bag() {
     assert!(bad < 0.10, "bad pixels {:.1} %", bad * 100.0);
 }
 
+/// Two drivers left at one default frame: every camera's images carry the reference's
+/// frame_id, so tf puts them all at one place and no camera gives parallax. The reason names
+/// the shared frame and the two ways out, not only "check the rig's translations".
+#[test]
+fn cameras_sharing_one_frame_id_are_named() {
+    let dir = scratch("oneframe");
+    let bag = dir.join("oneframe.mcap");
+    let mut w = sweepdepth::bag::BagWriter::create(&bag, false).unwrap();
+    for m in messages(&fixture()) {
+        w.add_topic(&m.topic, &m.msg_type, None).unwrap();
+        let mut data = m.data.clone();
+        if m.topic.ends_with("image_raw") {
+            let mut image: Image = from_cdr(&m.data).unwrap();
+            image.header.frame_id = "cam2_optical_frame".into();
+            data = sweepdepth::msgs::to_cdr(&image).unwrap();
+        }
+        w.write(&m.topic, m.log_time_ns, m.publish_time_ns, &data)
+            .unwrap();
+    }
+    w.finish().unwrap();
+    let params = fixture_params();
+    let out = sweepdepth(&[
+        "bag",
+        bag.to_str().unwrap(),
+        dir.join("out.mcap").to_str().unwrap(),
+        "--params-file",
+        params.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("carry one frame_id, 'cam2_optical_frame', at one place")
+            && stderr.contains("Tx = -fx * baseline"),
+        "{stderr}"
+    );
+}
+
 /// Stamps jittered by a few milliseconds per camera (free-running cameras): approximate sync
 /// pairs them, and the last set, which only later messages could prove best, is still emitted
 /// at the end of the bag.

@@ -268,3 +268,77 @@ fn mesh_never_replaces_the_input_or_a_good_mesh() {
         "{stderr}"
     );
 }
+
+/// Ctrl-C during a long `bag --mesh`: reading stops, the sets in hand finish, and the bag and
+/// the mesh are written with the sets processed before it (the run fails, saying so); the
+/// work done is not lost. The signal goes once the first set is on the engine (its reference
+/// says which views it sweeps with), long before the 300 sets are through.
+#[test]
+fn ctrl_c_keeps_the_sets_processed_before_it() {
+    use std::io::BufRead;
+    let dir = scratch("ctrl_c");
+    let long = dir.join("long.mcap");
+    ok(
+        &sweepdepth(&[
+            "pack",
+            root().join("data/tsukuba").to_str().unwrap(),
+            long.to_str().unwrap(),
+            "--scale",
+            "0.5",
+            "--frames",
+            "300",
+            "--compressed",
+        ]),
+        "pack",
+    );
+    let (out, mesh) = (dir.join("out.mcap"), dir.join("map.ply"));
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args(["bag", long.to_str().unwrap(), out.to_str().unwrap()])
+        .args([
+            "--params-file",
+            dir.join("long.params.yaml").to_str().unwrap(),
+        ])
+        .args(["--mesh", mesh.to_str().unwrap(), "--voxel-size", "0.1"])
+        .env("RUST_LOG", "warn,sweepdepth=info")
+        .stdin(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run sweepdepth");
+    let stderr = child.stderr.take().expect("stderr");
+    let mut lines = std::io::BufReader::new(stderr).lines();
+    let mut seen = String::new();
+    for line in lines.by_ref() {
+        let line = line.expect("stderr line");
+        seen += &line;
+        seen.push('\n');
+        if line.contains("sweeps with") {
+            break;
+        }
+    }
+    let kill = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(kill.success());
+    for line in lines {
+        seen += &line.expect("stderr line");
+        seen.push('\n');
+    }
+    let status = child.wait().expect("wait");
+    assert!(!status.success(), "{seen}");
+    assert!(
+        seen.contains("Ctrl-C: stopping") && seen.contains("stopped by Ctrl-C after"),
+        "{seen}"
+    );
+    let depths = messages(&out)
+        .iter()
+        .filter(|m| m.topic == "/depth/image")
+        .count();
+    assert!(depths >= 1 && depths < 300, "{depths} depth maps: {seen}");
+    assert!(
+        seen.contains(&format!("{depths} processed")),
+        "the summary counts what the bag holds ({depths}): {seen}"
+    );
+    let ply = std::fs::read(&mesh).expect("the mesh of the sets before Ctrl-C");
+    assert!(ply.starts_with(b"ply\n"), "not a PLY");
+}
