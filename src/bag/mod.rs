@@ -2,6 +2,7 @@
 //! a rosbag2 directory), `sweepdepth bag` ([`process`]: a bag through the node's pipeline,
 //! [`report`]: what it did) and `sweepdepth pack` ([`pack`]: a dataset folder into a bag).
 
+mod interrupt;
 pub mod pace;
 pub mod pack;
 pub mod process;

@@ -5,7 +5,6 @@
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -16,6 +15,7 @@ use crate::pipeline::{fusion_gpu, Asked, Fuser, FusionHost, Publishers};
 use crate::pipeline::{ConfigError, EngineHost, HostError, Input, Pipeline, PipelineConfig};
 use crate::viewer::{Viewer, ViewerConfig, ViewerError};
 
+use super::interrupt;
 use super::pace::{Pacer, ViewRate};
 use super::reader::TopicInfo;
 use super::report::BagReport;
@@ -282,7 +282,7 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     let started = Instant::now();
     let mut last_log_ns = 0u64;
     for item in reader.by_ref() {
-        if INTERRUPTED.load(Ordering::Relaxed) {
+        if interrupt::interrupted() {
             sink.report.interrupted = true;
             break;
         }
@@ -722,50 +722,10 @@ fn no_depth(pipeline: &Pipeline, last_log_ns: u64, last_skip: Option<&str>) -> O
         .or_else(|| last_skip.map(|s| format!("sets are skipped: {s}")))
 }
 
-/// Set by the first Ctrl-C (or SIGTERM) of `bag`: reading stops, the sets in hand finish and
-/// the bag and the mesh are written with what was processed.
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
-
-/// `bag`'s Ctrl-C: the first stops the run cleanly ([`INTERRUPTED`]), the second quits at
-/// once (exit status 130, nothing more written). False when no handler could be set.
-fn handle_interrupts() -> bool {
-    static PRESSED: AtomicUsize = AtomicUsize::new(0);
-    let set = ctrlc::set_handler(|| {
-        if PRESSED.fetch_add(1, Ordering::SeqCst) == 0 {
-            INTERRUPTED.store(true, Ordering::SeqCst);
-            eprintln!(
-                "\nCtrl-C: stopping; the sets processed so far are written (Ctrl-C again to quit \
-                 without writing)"
-            );
-        } else {
-            std::process::exit(130);
-        }
-    });
-    if let Err(e) = &set {
-        tracing::warn!("cannot handle Ctrl-C ({e}): it ends the run without writing");
-    }
-    set.is_ok()
-}
-
-/// `--view` after the bag: the last set stays on view until Ctrl-C (or SIGTERM).
-fn hold_view(viewer: &Viewer, interrupts: bool) {
-    if !interrupts {
-        return;
-    }
-    eprintln!(
-        "done; the last set stays on view at {} (Foxglove/Lichtblick: {}) until Ctrl-C",
-        viewer.page_url(),
-        viewer.websocket_url()
-    );
-    while !INTERRUPTED.load(Ordering::Relaxed) {
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 /// The `bag` subcommand: prints the summary; fails when the bag is damaged (with `--strict`,
 /// or when nothing could be read) or nothing usable was in it.
 pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
-    let interrupts = handle_interrupts();
+    let interrupts = interrupt::handle_interrupts();
     let (report, viewer) = process_bag_viewing(args)?;
     eprintln!("{}", report.summary_line());
     if let Some(mesh) = &report.mesh {
@@ -781,7 +741,7 @@ pub fn run(args: &BagArgs) -> Result<(), BagRunError> {
         });
     }
     if let Some(viewer) = viewer {
-        hold_view(&viewer, interrupts);
+        interrupt::hold_view(&viewer, interrupts);
     }
     if !report.ignored_topics.is_empty() {
         tracing::info!("topics not read: {}", report.ignored_topics.join(", "));

@@ -334,7 +334,7 @@ fn ctrl_c_keeps_the_sets_processed_before_it() {
         .iter()
         .filter(|m| m.topic == "/depth/image")
         .count();
-    assert!(depths >= 1 && depths < 300, "{depths} depth maps: {seen}");
+    assert!((1..300).contains(&depths), "{depths} depth maps: {seen}");
     assert!(
         seen.contains(&format!("{depths} processed")),
         "the summary counts what the bag holds ({depths}): {seen}"
