@@ -297,6 +297,17 @@ impl Seen {
                 WhyKind::IncompatibleQos,
                 format!("images arrive but {}", incompatible(topic, &why)),
             ),
+            peers @ Publishers::Matched(_) if asked.live() => (
+                WhyKind::NoCameraInfo,
+                // A driver that latches one camera_info (transient-local) before the node
+                // starts: a volatile reader, as image_transport's, never gets it.
+                format!(
+                    "images arrive but no camera_info on {topic}{}: the node reads camera_info \
+                     as image_transport does (volatile), so one sent only before it started is \
+                     not received; the driver should send it with every image",
+                    matched(&peers)
+                ),
+            ),
             peers if asked.live() => (
                 WhyKind::NoCameraInfo,
                 format!(

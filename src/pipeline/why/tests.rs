@@ -233,6 +233,19 @@ fn camera_info_missing_is_named() {
             .starts_with("images arrive but no publisher on /rig/c/camera_info"),
         "{why}"
     );
+    // A publisher matched that sent nothing: most likely one camera_info latched before the
+    // node started, which a volatile reader never gets.
+    let why = p
+        .why_no_depth(live(now), &|_| Publishers::Matched(1))
+        .unwrap();
+    assert_eq!(why.kind, WhyKind::NoCameraInfo);
+    assert!(
+        why.message.starts_with(
+            "images arrive but no camera_info on /rig/c/camera_info (1 publisher matched, \
+             nothing received): the node reads camera_info as image_transport does (volatile)"
+        ),
+        "{why}"
+    );
     // A bag says it in the past tense.
     let bag = Asked {
         now_ns: now,
