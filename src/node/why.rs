@@ -102,12 +102,16 @@ pub(super) fn dds_topic_name(topic: &str) -> String {
 }
 
 /// What `writers` (DDS topic name and QoS) say of `topic`'s publishers, for the subscriptions
-/// `requested`.
+/// `requested`; for a topic the node does not subscribe (the other image transport's), whether
+/// it has publishers at all (`Matched(n)`: n of any QoS).
 fn publishers(requested: &[Requested], writers: &[(String, Offered)], topic: &str) -> Publishers {
-    let Some(requested) = requested.iter().find(|r| r.topic == topic) else {
-        return Publishers::Unknown;
-    };
     let dds_name = dds_topic_name(topic);
+    let Some(requested) = requested.iter().find(|r| r.topic == topic) else {
+        return match writers.iter().filter(|(name, _)| *name == dds_name).count() {
+            0 => Publishers::None,
+            n => Publishers::Matched(n),
+        };
+    };
     let offered: Vec<Offered> = writers
         .iter()
         .filter(|(name, _)| *name == dds_name)
@@ -253,9 +257,19 @@ mod tests {
                     .into()
             )
         );
+        // A topic the node does not subscribe: whether it has publishers at all.
+        assert_eq!(publishers(&requested, &writers, "/other"), Publishers::None);
         assert_eq!(
-            publishers(&requested, &writers, "/other"),
-            Publishers::Unknown
+            publishers(&requested, &writers, "/rig/cam0/image_raw/compressed"),
+            Publishers::None
+        );
+        let compressed = [(
+            "rt/rig/cam0/image_raw/compressed".to_string(),
+            offered(false, false),
+        )];
+        assert_eq!(
+            publishers(&requested, &compressed, "/rig/cam0/image_raw/compressed"),
+            Publishers::Matched(1)
         );
     }
 }

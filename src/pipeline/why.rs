@@ -220,7 +220,11 @@ impl Seen {
                 } else {
                     (format!("{topic}/compressed"), "compressed")
                 };
-                let message = if matches!(peers(&other), Publishers::None) {
+                let there = matches!(
+                    peers(&other),
+                    Publishers::Matched(_) | Publishers::Incompatible(_)
+                );
+                let message = if !there {
                     no_publisher(topic)
                 } else {
                     format!(
