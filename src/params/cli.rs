@@ -95,6 +95,23 @@ fn parse_size(
     ]))
 }
 
+/// The parameter's default as its option takes it (`best-half-sequence`, `64`, `true`).
+fn default_text(param: &EngineParam) -> String {
+    match &param.spec.default {
+        ParamValue::String(s) => s.replace('_', "-"),
+        other => other.to_string(),
+    }
+}
+
+/// The description with the default.
+fn with_default(param: &EngineParam) -> String {
+    format!(
+        "{} [default: {}]",
+        param.spec.description,
+        default_text(param)
+    )
+}
+
 /// The option of `param` (for a `Width`, the option of both halves; `Height` has none of its
 /// own).
 fn option(param: &'static EngineParam) -> Option<Arg> {
@@ -113,11 +130,13 @@ fn option(param: &'static EngineParam) -> Option<Arg> {
                 .iter()
                 .find(|p| p.flag == Flag::Height(long))?;
             arg.help(format!(
-                "WxH: {} (W) and {} (H). {} [{} each]",
+                "WxH: {} (W) and {} (H). {} [{} each; default: {}x{}]",
                 param.spec.name,
                 height.spec.name,
                 param.spec.description,
-                param.spec.range.describe()
+                param.spec.range.describe(),
+                param.spec.default,
+                height.spec.default
             ))
             .value_parser(move |s: &str| parse_size(param, height, s))
         }
@@ -125,21 +144,23 @@ fn option(param: &'static EngineParam) -> Option<Arg> {
         // (`best_n_of_m`).
         (_, ParamRange::OneOf(values)) => {
             let kebab: Vec<String> = values.iter().map(|v| v.replace('_', "-")).collect();
-            arg.help(param.spec.description).value_parser(
+            arg.help(with_default(param)).value_parser(
                 PossibleValuesParser::new(kebab)
                     .map(|s: String| ParamValue::String(s.replace('-', "_"))),
             )
         }
-        (_, _) if param.spec.kind == ParamKind::Bool => {
-            arg.help(param.spec.description).value_parser(
-                PossibleValuesParser::new(["true", "false"])
-                    .map(|s: String| ParamValue::Bool(s == "true")),
-            )
-        }
+        (_, _) if param.spec.kind == ParamKind::Bool => arg.help(with_default(param)).value_parser(
+            PossibleValuesParser::new(["true", "false"])
+                .map(|s: String| ParamValue::Bool(s == "true")),
+        ),
         (_, range) => {
             let help = match range.describe() {
-                r if r.is_empty() => param.spec.description.to_string(),
-                r => format!("{} [{r}]", param.spec.description),
+                r if r.is_empty() => with_default(param),
+                r => format!(
+                    "{} [{r}; default: {}]",
+                    param.spec.description,
+                    default_text(param)
+                ),
             };
             arg.help(help)
                 .value_parser(move |s: &str| parse_value(param, s))
@@ -227,6 +248,29 @@ mod tests {
         ] {
             assert!(longs.contains(&flag), "--{flag} missing: {longs:?}");
         }
+    }
+
+    /// Each option's help says its default, as the option takes it.
+    #[test]
+    fn help_says_every_default() {
+        let cmd = EngineOptions::augment_args(Command::new("t"));
+        let help = |long: &str| {
+            let arg = cmd.get_arguments().find(|a| a.get_long() == Some(long));
+            arg.and_then(|a| a.get_help()).map(|h| h.to_string())
+        };
+        for arg in cmd.get_arguments() {
+            let h = arg.get_help().map(|h| h.to_string()).unwrap_or_default();
+            assert!(h.contains("default: "), "{:?}: {h}", arg.get_long());
+        }
+        let planes = help("planes").unwrap_or_default();
+        assert!(planes.ends_with("[2 ..= 4096; default: 64]"), "{planes}");
+        let scoring = help("scoring").unwrap_or_default();
+        assert!(
+            scoring.ends_with("[default: best-half-sequence]"),
+            "{scoring}"
+        );
+        let window = help("window").unwrap_or_default();
+        assert!(window.ends_with("default: 5x5]"), "{window}");
     }
 
     #[test]
