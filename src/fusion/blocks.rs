@@ -394,22 +394,83 @@ pub(super) fn farthest_blocks<V>(
     if max_blocks == 0 || blocks.len() <= max_blocks {
         return Vec::new();
     }
+    farthest_of(
+        blocks.keys().copied(),
+        max_blocks,
+        voxel_size_m,
+        centre_in_world,
+    )
+}
+
+/// [`farthest_blocks`] over any distinct block indices: those beyond the `max_blocks` nearest
+/// to `centre_in_world` (0: no limit), in no particular order.
+pub(super) fn farthest_of(
+    indices: impl Iterator<Item = BlockIndex>,
+    max_blocks: usize,
+    voxel_size_m: f32,
+    centre_in_world: DVec3,
+) -> Vec<BlockIndex> {
     let block_m = f64::from(voxel_size_m) * BLOCK_SIDE as f64;
     let half = DVec3::splat(0.5 * block_m - 0.5 * f64::from(voxel_size_m));
-    let mut by_distance: Vec<(f64, BlockIndex)> = blocks
-        .keys()
+    let mut by_distance: Vec<(f64, BlockIndex)> = indices
         .map(|index| {
             let [a, b, c] = index.0.map(f64::from);
             let centre = DVec3::new(a, b, c) * block_m + half;
-            (centre.distance_squared(centre_in_world), *index)
+            (centre.distance_squared(centre_in_world), index)
         })
         .collect();
+    if max_blocks == 0 || by_distance.len() <= max_blocks {
+        return Vec::new();
+    }
     // The `max_blocks` nearest first.
     by_distance.select_nth_unstable_by(max_blocks, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     by_distance
         .drain(max_blocks..)
         .map(|(_, index)| index)
         .collect()
+}
+
+/// What [`bound_allocation`] settled: the blocks held to drop before allocating, and how many
+/// new ones are not allocated.
+pub(super) struct AllocationBound {
+    pub held: Vec<BlockIndex>,
+    pub skipped: usize,
+}
+
+/// The memory bound before step 1 allocates: when the blocks `allocated` and `new` together
+/// pass `max_blocks` (0: no limit), the ones beyond the `max_blocks` nearest to
+/// `centre_in_world` are settled now, as dropping the farthest after the update would settle
+/// them ([`VoxelBlockGrid::drop_farthest`]): the new ones among them leave `new` and `in_view`
+/// (never allocated), the held ones are returned for the caller to drop before it allocates.
+/// So one depth map never makes the grid hold more than `max_blocks`, even for a moment.
+pub(super) fn bound_allocation<V>(
+    allocated: &BlockMap<V>,
+    in_view: &mut BlockSet,
+    new: &mut Vec<BlockIndex>,
+    max_blocks: usize,
+    voxel_size_m: f32,
+    centre_in_world: DVec3,
+) -> AllocationBound {
+    let mut bound = AllocationBound {
+        held: Vec::new(),
+        skipped: 0,
+    };
+    if max_blocks == 0 || allocated.len() + new.len() <= max_blocks {
+        return bound;
+    }
+    let all = allocated.keys().copied().chain(new.iter().copied());
+    let mut skipped = BlockSet::default();
+    for index in farthest_of(all, max_blocks, voxel_size_m, centre_in_world) {
+        in_view.remove(&index);
+        if allocated.contains_key(&index) {
+            bound.held.push(index);
+        } else {
+            skipped.insert(index);
+        }
+    }
+    new.retain(|index| !skipped.contains(index));
+    bound.skipped = skipped.len();
+    bound
 }
 
 /// The blocks changed and dropped since a consumer last took them (a mesh update:

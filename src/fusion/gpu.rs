@@ -15,7 +15,9 @@
 use bytemuck::{Pod, Zeroable};
 
 use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
-use super::blocks::{farthest_blocks, Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel};
+use super::blocks::{
+    bound_allocation, farthest_blocks, Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel,
+};
 use super::integrate::{
     blocks_to_update, prepare, FrameInput, IntegrationScratch, PixelSample, Projector,
 };
@@ -407,7 +409,19 @@ impl GpuTsdf {
             });
         }
         // Step 1 on the host map; the pool grown before anything is changed.
-        let (in_view, new) = blocks_to_update(&view, &self.slots, &pose);
+        let (mut in_view, mut new) = blocks_to_update(&view, &self.slots, &pose);
+        // The memory bound settled before the pool grows, as the CPU's.
+        let bound = bound_allocation(
+            &self.slots,
+            &mut in_view,
+            &mut new,
+            self.params.max_blocks,
+            voxel_size_m,
+            pose.translation,
+        );
+        for index in &bound.held {
+            self.drop_block(*index);
+        }
         let fresh = new.len().saturating_sub(self.free.len());
         let grown = self.grow_for(self.next_slot as usize + fresh)?;
         let mut reused = Vec::new();
@@ -468,7 +482,7 @@ impl GpuTsdf {
                 self.unmeshed.change(*index);
             }
         }
-        // The memory bound, as the CPU's `VoxelBlockGrid::drop_farthest`.
+        // The memory bound (settled above; this drops nothing more), as the CPU's.
         let dropped = farthest_blocks(
             &self.slots,
             self.params.max_blocks,
@@ -476,15 +490,20 @@ impl GpuTsdf {
             pose.translation,
         );
         for index in &dropped {
-            if let Some(slot) = self.slots.remove(index) {
-                self.free.push(slot);
-            }
-            self.allocated.remove(index);
-            self.unsynced.remove(*index);
-            self.unmeshed.remove(*index);
+            self.drop_block(*index);
         }
-        stats.blocks_dropped = dropped.len();
+        stats.blocks_dropped = bound.held.len() + bound.skipped + dropped.len();
         Ok(stats)
+    }
+
+    /// Drops one block: its slot is free for the next, its changes forgotten.
+    fn drop_block(&mut self, index: BlockIndex) {
+        if let Some(slot) = self.slots.remove(&index) {
+            self.free.push(slot);
+        }
+        self.allocated.remove(&index);
+        self.unsynced.remove(index);
+        self.unmeshed.remove(index);
     }
 
     /// Makes the pool hold `slots` slots (doubling), or says it cannot; returns the old pool

@@ -46,7 +46,9 @@ mod pinhole;
 use allocate::RayGrid;
 use pinhole::{pinhole_samples, update_block_pinhole, PinholeSamples, DEPTH_TILE};
 
-use super::blocks::{Block, BlockIndex, BlockMap, BlockSet, RowObservation, BLOCK_SIDE};
+use super::blocks::{
+    bound_allocation, Block, BlockIndex, BlockMap, BlockSet, RowObservation, BLOCK_SIDE,
+};
 use super::{FusionError, FusionParams, VoxelBlockGrid};
 
 /// The least weight of one observation (a view at 84 degrees to the surface or more).
@@ -64,8 +66,9 @@ pub struct IntegrationStats {
     /// Blocks where at least one voxel was updated (marked changed for meshing).
     pub blocks_updated: usize,
     pub voxels_updated: usize,
-    /// Blocks dropped afterwards to keep the grid within [`FusionParams::max_blocks`]: the
-    /// farthest from this camera's centre.
+    /// Blocks dropped to keep the grid within [`FusionParams::max_blocks`]: the farthest from
+    /// this camera's centre, held ones and new ones of this map never allocated (the bound is
+    /// settled before allocation, so the grid never holds more, even during one map).
     pub blocks_dropped: usize,
 }
 
@@ -138,7 +141,19 @@ pub(super) fn integrate_into(
     let (view, world_from_cam) = prepare(grid.voxel_size_m(), scratch, params, &frame)?;
     let pixels_valid = view.pixels_valid;
     // Step 1: allocation.
-    let (in_view, new) = blocks_to_update(&view, grid.blocks_map(), &world_from_cam);
+    let (mut in_view, mut new) = blocks_to_update(&view, grid.blocks_map(), &world_from_cam);
+    // The memory bound settled before anything is allocated.
+    let bound = bound_allocation(
+        grid.blocks_map(),
+        &mut in_view,
+        &mut new,
+        params.max_blocks,
+        grid.voxel_size_m(),
+        world_from_cam.translation,
+    );
+    for index in &bound.held {
+        grid.remove_block(*index);
+    }
     let map = grid.blocks_map_mut();
     // The new blocks made on the pool's threads: a block's zeroed voxels are 6 KiB of fresh
     // pages to fault in, a first frame's ~1500 of them 9 MB.
@@ -180,8 +195,10 @@ pub(super) fn integrate_into(
         grid.mark_changed(index);
     }
     *scratch = view.into_scratch();
-    // Step 3: the memory bound.
-    stats.blocks_dropped = grid.drop_farthest(params.max_blocks, world_from_cam.translation);
+    // Step 3: the memory bound (settled before step 1; this drops nothing more).
+    stats.blocks_dropped = bound.held.len()
+        + bound.skipped
+        + grid.drop_farthest(params.max_blocks, world_from_cam.translation);
     Ok(stats)
 }
 
@@ -1193,6 +1210,61 @@ mod tests {
             assert_eq!(stats.blocks_dropped, 0);
         }
         assert!(all.block_count() > 250);
+    }
+
+    #[test]
+    fn one_depth_map_never_allocates_past_max_blocks() {
+        // A wall 3 m away seen by two poses a metre apart: the blocks one view's band crosses,
+        // unbounded, then with a bound of half of them.
+        let model = camera(320, 240, 300.0);
+        let poses = [0.0, 1.0].map(|x| RigidTransform {
+            translation: DVec3::new(x, 0.2, 0.0),
+            ..RigidTransform::IDENTITY
+        });
+        let unbounded = FusionParams {
+            max_blocks: 0,
+            ..FusionParams::default()
+        };
+        let mut all = VoxelBlockGrid::new(unbounded.voxel_size_m).unwrap();
+        let depth = render_plane(&model, &poses[0], DVec3::Z, 3.0);
+        let n = integrate(&mut all, &unbounded, &depth, None, &model, &poses[0])
+            .unwrap()
+            .blocks_allocated;
+        assert!(n > 60, "{n} blocks");
+        let bound = FusionParams {
+            max_blocks: n / 2,
+            ..unbounded
+        };
+        let mut grid = VoxelBlockGrid::new(bound.voxel_size_m).unwrap();
+        // What dropping the farthest after an unbounded update keeps, frame by frame.
+        let mut reference = VoxelBlockGrid::new(bound.voxel_size_m).unwrap();
+        let keys = |g: &VoxelBlockGrid| {
+            let mut k: Vec<BlockIndex> = g.blocks().map(|(index, _)| *index).collect();
+            k.sort_unstable();
+            k
+        };
+        for (i, pose) in poses.iter().enumerate() {
+            let depth = render_plane(&model, pose, DVec3::Z, 3.0);
+            let stats = integrate(&mut grid, &bound, &depth, None, &model, pose).unwrap();
+            // The first frame into an empty grid: what it allocated is its peak.
+            assert!(
+                stats.blocks_allocated <= bound.max_blocks,
+                "frame {i}: {stats:?}"
+            );
+            assert_eq!(grid.block_count(), bound.max_blocks, "frame {i}");
+            let all = integrate(&mut reference, &unbounded, &depth, None, &model, pose).unwrap();
+            let gone = reference.drop_farthest(bound.max_blocks, pose.translation);
+            assert_eq!(keys(&grid), keys(&reference), "frame {i}");
+            assert_eq!(stats.blocks_dropped, gone, "frame {i}");
+            // The new blocks dropping would remove at once were never made.
+            assert!(
+                stats.blocks_allocated < all.blocks_allocated,
+                "frame {i}: {stats:?}"
+            );
+        }
+        // The same voxels, so the same surface.
+        let (mut a, mut b) = (Mesh::new(), Mesh::new());
+        assert_eq!(a.rebuild(&grid).triangles, b.rebuild(&reference).triangles);
     }
 
     #[test]

@@ -74,8 +74,9 @@ pub struct FusionParams {
     pub max_depth_m: f32,
     /// Depths below this are not integrated.
     pub min_depth_m: f32,
-    /// The most blocks the grid keeps (0: no limit): after each integration, the blocks
-    /// farthest from that camera's centre beyond this many are dropped
+    /// The most blocks the grid holds at any moment (0: no limit): before each integration
+    /// allocates, the blocks farthest from that camera's centre beyond this many (held ones,
+    /// and new ones of the depth map's band, which are then never made) are dropped
     /// ([`VoxelBlockGrid::drop_farthest`]; [`IntegrationStats::blocks_dropped`]), and the next
     /// [`Mesh::update`] drops their meshes ([`Mesh::removed`]). A block holds 8 KiB of voxels
     /// (plus about 40 bytes in the hash map): the default, 50 000 blocks, bounds the grid at

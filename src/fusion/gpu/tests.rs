@@ -652,6 +652,37 @@ fn dropped_blocks_leave_and_their_slots_come_back_empty() {
     assert_close("mirror", &compare_grids(&cpu, &mirror));
 }
 
+/// A bound below what one frame's band crosses: the device's pool never takes more slots than
+/// the bound (the farthest new blocks are never given one), and the blocks kept are the CPU's.
+#[test]
+fn one_frame_past_the_bound_takes_only_the_slots_it_keeps() {
+    let (context, _one) = gpu();
+    let params = FusionParams {
+        max_blocks: 30,
+        ..FusionParams::default()
+    };
+    let model = camera(160, 120, 150.0);
+    let mut cpu = VoxelBlockGrid::new(params.voxel_size_m).unwrap();
+    let mut gpu = GpuTsdf::new(&context.device, &context.queue, params).unwrap();
+    for i in 0..3 {
+        let pose = off_the_grid(DVec3::new(0.7 * f64::from(i), 0.0, 0.0));
+        let depth = render_plane(&model, &pose, DVec3::Z, 3.013);
+        let a = integrate_weighted(&mut cpu, &params, &depth, None, None, &model, &pose).unwrap();
+        let b = gpu
+            .integrate(&view(&depth, None, &model, &pose), None)
+            .unwrap();
+        assert_same_stats(&format!("frame {i}"), &a, &b);
+        assert!(b.blocks_dropped > 0, "frame {i}: {b:?}");
+        assert!(
+            gpu.next_slot as usize <= params.max_blocks,
+            "frame {i}: {} slots",
+            gpu.next_slot
+        );
+        assert_eq!(gpu.block_count(), params.max_blocks, "frame {i}");
+    }
+    assert_close("bounded", &compare_grids(&cpu, &gpu.read_grid().unwrap()));
+}
+
 /// Bad input is refused as the CPU refuses it, and a frame that needs more blocks than the
 /// adapter's largest buffer holds is refused with the sizes, changing nothing.
 #[test]
