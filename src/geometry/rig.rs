@@ -1,7 +1,7 @@
 //! The rig: its cameras, the reference (one of them or a virtual camera) and the geometric
 //! split into the paper's two half-sequences.
 
-use glam::DVec3;
+use glam::{DVec2, DVec3};
 
 use super::{CameraModel, GeometryError, RigidTransform};
 
@@ -90,6 +90,33 @@ impl Rig {
         self.cameras[i]
             .cam_from_rig
             .compose(&self.ref_from_rig().inverse())
+    }
+
+    /// The view whose image moves most from one plane to the next of `planes` planes even in
+    /// inverse depth over `[min_depth_m, max_depth_m]` (they move evenly), measured along the
+    /// reference's central ray, and by how many pixels; None without a view that sees that ray.
+    pub fn widest_shift_per_plane(
+        &self,
+        min_depth_m: f64,
+        max_depth_m: f64,
+        planes: usize,
+    ) -> Option<(usize, f64)> {
+        let model = self.reference_model();
+        let k = model.intrinsics;
+        let ray = model.unproject_z1(DVec2::new(k.cx_px, k.cy_px))?;
+        let steps = planes.saturating_sub(1).max(1) as f64;
+        (0..self.cameras.len())
+            .filter(|&i| self.reference_index() != Some(i))
+            .filter_map(|i| {
+                let cam_from_ref = self.cam_from_ref(i);
+                let project = |depth: f64| {
+                    let model = &self.cameras[i].model;
+                    model.project(cam_from_ref.transform_point(ray * depth))
+                };
+                let (near, far) = (project(min_depth_m), project(max_depth_m));
+                Some((i, near?.distance(far?) / steps))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1))
     }
 
     /// Splits the non-reference cameras into the two halves of the paper's best half-sequence:

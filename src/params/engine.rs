@@ -209,7 +209,7 @@ engine_params! {
     max_depth_m: f64 = 10.0, "max_depth", Long("max-depth"), ParamRange::above(0.0),
         "Farthest depth swept, metres.";
     num_planes: u32 = 64, "num_planes", Long("planes"), ParamRange::ints(2, 4096),
-        "Number of depth planes, uniform in inverse depth (with optimizer sgm at most 1024).";
+        "Number of depth planes, uniform in inverse depth (with optimizer sgm at most 1024). Neighbouring planes more than 2 px apart in a reference's widest view lose much of the depth: warned, with the count that puts them 1 px apart.";
     // The cost, the window and the SGM penalties were chosen together on the evaluation sets
     // (docs/quality.md, CHANGELOG.md).
     cost: Cost = Cost::AdCensus, "cost", Long("cost"), variants::<Cost>(),

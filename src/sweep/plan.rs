@@ -224,28 +224,11 @@ fn set_sgm_params(
 /// most per plane, measured along the reference's central ray over the depth range (planes
 /// even in inverse depth shift evenly), at least 1.
 fn uniqueness_radius(rig: &Rig, params: &SweepParams, planes: usize) -> u32 {
-    let model = rig.reference_model();
-    let k = model.intrinsics;
-    let Some(ray) = model.unproject_z1(DVec2::new(k.cx_px, k.cy_px)) else {
-        return 1;
-    };
-    let steps = planes.saturating_sub(1).max(1) as f64;
-    let per_plane = (0..rig.cameras.len())
-        .filter(|&i| rig.reference_index() != Some(i))
-        .filter_map(|i| {
-            let cam_from_ref = rig.cam_from_ref(i);
-            let project = |depth: f64| {
-                let model = &rig.cameras[i].model;
-                model.project(cam_from_ref.transform_point(ray * depth))
-            };
-            let (near, far) = (project(params.min_depth_m), project(params.max_depth_m));
-            Some(near?.distance(far?) / steps)
-        })
-        .fold(0.0f64, f64::max);
-    if per_plane > 0.0 {
-        ((UNIQUENESS_RADIUS_PX / per_plane).ceil() as u32).clamp(1, planes as u32)
-    } else {
-        1
+    match rig.widest_shift_per_plane(params.min_depth_m, params.max_depth_m, planes) {
+        Some((_, per_plane)) if per_plane > 0.0 => {
+            ((UNIQUENESS_RADIUS_PX / per_plane).ceil() as u32).clamp(1, planes as u32)
+        }
+        _ => 1,
     }
 }
 

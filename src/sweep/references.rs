@@ -58,11 +58,65 @@ pub fn reference_rig(
         chosen.iter().map(|&i| cameras[i].clone()).collect(),
         Reference::Camera(position),
     )?;
+    say_plane_step(&rig, params);
     Ok(ReferenceRig {
         reference,
         cameras: chosen,
         rig,
     })
+}
+
+/// Above this shift between neighbouring planes in the widest view, a texture's match falls
+/// between planes: the ETH3D terrace pair (15 px of disparity over its range) had 8.1 % bad>1
+/// with planes 1 px apart, 10.1 % 2 px apart, 32.9 % 3.8 px apart, 60.0 % 5 px apart
+/// (`eval --device cpu --planes`, 2026-12-01).
+pub const MAX_PLANE_STEP_PX: f64 = 2.0;
+
+/// The warning for a reference whose planes lie more than [`MAX_PLANE_STEP_PX`] apart in its
+/// widest view, with the `num_planes` that would put them a pixel apart.
+pub fn plane_step_warning(rig: &Rig, params: &SweepParams) -> Option<String> {
+    let planes = params.num_planes as usize;
+    let (view, step) =
+        rig.widest_shift_per_plane(params.min_depth_m, params.max_depth_m, planes)?;
+    if step <= MAX_PLANE_STEP_PX {
+        return None;
+    }
+    let span = step * planes.saturating_sub(1) as f64;
+    let one_px = ((span.ceil() as usize) + 1).min(4096);
+    let reference = rig
+        .reference_index()
+        .map_or("the reference", |i| rig.cameras[i].name.as_str());
+    Some(format!(
+        "reference {reference}: its planes lie {step:.1} px apart in {} (num_planes {planes} \
+         over {}..{} m), so texture matches between planes and much of its depth comes out \
+         wrong; num_planes {one_px} puts them 1 px apart (or narrow min_depth / \
+         max_depth to the scene)",
+        rig.cameras[view].name,
+        crate::geometry::metres(params.min_depth_m),
+        crate::geometry::metres(params.max_depth_m),
+    ))
+}
+
+/// Logs [`plane_step_warning`] when it first comes for a reference and whenever it changes.
+fn say_plane_step(rig: &Rig, params: &SweepParams) {
+    static SAID: parking_lot::Mutex<Vec<(String, String)>> = parking_lot::const_mutex(Vec::new());
+    let Some(warning) = plane_step_warning(rig, params) else {
+        return;
+    };
+    let Some(reference) = rig.reference_index().map(|i| &rig.cameras[i].name) else {
+        return;
+    };
+    {
+        let mut said = SAID.lock();
+        match said.iter().position(|(r, _)| r == reference) {
+            Some(at) if said[at].1 == warning => return,
+            Some(at) => said[at].1.clone_from(&warning),
+            // A bounded memory, as `say_views`'.
+            None if said.len() < 4096 => said.push((reference.clone(), warning.clone())),
+            None => return,
+        }
+    }
+    tracing::warn!("{warning}");
 }
 
 /// Logs which cameras a reference sweeps with, and why the others are left out, when that
@@ -170,6 +224,38 @@ impl From<DepthMaps> for ReferenceMaps {
 mod tests {
     use super::*;
     use crate::geometry::CameraModel;
+
+    /// A pair 30 cm apart, f = 139 px, 1-6 m: 34.8 px of disparity over the range, 0.55 px per
+    /// plane over 64 planes (said nothing), 5 px over 8 (said, with 36 planes for 1 px).
+    #[test]
+    fn planes_many_pixels_apart_are_said_with_the_count_that_closes_them() {
+        let model = CameraModel::pinhole(crate::synthetic::intrinsics(160, 120));
+        let cameras = crate::synthetic::row_rig(2, 0.3, model, 0)
+            .expect("rig")
+            .cameras;
+        let params = |planes| SweepParams {
+            min_depth_m: 1.0,
+            max_depth_m: 6.0,
+            num_planes: planes,
+            ..SweepParams::default()
+        };
+        let rig = reference_rig(&cameras, 0, &params(64)).expect("rig").rig;
+        let (view, step) = rig.widest_shift_per_plane(1.0, 6.0, 64).expect("a view");
+        assert_eq!(rig.cameras[view].name, cameras[1].name);
+        assert!((step - 34.8 / 63.0).abs() < 0.05, "{step}");
+        assert_eq!(plane_step_warning(&rig, &params(64)), None);
+        assert_eq!(plane_step_warning(&rig, &params(19)), None);
+        let said = plane_step_warning(&rig, &params(8)).expect("said");
+        assert!(said.contains("5.0 px apart"), "{said}");
+        assert!(said.contains(&format!("in {}", cameras[1].name)), "{said}");
+        assert!(
+            said.contains("num_planes 36 puts them 1 px apart"),
+            "{said}"
+        );
+        // Both engines' uniqueness radius reads the same shift.
+        let plan = crate::sweep::plan::SweepPlan::new(&rig, &params(8)).expect("plan");
+        assert_eq!(plan.params.uniqueness_radius, 1);
+    }
 
     #[test]
     fn a_reference_rig_holds_its_neighbours_with_itself_as_reference() {

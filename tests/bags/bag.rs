@@ -556,6 +556,33 @@ fn pack_images_and_rig_file_then_bag() {
         1,
         "{stderr}"
     );
+    assert!(!stderr.contains("planes lie"), "{stderr}");
+    // Planes many pixels apart are said once, with the count that closes them.
+    let coarse = dir.join("coarse.mcap");
+    let few = ok(
+        &sweepdepth(&[
+            "bag",
+            bag.to_str().unwrap(),
+            coarse.to_str().unwrap(),
+            "--params-file",
+            dir.join("rig.params.yaml").to_str().unwrap(),
+            "-p",
+            &min,
+            "-p",
+            &max,
+            "-p",
+            "num_planes:=4",
+        ]),
+        "bag",
+    );
+    let said: Vec<&str> = few.lines().filter(|l| l.contains("planes lie")).collect();
+    assert_eq!(said.len(), 1, "{few}");
+    assert!(
+        said[0].contains("reference view2: its planes lie")
+            && said[0].contains("(num_planes 4 over"),
+        "{}",
+        said[0]
+    );
     let found = depths(&out);
     assert_eq!(found.len(), 1);
     let (_, image, values) = &found[0];
