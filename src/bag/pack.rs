@@ -165,6 +165,10 @@ fn frame_id(camera: &str) -> String {
 /// count when the source knows them.
 type Packed = (Vec<PackCamera>, usize, String, Option<(f64, f64, u32)>);
 
+/// The frame `/tf_static` poses the cameras in: the rig file's `rig_frame` (Kalibr: `cam0`),
+/// `rig` for a dataset.
+const DATASET_RIG_FRAME: &str = "rig";
+
 fn dataset_cameras(dir: &Path) -> Result<Packed, PackError> {
     let dataset = load_dataset(dir).map_err(|e| match e {
         crate::datasets::DatasetError::UnknownLayout { .. } => PackError::Invalid(format!(
@@ -215,8 +219,12 @@ fn is_image(p: &Path) -> bool {
 fn rig_folder_cameras(
     dir: &Path,
     rig: &Path,
-) -> Result<(Vec<PackCamera>, usize, String), PackError> {
+) -> Result<(Vec<PackCamera>, usize, String, String), PackError> {
     let file = load_rig_file(rig)?;
+    // What the node would log on loading it (ignored Kalibr keys, topic order).
+    for note in &file.notes {
+        tracing::warn!("{note}");
+    }
     let mut cameras = Vec::new();
     for c in &file.cameras {
         let model = c.model.ok_or_else(|| {
@@ -313,7 +321,12 @@ fn rig_folder_cameras(
     }
     // As the node's default (`NodeValues::reference_camera`): a pair's first camera.
     let reference = cameras.len().saturating_sub(1) / 2;
-    Ok((cameras, reference, format!("images of {}", rig.display())))
+    Ok((
+        cameras,
+        reference,
+        format!("images of {}", rig.display()),
+        file.rig_frame,
+    ))
 }
 
 /// ROS expects positive focal lengths (and our CameraInfo checks refuse others), but some
@@ -395,12 +408,15 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
     inputs.extend(rig.as_deref());
     writer::check_bag_output(&args.output, args.force, &inputs)?;
     writer::check_output(&params_file, args.force)?;
-    let (cameras, reference, source, depth) = match &rig {
+    let (cameras, reference, source, depth, rig_frame) = match &rig {
         Some(rig) => {
-            let (c, r, s) = rig_folder_cameras(&args.dir, rig)?;
-            (c, r, s, None)
+            let (c, r, s, frame) = rig_folder_cameras(&args.dir, rig)?;
+            (c, r, s, None, frame)
         }
-        None => dataset_cameras(&args.dir)?,
+        None => {
+            let (c, r, s, d) = dataset_cameras(&args.dir)?;
+            (c, r, s, d, DATASET_RIG_FRAME.to_string())
+        }
     };
     let (mut cameras, reference) = keep_nearest(cameras, reference, args.cameras)?;
     for c in &mut cameras {
@@ -419,6 +435,7 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
         }
     }
 
+    check_rig_frame(&cameras, &rig_frame)?;
     warn_sequence_frames(&cameras, args);
     let mut writer = BagWriter::create(&args.output, args.force)?;
     let (image_topic, image_type) = if args.compressed {
@@ -433,35 +450,7 @@ pub fn pack(args: &PackArgs) -> Result<PackReport, PackError> {
     writer.add_topic("/tf_static", TF_MESSAGE, None)?;
     let start_ns = (args.start * 1e9).round() as u64;
     let period_ns = (1e9 / args.rate_hz).round() as u64;
-    let tf = TFMessage {
-        transforms: cameras
-            .iter()
-            .map(|c| {
-                let rig_from_cam = c.cam_from_rig.inverse();
-                let (t, q) = (rig_from_cam.translation, rig_from_cam.rotation);
-                TransformStamped {
-                    header: Header {
-                        stamp: ns_time(start_ns),
-                        frame_id: "rig".into(),
-                    },
-                    child_frame_id: frame_id(&c.name),
-                    transform: Transform {
-                        translation: Vector3 {
-                            x: t.x,
-                            y: t.y,
-                            z: t.z,
-                        },
-                        rotation: Quaternion {
-                            x: q.x,
-                            y: q.y,
-                            z: q.z,
-                            w: q.w,
-                        },
-                    },
-                }
-            })
-            .collect(),
-    };
+    let tf = static_transforms(&cameras, &rig_frame, start_ns);
     writer.write_msg("/tf_static", start_ns.saturating_sub(1_000_000), &tf)?;
     for k in 0..u64::from(args.frames) {
         let stamp_ns = start_ns + k * period_ns;
@@ -555,6 +544,60 @@ pub fn run(args: &PackArgs) -> Result<(), PackError> {
             d.max_depth_m,
             d.num_planes
         );
+    }
+    Ok(())
+}
+
+/// The cameras' poses in `rig_frame` as `/tf_static` holds them, stamped `start_ns`.
+fn static_transforms(cameras: &[PackCamera], rig_frame: &str, start_ns: u64) -> TFMessage {
+    TFMessage {
+        transforms: cameras
+            .iter()
+            // A camera whose optical frame is the rig frame itself has no transform of its own
+            // (one to itself would be refused by tf2); `check_rig_frame` made sure it is at the
+            // origin.
+            .filter(|c| frame_id(&c.name) != rig_frame)
+            .map(|c| {
+                let rig_from_cam = c.cam_from_rig.inverse();
+                let (t, q) = (rig_from_cam.translation, rig_from_cam.rotation);
+                TransformStamped {
+                    header: Header {
+                        stamp: ns_time(start_ns),
+                        frame_id: rig_frame.to_string(),
+                    },
+                    child_frame_id: frame_id(&c.name),
+                    transform: Transform {
+                        translation: Vector3 {
+                            x: t.x,
+                            y: t.y,
+                            z: t.z,
+                        },
+                        rotation: Quaternion {
+                            x: q.x,
+                            y: q.y,
+                            z: q.z,
+                            w: q.w,
+                        },
+                    },
+                }
+            })
+            .collect(),
+    }
+}
+
+/// A rig frame that is one of the cameras' optical frames (`cam0_optical_frame`) is that
+/// camera's pose: it must be at the origin, unrotated.
+fn check_rig_frame(cameras: &[PackCamera], rig_frame: &str) -> Result<(), PackError> {
+    let Some(c) = cameras.iter().find(|c| frame_id(&c.name) == rig_frame) else {
+        return Ok(());
+    };
+    let pose = c.cam_from_rig;
+    let moved = pose.translation.length() > 1e-9 || pose.rotation.w.abs() < 1.0 - 1e-12;
+    if moved {
+        return Err(PackError::Invalid(format!(
+            "rig_frame '{rig_frame}' is camera '{}''s optical frame, but the rig file does not put              that camera at the rig frame's origin unrotated; name the rig frame otherwise (e.g.              `rig`)",
+            c.name
+        )));
     }
     Ok(())
 }

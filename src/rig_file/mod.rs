@@ -6,7 +6,7 @@
 //!
 //! ```yaml
 //! # sweepdepth rig file
-//! rig_frame: rig            # name of the common frame (informational; default "rig")
+//! rig_frame: rig            # name of the common frame (default "rig"; `pack` poses the cameras in it on /tf_static)
 //! cameras:
 //!   - name: cam0            # must match an entry of the node's `cameras` parameter
 //!     # Pose of the camera's optical frame (x right, y down, z forward) in the rig frame:

@@ -483,7 +483,8 @@ fn pack_images_and_rig_file_then_bag() {
     let images = dir.join("images");
     std::fs::create_dir_all(&images).unwrap();
     let dataset = load_dataset(&root().join("data/tsukuba")).expect("tsukuba");
-    let mut yaml = String::from("rig_frame: rig\ncameras:\n");
+    // The rig file's own frame names the poses' parent in /tf_static.
+    let mut yaml = String::from("rig_frame: base_link\ncameras:\n");
     for (i, cam) in dataset.rig.cameras.iter().enumerate() {
         let name = format!("view{i}");
         std::fs::copy(
@@ -517,6 +518,18 @@ fn pack_images_and_rig_file_then_bag() {
     );
     let params = std::fs::read_to_string(dir.join("rig.params.yaml")).unwrap();
     assert!(params.contains("reference_camera: view2"), "{params}");
+    let statics: Vec<sweepdepth::msgs::TFMessage> = messages(&bag)
+        .iter()
+        .filter(|m| m.topic == "/tf_static")
+        .map(|m| from_cdr(&m.data).expect("decode /tf_static"))
+        .collect();
+    assert_eq!(statics.len(), 1);
+    let parents: Vec<&str> = statics[0]
+        .transforms
+        .iter()
+        .map(|t| t.header.frame_id.as_str())
+        .collect();
+    assert_eq!(parents, ["base_link"; 5]);
     // The rig file gives no depth range: the file holds the node's defaults, said, for the
     // user to set (here the dataset's, as -p after the file).
     assert!(
@@ -1211,6 +1224,91 @@ fn pack_a_sequence_in_frame_order_or_say_why_not() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success() && stderr.contains("camera name 'front-0' cannot name ROS topics"),
+        "{stderr}"
+    );
+}
+
+/// `pack`'s `/tf_static` poses the cameras in the rig file's frame: a Kalibr camchain's is
+/// `cam0` (and what the node would note on loading it, an ignored key, is said); a rig frame
+/// that is a camera's optical frame gives that camera no transform of its own, and is refused
+/// unless that camera sits at its origin.
+#[test]
+fn pack_poses_cameras_in_the_rig_files_frame() {
+    let dir = scratch("rigframe");
+    let images = dir.join("images");
+    std::fs::create_dir_all(&images).unwrap();
+    for camera in ["cam0", "cam1"] {
+        let frame = image::RgbImage::from_fn(8, 6, |x, y| image::Rgb([(x * 30 + y * 7) as u8; 3]));
+        frame.save(images.join(format!("{camera}.png"))).unwrap();
+    }
+    let camera = |extra: &str| {
+        format!(
+            "  camera_model: pinhole\n  intrinsics: [8, 8, 3.5, 2.5]\n  distortion_model: radtan\n  distortion_coeffs: [0, 0, 0, 0]\n  resolution: [8, 6]\n{extra}"
+        )
+    };
+    let camchain = format!(
+        "cam0:\n{}cam1:\n{}",
+        camera("  rostopic: /cam0/image_raw\n  exposure_note: 5\n"),
+        camera("  rostopic: /cam1/image_raw\n  T_cn_cnm1: [[1, 0, 0, -0.1], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]\n"),
+    );
+    let kalibr = dir.join("camchain.yaml");
+    std::fs::write(&kalibr, camchain).unwrap();
+    let bag = dir.join("out.mcap");
+    let pack = |rig: &Path| {
+        sweepdepth(&[
+            "pack",
+            images.to_str().unwrap(),
+            bag.to_str().unwrap(),
+            "--rig",
+            rig.to_str().unwrap(),
+            "--force",
+        ])
+    };
+    let parents = || -> Vec<(String, String)> {
+        messages(&bag)
+            .iter()
+            .filter(|m| m.topic == "/tf_static")
+            .flat_map(|m| {
+                from_cdr::<sweepdepth::msgs::TFMessage>(&m.data)
+                    .unwrap()
+                    .transforms
+            })
+            .map(|t| (t.header.frame_id, t.child_frame_id))
+            .collect()
+    };
+    let stderr = ok(&pack(&kalibr), "pack a camchain");
+    assert!(
+        stderr.contains("ignored Kalibr key `exposure_note`"),
+        "{stderr}"
+    );
+    let pair = |parent: &str, child: &str| (parent.to_string(), child.to_string());
+    assert_eq!(
+        parents(),
+        [
+            pair("cam0", "cam0_optical_frame"),
+            pair("cam0", "cam1_optical_frame")
+        ]
+    );
+    // Our rig file in cam0's optical frame: cam1's transform alone.
+    let rig = |x0: f64| {
+        format!(
+            "rig_frame: cam0_optical_frame\ncameras:\n  - name: cam0\n    translation: [{x0}, 0, 0]\n    rotation: [0, 0, 0, 1]\n    intrinsics: {{width: 8, height: 6, fx: 8, fy: 8, cx: 3.5, cy: 2.5}}\n  - name: cam1\n    translation: [0.1, 0, 0]\n    rotation: [0, 0, 0, 1]\n    intrinsics: {{width: 8, height: 6, fx: 8, fy: 8, cx: 3.5, cy: 2.5}}\n"
+        )
+    };
+    let native = dir.join("rig.yaml");
+    std::fs::write(&native, rig(0.0)).unwrap();
+    ok(&pack(&native), "pack in cam0's frame");
+    assert_eq!(
+        parents(),
+        [pair("cam0_optical_frame", "cam1_optical_frame")]
+    );
+    // cam0 away from the origin of its own frame: refused, saying why.
+    std::fs::write(&native, rig(-0.05)).unwrap();
+    let out = pack(&native);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && stderr.contains("rig_frame 'cam0_optical_frame' is camera 'cam0''s optical frame"),
         "{stderr}"
     );
 }
