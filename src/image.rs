@@ -60,6 +60,22 @@ impl Rgba8Image {
     }
 }
 
+/// A 16-bit image whose values all lie below 4096 (10- or 12-bit data in the low bits) is read
+/// by its high byte as at most 16 grey levels, nearly black: its matching fails. The warning for
+/// `source` (a camera, a file) from the image's largest value `max`; None for a value of 4096
+/// or more, or an image dark in any case (all below 256: a covered lens, a black frame).
+pub fn narrow_mono16_warning(source: &str, max: u16) -> Option<String> {
+    if !(256..4096).contains(&max) {
+        return None;
+    }
+    Some(format!(
+        "{source}: every 16-bit value is below 4096 (at most {max}: 10- or 12-bit data in the \
+         low bits?); read by its high byte the image is at most 16 grey levels, nearly black, \
+         and its depth fails: have the camera or driver scale it to 16 bits (the data in the \
+         high bits) or send 8 bits"
+    ))
+}
+
 /// A camera image's bytes as its message carries them, rows without padding, for an engine
 /// that unpacks them itself (the WGSL engine's `unpack` stage): fewer bytes to upload than an
 /// [`Rgba8Image`] and no conversion on the host.

@@ -227,7 +227,20 @@ fn open_image(path: &Path) -> Result<image::DynamicImage, IoError> {
 /// Loads any PNG/PPM/PGM (8- or 16-bit; 16-bit is reduced to 8-bit by the `image` crate) as
 /// RGBA8. The format is detected from the content, not the extension.
 pub fn load_rgba8(path: &Path) -> Result<Rgba8Image, IoError> {
-    Ok(Rgba8Image::from_image(&open_image(path)?))
+    let image = open_image(path)?;
+    let max = match &image {
+        image::DynamicImage::ImageLuma16(i) => i.as_raw().iter().max().copied(),
+        image::DynamicImage::ImageLumaA16(i) => i.pixels().map(|p| p.0[0]).max(),
+        image::DynamicImage::ImageRgb16(i) => i.as_raw().iter().max().copied(),
+        image::DynamicImage::ImageRgba16(i) => i.pixels().flat_map(|p| &p.0[..3]).max().copied(),
+        _ => None,
+    };
+    let warning =
+        max.and_then(|max| crate::image::narrow_mono16_warning(&path.display().to_string(), max));
+    if let Some(warning) = warning {
+        tracing::warn!("{warning}");
+    }
+    Ok(Rgba8Image::from_image(&image))
 }
 
 /// Loads an 8-bit grey image (ground-truth disparity PGM/PNG) with its raw values.

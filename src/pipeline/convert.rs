@@ -139,11 +139,58 @@ pub fn image_to_rgba8(camera: &str, msg: &Image) -> Result<Rgba8Image, ConvertEr
     for row in msg.data.chunks(step.max(1) as usize).take(height as usize) {
         fill(row.get(..row_bytes).unwrap_or(&[]), &mut pixels);
     }
+    if matches!(msg.encoding.as_str(), "mono16" | "16UC1") {
+        say_narrow_mono16(camera, msg, row_bytes);
+    }
     Ok(Rgba8Image {
         width,
         height,
         pixels,
     })
+}
+
+/// Logs [`crate::image::narrow_mono16_warning`] once per camera (a healthy image is read up to its first
+/// value of 4096 or more; nothing allocated per frame).
+fn say_narrow_mono16(camera: &str, msg: &Image, row_bytes: usize) {
+    static SAID: parking_lot::Mutex<Vec<String>> = parking_lot::const_mutex(Vec::new());
+    if SAID.lock().iter().any(|c| c == camera) {
+        return;
+    }
+    let Some(max) = narrow_mono16_max(msg, row_bytes) else {
+        return;
+    };
+    if let Some(warning) = crate::image::narrow_mono16_warning(&format!("camera '{camera}'"), max) {
+        let mut said = SAID.lock();
+        if !said.iter().any(|c| c == camera) && said.len() < 4096 {
+            said.push(camera.to_string());
+            tracing::warn!("{warning}");
+        }
+    }
+}
+
+/// The largest value of a 16-bit image whose values all lie below 4096; None as soon as one
+/// does not (a healthy image is read no further than its first bright pixel).
+fn narrow_mono16_max(msg: &Image, row_bytes: usize) -> Option<u16> {
+    let big_endian = msg.is_bigendian != 0;
+    let rows = msg
+        .data
+        .chunks(msg.step.max(1) as usize)
+        .take(msg.height as usize);
+    let mut max = 0u16;
+    for row in rows {
+        for p in row.get(..row_bytes).unwrap_or(&[]).chunks_exact(2) {
+            let v = if big_endian {
+                u16::from_be_bytes([p[0], p[1]])
+            } else {
+                u16::from_le_bytes([p[0], p[1]])
+            };
+            if v >= 4096 {
+                return None;
+            }
+            max = max.max(v);
+        }
+    }
+    Some(max)
 }
 
 /// A set's images converted ([`image_to_rgba8`]), the cameras in parallel on rayon's threads
@@ -371,6 +418,27 @@ mod tests {
         assert!(packed_view(&msg("rgb8", 5, 3, 15, data(45))).is_none());
         // Too few bytes: not a view past the data.
         assert!(packed_view(&msg("rgb8", 6, 4, 18, data(71))).is_none());
+    }
+
+    #[test]
+    fn twelve_bit_data_in_mono16_is_found_and_said() {
+        // 2x1, step 6 (padding never read): 4000 and 300, little- and big-endian.
+        let le = msg("mono16", 2, 1, 6, vec![0xa0, 0x0f, 0x2c, 0x01, 0xff, 0xff]);
+        assert_eq!(narrow_mono16_max(&le, 4), Some(4000));
+        let mut be = msg("mono16", 2, 1, 6, vec![0x0f, 0xa0, 0x01, 0x2c, 0xff, 0xff]);
+        be.is_bigendian = 1;
+        assert_eq!(narrow_mono16_max(&be, 4), Some(4000));
+        // One value of 4096: 16-bit data.
+        let wide = msg("mono16", 2, 1, 4, vec![0x00, 0x10, 0x2c, 0x01]);
+        assert_eq!(narrow_mono16_max(&wide, 4), None);
+        let said = crate::image::narrow_mono16_warning("camera 'c'", 4000).expect("said");
+        assert!(said.starts_with("camera 'c': every 16-bit value is below 4096 (at most 4000"));
+        // A dark image (a covered lens) is not 12-bit data.
+        assert_eq!(crate::image::narrow_mono16_warning("camera 'c'", 255), None);
+        assert_eq!(
+            crate::image::narrow_mono16_warning("camera 'c'", 4096),
+            None
+        );
     }
 
     #[test]

@@ -1311,4 +1311,15 @@ fn pack_poses_cameras_in_the_rig_files_frame() {
             && stderr.contains("rig_frame 'cam0_optical_frame' is camera 'cam0''s optical frame"),
         "{stderr}"
     );
+    // 12-bit data in a 16-bit PNG reads nearly black: said, naming the file.
+    std::fs::write(&native, rig(0.0)).unwrap();
+    let twelve = image::ImageBuffer::<image::Luma<u16>, _>::from_fn(8, 6, |x, y| {
+        image::Luma([(x * 500 + y * 20) as u16])
+    });
+    twelve.save(images.join("cam1.png")).unwrap();
+    let stderr = ok(&pack(&native), "pack a 12-bit PNG");
+    assert!(
+        stderr.contains("cam1.png: every 16-bit value is below 4096 (at most 3600"),
+        "{stderr}"
+    );
 }
