@@ -40,6 +40,9 @@ pub struct TopicInfo {
     pub count: Option<u64>,
     /// The schema (definition text) when the bag carries one.
     pub schema: Option<Vec<u8>>,
+    /// The QoS the recorder offered, as rosbag2 records it (`offered_qos_profiles`: YAML
+    /// text), when the bag records one; `--copy-inputs` writes it back out unchanged.
+    pub qos: Option<String>,
 }
 
 /// Reads the messages of one bag in order (file order for MCAP, which rosbag2 writes in
@@ -139,6 +142,11 @@ impl BagReader {
                 };
                 if from_metadata {
                     for t in found {
+                        for known in &mut reader.topics {
+                            if known.qos.is_none() && known.name == t.name {
+                                known.qos.clone_from(&t.qos);
+                            }
+                        }
                         let Some(schema) = t.schema else { continue };
                         for known in &mut reader.topics {
                             if known.schema.is_none() && known.msg_type == t.msg_type {
@@ -171,6 +179,19 @@ impl BagReader {
     /// topics table). A lone MCAP file without a summary lists its topics only as they appear.
     pub fn topics(&self) -> &[TopicInfo] {
         &self.topics
+    }
+
+    /// The recorded `offered_qos_profiles` of `topic`: from [`Self::topics`], else from the
+    /// MCAP channel being read (a file without a summary describes its channels as it goes).
+    pub fn offered_qos(&self, topic: &str) -> Option<&str> {
+        let known = self.topics.iter().find(|t| t.name == topic);
+        if let Some(qos) = known.and_then(|t| t.qos.as_deref()) {
+            return Some(qos);
+        }
+        match &self.current {
+            Some(Source::Mcap(m)) => m.offered_qos(topic),
+            _ => None,
+        }
     }
 
     fn open_next(&mut self) -> Result<bool, BagError> {
@@ -400,6 +421,17 @@ fn storage_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
     Ok(files)
 }
 
+/// `offered_qos_profiles` of a `metadata.yaml` topic: YAML text in a string as rosbag2 writes
+/// it (a list or map written in place is turned back into its text); none when empty.
+fn qos_text(value: &serde_yaml_ng::Value) -> Option<String> {
+    let text = match value {
+        serde_yaml_ng::Value::String(s) => s.clone(),
+        serde_yaml_ng::Value::Null => return None,
+        other => serde_yaml_ng::to_string(other).ok()?,
+    };
+    (!text.trim().is_empty()).then_some(text)
+}
+
 /// The parts of a rosbag2 `metadata.yaml` we use.
 struct Metadata {
     files: Vec<PathBuf>,
@@ -472,6 +504,9 @@ impl Metadata {
                     encoding: field("serialization_format"),
                     count: entry.get("message_count").and_then(|v| v.as_u64()),
                     schema: None,
+                    qos: meta
+                        .and_then(|m| m.get("offered_qos_profiles"))
+                        .and_then(qos_text),
                 });
             }
         }

@@ -8,11 +8,45 @@ use super::super::schemas::normalise_type;
 use super::super::BagError;
 use super::{BagMessage, TopicInfo};
 
+/// A row of the topics table.
+struct SqliteTopic {
+    name: String,
+    /// Normalised (`pkg/msg/Name`).
+    msg_type: String,
+    serialization_format: String,
+    /// `offered_qos_profiles` (none when empty, or in a bag older than the column).
+    qos: Option<String>,
+}
+
+/// The topics table by id: with its `offered_qos_profiles` column where the bag has one.
+fn read_topics(conn: &rusqlite::Connection) -> rusqlite::Result<HashMap<i64, SqliteTopic>> {
+    let with_qos = "SELECT id, name, type, serialization_format, offered_qos_profiles FROM topics";
+    let without_qos = "SELECT id, name, type, serialization_format, '' FROM topics";
+    let mut stmt = match conn.prepare(with_qos) {
+        Ok(stmt) => stmt,
+        // A bag older than the column (rosbag2 before Foxy).
+        Err(_) => conn.prepare(without_qos)?,
+    };
+    let rows = stmt.query_map([], |r| {
+        let qos: Option<String> = r.get(4)?;
+        Ok((
+            r.get::<_, i64>(0)?,
+            SqliteTopic {
+                name: r.get(1)?,
+                msg_type: normalise_type(&r.get::<_, String>(2)?),
+                serialization_format: r.get(3)?,
+                qos: qos.filter(|q| !q.trim().is_empty()),
+            },
+        ))
+    })?;
+    rows.collect()
+}
+
 /// Pages through the messages table of a rosbag2 sqlite3 database in timestamp order.
 pub(super) struct SqliteSource {
     path: PathBuf,
     conn: rusqlite::Connection,
-    topics: HashMap<i64, (String, String, String)>,
+    topics: HashMap<i64, SqliteTopic>,
     counts: HashMap<i64, u64>,
     page: std::collections::VecDeque<BagMessage>,
     page_size: usize,
@@ -31,26 +65,7 @@ impl SqliteSource {
             rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .map_err(sql)?;
-        let mut topics = HashMap::new();
-        {
-            let mut stmt = conn
-                .prepare("SELECT id, name, type, serialization_format FROM topics")
-                .map_err(sql)?;
-            let rows = stmt
-                .query_map([], |r| {
-                    Ok((
-                        r.get::<_, i64>(0)?,
-                        r.get::<_, String>(1)?,
-                        r.get::<_, String>(2)?,
-                        r.get::<_, String>(3)?,
-                    ))
-                })
-                .map_err(sql)?;
-            for row in rows {
-                let (id, name, ty, fmt) = row.map_err(sql)?;
-                topics.insert(id, (name, normalise_type(&ty), fmt));
-            }
-        }
+        let topics = read_topics(&conn).map_err(sql)?;
         let mut counts = HashMap::new();
         {
             let mut stmt = conn
@@ -81,12 +96,13 @@ impl SqliteSource {
         let mut v: Vec<TopicInfo> = self
             .topics
             .iter()
-            .map(|(id, (name, ty, fmt))| TopicInfo {
-                name: name.clone(),
-                msg_type: ty.clone(),
-                encoding: fmt.clone(),
+            .map(|(id, t)| TopicInfo {
+                name: t.name.clone(),
+                msg_type: t.msg_type.clone(),
+                encoding: t.serialization_format.clone(),
                 count: Some(self.counts.get(id).copied().unwrap_or(0)),
-                schema: definitions.get(ty).cloned(),
+                schema: definitions.get(&t.msg_type).cloned(),
+                qos: t.qos.clone(),
             })
             .collect();
         v.sort_by(|a, b| a.name.cmp(&b.name));
@@ -147,7 +163,13 @@ impl SqliteSource {
             let (id, topic_id, timestamp, data) = row.map_err(sql)?;
             n += 1;
             self.after = Some((timestamp, id));
-            let Some((topic, msg_type, fmt)) = self.topics.get(&topic_id) else {
+            let Some(SqliteTopic {
+                name: topic,
+                msg_type,
+                serialization_format: fmt,
+                ..
+            }) = self.topics.get(&topic_id)
+            else {
                 return Err(BagError::Format {
                     path: self.path.clone(),
                     reason: format!("message {id} refers to unknown topic id {topic_id}"),

@@ -1,0 +1,183 @@
+//! Bags as recorders leave them: each topic's recorded QoS (`offered_qos_profiles`), kept by
+//! `--copy-inputs` so that `ros2 bag play` of the output offers `/tf_static` transient local
+//! again.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use super::util::{messages, root, scratch, sweepdepth};
+use sweepdepth::bag::{BagMessage, BagReader};
+
+fn fixture() -> PathBuf {
+    root().join("tests/fixtures/bags/tsukuba_half.mcap")
+}
+
+/// `sweepdepth bag IN OUT` with the fixture's parameters plus `extra`.
+fn bag(input: &Path, output: &Path, extra: &[&str]) -> Output {
+    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
+    let mut args = vec![
+        "bag",
+        input.to_str().unwrap(),
+        output.to_str().unwrap(),
+        "--params-file",
+        params.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    sweepdepth(&args)
+}
+
+fn stderr_of(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// What Humble's `ros2 bag record` writes for a `/tf_static` publisher: transient local, keep
+/// last 1, reliable.
+const TF_STATIC_QOS: &str = "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n  \
+deadline:\n    sec: 2147483647\n    nsec: 4294967295\n  lifespan:\n    sec: 2147483647\n    \
+nsec: 4294967295\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 2147483647\n    \
+nsec: 4294967295\n  avoid_ros_namespace_conventions: false";
+
+/// ... and for a camera driver's sensor-data publisher: best effort, volatile, keep last 5.
+const SENSOR_QOS: &str = "- history: 1\n  depth: 5\n  reliability: 2\n  durability: 2\n  \
+deadline:\n    sec: 2147483647\n    nsec: 4294967295\n  lifespan:\n    sec: 2147483647\n    \
+nsec: 4294967295\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 2147483647\n    \
+nsec: 4294967295\n  avoid_ros_namespace_conventions: false";
+
+fn recorded_qos(topic: &str) -> &'static str {
+    if topic == "/tf_static" {
+        TF_STATIC_QOS
+    } else {
+        SENSOR_QOS
+    }
+}
+
+/// Writes `msgs`, in this order, as an MCAP as rosbag2 does: each channel's metadata holding
+/// its `offered_qos_profiles`.
+pub fn write_mcap(path: &Path, msgs: &[BagMessage]) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .compression(None)
+        .create(file)
+        .unwrap();
+    let mut channels = std::collections::HashMap::new();
+    for m in msgs {
+        let id = *channels.entry(m.topic.clone()).or_insert_with(|| {
+            let schema = w.add_schema(&m.msg_type, "ros2msg", b"").unwrap();
+            let metadata = BTreeMap::from([(
+                "offered_qos_profiles".to_string(),
+                recorded_qos(&m.topic).to_string(),
+            )]);
+            w.add_channel(schema, &m.topic, "cdr", &metadata).unwrap()
+        });
+        let header = mcap::records::MessageHeader {
+            channel_id: id,
+            sequence: 0,
+            log_time: m.log_time_ns,
+            publish_time: m.publish_time_ns,
+        };
+        w.write_to_known_channel(&header, &m.data).unwrap();
+    }
+    w.finish().unwrap();
+}
+
+/// Writes `msgs` as a rosbag2 sqlite3 database (the tables of Humble's sqlite3 storage), each
+/// topic with its `offered_qos_profiles`.
+pub fn write_db3(path: &Path, msgs: &[BagMessage]) {
+    let _ = std::fs::remove_file(path);
+    let mut db = rusqlite::Connection::open(path).unwrap();
+    db.execute_batch(
+        "CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL);
+         INSERT INTO schema VALUES (3, 'humble');
+         CREATE TABLE metadata(id INTEGER PRIMARY KEY, metadata_version INTEGER NOT NULL,
+             metadata TEXT NOT NULL);
+         CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,
+             serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);
+         CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,
+             timestamp INTEGER NOT NULL, data BLOB NOT NULL);
+         CREATE INDEX timestamp_idx ON messages (timestamp ASC);",
+    )
+    .unwrap();
+    let tx = db.transaction().unwrap();
+    let mut ids: BTreeMap<String, i64> = BTreeMap::new();
+    for m in msgs {
+        if !ids.contains_key(&m.topic) {
+            let id = ids.len() as i64 + 1;
+            tx.execute(
+                "INSERT INTO topics VALUES (?1, ?2, ?3, 'cdr', ?4)",
+                rusqlite::params![id, m.topic, m.msg_type, recorded_qos(&m.topic)],
+            )
+            .unwrap();
+            ids.insert(m.topic.clone(), id);
+        }
+        tx.execute(
+            "INSERT INTO messages (topic_id, timestamp, data) VALUES (?1, ?2, ?3)",
+            rusqlite::params![ids[&m.topic], m.log_time_ns as i64, m.data],
+        )
+        .unwrap();
+    }
+    tx.commit().unwrap();
+}
+
+/// `offered_qos_profiles` of each channel of an MCAP file, by topic.
+fn mcap_qos(path: &Path) -> BTreeMap<String, String> {
+    let bytes = std::fs::read(path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary");
+    summary
+        .channels
+        .values()
+        .map(|c| {
+            let qos = c.metadata.get("offered_qos_profiles").expect("the key");
+            (c.topic.clone(), qos.clone())
+        })
+        .collect()
+}
+
+/// `offered_qos_profiles` of each topic of a rosbag2 directory's `metadata.yaml`, by topic.
+fn metadata_qos(dir: &Path) -> BTreeMap<String, String> {
+    let text = std::fs::read_to_string(dir.join("metadata.yaml")).unwrap();
+    let yaml: serde_yaml_ng::Value = serde_yaml_ng::from_str(&text).unwrap();
+    yaml["rosbag2_bagfile_information"]["topics_with_message_count"]
+        .as_sequence()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let meta = &t["topic_metadata"];
+            let qos = meta["offered_qos_profiles"].as_str().expect("a string");
+            (meta["name"].as_str().unwrap().to_string(), qos.to_string())
+        })
+        .collect()
+}
+
+/// `--copy-inputs` keeps each copied topic's recorded QoS, from MCAP channel metadata and from
+/// sqlite3's topics table, in the output's MCAP channels and `metadata.yaml`; what the node
+/// makes keeps the empty profile (`ros2 bag play`'s default).
+#[test]
+fn copied_topics_keep_their_recorded_qos() {
+    let dir = scratch("recorded_qos");
+    let fixture = messages(&fixture());
+    let mcap_in = dir.join("in.mcap");
+    write_mcap(&mcap_in, &fixture);
+    let db3_in = dir.join("in.db3");
+    write_db3(&db3_in, &fixture);
+    for (input, name) in [(&mcap_in, "from_mcap"), (&db3_in, "from_db3")] {
+        let out = dir.join(name);
+        let run = bag(input, &out, &["--copy-inputs"]);
+        assert!(run.status.success(), "{name}: {}", stderr_of(&run));
+        let in_metadata = metadata_qos(&out);
+        let in_channels = mcap_qos(&out.join(format!("{name}_0.mcap")));
+        for qos in [&in_metadata, &in_channels] {
+            assert_eq!(qos["/tf_static"], TF_STATIC_QOS, "{name}");
+            assert_eq!(qos["/cam2/image_raw"], SENSOR_QOS, "{name}");
+            assert_eq!(qos["/cam0/camera_info"], SENSOR_QOS, "{name}");
+            assert_eq!(qos["/depth/image"], "", "{name}: the node's own");
+        }
+        // Read back by our reader: from metadata.yaml, and from the MCAP channel alone.
+        let reader = BagReader::open(&out).unwrap();
+        assert_eq!(reader.offered_qos("/tf_static"), Some(TF_STATIC_QOS));
+        assert_eq!(reader.offered_qos("/depth/image"), None);
+        let lone = BagReader::open(&out.join(format!("{name}_0.mcap"))).unwrap();
+        assert_eq!(lone.offered_qos("/tf_static"), Some(TF_STATIC_QOS));
+    }
+}
