@@ -338,6 +338,10 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .set_message(format!("{done} sets, {rate:.2} sets/s"));
         }
     }
+    if let Some(steps) = reader.log_times_back() {
+        let note = super::report::log_times_back_note(&args.input, steps);
+        sink.bar.suspend(|| tracing::warn!("{note}"));
+    }
     // The sets the synchroniser held back waiting for later messages that never came (none
     // after Ctrl-C: the user wants out).
     if !sink.report.interrupted {

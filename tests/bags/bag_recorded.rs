@@ -1,13 +1,14 @@
 //! Bags as recorders leave them: each topic's recorded QoS (`offered_qos_profiles`), kept by
 //! `--copy-inputs` so that `ros2 bag play` of the output offers `/tf_static` transient local
-//! again.
+//! again; an MCAP file whose log times go backwards (said once: its sets are made in file
+//! order).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use super::util::{messages, root, scratch, sweepdepth};
-use sweepdepth::bag::{BagMessage, BagReader};
+use sweepdepth::bag::{BagMessage, BagReader, StepsBack};
 
 fn fixture() -> PathBuf {
     root().join("tests/fixtures/bags/tsukuba_half.mcap")
@@ -180,4 +181,50 @@ fn copied_topics_keep_their_recorded_qos() {
         let lone = BagReader::open(&out.join(format!("{name}_0.mcap"))).unwrap();
         assert_eq!(lone.offered_qos("/tf_static"), Some(TF_STATIC_QOS));
     }
+}
+
+/// MCAP is read in file order: a file whose log times go backwards (merged or written out of
+/// order) is said once, with how many messages stepped back and by how much at most; a file in
+/// order says nothing.
+#[test]
+fn mcap_log_times_going_backwards_are_said_once() {
+    let dir = scratch("backwards");
+    let mut msgs = messages(&fixture());
+    msgs.sort_by_key(|m| m.log_time_ns);
+    // The last message logged, moved to the middle: the one after it steps back.
+    let last = msgs.pop().unwrap();
+    let at = msgs.len() / 2;
+    let step = last.log_time_ns - msgs[at].log_time_ns;
+    assert!(step > 0);
+    msgs.insert(at, last);
+    let path = dir.join("out_of_order.mcap");
+    write_mcap(&path, &msgs);
+    let mut reader = BagReader::open(&path).unwrap();
+    assert_eq!(reader.by_ref().count(), msgs.len());
+    let steps = StepsBack {
+        messages: 1,
+        max_ns: step,
+    };
+    assert_eq!(reader.log_times_back(), Some(steps));
+    let mut in_order = BagReader::open(&fixture()).unwrap();
+    in_order.by_ref().for_each(drop);
+    assert_eq!(in_order.log_times_back(), None);
+
+    let run = bag(&path, &dir.join("out.mcap"), &[]);
+    let stderr = stderr_of(&run);
+    assert!(run.status.success(), "{stderr}");
+    assert_eq!(
+        stderr.matches("log times go backwards").count(),
+        1,
+        "{stderr}"
+    );
+    let said = format!(
+        "1 message logged before the one read before it, by up to {:.3} s",
+        step as f64 / 1e9
+    );
+    assert!(stderr.contains(&said), "{said}: {stderr}");
+    assert!(
+        stderr.contains("frame sets are made in file order"),
+        "{stderr}"
+    );
 }

@@ -45,6 +45,15 @@ pub struct TopicInfo {
     pub qos: Option<String>,
 }
 
+/// Log times that go backwards in an MCAP bag's file order ([`BagReader::log_times_back`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepsBack {
+    /// Messages logged earlier than the MCAP message read before them.
+    pub messages: u64,
+    /// The largest step back, nanoseconds.
+    pub max_ns: u64,
+}
+
 /// Reads the messages of one bag in order (file order for MCAP, which rosbag2 writes in
 /// receive order; timestamp order for sqlite3).
 pub struct BagReader {
@@ -58,6 +67,9 @@ pub struct BagReader {
     temp_files: Vec<PathBuf>,
     file_zstd: bool,
     failed: bool,
+    /// The log time of the last MCAP message read, and the steps back met so far.
+    last_mcap_ns: Option<u64>,
+    steps_back: StepsBack,
 }
 
 enum Source {
@@ -79,6 +91,8 @@ impl BagReader {
             temp_files: Vec::new(),
             file_zstd: false,
             failed: false,
+            last_mcap_ns: None,
+            steps_back: StepsBack::default(),
         };
         if meta.is_dir() && !path.join("metadata.yaml").exists() {
             // A recording that did not finish writes no metadata.yaml: its storage files,
@@ -181,6 +195,13 @@ impl BagReader {
         &self.topics
     }
 
+    /// How often the log times of the MCAP messages read so far went backwards in file order
+    /// (a file merged or written out of order; sets are then made in file order, not time
+    /// order); `None` when they never did. Across the MCAP files of a folder too.
+    pub fn log_times_back(&self) -> Option<StepsBack> {
+        (self.steps_back.messages > 0).then_some(self.steps_back)
+    }
+
     /// The recorded `offered_qos_profiles` of `topic`: from [`Self::topics`], else from the
     /// MCAP channel being read (a file without a summary describes its channels as it goes).
     pub fn offered_qos(&self, topic: &str) -> Option<&str> {
@@ -219,7 +240,13 @@ impl BagReader {
                 return Ok(None);
             }
             let next = match &mut self.current {
-                Some(Source::Mcap(m)) => m.next_message()?,
+                Some(Source::Mcap(m)) => {
+                    let next = m.next_message()?;
+                    if let Some(msg) = &next {
+                        self.note_log_time(msg.log_time_ns);
+                    }
+                    next
+                }
                 Some(Source::Sqlite(s)) => s.next_message()?,
                 None => None,
             };
@@ -239,6 +266,17 @@ impl BagReader {
                 None => self.current = None,
             }
         }
+    }
+}
+
+impl BagReader {
+    /// Counts an MCAP message logged before the one read before it.
+    fn note_log_time(&mut self, log_time_ns: u64) {
+        if let Some(last) = self.last_mcap_ns.filter(|&last| log_time_ns < last) {
+            self.steps_back.messages += 1;
+            self.steps_back.max_ns = self.steps_back.max_ns.max(last - log_time_ns);
+        }
+        self.last_mcap_ns = Some(log_time_ns);
     }
 }
 
