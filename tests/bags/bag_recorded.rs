@@ -1,7 +1,7 @@
 //! Bags as recorders leave them: each topic's recorded QoS (`offered_qos_profiles`), kept by
 //! `--copy-inputs` so that `ros2 bag play` of the output offers `/tf_static` transient local
 //! again; an MCAP file whose log times go backwards (said once: its sets are made in file
-//! order).
+//! order); an sqlite3 file cut short (read as far as it goes, then said).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -227,4 +227,90 @@ fn mcap_log_times_going_backwards_are_said_once() {
         stderr.contains("frame sets are made in file order"),
         "{stderr}"
     );
+}
+
+/// An sqlite3 bag cut short (a recording killed mid-write, a copy that stopped) gives every
+/// message its pages still hold, then one error naming the file, the messages read and the
+/// last one's time; `bag` processes the sets it holds and exits 0 (non-zero with
+/// `--strict`). Cut inside its first page: nothing readable, an error that says so.
+#[test]
+fn sqlite3_bag_cut_short_gives_what_it_holds() {
+    let dir = scratch("cut_db3");
+    let fixture = messages(&fixture());
+    let whole = dir.join("whole.db3");
+    write_db3(&whole, &fixture);
+    assert_eq!(messages(&whole), fixture);
+    let bytes = std::fs::read(&whole).unwrap();
+    let page = usize::from(u16::from_be_bytes([bytes[16], bytes[17]]));
+    // The last quarter of its pages gone.
+    let keep = bytes.len() * 3 / 4 / page * page;
+    let cut = dir.join("cut.db3");
+    std::fs::write(&cut, &bytes[..keep]).unwrap();
+    let (mut read, mut errors) = (Vec::new(), Vec::new());
+    for item in BagReader::open(&cut).unwrap() {
+        match item {
+            Ok(m) => read.push(m),
+            Err(e) => errors.push(e.to_string()),
+        }
+    }
+    assert!(
+        !read.is_empty() && read.len() < fixture.len(),
+        "{}",
+        read.len()
+    );
+    // Each message read is one written, in recording order.
+    let mut written = fixture.iter();
+    assert!(read.iter().all(|m| written.any(|w| w == m)));
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    let error = &errors[0];
+    let last_ns = read.last().unwrap().log_time_ns;
+    for said in [
+        "cut.db3",
+        "cut short",
+        &format!("{} messages read", read.len()),
+        &format!("({last_ns} ns)"),
+        "the rest of the file is damaged",
+    ] {
+        assert!(error.contains(said), "{said}: {error}");
+    }
+
+    let run = bag(&cut, &dir.join("out.mcap"), &[]);
+    let stderr = stderr_of(&run);
+    assert!(run.status.success(), "{stderr}");
+    assert!(stderr.contains(error.as_str()), "{stderr}");
+    assert!(stderr.contains("1 read errors (damaged bag)"), "{stderr}");
+    let depths = messages(&dir.join("out.mcap"))
+        .into_iter()
+        .filter(|m| m.topic == "/depth/image")
+        .count();
+    assert!(depths >= 1, "{stderr}");
+    let strict = bag(&cut, &dir.join("strict.mcap"), &["--strict"]);
+    assert!(!strict.status.success());
+    assert!(stderr_of(&strict).contains("the bag is damaged"));
+
+    // Cut inside a page: read as far as it goes too.
+    let ragged = dir.join("ragged.db3");
+    std::fs::write(&ragged, &bytes[..keep + page / 3]).unwrap();
+    let items: Vec<_> = BagReader::open(&ragged).unwrap().collect();
+    let errors: Vec<String> = items
+        .iter()
+        .filter_map(|i| i.as_ref().err().map(|e| e.to_string()))
+        .collect();
+    assert!(items.len() > read.len(), "{}", items.len());
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(errors[0].contains("ragged.db3"), "{}", errors[0]);
+
+    // Its first page alone (the topics are gone), or not even a header: a clear error.
+    for (name, len) in [("page1.db3", page), ("header.db3", 60)] {
+        let path = dir.join(name);
+        std::fs::write(&path, &bytes[..len]).unwrap();
+        let run = bag(&path, &dir.join(format!("{name}.out")), &[]);
+        let stderr = stderr_of(&run);
+        assert!(!run.status.success(), "{stderr}");
+        assert!(
+            stderr.contains(name) && stderr.contains("cut short"),
+            "{stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
 }

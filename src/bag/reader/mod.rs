@@ -300,7 +300,9 @@ impl Iterator for BagReader {
     type Item = Result<BagMessage, BagError>;
 
     /// Messages in order. A damaged part of an MCAP file yields one error and reading goes on
-    /// at the next intact chunk when the file's summary lists one; any other error ends it.
+    /// at the next intact chunk when the file's summary lists one; an sqlite3 file cut short
+    /// yields what it holds, then one error, and the next file follows; any other error ends
+    /// it.
     fn next(&mut self) -> Option<Self::Item> {
         if self.failed {
             return None;
@@ -311,7 +313,10 @@ impl Iterator for BagReader {
             Err(e) => {
                 let resumable = matches!(&self.current, Some(Source::Mcap(m)) if !m.ended)
                     && matches!(e, BagError::Corrupt { .. });
-                if !resumable {
+                // A damaged sqlite3 file's last word: the bag's next file follows.
+                let sqlite_ended =
+                    matches!(&self.current, Some(Source::Sqlite(s)) if s.damage_reported());
+                if !resumable && !sqlite_ended {
                     self.failed = true;
                 }
                 Some(Err(e))
