@@ -15,7 +15,7 @@ pub mod writer;
 
 use std::path::{Path, PathBuf};
 
-pub use reader::{BagMessage, BagReader, TopicInfo};
+pub use reader::{BagMessage, BagReader, StepsBack, TopicInfo};
 pub use writer::{BagWriter, WriteSummary};
 
 /// Errors reading or writing bags; every message names the file.

@@ -281,7 +281,8 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
     };
     let started = Instant::now();
     let mut last_log_ns = 0u64;
-    for item in reader.by_ref() {
+    // `reader` also answers inside the loop: the copied topics' recorded QoS.
+    while let Some(item) = reader.next() {
         if interrupt::interrupted() {
             sink.report.interrupted = true;
             break;
@@ -302,7 +303,9 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
                 .iter()
                 .find(|t| t.name == msg.topic)
                 .and_then(|t| t.schema.as_deref());
-            sink.writer.add_topic(&msg.topic, &msg.msg_type, schema)?;
+            let qos = reader.offered_qos(&msg.topic);
+            sink.writer
+                .add_topic_with_qos(&msg.topic, &msg.msg_type, schema, qos)?;
             sink.writer
                 .write(&msg.topic, msg.log_time_ns, msg.publish_time_ns, &msg.data)?;
         }
@@ -334,6 +337,10 @@ fn process_bag_viewing(args: &BagArgs) -> Result<(BagReport, Option<Viewer>), Ba
             sink.bar
                 .set_message(format!("{done} sets, {rate:.2} sets/s"));
         }
+    }
+    if let Some(steps) = reader.log_times_back() {
+        let note = super::report::log_times_back_note(&args.input, steps);
+        sink.bar.suspend(|| tracing::warn!("{note}"));
     }
     // The sets the synchroniser held back waiting for later messages that never came (none
     // after Ctrl-C: the user wants out).

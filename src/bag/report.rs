@@ -3,6 +3,8 @@
 use std::time::Duration;
 
 use crate::pipeline::{Counts, NoticeKind, SkipCounts};
+
+use super::reader::StepsBack;
 use crate::ros::sync::SyncStats;
 
 /// What a bag run did.
@@ -108,4 +110,21 @@ impl BagReport {
         }
         s
     }
+}
+
+/// The warning for an MCAP bag whose log times go backwards in file order: how many messages
+/// stepped back, by how much at most, and what it does to the run.
+pub fn log_times_back_note(input: &std::path::Path, steps: StepsBack) -> String {
+    format!(
+        "{}: log times go backwards in the MCAP file order: {} message{} logged before the one \
+         read before {}, by up to {:.3} s (a bag merged or written out of order?). MCAP is read \
+         in file order, so frame sets are made in file order, not time order: images out of \
+         place may miss their set or be dropped by the time rules (sqlite3 is read in time \
+         order)",
+        input.display(),
+        steps.messages,
+        if steps.messages == 1 { "" } else { "s" },
+        if steps.messages == 1 { "it" } else { "them" },
+        steps.max_ns as f64 / 1e9
+    )
 }

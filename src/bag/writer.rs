@@ -131,6 +131,8 @@ struct Topic {
     channel_id: u16,
     msg_type: String,
     count: u64,
+    /// `offered_qos_profiles`: a copied input's as recorded, else empty.
+    qos: String,
 }
 
 /// What [`BagWriter::finish`] wrote.
@@ -221,6 +223,20 @@ impl BagWriter {
         msg_type: &str,
         schema: Option<&[u8]>,
     ) -> Result<(), BagError> {
+        self.add_topic_with_qos(topic, msg_type, schema, None)
+    }
+
+    /// [`Self::add_topic`] with the QoS the topic was recorded with (`offered_qos_profiles`,
+    /// rosbag2's YAML text, as the input bag has it): written unchanged into the MCAP channel
+    /// and `metadata.yaml`, so that `ros2 bag play` offers it again (`/tf_static` transient
+    /// local for late subscribers).
+    pub fn add_topic_with_qos(
+        &mut self,
+        topic: &str,
+        msg_type: &str,
+        schema: Option<&[u8]>,
+        qos: Option<&str>,
+    ) -> Result<(), BagError> {
         if self.topics.contains_key(topic) {
             return Ok(());
         }
@@ -233,7 +249,8 @@ impl BagWriter {
         let schema_id = writer
             .add_schema(msg_type, "ros2msg", &schema_data)
             .map_err(|e| BagError::write(&self.mcap_path, e))?;
-        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
+        let qos = qos.unwrap_or_default().to_string();
+        let metadata = BTreeMap::from([("offered_qos_profiles".to_string(), qos.clone())]);
         let channel_id = writer
             .add_channel(schema_id, topic, "cdr", &metadata)
             .map_err(|e| BagError::write(&self.mcap_path, e))?;
@@ -243,6 +260,7 @@ impl BagWriter {
                 channel_id,
                 msg_type: msg_type.to_string(),
                 count: 0,
+                qos,
             },
         );
         Ok(())
@@ -349,9 +367,11 @@ impl BagWriter {
         y += &format!("  message_count: {}\n", self.messages);
         y += "  topics_with_message_count:\n";
         for (name, ty, count) in topics {
+            let qos = self.topics.get(name).map_or("", |t| t.qos.as_str());
             y += &format!(
-                "    - topic_metadata:\n        name: {}\n        type: {ty}\n        serialization_format: cdr\n        offered_qos_profiles: \"\"\n      message_count: {count}\n",
-                yaml_str(name)
+                "    - topic_metadata:\n        name: {}\n        type: {ty}\n        serialization_format: cdr\n        offered_qos_profiles: {}\n      message_count: {count}\n",
+                yaml_str(name),
+                yaml_quoted(qos)
             );
         }
         y += "  compression_format: \"\"\n  compression_mode: \"\"\n";
@@ -374,6 +394,28 @@ impl Drop for BagWriter {
             }
         }
     }
+}
+
+/// A YAML double-quoted scalar of any text (rosbag2's `offered_qos_profiles` is YAML inside a
+/// string: its newlines and quotes escaped).
+fn yaml_quoted(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            '\n' => out.push_str("\\n"),
+            '\t' => out.push_str("\\t"),
+            '\r' => out.push_str("\\r"),
+            c if (c as u32) < 0x20 || c == '\u{7f}' => {
+                out.push_str(&format!("\\x{:02x}", c as u32));
+            }
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
 }
 
 /// A YAML scalar, quoted when it needs to be.
@@ -529,6 +571,37 @@ mod tests {
         }
         // Not yet there: nothing to check.
         assert!(check_bag_output(&root.join("new.mcap"), false, &[&input]).is_ok());
+    }
+
+    /// A copied topic's recorded QoS goes out unchanged (quotes, backslashes and newlines
+    /// too): in its MCAP channel and in `metadata.yaml`, which the reader takes it from when
+    /// the storage file lacks it.
+    #[test]
+    fn recorded_qos_is_written_unchanged() {
+        let qos = "- history: 1\n  depth: 1\n  durability: 1\n  note: \"a\\b\"\t\n";
+        let out = tmp("qos_dir");
+        let mut w = BagWriter::create(&out, true).unwrap();
+        w.add_topic_with_qos("/tf_static", "tf2_msgs/msg/TFMessage", None, Some(qos))
+            .unwrap();
+        w.add_topic("/depth/image", schemas::IMAGE, None).unwrap();
+        w.write("/tf_static", 10, 10, &[0, 1, 0, 0]).unwrap();
+        w.write("/depth/image", 20, 20, &[0, 1, 0, 0]).unwrap();
+        w.finish().unwrap();
+        let reader = BagReader::open(&out).unwrap();
+        assert_eq!(reader.offered_qos("/tf_static"), Some(qos));
+        assert_eq!(reader.offered_qos("/depth/image"), None);
+        let lone = BagReader::open(&out.join("qos_dir_0.mcap")).unwrap();
+        assert_eq!(lone.offered_qos("/tf_static"), Some(qos));
+        // metadata.yaml alone: the MCAP file replaced by one without the profile.
+        let bare = tmp("qos_bare.mcap");
+        let mut w = BagWriter::create(&bare, true).unwrap();
+        w.add_topic("/tf_static", "tf2_msgs/msg/TFMessage", None)
+            .unwrap();
+        w.write("/tf_static", 10, 10, &[0, 1, 0, 0]).unwrap();
+        w.finish().unwrap();
+        std::fs::rename(&bare, out.join("qos_dir_0.mcap")).unwrap();
+        let reader = BagReader::open(&out).unwrap();
+        assert_eq!(reader.offered_qos("/tf_static"), Some(qos));
     }
 
     #[test]

@@ -11,6 +11,7 @@ mod bag_faults;
 mod bag_foreign;
 mod bag_maps;
 mod bag_outputs;
+mod bag_recorded;
 mod bag_references;
 mod bag_why;
 mod util;

@@ -26,18 +26,36 @@ fn parse_record(opcode: u8, body: &[u8]) -> mcap::McapResult<mcap::records::Reco
 #[derive(Default)]
 struct McapSummary {
     schemas: HashMap<u16, (String, Vec<u8>)>,
-    channels: BTreeMap<u16, (String, u16, String)>,
+    channels: BTreeMap<u16, SummaryChannel>,
     counts: Option<BTreeMap<u16, u64>>,
     chunk_starts: Vec<u64>,
+}
+
+/// A channel of the summary: topic, schema id, message encoding, and the recorded QoS
+/// (`offered_qos_profiles` of its metadata, when not empty).
+struct SummaryChannel {
+    topic: String,
+    schema_id: u16,
+    encoding: String,
+    qos: Option<String>,
+}
+
+/// A channel's `offered_qos_profiles` (rosbag2's metadata key), when not empty.
+fn channel_qos(metadata: &BTreeMap<String, String>) -> Option<String> {
+    metadata
+        .get("offered_qos_profiles")
+        .filter(|q| !q.trim().is_empty())
+        .cloned()
 }
 
 pub(super) fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagError> {
     let summary = read_mcap_summary(path)?;
     let mut topics: BTreeMap<String, TopicInfo> = BTreeMap::new();
-    for (id, (topic, schema_id, encoding)) in &summary.channels {
+    for (id, channel) in &summary.channels {
+        let topic = &channel.topic;
         let (name, schema) = summary
             .schemas
-            .get(schema_id)
+            .get(&channel.schema_id)
             .map(|(n, d)| (normalise_type(n), Some(d.clone())))
             .unwrap_or_default();
         let count = summary
@@ -55,9 +73,10 @@ pub(super) fn mcap_summary_topics(path: &Path) -> Result<Vec<TopicInfo>, BagErro
             .or_insert(TopicInfo {
                 name: topic.clone(),
                 msg_type: name,
-                encoding: encoding.clone(),
+                encoding: channel.encoding.clone(),
                 count,
                 schema,
+                qos: channel.qos.clone(),
             });
     }
     Ok(topics.into_values().collect())
@@ -115,8 +134,16 @@ fn read_mcap_summary(path: &Path) -> Result<McapSummary, BagError> {
                     .insert(header.id, (header.name, data.into_owned()));
             }
             Ok(mcap::records::Record::Channel(c)) => {
-                out.channels
-                    .insert(c.id, (c.topic, c.schema_id, c.message_encoding));
+                let qos = channel_qos(&c.metadata);
+                out.channels.insert(
+                    c.id,
+                    SummaryChannel {
+                        topic: c.topic,
+                        schema_id: c.schema_id,
+                        encoding: c.message_encoding,
+                        qos,
+                    },
+                );
             }
             Ok(mcap::records::Record::Statistics(s)) => {
                 out.counts = Some(s.channel_message_counts);
@@ -136,6 +163,8 @@ struct McapChannel {
     topic: String,
     msg_type: String,
     encoding: String,
+    /// `offered_qos_profiles` of its metadata, when not empty.
+    qos: Option<String>,
     /// A channel of another encoding than ROS 2's `cdr` (a Foxglove `json` topic, a ROS 1
     /// recording) is not read: said once, when its first message is met.
     skipped: bool,
@@ -184,17 +213,18 @@ impl McapSource {
         // Channels and schemas from the summary too, in case a damaged chunk held their records.
         let summary = read_mcap_summary(path)?;
         let mut channels = HashMap::new();
-        for (id, (topic, schema_id, encoding)) in &summary.channels {
+        for (id, channel) in &summary.channels {
             channels.insert(
                 *id,
                 McapChannel {
-                    topic: topic.clone(),
+                    topic: channel.topic.clone(),
                     msg_type: summary
                         .schemas
-                        .get(schema_id)
+                        .get(&channel.schema_id)
                         .map(|(n, _)| normalise_type(n))
                         .unwrap_or_default(),
-                    encoding: encoding.clone(),
+                    encoding: channel.encoding.clone(),
+                    qos: channel.qos.clone(),
                     skipped: false,
                 },
             );
@@ -211,6 +241,14 @@ impl McapSource {
             file_len: std::fs::metadata(path).map(|m| m.len()).unwrap_or(0),
             ended: false,
         })
+    }
+
+    /// The recorded QoS of `topic`'s channel, once its channel record has been read.
+    pub fn offered_qos(&self, topic: &str) -> Option<&str> {
+        self.channels
+            .values()
+            .find(|c| c.topic == topic)
+            .and_then(|c| c.qos.as_deref())
     }
 
     /// After damage at `self.offset`: continue at the first chunk after the damaged one.
@@ -325,12 +363,14 @@ impl McapSource {
                                 .get(&c.schema_id)
                                 .map(|(n, _)| normalise_type(n))
                                 .unwrap_or_default();
+                            let qos = channel_qos(&c.metadata);
                             self.channels.insert(
                                 c.id,
                                 McapChannel {
                                     topic: c.topic,
                                     msg_type,
                                     encoding: c.message_encoding,
+                                    qos,
                                     skipped: false,
                                 },
                             );

@@ -40,6 +40,18 @@ pub struct TopicInfo {
     pub count: Option<u64>,
     /// The schema (definition text) when the bag carries one.
     pub schema: Option<Vec<u8>>,
+    /// The QoS the recorder offered, as rosbag2 records it (`offered_qos_profiles`: YAML
+    /// text), when the bag records one; `--copy-inputs` writes it back out unchanged.
+    pub qos: Option<String>,
+}
+
+/// Log times that go backwards in an MCAP bag's file order ([`BagReader::log_times_back`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepsBack {
+    /// Messages logged earlier than the MCAP message read before them.
+    pub messages: u64,
+    /// The largest step back, nanoseconds.
+    pub max_ns: u64,
 }
 
 /// Reads the messages of one bag in order (file order for MCAP, which rosbag2 writes in
@@ -55,6 +67,9 @@ pub struct BagReader {
     temp_files: Vec<PathBuf>,
     file_zstd: bool,
     failed: bool,
+    /// The log time of the last MCAP message read, and the steps back met so far.
+    last_mcap_ns: Option<u64>,
+    steps_back: StepsBack,
 }
 
 enum Source {
@@ -76,6 +91,8 @@ impl BagReader {
             temp_files: Vec::new(),
             file_zstd: false,
             failed: false,
+            last_mcap_ns: None,
+            steps_back: StepsBack::default(),
         };
         if meta.is_dir() && !path.join("metadata.yaml").exists() {
             // A recording that did not finish writes no metadata.yaml: its storage files,
@@ -139,6 +156,11 @@ impl BagReader {
                 };
                 if from_metadata {
                     for t in found {
+                        for known in &mut reader.topics {
+                            if known.qos.is_none() && known.name == t.name {
+                                known.qos.clone_from(&t.qos);
+                            }
+                        }
                         let Some(schema) = t.schema else { continue };
                         for known in &mut reader.topics {
                             if known.schema.is_none() && known.msg_type == t.msg_type {
@@ -173,6 +195,26 @@ impl BagReader {
         &self.topics
     }
 
+    /// How often the log times of the MCAP messages read so far went backwards in file order
+    /// (a file merged or written out of order; sets are then made in file order, not time
+    /// order); `None` when they never did. Across the MCAP files of a folder too.
+    pub fn log_times_back(&self) -> Option<StepsBack> {
+        (self.steps_back.messages > 0).then_some(self.steps_back)
+    }
+
+    /// The recorded `offered_qos_profiles` of `topic`: from [`Self::topics`], else from the
+    /// MCAP channel being read (a file without a summary describes its channels as it goes).
+    pub fn offered_qos(&self, topic: &str) -> Option<&str> {
+        let known = self.topics.iter().find(|t| t.name == topic);
+        if let Some(qos) = known.and_then(|t| t.qos.as_deref()) {
+            return Some(qos);
+        }
+        match &self.current {
+            Some(Source::Mcap(m)) => m.offered_qos(topic),
+            _ => None,
+        }
+    }
+
     fn open_next(&mut self) -> Result<bool, BagError> {
         let Some(file) = self.sources.get(self.next_source).cloned() else {
             return Ok(false);
@@ -198,7 +240,13 @@ impl BagReader {
                 return Ok(None);
             }
             let next = match &mut self.current {
-                Some(Source::Mcap(m)) => m.next_message()?,
+                Some(Source::Mcap(m)) => {
+                    let next = m.next_message()?;
+                    if let Some(msg) = &next {
+                        self.note_log_time(msg.log_time_ns);
+                    }
+                    next
+                }
                 Some(Source::Sqlite(s)) => s.next_message()?,
                 None => None,
             };
@@ -218,6 +266,17 @@ impl BagReader {
                 None => self.current = None,
             }
         }
+    }
+}
+
+impl BagReader {
+    /// Counts an MCAP message logged before the one read before it.
+    fn note_log_time(&mut self, log_time_ns: u64) {
+        if let Some(last) = self.last_mcap_ns.filter(|&last| log_time_ns < last) {
+            self.steps_back.messages += 1;
+            self.steps_back.max_ns = self.steps_back.max_ns.max(last - log_time_ns);
+        }
+        self.last_mcap_ns = Some(log_time_ns);
     }
 }
 
@@ -241,7 +300,9 @@ impl Iterator for BagReader {
     type Item = Result<BagMessage, BagError>;
 
     /// Messages in order. A damaged part of an MCAP file yields one error and reading goes on
-    /// at the next intact chunk when the file's summary lists one; any other error ends it.
+    /// at the next intact chunk when the file's summary lists one; an sqlite3 file cut short
+    /// yields what it holds, then one error, and the next file follows; any other error ends
+    /// it.
     fn next(&mut self) -> Option<Self::Item> {
         if self.failed {
             return None;
@@ -252,7 +313,10 @@ impl Iterator for BagReader {
             Err(e) => {
                 let resumable = matches!(&self.current, Some(Source::Mcap(m)) if !m.ended)
                     && matches!(e, BagError::Corrupt { .. });
-                if !resumable {
+                // A damaged sqlite3 file's last word: the bag's next file follows.
+                let sqlite_ended =
+                    matches!(&self.current, Some(Source::Sqlite(s)) if s.damage_reported());
+                if !resumable && !sqlite_ended {
                     self.failed = true;
                 }
                 Some(Err(e))
@@ -400,6 +464,17 @@ fn storage_files(dir: &Path) -> Result<Vec<PathBuf>, BagError> {
     Ok(files)
 }
 
+/// `offered_qos_profiles` of a `metadata.yaml` topic: YAML text in a string as rosbag2 writes
+/// it (a list or map written in place is turned back into its text); none when empty.
+fn qos_text(value: &serde_yaml_ng::Value) -> Option<String> {
+    let text = match value {
+        serde_yaml_ng::Value::String(s) => s.clone(),
+        serde_yaml_ng::Value::Null => return None,
+        other => serde_yaml_ng::to_string(other).ok()?,
+    };
+    (!text.trim().is_empty()).then_some(text)
+}
+
 /// The parts of a rosbag2 `metadata.yaml` we use.
 struct Metadata {
     files: Vec<PathBuf>,
@@ -472,6 +547,9 @@ impl Metadata {
                     encoding: field("serialization_format"),
                     count: entry.get("message_count").and_then(|v| v.as_u64()),
                     schema: None,
+                    qos: meta
+                        .and_then(|m| m.get("offered_qos_profiles"))
+                        .and_then(qos_text),
                 });
             }
         }
