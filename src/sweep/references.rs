@@ -99,24 +99,42 @@ pub fn plane_step_warning(rig: &Rig, params: &SweepParams) -> Option<String> {
 
 /// Logs [`plane_step_warning`] when it first comes for a reference and whenever it changes.
 fn say_plane_step(rig: &Rig, params: &SweepParams) {
-    static SAID: parking_lot::Mutex<Vec<(String, String)>> = parking_lot::const_mutex(Vec::new());
-    let Some(warning) = plane_step_warning(rig, params) else {
+    /// What a warning said: the planes, the range, the widest view and its step (0.1 px).
+    type Said = (u32, u64, u64, usize, i64);
+    static SAID: parking_lot::Mutex<Vec<(String, Said)>> = parking_lot::const_mutex(Vec::new());
+    let planes = params.num_planes as usize;
+    let Some((view, step)) =
+        rig.widest_shift_per_plane(params.min_depth_m, params.max_depth_m, planes)
+    else {
         return;
     };
     let Some(reference) = rig.reference_index().map(|i| &rig.cameras[i].name) else {
         return;
     };
+    if step <= MAX_PLANE_STEP_PX {
+        return;
+    }
+    // Compared without allocating: a rig over the limit is checked every set.
+    let key: Said = (
+        params.num_planes,
+        params.min_depth_m.to_bits(),
+        params.max_depth_m.to_bits(),
+        view,
+        (step * 10.0).round() as i64,
+    );
     {
         let mut said = SAID.lock();
         match said.iter().position(|(r, _)| r == reference) {
-            Some(at) if said[at].1 == warning => return,
-            Some(at) => said[at].1.clone_from(&warning),
+            Some(at) if said[at].1 == key => return,
+            Some(at) => said[at].1 = key,
             // A bounded memory, as `say_views`'.
-            None if said.len() < 4096 => said.push((reference.clone(), warning.clone())),
+            None if said.len() < 4096 => said.push((reference.clone(), key)),
             None => return,
         }
     }
-    tracing::warn!("{warning}");
+    if let Some(warning) = plane_step_warning(rig, params) {
+        tracing::warn!("{warning}");
+    }
 }
 
 /// Logs which cameras a reference sweeps with, and why the others are left out, when that
