@@ -4,7 +4,7 @@
 //! truth and read back by independent readers (Python rosbags and mcap), and bags written by an
 //! independent writer (rosbags: MCAP, sqlite3, sqlite3 with zstd per message or per file).
 
-use super::util::{messages, ok, root, scratch, sweepdepth};
+use super::util::{fixture_bag, fixture_params, messages, ok, root, scratch, sweepdepth};
 use crate::common;
 
 use common::python;
@@ -20,21 +20,8 @@ fn fixture() -> PathBuf {
     root().join("tests/fixtures/bags/tsukuba_half.mcap")
 }
 
-fn fixture_params() -> PathBuf {
-    root().join("tests/fixtures/bags/tsukuba_half.params.yaml")
-}
-
 fn run_bag(input: &Path, output: &Path, extra: &[&str]) -> String {
-    let params = fixture_params();
-    let mut args = vec![
-        "bag",
-        input.to_str().unwrap(),
-        output.to_str().unwrap(),
-        "--params-file",
-        params.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    ok(&sweepdepth(&args), "sweepdepth bag")
+    ok(&fixture_bag(input, output, extra), "sweepdepth bag")
 }
 
 /// (stamp, depth in metres) of every `/depth/image` message.
@@ -545,22 +532,25 @@ fn pack_images_and_rig_file_then_bag() {
     let min = format!("min_depth:={}", p.min_depth_m);
     let max = format!("max_depth:={}", p.max_depth_m);
     let planes = format!("num_planes:={}", p.num_planes);
-    let stderr = ok(
-        &sweepdepth(&[
+    // The packed bag through `bag` with the packed parameters, the dataset's range and `planes`.
+    let packed_bag = |output: &Path, planes: &str| {
+        let params = dir.join("rig.params.yaml");
+        let args = [
             "bag",
             bag.to_str().unwrap(),
-            out.to_str().unwrap(),
+            output.to_str().unwrap(),
             "--params-file",
-            dir.join("rig.params.yaml").to_str().unwrap(),
+            params.to_str().unwrap(),
             "-p",
             &min,
             "-p",
             &max,
             "-p",
-            &planes,
-        ]),
-        "bag",
-    );
+            planes,
+        ];
+        ok(&sweepdepth(&args), "bag")
+    };
+    let stderr = packed_bag(&out, &planes);
     // The views the reference sweeps with, said once.
     assert_eq!(
         stderr
@@ -572,22 +562,7 @@ fn pack_images_and_rig_file_then_bag() {
     assert!(!stderr.contains("planes lie"), "{stderr}");
     // Planes many pixels apart are said once, with the count that closes them.
     let coarse = dir.join("coarse.mcap");
-    let few = ok(
-        &sweepdepth(&[
-            "bag",
-            bag.to_str().unwrap(),
-            coarse.to_str().unwrap(),
-            "--params-file",
-            dir.join("rig.params.yaml").to_str().unwrap(),
-            "-p",
-            &min,
-            "-p",
-            &max,
-            "-p",
-            "num_planes:=4",
-        ]),
-        "bag",
-    );
+    let few = packed_bag(&coarse, "num_planes:=4");
     let said: Vec<&str> = few.lines().filter(|l| l.contains("planes lie")).collect();
     assert_eq!(said.len(), 1, "{few}");
     assert!(

@@ -3,29 +3,16 @@
 //! leaves no output behind (so that the same command can run again without `--force`; a
 //! writer dropped unfinished: `bag::writer`'s unit tests).
 
-use super::util::{messages, ok, root, scratch, sweepdepth};
+use super::util::{fixture_bag, fixture_params, messages, ok, root, scratch, sweepdepth};
 use std::path::{Path, PathBuf};
 
 fn fixture() -> PathBuf {
     root().join("tests/fixtures/bags/tsukuba_half.mcap")
 }
 
-fn params() -> PathBuf {
-    root().join("tests/fixtures/bags/tsukuba_half.params.yaml")
-}
-
 /// Runs `bag IN OUT` with the fixture's parameters and `extra`: (success, stderr).
 fn bag(input: &Path, output: &Path, extra: &[&str]) -> (bool, String) {
-    let params = params();
-    let mut args = vec![
-        "bag",
-        input.to_str().unwrap(),
-        output.to_str().unwrap(),
-        "--params-file",
-        params.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let out = sweepdepth(&args);
+    let out = fixture_bag(input, output, extra);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
@@ -116,7 +103,7 @@ fn force_never_replaces_the_input_or_what_is_not_a_bag() {
             input.to_str().unwrap(),
             old.to_str().unwrap(),
             "--params-file",
-            params().to_str().unwrap(),
+            fixture_params().to_str().unwrap(),
             "--force",
         ]),
         "bag over an older bag with --force",
@@ -162,7 +149,7 @@ fn a_failed_run_leaves_no_output_behind() {
             fixture().to_str().unwrap(),
             out.to_str().unwrap(),
             "--params-file",
-            params().to_str().unwrap(),
+            fixture_params().to_str().unwrap(),
         ]),
         "bag after the failed runs",
     );

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use super::util::{messages, root, scratch, sweepdepth};
+use super::util::{fixture_bag, messages, root, scratch};
 use sweepdepth::bag::{BagMessage, BagReader, StepsBack};
 
 fn fixture() -> PathBuf {
@@ -16,16 +16,7 @@ fn fixture() -> PathBuf {
 
 /// `sweepdepth bag IN OUT` with the fixture's parameters plus `extra`.
 fn bag(input: &Path, output: &Path, extra: &[&str]) -> Output {
-    let params = root().join("tests/fixtures/bags/tsukuba_half.params.yaml");
-    let mut args = vec![
-        "bag",
-        input.to_str().unwrap(),
-        output.to_str().unwrap(),
-        "--params-file",
-        params.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    sweepdepth(&args)
+    fixture_bag(input, output, extra)
 }
 
 fn stderr_of(out: &Output) -> String {

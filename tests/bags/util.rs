@@ -17,6 +17,25 @@ pub fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// The parameter file of the Tsukuba bag fixture.
+pub fn fixture_params() -> PathBuf {
+    root().join("tests/fixtures/bags/tsukuba_half.params.yaml")
+}
+
+/// `sweepdepth bag IN OUT --params-file <the fixture's>` plus `extra`.
+pub fn fixture_bag(input: &Path, output: &Path, extra: &[&str]) -> Output {
+    let params = fixture_params();
+    let mut args = vec![
+        "bag",
+        input.to_str().unwrap(),
+        output.to_str().unwrap(),
+        "--params-file",
+        params.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    sweepdepth(&args)
+}
+
 /// Runs the `sweepdepth` binary (the limit of its wait: the test harness's).
 pub fn sweepdepth(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
