@@ -18,6 +18,7 @@ use crate::sweep::{DepthMaps, SweepError};
 pub mod fusion;
 mod metrics;
 pub mod peer;
+pub mod radiometry;
 mod table;
 
 pub use metrics::{
@@ -62,6 +63,11 @@ pub struct EvalArgs {
     /// im1E.png and im1L.png: the same view under another exposure or lighting).
     #[arg(long, value_name = "FILE")]
     pub right_view: Option<String>,
+    /// Real cameras' radiometry given to every camera's image before the sweep (the peer's
+    /// too): each camera its own exposure, a vignette, sensor noise, or all three
+    /// (`eval::radiometry`): how much depth a setting keeps on a rig whose cameras differ.
+    #[arg(long, value_enum, default_value_t = radiometry::Radiometry::None)]
+    pub radiometry: radiometry::Radiometry,
     /// A peer run on the same pair in the same run, scored alike, printed as a row of its
     /// own under the dataset's (`sgbm`: OpenCV StereoSGBM 3-way through
     /// tools/sgbm_baseline.py; rectified pairs, the middlebury2014 layout).
@@ -236,6 +242,7 @@ fn eval_one(
     };
     let mut dataset = datasets::load_dataset_with(dir, &options)?;
     args.params.apply(&mut dataset.params);
+    args.radiometry.apply(&mut dataset.images);
     if args.mask == EvalMask::Nonocc {
         restrict_to_nonocc(&mut dataset)?;
     }
@@ -276,8 +283,11 @@ fn eval_one(
         // The engine's row stands whatever becomes of the peer's: a dataset it cannot run on
         // (not a rectified pair) or a failed run is a comment line of the table instead.
         let right = args.right_view.as_deref().unwrap_or("im1.png");
-        let row = peer::check_pair(&dataset)
-            .and_then(|()| peer::sgbm_row(python, dir, right, &dataset, &std::env::temp_dir()));
+        let scratch = std::env::temp_dir();
+        let row = peer::check_pair(&dataset).and_then(|()| {
+            let pair = peer::PairFiles::of(dir, right, &dataset, args.radiometry, &scratch)?;
+            peer::sgbm_row(python, &pair, &dataset, &scratch)
+        });
         rows.push('\n');
         match row {
             Ok(row) => rows.push_str(&table_row_as(

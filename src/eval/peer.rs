@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use super::metrics::{disparity_metrics, Metrics};
+use super::radiometry::Radiometry;
 use super::EvalError;
 use crate::datasets::{Dataset, GroundTruth, Layout};
 use crate::image::ImageF32;
@@ -82,12 +83,60 @@ pub struct PeerRow {
     pub ms: f64,
 }
 
-/// Runs SGBM 3-way on the dataset's pair (`dir`: the folder it was loaded from; `right`: the
-/// right view's file name) and scores it against the dataset's ground truth.
+/// The two image files the peer reads: the set's own, or (`eval --radiometry`) the engine's
+/// images as the radiometry made them, written to a scratch folder and removed on drop.
+pub struct PairFiles {
+    pub left: PathBuf,
+    pub right: PathBuf,
+    written: bool,
+}
+
+impl PairFiles {
+    /// The pair loaded from `dir` (`right`: the right view's file name); with a radiometry,
+    /// `dataset`'s two images written as PNGs into `scratch`.
+    pub fn of(
+        dir: &Path,
+        right: &str,
+        dataset: &Dataset,
+        radiometry: Radiometry,
+        scratch: &Path,
+    ) -> Result<Self, PeerError> {
+        if radiometry == Radiometry::None {
+            return Ok(Self {
+                left: dir.join("im0.png"),
+                right: dir.join(right),
+                written: false,
+            });
+        }
+        let [left, right] = ["left", "right"]
+            .map(|side| scratch.join(format!("sweepdepth-peer-{}-{side}.png", std::process::id())));
+        let files = Self {
+            left,
+            right,
+            written: true,
+        };
+        for (image, path) in dataset.images.iter().zip([&files.left, &files.right]) {
+            io::save_image(path, &image.to_rgb_image())
+                .map_err(|e| PeerError::Run(e.to_string()))?;
+        }
+        Ok(files)
+    }
+}
+
+impl Drop for PairFiles {
+    fn drop(&mut self) {
+        if self.written {
+            let _ = std::fs::remove_file(&self.left);
+            let _ = std::fs::remove_file(&self.right);
+        }
+    }
+}
+
+/// Runs SGBM 3-way on the dataset's pair (`pair`: its two image files) and scores it against
+/// the dataset's ground truth.
 pub fn sgbm_row(
     python: &Path,
-    dir: &Path,
-    right: &str,
+    pair: &PairFiles,
     dataset: &Dataset,
     scratch: &Path,
 ) -> Result<PeerRow, PeerError> {
@@ -115,8 +164,8 @@ pub fn sgbm_row(
     let output = Command::new(python)
         .arg(&script)
         .arg("--pair")
-        .arg(dir.join("im0.png"))
-        .arg(dir.join(right))
+        .arg(&pair.left)
+        .arg(&pair.right)
         .args([
             "--num-disp",
             &num_disp.to_string(),

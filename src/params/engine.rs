@@ -284,10 +284,11 @@ engine_params! {
     max_neighbours: u32 = 0, "max_neighbours", Long("max-neighbours"),
         ParamRange::ints(0, i64::from(MAX_RIG_CAMERAS)),
         "Views (cameras besides itself) each reference sweeps with, at most: of the cameras that see at least 10 % of its view, the best for depth (triangulation angles near 5 degrees and overlap, alternately from each half of the rig, a spread of directions); 0 = 8. At most 16 with per-pair aggregation.";
-    // Issue 52: chosen on real-camera pairs and the lab sets together (docs/quality.md).
+    // Issue 52: chosen on real-camera pairs, the lab sets, and the lab rigs given real cameras'
+    // radiometry (docs/quality.md).
     prefilter: Prefilter = Prefilter::Auto, "prefilter", Long("prefilter"),
         variants::<Prefilter>(),
-        "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures), or gradient for a pair of cameras and none for more (auto).";
+        "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures and clean images), or auto: gradient for a pair of cameras, and for more once their mean brightness differs by more than 15 % (each metering its own exposure), else none.";
     uniqueness: f32 = 0.0, "uniqueness", Long("uniqueness"),
         ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
         "Pixels whose winner does not beat its best rival on the matching costs by this share are invalid ((rival - best) / (rival + 1); with SGM: SGM's winner against the best plane more than 1.5 px of shift away): a repeated pattern gives no depth instead of wrong depth, but weakly textured surfaces lose pixels too (docs/engine.md); 0 = none.";

@@ -17,7 +17,7 @@ use std::cell::OnceCell;
 use super::frame_memo::FrameMemo;
 use super::joint_median::{Bins, JointMedian};
 use super::plan::{range_tiles, SweepPlan, RANGE_TILE};
-use super::{DepthMaps, SweepError, SweepParams};
+use super::{DepthMaps, Prefilter, SweepError, SweepParams};
 
 /// Planes added on each side of the span of the half-resolution depths of a row and its
 /// neighbours (a half-resolution pixel's plane is about twice as uncertain; chosen on the
@@ -222,6 +222,42 @@ pub struct Plans {
     fine: Option<(Rig, SweepParams, SweepPlan)>,
     /// The half-resolution level's own plans (coarse to fine again where it applies).
     below: Option<Box<Plans>>,
+    /// `prefilter: auto` on a rig of three cameras or more: the rig whose cameras were seen to
+    /// differ in brightness, whose sets take the gradient from then on (no plan flips back).
+    auto_gradient: Option<Rig>,
+}
+
+impl Plans {
+    /// `params` as a frame set of `rig` sweeps them: `prefilter: auto` on three cameras or
+    /// more becomes `gradient` from the first set whose cameras differ in brightness
+    /// (`prefilter::AUTO_BRIGHTNESS_RATIO`, said once), else `none`; anything else as it is.
+    fn resolve_prefilter(
+        &mut self,
+        rig: &Rig,
+        images: SetImages<'_>,
+        params: &SweepParams,
+    ) -> Option<SweepParams> {
+        if params.prefilter != Prefilter::Auto || params.prefilter.applies(rig.cameras.len()) {
+            return None;
+        }
+        if self.auto_gradient.as_ref() != Some(rig) {
+            let ratio = super::prefilter::brightness_ratio(images);
+            if ratio <= super::prefilter::AUTO_BRIGHTNESS_RATIO {
+                return Some(SweepParams {
+                    prefilter: Prefilter::None,
+                    ..params.clone()
+                });
+            }
+            tracing::info!(
+                "prefilter auto: the cameras' mean brightness differs {ratio:.2}x (brightest over darkest): the colour term compares each image's gradient from now on (prefilter: none or gradient to choose)"
+            );
+            self.auto_gradient = Some(rig.clone());
+        }
+        Some(SweepParams {
+            prefilter: Prefilter::Gradient,
+            ..params.clone()
+        })
+    }
 }
 
 fn cached<'a>(
@@ -302,6 +338,8 @@ pub fn start(
     // The matching images (issue 52): prefiltered for real cameras, on the host for the CPU
     // engine (the WGSL engine makes them on the device); the joint median below keeps the
     // caller's.
+    let resolved = plans.resolve_prefilter(rig, images, params);
+    let params = resolved.as_ref().unwrap_or(params);
     let prefiltered;
     let mut prefilter_ms = None;
     let on_host = !engine.prefilters_on_device();

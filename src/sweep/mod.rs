@@ -39,13 +39,14 @@ pub enum Scoring {
     BestHalfSequence,
 }
 
-/// The matching cost of one camera pair at one hypothesis (`tau` sets the scale of all three).
 /// What the colour term of the cost compares (issue 52, `prefilter.rs`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Prefilter {
     /// `gradient` for a pair of cameras (a stereo camera: no third view to outvote a pair
-    /// that radiometry breaks), `none` for more.
+    /// that radiometry breaks); for more, `gradient` from the first frame set whose cameras'
+    /// mean brightness differs by more than [`prefilter::AUTO_BRIGHTNESS_RATIO`] (each metering
+    /// its own exposure), else `none` (`prefilter::auto_for_set`).
     Auto,
     /// The camera images as they are (lab sets: equal exposures, clean images).
     None,
@@ -55,7 +56,8 @@ pub enum Prefilter {
 }
 
 impl Prefilter {
-    /// Whether a rig of `cameras` cameras sweeps prefiltered images.
+    /// Whether a rig of `cameras` cameras sweeps prefiltered images (`Auto` as it stands before
+    /// a frame set is seen: a pair only).
     pub fn applies(self, cameras: usize) -> bool {
         match self {
             Prefilter::Auto => cameras == 2,
@@ -65,6 +67,7 @@ impl Prefilter {
     }
 }
 
+/// The matching cost of one camera pair at one hypothesis (`tau` sets the scale of all three).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
 pub enum Cost {

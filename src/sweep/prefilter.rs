@@ -21,7 +21,7 @@ use std::borrow::Cow;
 
 use super::census::luma;
 use super::plan::SweepPlan;
-use crate::image::Rgba8Image;
+use crate::image::{CameraImage, PackedFormat, Rgba8Image, SetImages};
 
 /// Output levels per unit of the Sobel derivative (a one-level step between two columns is 4
 /// units: 2 levels). Chosen on real-camera pairs and the lab sets together (docs/quality.md):
@@ -45,6 +45,62 @@ pub fn gradient_all(images: &[Rgba8Image]) -> Vec<Rgba8Image> {
     images.par_iter().map(gradient).collect()
 }
 
+/// `Prefilter::Auto` on a rig of three cameras or more takes the gradient from the first frame
+/// set whose brightest camera's mean grey is more than this times the darkest's: cameras that
+/// each meter their own exposure (docs/quality.md: the raw colours make 2.4-3.2x their errors
+/// there). The lab rigs' views, one camera's exposures, differ by at most 1.10 (Teddy's nine
+/// views of different parts of its scene); per-camera exposures of 0.6-1.5x by 2.8.
+pub const AUTO_BRIGHTNESS_RATIO: f64 = 1.15;
+
+/// Every `BRIGHTNESS_STEP`-th row and column is read for a camera's mean grey.
+const BRIGHTNESS_STEP: usize = 4;
+
+/// The brightest camera's mean grey over the darkest's (1 for fewer than two cameras; a black
+/// camera counts as the darkest grey above zero).
+pub fn brightness_ratio(images: SetImages<'_>) -> f64 {
+    let means: Vec<f64> = images.iter().map(mean_grey).collect();
+    let lo = means.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = means.iter().copied().fold(0.0, f64::max);
+    if means.len() < 2 || hi <= 0.0 {
+        return 1.0;
+    }
+    hi / lo.max(1.0)
+}
+
+/// The mean grey (`luma`, 1/256 levels) of every `BRIGHTNESS_STEP`-th row and column.
+fn mean_grey(image: CameraImage<'_>) -> f64 {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let (mut sum, mut count) = (0u64, 0u64);
+    for y in (0..h).step_by(BRIGHTNESS_STEP) {
+        for x in (0..w).step_by(BRIGHTNESS_STEP) {
+            let i = y * w + x;
+            let grey = match image {
+                CameraImage::Rgba(rgba) => rgba.pixels.get(i).map(|&p| luma(p)),
+                CameraImage::Packed(packed) => {
+                    let n = packed.format.bytes_per_pixel();
+                    packed
+                        .bytes
+                        .get(i * n..(i + 1) * n)
+                        .map(|b| match packed.format {
+                            PackedFormat::Rgb8 => luma(Rgba8Image::pack(b[0], b[1], b[2])),
+                            PackedFormat::Bgr8 => luma(Rgba8Image::pack(b[2], b[1], b[0])),
+                            PackedFormat::Mono8 => luma(Rgba8Image::pack(b[0], b[0], b[0])),
+                        })
+                }
+            };
+            if let Some(grey) = grey {
+                sum += u64::from(grey);
+                count += 1;
+            }
+        }
+    }
+    sum as f64 / count.max(1) as f64
+}
+
+/// Rows of an image one task of [`gradient`] makes: each band computes its rows' greys once
+/// (and the row above and below it), so 32 rows cost 34 rows of greys, not 96.
+const BAND_ROWS: usize = 32;
+
 /// The image with its grey's horizontal Sobel derivative, `128 + clamp(SCALE d, -127, 127)`
 /// rounded, in the alpha byte (edge texels repeated); the RGB unchanged.
 pub fn gradient(image: &Rgba8Image) -> Rgba8Image {
@@ -54,40 +110,71 @@ pub fn gradient(image: &Rgba8Image) -> Rgba8Image {
     }
     let src = &image.pixels;
     let mut pixels = vec![0u32; w * h];
-    // Per row: the vertical [1, 2, 1] sum of the greys (`sums`), then its central difference
-    // (the Sobel response), each a loop that vectorises. The byte is `round` of a positive
-    // value with few fractional bits, i.e. `floor(v + 0.5)` exactly (no libm call per pixel).
-    pixels.par_chunks_mut(w).enumerate().for_each_init(
-        || vec![0i32; w],
-        |sums, (y, out)| {
-            let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)];
-            let [up, mid, down] = rows.map(|r| &src[r * w..(r + 1) * w]);
-            for (((s, &u), &m), &d) in sums.iter_mut().zip(up).zip(mid).zip(down) {
-                *s = (luma(u) + 2 * luma(m) + luma(d)) as i32;
-            }
-            let byte = |d: i32| {
-                let v = 128.0 + (d as f32 * (SCALE / 256.0)).clamp(-127.0, 127.0);
-                (v + 0.5).floor() as u32
-            };
-            // Columns 1..w - 1 from their neighbours (a loop that vectorises), then the two
-            // edge columns, whose missing neighbour is the edge column itself.
-            if w >= 3 {
-                let inner = out[1..w - 1].iter_mut().zip(&mid[1..w - 1]);
-                for ((o, &m), (&r, &l)) in inner.zip(sums[2..].iter().zip(&sums[..w - 2])) {
-                    *o = (m & 0x00ff_ffff) | (byte(r - l) << 24);
+    // Per band of rows: each row's greys once (a ring of three rows), then per row the vertical
+    // [1, 2, 1] sum of the greys (`sums`) and its central difference (the Sobel response), each
+    // a loop that vectorises.
+    pixels
+        .par_chunks_mut(w * BAND_ROWS)
+        .enumerate()
+        .for_each_init(
+            || ([vec![0i32; w], vec![0i32; w], vec![0i32; w]], vec![0i32; w]),
+            |(greys, sums), (band, out)| {
+                let first = band * BAND_ROWS;
+                let grey_row = |r: usize, into: &mut [i32]| {
+                    for (g, &p) in into.iter_mut().zip(&src[r * w..(r + 1) * w]) {
+                        *g = luma(p) as i32;
+                    }
+                };
+                let [up, mid, down] = greys;
+                grey_row(first.saturating_sub(1), up);
+                grey_row(first, mid);
+                for (i, out) in out.chunks_mut(w).enumerate() {
+                    let y = first + i;
+                    grey_row((y + 1).min(h - 1), down);
+                    for (((s, &u), &m), &d) in sums.iter_mut().zip(&*up).zip(&*mid).zip(&*down) {
+                        *s = u + 2 * m + d;
+                    }
+                    sobel_row(&src[y * w..(y + 1) * w], sums, out);
+                    // The ring turns: this row's greys are the next one's above, and so on.
+                    std::mem::swap(up, mid);
+                    std::mem::swap(mid, down);
                 }
-            }
-            for x in [0, w - 1] {
-                let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                out[x] = (mid[x] & 0x00ff_ffff) | (byte(sums[r] - sums[l]) << 24);
-            }
-        },
-    );
+            },
+        );
     Rgba8Image {
         width: image.width,
         height: image.height,
         pixels,
     }
+}
+
+/// One output row: the pixels of `row` with the byte of the central difference of `sums` (the
+/// row's vertical Sobel sums) in alpha; the edge columns take their own sum for the missing
+/// neighbour.
+#[inline(always)]
+fn sobel_row(row: &[u32], sums: &[i32], out: &mut [u32]) {
+    let w = row.len();
+    // Columns 1..w - 1 from their neighbours (a loop that vectorises), then the two edge
+    // columns, whose missing neighbour is the edge column itself.
+    if w >= 3 {
+        let inner = out[1..w - 1].iter_mut().zip(&row[1..w - 1]);
+        for ((o, &m), (&r, &l)) in inner.zip(sums[2..].iter().zip(&sums[..w - 2])) {
+            *o = (m & 0x00ff_ffff) | (byte(r - l) << 24);
+        }
+    }
+    for x in [0, w - 1] {
+        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        out[x] = (row[x] & 0x00ff_ffff) | (byte(sums[r] - sums[l]) << 24);
+    }
+}
+
+/// `round(128 + clamp(SCALE d / 256, -127, 127))` of a Sobel response `d` (greys in 1/256
+/// levels), in integers: `SCALE / 256` is 2^-9, so the rounding is `floor((d + 256) / 2^9)`,
+/// exactly what the float form gives (`byte_is_the_float_rounding`; the shader's twin in
+/// `prefilter.wgsl` reads the float form).
+#[inline(always)]
+fn byte(d: i32) -> u32 {
+    (128 + ((d + 256) >> 9)).clamp(1, 255) as u32
 }
 
 #[cfg(test)]
@@ -144,6 +231,96 @@ mod tests {
         let distinct: std::collections::BTreeSet<u32> = ga.pixels.iter().map(|p| p >> 24).collect();
         assert!(distinct.len() > 5, "{distinct:?}");
         assert!(distinct.iter().any(|&v| v < 100) && distinct.iter().any(|&v| v > 156));
+    }
+
+    /// The integer byte equals the float form `128 + clamp(SCALE d / 256, -127, 127)` rounded
+    /// half up, for every Sobel response a grey image can give (and beyond).
+    #[test]
+    fn byte_is_the_float_rounding() {
+        assert_eq!(SCALE, 0.5, "byte() divides by 2^9");
+        for d in -300_000..=300_000 {
+            let v = 128.0 + (d as f32 * (SCALE / 256.0)).clamp(-127.0, 127.0);
+            assert_eq!(byte(d), (v + 0.5).floor() as u32, "d = {d}");
+        }
+    }
+
+    /// Bands of rows make what one pass over the rows makes: every size around the band's
+    /// height, colours with all three channels apart, a seeded texture.
+    #[test]
+    fn bands_equal_a_pass_row_by_row() {
+        let by_rows = |image: &Rgba8Image| -> Vec<u32> {
+            let (w, h) = (image.width as usize, image.height as usize);
+            let grey = |x: usize, y: usize| luma(image.pixels[y * w + x]) as i32;
+            let sum = |x: usize, y: usize| {
+                grey(x, y.saturating_sub(1)) + 2 * grey(x, y) + grey(x, (y + 1).min(h - 1))
+            };
+            (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| {
+                    let d = sum((x + 1).min(w - 1), y) - sum(x.saturating_sub(1), y);
+                    let v = 128.0 + (d as f32 * (SCALE / 256.0)).clamp(-127.0, 127.0);
+                    (image.pixels[y * w + x] & 0x00ff_ffff) | (((v + 0.5).floor() as u32) << 24)
+                })
+                .collect()
+        };
+        for (w, h) in [
+            (1, 1),
+            (2, 1),
+            (1, 5),
+            (3, 3),
+            (17, 31),
+            (40, 32),
+            (33, 33),
+            (9, 65),
+            (64, 97),
+        ] {
+            let pixels = (0..w * h)
+                .map(|i: u32| {
+                    let z = i.wrapping_mul(2_654_435_761) ^ (i >> 3).wrapping_mul(40_503);
+                    Rgba8Image::pack(z as u8, (z >> 8) as u8, (z >> 16) as u8)
+                })
+                .collect();
+            let image = Rgba8Image {
+                width: w,
+                height: h,
+                pixels,
+            };
+            assert_eq!(gradient(&image).pixels, by_rows(&image), "{w}x{h}");
+        }
+    }
+
+    /// The brightness ratio reads packed messages as their RGBA twins, and a black camera is
+    /// the darkest, not a division by zero.
+    #[test]
+    fn brightness_ratio_of_packed_and_black_images() {
+        use crate::image::PackedImage;
+        let (w, h) = (9u32, 7u32);
+        let grey = |v: u8| grey_image(w, h, |_, _| f64::from(v));
+        let rgb: Vec<u8> = (0..w * h).flat_map(|_| [150u8, 150, 150]).collect();
+        let mono = vec![100u8; (w * h) as usize];
+        fn packed(bytes: &[u8], format: PackedFormat, w: u32, h: u32) -> CameraImage<'_> {
+            CameraImage::Packed(PackedImage {
+                width: w,
+                height: h,
+                format,
+                bytes,
+            })
+        }
+        let set = [
+            packed(&rgb, PackedFormat::Bgr8, w, h),
+            packed(&mono, PackedFormat::Mono8, w, h),
+        ];
+        let ratio = brightness_ratio(SetImages::Cameras {
+            set: &set,
+            picked: None,
+        });
+        assert!((ratio - 1.5).abs() < 1e-9, "{ratio}");
+        let (a, b) = (grey(100), grey(120));
+        let two = [a.clone(), b];
+        assert!((brightness_ratio(SetImages::All(&two)) - 1.2).abs() < 1e-9);
+        let black = [a.clone(), grey(0)];
+        assert!(brightness_ratio(SetImages::All(&black)) > 100.0);
+        assert_eq!(brightness_ratio(SetImages::All(&[a])), 1.0);
     }
 
     /// A vertical step edge of 40 levels: 160 grey levels of Sobel, 80 above 128 on both

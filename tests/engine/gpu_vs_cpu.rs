@@ -10,7 +10,7 @@ use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout, SgmWalks};
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::{range_tiles, SweepPlan, RANGE_TILE};
 use sweepdepth::sweep::{
-    Aggregation, Cost, Optimizer, PairSet, Scoring, SweepParams, WantedMaps, WindowMode,
+    Aggregation, Cost, Optimizer, PairSet, Prefilter, Scoring, SweepParams, WantedMaps, WindowMode,
 };
 use sweepdepth::synthetic::{self, Scene};
 
@@ -1540,6 +1540,12 @@ fn maps_left_out_change_nothing_else() {
 fn plane_ranges_on_the_device_equal_the_host_twin() {
     use sweepdepth::sweep::coarse;
     let (rig, images, centred) = coarse_to_fine_case(400, 320);
+    // The raw colours: the level below is then the half-size images swept alone (with the
+    // gradient the pyramid halves the prefiltered level, which no run of its own makes).
+    let centred = SweepParams {
+        prefilter: Prefilter::None,
+        ..centred
+    };
     let shiftable = SweepParams {
         optimizer: Optimizer::Wta,
         cost: Cost::Tssd,
@@ -1654,9 +1660,12 @@ fn census_on_the_gpu_equals_the_cpu_twin() {
         rig.cameras[2].model = small;
         let images = noise_images(&rig, width);
         for cost in [Cost::Census, Cost::AdCensus] {
+            // The raw colours: the images buffer holds the caller's pixels as they are (the
+            // prefiltered ones: `prefiltered_images_on_the_gpu_equal_the_cpu_twin`).
             let params = SweepParams {
                 cost,
                 num_planes: 4,
+                prefilter: Prefilter::None,
                 ..base()
             };
             let plan = SweepPlan::new(&rig, &params).expect("plan");
@@ -1676,6 +1685,8 @@ fn census_on_the_gpu_equals_the_cpu_twin() {
 }
 
 /// Coarse to fine in three levels on a 642x330 rig (96 planes, census, winner-take-all).
+/// The raw colours: level 0 holds the caller's pixels as they are (a prefiltered pyramid:
+/// `prefiltered_images_on_the_gpu_equal_the_cpu_twin`).
 fn three_levels() -> SweepParams {
     SweepParams {
         min_depth_m: 1.0,
@@ -1684,6 +1695,7 @@ fn three_levels() -> SweepParams {
         coarse_to_fine: true,
         cost: Cost::Census,
         optimizer: Optimizer::Wta,
+        prefilter: Prefilter::None,
         ..SweepParams::default()
     }
 }
@@ -1799,7 +1811,10 @@ fn prefiltered_images_on_the_gpu_equal_the_cpu_twin() {
     // Coarse to fine: 3 levels, two frame sets.
     let model = CameraModel::pinhole(synthetic::intrinsics(642, 330));
     let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
-    let params = three_levels();
+    let params = SweepParams {
+        prefilter: Prefilter::Auto,
+        ..three_levels()
+    };
     let levels = sweepdepth::sweep::coarse::levels(&rig, &params);
     assert_eq!(levels, 3);
     for images in [ramp_images(&rig, 9), noise_images(&rig, 11)] {

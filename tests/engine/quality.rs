@@ -90,14 +90,19 @@ fn sgm_beats_wta_and_two_view_sgbm_on_tsukuba() {
     );
 }
 
+/// Depth between the planes (the parabola through SGM's sums) puts many of the estimates
+/// that lie half a pixel off back within it: bad>0.5 / bad>1 14.07 / 4.09 % against 22.10 /
+/// 6.43 % without (CPU engine, 2026-12-02).
 #[test]
 fn sub_pixel_refinement_lowers_bad_pixels_on_tsukuba() {
     let with = disparity_metrics(&tsukuba_dir(), |_| {});
     let without = disparity_metrics(&tsukuba_dir(), |p| p.subpixel = false);
     assert!(
-        with.bad1 + 1.0 < without.bad1,
-        "bad>1 with sub-pixel {:.2} % vs {:.2} % without",
+        with.bad05 + 4.0 < without.bad05 && with.bad1 <= without.bad1,
+        "bad>0.5 / bad>1 with sub-pixel {:.2} / {:.2} % vs {:.2} / {:.2} % without",
+        with.bad05,
         with.bad1,
+        without.bad05,
         without.bad1
     );
 }
