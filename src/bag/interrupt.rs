@@ -11,12 +11,19 @@ use crate::viewer::Viewer;
 /// the bag and the mesh are written with what was processed.
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
+/// Set while `--view` holds the last set on view ([`hold_view`]): the run is over and written,
+/// so Ctrl-C only ends the view.
+static VIEWING: AtomicBool = AtomicBool::new(false);
+
 /// `bag`'s Ctrl-C: the first stops the run cleanly ([`INTERRUPTED`]), the second quits at
 /// once (exit status 130, nothing more written). False when no handler could be set.
 pub(super) fn handle_interrupts() -> bool {
     static PRESSED: AtomicUsize = AtomicUsize::new(0);
     let set = ctrlc::set_handler(|| {
-        if PRESSED.fetch_add(1, Ordering::SeqCst) == 0 {
+        if VIEWING.load(Ordering::SeqCst) {
+            eprintln!("\nCtrl-C: the view ends");
+            INTERRUPTED.store(true, Ordering::SeqCst);
+        } else if PRESSED.fetch_add(1, Ordering::SeqCst) == 0 {
             INTERRUPTED.store(true, Ordering::SeqCst);
             eprintln!(
                 "\nCtrl-C: stopping; the sets processed so far are written (Ctrl-C again to quit \
@@ -37,6 +44,7 @@ pub(super) fn hold_view(viewer: &Viewer, interrupts: bool) {
     if !interrupts {
         return;
     }
+    VIEWING.store(true, Ordering::SeqCst);
     eprintln!(
         "done; the last set stays on view at {} (Foxglove/Lichtblick: {}) until Ctrl-C",
         viewer.page_url(),

@@ -628,3 +628,83 @@ fn docs_the_steps_from_above_before_and_after_the_fine_sweep() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Ctrl-C while `bag --view` holds the last set on view ends the view and says so, with exit
+/// status 0 (it used to print the run's "stopping; the sets processed so far are written").
+#[test]
+fn ctrl_c_on_the_held_view_ends_the_view() {
+    in_private_netns(
+        INNER,
+        "viewer_page::ctrl_c_on_the_held_view_ends_the_view",
+        ctrl_c_on_the_held_view,
+    );
+}
+
+fn ctrl_c_on_the_held_view() {
+    let port = free_port_pair();
+    let out_dir =
+        std::env::temp_dir().join(format!("sweepdepth-view-ctrl-c-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out_dir);
+    std::fs::create_dir_all(&out_dir).expect("temp dir");
+    let mut bag = KillOnDrop(
+        Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .arg("bag")
+            .arg(root().join("tests/fixtures/bags/tsukuba_half.mcap"))
+            .arg(out_dir.join("out.mcap"))
+            .arg("--params-file")
+            .arg(root().join("tests/fixtures/bags/tsukuba_half.params.yaml"))
+            .args([
+                "--view",
+                "--view-rate",
+                "max",
+                "-p",
+                &format!("foxglove_port:={port}"),
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start sweepdepth bag --view"),
+    );
+    let (lines, seen) = std::sync::mpsc::channel();
+    if let Some(pipe) = bag.0.stderr.take() {
+        std::thread::spawn(move || {
+            for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+                eprintln!("{line}");
+                if lines.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    let started = Instant::now();
+    let mut log = String::new();
+    while !log.contains("stays on view") {
+        let left = timeout().saturating_sub(started.elapsed());
+        match seen.recv_timeout(left) {
+            Ok(line) => log.push_str(&(line + "\n")),
+            Err(_) => panic!("no \"stays on view\" within {:?}:\n{log}", timeout()),
+        }
+    }
+    let status = Command::new("kill")
+        .args(["-INT", &bag.0.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(status.success());
+    let exit = loop {
+        if let Some(exit) = bag.0.try_wait().expect("wait") {
+            break exit;
+        }
+        assert!(
+            started.elapsed() < timeout(),
+            "bag did not end after Ctrl-C:\n{log}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    while let Ok(line) = seen.recv_timeout(Duration::from_secs(5)) {
+        log.push_str(&(line + "\n"));
+    }
+    assert!(exit.success(), "exit {exit}:\n{log}");
+    assert!(log.contains("Ctrl-C: the view ends"), "{log}");
+    assert!(!log.contains("sets processed so far are written"), "{log}");
+    let _ = std::fs::remove_dir_all(&out_dir);
+}
