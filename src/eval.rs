@@ -320,6 +320,8 @@ pub enum EvalRunError {
     Peer(#[from] peer::PeerError),
     #[error("--peer compares depth maps on rectified pairs; with --fusion there is none to compare (bench --fusion times fusion beside Open3D)")]
     PeerWithFusion,
+    #[error("--radiometry changes the depth maps' images; --fusion measures fused models on the sets as they are (use --radiometry without --fusion)")]
+    RadiometryWithFusion,
     #[error("--save {}: {reason}", path.display())]
     Save { path: PathBuf, reason: String },
     #[error("{} of {total} dataset(s) failed: {}", failed.len(), failed.join(", "))]
@@ -335,6 +337,9 @@ pub fn run(args: &EvalArgs) -> Result<(), EvalRunError> {
     if args.fusion {
         if args.peer.is_some() {
             return Err(EvalRunError::PeerWithFusion);
+        }
+        if args.radiometry != radiometry::Radiometry::None {
+            return Err(EvalRunError::RadiometryWithFusion);
         }
         return fusion::run(args);
     }

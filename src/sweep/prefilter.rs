@@ -53,7 +53,7 @@ pub fn gradient_all(images: &[Rgba8Image]) -> Vec<Rgba8Image> {
 pub const AUTO_BRIGHTNESS_RATIO: f64 = 1.15;
 
 /// Every `BRIGHTNESS_STEP`-th row and column is read for a camera's mean grey.
-const BRIGHTNESS_STEP: usize = 4;
+const BRIGHTNESS_STEP: usize = 8;
 
 /// The brightest camera's mean grey over the darkest's (1 for fewer than two cameras; a black
 /// camera counts as the darkest grey above zero).

@@ -551,6 +551,17 @@ fn eval_radiometry_reaches_the_engine_and_the_peer() {
         stderr.contains("sunset") && stderr.contains("exposure") && stderr.contains("vignette"),
         "{stderr}"
     );
+    // Fused models are measured on the sets as they are: refused, not ignored.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+        .args(["eval", "--fusion", "--radiometry", "exposure"])
+        .output()
+        .expect("run sweepdepth eval");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("--radiometry") && stderr.contains("--fusion"),
+        "{stderr}"
+    );
 }
 
 /// `prefilter: auto` on three cameras: the raw colours while their brightness agrees, the
