@@ -17,6 +17,17 @@ use sweepdepth::sweep::gpu::GpuEngine;
 use sweepdepth::sweep::{DepthMaps, Prefilter, SweepParams};
 use sweepdepth::synthetic::{self, Pattern, Scene, TexturedQuad};
 
+/// A Python with OpenCV for the SGBM peer (the tests that compare with it fail without one,
+/// and say how to install it).
+fn sgbm_python() -> std::path::PathBuf {
+    sweepdepth::eval::peer::cv2_python(None).unwrap_or_else(|| {
+        panic!(
+            "the SGBM peer needs OpenCV: {}",
+            common::python::INSTALL_HINT
+        )
+    })
+}
+
 fn engines() -> Vec<(&'static str, Box<dyn Sweeper>)> {
     let gpu = common::gpu();
     vec![
@@ -349,12 +360,7 @@ fn a_real_stereo_camera_pair_beats_sgbm_with_the_defaults() {
             ..dataset.params.clone()
         },
     );
-    let python = peer::cv2_python(None).unwrap_or_else(|| {
-        panic!(
-            "the SGBM peer needs OpenCV: {}",
-            common::python::INSTALL_HINT
-        )
-    });
+    let python = sgbm_python();
     let scratch = common::failure_dir("real_pair_sgbm");
     let pair = peer::PairFiles::of(&dir, "im1.png", &dataset, Radiometry::None, &scratch)
         .expect("the pair's files");
@@ -396,14 +402,8 @@ fn a_real_stereo_camera_pair_beats_sgbm_with_the_defaults() {
 /// before any dataset runs.
 #[test]
 fn eval_with_the_sgbm_peer_keeps_our_rows_and_says_where_it_did_not_run() {
-    use sweepdepth::eval::peer;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = peer::cv2_python(None).unwrap_or_else(|| {
-        panic!(
-            "the SGBM peer needs OpenCV: {}",
-            common::python::INSTALL_HINT
-        )
-    });
+    let python = sgbm_python();
     let run = |python: &std::path::Path| {
         std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
             .args(["eval", "--device", "cpu", "--peer", "sgbm", "--python"])
@@ -496,14 +496,8 @@ fn a_multi_camera_rig_whose_cameras_differ_keeps_its_depth() {
 /// a name it does not know is refused with the ones it does.
 #[test]
 fn eval_radiometry_reaches_the_engine_and_the_peer() {
-    use sweepdepth::eval::peer;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = peer::cv2_python(None).unwrap_or_else(|| {
-        panic!(
-            "the SGBM peer needs OpenCV: {}",
-            common::python::INSTALL_HINT
-        )
-    });
+    let python = sgbm_python();
     let run = |radiometry: &str| {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
             .args(["eval", "--device", "cpu", "--peer", "sgbm", "--python"])

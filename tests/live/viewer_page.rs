@@ -63,6 +63,31 @@ fn free_port_pair() -> u16 {
     panic!("no two free consecutive ports");
 }
 
+/// `sweepdepth bag BAG OUT_DIR/out.mcap --params-file PARAMS --view --view-rate max` serving
+/// on `port` (and the page on the next), with `extra` arguments; its stderr piped.
+fn bag_view(bag: &Path, params: &Path, out_dir: &Path, port: u16, extra: &[&str]) -> KillOnDrop {
+    KillOnDrop(
+        Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
+            .arg("bag")
+            .arg(bag)
+            .arg(out_dir.join("out.mcap"))
+            .arg("--params-file")
+            .arg(params)
+            .args([
+                "--view",
+                "--view-rate",
+                "max",
+                "-p",
+                &format!("foxglove_port:={port}"),
+            ])
+            .args(extra)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start sweepdepth bag --view"),
+    )
+}
+
 /// `GET path` as JSON. Chromium keeps the connection open: the body is read by its
 /// Content-Length.
 fn http_get_json(port: u16, path: &str) -> Option<Value> {
@@ -214,26 +239,7 @@ impl Session {
         ));
         let _ = std::fs::remove_dir_all(&out_dir);
         std::fs::create_dir_all(&out_dir).expect("temp dir");
-        let mut sweepdepth = KillOnDrop(
-            Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-                .arg("bag")
-                .arg(bag)
-                .arg(out_dir.join("out.mcap"))
-                .arg("--params-file")
-                .arg(params)
-                .args([
-                    "--view",
-                    "--view-rate",
-                    "max",
-                    "-p",
-                    &format!("foxglove_port:={port}"),
-                ])
-                .args(extra)
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .expect("start sweepdepth bag --view"),
-        );
+        let mut sweepdepth = bag_view(bag, params, &out_dir, port, extra);
         let stderr = Arc::new(Mutex::new(String::new()));
         if let Some(pipe) = sweepdepth.0.stderr.take() {
             let stderr = Arc::clone(&stderr);
@@ -646,24 +652,12 @@ fn ctrl_c_on_the_held_view() {
         std::env::temp_dir().join(format!("sweepdepth-view-ctrl-c-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out_dir);
     std::fs::create_dir_all(&out_dir).expect("temp dir");
-    let mut bag = KillOnDrop(
-        Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-            .arg("bag")
-            .arg(root().join("tests/fixtures/bags/tsukuba_half.mcap"))
-            .arg(out_dir.join("out.mcap"))
-            .arg("--params-file")
-            .arg(root().join("tests/fixtures/bags/tsukuba_half.params.yaml"))
-            .args([
-                "--view",
-                "--view-rate",
-                "max",
-                "-p",
-                &format!("foxglove_port:={port}"),
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("start sweepdepth bag --view"),
+    let mut bag = bag_view(
+        &root().join("tests/fixtures/bags/tsukuba_half.mcap"),
+        &root().join("tests/fixtures/bags/tsukuba_half.params.yaml"),
+        &out_dir,
+        port,
+        &[],
     );
     let (lines, seen) = std::sync::mpsc::channel();
     if let Some(pipe) = bag.0.stderr.take() {
