@@ -69,7 +69,7 @@ struct Params {
     // Thresholds.
     tau: f32,
     max_cost: f32,
-    occlusion_tolerance: f32,     // relative
+    occlusion_tolerance: f32,     // relative (and occlusion_inverse_depth)
     half_margin: f32,
     min_visible: u32,             // cameras, the reference counted
     window_mode: u32,             // WINDOW_*
@@ -89,7 +89,7 @@ struct Params {
     ambiguity: f32,               // with SGM: uniqueness below which the confidence is scaled down
     uniqueness_radius: u32,       // with SGM: planes either side of the winner that are no rival
     keep_range_ends: u32,         // 1: a winner on the first or last plane keeps its depth; 0: invalid
-    _pad0: u32,
+    occlusion_inverse_depth: f32, // 1/m: an occluder is also nearer by this much (plan.rs)
     _pad1: u32,
     _pad2: u32,
 }

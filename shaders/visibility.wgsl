@@ -1,5 +1,7 @@
 // Stage 6c: occlusion consistency. A reference pixel is seen by camera i when its depth there is
-// not behind that camera's z-buffer by more than the relative tolerance. Pixels seen by fewer than
+// not behind that camera's z-buffer by more than the relative tolerance, or not by more than
+// occlusion_inverse_depth in inverse depth (two plane steps: neighbours a fraction of a plane
+// apart that land on one texel do not hide each other). Pixels seen by fewer than
 // min_visible_cameras (the reference counted) become invalid.
 // One invocation per reference pixel. CPU twin: src/sweep/cpu/occlusion.rs.
 
@@ -39,7 +41,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
             continue;
         }
         let stored = zbuffer[index];
-        if (stored == 0u || projected.z <= bitcast<f32>(~stored) * (1.0 + tolerance)) {
+        let nearest = bitcast<f32>(~stored);
+        let z = projected.z;
+        // Not behind the nearest surface by more than the relative tolerance, or by more than
+        // occlusion_inverse_depth in inverse depth (1 / nearest - 1 / z, multiplied out).
+        if (stored == 0u || z <= nearest * (1.0 + tolerance)
+            || z - nearest <= params.occlusion_inverse_depth * (z * nearest)) {
             seen += 1u;
         }
     }

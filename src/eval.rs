@@ -158,8 +158,9 @@ pub fn evaluate(
     Ok((maps, metrics))
 }
 
-/// Writes the outputs of one dataset into `dir` (created if needed): `disparity.pfm`
-/// (evaluation units, NaN invalid) for disparity ground truth, `depth.pfm` (metres) for the
+/// Writes the outputs of one dataset into `dir` (created if needed): `disparity.pfm` (in the
+/// units of the set's own ground-truth files, NaN invalid) for disparity ground truth,
+/// `depth.pfm` (metres) for the
 /// others, and always `confidence.pfm`, `depth.png`, `confidence.png`, `selection.png`.
 pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(), EvalError> {
     std::fs::create_dir_all(dir).map_err(|source| EvalError::CreateDir {
@@ -169,9 +170,13 @@ pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(
     match &dataset.ground_truth {
         GroundTruth::Disparity {
             focal_baseline_eval,
+            doffs_px,
             ..
         } => {
-            let disparity = depth_to_disparity(&maps.depth_m, *focal_baseline_eval);
+            let mut disparity = depth_to_disparity(&maps.depth_m, *focal_baseline_eval);
+            // The files' d, not the evaluation's d + doffs (NaN stays NaN).
+            let doffs = *doffs_px as f32;
+            disparity.data.iter_mut().for_each(|d| *d -= doffs);
             io::write_pfm(&dir.join("disparity.pfm"), &disparity)?;
         }
         GroundTruth::Depth { .. } | GroundTruth::None => {

@@ -182,6 +182,7 @@ pub(super) fn load_middlebury(
         disparity_eval_px,
         focal_baseline_eval: encoding.steps_eval * focal_baseline,
         border_px: encoding.border_px,
+        doffs_px: 0.0,
     };
 
     // Published search range [0.5, max] adjacent-view px, 0.5 eval-px steps (sub-pixel

@@ -206,6 +206,7 @@ pub(super) fn load_middlebury2014(
         disparity_eval_px,
         focal_baseline_eval: focal_baseline,
         border_px: 0,
+        doffs_px: calib.doffs,
     };
 
     // One plane per pixel of disparity over the calibration's range (sub-pixel depth between

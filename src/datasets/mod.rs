@@ -126,6 +126,11 @@ pub enum GroundTruth {
         disparity_eval_px: ImageF32,
         focal_baseline_eval: f64,
         border_px: u32,
+        /// What the set's own disparity files hold is `disparity_eval - doffs_px`: Middlebury
+        /// 2014's and ETH3D's `doffs` (the right camera's principal point less the left's, their
+        /// files' d meaning depth `f B / (d + doffs)`), 0 for the other layouts. `eval --save`
+        /// writes the estimate in the files' units, comparable with them pixel by pixel.
+        doffs_px: f64,
     },
     /// z-depth along the reference optical axis, metres (NaN = unknown).
     Depth {

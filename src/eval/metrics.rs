@@ -312,6 +312,7 @@ pub fn metrics_for(dataset: &Dataset, maps: &DepthMaps) -> Result<Option<Metrics
             disparity_eval_px,
             focal_baseline_eval,
             border_px,
+            ..
         } => Ok(Some(Metrics::Disparity(disparity_metrics(
             &maps.depth_m,
             &maps.confidence,

@@ -144,6 +144,7 @@ pub fn sgbm_row(
         disparity_eval_px,
         focal_baseline_eval,
         border_px,
+        ..
     } = &dataset.ground_truth
     else {
         return Err(PeerError::NotAPair(dataset.layout));

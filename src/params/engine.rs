@@ -262,7 +262,7 @@ engine_params! {
         "Pixels seen by fewer cameras (the reference counted) are invalid; 0 or 1 disables.";
     occlusion_tolerance: f32 = 0.01, "occlusion_tolerance", Long("occlusion-tolerance"),
         ParamRange::at_least(0.0),
-        "Relative depth tolerance of the occlusion z-test.";
+        "Relative depth tolerance of the occlusion z-test: a pixel counts as hidden from a camera only where a surface there is nearer by more than this share of its depth and by more than two plane steps (a neighbour a fraction of a plane away is no occluder).";
     half_margin: f32 = 0.1, "half_margin", Long("half-margin"),
         ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
         "A half is clearly better when its score is below (1 - margin) times the other's, and lower by at least margin x 25 (the noise floor of an RGB SSD).";

@@ -168,7 +168,9 @@ pub struct GpuParams {
     pub uniqueness_radius: u32,
     /// 1: a winner on the first or last plane keeps its depth; 0: it is invalid.
     pub keep_range_ends: u32,
-    pub _pad0: u32,
+    /// Inverse depth (1/m) by which an occluder must also be nearer: `OCCLUSION_PLANES` steps
+    /// of the planes (`plan::occlusion_inverse_depth`).
+    pub occlusion_inverse_depth: f32,
     pub _pad1: u32,
     pub _pad2: u32,
 }

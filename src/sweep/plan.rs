@@ -223,6 +223,22 @@ fn set_sgm_params(
 /// ([`GpuParams::uniqueness_radius`]): [`UNIQUENESS_RADIUS_PX`] of shift in the view that shifts
 /// most per plane, measured along the reference's central ray over the depth range (planes
 /// even in inverse depth shift evenly), at least 1.
+/// Plane steps by which a surface in another camera's z-buffer must be nearer than a reference
+/// pixel's own depth, besides `occlusion_tolerance`, to hide it: neighbouring reference pixels
+/// whose depths differ by less than a plane (the depth's own noise, a slanted surface) land on
+/// one texel of a camera, and the farther is no more occluded than the nearer. With the relative
+/// tolerance alone real slanted ground in a pair had holes a pixel wide all over it (ETH3D
+/// playground: 3.9 % of its pixels invalid, 2.7 % with two plane steps; docs/quality.md).
+pub const OCCLUSION_PLANES: f64 = 2.0;
+
+/// [`OCCLUSION_PLANES`] steps of `planes` planes spread evenly in inverse depth over the
+/// depth range, in 1/m (the plane families spread their planes so; the step is the family's
+/// mean where it does not).
+fn occlusion_inverse_depth(params: &SweepParams, planes: usize) -> f32 {
+    let span = 1.0 / params.min_depth_m - 1.0 / params.max_depth_m;
+    (OCCLUSION_PLANES * span.abs() / planes.saturating_sub(1).max(1) as f64) as f32
+}
+
 fn uniqueness_radius(rig: &Rig, params: &SweepParams, planes: usize) -> u32 {
     match rig.widest_shift_per_plane(params.min_depth_m, params.max_depth_m, planes) {
         Some((_, per_plane)) if per_plane > 0.0 => {
@@ -329,6 +345,7 @@ impl SweepPlan {
             tau: params.tau,
             max_cost: params.max_cost,
             occlusion_tolerance: params.occlusion_tolerance,
+            occlusion_inverse_depth: occlusion_inverse_depth(params, planes.len()),
             half_margin: params.half_margin,
             min_visible: params.min_visible_cameras,
             window_mode: match params.window_mode {

@@ -50,6 +50,7 @@ fn bad_fraction(depth_m: &[f32], width: u32, height: u32) -> f64 {
         disparity_eval_px,
         focal_baseline_eval,
         border_px,
+        ..
     } = dataset.ground_truth
     else {
         panic!("tsukuba has disparity ground truth");

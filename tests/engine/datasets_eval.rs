@@ -48,6 +48,7 @@ fn gt_disparity(gt: &GroundTruth) -> (&ImageF32, f64, u32) {
             disparity_eval_px,
             focal_baseline_eval,
             border_px,
+            ..
         } => (disparity_eval_px, *focal_baseline_eval, *border_px),
         other => panic!("expected disparity ground truth, got {other:?}"),
     }

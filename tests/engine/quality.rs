@@ -439,6 +439,7 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
         disparity_eval_px,
         border_px,
         focal_baseline_eval,
+        ..
     } = &dataset.ground_truth
     else {
         panic!("Tsukuba has disparity ground truth");
@@ -477,6 +478,48 @@ fn eval_command_saves_pfms_that_agree_with_its_table() {
         "{first_in_file} vs {bottom_left}"
     );
     assert_saved_maps_are(&dir, tsukuba_cpu_maps(), *focal_baseline_eval);
+}
+
+/// Outcome checked: on a Middlebury 2014 / ETH3D pair whose calibration has a disparity offset
+/// (`doffs`, the right camera's principal point less the left's), `eval --save` writes
+/// `disparity.pfm` in the units of the set's own `disp0GT.pfm` (its d, not the evaluation's
+/// d + doffs): bad>1 recomputed here against the file as read equals the table's, and is low.
+/// The repository's terrace pair (doffs 0) is given doffs 20: the right camera's principal
+/// point 20 px on, images and ground truth unchanged (the same scene, depth f B / (d + 20)).
+#[test]
+fn eval_saves_a_pair_with_a_disparity_offset_in_its_files_units() {
+    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/eth3d_terrace_2s");
+    let dir = std::env::temp_dir().join(format!("sweepdepth-doffs-{}", std::process::id()));
+    let set = dir.join("terrace_doffs");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&set).expect("tmp dir");
+    for name in ["im0.png", "im1.png", "disp0GT.pfm"] {
+        std::fs::copy(source.join(name), set.join(name)).expect("copy");
+    }
+    let calib = std::fs::read_to_string(source.join("calib.txt")).expect("calib.txt");
+    let cam1 = calib
+        .lines()
+        .find(|l| l.starts_with("cam1="))
+        .expect("cam1 line");
+    let shifted = calib
+        .replace(cam1, &cam1.replacen(" 376.135;", " 396.135;", 1))
+        .replace("doffs=0", "doffs=20");
+    assert!(
+        shifted.contains("396.135") && shifted.contains("doffs=20"),
+        "{shifted}"
+    );
+    std::fs::write(set.join("calib.txt"), shifted).expect("calib");
+    let out = dir.join("out");
+    let stdout = run_eval(&set, &out, &[]);
+    let printed_bad1 = table_value(&stdout, "terrace_doffs", 6);
+    let gt = sweepdepth::io::read_pfm(&set.join("disp0GT.pfm")).expect("ground truth");
+    let recomputed = bad_from_pfm(&out.join("terrace_doffs/disparity.pfm"), &gt, 0, 1.0);
+    assert!(
+        (recomputed - printed_bad1).abs() < 0.01,
+        "table says {printed_bad1} %, the saved PFM against disp0GT.pfm {recomputed:.3} %"
+    );
+    assert!(recomputed < 15.0, "bad>1 {recomputed:.2} %");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -203,6 +203,7 @@ fn visibility_row(
     let width = plan.width as usize;
     let ref_index = params.reference;
     let tolerance = params.occlusion_tolerance;
+    let inverse_depth = params.occlusion_inverse_depth;
     let VisibilityRow {
         depth_out,
         confidence,
@@ -219,7 +220,7 @@ fn visibility_row(
         for ((&at, &z), seen) in index[range.clone()].iter().zip(&z[range]).zip(seen.iter_mut()) {
             if at != NONE {
                 let stored = zbuffer[at as usize];
-                if stored == 0 || z <= f32::from_bits(!stored) * (1.0 + tolerance) {
+                if stored == 0 || seen_past(z, f32::from_bits(!stored), tolerance, inverse_depth) {
                     *seen += 1;
                 }
             }
@@ -242,6 +243,15 @@ fn visibility_row(
         }
     }
 }
+}
+
+/// Whether a point at depth `z` in a camera is seen past the nearest surface `nearest` there:
+/// it is not behind it by more than `tolerance` of its depth, or not by more than
+/// `inverse_depth` in inverse depth (`1 / nearest - 1 / z`, multiplied out: no division, the
+/// shader's twin compares the same products).
+#[inline(always)]
+fn seen_past(z: f32, nearest: f32, tolerance: f32, inverse_depth: f32) -> bool {
+    z <= nearest * (1.0 + tolerance) || z - nearest <= inverse_depth * (z * nearest)
 }
 
 #[cfg(test)]
