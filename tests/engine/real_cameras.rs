@@ -446,8 +446,8 @@ fn eval_with_the_sgbm_peer_keeps_our_rows_and_says_where_it_did_not_run() {
 /// noise (`eval --radiometry all` on the repo's five Tsukuba views): `prefilter: auto` sees the
 /// cameras differ and compares gradients, where the raw colours (`prefilter: none`, all that
 /// `auto` gave three cameras or more until 2026-12-02) lose the depth; the clean set keeps the
-/// raw colours. Measured on the CPU engine: clean 4.09 % bad>1, changed 6.35 %, changed with
-/// the raw colours 11.88 %.
+/// raw colours. Measured on the CPU engine: clean 4.07 % bad>1, changed 6.32 %, changed with
+/// the raw colours 11.87 %.
 #[test]
 fn a_multi_camera_rig_whose_cameras_differ_keeps_its_depth() {
     use sweepdepth::datasets;
