@@ -160,8 +160,8 @@ pub fn evaluate(
 
 /// Writes the outputs of one dataset into `dir` (created if needed): `disparity.pfm` (in the
 /// units of the set's own ground-truth files, NaN invalid) for disparity ground truth,
-/// `depth.pfm` (metres) for the
-/// others, and always `confidence.pfm`, `depth.png`, `confidence.png`, `selection.png`.
+/// `depth.pfm` (metres) for the others, and always `confidence.pfm`, `depth.png`,
+/// `confidence.png`, `selection.png`.
 pub fn save_outputs(dir: &Path, dataset: &Dataset, maps: &DepthMaps) -> Result<(), EvalError> {
     std::fs::create_dir_all(dir).map_err(|source| EvalError::CreateDir {
         path: dir.to_path_buf(),
