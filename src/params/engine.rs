@@ -288,7 +288,7 @@ engine_params! {
     // radiometry (docs/quality.md).
     prefilter: Prefilter = Prefilter::Auto, "prefilter", Long("prefilter"),
         variants::<Prefilter>(),
-        "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures and clean images), or auto: gradient for a pair of cameras, and for more once their mean brightness differs by more than 6 % (each metering its own exposure), else none.";
+        "What the colour term of the cost compares: each image's horizontal derivative (gradient: cameras that differ in offset, exposure or vignetting match; census and SGM edges still see the raw grey), the images as they are (none: lab sets with equal exposures and clean images), or auto: gradient for a pair of cameras, and for more once their images are a camera's (median step between neighbouring columns at most 5 grey levels) or their mean brightness differs by more than 6 %; none for renders of high-contrast texture.";
     uniqueness: f32 = 0.0, "uniqueness", Long("uniqueness"),
         ParamRange::Double { min: 0.0, max: 1.0, min_exclusive: false, max_exclusive: true },
         "Pixels whose winner does not beat its best rival on the matching costs by this share are invalid ((rival - best) / (rival + 1); with SGM: SGM's winner against the best plane more than 1.5 px of shift away): a repeated pattern gives no depth instead of wrong depth, but weakly textured surfaces lose pixels too (docs/engine.md); 0 = none.";

@@ -222,8 +222,8 @@ pub struct Plans {
     fine: Option<(Rig, SweepParams, SweepPlan)>,
     /// The half-resolution level's own plans (coarse to fine again where it applies).
     below: Option<Box<Plans>>,
-    /// `prefilter: auto` on a rig of three cameras or more: the rig whose cameras were seen to
-    /// differ in brightness, whose sets take the gradient from then on (no plan flips back; a
+    /// `prefilter: auto` on a rig of three cameras or more: the rig whose images were seen to
+    /// be a camera's (or to differ in brightness), whose sets take the gradient from then on (no plan flips back; a
     /// moving rig keeps its `Rig`, its motion is the pipeline's `world_from_rig`).
     auto_gradient: Option<Rig>,
 }
@@ -231,7 +231,8 @@ pub struct Plans {
 impl Plans {
     /// `params` as a frame set of `rig` sweeps them: `prefilter: auto` on three cameras or
     /// more becomes `gradient` from the first set whose cameras differ in brightness
-    /// (`prefilter::AUTO_BRIGHTNESS_RATIO`, said once), else `none`; anything else as it is.
+    /// (`prefilter::AUTO_BRIGHTNESS_RATIO`) or whose texture is a camera's, not a render's
+    /// (`prefilter::AUTO_RENDER_STEP`; said once), else `none`; anything else as it is.
     fn resolve_prefilter(
         &mut self,
         rig: &Rig,
@@ -243,14 +244,22 @@ impl Plans {
         }
         if self.auto_gradient.as_ref() != Some(rig) {
             let ratio = super::prefilter::brightness_ratio(images);
-            if ratio <= super::prefilter::AUTO_BRIGHTNESS_RATIO {
-                return Some(SweepParams {
-                    prefilter: Prefilter::None,
-                    ..params.clone()
-                });
-            }
+            let why = if ratio > super::prefilter::AUTO_BRIGHTNESS_RATIO {
+                format!("the cameras' mean brightness differs {ratio:.2}x (brightest over darkest)")
+            } else {
+                let step = super::prefilter::median_step(images);
+                if step > super::prefilter::AUTO_RENDER_STEP {
+                    return Some(SweepParams {
+                        prefilter: Prefilter::None,
+                        ..params.clone()
+                    });
+                }
+                format!(
+                    "the images' median step between columns is {step:.1} grey levels, a camera's"
+                )
+            };
             tracing::info!(
-                "prefilter auto: the cameras' mean brightness differs {ratio:.2}x (brightest over darkest): the colour term compares each image's gradient from now on (prefilter: none or gradient to choose)"
+                "prefilter auto: {why}: the colour term compares each image's gradient from now on (prefilter: none or gradient to choose)"
             );
             self.auto_gradient = Some(rig.clone());
         }

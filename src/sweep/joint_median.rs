@@ -338,6 +338,28 @@ mod tests {
         assert_eq!(depth.data, before);
     }
 
+    /// Pixels whose windows straddle a step (not uniform, so the histogram runs) but whose own
+    /// bin is still the median keep their own sub-plane depth, bit for bit; the far side
+    /// keeps its own too.
+    #[test]
+    fn a_pixel_in_the_median_bin_keeps_its_own_depth_beside_a_step() {
+        let inverse =
+            |x: usize, y: usize| 0.98 + 0.003 * x as f32 + 0.002 * ((x * 7 + y * 3) % 5) as f32;
+        let (mut depth, guide) = scene(16, |x, y| if x < 9 { 1.0 / inverse(x, y) } else { 2.0 });
+        let before = depth.data.clone();
+        let bin: Vec<u32> = before.iter().map(|&z| BINS.of(1.0 / z)).collect();
+        let uniform = uniform_windows(&bin, 16, 9, FILTER.radius as usize);
+        FILTER.apply(&mut depth, &guide, &BINS);
+        for y in 0..9 {
+            for x in 5..9 {
+                let i = y * 16 + x;
+                assert!(!uniform[i], "({x}, {y}): its window holds both bins");
+                assert_eq!(depth.data[i].to_bits(), before[i].to_bits(), "({x}, {y})");
+            }
+        }
+        assert_eq!(depth.data, before);
+    }
+
     #[test]
     fn an_invalid_pixel_takes_its_colour_neighbours_depth() {
         let (mut depth, guide) = scene(8, |x, y| {

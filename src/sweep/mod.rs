@@ -44,9 +44,10 @@ pub enum Scoring {
 #[serde(rename_all = "snake_case")]
 pub enum Prefilter {
     /// `gradient` for a pair of cameras (a stereo camera: no third view to outvote a pair
-    /// that radiometry breaks); for more, `gradient` from the first frame set whose cameras'
-    /// mean brightness differs by more than [`prefilter::AUTO_BRIGHTNESS_RATIO`] (each metering
-    /// its own exposure), else `none` (`prefilter::auto_for_set`).
+    /// that radiometry breaks); for more, `gradient` from the first frame set whose images
+    /// are a camera's ([`prefilter::AUTO_RENDER_STEP`]) or whose cameras' mean brightness
+    /// differs by more than [`prefilter::AUTO_BRIGHTNESS_RATIO`], else `none` (renders of
+    /// high-contrast texture; `coarse::Plans`).
     Auto,
     /// The camera images as they are (lab sets: equal exposures, clean images).
     None,

@@ -2,8 +2,8 @@
 //!
 //! Real rig cameras differ in gain, offset and exposure, vignette, and carry sensor noise; a
 //! colour SSD truncated at `tau` on the raw images then saturates at random and drowns the
-//! census half. With `prefilter = gradient` (the default `auto`'s choice for a pair of cameras)
-//! the colour term compares, instead of
+//! census half. With `prefilter = gradient` (the default `auto`'s choice for every rig of real
+//! cameras) the colour term compares, instead of
 //! the colours, each image's horizontal Sobel derivative of its grey, as OpenCV's StereoSGBM
 //! prefilters: `128 + clamp(SCALE * sobel_x(grey), -127, 127)`, blind to offsets (exposure,
 //! vignetting, a dark corner), nearly blind to small gain differences, and with no noise blown
@@ -74,28 +74,70 @@ fn mean_grey(image: CameraImage<'_>) -> f64 {
     let (mut sum, mut count) = (0u64, 0u64);
     for y in (0..h).step_by(BRIGHTNESS_STEP) {
         for x in (0..w).step_by(BRIGHTNESS_STEP) {
-            let i = y * w + x;
-            let grey = match image {
-                CameraImage::Rgba(rgba) => rgba.pixels.get(i).map(|&p| luma(p)),
-                CameraImage::Packed(packed) => {
-                    let n = packed.format.bytes_per_pixel();
-                    packed
-                        .bytes
-                        .get(i * n..(i + 1) * n)
-                        .map(|b| match packed.format {
-                            PackedFormat::Rgb8 => luma(Rgba8Image::pack(b[0], b[1], b[2])),
-                            PackedFormat::Bgr8 => luma(Rgba8Image::pack(b[2], b[1], b[0])),
-                            PackedFormat::Mono8 => luma(Rgba8Image::pack(b[0], b[0], b[0])),
-                        })
-                }
-            };
-            if let Some(grey) = grey {
+            if let Some(grey) = grey_at(image, y * w + x) {
                 sum += u64::from(grey);
                 count += 1;
             }
         }
     }
     sum as f64 / count.max(1) as f64
+}
+
+/// The grey (`luma`, 1/256 levels) of pixel `i` (row-major); `None` past the image's bytes.
+fn grey_at(image: CameraImage<'_>, i: usize) -> Option<u32> {
+    match image {
+        CameraImage::Rgba(rgba) => rgba.pixels.get(i).map(|&p| luma(p)),
+        CameraImage::Packed(packed) => {
+            let n = packed.format.bytes_per_pixel();
+            packed
+                .bytes
+                .get(i * n..(i + 1) * n)
+                .map(|b| match packed.format {
+                    PackedFormat::Rgb8 => luma(Rgba8Image::pack(b[0], b[1], b[2])),
+                    PackedFormat::Bgr8 => luma(Rgba8Image::pack(b[2], b[1], b[0])),
+                    PackedFormat::Mono8 => luma(Rgba8Image::pack(b[0], b[0], b[0])),
+                })
+        }
+    }
+}
+
+/// `Prefilter::Auto` on a rig of three cameras or more keeps the raw colours for images whose
+/// median horizontal grey step ([`median_step`]) is above this many grey levels: texture that
+/// changes by many levels from every pixel to the next, as renders of high-contrast noise
+/// textures have (the engine's synthetic scenes: 9.5). There the derivative's differences
+/// exceed what the colour term's truncation at `tau` lets through at any shift off the match,
+/// and the raw colours keep the depth between the planes (a fronto-parallel wall: 92 % of
+/// pixels within 1 % against 76 %). Every real camera measured steps far less (docs/quality.md:
+/// the 17 real pairs 1.0-2.5, Tsukuba, Teddy and Laundry 1.5-2.0, ICL-NUIM and the rings 0.5),
+/// and there the gradient is the better cost.
+pub const AUTO_RENDER_STEP: f64 = 5.0;
+
+/// Rows and columns between the samples of [`median_step`].
+const STEP_SAMPLE_ROWS: usize = 16;
+const STEP_SAMPLE_COLUMNS: usize = 4;
+
+/// The median over every camera of `|grey(x + 1) - grey(x - 1)| / 2`, grey levels (0..255),
+/// sampled on every `STEP_SAMPLE_ROWS`-th row and `STEP_SAMPLE_COLUMNS`-th column; 0 for
+/// images under three columns wide.
+pub fn median_step(images: SetImages<'_>) -> f64 {
+    let mut steps: Vec<u32> = Vec::new();
+    for image in images.iter() {
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        for y in (0..h).step_by(STEP_SAMPLE_ROWS) {
+            for x in (1..w.saturating_sub(1)).step_by(STEP_SAMPLE_COLUMNS) {
+                let (l, r) = (grey_at(image, y * w + x - 1), grey_at(image, y * w + x + 1));
+                if let (Some(l), Some(r)) = (l, r) {
+                    steps.push(l.abs_diff(r));
+                }
+            }
+        }
+    }
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let middle = steps.len() / 2;
+    let (_, &mut median, _) = steps.select_nth_unstable(middle);
+    f64::from(median) / (2.0 * 256.0)
 }
 
 /// Rows of an image one task of [`gradient`] makes: each band computes its rows' greys once

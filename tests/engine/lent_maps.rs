@@ -12,6 +12,9 @@ use sweepdepth::synthetic::{self, Scene};
 
 type Results = Vec<Result<ReferenceDepth, SweepError>>;
 
+/// One engine's run of the set with the maps wanted and the parameters.
+type Run<'a> = dyn FnMut(WantedMaps, &SweepParams) -> Results + 'a;
+
 /// Each reference's depth and confidence bits, however the engine handed them out.
 fn bits(results: &Results) -> Vec<(Vec<u32>, Vec<u32>)> {
     let to_bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
@@ -151,4 +154,90 @@ fn lent_maps_outlive_a_lost_device_and_their_engine() {
     assert_eq!(bits(&results), before, "still readable");
     drop(engine);
     drop(results);
+}
+
+/// The joint median reaches every caller on both engines: with `joint_median_radius` the
+/// depth of a reference is the filter (`JointMedian::apply`, guided by the reference's image)
+/// run on the engine's unfiltered depth, bit for bit, for the WGSL engine also where the
+/// caller keeps no floats (its maps then come back owned, not lent out of the readback
+/// unfiltered; two references, so that the WGSL engine submits them ahead, the path that
+/// lends); the filter changes the box's fattened edges, so it is not a no-op here.
+#[test]
+fn the_joint_median_reaches_every_caller_on_both_engines() {
+    use sweepdepth::sweep::cpu::CpuEngine;
+    use sweepdepth::sweep::joint_median::{Bins, JointMedian};
+    let model = CameraModel::pinhole(synthetic::intrinsics(96, 64));
+    let rig = synthetic::row_rig(4, 0.1, model, 1).expect("rig");
+    let scene = Scene::wall_and_box(3.0, Some((1.5, 0.3)), model.intrinsics.fx_px);
+    let images = synthetic::render_rig(&scene, &rig);
+    let plain = SweepParams {
+        min_depth_m: 1.0,
+        max_depth_m: 8.0,
+        num_planes: 24,
+        ..SweepParams::default()
+    };
+    let filtered = SweepParams {
+        joint_median_radius: 4,
+        ..plain.clone()
+    };
+    let references = [1, 2];
+    let expected = |reference: usize, depth: &[u32]| {
+        let depth: Vec<f32> = depth.iter().map(|&b| f32::from_bits(b)).collect();
+        let mut depth = sweepdepth::image::ImageF32 {
+            width: 96,
+            height: 64,
+            data: depth,
+        };
+        let bins = Bins::of_params(&filtered).expect("bins");
+        JointMedian::of_params(&filtered).apply(&mut depth, &images[reference], &bins);
+        depth.data.iter().map(|x| x.to_bits()).collect::<Vec<u32>>()
+    };
+    let gpu = crate::common::gpu();
+    let mut gpu_engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+    let mut cpu_engine = CpuEngine::new();
+    let runs: [(&str, &mut Run<'_>); 2] = [
+        ("wgsl", &mut |wanted, params| {
+            gpu_engine.set_wanted_maps(wanted);
+            gpu_engine.run_references(&rig.cameras, &images, &references, params)
+        }),
+        ("cpu", &mut |_, params| {
+            cpu_engine.run_references(&rig.cameras, &images, &references, params)
+        }),
+    ];
+    let keeps_floats = WantedMaps {
+        cost: false,
+        selection: false,
+        diagnostics: false,
+        floats: true,
+    };
+    let no_floats = WantedMaps {
+        floats: false,
+        ..keeps_floats
+    };
+    for (name, run) in runs {
+        let unfiltered = bits(&run(keeps_floats, &plain));
+        let want: Vec<Vec<u32>> = references
+            .iter()
+            .zip(&unfiltered)
+            .map(|(&r, (depth, _))| expected(r, depth))
+            .collect();
+        for (want, (depth, _)) in want.iter().zip(&unfiltered) {
+            let changed = want.iter().zip(depth).filter(|(a, b)| a != b).count();
+            assert!(changed >= 20, "{name}: the filter moves {changed} pixels");
+        }
+        for wanted in [keeps_floats, no_floats] {
+            let results = run(wanted, &filtered);
+            assert_eq!(
+                lent(&results),
+                0,
+                "{name}: filtered maps are the caller's own"
+            );
+            let got: Vec<Vec<u32>> = bits(&results).into_iter().map(|(d, _)| d).collect();
+            assert!(
+                got == want,
+                "{name} (floats kept: {}): not the joint median of the unfiltered depth",
+                wanted.floats
+            );
+        }
+    }
 }
