@@ -439,6 +439,7 @@ impl GpuTsdf {
             self.slots.insert(*index, slot);
             self.allocated.insert(*index);
         }
+        let blocks_peak = self.slots.len();
         let mut order: Vec<BlockIndex> = in_view.into_iter().collect();
         // In index order, as the CPU: neighbouring blocks read neighbouring pixels.
         order.sort_unstable();
@@ -472,6 +473,7 @@ impl GpuTsdf {
             pixels_valid,
             blocks_allocated: new.len(),
             blocks_in_view: work.len(),
+            blocks_peak,
             ..IntegrationStats::default()
         };
         for (index, &count) in order.iter().zip(&counts) {

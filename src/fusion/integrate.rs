@@ -70,6 +70,9 @@ pub struct IntegrationStats {
     /// this camera's centre, held ones and new ones of this map never allocated (the bound is
     /// settled before allocation, so the grid never holds more, even during one map).
     pub blocks_dropped: usize,
+    /// The most blocks the grid held during this map: once the blocks the bound drops are
+    /// gone and the new ones made (at most [`FusionParams::max_blocks`] when it bounds).
+    pub blocks_peak: usize,
 }
 
 /// Integrates one depth map (z along the optical axis in metres, invalid pixels NaN, zero or
@@ -160,6 +163,7 @@ pub(super) fn integrate_into(
     let made: Vec<Block> = new.par_iter().map(|_| Block::default()).collect();
     let blocks_allocated = new.len();
     map.extend(new.into_iter().zip(made));
+    let blocks_peak = map.len();
     let mut work: Vec<(BlockIndex, Block)> = in_view
         .iter()
         .filter_map(|index| map.remove(index).map(|block| (*index, block)))
@@ -180,6 +184,7 @@ pub(super) fn integrate_into(
         pixels_valid,
         blocks_allocated,
         blocks_in_view: work.len(),
+        blocks_peak,
         ..IntegrationStats::default()
     };
     let mut changed = Vec::new();
@@ -1246,9 +1251,14 @@ mod tests {
         for (i, pose) in poses.iter().enumerate() {
             let depth = render_plane(&model, pose, DVec3::Z, 3.0);
             let stats = integrate(&mut grid, &bound, &depth, None, &model, pose).unwrap();
-            // The first frame into an empty grid: what it allocated is its peak.
+            // Never more blocks than the bound, even between dropping and allocating (the
+            // second frame holds the first's blocks when it starts).
             assert!(
-                stats.blocks_allocated <= bound.max_blocks,
+                stats.blocks_peak <= bound.max_blocks,
+                "frame {i}: {stats:?}"
+            );
+            assert!(
+                stats.blocks_peak >= stats.blocks_allocated,
                 "frame {i}: {stats:?}"
             );
             assert_eq!(grid.block_count(), bound.max_blocks, "frame {i}");
