@@ -391,9 +391,10 @@ fn image_frame_id_with_a_leading_slash_is_refused_as_tf2_refuses_it() {
 
 /// The fuzz input that crashed the compressed-image decoder (tests/fixtures/fuzz/README.md):
 /// never a panic, and the outcome each build gives is checked. Where overflow checks are on
-/// (debug builds, the fuzz target) zune-jpeg panics inside on this stream and `decode` turns
-/// that into a corrupt-image error naming the camera. Where they are off (`cargo test
-/// --release`, as CI runs) the same multiplication wraps and the decoder returns a (garbled)
+/// (the dev profile: the README's `cargo test`, which CI runs; the fuzz target) zune-jpeg
+/// panics inside on this stream and `decode` turns that into a corrupt-image error naming the
+/// camera. Where they are off (`cargo test --release`, the developers' runs) the same
+/// multiplication wraps and the decoder returns a (garbled)
 /// picture: `decode` must then hand back exactly what the `image` crate decodes from the bytes,
 /// as rgb8 of the JPEG header's size, under the message's own header.
 #[test]
