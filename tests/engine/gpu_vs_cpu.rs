@@ -675,6 +675,25 @@ fn real_tsukuba_crop_agrees() {
     compare("tsukuba_crop", &plan, &rig, &images);
 }
 
+/// The same crop's five real views on their gradient, what `prefilter: auto` compares on a
+/// rig of camera images (the synthetic renders of the other cases keep the raw colours): each
+/// engine prefilters the caller's images for the plan (`prefilter::for_plan`, the WGSL engine
+/// on the device) and reads the Sobel byte as its colour.
+#[test]
+fn real_tsukuba_crop_on_the_gradient_agrees() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 32;
+    params.prefilter = Prefilter::Gradient;
+    let plan = SweepPlan::new(&rig, &params).expect("plan");
+    assert_eq!(plan.params.colour_in_alpha, 1);
+    compare("tsukuba_crop_gradient", &plan, &rig, &images);
+    let step = sweepdepth::sweep::prefilter::median_step(images.as_slice().into());
+    assert!(
+        step <= sweepdepth::sweep::prefilter::AUTO_RENDER_STEP,
+        "a camera's images: auto takes the gradient (median step {step})"
+    );
+}
+
 /// SGM with many planes (several words per lane in the workgroup layout) on real images, both
 /// layouts.
 #[test]
