@@ -223,8 +223,9 @@ pub struct Plans {
     /// The half-resolution level's own plans (coarse to fine again where it applies).
     below: Option<Box<Plans>>,
     /// `prefilter: auto` on a rig of three cameras or more: the rig whose images were seen to
-    /// be a camera's (or to differ in brightness), whose sets take the gradient from then on (no plan flips back; a
-    /// moving rig keeps its `Rig`, its motion is the pipeline's `world_from_rig`).
+    /// be a camera's (or to differ in brightness), whose sets take the gradient from then on
+    /// (no plan flips back; a moving rig keeps its `Rig`, its motion is the pipeline's
+    /// `world_from_rig`).
     auto_gradient: Option<Rig>,
 }
 
