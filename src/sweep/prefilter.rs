@@ -108,7 +108,7 @@ fn grey_at(image: CameraImage<'_>, i: usize) -> Option<u32> {
 /// exceed what the colour term's truncation at `tau` lets through at any shift off the match,
 /// and the raw colours keep the depth between the planes (a fronto-parallel wall: 92 % of
 /// pixels within 1 % against 76 %). Every real camera measured steps far less (docs/quality.md:
-/// the 17 real pairs 1.0-2.5, Tsukuba, Teddy and Laundry 1.5-2.0, ICL-NUIM and the rings 0.5),
+/// the 17 real pairs 1.0-2.5, Tsukuba, Teddy and Laundry 1.3-2.0, ICL-NUIM and the rings 0.5),
 /// and there the gradient is the better cost.
 pub const AUTO_RENDER_STEP: f64 = 5.0;
 

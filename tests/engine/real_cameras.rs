@@ -1,10 +1,10 @@
 //! Issue 52, in both engines: what real cameras bring that lab sets hide. A pair whose
 //! cameras differ in gain, offset and vignetting and carry sensor noise matches with the
 //! default prefilter (the colour term on each image's gradient), and the engines agree; the
-//! real pair in the repo and the Tsukuba rig with real cameras' radiometry lose their depth on
-//! the raw colours; `prefilter: auto` decides at its thresholds; a repeating pattern gives low confidence (or, with `uniqueness`, invalid pixels), not
-//! confident wrong depth; a real stereo camera's
-//! pair in the repo beats OpenCV's SGBM.
+//! real stereo camera's pair in the repo beats OpenCV's SGBM and loses its depth on the raw
+//! colours, as the Tsukuba rig given real cameras' radiometry does; `prefilter: auto` decides
+//! at its thresholds; a repeating pattern gives low confidence (or, with `uniqueness`, invalid
+//! pixels), not confident wrong depth.
 
 use crate::common;
 
