@@ -585,14 +585,8 @@ fn auto_takes_the_gradient_from_the_first_set_whose_cameras_differ() {
     };
     assert_eq!(params.prefilter, Prefilter::Auto);
     let mut engine = CpuEngine::new();
-    let mut prefiltered = |images: &[Rgba8Image]| {
-        engine.run(&rig, images, &params).expect("sweep");
-        engine
-            .last_timings()
-            .stages
-            .iter()
-            .any(|(stage, _)| stage == "prefilter")
-    };
+    let mut prefiltered =
+        |images: &[Rgba8Image]| sweeps_prefiltered(&mut engine, &rig, images, &params);
     assert!(!prefiltered(&agree), "cameras that agree: the raw colours");
     assert!(!prefiltered(&agree));
     assert!(prefiltered(&differ), "a camera at 0.6x: the gradient");
@@ -618,15 +612,8 @@ fn auto_decides_at_its_thresholds() {
         num_planes: 16,
         ..SweepParams::default()
     };
-    let prefiltered = |images: &[Rgba8Image]| {
-        let mut engine = CpuEngine::new();
-        engine.run(&rig, images, &params).expect("sweep");
-        engine
-            .last_timings()
-            .stages
-            .iter()
-            .any(|(stage, _)| stage == "prefilter")
-    };
+    let prefiltered =
+        |images: &[Rgba8Image]| sweeps_prefiltered(&mut CpuEngine::new(), &rig, images, &params);
     // A triangle wave of `slope` grey levels per column (rounded: steps of 4 and 5 give
     // central differences of 9, a step of 4.5), shifted per camera; two whole periods across,
     // so every camera's mean grey is the same.
@@ -678,4 +665,20 @@ fn auto_decides_at_its_thresholds() {
     assert!(ratio_above < 1.12, "{ratio_above}");
     assert!(prefiltered(&above), "a camera at 0.92x: the gradient");
     assert!(!prefiltered(&below), "a camera at 0.98x: the raw colours");
+}
+
+/// Sweeps `images` on the CPU engine; whether the host's prefilter stage ran (the colour term
+/// compared gradients).
+fn sweeps_prefiltered(
+    engine: &mut CpuEngine,
+    rig: &Rig,
+    images: &[Rgba8Image],
+    params: &SweepParams,
+) -> bool {
+    engine.run(rig, images, params).expect("sweep");
+    engine
+        .last_timings()
+        .stages
+        .iter()
+        .any(|(stage, _)| stage == "prefilter")
 }
