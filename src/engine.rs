@@ -579,10 +579,12 @@ impl Engine {
 
     /// The maps beyond depth and confidence the WGSL engine reads back and unpacks
     /// (`GpuEngine::set_wanted_maps`; all by default, one left out comes back empty). The CPU
-    /// engine always makes them all.
+    /// engine makes them all, but brings back only these from a rectified pair
+    /// (`CpuEngine::set_wanted_maps`).
     pub fn set_wanted_maps(&mut self, wanted: crate::sweep::WantedMaps) {
-        if let Self::Gpu { engine, .. } = self {
-            engine.set_wanted_maps(wanted);
+        match self {
+            Self::Gpu { engine, .. } => engine.set_wanted_maps(wanted),
+            Self::Cpu(cpu) => cpu.set_wanted_maps(wanted),
         }
     }
 

@@ -576,19 +576,23 @@ pub fn run(args: &BenchArgs) -> anyhow::Result<()> {
         ),
         (Err(reason), false) => println!("peer: missing ({reason}); no ratios"),
     }
+    // As the node runs it: the maps its outputs publish (issue 35; the CPU engine makes them
+    // all, but brings back only these from a rectified pair).
+    let wanted = if args.depth_only {
+        crate::pipeline::Wanted::NONE.maps(true)
+    } else {
+        WantedMaps::OUTPUTS
+    };
     let mut engines = Vec::new();
     if args.device != Device::Gpu {
-        engines.push(Engine::new(Device::Cpu)?);
+        let mut engine = Engine::new(Device::Cpu)?;
+        engine.set_wanted_maps(wanted);
+        engines.push(engine);
     }
     if args.device != Device::Cpu {
         match Engine::new(Device::Gpu) {
             Ok(mut engine) => {
-                // As the node runs it: the maps its outputs publish (issue 35).
-                engine.set_wanted_maps(if args.depth_only {
-                    crate::pipeline::Wanted::NONE.maps(true)
-                } else {
-                    WantedMaps::OUTPUTS
-                });
+                engine.set_wanted_maps(wanted);
                 args.gpu.apply(&mut engine);
                 engines.push(engine)
             }

@@ -12,6 +12,7 @@ pub mod hypotheses;
 pub mod joint_median;
 pub mod plan;
 pub mod prefilter;
+pub mod rectify;
 pub mod references;
 pub mod schedule;
 pub mod stages;
@@ -174,6 +175,9 @@ pub struct SweepParams {
     /// sweep's stages).
     pub subpixel_refine: bool,
     pub median: bool,
+    /// The CPU engine sweeps a pair of cameras whose images are not rectified as a rectified
+    /// pair (`rectify.rs`).
+    pub rectify_pairs: bool,
     /// Radius of the colour-weighted median after the sweep (`joint_median.rs`); 0 = off.
     pub joint_median_radius: u32,
     /// Its colour scale: the L1 RGB difference at which a neighbour's weight is 1/e.

@@ -16,4 +16,5 @@ mod gpu_vs_cpu;
 mod lent_maps;
 mod many_cameras;
 mod quality;
+mod raw_pairs;
 mod real_cameras;

@@ -678,7 +678,7 @@ fn ros_name(field: &str) -> &str {
 fn defaults_match_sweep_params() {
     let json = serde_json::to_value(SweepParams::default()).unwrap();
     let fields = json.as_object().unwrap();
-    assert_eq!(fields.len(), 35);
+    assert_eq!(fields.len(), 36);
     for (field, value) in fields {
         let spec = param_spec(ros_name(field))
             .unwrap_or_else(|| panic!("SweepParams::{field} has no parameter"));
@@ -726,6 +726,7 @@ fn defaults_match_sweep_params() {
         subpixel_refine: true,
         subpixel_v_fit: true,
         median: false,
+        rectify_pairs: false,
         joint_median_radius: 9,
         joint_median_colour: 3.0,
         joint_median_fill: false,
@@ -827,8 +828,8 @@ fn table_has_node_parameters() {
         assert_eq!(&spec.default, default, "{name}");
     }
     assert!(param_spec("cameras").unwrap().required);
-    // 35 engine parameters, the node parameters above, and 9 for the virtual reference camera.
-    assert_eq!(param_table().len(), 35 + expect.len() + 9);
+    // 36 engine parameters, the node parameters above, and 9 for the virtual reference camera.
+    assert_eq!(param_table().len(), 36 + expect.len() + 9);
 }
 
 #[test]

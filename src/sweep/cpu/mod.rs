@@ -94,6 +94,12 @@ pub struct CpuEngine {
     /// last: each level keeps its own, so no set allocates and faults in its cost volume and
     /// path sums again (a raw pair's full-resolution volume is 69 MB, the sums twice that).
     parked: Vec<((u32, u32), Buffers)>,
+    /// The rectifications of raw pairs (`rectify_pairs`).
+    rectified: super::rectify::Rectifications,
+    /// Their resampled images, kept from set to set.
+    rectified_images: Vec<Rgba8Image>,
+    /// The maps a rectified pair's caller reads ([`CpuEngine::set_wanted_maps`]).
+    wanted: super::WantedMaps,
     cancel: CancelFlag,
 }
 
@@ -162,6 +168,9 @@ impl CpuEngine {
             buffers: Buffers::default(),
             buffers_size: (0, 0),
             parked: Vec::new(),
+            rectified: Default::default(),
+            rectified_images: Vec::new(),
+            wanted: super::WantedMaps::ALL,
             cancel: CancelFlag::new(),
         }
     }
@@ -215,10 +224,54 @@ impl CpuEngine {
                 &copied
             }
         };
+        if params.rectify_pairs {
+            if let Some(rectified) = self.rectified.for_rig(rig) {
+                return self.run_rectified(&rectified, images, params);
+            }
+        }
         let mut plans = std::mem::take(&mut self.plans);
         let result = super::coarse::run(self, plans.for_rig(rig), rig, images.into(), params);
         self.plans = plans;
         result
+    }
+
+    /// A raw pair swept as its rectified pair (`rectify.rs`): the images resampled, the
+    /// rectified rig swept, its maps brought back onto the reference's pixels (the `rectify`
+    /// stage times both).
+    fn run_rectified(
+        &mut self,
+        rectified: &super::rectify::Rectified,
+        images: &[Rgba8Image],
+        params: &SweepParams,
+    ) -> Result<DepthMaps, SweepError> {
+        super::check_images(&rectified.source, images)?;
+        let started = std::time::Instant::now();
+        let mut resampled = std::mem::take(&mut self.rectified_images);
+        rectified.images_into(images, &mut resampled);
+        let mut ms = started.elapsed().as_secs_f64() * 1e3;
+        let rig = &rectified.rig;
+        let mut plans = std::mem::take(&mut self.plans);
+        let result = super::coarse::run(
+            self,
+            plans.for_rig(rig),
+            rig,
+            (&resampled[..]).into(),
+            params,
+        );
+        self.plans = plans;
+        let started = std::time::Instant::now();
+        self.rectified_images = resampled;
+        let maps = rectified.maps_back(&result?, self.wanted)?;
+        ms += started.elapsed().as_secs_f64() * 1e3;
+        self.timings.stages.push(("rectify".into(), ms));
+        Ok(maps)
+    }
+
+    /// The maps beyond depth and confidence the caller reads: a raw pair swept rectified
+    /// (`rectify_pairs`) brings only these back onto the reference's pixels (the others come
+    /// back empty, as from the WGSL engine); every other sweep makes them all.
+    pub fn set_wanted_maps(&mut self, wanted: super::WantedMaps) {
+        self.wanted = wanted;
     }
 
     /// Runs a prepared plan (e.g. with a custom hypothesis family).

@@ -1,0 +1,698 @@
+//! A pair of cameras whose images are not rectified (a driver's `image_raw`: lens distortion,
+//! views turned slightly toward each other) swept as a rectified pair (`rectify_pairs`, the CPU
+//! engine): both images are resampled once onto one rectified grid, as image_proc and
+//! stereo_image_proc do before OpenCV's block matchers, so the sweep takes the shifted-row fast
+//! path (`cpu/cost.rs`: no projection per pixel and plane, no gathers); the depth comes back
+//! onto the reference's own pixels.
+//!
+//! The rectification (Fusiello, Trucco & Verri 2000): both rectified cameras look along the
+//! mean of the two optical axes turned square to the baseline, their rows along the baseline,
+//! with one pinhole model of the reference image's size whose focal length is the reference's,
+//! shrunk just enough for the grid to hold every pixel of the reference's image (a barrel
+//! widens the view: no depth is lost at the image's edges, and no more pixels are swept than
+//! the image has). Everything that depends on the
+//! rig alone (the two resampling maps and the way back) is made once and kept while the two
+//! cameras' models and their relative pose stay the same (a moving stereo camera keeps them).
+//!
+//! The way back: the rectified reference's depth z' at the pixel where a reference pixel's ray
+//! lands, bilinear where its four neighbours agree within 2 % (else the nearest), times the
+//! ray's `z / z'`; the other maps take the nearest pixel's value. A pixel whose match would lie
+//! where the other camera's image has no pixels is invalid, as the raw sweep finds no view of
+//! it there.
+
+use std::sync::Arc;
+
+use glam::{DMat3, DQuat, DVec2, DVec3};
+use rayon::prelude::*;
+
+use super::{selection, DepthMaps, SweepError, WantedMaps};
+use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
+use crate::image::{ImageF32, Rgba8Image};
+
+/// The widest angle between the baseline and the reference's rows that is rectified (a pair
+/// one above the other keeps the raw sweep).
+const MAX_BASELINE_ANGLE_DEG: f64 = 30.0;
+/// The widest turn of either camera onto the rectified axis.
+const MAX_TURN_DEG: f64 = 20.0;
+/// The least share of the reference's focal length the rectified grid keeps (it is the image's
+/// size, so strong distortion or a wide turn would shrink the view too far).
+const MIN_ZOOM: f64 = 0.75;
+/// Neighbours within this share of each other are interpolated on the way back.
+const AGREE: f32 = 0.02;
+/// The rectified grids the CPU engine keeps (a rig's references each have their own).
+const KEPT: usize = 4;
+
+/// What a rectified pair is made from: the two cameras' models and where the other lies.
+#[derive(Debug, Clone, PartialEq)]
+struct Key {
+    reference: RigCamera,
+    other: RigCamera,
+}
+
+/// A pair's rectification: the rectified rig and the maps to it and back.
+#[derive(Debug)]
+pub struct Rectified {
+    /// The two rectified cameras (pinhole, one model, rows along the baseline), in the
+    /// original order, the reference the same index; named `NAME~rectified for REFERENCE`
+    /// (the frame memo and the plan cache key on names).
+    pub rig: Rig,
+    /// The rig it rectifies.
+    pub source: Rig,
+    /// Per rectified pixel of each camera (indexed as the rig), where it samples its raw
+    /// image.
+    to_rectified: [Vec<Tap>; 2],
+    /// Per reference pixel, where its ray lands on the grid (NaN: it has no ray, or lands
+    /// outside), and `z / z'` from there: `scale . (x, y, 1)`.
+    back: Vec<[f32; 2]>,
+    scale: [f32; 3],
+    /// Per row of the grid, the first and last column the other camera's image covers
+    /// (`[1, 0]`: none).
+    seen_columns: Vec<[f32; 2]>,
+    /// `f * baseline` in rectified pixels times metres, and the sign of the other camera's
+    /// shift (its column is `u - sign * disparity`).
+    focal_baseline: f64,
+    sign: f64,
+    /// The raw reference's size.
+    size: (u32, u32),
+}
+
+/// Where a rectified pixel samples a raw image: the top-left pixel of its 2x2 (`NONE`: no
+/// pixel of the image sees it) and the weights of the right column and the lower row, in
+/// 128ths (the bilinear of OpenCV's `remap`, in 32nds there).
+#[derive(Debug, Clone, Copy)]
+struct Tap {
+    index: u32,
+    fx: u8,
+    fy: u8,
+}
+
+const NONE: u32 = u32::MAX;
+
+/// The CPU engine's kept rectifications.
+#[derive(Debug, Default)]
+pub struct Rectifications {
+    kept: Vec<(Key, Option<Arc<Rectified>>)>,
+}
+
+impl Rectifications {
+    /// The rectification of `rig`, made or kept; `None` where the rig is not a pair of cameras
+    /// that rectification helps (see [`rectify`]).
+    pub fn for_rig(&mut self, rig: &Rig) -> Option<Arc<Rectified>> {
+        let reference = rig.reference_index()?;
+        if rig.cameras.len() != 2 {
+            return None;
+        }
+        let key = Key {
+            reference: rig.cameras[reference].clone(),
+            other: rig.cameras[1 - reference].clone(),
+        };
+        if let Some(i) = self.kept.iter().position(|(k, _)| *k == key) {
+            let kept = self.kept.remove(i);
+            let made = kept.1.clone();
+            self.kept.push(kept);
+            return made;
+        }
+        let made = rectify(rig).map(Arc::new);
+        if self.kept.len() >= KEPT {
+            self.kept.remove(0);
+        }
+        self.kept.push((key, made.clone()));
+        made
+    }
+}
+
+/// Whether a pair's images already meet on shifted rows: both undistorted, the same focal
+/// lengths and rows, no turn between them, the baseline along the rows.
+fn already_rectified(a: &RigCamera, b: &RigCamera, b_from_a: &RigidTransform) -> bool {
+    let (ka, kb) = (&a.model.intrinsics, &b.model.intrinsics);
+    let t = b_from_a.translation;
+    a.model.distortion.is_none()
+        && b.model.distortion.is_none()
+        && ka.fx_px == kb.fx_px
+        && ka.fy_px == kb.fy_px
+        && ka.cy_px == kb.cy_px
+        && b_from_a.rotation.angle_between(DQuat::IDENTITY) < 1e-9
+        && t.y.abs() <= 1e-9 * t.length()
+        && t.z.abs() <= 1e-9 * t.length()
+}
+
+/// The rectification of a rig of two cameras whose reference is one of them; `None` (said at
+/// debug level) where the images already meet on shifted rows, the baseline runs more than
+/// [`MAX_BASELINE_ANGLE_DEG`] off the reference's rows, a camera would turn more than
+/// [`MAX_TURN_DEG`], or the rectified grid would keep less than [`MIN_ZOOM`] of the focal
+/// length.
+pub fn rectify(rig: &Rig) -> Option<Rectified> {
+    let reference = rig.reference_index()?;
+    if rig.cameras.len() != 2 {
+        return None;
+    }
+    let other = 1 - reference;
+    let (a, b) = (&rig.cameras[reference], &rig.cameras[other]);
+    let b_from_a = rig.cam_from_ref(other);
+    if already_rectified(a, b, &b_from_a) {
+        return None;
+    }
+    let skip = |why: String| {
+        tracing::debug!("{}: the raw pair is swept as it is: {why}", a.name);
+        None
+    };
+    let centre = b_from_a.inverse().translation;
+    let (rect_from_a, sign) = match axes(centre, &b_from_a) {
+        Ok(axes) => axes,
+        Err(why) => return skip(why),
+    };
+    let k = &a.model.intrinsics;
+    let focal = 0.5 * (k.fx_px + k.fy_px);
+    let rays = reference_rays(&a.model);
+    let (w, h) = (k.width_px as usize, k.height_px as usize);
+    let landing = |ray: DVec3| {
+        let r = rect_from_a * ray;
+        (r.z > 1e-9).then(|| DVec2::new(focal * r.x / r.z, focal * r.y / r.z))
+    };
+    let (mut lo, mut hi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+    for ray in rays.iter().flatten() {
+        let Some(p) = landing(*ray) else {
+            return skip("a pixel's ray turns behind the rectified camera".into());
+        };
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    // The grid holds every pixel's landing and is no larger than the image: the focal length
+    // shrinks by the share the barrel (or the turn) widens the view.
+    let (w1, h1) = ((w - 1) as f64, (h - 1) as f64);
+    let span = hi - lo;
+    let zoom = (w1 / span.x).min(h1 / span.y).min(1.0) * (1.0 - 1e-9);
+    if zoom.is_nan() || zoom < MIN_ZOOM {
+        return skip(format!(
+            "its rectified view is {:.2} times the image's",
+            1.0 / zoom
+        ));
+    }
+    let (focal, lo) = (focal * zoom, lo * zoom);
+    let (rw, rh) = ((span.x * zoom).ceil() + 1.0, (span.y * zoom).ceil() + 1.0);
+    let landing = |ray: DVec3| landing(ray).map(|p| p * zoom);
+    let intrinsics = PinholeIntrinsics {
+        width_px: (rw as u32).min(w as u32),
+        height_px: (rh as u32).min(h as u32),
+        fx_px: focal,
+        fy_px: focal,
+        cx_px: -lo.x,
+        cy_px: -lo.y,
+    };
+    let model = CameraModel::pinhole(intrinsics);
+    let rotation = DQuat::from_mat3(&rect_from_a).normalize();
+    let rect_from_rig = |camera: &RigCamera, from_a: DQuat| {
+        // The rectified camera: the same centre, turned by rect_from_a from the reference's
+        // orientation (`from_a`: this camera's own orientation relative to the reference's).
+        let turn = rotation * from_a.inverse();
+        RigidTransform {
+            rotation: (turn * camera.cam_from_rig.rotation).normalize(),
+            translation: turn * camera.cam_from_rig.translation,
+        }
+    };
+    let name = |camera: &RigCamera| format!("{}~rectified for {}", camera.name, a.name);
+    let mut cameras = vec![RigCamera::clone(a), RigCamera::clone(b)];
+    cameras[0] = RigCamera {
+        name: name(a),
+        model,
+        cam_from_rig: rect_from_rig(a, DQuat::IDENTITY),
+    };
+    cameras[1] = RigCamera {
+        name: name(b),
+        model,
+        cam_from_rig: rect_from_rig(b, b_from_a.rotation),
+    };
+    if reference == 1 {
+        cameras.swap(0, 1);
+    }
+    let rectified_rig = Rig::new(cameras, Reference::Camera(reference)).ok()?;
+    let grid = |camera: &RigCamera, camera_from_a: DQuat| {
+        resampling_map(
+            &intrinsics,
+            &camera.model,
+            camera_from_a * rotation.inverse(),
+        )
+    };
+    let mut to_rectified = [grid(a, DQuat::IDENTITY), grid(b, b_from_a.rotation)];
+    if reference == 1 {
+        to_rectified.swap(0, 1);
+    }
+    let (gw, gh) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
+    let back = rays
+        .par_iter()
+        .map(|ray| match ray.and_then(landing).map(|p| p - lo) {
+            Some(p) if nearest_pixel(p, gw, gh).is_some() => [p.x as f32, p.y as f32],
+            _ => [f32::NAN; 2],
+        })
+        .collect();
+    // z / z' = 1 / (R r).z for the ray r (z = 1) = (R^T r').z for the rectified ray r'
+    // (z' = 1) through the landing (x, y): linear in x and y.
+    let m = rect_from_a.transpose().row(2) / focal;
+    let scale = [
+        m.x,
+        m.y,
+        m.z * focal - m.x * intrinsics.cx_px - m.y * intrinsics.cy_px,
+    ];
+    let seen_columns = to_rectified[other]
+        .chunks(gw)
+        .map(|row| {
+            let covered = |t: &Tap| t.index != NONE;
+            match (row.iter().position(covered), row.iter().rposition(covered)) {
+                (Some(first), Some(last)) => [first as f32, last as f32],
+                _ => [1.0, 0.0],
+            }
+        })
+        .collect();
+    tracing::debug!(
+        "{}: the raw pair is swept rectified on a {}x{} grid",
+        a.name,
+        intrinsics.width_px,
+        intrinsics.height_px
+    );
+    Some(Rectified {
+        rig: rectified_rig,
+        source: rig.clone(),
+        to_rectified,
+        back,
+        scale: scale.map(|v| v as f32),
+        seen_columns,
+        focal_baseline: focal * centre.length(),
+        sign,
+        size: (k.width_px, k.height_px),
+    })
+}
+
+/// The rectified cameras' axes in the reference's frame (`rect_from_a`, whose rows they are)
+/// for the other camera at `centre` turned by `b_from_a`, and on which side of the reference it
+/// lies along the rows (-1: left); why not where the pair is not for rectifying.
+fn axes(centre: DVec3, b_from_a: &RigidTransform) -> Result<(DMat3, f64), String> {
+    if centre.length().is_nan() || centre.length() <= 0.0 {
+        return Err("the cameras share a centre".into());
+    }
+    let mut e1 = centre.normalize();
+    let sign = if e1.x < 0.0 { -1.0 } else { 1.0 };
+    e1 *= sign;
+    if e1.x < MAX_BASELINE_ANGLE_DEG.to_radians().cos() {
+        return Err(format!(
+            "its baseline runs more than {MAX_BASELINE_ANGLE_DEG} degrees off its rows"
+        ));
+    }
+    let axis_b = b_from_a.rotation.inverse() * DVec3::Z;
+    let e2 = (DVec3::Z + axis_b).normalize().cross(e1).normalize();
+    let e3 = e1.cross(e2);
+    let turn = DVec3::Z.angle_between(e3).max(axis_b.angle_between(e3));
+    if turn.is_nan() || turn > MAX_TURN_DEG.to_radians() {
+        return Err(format!(
+            "a camera would turn {:.1} degrees",
+            turn.to_degrees()
+        ));
+    }
+    Ok((DMat3::from_cols(e1, e2, e3).transpose(), sign))
+}
+
+/// Every pixel's ray (z = 1) of the reference, row-major; `None` where it has none.
+fn reference_rays(model: &CameraModel) -> Arc<Vec<Option<DVec3>>> {
+    if let Some(rays) = model.distorted_pixel_rays() {
+        return rays;
+    }
+    let k = &model.intrinsics;
+    Arc::new(
+        (0..k.height_px)
+            .flat_map(|y| (0..k.width_px).map(move |x| (x, y)))
+            .map(|(x, y)| Some(k.unproject_z1(DVec2::new(f64::from(x), f64::from(y)))))
+            .collect(),
+    )
+}
+
+/// The index of the pixel of a `w` x `h` grid nearest `p`; `None` outside it.
+fn nearest_pixel(p: DVec2, w: usize, h: usize) -> Option<u32> {
+    let (x, y) = ((p.x + 0.5).floor(), (p.y + 0.5).floor());
+    let inside = |v: f64, n: usize| v >= 0.0 && v < n as f64;
+    (inside(x, w) && inside(y, h)).then(|| (y as usize * w + x as usize) as u32)
+}
+
+/// For each pixel of the rectified grid, where it samples `camera`'s raw image
+/// (`camera_from_rect` turns a rectified ray into the camera's frame).
+fn resampling_map(
+    grid: &PinholeIntrinsics,
+    camera: &CameraModel,
+    camera_from_rect: DQuat,
+) -> Vec<Tap> {
+    let (w, h) = (grid.width_px as usize, grid.height_px as usize);
+    let k = &camera.intrinsics;
+    let (iw, ih) = (k.width_px as usize, k.height_px as usize);
+    let reach = camera.distortion.max_undistorted_radius();
+    let none = Tap {
+        index: NONE,
+        fx: 0,
+        fy: 0,
+    };
+    let mut map = vec![none; w * h];
+    if iw < 2 || ih < 2 {
+        return map;
+    }
+    map.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, out) in row.iter_mut().enumerate() {
+            let ray = grid.unproject_z1(DVec2::new(x as f64, y as f64));
+            let Some(p) = camera.project_within(camera_from_rect * ray, reach) else {
+                continue;
+            };
+            if !camera.contains(p) {
+                continue;
+            }
+            // The 2x2 lies inside: the last column and row sample with full weight.
+            let px = p.x.clamp(0.0, (iw - 1) as f64);
+            let py = p.y.clamp(0.0, (ih - 1) as f64);
+            let (x0, y0) = (
+                (px.floor() as usize).min(iw - 2),
+                (py.floor() as usize).min(ih - 2),
+            );
+            let weight = |f: f64| (f * 128.0).round().clamp(0.0, 128.0) as u8;
+            *out = Tap {
+                index: (y0 * iw + x0) as u32,
+                fx: weight(px - x0 as f64),
+                fy: weight(py - y0 as f64),
+            };
+        }
+    });
+    map
+}
+
+/// The bilinear of four packed RGBA pixels, two channels at a time in 16-bit lanes (weights
+/// in 128ths: a lane holds at most 255 x 128).
+fn blend(p00: u32, p10: u32, p01: u32, p11: u32, fx: u32, fy: u32) -> u32 {
+    const LOW: u32 = 0x00ff_00ff;
+    let mix = |a: u32, b: u32, f: u32| {
+        let lo = ((a & LOW) * (128 - f) + (b & LOW) * f) >> 7;
+        let hi = (((a >> 8) & LOW) * (128 - f) + ((b >> 8) & LOW) * f) >> 7;
+        (lo & LOW) | ((hi & LOW) << 8)
+    };
+    mix(mix(p00, p10, fx), mix(p01, p11, fx), fy) | 0xff00_0000
+}
+
+impl Rectified {
+    /// The rig's two images resampled onto the rectified grid (bilinear, black where a camera
+    /// has no pixel), in the rig's order, into `out` (its buffers kept from set to set).
+    pub fn images_into(&self, images: &[Rgba8Image], out: &mut Vec<Rgba8Image>) {
+        let size = &self.rig.cameras[0].model.intrinsics;
+        let (w, h) = (size.width_px, size.height_px);
+        out.resize_with(images.len(), || Rgba8Image {
+            width: 0,
+            height: 0,
+            pixels: Vec::new(),
+        });
+        for ((image, map), out) in images.iter().zip(&self.to_rectified).zip(out.iter_mut()) {
+            out.width = w;
+            out.height = h;
+            out.pixels.resize(map.len(), 0);
+            let iw = image.width as usize;
+            let src = &image.pixels;
+            out.pixels
+                .par_chunks_mut(w as usize)
+                .zip(map.par_chunks(w as usize))
+                .for_each(|(row, taps)| {
+                    for (out, tap) in row.iter_mut().zip(taps) {
+                        let i = tap.index as usize;
+                        *out = match src.get(i..i + iw + 2) {
+                            Some(q) if tap.index != NONE => blend(
+                                q[0],
+                                q[1],
+                                q[iw],
+                                q[iw + 1],
+                                u32::from(tap.fx),
+                                u32::from(tap.fy),
+                            ),
+                            _ => 0xff00_0000,
+                        };
+                    }
+                });
+        }
+    }
+
+    /// The rectified reference's maps on the reference's own pixels: depth and confidence,
+    /// and those of the others `wanted` asks for (empty otherwise).
+    pub fn maps_back(
+        &self,
+        rectified: &DepthMaps,
+        wanted: WantedMaps,
+    ) -> Result<DepthMaps, SweepError> {
+        let (w, h) = self.size;
+        let (rw, rh) = (rectified.width() as usize, rectified.height() as usize);
+        let grid = rw * rh;
+        let n = self.back.len();
+        let image = |data: Vec<f32>| ImageF32 {
+            width: w,
+            height: h,
+            data,
+        };
+        let empty = || ImageF32 {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        };
+        if rectified.depth_m.data.len() != grid
+            || rectified.confidence.data.len() != grid
+            || rh != self.seen_columns.len()
+            || n != (w * h) as usize
+        {
+            return Err(SweepError::InvalidParams(format!(
+                "internal: a rectified pair's maps are {rw}x{rh}, not its grid's"
+            )));
+        }
+        let (depth, confidence) =
+            self.depth_back(&rectified.depth_m.data, &rectified.confidence.data, rw, rh);
+        // The other maps: the value of the pixel nearest the landing (where the depth holds,
+        // for the selection).
+        let nearest = |i: usize| {
+            let [x, y] = self.back[i];
+            (!x.is_nan()).then(|| (y + 0.5) as usize * rw + (x + 0.5) as usize)
+        };
+        let take = |map: &[f32], wanted: bool| match wanted && map.len() == grid {
+            true => image(
+                (0..n)
+                    .into_par_iter()
+                    .map(|i| nearest(i).map_or(f32::NAN, |j| map[j]))
+                    .collect(),
+            ),
+            false => empty(),
+        };
+        let take_u8 =
+            |map: &[u8], wanted: bool, none: u8, valid: bool| match wanted && map.len() == grid {
+                true => (0..n)
+                    .into_par_iter()
+                    .map(|i| match nearest(i) {
+                        Some(j) if !valid || !depth[i].is_nan() => map[j],
+                        _ => none,
+                    })
+                    .collect(),
+                false => Vec::new(),
+            };
+        let mut depth_raw_m = take(&rectified.depth_raw_m.data, wanted.diagnostics);
+        for (i, z) in depth_raw_m.data.iter_mut().enumerate() {
+            let [x, y] = self.back[i];
+            *z *= self.scale[0] * x + self.scale[1] * y + self.scale[2];
+        }
+        Ok(DepthMaps {
+            cost: take(&rectified.cost.data, wanted.cost),
+            selection: take_u8(
+                &rectified.selection,
+                wanted.selection,
+                selection::INVALID,
+                true,
+            ),
+            visible_cameras: take_u8(&rectified.visible_cameras, wanted.diagnostics, 0, false),
+            depth_raw_m,
+            depth_m: image(depth),
+            confidence: image(confidence),
+        })
+    }
+
+    /// The rectified depth and confidence (`w` x `h`) on the reference's pixels: the depth
+    /// bilinear where the four pixels around a landing are valid and agree within [`AGREE`],
+    /// else the nearest pixel's; NaN (confidence 0) where the other camera has no pixel at the
+    /// match.
+    fn depth_back(
+        &self,
+        depth: &[f32],
+        confidence: &[f32],
+        w: usize,
+        h: usize,
+    ) -> (Vec<f32>, Vec<f32>) {
+        let shift = (self.sign * self.focal_baseline) as f32;
+        let row = self.size.0 as usize;
+        let mut out_depth = vec![f32::NAN; self.back.len()];
+        let mut out_confidence = vec![0.0f32; self.back.len()];
+        out_depth
+            .par_chunks_mut(row)
+            .zip(out_confidence.par_chunks_mut(row))
+            .zip(self.back.par_chunks(row))
+            .for_each(|((out_depth, out_confidence), back)| {
+                let outs = out_depth.iter_mut().zip(out_confidence.iter_mut());
+                for ((out_z, out_c), &[x, y]) in outs.zip(back) {
+                    // NaN: no landing. Inside the grid, x and y are at least -0.5, so the
+                    // truncations below floor them.
+                    if x.is_nan() {
+                        continue;
+                    }
+                    let (xn, yn) = ((x + 0.5) as usize, (y + 0.5) as usize);
+                    let nearest = yn * w + xn;
+                    let mut z = depth[nearest];
+                    let (x0, y0) = (x as usize, y as usize);
+                    if x >= 0.0 && y >= 0.0 && x0 + 1 < w && y0 + 1 < h {
+                        let i = y0 * w + x0;
+                        let q = [depth[i], depth[i + 1], depth[i + w], depth[i + w + 1]];
+                        let lo = q[0].min(q[1]).min(q[2]).min(q[3]);
+                        let hi = q[0].max(q[1]).max(q[2]).max(q[3]);
+                        if q.iter().all(|z| *z > 0.0) && hi <= lo * (1.0 + AGREE) {
+                            let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+                            let top = q[0] + (q[1] - q[0]) * fx;
+                            let bottom = q[2] + (q[3] - q[2]) * fx;
+                            z = top + (bottom - top) * fy;
+                        }
+                    }
+                    if z.is_nan() || z <= 0.0 {
+                        continue;
+                    }
+                    // Where the other camera would see this point: no pixel there, no depth.
+                    let u = x - shift / z;
+                    let [first, last] = self.seen_columns[yn];
+                    if u >= first - 0.5 && u < last + 0.5 {
+                        *out_z = z * (self.scale[0] * x + self.scale[1] * y + self.scale[2]);
+                        *out_c = confidence[nearest];
+                    }
+                }
+            });
+        (out_depth, out_confidence)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::{self, Scene};
+
+    /// The bench's raw pair (`stereo-raw`): a plumb-bob barrel and a slight toe-in.
+    fn raw_pair(width: u32, height: u32, reference: usize) -> Rig {
+        let mut model = CameraModel::pinhole(synthetic::intrinsics(width, height));
+        model.distortion = synthetic::plumb_bob_barrel();
+        synthetic::arc_rig(2, 0.1 / 4.0, 4.0, model, reference).unwrap()
+    }
+
+    fn scene(rig: &Rig) -> Scene {
+        Scene::wall_and_box(4.0, Some((2.0, 0.4)), rig.cameras[0].model.intrinsics.fx_px)
+    }
+
+    #[test]
+    fn a_rectified_pair_is_left_as_it_is() {
+        let model = CameraModel::pinhole(synthetic::intrinsics(64, 48));
+        let rig = synthetic::row_rig(2, 0.1, model, 0).unwrap();
+        assert!(rectify(&rig).is_none());
+        let mut turned = rig.clone();
+        turned.cameras[1].cam_from_rig.rotation = DQuat::from_rotation_y(0.01);
+        assert!(rectify(&turned).is_some());
+        // One above the other: not rectified (the raw sweep takes it).
+        let mut above = rig;
+        above.cameras[1].cam_from_rig.translation = DVec3::new(0.0, -0.1, 0.0);
+        above.cameras[1].model.distortion = synthetic::plumb_bob_barrel();
+        assert!(rectify(&above).is_none());
+    }
+
+    /// The rectified rig is a pair on shifted rows: one pinhole model, no turn between them,
+    /// the baseline along the rows, each camera at its own centre.
+    #[test]
+    fn the_rectified_rig_meets_on_rows() {
+        for reference in [0, 1] {
+            let rig = raw_pair(160, 120, reference);
+            let r = rectify(&rig).unwrap();
+            let (a, b) = (&r.rig.cameras[reference], &r.rig.cameras[1 - reference]);
+            assert_eq!(a.model, b.model);
+            assert!(a.model.distortion.is_none());
+            let b_from_a = r.rig.cam_from_ref(1 - reference);
+            assert!(b_from_a.rotation.angle_between(DQuat::IDENTITY) < 1e-9);
+            let t = b_from_a.translation;
+            assert!(
+                t.y.abs() < 1e-9 && t.z.abs() < 1e-9 && t.x.abs() > 0.09,
+                "{t}"
+            );
+            for i in 0..2 {
+                let d = r.rig.cameras[i].centre_in_rig() - rig.cameras[i].centre_in_rig();
+                assert!(d.length() < 1e-9);
+            }
+            // The grid is the image's size; it holds the barrel-shaped view at a shorter focal
+            // length.
+            let k = &a.model.intrinsics;
+            assert!(k.width_px <= 160 && k.height_px <= 120, "{k:?}");
+            assert!(k.width_px >= 159 || k.height_px >= 119, "{k:?}");
+            let f = rig.cameras[reference].model.intrinsics.fx_px;
+            assert!(k.fx_px < f && k.fx_px > 0.85 * f, "{} against {f}", k.fx_px);
+        }
+    }
+
+    /// The depth of the rectified reference, brought back, is the raw reference's depth.
+    #[test]
+    fn depth_comes_back_onto_the_references_pixels() {
+        for reference in [0, 1] {
+            let rig = raw_pair(160, 120, reference);
+            let scene = scene(&rig);
+            let r = rectify(&rig).unwrap();
+            let a = &r.rig.cameras[reference];
+            let mut maps = DepthMaps::empty();
+            maps.depth_m = scene.depth(&a.model, &a.cam_from_rig);
+            let n = maps.depth_m.data.len();
+            maps.confidence = ImageF32 {
+                data: vec![1.0; n],
+                ..maps.depth_m.clone()
+            };
+            let back = r.maps_back(&maps, WantedMaps::ALL).unwrap();
+            let truth = synthetic::reference_depth(&scene, &rig);
+            assert_eq!(back.depth_m.data.len(), truth.data.len());
+            let (mut close, mut valid) = (0, 0);
+            for (z, t) in back.depth_m.data.iter().zip(&truth.data) {
+                if z.is_nan() {
+                    continue;
+                }
+                valid += 1;
+                close += usize::from((z - t).abs() <= 0.002 * t);
+            }
+            let total = truth.data.len();
+            // The other camera sees all but a band at one side.
+            assert!(valid * 10 > total * 8, "{valid} of {total} valid");
+            assert!(close * 100 >= valid * 98, "{close} of {valid} within 0.2 %");
+            assert_eq!(back.confidence.data.len(), total);
+        }
+    }
+
+    /// The resampled images are what the rectified cameras see.
+    #[test]
+    fn the_images_are_what_the_rectified_cameras_see() {
+        let rig = raw_pair(160, 120, 0);
+        let scene = scene(&rig);
+        let r = rectify(&rig).unwrap();
+        let mut out = Vec::new();
+        r.images_into(&synthetic::render_rig(&scene, &rig), &mut out);
+        for (i, image) in out.iter().enumerate() {
+            let truth = scene.render(&r.rig.cameras[i]);
+            let diff = |a: &Rgba8Image, shift: usize| {
+                let w = a.width as usize;
+                let (mut sum, mut n) = (0u64, 0u64);
+                for (j, (p, q)) in a.pixels.iter().zip(&truth.pixels).enumerate() {
+                    let (x, y) = (j % w, j / w);
+                    // Inside the raw image's view only (black outside it).
+                    if x + shift >= w || y < 20 || y + 20 > a.height as usize || *p == 0xff00_0000 {
+                        continue;
+                    }
+                    let p = Rgba8Image::unpack(a.pixels[j + shift]);
+                    let q = Rgba8Image::unpack(*q);
+                    sum += u64::from(p[0].abs_diff(q[0]));
+                    n += 1;
+                }
+                sum as f64 / n.max(1) as f64
+            };
+            let (same, shifted) = (diff(image, 0), diff(image, 1));
+            assert!(
+                same * 2.0 < shifted,
+                "camera {i}: {same:.1} against {shifted:.1}"
+            );
+        }
+    }
+}
