@@ -8,8 +8,9 @@ use glam::{DQuat, DVec3};
 use sweepdepth::engine::{Engine, Sweeper};
 use sweepdepth::geometry::{CameraModel, Rig, RigidTransform};
 use sweepdepth::image::ImageF32;
+use sweepdepth::pipeline::Wanted;
 use sweepdepth::sweep::cpu::CpuEngine;
-use sweepdepth::sweep::SweepParams;
+use sweepdepth::sweep::{selection, SweepParams, WantedMaps};
 use sweepdepth::synthetic::{self, Scene};
 
 /// A 320x240 pair 10 cm apart with a plumb-bob barrel, side by side (`toe_in`: turned toward a
@@ -93,6 +94,20 @@ fn a_raw_pair_swept_rectified_is_as_good_as_swept_raw() {
                     assert!(!z.is_nan() || *c == 0.0, "{case}: confidence without depth");
                 }
                 runs.push(scores(&maps.depth_m, &truth));
+                if rectify {
+                    // Again: the kept rectification gives the same depth, bit for bit.
+                    let again = engine
+                        .run_references(&rig.cameras, &images, &[reference], &params(true))
+                        .pop()
+                        .expect("one result")
+                        .expect("sweep");
+                    let same = |a: &f32, b: &f32| a.to_bits() == b.to_bits();
+                    let again = again.maps.into_owned().depth_m.data;
+                    assert!(again
+                        .iter()
+                        .zip(&maps.depth_m.data)
+                        .all(|(a, b)| same(a, b)));
+                }
             }
             let ([within, within_5, valid], [raw_within, raw_within_5, raw_valid]) =
                 (runs[0], runs[1]);
@@ -109,6 +124,37 @@ fn a_raw_pair_swept_rectified_is_as_good_as_swept_raw() {
             assert!(within + 0.01 >= raw_within, "{case}: within 1 %");
             assert!(within_5 + 0.02 >= raw_within_5, "{case}: within 5 %");
             assert!(valid + 0.02 >= raw_valid, "{case}: valid");
+        }
+    }
+}
+
+/// The maps a caller reads come back from a rectified pair, and those it does not come back
+/// empty (as from the WGSL engine); cost and selection where wanted match the depth's validity.
+#[test]
+fn a_rectified_pair_brings_back_the_maps_its_caller_reads() {
+    let (rig, scene) = raw_pair(true, 8.0);
+    let images = synthetic::render_rig(&scene, &rig);
+    let mut engine = Engine::Cpu(CpuEngine::new());
+    for wanted in [
+        WantedMaps::ALL,
+        WantedMaps::OUTPUTS,
+        Wanted::NONE.maps(true),
+    ] {
+        engine.set_wanted_maps(wanted);
+        let maps = engine
+            .run_views(&rig, &images, &params(true))
+            .expect("sweep");
+        let n = maps.depth_m.data.len();
+        let expect = |map_len: usize, wanted: bool| assert_eq!(map_len, if wanted { n } else { 0 });
+        expect(maps.cost.data.len(), wanted.cost);
+        expect(maps.selection.len(), wanted.selection);
+        expect(maps.depth_raw_m.data.len(), wanted.diagnostics);
+        expect(maps.visible_cameras.len(), wanted.diagnostics);
+        expect(maps.confidence.data.len(), true);
+        for (i, z) in maps.depth_m.data.iter().enumerate() {
+            if let Some(&s) = maps.selection.get(i) {
+                assert_eq!(s == selection::INVALID, z.is_nan(), "pixel {i}");
+            }
         }
     }
 }
