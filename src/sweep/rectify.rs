@@ -31,12 +31,12 @@ use crate::image::{ImageF32, Rgba8Image};
 
 /// The widest angle between the baseline and the reference's rows that is rectified (a pair
 /// one above the other keeps the raw sweep).
-const MAX_BASELINE_ANGLE_DEG: f64 = 30.0;
+pub const MAX_BASELINE_ANGLE_DEG: f64 = 30.0;
 /// The widest turn of either camera onto the rectified axis.
-const MAX_TURN_DEG: f64 = 20.0;
+pub const MAX_TURN_DEG: f64 = 20.0;
 /// The least share of the reference's focal length the rectified grid keeps (it is the image's
 /// size, so strong distortion or a wide turn would shrink the view too far).
-const MIN_ZOOM: f64 = 0.75;
+pub const MIN_ZOOM: f64 = 0.75;
 /// Neighbours within this share of each other are interpolated on the way back.
 const AGREE: f32 = 0.02;
 /// The rectified grids the CPU engine keeps (a rig's references each have their own).
