@@ -207,7 +207,7 @@ pub fn rectify(rig: &Rig) -> Option<Rectified> {
     let (w1, h1) = ((w - 1) as f64, (h - 1) as f64);
     let span = hi - lo;
     let zoom = (w1 / span.x).min(h1 / span.y).min(1.0) * (1.0 - 1e-9);
-    if zoom.is_nan() || zoom < MIN_ZOOM {
+    if zoom < MIN_ZOOM {
         return skip(format!(
             "its rectified view is {:.2} times the image's",
             1.0 / zoom
@@ -236,12 +236,6 @@ pub fn rectify(rig: &Rig) -> Option<Rectified> {
         }
     };
     let name = |camera: &RigCamera| format!("{}~rectified for {}", camera.name, a.name);
-    let mut cameras = vec![RigCamera::clone(a), RigCamera::clone(b)];
-    cameras[0] = RigCamera {
-        name: name(a),
-        model,
-        cam_from_rig: rect_from_rig(a, DQuat::IDENTITY),
-    };
     // The other's grid: the reference's rows, widened to the columns where the other camera's
     // own view lands (a toe-in turns it past the reference's edge).
     let other_grid = widened(
@@ -249,11 +243,18 @@ pub fn rectify(rig: &Rig) -> Option<Rectified> {
         &b.model,
         rect_from_a * DMat3::from_quat(b_from_a.rotation.inverse()),
     );
-    cameras[1] = RigCamera {
-        name: name(b),
-        model: CameraModel::pinhole(other_grid),
-        cam_from_rig: rect_from_rig(b, b_from_a.rotation),
-    };
+    let mut cameras = vec![
+        RigCamera {
+            name: name(a),
+            model,
+            cam_from_rig: rect_from_rig(a, DQuat::IDENTITY),
+        },
+        RigCamera {
+            name: name(b),
+            model: CameraModel::pinhole(other_grid),
+            cam_from_rig: rect_from_rig(b, b_from_a.rotation),
+        },
+    ];
     if reference == 1 {
         cameras.swap(0, 1);
     }
