@@ -505,11 +505,14 @@ impl Rectified {
     }
 
     /// The rectified reference's maps on the reference's own pixels: depth and confidence,
-    /// and those of the others `wanted` asks for (empty otherwise).
+    /// and those of the others `wanted` asks for (empty otherwise). `range` is the sweep's
+    /// depth range (metres): a depth brought back outside it (the rectified camera's depth
+    /// differs from the reference's by the turn between them) is none.
     pub fn maps_back(
         &self,
         rectified: &DepthMaps,
         wanted: WantedMaps,
+        range: [f32; 2],
     ) -> Result<DepthMaps, SweepError> {
         let (w, h) = self.size;
         let (rw, rh) = (rectified.width() as usize, rectified.height() as usize);
@@ -534,8 +537,12 @@ impl Rectified {
                 "internal: a rectified pair's maps are {rw}x{rh}, not its grid's"
             )));
         }
-        let (depth, confidence) =
-            self.depth_back(&rectified.depth_m.data, &rectified.confidence.data, rw, rh);
+        let (depth, confidence) = self.depth_back(
+            &rectified.depth_m.data,
+            &rectified.confidence.data,
+            [rw, rh],
+            range,
+        );
         // The other maps: the value of the pixel nearest the landing (where the depth holds,
         // for the selection).
         let nearest = |i: usize| {
@@ -585,13 +592,13 @@ impl Rectified {
     /// The rectified depth and confidence (`w` x `h`) on the reference's pixels: the depth
     /// bilinear where the four pixels around a landing are valid and agree within [`AGREE`],
     /// else the nearest pixel's; NaN (confidence 0) where the other camera has no pixel at the
-    /// match.
+    /// match or the depth falls outside `range`.
     fn depth_back(
         &self,
         depth: &[f32],
         confidence: &[f32],
-        w: usize,
-        h: usize,
+        [w, h]: [usize; 2],
+        [near, far]: [f32; 2],
     ) -> (Vec<f32>, Vec<f32>) {
         let shift = (self.sign * self.focal_baseline) as f32;
         let row = self.size.0 as usize;
@@ -631,8 +638,9 @@ impl Rectified {
                     // Where the other camera would see this point: no pixel there, no depth.
                     let u = x - shift / z;
                     let [first, last] = self.seen_columns[yn];
-                    if u >= first - 0.5 && u < last + 0.5 {
-                        *out_z = z * (self.scale[0] * x + self.scale[1] * y + self.scale[2]);
+                    let z = z * (self.scale[0] * x + self.scale[1] * y + self.scale[2]);
+                    if u >= first - 0.5 && u < last + 0.5 && z >= near && z <= far {
+                        *out_z = z;
                         *out_c = confidence[nearest];
                     }
                 }
@@ -758,7 +766,9 @@ mod tests {
                 data: vec![0.5; maps.depth_m.data.len()],
                 ..maps.depth_m.clone()
             };
-            let back = r.maps_back(&maps, WantedMaps::ALL).unwrap();
+            let back = r
+                .maps_back(&maps, WantedMaps::ALL, [0.0, f32::MAX])
+                .unwrap();
             let truth = synthetic::reference_depth(&scene, &rig);
             let total = truth.data.len();
             assert_eq!(back.depth_m.data.len(), total);
@@ -836,6 +846,44 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// A depth brought back is inside the sweep's range, and one inside it comes back: the
+    /// box (2 m) alone in 1-3 m, the wall (4 m) alone in 2.5-5 m.
+    #[test]
+    fn depth_comes_back_inside_the_range() {
+        let rig = pitched_pair(160, 120, 0);
+        let scene = scene(&rig);
+        let r = rectify(&rig).unwrap();
+        let a = &r.rig.cameras[0];
+        let mut maps = DepthMaps::empty();
+        maps.depth_m = scene.depth(&a.model, &a.cam_from_rig);
+        maps.confidence = ImageF32 {
+            data: vec![0.5; maps.depth_m.data.len()],
+            ..maps.depth_m.clone()
+        };
+        let all = r.maps_back(&maps, WantedMaps::OUTPUTS, [0.0, f32::MAX]);
+        let all = all.unwrap().depth_m.data;
+        for [near, far] in [[1.0, 3.0], [2.5, 5.0]] {
+            let back = r
+                .maps_back(&maps, WantedMaps::OUTPUTS, [near, far])
+                .unwrap();
+            let (mut inside, mut kept) = (0, 0);
+            for (z, z_all) in back.depth_m.data.iter().zip(&all) {
+                assert!(
+                    z.is_nan() || (near..=far).contains(z),
+                    "{z} outside {near}..{far}"
+                );
+                if (near..=far).contains(z_all) {
+                    inside += 1;
+                    kept += usize::from(z == z_all);
+                }
+            }
+            assert!(
+                inside * 10 > all.len() && kept == inside,
+                "{kept} of {inside} kept"
+            );
         }
     }
 }

@@ -261,7 +261,8 @@ impl CpuEngine {
         self.plans = plans;
         let started = std::time::Instant::now();
         self.rectified_images = resampled;
-        let maps = rectified.maps_back(&result?, self.wanted)?;
+        let range = [params.min_depth_m as f32, params.max_depth_m as f32];
+        let maps = rectified.maps_back(&result?, self.wanted, range)?;
         ms += started.elapsed().as_secs_f64() * 1e3;
         self.timings.stages.push(("rectify".into(), ms));
         Ok(maps)
