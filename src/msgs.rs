@@ -347,6 +347,12 @@ pub struct DiagnosticArray {
     pub status: Vec<DiagnosticStatus>,
 }
 
+/// `rosgraph_msgs/msg/Clock`: simulated time on `/clock` (a simulator, `ros2 bag play --clock`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Clock {
+    pub clock: Time,
+}
+
 // ---------------------------------------------------------------------------------------------
 // CDR payloads
 // ---------------------------------------------------------------------------------------------

@@ -32,6 +32,13 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       The graph as rcl sees it (node names and namespaces, topic names and types, endpoint QoS)
       and the node's parameter services (list, get, describe, get types, set: a valid engine
       value, an out-of-range value, a read-only parameter). Prints {"event": "probe", ...}.
+  clock NODE_FQN
+      A simulator's clock: publishes rosgraph_msgs/Clock on /clock every 50 ms (reliable, keep
+      last 10), from 1000 s on at the wall clock's pace, and listens to the node's /diagnostics
+      and /rosout. Waits for two /diagnostics of the node stamped in simulated time, sets
+      num_planes (a /rosout line at simulated time), reads use_sim_time, sets it false and
+      waits for two /diagnostics stamped in wall time. Prints {"event": "clock", ...}: every
+      stamp with the simulated and wall "now" it was received at.
 
 Exit status: 0 done, 2 timeout, 3 bad setup or arguments, 4 rclpy missing.
 
@@ -471,10 +478,81 @@ def run_probe(node: Node, fqn: str) -> None:
     })
 
 
+SIM_BASE_NS = 1000 * 1_000_000_000
+
+
+def run_clock(node: Node, fqn: str) -> None:
+    from rosgraph_msgs.msg import Clock
+
+    started = time.monotonic()
+
+    def sim_ns() -> int:
+        return SIM_BASE_NS + int((time.monotonic() - started) * 1e9)
+
+    clock_pub = node.create_publisher(Clock, "/clock", default_qos())
+    stop = threading.Event()
+
+    def publish() -> None:
+        while not stop.is_set():
+            t = sim_ns()
+            clock_pub.publish(Clock(clock=Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)))
+            time.sleep(0.05)
+
+    threading.Thread(target=publish, daemon=True).start()
+    logger = fqn.strip("/").replace("/", ".")
+    diagnostics: list[dict] = []
+    rosout: list[dict] = []
+
+    def received(stamp) -> dict:
+        return {"stamp_ns": stamp_ns(stamp), "sim_ns": sim_ns(), "wall_ns": time.time_ns()}
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        if any(s.name == f"sweepdepth: {fqn}" for s in msg.status):
+            diagnostics.append(received(msg.header.stamp))
+
+    def on_rosout(msg: Log) -> None:
+        if msg.name == logger:
+            rosout.append({**received(msg.stamp), "msg": msg.msg})
+
+    subs = [node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, default_qos()),
+            node.create_subscription(Log, "/rosout", on_rosout, QoSProfile(depth=1000))]
+    deadline = time.monotonic() + test_timeout()
+
+    def spin_until(what: str, done) -> None:
+        while not done():
+            if time.monotonic() > deadline:
+                fail(2, f"no {what} within {test_timeout()} s")
+            rclpy.spin_once(node, timeout_sec=0.1)
+
+    def simulated(d: dict) -> bool:
+        return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**12
+
+    spin_until("two /diagnostics in simulated time",
+               lambda: sum(simulated(d) for d in diagnostics) >= 2)
+    sim_diagnostics = list(diagnostics)
+    set_planes = set_param(node, fqn, "num_planes", ParameterValue(
+        type=ParameterType.PARAMETER_INTEGER, integer_value=20))
+    spin_until("the /rosout line of num_planes", lambda: any(
+        "num_planes" in line["msg"] for line in rosout))
+    got = call(node, GetParameters, f"{fqn}/get_parameters",
+               GetParameters.Request(names=["use_sim_time"]))
+    use_sim_time = value_json(got.values[0])
+    set_false = set_param(node, fqn, "use_sim_time", ParameterValue(
+        type=ParameterType.PARAMETER_BOOL, bool_value=False))
+    diagnostics.clear()
+    spin_until("two /diagnostics in wall time",
+               lambda: sum(d["stamp_ns"] > 1_600_000_000 * 10**9 for d in diagnostics) >= 2)
+    stop.set()
+    emit({"event": "clock", "sim_diagnostics": sim_diagnostics, "set_planes": set_planes,
+          "use_sim_time": use_sim_time, "set_false": set_false,
+          "wall_diagnostics": list(diagnostics), "rosout": rosout})
+    del subs
+
+
 def main() -> None:
     args = sys.argv[1:]
     if not args:
-        fail(3, "usage: rclpy_peer.py latency TOPICS | image-pub TOPIC W H | drive DIR | probe NODE_FQN")
+        fail(3, "usage: rclpy_peer.py latency TOPICS | image-pub TOPIC W H | drive DIR | probe NODE_FQN | clock NODE_FQN")
     mode, rest = args[0], args[1:]
     rclpy.init(args=None)
     node = Node("sweepdepth_rclpy_peer")
@@ -487,6 +565,8 @@ def main() -> None:
             run_drive(node, pathlib.Path(rest[0]))
         elif mode == "probe" and len(rest) == 1:
             run_probe(node, rest[0])
+        elif mode == "clock" and len(rest) == 1:
+            run_clock(node, rest[0])
         else:
             fail(3, f"bad arguments {args}")
     except KeyboardInterrupt:

@@ -12,8 +12,8 @@ use futures::StreamExt;
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
+use super::clock;
 use super::demand::Demand;
-use super::diag::wall_time_now;
 use super::events::LoopState;
 use super::fusion_services::{diagnostic_values, FusionNode};
 use super::inputs::Inputs;
@@ -68,6 +68,7 @@ pub(super) fn run(
     *lock(&ROSOUT) = Some((node.logging_handle(), logger_name));
 
     let inputs = Inputs::subscribe(&mut node, config)?;
+    let clock_sub = super::topics::subscribe_clock(&mut node)?;
     // One set of publishers per reference (`references`), in the configuration's order.
     let output_qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)
@@ -108,7 +109,8 @@ pub(super) fn run(
         .map_err(|_| NodeError::Gpu("the GPU thread has ended".into()))?;
 
     let mut events = inputs.events();
-    spin = Box::pin(node.spinner().map_err(ros_err)?.spin());
+    let spinner = node.spinner().map_err(ros_err)?;
+    spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
     // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
     // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
     // the node says it is up, so a signal sent as soon as it is up is never the default action.
@@ -222,7 +224,7 @@ fn publish_loop(
                 &config.pipeline.cameras,
                 shared.adapter,
                 now,
-                wall_time_now(),
+                clock::now(),
             )
         };
         if let (Some(fusion), Some(status)) = (fusion, msg.status.first_mut()) {

@@ -272,17 +272,6 @@ impl Stats {
     }
 }
 
-/// The wall-clock time now, as a ROS stamp.
-pub fn wall_time_now() -> Time {
-    let d = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap_or_default();
-    Time {
-        sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
-        nanosec: d.subsec_nanos(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -20,7 +20,7 @@ use futures::StreamExt;
 use ros2_client::qos::History;
 use ros2_client::{Context, ContextOptions, NodeName, QosProfile, Subscription};
 
-use super::diag::wall_time_now;
+use super::clock;
 use super::fusion_services::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
 use super::params::node_options;
@@ -57,6 +57,8 @@ pub struct FuseConfig {
     pub diagnostics_topic: String,
     pub mesh_topic: String,
     pub fusion: FusionConfig,
+    /// `use_sim_time`: the node's own stamps from `/clock`.
+    pub use_sim_time: bool,
 }
 
 impl FuseConfig {
@@ -128,6 +130,7 @@ impl FuseConfig {
             tf_static_topic: resolve("/tf_static")?,
             diagnostics_topic: resolve("/diagnostics")?,
             mesh_topic: resolve("mesh")?,
+            use_sim_time: params.use_sim_time(),
             fusion,
         })
     }
@@ -171,7 +174,7 @@ fn fuse_diagnostics(stats: &FusionStats, sources: &DepthSources, fqn: &str) -> D
     };
     DiagnosticArray {
         header: Header {
-            stamp: wall_time_now(),
+            stamp: clock::now(),
             frame_id: String::new(),
         },
         status: vec![DiagnosticStatus {
@@ -215,6 +218,7 @@ fn take_event(
 pub fn run(args: &[String]) -> Result<(), NodeError> {
     let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
     let config = FuseConfig::from_args(args, domain_env.as_deref())?;
+    clock::set_use_sim_time(config.use_sim_time);
     log_info(&format!(
         "fuse node {} on domain {}: depth from {:?} in '{}'",
         config.fqn, config.domain_id, config.depth_topics, config.world_frame
@@ -290,7 +294,9 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
     let mut events = futures::stream::select_all(streams);
-    let mut spin = Box::pin(node.spinner().map_err(ros_err)?.spin());
+    let clock_sub = super::topics::subscribe_clock(&mut node)?;
+    let spinner = node.spinner().map_err(ros_err)?;
+    let mut spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
     let signals = shutdown::signals();
     log_info(&format!("fuse node {} is up", config.fqn));
 

@@ -48,7 +48,9 @@ pub(super) fn node_log(level: tracing::Level, msg: &str) {
         };
         // A failed rosout write is not worth a log line of its own (it would recurse).
         let _ = writer.publish(Log {
-            stamp: ros2_client::builtin_interfaces::Time::now(),
+            stamp: ros2_client::builtin_interfaces::Time::from_nanos(
+                super::clock::now().to_nanos(),
+            ),
             level: ros_level,
             name: name.clone(),
             msg: msg.to_string(),

@@ -23,6 +23,7 @@
 //! and the DDS participant are dropped (in that order, so nothing logs an error), and the
 //! process exits 0.
 
+mod clock;
 pub mod config;
 mod dds;
 mod demand;
@@ -71,6 +72,9 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let domain_env = std::env::var("ROS_DOMAIN_ID").ok();
     let config = NodeConfig::from_args(args, domain_env.as_deref())?;
     let pipeline = &config.pipeline;
+    if clock::set_use_sim_time(pipeline.params.use_sim_time()) {
+        tracing::info!("use_sim_time: the node's time is /clock's");
+    }
     for note in &pipeline.notes {
         tracing::info!("{note}");
     }

@@ -25,9 +25,11 @@ use ros2_client::{
     MessageTypeName, Name, Node, Publisher, QosProfile, ServiceMapping, ServiceTypeName,
 };
 
+use super::clock;
 use super::log::{log_info, node_log};
 use super::params::{to_ros, LiveParams};
 use super::NodeError;
+use crate::params::set::USE_SIM_TIME;
 use crate::params::{param_spec, ParamRange, ParamSpec};
 use crate::ros::param_value::ParamKind;
 
@@ -97,18 +99,18 @@ pub fn descriptor(spec: &ParamSpec) -> raw::ParameterDescriptor {
     }
 }
 
-/// `use_sim_time`, which every rcl node has: the node runs on the system clock only.
-const USE_SIM_TIME: &str = "use_sim_time";
-
+/// `use_sim_time`, which every rcl node has ([`super::clock`]).
 fn use_sim_time_descriptor() -> raw::ParameterDescriptor {
     raw::ParameterDescriptor {
         name: USE_SIM_TIME.into(),
         r#type: 1,
-        description: "Simulated time (/clock) is not supported: the node stamps with the \
-                      system clock."
+        description: "The node's time from /clock (rosgraph_msgs/Clock) instead of the system \
+                      clock: the stamps of /diagnostics, /rosout and the fuse node's mesh, and \
+                      the latency in /diagnostics. Depth and the other outputs keep their \
+                      input images' stamps either way."
             .into(),
-        additional_constraints: "false only".into(),
-        read_only: true,
+        additional_constraints: String::new(),
+        read_only: false,
         dynamic_typing: false,
         floating_point_range: Vec::new(),
         integer_range: Vec::new(),
@@ -150,7 +152,7 @@ impl Answers {
 
     fn value(&self, name: &str) -> RosValue {
         if name == USE_SIM_TIME {
-            return RosValue::Boolean(false);
+            return RosValue::Boolean(clock::uses_sim_time());
         }
         self.live
             .params()
@@ -217,11 +219,8 @@ impl Answers {
         };
         if p.name == USE_SIM_TIME {
             return match p.value {
-                RosValue::Boolean(false) => (ok(), None),
-                _ => (
-                    refused("use_sim_time: simulated time is not supported".into()),
-                    None,
-                ),
+                RosValue::Boolean(on) => (ok(), set_use_sim_time(on)),
+                ref other => (refused(not_a_bool(other)), None),
             };
         }
         match self.live.apply(&p.name, &p.value) {
@@ -277,15 +276,18 @@ impl Answers {
         req: SetParametersRequest,
     ) -> (SetParametersAtomicallyResponse, Vec<raw::Parameter>) {
         let params: Vec<Parameter> = req.parameter.into_iter().map(Parameter::from).collect();
-        if let Some(p) = params
-            .iter()
-            .find(|p| p.name == USE_SIM_TIME && p.value != RosValue::Boolean(false))
-        {
-            let result = raw::SetParametersResult {
-                successful: false,
-                reason: format!("{}: simulated time is not supported", p.name),
-            };
-            return (SetParametersAtomicallyResponse { result }, Vec::new());
+        let mut sim_time = None;
+        for p in params.iter().filter(|p| p.name == USE_SIM_TIME) {
+            match p.value {
+                RosValue::Boolean(on) => sim_time = Some(on),
+                ref other => {
+                    let result = raw::SetParametersResult {
+                        successful: false,
+                        reason: not_a_bool(other),
+                    };
+                    return (SetParametersAtomicallyResponse { result }, Vec::new());
+                }
+            }
         }
         let ours: Vec<(String, RosValue)> = params
             .into_iter()
@@ -294,6 +296,7 @@ impl Answers {
             .collect();
         match self.live.apply_all(&ours) {
             Ok(changed) => {
+                let sim_time_event = sim_time.and_then(set_use_sim_time);
                 let events = ours
                     .into_iter()
                     .zip(changed)
@@ -302,6 +305,7 @@ impl Answers {
                         let value = self.value(&name);
                         raw::Parameter::from(Parameter { name, value })
                     })
+                    .chain(sim_time_event)
                     .collect();
                 (SetParametersAtomicallyResponse { result: ok() }, events)
             }
@@ -314,6 +318,24 @@ impl Answers {
             }
         }
     }
+}
+
+/// Switches the node's clock; the `/parameter_events` entry when it changed.
+fn set_use_sim_time(on: bool) -> Option<raw::Parameter> {
+    clock::set_use_sim_time(on).then(|| {
+        log_info(&format!(
+            "parameter 'use_sim_time' set to {on}: the node's time is {}",
+            if on { "/clock's" } else { "the system clock's" }
+        ));
+        raw::Parameter::from(Parameter {
+            name: USE_SIM_TIME.into(),
+            value: RosValue::Boolean(on),
+        })
+    })
+}
+
+fn not_a_bool(value: &RosValue) -> String {
+    format!("use_sim_time takes a bool, not {value:?}")
 }
 
 fn ok() -> raw::SetParametersResult {
@@ -523,7 +545,8 @@ mod tests {
         assert!(d.read_only && d.r#type == 9 && !d.description.is_empty());
         let d = describe(&a, "nope");
         assert_eq!((d.r#type, d.read_only), (0, true));
-        assert!(describe(&a, USE_SIM_TIME).read_only);
+        let d = describe(&a, USE_SIM_TIME);
+        assert!(!d.read_only && d.r#type == 1 && d.description.contains("/clock"));
         let types = a.types(&GetParameterTypesRequest {
             names: vec!["num_planes".into(), "cameras".into(), "nope".into()],
         });
@@ -558,8 +581,38 @@ mod tests {
         );
         let (r, _) = a.set(set("cameras", RosValue::StringArray(vec!["x".into()])));
         assert!(!r.results[0].successful && r.results[0].reason.contains("read-only"));
-        let (r, _) = a.set(set(USE_SIM_TIME, RosValue::Boolean(true)));
-        assert!(!r.results[0].successful);
+        {
+            // use_sim_time switches the process's clock: one test at a time.
+            let _clock = clock::TEST_SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+            let get = |name: &str| {
+                let got = a.get(&GetParametersRequest {
+                    names: vec![name.into()],
+                });
+                RosValue::from(got.values[0].clone())
+            };
+            clock::set_use_sim_time(false);
+            let (r, events) = a.set(set(USE_SIM_TIME, RosValue::Boolean(true)));
+            assert!(r.results[0].successful && events.len() == 1);
+            assert!(clock::uses_sim_time());
+            assert_eq!(get(USE_SIM_TIME), RosValue::Boolean(true));
+            let (r, events) = a.set(set(USE_SIM_TIME, RosValue::String("yes".into())));
+            assert!(!r.results[0].successful && events.is_empty());
+            assert!(r.results[0].reason.contains("bool"), "{r:?}");
+            // Atomically with an engine parameter: all or none.
+            let both = |sim: bool, planes: i64| SetParametersRequest {
+                parameter: set(USE_SIM_TIME, RosValue::Boolean(sim))
+                    .parameter
+                    .into_iter()
+                    .chain(set("num_planes", RosValue::Integer(planes)).parameter)
+                    .collect(),
+            };
+            let (r, _) = a.set_atomically(both(false, 1));
+            assert!(!r.result.successful && clock::uses_sim_time(), "none");
+            let (r, events) = a.set_atomically(both(false, 32));
+            assert!(r.result.successful && !clock::uses_sim_time(), "all");
+            assert_eq!(events.len(), 1, "num_planes unchanged: {events:?}");
+            assert_eq!(get(USE_SIM_TIME), RosValue::Boolean(false));
+        }
         let got = a.get(&GetParametersRequest {
             names: vec!["num_planes".into()],
         });

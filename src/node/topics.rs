@@ -49,6 +49,20 @@ fn topic(
     .map_err(ros_err)
 }
 
+/// `/clock`'s type.
+const CLOCK: TypeName = ("rosgraph_msgs", "Clock");
+
+/// The node's `/clock` subscription ([`super::clock`]): best effort, keep last 1, as rclcpp's
+/// `ClockQoS`.
+pub(super) fn subscribe_clock(
+    node: &mut Node,
+) -> Result<Subscription<crate::msgs::Clock>, NodeError> {
+    let qos = QosProfile::subscription_default()
+        .reliability_best_effort()
+        .history(History::KeepLast { depth: 1 });
+    subscribe(node, "/clock", CLOCK, &qos)
+}
+
 /// A subscription of type `type_name` on the topic `name`.
 pub(super) fn subscribe<M: 'static>(
     node: &mut Node,

@@ -7,8 +7,9 @@ use std::time::{Duration, Instant};
 
 use ros2_client::Publisher;
 
+use super::clock;
 use super::demand::Demand;
-use super::diag::{wall_time_now, Stats};
+use super::diag::Stats;
 use super::log::{lock, log_info, RateLimited};
 use super::params::LiveParams;
 use super::sender::Sender;
@@ -150,7 +151,7 @@ fn start_sending(
                 .messages
                 .first()
                 .map_or(Wanted::NONE, |(_, m)| Wanted::made(m));
-            stats.on_published(set.processing, Instant::now(), wall_time_now(), set.stamp);
+            stats.on_published(set.processing, Instant::now(), clock::now(), set.stamp);
         }
         for (output, messages) in set.messages {
             let Some(publishers) = publishers.get(output) else {

@@ -14,7 +14,11 @@ use crate::sweep::SweepParams;
 
 /// Parameters every rclcpp node has, or that tools set for all nodes: accepted from parameter
 /// files and ignored with a note.
-const IGNORED_STANDARD_PARAMS: &[&str] = &["use_sim_time", "start_type_description_service"];
+const IGNORED_STANDARD_PARAMS: &[&str] = &["start_type_description_service"];
+
+/// rcl's `use_sim_time`: the node's time from `/clock` (kept beside the table: every rcl node
+/// has it, and the `bag` command has no clock).
+pub const USE_SIM_TIME: &str = "use_sim_time";
 
 /// Where a parameter's current value came from.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,6 +41,7 @@ pub enum ParamSource {
 pub struct ParamSet {
     values: Vec<ParamValue>,
     sources: Vec<ParamSource>,
+    use_sim_time: bool,
 }
 
 impl Default for ParamSet {
@@ -51,7 +56,13 @@ impl ParamSet {
         Self {
             values: param_table().iter().map(|p| p.default.clone()).collect(),
             sources: vec![ParamSource::Default; param_table().len()],
+            use_sim_time: false,
         }
+    }
+
+    /// [`USE_SIM_TIME`] as the command line and parameter files set it (default false).
+    pub fn use_sim_time(&self) -> bool {
+        self.use_sim_time
     }
 
     pub fn get(&self, name: &str) -> Option<&ParamValue> {
@@ -222,17 +233,26 @@ impl ParamSet {
                 continue;
             }
             for item in &entry.items {
+                if item.name == USE_SIM_TIME {
+                    set.use_sim_time = match item.value {
+                        ParamValue::Bool(on) => on,
+                        ref other => {
+                            return Err(ParamError::From {
+                                name: item.name.clone(),
+                                origin: item.origin.clone(),
+                                source: Box::new(ParamError::WrongType {
+                                    expected: crate::ros::param_value::ParamKind::Bool,
+                                    got: other.kind(),
+                                    value: other.to_string(),
+                                }),
+                            })
+                        }
+                    };
+                    continue;
+                }
                 if param_spec(&item.name).is_none() {
                     if let Some(note) = ignored_standard(&item.name) {
-                        let note = format!("{}: {note}", item.origin);
-                        // Simulated time asked for and not given: the stamps the node reads
-                        // and writes stay the messages' own, which a user of a simulator must
-                        // hear of (a note is only logged at info).
-                        if item.name == "use_sim_time" && item.value == ParamValue::Bool(true) {
-                            tracing::warn!("{note}: stamps are the messages' own, never /clock");
-                        } else {
-                            notes.push(note);
-                        }
+                        notes.push(format!("{}: {note}", item.origin));
                         continue;
                     }
                     if item.wildcard {

@@ -419,10 +419,22 @@ fn params_file_sections_and_wildcards() {
         &args(&["left", "centre", "right"])[..]
     );
     assert!(matches!(p.source("tau"), Some(ParamSource::File { section, .. }) if section == "/**"));
-    // use_sim_time and the unknown wildcard parameter are notes, not errors.
-    assert_eq!(notes.len(), 2, "{notes:?}");
-    assert!(notes.iter().any(|n| n.contains("use_sim_time")));
+    // The unknown wildcard parameter is a note, not an error; use_sim_time is taken.
+    assert_eq!(notes.len(), 1, "{notes:?}");
     assert!(notes.iter().any(|n| n.contains("some_other_nodes_param")));
+    assert!(!p.use_sim_time());
+    let sim = |rule: &str| {
+        ParamSet::from_ros_args(
+            &parse(&["--ros-args", "--params-file", file.path(), "-p", rule]),
+            &root_node(),
+        )
+    };
+    assert!(sim("use_sim_time:=true").unwrap().0.use_sim_time());
+    let error = sim("use_sim_time:=1").unwrap_err().to_string();
+    assert!(
+        error.contains("use_sim_time") && error.contains("bool"),
+        "{error}"
+    );
 
     // A node in a namespace: 'sweepdepth:' is /sweepdepth (root namespace, as rclcpp), so only
     // the wildcard applies.

@@ -58,6 +58,11 @@ fn rclpy_graph_parameters_rosout_diagnostics_sigint() {
 }
 
 #[test]
+fn rclpy_sim_time_from_clock() {
+    run("node_rclpy::rclpy_sim_time_from_clock", sim_time_from_clock);
+}
+
+#[test]
 fn rclpy_depth_640x480_best_effort_driver() {
     run("node_rclpy::rclpy_depth_640x480_best_effort_driver", || {
         depth_run(640, 480, false)
@@ -662,4 +667,77 @@ fn graph_parameters_rosout_diagnostics_sigint() {
         errors.len()
     );
     assert_eq!(exit.code(), Some(0), "exit status after SIGINT: {exit}");
+}
+
+/// `use_sim_time:=true` and a simulator's `/clock` (rclpy, rosgraph_msgs/Clock): the node's
+/// `/diagnostics` and `/rosout` are stamped in simulated time; `ros2 param set use_sim_time
+/// false` brings them back to the system clock.
+fn sim_time_from_clock() {
+    let dir = TempDir::new();
+    let rig_file = write_scene(&dir.0, 160, 120, false, 1);
+    let node = Node::start(&rig_file, &["use_sim_time:=true"]);
+    let mut peer = Peer::start("rclpy clock", DOMAIN, &["clock", NODE_FQN], &[]);
+    let v = peer.wait_for(
+        rclpy::test_timeout() * 2,
+        "the clock result",
+        |v| event(v) == "clock",
+        |_| {},
+    );
+    const SIM_BASE_NS: i64 = 1000 * 1_000_000_000;
+    let ns = |d: &Value, key: &str| d[key].as_i64().unwrap_or(-1);
+    // Before the node's first /clock, rcl's simulated time is zero; after, the clock's time:
+    // never later than the peer's clock when it arrived, and at most the diagnostics' second
+    // and a few /clock periods before it.
+    let sim = v["sim_diagnostics"].as_array().cloned().unwrap_or_default();
+    let simulated: Vec<&Value> = sim
+        .iter()
+        .filter(|d| ns(d, "stamp_ns") >= SIM_BASE_NS)
+        .collect();
+    assert!(simulated.len() >= 2, "{v}");
+    for d in &sim {
+        let (stamp, now) = (ns(d, "stamp_ns"), ns(d, "sim_ns"));
+        assert!(
+            stamp == 0 || (stamp <= now && now - stamp < 5_000_000_000),
+            "a /diagnostics stamp {stamp} ns received at simulated {now} ns: {v}"
+        );
+    }
+    assert_eq!(v["set_planes"]["successful"], true, "{v}");
+    let line = v["rosout"]
+        .as_array()
+        .and_then(|lines| {
+            lines
+                .iter()
+                .find(|l| l["msg"].as_str().unwrap_or("").contains("num_planes"))
+        })
+        .cloned()
+        .unwrap_or_default();
+    let (stamp, now) = (ns(&line, "stamp_ns"), ns(&line, "sim_ns"));
+    assert!(
+        stamp >= SIM_BASE_NS && stamp <= now,
+        "the /rosout line of num_planes at {stamp} ns, simulated now {now} ns: {v}"
+    );
+    assert_eq!(v["use_sim_time"], true, "{v}");
+    assert_eq!(v["set_false"]["successful"], true, "{v}");
+    let wall = v["wall_diagnostics"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    let on_wall: Vec<&Value> = wall
+        .iter()
+        .filter(|d| (ns(d, "wall_ns") - ns(d, "stamp_ns")).abs() < 60_000_000_000)
+        .collect();
+    assert!(on_wall.len() >= 2, "{v}");
+    assert!(
+        node.lines()
+            .iter()
+            .any(|l| l.contains("use_sim_time") && l.contains("system clock")),
+        "no log line of the switch"
+    );
+    // The node's second /clock reader (ros2-client's spinner reads it as a Time) is no error.
+    let errors: Vec<String> = node
+        .lines()
+        .into_iter()
+        .filter(|l| l.contains("ERROR"))
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
 }

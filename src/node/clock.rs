@@ -1,0 +1,130 @@
+//! The node's clock, an rcl node's ROS time: the system clock, or with `use_sim_time` the time
+//! of the last `/clock` message (`rosgraph_msgs/Clock`, read best effort keep-last-1 as
+//! rclcpp's `ClockQoS`; zero until the first, as in rcl). It stamps what the node makes of
+//! itself (`/diagnostics`, `/rosout`, the `fuse` node's mesh) and is the "now" of the latency
+//! in `/diagnostics`; depth, the outputs and the node's mesh keep their inputs' stamps, and
+//! the node's timers (the diagnostics' second, "no depth" after 5 s, the synchroniser's waits)
+//! run on the monotonic clock whatever the parameter says.
+//!
+//! One clock per process (a process is one node), switched by the parameter at start and
+//! through the parameter services at run time.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+
+use futures::StreamExt;
+use ros2_client::Subscription;
+
+use crate::msgs::{Clock, Time};
+
+/// `use_sim_time`.
+static SIMULATED: AtomicBool = AtomicBool::new(false);
+/// The last `/clock` time in nanoseconds (0 before the first).
+static LAST_NS: AtomicI64 = AtomicI64::new(0);
+
+/// The tests that switch the process's clock, one at a time.
+#[cfg(test)]
+pub(super) static TEST_SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Sets `use_sim_time`; true when it changed.
+pub fn set_use_sim_time(on: bool) -> bool {
+    SIMULATED.swap(on, Ordering::Relaxed) != on
+}
+
+/// `use_sim_time`.
+pub fn uses_sim_time() -> bool {
+    SIMULATED.load(Ordering::Relaxed)
+}
+
+/// Now: the last `/clock` time with `use_sim_time` (zero before the first), else the system
+/// clock's.
+pub fn now() -> Time {
+    if uses_sim_time() {
+        Time::from_nanos(LAST_NS.load(Ordering::Relaxed))
+    } else {
+        wall_time_now()
+    }
+}
+
+/// The system clock now, as a ROS stamp.
+pub fn wall_time_now() -> Time {
+    let d = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    Time {
+        sec: i32::try_from(d.as_secs()).unwrap_or(i32::MAX),
+        nanosec: d.subsec_nanos(),
+    }
+}
+
+/// Takes a `/clock` message's time (kept whatever `use_sim_time` says, so that switching it
+/// on at run time has the time at once).
+fn on_clock(clock: &Clock) {
+    LAST_NS.store(clock.clock.to_nanos(), Ordering::Relaxed);
+}
+
+/// Runs `spin` (the ros2-client spinner) and follows `/clock` (`topics::subscribe_clock`)
+/// beside it until `spin` ends.
+pub(super) async fn spin_following_clock<F: std::future::Future>(
+    spin: F,
+    clock: Subscription<Clock>,
+) -> F::Output {
+    let follow = async {
+        let mut messages = Box::pin(clock.async_stream());
+        while let Some(message) = messages.next().await {
+            match message {
+                Ok((clock, _)) => on_clock(&clock),
+                Err(e) => tracing::debug!("/clock: {e:?}"),
+            }
+        }
+        futures::future::pending::<()>().await
+    };
+    futures::pin_mut!(spin, follow);
+    match futures::future::select(spin, follow).await {
+        futures::future::Either::Left((out, _)) => out,
+        futures::future::Either::Right(((), spin)) => spin.await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both modes in one test: the clock is the process's.
+    #[test]
+    fn simulated_time_is_the_last_clock_message() {
+        let _one = TEST_SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+        set_use_sim_time(false);
+        on_clock(&Clock {
+            clock: Time {
+                sec: 1000,
+                nanosec: 5,
+            },
+        });
+        assert!(!set_use_sim_time(false), "off from the start");
+        let wall = now().sec;
+        assert!(wall > 1_700_000_000, "the system clock: {wall}");
+        assert!(set_use_sim_time(true));
+        assert_eq!(
+            now(),
+            Time {
+                sec: 1000,
+                nanosec: 5
+            }
+        );
+        on_clock(&Clock {
+            clock: Time {
+                sec: 1001,
+                nanosec: 0,
+            },
+        });
+        assert_eq!(
+            now(),
+            Time {
+                sec: 1001,
+                nanosec: 0
+            }
+        );
+        assert!(set_use_sim_time(false));
+        assert!(now().sec >= wall);
+    }
+}
