@@ -105,9 +105,9 @@ fn use_sim_time_descriptor() -> raw::ParameterDescriptor {
         name: USE_SIM_TIME.into(),
         r#type: 1,
         description: "The node's time from /clock (rosgraph_msgs/Clock) instead of the system \
-                      clock: the stamps of /diagnostics, /rosout and the fuse node's mesh, and \
-                      the latency in /diagnostics. Depth and the other outputs keep their \
-                      input images' stamps either way."
+                      clock: the stamps of /diagnostics, /rosout, /parameter_events and the \
+                      fuse node's mesh, and the latency in /diagnostics. Depth and the other \
+                      outputs keep their input images' stamps either way."
             .into(),
         additional_constraints: String::new(),
         read_only: false,
@@ -424,7 +424,7 @@ impl ParamServices {
             return;
         }
         let event = raw::ParameterEvent {
-            stamp: ros2_client::builtin_interfaces::Time::now(),
+            stamp: ros2_client::builtin_interfaces::Time::from_nanos(clock::now().to_nanos()),
             node: self.node_fqn.clone(),
             new_parameters: Vec::new(),
             changed_parameters: changed,
