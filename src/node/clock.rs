@@ -1,9 +1,8 @@
 //! The node's clock, an rcl node's ROS time: the system clock, or with `use_sim_time` the time
 //! of the last `/clock` message (`rosgraph_msgs/Clock`, read best effort keep-last-1 as
 //! rclcpp's `ClockQoS`; zero until the first, as in rcl). It stamps what the node makes of
-//! itself (`/diagnostics`, `/rosout`, `/parameter_events`, the `fuse` node's mesh) and is the
-//! "now" of the latency in `/diagnostics`; depth, the outputs and the node's mesh keep their
-//! inputs' stamps, and the node's timers (the diagnostics' second, "no depth" after 5 s,
+//! itself (`/diagnostics`, `/rosout`, `/parameter_events`) and is the "now" of the latency in
+//! `/diagnostics`; depth, the outputs and both nodes' meshes keep their inputs' stamps, and the node's timers (the diagnostics' second, "no depth" after 5 s,
 //! `camera_timeout`) run on the monotonic clock whatever the parameter says.
 //!
 //! One clock per process (a process is one node), switched by the parameter at start and

@@ -105,9 +105,9 @@ fn use_sim_time_descriptor() -> raw::ParameterDescriptor {
         name: USE_SIM_TIME.into(),
         r#type: 1,
         description: "The node's time from /clock (rosgraph_msgs/Clock) instead of the system \
-                      clock: the stamps of /diagnostics, /rosout, /parameter_events and the \
-                      fuse node's mesh, and the latency in /diagnostics. Depth and the other \
-                      outputs keep their input images' stamps either way."
+                      clock: the stamps of /diagnostics, /rosout and /parameter_events, and \
+                      the latency in /diagnostics. Depth, the other outputs and the mesh keep \
+                      their input images' stamps either way."
             .into(),
         additional_constraints: String::new(),
         read_only: false,
