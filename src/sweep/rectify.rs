@@ -670,9 +670,24 @@ mod tests {
         let model = CameraModel::pinhole(synthetic::intrinsics(64, 48));
         let rig = synthetic::row_rig(2, 0.1, model, 0).unwrap();
         assert!(rectify(&rig).is_none());
+        // Each way a pair can leave shifted rows, alone, is rectified.
         let mut turned = rig.clone();
         turned.cameras[1].cam_from_rig.rotation = DQuat::from_rotation_y(0.01);
         assert!(rectify(&turned).is_some());
+        for camera in [0, 1] {
+            let mut distorted = rig.clone();
+            distorted.cameras[camera].model.distortion = synthetic::plumb_bob_barrel();
+            assert!(rectify(&distorted).is_some(), "camera {camera} distorted");
+        }
+        let mut other_focal = rig.clone();
+        other_focal.cameras[1].model.intrinsics.fy_px *= 1.01;
+        assert!(rectify(&other_focal).is_some(), "fy");
+        let mut other_row = rig.clone();
+        other_row.cameras[1].model.intrinsics.cy_px += 1.0;
+        assert!(rectify(&other_row).is_some(), "cy");
+        let mut lifted = rig.clone();
+        lifted.cameras[1].cam_from_rig.translation.y += 0.001;
+        assert!(rectify(&lifted).is_some(), "a baseline off the rows");
         // One above the other: not rectified (the raw sweep takes it).
         let mut above = rig;
         above.cameras[1].cam_from_rig.translation = DVec3::new(0.0, -0.1, 0.0);
