@@ -33,8 +33,8 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       and the node's parameter services (list, get, describe, get types, set: a valid engine
       value, an out-of-range value, a read-only parameter). Prints {"event": "probe", ...}.
   clock NODE_FQN
-      A simulator's clock: publishes rosgraph_msgs/Clock on /clock every 50 ms (reliable, keep
-      last 10), from 1000 s on at the wall clock's pace, and listens to the node's /diagnostics
+      A simulator's clock: publishes rosgraph_msgs/Clock on /clock every 50 ms (best effort,
+      keep last 1, as `ros2 bag play --clock`), from 1000 s on at the wall clock's pace, and listens to the node's /diagnostics
       and /rosout. Waits for two /diagnostics of the node stamped in simulated time, sets
       num_planes (a /rosout line at simulated time), reads use_sim_time, sets it false and
       waits for two /diagnostics stamped in wall time. Prints {"event": "clock", ...}: every
@@ -489,7 +489,9 @@ def run_clock(node: Node, fqn: str) -> None:
     def sim_ns() -> int:
         return SIM_BASE_NS + int((time.monotonic() - started) * 1e9)
 
-    clock_pub = node.create_publisher(Clock, "/clock", default_qos())
+    # As rosbag2's player and rclcpp's ClockQoS: best effort, keep last 1.
+    clock_pub = node.create_publisher(
+        Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
     stop = threading.Event()
 
     def publish() -> None:

@@ -37,6 +37,8 @@ pub struct NodeConfig {
     pub pipeline: PipelineConfig,
     pub domain_id: u16,
     pub diagnostics_topic: String,
+    /// `/clock` after the remaps (`use_sim_time`).
+    pub clock_topic: String,
     pub input_reliable: bool,
     pub input_depth: usize,
     pub output_depth: usize,
@@ -51,6 +53,7 @@ impl NodeConfig {
         }
         let pipeline = PipelineConfig::from_ros_args(&ros)?;
         let diagnostics_topic = ros.resolve_topic("/diagnostics", &pipeline.identity)?;
+        let clock_topic = ros.resolve_topic("/clock", &pipeline.identity)?;
         let node = &pipeline.node;
         let usize_param = |name: &'static str, value: i64| -> Result<usize, NodeError> {
             usize::try_from(value).map_err(|_| NodeError::Size { name, value })
@@ -58,6 +61,7 @@ impl NodeConfig {
         Ok(Self {
             domain_id: domain_id(domain_env)?,
             diagnostics_topic,
+            clock_topic,
             input_reliable: node.input_qos_reliable,
             input_depth: usize_param("input_qos_depth", node.input_qos_depth)?,
             output_depth: usize_param("output_qos_depth", node.output_qos_depth)?,
@@ -85,12 +89,18 @@ mod tests {
                 "cameras:=[a, b, c]",
                 "-p",
                 "input_qos_depth:=7",
+                "-r",
+                "/clock:=/sim/clock",
             ]),
             Some("7"),
         )
         .unwrap();
         assert_eq!(cfg.domain_id, 7);
         assert_eq!(cfg.diagnostics_topic, "/diagnostics");
+        assert_eq!(
+            cfg.clock_topic, "/sim/clock",
+            "remapped as rclcpp's TimeSource reads it"
+        );
         assert_eq!(cfg.pipeline.outputs().depth(), "/rig/depth/image");
         assert_eq!(
             (cfg.input_reliable, cfg.input_depth, cfg.output_depth),

@@ -30,7 +30,7 @@ use crate::pipeline::{ConfigError, FusionHost, Pipeline};
 
 /// The spinner's future, kept until the node is dropped: the node's `Drop` tells the spinner to
 /// stop, which fails (with an ERROR line) once the spinner is gone.
-type SpinFuture =
+pub(super) type SpinFuture =
     std::pin::Pin<Box<dyn std::future::Future<Output = ros2_client::CreateResult<()>>>>;
 
 /// Brings the node up on DDS and runs it until a signal (or an error) ends it. `stop_worker`
@@ -68,7 +68,7 @@ pub(super) fn run(
     *lock(&ROSOUT) = Some((node.logging_handle(), logger_name));
 
     let inputs = Inputs::subscribe(&mut node, config)?;
-    let clock_sub = super::topics::subscribe_clock(&mut node)?;
+    let clock_sub = super::topics::subscribe_clock(&mut node, &config.clock_topic)?;
     // One set of publishers per reference (`references`), in the configuration's order.
     let output_qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)

@@ -29,7 +29,8 @@ pub struct Stats {
     last_published: Option<Instant>,
     last_processing: Option<Duration>,
     total_processing: Duration,
-    /// Wall-clock time at publication minus the stamp of the set, milliseconds.
+    /// The node's time ([`super::clock`]) at publication minus the stamp of the set,
+    /// milliseconds (none while simulated time has had no `/clock`).
     last_latency_ms: Option<f64>,
     /// Cameras out of the rig (silent longer than `camera_timeout`).
     pub inactive_cameras: Vec<String>,
@@ -103,21 +104,16 @@ impl Stats {
         self.prune(now);
     }
 
-    /// A set was processed in `processing` and is handed to its publishers at `now` (`now_wall`
-    /// is its latency).
-    pub fn on_published(
-        &mut self,
-        processing: Duration,
-        now: Instant,
-        now_wall: Time,
-        stamp: Time,
-    ) {
+    /// A set was processed in `processing` and is handed to its publishers at `now`, at
+    /// `now_ros` on the node's clock (zero: simulated time before the first `/clock`, no
+    /// latency).
+    pub fn on_published(&mut self, processing: Duration, now: Instant, now_ros: Time, stamp: Time) {
         self.published += 1;
         self.last_published = Some(now);
         self.last_processing = Some(processing);
         self.total_processing += processing;
-        self.last_latency_ms =
-            Some(now_wall.to_nanos().saturating_sub(stamp.to_nanos()) as f64 / 1e6);
+        self.last_latency_ms = (now_ros != Time::default())
+            .then(|| now_ros.to_nanos().saturating_sub(stamp.to_nanos()) as f64 / 1e6);
     }
 
     /// Images per second of each camera over the last [`RATE_WINDOW`].
@@ -283,6 +279,27 @@ mod tests {
             .find(|kv| kv.key == key)
             .map(|kv| kv.value.as_str())
             .unwrap_or_else(|| panic!("no key {key}"))
+    }
+
+    /// Simulated time before the first `/clock` is zero: no latency, not one of decades.
+    #[test]
+    fn no_latency_before_the_first_clock() {
+        let t0 = Instant::now();
+        let mut s = Stats::new(1);
+        let stamp = Time {
+            sec: 1_700_000_000,
+            nanosec: 0,
+        };
+        s.on_published(Duration::from_millis(10), t0, Time::default(), stamp);
+        let a = s.diagnostics("/n", &["a".to_string()], "gpu", t0, Time::default());
+        assert_eq!(value(&a, "latency (ms)"), "n/a");
+        let now = Time {
+            sec: 1_700_000_000,
+            nanosec: 250_000_000,
+        };
+        s.on_published(Duration::from_millis(10), t0, now, stamp);
+        let a = s.diagnostics("/n", &["a".to_string()], "gpu", t0, Time::default());
+        assert_eq!(value(&a, "latency (ms)"), "250.000");
     }
 
     #[test]

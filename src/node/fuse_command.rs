@@ -59,6 +59,8 @@ pub struct FuseConfig {
     pub fusion: FusionConfig,
     /// `use_sim_time`: the node's own stamps from `/clock`.
     pub use_sim_time: bool,
+    /// `/clock` after the remaps.
+    pub clock_topic: String,
 }
 
 impl FuseConfig {
@@ -131,6 +133,7 @@ impl FuseConfig {
             diagnostics_topic: resolve("/diagnostics")?,
             mesh_topic: resolve("mesh")?,
             use_sim_time: params.use_sim_time(),
+            clock_topic: resolve("/clock")?,
             fusion,
         })
     }
@@ -225,6 +228,8 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     ));
     let context = Context::with_options(ContextOptions::new().domain_id(config.domain_id))
         .map_err(ros_err)?;
+    // Declared before the node, so dropped after it (see `dds::SpinFuture`).
+    let mut spin: super::dds::SpinFuture;
     let node_name =
         NodeName::new(&config.namespace, &config.name).map_err(|e| NodeError::Name {
             name: config.fqn.clone(),
@@ -294,9 +299,9 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
     let mut events = futures::stream::select_all(streams);
-    let clock_sub = super::topics::subscribe_clock(&mut node)?;
+    let clock_sub = super::topics::subscribe_clock(&mut node, &config.clock_topic)?;
     let spinner = node.spinner().map_err(ros_err)?;
-    let mut spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
+    spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
     let signals = shutdown::signals();
     log_info(&format!("fuse node {} is up", config.fqn));
 

@@ -54,13 +54,15 @@ const CLOCK: TypeName = ("rosgraph_msgs", "Clock");
 
 /// The node's `/clock` subscription ([`super::clock`]): best effort, keep last 1, as rclcpp's
 /// `ClockQoS`.
+/// `topic` is `/clock` after the remaps.
 pub(super) fn subscribe_clock(
     node: &mut Node,
+    topic: &str,
 ) -> Result<Subscription<crate::msgs::Clock>, NodeError> {
     let qos = QosProfile::subscription_default()
         .reliability_best_effort()
         .history(History::KeepLast { depth: 1 });
-    subscribe(node, "/clock", CLOCK, &qos)
+    subscribe(node, topic, CLOCK, &qos)
 }
 
 /// A subscription of type `type_name` on the topic `name`.

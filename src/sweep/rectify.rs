@@ -900,5 +900,20 @@ mod tests {
                 "{kept} of {inside} kept"
             );
         }
+        // One rectified depth everywhere comes back within about 1 % of it (the turn between
+        // the rectified and the raw camera): the range applies to the depth brought back.
+        maps.depth_m.data.fill(4.0);
+        let far = 4.0;
+        let back = r.maps_back(&maps, WantedMaps::OUTPUTS, [0.0, far]).unwrap();
+        let kept = back.depth_m.data.iter().filter(|z| !z.is_nan()).count();
+        assert!(back.depth_m.data.iter().all(|z| z.is_nan() || *z <= far));
+        let unlimited = r
+            .maps_back(&maps, WantedMaps::OUTPUTS, [0.0, f32::MAX])
+            .unwrap();
+        let farther = unlimited.depth_m.data.iter().filter(|z| **z > far).count();
+        assert!(
+            kept > 0 && farther > 0,
+            "{kept} kept, {farther} beyond {far} m"
+        );
     }
 }
