@@ -15,7 +15,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.node import Node
 
-STANDARD = {"use_sim_time", "start_type_description_service"}
+STANDARD = {"start_type_description_service"}
 LEVELS = {10: "debug", 20: "info", 30: "warn", 40: "error", 50: "fatal"}
 
 

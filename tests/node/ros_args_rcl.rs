@@ -111,10 +111,12 @@ fn ours(case: &Value, topics: &[String]) -> Value {
         .filter(|(spec, _)| !matches!(params.source(spec.name), Some(ParamSource::Default)))
         .map(|(spec, v)| (spec.name.to_string(), param_json(v)))
         .collect();
-    let all: BTreeMap<String, Value> = params
+    let mut all: BTreeMap<String, Value> = params
         .iter()
         .map(|(spec, v)| (spec.name.to_string(), param_json(v)))
         .collect();
+    // Beside the table, as on every rcl node.
+    all.insert("use_sim_time".into(), json!(params.use_sim_time()));
     let logger = node.fqn().trim_start_matches('/').replace('/', ".");
     json!({
         "name": node.name,
