@@ -2,7 +2,7 @@
 //! `warn,sweepdepth=info,rustdds=error`), with the DDS libraries' own lines rate-limited per
 //! call site ([`RateLimitDds`]): RustDDS logs some warnings once per message (a large sample,
 //! a late acknowledgement), which at camera rates would bury everything else. One RustDDS line
-//! that says nothing wrong is dropped ([`is_benign`]).
+//! that says nothing wrong is dropped (`is_benign`).
 
 use std::collections::HashMap;
 use std::sync::Mutex;
