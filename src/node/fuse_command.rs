@@ -375,6 +375,30 @@ mod tests {
 
     /// No `depth_topics` reached the fuse node: the error says why, as the depth node's does
     /// (no parameter file; a file whose sections are for other nodes, named).
+    /// `use_sim_time` and `/clock`'s remap reach the fuse node as the depth node.
+    #[test]
+    fn simulated_time_and_the_clock_topic() {
+        let args: Vec<String> = [
+            "--ros-args",
+            "-p",
+            "depth_topics:=[/a/depth/image]",
+            "-p",
+            "world_frame:=map",
+            "-p",
+            "use_sim_time:=true",
+            "-r",
+            "/clock:=/sim/clock",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let config = FuseConfig::from_args(&args, None).unwrap();
+        assert!(config.use_sim_time);
+        assert_eq!(config.clock_topic, "/sim/clock");
+        let config = FuseConfig::from_args(&args[..5], None).unwrap();
+        assert!(!config.use_sim_time && config.clock_topic == "/clock");
+    }
+
     #[test]
     fn missing_depth_topics_say_why_no_parameter_reached_the_node() {
         let args = |extra: &[&str]| -> Vec<String> {
