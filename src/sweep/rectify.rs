@@ -25,7 +25,8 @@ use std::sync::Arc;
 use glam::{DMat3, DQuat, DVec2, DVec3};
 use rayon::prelude::*;
 
-use super::{selection, DepthMaps, SweepError, WantedMaps};
+use super::gpu_types::MAX_SGM_PLANES;
+use super::{selection, DepthMaps, Optimizer, SweepError, SweepParams, WantedMaps};
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 
@@ -39,6 +40,9 @@ pub const MAX_TURN_DEG: f64 = 20.0;
 pub const MIN_ZOOM: f64 = 0.75;
 /// Neighbours within this share of each other are interpolated on the way back.
 const AGREE: f32 = 0.02;
+
+/// The most planes a rectified sweep widens to without SGM (the parameters' own limit).
+const MAX_PLANES: u32 = 4096;
 /// The rectified grids the CPU engine keeps (a rig's references each have their own).
 const KEPT: usize = 16;
 /// Relative poses this close are one (a moving rig's poses composed from its motion differ in
@@ -86,6 +90,8 @@ pub struct Rectified {
     /// outside), and `z / z'` from there: `scale . (x, y, 1)`.
     back: Vec<[f32; 2]>,
     scale: [f32; 3],
+    /// The least and the greatest `z / z'` over the reference's pixels that land.
+    scale_range: [f64; 2],
     /// Per row of the grid, the first and last column the other camera's image covers
     /// (`[1, 0]`: none).
     seen_columns: Vec<[f32; 2]>,
@@ -270,21 +276,16 @@ pub fn rectify(rig: &Rig) -> Option<Rectified> {
         to_rectified.swap(0, 1);
     }
     let (gw, gh) = (intrinsics.width_px as usize, intrinsics.height_px as usize);
-    let back = rays
+    let back: Vec<[f32; 2]> = rays
         .par_iter()
         .map(|ray| match ray.and_then(landing).map(|p| p - lo) {
             Some(p) if nearest_pixel(p, gw, gh).is_some() => [p.x as f32, p.y as f32],
             _ => [f32::NAN; 2],
         })
         .collect();
-    // z / z' = 1 / (R r).z for the ray r (z = 1) = (R^T r').z for the rectified ray r'
-    // (z' = 1) through the landing (x, y): linear in x and y.
-    let m = rect_from_a.transpose().row(2) / focal;
-    let scale = [
-        m.x,
-        m.y,
-        m.z * focal - m.x * intrinsics.cx_px - m.y * intrinsics.cy_px,
-    ];
+    let Some((scale, scale_range)) = depth_scale(&rect_from_a, focal, &intrinsics, &back) else {
+        return skip("no pixel of the reference lands on the rectified grid".into());
+    };
     // In the reference grid's columns.
     let offset = (other_grid.cx_px - intrinsics.cx_px) as f32;
     let seen_columns = to_rectified[1 - reference]
@@ -309,11 +310,35 @@ pub fn rectify(rig: &Rig) -> Option<Rectified> {
         to_rectified,
         back,
         scale: scale.map(|v| v as f32),
+        scale_range,
         seen_columns,
         focal_baseline: focal * centre.length(),
         sign,
         size: (k.width_px, k.height_px),
     })
+}
+
+/// `z / z'` across the rectified grid, the reference's depth over the rectified camera's: the
+/// coefficients of `scale . (x, y, 1)` at a landing (x, y), and its least and greatest over
+/// the reference's pixels that land (`back`); `None` where none lands.
+fn depth_scale(
+    rect_from_a: &DMat3,
+    focal: f64,
+    grid: &PinholeIntrinsics,
+    back: &[[f32; 2]],
+) -> Option<([f64; 3], [f64; 2])> {
+    // z / z' = 1 / (R r).z for the ray r (z = 1) = (R^T r').z for the rectified ray r'
+    // (z' = 1) through the landing (x, y): linear in x and y.
+    let m = rect_from_a.transpose().row(2) / focal;
+    let scale = [m.x, m.y, m.z * focal - m.x * grid.cx_px - m.y * grid.cy_px];
+    let range = back
+        .iter()
+        .filter(|[x, _]| !x.is_nan())
+        .map(|&[x, y]| scale[0] * f64::from(x) + scale[1] * f64::from(y) + scale[2])
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], s| {
+            [lo.min(s), hi.max(s)]
+        });
+    (range[0] > 0.0 && range[1].is_finite()).then_some((scale, range))
 }
 
 /// The rectified cameras' axes in the reference's frame (`rect_from_a`, whose rows they are)
@@ -501,6 +526,30 @@ impl Rectified {
                         };
                     }
                 });
+        }
+    }
+
+    /// The parameters the rectified pair is swept with: `params` with the depth range that
+    /// brings every depth of the reference's `min_depth_m`..`max_depth_m` onto a plane (the
+    /// rectified camera's depth is the reference's divided by `z / z'`, which differs across
+    /// the image by the turn between them), and as many more planes as keep their step in
+    /// inverse depth (up to the parameters' limit, SGM's 1024 or else 4096).
+    pub fn swept_params(&self, params: &SweepParams) -> SweepParams {
+        let [lo, hi] = self.scale_range;
+        let (near, far) = (params.min_depth_m / hi, params.max_depth_m / lo);
+        let span = |near: f64, far: f64| 1.0 / near - 1.0 / far;
+        let widening = span(near, far) / span(params.min_depth_m, params.max_depth_m);
+        let steps = f64::from(params.num_planes.max(2) - 1) * widening;
+        let most = match params.optimizer {
+            Optimizer::Sgm => MAX_SGM_PLANES,
+            _ => MAX_PLANES,
+        };
+        let steps = ((steps - 1e-6).ceil() as u32).clamp(1, most.max(params.num_planes) - 1);
+        SweepParams {
+            min_depth_m: near,
+            max_depth_m: far,
+            num_planes: steps + 1,
+            ..params.clone()
         }
     }
 
@@ -862,6 +911,60 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The rectified sweep's range holds every depth of the reference's range on every pixel
+    /// that lands, and no more; its planes keep their step in inverse depth.
+    #[test]
+    fn the_swept_range_holds_the_references_range() {
+        let rig = pitched_pair(160, 120, 0);
+        let r = rectify(&rig).unwrap();
+        let params = SweepParams {
+            min_depth_m: 1.5,
+            max_depth_m: 6.0,
+            num_planes: 48,
+            ..SweepParams::default()
+        };
+        let swept = r.swept_params(&params);
+        let (mut nearest, mut farthest) = (f64::INFINITY, 0.0f64);
+        for &[x, y] in r.back.iter().filter(|p| !p[0].is_nan()) {
+            let s = r.scale.map(f64::from);
+            let s = s[0] * f64::from(x) + s[1] * f64::from(y) + s[2];
+            nearest = nearest.min(params.min_depth_m / s);
+            farthest = farthest.max(params.max_depth_m / s);
+        }
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-5 * b;
+        assert!(
+            close(swept.min_depth_m, nearest) && close(swept.max_depth_m, farthest),
+            "{}..{} against {nearest}..{farthest}",
+            swept.min_depth_m,
+            swept.max_depth_m
+        );
+        // The pitch widens it by more than a plane's step here.
+        assert!(swept.min_depth_m < params.min_depth_m || swept.max_depth_m > params.max_depth_m);
+        let step = |p: &SweepParams| {
+            (1.0 / p.min_depth_m - 1.0 / p.max_depth_m) / f64::from(p.num_planes - 1)
+        };
+        assert!(swept.num_planes > params.num_planes);
+        assert!(step(&swept) <= step(&params) * (1.0 + 1e-9));
+        let fewer = SweepParams {
+            num_planes: swept.num_planes - 1,
+            ..swept.clone()
+        };
+        assert!(
+            step(&fewer) > step(&params),
+            "no more planes than the step needs"
+        );
+        // SGM's limit holds.
+        let most = r.swept_params(&SweepParams {
+            num_planes: MAX_SGM_PLANES,
+            ..params.clone()
+        });
+        assert_eq!(most.num_planes, MAX_SGM_PLANES);
+        assert_eq!(
+            (most.cost, most.sgm_p2, most.coarse_to_fine),
+            (params.cost, params.sgm_p2, params.coarse_to_fine)
+        );
     }
 
     /// A depth brought back is inside the sweep's range, and one inside it comes back: the

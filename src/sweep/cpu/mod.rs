@@ -256,7 +256,7 @@ impl CpuEngine {
             plans.for_rig(rig),
             rig,
             (&resampled[..]).into(),
-            params,
+            &rectified.swept_params(params),
         );
         self.plans = plans;
         let started = std::time::Instant::now();
