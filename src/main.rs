@@ -23,7 +23,7 @@ enum Command {
     Bench(sweepdepth::cli::bench::BenchArgs),
     /// Run the engine on the built-in sample data and write depth images.
     Demo(sweepdepth::cli::demo::DemoArgs),
-    /// The ROS 2 node: `sweepdepth node --ros-args -p cameras:=[left, centre, right] ...`.
+    /// The ROS 2 node: `sweepdepth node --ros-args -p 'cameras:=[left, centre, right]' ...`.
     Node {
         /// Everything after `node` (the `--ros-args ...` block), parsed as rcl does.
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
@@ -31,7 +31,8 @@ enum Command {
     },
     /// Fusion alone, as a node: depth image topics (of sweepdepth nodes on other machines, a
     /// RealSense, ...) + /tf into one mesh: `sweepdepth fuse --ros-args -p
-    /// depth_topics:=[/a/cam0/depth/image, /b/cam4/depth/image] -p world_frame:=map`.
+    /// 'depth_topics:=[/a/cam0/depth/image, /b/cam4/depth/image]' -p world_frame:=map` (a list
+    /// with spaces in quotes).
     Fuse {
         /// Everything after `fuse` (the `--ros-args ...` block), parsed as rcl does.
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]

@@ -728,9 +728,18 @@ mod tests {
             distorted.cameras[camera].model.distortion = synthetic::plumb_bob_barrel();
             assert!(rectify(&distorted).is_some(), "camera {camera} distorted");
         }
-        let mut other_focal = rig.clone();
-        other_focal.cameras[1].model.intrinsics.fy_px *= 1.01;
-        assert!(rectify(&other_focal).is_some(), "fy");
+        for fy in [false, true] {
+            let mut other_focal = rig.clone();
+            let k = &mut other_focal.cameras[1].model.intrinsics;
+            *(if fy { &mut k.fy_px } else { &mut k.fx_px }) *= 1.01;
+            assert!(rectify(&other_focal).is_some(), "fy {fy}");
+        }
+        let mut ahead = rig.clone();
+        ahead.cameras[1].cam_from_rig.translation.z += 0.001;
+        assert!(
+            rectify(&ahead).is_some(),
+            "a baseline out of the image plane"
+        );
         let mut other_row = rig.clone();
         other_row.cameras[1].model.intrinsics.cy_px += 1.0;
         assert!(rectify(&other_row).is_some(), "cy");
@@ -800,6 +809,40 @@ mod tests {
         let mut apart = rig.clone();
         apart.cameras[1].cam_from_rig.translation.x -= 0.05;
         assert!(!Arc::ptr_eq(&first, &kept.for_rig(&apart).unwrap()));
+        // A new calibration of either camera at the same names, sizes and poses (a
+        // CameraInfo replaced at run time) is made anew, as is a turn alone.
+        for camera in [0, 1] {
+            let mut focal = rig.clone();
+            focal.cameras[camera].model.intrinsics.fx_px *= 1.01;
+            let mut lens = rig.clone();
+            lens.cameras[camera].model.distortion = crate::geometry::Distortion::PlumbBob {
+                k1: -0.13,
+                k2: 0.02,
+                p1: 0.0005,
+                p2: -0.0003,
+                k3: 0.0,
+            };
+            for changed in [focal, lens] {
+                let made = kept.for_rig(&changed).unwrap();
+                assert!(!Arc::ptr_eq(&first, &made), "camera {camera}");
+                assert_eq!(
+                    made.source.cameras[camera].model,
+                    changed.cameras[camera].model
+                );
+            }
+        }
+        let mut turned = rig.clone();
+        let r = &mut turned.cameras[1].cam_from_rig;
+        r.rotation = (DQuat::from_rotation_x(0.1f64.to_radians()) * r.rotation).normalize();
+        let (t0, t1) = (
+            rig.cam_from_ref(1).translation,
+            turned.cam_from_ref(1).translation,
+        );
+        assert!((t0 - t1).length() < 1e-12, "the turn alone: {t0} {t1}");
+        assert!(
+            !Arc::ptr_eq(&first, &kept.for_rig(&turned).unwrap()),
+            "a turn"
+        );
     }
 
     /// The bench's raw pair with camera 1 also pitched down by a degree (the rectified rows

@@ -181,6 +181,21 @@ fn a_surface_at_the_ranges_end_keeps_its_depth() {
             ..params(rectify)
         };
         let maps = engine.run_views(&rig, &images, &params).expect("sweep");
+        // No depth comes out of the range, nor with the range's end inside the wall.
+        let short = SweepParams {
+            max_depth_m: f64::from(farthest) * 0.99,
+            ..params.clone()
+        };
+        let cut = engine.run_views(&rig, &images, &short).expect("sweep");
+        for (p, maps) in [(&params, &maps), (&short, &cut)] {
+            let range = p.min_depth_m as f32..=p.max_depth_m as f32;
+            let out = maps
+                .depth_m
+                .data
+                .iter()
+                .filter(|z| !z.is_nan() && !range.contains(z));
+            assert_eq!(out.count(), 0, "rectify {rectify}: depth outside {range:?}");
+        }
         // The wall's pixels (the box is outside the range).
         let wall = |t: &f32| *t > 3.5;
         let (mut kept, mut all) = (0usize, 0usize);
