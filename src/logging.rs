@@ -223,4 +223,50 @@ mod tests {
         assert!(limit.admit("rustdds_like", a(), t0));
         assert!(limit.admit("rustdds_like", a(), t0));
     }
+    /// Lines of the `log` crate (as RustDDS and ros2-client make them) through a subscriber
+    /// with the layer: one per file and line per interval, each line its own budget, other
+    /// crates' lines all through.
+    #[test]
+    fn log_crate_lines_are_limited_per_file_and_line() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        use std::sync::Arc;
+        struct Count(Arc<AtomicUsize>);
+        impl<S: Subscriber> Layer<S> for Count {
+            fn on_event(&self, _: &Event<'_>, _: Context<'_, S>) {
+                self.0.fetch_add(1, Ordering::SeqCst);
+            }
+        }
+        let seen = Arc::new(AtomicUsize::new(0));
+        let subscriber = tracing_subscriber::registry()
+            .with(RateLimitDds::default())
+            .with(Count(seen.clone()));
+        let line = |target: &str, line: u32| {
+            let record = tracing_log::log::Record::builder()
+                .target(target)
+                .level(tracing_log::log::Level::Warn)
+                .file(Some("src/dds/with_key/datawriter.rs"))
+                .line(Some(line))
+                .args(format_args!("a warning"))
+                .build();
+            let before = seen.load(Ordering::SeqCst);
+            tracing_log::format_trace(&record).expect("traced");
+            seen.load(Ordering::SeqCst) > before
+        };
+        tracing::subscriber::with_default(subscriber, || {
+            assert!(line("rustdds::dds::with_key::datawriter", 10));
+            assert!(
+                line("rustdds::dds::with_key::datawriter", 20),
+                "another line"
+            );
+            assert!(!line("rustdds::dds::with_key::datawriter", 10), "again");
+            assert!(!line("rustdds::dds::with_key::datawriter", 20), "again");
+            assert!(line("ros2_client::node", 30));
+            assert!(!line("ros2_client::node", 30), "ros2-client's too");
+            assert!(line("wgpu_core::device", 10));
+            assert!(
+                line("wgpu_core::device", 10),
+                "other crates' lines are not limited"
+            );
+        });
+    }
 }

@@ -548,9 +548,14 @@ mod tests {
         let d = describe(&a, USE_SIM_TIME);
         assert!(!d.read_only && d.r#type == 1 && d.description.contains("/clock"));
         let types = a.types(&GetParameterTypesRequest {
-            names: vec!["num_planes".into(), "cameras".into(), "nope".into()],
+            names: vec![
+                "num_planes".into(),
+                "cameras".into(),
+                "nope".into(),
+                USE_SIM_TIME.into(),
+            ],
         });
-        assert_eq!(types.values, [2, 9, 0]);
+        assert_eq!(types.values, [2, 9, 0, 1]);
     }
 
     #[test]

@@ -341,6 +341,27 @@ mod tests {
         let grey = |v: u8| grey_image(w, h, |_, _| f64::from(v));
         let rgb: Vec<u8> = (0..w * h).flat_map(|_| [150u8, 150, 150]).collect();
         let mono = vec![100u8; (w * h) as usize];
+        // Channel order: blue bytes read as bgr8 are blue, as rgb8 red, each as its RGBA
+        // twin's grey.
+        let blue_first: Vec<u8> = (0..w * h).flat_map(|_| [255u8, 0, 0]).collect();
+        for (format, twin) in [
+            (PackedFormat::Bgr8, Rgba8Image::pack(0, 0, 255)),
+            (PackedFormat::Rgb8, Rgba8Image::pack(255, 0, 0)),
+        ] {
+            let set = [
+                packed(&blue_first, format, w, h),
+                packed(&mono, PackedFormat::Mono8, w, h),
+            ];
+            let ratio = brightness_ratio(SetImages::Cameras {
+                set: &set,
+                picked: None,
+            });
+            let expected = f64::from(luma(Rgba8Image::pack(100, 100, 100))) / f64::from(luma(twin));
+            assert!(
+                (ratio - expected).abs() < 1e-9,
+                "{format:?}: {ratio} against {expected}"
+            );
+        }
         fn packed(bytes: &[u8], format: PackedFormat, w: u32, h: u32) -> CameraImage<'_> {
             CameraImage::Packed(PackedImage {
                 width: w,
