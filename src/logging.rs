@@ -22,9 +22,20 @@ pub const DDS_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// A layer that lets at most one event per call site of the DDS libraries through per
 /// [`DDS_LOG_INTERVAL`] (any level); every other event passes untouched.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct RateLimitDds {
     last: Mutex<HashMap<SiteKey, Instant>>,
+    /// [`DDS_LOG_INTERVAL`] (tests: longer than any test runs).
+    interval: Duration,
+}
+
+impl Default for RateLimitDds {
+    fn default() -> Self {
+        RateLimitDds {
+            last: Mutex::default(),
+            interval: DDS_LOG_INTERVAL,
+        }
+    }
 }
 
 /// Where an event was made: its call site, or for a line of the `log` crate (RustDDS,
@@ -46,7 +57,7 @@ impl RateLimitDds {
         }
         let mut last = self.last.lock().unwrap_or_else(|e| e.into_inner());
         match last.get(&id) {
-            Some(at) if now.duration_since(*at) < DDS_LOG_INTERVAL => false,
+            Some(at) if now.duration_since(*at) < self.interval => false,
             _ => {
                 last.insert(id, now);
                 true
@@ -237,8 +248,13 @@ mod tests {
             }
         }
         let seen = Arc::new(AtomicUsize::new(0));
+        // A line is refused again however slowly the test runs.
+        let limit = RateLimitDds {
+            interval: Duration::MAX,
+            ..RateLimitDds::default()
+        };
         let subscriber = tracing_subscriber::registry()
-            .with(RateLimitDds::default())
+            .with(limit)
             .with(Count(seen.clone()));
         let line = |target: &str, line: u32| {
             let record = tracing_log::log::Record::builder()

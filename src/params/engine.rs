@@ -21,7 +21,7 @@ use super::ParamError;
 use crate::ros::param_value::{ParamKind, ParamValue};
 use crate::sweep::gpu_types::{MAX_BEST_N, MAX_HALF_BEST_N, MAX_RIG_CAMERAS};
 use crate::sweep::{
-    Aggregation, Cost, Optimizer, PairSet, Prefilter, Scoring, SweepParams, WindowMode,
+    Aggregation, Cost, Optimizer, PairSet, Prefilter, Scoring, SweepParams, WindowMode, MAX_PLANES,
 };
 
 /// The command-line option of an engine parameter.
@@ -208,7 +208,7 @@ engine_params! {
         "Nearest depth swept, metres (must be < max_depth).";
     max_depth_m: f64 = 10.0, "max_depth", Long("max-depth"), ParamRange::above(0.0),
         "Farthest depth swept, metres.";
-    num_planes: u32 = 64, "num_planes", Long("planes"), ParamRange::ints(2, 4096),
+    num_planes: u32 = 64, "num_planes", Long("planes"), ParamRange::ints(2, i64::from(MAX_PLANES)),
         "Number of depth planes, uniform in inverse depth (with optimizer sgm at most 1024). Neighbouring planes more than 2 px apart in a reference's widest view lose much of the depth: warned, with the count that puts them 1 px apart.";
     // The cost, the window and the SGM penalties were chosen together on the evaluation sets
     // (docs/quality.md, CHANGELOG.md).

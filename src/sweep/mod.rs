@@ -134,6 +134,10 @@ pub enum Optimizer {
 /// trajectory the 8 best views beat every fifth frame and all frames (docs/engine.md).
 pub const AUTO_NEIGHBOURS: usize = 8;
 
+/// The most planes a sweep takes (`num_planes`; SGM's own limit is
+/// [`gpu_types::MAX_SGM_PLANES`]).
+pub const MAX_PLANES: u32 = 4096;
+
 /// Engine parameters. Their defaults (measured best on the shared data, see docs/quality.md), node
 /// parameter names, command-line options, ranges and descriptions are declared once, in
 /// `src/params/engine.rs`, which also implements `Default` for this struct.
@@ -368,9 +372,9 @@ impl SweepParams {
     pub fn validate_shape(&self, shape: RigShape) -> Result<(), SweepError> {
         let bad = |m: String| Err(SweepError::InvalidParams(m));
         self.check_depth_range()?;
-        if self.num_planes < 2 || self.num_planes > 4096 {
+        if self.num_planes < 2 || self.num_planes > MAX_PLANES {
             return bad(format!(
-                "num_planes must be in 2..=4096, got {}",
+                "num_planes must be in 2..={MAX_PLANES}, got {}",
                 self.num_planes
             ));
         }

@@ -26,7 +26,7 @@ use glam::{DMat3, DQuat, DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::gpu_types::MAX_SGM_PLANES;
-use super::{selection, DepthMaps, Optimizer, SweepError, SweepParams, WantedMaps};
+use super::{selection, DepthMaps, Optimizer, SweepError, SweepParams, WantedMaps, MAX_PLANES};
 use crate::geometry::{CameraModel, PinholeIntrinsics, Reference, Rig, RigCamera, RigidTransform};
 use crate::image::{ImageF32, Rgba8Image};
 
@@ -41,8 +41,6 @@ pub const MIN_ZOOM: f64 = 0.75;
 /// Neighbours within this share of each other are interpolated on the way back.
 const AGREE: f32 = 0.02;
 
-/// The most planes a rectified sweep widens to without SGM (the parameters' own limit).
-const MAX_PLANES: u32 = 4096;
 /// The rectified grids the CPU engine keeps (a rig's references each have their own).
 const KEPT: usize = 16;
 /// Relative poses this close are one (a moving rig's poses composed from its motion differ in
