@@ -37,8 +37,14 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       keep last 1, as `ros2 bag play --clock`), from 1000 s on at the wall clock's pace, and listens to the node's /diagnostics
       and /rosout. Waits for two /diagnostics of the node stamped in simulated time, sets
       num_planes (a /rosout line at simulated time), reads use_sim_time, sets it false and
-      waits for two /diagnostics stamped in wall time. Prints {"event": "clock", ...}: every
-      stamp with the simulated and wall "now" it was received at.
+      waits for two /diagnostics stamped in wall time; listens to /parameter_events meanwhile
+      (the node's event of num_planes). Prints {"event": "clock", ...}: every stamp with the
+      simulated and wall "now" it was received at.
+  fuse-clock NODE_FQN CLOCK_TOPIC
+      A simulator's clock on a remapped topic, for `sweepdepth fuse` (which serves no
+      parameters): the simulated clock as in `clock` on CLOCK_TOPIC, a decoy clock from 5000 s
+      on /clock; waits for two /diagnostics of the fuse node stamped in either simulated time.
+      Prints {"event": "fuse-clock", "diagnostics": [...]}.
 
 Exit status: 0 done, 2 timeout, 3 bad setup or arguments, 4 rclpy missing.
 
@@ -83,7 +89,8 @@ try:
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image
     from builtin_interfaces.msg import Time
-    from rcl_interfaces.msg import Log, Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.msg import (Log, Parameter, ParameterEvent, ParameterType,
+                                     ParameterValue)
     from rcl_interfaces.srv import (DescribeParameters, GetParameters, GetParameterTypes,
                                     ListParameters, SetParameters)
     from diagnostic_msgs.msg import DiagnosticArray
@@ -479,82 +486,133 @@ def run_probe(node: Node, fqn: str) -> None:
 
 
 SIM_BASE_NS = 1000 * 1_000_000_000
+# The decoy clock of `fuse-clock`, on the topic the remap replaces.
+DECOY_BASE_NS = 5000 * 1_000_000_000
+
+
+class SimClock:
+    """rosgraph_msgs/Clock published every 50 ms from `base_ns` on at the wall clock's pace, best
+    effort keep last 1 (rosbag2's player, rclcpp's ClockQoS)."""
+
+    def __init__(self, node: Node, topic: str, base_ns: int) -> None:
+        from rosgraph_msgs.msg import Clock
+
+        self.base_ns = base_ns
+        self.started = time.monotonic()
+        self.stop = threading.Event()
+        pub = node.create_publisher(
+            Clock, topic, QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+        def publish() -> None:
+            while not self.stop.is_set():
+                t = self.now_ns()
+                pub.publish(Clock(clock=Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)))
+                time.sleep(0.05)
+
+        threading.Thread(target=publish, daemon=True).start()
+
+    def now_ns(self) -> int:
+        return self.base_ns + int((time.monotonic() - self.started) * 1e9)
+
+
+def spin_until(node: Node, what: str, done) -> None:
+    deadline = time.monotonic() + test_timeout()
+    while not done():
+        if time.monotonic() > deadline:
+            fail(2, f"no {what} within {test_timeout()} s")
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
+def diagnostics_of(node: Node, status_name: str, received) -> tuple[list, object]:
+    """The /diagnostics of one status name, each as `received(stamp)` makes it."""
+    got: list[dict] = []
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        if any(s.name == status_name for s in msg.status):
+            got.append(received(msg.header.stamp))
+
+    return got, node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, default_qos())
 
 
 def run_clock(node: Node, fqn: str) -> None:
-    from rosgraph_msgs.msg import Clock
-
-    started = time.monotonic()
-
-    def sim_ns() -> int:
-        return SIM_BASE_NS + int((time.monotonic() - started) * 1e9)
-
-    # As rosbag2's player and rclcpp's ClockQoS: best effort, keep last 1.
-    clock_pub = node.create_publisher(
-        Clock, "/clock", QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-    stop = threading.Event()
-
-    def publish() -> None:
-        while not stop.is_set():
-            t = sim_ns()
-            clock_pub.publish(Clock(clock=Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)))
-            time.sleep(0.05)
-
-    threading.Thread(target=publish, daemon=True).start()
+    clock = SimClock(node, "/clock", SIM_BASE_NS)
+    sim_ns = clock.now_ns
     logger = fqn.strip("/").replace("/", ".")
-    diagnostics: list[dict] = []
     rosout: list[dict] = []
+    parameter_events: list[dict] = []
 
     def received(stamp) -> dict:
         return {"stamp_ns": stamp_ns(stamp), "sim_ns": sim_ns(), "wall_ns": time.time_ns()}
 
-    def on_diag(msg: DiagnosticArray) -> None:
-        if any(s.name == f"sweepdepth: {fqn}" for s in msg.status):
-            diagnostics.append(received(msg.header.stamp))
+    diagnostics, diag_sub = diagnostics_of(node, f"sweepdepth: {fqn}", received)
 
     def on_rosout(msg: Log) -> None:
         if msg.name == logger:
             rosout.append({**received(msg.stamp), "msg": msg.msg})
 
-    subs = [node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, default_qos()),
-            node.create_subscription(Log, "/rosout", on_rosout, QoSProfile(depth=1000))]
-    deadline = time.monotonic() + test_timeout()
+    def on_parameter_event(msg: ParameterEvent) -> None:
+        if msg.node == fqn:
+            parameter_events.append({**received(msg.stamp), "changed": [
+                p.name for p in msg.changed_parameters]})
 
-    def spin_until(what: str, done) -> None:
-        while not done():
-            if time.monotonic() > deadline:
-                fail(2, f"no {what} within {test_timeout()} s")
-            rclpy.spin_once(node, timeout_sec=0.1)
+    subs = [diag_sub,
+            node.create_subscription(Log, "/rosout", on_rosout, QoSProfile(depth=1000)),
+            node.create_subscription(ParameterEvent, "/parameter_events", on_parameter_event,
+                                     QoSProfile(depth=1000))]
 
     def simulated(d: dict) -> bool:
         return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**12
 
-    spin_until("two /diagnostics in simulated time",
+    spin_until(node, "two /diagnostics in simulated time",
                lambda: sum(simulated(d) for d in diagnostics) >= 2)
     sim_diagnostics = list(diagnostics)
     set_planes = set_param(node, fqn, "num_planes", ParameterValue(
         type=ParameterType.PARAMETER_INTEGER, integer_value=20))
-    spin_until("the /rosout line of num_planes", lambda: any(
-        "num_planes" in line["msg"] for line in rosout))
+    spin_until(node, "the /rosout line and the /parameter_events entry of num_planes",
+               lambda: any("num_planes" in line["msg"] for line in rosout)
+               and any("num_planes" in e["changed"] for e in parameter_events))
     got = call(node, GetParameters, f"{fqn}/get_parameters",
                GetParameters.Request(names=["use_sim_time"]))
     use_sim_time = value_json(got.values[0])
     set_false = set_param(node, fqn, "use_sim_time", ParameterValue(
         type=ParameterType.PARAMETER_BOOL, bool_value=False))
     diagnostics.clear()
-    spin_until("two /diagnostics in wall time",
+    spin_until(node, "two /diagnostics in wall time",
                lambda: sum(d["stamp_ns"] > 1_600_000_000 * 10**9 for d in diagnostics) >= 2)
-    stop.set()
+    clock.stop.set()
     emit({"event": "clock", "sim_diagnostics": sim_diagnostics, "set_planes": set_planes,
           "use_sim_time": use_sim_time, "set_false": set_false,
-          "wall_diagnostics": list(diagnostics), "rosout": rosout})
+          "wall_diagnostics": list(diagnostics), "rosout": rosout,
+          "parameter_events": parameter_events})
     del subs
+
+
+def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
+    clock = SimClock(node, clock_topic, SIM_BASE_NS)
+    decoy = SimClock(node, "/clock", DECOY_BASE_NS)
+
+    def received(stamp) -> dict:
+        return {"stamp_ns": stamp_ns(stamp), "sim_ns": clock.now_ns(),
+                "decoy_ns": decoy.now_ns(), "wall_ns": time.time_ns()}
+
+    diagnostics, sub = diagnostics_of(node, f"sweepdepth fuse: {fqn}", received)
+
+    def simulated(d: dict) -> bool:
+        return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**15
+
+    spin_until(node, "two /diagnostics of the fuse node in simulated time",
+               lambda: sum(simulated(d) for d in diagnostics) >= 2)
+    clock.stop.set()
+    decoy.stop.set()
+    emit({"event": "fuse-clock", "diagnostics": diagnostics})
+    del sub
 
 
 def main() -> None:
     args = sys.argv[1:]
     if not args:
-        fail(3, "usage: rclpy_peer.py latency TOPICS | image-pub TOPIC W H | drive DIR | probe NODE_FQN | clock NODE_FQN")
+        fail(3, "usage: rclpy_peer.py latency TOPICS | image-pub TOPIC W H | drive DIR | probe NODE_FQN | clock NODE_FQN | "
+             "fuse-clock NODE_FQN CLOCK_TOPIC")
     mode, rest = args[0], args[1:]
     rclpy.init(args=None)
     node = Node("sweepdepth_rclpy_peer")
@@ -569,6 +627,8 @@ def main() -> None:
             run_probe(node, rest[0])
         elif mode == "clock" and len(rest) == 1:
             run_clock(node, rest[0])
+        elif mode == "fuse-clock" and len(rest) == 2:
+            run_fuse_clock(node, rest[0], rest[1])
         else:
             fail(3, f"bad arguments {args}")
     except KeyboardInterrupt:

@@ -63,6 +63,14 @@ fn rclpy_sim_time_from_clock() {
 }
 
 #[test]
+fn rclpy_fuse_sim_time_from_a_remapped_clock() {
+    run(
+        "node_rclpy::rclpy_fuse_sim_time_from_a_remapped_clock",
+        fuse_sim_time_from_a_remapped_clock,
+    );
+}
+
+#[test]
 fn rclpy_depth_640x480_best_effort_driver() {
     run("node_rclpy::rclpy_depth_640x480_best_effort_driver", || {
         depth_run(640, 480, false)
@@ -286,8 +294,13 @@ impl Node {
             args.push("-p".into());
             args.push(p.to_string());
         }
+        Node::spawn(&args)
+    }
+
+    /// `sweepdepth` with these arguments, in the tests' domain.
+    fn spawn(args: &[String]) -> Node {
         let mut child = Command::new(env!("CARGO_BIN_EXE_sweepdepth"))
-            .args(&args)
+            .args(args)
             .env("ROS_DOMAIN_ID", DOMAIN)
             .env(
                 "RUST_LOG",
@@ -718,6 +731,23 @@ fn sim_time_from_clock() {
         stamp >= SIM_BASE_NS && stamp <= now,
         "the /rosout line of num_planes at {stamp} ns, simulated now {now} ns: {v}"
     );
+    // rcl stamps /parameter_events on the node's clock: simulated time here.
+    let entry = v["parameter_events"]
+        .as_array()
+        .and_then(|events| {
+            events.iter().find(|e| {
+                e["changed"]
+                    .as_array()
+                    .is_some_and(|c| c.iter().any(|n| n == "num_planes"))
+            })
+        })
+        .cloned()
+        .unwrap_or_default();
+    let (stamp, now) = (ns(&entry, "stamp_ns"), ns(&entry, "sim_ns"));
+    assert!(
+        stamp >= SIM_BASE_NS && stamp <= now,
+        "the /parameter_events entry of num_planes at {stamp} ns, simulated now {now} ns: {v}"
+    );
     assert_eq!(v["use_sim_time"], true, "{v}");
     assert_eq!(v["set_false"]["successful"], true, "{v}");
     let wall = v["wall_diagnostics"]
@@ -736,6 +766,63 @@ fn sim_time_from_clock() {
         "no log line of the switch"
     );
     // The node's second /clock reader (ros2-client's spinner reads it as a Time) is no error.
+    let errors: Vec<String> = node
+        .lines()
+        .into_iter()
+        .filter(|l| l.contains("ERROR"))
+        .collect();
+    assert!(errors.is_empty(), "{errors:?}");
+}
+
+/// `sweepdepth fuse` with `use_sim_time:=true` and `/clock` remapped (`-r /clock:=/sim/clock`):
+/// its `/diagnostics` are stamped from the remapped clock, never from a second clock on `/clock`
+/// (the peer runs both: 1000 s on, 5000 s on).
+fn fuse_sim_time_from_a_remapped_clock() {
+    const FQN: &str = "/fused/sweepdepth_fuse";
+    let args = [
+        "fuse",
+        "--ros-args",
+        "-r",
+        "__ns:=/fused",
+        "-p",
+        "depth_topics:=[/a/depth/image]",
+        "-p",
+        "world_frame:=map",
+        "-p",
+        "use_sim_time:=true",
+        "-r",
+        "/clock:=/sim/clock",
+    ];
+    let node = Node::spawn(&args.map(String::from));
+    let mut peer = Peer::start(
+        "rclpy fuse clock",
+        DOMAIN,
+        &["fuse-clock", FQN, "/sim/clock"],
+        &[],
+    );
+    let v = peer.wait_for(
+        rclpy::test_timeout() * 2,
+        "the fuse-clock result",
+        |v| event(v) == "fuse-clock",
+        |_| {},
+    );
+    const SIM_BASE_NS: i64 = 1000 * 1_000_000_000;
+    const DECOY_BASE_NS: i64 = 5000 * 1_000_000_000;
+    let ns = |d: &Value, key: &str| d[key].as_i64().unwrap_or(-1);
+    let all = v["diagnostics"].as_array().cloned().unwrap_or_default();
+    let simulated = all
+        .iter()
+        .filter(|d| ns(d, "stamp_ns") >= SIM_BASE_NS)
+        .count();
+    assert!(simulated >= 2, "{v}");
+    for d in &all {
+        let (stamp, now) = (ns(d, "stamp_ns"), ns(d, "sim_ns"));
+        // Zero before the first message of the remapped clock, then one of its times.
+        assert!(
+            stamp == 0 || (stamp >= SIM_BASE_NS && stamp <= now && stamp < DECOY_BASE_NS),
+            "a /diagnostics stamp {stamp} ns received at simulated {now} ns: {v}"
+        );
+    }
     let errors: Vec<String> = node
         .lines()
         .into_iter()
