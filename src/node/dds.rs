@@ -56,7 +56,7 @@ pub(super) fn run(
             }
         })?;
     let mut node = context
-        .new_node(node_name, node_options())
+        .new_node(node_name, node_options(true))
         .map_err(ros_err)?;
     let param_services =
         ParamServices::new(&mut node, &pipeline.identity.fqn(), Arc::clone(shared.live))?;

@@ -236,7 +236,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
             reason: format!("{e:?}"),
         })?;
     let mut node = context
-        .new_node(node_name, node_options())
+        .new_node(node_name, node_options(false))
         .map_err(ros_err)?;
     // Depth publishers are reliable (sweepdepth, stereo_image_proc) or best effort (camera
     // drivers): a best-effort subscription matches both.

@@ -159,12 +159,18 @@ impl LiveParams {
     }
 }
 
-/// The node's options: rosout on; the parameter services are ours
-/// ([`super::param_services`]), not ros2-client's (which cannot serve descriptors).
-pub(super) fn node_options() -> NodeOptions {
+/// A node's options: rosout on; the parameter services are ours
+/// ([`super::param_services`]), not ros2-client's (which cannot serve descriptors); `/clock` is
+/// read by the node itself ([`super::topics::subscribe_clock`]: `rosgraph_msgs/Clock`, best
+/// effort, remapped), not by ros2-client's spinner (`builtin_interfaces/Time`, reliable).
+/// `own_parameter_events`: the node publishes `/parameter_events` itself, so ros2-client makes
+/// no second writer (an rcl node has one).
+pub(super) fn node_options(own_parameter_events: bool) -> NodeOptions {
     NodeOptions::new()
         .enable_rosout(true)
         .start_parameter_services(false)
+        .publish_parameter_events(!own_parameter_events)
+        .read_clock(false)
 }
 
 #[cfg(test)]

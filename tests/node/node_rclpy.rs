@@ -553,6 +553,30 @@ fn graph_parameters_rosout_diagnostics_sigint() {
             topics[topic]
         );
     }
+    // As an rcl node's: one /parameter_events writer (rcl's, here the node's own), and /clock
+    // of one type, rosgraph_msgs/Clock (ros2-client 0.12.1 alone adds a second writer and a
+    // /clock reader of builtin_interfaces/Time: vendor/ros2-client).
+    let ours_on = |kind: &str, topic: &str| -> Vec<Value> {
+        probe[kind][topic]
+            .as_array()
+            .cloned()
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|p| p["node_name"] == "sweepdepth" && p["node_namespace"] == "/rig")
+            .collect()
+    };
+    let events = ours_on("publishers", "/parameter_events");
+    assert_eq!(
+        events.len(),
+        1,
+        "the node's /parameter_events writers: {events:?}"
+    );
+    assert_eq!(
+        names(&topics["/clock"]),
+        vec!["rosgraph_msgs/msg/Clock".to_string()],
+        "/clock's types: {}",
+        topics["/clock"]
+    );
     let depth_pubs = probe["publishers"]["/rig/depth/image"]
         .as_array()
         .cloned()
@@ -765,7 +789,6 @@ fn sim_time_from_clock() {
             .any(|l| l.contains("use_sim_time") && l.contains("system clock")),
         "no log line of the switch"
     );
-    // The node's second /clock reader (ros2-client's spinner reads it as a Time) is no error.
     let errors: Vec<String> = node
         .lines()
         .into_iter()
