@@ -94,10 +94,10 @@ impl<S: Subscriber> Layer<S> for RateLimitDds {
 /// Where RustDDS says one participant announced a topic with two types.
 const TOPIC_TYPES_TARGET: &str = "rustdds::discovery::discovery_db";
 
-/// RustDDS's "Inconsistent topic update" between `/clock`'s two types in our own participant:
-/// ros2-client 0.12's spinner always reads `/clock` as `builtin_interfaces/Time`, which no rcl
-/// publisher matches, and the node reads it as `rosgraph_msgs/Clock` (`node::clock`). The two
-/// readers are meant; the line would come at every start.
+/// RustDDS's "Inconsistent topic update" between `/clock`'s two types: an unpatched ros2-client
+/// 0.12 process on the domain reads `/clock` as `builtin_interfaces/Time` in its spinner, the
+/// node as `rosgraph_msgs/Clock` (`node::clock`; its own spinner's reader is off:
+/// `vendor/ros2-client`). The same bytes either way, nothing to act on.
 fn is_benign(message: &str) -> bool {
     message.starts_with("Inconsistent topic update")
         && message.contains("\"rosgraph_msgs::msg::dds_::Clock_\"")

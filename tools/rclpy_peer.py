@@ -439,9 +439,15 @@ def run_probe(node: Node, fqn: str) -> None:
     while time.monotonic() < deadline and (name, ns) not in node.get_node_names_and_namespaces():
         rclpy.spin_once(node, timeout_sec=0.1)
     nodes = node.get_node_names_and_namespaces()
-    # The graph fills in as discovery goes on: wait for the node's output topics.
+    # The graph fills in as discovery goes on (publications and subscriptions on streams of
+    # their own): wait for the node's depth output and its /clock subscription.
     want = f"{ns.rstrip('/')}/depth/image"
-    while time.monotonic() < deadline and want not in dict(node.get_topic_names_and_types()):
+
+    def seen() -> bool:
+        return want in dict(node.get_topic_names_and_types()) and any(
+            i.node_name == name for i in node.get_subscriptions_info_by_topic("/clock"))
+
+    while time.monotonic() < deadline and not seen():
         rclpy.spin_once(node, timeout_sec=0.1)
     topics = {t: list(types) for t, types in node.get_topic_names_and_types()}
 
@@ -476,8 +482,12 @@ def run_probe(node: Node, fqn: str) -> None:
     }
     after = call(node, GetParameters, f"{fqn}/get_parameters",
                  GetParameters.Request(names=["num_planes", "cameras"]))
+    # /clock's types again after the service calls: a reader made later than the node's own
+    # (a spinner's) is in the graph by now.
+    clock_types_late = dict(node.get_topic_names_and_types()).get("/clock", [])
     emit({
         "event": "probe", "nodes": [list(n) for n in nodes], "topics": topics,
+        "clock_types_late": list(clock_types_late),
         "publishers": pubs, "subscriptions": subs, "parameters": values,
         "types": dict(zip(names, [int(t) for t in types])), "descriptors": descriptors,
         "sets": sets, "after": {"num_planes": value_json(after.values[0]),
@@ -515,8 +525,9 @@ class SimClock:
         return self.base_ns + int((time.monotonic() - self.started) * 1e9)
 
 
-def spin_until(node: Node, what: str, done) -> None:
-    deadline = time.monotonic() + test_timeout()
+def spin_until(node: Node, deadline: float, what: str, done) -> None:
+    """Spins until `done()`; fails once the monotonic clock passes `deadline` (one per mode: the
+    tests' one limit)."""
     while not done():
         if time.monotonic() > deadline:
             fail(2, f"no {what} within {test_timeout()} s")
@@ -563,12 +574,13 @@ def run_clock(node: Node, fqn: str) -> None:
     def simulated(d: dict) -> bool:
         return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**12
 
-    spin_until(node, "two /diagnostics in simulated time",
+    deadline = time.monotonic() + test_timeout()
+    spin_until(node, deadline, "two /diagnostics in simulated time",
                lambda: sum(simulated(d) for d in diagnostics) >= 2)
     sim_diagnostics = list(diagnostics)
     set_planes = set_param(node, fqn, "num_planes", ParameterValue(
         type=ParameterType.PARAMETER_INTEGER, integer_value=20))
-    spin_until(node, "the /rosout line and the /parameter_events entry of num_planes",
+    spin_until(node, deadline, "the /rosout line and the /parameter_events entry of num_planes",
                lambda: any("num_planes" in line["msg"] for line in rosout)
                and any("num_planes" in e["changed"] for e in parameter_events))
     got = call(node, GetParameters, f"{fqn}/get_parameters",
@@ -577,7 +589,7 @@ def run_clock(node: Node, fqn: str) -> None:
     set_false = set_param(node, fqn, "use_sim_time", ParameterValue(
         type=ParameterType.PARAMETER_BOOL, bool_value=False))
     diagnostics.clear()
-    spin_until(node, "two /diagnostics in wall time",
+    spin_until(node, deadline, "two /diagnostics in wall time",
                lambda: sum(d["stamp_ns"] > 1_600_000_000 * 10**9 for d in diagnostics) >= 2)
     clock.stop.set()
     emit({"event": "clock", "sim_diagnostics": sim_diagnostics, "set_planes": set_planes,
@@ -600,7 +612,8 @@ def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
     def simulated(d: dict) -> bool:
         return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**15
 
-    spin_until(node, "two /diagnostics of the fuse node in simulated time",
+    spin_until(node, time.monotonic() + test_timeout(),
+               "two /diagnostics of the fuse node in simulated time",
                lambda: sum(simulated(d) for d in diagnostics) >= 2)
     clock.stop.set()
     decoy.stop.set()

@@ -162,7 +162,8 @@ impl LiveParams {
 /// A node's options: rosout on; the parameter services are ours
 /// ([`super::param_services`]), not ros2-client's (which cannot serve descriptors); `/clock` is
 /// read by the node itself ([`super::topics::subscribe_clock`]: `rosgraph_msgs/Clock`, best
-/// effort, remapped), not by ros2-client's spinner (`builtin_interfaces/Time`, reliable).
+/// effort, remapped), not by ros2-client's spinner (`builtin_interfaces/Time`, never remapped:
+/// a second type on `/clock` in the graph).
 /// `own_parameter_events`: the node publishes `/parameter_events` itself, so ros2-client makes
 /// no second writer (an rcl node has one).
 pub(super) fn node_options(own_parameter_events: bool) -> NodeOptions {
