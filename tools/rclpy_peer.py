@@ -38,8 +38,11 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       and /rosout. Waits for two /diagnostics of the node stamped in simulated time, sets
       num_planes (a /rosout line at simulated time), reads use_sim_time, sets it false and
       waits for two /diagnostics stamped in wall time; listens to /parameter_events meanwhile
-      (the node's event of num_planes). Prints {"event": "clock", ...}: every stamp with the
-      simulated and wall "now" it was received at.
+      (the node's event of num_planes). The node's /clock readers in the graph while
+      use_sim_time is on, and once it is off (waits until there are none); then sets it true
+      again and waits for the node's reader and a /diagnostics stamped after the switch, in
+      simulated time. Prints {"event": "clock", ...}: every stamp with the simulated and wall
+      "now" it was received at.
   fuse-clock NODE_FQN CLOCK_TOPIC
       A simulator's clock on a remapped topic, for `sweepdepth fuse` (which serves no
       parameters): the simulated clock as in `clock` on CLOCK_TOPIC, a decoy clock from 5000 s
@@ -440,12 +443,13 @@ def run_probe(node: Node, fqn: str) -> None:
         rclpy.spin_once(node, timeout_sec=0.1)
     nodes = node.get_node_names_and_namespaces()
     # The graph fills in as discovery goes on (publications and subscriptions on streams of
-    # their own): wait for the node's depth output and its /clock subscription.
+    # their own): wait for the node's depth output and its subscription of cam0's images.
     want = f"{ns.rstrip('/')}/depth/image"
+    images = f"{ns.rstrip('/')}/cam0/image_raw"
 
     def seen() -> bool:
         return want in dict(node.get_topic_names_and_types()) and any(
-            i.node_name == name for i in node.get_subscriptions_info_by_topic("/clock"))
+            i.node_name == name for i in node.get_subscriptions_info_by_topic(images))
 
     while time.monotonic() < deadline and not seen():
         rclpy.spin_once(node, timeout_sec=0.1)
@@ -482,12 +486,13 @@ def run_probe(node: Node, fqn: str) -> None:
     }
     after = call(node, GetParameters, f"{fqn}/get_parameters",
                  GetParameters.Request(names=["num_planes", "cameras"]))
-    # /clock's types again after the service calls: a reader made later than the node's own
-    # (a spinner's) is in the graph by now.
+    # /clock again after the service calls: a reader made later than the node's others (a
+    # spinner's) is in the graph by now.
     clock_types_late = dict(node.get_topic_names_and_types()).get("/clock", [])
+    clock_readers_late = endpoints(node.get_subscriptions_info_by_topic("/clock"))
     emit({
         "event": "probe", "nodes": [list(n) for n in nodes], "topics": topics,
-        "clock_types_late": list(clock_types_late),
+        "clock_types_late": list(clock_types_late), "clock_readers_late": clock_readers_late,
         "publishers": pubs, "subscriptions": subs, "parameters": values,
         "types": dict(zip(names, [int(t) for t in types])), "descriptors": descriptors,
         "sets": sets, "after": {"num_planes": value_json(after.values[0]),
@@ -586,16 +591,42 @@ def run_clock(node: Node, fqn: str) -> None:
     got = call(node, GetParameters, f"{fqn}/get_parameters",
                GetParameters.Request(names=["use_sim_time"]))
     use_sim_time = value_json(got.values[0])
+    ns, _, name = fqn.rpartition("/")
+    ns = ns or "/"
+
+    def clock_readers() -> list:
+        return [{"topic_type": i.topic_type, "qos": qos_name(i.qos_profile)}
+                for i in node.get_subscriptions_info_by_topic("/clock")
+                if i.node_name == name and i.node_namespace == ns]
+
+    # The node has had /clock (its diagnostics were in simulated time): its reader is known.
+    spin_until(node, deadline, "the node's /clock reader in the graph", lambda: clock_readers())
+    readers_on = clock_readers()
     set_false = set_param(node, fqn, "use_sim_time", ParameterValue(
         type=ParameterType.PARAMETER_BOOL, bool_value=False))
     diagnostics.clear()
     spin_until(node, deadline, "two /diagnostics in wall time",
                lambda: sum(d["stamp_ns"] > 1_600_000_000 * 10**9 for d in diagnostics) >= 2)
+    wall_diagnostics = list(diagnostics)
+    spin_until(node, deadline, "the node's /clock reader gone from the graph",
+               lambda: not clock_readers())
+    # On again: a new reader, and the time from /clock's messages after the switch.
+    switched_on_ns = sim_ns()
+    set_true = set_param(node, fqn, "use_sim_time", ParameterValue(
+        type=ParameterType.PARAMETER_BOOL, bool_value=True))
+    diagnostics.clear()
+    spin_until(node, deadline, "a /diagnostics stamped in simulated time after the switch",
+               lambda: any(switched_on_ns <= d["stamp_ns"] < SIM_BASE_NS + 10**12
+                           for d in diagnostics))
+    spin_until(node, deadline, "the node's /clock reader back in the graph",
+               lambda: clock_readers())
     clock.stop.set()
     emit({"event": "clock", "sim_diagnostics": sim_diagnostics, "set_planes": set_planes,
           "use_sim_time": use_sim_time, "set_false": set_false,
-          "wall_diagnostics": list(diagnostics), "rosout": rosout,
-          "parameter_events": parameter_events})
+          "wall_diagnostics": wall_diagnostics, "rosout": rosout,
+          "parameter_events": parameter_events, "clock_readers_on": readers_on,
+          "set_true": set_true, "switched_on_ns": switched_on_ns,
+          "sim_again_diagnostics": list(diagnostics), "clock_readers_again": clock_readers()})
     del subs
 
 

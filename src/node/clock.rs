@@ -6,10 +6,13 @@
 //! `camera_timeout`) run on the monotonic clock whatever the parameter says.
 //!
 //! One clock per process (a process is one node), switched by the parameter at start and
-//! through the parameter services at run time.
+//! through the parameter services at run time. As an rcl node's time source, the depth node
+//! reads `/clock` only while `use_sim_time` is on (`sim_time.rs`).
 
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::task::Poll;
 
+use futures::task::AtomicWaker;
 use futures::StreamExt;
 use ros2_client::Subscription;
 
@@ -19,6 +22,8 @@ use crate::msgs::{Clock, Time};
 static SIMULATED: AtomicBool = AtomicBool::new(false);
 /// The last `/clock` time in nanoseconds (0 before the first).
 static LAST_NS: AtomicI64 = AtomicI64::new(0);
+/// Wakes the waiter of [`switched_from`] when `use_sim_time` changes.
+static SWITCHED: AtomicWaker = AtomicWaker::new();
 
 /// The tests that switch the process's clock, one at a time.
 #[cfg(test)]
@@ -26,7 +31,11 @@ pub(super) static TEST_SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 /// Sets `use_sim_time`; true when it changed.
 pub fn set_use_sim_time(on: bool) -> bool {
-    SIMULATED.swap(on, Ordering::Relaxed) != on
+    let changed = SIMULATED.swap(on, Ordering::Relaxed) != on;
+    if changed {
+        SWITCHED.wake();
+    }
+    changed
 }
 
 /// `use_sim_time`.
@@ -55,24 +64,37 @@ pub fn wall_time_now() -> Time {
     }
 }
 
-/// Takes a `/clock` message's time (kept whatever `use_sim_time` says, so that switching it
-/// on at run time has the time at once).
-fn on_clock(clock: &Clock) {
+/// Takes a `/clock` message's time.
+pub(super) fn on_clock(clock: &Clock) {
     LAST_NS.store(clock.clock.to_nanos(), Ordering::Relaxed);
 }
 
-/// Runs `spin` (the ros2-client spinner) and follows `/clock` (`topics::subscribe_clock`)
-/// beside it until `spin` ends.
+/// Resolves once `use_sim_time` is no longer `on` (one waiter at a time: `sim_time::follow_clock`).
+pub(super) async fn switched_from(on: bool) {
+    futures::future::poll_fn(|cx| {
+        SWITCHED.register(cx.waker());
+        match uses_sim_time() != on {
+            true => Poll::Ready(()),
+            false => Poll::Pending,
+        }
+    })
+    .await
+}
+
+/// Runs `spin` (the ros2-client spinner) and follows `/clock` through `clock` (the `fuse`
+/// node's, made where `use_sim_time` is on at start) beside it until `spin` ends.
 pub(super) async fn spin_following_clock<F: std::future::Future>(
     spin: F,
-    clock: Subscription<Clock>,
+    clock: Option<Subscription<Clock>>,
 ) -> F::Output {
     let follow = async {
-        let mut messages = Box::pin(clock.async_stream());
-        while let Some(message) = messages.next().await {
-            match message {
-                Ok((clock, _)) => on_clock(&clock),
-                Err(e) => tracing::debug!("/clock: {e:?}"),
+        if let Some(clock) = clock {
+            let mut messages = Box::pin(clock.async_stream());
+            while let Some(message) = messages.next().await {
+                match message {
+                    Ok((clock, _)) => on_clock(&clock),
+                    Err(e) => tracing::debug!("/clock: {e:?}"),
+                }
             }
         }
         futures::future::pending::<()>().await

@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use futures::StreamExt;
+use futures::{FutureExt, StreamExt};
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
@@ -21,6 +21,7 @@ use super::log::{lock, log_info, RateLimited, ROSOUT};
 use super::param_services::ParamServices;
 use super::params::node_options;
 use super::shutdown;
+use super::sim_time;
 use super::topics::{diagnostics_publisher, output_publishers, ros_err};
 use super::why::{Discovery, NoDepth};
 use super::worker::Outputs;
@@ -68,7 +69,6 @@ pub(super) fn run(
     *lock(&ROSOUT) = Some((node.logging_handle(), logger_name));
 
     let inputs = Inputs::subscribe(&mut node, config)?;
-    let clock_sub = super::topics::subscribe_clock(&mut node, &config.clock_topic)?;
     // One set of publishers per reference (`references`), in the configuration's order.
     let output_qos = QosProfile::publisher_default()
         .reliability_reliable(WhenFull::DEFAULT)
@@ -110,7 +110,7 @@ pub(super) fn run(
 
     let mut events = inputs.events();
     let spinner = node.spinner().map_err(ros_err)?;
-    spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
+    spin = Box::pin(spinner.spin());
     // SIGINT / SIGTERM (Ctrl-C, `ros2 launch` shutting down): leave the loop, so that the
     // publishers, subscriptions and the DDS participant are dropped cleanly. Installed before
     // the node says it is up, so a signal sent as soon as it is up is never the default action.
@@ -140,7 +140,11 @@ pub(super) fn run(
                 state.handle(event);
             }
         };
-        let params = param_services.serve();
+        // `/clock` while `use_sim_time` is on, beside the parameters that switch it.
+        let follow_clock = sim_time::follow_clock(&mut node, &config.clock_topic);
+        let params =
+            futures::future::select(Box::pin(param_services.serve()), Box::pin(follow_clock))
+                .map(|either| either.factor_first().0);
         let fusion_services = async {
             match &fusion {
                 Some(fusion) => fusion.serve().await,

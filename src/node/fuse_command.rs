@@ -299,7 +299,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
     let mut events = futures::stream::select_all(streams);
-    let clock_sub = super::topics::subscribe_clock(&mut node, &config.clock_topic)?;
+    let clock_sub = super::sim_time::clock_reader_at_start(&mut node, &config.clock_topic)?;
     let spinner = node.spinner().map_err(ros_err)?;
     spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
     let signals = shutdown::signals();

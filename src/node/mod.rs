@@ -37,6 +37,7 @@ pub mod param_services;
 pub mod params;
 mod sender;
 mod shutdown;
+mod sim_time;
 mod topics;
 mod why;
 mod worker;

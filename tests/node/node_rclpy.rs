@@ -553,9 +553,10 @@ fn graph_parameters_rosout_diagnostics_sigint() {
             topics[topic]
         );
     }
-    // As an rcl node's: one /parameter_events writer (rcl's, here the node's own), and /clock
-    // of one type, rosgraph_msgs/Clock (ros2-client 0.12.1 alone adds a second writer and a
-    // /clock reader of builtin_interfaces/Time: vendor/ros2-client).
+    // As an rcl node's: one /parameter_events writer (rcl's, here the node's own), and no
+    // /clock reader without use_sim_time (ros2-client 0.12.1 alone adds a second writer and a
+    // /clock reader of builtin_interfaces/Time: vendor/ros2-client). Nothing else here reads
+    // or writes /clock, so the topic is not in the graph at all.
     let ours_on = |kind: &str, topic: &str| -> Vec<Value> {
         probe[kind][topic]
             .as_array()
@@ -572,12 +573,10 @@ fn graph_parameters_rosout_diagnostics_sigint() {
         "the node's /parameter_events writers: {events:?}"
     );
     for types in [&topics["/clock"], &probe["clock_types_late"]] {
-        assert_eq!(
-            names(types),
-            vec!["rosgraph_msgs/msg/Clock".to_string()],
-            "/clock's types: {types}"
-        );
+        assert!(names(types).is_empty(), "/clock's types: {types}");
     }
+    let late = probe["clock_readers_late"].as_array().cloned();
+    assert_eq!(late, Some(Vec::new()), "/clock's readers: {probe}");
     let depth_pubs = probe["publishers"]["/rig/depth/image"]
         .as_array()
         .cloned()
@@ -709,7 +708,9 @@ fn graph_parameters_rosout_diagnostics_sigint() {
 
 /// `use_sim_time:=true` and a simulator's `/clock` (rclpy, rosgraph_msgs/Clock): the node's
 /// `/diagnostics` and `/rosout` are stamped in simulated time; `ros2 param set use_sim_time
-/// false` brings them back to the system clock.
+/// false` brings them back to the system clock and takes the node's `/clock` reader out of the
+/// graph (as an rcl node's time source); switched on again, a new reader brings the time from
+/// `/clock` again.
 fn sim_time_from_clock() {
     let dir = TempDir::new();
     let rig_file = write_scene(&dir.0, 160, 120, false, 1);
@@ -784,6 +785,29 @@ fn sim_time_from_clock() {
         .filter(|d| ns(d, "stamp_ns") > WALL_ERA_NS && ns(d, "stamp_ns") <= ns(d, "wall_ns"))
         .collect();
     assert!(on_wall.len() >= 2, "{v}");
+    // One reader of /clock while on, of the one type, best effort (rclcpp's ClockQoS; DDS
+    // discovery does not carry the history's depth); none once off (the peer waited for that); one again once on.
+    for key in ["clock_readers_on", "clock_readers_again"] {
+        let readers = v[key].as_array().cloned().unwrap_or_default();
+        assert_eq!(readers.len(), 1, "{key}: {v}");
+        assert_eq!(readers[0]["topic_type"], "rosgraph_msgs/msg/Clock", "{v}");
+        assert_eq!(readers[0]["qos"]["reliability"], "BEST_EFFORT", "{v}");
+    }
+    assert_eq!(v["set_true"]["successful"], true, "{v}");
+    // After the switch on, a stamp from a /clock message the new reader took: at or after
+    // the simulated time of the switch (the time kept from before is earlier).
+    let switched_on = ns(&v, "switched_on_ns");
+    let again = v["sim_again_diagnostics"]
+        .as_array()
+        .cloned()
+        .unwrap_or_default();
+    assert!(
+        again.iter().any(|d| {
+            let stamp = ns(d, "stamp_ns");
+            stamp >= switched_on && stamp <= ns(d, "sim_ns")
+        }),
+        "no /diagnostics from /clock after use_sim_time was switched on again: {v}"
+    );
     assert!(
         node.lines()
             .iter()

@@ -790,6 +790,15 @@ impl Node {
     }
   }
 
+  /// Takes `reader`, a subscription's reader the application has dropped, out of the node's
+  /// entities in `ros_discovery_info` (where rcl reads which node a reader belongs to), as rcl
+  /// does when a subscription is destroyed.
+  pub fn forget_reader(&mut self, reader: Gid) {
+    if self.readers.remove(&reader) && !self.suppress_node_info_updates {
+      self.ros_context.update_node(self.generate_node_info());
+    }
+  }
+
   fn add_writer(&mut self, writer: Gid) {
     self.writers.insert(writer);
     if !self.suppress_node_info_updates {
