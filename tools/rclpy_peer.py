@@ -46,8 +46,9 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
   fuse-clock NODE_FQN CLOCK_TOPIC
       A simulator's clock on a remapped topic, for `sweepdepth fuse` (which serves no
       parameters): the simulated clock as in `clock` on CLOCK_TOPIC, a decoy clock from 5000 s
-      on /clock; waits for two /diagnostics of the fuse node stamped in either simulated time.
-      Prints {"event": "fuse-clock", "diagnostics": [...]}.
+      on /clock; waits for two /diagnostics of the fuse node stamped in either simulated time
+      and for its /parameter_events writer. Prints {"event": "fuse-clock", "diagnostics":
+      [...], ...} with the node's /parameter_events writers and readers of both clocks.
 
 Exit status: 0 done, 2 timeout, 3 bad setup or arguments, 4 rclpy missing.
 
@@ -643,12 +644,25 @@ def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
     def simulated(d: dict) -> bool:
         return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**15
 
-    spin_until(node, time.monotonic() + test_timeout(),
-               "two /diagnostics of the fuse node in simulated time",
+    deadline = time.monotonic() + test_timeout()
+    spin_until(node, deadline, "two /diagnostics of the fuse node in simulated time",
                lambda: sum(simulated(d) for d in diagnostics) >= 2)
+    ns, _, name = fqn.rpartition("/")
+
+    def ours(infos) -> list:
+        return [{"topic_type": i.topic_type, "qos": qos_name(i.qos_profile)} for i in infos
+                if i.node_name == name and i.node_namespace == (ns or "/")]
+
+    # The node's other endpoints: its /parameter_events writer and /clock readers (the
+    # remapped one, none on /clock), once its /diagnostics came (its endpoints are known).
+    spin_until(node, deadline, "the fuse node's /parameter_events writer",
+               lambda: ours(node.get_publishers_info_by_topic("/parameter_events")))
     clock.stop.set()
     decoy.stop.set()
-    emit({"event": "fuse-clock", "diagnostics": diagnostics})
+    emit({"event": "fuse-clock", "diagnostics": diagnostics,
+          "parameter_events_writers": ours(node.get_publishers_info_by_topic("/parameter_events")),
+          "clock_readers": ours(node.get_subscriptions_info_by_topic(clock_topic)),
+          "decoy_readers": ours(node.get_subscriptions_info_by_topic("/clock"))})
     del sub
 
 

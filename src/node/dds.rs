@@ -57,7 +57,7 @@ pub(super) fn run(
             }
         })?;
     let mut node = context
-        .new_node(node_name, node_options(true))
+        .new_node(node_name, node_options())
         .map_err(ros_err)?;
     let param_services =
         ParamServices::new(&mut node, &pipeline.identity.fqn(), Arc::clone(shared.live))?;

@@ -236,26 +236,21 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
             reason: format!("{e:?}"),
         })?;
     let mut node = context
-        .new_node(node_name, node_options(false))
+        .new_node(node_name, node_options())
         .map_err(ros_err)?;
-    // Depth publishers are reliable (sweepdepth, stereo_image_proc) or best effort (camera
-    // drivers): a best-effort subscription matches both.
-    let depth_qos = QosProfile::subscription_default()
-        .reliability_best_effort()
-        .history(History::KeepLast { depth: 5 });
-    let info_qos = QosProfile::subscription_default()
+    // As every rcl node, one `/parameter_events` writer (the node serves no parameters: it
+    // publishes no event).
+    let _parameter_events = super::param_services::parameter_events_writer(&mut node)?;
+    // Depth publishers (and their camera_info) are reliable (sweepdepth, stereo_image_proc) or
+    // best effort (camera drivers): a best-effort subscription matches both.
+    let qos = QosProfile::subscription_default()
         .reliability_best_effort()
         .history(History::KeepLast { depth: 5 });
     let mut depth_subs = Vec::new();
     let mut info_subs = Vec::new();
     for (depth, info) in config.depth_topics.iter().zip(&config.info_topics) {
-        depth_subs.push(subscribe::<Image>(&mut node, depth, IMAGE, &depth_qos)?);
-        info_subs.push(subscribe::<CameraInfo>(
-            &mut node,
-            info,
-            CAMERA_INFO,
-            &info_qos,
-        )?);
+        depth_subs.push(subscribe::<Image>(&mut node, depth, IMAGE, &qos)?);
+        info_subs.push(subscribe::<CameraInfo>(&mut node, info, CAMERA_INFO, &qos)?);
     }
     let tf_sub: Subscription<TFMessage> =
         subscribe(&mut node, &config.tf_topic, TF_MESSAGE, &topics::tf_qos())?;

@@ -345,6 +345,24 @@ fn ok() -> raw::SetParametersResult {
     }
 }
 
+/// A node's `/parameter_events` writer, with rcl's QoS (`rmw_qos_profile_parameter_events`:
+/// reliable, volatile, keep last 1000).
+pub(super) fn parameter_events_writer(
+    node: &mut Node,
+) -> Result<Publisher<raw::ParameterEvent>, NodeError> {
+    let qos = QosProfile::publisher_default()
+        .reliability_reliable(WhenFull::DEFAULT)
+        .history(History::KeepLast { depth: 1000 });
+    let topic = node
+        .create_topic(
+            &Name::new("/", "parameter_events").map_err(ros_err)?,
+            MessageTypeName::new("rcl_interfaces", "ParameterEvent"),
+            &qos,
+        )
+        .map_err(ros_err)?;
+    node.create_publisher(&topic, Some(qos)).map_err(ros_err)
+}
+
 /// The six servers and the `/parameter_events` writer of one node.
 pub(super) struct ParamServices {
     answers: Answers,
@@ -393,19 +411,7 @@ impl ParamServices {
         let describe = server!("describe_parameters", "DescribeParameters");
         let set = server!("set_parameters", "SetParameters");
         let set_atomically = server!("set_parameters_atomically", "SetParametersAtomically");
-        let events_qos = QosProfile::publisher_default()
-            .reliability_reliable(WhenFull::DEFAULT)
-            .history(History::KeepLast { depth: 1000 });
-        let topic = node
-            .create_topic(
-                &Name::new("/", "parameter_events").map_err(ros_err)?,
-                MessageTypeName::new("rcl_interfaces", "ParameterEvent"),
-                &events_qos,
-            )
-            .map_err(ros_err)?;
-        let events = node
-            .create_publisher(&topic, Some(events_qos))
-            .map_err(ros_err)?;
+        let events = parameter_events_writer(node)?;
         Ok(Self {
             answers: Answers::new(live),
             node_fqn: node_fqn.to_string(),

@@ -163,14 +163,14 @@ impl LiveParams {
 /// ([`super::param_services`]), not ros2-client's (which cannot serve descriptors); `/clock` is
 /// read by the node itself ([`super::topics::subscribe_clock`]: `rosgraph_msgs/Clock`, best
 /// effort, remapped), not by ros2-client's spinner (`builtin_interfaces/Time`, never remapped:
-/// a second type on `/clock` in the graph).
-/// `own_parameter_events`: the node publishes `/parameter_events` itself, so ros2-client makes
-/// no second writer (an rcl node has one).
-pub(super) fn node_options(own_parameter_events: bool) -> NodeOptions {
+/// a second type on `/clock` in the graph); `/parameter_events` is published by the node's own
+/// writer with rcl's QoS ([`super::param_services::parameter_events_writer`]), not ros2-client's
+/// (transient local, keep last 1: an rcl node has one writer, volatile).
+pub(super) fn node_options() -> NodeOptions {
     NodeOptions::new()
         .enable_rosout(true)
         .start_parameter_services(false)
-        .publish_parameter_events(!own_parameter_events)
+        .publish_parameter_events(false)
         .read_clock(false)
 }
 

@@ -572,6 +572,7 @@ fn graph_parameters_rosout_diagnostics_sigint() {
         1,
         "the node's /parameter_events writers: {events:?}"
     );
+    assert_eq!(events[0]["qos"]["durability"], "VOLATILE", "{events:?}");
     for types in [&topics["/clock"], &probe["clock_types_late"]] {
         assert!(names(types).is_empty(), "/clock's types: {types}");
     }
@@ -824,7 +825,8 @@ fn sim_time_from_clock() {
 
 /// `sweepdepth fuse` with `use_sim_time:=true` and `/clock` remapped (`-r /clock:=/sim/clock`):
 /// its `/diagnostics` are stamped from the remapped clock, never from a second clock on `/clock`
-/// (the peer runs both: 1000 s on, 5000 s on).
+/// (the peer runs both: 1000 s on, 5000 s on); one reader, of the remapped clock; as an rcl
+/// node, one `/parameter_events` writer, reliable and volatile.
 fn fuse_sim_time_from_a_remapped_clock() {
     const FQN: &str = "/fused/sweepdepth_fuse";
     let args = [
@@ -871,6 +873,15 @@ fn fuse_sim_time_from_a_remapped_clock() {
             "a /diagnostics stamp {stamp} ns received at simulated {now} ns: {v}"
         );
     }
+    let endpoints = |key: &str| v[key].as_array().cloned().unwrap_or_default();
+    let writers = endpoints("parameter_events_writers");
+    assert_eq!(writers.len(), 1, "{v}");
+    assert_eq!(writers[0]["qos"]["reliability"], "RELIABLE", "{v}");
+    assert_eq!(writers[0]["qos"]["durability"], "VOLATILE", "{v}");
+    let clocks = endpoints("clock_readers");
+    assert_eq!(clocks.len(), 1, "{v}");
+    assert_eq!(clocks[0]["topic_type"], "rosgraph_msgs/msg/Clock", "{v}");
+    assert!(endpoints("decoy_readers").is_empty(), "{v}");
     let errors: Vec<String> = node
         .lines()
         .into_iter()
