@@ -44,11 +44,15 @@ Modes (one JSON object per line on stdout, prefixed `RCLPY_PEER `; errors on std
       simulated time. Prints {"event": "clock", ...}: every stamp with the simulated and wall
       "now" it was received at.
   fuse-clock NODE_FQN CLOCK_TOPIC
-      A simulator's clock on a remapped topic, for `sweepdepth fuse` (which serves no
-      parameters): the simulated clock as in `clock` on CLOCK_TOPIC, a decoy clock from 5000 s
-      on /clock; waits for two /diagnostics of the fuse node stamped in either simulated time
-      and for its /parameter_events writer. Prints {"event": "fuse-clock", "diagnostics":
-      [...], ...} with the node's /parameter_events writers and readers of both clocks.
+      A simulator's clock on a remapped topic, for `sweepdepth fuse`: the simulated clock as
+      in `clock` on CLOCK_TOPIC, a decoy clock from 5000 s on /clock; waits for two
+      /diagnostics of the fuse node stamped in either simulated time and for its
+      /parameter_events writer and reader of CLOCK_TOPIC. Then its parameter services (list,
+      get, describe; setting voxel_size, which is read-only there); sets use_sim_time false and
+      waits for its reader of CLOCK_TOPIC to leave the graph, for two /diagnostics stamped in
+      wall time and for the /parameter_events entry. Prints {"event": "fuse-clock",
+      "diagnostics": [...], ...} with the node's /parameter_events writers and readers of both
+      clocks while use_sim_time was on, and what the services answered.
 
 Exit status: 0 done, 2 timeout, 3 bad setup or arguments, 4 rclpy missing.
 
@@ -640,6 +644,16 @@ def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
                 "decoy_ns": decoy.now_ns(), "wall_ns": time.time_ns()}
 
     diagnostics, sub = diagnostics_of(node, f"sweepdepth fuse: {fqn}", received)
+    # From the start, as `clock`'s (matched long before the switch).
+    events: list[dict] = []
+
+    def on_parameter_event(msg: ParameterEvent) -> None:
+        if msg.node == fqn:
+            events.append({"changed": [
+                [p.name, value_json(p.value)] for p in msg.changed_parameters]})
+
+    event_sub = node.create_subscription(ParameterEvent, "/parameter_events",
+                                         on_parameter_event, QoSProfile(depth=1000))
 
     def simulated(d: dict) -> bool:
         return SIM_BASE_NS <= d["stamp_ns"] < SIM_BASE_NS + 10**15
@@ -647,6 +661,7 @@ def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
     deadline = time.monotonic() + test_timeout()
     spin_until(node, deadline, "two /diagnostics of the fuse node in simulated time",
                lambda: sum(simulated(d) for d in diagnostics) >= 2)
+    sim_diagnostics = list(diagnostics)
     ns, _, name = fqn.rpartition("/")
 
     def ours(infos) -> list:
@@ -655,15 +670,40 @@ def run_fuse_clock(node: Node, fqn: str, clock_topic: str) -> None:
 
     # The node's other endpoints: its /parameter_events writer and /clock readers (the
     # remapped one, none on /clock), once its /diagnostics came (its endpoints are known).
-    spin_until(node, deadline, "the fuse node's /parameter_events writer",
-               lambda: ours(node.get_publishers_info_by_topic("/parameter_events")))
+    spin_until(node, deadline, "the fuse node's /parameter_events writer and clock reader",
+               lambda: ours(node.get_publishers_info_by_topic("/parameter_events"))
+               and ours(node.get_subscriptions_info_by_topic(clock_topic)))
+    writers = ours(node.get_publishers_info_by_topic("/parameter_events"))
+    clock_readers = ours(node.get_subscriptions_info_by_topic(clock_topic))
+    decoy_readers = ours(node.get_subscriptions_info_by_topic("/clock"))
+    names = list(call(node, ListParameters, f"{fqn}/list_parameters",
+                      ListParameters.Request()).result.names)
+    got = call(node, GetParameters, f"{fqn}/get_parameters", GetParameters.Request(names=names))
+    described = call(node, DescribeParameters, f"{fqn}/describe_parameters",
+                     DescribeParameters.Request(names=names)).descriptors
+    set_voxel = set_param(node, fqn, "voxel_size", ParameterValue(
+        type=ParameterType.PARAMETER_DOUBLE, double_value=0.07))
+    voxel_after = value_json(call(node, GetParameters, f"{fqn}/get_parameters",
+                                  GetParameters.Request(names=["voxel_size"])).values[0])
+    set_false = set_param(node, fqn, "use_sim_time", ParameterValue(
+        type=ParameterType.PARAMETER_BOOL, bool_value=False))
+    diagnostics.clear()
+    spin_until(node, deadline, "two /diagnostics of the fuse node in wall time",
+               lambda: sum(d["stamp_ns"] > 1_600_000_000 * 10**9 for d in diagnostics) >= 2)
+    spin_until(node, deadline, "the fuse node's clock reader gone from the graph",
+               lambda: not ours(node.get_subscriptions_info_by_topic(clock_topic)))
+    spin_until(node, deadline, "the fuse node's /parameter_events entry of use_sim_time",
+               lambda: any(c[0] == "use_sim_time" for e in events for c in e["changed"]))
     clock.stop.set()
     decoy.stop.set()
-    emit({"event": "fuse-clock", "diagnostics": diagnostics,
-          "parameter_events_writers": ours(node.get_publishers_info_by_topic("/parameter_events")),
-          "clock_readers": ours(node.get_subscriptions_info_by_topic(clock_topic)),
-          "decoy_readers": ours(node.get_subscriptions_info_by_topic("/clock"))})
-    del sub
+    emit({"event": "fuse-clock", "diagnostics": sim_diagnostics,
+          "parameter_events_writers": writers, "clock_readers": clock_readers,
+          "decoy_readers": decoy_readers, "names": names,
+          "values": {n: value_json(v) for n, v in zip(names, got.values)},
+          "read_only": {d.name: bool(d.read_only) for d in described},
+          "set_voxel": set_voxel, "voxel_after": voxel_after, "set_false": set_false,
+          "wall_diagnostics": list(diagnostics), "parameter_events": events})
+    del sub, event_sub
 
 
 def main() -> None:

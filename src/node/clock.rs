@@ -6,15 +6,13 @@
 //! `camera_timeout`) run on the monotonic clock whatever the parameter says.
 //!
 //! One clock per process (a process is one node), switched by the parameter at start and
-//! through the parameter services at run time. As an rcl node's time source, the depth node
-//! reads `/clock` only while `use_sim_time` is on (`sim_time.rs`).
+//! through the parameter services at run time. As an rcl node's time source, a node reads
+//! `/clock` only while `use_sim_time` is on (`sim_time.rs`).
 
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::task::Poll;
 
 use futures::task::AtomicWaker;
-use futures::StreamExt;
-use ros2_client::Subscription;
 
 use crate::msgs::{Clock, Time};
 
@@ -79,31 +77,6 @@ pub(super) async fn switched_from(on: bool) {
         }
     })
     .await
-}
-
-/// Runs `spin` (the ros2-client spinner) and follows `/clock` through `clock` (the `fuse`
-/// node's, made where `use_sim_time` is on at start) beside it until `spin` ends.
-pub(super) async fn spin_following_clock<F: std::future::Future>(
-    spin: F,
-    clock: Option<Subscription<Clock>>,
-) -> F::Output {
-    let follow = async {
-        if let Some(clock) = clock {
-            let mut messages = Box::pin(clock.async_stream());
-            while let Some(message) = messages.next().await {
-                match message {
-                    Ok((clock, _)) => on_clock(&clock),
-                    Err(e) => tracing::debug!("/clock: {e:?}"),
-                }
-            }
-        }
-        futures::future::pending::<()>().await
-    };
-    futures::pin_mut!(spin, follow);
-    match futures::future::select(spin, follow).await {
-        futures::future::Either::Left((out, _)) => out,
-        futures::future::Either::Right(((), spin)) => spin.await,
-    }
 }
 
 #[cfg(test)]

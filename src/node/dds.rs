@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use futures::{FutureExt, StreamExt};
+use futures::StreamExt;
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Context, ContextOptions, NodeName, Publisher, QosProfile};
 
@@ -18,7 +18,7 @@ use super::events::LoopState;
 use super::fusion_services::{diagnostic_values, FusionNode};
 use super::inputs::Inputs;
 use super::log::{lock, log_info, RateLimited, ROSOUT};
-use super::param_services::ParamServices;
+use super::param_services::{Answers, ParamServices};
 use super::params::node_options;
 use super::shutdown;
 use super::sim_time;
@@ -59,8 +59,11 @@ pub(super) fn run(
     let mut node = context
         .new_node(node_name, node_options())
         .map_err(ros_err)?;
-    let param_services =
-        ParamServices::new(&mut node, &pipeline.identity.fqn(), Arc::clone(shared.live))?;
+    let param_services = ParamServices::new(
+        &mut node,
+        &pipeline.identity.fqn(),
+        Answers::new(Arc::clone(shared.live)),
+    )?;
     let logger_name = pipeline
         .identity
         .fqn()
@@ -140,11 +143,7 @@ pub(super) fn run(
                 state.handle(event);
             }
         };
-        // `/clock` while `use_sim_time` is on, beside the parameters that switch it.
-        let follow_clock = sim_time::follow_clock(&mut node, &config.clock_topic);
-        let params =
-            futures::future::select(Box::pin(param_services.serve()), Box::pin(follow_clock))
-                .map(|either| either.factor_first().0);
+        let params = sim_time::serve_parameters(&param_services, &mut node, &config.clock_topic);
         let fusion_services = async {
             match &fusion {
                 Some(fusion) => fusion.serve().await,

@@ -9,8 +9,9 @@
 //! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
 //! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
 //! `max_blocks`, `mesh_rate`, `fusion_device` (`auto`: a hardware GPU if wgpu offers one, else
-//! the CPU), `min_depth` and `max_depth` (the depths fused). It serves no
-//! parameter services (the depth node does).
+//! the CPU), `min_depth` and `max_depth` (the depths fused). It serves them as an rcl node
+//! serves its parameters (`ros2 param list/get/describe`), read-only, and `use_sim_time`, which
+//! switches at run time as the depth node's.
 
 use std::sync::atomic::Ordering;
 use std::sync::Mutex;
@@ -23,8 +24,10 @@ use ros2_client::{Context, ContextOptions, NodeName, QosProfile, Subscription};
 use super::clock;
 use super::fusion_services::{diagnostic_values, FusionNode};
 use super::log::{lock, log_info, RateLimited};
+use super::param_services::{Answers, ParamServices};
 use super::params::node_options;
 use super::shutdown;
+use super::sim_time::serve_parameters;
 use super::topics::{
     self, diagnostics_publisher, ros_err, subscribe, CAMERA_INFO, IMAGE, TF_MESSAGE,
 };
@@ -39,6 +42,19 @@ use crate::sweep::SweepParams;
 
 /// The fuse node's default name.
 pub const DEFAULT_FUSE_NODE_NAME: &str = "sweepdepth_fuse";
+
+/// The parameters the fuse node uses, and serves (read-only; `use_sim_time` beside them).
+pub const FUSE_PARAMS: &[&str] = &[
+    "depth_topics",
+    "world_frame",
+    "tf_timeout",
+    "voxel_size",
+    "max_blocks",
+    "mesh_rate",
+    "fusion_device",
+    "min_depth",
+    "max_depth",
+];
 
 /// What the fuse node reads from its command line.
 #[derive(Debug, Clone)]
@@ -61,6 +77,8 @@ pub struct FuseConfig {
     pub use_sim_time: bool,
     /// `/clock` after the remaps.
     pub clock_topic: String,
+    /// The parameter values at start, served read-only ([`FUSE_PARAMS`]).
+    pub params: ParamSet,
 }
 
 impl FuseConfig {
@@ -135,6 +153,7 @@ impl FuseConfig {
             use_sim_time: params.use_sim_time(),
             clock_topic: resolve("/clock")?,
             fusion,
+            params,
         })
     }
 }
@@ -238,9 +257,10 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let mut node = context
         .new_node(node_name, node_options())
         .map_err(ros_err)?;
-    // As every rcl node, one `/parameter_events` writer (the node serves no parameters: it
-    // publishes no event).
-    let _parameter_events = super::param_services::parameter_events_writer(&mut node)?;
+    // Its parameters as an rcl node serves them (read-only but `use_sim_time`), with the one
+    // `/parameter_events` writer.
+    let answers = Answers::fixed(config.params.clone(), FUSE_PARAMS);
+    let param_services = ParamServices::new(&mut node, &config.fqn, answers)?;
     // Depth publishers (and their camera_info) are reliable (sweepdepth, stereo_image_proc) or
     // best effort (camera drivers): a best-effort subscription matches both.
     let qos = QosProfile::subscription_default()
@@ -294,9 +314,8 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
     let mut events = futures::stream::select_all(streams);
-    let clock_sub = super::sim_time::clock_reader_at_start(&mut node, &config.clock_topic)?;
     let spinner = node.spinner().map_err(ros_err)?;
-    spin = Box::pin(clock::spin_following_clock(spinner.spin(), clock_sub));
+    spin = Box::pin(spinner.spin());
     let signals = shutdown::signals();
     log_info(&format!("fuse node {} is up", config.fqn));
 
@@ -322,7 +341,10 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     let event_loop = async {
         let mut ticks = tick_rx;
         let serve = futures::FutureExt::fuse(fusion.serve());
-        futures::pin_mut!(serve);
+        // The parameter services, and `/clock` while `use_sim_time` is on.
+        let params = serve_parameters(&param_services, &mut node, &config.clock_topic);
+        let params = futures::FutureExt::fuse(params);
+        futures::pin_mut!(serve, params);
         loop {
             futures::select! {
                 event = events.next() => {
@@ -337,6 +359,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
                     handle(ready, &mut log);
                 }
                 e = serve => return e,
+                e = params => return e,
             }
         }
     };
@@ -371,6 +394,30 @@ mod tests {
     /// No `depth_topics` reached the fuse node: the error says why, as the depth node's does
     /// (no parameter file; a file whose sections are for other nodes, named).
     /// `use_sim_time` and `/clock`'s remap reach the fuse node as the depth node.
+    /// The parameters it serves are of the one table.
+    #[test]
+    fn its_parameters_are_of_the_table() {
+        for name in FUSE_PARAMS {
+            assert!(crate::params::param_spec(name).is_some(), "{name}");
+        }
+        let args: Vec<String> = [
+            "--ros-args",
+            "-p",
+            "depth_topics:=[/d]",
+            "-p",
+            "world_frame:=map",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let config = FuseConfig::from_args(&args, None).unwrap();
+        let frame = config.params.get("world_frame");
+        assert_eq!(
+            frame,
+            Some(&crate::params::ParamValue::String("map".into()))
+        );
+    }
+
     #[test]
     fn simulated_time_and_the_clock_topic() {
         let args: Vec<String> = [

@@ -27,10 +27,10 @@ use ros2_client::{
 
 use super::clock;
 use super::log::{log_info, node_log};
-use super::params::{to_ros, LiveParams};
+use super::params::{to_ros, LiveParams, SetError};
 use super::NodeError;
 use crate::params::set::USE_SIM_TIME;
-use crate::params::{param_spec, ParamRange, ParamSpec};
+use crate::params::{param_spec, ParamError, ParamRange, ParamSet, ParamSpec};
 use crate::ros::param_value::ParamKind;
 
 /// rcl_interfaces/ParameterType codes.
@@ -117,23 +117,96 @@ fn use_sim_time_descriptor() -> raw::ParameterDescriptor {
     }
 }
 
-/// The answers of the six services over the node's [`LiveParams`].
+/// The parameters a node serves.
+enum Table {
+    /// The depth node's: every parameter of the table, changed as [`LiveParams`] checks.
+    Live(Arc<LiveParams>),
+    /// The `fuse` node's: `names` only, with their values at start, all read-only.
+    Fixed {
+        params: ParamSet,
+        names: &'static [&'static str],
+    },
+}
+
+impl Table {
+    fn names(&self) -> Vec<String> {
+        match self {
+            Table::Live(live) => live
+                .params()
+                .iter()
+                .map(|(spec, _)| spec.name.to_string())
+                .collect(),
+            Table::Fixed { names, .. } => names.iter().map(|n| n.to_string()).collect(),
+        }
+    }
+
+    /// The spec of a parameter the node serves (not `use_sim_time`).
+    fn spec(&self, name: &str) -> Option<&'static ParamSpec> {
+        match self {
+            Table::Live(_) => param_spec(name),
+            Table::Fixed { names, .. } => names.contains(&name).then(|| param_spec(name))?,
+        }
+    }
+
+    fn value(&self, name: &str) -> Option<RosValue> {
+        match self {
+            Table::Live(live) => live.params().get(name).map(to_ros),
+            Table::Fixed { params, .. } => self.spec(name).and(params.get(name)).map(to_ros),
+        }
+    }
+
+    fn describe(&self, spec: &ParamSpec) -> raw::ParameterDescriptor {
+        raw::ParameterDescriptor {
+            read_only: spec.read_only || matches!(self, Table::Fixed { .. }),
+            ..descriptor(spec)
+        }
+    }
+
+    /// Checks `changes` together and stores them, all or none; per change, whether it changed
+    /// the value. A fixed table takes only a parameter's own value again (as a read-only one of
+    /// the live table).
+    fn apply_all(&self, changes: &[(String, RosValue)]) -> Result<Vec<bool>, SetError> {
+        match self {
+            Table::Live(live) => live.apply_all(changes),
+            Table::Fixed { .. } => changes
+                .iter()
+                .map(|(name, value)| match self.value(name) {
+                    None => Err(ParamError::Unknown(name.clone()).into()),
+                    Some(current) if current == *value => Ok(false),
+                    Some(_) => Err(ParamError::ReadOnly(name.clone()).into()),
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The answers of the six services over the node's parameters.
 pub struct Answers {
-    live: Arc<LiveParams>,
+    table: Table,
 }
 
 impl Answers {
+    /// The depth node's: every parameter of the table, live.
     pub fn new(live: Arc<LiveParams>) -> Self {
-        Self { live }
+        Self {
+            table: Table::Live(live),
+        }
+    }
+
+    /// A node whose parameters are fixed at start (the `fuse` node): `names` of `params`,
+    /// read-only; `use_sim_time` still switches.
+    pub fn fixed(params: ParamSet, names: &'static [&'static str]) -> Self {
+        Self {
+            table: Table::Fixed { params, names },
+        }
     }
 
     /// Every name, `use_sim_time` included, sorted (our names have no `.`: no prefixes).
     pub fn list(&self, req: &ListParametersRequest) -> ListParametersResult {
         let mut names: Vec<String> = self
-            .live
-            .params()
-            .iter()
-            .map(|(spec, _)| spec.name.to_string())
+            .table
+            .names()
+            .into_iter()
             .chain([USE_SIM_TIME.to_string()])
             .filter(|name| {
                 req.prefixes.is_empty()
@@ -154,10 +227,7 @@ impl Answers {
         if name == USE_SIM_TIME {
             return RosValue::Boolean(clock::uses_sim_time());
         }
-        self.live
-            .params()
-            .get(name)
-            .map_or(RosValue::NotSet, to_ros)
+        self.table.value(name).unwrap_or(RosValue::NotSet)
     }
 
     /// The values (NOT_SET for an unknown name, as ros2-client answered before).
@@ -177,7 +247,7 @@ impl Answers {
             values: req
                 .names
                 .iter()
-                .map(|n| match (n.as_str(), param_spec(n)) {
+                .map(|n| match (n.as_str(), self.table.spec(n)) {
                     (USE_SIM_TIME, _) => 1,
                     (_, Some(spec)) => type_code(spec.kind),
                     (_, None) => 0,
@@ -192,9 +262,9 @@ impl Answers {
             values: req
                 .names
                 .iter()
-                .map(|n| match (n.as_str(), param_spec(n)) {
+                .map(|n| match (n.as_str(), self.table.spec(n)) {
                     (USE_SIM_TIME, _) => use_sim_time_descriptor(),
-                    (_, Some(spec)) => descriptor(spec),
+                    (_, Some(spec)) => self.table.describe(spec),
                     (_, None) => raw::ParameterDescriptor {
                         name: n.clone(),
                         r#type: 0,
@@ -223,8 +293,9 @@ impl Answers {
                 ref other => (refused(not_a_bool(other)), None),
             };
         }
-        match self.live.apply(&p.name, &p.value) {
+        match self.table.apply_all(&[(p.name.clone(), p.value.clone())]) {
             Ok(changed) => {
+                let changed = changed.contains(&true);
                 if changed {
                     log_info(&format!(
                         "parameter '{}' set to {:?} (used from the next frame set on)",
@@ -294,7 +365,7 @@ impl Answers {
             .filter(|p| p.name != USE_SIM_TIME)
             .map(|p| (p.name, p.value))
             .collect();
-        match self.live.apply_all(&ours) {
+        match self.table.apply_all(&ours) {
             Ok(changed) => {
                 let sim_time_event = sim_time.and_then(set_use_sim_time);
                 let events = ours
@@ -383,7 +454,7 @@ fn ros_err(e: impl std::fmt::Debug) -> NodeError {
 impl ParamServices {
     /// The servers under the node's name (`<fqn>/describe_parameters`, ...), with rclcpp's
     /// service QoS (reliable, keep last 10), and the `/parameter_events` writer.
-    pub fn new(node: &mut Node, node_fqn: &str, live: Arc<LiveParams>) -> Result<Self, NodeError> {
+    pub fn new(node: &mut Node, node_fqn: &str, answers: Answers) -> Result<Self, NodeError> {
         let qos = QosProfile::publisher_default()
             .reliability_reliable(WhenFull::DEFAULT)
             .history(History::KeepLast { depth: 10 });
@@ -413,7 +484,7 @@ impl ParamServices {
         let set_atomically = server!("set_parameters_atomically", "SetParametersAtomically");
         let events = parameter_events_writer(node)?;
         Ok(Self {
-            answers: Answers::new(live),
+            answers,
             node_fqn: node_fqn.to_string(),
             list,
             get,
@@ -636,7 +707,7 @@ mod tests {
                 .collect(),
         });
         assert!(!r.result.successful && events.is_empty());
-        assert_eq!(a.live.sweep().num_planes, 32, "all or none");
+        assert_eq!(a.value("num_planes"), RosValue::Integer(32), "all or none");
         // An integer given for a double is stored as the double, and the event says what is
         // stored (as `get_parameters` answers), alone and atomically.
         let (r, events) = a.set(set("min_depth", RosValue::Integer(1)));
@@ -649,5 +720,58 @@ mod tests {
             RosValue::from(events[0].value.clone()),
             RosValue::Double(9.0)
         );
+    }
+
+    /// The fuse node's table: its names only, each read-only (its own value again accepted,
+    /// unchanged), others not declared; `use_sim_time` beside them switches.
+    #[test]
+    fn a_fixed_table_serves_its_names_read_only() {
+        let mut params = ParamSet::defaults();
+        params
+            .set("world_frame", &ParamValue::String("map".into()))
+            .unwrap();
+        let a = Answers::fixed(params, &["world_frame", "voxel_size"]);
+        let listed = a.list(&ListParametersRequest {
+            prefixes: vec![],
+            depth: 0,
+        });
+        assert_eq!(listed.names, ["use_sim_time", "voxel_size", "world_frame"]);
+        assert_eq!(a.value("world_frame"), RosValue::String("map".into()));
+        assert_eq!(a.value("num_planes"), RosValue::NotSet, "not served");
+        let d = describe(&a, "voxel_size");
+        assert!(d.read_only && d.r#type == 3, "{d:?}");
+        assert!(!describe(&a, USE_SIM_TIME).read_only);
+        assert_eq!(describe(&a, "num_planes").r#type, 0);
+        let types = a.types(&GetParameterTypesRequest {
+            names: vec!["world_frame".into(), "num_planes".into()],
+        });
+        assert_eq!(types.values, [4, 0]);
+        let set = |name: &str, value: RosValue| SetParametersRequest {
+            parameter: vec![raw::Parameter::from(Parameter {
+                name: name.into(),
+                value,
+            })],
+        };
+        let (r, events) = a.set(set("voxel_size", RosValue::Double(0.07)));
+        assert!(!r.results[0].successful && events.is_empty());
+        assert!(r.results[0].reason.contains("read-only"), "{r:?}");
+        let (r, _) = a.set(set("num_planes", RosValue::Integer(32)));
+        assert!(r.results[0].reason.contains("unknown parameter"), "{r:?}");
+        let (r, events) = a.set(set("world_frame", RosValue::String("map".into())));
+        assert!(r.results[0].successful && events.is_empty(), "{r:?}");
+        let _clock = clock::TEST_SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+        clock::set_use_sim_time(false);
+        let both = SetParametersRequest {
+            parameter: set(USE_SIM_TIME, RosValue::Boolean(true))
+                .parameter
+                .into_iter()
+                .chain(set("voxel_size", RosValue::Double(0.07)).parameter)
+                .collect(),
+        };
+        let (r, _) = a.set_atomically(both);
+        assert!(!r.result.successful && !clock::uses_sim_time(), "none");
+        let (r, events) = a.set(set(USE_SIM_TIME, RosValue::Boolean(true)));
+        assert!(r.results[0].successful && events.len() == 1 && clock::uses_sim_time());
+        clock::set_use_sim_time(false);
     }
 }

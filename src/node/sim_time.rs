@@ -2,13 +2,15 @@
 //! exists only while `use_sim_time` is on. The depth node's is made when the parameter turns on
 //! (at start or through the parameter services) and dropped, out of the graph, when it turns
 //! off; switched on again, the time is the last message's until the next, as rclcpp keeps it.
-//! The `fuse` node's is made at start where the parameter is on. The time itself: `clock.rs`.
+//! Both nodes (the depth node, `fuse`) follow it beside their parameter services. The time
+//! itself: `clock.rs`.
 
 use futures::StreamExt;
 use ros2_client::{Node, Subscription};
 
 use super::clock::{on_clock, switched_from, uses_sim_time};
 use super::log::node_log;
+use super::param_services::ParamServices;
 use super::topics::subscribe_clock;
 use super::NodeError;
 use crate::msgs::Clock;
@@ -31,7 +33,7 @@ async fn read_until_off(clock: &Subscription<Clock>) {
     }
 }
 
-/// The depth node's `/clock` (`topic`, after the remaps), as an rcl node's time source: while
+/// A node's `/clock` (`topic`, after the remaps), as an rcl node's time source: while
 /// `use_sim_time` is on, a reader (`topics::subscribe_clock`) whose messages set the time;
 /// when it turns off, the reader goes (and out of the node's entities in
 /// `ros_discovery_info`). Runs as long as the node; a reader that cannot be made is said in the
@@ -61,13 +63,16 @@ pub(super) async fn follow_clock(node: &mut Node, topic: &str) -> NodeError {
     }
 }
 
-/// The `fuse` node's `/clock` reader: made at start where `use_sim_time` is on (the node serves
-/// no parameters, so it never switches).
-pub(super) fn clock_reader_at_start(
+/// A node's parameter services beside its `/clock` reader, which their `use_sim_time`
+/// switches ([`follow_clock`]); the first error of either.
+pub(super) async fn serve_parameters(
+    services: &ParamServices,
     node: &mut Node,
-    topic: &str,
-) -> Result<Option<Subscription<Clock>>, NodeError> {
-    uses_sim_time()
-        .then(|| subscribe_clock(node, topic))
-        .transpose()
+    clock_topic: &str,
+) -> NodeError {
+    let clock = follow_clock(node, clock_topic);
+    futures::future::select(Box::pin(services.serve()), Box::pin(clock))
+        .await
+        .factor_first()
+        .0
 }

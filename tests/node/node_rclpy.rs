@@ -826,7 +826,9 @@ fn sim_time_from_clock() {
 /// `sweepdepth fuse` with `use_sim_time:=true` and `/clock` remapped (`-r /clock:=/sim/clock`):
 /// its `/diagnostics` are stamped from the remapped clock, never from a second clock on `/clock`
 /// (the peer runs both: 1000 s on, 5000 s on); one reader, of the remapped clock; as an rcl
-/// node, one `/parameter_events` writer, reliable and volatile.
+/// node, one `/parameter_events` writer, reliable and volatile, and its parameters served
+/// (listed, read, described read-only, a set refused with the reason); `use_sim_time` set
+/// false at run time: its reader leaves the graph, `/diagnostics` in wall time, the event.
 fn fuse_sim_time_from_a_remapped_clock() {
     const FQN: &str = "/fused/sweepdepth_fuse";
     let args = [
@@ -882,6 +884,47 @@ fn fuse_sim_time_from_a_remapped_clock() {
     assert_eq!(clocks.len(), 1, "{v}");
     assert_eq!(clocks[0]["topic_type"], "rosgraph_msgs/msg/Clock", "{v}");
     assert!(endpoints("decoy_readers").is_empty(), "{v}");
+    // Its parameters, as an rcl node serves them: those it uses and use_sim_time, read-only
+    // but use_sim_time.
+    let mut expected: Vec<&str> = sweepdepth::node::fuse_command::FUSE_PARAMS.to_vec();
+    expected.push("use_sim_time");
+    expected.sort();
+    assert_eq!(names(&v["names"]), expected, "{v}");
+    assert_eq!(
+        v["values"]["depth_topics"],
+        json!(["/a/depth/image"]),
+        "{v}"
+    );
+    assert_eq!(v["values"]["world_frame"], "map", "{v}");
+    assert_eq!(v["values"]["use_sim_time"], true, "{v}");
+    assert!(
+        v["values"]["voxel_size"].as_f64().is_some_and(|x| x > 0.0),
+        "{v}"
+    );
+    for name in &expected {
+        let read_only = *name != "use_sim_time";
+        assert_eq!(v["read_only"][name], read_only, "{name}: {v}");
+    }
+    assert_eq!(v["set_voxel"]["successful"], false, "{v}");
+    let reason = v["set_voxel"]["reason"].as_str().unwrap_or("");
+    assert!(reason.contains("read-only"), "{v}");
+    assert_eq!(v["voxel_after"], v["values"]["voxel_size"], "{v}");
+    // use_sim_time off at run time: the system clock's stamps, the remapped clock's reader
+    // gone (the peer waited for both), and the change on /parameter_events.
+    assert_eq!(v["set_false"]["successful"], true, "{v}");
+    let wall = v["wall_diagnostics"].as_array().map_or(0, |a| {
+        a.iter()
+            .filter(|d| ns(d, "stamp_ns") > 1_600_000_000 * 1_000_000_000)
+            .count()
+    });
+    assert!(wall >= 2, "{v}");
+    let changed: Vec<Value> = v["parameter_events"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .flat_map(|e| e["changed"].as_array().cloned().unwrap_or_default())
+        .collect();
+    assert_eq!(changed, [json!(["use_sim_time", false])], "{v}");
     let errors: Vec<String> = node
         .lines()
         .into_iter()
