@@ -7,7 +7,8 @@
 //! with its share of the references, one `fuse` node collecting their depth over DDS.
 //!
 //! Parameters (the one table of the depth node, `docs/node.md`; the others are accepted and
-//! unused): `depth_topics`, `world_frame` (required), `tf_timeout`, `voxel_size`,
+//! unused): `depth_topics`, `color_topics` (each depth image's colour, at its stamp),
+//! `world_frame` (required), `tf_timeout`, `voxel_size`,
 //! `max_blocks`, `mesh_rate`, `fusion_device` (`auto`: a hardware GPU if wgpu offers one, else
 //! the CPU), `min_depth` and `max_depth` (the depths fused). It serves them as an rcl node
 //! serves its parameters (`ros2 param list/get/describe`), read-only, and `use_sim_time`, which
@@ -46,6 +47,7 @@ pub const DEFAULT_FUSE_NODE_NAME: &str = "sweepdepth_fuse";
 /// The parameters the fuse node uses, and serves (read-only; `use_sim_time` beside them).
 pub const FUSE_PARAMS: &[&str] = &[
     "depth_topics",
+    "color_topics",
     "world_frame",
     "tf_timeout",
     "voxel_size",
@@ -66,6 +68,8 @@ pub struct FuseConfig {
     /// Resolved depth image topics and their camera_info topics.
     pub depth_topics: Vec<String>,
     pub info_topics: Vec<String>,
+    /// Resolved colour image topics, one per depth topic, or none.
+    pub color_topics: Vec<String>,
     pub world_frame: String,
     pub tf_timeout: Duration,
     pub tf_topic: String,
@@ -125,6 +129,21 @@ impl FuseConfig {
             depth_topics.push(resolved);
             info_topics.push(info);
         }
+        let color_topics = node
+            .color_topics
+            .iter()
+            .map(|topic| resolve(topic))
+            .collect::<Result<Vec<_>, _>>()?;
+        if !color_topics.is_empty() && color_topics.len() != depth_topics.len() {
+            return Err(NodeError::Name {
+                name: "color_topics".into(),
+                reason: format!(
+                    "{} colour topics for {} depth topics: one per entry of depth_topics, in its order, or none",
+                    color_topics.len(),
+                    depth_topics.len()
+                ),
+            });
+        }
         let world_frame = node.world_frame.clone();
         if world_frame.is_empty() {
             return Err(NodeError::Name {
@@ -144,6 +163,7 @@ impl FuseConfig {
             domain_id: domain_id(domain_env)?,
             depth_topics,
             info_topics,
+            color_topics,
             world_frame,
             tf_timeout: Duration::from_secs_f64(node.tf_timeout_s),
             tf_topic: resolve("/tf")?,
@@ -162,6 +182,7 @@ impl FuseConfig {
 enum FuseEvent {
     Depth(usize, Result<Image, String>),
     Info(usize, Result<Box<CameraInfo>, String>),
+    Colour(usize, Result<Image, String>),
     Tf(Result<TfMessageIn, String>),
 }
 
@@ -181,6 +202,12 @@ fn fuse_diagnostics(stats: &FusionStats, sources: &DepthSources, fqn: &str) -> D
     for (reason, count) in &sources.skipped {
         values.push(KeyValue {
             key: format!("skipped: {reason}"),
+            value: count.to_string(),
+        });
+    }
+    for (reason, count) in &sources.uncoloured {
+        values.push(KeyValue {
+            key: format!("fused without colour: {reason}"),
             value: count.to_string(),
         });
     }
@@ -223,16 +250,96 @@ fn take_event(
             s.push_info(i, *info);
             Vec::new()
         }
+        FuseEvent::Colour(i, Ok(image)) => {
+            s.push_colour(i, image);
+            Vec::new()
+        }
         FuseEvent::Tf(Ok(tf)) => {
             for e in s.push_tf(&tf.msg, tf.is_static) {
                 log.warn("tf", || format!("a transform was refused: {e}"));
             }
             s.poll(now_ns)
         }
-        FuseEvent::Depth(_, Err(e)) | FuseEvent::Info(_, Err(e)) | FuseEvent::Tf(Err(e)) => {
+        FuseEvent::Depth(_, Err(e))
+        | FuseEvent::Info(_, Err(e))
+        | FuseEvent::Colour(_, Err(e))
+        | FuseEvent::Tf(Err(e)) => {
             log.warn("read", || format!("a message could not be read: {e}"));
             Vec::new()
         }
+    }
+}
+
+/// The fuse node's subscriptions: per source its depth, camera_info and colour (where
+/// `color_topics` are set), and `/tf` + `/tf_static`.
+struct FuseInputs {
+    depth: Vec<Subscription<Image>>,
+    info: Vec<Subscription<CameraInfo>>,
+    colour: Vec<Subscription<Image>>,
+    tf: Subscription<TFMessage>,
+    tf_static: Subscription<TFMessage>,
+}
+
+type EventStream<'a> = std::pin::Pin<Box<dyn futures::Stream<Item = FuseEvent> + 'a>>;
+
+impl FuseInputs {
+    fn subscribe(node: &mut ros2_client::Node, config: &FuseConfig) -> Result<Self, NodeError> {
+        // Depth publishers (and their camera_info) are reliable (sweepdepth, stereo_image_proc)
+        // or best effort (camera drivers): a best-effort subscription matches both.
+        let qos = QosProfile::subscription_default()
+            .reliability_best_effort()
+            .history(History::KeepLast { depth: 5 });
+        let images = |node: &mut ros2_client::Node, topics: &[String]| {
+            (topics.iter())
+                .map(|topic| subscribe::<Image>(node, topic, IMAGE, &qos))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        Ok(Self {
+            depth: images(node, &config.depth_topics)?,
+            info: (config.info_topics.iter())
+                .map(|topic| subscribe::<CameraInfo>(node, topic, CAMERA_INFO, &qos))
+                .collect::<Result<Vec<_>, _>>()?,
+            colour: images(node, &config.color_topics)?,
+            tf: subscribe(node, &config.tf_topic, TF_MESSAGE, &topics::tf_qos())?,
+            tf_static: subscribe(
+                node,
+                &config.tf_static_topic,
+                TF_MESSAGE,
+                &topics::tf_static_qos(),
+            )?,
+        })
+    }
+
+    /// Every subscription's messages as one stream of events.
+    fn events(&self) -> futures::stream::SelectAll<EventStream<'_>> {
+        let err = |e: ros2_client::ReadError| format!("{e:?}");
+        let mut streams: Vec<EventStream<'_>> = Vec::new();
+        for (i, sub) in self.depth.iter().enumerate() {
+            streams
+                .push(Box::pin(sub.async_stream().map(move |r| {
+                    FuseEvent::Depth(i, r.map(|(m, _)| m).map_err(err))
+                })));
+        }
+        for (i, sub) in self.info.iter().enumerate() {
+            streams.push(Box::pin(sub.async_stream().map(move |r| {
+                FuseEvent::Info(i, r.map(|(m, _)| Box::new(m)).map_err(err))
+            })));
+        }
+        for (i, sub) in self.colour.iter().enumerate() {
+            streams
+                .push(Box::pin(sub.async_stream().map(move |r| {
+                    FuseEvent::Colour(i, r.map(|(m, _)| m).map_err(err))
+                })));
+        }
+        for (sub, is_static) in [(&self.tf, false), (&self.tf_static, true)] {
+            streams.push(Box::pin(sub.async_stream().map(move |r| {
+                FuseEvent::Tf(
+                    r.map(|(msg, _)| TfMessageIn { msg, is_static })
+                        .map_err(err),
+                )
+            })));
+        }
+        futures::stream::select_all(streams)
     }
 }
 
@@ -261,25 +368,7 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     // `/parameter_events` writer.
     let answers = Answers::fixed(config.params.clone(), FUSE_PARAMS);
     let param_services = ParamServices::new(&mut node, &config.fqn, answers)?;
-    // Depth publishers (and their camera_info) are reliable (sweepdepth, stereo_image_proc) or
-    // best effort (camera drivers): a best-effort subscription matches both.
-    let qos = QosProfile::subscription_default()
-        .reliability_best_effort()
-        .history(History::KeepLast { depth: 5 });
-    let mut depth_subs = Vec::new();
-    let mut info_subs = Vec::new();
-    for (depth, info) in config.depth_topics.iter().zip(&config.info_topics) {
-        depth_subs.push(subscribe::<Image>(&mut node, depth, IMAGE, &qos)?);
-        info_subs.push(subscribe::<CameraInfo>(&mut node, info, CAMERA_INFO, &qos)?);
-    }
-    let tf_sub: Subscription<TFMessage> =
-        subscribe(&mut node, &config.tf_topic, TF_MESSAGE, &topics::tf_qos())?;
-    let tf_static_sub: Subscription<TFMessage> = subscribe(
-        &mut node,
-        &config.tf_static_topic,
-        TF_MESSAGE,
-        &topics::tf_static_qos(),
-    )?;
+    let inputs = FuseInputs::subscribe(&mut node, &config)?;
     let diag_pub = diagnostics_publisher(&mut node, &config.diagnostics_topic)?;
     let fusion = FusionNode::new(
         &mut node,
@@ -291,39 +380,20 @@ pub fn run(args: &[String]) -> Result<(), NodeError> {
     )?;
     let worker = fusion.worker();
 
-    let mut streams: Vec<std::pin::Pin<Box<dyn futures::Stream<Item = FuseEvent> + '_>>> =
-        Vec::new();
-    for (i, sub) in depth_subs.iter().enumerate() {
-        streams.push(Box::pin(sub.async_stream().map(move |r| {
-            FuseEvent::Depth(i, r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))
-        })));
-    }
-    for (i, sub) in info_subs.iter().enumerate() {
-        streams.push(Box::pin(sub.async_stream().map(move |r| {
-            FuseEvent::Info(i, r.map(|(m, _)| Box::new(m)).map_err(|e| format!("{e:?}")))
-        })));
-    }
-    for (sub, is_static) in [(&tf_sub, false), (&tf_static_sub, true)] {
-        streams.push(Box::pin(sub.async_stream().map(move |r| {
-            FuseEvent::Tf(
-                r.map(|(msg, _)| TfMessageIn { msg, is_static })
-                    .map_err(|e| format!("{e:?}")),
-            )
-        })));
-    }
     // A tick, so that depth images waiting for /tf time out even when nothing else comes.
     let (tick_tx, tick_rx) = futures::channel::mpsc::unbounded::<()>();
-    let mut events = futures::stream::select_all(streams);
+    let mut events = inputs.events();
     let spinner = node.spinner().map_err(ros_err)?;
     spin = Box::pin(spinner.spin());
     let signals = shutdown::signals();
     log_info(&format!("fuse node {} is up", config.fqn));
 
-    let sources = Mutex::new(DepthSources::new(
+    let sources = DepthSources::new(
         config.depth_topics.clone(),
         config.world_frame.clone(),
         config.tf_timeout,
-    ));
+    );
+    let sources = Mutex::new(sources.with_colour(config.color_topics.clone()));
     let started = Instant::now();
     let now_ns = || u64::try_from(started.elapsed().as_nanos()).unwrap_or(u64::MAX);
     let mut log = RateLimited::default();
@@ -411,6 +481,16 @@ mod tests {
         .map(|s| s.to_string())
         .collect();
         let config = FuseConfig::from_args(&args, None).unwrap();
+        assert!(config.color_topics.is_empty());
+        let with = |colours: &str| {
+            let mut with = args.clone();
+            with.extend(["-p".to_string(), format!("color_topics:={colours}")]);
+            FuseConfig::from_args(&with, None)
+        };
+        let config = with("[cam/image_raw]").unwrap();
+        assert_eq!(config.color_topics, ["/cam/image_raw"]);
+        let two = with("[/a, /b]").unwrap_err().to_string();
+        assert!(two.contains("2 colour topics for 1 depth topics"), "{two}");
         let frame = config.params.get("world_frame");
         assert_eq!(
             frame,

@@ -140,6 +140,12 @@ fn world_params() -> Vec<ParamSpec> {
             ParamRange::NameList { min_len: 0 },
             "`sweepdepth fuse` only: the depth image topics it fuses (REP 118: 32FC1 metres or 16UC1 millimetres), each with the camera_info beside it (<namespace>/camera_info, as image_transport pairs them), placed in world_frame by /tf and /tf_static at their stamps: other sweepdepth nodes (<camera>/depth/image), a RealSense, stereo_image_proc. The depth node ignores it.",
         ),
+        node_spec(
+            "color_topics",
+            ParamValue::StringArray(Vec::new()),
+            ParamRange::NameList { min_len: 0 },
+            "`sweepdepth fuse` only: per entry of depth_topics, in its order, the colour image whose pixels are the depth's (the same camera and size: the reference camera's image_raw beside a sweepdepth node's depth, a RealSense's color/image_raw beside its aligned depth), taken at the depth's stamp to colour the mesh (rgb8, bgr8, rgba8, bgra8, mono8, mono16); empty = a grey mesh. A depth image whose colour has not come is fused grey, counted in /diagnostics. The depth node ignores it.",
+        ),
     ]
 }
 

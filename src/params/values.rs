@@ -105,6 +105,8 @@ node_values! {
     fusion_device: String = "fusion_device";
     /// `depth_topics`: the `fuse` node's inputs.
     depth_topics: Vec<String> = "depth_topics";
+    /// `color_topics`: the colour beside each of the `fuse` node's depth inputs.
+    color_topics: Vec<String> = "color_topics";
     /// `device`: `auto`, `gpu` or `cpu`.
     device: String = "device";
     /// `sync`: `exact` or `approximate`.

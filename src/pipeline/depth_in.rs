@@ -7,13 +7,19 @@
 //! behind it. What cannot be fused is a [`DepthSkip`] with the reason, counted by label: no
 //! camera_info yet, a size or encoding that does not fit, a CameraInfo that describes no
 //! camera, a pose that cannot come.
+//!
+//! With colour topics ([`DepthSources::with_colour`]), each depth image takes the colour image
+//! of its source with its stamp (the last [`COLOUR_KEPT`] of each are kept); one whose colour
+//! did not come, or does not fit, is fused grey and counted in [`DepthSources::uncoloured`].
 
+use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::Duration;
 
 use super::counts::SkipCounts;
 use super::fuser::FusionInput;
 use super::pose_queue::{PoseQueue, Posed};
-use crate::image::ImageF32;
+use crate::image::{ImageF32, Rgba8Image};
 use crate::msgs::{CameraInfo, Image, TFMessage};
 use crate::ros::camera_info::{camera_from_info, check_image_size, ImageKind};
 use crate::ros::tf_history::TfInsertError;
@@ -61,7 +67,15 @@ pub struct DepthSources {
     queue: PoseQueue<(usize, FusionInput)>,
     /// Depth images refused, by reason.
     pub skipped: SkipCounts,
+    /// Per source, the colour image topic (empty: no colour) and its last images.
+    colour_topics: Vec<String>,
+    colours: Vec<VecDeque<Image>>,
+    /// Depth images fused without their colour, by reason.
+    pub uncoloured: SkipCounts,
 }
+
+/// The colour images kept per source, newest last, for the depth images that come after them.
+pub const COLOUR_KEPT: usize = 8;
 
 impl DepthSources {
     /// `topics`: the depth image topics (for messages); poses in `world_frame`.
@@ -73,7 +87,44 @@ impl DepthSources {
             tf_timeout_ns: u64::try_from(tf_timeout.as_nanos()).unwrap_or(u64::MAX),
             queue: PoseQueue::default(),
             skipped: SkipCounts::default(),
+            colour_topics: Vec::new(),
+            colours: Vec::new(),
+            uncoloured: SkipCounts::default(),
         }
+    }
+
+    /// Colour for the depth: per source (in the order of the depth topics), its colour image
+    /// topic, whose pixels are the depth's.
+    pub fn with_colour(mut self, topics: Vec<String>) -> Self {
+        self.colours = vec![VecDeque::new(); topics.len()];
+        self.colour_topics = topics;
+        self
+    }
+
+    /// A colour image of source `i`.
+    pub fn push_colour(&mut self, i: usize, image: Image) {
+        if let Some(kept) = self.colours.get_mut(i) {
+            if kept.len() == COLOUR_KEPT {
+                kept.pop_front();
+            }
+            kept.push_back(image);
+        }
+    }
+
+    /// The colour of source `i` at the depth's stamp, or why there is none.
+    fn colour_for(&self, i: usize, input: &FusionInput) -> Result<Arc<Rgba8Image>, &'static str> {
+        let image = self
+            .colours
+            .get(i)
+            .and_then(|kept| kept.iter().rev().find(|c| c.header.stamp == input.stamp))
+            .ok_or("no colour image at its stamp")?;
+        let topic = self.colour_topics.get(i).map_or("", String::as_str);
+        let colour = super::convert::image_to_rgba8(topic, image)
+            .map_err(|_| "colour image not readable")?;
+        if (colour.width, colour.height) != (input.depth.width, input.depth.height) {
+            return Err("colour image of another size");
+        }
+        Ok(Arc::new(colour))
     }
 
     pub fn world_frame(&self) -> &str {
@@ -132,8 +183,14 @@ impl DepthSources {
         let mut out = Vec::with_capacity(done.len());
         for posed in done {
             match posed {
-                Posed::Ready((_, mut input), world_from_frame) => {
+                Posed::Ready((source, mut input), world_from_frame) => {
                     input.map_from_cam = world_from_frame.compose(&input.map_from_cam);
+                    if !self.colours.is_empty() {
+                        match self.colour_for(source, &input) {
+                            Ok(colour) => input.colour = Some(colour),
+                            Err(reason) => self.uncoloured.add(reason),
+                        }
+                    }
                     out.push(Ok(input));
                 }
                 Posed::Failed {
@@ -393,5 +450,51 @@ mod tests {
         assert!(err.to_string().contains("'world'"), "{err}");
         assert_eq!(s.skipped.get("no world pose"), 1);
         assert_eq!(s.skipped.get("no camera_info"), 1);
+    }
+
+    fn rgb(w: u32, h: u32, value: u8, sec: i32) -> Image {
+        Image {
+            encoding: "rgb8".into(),
+            step: w * 3,
+            data: vec![value; (w * h * 3) as usize],
+            ..depth_mm(w, h, 0, sec)
+        }
+    }
+
+    /// Each depth image takes its source's colour image with its stamp; one without (none
+    /// with its stamp, another size) is fused grey and counted.
+    #[test]
+    fn a_depth_takes_the_colour_with_its_stamp() {
+        let mut s = sources().with_colour(vec!["/a/image_raw".into()]);
+        s.push_info(0, info(32, 24));
+        s.push_tf(&tf(0, 0.0), true);
+        s.push_colour(0, rgb(32, 24, 90, 1));
+        s.push_colour(0, rgb(32, 24, 200, 2));
+        s.push_colour(0, rgb(16, 12, 50, 3));
+        let colour_of = |out: Vec<Result<FusionInput, DepthSkip>>| {
+            let input = out.into_iter().next().unwrap().unwrap();
+            input.colour.map(|c| Rgba8Image::unpack(c.pixels[0]))
+        };
+        let c = colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 1), 0));
+        assert_eq!(c.map(|p| p[0]), Some(90));
+        assert_eq!(
+            colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 2), 0)).map(|p| p[1]),
+            Some(200)
+        );
+        assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 3), 0)).is_none());
+        assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 4), 0)).is_none());
+        assert_eq!(s.uncoloured.get("colour image of another size"), 1);
+        assert_eq!(s.uncoloured.get("no colour image at its stamp"), 1);
+        // Only the last COLOUR_KEPT are kept.
+        for k in 0..COLOUR_KEPT as i32 {
+            s.push_colour(0, rgb(32, 24, 10, 10 + k));
+        }
+        assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 1), 0)).is_none());
+        // Without colour topics nothing is counted.
+        let mut plain = sources();
+        plain.push_info(0, info(32, 24));
+        plain.push_tf(&tf(0, 0.0), true);
+        assert!(colour_of(plain.push_depth(0, &depth_mm(32, 24, 2000, 1), 0)).is_none());
+        assert!(plain.uncoloured.is_empty());
     }
 }

@@ -451,6 +451,11 @@ fn two_machines_params_split_the_references_and_feed_the_fuse_node() {
         "the fuse node takes every reference's depth"
     );
     assert_eq!(fuse.info_topics[4], "/cam4/depth/camera_info");
+    // Each depth's colour: the image of the camera whose depth it is.
+    let colours: Vec<String> = (fuse.depth_topics.iter())
+        .map(|t| t.replace("/depth/image", "/image_raw"))
+        .collect();
+    assert_eq!(fuse.color_topics, colours);
     assert_eq!(fuse.world_frame, "odom");
     assert_eq!(fuse.fusion.params.voxel_size_m, 0.04);
     assert_eq!(fuse.fusion.params.max_blocks, 50_000);

@@ -834,6 +834,7 @@ fn table_has_node_parameters() {
         ("mesh_rate", ParamValue::Double(1.0)),
         ("fusion_device", ParamValue::String("auto".into())),
         ("depth_topics", ParamValue::StringArray(vec![])),
+        ("color_topics", ParamValue::StringArray(vec![])),
     ];
     for (name, default) in &expect {
         let spec = param_spec(name).unwrap_or_else(|| panic!("{name} missing"));

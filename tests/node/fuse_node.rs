@@ -17,12 +17,15 @@
 //! runs on the 2-core machine with builds beside, as sets dropped under load change which depth
 //! maps are fused; the one-process run 96.5-96.9 %; a rig placed without /tf is 0.2-0.5 m, 5-12
 //! voxels, off): a node that ignored /tf, or fused one host only, fails.
+//! The fuse node takes each depth map's colour from its reference camera's images
+//! (`color_topics`): its mesh's colours must be the one-process node's (80 % of the vertices
+//! within 24 levels of the nearest vertex's; 99 % on the 2-core machine, 0 % grey).
 
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use crate::common::dds::{self, NodeProcess, Peer, RigFeed};
-use crate::common::mesh::{ply_vertices, SaveMesh};
+use crate::common::mesh::{ply_colours, ply_vertices, SaveMesh};
 use crate::common::netns::{in_private_netns, SecondHost};
 use glam::{DQuat, DVec3};
 use sweepdepth::geometry::CameraModel;
@@ -118,6 +121,9 @@ fn two_hosts() {
                 "__ns:=/fused",
                 "-p",
                 "depth_topics:=[/a/cam0/depth/image, /b/cam2/depth/image]",
+                // Each depth's colour: its reference camera's images, from the drivers.
+                "-p",
+                "color_topics:=[/cam0/image_raw, /cam2/image_raw]",
                 "-p",
                 "world_frame:=world",
                 "-p",
@@ -324,8 +330,10 @@ fn two_hosts() {
         let answer = SaveMesh::new(&mut peer, service).call(&path.display().to_string(), node);
         assert!(answer.success, "{service}: {answer:?}");
     }
-    let fused_vertices = ply_vertices(&std::fs::read(&fused_ply).unwrap());
-    let one_vertices = ply_vertices(&std::fs::read(&one_ply).unwrap());
+    let fused_bytes = std::fs::read(&fused_ply).unwrap();
+    let one_bytes = std::fs::read(&one_ply).unwrap();
+    let fused_vertices = ply_vertices(&fused_bytes);
+    let one_vertices = ply_vertices(&one_bytes);
     let _ = std::fs::remove_dir_all(&dir);
     assert!(fused_vertices.len() > 100 && one_vertices.len() > 100);
     // Every mesh against the true scene in `world`.
@@ -350,7 +358,34 @@ fn two_hosts() {
             vertices.len()
         );
     }
+    // The fuse node's colours (`color_topics`) are the one-process node's, which colours from
+    // its reference images: each vertex against the nearest vertex of the other mesh.
+    let (fused_colours, one_colours) = (ply_colours(&fused_bytes), ply_colours(&one_bytes));
+    let alike = fused_vertices
+        .iter()
+        .zip(&fused_colours)
+        .filter(|(p, c)| {
+            let nearest = (one_vertices.iter().enumerate())
+                .min_by(|(_, a), (_, b)| {
+                    p.distance_squared(**a).total_cmp(&p.distance_squared(**b))
+                })
+                .map(|(i, _)| one_colours[i]);
+            nearest.is_some_and(|n| (0..3).all(|k| n[k].abs_diff(c[k]) <= COLOUR_TOLERANCE))
+        })
+        .count();
+    eprintln!(
+        "fuse node: {alike} of {} vertex colours within {COLOUR_TOLERANCE} of the one-process mesh's",
+        fused_vertices.len()
+    );
+    assert!(
+        alike * 100 >= fused_vertices.len() * 80,
+        "the fuse node's mesh is not coloured as the one-process node's: {alike} of {} vertices alike",
+        fused_vertices.len()
+    );
 }
+
+/// Levels per channel within which two meshes' colours count as alike.
+const COLOUR_TOLERANCE: u8 = 24;
 
 /// Seconds of set `k` (10 sets a second from 1000 s).
 fn seconds(k: u32) -> f64 {
