@@ -30,14 +30,18 @@ use super::params::node_options;
 use super::shutdown;
 use super::sim_time::serve_parameters;
 use super::topics::{
-    self, diagnostics_publisher, ros_err, subscribe, CAMERA_INFO, IMAGE, TF_MESSAGE,
+    self, diagnostics_publisher, ros_err, subscribe, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE,
+    TF_MESSAGE,
 };
 use super::NodeError;
 use crate::msgs::{
-    CameraInfo, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue, TFMessage,
+    CameraInfo, CompressedImage, DiagnosticArray, DiagnosticStatus, Header, Image, KeyValue,
+    TFMessage,
 };
 use crate::params::{apply_to_sweep, NodeValues, ParamError, ParamSet};
-use crate::pipeline::{ConfigError, DepthSources, FusionConfig, FusionHost, FusionStats};
+use crate::pipeline::{
+    ColourImage, ConfigError, DepthSources, FusionConfig, FusionHost, FusionStats,
+};
 use crate::ros::args::{domain_id, parse_ros_args};
 use crate::sweep::SweepParams;
 
@@ -182,7 +186,7 @@ impl FuseConfig {
 enum FuseEvent {
     Depth(usize, Result<Image, String>),
     Info(usize, Result<Box<CameraInfo>, String>),
-    Colour(usize, Result<Image, String>),
+    Colour(usize, Result<ColourImage, String>),
     Tf(Result<TfMessageIn, String>),
 }
 
@@ -275,9 +279,15 @@ fn take_event(
 struct FuseInputs {
     depth: Vec<Subscription<Image>>,
     info: Vec<Subscription<CameraInfo>>,
-    colour: Vec<Subscription<Image>>,
+    /// Raw colour images, or compressed ones (a topic ending in `/compressed`), by source.
+    colour: Vec<ColourSubscription>,
     tf: Subscription<TFMessage>,
     tf_static: Subscription<TFMessage>,
+}
+
+enum ColourSubscription {
+    Raw(Subscription<Image>),
+    Compressed(Subscription<CompressedImage>),
 }
 
 type EventStream<'a> = std::pin::Pin<Box<dyn futures::Stream<Item = FuseEvent> + 'a>>;
@@ -289,17 +299,23 @@ impl FuseInputs {
         let qos = QosProfile::subscription_default()
             .reliability_best_effort()
             .history(History::KeepLast { depth: 5 });
-        let images = |node: &mut ros2_client::Node, topics: &[String]| {
-            (topics.iter())
-                .map(|topic| subscribe::<Image>(node, topic, IMAGE, &qos))
-                .collect::<Result<Vec<_>, _>>()
-        };
         Ok(Self {
-            depth: images(node, &config.depth_topics)?,
+            depth: (config.depth_topics.iter())
+                .map(|topic| subscribe::<Image>(node, topic, IMAGE, &qos))
+                .collect::<Result<Vec<_>, _>>()?,
             info: (config.info_topics.iter())
                 .map(|topic| subscribe::<CameraInfo>(node, topic, CAMERA_INFO, &qos))
                 .collect::<Result<Vec<_>, _>>()?,
-            colour: images(node, &config.color_topics)?,
+            colour: (config.color_topics.iter())
+                .map(|topic| {
+                    Ok(if topic.ends_with("/compressed") {
+                        let sub = subscribe(node, topic, COMPRESSED_IMAGE, &qos)?;
+                        ColourSubscription::Compressed(sub)
+                    } else {
+                        ColourSubscription::Raw(subscribe(node, topic, IMAGE, &qos)?)
+                    })
+                })
+                .collect::<Result<Vec<_>, NodeError>>()?,
             tf: subscribe(node, &config.tf_topic, TF_MESSAGE, &topics::tf_qos())?,
             tf_static: subscribe(
                 node,
@@ -326,10 +342,15 @@ impl FuseInputs {
             })));
         }
         for (i, sub) in self.colour.iter().enumerate() {
-            streams
-                .push(Box::pin(sub.async_stream().map(move |r| {
-                    FuseEvent::Colour(i, r.map(|(m, _)| m).map_err(err))
-                })));
+            streams.push(match sub {
+                ColourSubscription::Raw(sub) => Box::pin(sub.async_stream().map(move |r| {
+                    FuseEvent::Colour(i, r.map(|(m, _)| ColourImage::Raw(m)).map_err(err))
+                })),
+                ColourSubscription::Compressed(sub) => Box::pin(sub.async_stream().map(move |r| {
+                    let image = r.map(|(m, _)| ColourImage::Compressed(m));
+                    FuseEvent::Colour(i, image.map_err(err))
+                })),
+            });
         }
         for (sub, is_static) in [(&self.tf, false), (&self.tf_static, true)] {
             streams.push(Box::pin(sub.async_stream().map(move |r| {

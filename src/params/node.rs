@@ -144,7 +144,7 @@ fn world_params() -> Vec<ParamSpec> {
             "color_topics",
             ParamValue::StringArray(Vec::new()),
             ParamRange::NameList { min_len: 0 },
-            "`sweepdepth fuse` only: per entry of depth_topics, in its order, the colour image whose pixels are the depth's (the same camera and size: the reference camera's image_raw beside a sweepdepth node's depth, a RealSense's color/image_raw beside its aligned depth), taken at the depth's stamp to colour the mesh (rgb8, bgr8, rgba8, bgra8, mono8, mono16); empty = a grey mesh. A depth image whose colour has not come is fused grey, counted in /diagnostics. The depth node ignores it.",
+            "`sweepdepth fuse` only: per entry of depth_topics, in its order, the colour image whose pixels are the depth's (the same camera and size: the reference camera's image_raw beside a sweepdepth node's depth, a RealSense's color/image_raw beside its aligned depth), taken at the depth's stamp to colour the mesh (sensor_msgs/Image: rgb8, bgr8, rgba8, bgra8, mono8, mono16; a topic ending in /compressed: sensor_msgs/CompressedImage, JPEG or PNG); empty = a grey mesh. A depth image whose colour has not come adds none (counted in /diagnostics). The depth node ignores it.",
         ),
     ]
 }

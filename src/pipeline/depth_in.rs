@@ -9,8 +9,9 @@
 //! camera, a pose that cannot come.
 //!
 //! With colour topics ([`DepthSources::with_colour`]), each depth image takes the colour image
-//! of its source with its stamp (the last [`COLOUR_KEPT`] of each are kept); one whose colour
-//! did not come, or does not fit, is fused grey and counted in [`DepthSources::uncoloured`].
+//! of its source with its stamp (the last [`COLOUR_KEPT`] of each are kept, compressed ones as
+//! they came: only those a depth image takes are decoded); one whose colour did not come, or
+//! does not fit, is fused without colour and counted in [`DepthSources::uncoloured`].
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -20,7 +21,7 @@ use super::counts::SkipCounts;
 use super::fuser::FusionInput;
 use super::pose_queue::{PoseQueue, Posed};
 use crate::image::{ImageF32, Rgba8Image};
-use crate::msgs::{CameraInfo, Image, TFMessage};
+use crate::msgs::{CameraInfo, CompressedImage, Image, TFMessage, Time};
 use crate::ros::camera_info::{camera_from_info, check_image_size, ImageKind};
 use crate::ros::tf_history::TfInsertError;
 
@@ -69,13 +70,40 @@ pub struct DepthSources {
     pub skipped: SkipCounts,
     /// Per source, the colour image topic (empty: no colour) and its last images.
     colour_topics: Vec<String>,
-    colours: Vec<VecDeque<Image>>,
+    colours: Vec<VecDeque<ColourImage>>,
     /// Depth images fused without their colour, by reason.
     pub uncoloured: SkipCounts,
 }
 
 /// The colour images kept per source, newest last, for the depth images that come after them.
 pub const COLOUR_KEPT: usize = 8;
+
+/// A colour image as it came: a `sensor_msgs/Image`, or a `sensor_msgs/CompressedImage` (JPEG
+/// or PNG as image_transport's compressed plugin publishes it), decoded when a depth takes it.
+#[derive(Debug, Clone)]
+pub enum ColourImage {
+    Raw(Image),
+    Compressed(CompressedImage),
+}
+
+impl ColourImage {
+    fn stamp(&self) -> Time {
+        match self {
+            ColourImage::Raw(image) => image.header.stamp,
+            ColourImage::Compressed(image) => image.header.stamp,
+        }
+    }
+
+    fn to_rgba8(&self, topic: &str) -> Option<Rgba8Image> {
+        match self {
+            ColourImage::Raw(image) => super::convert::image_to_rgba8(topic, image).ok(),
+            ColourImage::Compressed(image) => {
+                let decoded = super::compressed::decode(topic, image).ok()?;
+                super::convert::image_to_rgba8(topic, &decoded).ok()
+            }
+        }
+    }
+}
 
 impl DepthSources {
     /// `topics`: the depth image topics (for messages); poses in `world_frame`.
@@ -102,7 +130,7 @@ impl DepthSources {
     }
 
     /// A colour image of source `i`.
-    pub fn push_colour(&mut self, i: usize, image: Image) {
+    pub fn push_colour(&mut self, i: usize, image: ColourImage) {
         if let Some(kept) = self.colours.get_mut(i) {
             if kept.len() == COLOUR_KEPT {
                 kept.pop_front();
@@ -116,11 +144,10 @@ impl DepthSources {
         let image = self
             .colours
             .get(i)
-            .and_then(|kept| kept.iter().rev().find(|c| c.header.stamp == input.stamp))
+            .and_then(|kept| kept.iter().rev().find(|c| c.stamp() == input.stamp))
             .ok_or("no colour image at its stamp")?;
         let topic = self.colour_topics.get(i).map_or("", String::as_str);
-        let colour = super::convert::image_to_rgba8(topic, image)
-            .map_err(|_| "colour image not readable")?;
+        let colour = image.to_rgba8(topic).ok_or("colour image not readable")?;
         if (colour.width, colour.height) != (input.depth.width, input.depth.height) {
             return Err("colour image of another size");
         }
@@ -452,7 +479,7 @@ mod tests {
         assert_eq!(s.skipped.get("no camera_info"), 1);
     }
 
-    fn rgb(w: u32, h: u32, value: u8, sec: i32) -> Image {
+    fn rgb_image(w: u32, h: u32, value: u8, sec: i32) -> Image {
         Image {
             encoding: "rgb8".into(),
             step: w * 3,
@@ -461,8 +488,12 @@ mod tests {
         }
     }
 
+    fn rgb(w: u32, h: u32, value: u8, sec: i32) -> ColourImage {
+        ColourImage::Raw(rgb_image(w, h, value, sec))
+    }
+
     /// Each depth image takes its source's colour image with its stamp; one without (none
-    /// with its stamp, another size) is fused grey and counted.
+    /// with its stamp, another size) is fused without colour and counted.
     #[test]
     fn a_depth_takes_the_colour_with_its_stamp() {
         let mut s = sources().with_colour(vec!["/a/image_raw".into()]);
@@ -490,6 +521,22 @@ mod tests {
             s.push_colour(0, rgb(32, 24, 10, 10 + k));
         }
         assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 1), 0)).is_none());
+        // Compressed (PNG: lossless), decoded when taken; a corrupt one is counted.
+        let png = super::super::compressed::compress(
+            &rgb_image(32, 24, 77, 30),
+            super::super::compressed::Codec::Png,
+            95,
+        )
+        .unwrap();
+        let mut corrupt = png.clone();
+        corrupt.header.stamp.sec = 31;
+        corrupt.data.truncate(40);
+        s.push_colour(0, ColourImage::Compressed(png));
+        s.push_colour(0, ColourImage::Compressed(corrupt));
+        let c = colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 30), 0));
+        assert_eq!(c.map(|p| p[0]), Some(77));
+        assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 31), 0)).is_none());
+        assert_eq!(s.uncoloured.get("colour image not readable"), 1);
         // Without colour topics nothing is counted.
         let mut plain = sources();
         plain.push_info(0, info(32, 24));

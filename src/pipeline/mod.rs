@@ -42,7 +42,7 @@ pub use config::{
     ConfigError, FusionConfig, PipelineConfig, SyncPolicy, VirtualConfig, WorldConfig,
 };
 pub use counts::{Counts, SkipCounts};
-pub use depth_in::{DepthSkip, DepthSources};
+pub use depth_in::{ColourImage, DepthSkip, DepthSources};
 pub use engine_host::{EngineHost, Finished, HostError};
 pub use fuser::{FuseSkip, Fuser, FusionInput, SavedMesh};
 pub use fuser_thread::{FuserThread, FusionStats};

@@ -41,6 +41,7 @@ pub fn timeout() -> Duration {
 const POLL: Duration = Duration::from_millis(5);
 
 pub const IMAGE: (&str, &str) = ("sensor_msgs", "Image");
+pub const COMPRESSED_IMAGE: (&str, &str) = ("sensor_msgs", "CompressedImage");
 pub const CAMERA_INFO: (&str, &str) = ("sensor_msgs", "CameraInfo");
 pub const POINT_CLOUD2: (&str, &str) = ("sensor_msgs", "PointCloud2");
 pub const TF_MESSAGE: (&str, &str) = ("tf2_msgs", "TFMessage");
