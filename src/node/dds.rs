@@ -143,6 +143,7 @@ pub(super) fn run(
                 state.handle(event);
             }
         };
+        // The parameter services, and `/clock` while `use_sim_time` is on.
         let params = sim_time::serve_parameters(&param_services, &mut node, &config.clock_topic);
         let fusion_services = async {
             match &fusion {

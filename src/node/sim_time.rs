@@ -1,9 +1,8 @@
 //! The nodes' `/clock` readers, as an rcl node's time source (rclcpp's `TimeSource`): one
-//! exists only while `use_sim_time` is on. The depth node's is made when the parameter turns on
-//! (at start or through the parameter services) and dropped, out of the graph, when it turns
-//! off; switched on again, the time is the last message's until the next, as rclcpp keeps it.
-//! Both nodes (the depth node, `fuse`) follow it beside their parameter services. The time
-//! itself: `clock.rs`.
+//! exists only while `use_sim_time` is on. A node's (the depth node's, `fuse`'s) is made when
+//! the parameter turns on (at start or through the parameter services) and dropped, out of the
+//! graph, when it turns off; switched on again, the time is the last message's until the next,
+//! as rclcpp keeps it. The time itself: `clock.rs`.
 
 use futures::StreamExt;
 use ros2_client::{Node, Subscription};
