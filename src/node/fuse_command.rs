@@ -195,14 +195,20 @@ struct TfMessageIn {
     is_static: bool,
 }
 
-/// The fuse node's `/diagnostics`: fusion's counts, the depth images waiting for /tf and the
-/// skips by reason; WARN until a depth map was fused.
+/// The fuse node's `/diagnostics`: fusion's counts, the depth images waiting for /tf (and for
+/// colour) and the skips by reason; WARN until a depth map was fused.
 fn fuse_diagnostics(stats: &FusionStats, sources: &DepthSources, fqn: &str) -> DiagnosticArray {
     let mut values = diagnostic_values(stats);
     values.push(KeyValue {
         key: "depth images waiting for /tf".into(),
         value: sources.waiting().to_string(),
     });
+    if sources.has_colour() {
+        values.push(KeyValue {
+            key: "depth images waiting for colour".into(),
+            value: sources.awaiting_colour().to_string(),
+        });
+    }
     for (reason, count) in &sources.skipped {
         values.push(KeyValue {
             key: format!("skipped: {reason}"),
@@ -241,7 +247,8 @@ fn fuse_diagnostics(stats: &FusionStats, sources: &DepthSources, fqn: &str) -> D
 }
 
 /// One subscription event into the depth sources: the depth maps it makes ready to fuse (a
-/// depth image whose pose is known, or those a /tf message released), or their skips.
+/// depth image whose pose is known, those a /tf message released, those that waited for a
+/// colour image), or their skips.
 fn take_event(
     s: &mut DepthSources,
     event: FuseEvent,
@@ -254,10 +261,7 @@ fn take_event(
             s.push_info(i, *info);
             Vec::new()
         }
-        FuseEvent::Colour(i, Ok(image)) => {
-            s.push_colour(i, image);
-            Vec::new()
-        }
+        FuseEvent::Colour(i, Ok(image)) => s.push_colour(i, image),
         FuseEvent::Tf(Ok(tf)) => {
             for e in s.push_tf(&tf.msg, tf.is_static) {
                 log.warn("tf", || format!("a transform was refused: {e}"));
@@ -486,6 +490,50 @@ mod tests {
     /// (no parameter file; a file whose sections are for other nodes, named).
     /// `use_sim_time` and `/clock`'s remap reach the fuse node as the depth node.
     /// The parameters it serves are of the one table.
+    /// A colour image that comes after its depth (a RealSense sends its two streams in
+    /// either order) is waited for: the event that brings it releases the depth with its
+    /// colour, and `/diagnostics` counts the depth waiting meanwhile.
+    #[test]
+    fn a_colour_after_its_depth_colours_it() {
+        use crate::pipeline::depth_in::tests::{depth_mm, info, rgb, tf};
+        let mut s = DepthSources::new(
+            vec!["/a/depth/image".into()],
+            "world".into(),
+            Duration::from_secs(1),
+        )
+        .with_colour(vec!["/a/image_raw".into()]);
+        let mut log = RateLimited::default();
+        let mut take = |s: &mut DepthSources, event| take_event(s, event, 0, &mut log);
+        take(&mut s, FuseEvent::Info(0, Ok(Box::new(info(32, 24)))));
+        let tf = TfMessageIn {
+            msg: tf(0, 0.0),
+            is_static: true,
+        };
+        take(&mut s, FuseEvent::Tf(Ok(tf)));
+        let depth = FuseEvent::Depth(0, Ok(depth_mm(32, 24, 2000, 1)));
+        assert!(take(&mut s, depth).is_empty(), "it waits for its colour");
+        let waiting = |s: &DepthSources| {
+            let diagnostics = fuse_diagnostics(&FusionStats::default(), s, "/fuse");
+            diagnostics.status[0]
+                .values
+                .iter()
+                .find(|v| v.key == "depth images waiting for colour")
+                .map(|v| v.value.clone())
+        };
+        assert_eq!(waiting(&s).as_deref(), Some("1"));
+        let out = take(&mut s, FuseEvent::Colour(0, Ok(rgb(32, 24, 90, 1))));
+        let [Ok(input)] = &out[..] else {
+            panic!("the depth did not come with its colour: {out:?}");
+        };
+        let colour = input
+            .colour
+            .as_ref()
+            .map(|c| crate::image::Rgba8Image::unpack(c.pixels[0]));
+        assert_eq!(colour.map(|p| p[0]), Some(90));
+        assert_eq!(waiting(&s).as_deref(), Some("0"));
+        assert!(s.uncoloured.is_empty());
+    }
+
     #[test]
     fn its_parameters_are_of_the_table() {
         for name in FUSE_PARAMS {

@@ -10,8 +10,10 @@
 //!
 //! With colour topics ([`DepthSources::with_colour`]), each depth image takes the colour image
 //! of its source with its stamp (the last [`COLOUR_KEPT`] of each are kept, compressed ones as
-//! they came: only those a depth image takes are decoded); one whose colour did not come, or
-//! does not fit, is fused without colour and counted in [`DepthSources::uncoloured`].
+//! they came: only those a depth image takes are decoded). A placed depth image whose colour
+//! has not come yet waits for it (a RealSense sends its two streams in either order), until
+//! its colour topic passes its stamp or for at most `tf_timeout`; one whose colour does not
+//! come, or does not fit, is fused without colour and counted in [`DepthSources::uncoloured`].
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -71,9 +73,17 @@ pub struct DepthSources {
     /// Per source, the colour image topic (empty: no colour) and its last images.
     colour_topics: Vec<String>,
     colours: Vec<VecDeque<ColourImage>>,
+    /// Placed depth images waiting for their colour image, in order: source, image, and the
+    /// time after which they go without.
+    awaiting_colour: VecDeque<(usize, FusionInput, u64)>,
     /// Depth images fused without their colour, by reason.
     pub uncoloured: SkipCounts,
 }
+
+/// Why a depth image has no colour when its colour topic has not reached its stamp yet.
+const NO_COLOUR_YET: &str = "no colour image at its stamp";
+/// Why a depth image waited for its colour in vain.
+const COLOUR_LATE: &str = "its colour image did not come within tf_timeout";
 
 /// The colour images kept per source, newest last, for the depth images that come after them.
 pub const COLOUR_KEPT: usize = 8;
@@ -117,6 +127,7 @@ impl DepthSources {
             skipped: SkipCounts::default(),
             colour_topics: Vec::new(),
             colours: Vec::new(),
+            awaiting_colour: VecDeque::new(),
             uncoloured: SkipCounts::default(),
         }
     }
@@ -129,14 +140,56 @@ impl DepthSources {
         self
     }
 
-    /// A colour image of source `i`.
-    pub fn push_colour(&mut self, i: usize, image: ColourImage) {
-        if let Some(kept) = self.colours.get_mut(i) {
-            if kept.len() == COLOUR_KEPT {
-                kept.pop_front();
-            }
-            kept.push_back(image);
+    /// A colour image of source `i`; returns the depth images that waited for it (or for a
+    /// colour image past their stamp: they go without).
+    pub fn push_colour(
+        &mut self,
+        i: usize,
+        image: ColourImage,
+    ) -> Vec<Result<FusionInput, DepthSkip>> {
+        let stamp = image.stamp();
+        let Some(kept) = self.colours.get_mut(i) else {
+            return Vec::new();
+        };
+        if kept.len() == COLOUR_KEPT {
+            kept.pop_front();
         }
+        kept.push_back(image);
+        let (due, waiting) = std::mem::take(&mut self.awaiting_colour)
+            .into_iter()
+            .partition(|(source, input, _)| *source == i && input.stamp <= stamp);
+        self.awaiting_colour = waiting;
+        due.into_iter()
+            .map(|(source, input, _)| Ok(self.coloured(source, input)))
+            .collect()
+    }
+
+    /// `input` with the colour of source `i` at its stamp, or without it (counted).
+    fn coloured(&mut self, i: usize, mut input: FusionInput) -> FusionInput {
+        match self.colour_for(i, &input) {
+            Ok(colour) => input.colour = Some(colour),
+            Err(reason) => self.uncoloured.add(reason),
+        }
+        input
+    }
+
+    /// Whether the colour topic of source `i` has passed `stamp` (a colour image newer than it
+    /// came): a depth image with that stamp waits no longer for its own.
+    fn colour_passed(&self, i: usize, stamp: Time) -> bool {
+        self.colours
+            .get(i)
+            .and_then(VecDeque::back)
+            .is_some_and(|newest| newest.stamp() > stamp)
+    }
+
+    /// Whether the depth images take colour (colour topics were given).
+    pub fn has_colour(&self) -> bool {
+        !self.colours.is_empty()
+    }
+
+    /// Depth images placed and waiting for their colour image.
+    pub fn awaiting_colour(&self) -> usize {
+        self.awaiting_colour.len()
     }
 
     /// The colour of source `i` at the depth's stamp, or why there is none.
@@ -145,7 +198,7 @@ impl DepthSources {
             .colours
             .get(i)
             .and_then(|kept| kept.iter().rev().find(|c| c.stamp() == input.stamp))
-            .ok_or("no colour image at its stamp")?;
+            .ok_or(NO_COLOUR_YET)?;
         let topic = self.colour_topics.get(i).map_or("", String::as_str);
         let colour = image.to_rgba8(topic).ok_or("colour image not readable")?;
         if (colour.width, colour.height) != (input.depth.width, input.depth.height) {
@@ -204,21 +257,43 @@ impl DepthSources {
         out
     }
 
-    /// The waiting images whose pose has come (or that waited too long), in order.
+    /// The waiting images whose pose has come (or that waited too long), in order, and those
+    /// that waited for their colour long enough (fused without).
     pub fn poll(&mut self, now_ns: u64) -> Vec<Result<FusionInput, DepthSkip>> {
         let done = self.queue.ready(&self.world_frame, now_ns, false);
         let mut out = Vec::with_capacity(done.len());
+        while let Some((_, _, deadline)) = self.awaiting_colour.front() {
+            if *deadline > now_ns {
+                break;
+            }
+            if let Some((_, input, _)) = self.awaiting_colour.pop_front() {
+                self.uncoloured.add(COLOUR_LATE);
+                out.push(Ok(input));
+            }
+        }
         for posed in done {
             match posed {
                 Posed::Ready((source, mut input), world_from_frame) => {
                     input.map_from_cam = world_from_frame.compose(&input.map_from_cam);
-                    if !self.colours.is_empty() {
-                        match self.colour_for(source, &input) {
-                            Ok(colour) => input.colour = Some(colour),
-                            Err(reason) => self.uncoloured.add(reason),
+                    if self.colours.is_empty() {
+                        out.push(Ok(input));
+                        continue;
+                    }
+                    match self.colour_for(source, &input) {
+                        Ok(colour) => {
+                            input.colour = Some(colour);
+                            out.push(Ok(input));
+                        }
+                        // Its colour may still come (after the depth made beside it).
+                        Err(NO_COLOUR_YET) if !self.colour_passed(source, input.stamp) => {
+                            let deadline = now_ns.saturating_add(self.tf_timeout_ns);
+                            self.awaiting_colour.push_back((source, input, deadline));
+                        }
+                        Err(reason) => {
+                            self.uncoloured.add(reason);
+                            out.push(Ok(input));
                         }
                     }
-                    out.push(Ok(input));
                 }
                 Posed::Failed {
                     item: (source, _),
@@ -376,11 +451,11 @@ pub fn depth_metres(image: &Image) -> Result<ImageF32, String> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::msgs::{Header, Time};
 
-    fn info(w: u32, h: u32) -> CameraInfo {
+    pub(crate) fn info(w: u32, h: u32) -> CameraInfo {
         CameraInfo {
             header: Header {
                 stamp: Time::default(),
@@ -399,7 +474,7 @@ mod tests {
         }
     }
 
-    fn depth_mm(w: u32, h: u32, mm: u16, sec: i32) -> Image {
+    pub(crate) fn depth_mm(w: u32, h: u32, mm: u16, sec: i32) -> Image {
         Image {
             header: Header {
                 stamp: Time { sec, nanosec: 0 },
@@ -414,7 +489,7 @@ mod tests {
         }
     }
 
-    use crate::pipeline::pose_queue::tests::tf;
+    pub(crate) use crate::pipeline::pose_queue::tests::tf;
 
     const S: u64 = 1_000_000_000;
 
@@ -488,12 +563,13 @@ mod tests {
         }
     }
 
-    fn rgb(w: u32, h: u32, value: u8, sec: i32) -> ColourImage {
+    pub(crate) fn rgb(w: u32, h: u32, value: u8, sec: i32) -> ColourImage {
         ColourImage::Raw(rgb_image(w, h, value, sec))
     }
 
-    /// Each depth image takes its source's colour image with its stamp; one without (none
-    /// with its stamp, another size) is fused without colour and counted.
+    /// Each depth image takes its source's colour image with its stamp, waiting for it when
+    /// it comes after the depth; one without (none with its stamp, another size, none in
+    /// time) is fused without colour and counted.
     #[test]
     fn a_depth_takes_the_colour_with_its_stamp() {
         let mut s = sources().with_colour(vec!["/a/image_raw".into()]);
@@ -513,9 +589,39 @@ mod tests {
             Some(200)
         );
         assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 3), 0)).is_none());
-        assert!(colour_of(s.push_depth(0, &depth_mm(32, 24, 2000, 4), 0)).is_none());
         assert_eq!(s.uncoloured.get("colour image of another size"), 1);
+        // A depth before its colour waits for it; one whose colour topic passes its stamp
+        // goes without.
+        assert!(s.push_depth(0, &depth_mm(32, 24, 2000, 4), 0).is_empty());
+        assert!(s.push_depth(0, &depth_mm(32, 24, 2000, 5), 0).is_empty());
+        assert_eq!(s.awaiting_colour(), 2);
+        assert!(s.poll(S / 2).is_empty(), "tf_timeout (1 s) not reached");
+        let out = s.push_colour(0, rgb(32, 24, 120, 5));
+        assert_eq!(out.len(), 2, "both released");
+        let colours: Vec<_> = out
+            .into_iter()
+            .map(|r| {
+                let input = r.unwrap();
+                (
+                    input.stamp.sec,
+                    input.colour.map(|c| Rgba8Image::unpack(c.pixels[0])[0]),
+                )
+            })
+            .collect();
+        assert_eq!(colours, [(4, None), (5, Some(120))]);
         assert_eq!(s.uncoloured.get("no colour image at its stamp"), 1);
+        // One whose colour never comes goes without after tf_timeout.
+        assert!(s.push_depth(0, &depth_mm(32, 24, 2000, 6), S).is_empty());
+        assert!(s.poll(S + S / 2).is_empty());
+        let late = s.poll(2 * S + 1);
+        assert_eq!(late.len(), 1);
+        assert!(late[0].as_ref().unwrap().colour.is_none());
+        assert_eq!(
+            s.uncoloured
+                .get("its colour image did not come within tf_timeout"),
+            1
+        );
+        assert_eq!(s.awaiting_colour(), 0);
         // Only the last COLOUR_KEPT are kept.
         for k in 0..COLOUR_KEPT as i32 {
             s.push_colour(0, rgb(32, 24, 10, 10 + k));

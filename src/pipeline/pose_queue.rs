@@ -123,12 +123,12 @@ impl<T> PoseQueue<T> {
 }
 
 #[cfg(test)]
-pub(in crate::pipeline) mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::msgs::{Header, Quaternion, Transform, TransformStamped, Vector3};
 
     /// `world -> cam` at `sec`, `x` metres along x (also the fuse node's tests').
-    pub(in crate::pipeline) fn tf(sec: i32, x: f64) -> TFMessage {
+    pub(crate) fn tf(sec: i32, x: f64) -> TFMessage {
         TFMessage {
             transforms: vec![TransformStamped {
                 header: Header {
