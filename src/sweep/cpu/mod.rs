@@ -466,6 +466,8 @@ impl CpuEngine {
         zbuffer.clear();
         zbuffer.resize(plan.total_camera_pixels, 0);
         let mut result = Ok(());
+        // Whether SGM's passes selected the winners already (`sgm::run_and_select`).
+        let mut selected = false;
         for phase in Schedule::of_plan(plan).phases() {
             if through == Through::Finalize
                 && matches!(phase, Phase::Median | Phase::Splat | Phase::Visibility)
@@ -485,27 +487,27 @@ impl CpuEngine {
                         &images[p.reference as usize].pixels
                     };
                     let buffers = &mut self.buffers;
+                    let (forward, backward) = (&mut buffers.forward, &mut buffers.backward);
                     // Coarse to fine: each pixel's window alone; else the wide layout where
-                    // it applies (4 threads or more), else two passes.
+                    // it applies (4 threads or more), else two passes that select too.
                     let sums = if plan.narrowed() {
-                        sgm_windows::run_two_passes
+                        sgm_windows::run_two_passes(
+                            plan, colours, volume, forward, backward, &cancel,
+                        )
                     } else if sgm_wide::applies(plan) {
-                        sgm_wide::run
+                        sgm_wide::run(plan, colours, volume, forward, backward, &cancel)
                     } else {
-                        sgm::run_two_passes
+                        selected = true;
+                        sgm::run_and_select(
+                            plan, colours, volume, forward, backward, state, &cancel,
+                        )
                     };
-                    if let Err(e) = sums(
-                        plan,
-                        colours,
-                        volume,
-                        &mut buffers.forward,
-                        &mut buffers.backward,
-                        &cancel,
-                    ) {
+                    if let Err(e) = sums {
                         result = Err(e);
                         break;
                     }
                 }
+                Phase::SgmSelect if selected => {}
                 Phase::SgmSelect => {
                     let buffers = &self.buffers;
                     let select = if plan.narrowed() {

@@ -202,20 +202,37 @@ pub(super) fn penalty_table(p1: u32, p2: u32, edge: u32) -> Vec<u16> {
 
 vectorised_fn! { avx2:
 /// One pass over the image in walk order (`forward`: top to bottom, left to right; else the
-/// reverse), summing the path costs of its directions into `sums` (written, not added). Stops
-/// between rows once `cancel` is set (the sums are then incomplete; the caller checks).
-fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, sums: &mut [u16], cancel: &CancelFlag) {
+/// reverse), summing the path costs of its directions a row at a time: each row's sums (the
+/// row's pixels in x order, `stride` lanes each) go to `row_done(y, sums)` once complete. Stops
+/// between rows once `cancel` is set (rows are then missing; the caller checks).
+fn pass(plan: &SweepPlan, reference_colours: &[u32], volume: &[u16], forward: bool, row_done: &mut dyn FnMut(usize, &[u16]), cancel: &CancelFlag) {
     // The common lane counts known at compile time (the demo's 32 planes: 32; `step_fixed`).
     match stride(plan.params.planes as usize) {
-        16 => pass_lanes::<16>(plan, reference_colours, volume, forward, sums, cancel),
-        32 => pass_lanes::<32>(plan, reference_colours, volume, forward, sums, cancel),
-        48 => pass_lanes::<48>(plan, reference_colours, volume, forward, sums, cancel),
-        64 => pass_lanes::<64>(plan, reference_colours, volume, forward, sums, cancel),
-        96 => pass_lanes::<96>(plan, reference_colours, volume, forward, sums, cancel),
-        128 => pass_lanes::<128>(plan, reference_colours, volume, forward, sums, cancel),
-        _ => pass_lanes::<0>(plan, reference_colours, volume, forward, sums, cancel),
+        16 => pass_lanes::<16>(plan, reference_colours, volume, forward, row_done, cancel),
+        32 => pass_lanes::<32>(plan, reference_colours, volume, forward, row_done, cancel),
+        48 => pass_lanes::<48>(plan, reference_colours, volume, forward, row_done, cancel),
+        64 => pass_lanes::<64>(plan, reference_colours, volume, forward, row_done, cancel),
+        96 => pass_lanes::<96>(plan, reference_colours, volume, forward, row_done, cancel),
+        128 => pass_lanes::<128>(plan, reference_colours, volume, forward, row_done, cancel),
+        _ => pass_lanes::<0>(plan, reference_colours, volume, forward, row_done, cancel),
     }
 }
+}
+
+/// [`pass`] with every row's sums written into `sums` (the volume's layout).
+fn pass_into(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: bool,
+    sums: &mut [u16],
+    cancel: &CancelFlag,
+) {
+    let row = plan.params.width as usize * stride(plan.params.planes as usize);
+    let mut write = |y: usize, row_sums: &[u16]| {
+        sums[y * row..(y + 1) * row].copy_from_slice(row_sums);
+    };
+    pass(plan, reference_colours, volume, forward, &mut write, cancel);
 }
 
 /// The body of [`pass`] for `N` lanes per pixel (0: any number).
@@ -225,7 +242,7 @@ fn pass_lanes<const N: usize>(
     reference_colours: &[u32],
     volume: &[u16],
     forward: bool,
-    sums: &mut [u16],
+    row_done: &mut dyn FnMut(usize, &[u16]),
     cancel: &CancelFlag,
 ) {
     {
@@ -242,6 +259,7 @@ fn pass_lanes<const N: usize>(
         let mut prev_mins = vec![vec![0u16; w]; row_dirs];
         let mut cur_mins = vec![vec![0u16; w]; row_dirs];
         let mut horizontal = [vec![PAD; n + 2], vec![PAD; n + 2]];
+        let mut sums = vec![0u16; w * n];
         let penalties = penalty_table(p1, p2, edge);
         let p1 = p1 as u16;
         // Each pixel's P2 towards its predecessor in every direction, a row at a time (x order):
@@ -271,7 +289,7 @@ fn pass_lanes<const N: usize>(
                 let x = if forward { walk_x } else { w - 1 - walk_x };
                 let pix = y * w + x;
                 let cost = &volume[pix * n..(pix + 1) * n];
-                let sum = &mut sums[pix * n..(pix + 1) * n];
+                let sum = &mut sums[x * n..(x + 1) * n];
                 // Predecessor columns in walk order: behind (x - s) and ahead (x + s).
                 let behind = if forward { x.wrapping_sub(1) } else { x + 1 };
                 let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
@@ -309,6 +327,7 @@ fn pass_lanes<const N: usize>(
                         step_dyn::<N>(start, false, cost, prev, prev_min, p1, pen, out, sum);
                 }
             }
+            row_done(y, &sums);
             std::mem::swap(&mut prev_rows, &mut cur_rows);
             std::mem::swap(&mut prev_mins, &mut cur_mins);
         }
@@ -380,8 +399,10 @@ pub(super) fn edge_penalties_row(
 /// Both passes, on two threads: the forward directions' path costs summed into `forward`, the
 /// backward ones' into `backward` (resized to the volume; [`select`] adds the two). Not for a
 /// narrowed plan, whose volume holds each pixel's window alone (`sgm_windows`).
-/// `Err(Cancelled)` when `cancel` stopped it between rows. The engine uses the wide layout
-/// instead where it [`super::sgm_wide::applies`] (4 threads or more).
+/// `Err(Cancelled)` when `cancel` stopped it between rows. The engine runs [`run_and_select`]
+/// (these passes selecting as they go), or the wide layout where it
+/// [`super::sgm_wide::applies`] (4 threads or more); the whole sums here are what both are
+/// tested against.
 pub fn run_two_passes(
     plan: &SweepPlan,
     reference_colours: &[u32],
@@ -391,8 +412,99 @@ pub fn run_two_passes(
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
     forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
-        pass(plan, reference_colours, volume, walks_forward, sums, cancel)
+        pass_into(plan, reference_colours, volume, walks_forward, sums, cancel)
     });
+    cancel.check()
+}
+
+/// [`run_two_passes`] and [`select`] in one: the two passes on two threads, each row's winner
+/// selected by the pass that completes the row second, from its own sums (still in cache) and
+/// those the other pass stored; the first stores its row into `forward` or `backward` (about
+/// half the rows each). The selection is [`select`]'s bit for bit, and neither the second
+/// reading of both sums nor half their stores is made (a rectified pair's selection was
+/// bound by those reads). On one thread the forward pass stores every row and the backward
+/// pass selects them all.
+pub fn run_and_select(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+    state: &mut WtaState,
+    cancel: &CancelFlag,
+) -> Result<(), SweepError> {
+    /// A row of the image: the sums each pass may store, its pixels' selection state and
+    /// costs, and whether one pass has stored its sums.
+    struct Row<'a> {
+        forward: &'a mut [u16],
+        backward: &'a mut [u16],
+        state: WtaChunk<'a>,
+        volume: &'a [u16],
+        stored: bool,
+    }
+    let p = &plan.params;
+    let planes = plan.num_planes() as usize;
+    let n = stride(planes);
+    let w = p.width as usize;
+    if w == 0 || planes == 0 {
+        return cancel.check();
+    }
+    let (unit, unique) = (p.sgm_unit_per_level, uniqueness_of(plan));
+    forward.resize(volume.len(), 0);
+    backward.resize(volume.len(), 0);
+    let rows: Vec<std::sync::Mutex<Row<'_>>> = forward
+        .chunks_mut(w * n)
+        .zip(backward.chunks_mut(w * n))
+        .zip(state.chunks_mut(w))
+        .zip(volume.chunks(w * n))
+        .map(|(((forward, backward), state), volume)| {
+            std::sync::Mutex::new(Row {
+                forward,
+                backward,
+                state,
+                volume,
+                stored: false,
+            })
+        })
+        .collect();
+    let walk = |walks_forward: bool| {
+        let mut row_done = |y: usize, sums: &[u16]| {
+            // A pass that panicked leaves no half-written row behind a lock: its rows are
+            // written whole before `stored` is set.
+            let mut guard = rows[y]
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let row = &mut *guard;
+            if !row.stored {
+                let own = if walks_forward {
+                    &mut *row.forward
+                } else {
+                    &mut *row.backward
+                };
+                own.copy_from_slice(sums);
+                row.stored = true;
+                return;
+            }
+            let (f, b) = if walks_forward {
+                (sums, &*row.backward)
+            } else {
+                (&*row.forward, sums)
+            };
+            select_chunk(planes, n, unit, f, b, &mut row.state);
+            if let Some(unique) = unique {
+                uniqueness_chunk(planes, n, unique, row.volume, &mut row.state);
+            }
+        };
+        pass(
+            plan,
+            reference_colours,
+            volume,
+            walks_forward,
+            &mut row_done,
+            cancel,
+        );
+    };
+    rayon::join(|| walk(true), || walk(false));
     cancel.check()
 }
 
@@ -707,14 +819,14 @@ mod tests {
         // Pixel 0 is sure of plane 0; pixel 1 slightly prefers plane 2 locally.
         let costs = volume(&[[0, 50, 50], [5, 40, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass(&plan, &[0, 0], &costs, true, &mut sums, &CancelFlag::new());
+        pass_into(&plan, &[0, 0], &costs, true, &mut sums, &CancelFlag::new());
         // Left to right, pixel 1: d0 = 5 + min(0, 50 + 10, 0 + 30) - 0 = 5; d1 = 40 + min(50,
         // 0 + 10, 50 + 10, 30) = 50; d2 = 0 + min(50, 50 + 10, 30) = 30. The vertical path
         // adds the pixel's own cost.
         assert_eq!(real(&sums), [[0, 100, 100], [10, 90, 30]]);
         // Right to left, pixel 0: d0 = 0 + min(5, 40 + 10, 0 + 30) - 0 = 5; d1 = 50 + min(40,
         // 5 + 10, 0 + 10, 30) - 0 = 60; d2 = 50 + min(0, 40 + 10, 30) = 50.
-        pass(&plan, &[0, 0], &costs, false, &mut sums, &CancelFlag::new());
+        pass_into(&plan, &[0, 0], &costs, false, &mut sums, &CancelFlag::new());
         assert_eq!(real(&sums), [[5, 110, 100], [10, 80, 0]]);
         let (mut forward, mut backward) = (Vec::new(), Vec::new());
         run_two_passes(
@@ -747,6 +859,72 @@ mod tests {
         assert_eq!(state.before[1], BIG);
     }
 
+    /// The passes that select ([`run_and_select`]) leave the selection state [`select`] leaves
+    /// after [`run_two_passes`], bit for bit, on two threads (rows stored by either pass,
+    /// the meeting row contended) and on one (the forward pass stores every row), with the
+    /// uniqueness on the costs read and pixels the local winner-take-all left invalid.
+    #[test]
+    fn the_passes_select_what_select_selects() {
+        use crate::sweep::cpu::sgm_wide::tests::{noise, plan};
+        for (w, h, planes, paths, edge) in [
+            (37, 19, 32, 8, true),
+            (53, 7, 40, 8, false),
+            (29, 11, 72, 4, true),
+            (8, 1, 16, 8, false),
+        ] {
+            let mut plan = plan(w, h, planes, paths, edge);
+            plan.params.uniqueness = 0.2;
+            plan.params.uniqueness_radius = 2;
+            let n = stride(plan.params.planes as usize);
+            let pixels = (w * h) as usize;
+            let volume: Vec<u16> = noise(pixels * n, planes, 300)
+                .into_iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    if i % n >= planes as usize {
+                        PAD
+                    } else {
+                        v as u16
+                    }
+                })
+                .collect();
+            let colours = noise(pixels, w, 1 << 24);
+            // The local winner-take-all's state: every 7th pixel invalid.
+            let mut before = WtaState::new(pixels);
+            for i in 0..pixels {
+                if i % 7 != 3 {
+                    before.best[i] = 1.0;
+                    before.best_plane[i] = (i % planes as usize) as f32;
+                    before.local_confidence[i] = 0.5;
+                }
+            }
+            let cancel = CancelFlag::new();
+            let (mut f, mut b) = (vec![], vec![]);
+            run_two_passes(&plan, &colours, &volume, &mut f, &mut b, &cancel).expect("passes");
+            let mut expected = before.clone();
+            select(&plan, &volume, &f, &b, &mut expected);
+            assert_ne!(expected, before, "{w}x{h}: the selection changed nothing");
+            for threads in [2, 1] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool");
+                let mut state = before.clone();
+                let (mut f, mut b) = (vec![], vec![]);
+                pool.install(|| {
+                    run_and_select(
+                        &plan, &colours, &volume, &mut f, &mut b, &mut state, &cancel,
+                    )
+                })
+                .expect("passes");
+                assert!(
+                    state == expected,
+                    "{w}x{h}, {planes} planes, {paths} paths, {threads} threads: the selections differ"
+                );
+            }
+        }
+    }
+
     /// The half-sequence's smooth minimum scores the best matches below zero (down to
     /// -HALF_NOISE_FLOOR / 4): they keep distinct levels, and tau still fits.
     #[test]
@@ -775,7 +953,7 @@ mod tests {
         plan.params.sgm_edge = 8 * 16;
         let costs = volume(&[[0, 50, 50], [50, 50, 0]]);
         let mut sums = vec![0u16; costs.len()];
-        pass(&plan, &[0, 8], &costs, true, &mut sums, &CancelFlag::new());
+        pass_into(&plan, &[0, 8], &costs, true, &mut sums, &CancelFlag::new());
         // Pixel 1, plane 2: 0 + min(50, 50 + 10, 0 + 15) = 15, plus its own vertical 0.
         assert_eq!(real(&sums)[1], [100, 110, 15]);
     }

@@ -295,7 +295,7 @@ fn horizontal_lanes<const N: usize>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::geometry::CameraModel;
     use crate::sweep::cpu::sgm;
@@ -304,7 +304,13 @@ mod tests {
 
     /// A plan of `w x h` pixels and `planes` planes with `paths` paths and, when `edge`, P2
     /// lowered at colour edges.
-    fn plan(w: u32, h: u32, planes: u32, paths: u32, edge: bool) -> SweepPlan {
+    pub(in crate::sweep::cpu) fn plan(
+        w: u32,
+        h: u32,
+        planes: u32,
+        paths: u32,
+        edge: bool,
+    ) -> SweepPlan {
         let model = CameraModel::pinhole(synthetic::intrinsics(w, h));
         let rig = synthetic::row_rig(2, 0.1, model, 0).expect("rig");
         let params = SweepParams {
@@ -321,7 +327,7 @@ mod tests {
     }
 
     /// Pseudo-random costs and colours (a fixed LCG), some at the top level.
-    fn noise(len: usize, seed: u32, modulo: u32) -> Vec<u32> {
+    pub(in crate::sweep::cpu) fn noise(len: usize, seed: u32, modulo: u32) -> Vec<u32> {
         let mut s = seed;
         (0..len)
             .map(|_| {
