@@ -30,7 +30,7 @@ use super::params::node_options;
 use super::shutdown;
 use super::sim_time::serve_parameters;
 use super::topics::{
-    self, diagnostics_publisher, ros_err, subscribe, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE,
+    self, diagnostics_publisher, ros_err, subscribe, tagged, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE,
     TF_MESSAGE,
 };
 use super::NodeError;
@@ -332,37 +332,26 @@ impl FuseInputs {
 
     /// Every subscription's messages as one stream of events.
     fn events(&self) -> futures::stream::SelectAll<EventStream<'_>> {
-        let err = |e: ros2_client::ReadError| format!("{e:?}");
         let mut streams: Vec<EventStream<'_>> = Vec::new();
         for (i, sub) in self.depth.iter().enumerate() {
-            streams
-                .push(Box::pin(sub.async_stream().map(move |r| {
-                    FuseEvent::Depth(i, r.map(|(m, _)| m).map_err(err))
-                })));
+            streams.push(tagged(sub, move |r| FuseEvent::Depth(i, r)));
         }
         for (i, sub) in self.info.iter().enumerate() {
-            streams.push(Box::pin(sub.async_stream().map(move |r| {
-                FuseEvent::Info(i, r.map(|(m, _)| Box::new(m)).map_err(err))
-            })));
+            streams.push(tagged(sub, move |r| FuseEvent::Info(i, r.map(Box::new))));
         }
         for (i, sub) in self.colour.iter().enumerate() {
             streams.push(match sub {
-                ColourSubscription::Raw(sub) => Box::pin(sub.async_stream().map(move |r| {
-                    FuseEvent::Colour(i, r.map(|(m, _)| ColourImage::Raw(m)).map_err(err))
-                })),
-                ColourSubscription::Compressed(sub) => Box::pin(sub.async_stream().map(move |r| {
-                    let image = r.map(|(m, _)| ColourImage::Compressed(m));
-                    FuseEvent::Colour(i, image.map_err(err))
-                })),
+                ColourSubscription::Raw(sub) => {
+                    tagged(sub, move |r| FuseEvent::Colour(i, r.map(ColourImage::Raw)))
+                }
+                ColourSubscription::Compressed(sub) => tagged(sub, move |r| {
+                    FuseEvent::Colour(i, r.map(ColourImage::Compressed))
+                }),
             });
         }
         for (sub, is_static) in [(&self.tf, false), (&self.tf_static, true)] {
-            streams.push(Box::pin(sub.async_stream().map(move |r| {
-                FuseEvent::Tf(
-                    r.map(|(msg, _)| TfMessageIn { msg, is_static })
-                        .map_err(err),
-                )
-            })));
+            let tf = move |msg| TfMessageIn { msg, is_static };
+            streams.push(tagged(sub, move |r| FuseEvent::Tf(r.map(tf))));
         }
         futures::stream::select_all(streams)
     }

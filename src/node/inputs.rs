@@ -3,12 +3,11 @@
 //! cameras (and for a moving rig's static links), `/tf` for a moving rig; their messages as one
 //! stream of [`Event`]s; and what each subscription requests, for "why no depth".
 
-use futures::StreamExt;
 use ros2_client::qos::{History, WhenFull};
 use ros2_client::{Node, QosProfile, Subscription};
 
 use super::events::{Event, EventStream};
-use super::topics::{self, subscribe, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, TF_MESSAGE};
+use super::topics::{self, subscribe, tagged, CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, TF_MESSAGE};
 use super::why::Requested;
 use super::{NodeConfig, NodeError};
 use crate::msgs::{CameraInfo, CompressedImage, Image, TFMessage};
@@ -87,36 +86,21 @@ impl Inputs {
     /// Every subscription's messages as one stream of events (compressed images carried
     /// compressed into the pipeline, decoded when their set is complete).
     pub(super) fn events(&self) -> impl futures::Stream<Item = Event> + '_ {
-        let err = |e| format!("{e:?}");
         let mut streams: Vec<EventStream<'_>> = Vec::new();
         for (i, sub) in self.images.iter().enumerate() {
-            streams
-                .push(Box::pin(sub.async_stream().map(move |r| {
-                    Event::Image(i, r.map(|(m, _)| m).map_err(err))
-                })));
+            streams.push(tagged(sub, move |r| Event::Image(i, r)));
         }
         for (i, sub) in self.compressed.iter().enumerate() {
-            streams
-                .push(Box::pin(sub.async_stream().map(move |r| {
-                    Event::Compressed(i, r.map(|(m, _)| m).map_err(err))
-                })));
+            streams.push(tagged(sub, move |r| Event::Compressed(i, r)));
         }
         for (i, sub) in self.infos.iter().enumerate() {
-            streams.push(Box::pin(sub.async_stream().map(move |r| {
-                Event::Info(i, r.map(|(m, _)| Box::new(m)).map_err(err))
-            })));
+            streams.push(tagged(sub, move |r| Event::Info(i, r.map(Box::new))));
         }
         if let Some(sub) = &self.tf_static {
-            streams.push(Box::pin(
-                sub.async_stream()
-                    .map(move |r| Event::Tf(r.map(|(m, _)| m).map_err(err))),
-            ));
+            streams.push(tagged(sub, Event::Tf));
         }
         if let Some(sub) = &self.tf {
-            streams
-                .push(Box::pin(sub.async_stream().map(move |r| {
-                    Event::TfDynamic(r.map(|(m, _)| m).map_err(err))
-                })));
+            streams.push(tagged(sub, Event::TfDynamic));
         }
         futures::stream::select_all(streams)
     }

@@ -3,6 +3,9 @@
 //! subscription or publisher in one call, and the depth node's outputs from the list of
 //! outputs (`pipeline::OUTPUTS`).
 
+use std::pin::Pin;
+
+use futures::{Stream, StreamExt};
 use ros2_client::dds::rustdds::Topic;
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{MessageTypeName, Name, Node, Publisher, QosProfile, Subscription};
@@ -75,6 +78,18 @@ pub(super) fn subscribe<M: 'static>(
     let topic = topic(node, name, type_name, qos)?;
     node.create_subscription(&topic, Some(qos.clone()))
         .map_err(ros_err)
+}
+
+/// A subscription's messages as a stream of events: `tag` of each message, or of what
+/// ros2-client said instead (both nodes' event loops select over these).
+pub(super) fn tagged<'a, M: serde::de::DeserializeOwned + 'static, E: 'a>(
+    sub: &'a Subscription<M>,
+    tag: impl Fn(Result<M, String>) -> E + 'a,
+) -> Pin<Box<dyn Stream<Item = E> + 'a>> {
+    Box::pin(
+        sub.async_stream()
+            .map(move |r| tag(r.map(|(m, _)| m).map_err(|e| format!("{e:?}")))),
+    )
 }
 
 /// A publisher of type `type_name` on the topic `name`.
