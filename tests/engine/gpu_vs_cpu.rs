@@ -1139,69 +1139,83 @@ fn narrowed_plane_ranges_agree() {
         )
         .expect("plan");
         let planes = plan.num_planes();
-        // Bands of rows and tiles of different ranges, some with every plane, one with a
-        // single plane.
         let tiles = range_tiles(plan.width) as usize;
-        let ranges: Vec<[u32; 2]> = (0..plan.height as usize * tiles)
-            .map(|i| {
-                let (y, t) = (i / tiles, i % tiles);
-                match (y / 9 + t) % 4 {
-                    0 => [0, planes - 1],
-                    1 => [4, 20],
-                    2 => [10, 10],
-                    _ => [12 + (y % 5) as u32, planes - 1],
-                }
-            })
-            .collect();
-        let narrowed = plan.narrow_planes(ranges.clone()).expect("narrowed plan");
-        assert_ne!(narrowed.id, plan.id);
-        let name = format!("narrowed_{optimizer:?}_{:?}", base.window_mode);
-        compare(&name, &narrowed, &rig, &images);
-        if optimizer == Optimizer::Sgm {
-            // The planes outside a pixel's range are absent from SGM in every shader layout
-            // as in the CPU's windows.
-            for layout in sgm_layouts() {
-                compare_with(
-                    &format!("{name}_{layout:?}"),
-                    &narrowed,
-                    &rig,
-                    &images,
-                    Some(layout),
-                );
-            }
-        }
-        // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
-        // neighbour (with SGM the planes outside are absent: its winner lies inside).
-        let maps = CpuEngine::new()
-            .run_plan(&narrowed, &rig, &images)
-            .expect("cpu");
-        let depth_of = |k: u32, y: usize, x: usize| {
-            let ray = narrowed.rays[y * narrowed.width as usize + x];
-            let p = narrowed.planes[k as usize];
-            p[3] / (p[0] * ray[0] + p[1] * ray[1] + p[2])
-        };
-        let mut checked = 0;
-        for y in 0..narrowed.height as usize {
-            for x in 0..narrowed.width as usize {
-                let range = ranges[y * tiles + x / RANGE_TILE as usize];
-                let d = maps.depth_raw_m.data[y * narrowed.width as usize + x];
-                if d.is_finite() {
-                    let (near, far) = (
-                        depth_of((range[1] + 1).min(planes - 1), y, x),
-                        depth_of(range[0].saturating_sub(1), y, x),
+        let height = plan.height as usize;
+        // Bands of rows and tiles of different ranges, some with every plane, one with a
+        // single plane; then ranges by rows alone, so that whole bands of rows sweep none of
+        // some planes (the CPU engine does not select those rows there).
+        for by_rows in [false, true] {
+            let ranges: Vec<[u32; 2]> = (0..height * tiles)
+                .map(|i| {
+                    let (y, t) = (i / tiles, i % tiles);
+                    if by_rows {
+                        return match 3 * y / height {
+                            0 => [0, 10],
+                            1 => [14, planes - 1],
+                            _ => [4, 20],
+                        };
+                    }
+                    match (y / 9 + t) % 4 {
+                        0 => [0, planes - 1],
+                        1 => [4, 20],
+                        2 => [10, 10],
+                        _ => [12 + (y % 5) as u32, planes - 1],
+                    }
+                })
+                .collect();
+            let narrowed = plan.narrow_planes(ranges.clone()).expect("narrowed plan");
+            assert_ne!(narrowed.id, plan.id);
+            let name = format!(
+                "narrowed_{optimizer:?}_{:?}_by_rows_{by_rows}",
+                base.window_mode
+            );
+            compare(&name, &narrowed, &rig, &images);
+            if optimizer == Optimizer::Sgm {
+                // The planes outside a pixel's range are absent from SGM in every shader layout
+                // as in the CPU's windows.
+                for layout in sgm_layouts() {
+                    compare_with(
+                        &format!("{name}_{layout:?}"),
+                        &narrowed,
+                        &rig,
+                        &images,
+                        Some(layout),
                     );
-                    assert!(
+                }
+            }
+            // The narrowed rows' depths lie within their ranges, up to the sub-pixel step toward a
+            // neighbour (with SGM the planes outside are absent: its winner lies inside).
+            let maps = CpuEngine::new()
+                .run_plan(&narrowed, &rig, &images)
+                .expect("cpu");
+            let depth_of = |k: u32, y: usize, x: usize| {
+                let ray = narrowed.rays[y * narrowed.width as usize + x];
+                let p = narrowed.planes[k as usize];
+                p[3] / (p[0] * ray[0] + p[1] * ray[1] + p[2])
+            };
+            let mut checked = 0;
+            for y in 0..narrowed.height as usize {
+                for x in 0..narrowed.width as usize {
+                    let range = ranges[y * tiles + x / RANGE_TILE as usize];
+                    let d = maps.depth_raw_m.data[y * narrowed.width as usize + x];
+                    if d.is_finite() {
+                        let (near, far) = (
+                            depth_of((range[1] + 1).min(planes - 1), y, x),
+                            depth_of(range[0].saturating_sub(1), y, x),
+                        );
+                        assert!(
                         d >= near * 0.999 && d <= far * 1.001,
                         "{optimizer:?} ({x}, {y}): depth {d} outside planes {range:?} ({near}..{far})"
                     );
-                    checked += 1;
+                        checked += 1;
+                    }
                 }
             }
+            assert!(
+                checked > narrowed.pixel_count() / 2,
+                "{optimizer:?}: {checked} valid"
+            );
         }
-        assert!(
-            checked > narrowed.pixel_count() / 2,
-            "{optimizer:?}: {checked} valid"
-        );
     }
     assert!(SweepPlan::new(&rig, &params)
         .expect("plan")

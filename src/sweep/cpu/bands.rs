@@ -1,7 +1,8 @@
 //! The sweep phase of the CPU engine: bands of rows in parallel, each sweeping every plane in
 //! order (`plane.rs` fuses a plane's cost, window sums and scoring row by row), its pixels'
-//! winner-take-all state and SGM volume levels updated right after each plane while the scores
-//! are in cache (no per-plane score images travel through memory).
+//! winner-take-all state and SGM volume levels updated from each row's scores as soon as they
+//! are made, while they are in the first level of cache (no per-plane score images travel
+//! through memory).
 
 use rayon::prelude::*;
 
@@ -66,11 +67,9 @@ pub(super) fn sweep(
     let levels = if sgm { LEVEL_GROUP * band * width } else { 0 };
     scratches.truncate(chunks.len());
     for scratch in scratches.iter_mut() {
-        scratch.fit(plan, band * width, levels);
+        scratch.fit(plan, levels);
     }
-    scratches.resize_with(chunks.len(), || {
-        BandScratch::new(plan, band * width, levels)
-    });
+    scratches.resize_with(chunks.len(), || BandScratch::new(plan, levels));
     if sgm {
         // The bands' lanes of the volume.
         let mut bands = Vec::with_capacity(chunks.len());
@@ -131,60 +130,59 @@ fn sweep_band(
         if cancel.is_cancelled() {
             return;
         }
-        let (score, sel) = (&mut scratch.score[..len], &mut scratch.sel[..len]);
         // Coarse to fine: a plane is costed only from the first to the last row of the
         // band that sweeps it (from the window sums' restart row at or above the first,
         // so the floats are those of the whole band), and in each row only in the columns
         // whose costs a sweeping pixel's windows read (`SweepPlan::cost_spans`); the pixels
         // that do not sweep it score BIG on it (`plan.plane_ranges`, per tile). `swept`: the
-        // band's pixels that may score less than BIG.
+        // band's rows that may score less than BIG. Each row is selected (and made into
+        // volume levels) as soon as it is scored, while in cache.
+        let g = k % LEVEL_GROUP;
+        let mut levels = vol
+            .is_some()
+            .then(|| &mut scratch.levels[g * len..(g + 1) * len]);
         let sweeping = |y: usize| plan.sweeps(y, k as u32);
         let swept = rows.clone().find(|&y| sweeping(y)).map(|first| {
             let last = rows.clone().rev().find(|&y| sweeping(y)).unwrap_or(first);
             let step = aggregate::RESTART_ROWS;
             let lo = rows.start + (first - rows.start) / step * step;
-            let span = (lo - rows.start) * width..(last + 1 - rows.start) * width;
-            plane::sweep_plane(
+            let idle = &mut scratch.idle;
+            let mut row_done = |y: usize, score: &mut [f32], sel: &mut [f32]| {
+                plan.idle_spans(y, k as u32, idle);
+                for idle in idle.iter() {
+                    score[idle.clone()].fill(BIG);
+                    sel[idle.clone()].fill(f32::from(crate::sweep::selection::INVALID));
+                }
+                // The rows outside `swept` are not selected: a BIG score never wins
+                // (`update_best` keeps a strictly better one) and a pixel's planes are one
+                // run (`plan.plane_ranges`), so BIG scores before its run leave its state as
+                // it began and those after it change only the streaming fields (`last`,
+                // `min_to_last`) read at a new winner, which no BIG score makes: the same
+                // maps as selecting them all (the shader's way; `narrowed_plane_ranges_agree`).
+                let at = (y - rows.start) * width..(y + 1 - rows.start) * width;
+                select_plane(
+                    k as f32,
+                    score,
+                    sel,
+                    &mut st.sub(at.start, at.end),
+                    best_only,
+                );
+                if let Some(levels) = levels.as_deref_mut() {
+                    volume_levels(levels_per_unit, score, &mut levels[at]);
+                }
+            };
+            plane::sweep_plane_rows(
                 plan,
                 frame,
                 plane_mappings,
                 k,
                 lo..last + 1,
                 &mut scratch.plane,
-                &mut score[span.clone()],
-                &mut sel[span.clone()],
+                &mut row_done,
             );
-            for y in lo..last + 1 {
-                let i = y - rows.start;
-                plan.idle_spans(y, k as u32, &mut scratch.idle);
-                for idle in &scratch.idle {
-                    let at = i * width + idle.start..i * width + idle.end;
-                    score[at.clone()].fill(BIG);
-                    sel[at].fill(f32::from(crate::sweep::selection::INVALID));
-                }
-            }
-            span
+            (lo - rows.start) * width..(last + 1 - rows.start) * width
         });
         let swept = swept.unwrap_or(0..0);
-        if best_only {
-            // A BIG score never wins (`update_best` keeps a strictly better one), so the
-            // pixels outside `swept` keep their state: the same floats as selecting them all.
-            let mut st = st.sub(swept.start, swept.end);
-            select_plane(
-                k as f32,
-                &score[swept.clone()],
-                &sel[swept.clone()],
-                &mut st,
-                true,
-            );
-        } else {
-            let invalid = f32::from(crate::sweep::selection::INVALID);
-            for outside in [0..swept.start, swept.end..len] {
-                score[outside.clone()].fill(BIG);
-                sel[outside].fill(invalid);
-            }
-            select_plane(k as f32, score, sel, st, false);
-        }
         if let Some((vol, layout)) = vol.as_mut() {
             // Levels of a group of planes are gathered plane by plane, then written
             // pixel by pixel (each pixel's group of lanes at once: the band's volume
@@ -192,14 +190,8 @@ fn sweep_band(
             // pixel's lanes in once per plane). Only the pixels whose window holds the group
             // have its lanes (`sgm_windows::VolumeLayout`): a group no pixel of the band sweeps is in
             // none of their windows.
-            let g = k % LEVEL_GROUP;
             let levels = &mut scratch.levels[g * len..(g + 1) * len];
             levels[..swept.start].fill(idle_level);
-            volume_levels(
-                levels_per_unit,
-                &score[swept.clone()],
-                &mut levels[swept.clone()],
-            );
             levels[swept.end..].fill(idle_level);
             group_swept |= !swept.is_empty();
             if g + 1 == LEVEL_GROUP || k + 1 == planes {
@@ -254,8 +246,6 @@ pub(super) struct BandScratch {
     /// The shape of plan the rows were made for (its parameters and pairs: a narrowed plan
     /// or the other level of a coarse-to-fine sweep keeps them when it has the same).
     shape: (GpuParams, Vec<[u32; 4]>),
-    score: Vec<f32>,
-    sel: Vec<f32>,
     /// SGM volume levels of up to LEVEL_GROUP planes, plane-major.
     levels: Vec<u16>,
     /// A row's column spans that do not sweep the current plane (`SweepPlan::idle_spans`).
@@ -263,12 +253,10 @@ pub(super) struct BandScratch {
 }
 
 impl BandScratch {
-    fn new(plan: &SweepPlan, pixels: usize, levels: usize) -> Self {
+    fn new(plan: &SweepPlan, levels: usize) -> Self {
         Self {
             plane: PlaneScratch::new(plan),
             shape: (plan.params, plan.pairs.clone()),
-            score: vec![0.0; pixels],
-            sel: vec![0.0; pixels],
             levels: vec![0; levels],
             idle: Vec::new(),
         }
@@ -276,13 +264,11 @@ impl BandScratch {
 
     /// Sized for `plan` (the rows made anew for another plan; every buffer is written before
     /// it is read, so the contents of the last set do not matter).
-    fn fit(&mut self, plan: &SweepPlan, pixels: usize, levels: usize) {
+    fn fit(&mut self, plan: &SweepPlan, levels: usize) {
         if self.shape.0 != plan.params || self.shape.1 != plan.pairs {
             self.plane = PlaneScratch::new(plan);
             self.shape = (plan.params, plan.pairs.clone());
         }
-        self.score.resize(pixels, 0.0);
-        self.sel.resize(pixels, 0.0);
         self.levels.resize(levels, 0);
     }
 }

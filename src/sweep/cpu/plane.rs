@@ -43,6 +43,9 @@ pub struct PlaneScratch {
     /// (`matched::MatchedReference`), and its second differences.
     matched: ColourRow,
     reference_differences: super::matched::MatchedReference,
+    /// The current row's scores and selection codes (`sweep_plane_rows`).
+    row_score: Vec<f32>,
+    row_sel: Vec<f32>,
 }
 
 impl PlaneScratch {
@@ -83,6 +86,8 @@ impl PlaneScratch {
             hypothesis: None,
             matched: cost::colour_row(width),
             reference_differences: super::matched::MatchedReference::new(width),
+            row_score: vec![0.0; width],
+            row_sel: vec![0.0; width],
         }
     }
 }
@@ -167,12 +172,14 @@ pub struct FrameImages {
     pub census: Vec<Vec<u32>>,
 }
 
-vectorised_fn! {
 /// Sweeps plane `k` over the band of reference rows `rows`: the best placement's score and
 /// selection code of every pixel of the band into `score` and `sel` (row-major from the band's
 /// first row; the `best` argument of `select_plane`). The costs of the rows the band's windows
 /// reach above and below it are made too (a band's halo).
-#[expect(clippy::too_many_arguments, reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them")]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "each argument is an input of its own (the shader twin's buffers, or slices kept apart so that the loop vectorises); a struct would only rename them"
+)]
 pub fn sweep_plane(
     plan: &SweepPlan,
     images: &FrameImages,
@@ -183,27 +190,54 @@ pub fn sweep_plane(
     score: &mut [f32],
     sel: &mut [f32],
 ) {
+    let (width, first) = (plan.params.width as usize, rows.start);
+    sweep_plane_rows(plan, images, mappings, k, rows, scratch, &mut |y, s, se| {
+        let at = (y - first) * width;
+        score[at..at + width].copy_from_slice(s);
+        sel[at..at + width].copy_from_slice(se);
+    });
+}
+
+/// What is done with each row's scores as soon as they are made (in cache): `(y, score,
+/// sel)`, the row's best placement's score and selection code of every pixel.
+pub type RowDone<'a> = dyn FnMut(usize, &mut [f32], &mut [f32]) + 'a;
+
+vectorised_fn! {
+/// [`sweep_plane`], each row's scores handed to `row_done` as soon as they are made (the
+/// sweep's selection and SGM levels then read them from the first level of cache, not from a
+/// band's scores in memory).
+pub fn sweep_plane_rows(
+    plan: &SweepPlan,
+    images: &FrameImages,
+    mappings: &[Mapping],
+    k: usize,
+    rows: std::ops::Range<usize>,
+    scratch: &mut PlaneScratch,
+    row_done: &mut RowDone<'_>,
+) {
     let p = &plan.params;
     let (width, height) = (p.width as usize, p.height as usize);
     let windows = Windows::of(plan);
     let (up, down) = windows.reach();
     let mut next_row = rows.start.saturating_sub(up);
     scratch.scorer.begin(rows.start);
+    scratch.row_score.resize(width, 0.0);
+    scratch.row_sel.resize(width, 0.0);
     for y in rows.clone() {
         let needed = (y + down + 1).min(height);
         while next_row < needed {
             cost_row(plan, images, mappings, k, next_row, scratch);
             next_row += 1;
         }
-        let at = (y - rows.start) * width;
         scratch.scorer.score_row(
             plan,
             &scratch.ring,
             y,
             height,
-            &mut score[at..at + width],
-            &mut sel[at..at + width],
+            &mut scratch.row_score,
+            &mut scratch.row_sel,
         );
+        row_done(y, &mut scratch.row_score, &mut scratch.row_sel);
     }
 }
 }
