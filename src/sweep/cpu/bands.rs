@@ -240,7 +240,7 @@ pub(super) fn band_rows(height: usize, threads: usize, halo_rows: usize, narrowe
         .unwrap_or(STEP)
 }
 
-/// One band's scratch: the plane sweep's rows and the band's scores of one plane.
+/// One band's scratch: the plane sweep's rows and the band's volume levels of a group of planes.
 pub(super) struct BandScratch {
     plane: PlaneScratch,
     /// The shape of plan the rows were made for (its parameters and pairs: a narrowed plan

@@ -489,10 +489,12 @@ impl CpuEngine {
                     let buffers = &mut self.buffers;
                     let (forward, backward) = (&mut buffers.forward, &mut buffers.backward);
                     // Coarse to fine: each pixel's window alone; else the wide layout where
-                    // it applies (4 threads or more), else two passes that select too.
+                    // it applies (4 threads or more), else two passes; both two-pass
+                    // layouts select as they go.
                     let sums = if plan.narrowed() {
-                        sgm_windows::run_two_passes(
-                            plan, colours, volume, forward, backward, &cancel,
+                        selected = true;
+                        sgm_windows::run_and_select(
+                            plan, colours, volume, forward, backward, state, &cancel,
                         )
                     } else if sgm_wide::applies(plan) {
                         sgm_wide::run(plan, colours, volume, forward, backward, &cancel)
@@ -509,13 +511,9 @@ impl CpuEngine {
                 }
                 Phase::SgmSelect if selected => {}
                 Phase::SgmSelect => {
+                    // The wide layout's sums (`sgm_wide::run`), selected here.
                     let buffers = &self.buffers;
-                    let select = if plan.narrowed() {
-                        sgm_windows::select
-                    } else {
-                        sgm::select
-                    };
-                    select(plan, volume, &buffers.forward, &buffers.backward, state);
+                    sgm::select(plan, volume, &buffers.forward, &buffers.backward, state);
                 }
                 Phase::Finalize => {
                     finalize::run(plan, state, &mut maps);

@@ -433,6 +433,59 @@ pub fn run_and_select(
     state: &mut WtaState,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
+    let p = &plan.params;
+    let planes = plan.num_planes() as usize;
+    let n = stride(planes);
+    let w = p.width as usize;
+    if w == 0 || planes == 0 {
+        return cancel.check();
+    }
+    let (unit, unique) = (p.sgm_unit_per_level, uniqueness_of(plan));
+    let rows = Rows {
+        lanes: (0..=p.height as usize).map(|y| y * w * n).collect(),
+        width: w,
+    };
+    let select_row = |_y: usize, [f, b, levels]: [&[u16]; 3], st: &mut WtaChunk<'_>| {
+        select_chunk(planes, n, unit, f, b, st);
+        if let Some(unique) = unique {
+            uniqueness_chunk(planes, n, unique, levels, st);
+        }
+    };
+    let walk = |walks_forward: bool, row_done: &mut dyn FnMut(usize, &[u16])| {
+        pass(
+            plan,
+            reference_colours,
+            volume,
+            walks_forward,
+            row_done,
+            cancel,
+        );
+    };
+    let sums = [forward, backward];
+    passes_selecting(&rows, volume, sums, state, walk, select_row);
+    cancel.check()
+}
+
+/// Where each row's lanes lie in a volume and its sums (`lanes[y]..lanes[y + 1]`), and the
+/// pixels per row.
+pub(super) struct Rows {
+    pub(super) lanes: Vec<usize>,
+    pub(super) width: usize,
+}
+
+/// The core of [`run_and_select`] for any layout of the volume (`rows`): `walk(forward,
+/// row_done)` runs one pass, handing each row's sums to `row_done(y, sums)`; both run on two
+/// threads. The pass that completes a row first stores it into its sums (`sums[0]` forward,
+/// `sums[1]` backward, resized to the volume); the second selects it, `select_row(y, [forward,
+/// backward, volume], state)` on the row's lanes and its pixels' state.
+pub(super) fn passes_selecting(
+    rows: &Rows,
+    volume: &[u16],
+    sums: [&mut Vec<u16>; 2],
+    state: &mut WtaState,
+    walk: impl Fn(bool, &mut dyn FnMut(usize, &[u16])) + Sync,
+    select_row: impl Fn(usize, [&[u16]; 3], &mut WtaChunk<'_>) + Sync,
+) {
     /// A row of the image: the sums each pass may store, its pixels' selection state and
     /// costs, and whether one pass has stored its sums.
     struct Row<'a> {
@@ -442,22 +495,22 @@ pub fn run_and_select(
         volume: &'a [u16],
         stored: bool,
     }
-    let p = &plan.params;
-    let planes = plan.num_planes() as usize;
-    let n = stride(planes);
-    let w = p.width as usize;
-    if w == 0 || planes == 0 {
-        return cancel.check();
-    }
-    let (unit, unique) = (p.sgm_unit_per_level, uniqueness_of(plan));
+    let [forward, backward] = sums;
     forward.resize(volume.len(), 0);
     backward.resize(volume.len(), 0);
-    let rows: Vec<std::sync::Mutex<Row<'_>>> = forward
-        .chunks_mut(w * n)
-        .zip(backward.chunks_mut(w * n))
-        .zip(state.chunks_mut(w))
-        .zip(volume.chunks(w * n))
-        .map(|(((forward, backward), state), volume)| {
+    let (mut f, mut b, mut v) = (&mut forward[..], &mut backward[..], volume);
+    let rows: Vec<std::sync::Mutex<Row<'_>>> = state
+        .chunks_mut(rows.width.max(1))
+        .into_iter()
+        .zip(rows.lanes.windows(2))
+        .map(|(state, lanes)| {
+            let len = (lanes[1] - lanes[0]).min(v.len());
+            let (forward, rest) = std::mem::take(&mut f).split_at_mut(len);
+            f = rest;
+            let (backward, rest) = std::mem::take(&mut b).split_at_mut(len);
+            b = rest;
+            let (volume, rest) = v.split_at(len);
+            v = rest;
             std::sync::Mutex::new(Row {
                 forward,
                 backward,
@@ -469,9 +522,12 @@ pub fn run_and_select(
         .collect();
     let walk = |walks_forward: bool| {
         let mut row_done = |y: usize, sums: &[u16]| {
+            let Some(row) = rows.get(y) else {
+                return;
+            };
             // A pass that panicked leaves no half-written row behind a lock: its rows are
             // written whole before `stored` is set.
-            let mut guard = rows[y]
+            let mut guard = row
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner);
             let row = &mut *guard;
@@ -490,22 +546,11 @@ pub fn run_and_select(
             } else {
                 (&*row.forward, sums)
             };
-            select_chunk(planes, n, unit, f, b, &mut row.state);
-            if let Some(unique) = unique {
-                uniqueness_chunk(planes, n, unique, row.volume, &mut row.state);
-            }
+            select_row(y, [f, b, row.volume], &mut row.state);
         };
-        pass(
-            plan,
-            reference_colours,
-            volume,
-            walks_forward,
-            &mut row_done,
-            cancel,
-        );
+        walk(walks_forward, &mut row_done);
     };
     rayon::join(|| walk(true), || walk(false));
-    cancel.check()
 }
 
 /// `pass` walking forward into `forward` and backward into `backward` on two threads, the sums

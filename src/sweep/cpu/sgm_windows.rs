@@ -17,13 +17,14 @@ use crate::sweep::{CancelFlag, SweepError};
 use super::common::vectorised_fn;
 use super::select::{WtaChunk, WtaState};
 use super::sgm::{
-    edge_penalties_row, forward_and_backward, penalty_table, stride, uniqueness_of,
-    uniqueness_on_costs, winner, Uniqueness, LANES, PAD,
+    edge_penalties_row, passes_selecting, penalty_table, stride, uniqueness_of,
+    uniqueness_on_costs, winner, Rows, Uniqueness, LANES, PAD,
 };
 
 /// `sgm::run_two_passes` for a narrowed plan: the forward and backward passes on two threads,
 /// each pixel's window alone (`volume`, `forward` and `backward` in the plan's
-/// [`VolumeLayout`]).
+/// [`VolumeLayout`]); what [`run_and_select`] is tested against.
+#[cfg(test)]
 pub fn run_two_passes(
     plan: &SweepPlan,
     reference_colours: &[u32],
@@ -32,13 +33,62 @@ pub fn run_two_passes(
     backward: &mut Vec<u16>,
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
-    forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
-        pass_windowed(plan, reference_colours, volume, walks_forward, sums, cancel)
+    let layout = VolumeLayout::of(plan);
+    super::sgm::forward_and_backward(volume.len(), forward, backward, |walks_forward, sums| {
+        let mut write = |y: usize, row: &[u16]| {
+            let at = layout.row_start(y);
+            sums[at..at + row.len()].copy_from_slice(row);
+        };
+        pass_windowed(
+            plan,
+            reference_colours,
+            volume,
+            walks_forward,
+            &mut write,
+            cancel,
+        );
     });
     cancel.check()
 }
 
-/// `sgm::select` for a narrowed plan: a row at a time, each pixel's window alone.
+/// `sgm::run_and_select` for a narrowed plan: the two passes, each row's winners selected by
+/// the pass that completes the row second (bit for bit [`select`]'s).
+pub fn run_and_select(
+    plan: &SweepPlan,
+    reference_colours: &[u32],
+    volume: &[u16],
+    forward: &mut Vec<u16>,
+    backward: &mut Vec<u16>,
+    state: &mut WtaState,
+    cancel: &CancelFlag,
+) -> Result<(), SweepError> {
+    let layout = VolumeLayout::of(plan);
+    let rows = Rows {
+        lanes: layout.row_at.clone(),
+        width: plan.params.width as usize,
+    };
+    let unit = plan.params.sgm_unit_per_level;
+    let unique = uniqueness_of(plan);
+    let select_row = |y: usize, lanes: [&[u16]; 3], st: &mut WtaChunk<'_>| {
+        select_windows(&layout, y, unit, lanes, unique, st);
+    };
+    let walk = |walks_forward: bool, row_done: &mut dyn FnMut(usize, &[u16])| {
+        pass_windowed(
+            plan,
+            reference_colours,
+            volume,
+            walks_forward,
+            row_done,
+            cancel,
+        );
+    };
+    passes_selecting(&rows, volume, [forward, backward], state, walk, select_row);
+    cancel.check()
+}
+
+/// `sgm::select` for a narrowed plan: a row at a time, each pixel's window alone; what
+/// [`run_and_select`] is tested against.
+#[cfg(test)]
 pub fn select(
     plan: &SweepPlan,
     volume: &[u16],
@@ -51,12 +101,15 @@ pub fn select(
     let unit = plan.params.sgm_unit_per_level;
     let unique = uniqueness_of(plan);
     let w = (plan.params.width as usize).max(1);
-    let sums = [forward, backward, volume];
     state
         .chunks_mut(w)
         .into_par_iter()
         .enumerate()
-        .for_each(|(y, mut st)| select_windows(&layout, y, unit, sums, unique, &mut st));
+        .for_each(|(y, mut st)| {
+            let lanes = layout.row_start(y)..layout.row_start(y + 1);
+            let row = [forward, backward, volume].map(|v| v.get(lanes.clone()).unwrap_or(&[]));
+            select_windows(&layout, y, unit, row, unique, &mut st);
+        });
 }
 
 /// The planes of a pixel that take part in SGM, `lo..=hi`: all of them, or under coarse to
@@ -97,7 +150,7 @@ pub struct VolumeLayout {
     /// Per (row, tile): the first lane of its first pixel, and its pixels' window.
     tile_at: Vec<(usize, Window)>,
     /// Per row its first lane, then the volume's length.
-    row_at: Vec<usize>,
+    pub(super) row_at: Vec<usize>,
 }
 
 impl VolumeLayout {
@@ -392,13 +445,14 @@ vectorised_fn! { avx2:
 /// `sgm::pass` under coarse to fine: each pixel's [`Window`] alone, its lanes in the
 /// [`VolumeLayout`] of `volume` and `sums`; a range tile's pixels at a time, with its window's
 /// group count known at compile time for the common counts (the per-pixel lookups and a
-/// varying count cost more than the groups they skip).
+/// varying count cost more than the groups they skip). Each row's sums (its lanes in the
+/// layout) go to `row_done(y, sums)` once complete.
 fn pass_windowed(
     plan: &SweepPlan,
     reference_colours: &[u32],
     volume: &[u16],
     forward: bool,
-    sums: &mut [u16],
+    row_done: &mut dyn FnMut(usize, &[u16]),
     cancel: &CancelFlag,
 ) {
     let p = &plan.params;
@@ -424,11 +478,15 @@ fn pass_windowed(
     let mut pens: [Vec<u16>; 4] = std::array::from_fn(|_| vec![penalties[0]; w]);
     let tile = crate::sweep::plan::RANGE_TILE as usize;
     let tiles = w.div_ceil(tile);
+    let mut sums = Vec::new();
     for walk_y in 0..h {
         if cancel.is_cancelled() {
             return;
         }
         let y = if forward { walk_y } else { h - 1 - walk_y };
+        // The row's sums, from its first lane in the layout.
+        let row_start = layout.row_start(y);
+        sums.resize(layout.row_start(y + 1) - row_start, 0);
         let prev_y = if forward { y.wrapping_sub(1) } else { y + 1 };
         if edge > 0 && w > 0 {
             let prev_y = (prev_y < h).then_some(prev_y);
@@ -454,7 +512,8 @@ fn pass_windowed(
             let t = if forward { walk_t } else { tiles - 1 - walk_t };
             let xs = t * tile..((t + 1) * tile).min(w);
             let (at, window) = layout.pixel(xs.start, y);
-            let run = (&row, &mut rows, xs, window, at, volume);
+            let run = (&row, &mut rows, xs, window, at - row_start, &volume[row_start..]);
+            let sums = &mut sums[..];
             match window.groups().len() {
                 1 => tile_run::<1>(run.0, run.1, run.2, run.3, run.4, run.5, sums, &mut h_min),
                 2 => tile_run::<2>(run.0, run.1, run.2, run.3, run.4, run.5, sums, &mut h_min),
@@ -462,6 +521,7 @@ fn pass_windowed(
                 _ => tile_run::<0>(run.0, run.1, run.2, run.3, run.4, run.5, sums, &mut h_min),
             }
         }
+        row_done(y, &sums);
         std::mem::swap(&mut rows.prev, &mut rows.cur);
         std::mem::swap(&mut rows.prev_mins, &mut rows.cur_mins);
         std::mem::swap(&mut rows.prev_groups, &mut rows.cur_groups);
@@ -470,8 +530,8 @@ fn pass_windowed(
 }
 
 vectorised_fn! {
-/// [`super::sgm::select`] for row `y` under coarse to fine (`lanes`: the forward and backward sums and the
-/// volume in `layout`): each pixel's [`Window`] alone (the planes outside it are absent: never
+/// [`super::sgm::select`] for row `y` under coarse to fine (`lanes`: the row's lanes of the
+/// forward and backward sums and of the volume in `layout`, from the row's first): each pixel's [`Window`] alone (the planes outside it are absent: never
 /// the winner, its neighbour or a rival, as the shader's BIG for a plane marked OUTSIDE_LEVEL).
 fn select_windows(
     layout: &VolumeLayout,
@@ -489,6 +549,7 @@ fn select_windows(
             continue;
         }
         let (at, window) = layout.pixel(x, y);
+        let at = at - layout.row_start(y);
         // The window's planes from its first (`lo`), at their place in its groups.
         let planes = at + window.lo - window.groups().start * LANES..;
         let planes = planes.start..planes.start + window.hi + 1 - window.lo;
@@ -530,7 +591,8 @@ mod tests {
     /// layout against a scalar walk of every path over every plane with that rule, on a
     /// 40x6 image of three range tiles with 40 planes (three groups of lanes, the last partial),
     /// ranges that differ from row to row and tile to tile, and levels of their own in the
-    /// lanes of a window's groups outside its range (which must not count).
+    /// lanes of a window's groups outside its range (which must not count); then the passes
+    /// that select as they go (`run_and_select`) against it.
     #[test]
     fn windowed_passes_match_a_scalar_walk_of_the_absent_planes_rule() {
         let (w, h, planes) = (40usize, 6usize, 40usize);
@@ -691,6 +753,35 @@ mod tests {
                 });
                 assert_eq!(state.local_confidence[i], want, "pixel ({x}, {y})");
             }
+        }
+        // The passes that select as they go (`run_and_select`), on two threads (each row
+        // selected by whichever pass completes it second) and on one: the same state.
+        for threads in [2, 1] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            let mut selected = WtaState::new(w * h);
+            selected.best.fill(0.0);
+            selected.best_plane.fill(0.0);
+            let (mut f, mut b) = (Vec::new(), Vec::new());
+            let colours = vec![0; w * h];
+            pool.install(|| {
+                run_and_select(
+                    &plan,
+                    &colours,
+                    &volume,
+                    &mut f,
+                    &mut b,
+                    &mut selected,
+                    &cancel,
+                )
+            })
+            .expect("not cancelled");
+            assert!(
+                selected == state,
+                "{threads} threads: the selections differ"
+            );
         }
     }
 }
