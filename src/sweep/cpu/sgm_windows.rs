@@ -52,7 +52,8 @@ pub fn run_two_passes(
 }
 
 /// `sgm::run_and_select` for a narrowed plan: the two passes, each row's winners selected by
-/// the pass that completes the row second (bit for bit [`select`]'s).
+/// the pass that completes the row second (bit for bit the separate selection's, `select`,
+/// kept for the tests).
 pub fn run_and_select(
     plan: &SweepPlan,
     reference_colours: &[u32],
