@@ -2,7 +2,8 @@
 //! ARCHITECTURE, CHANGELOG, docs/ and its notes, the folders' READMEs) names a file that exists
 //! and, with a `#fragment` into a Markdown file, one of its headings (GitHub's anchors: lower
 //! case, punctuation dropped, spaces as hyphens, `-1`, `-2` for repeats). Pages split or
-//! headings renamed leave links behind otherwise (the history moved to docs/notes/ did).
+//! headings renamed leave links behind otherwise (the history moved to docs/notes/ did). And the
+//! user pages in docs/ stay within their length.
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -153,4 +154,31 @@ fn anchors_are_githubs() {
         assert!(got.contains(want), "{want} in {got:?}");
     }
     assert!(!got.contains("not-a-heading"));
+}
+
+/// The user pages stay pages (ARCHITECTURE.md's rule for `docs/`): at most 300 lines each, so
+/// that a new figure replaces today's and the one it replaces moves to `docs/notes/`, the
+/// developers' history, instead of the page growing into a lab notebook.
+#[test]
+fn the_user_pages_stay_within_300_lines() {
+    const MOST: usize = 300;
+    let docs = root().join("docs");
+    let mut pages = 0;
+    let mut long = Vec::new();
+    for entry in std::fs::read_dir(&docs).expect("docs/").flatten() {
+        let path = entry.path();
+        if path.extension().is_some_and(|e| e == "md") {
+            pages += 1;
+            let text = std::fs::read_to_string(&path).expect("a readable page");
+            let lines = text.lines().count();
+            if lines > MOST {
+                long.push(format!("{} ({lines} lines)", path.display()));
+            }
+        }
+    }
+    assert!(pages >= 5, "only {pages} pages found in {}", docs.display());
+    assert!(
+        long.is_empty(),
+        "over {MOST} lines: {long:?}; move the older figures to docs/notes/"
+    );
 }
