@@ -441,10 +441,7 @@ pub fn run_and_select(
         return cancel.check();
     }
     let (unit, unique) = (p.sgm_unit_per_level, uniqueness_of(plan));
-    let rows = Rows {
-        lanes: (0..=p.height as usize).map(|y| y * w * n).collect(),
-        width: w,
-    };
+    let row_lanes: Vec<usize> = (0..=p.height as usize).map(|y| y * w * n).collect();
     let select_row = |_y: usize, [f, b, levels]: [&[u16]; 3], st: &mut WtaChunk<'_>| {
         select_chunk(planes, n, unit, f, b, st);
         if let Some(unique) = unique {
@@ -462,24 +459,19 @@ pub fn run_and_select(
         );
     };
     let sums = [forward, backward];
-    passes_selecting(&rows, volume, sums, state, walk, select_row);
+    passes_selecting(&row_lanes, w, volume, sums, state, walk, select_row);
     cancel.check()
 }
 
-/// Where each row's lanes lie in a volume and its sums (`lanes[y]..lanes[y + 1]`), and the
-/// pixels per row.
-pub(super) struct Rows {
-    pub(super) lanes: Vec<usize>,
-    pub(super) width: usize,
-}
-
-/// The core of [`run_and_select`] for any layout of the volume (`rows`): `walk(forward,
-/// row_done)` runs one pass, handing each row's sums to `row_done(y, sums)`; both run on two
+/// The core of [`run_and_select`] for any layout of the volume (row `y`'s lanes in the volume
+/// and its sums are `row_lanes[y]..row_lanes[y + 1]`, its pixels `width` of `state`):
+/// `walk(forward, row_done)` runs one pass, handing each row's sums to `row_done(y, sums)`; both run on two
 /// threads. The pass that completes a row first stores it into its sums (`sums[0]` forward,
 /// `sums[1]` backward, resized to the volume); the second selects it, `select_row(y, [forward,
 /// backward, volume], state)` on the row's lanes and its pixels' state.
 pub(super) fn passes_selecting(
-    rows: &Rows,
+    row_lanes: &[usize],
+    width: usize,
     volume: &[u16],
     sums: [&mut Vec<u16>; 2],
     state: &mut WtaState,
@@ -500,9 +492,9 @@ pub(super) fn passes_selecting(
     backward.resize(volume.len(), 0);
     let (mut f, mut b, mut v) = (&mut forward[..], &mut backward[..], volume);
     let rows: Vec<std::sync::Mutex<Row<'_>>> = state
-        .chunks_mut(rows.width.max(1))
+        .chunks_mut(width.max(1))
         .into_iter()
-        .zip(rows.lanes.windows(2))
+        .zip(row_lanes.windows(2))
         .map(|(state, lanes)| {
             let len = (lanes[1] - lanes[0]).min(v.len());
             let (forward, rest) = std::mem::take(&mut f).split_at_mut(len);

@@ -18,7 +18,7 @@ use super::common::vectorised_fn;
 use super::select::{WtaChunk, WtaState};
 use super::sgm::{
     edge_penalties_row, passes_selecting, penalty_table, stride, uniqueness_of,
-    uniqueness_on_costs, winner, Rows, Uniqueness, LANES, PAD,
+    uniqueness_on_costs, winner, Uniqueness, LANES, PAD,
 };
 
 /// `sgm::run_two_passes` for a narrowed plan: the forward and backward passes on two threads,
@@ -41,6 +41,7 @@ pub fn run_two_passes(
         };
         pass_windowed(
             plan,
+            &layout,
             reference_colours,
             volume,
             walks_forward,
@@ -64,10 +65,6 @@ pub fn run_and_select(
     cancel: &CancelFlag,
 ) -> Result<(), SweepError> {
     let layout = VolumeLayout::of(plan);
-    let rows = Rows {
-        lanes: layout.row_at.clone(),
-        width: plan.params.width as usize,
-    };
     let unit = plan.params.sgm_unit_per_level;
     let unique = uniqueness_of(plan);
     let select_row = |y: usize, lanes: [&[u16]; 3], st: &mut WtaChunk<'_>| {
@@ -76,6 +73,7 @@ pub fn run_and_select(
     let walk = |walks_forward: bool, row_done: &mut dyn FnMut(usize, &[u16])| {
         pass_windowed(
             plan,
+            &layout,
             reference_colours,
             volume,
             walks_forward,
@@ -83,7 +81,9 @@ pub fn run_and_select(
             cancel,
         );
     };
-    passes_selecting(&rows, volume, [forward, backward], state, walk, select_row);
+    let (row_lanes, width) = (&layout.row_at, plan.params.width as usize);
+    let sums = [forward, backward];
+    passes_selecting(row_lanes, width, volume, sums, state, walk, select_row);
     cancel.check()
 }
 
@@ -450,6 +450,7 @@ vectorised_fn! { avx2:
 /// layout) go to `row_done(y, sums)` once complete.
 fn pass_windowed(
     plan: &SweepPlan,
+    layout: &VolumeLayout,
     reference_colours: &[u32],
     volume: &[u16],
     forward: bool,
@@ -460,7 +461,6 @@ fn pass_windowed(
     let (w, h) = (p.width as usize, p.height as usize);
     let n = stride(p.planes as usize);
     let (p1, p2, edge) = (p.sgm_p1, p.sgm_p2, p.sgm_edge);
-    let layout = VolumeLayout::of(plan);
     let row_dirs = if p.sgm_paths == 8 { 3 } else { 1 };
     let m = n + 2;
     let rows_of = |v| (0..row_dirs).map(|_| vec![v; w * m]).collect::<Vec<_>>();
