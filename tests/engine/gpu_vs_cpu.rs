@@ -258,6 +258,58 @@ fn sgm_agrees_on_synthetic() {
     );
 }
 
+/// A stereo pair with SGM, the reference on the left and on the right: the CPU engine keeps
+/// only the best score of its local winner-take-all (every score of a pair's plan carries its
+/// one half's selection code, `RowScorer::constant_selection`), the shader the whole state; the
+/// maps (selection and cost included) agree, and the selection is that half's wherever the
+/// pair chose a depth.
+#[test]
+fn sgm_on_a_stereo_pair_agrees() {
+    let model = CameraModel::pinhole(synthetic::intrinsics(48, 36));
+    let scene = Scene::wall_and_box(3.0, Some((1.6, 0.35)), 42.0);
+    for (reference, half) in [(0, 2.0), (1, 1.0)] {
+        let rig = synthetic::row_rig(2, 0.1, model, reference).expect("rig");
+        let images = synthetic::render_rig(&scene, &rig);
+        let params = SweepParams {
+            optimizer: Optimizer::Sgm,
+            ..base()
+        };
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        compare(
+            &format!("stereo_pair_reference_{reference}"),
+            &plan,
+            &rig,
+            &images,
+        );
+        let cpu = CpuEngine::new()
+            .run_plan_raw(&plan, &rig, &images)
+            .expect("cpu run");
+        let npix = plan.pixel_count();
+        let (depth, selection) = (
+            section(&cpu, npix, MAP_DEPTH_RAW),
+            section(&cpu, npix, MAP_SELECTION),
+        );
+        let seen: Vec<f32> = depth
+            .iter()
+            .zip(selection)
+            .filter(|(d, _)| d.is_finite())
+            .map(|(_, &s)| s)
+            .collect();
+        assert!(
+            seen.len() * 2 > npix,
+            "reference {reference}: {} seen",
+            seen.len()
+        );
+        // Some pixels a later stage fills (confidence 0) have no selection (3).
+        let halves = seen.iter().filter(|&&s| s == half).count();
+        assert!(
+            halves * 4 > seen.len() * 3 && seen.iter().all(|&s| s == half || s == 3.0),
+            "reference {reference}: {halves} of {} seen pixels chose half {half}",
+            seen.len()
+        );
+    }
+}
+
 /// An adapter whose storage binding limit holds fewer rows of the SGM volume than the image runs
 /// SGM in row bands, the path state carried from band to band: the maps equal the run in one
 /// band bit for bit (every layout of the one-band run, subgroups included), and the CPU engine

@@ -145,6 +145,8 @@ pub struct RowScorer {
     /// e.g. a stereo pair): that half's selection code (`score_halves_best_one` then skips the
     /// empty half).
     one_side: Option<f32>,
+    /// Whether `score_row` goes through `score_halves_best_one` (per-pair aggregation).
+    per_pair: bool,
 }
 
 impl RowScorer {
@@ -193,6 +195,20 @@ impl RowScorer {
                     _ => None,
                 }
             },
+            per_pair: p.aggregation == AGG_PER_PAIR,
+        }
+    }
+
+    /// The selection code that every score below BIG of the plan comes with, where there is
+    /// one: per-pair aggregation, each half scoring its best pair, all pairs in one half (a
+    /// stereo pair). Its one-sided path gives that half's code wherever it saw something and a
+    /// BIG score elsewhere, and every placement (shiftable windows) and idle span keeps that
+    /// (an idle pixel scores BIG).
+    pub fn constant_selection(&self) -> Option<f32> {
+        if self.per_pair && self.best_one {
+            self.one_side
+        } else {
+            None
         }
     }
 

@@ -120,8 +120,14 @@ fn sweep_band(
     let planes = mappings.len();
     let levels_per_unit = plan.params.sgm_levels_per_unit;
     let len = rows.len() * width;
-    // With SGM only the winner is needed (its uniqueness is read off the volume later).
-    let best_only = vol.is_some();
+    // With SGM only the winner is needed (its uniqueness is read off the volume later), and
+    // of a plan whose scores all carry one selection code (a stereo pair) only its score.
+    let constant = scratch.plane.constant_selection();
+    let selecting = match (vol.is_some(), constant) {
+        (false, _) => Selecting::All,
+        (true, None) => Selecting::Best,
+        (true, Some(_)) => Selecting::Lowest,
+    };
     // The level of a pixel that does not sweep a plane (it scores BIG there).
     let idle_level = sgm::volume_level(levels_per_unit, BIG);
     // Whether some pixel of the band sweeps a plane of the current group of volume levels.
@@ -165,7 +171,7 @@ fn sweep_band(
                     score,
                     sel,
                     &mut st.sub(at.start, at.end),
-                    best_only,
+                    selecting,
                 );
                 if let Some(levels) = levels.as_deref_mut() {
                     volume_levels(levels_per_unit, score, &mut levels[at]);
@@ -208,6 +214,22 @@ fn sweep_band(
             }
         }
     }
+    if let (Selecting::Lowest, Some(sel)) = (selecting, constant) {
+        st.settle_constant(sel);
+    }
+}
+
+/// How much of the winner-take-all state a band's sweep keeps.
+#[derive(Debug, Clone, Copy)]
+enum Selecting {
+    /// Every field (`WtaChunk::update`): the local winner-take-all's maps.
+    All,
+    /// The winner, its plane and selection (`WtaChunk::update_best`): SGM plans, whose
+    /// selection writes the rest.
+    Best,
+    /// The best score alone (`WtaChunk::update_lowest`, settled with the plan's one selection
+    /// code after the last plane): SGM plans whose every score carries that code.
+    Lowest,
 }
 
 /// Rows per band: a multiple of the window sums' restart interval (so the sums are the same
@@ -279,13 +301,12 @@ const LEVEL_GROUP: usize = sgm::LANES;
 
 common::vectorised_fn! {
 /// Plane `k`'s scores of a band's pixels into their winner-take-all state (compiled for AVX2
-/// where the CPU has it, as every hot loop here); `best_only` (SGM without `uniqueness`) only
-/// the fields SGM reads.
-fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>, best_only: bool) {
-    if best_only {
-        st.update_best(k, scores, sels);
-    } else {
-        st.update(k, scores, sels);
+/// where the CPU has it, as every hot loop here), as much of it as `selecting` says.
+fn select_plane(k: f32, scores: &[f32], sels: &[f32], st: &mut select::WtaChunk<'_>, selecting: Selecting) {
+    match selecting {
+        Selecting::All => st.update(k, scores, sels),
+        Selecting::Best => st.update_best(k, scores, sels),
+        Selecting::Lowest => st.update_lowest(scores),
     }
 }
 }

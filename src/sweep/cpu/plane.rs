@@ -132,6 +132,11 @@ impl CameraRow {
 }
 
 impl PlaneScratch {
+    /// [`RowScorer::constant_selection`] of the plan the scratch was made for.
+    pub fn constant_selection(&self) -> Option<f32> {
+        self.scorer.constant_selection()
+    }
+
     /// The fine sweep (`refine.rs`): makes the reference's second differences
     /// (`refine::MatchedReference`) of the rows a band's hypotheses cost (`rows` with the
     /// windows' reach above and below), once for all of its hypotheses.

@@ -225,6 +225,38 @@ impl WtaChunk<'_> {
     }
 }
 
+impl WtaChunk<'_> {
+    /// [`Self::update_best`] for SGM plans whose every score below BIG carries one selection
+    /// code (`aggregate::RowScorer::constant_selection`: a stereo pair's): only the best
+    /// score, a third of its memory traffic per plane. [`Self::settle_constant`] then gives the
+    /// pixels that saw a plane that code and a plane of their own.
+    #[inline(always)]
+    pub fn update_lowest(&mut self, cost: &[f32]) {
+        let n = self.best.len();
+        for (b, &c) in self.best.iter_mut().zip(&cost[..n]) {
+            *b = fmin(*b, c);
+        }
+    }
+
+    /// After [`Self::update_lowest`] over every plane: every pixel whose best score is below
+    /// BIG (the pixels `update_best` would have given a winner) takes the selection code `sel`
+    /// (what its winner carried) and plane 0 in place of its winner's, which SGM's selection
+    /// writes for every such pixel before anything reads it.
+    pub fn settle_constant(&mut self, sel: f32) {
+        for ((&b, plane), selection) in self
+            .best
+            .iter()
+            .zip(self.best_plane.iter_mut())
+            .zip(self.selection.iter_mut())
+        {
+            if b < BIG {
+                *plane = 0.0;
+                *selection = sel;
+            }
+        }
+    }
+}
+
 /// The body of [`WtaChunk::update`]. The fields come in as separate `&mut` arguments: the
 /// compiler then knows they do not overlap and vectorises the loop without run-time checks.
 #[inline(always)]
