@@ -1071,12 +1071,17 @@ fn cpu_builds_give_the_same_maps() {
 
 /// The CPU engine keeps its buffers across frame sets (maps, z-buffer, winner-take-all state,
 /// band scratch, images): a run after runs of other shapes, optimizers and thread counts gives
-/// the same floats as a fresh engine's run.
+/// the same floats as a fresh engine's run (a stereo pair's SGM among them, which resets and
+/// follows the fewest fields).
 #[test]
 fn cpu_buffers_kept_across_sets_change_nothing() {
     let (crop_rig, crop_images, mut crop_params) = tsukuba_crop();
     crop_params.num_planes = 32;
     let (syn_rig, syn_images) = synthetic_case();
+    // A stereo pair of the synthetic rig's size: its SGM sweep keeps only the best score, the
+    // fields it leaves are the last run's.
+    let pair_rig = synthetic::row_rig(2, 0.1, syn_rig.cameras[0].model, 1).expect("rig");
+    let pair_images = synthetic::render_rig(&Scene::wall_and_box(3.0, None, 42.0), &pair_rig);
     let wta = SweepParams {
         optimizer: Optimizer::Wta,
         window_mode: WindowMode::Shiftable,
@@ -1085,6 +1090,14 @@ fn cpu_buffers_kept_across_sets_change_nothing() {
         ..crop_params.clone()
     };
     let cases = [
+        (
+            &pair_rig,
+            &pair_images,
+            SweepParams {
+                optimizer: Optimizer::Sgm,
+                ..base()
+            },
+        ),
         (&crop_rig, &crop_images, crop_params.clone()),
         (&syn_rig, &syn_images, base()),
         (&crop_rig, &crop_images, wta),

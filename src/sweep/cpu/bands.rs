@@ -41,6 +41,10 @@ pub(super) fn sweep(
         volume.resize(layout.len(), sgm::PAD);
     }
     let mut state = match state {
+        Some(mut state) if sgm => {
+            state.reset_for_sgm(npix);
+            state
+        }
         Some(mut state) => {
             state.reset(npix);
             state
