@@ -260,9 +260,10 @@ fn sgm_agrees_on_synthetic() {
 
 /// A stereo pair with SGM, the reference on the left and on the right: the CPU engine keeps
 /// only the best score of its local winner-take-all (every score of a pair's plan carries its
-/// one half's selection code, `RowScorer::constant_selection`), the shader the whole state; the
-/// maps (selection and cost included) agree, and the selection is that half's wherever the
-/// pair chose a depth.
+/// one half's selection code, `RowScorer::constant_selection`), the shader the whole state, and
+/// it projects the rows it splats into its one other camera in parallel (fewer cameras than
+/// threads); the maps (selection, cost and visibility included) agree, and the selection is
+/// that half's wherever the pair chose a depth.
 #[test]
 fn sgm_on_a_stereo_pair_agrees() {
     let model = CameraModel::pinhole(synthetic::intrinsics(48, 36));

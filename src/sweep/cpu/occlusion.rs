@@ -55,10 +55,35 @@ pub fn splat(plan: &SweepPlan, maps: &Maps, zbuffer: &mut [u32], projections: &m
             sections.push((cam, section, slot));
         }
     }
+    if sections.len() >= rayon::current_num_threads() {
+        sections
+            .into_par_iter()
+            .for_each(|(cam, section, (index, z))| {
+                splat_camera(plan, cam, median, section, index, z)
+            });
+        return;
+    }
+    // Fewer cameras than threads (a stereo pair splats into one): every camera's rows
+    // projected in parallel, then each camera's scatter (the max is the same in any order).
+    let width = plan.width as usize;
+    let rows = PROJECT_ROWS * width.max(1);
+    for (cam, _, (index, z)) in &mut sections {
+        let cam = &**cam;
+        median
+            .par_chunks(rows)
+            .zip(plan.rays.par_chunks(rows))
+            .zip(index.par_chunks_mut(rows).zip(z.par_chunks_mut(rows)))
+            .for_each(|((depths, rays), (index, z))| {
+                project_rows(width, cam, depths, rays, index, z)
+            });
+    }
     sections
         .into_par_iter()
-        .for_each(|(cam, section, (index, z))| splat_camera(plan, cam, median, section, index, z));
+        .for_each(|(cam, section, (index, z))| scatter(cam, section, index, z));
 }
+
+/// Reference rows per parallel task when [`splat`] projects a camera's rows in parallel.
+const PROJECT_ROWS: usize = 16;
 
 /// "Not seen" in a row of texel indices.
 const NONE: u32 = u32::MAX;
@@ -130,6 +155,37 @@ fn nearest_texel(cam: &GpuCamera, pixel: Vec2, depth: f32, projected: bool) -> u
 }
 
 vectorised_fn! {
+/// [`project_row`] of every row of `depths` (`width` pixels each).
+fn project_rows(width: usize, cam: &GpuCamera, depths: &[f32], rays: &[[f32; 4]], index: &mut [u32], z: &mut [f32]) {
+    let rows = depths
+        .chunks_exact(width)
+        .zip(rays.chunks_exact(width))
+        .zip(index.chunks_exact_mut(width).zip(z.chunks_exact_mut(width)));
+    for ((depths, rays), (index, z)) in rows {
+        project_row(cam, rays, depths, index, z);
+    }
+}
+}
+
+/// The nearest depths of a camera's projected pixels (`index`, `z`) into its z-buffer
+/// `section`: the max of the inverted bits.
+#[inline(always)]
+fn scatter_row(first: usize, section: &mut [u32], index: &[u32], z: &[f32]) {
+    for (&at, &z) in index.iter().zip(z) {
+        if at != NONE {
+            if let Some(stored) = section.get_mut(at as usize - first) {
+                *stored = (*stored).max(!z.to_bits());
+            }
+        }
+    }
+}
+
+/// [`scatter_row`] of every projected pixel of camera `cam`.
+fn scatter(cam: &GpuCamera, section: &mut [u32], index: &[u32], z: &[f32]) {
+    scatter_row(cam.size[2] as usize, section, index, z);
+}
+
+vectorised_fn! {
 /// Splats every reference depth into one camera's z-buffer section, a row at a time.
 fn splat_camera(
     plan: &SweepPlan,
@@ -147,13 +203,7 @@ fn splat_camera(
         .zip(index.chunks_exact_mut(width).zip(z.chunks_exact_mut(width)));
     for ((depths, rays), (index, z)) in rows {
         project_row(cam, rays, depths, index, z);
-        for (&at, &z) in index.iter().zip(z.iter()) {
-            if at != NONE {
-                if let Some(stored) = section.get_mut(at as usize - first) {
-                    *stored = (*stored).max(!z.to_bits());
-                }
-            }
-        }
+        scatter_row(first, section, index, z);
     }
 }
 }
