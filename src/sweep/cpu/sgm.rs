@@ -682,9 +682,49 @@ pub fn uniqueness_on_costs(
     )
 }
 
+/// [`uniqueness_on_costs`] of the first `planes` of `N` lanes known at compile time: the rival
+/// as a minimum over every lane, those near the winner or past the planes masked, in vector
+/// lanes (the two minima over slices whose ends move with the winner ran one lane at a time).
+#[inline(always)]
+fn uniqueness_fixed<const N: usize>(
+    levels: &[u16],
+    planes: usize,
+    best: usize,
+    unique: Uniqueness,
+) -> f32 {
+    let (levels, radius) = (&levels[..N], unique.radius);
+    let mut rival = u16::MAX;
+    for (d, &level) in levels.iter().enumerate() {
+        let away = d + radius < best || (d > best + radius && d < planes);
+        rival = rival.min(if away { level } else { u16::MAX });
+    }
+    if rival == u16::MAX {
+        return 1.0;
+    }
+    super::select::confidence(
+        level_score(levels[best], unique.levels_per_unit),
+        level_score(rival, unique.levels_per_unit),
+    )
+}
+
 vectorised_fn! {
 /// The uniqueness on the matching costs of each valid pixel of a run, into `local_confidence`.
 fn uniqueness_chunk(planes: usize, n: usize, unique: Uniqueness, volume: &[u16], st: &mut WtaChunk<'_>) {
+    // 32 lanes known at compile time (a pair's or the demo's planes), as `select_fixed`.
+    if n == 32 && planes <= 32 {
+        for i in 0..st.best.len() {
+            if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
+                continue;
+            }
+            st.local_confidence[i] = uniqueness_fixed::<32>(
+                &volume[i * 32..(i + 1) * 32],
+                planes,
+                st.best_plane[i] as usize,
+                unique,
+            );
+        }
+        return;
+    }
     for i in 0..st.best.len() {
         if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
             continue;
@@ -797,6 +837,38 @@ mod tests {
 
     /// The rival on the matching costs lies more than `radius` planes from SGM's winner: a
     /// repeated pattern's second minimum is one, the winner's own slope is not.
+    #[test]
+    fn uniqueness_over_fixed_lanes_is_the_general_one() {
+        // Every winner and radius over 32 lanes of which the first `planes` are planes (the
+        // rest PAD, never a rival), with a second minimum placed at every distance.
+        let per_unit = 16.0;
+        for planes in [3usize, 17, 31, 32] {
+            for best in 0..planes {
+                for second in 0..planes {
+                    let mut lanes = [PAD; 32];
+                    for (d, level) in lanes.iter_mut().enumerate().take(planes) {
+                        *level = 400 + (d as u16 * 37) % 101;
+                    }
+                    lanes[best] = 10;
+                    lanes[second] = lanes[second].min(12);
+                    for radius in [1usize, 2, 5, 40] {
+                        let unique = Uniqueness {
+                            radius,
+                            levels_per_unit: per_unit,
+                        };
+                        let general = uniqueness_on_costs(&lanes[..planes], best, radius, per_unit);
+                        let fixed = uniqueness_fixed::<32>(&lanes, planes, best, unique);
+                        assert_eq!(
+                            general.to_bits(),
+                            fixed.to_bits(),
+                            "planes {planes}, best {best}, second {second}, radius {radius}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn uniqueness_on_costs_looks_past_the_radius() {
         let per_unit = 1.0;
