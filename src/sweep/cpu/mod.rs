@@ -24,6 +24,7 @@ pub mod plane;
 pub mod refine;
 pub mod select;
 pub mod sgm;
+pub mod sgm_select;
 pub mod sgm_wide;
 pub mod sgm_windows;
 

@@ -583,7 +583,7 @@ mod tests {
     use super::*;
     use crate::geometry::CameraModel;
     use crate::sweep::cpu::select::WtaState;
-    use crate::sweep::cpu::sgm::level_score;
+    use crate::sweep::cpu::sgm_select::level_score;
     use crate::sweep::{Optimizer, SweepParams};
     use crate::synthetic;
 
