@@ -100,6 +100,12 @@ pub fn uniqueness_on_costs(
     )
 }
 
+/// The lane indices 0..N as u16 lanes, for masks made in the lanes' own width.
+#[inline(always)]
+fn lane_indices<const N: usize>() -> [u16; N] {
+    std::array::from_fn(|d| d as u16)
+}
+
 /// [`uniqueness_on_costs`] of the first `planes` of `N` lanes known at compile time: the rival
 /// as a minimum over every lane, those near the winner or past the planes masked, in vector
 /// lanes (the two minima over slices whose ends move with the winner ran one lane at a time).
@@ -110,10 +116,14 @@ fn uniqueness_fixed<const N: usize>(
     best: usize,
     unique: Uniqueness,
 ) -> f32 {
-    let (levels, radius) = (&levels[..N], unique.radius);
+    let levels = &levels[..N];
+    // `d + radius < best || (d > best + radius && d < planes)` in u16 lanes (with `usize` lane
+    // indices the compiler compared 64-bit lanes, four vectors for each of the u16 ones).
+    let (best16, planes16) = (best as u16, planes.min(N) as u16);
+    let radius16 = u16::try_from(unique.radius).unwrap_or(u16::MAX);
     let mut rival = u16::MAX;
-    for (d, &level) in levels.iter().enumerate() {
-        let away = d + radius < best || (d > best + radius && d < planes);
+    for (&d, &level) in lane_indices::<N>().iter().zip(levels) {
+        let away = (d.abs_diff(best16) > radius16) & (d < planes16);
         rival = rival.min(if away { level } else { u16::MAX });
     }
     if rival == u16::MAX {
@@ -205,6 +215,7 @@ fn select_fixed<const N: usize>(
     st: &mut WtaChunk<'_>,
 ) {
     let score = |v: u16| f32::from(v) * unit - SGM_VOLUME_OFFSET;
+    let (lanes, planes16) = (lane_indices::<N>(), planes.min(N) as u16);
     for i in 0..st.best.len() {
         if !(st.best[i] < 0.5 * BIG) || st.best_plane[i] < 0.0 {
             continue;
@@ -227,10 +238,12 @@ fn select_fixed<const N: usize>(
         }
         let (best, best_sum) = ((lowest & 0xff) as usize, (lowest >> 8) as u16);
         // The smallest sum away from the winner and its neighbours (planes 0..best - 1 and
-        // best + 2..planes), if there are such planes.
+        // best + 2..planes), if there are such planes; the mask in u16 lanes (see
+        // `uniqueness_fixed`).
         let mut rival = u16::MAX;
-        for (d, &s) in sums.iter().enumerate() {
-            let away = d + 1 < best || (d > best + 1 && d < planes);
+        let best16 = best as u16;
+        for (&d, &s) in lanes.iter().zip(&sums) {
+            let away = (d.abs_diff(best16) > 1) & (d < planes16);
             rival = rival.min(if away { s } else { u16::MAX });
         }
         let has_rival = best >= 2 || best + 2 < planes;
@@ -278,6 +291,65 @@ mod tests {
                             fixed.to_bits(),
                             "planes {planes}, best {best}, second {second}, radius {radius}"
                         );
+                    }
+                }
+            }
+        }
+    }
+
+    /// The selection over 32 lanes known at compile time (`select_fixed`) is the general one
+    /// (the same chunk laid out in 48 lanes), bit for bit: every plane count up to 32, every
+    /// winner, a second sum near it or tied with it (the first plane wins), low sums in the
+    /// lanes past the planes, and pixels the local winner-take-all left invalid untouched.
+    #[test]
+    fn selection_over_fixed_lanes_is_the_general_one() {
+        use crate::sweep::cpu::select::WtaState;
+        let pad = SGM_PATH_PAD as u16;
+        for planes in [1usize, 2, 3, 4, 17, 31, 32] {
+            for best in 0..planes {
+                for second in 0..planes {
+                    for tie in [false, true] {
+                        // Lanes past the planes hold sums lower than any plane's, which
+                        // must not count.
+                        let mut forward = [1; 32];
+                        let mut backward = [1; 32];
+                        for d in 0..planes {
+                            forward[d] = 400 + (d as u16 * 37) % 101;
+                            backward[d] = 300 + (d as u16 * 53) % 89;
+                        }
+                        forward[best] = 10;
+                        backward[best] = 5;
+                        if second != best {
+                            forward[second] = if tie { 10 } else { 12 };
+                            backward[second] = 5;
+                        }
+                        // Pixel 0 valid, pixel 1 left invalid by the local winner-take-all.
+                        let wide = |lanes: &[u16; 32]| {
+                            let mut out = [pad; 96];
+                            out[..32].copy_from_slice(lanes);
+                            out[48..80].copy_from_slice(lanes);
+                            out
+                        };
+                        let narrow = |lanes: &[u16; 32]| [*lanes, *lanes].concat();
+                        let start = || {
+                            let mut state = WtaState::new(2);
+                            state.best[0] = 1.0;
+                            state.best_plane[0] = 0.0;
+                            state
+                        };
+                        let (mut fixed, mut general) = (start(), start());
+                        let unit = 0.25;
+                        let (f, b) = (narrow(&forward), narrow(&backward));
+                        select_chunk(planes, 32, unit, &f, &b, &mut fixed.chunks_mut(2)[0]);
+                        let (f, b) = (wide(&forward), wide(&backward));
+                        select_chunk(planes, 48, unit, &f, &b, &mut general.chunks_mut(2)[0]);
+                        assert!(
+                            fixed == general,
+                            "planes {planes}, best {best}, second {second}, tie {tie}"
+                        );
+                        let expected = if tie { best.min(second) } else { best };
+                        assert_eq!(fixed.best_plane[0], expected as f32);
+                        assert_eq!(fixed.best_plane[1], -1.0);
                     }
                 }
             }
