@@ -6,12 +6,12 @@
 # report, `$OUT/gpu_check.txt` (the device tool's folder that comes back; `target/gpu-check`
 # here).
 #
-# Prepare here first: `sh scripts/gpu_prepare.sh` (the release binary; in `.gl/` the stripped
-# engine and library test binaries, the Vulkan loader's and libglvnd's .debs and the packed
-# 9-camera Teddy bag; about 62 MiB to carry).
+# Prepare here first: `sh scripts/gpu_prepare.sh` (in `.gl/` the stripped release binary, engine
+# and library test binaries, the Vulkan loader's and libglvnd's .debs and the packed 9-camera
+# Teddy bag, gzipped into `.glz/gl.tgz`, about 28 MiB to carry).
 # (NVIDIA's Vulkan driver, libGLX_nvidia, needs libglvnd: with the loader alone it answers
 # "Could not get 'vkCreateInstance'" and wgpu finds no adapter). Then run it with
-# `carry: [".gl", "target/release/sweepdepth"]` and the command
+# `carry: [".glz"]` and the command
 #   sh scripts/gpu_check.sh
 # (the device tool's README: the loader's .deb unpacked into / and ldconfig; the NVIDIA ICD
 # named by VK_DRIVER_FILES when the loader finds none).
@@ -22,6 +22,13 @@ cd "$(dirname "$0")/.."
 out=${OUT:-target/gpu-check}
 mkdir -p "$out"
 report="$out/gpu_check.txt"
+# The carried archive (scripts/gpu_prepare.sh) unpacked into .gl/, its binary preferred.
+if [ -f .glz/gl.tgz ]; then
+    tar -xzf .glz/gl.tgz
+fi
+if [ -z "${SWEEPDEPTH_BIN:-}" ] && [ -x .gl/sweepdepth ]; then
+    SWEEPDEPTH_BIN=.gl/sweepdepth
+fi
 bin=${SWEEPDEPTH_BIN:-target/release/sweepdepth}
 : >"$report"
 
@@ -68,21 +75,22 @@ command -v nvidia-smi >/dev/null 2>&1 &&
     step nvidia-smi-clocks 30 nvidia-smi -q -d CLOCK
 # GPU_CHECK_PART=quality: only the quality and fine-sweep steps below (a second call, after a
 # full check in the same session).
+# The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe), and
+# the fused cost and row sums (the default on a GPU) against the two passes, then fusion's GPU
+# twins (integration, marching cubes, the fusion thread on a GPU): carried as stripped test
+# binaries, `.gl/engine-tests` and `.gl/lib-tests`.
+equality_tests() {
+    if [ -x .gl/engine-tests ]; then
+        export SWEEPDEPTH_GPU_TEST_STATS=1
+        step gpu-tests 150 .gl/engine-tests gpu_vs_cpu cost_rows --test-threads 4
+    fi
+    if [ -x .gl/lib-tests ]; then
+        step gpu-fusion-tests 120 .gl/lib-tests fusion::gpu fusion::mapper pipeline::fuser_thread --test-threads 2
+    fi
+}
 if [ "${GPU_CHECK_PART:-}" != quality ]; then
 # The adapter wgpu picks, and the WGSL engine working at all, on the paper's configuration.
 step adapter 120 "$bin" bench --device gpu --config paper --repeats 1
-# The GPU-vs-CPU equality tests on the real adapter (the tolerances were set on lavapipe), and
-# the fused cost and row sums (the default on a GPU) against the two passes:
-# carried as a stripped test binary, `.gl/engine-tests` (strip target/debug/deps/engine-*).
-if [ -x .gl/engine-tests ]; then
-    export SWEEPDEPTH_GPU_TEST_STATS=1
-    step gpu-tests 150 .gl/engine-tests gpu_vs_cpu cost_rows --test-threads 4
-fi
-# Fusion's GPU twins (integration, marching cubes, the fusion thread on a GPU) on the real
-# adapter: the library's tests as a stripped binary, `.gl/lib-tests`.
-if [ -x .gl/lib-tests ]; then
-    step gpu-fusion-tests 120 .gl/lib-tests fusion::gpu fusion::mapper pipeline::fuser_thread --test-threads 2
-fi
 # Issue 56's bars first (a check that runs out of time loses comparisons, not bars). Fusion:
 # one 640x480 depth map integrated, copied to the host and meshed at 2 cm,
 # on the GPU (`GpuTsdf`) beside the CPU integrator and Open3D's VoxelBlockGrid (when the machine's python3
@@ -90,13 +98,21 @@ fi
 step bench-fusion 120 "$bin" bench --fusion --device gpu --repeats 5
 if [ -n "${GPU_CHECK_QUICK:-}" ]; then
     step bench 600 "$bin" bench --quick
+    equality_tests
 else
     # The WGSL engine on every configuration first (the figures the README needs), then both
     # engines beside the peer.
     step bench-gpu 150 "$bin" bench --device gpu --repeats 5
+    # The equality tests after the bars' figures (a lease is short).
+    equality_tests
     # Depth and confidence read back alone (the node while nobody subscribes to cost and
     # selection): half the readback.
     step bench-gpu-depth-only 120 "$bin" bench --device gpu --config sxga --repeats 5 --depth-only
+    # SGM's selection reading each pixel's words through workgroup memory in chunks (the
+    # default on a GPU) against each invocation reading its own in place (the only way before
+    # 2026-12-04: its sxga selection 4.2-9.9 ms), alternated twice: the `sgm_select` and
+    # `coarse/sgm_select` ms of the ring and of the 1-megapixel rig.
+    step bench-gpu-select-reads 150 sh -c "for r in 1 2; do for m in chunked in-place; do echo \"select-reads \$m\"; \"$bin\" bench --device gpu --config ring --config sxga --repeats 5 --select-reads \$m; done; done"
     # A 1-MP set's depth and confidence to their messages: copied out of the readback first
     # (the node with fusion) against lent out of it (without), alternated; with the copies
     # split over threads (auto, on this host) and on one thread, twice.

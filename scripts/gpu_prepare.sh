@@ -2,19 +2,23 @@
 # Prepares here, on the development machine, what `scripts/gpu_check.sh` needs on the device
 # machine (which has no Rust and may have no Vulkan loader), so that a session lent a GPU spends
 # its device time measuring: the release binary, the engine's and the library's test binaries
-# (stripped, for the GPU-vs-CPU and fusion tests), the Vulkan loader's and libglvnd's `.deb`s
-# (NVIDIA's driver needs both) and the 9-camera Teddy bag. Everything but the binary goes into
-# `.gl/` (git-ignored through .git/info/exclude). Then, through the `device` tool:
-#   carry: [".gl", "target/release/sweepdepth"]   command: sh scripts/gpu_check.sh
+# (all stripped; the tests for the GPU-vs-CPU and fusion checks), the Vulkan loader's and
+# libglvnd's `.deb`s (NVIDIA's driver needs both) and the 9-camera Teddy bag, in `.gl/`, then
+# gzipped into `.glz/gl.tgz` (both git-ignored through .git/info/exclude): the working tree
+# (about 16 MiB) and what is carried must stay under the device tool's 64 MiB together. Then,
+# through the `device` tool:
+#   carry: [".glz"]   command: sh scripts/gpu_check.sh
 # and the report comes back in `$OUT/gpu_check.txt`. Takes a few minutes (the builds); the
-# carried files must stay under the tool's 64 MiB: the sizes are printed at the end.
+# sizes are printed at the end.
 set -eu
 cd "$(dirname "$0")/.."
 mkdir -p .gl
 exclude=.git/info/exclude
-if [ -d .git ] && ! grep -qx '/.gl/' "$exclude" 2>/dev/null; then
-    echo /.gl/ >>"$exclude"
-fi
+for ignored in /.gl/ /.glz/; do
+    if [ -d .git ] && ! grep -qx "$ignored" "$exclude" 2>/dev/null; then
+        echo "$ignored" >>"$exclude"
+    fi
+done
 echo "gpu_prepare: the release binary"
 cargo build --release
 # A test target's binary, as cargo names it ("Executable ... (target/debug/deps/NAME-HASH)").
@@ -46,5 +50,9 @@ if [ ! -f .gl/teddy9.mcap ] && [ -d "$teddy" ]; then
     echo "gpu_prepare: the 9-camera Teddy bag"
     target/release/sweepdepth pack "$teddy" .gl/teddy9.mcap --frames 20 --compressed
 fi
-echo "gpu_prepare: carried sizes (at most 64 MiB in all):"
-du -ch .gl target/release/sweepdepth | tail -n 20
+strip -o .gl/sweepdepth target/release/sweepdepth
+mkdir -p .glz
+tar -czf .glz/gl.tgz .gl
+echo "gpu_prepare: carried (.glz) and the working tree (at most 64 MiB together):"
+du -h .glz/gl.tgz
+git ls-files -z | du -ch --files0-from=- | tail -n 1

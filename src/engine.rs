@@ -636,6 +636,14 @@ impl Engine {
         }
     }
 
+    /// How the WGSL engine's SGM selection reads each pixel's words
+    /// (`GpuEngine::set_select_reads`; nothing for the CPU engine).
+    pub fn set_select_reads(&mut self, reads: crate::sweep::gpu::SelectReads) {
+        if let Self::Gpu { engine, .. } = self {
+            engine.set_select_reads(reads);
+        }
+    }
+
     /// The WGSL engine's submissions, readbacks, waits and host time since the last call
     /// (`None` for the CPU engine).
     pub fn take_gpu_counts(&mut self) -> Option<crate::sweep::gpu::SetCounts> {

@@ -132,6 +132,9 @@ const fn read_write(name: &'static str) -> Binding {
 /// Columns of one reference row per workgroup of `cost_rows.wgsl` (its `ROW_LANES`).
 pub const COST_ROW_LANES: u32 = 64;
 
+/// Pixels of one row per workgroup of `sgm_select.wgsl` (its `SELECT_PIXELS`).
+pub const SELECT_PIXELS: u32 = 64;
+
 /// The 8x8 tile of reference pixels most stages run per workgroup.
 const TILE: Option<[u32; 3]> = Some([8, 8, 1]);
 
@@ -305,8 +308,8 @@ pub const STAGES: [StageInfo; 18] = [
             uniform("band"),
             read("volume"),
         ],
-        workgroup_size: TILE,
-        overrides: &["DISTORTED"],
+        workgroup_size: Some([SELECT_PIXELS, 1, 1]),
+        overrides: &["DISTORTED", "SELECT_CHUNKED"],
     },
     StageInfo {
         name: "census",

@@ -6,7 +6,7 @@ use crate::common;
 use sweepdepth::geometry::{CameraModel, Distortion, Rig};
 use sweepdepth::image::{ImageF32, Rgba8Image};
 use sweepdepth::sweep::cpu::CpuEngine;
-use sweepdepth::sweep::gpu::{GpuEngine, SgmLayout, SgmWalks};
+use sweepdepth::sweep::gpu::{GpuEngine, SelectReads, SgmLayout, SgmWalks};
 use sweepdepth::sweep::gpu_types::*;
 use sweepdepth::sweep::plan::{range_tiles, SweepPlan, RANGE_TILE};
 use sweepdepth::sweep::{
@@ -33,8 +33,11 @@ const MAX_DISAGREE: f64 = 0.01;
 /// discrete maps (selection, visible) other on 2.5 %. So a hardware adapter is held to these
 /// shares (about 1.5x the worst seen). That catches a wrong plane, camera or window (most
 /// pixels), not a subtle one: a 10 % error in the vertical bilinear weight passes it (and
-/// fails lavapipe's exact check, which CI runs).
-const HARDWARE_DEPTH: [(f32, f64); 3] = [(1e-2, 0.05), (5e-2, 0.04), (0.2, 0.015)];
+/// fails lavapipe's exact check, which CI runs). The third lease (2026-12-04) ran the two-view
+/// case, `sgm_on_a_stereo_pair_agrees`: one pair's costs, nothing averaged over views, depths
+/// beyond 1e-2 on 5.3-5.4 % (5e-2: 1.2 %, 0.2: 0.12 %, the selection and visibility equal
+/// everywhere), hence 8 % beyond 1e-2.
+const HARDWARE_DEPTH: [(f32, f64); 3] = [(1e-2, 0.08), (5e-2, 0.04), (0.2, 0.015)];
 const HARDWARE_SCORE: [(f32, f64); 2] = [(5e-2, 0.10), (0.2, 0.035)];
 const HARDWARE_DISCRETE: [(f32, f64); 1] = [(0.2, 0.04)];
 
@@ -758,6 +761,48 @@ fn sgm_many_planes_real_crop_agrees() {
     for layout in sgm_layouts() {
         let name = format!("sgm_many_planes_{layout:?}");
         compare_with(&name, &plan, &rig, &images, Some(layout));
+    }
+}
+
+/// SGM's selection through workgroup memory (a GPU's default) and in place (a CPU adapter's)
+/// give the same maps bit for bit: 125 planes (three chunks of words, the last part empty),
+/// a row of 96 pixels (a last workgroup part empty), the uniqueness's second pass, coarse to
+/// fine (planes outside a pixel's range) and the volume in row bands of 5 rows.
+#[test]
+fn sgm_selection_in_chunks_equals_in_place() {
+    let (rig, images, mut params) = tsukuba_crop();
+    params.num_planes = 125;
+    params.optimizer = Optimizer::Sgm;
+    params.uniqueness = 0.1;
+    let gpu = common::gpu();
+    let bits = |maps: &[f32]| maps.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    let coarse = SweepParams {
+        coarse_to_fine: true,
+        ..params.clone()
+    };
+    for (name, params, band_rows) in [
+        ("125 planes", params.clone(), None),
+        ("coarse to fine", coarse, None),
+        ("bands of 5 rows", params, Some(5u64)),
+    ] {
+        let plan = SweepPlan::new(&rig, &params).expect("plan");
+        let row_bytes = u64::from(plan.width) * plan.volume_words() as u64 * 4;
+        let run = |reads: SelectReads| {
+            let mut engine = GpuEngine::new(&gpu.device, &gpu.queue).expect("pipelines");
+            engine.set_select_reads(reads);
+            if let Some(rows) = band_rows {
+                engine.set_sgm_band_bytes(Some(rows * row_bytes));
+            }
+            engine.run_plan_raw(&plan, &rig, &images).expect("run")
+        };
+        let (chunked, in_place) = (run(SelectReads::Chunked), run(SelectReads::InPlace));
+        let npix = plan.pixel_count();
+        let valid = section(&chunked, npix, MAP_DEPTH)
+            .iter()
+            .filter(|d| d.is_finite())
+            .count();
+        assert!(valid * 2 > npix, "{name}: {valid} of {npix} valid");
+        assert_eq!(bits(&chunked), bits(&in_place), "{name}");
     }
 }
 

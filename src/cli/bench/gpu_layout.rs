@@ -20,6 +20,11 @@ pub struct GpuLayout {
     /// GPUs), to compare the two on a GPU.
     #[arg(long, value_enum, default_value = "auto")]
     pub cost_rows: crate::sweep::gpu::CostRows,
+    /// How the WGSL engine's SGM selection reads each pixel's sums and costs: through
+    /// workgroup memory in chunks (chunked), each invocation its own (in-place), or the
+    /// adapter's (auto: chunked on GPUs), to compare the two on a GPU.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub select_reads: crate::sweep::gpu::SelectReads,
     /// The WGSL engine's bytes per batch of planes, MiB (default: 512 on a GPU, 192 on a CPU
     /// adapter, at most the adapter's binding limit), to compare budgets on a GPU.
     #[arg(long, value_name = "MIB")]
@@ -43,6 +48,7 @@ impl GpuLayout {
         }
         engine.set_sgm_walks(self.sgm_walks);
         engine.set_cost_rows(self.cost_rows);
+        engine.set_select_reads(self.select_reads);
         if let Some(mib) = self.slab_mib {
             engine.set_slab_bytes(Some(mib.max(1) << 20));
         }

@@ -55,8 +55,8 @@ pub use pipelines::SgmLayout;
 use pipelines::{Pipelines, Specialisation};
 use pyramid::Pyramid;
 pub use record::SgmWalks;
-pub use shape::CostRows;
 use shape::ShapeKey;
+pub use shape::{CostRows, SelectReads};
 
 pub use super::schedule::{sgm_lines, SGM_DIRECTIONS};
 
@@ -139,6 +139,8 @@ pub struct GpuEngine {
     /// Whether the costs and their row sums run as one stage (`CostRows::Auto`: by the
     /// adapter, `gpu`).
     cost_rows: CostRows,
+    /// How SGM's selection reads its words (`SelectReads::Auto`: by the adapter).
+    select_reads: SelectReads,
     /// The adapter is not a CPU (lavapipe, llvmpipe).
     gpu: bool,
     /// The adapter's smallest subgroup (the subgroup layout's workgroup).
@@ -219,6 +221,7 @@ impl GpuEngine {
             sgm_layout,
             sgm_walks: SgmWalks::Auto,
             cost_rows: CostRows::Auto,
+            select_reads: SelectReads::Auto,
             gpu: info.device_type != wgpu::DeviceType::Cpu,
             subgroup_size: info.subgroup_min_size,
             sgm_lines: shape::sgm_lines_for(&info),
@@ -285,6 +288,12 @@ impl GpuEngine {
     /// default, `CostRows::Auto`: on GPUs, apart on CPU adapters). Results are identical.
     pub fn set_cost_rows(&mut self, rows: CostRows) {
         self.cost_rows = rows;
+    }
+
+    /// How SGM's selection reads each pixel's words (the default, `SelectReads::Auto`: through
+    /// workgroup memory on GPUs, in place on CPU adapters). Results are identical.
+    pub fn set_select_reads(&mut self, reads: SelectReads) {
+        self.select_reads = reads;
     }
 
     /// The SGM layout the engine uses when one band holds the volume.
@@ -565,7 +574,10 @@ impl GpuEngine {
         } = self.level_input(rig, images, plan.params.colour_in_alpha != 0)?;
         let (key, layout) = self.shape_of(plan)?;
         self.use_buffers(key)?;
-        let spec = Specialisation::of(plan, layout, self.subgroup_size, self.sgm_lines);
+        let spec = Specialisation {
+            select_chunked: self.select_reads.chunked(self.gpu),
+            ..Specialisation::of(plan, layout, self.subgroup_size, self.sgm_lines)
+        };
         let pipelines = self.pipelines.get(&self.device, &spec)?;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let Some((buffers, schedule)) = self.buffers.as_ref() else {

@@ -51,6 +51,8 @@ pub(super) struct Specialisation {
     pub sgm_lane_words: u32,
     /// `SgmLayout::Subgroup`: path lines (subgroups) per workgroup; 1 in the other layouts.
     pub sgm_lines: u32,
+    /// SGM's selection reads through workgroup memory (`SelectReads`).
+    pub select_chunked: bool,
 }
 
 impl Specialisation {
@@ -98,6 +100,7 @@ impl Specialisation {
                 SgmLayout::Subgroup => sgm_lines.max(1),
                 _ => 1,
             },
+            select_chunked: true,
         }
     }
 
@@ -127,6 +130,7 @@ impl Specialisation {
             "LINE_PER_INVOCATION" => flag(self.sgm_line_per_invocation()),
             "SGM_LANE_WORDS" => f64::from(self.sgm_lane_words),
             "SGM_LINES" => f64::from(self.sgm_lines),
+            "SELECT_CHUNKED" => flag(self.select_chunked),
             _ => return None,
         })
     }
@@ -321,6 +325,7 @@ mod tests {
             sgm_layout: SgmLayout::LinePerInvocation,
             sgm_lane_words: 1,
             sgm_lines: 1,
+            select_chunked: false,
         };
         let variants = SUBGROUP_VARIANTS.iter().map(|(_, info)| info);
         for stage in STAGES.iter().chain(variants) {

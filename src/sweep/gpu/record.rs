@@ -11,7 +11,7 @@ use super::super::plan::SweepPlan;
 use super::super::schedule::{
     sgm_lines, sgm_together_lines, Dispatch, Schedule, SGM_ALL_PASS, SGM_DIRECTIONS, SGM_REST_PASS,
 };
-use super::super::stages::{Stage, COST_ROW_LANES};
+use super::super::stages::{Stage, COST_ROW_LANES, SELECT_PIXELS};
 use super::super::{CancelFlag, StageTimings, SweepError};
 use super::buffers::{Alignments, Buffers};
 use super::pipelines::{SgmLayout, Specialisation};
@@ -277,7 +277,7 @@ fn workgroups(
                 (workgroups, 1, 1),
             )
         }
-        Stage::SgmSelect => (None, tiles(key.width, band_rows)),
+        Stage::SgmSelect => (None, (key.width.div_ceil(SELECT_PIXELS), band_rows, 1)),
         Stage::Finalize
         | Stage::Median
         | Stage::Splat

@@ -51,6 +51,33 @@ impl CostRows {
     }
 }
 
+/// How SGM's selection (`sgm_select.wgsl`) reads each pixel's sums and matching costs: a
+/// workgroup copies its 64 pixels' words into workgroup memory a chunk at a time, neighbouring
+/// invocations reading neighbouring words, or each invocation reads its own pixel's in place
+/// (neighbours' loads a pixel's words apart). The same maps either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, clap::ValueEnum)]
+pub enum SelectReads {
+    /// The adapter's: `chunked` on GPUs, `in-place` on CPU adapters (on lavapipe, where a
+    /// barrier is a coroutine switch, the chunked selection took 3x as long on the ring).
+    #[default]
+    Auto,
+    /// Through workgroup memory.
+    Chunked,
+    /// Each invocation its own pixel's words.
+    InPlace,
+}
+
+impl SelectReads {
+    /// Whether the selection reads through workgroup memory on a GPU (`gpu`) or not.
+    pub fn chunked(self, gpu: bool) -> bool {
+        match self {
+            Self::Auto => gpu,
+            Self::Chunked => true,
+            Self::InPlace => false,
+        }
+    }
+}
+
 /// Largest cost slab + window sums we allocate for one batch of planes on a CPU adapter
 /// (lavapipe: its 128 MiB bindings cap it anyway).
 pub(super) const SLAB_BUDGET_BYTES: u64 = 192 << 20;
