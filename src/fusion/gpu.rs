@@ -22,7 +22,8 @@ use super::integrate::{
     blocks_to_update, prepare, FrameInput, IntegrationScratch, PixelSample, Projector,
 };
 use super::{
-    DepthView, FusionError, FusionParams, IntegrationStats, VoxelBlockGrid, VOXELS_PER_BLOCK,
+    DepthView, FusionError, FusionParams, GpuIntegrationTimes, IntegrationStats, VoxelBlockGrid,
+    VOXELS_PER_BLOCK,
 };
 use crate::geometry::{CameraModel, Distortion};
 use crate::image::ImageF32;
@@ -207,8 +208,8 @@ pub struct GpuTsdf {
     scratch: IntegrationScratch,
     /// The meshing pipeline (`gpu/mesh.rs`), made when first asked to mesh.
     mesher: Option<mesh::Mesher>,
-    /// How long the last integration waited for the device (its work and the counts' readback).
-    last_wait: std::time::Duration,
+    /// Where the last integration's time went.
+    last_times: GpuIntegrationTimes,
 }
 
 impl std::fmt::Debug for GpuTsdf {
@@ -283,7 +284,7 @@ impl GpuTsdf {
             unmeshed: BlockChanges::default(),
             scratch: IntegrationScratch::default(),
             mesher: None,
-            last_wait: std::time::Duration::ZERO,
+            last_times: GpuIntegrationTimes::default(),
         })
     }
 
@@ -360,10 +361,10 @@ impl GpuTsdf {
         std::mem::take(&mut self.unmeshed)
     }
 
-    /// How long the last [`Self::integrate`] waited for the device (its work and the
-    /// readback of the voxels updated per block); the rest of its time is the host's.
-    pub fn last_wait(&self) -> std::time::Duration {
-        self.last_wait
+    /// Where the last [`Self::integrate`] spent its time: the host's steps and its wait for
+    /// the device (its work and the readback of the voxels updated per block).
+    pub fn last_times(&self) -> GpuIntegrationTimes {
+        self.last_times
     }
 
     /// The device memory the voxel pool holds, in bytes.
@@ -393,6 +394,7 @@ impl GpuTsdf {
             model,
             world_from_cam: view.map_from_cam,
         };
+        let started = std::time::Instant::now();
         let voxel_size_m = self.params.voxel_size_m;
         let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;
         let (width, height) = (depth.width, depth.height);
@@ -408,6 +410,7 @@ impl GpuTsdf {
                 limit: self.limit,
             });
         }
+        let samples_done = std::time::Instant::now();
         // Step 1 on the host map; the pool grown before anything is changed.
         let (mut in_view, mut new) = blocks_to_update(&view, &self.slots, &pose);
         // The memory bound settled before the pool grows, as the CPU's.
@@ -440,6 +443,7 @@ impl GpuTsdf {
             self.allocated.insert(*index);
         }
         let blocks_peak = self.slots.len();
+        let blocks_done = std::time::Instant::now();
         let mut order: Vec<BlockIndex> = in_view.into_iter().collect();
         // In index order, as the CPU: neighbouring blocks read neighbouring pixels.
         order.sort_unstable();
@@ -465,8 +469,16 @@ impl GpuTsdf {
             items: work.len() as u32,
             pad: [0; 3],
         };
-        let pixels_valid = view.pixels_valid;
+        let (pixels_valid, work_done) = (view.pixels_valid, std::time::Instant::now());
         let counts = self.run(&uniform, samples, &work, &reused, grown);
+        let marks = [
+            started,
+            samples_done,
+            blocks_done,
+            work_done,
+            std::time::Instant::now(),
+        ];
+        self.last_times = GpuIntegrationTimes::from_marks(marks, self.last_times.wait);
         self.scratch = view.into_scratch();
         let counts = counts?;
         let mut stats = IntegrationStats {
@@ -548,7 +560,7 @@ impl GpuTsdf {
         reused: &[u32],
         old_pool: Option<wgpu::Buffer>,
     ) -> Result<Vec<u32>, GpuFusionError> {
-        self.last_wait = std::time::Duration::ZERO;
+        self.last_times.wait = std::time::Duration::ZERO;
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let count_bytes = (work.len().max(1) * 4) as u64;
         let (device, limit) = (&self.device, self.limit);
@@ -615,7 +627,7 @@ impl GpuTsdf {
         let readback = &self.counts_readback.buffer;
         let started = std::time::Instant::now();
         let words = read_buffer(&self.device, submitted, readback, count_bytes);
-        self.last_wait = started.elapsed();
+        self.last_times.wait = started.elapsed();
         let words: Vec<u32> = words?;
         Ok(words.into_iter().take(work.len()).collect())
     }

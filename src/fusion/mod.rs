@@ -210,3 +210,34 @@ pub enum FusionError {
 
 #[cfg(test)]
 pub(crate) mod test_scenes;
+
+/// Where [`GpuTsdf::integrate`]'s last frame spent its time (`bench --fusion --device gpu`
+/// prints it): the host's steps, then the wait for the device.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct GpuIntegrationTimes {
+    /// Step 0: each pixel's valid depth, observation weight and colour.
+    pub samples: std::time::Duration,
+    /// Step 1: the blocks in view and the truncation band's new ones, given slots.
+    pub blocks: std::time::Duration,
+    /// The work list (each block's origin and slot, in index order).
+    pub work: std::time::Duration,
+    /// Uploads, recording and submission (the device's run less its wait).
+    pub submit: std::time::Duration,
+    /// The wait for the device: its work and the readback of the voxels updated per block.
+    pub wait: std::time::Duration,
+}
+
+impl GpuIntegrationTimes {
+    /// From the instants a frame started, ended step 0, step 1 and the work list, and ended
+    /// (`marks`), with its `wait` for the device.
+    fn from_marks(marks: [std::time::Instant; 5], wait: std::time::Duration) -> Self {
+        let part = |i: usize| marks[i + 1].saturating_duration_since(marks[i]);
+        Self {
+            samples: part(0),
+            blocks: part(1),
+            work: part(2),
+            submit: part(3).saturating_sub(wait),
+            wait,
+        }
+    }
+}

@@ -136,6 +136,12 @@ pub struct GpuFusionResult {
     /// The host's share of the steady integration (the frame's samples, the blocks in view,
     /// the work list, the uploads): its time less the wait for the device.
     pub integrate_steady_host_ms: f64,
+    /// The host's share by step (medians): samples (step 0), blocks (step 1), the work list,
+    /// uploads and submission.
+    pub host_samples_ms: f64,
+    pub host_blocks_ms: f64,
+    pub host_work_ms: f64,
+    pub host_submit_ms: f64,
     /// Frame 1's changed blocks (and those below them) meshed on the device.
     pub mesh_ms: f64,
     /// Frame 1's changed blocks copied to the host (the map's copy for a lost device).
@@ -353,6 +359,7 @@ pub fn time_gpu(
     let run = |tsdf: &mut GpuTsdf, frame: &Frame| tsdf.integrate(&frame.view(model), None);
     let (mut first_ms, mut steady_ms, mut mesh_ms) = (Vec::new(), Vec::new(), Vec::new());
     let (mut sync_ms, mut host_ms) = (Vec::new(), Vec::new());
+    let mut host_steps: [Vec<f64>; 4] = Default::default();
     let mut last = None;
     for i in 0..=repeats.max(1) {
         let mut empty = GpuTsdf::new(&gpu.device, &gpu.queue, *params)?;
@@ -374,7 +381,7 @@ pub fn time_gpu(
         let started = Instant::now();
         let steady = run(&mut tsdf, b)?;
         let steady_elapsed = started.elapsed();
-        let steady_wait = tsdf.last_wait();
+        let times = tsdf.last_times();
         let started = Instant::now();
         tsdf.sync_into(&mut grid)?;
         let sync_elapsed = started.elapsed();
@@ -384,18 +391,27 @@ pub fn time_gpu(
         if i > 0 {
             first_ms.push(first_elapsed.as_secs_f64() * 1e3);
             steady_ms.push(steady_elapsed.as_secs_f64() * 1e3);
-            host_ms.push(steady_elapsed.saturating_sub(steady_wait).as_secs_f64() * 1e3);
+            host_ms.push(steady_elapsed.saturating_sub(times.wait).as_secs_f64() * 1e3);
+            let steps = [times.samples, times.blocks, times.work, times.submit];
+            for (v, step) in host_steps.iter_mut().zip(steps) {
+                v.push(step.as_secs_f64() * 1e3);
+            }
             sync_ms.push(sync_elapsed.as_secs_f64() * 1e3);
             mesh_ms.push(mesh_elapsed.as_secs_f64() * 1e3);
         }
         last = Some((first, steady, stats.blocks_meshed, tsdf.pool_bytes()));
     }
     let (first, steady, blocks_meshed, pool) = last.context("no run")?;
+    let [samples_ms, blocks_ms, work_ms, submit_ms] = host_steps.map(|v| round3(median(v)));
     Ok(GpuFusionResult {
         adapter: gpu.adapter_label(),
         integrate_first_ms: round3(median(first_ms)),
         integrate_steady_ms: round3(median(steady_ms)),
         integrate_steady_host_ms: round3(median(host_ms)),
+        host_samples_ms: samples_ms,
+        host_blocks_ms: blocks_ms,
+        host_work_ms: work_ms,
+        host_submit_ms: submit_ms,
         mesh_ms: round3(median(mesh_ms)),
         sync_ms: round3(median(sync_ms)),
         first,
@@ -652,6 +668,10 @@ fn print_gpu(gpu: &GpuFusionResult) {
         gpu.steady.voxels_updated
     );
     println!(
+        "  the host's share by step: samples {:.2} ms, blocks {:.2}, work list {:.2}, uploads and submission {:.2}",
+        gpu.host_samples_ms, gpu.host_blocks_ms, gpu.host_work_ms, gpu.host_submit_ms
+    );
+    println!(
         "sweepdepth GPU blocks to host:   {:.1} ms (frame 1's changed blocks copied back, as once a second)",
         gpu.sync_ms
     );
@@ -703,6 +723,20 @@ mod tests {
         // nothing (the shader's work and the counts' readback).
         let (host, all) = (result.integrate_steady_host_ms, result.integrate_steady_ms);
         assert!(host > 0.0 && host < all, "host {host} ms of {all} ms");
+        // Its steps are parts of it (one run: their sum at most the whole, to rounding), and
+        // steps 0 and 1 do work on every pixel.
+        let steps = [
+            result.host_samples_ms,
+            result.host_blocks_ms,
+            result.host_work_ms,
+            result.host_submit_ms,
+        ];
+        let sum: f64 = steps.iter().sum();
+        assert!(
+            steps.iter().all(|&s| s >= 0.0) && sum <= host + 0.01,
+            "{steps:?} of {host}"
+        );
+        assert!(steps[0] > 0.0 && steps[1] > 0.0, "{steps:?}");
         assert!(fusion_gpu(Device::Cpu).unwrap().is_none());
     }
 }
