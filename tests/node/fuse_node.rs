@@ -18,10 +18,11 @@
 //! maps are fused; the one-process run 96.5-96.9 %; a rig placed without /tf is 0.2-0.5 m, 5-12
 //! voxels, off): a node that ignored /tf, or fused one host only, fails.
 //! The fuse node takes each depth map's colour from its reference camera's images
-//! (`color_topics`; cam2's JPEG-compressed, as image_transport's plugin sends them): its mesh's
-//! colours must be the one-process node's (88 % of the vertices within 24 levels of the nearest
-//! vertex's: 94.8-99.4 % on the 2-core machine, a build beside; 83 % when cam2's colour never
-//! comes, 0 % grey).
+//! (`color_topics`; cam2's JPEG-compressed, as image_transport's plugin sends them): none may be
+//! fused without its colour (`/diagnostics`), and where the two meshes have their surface at the
+//! same place (nearest vertex within half a voxel: 85-96 % of the fuse node's vertices, bar 75 %)
+//! the colours must be the one-process node's (85 % within 24 levels: 93.4-96.6 % on the
+//! 2-core machine, idle or both cores busy beside; 56 % with cam0's colour image turned round).
 
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -331,6 +332,17 @@ fn two_hosts() {
         Some("GPU"),
         "the one-process node's fusion"
     );
+    // Each map took its colour image (raw for cam0, JPEG for cam2): none was fused without.
+    let uncoloured: Vec<String> = (arrays.iter().flat_map(|a| &a.status))
+        .filter(|s| s.name.contains("fuse"))
+        .flat_map(|s| &s.values)
+        .filter(|kv| kv.key.starts_with("fused without colour") && kv.value != "0")
+        .map(|kv| format!("{} = {}", kv.key, kv.value))
+        .collect();
+    assert!(
+        uncoloured.is_empty(),
+        "the fuse node fused depth maps without their colour: {uncoloured:?}"
+    );
     assert!(
         maps_a >= 1 && maps_b >= 1,
         "the fuse node fused {maps_a} maps from host a's /a/cam0/depth/image and {maps_b} from \
@@ -377,28 +389,38 @@ fn two_hosts() {
         );
     }
     // The fuse node's colours (`color_topics`) are the one-process node's, which colours from
-    // its reference images: each vertex against the nearest vertex of the other mesh.
+    // its reference images: each vertex against the nearest vertex of the other mesh, where the
+    // two meshes have their surface at the same place (nearest within half a voxel). Elsewhere
+    // they differ in geometry, not colour: the two nodes fuse different sets (under load the
+    // one-process node fused 4 of 44 sets, the fuse node 81 maps), and on a texture about a
+    // voxel wide a vertex a voxel away has another colour (there 20-50 % alike).
     let (fused_colours, one_colours) = (ply_colours(&fused_bytes), ply_colours(&one_bytes));
-    let alike = fused_vertices
-        .iter()
-        .zip(&fused_colours)
-        .filter(|(p, c)| {
-            let nearest = (one_vertices.iter().enumerate())
-                .min_by(|(_, a), (_, b)| {
-                    p.distance_squared(**a).total_cmp(&p.distance_squared(**b))
-                })
-                .map(|(i, _)| one_colours[i]);
-            nearest.is_some_and(|n| (0..3).all(|k| n[k].abs_diff(c[k]) <= COLOUR_TOLERANCE))
-        })
-        .count();
+    let (mut shared, mut alike) = (0usize, 0usize);
+    for (p, c) in fused_vertices.iter().zip(&fused_colours) {
+        let nearest = (one_vertices.iter().enumerate())
+            .map(|(i, a)| (i, p.distance_squared(*a)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let Some((i, _)) = nearest.filter(|(_, d2)| d2.sqrt() <= 0.5 * VOXEL) else {
+            continue;
+        };
+        shared += 1;
+        let n = one_colours[i];
+        alike += usize::from((0..3).all(|k| n[k].abs_diff(c[k]) <= COLOUR_TOLERANCE));
+    }
     eprintln!(
-        "fuse node: {alike} of {} vertex colours within {COLOUR_TOLERANCE} of the one-process mesh's",
+        "fuse node: {shared} of {} vertices where the one-process mesh has one, {alike} of them \
+         with colours within {COLOUR_TOLERANCE} of its",
         fused_vertices.len()
     );
     assert!(
-        alike * 100 >= fused_vertices.len() * 88,
-        "the fuse node's mesh is not coloured as the one-process node's: {alike} of {} vertices alike",
+        shared * 100 >= fused_vertices.len() * 75,
+        "the two meshes share too little surface to compare colours: {shared} of {} vertices",
         fused_vertices.len()
+    );
+    assert!(
+        alike * 100 >= shared * 85,
+        "the fuse node's mesh is not coloured as the one-process node's: {alike} of {shared} \
+         vertices alike"
     );
 }
 
