@@ -1,7 +1,8 @@
 // TSDF integration, the GPU twin of step 2 of src/fusion/integrate.rs (`View::update_block`):
-// one workgroup per 8x8x8 block, one invocation per row of eight voxels along x. The host
-// (src/fusion/gpu.rs) makes step 0 (each pixel's valid depth, cos² observation weight and
-// colour, `samples`) and step 1 (the blocks to update and their pool slots, `work`) with the
+// one workgroup per 8x8x8 block, one invocation per row of eight voxels along x. Step 0 (each
+// pixel's valid depth, cos² observation weight and colour, `samples`) comes from
+// tsdf_samples.wgsl before it for a pinhole camera, from the host for a distorted one; the host
+// (src/fusion/gpu.rs) makes step 1 (the blocks to update and their pool slots, `work`) with the
 // CPU's own code; camera.wgsl (prepended) projects with the camera's distortion.
 
 struct TsdfParams {

@@ -1,5 +1,7 @@
 //! TSDF integration on a wgpu device (issue 56), the twin of [`super::integrate_weighted`]:
-//! the same checks, step 0 (each pixel's valid depth, cos² observation weight and colour) and
+//! the same checks; step 0 (each pixel's valid depth, cos² observation weight and colour) on
+//! the device for a pinhole camera (`gpu/samples.rs`, `shaders/tsdf_samples.wgsl`; the host
+//! validates the depths only, which step 1 reads), with the CPU's code for a distorted one;
 //! step 1 (the blocks the truncation band crosses, and those allocated inside the view) on the
 //! host with the CPU's own code; step 2, the projective update of every voxel of those blocks,
 //! in `shaders/tsdf_integrate.wgsl`, one workgroup per block.
@@ -7,14 +9,17 @@
 //! The voxels live on the device in a pool of slots of [`VOXELS_PER_BLOCK`] voxels (16 bytes
 //! each, as [`Voxel`] keeps them), grown by doubling up to the adapter's largest storage
 //! buffer; the block hash stays on the host (a map from [`BlockIndex`] to slot): step 1 reads
-//! it, and a frame uploads only its samples and the list of (block origin, slot) to update.
+//! it, and a frame uploads its depth map (colour, weights) or samples and the list of (block
+//! origin, slot) to update.
 //! [`GpuTsdf::sync_into`] copies the blocks changed since the last call into a
 //! [`VoxelBlockGrid`] (the map's host copy), [`GpuTsdf::read_grid`] all of them;
 //! [`GpuTsdf::mesh_blocks`] (`gpu/mesh.rs`) meshes blocks on the device.
 
 use bytemuck::{Pod, Zeroable};
 
-use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit};
+use self::camera::{gpu_camera, GpuCamera};
+use self::device::{compute_pipeline, dispatch_items, make_buffer, read_buffer, submit, Grown};
+use self::samples::Samples;
 use super::blocks::{
     bound_allocation, farthest_blocks, Block, BlockChanges, BlockIndex, BlockMap, BlockSet, Voxel,
 };
@@ -25,7 +30,6 @@ use super::{
     DepthView, FusionError, FusionParams, GpuIntegrationTimes, IntegrationStats, VoxelBlockGrid,
     VOXELS_PER_BLOCK,
 };
-use crate::geometry::{CameraModel, Distortion};
 use crate::image::ImageF32;
 
 /// The shader: `camera.wgsl` (the camera struct and its projection with distortion, as the
@@ -44,23 +48,6 @@ const VOXEL_BYTES: u64 = std::mem::size_of::<PoolVoxel>() as u64;
 const SLOT_BYTES: u64 = VOXEL_BYTES * VOXELS_PER_BLOCK as u64;
 /// The pool's first size, in slots (grown by doubling).
 const FIRST_SLOTS: u32 = 1024;
-
-/// `camera.wgsl`'s distortion models.
-const DIST_NONE: u32 = 0;
-const DIST_PLUMB_BOB: u32 = 1;
-const DIST_EQUIDISTANT: u32 = 2;
-
-/// WGSL `Camera` (`shaders/camera.wgsl`); only the intrinsics, distortion and size are read.
-#[repr(C)]
-#[derive(Debug, Clone, Copy, Pod, Zeroable)]
-struct GpuCamera {
-    rows: [[f32; 4]; 3],
-    intrinsics: [f32; 4],
-    dist_a: [f32; 4],
-    dist_b: [f32; 4],
-    size: [u32; 4],
-    info: [u32; 4],
-}
 
 /// WGSL `TsdfParams`.
 #[repr(C)]
@@ -148,32 +135,6 @@ pub enum GpuFusionError {
     Gpu(String),
 }
 
-/// A device buffer that grows (to a power of two of bytes) when a frame needs more.
-struct Grown {
-    buffer: wgpu::Buffer,
-    label: &'static str,
-    usage: wgpu::BufferUsages,
-}
-
-impl Grown {
-    fn new(device: &wgpu::Device, label: &'static str, usage: wgpu::BufferUsages) -> Self {
-        Self {
-            buffer: make_buffer(device, label, 256, usage),
-            label,
-            usage,
-        }
-    }
-
-    /// Makes room for `bytes` (the contents are not kept), in a buffer of at most `limit`
-    /// bytes unless `bytes` is more.
-    fn reserve(&mut self, device: &wgpu::Device, bytes: u64, limit: u64) {
-        if bytes > self.buffer.size() {
-            let size = bytes.next_power_of_two().min(limit).max(bytes).max(256);
-            self.buffer = make_buffer(device, self.label, size, self.usage);
-        }
-    }
-}
-
 /// The blocks of a TSDF grid on a wgpu device, integrated by `shaders/tsdf_integrate.wgsl`:
 /// [`GpuTsdf::integrate`] is [`super::integrate_weighted`] with the voxels on the device
 /// (the same blocks, the same arithmetic; on a CPU adapter the same values to float rounding).
@@ -187,6 +148,8 @@ pub struct GpuTsdf {
     /// The voxels, [`SLOT_BYTES`] per slot.
     pool: wgpu::Buffer,
     samples: Grown,
+    /// Step 0 on the device (pinhole cameras).
+    sample_stage: samples::SampleStage,
     work: Grown,
     /// Voxels updated per work item, and its copy for the host.
     counts: Grown,
@@ -264,6 +227,7 @@ impl GpuTsdf {
                 pool_usage(),
             ),
             samples: Grown::new(device, "tsdf samples", storage_usage),
+            sample_stage: samples::SampleStage::new(device)?,
             work: Grown::new(device, "tsdf work", storage_usage),
             counts: Grown::new(
                 device,
@@ -393,14 +357,26 @@ impl GpuTsdf {
             colour: view.colour,
             model,
             world_from_cam: view.map_from_cam,
+            samples_on_device: true,
         };
         let started = std::time::Instant::now();
         let voxel_size_m = self.params.voxel_size_m;
         let (view, pose) = prepare(voxel_size_m, &mut self.scratch, &self.params, &frame)?;
         let (width, height) = (depth.width, depth.height);
-        // The CPU's samples as they are (the shader reads their NaNs as bits).
-        let samples = view.samples.as_slice();
-        let sample_bytes = std::mem::size_of_val(samples) as u64;
+        // A pinhole camera's samples made on the device (`gpu/samples.rs`), a distorted
+        // one's by the CPU as they are (the shader reads their NaNs as bits).
+        let samples = match view.projector {
+            Projector::Pinhole { fx, fy, cx, cy } => Samples::Device(samples::SampleInput {
+                depth,
+                colour: view.colour,
+                weights,
+                intrinsics: [fx, fy, cx, cy],
+                truncation_m: view.truncation_m,
+                depth_range_m: [self.params.min_depth_m, self.params.max_depth_m],
+            }),
+            Projector::Distorted(..) => Samples::Host(view.samples.as_slice()),
+        };
+        let sample_bytes = (depth.data.len() * std::mem::size_of::<PixelSample>()) as u64;
         if sample_bytes > self.limit {
             return Err(GpuFusionError::TooLarge {
                 what: "samples",
@@ -470,7 +446,7 @@ impl GpuTsdf {
             pad: [0; 3],
         };
         let (pixels_valid, work_done) = (view.pixels_valid, std::time::Instant::now());
-        let counts = self.run(&uniform, samples, &work, &reused, grown);
+        let counts = self.run(&uniform, &samples, &work, &reused, grown);
         let marks = [
             started,
             samples_done,
@@ -555,7 +531,7 @@ impl GpuTsdf {
     fn run(
         &mut self,
         uniform: &TsdfUniform,
-        samples: &[PixelSample],
+        samples: &Samples<'_>,
         work: &[GpuWork],
         reused: &[u32],
         old_pool: Option<wgpu::Buffer>,
@@ -564,16 +540,21 @@ impl GpuTsdf {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let count_bytes = (work.len().max(1) * 4) as u64;
         let (device, limit) = (&self.device, self.limit);
-        let sample_bytes = std::mem::size_of_val(samples) as u64;
-        self.samples.reserve(device, sample_bytes, limit);
+        let pixels = match samples {
+            Samples::Host(samples) => samples.len(),
+            Samples::Device(input) => input.depth.data.len(),
+        };
+        self.samples.reserve(
+            device,
+            (pixels * std::mem::size_of::<PixelSample>()) as u64,
+            limit,
+        );
         let work_bytes = std::mem::size_of_val(work).max(16) as u64;
         self.work.reserve(device, work_bytes, limit);
         self.counts.reserve(device, count_bytes, limit);
         self.counts_readback.reserve(device, count_bytes, limit);
         self.queue
             .write_buffer(&self.uniform, 0, bytemuck::bytes_of(uniform));
-        self.queue
-            .write_buffer(&self.samples.buffer, 0, bytemuck::cast_slice(samples));
         if !work.is_empty() {
             self.queue
                 .write_buffer(&self.work.buffer, 0, bytemuck::cast_slice(work));
@@ -583,6 +564,16 @@ impl GpuTsdf {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("tsdf integrate"),
             });
+        match samples {
+            Samples::Host(samples) => {
+                let bytes = bytemuck::cast_slice(samples);
+                self.queue.write_buffer(&self.samples.buffer, 0, bytes);
+            }
+            Samples::Device(input) => {
+                let (stage, buffer) = (&mut self.sample_stage, &self.samples.buffer);
+                stage.record(device, &self.queue, &mut encoder, input, buffer, limit);
+            }
+        }
         if let Some(old) = &old_pool {
             encoder.copy_buffer_to_buffer(old, 0, &self.pool, 0, old.size());
         }
@@ -757,43 +748,9 @@ fn extend(v: [f32; 3]) -> [f32; 4] {
     [v[0], v[1], v[2], 0.0]
 }
 
-/// The shader's camera: the projector's intrinsics (f32, as the CPU's pinhole path uses
-/// them), the distortion's coefficients and the square of its largest undistorted radius.
-fn gpu_camera(projector: &Projector, model: &CameraModel) -> GpuCamera {
-    let k = &model.intrinsics;
-    let intrinsics = match *projector {
-        Projector::Pinhole { fx, fy, cx, cy } => [fx, fy, cx, cy],
-        Projector::Distorted(..) => [k.fx_px, k.fy_px, k.cx_px, k.cy_px].map(|v| v as f32),
-    };
-    let max_radius = match projector {
-        Projector::Pinhole { .. } => f64::INFINITY,
-        Projector::Distorted(_, radius) => *radius,
-    };
-    let max_r2 = (max_radius * max_radius).min(f64::from(f32::MAX)) as f32;
-    let (kind, dist_a, dist_b) = match model.distortion {
-        Distortion::None => (DIST_NONE, [0.0; 4], [0.0, f32::MAX, 0.0, 0.0]),
-        Distortion::PlumbBob { k1, k2, p1, p2, k3 } => (
-            DIST_PLUMB_BOB,
-            [k1, k2, p1, p2].map(|v| v as f32),
-            [k3 as f32, max_r2, 0.0, 0.0],
-        ),
-        Distortion::Equidistant { k1, k2, k3, k4 } => (
-            DIST_EQUIDISTANT,
-            [k1, k2, k3, k4].map(|v| v as f32),
-            [0.0, max_r2, 0.0, 0.0],
-        ),
-    };
-    GpuCamera {
-        rows: [[0.0; 4]; 3],
-        intrinsics,
-        dist_a,
-        dist_b,
-        size: [k.width_px, k.height_px, 0, kind],
-        info: [0; 4],
-    }
-}
-
+mod camera;
 mod device;
 mod mesh;
+mod samples;
 #[cfg(test)]
 pub(crate) mod tests;

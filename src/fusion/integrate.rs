@@ -140,6 +140,7 @@ pub(super) fn integrate_into(
         colour,
         model,
         world_from_cam,
+        samples_on_device: false,
     };
     let (view, world_from_cam) = prepare(grid.voxel_size_m(), scratch, params, &frame)?;
     let pixels_valid = view.pixels_valid;
@@ -214,6 +215,9 @@ pub(super) struct FrameInput<'a> {
     pub colour: Option<&'a Rgba8Image>,
     pub model: &'a CameraModel,
     pub world_from_cam: &'a RigidTransform,
+    /// Whether a pinhole camera's samples are made on the device (the GPU integration's
+    /// `gpu/samples.rs`): step 0 then validates the depths only, and `View::samples` is empty.
+    pub samples_on_device: bool,
 }
 
 /// The checks of a frame and step 0 (each pixel's depth, weight and colour), shared by the CPU
@@ -231,6 +235,7 @@ pub(super) fn prepare<'a>(
         colour,
         model,
         world_from_cam,
+        samples_on_device,
     } = *frame;
     let world_from_cam =
         super::check_view(voxel_size_m, params, model, world_from_cam, "fusion camera")?;
@@ -278,6 +283,7 @@ pub(super) fn prepare<'a>(
         model,
         &world_from_cam,
         taken,
+        samples_on_device,
     );
     if let Some(w) = weights {
         for (sample, &w) in view.samples.iter_mut().zip(&w.data) {
@@ -436,6 +442,10 @@ pub(super) struct View<'a> {
 }
 
 impl<'a> View<'a> {
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "a frame's parts as prepare has them (the pose checked), its buffers and where its samples are made"
+    )]
     fn new(
         voxel_size_m: f32,
         params: &FusionParams,
@@ -444,6 +454,7 @@ impl<'a> View<'a> {
         model: &CameraModel,
         world_from_cam: &RigidTransform,
         scratch: IntegrationScratch,
+        samples_on_device: bool,
     ) -> Self {
         let cam_from_world = world_from_cam.inverse();
         let rotation = cam_from_world.rotation_matrix();
@@ -469,14 +480,18 @@ impl<'a> View<'a> {
         let pixels = depth.data.len();
         let width = depth.width as usize;
         depth_m.resize(pixels, f32::NAN);
-        samples.resize(
-            pixels,
-            PixelSample {
-                depth_m: f32::NAN,
-                weight: f32::NAN,
-                rgb: 0,
-            },
-        );
+        if samples_on_device && matches!(projector, Projector::Pinhole { .. }) {
+            samples.clear();
+        } else {
+            samples.resize(
+                pixels,
+                PixelSample {
+                    depth_m: f32::NAN,
+                    weight: f32::NAN,
+                    rgb: 0,
+                },
+            );
+        }
         // The depth where valid, NaN elsewhere; the number of valid pixels.
         let limits = DepthLimits {
             min_m: min_depth_m,
@@ -485,7 +500,7 @@ impl<'a> View<'a> {
         tile_max.clear();
         let pixels_valid = match projector {
             // One pass over bands of rows: the rows' valid depths and their pixels' samples.
-            Projector::Pinhole { fx, fy, cx, cy } => {
+            Projector::Pinhole { fx, fy, cx, cy } if !samples_on_device => {
                 let tiles =
                     width.div_ceil(DEPTH_TILE) * (pixels / width.max(1)).div_ceil(DEPTH_TILE);
                 tile_max.resize(tiles, f32::NEG_INFINITY);
@@ -503,7 +518,9 @@ impl<'a> View<'a> {
                     tile_max: &mut tile_max,
                 })
             }
-            Projector::Distorted(..) => depth_m
+            // The valid depths only (a distorted camera's samples follow below; a pinhole
+            // camera's are made on the device).
+            _ => depth_m
                 .par_chunks_mut(4096)
                 .zip(depth.data.par_chunks(4096))
                 .map(|(out, input)| limits.validate(out, input))
@@ -818,6 +835,7 @@ mod tests {
             &model,
             &second,
             scratch,
+            false,
         );
         assert!(view.lanes_fit);
         let (mut blocks, mut voxels) = (0, 0);

@@ -147,3 +147,33 @@ pub(super) fn read_buffer<T: Pod>(
     buffer.unmap();
     Ok(out)
 }
+
+/// A device buffer that grows (to a power of two of bytes) when a frame needs more.
+pub(super) struct Grown {
+    pub(super) buffer: wgpu::Buffer,
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+}
+
+impl Grown {
+    pub(super) fn new(
+        device: &wgpu::Device,
+        label: &'static str,
+        usage: wgpu::BufferUsages,
+    ) -> Self {
+        Self {
+            buffer: make_buffer(device, label, 256, usage),
+            label,
+            usage,
+        }
+    }
+
+    /// Makes room for `bytes` (the contents are not kept), in a buffer of at most `limit`
+    /// bytes unless `bytes` is more.
+    pub(super) fn reserve(&mut self, device: &wgpu::Device, bytes: u64, limit: u64) {
+        if bytes > self.buffer.size() {
+            let size = bytes.next_power_of_two().min(limit).max(bytes).max(256);
+            self.buffer = make_buffer(device, self.label, size, self.usage);
+        }
+    }
+}

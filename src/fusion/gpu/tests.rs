@@ -10,7 +10,7 @@ use crate::fusion::test_scenes::{
     camera, look_at, red_left_blue_right, render_plane, sphere_before_slanted_wall,
 };
 use crate::fusion::{integrate_weighted, observation_weights, BlockMesh, Mesh, Weighting};
-use crate::geometry::RigidTransform;
+use crate::geometry::{CameraModel, Distortion, RigidTransform};
 use crate::gpu_context::GpuContext;
 use crate::image::Rgba8Image;
 
